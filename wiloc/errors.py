@@ -1,0 +1,31 @@
+"""Errors that reach the user as one line, and the exit codes they map to."""
+from __future__ import annotations
+
+from pathlib import Path
+
+EXIT_OK = 0
+EXIT_BAD_INPUT = 1
+EXIT_USAGE = 2
+EXIT_BUSY = 3
+EXIT_INTERRUPTED = 130
+
+
+class WilocError(Exception):
+    """A problem with the user's input: printed as one line naming the file, never a traceback."""
+
+    exit_code = EXIT_BAD_INPUT
+
+    def __init__(self, where: str | Path | None, problem: str) -> None:
+        self.where = None if where is None else str(where)
+        self.problem = problem
+        super().__init__(f"{self.where}: {problem}" if self.where else problem)
+
+
+class FrameError(WilocError):
+    """One image could not be used (unreadable, truncated, unsupported); the frame is left out."""
+
+
+class CacheBusyError(WilocError):
+    """Another wiloc process holds the cache entry this one needs."""
+
+    exit_code = EXIT_BUSY

@@ -1,0 +1,98 @@
+"""The histogram probability model P(L | d) of the paper's section III.B.
+
+Two histograms over the same bins of the difference d: ``b`` counts same-place samples
+(d and L), ``c`` counts different-place samples (d and not L). Values outside the bin range are
+clamped into the edge bins. Empty bins never give 0/0: every bin gets an additive pseudo-count
+``smoothing`` before normalising (see docs/algorithm.md for the choice).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+@dataclass
+class HistogramModel:
+    """Same-place (``b``) and different-place (``c``) histograms over fixed bin edges."""
+
+    edges: NDArray[np.float64]
+    smoothing: float = 1.0
+    prior: float | None = None
+    b: NDArray[np.float64] = field(default=None)  # type: ignore[assignment]
+    c: NDArray[np.float64] = field(default=None)  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        self.edges = np.asarray(self.edges, dtype=np.float64)
+        if self.edges.ndim != 1 or self.edges.size < 2 or np.any(np.diff(self.edges) <= 0):
+            raise ValueError("edges must be a strictly increasing 1-D array of at least 2 values")
+        if self.b is None:
+            self.b = np.zeros(self.n_bins, dtype=np.float64)
+        if self.c is None:
+            self.c = np.zeros(self.n_bins, dtype=np.float64)
+        self.b = np.asarray(self.b, dtype=np.float64)
+        self.c = np.asarray(self.c, dtype=np.float64)
+
+    @classmethod
+    def from_range(cls, low: float, high: float, bins: int = 100, **kwargs: float | None) -> "HistogramModel":
+        """A model with ``bins`` equal bins spanning [low, high]."""
+        if not high > low:
+            high = low + max(abs(low), 1.0) * 1e-6
+        return cls(np.linspace(low, high, bins + 1), **kwargs)  # type: ignore[arg-type]
+
+    @property
+    def n_bins(self) -> int:
+        return int(self.edges.size - 1)
+
+    def bin_of(self, d: ArrayLike) -> NDArray[np.intp]:
+        """Bin index of each difference, clamped into [0, n_bins - 1]."""
+        idx = np.searchsorted(self.edges, np.asarray(d, dtype=np.float64), side="right") - 1
+        return np.clip(idx, 0, self.n_bins - 1)
+
+    def add_same(self, d: ArrayLike) -> None:
+        """Count difference(s) as same-place samples (``b``)."""
+        np.add.at(self.b, self.bin_of(np.atleast_1d(d)), 1.0)
+
+    def add_different(self, d: ArrayLike) -> None:
+        """Count difference(s) as different-place samples (``c``)."""
+        np.add.at(self.c, self.bin_of(np.atleast_1d(d)), 1.0)
+
+    def _density(self, counts: NDArray[np.float64]) -> NDArray[np.float64]:
+        smoothed = counts + self.smoothing
+        total = smoothed.sum()
+        if total <= 0:
+            return np.full(self.n_bins, 1.0 / self.n_bins)
+        return smoothed / total
+
+    def p_d_given_same(self, d: ArrayLike) -> NDArray[np.float64]:
+        """P(d | L) per value: the smoothed share of ``b`` in the value's bin."""
+        return self._density(self.b)[self.bin_of(d)]
+
+    def p_d_given_different(self, d: ArrayLike) -> NDArray[np.float64]:
+        """P(d | not L) per value: the smoothed share of ``c`` in the value's bin."""
+        return self._density(self.c)[self.bin_of(d)]
+
+    def prior_same(self) -> float:
+        """P(L): the configured prior, else the share of samples in ``b`` (0.5 when both empty)."""
+        if self.prior is not None:
+            return float(self.prior)
+        nb, nc = float(self.b.sum()), float(self.c.sum())
+        return 0.5 if nb + nc == 0 else nb / (nb + nc)
+
+    def posterior(self, d: ArrayLike) -> NDArray[np.float64]:
+        """P(L | d) by Bayes' rule (paper eq. 2 with the marginal of eq. 6)."""
+        prior = self.prior_same()
+        same = self.p_d_given_same(d) * prior
+        diff = self.p_d_given_different(d) * (1.0 - prior)
+        return same / (same + diff)
+
+    def to_dict(self) -> dict[str, list[float] | float | None]:
+        """Plain lists for saving the model with a run."""
+        return {"edges": self.edges.tolist(), "b": self.b.tolist(), "c": self.c.tolist(),
+                "smoothing": self.smoothing, "prior": self.prior}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "HistogramModel":
+        return cls(np.asarray(data["edges"]), smoothing=float(data.get("smoothing", 1.0)),
+                   prior=data.get("prior"), b=np.asarray(data["b"]), c=np.asarray(data["c"]))
