@@ -1,0 +1,41 @@
+"""Shared fixtures: where the real datasets are, and small generated images."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _data_root() -> Path | None:
+    env = os.environ.get("WILOC_DATA")
+    root = Path(env) if env else REPO.parent / "shared" / "data"
+    return root if root.is_dir() else None
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if _data_root() is not None:
+        return
+    skip = pytest.mark.skip(reason="real datasets not found: set WILOC_DATA")
+    for item in items:
+        if "realdata" in item.keywords:
+            item.add_marker(skip)
+
+
+@pytest.fixture(scope="session")
+def data_root() -> Path:
+    """The folder holding gardens-point-walking/ and nordland-summer-winter-64x32/."""
+    root = _data_root()
+    if root is None:
+        pytest.skip("real datasets not found: set WILOC_DATA")
+    return root
+
+
+@pytest.fixture
+def cache_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A private cache folder, also set as WILOC_CACHE so subprocesses use it."""
+    path = tmp_path / "cache"
+    monkeypatch.setenv("WILOC_CACHE", str(path))
+    return path

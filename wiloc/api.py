@@ -1,0 +1,327 @@
+"""The four verbs as plain Python functions returning data: describe, localize, evaluate, compare.
+
+The CLI and the demo call these; so can a notebook. Nothing here prints. Long steps report through
+``progress(stage, done, total)``, where ``stage`` names the step ("describe day_left", ...).
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from wiloc import __version__
+from wiloc.cache import Cache, Entry
+from wiloc.describe import DescribeReport, describe_folder, import_matrix, load_entry
+from wiloc.descriptors.registry import get_descriptor
+from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matrix
+from wiloc.errors import WilocError
+from wiloc.groundtruth import Truth, load_truth, restrict_sequence
+from wiloc.methods.base import Decisions
+from wiloc.metrics import PRCurve, Summary, global_threshold, precision_at_thresholds, summarize
+from wiloc.results import Results, read_results, write_results
+
+Progress = Callable[[str, int, int], None]
+METHODS = ("online", "threshold", "trained", "catgraph")
+
+
+def _stage(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
+    """A per-step ``progress(done, total)`` callback that tags the step's label."""
+    if progress is None:
+        return None
+    return lambda done, total: progress(label, done, total)
+
+
+# ----------------------------------------------------------------------------------------- describe
+
+def describe(folders: Sequence[Path], descriptor: str = "sad", *,
+             descriptor_params: Mapping[str, Any] | None = None, cache: Cache | None = None,
+             jobs: int | None = None, progress: Progress | None = None) -> list[DescribeReport]:
+    """Compute (or reuse from the cache) one descriptor per image of each folder."""
+    spec = get_descriptor(descriptor, **dict(descriptor_params or {}))
+    cache = cache or Cache()
+    return [describe_folder(Path(folder), spec, cache, jobs=jobs,
+                            progress=_stage(progress, f"describe {Path(folder).name}"))
+            for folder in folders]
+
+
+def import_descriptors(path: Path, *, metric: str, names: Path | None = None,
+                       cache: Cache | None = None) -> DescribeReport:
+    """Bring an external N x D descriptor matrix (NetVLAD, ...) into the cache."""
+    return import_matrix(Path(path), cache or Cache(), names, metric)
+
+
+# ----------------------------------------------------------------------------------------- localize
+
+@dataclass(frozen=True)
+class Training:
+    """A labelled traversal pair for the ``trained`` comparator."""
+
+    query: Path
+    reference: Path
+    truth: "TruthSource"
+
+
+@dataclass(frozen=True)
+class TruthSource:
+    """Which ground truth to use: a form (SPEC.md section 7) and its files and tolerances.
+
+    ``path`` and ``ref_path`` may contain ``{query}``, replaced by the query folder's name, so that
+    several query traversals can each find their own file.
+    """
+
+    kind: str = "aligned"
+    path: str | None = None
+    ref_path: str | None = None
+    tolerance: int = 0
+    radius: float = 0.0
+    by: str = "name"
+
+    def load(self, query_names: list[str], ref_names: list[str], query_folder: str,
+             sequence: bool, exclude_recent: int) -> Truth:
+        """The truth matrix over these frames (sequence mode: earlier frames outside +-R only)."""
+        name = Path(query_folder).name
+        path = Path(self.path.format(query=name)) if self.path else None
+        ref_path = Path(self.ref_path.format(query=name)) if self.ref_path else None
+        truth = load_truth(self.kind, path, query_names=query_names, ref_names=ref_names,
+                           tolerance=self.tolerance, radius=self.radius, ref_path=ref_path,
+                           by=self.by)
+        return restrict_sequence(truth, exclude_recent) if sequence else truth
+
+
+@dataclass
+class LocalizeRun:
+    """One query traversal localized: the decisions, where they were written, and the timing."""
+
+    query: Path
+    reference: Path
+    method: str
+    decisions: Decisions
+    results: Results
+    path: Path
+    seconds: float
+    query_names: list[str] = field(default_factory=list)
+
+
+def _entry(source: Path, descriptor: str, descriptor_params: Mapping[str, Any], metric: str | None,
+           cache: Cache, jobs: int | None, progress: Progress | None) -> Entry:
+    """Descriptors of a folder (computed on demand) or of an imported matrix file."""
+    source = Path(source)
+    if source.is_file():
+        if metric is None:
+            raise WilocError(source, "a descriptor matrix file needs --metric")
+        return import_matrix(source, cache, None, metric).entry
+    spec = get_descriptor(descriptor, **dict(descriptor_params))
+    entry = load_entry(source, spec, cache, jobs=jobs, progress=_stage(progress, f"describe {source.name}"))
+    if len(entry.names) == 0:
+        raise WilocError(source, "no usable frames (every image failed to load)")
+    if entry.data.dtype.kind == "f" and not np.all(np.isfinite(entry.data)):
+        bad = entry.names[int(np.flatnonzero(~np.all(np.isfinite(entry.data), axis=1))[0])]
+        raise WilocError(source, f"descriptor of frame '{bad}' holds NaN or infinite values")
+    return entry
+
+
+def _banded_rows(matrix: DifferenceMatrix, exclude_recent: int) -> Iterator[np.ndarray]:
+    """Reference-against-reference rows with each frame's own +-R neighbourhood excluded."""
+    for k, row in enumerate(matrix.iter_rows()):
+        row[max(0, k - exclude_recent):k + exclude_recent + 1] = np.inf
+        yield row
+
+
+def _run_method(method: str, matrix: DifferenceMatrix, self_matrix: DifferenceMatrix, *,
+                sequence: bool, exclude_recent: int, params: dict[str, Any], natural_max: float | None,
+                training: Callable[[], tuple[Any, Any]] | None, steps: tuple[Any, Any],
+                progress: Callable[[int, int], None] | None) -> Decisions:
+    """Dispatch to one method with the rows it needs."""
+    n = matrix.shape[0]
+    rows = candidate_rows(matrix, sequence, exclude_recent)
+    if method == "online":
+        from wiloc.methods.online import localize_online
+        init_rows = None if sequence else _banded_rows(self_matrix, exclude_recent)
+        return localize_online(rows, n, sequence=sequence, init_rows=init_rows, progress=progress, **params)
+    if method == "threshold":
+        from wiloc.methods.threshold import localize_threshold
+        return localize_threshold(rows, n, normaliser=natural_max, **params)
+    if method == "trained":
+        from wiloc.methods.trained import localize_trained, train_model
+        if training is None:
+            raise WilocError(None, "--method trained needs --train-query, --train-map and --train-gt")
+        train_rows, labels = training()
+        model_params = {k: v for k, v in params.items() if k in ("bins", "smoothing")}
+        return localize_trained(rows, n, train_model(train_rows, labels, **model_params))
+    if method == "catgraph":
+        from wiloc.methods.catgraph import localize_catgraph
+        if sequence:
+            raise WilocError(None, "--method catgraph needs --map (a reference trajectory)")
+        ref_arclength, query_steps = steps
+        return localize_catgraph(rows, self_matrix.rows(0, self_matrix.shape[0]).astype(np.float64), n,
+                                 ref_arclength=ref_arclength, query_steps=query_steps,
+                                 exclude_recent=exclude_recent, progress=progress, **params)
+    raise WilocError(None, f"unknown method '{method}' (choose from {', '.join(METHODS)})")
+
+
+def default_exclude_recent() -> int:
+    """R, the recent-frame window (chosen by measurement, see docs/algorithm.md)."""
+    from wiloc.methods.online import DEFAULT_EXCLUDE_RECENT
+    return int(DEFAULT_EXCLUDE_RECENT)
+
+
+def localize(query: Path, *, reference: Path | None = None, descriptor: str = "sad",
+             descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
+             method: str = "online", method_params: Mapping[str, Any] | None = None,
+             exclude_recent: int | None = None, training: Training | None = None,
+             query_odometry: Path | None = None, ref_odometry: Path | None = None,
+             out: Path | None = None, cache: Cache | None = None, jobs: int | None = None,
+             progress: Progress | None = None) -> LocalizeRun:
+    """Localize every frame of ``query`` (against ``reference``, or within itself) and write results."""
+    if method not in METHODS:
+        raise WilocError(None, f"unknown method '{method}' (choose from {', '.join(METHODS)})")
+    started = time.perf_counter()
+    cache = cache or Cache()
+    params = dict(method_params or {})
+    dparams = dict(descriptor_params or {})
+    R = default_exclude_recent() if exclude_recent is None else int(exclude_recent)
+    sequence = reference is None
+    query = Path(query)
+    q = _entry(query, descriptor, dparams, metric, cache, jobs, progress)
+    r = q if sequence else _entry(Path(reference), descriptor, dparams, metric, cache, jobs, progress)
+    if not sequence and len(r.names) < 2:
+        raise WilocError(reference, f"the map has {len(r.names)} frame(s); it needs at least 2")
+    init = int(params.get("init", 0) or 0)
+    if sequence and method == "online" and len(q.names) <= init + R:
+        raise WilocError(query, f"has {len(q.names)} frames, too few for --init {init} "
+                                f"with --exclude-recent {R}")
+    matrix = difference_matrix(q, r, cache, progress=_stage(progress, "differences"))
+    self_matrix = matrix if sequence else difference_matrix(r, r, cache, progress=_stage(progress, "map differences"))
+
+    def training_data() -> tuple[Any, Any]:
+        assert training is not None
+        tq = _entry(training.query, descriptor, dparams, metric, cache, jobs, progress)
+        tr = _entry(training.reference, descriptor, dparams, metric, cache, jobs, progress)
+        tmatrix = difference_matrix(tq, tr, cache, progress=_stage(progress, "training differences"))
+        truth = training.truth.load(tq.names, tr.names, str(training.query), False, R)
+        return list(candidate_rows(tmatrix, False, R)), truth.matrix
+
+    steps = _motion(query_odometry, ref_odometry, q.names, r.names) if method == "catgraph" else (None, None)
+    decisions = _run_method(method, matrix, self_matrix, sequence=sequence, exclude_recent=R,
+                            params=params, natural_max=getattr(r, "natural_max", None),
+                            training=training_data if training else None, steps=steps,
+                            progress=_stage(progress, f"{method} {query.name}"))
+    meta = {"method": method, "descriptor": descriptor if not query.is_file() else f"external:{q.metric}",
+            "descriptor_params": dparams, "metric": q.metric, "mode": "sequence" if sequence else "map",
+            "query": str(query.resolve()), "map": str(Path(reference).resolve()) if reference else "",
+            "exclude_recent": R, "wiloc": __version__}
+    if training:
+        meta.update(train_query=str(training.query), train_map=str(training.reference))
+    path = Path(out) if out else Path.cwd() / f"{query.stem if query.is_file() else query.name}-{method}.csv"
+    results = write_results(path, decisions, query_names=q.names, ref_names=r.names,
+                            meta={k: (v if isinstance(v, (str, int, float)) else str(v)) for k, v in meta.items()})
+    return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
+                       decisions=decisions, results=results, path=path,
+                       seconds=time.perf_counter() - started, query_names=list(q.names))
+
+
+def _motion(query_odometry: Path | None, ref_odometry: Path | None, query_names: list[str],
+            ref_names: list[str]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Reference arc length per node and query step per frame from odometry CSVs, when given."""
+    from wiloc.odometry import read_arclength
+    ref = read_arclength(ref_odometry, ref_names) if ref_odometry else None
+    query = read_arclength(query_odometry, query_names) if query_odometry else None
+    steps = None if query is None else np.diff(query, prepend=query[0])
+    return ref, steps
+
+
+# ----------------------------------------------------------------------------------------- evaluate
+
+@dataclass
+class Evaluation:
+    """One results file scored against ground truth."""
+
+    path: Path
+    results: Results
+    truth: Truth
+    correct: np.ndarray
+    summary: Summary
+
+    @property
+    def traversal(self) -> str:
+        return Path(str(self.results.meta.get("query", self.path.stem))).name
+
+    @property
+    def method(self) -> str:
+        return self.results.method
+
+    @property
+    def curve(self) -> PRCurve:
+        return self.summary.curve
+
+
+def evaluate(path: Path, truth: TruthSource) -> Evaluation:
+    """Precision-recall metrics of one results file against ground truth."""
+    results = read_results(Path(path))
+    query_names = results.frames["frame"].tolist()
+    sequence = results.meta.get("mode") == "sequence"
+    ref_names = results.reference_frames or query_names
+    loaded = truth.load(query_names, ref_names, str(results.meta.get("query", "")), sequence,
+                        int(results.meta.get("exclude_recent", 0) or 0))
+    match = results.match_index
+    summary = summarize(match, results.confidence, loaded)
+    correct = loaded.is_true(np.arange(len(match)), match)
+    return Evaluation(path=Path(path), results=results, truth=loaded, correct=correct, summary=summary)
+
+
+# ------------------------------------------------------------------------------------------ compare
+
+@dataclass
+class Comparison:
+    """Methods x traversals side by side: the paper's Table I and Table II."""
+
+    evaluations: list[Evaluation]
+    table1: pd.DataFrame
+    table2: pd.DataFrame
+
+
+def _label(evaluation: Evaluation, with_descriptor: bool) -> str:
+    meta = evaluation.results.meta
+    return f"{evaluation.method}/{meta.get('descriptor')}" if with_descriptor else evaluation.method
+
+
+def compare(paths: Sequence[Path], truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
+            global_thresholds: bool = True) -> Comparison:
+    """Table I (recall at 100/99/90 % precision per traversal and method) and Table II."""
+    evaluations = [evaluate(Path(p), truth) for p in paths]
+    with_descriptor = len({e.results.meta.get("descriptor") for e in evaluations}) > 1
+    rows = []
+    for e in evaluations:
+        s = e.summary.as_dict()
+        rows.append({"method": _label(e, with_descriptor), "traversal": e.traversal,
+                     "recall@100": s["recall_at_100"], "recall@99": s["recall_at_99"],
+                     "recall@90": s["recall_at_90"], "auc": s["auc"], "R@1": s["recall_at_1"],
+                     "frames": s["frames"]})
+    table1 = pd.DataFrame(rows)
+    rows2 = []
+    if global_thresholds:
+        by_method: dict[str, list[Evaluation]] = {}
+        for e in evaluations:
+            by_method.setdefault(_label(e, with_descriptor), []).append(e)
+        for method, group in by_method.items():
+            inputs = [(e.results.confidence, e.correct, int(e.summary.as_dict()["with_true_match"])) for e in group]
+            for target in precisions:
+                threshold, recalls = global_threshold(inputs, float(target) / 100.0)
+                worst = int(np.argmin(recalls)) if len(recalls) else -1
+                for i, (e, recall) in enumerate(zip(group, recalls)):
+                    rows2.append({"method": method, "precision": float(target), "threshold": threshold,
+                                  "traversal": e.traversal, "recall": recall, "worst": i == worst})
+    table2 = pd.DataFrame(rows2, columns=["method", "precision", "threshold", "traversal", "recall", "worst"])
+    return Comparison(evaluations=evaluations, table1=table1, table2=table2)
+
+
+def threshold_series(evaluations: Sequence[Evaluation], points: int = 201) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Precision against normalised threshold per method and traversal (the paper's Figure 5)."""
+    grid = np.linspace(0.0, 1.0, points)
+    return {f"{e.method} {e.traversal}": (grid, precision_at_thresholds(e.results.confidence, e.correct, grid))
+            for e in evaluations}

@@ -1,0 +1,432 @@
+"""The HDF5 descriptor cache: entry keys, per-frame fingerprints, a crash-safe journal, atomic
+writes, a per-entry cross-process lock, and listing.
+
+One entry per (resolved folder, descriptor name, descriptor params) lives in
+``<root>/descriptors/<key>.h5`` (layout in docs/formats.md). HDF5 files are never written in place:
+every write goes to a temporary file beside the target and is renamed onto it, so a kill leaves
+either the old file or the new one. Frames finished during a run are appended to
+``<key>.journal`` (one CRC-checked record each), which the next run folds into the HDF5 file.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import secrets
+import struct
+import zlib
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import platformdirs
+from filelock import FileLock, Timeout
+
+from wiloc import __version__
+from wiloc.errors import CacheBusyError, WilocError
+
+FORMAT = "wiloc-descriptors"
+FORMAT_VERSION = 1
+#: Seconds a process waits for another one holding the same entry before CacheBusyError: long
+#: enough to ride out a concurrent fold or a small describe, short enough to report a stuck run.
+DEFAULT_LOCK_TIMEOUT = 60.0
+TEMP_SUFFIX = ".wiloc-tmp"
+_DESCRIPTORS = "descriptors"
+_RECORD = struct.Struct("<4sII")  # magic, payload length, CRC-32 of the payload
+_MAGIC = b"WJR1"
+_JSON_LENGTH = struct.Struct("<I")
+
+
+@dataclass(frozen=True)
+class EntryHeader:
+    """What identifies an entry and how to read its rows."""
+
+    key: str
+    folder: str
+    descriptor: str
+    params: dict[str, Any]
+    metric: str
+    scale: float
+    natural_max: float | None
+    dtype: str
+    length: int
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One frame of an entry: its fingerprint and either its descriptor row or why it failed."""
+
+    name: str
+    size: int
+    mtime_ns: int
+    digest: str
+    row: np.ndarray | None
+    reason: str = ""
+    width: int = 0
+    height: int = 0
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A complete cached descriptor matrix: rows in frame order, named by file name."""
+
+    key: str
+    folder: str
+    descriptor: str
+    params: dict[str, Any]
+    metric: str
+    scale: float
+    natural_max: float | None
+    names: list[str]
+    data: np.ndarray
+    digest: str
+
+
+@dataclass(frozen=True)
+class EntryInfo:
+    """One line of `Cache.list_entries`."""
+
+    key: str
+    folder: str
+    descriptor: str
+    params: dict[str, Any]
+    frames: int
+    complete: bool
+    size: int
+    updated: str
+
+
+@dataclass
+class StoredEntry:
+    """An entry as found on disk: its header, frame records by name, and bookkeeping."""
+
+    header: EntryHeader
+    records: dict[str, FrameRecord] = field(default_factory=dict)
+    complete: bool = False
+    created: str = ""
+    journaled: bool = False
+
+
+def entry_key(folder: str, descriptor: str, params: dict[str, Any]) -> str:
+    """The key of an entry: a hash of the resolved folder, descriptor name and params."""
+    text = json.dumps([folder, descriptor, params], sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def entry_digest(header: EntryHeader, records: Iterable[FrameRecord]) -> str:
+    """A hash over descriptor params, names and row fingerprints: changes whenever the rows do."""
+    h = hashlib.sha256(json.dumps([header.descriptor, header.params], sort_keys=True).encode())
+    for record in records:
+        h.update(f"{record.name}\0{record.digest}\n".encode())
+    return h.hexdigest()
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class Journal:
+    """Append-only record of finished frames; one CRC-checked record per write, torn tails ignored."""
+
+    def __init__(self, path: Path, header: EntryHeader) -> None:
+        self.path = path
+        self._dtype = np.dtype(header.dtype)
+        found, _, valid = _scan_journal(path)
+        if found != header:
+            valid = 0
+        with open(path, "ab") as f:
+            f.truncate(valid)
+        self._file = open(path, "ab", buffering=0)
+        if valid == 0:
+            self._write(json.dumps(_header_to_json(header)).encode(), b"")
+
+    def append(self, record: FrameRecord) -> None:
+        """Write one frame record; it reaches the OS before this returns, so SIGKILL keeps it."""
+        meta = {
+            "name": record.name, "size": record.size, "mtime_ns": record.mtime_ns,
+            "digest": record.digest, "reason": record.reason,
+            "width": record.width, "height": record.height,
+        }
+        row = b"" if record.row is None else np.ascontiguousarray(record.row, self._dtype).tobytes()
+        self._write(json.dumps(meta).encode(), row)
+
+    def _write(self, meta: bytes, row: bytes) -> None:
+        payload = _JSON_LENGTH.pack(len(meta)) + meta + row
+        self._file.write(_RECORD.pack(_MAGIC, len(payload), zlib.crc32(payload)) + payload)
+
+    def close(self) -> None:
+        """Close the file (records are already written)."""
+        self._file.close()
+
+
+def _scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], int]:
+    """A journal's header, its valid frame records and the byte length they span; reading stops
+    at the first torn or corrupt record (a kill mid-write), which the next writer truncates."""
+    try:
+        blob = path.read_bytes()
+    except FileNotFoundError:
+        return None, [], 0
+    header, records, offset = None, [], 0
+    while offset + _RECORD.size <= len(blob):
+        magic, length, crc = _RECORD.unpack_from(blob, offset)
+        payload = blob[offset + _RECORD.size: offset + _RECORD.size + length]
+        if magic != _MAGIC or len(payload) != length or zlib.crc32(payload) != crc:
+            break
+        (meta_len,) = _JSON_LENGTH.unpack_from(payload)
+        meta = json.loads(payload[_JSON_LENGTH.size: _JSON_LENGTH.size + meta_len])
+        if header is None:
+            if "key" not in meta:
+                break
+            header = EntryHeader(**meta)
+        else:
+            row = payload[_JSON_LENGTH.size + meta_len:]
+            values = np.frombuffer(row, header.dtype) if meta["reason"] == "" else None
+            records.append(FrameRecord(row=values, **meta))
+        offset += _RECORD.size + length
+    return header, records, offset
+
+
+def _header_to_json(header: EntryHeader) -> dict[str, Any]:
+    return {
+        "key": header.key, "folder": header.folder, "descriptor": header.descriptor,
+        "params": header.params, "metric": header.metric, "scale": header.scale,
+        "natural_max": header.natural_max, "dtype": header.dtype, "length": header.length,
+    }
+
+
+class Cache:
+    """The descriptor cache under one root folder (default: $WILOC_CACHE, else the user cache dir)."""
+
+    def __init__(self, root: Path | None = None, lock_timeout: float = DEFAULT_LOCK_TIMEOUT) -> None:
+        if root is None:
+            env = os.environ.get("WILOC_CACHE")
+            root = Path(env) if env else Path(platformdirs.user_cache_dir("wiloc"))
+        self.root = Path(root).expanduser().resolve()
+        self.lock_timeout = lock_timeout
+        try:
+            (self.root / _DESCRIPTORS).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise WilocError(self.root, f"cannot create the cache folder ({exc.strerror})") from exc
+        self.clean_temp_files()
+
+    # -- primitives shared with other modules -------------------------------------------------
+
+    @contextmanager
+    def lock(self, name: str, timeout: float | None = None) -> Iterator[None]:
+        """Hold the cross-process lock on `name`, a path relative to the root naming what it guards
+        (e.g. ``descriptors/<key>.h5``). Waits up to `timeout` seconds (default: the cache's
+        `lock_timeout`), then raises CacheBusyError naming the holder's pid. Re-entrant."""
+        target = self._inside(name)
+        lock_path = target.with_name(target.name + ".lock")
+        owner_path = target.with_name(target.name + ".owner")
+        lock_path.parent.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(lock_path, is_singleton=True)
+        try:
+            lock.acquire(timeout=self.lock_timeout if timeout is None else timeout)
+        except Timeout:
+            try:
+                pid = owner_path.read_text().strip() or "unknown"
+            except FileNotFoundError:
+                pid = "unknown"
+            raise CacheBusyError(target, f"in use by another wiloc process (pid {pid})") from None
+        try:
+            if lock.lock_counter == 1:
+                owner_path.write_text(f"{os.getpid()}\n")
+            yield
+        finally:
+            lock.release()
+
+    @contextmanager
+    def atomic_h5(self, path: Path) -> Iterator[h5py.File]:
+        """Yield an HDF5 file open for writing on a temporary file beside `path`; rename it onto
+        `path` only when the block succeeds, so readers never see a half-written file."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{TEMP_SUFFIX}")
+        try:
+            with h5py.File(temp, "w") as f:
+                yield f
+            with open(temp, "rb+") as f:
+                os.fsync(f.fileno())
+            os.replace(temp, path)
+        finally:
+            temp.unlink(missing_ok=True)
+        directory = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(directory)
+        finally:
+            os.close(directory)
+
+    def clean_temp_files(self) -> list[Path]:
+        """Delete temporary files whose writing process is gone; return what was deleted."""
+        removed = []
+        for temp in self.root.rglob(f"*{TEMP_SUFFIX}"):
+            pid_text = temp.name[: -len(TEMP_SUFFIX)].rsplit(".", 2)[-2]
+            if pid_text.isdigit() and not _pid_alive(int(pid_text)):
+                temp.unlink(missing_ok=True)
+                removed.append(temp)
+        return removed
+
+    def _inside(self, name: str) -> Path:
+        relative = Path(name)
+        if relative.is_absolute() or ".." in relative.parts or not relative.parts:
+            raise ValueError(f"cache name must be a relative path inside the cache: {name!r}")
+        return self.root / relative
+
+    # -- descriptor entries -------------------------------------------------------------------
+
+    def entry_name(self, key: str) -> str:
+        """The name (relative path) of an entry's HDF5 file, as passed to `lock`."""
+        return f"{_DESCRIPTORS}/{key}.h5"
+
+    def entry_path(self, key: str) -> Path:
+        """Where an entry's HDF5 file lives."""
+        return self.root / self.entry_name(key)
+
+    def journal_path(self, key: str) -> Path:
+        """Where an entry's journal lives."""
+        return self.root / _DESCRIPTORS / f"{key}.journal"
+
+    def open_journal(self, header: EntryHeader) -> Journal:
+        """Open the entry's journal for appending (call with the entry lock held)."""
+        return Journal(self.journal_path(header.key), header)
+
+    def read_stored(self, key: str) -> StoredEntry | None:
+        """The entry's HDF5 contents with its journal folded in (in memory), or None if absent."""
+        path = self.entry_path(key)
+        stored = None
+        if path.exists():
+            try:
+                stored = _read_h5(path)
+            except (OSError, KeyError, ValueError) as exc:
+                raise WilocError(path, f"unreadable cache entry ({exc}); delete it to rebuild") from exc
+        header, records, _ = _scan_journal(self.journal_path(key))
+        if header is None:
+            return stored
+        if stored is None or stored.header != header:
+            stored = StoredEntry(header, created=_now())
+        stored.records.update((r.name, r) for r in records)
+        stored.journaled = bool(records)
+        stored.complete = stored.complete and not records
+        return stored
+
+    def write_entry(self, stored: StoredEntry, order: list[str], complete: bool) -> None:
+        """Write the entry with the records named in `order` (in that order) atomically, then
+        drop its journal, whose records are now in the file. Call with the entry lock held."""
+        header = stored.header
+        records = [stored.records[name] for name in order]
+        good = [r for r in records if r.row is not None]
+        bad = [r for r in records if r.row is None]
+        data = np.empty((len(good), header.length), np.dtype(header.dtype))
+        for i, record in enumerate(good):
+            data[i] = record.row
+        text = h5py.string_dtype()
+        with self.atomic_h5(self.entry_path(header.key)) as f:
+            attrs = _header_to_json(header)
+            attrs.update(
+                format=FORMAT, format_version=FORMAT_VERSION, params=json.dumps(header.params, sort_keys=True),
+                natural_max=np.nan if header.natural_max is None else header.natural_max,
+                wiloc_version=__version__, created=stored.created or _now(), updated=_now(),
+                complete=complete, digest=entry_digest(header, good),
+            )
+            f.attrs.update(attrs)
+            f.create_dataset("descriptors", data=data)
+            for group, rows in (("frames", good), ("failed", bad)):
+                g = f.create_group(group)
+                g.create_dataset("name", data=[r.name for r in rows], dtype=text)
+                g.create_dataset("size", data=np.array([r.size for r in rows], np.int64))
+                g.create_dataset("mtime_ns", data=np.array([r.mtime_ns for r in rows], np.int64))
+                g.create_dataset("digest", data=[r.digest for r in rows], dtype=text)
+                if group == "frames":
+                    g.create_dataset("width", data=np.array([r.width for r in rows], np.int32))
+                    g.create_dataset("height", data=np.array([r.height for r in rows], np.int32))
+                else:
+                    g.create_dataset("reason", data=[r.reason for r in rows], dtype=text)
+        self.journal_path(header.key).unlink(missing_ok=True)
+        stored.records = {r.name: r for r in records}
+        stored.complete = complete
+        stored.journaled = False
+
+    def read_entry(self, key: str) -> Entry:
+        """The entry's descriptor matrix and names as last written to its HDF5 file."""
+        path = self.entry_path(key)
+        try:
+            with h5py.File(path, "r") as f:
+                header = _header_from_attrs(f.attrs)
+                return Entry(
+                    key=header.key, folder=header.folder, descriptor=header.descriptor,
+                    params=header.params, metric=header.metric, scale=header.scale,
+                    natural_max=header.natural_max, names=[n.decode() for n in f["frames/name"][()]],
+                    data=f["descriptors"][()], digest=str(f.attrs["digest"]),
+                )
+        except (OSError, KeyError) as exc:
+            raise WilocError(path, f"unreadable cache entry ({exc}); delete it to rebuild") from exc
+
+    def list_entries(self) -> list[EntryInfo]:
+        """Every descriptor entry in the cache, including ones only a killed run's journal holds."""
+        keys = sorted({p.stem for p in (self.root / _DESCRIPTORS).glob("*.h5")}
+                      | {p.stem for p in (self.root / _DESCRIPTORS).glob("*.journal")})
+        infos = []
+        for key in keys:
+            stored = self.read_stored(key)
+            if stored is None:
+                continue
+            files = [self.entry_path(key), self.journal_path(key)]
+            size = sum(p.stat().st_size for p in files if p.exists())
+            updated = datetime.fromtimestamp(max(p.stat().st_mtime for p in files if p.exists()), timezone.utc)
+            h = stored.header
+            infos.append(EntryInfo(
+                key=key, folder=h.folder, descriptor=h.descriptor, params=h.params,
+                frames=sum(r.row is not None for r in stored.records.values()),
+                complete=stored.complete, size=size, updated=updated.isoformat(timespec="seconds"),
+            ))
+        return infos
+
+
+def _header_from_attrs(attrs: h5py.AttributeManager) -> EntryHeader:
+    natural_max = float(attrs["natural_max"])
+    return EntryHeader(
+        key=str(attrs["key"]), folder=str(attrs["folder"]), descriptor=str(attrs["descriptor"]),
+        params=json.loads(attrs["params"]), metric=str(attrs["metric"]), scale=float(attrs["scale"]),
+        natural_max=None if np.isnan(natural_max) else natural_max,
+        dtype=str(attrs["dtype"]), length=int(attrs["length"]),
+    )
+
+
+def _read_h5(path: Path) -> StoredEntry:
+    with h5py.File(path, "r") as f:
+        header = _header_from_attrs(f.attrs)
+        stored = StoredEntry(header, complete=bool(a["complete"]), created=str(a["created"]))
+        data = f["descriptors"][()]
+        for group in ("frames", "failed"):
+            g = f[group]
+            names = [n.decode() for n in g["name"][()]]
+            digests = [d.decode() for d in g["digest"][()]]
+            sizes, mtimes = g["size"][()], g["mtime_ns"][()]
+            if group == "frames":
+                widths, heights = g["width"][()], g["height"][()]
+                for i, name in enumerate(names):
+                    stored.records[name] = FrameRecord(
+                        name, int(sizes[i]), int(mtimes[i]), digests[i], data[i],
+                        width=int(widths[i]), height=int(heights[i]))
+            else:
+                reasons = [r.decode() for r in g["reason"][()]]
+                for i, name in enumerate(names):
+                    stored.records[name] = FrameRecord(
+                        name, int(sizes[i]), int(mtimes[i]), digests[i], None, reasons[i])
+    return stored

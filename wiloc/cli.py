@@ -1,0 +1,440 @@
+"""The `wiloc` command line: parse options, call wiloc.api, render rich tables or JSON."""
+from __future__ import annotations
+
+import functools
+import json
+import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from wiloc import __version__, api
+from wiloc.errors import EXIT_INTERRUPTED, WilocError
+
+app = typer.Typer(
+    add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
+    help="Appearance-based localization with whole-image descriptors and a probability model "
+         "learned online.\n\nExample: [bold]wiloc demo[/bold], then\n\n"
+         "  wiloc localize data/day_left --map data/day_right --descriptor sad --method online")
+out = Console()
+err = Console(stderr=True)
+
+
+def _fail(message: str, code: int) -> None:
+    err.print(f"[bold red]error:[/bold red] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:
+    """One line and an exit code for input problems and Ctrl-C; never a traceback."""
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return func(*args, **kwargs)
+        except WilocError as exc:
+            _fail(str(exc), exc.exit_code)
+        except KeyboardInterrupt:
+            _fail("interrupted; finished work is kept in the cache, rerun to resume", EXIT_INTERRUPTED)
+    return wrapper
+
+
+@contextmanager
+def progress_bar(enabled: bool) -> Iterator[api.Progress | None]:
+    """A rich progress bar on stderr, one task per step label; None when disabled."""
+    if not enabled:
+        yield None
+        return
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    with Progress(*columns, console=err, transient=True) as bar:
+        tasks: dict[str, Any] = {}
+
+        def update(label: str, done: int, total: int) -> None:
+            if label not in tasks:
+                tasks[label] = bar.add_task(label, total=total)
+            bar.update(tasks[label], completed=done, total=total)
+        yield update
+
+
+def _json_ready(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if hasattr(value, "item"):
+        return _json_ready(value.item())
+    return value
+
+
+def _print_json(data: Any) -> None:
+    out.print_json(json.dumps(_json_ready(data)))
+
+
+def _table(title: str, rows: list[dict[str, Any]], columns: list[str] | None = None) -> Table:
+    columns = columns or (list(rows[0]) if rows else [])
+    table = Table(title=title)
+    for column in columns:
+        table.add_column(column, justify="left" if not rows or isinstance(rows[0].get(column), str) else "right")
+    for row in rows:
+        table.add_row(*[_cell(row.get(c)) for c in columns])
+    return table
+
+
+def _cell(value: Any) -> str:
+    if isinstance(value, bool):
+        return "yes" if value else ""
+    if isinstance(value, float):
+        return "-" if not math.isfinite(value) else f"{value:.3f}"
+    return "" if value is None else str(value)
+
+
+def _version(value: bool) -> None:
+    if value:
+        out.print(f"wiloc {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                      help="Print the version and exit.")) -> None:
+    """wiloc: have I been here before, where, and how sure am I?"""
+
+
+# ------------------------------------------------------------------------------------------ describe
+
+@app.command()
+@handles_errors
+def describe(
+    folders: list[Path] = typer.Argument(None, help="Image folders (one traversal each)."),
+    descriptor: str = typer.Option("sad", "--descriptor", "-d", help="sad | gist | brisk-gist"),
+    crop: str = typer.Option("none", help="sad only: none | top-half"),
+    import_file: Optional[Path] = typer.Option(None, "--import", help="External N x D matrix (.npy, .csv, .h5)."),
+    names: Optional[Path] = typer.Option(None, help="With --import .npy: text file of frame names, one a line."),
+    metric: str = typer.Option("l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
+    list_cache: bool = typer.Option(False, "--list", help="Show what the cache holds."),
+    cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Worker processes (default: all cores)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+) -> None:
+    """Compute whole-image descriptors of image folders into the HDF5 cache.
+
+    Example: wiloc describe data/gardens-point-walking/day_right --descriptor gist
+    """
+    from wiloc.cache import Cache
+    store = Cache(cache)
+    if list_cache:
+        rows = [info.as_dict() for info in store.list_entries()]
+        _print_json(rows) if as_json else out.print(_table(f"cache {store.root}", rows))
+        return
+    if import_file is None and not folders:
+        _fail("give image folders, --import FILE or --list", 2)
+    with progress_bar(not as_json) as progress:
+        if import_file is not None:
+            reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store)]
+        else:
+            params = {"crop": crop} if descriptor == "sad" else {}
+            reports = api.describe(folders, descriptor, descriptor_params=params, cache=store,
+                                   jobs=jobs, progress=progress)
+    rows = [{"folder": str(r.folder), "frames": r.frames, "descriptor": r.descriptor,
+             "shape": "x".join(map(str, r.shape)), "computed": r.computed, "reused": r.reused,
+             "failed": len(r.failed), "images/s": round(float(r.images_per_second), 1)} for r in reports]
+    if as_json:
+        _print_json([{**row, "failed_frames": [list(f) for f in r.failed], "ignored": list(r.ignored)}
+                     for row, r in zip(rows, reports)])
+    else:
+        out.print(_table("describe", rows))
+        for r in reports:
+            for name, reason in r.failed:
+                err.print(f"[yellow]skipped[/yellow] {Path(r.folder) / name}: {reason}", highlight=False)
+            if len(r.sizes) > 1:
+                err.print(f"[yellow]note[/yellow] {r.folder}: images of {len(r.sizes)} different sizes",
+                          highlight=False)
+    if any(r.frames == 0 for r in reports):
+        raise typer.Exit(1)
+
+
+# ------------------------------------------------------------------------------------------ localize
+
+@app.command()
+@handles_errors
+def localize(
+    queries: list[Path] = typer.Argument(..., help="Query traversal folder(s) (or descriptor matrix files)."),
+    reference: Optional[Path] = typer.Option(None, "--map", "-m", help="Reference traversal; omit for sequence mode (loop closure)."),
+    descriptor: str = typer.Option("sad", "--descriptor", "-d", help="sad | gist | brisk-gist"),
+    crop: str = typer.Option("none", help="sad only: none | top-half"),
+    metric: Optional[str] = typer.Option(None, help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
+    method: str = typer.Option("online", help="online | threshold | trained | catgraph"),
+    exclude_recent: Optional[int] = typer.Option(None, "--exclude-recent", "-R", help="Recent frames excluded as candidates (sequence mode) and around each map frame when initialising."),
+    init: Optional[int] = typer.Option(None, help="online: initialisation frames (default 100)."),
+    bins: Optional[int] = typer.Option(None, help="online/trained: histogram bins (default 100)."),
+    same_place_window: Optional[int] = typer.Option(None, "--same-place-window", "-W", help="online: frames within +-W of the best match are the same place."),
+    prior: Optional[float] = typer.Option(None, help="online: P(L); default: the share of same-place samples."),
+    smoothing: Optional[float] = typer.Option(None, help="online/trained: pseudo-count added to every histogram bin."),
+    train_query: Optional[Path] = typer.Option(None, help="trained: labelled training query traversal."),
+    train_map: Optional[Path] = typer.Option(None, help="trained: its reference traversal."),
+    train_gt: Optional[str] = typer.Option(None, help="trained: ground truth (aligned | positions | pairs | matrix, or a file)."),
+    train_tolerance: int = typer.Option(2, help="trained: +-frames for aligned ground truth."),
+    particles: Optional[int] = typer.Option(None, help="catgraph: number of particles."),
+    seed: Optional[int] = typer.Option(None, help="catgraph: random seed (runs are reproducible)."),
+    odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y)."),
+    map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV."),
+    out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Results file (a folder with several queries)."),
+    model_plot: Optional[Path] = typer.Option(None, help="online: draw the learned histograms (the paper's Figure 1)."),
+    cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Worker processes for describing."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+) -> None:
+    """Decide, frame by frame, where each query frame was seen before and how sure that is.
+
+    Example: wiloc localize data/day_left data/night_right --map data/day_right --method online
+    """
+    from wiloc.cache import Cache
+    store = Cache(cache)
+    params: dict[str, Any] = {}
+    if method in ("online",):
+        params = {"init": init, "bins": bins, "same_place_window": same_place_window,
+                  "prior": prior, "smoothing": smoothing}
+    elif method == "trained":
+        params = {"bins": bins, "smoothing": smoothing}
+    elif method == "catgraph":
+        params = {"particles": particles, "seed": seed}
+    params = {k: v for k, v in params.items() if v is not None}
+    training = None
+    if method == "trained":
+        if not (train_query and train_map and train_gt):
+            _fail("--method trained needs --train-query, --train-map and --train-gt", 2)
+        training = api.Training(train_query, train_map, _truth_source(train_gt, None, train_tolerance, 0.0))
+    if len(queries) > 1 and out_path is not None and out_path.suffix:
+        _fail(f"{out_path}: with several queries --out names a folder", 2)
+    runs = []
+    with progress_bar(not as_json) as progress:
+        for query in queries:
+            target = None
+            if out_path is not None:
+                target = out_path / f"{query.stem if query.is_file() else query.name}-{method}.csv" \
+                    if len(queries) > 1 else out_path
+            runs.append(api.localize(query, reference=reference, descriptor=descriptor,
+                                     descriptor_params={"crop": crop} if descriptor == "sad" else {},
+                                     metric=metric, method=method, method_params=params,
+                                     exclude_recent=exclude_recent, training=training,
+                                     query_odometry=odometry, ref_odometry=map_odometry, out=target,
+                                     cache=store, jobs=jobs, progress=progress))
+    rows = []
+    for run in runs:
+        d = run.decisions
+        conf = d.confidence[d.decided]
+        rows.append({"query": run.query.name, "method": run.method, "frames": len(d),
+                     "decided": int(d.decided.sum()),
+                     "median confidence": float(sorted(conf)[len(conf) // 2]) if len(conf) else float("nan"),
+                     "seconds": round(run.seconds, 2), "results": str(run.path)})
+    if model_plot is not None:
+        from wiloc.plots import plot_model
+        models = [r for r in runs if r.decisions.model is not None]
+        if not models:
+            _fail(f"{model_plot}: method '{method}' has no histogram model to draw", 2)
+        plot_model(models[0].decisions.model, model_plot, title=f"{models[0].query.name} ({method})")
+    if as_json:
+        _print_json(rows)
+    else:
+        out.print(_table("localize", rows))
+        if model_plot is not None:
+            out.print(f"model plot: {model_plot}")
+
+
+# ------------------------------------------------------------------------------------------ evaluate
+
+def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float) -> api.TruthSource:
+    """`--gt` is a form name (aligned) or KIND:PATH (positions:q.csv, pairs:p.csv, matrix:m.npy)."""
+    kind, sep, path = gt.partition(":")
+    if not sep:
+        kind, path = ("aligned", "") if gt == "aligned" else (_guess_kind(gt), gt)
+    if kind not in ("aligned", "positions", "pairs", "matrix"):
+        _fail(f"--gt {gt}: unknown ground-truth form '{kind}' (aligned, positions, pairs, matrix)", 2)
+    return api.TruthSource(kind=kind, path=path or None, ref_path=gt_ref, tolerance=tolerance, radius=radius)
+
+
+def _guess_kind(path: str) -> str:
+    return "matrix" if Path(path).suffix.lower() in (".npy", ".mat") else "pairs"
+
+
+GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames), 'positions:Q.csv' (with "
+           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat'. '{query}' in a path is "
+           "replaced by the query folder's name.")
+
+
+@app.command()
+@handles_errors
+def evaluate(
+    results: list[Path] = typer.Argument(..., help="Results files written by `wiloc localize`."),
+    gt: str = typer.Option("aligned", "--gt", help=GT_HELP),
+    gt_map: Optional[str] = typer.Option(None, "--gt-map", help="positions: the reference's positions CSV."),
+    tolerance: int = typer.Option(0, "--tolerance", "-T", help="aligned/pairs: +-frames."),
+    radius: float = typer.Option(0.0, "--radius", help="positions: same place within this many metres."),
+    pr_plot: Optional[Path] = typer.Option(None, help="Draw the precision-recall curves."),
+    csv_out: Optional[Path] = typer.Option(None, "--csv", help="Write metrics (and curves beside it) as CSV."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+) -> None:
+    """Precision-recall of results files against ground truth.
+
+    Example: wiloc evaluate day_left-online.csv --gt aligned --tolerance 2 --pr-plot pr.png
+    """
+    source = _truth_source(gt, gt_map, tolerance, radius)
+    evaluations = [api.evaluate(path, source) for path in results]
+    rows = [{"results": e.path.name, "method": e.method, "traversal": e.traversal, **e.summary.as_dict()}
+            for e in evaluations]
+    if pr_plot is not None:
+        from wiloc.plots import plot_pr
+        plot_pr({f"{e.method} {e.traversal}": e.curve for e in evaluations}, pr_plot)
+    if csv_out is not None:
+        _write_metrics_csv(csv_out, rows, evaluations)
+    if as_json:
+        _print_json([{**row, "warnings": e.truth.warnings,
+                      "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
+                                "thresholds": e.curve.thresholds.tolist()}}
+                     for row, e in zip(rows, evaluations)])
+        return
+    for e in evaluations:
+        for warning in e.truth.warnings:
+            err.print(f"[yellow]warning[/yellow] {e.path}: {warning}", highlight=False)
+    columns = ["results", "method", "traversal", "recall_at_100", "recall_at_99", "recall_at_90", "auc",
+               "max_f1", "max_f1_threshold", "recall_at_1", "frames", "decided", "with_true_match"]
+    out.print(_table("evaluate", rows, columns))
+    for path in (pr_plot, csv_out):
+        if path is not None:
+            out.print(f"wrote {path}")
+
+
+def _write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list[api.Evaluation]) -> None:
+    import pandas as pd
+    pd.DataFrame(rows).to_csv(path, index=False)
+    curves = pd.concat([pd.DataFrame({"results": e.path.name, "threshold": e.curve.thresholds,
+                                      "precision": e.curve.precision, "recall": e.curve.recall})
+                        for e in evaluations])
+    curves.to_csv(path.with_name(path.stem + "-curves.csv"), index=False)
+
+
+# ------------------------------------------------------------------------------------------- compare
+
+@app.command()
+@handles_errors
+def compare(
+    results: list[Path] = typer.Argument(..., help="Results files: several methods x query traversals."),
+    gt: str = typer.Option("aligned", "--gt", help=GT_HELP),
+    gt_map: Optional[str] = typer.Option(None, "--gt-map", help="positions: the reference's positions CSV."),
+    tolerance: int = typer.Option(0, "--tolerance", "-T", help="aligned/pairs: +-frames."),
+    radius: float = typer.Option(0.0, "--radius", help="positions: same place within this many metres."),
+    global_threshold: bool = typer.Option(True, "--global-threshold/--no-global-threshold",
+                                          help="Table II: one threshold per method for all traversals."),
+    precision: str = typer.Option("100,99", help="Table II target precisions in percent, comma-separated."),
+    threshold_plot: Optional[Path] = typer.Option(None, help="Precision against normalised threshold (the paper's Figure 5)."),
+    model_plot: Optional[Path] = typer.Option(None, help="Learned histograms of the first online run (Figure 1)."),
+    pr_plot: Optional[Path] = typer.Option(None, help="All precision-recall curves."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+) -> None:
+    """Methods and traversals side by side: the paper's Table I and Table II.
+
+    Example: wiloc compare *-online.csv *-threshold.csv --gt aligned -T 2 --precision 100,99
+    """
+    try:
+        targets = [float(p) for p in precision.split(",") if p.strip()]
+    except ValueError:
+        _fail(f"--precision {precision}: give percentages such as 100,99.5", 2)
+    source = _truth_source(gt, gt_map, tolerance, radius)
+    comparison = api.compare(results, source, precisions=targets, global_thresholds=global_threshold)
+    written = _compare_plots(comparison, threshold_plot, model_plot, pr_plot)
+    if as_json:
+        _print_json({"table1": comparison.table1.to_dict(orient="records"),
+                     "table2": comparison.table2.to_dict(orient="records"), "plots": [str(p) for p in written]})
+        return
+    out.print(table1_view(comparison))
+    if global_threshold:
+        out.print(table2_view(comparison))
+    for path in written:
+        out.print(f"wrote {path}")
+
+
+def _compare_plots(comparison: api.Comparison, threshold_plot: Path | None, model_plot: Path | None,
+                   pr_plot: Path | None) -> list[Path]:
+    from wiloc import plots
+    written = []
+    if threshold_plot is not None:
+        plots.plot_threshold(api.threshold_series(comparison.evaluations), threshold_plot)
+        written.append(threshold_plot)
+    if model_plot is not None:
+        online = [e for e in comparison.evaluations if e.results.model is not None]
+        if not online:
+            _fail(f"{model_plot}: none of the results carries a histogram model", 1)
+        plots.plot_model(online[0].results.model, model_plot, title=f"{online[0].method} {online[0].traversal}")
+        written.append(model_plot)
+    if pr_plot is not None:
+        plots.plot_pr({f"{e.method} {e.traversal}": e.curve for e in comparison.evaluations}, pr_plot)
+        written.append(pr_plot)
+    return written
+
+
+def table1_view(comparison: api.Comparison) -> Table:
+    """Table I: recall at 100/99/90 % precision, one row per traversal, columns per method."""
+    t1 = comparison.table1
+    methods = list(dict.fromkeys(t1["method"]))
+    table = Table(title="Table I: recall at 100 / 99 / 90 % precision (plus AUC, R@1)")
+    table.add_column("traversal")
+    for m in methods:
+        table.add_column(m, justify="right")
+    for traversal in dict.fromkeys(t1["traversal"]):
+        cells = []
+        for m in methods:
+            sel = t1[(t1["traversal"] == traversal) & (t1["method"] == m)]
+            if sel.empty:
+                cells.append("")
+                continue
+            r = sel.iloc[0]
+            cells.append(f"{r['recall@100']:.1%} / {r['recall@99']:.1%} / {r['recall@90']:.1%}\n"
+                         f"AUC {r['auc']:.3f}  R@1 {r['R@1']:.3f}")
+        table.add_row(traversal, *cells)
+    return table
+
+
+def table2_view(comparison: api.Comparison) -> Table:
+    """Table II: the global threshold per method and precision, recall per traversal, worst marked."""
+    t2 = comparison.table2
+    traversals = list(dict.fromkeys(t2["traversal"]))
+    table = Table(title="Table II: one global threshold per method (worst traversal marked *)")
+    for column in ("method", "precision", "threshold", *traversals):
+        table.add_column(column, justify="left" if column == "method" else "right")
+    for (method, target), group in t2.groupby(["method", "precision"], sort=False):
+        cells = {row.traversal: f"{row.recall:.1%}{' *' if row.worst else ''}" for row in group.itertuples()}
+        threshold = group["threshold"].iloc[0]
+        table.add_row(method, f"{target:g}%", _cell(float(threshold)), *[cells.get(t, "") for t in traversals])
+    return table
+
+
+# ---------------------------------------------------------------------------------------------- demo
+
+@app.command()
+@handles_errors
+def demo(
+    out_dir: Path = typer.Option(Path("wiloc-demo"), "--out", help="Where the demo route, results and plots go."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+) -> None:
+    """Generate a small route with ground truth, localize it with every method and compare them.
+
+    Example: wiloc demo --out /tmp/wiloc-demo
+    """
+    from wiloc.demo import run_demo
+    with progress_bar(not as_json) as progress:
+        report = run_demo(out_dir, progress=progress)
+    if as_json:
+        _print_json({"table1": report.comparison.table1.to_dict(orient="records"),
+                     "table2": report.comparison.table2.to_dict(orient="records"),
+                     "out": str(out_dir), "files": [str(p) for p in report.files]})
+        return
+    out.print(table1_view(report.comparison))
+    out.print(table2_view(report.comparison))
+    out.print(f"demo outputs in [bold]{out_dir}[/bold]: " + ", ".join(p.name for p in report.files))

@@ -1,0 +1,177 @@
+"""Traversal folders: listing frames in natural order, fingerprints, and reading grayscale images.
+
+A frame is identified by its file name. ``read_gray`` decodes with OpenCV from bytes read by
+numpy (so non-ASCII names work) and, for JPEGs, uses libjpeg's reduced (DCT-scaled) decode when
+the caller says how small a decode it can use; see docs/descriptors.md for the measurements
+behind each descriptor's ``min_size``.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.errors import FrameError, WilocError
+
+IMAGE_SUFFIXES: frozenset[str] = frozenset(
+    {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
+)
+
+_EOI_SEARCH = 1024  # bytes at the end of a JPEG searched for the end-of-image marker
+_REDUCED_FLAGS = (
+    (8, cv2.IMREAD_REDUCED_GRAYSCALE_8),
+    (4, cv2.IMREAD_REDUCED_GRAYSCALE_4),
+    (2, cv2.IMREAD_REDUCED_GRAYSCALE_2),
+)
+# JPEG start-of-frame markers: C0-CF except DHT (C4), JPG (C8) and DAC (CC).
+_SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+_DIGITS = re.compile(r"(\d+)")
+
+
+def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
+    """Sort key that orders digit runs by value, so ``img2`` comes before ``img10``."""
+    return tuple(
+        (0, int(part)) if part.isdigit() else (1, part.casefold())
+        for part in _DIGITS.split(name)
+        if part
+    ) + ((1, name),)
+
+
+@dataclass(frozen=True)
+class Traversal:
+    """One traversal folder: its image files in natural order, and the files that were skipped."""
+
+    folder: Path
+    frames: tuple[Path, ...]
+    ignored: tuple[Path, ...]
+
+    @property
+    def names(self) -> list[str]:
+        """Frame names (file names), the identifiers used everywhere."""
+        return [path.name for path in self.frames]
+
+
+def list_traversal(folder: Path) -> Traversal:
+    """List a traversal folder: image files in natural order; hidden and non-image files ignored."""
+    folder = Path(folder)
+    if not folder.exists():
+        raise WilocError(folder, "folder does not exist")
+    if not folder.is_dir():
+        raise WilocError(folder, "not a folder")
+    frames: list[Path] = []
+    ignored: list[Path] = []
+    for path in folder.iterdir():
+        is_frame = (
+            not path.name.startswith(".")
+            and path.suffix.lower() in IMAGE_SUFFIXES
+            and path.is_file()
+        )
+        (frames if is_frame else ignored).append(path)
+    if not frames:
+        raise WilocError(folder, f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))})")
+    frames.sort(key=lambda p: natural_key(p.name))
+    ignored.sort(key=lambda p: natural_key(p.name))
+    return Traversal(folder=folder, frames=tuple(frames), ignored=tuple(ignored))
+
+
+@dataclass(frozen=True)
+class Fingerprint:
+    """What identifies a frame file's content: size, modification time and a content digest."""
+
+    size: int
+    mtime_ns: int
+    digest: str
+
+
+def fingerprint(path: Path) -> Fingerprint:
+    """Size, mtime and blake2b-128 hex digest of a file's content (for cache validation)."""
+    path = Path(path)
+    stat = path.stat()
+    with path.open("rb") as handle:
+        digest = hashlib.file_digest(handle, lambda: hashlib.blake2b(digest_size=16)).hexdigest()
+    return Fingerprint(size=stat.st_size, mtime_ns=stat.st_mtime_ns, digest=digest)
+
+
+def jpeg_size(data: NDArray[np.uint8]) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's start-of-frame header, or None if no SOF is found."""
+    raw = data.tobytes() if data.size < 65536 else data[:65536].tobytes()
+    pos = 2
+    while pos + 9 < len(raw):
+        if raw[pos] != 0xFF:
+            return None
+        marker = raw[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        if marker in _SOF_MARKERS:
+            height = int.from_bytes(raw[pos + 5 : pos + 7], "big")
+            width = int.from_bytes(raw[pos + 7 : pos + 9], "big")
+            return width, height
+        pos += 2 + int.from_bytes(raw[pos + 2 : pos + 4], "big")
+    return None
+
+
+def _reduction(full: tuple[int, int], min_size: tuple[int, int]) -> int:
+    """Largest JPEG reduction (1, 2, 4, 8) whose decode keeps both sides >= min_size."""
+    for factor, _ in _REDUCED_FLAGS:
+        if all(math.ceil(side / factor) >= need for side, need in zip(full, min_size)):
+            return factor
+    return 1
+
+
+def _to_uint8(image: NDArray, path: Path) -> NDArray[np.uint8]:
+    """8-bit single-channel image: 16-bit samples scaled by 255/65535, not truncated."""
+    if image.dtype == np.uint8:
+        return image
+    if image.dtype == np.uint16:
+        return np.rint(image.astype(np.float32) * np.float32(255.0 / 65535.0)).astype(np.uint8)
+    raise FrameError(path, f"unsupported sample type {image.dtype} (need 8- or 16-bit integers)")
+
+
+def read_gray(path: Path, min_size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
+    """Decode an image as 8-bit grayscale (H x W).
+
+    With ``min_size=(w, h)`` a JPEG is decoded at the largest libjpeg reduction (1/2, 1/4, 1/8)
+    that keeps both sides >= min_size, which is several times faster and, for the descriptors'
+    chosen sizes, changes their values negligibly. Images already smaller than ``min_size`` are
+    decoded in full (the descriptors resize them up). Raises ``FrameError`` for empty, truncated
+    or undecodable files.
+    """
+    path = Path(path)
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise FrameError(path, f"cannot read file ({exc.strerror or exc})") from exc
+    if data.size == 0:
+        raise FrameError(path, "empty file (0 bytes)")
+    is_jpeg = data.size >= 2 and data[0] == 0xFF and data[1] == 0xD8
+    if is_jpeg:
+        tail = data[-_EOI_SEARCH:]
+        end = np.flatnonzero(tail != 0)  # some writers pad with zeros after the EOI marker
+        if end.size == 0 or end[-1] < 1 or tail[end[-1] - 1] != 0xFF or tail[end[-1]] != 0xD9:
+            raise FrameError(path, "truncated JPEG (no end-of-image marker)")
+    factor = 1
+    if is_jpeg and min_size is not None:
+        full = jpeg_size(data)
+        if full is None:
+            raise FrameError(path, "corrupt JPEG (no frame header)")
+        factor = _reduction(full, min_size)
+    if factor > 1:
+        image = cv2.imdecode(data, dict(_REDUCED_FLAGS)[factor])
+        if image is not None and (image.shape[1] < min_size[0] or image.shape[0] < min_size[1]):
+            image = None  # EXIF rotation swapped the sides: decode in full instead
+    else:
+        image = None
+    if image is None:
+        image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
+    if image is None or image.size == 0:
+        raise FrameError(path, "cannot decode image data")
+    if image.ndim != 2:
+        raise FrameError(path, f"unexpected image layout {image.shape}")
+    return _to_uint8(image, path)
