@@ -29,6 +29,7 @@ from filelock import FileLock, Timeout
 
 from wiloc import __version__
 from wiloc.errors import CacheBusyError, WilocError
+from wiloc.frames import natural_key
 
 FORMAT = "wiloc-descriptors"
 FORMAT_VERSION = 1
@@ -55,6 +56,20 @@ class EntryHeader:
     natural_max: float | None
     dtype: str
     length: int
+
+    @classmethod
+    def create(cls, folder: str, descriptor: str, params: dict[str, Any], metric: str, scale: float,
+               natural_max: float | None, dtype: np.dtype | str, length: int) -> EntryHeader:
+        """The header of the entry for `folder` described by `descriptor` with `params`, its key
+        derived from those three; params are normalised through JSON so they compare equal to
+        what the file holds."""
+        params = json.loads(json.dumps(params, sort_keys=True))
+        return cls(
+            key=entry_key(folder, descriptor, params), folder=folder, descriptor=descriptor,
+            params=params, metric=metric, scale=float(scale),
+            natural_max=None if natural_max is None else float(natural_max),
+            dtype=np.dtype(dtype).str, length=int(length),
+        )
 
 
 @dataclass(frozen=True)
@@ -110,6 +125,23 @@ class StoredEntry:
     complete: bool = False
     created: str = ""
     journaled: bool = False
+
+    def ordered(self) -> list[FrameRecord]:
+        """The records in frame order (natural sort of names, as traversals list them)."""
+        return [self.records[name] for name in sorted(self.records, key=natural_key)]
+
+    def entry(self) -> Entry:
+        """The descriptor matrix of the frames that have a row, in frame order."""
+        h = self.header
+        good = [r for r in self.ordered() if r.row is not None]
+        data = np.empty((len(good), h.length), np.dtype(h.dtype))
+        for i, record in enumerate(good):
+            data[i] = record.row
+        return Entry(
+            key=h.key, folder=h.folder, descriptor=h.descriptor, params=h.params, metric=h.metric,
+            scale=h.scale, natural_max=h.natural_max, names=[r.name for r in good], data=data,
+            digest=entry_digest(h, good),
+        )
 
 
 def entry_key(folder: str, descriptor: str, params: dict[str, Any]) -> str:
@@ -325,16 +357,14 @@ class Cache:
         stored.complete = stored.complete and not records
         return stored
 
-    def write_entry(self, stored: StoredEntry, order: list[str], complete: bool) -> None:
-        """Write the entry with the records named in `order` (in that order) atomically, then
-        drop its journal, whose records are now in the file. Call with the entry lock held."""
+    def write_entry(self, stored: StoredEntry, complete: bool) -> Entry:
+        """Write the entry atomically, then drop its journal, whose records are now in the file.
+        Call with the entry lock held. Returns the entry as written."""
         header = stored.header
-        records = [stored.records[name] for name in order]
+        entry = stored.entry()
+        records = stored.ordered()
         good = [r for r in records if r.row is not None]
         bad = [r for r in records if r.row is None]
-        data = np.empty((len(good), header.length), np.dtype(header.dtype))
-        for i, record in enumerate(good):
-            data[i] = record.row
         text = h5py.string_dtype()
         with self.atomic_h5(self.entry_path(header.key)) as f:
             attrs = _header_to_json(header)
@@ -342,10 +372,10 @@ class Cache:
                 format=FORMAT, format_version=FORMAT_VERSION, params=json.dumps(header.params, sort_keys=True),
                 natural_max=np.nan if header.natural_max is None else header.natural_max,
                 wiloc_version=__version__, created=stored.created or _now(), updated=_now(),
-                complete=complete, digest=entry_digest(header, good),
+                complete=complete, digest=entry.digest,
             )
             f.attrs.update(attrs)
-            f.create_dataset("descriptors", data=data)
+            f.create_dataset("descriptors", data=entry.data)
             for group, rows in (("frames", good), ("failed", bad)):
                 g = f.create_group(group)
                 g.create_dataset("name", data=[r.name for r in rows], dtype=text)
@@ -358,24 +388,16 @@ class Cache:
                 else:
                     g.create_dataset("reason", data=[r.reason for r in rows], dtype=text)
         self.journal_path(header.key).unlink(missing_ok=True)
-        stored.records = {r.name: r for r in records}
         stored.complete = complete
         stored.journaled = False
+        return entry
 
     def read_entry(self, key: str) -> Entry:
-        """The entry's descriptor matrix and names as last written to its HDF5 file."""
-        path = self.entry_path(key)
-        try:
-            with h5py.File(path, "r") as f:
-                header = _header_from_attrs(f.attrs)
-                return Entry(
-                    key=header.key, folder=header.folder, descriptor=header.descriptor,
-                    params=header.params, metric=header.metric, scale=header.scale,
-                    natural_max=header.natural_max, names=[n.decode() for n in f["frames/name"][()]],
-                    data=f["descriptors"][()], digest=str(f.attrs["digest"]),
-                )
-        except (OSError, KeyError) as exc:
-            raise WilocError(path, f"unreadable cache entry ({exc}); delete it to rebuild") from exc
+        """The entry stored under `key` (journaled frames included), as listed by `list_entries`."""
+        stored = self.read_stored(key)
+        if stored is None:
+            raise WilocError(self.entry_path(key), "no such cache entry")
+        return stored.entry()
 
     def list_entries(self) -> list[EntryInfo]:
         """Every descriptor entry in the cache, including ones only a killed run's journal holds."""
@@ -411,7 +433,7 @@ def _header_from_attrs(attrs: h5py.AttributeManager) -> EntryHeader:
 def _read_h5(path: Path) -> StoredEntry:
     with h5py.File(path, "r") as f:
         header = _header_from_attrs(f.attrs)
-        stored = StoredEntry(header, complete=bool(a["complete"]), created=str(a["created"]))
+        stored = StoredEntry(header, complete=bool(f.attrs["complete"]), created=str(f.attrs["created"]))
         data = f["descriptors"][()]
         for group in ("frames", "failed"):
             g = f[group]

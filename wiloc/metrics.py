@@ -135,8 +135,7 @@ def global_threshold(inputs: Sequence[tuple[ArrayLike, ArrayLike, int]],
     keeps = np.ones(candidates.size, dtype=np.bool_)
     for tp, fp in counts:
         accepted = tp + fp
-        keeps &= (accepted == 0) | (tp >= target_precision * accepted) & (
-            tp / np.maximum(accepted, 1) >= target_precision)
+        keeps &= (accepted == 0) | (tp / np.maximum(accepted, 1) >= target_precision)
     if not keeps.any():
         return float("nan"), [0.0] * len(inputs)
     at = int(np.argmax(keeps))  # candidates ascend: the first that keeps is the lowest

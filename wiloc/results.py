@@ -111,8 +111,7 @@ def read_results(path: Path) -> Results:
     if meta.get("wiloc-results") != FORMAT_VERSION:
         raise WilocError(path, "not a wiloc results file (no '# wiloc-results: 1' header)")
     try:
-        frames = pd.read_csv(path, skiprows=n_header, dtype={"frame": str, "match": str, "stage": str},
-                             keep_default_na=False, na_values={"difference": [""], "confidence": [""]})
+        frames = pd.read_csv(path, skiprows=n_header, dtype=str, keep_default_na=False)
     except (pd.errors.ParserError, ValueError) as exc:
         raise WilocError(path, f"unreadable table: {exc}") from None
     missing = [c for c in BASE_COLUMNS if c not in frames.columns]
@@ -121,6 +120,6 @@ def read_results(path: Path) -> Results:
     if frames["frame"].duplicated().any():
         dup = frames["frame"][frames["frame"].duplicated()].iloc[0]
         raise WilocError(path, f"duplicate row for frame '{dup}'")
-    for column in ("difference", "confidence"):
+    for column in frames.columns.difference(["frame", "match", "stage"]):
         frames[column] = pd.to_numeric(frames[column], errors="coerce")
     return Results(meta=meta, frames=frames, reference_frames=list(meta.get("reference_frames") or []))

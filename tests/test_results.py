@@ -1,0 +1,71 @@
+"""Results files: round trip, header, atomic write, bad files."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wiloc.errors import WilocError
+from wiloc.methods.base import Decisions
+from wiloc.model import HistogramModel
+from wiloc.results import read_results, write_results
+
+
+def _decisions() -> Decisions:
+    model = HistogramModel.from_range(0.0, 1.0, bins=4)
+    model.add_same([0.1, 0.3])
+    model.add_different([0.9])
+    return Decisions(match=np.array([-1, 2, 0]), difference=np.array([np.nan, 0.25, 0.5]),
+                     confidence=np.array([np.nan, 0.9, 0.1]), stage=np.array(["init", "update", "update"]),
+                     columns={"m_r": np.array([np.nan, 0.7, 0.8])}, model=model, params={"init": 1})
+
+
+def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
+    path = tmp_path / "run.csv"
+    write_results(path, _decisions(), query_names=["q,1.png", "q2.png", "q 3.png"],
+                  ref_names=["r0.png", "r1.png", "r#2.png"], meta={"method": "online", "query": "/x"})
+    back = read_results(path)
+    assert back.method == "online"
+    assert back.frames["frame"].tolist() == ["q,1.png", "q2.png", "q 3.png"]
+    assert back.frames["match"].tolist() == ["", "r#2.png", "r0.png"]
+    assert back.match_index.tolist() == [-1, 2, 0]
+    assert np.isnan(back.confidence[0]) and back.confidence[1] == pytest.approx(0.9)
+    assert back.frames["m_r"].iloc[1] == pytest.approx(0.7)
+    assert back.meta["params"] == {"init": 1}
+    assert back.model is not None and back.model.b.tolist() == [1.0, 1.0, 0.0, 0.0]
+    assert not list(tmp_path.glob(".*tmp"))
+
+
+def test_header_names_the_run(tmp_path: Path) -> None:
+    path = tmp_path / "run.csv"
+    write_results(path, _decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
+                  meta={"method": "threshold", "descriptor": "sad", "wiloc": "0.1.0"})
+    head = path.read_text(encoding="utf-8").splitlines()[:4]
+    assert head[0] == "# wiloc-results: 1"
+    assert "# method: threshold" in head and "# descriptor: sad" in head
+
+
+def test_not_a_results_file(tmp_path: Path) -> None:
+    path = tmp_path / "other.csv"
+    path.write_text("frame,match\na,b\n")
+    with pytest.raises(WilocError, match="not a wiloc results file"):
+        read_results(path)
+
+
+def test_missing_column_and_duplicates(tmp_path: Path) -> None:
+    path = tmp_path / "run.csv"
+    write_results(path, _decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], meta={})
+    text = path.read_text(encoding="utf-8")
+    path.write_text(text.replace("confidence", "conf"), encoding="utf-8")
+    with pytest.raises(WilocError, match="missing column"):
+        read_results(path)
+    lines = text.splitlines()
+    path.write_text("\n".join(lines + [lines[-1]]) + "\n", encoding="utf-8")
+    with pytest.raises(WilocError, match="duplicate row"):
+        read_results(path)
+
+
+def test_missing_file() -> None:
+    with pytest.raises(WilocError, match="does not exist"):
+        read_results(Path("/nonexistent/run.csv"))

@@ -1,0 +1,134 @@
+"""The ``gist`` descriptor: Oliva & Torralba's GIST as computed by LabelMe's ``LMgist``.
+
+Steps (LMgist defaults): grayscale; resize so the image covers 256 x 256 and crop the centre
+(``imresizecrop``); rescale intensities to [0, 255]; ``prefilt`` (log(I + 1), 5 px symmetric pad,
+whitening by subtracting a Gaussian low-pass with fc = 4, division by 0.2 + local std); 32 px
+symmetric boundary extension; a bank of 4 scales x 8 orientations of Gabor transfer functions
+applied in the Fourier domain; magnitude of the response, cropped back to 256 x 256 and averaged
+on a 4 x 4 grid of 64 x 64 blocks.
+
+Output order is LMgist's: index = (scale * 8 + orientation) * 16 + column * 4 + row, scale 0 the
+finest, orientation j at angle pi j / 8, blocks in column-major (MATLAB) order.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import cv2
+import numpy as np
+import scipy.fft
+from numpy.typing import NDArray
+
+IMAGE_SIZE = 256
+SCALES = 4
+ORIENTATIONS = 8
+GRID = 4
+LENGTH = SCALES * ORIENTATIONS * GRID * GRID
+PREFILTER_FC = 4.0
+PREFILTER_PAD = 5
+BOUNDARY = 32
+
+
+def resize_crop(gray: NDArray[np.uint8], size: int = IMAGE_SIZE) -> NDArray[np.float32]:
+    """LMgist's ``imresizecrop``: scale so both sides cover ``size``, then crop the centre.
+
+    Area interpolation when shrinking (anti-aliased, like MATLAB's imresize), bilinear when
+    enlarging.
+    """
+    h, w = gray.shape
+    factor = max(size / h, size / w)
+    new_w, new_h = max(round(w * factor), size), max(round(h * factor), size)
+    method = cv2.INTER_AREA if factor < 1 else cv2.INTER_LINEAR
+    image = cv2.resize(gray.astype(np.float32), (new_w, new_h), interpolation=method)
+    top, left = (new_h - size) // 2, (new_w - size) // 2
+    return image[top : top + size, left : left + size]
+
+
+def _centred_frequencies(rows: int, cols: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """fx, fy (cycles per image) on an FFT grid, as ``fftshift(meshgrid(-n/2:n/2-1))``."""
+    fy, fx = np.meshgrid(
+        np.fft.ifftshift(np.arange(-(rows // 2), rows - rows // 2)),
+        np.fft.ifftshift(np.arange(-(cols // 2), cols - cols // 2)),
+        indexing="ij",
+    )
+    return fx.astype(np.float64), fy.astype(np.float64)
+
+
+@lru_cache(maxsize=4)
+def gabor_bank(rows: int, cols: int) -> NDArray[np.float32]:
+    """LMgist's ``createGabor`` transfer functions, (32, rows, cols), scale-major.
+
+    Scale i (0 = finest), orientation j of 8: peak frequency 0.3 / 1.85^i cycles/pixel, radial
+    parameter 0.35, angular parameter 16 * 8^2 / 32^2, angle pi j / 8;
+    ``G = exp(-10 * 0.35 * (f / cols / f_peak - 1)^2 - 2 * a * pi * dtheta^2)``.
+    """
+    fx, fy = _centred_frequencies(rows, cols)
+    radius = np.hypot(fx, fy)
+    theta = np.arctan2(fy, fx)
+    angular = 16.0 * ORIENTATIONS**2 / 32.0**2
+    bank = np.empty((SCALES * ORIENTATIONS, rows, cols), dtype=np.float32)
+    for scale in range(SCALES):
+        peak = 0.3 / 1.85**scale
+        radial = -10.0 * 0.35 * (radius / cols / peak - 1.0) ** 2
+        for orientation in range(ORIENTATIONS):
+            dtheta = theta + np.pi * orientation / ORIENTATIONS
+            dtheta = dtheta + 2 * np.pi * (dtheta < -np.pi) - 2 * np.pi * (dtheta > np.pi)
+            bank[scale * ORIENTATIONS + orientation] = np.exp(
+                radial - 2.0 * angular * np.pi * dtheta**2
+            )
+    bank.setflags(write=False)
+    return bank
+
+
+@lru_cache(maxsize=4)
+def _prefilter_lowpass(n: int) -> NDArray[np.float64]:
+    """Half-plane (rfft2 layout) Gaussian of ``prefilt``: exp(-(fx^2 + fy^2) / s1^2)."""
+    s1 = PREFILTER_FC / np.sqrt(np.log(2.0))
+    fx, fy = _centred_frequencies(n, n)
+    lowpass = np.exp(-(fx**2 + fy**2) / s1**2)[:, : n // 2 + 1]
+    lowpass.setflags(write=False)
+    return lowpass
+
+
+def prefilter(image: NDArray[np.floating]) -> NDArray[np.float64]:
+    """LMgist's ``prefilt``: log, whitening and local contrast normalisation (fc = 4)."""
+    w = PREFILTER_PAD
+    rows, cols = image.shape
+    padded = np.pad(np.log(image.astype(np.float64) + 1.0), w, mode="symmetric")
+    n = max(padded.shape)
+    n += n % 2
+    padded = np.pad(padded, ((0, n - padded.shape[0]), (0, n - padded.shape[1])), mode="symmetric")
+    lowpass = _prefilter_lowpass(n)
+    whitened = padded - scipy.fft.irfft2(scipy.fft.rfft2(padded) * lowpass, s=padded.shape)
+    local_var = scipy.fft.irfft2(scipy.fft.rfft2(whitened**2) * lowpass, s=padded.shape)
+    normalised = whitened / (0.2 + np.sqrt(np.abs(local_var)))
+    return normalised[w : w + rows, w : w + cols]
+
+
+def gist_of_prefiltered(image: NDArray[np.floating]) -> NDArray[np.float32]:
+    """LMgist's ``gistGabor`` on a prefiltered image: 512 mean-pooled Gabor magnitudes."""
+    b = BOUNDARY
+    rows, cols = image.shape
+    padded = np.pad(image.astype(np.float32), b, mode="symmetric")
+    bank = gabor_bank(*padded.shape)
+    spectrum = scipy.fft.fft2(padded)
+    responses = scipy.fft.ifft2(bank * spectrum[None], axes=(1, 2), overwrite_x=True)
+    magnitude = np.abs(responses[:, b : b + rows, b : b + cols])
+    # downN: block edges fix(linspace(0, n, 5)); blocks in column-major order (row fastest).
+    row_edges = np.linspace(0, rows, GRID + 1).astype(np.intp)
+    col_edges = np.linspace(0, cols, GRID + 1).astype(np.intp)
+    row_sums = np.add.reduceat(magnitude, row_edges[:-1], axis=1)
+    sums = np.add.reduceat(row_sums, col_edges[:-1], axis=2)
+    areas = np.outer(np.diff(row_edges), np.diff(col_edges))
+    pooled = sums / areas[None]
+    return pooled.transpose(0, 2, 1).reshape(-1).astype(np.float32)
+
+
+def compute_gist(gray: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """The 512-value GIST descriptor of a grayscale image (float32, LMgist order)."""
+    image = resize_crop(gray)
+    image = image - image.min()
+    top = image.max()
+    if top > 0:
+        image = image * np.float32(255.0 / top)
+    return gist_of_prefiltered(prefilter(image))

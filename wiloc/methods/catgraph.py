@@ -1,0 +1,271 @@
+"""Whole-image CAT-Graph: a particle filter along the reference trajectory (paper III.C, eqs 7-10).
+
+The reference traversal is a trajectory: node j sits at arc length s_j. M particles live at
+continuous positions on it, each with its own speed ratio (query speed over nominal step).
+Per query frame: move the particles, re-seed a few at the frame's best single-frame matches,
+weight each by P(d|L)/P(d) of the difference interpolated at its position (eq. 8), weigh a
+new-place particle by the mean P(not L | d) over sampled nodes (eq. 10), normalise, read out the
+mode of the particle density and resample when the effective sample size drops. P(d|L) comes from
+the online, training-free ``b`` (each frame's smallest difference, added after the frame is used);
+P(d|not L) from the bulk of the reference's differences to itself outside +-R. docs/catgraph.md
+gives the formulation in full and the measurements behind every default.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import gaussian_filter1d
+from scipy.special import expit, logsumexp
+
+from wiloc.errors import WilocError
+from wiloc.methods.base import Decisions
+from wiloc.model import HistogramModel
+
+Progress = Callable[[int, int], None]
+
+DEFAULT_PARTICLES = 2000
+DEFAULT_EXCLUDE_RECENT = 10
+DEFAULT_BINS = 100
+DEFAULT_SMOOTHING_BINS = 4.0
+DEFAULT_PRIOR = 0.5
+DEFAULT_STEP_NOISE = 0.3
+DEFAULT_NOISE_FLOOR = 0.5
+DEFAULT_SPEED_NOISE = 0.05
+DEFAULT_SPEED_RANGE = (0.0, 3.0)
+DEFAULT_RESAMPLE_ESS = 0.5
+DEFAULT_RESEED = 0.02
+DEFAULT_RESEED_TOP = 5
+DEFAULT_NEW_PLACE_SAMPLES = 100
+DEFAULT_MODE_WINDOW = 2
+
+
+def bulk_model(ref_self: NDArray[np.float64], exclude_recent: int, bins: int) -> HistogramModel:
+    """The observation model before the query run: ``c`` holds the bulk of ordinary differences.
+
+    Every pair of reference frames further apart than ``exclude_recent`` counts as a different
+    place (no labels: along one traversal, frames apart are mostly different places). Bins span
+    [min(0, lowest), highest] of those differences; ``b`` starts empty.
+    """
+    ref_self = np.asarray(ref_self, dtype=np.float64)
+    if ref_self.ndim != 2 or ref_self.shape[0] != ref_self.shape[1]:
+        raise WilocError("catgraph", f"ref_self must be a square matrix, got shape {ref_self.shape}")
+    n = ref_self.shape[0]
+    i, j = np.triu_indices(n, k=exclude_recent + 1)
+    values = np.concatenate([ref_self[i, j], ref_self[j, i]])
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        raise WilocError("catgraph", f"no finite reference difference outside +-{exclude_recent} "
+                                     f"frames ({n} reference frames)")
+    model = HistogramModel.from_range(min(0.0, float(values.min())), float(values.max()), bins)
+    model.c = np.bincount(model.bin_of(values), minlength=model.n_bins).astype(np.float64)
+    return model
+
+
+@dataclass(frozen=True)
+class _Tables:
+    """Per-bin observation terms: log P(d|L)/P(d) for particles, P(not L|d) for the new place."""
+
+    log_ratio: NDArray[np.float64]
+    p_not_same: NDArray[np.float64]
+
+
+def _density(counts: NDArray[np.float64], sigma: float) -> NDArray[np.float64]:
+    """Gaussian-smoothed histogram as a density, with a floor so no bin is empty."""
+    smooth = gaussian_filter1d(counts, sigma, mode="nearest") if sigma > 0 else counts.copy()
+    total = smooth.sum()
+    if total <= 0:
+        return np.full(counts.size, 1.0 / counts.size)
+    dens = smooth / total
+    return np.maximum(dens, 1e-9 / counts.size)
+
+
+def observation_tables(model: HistogramModel, sigma: float, prior: float) -> _Tables:
+    """Observation terms per bin from the current model.
+
+    The likelihood ratio P(d|L)/P(d|not L) is made non-increasing in d (running minimum): a
+    larger difference is never more evidence of the same place than a smaller one. This keeps an
+    empty or sparse ``b`` tail from favouring large differences.
+    """
+    p_same = _density(model.b, sigma)
+    p_diff = _density(model.c, sigma)
+    ratio = np.minimum.accumulate(p_same / p_diff)
+    same = ratio * prior
+    p_d = same + (1.0 - prior)  # P(d) / P(d|not L), eq. 6
+    return _Tables(log_ratio=np.log(ratio / p_d), p_not_same=(1.0 - prior) / p_d)
+
+
+def _arclength(ref_arclength: NDArray[np.float64] | None, n_nodes: int) -> NDArray[np.float64]:
+    """Node positions: the given arc lengths (non-decreasing), else the frame index."""
+    if ref_arclength is None:
+        return np.arange(n_nodes, dtype=np.float64)
+    s = np.asarray(ref_arclength, dtype=np.float64)
+    if s.shape != (n_nodes,):
+        raise WilocError("ref_arclength", f"has {s.size} values for {n_nodes} reference frames")
+    if not np.all(np.isfinite(s)) or np.any(np.diff(s) < 0):
+        raise WilocError("ref_arclength", "must be finite and non-decreasing")
+    if not s[-1] > s[0]:
+        raise WilocError("ref_arclength", "the reference trajectory has zero length")
+    return s
+
+
+def _steps(query_steps: NDArray[np.float64] | None, n_frames: int, spacing: float,
+           have_arclength: bool) -> NDArray[np.float64]:
+    """u_k per query frame: the odometry steps, else the mean node spacing."""
+    if query_steps is None:
+        return np.full(n_frames, spacing)
+    if not have_arclength:
+        raise WilocError("query_steps", "needs ref_arclength in the same units")
+    u = np.asarray(query_steps, dtype=np.float64)
+    if u.shape != (n_frames,):
+        raise WilocError("query_steps", f"has {u.size} values for {n_frames} query frames")
+    if not np.all(np.isfinite(u)) or np.any(u < 0):
+        raise WilocError("query_steps", "must be finite and >= 0")
+    return u
+
+
+def _interpolate(row: NDArray[np.float64], nodes: NDArray[np.float64],
+                 pos: NDArray[np.float64]) -> NDArray[np.float64]:
+    """d at each particle: linear interpolation between the two nodes around it."""
+    j = np.clip(np.searchsorted(nodes, pos, side="right") - 1, 0, nodes.size - 2)
+    gap = nodes[j + 1] - nodes[j]
+    a = np.divide(pos - nodes[j], gap, out=np.zeros_like(pos), where=gap > 0)
+    a = np.clip(a, 0.0, 1.0)
+    return (1.0 - a) * row[j] + a * row[j + 1]
+
+
+def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.intp]:
+    """Indices drawn by systematic resampling (one uniform offset, M evenly spaced pointers)."""
+    m = weights.size
+    cum = np.cumsum(weights)
+    cum[-1] = 1.0
+    pointers = (rng.random() + np.arange(m)) / m
+    return np.searchsorted(cum, pointers, side="left")
+
+
+def localize_catgraph(
+    query_rows: Iterable[NDArray[np.float64]],
+    ref_self: NDArray[np.float64],
+    n_frames: int,
+    *,
+    ref_arclength: NDArray[np.float64] | None = None,
+    query_steps: NDArray[np.float64] | None = None,
+    particles: int = DEFAULT_PARTICLES,
+    seed: int | None = 0,
+    exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
+    bins: int = DEFAULT_BINS,
+    smoothing_bins: float = DEFAULT_SMOOTHING_BINS,
+    prior: float = DEFAULT_PRIOR,
+    step_noise: float = DEFAULT_STEP_NOISE,
+    noise_floor: float = DEFAULT_NOISE_FLOOR,
+    speed_noise: float = DEFAULT_SPEED_NOISE,
+    speed_range: tuple[float, float] = DEFAULT_SPEED_RANGE,
+    resample_ess: float = DEFAULT_RESAMPLE_ESS,
+    reseed: float = DEFAULT_RESEED,
+    reseed_top: int = DEFAULT_RESEED_TOP,
+    new_place_samples: int = DEFAULT_NEW_PLACE_SAMPLES,
+    mode_window: int = DEFAULT_MODE_WINDOW,
+    progress: Progress | None = None,
+) -> Decisions:
+    """Track the query along the reference trajectory with the whole-image CAT-Graph filter.
+
+    ``query_rows`` yields ``n_frames`` rows of differences of query frame k to every reference
+    node; ``ref_self`` is the reference-by-reference difference matrix (for P(d|not L)).
+    Positions are in arc-length units (``ref_arclength``, else node index); ``query_steps`` are
+    the query's travelled distances since its previous frame in the same units. The noise and
+    ``noise_floor`` are relative to the step and to the mean node spacing respectively.
+    Returns per frame the node at the density mode, its difference, the weight mass within
+    +-``mode_window`` nodes of it (after normalising with the new-place particle) as confidence,
+    and ``columns["new_place"]``. The same seed gives identical Decisions.
+    """
+    checks = [(particles >= 1, "particles must be >= 1"), (exclude_recent >= 0, "exclude_recent must be >= 0"),
+              (bins >= 2, "bins must be >= 2"), (smoothing_bins >= 0, "smoothing_bins must be >= 0"),
+              (0.0 <= prior < 1.0, "prior must lie in [0, 1)"),
+              (min(step_noise, noise_floor, speed_noise) >= 0, "noise parameters must be >= 0"),
+              (0.0 <= speed_range[0] <= speed_range[1], "speed_range must be (low, high), 0 <= low <= high"),
+              (0.0 <= resample_ess <= 1.0, "resample_ess must lie in [0, 1]"),
+              (0.0 <= reseed <= 1.0, "reseed must lie in [0, 1]"), (reseed_top >= 1, "reseed_top must be >= 1"),
+              (new_place_samples >= 1, "new_place_samples must be >= 1"), (mode_window >= 0, "mode_window must be >= 0")]
+    for ok, problem in checks:
+        if not ok:
+            raise WilocError("catgraph", problem)
+
+    model = bulk_model(ref_self, exclude_recent, bins)
+    n_nodes = ref_self.shape[0]
+    if n_nodes < 2:
+        raise WilocError("catgraph", "the reference needs at least 2 frames")
+    nodes = _arclength(ref_arclength, n_nodes)
+    spacing = (nodes[-1] - nodes[0]) / (n_nodes - 1)
+    steps = _steps(query_steps, n_frames, spacing, ref_arclength is not None)
+    rng = np.random.default_rng(seed)
+
+    pos = rng.uniform(nodes[0], nodes[-1], particles)
+    speed = rng.uniform(speed_range[0], speed_range[1], particles) if speed_noise > 0 else np.ones(particles)
+    log_w = np.full(particles, -np.log(particles))
+    n_reseed = int(round(reseed * particles))
+    window = np.ones(2 * mode_window + 1)
+
+    match = np.full(n_frames, -1, dtype=np.int64)
+    difference = np.full(n_frames, np.nan)
+    confidence = np.full(n_frames, np.nan)
+    new_place = np.full(n_frames, np.nan)
+
+    k = -1
+    for k, row in enumerate(query_rows):
+        if k >= n_frames:
+            raise WilocError("catgraph", f"more query rows than n_frames={n_frames}")
+        row = np.asarray(row, dtype=np.float64)
+        if row.shape != (n_nodes,) or not np.all(np.isfinite(row)):
+            raise WilocError("catgraph", f"query row {k} must hold {n_nodes} finite differences")
+        tables = observation_tables(model, smoothing_bins, prior)
+
+        if k > 0:  # motion model: s += v u_k + noise
+            if speed_noise > 0:
+                speed = np.clip(speed + rng.normal(0.0, speed_noise, particles), *speed_range)
+            sd = np.hypot(step_noise * steps[k], noise_floor * spacing)
+            pos = np.clip(pos + speed * steps[k] + rng.normal(0.0, sd, particles), nodes[0], nodes[-1])
+        if n_reseed > 0:  # re-seed the weakest particles at the best single-frame matches
+            weakest = np.argpartition(log_w, n_reseed - 1)[:n_reseed]
+            best = np.argpartition(row, min(reseed_top, n_nodes) - 1)[:reseed_top]
+            pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
+            speed[weakest] = speed[rng.integers(0, particles, n_reseed)]
+            log_w[weakest] = -np.log(particles)
+            log_w = log_w - logsumexp(log_w)
+
+        log_w = log_w + tables.log_ratio[model.bin_of(_interpolate(row, nodes, pos))]
+        log_total = logsumexp(log_w)  # log of sum_i w_i P(d_i|L)/P(d_i), the prior mass being 1
+        sampled = rng.integers(0, n_nodes, new_place_samples)
+        log_new = np.log(tables.p_not_same[model.bin_of(row[sampled])].mean())
+        p_new = float(expit(log_new - log_total))  # eq. 10 weight normalised with the particles
+        log_w = log_w - log_total
+        w = np.exp(log_w)
+
+        nearest = np.clip(np.searchsorted(nodes, pos), 1, n_nodes - 1)
+        nearest -= (pos - nodes[nearest - 1]) < (nodes[nearest] - pos)
+        mass = np.convolve(np.bincount(nearest, weights=w, minlength=n_nodes), window, mode="same")
+        mode = int(np.argmax(mass))
+        match[k], difference[k] = mode, row[mode]
+        confidence[k] = mass[mode] * (1.0 - p_new)
+        new_place[k] = p_new
+
+        if 1.0 / np.sum(w * w) < resample_ess * particles:
+            idx = _systematic(w, rng)
+            pos, speed = pos[idx], speed[idx]
+            log_w = np.full(particles, -np.log(particles))
+        model.add_same(row.min())  # causal online b: the frame's smallest difference, after use
+        if progress is not None:
+            progress(k + 1, n_frames)
+    if k + 1 != n_frames:
+        raise WilocError("catgraph", f"got {k + 1} query rows, expected n_frames={n_frames}")
+
+    params = {"method": "catgraph", "particles": particles, "seed": seed, "exclude_recent": exclude_recent,
+              "bins": bins, "smoothing_bins": smoothing_bins, "prior": prior, "step_noise": step_noise,
+              "noise_floor": noise_floor, "speed_noise": speed_noise, "speed_range": list(speed_range),
+              "resample_ess": resample_ess, "reseed": reseed, "reseed_top": reseed_top,
+              "new_place_samples": new_place_samples, "mode_window": mode_window,
+              "odometry": query_steps is not None}
+    return Decisions(match=match, difference=difference, confidence=confidence,
+                     stage=np.full(n_frames, "track"), columns={"new_place": new_place},
+                     model=model, params=params)
