@@ -39,7 +39,7 @@ def plot_pr(curves: dict[str, PRCurve], path: str | Path, title: str = "Precisio
     ax.set(xlim=(0, 1), ylim=(0, 1.02), xlabel="recall", ylabel="precision", title=title)
     ax.grid(alpha=0.3)
     if curves:
-        ax.legend(loc="lower left")
+        ax.legend(loc="best")
     return _save(fig, path)
 
 
@@ -62,15 +62,25 @@ def plot_threshold(series: dict[str, tuple[np.ndarray, np.ndarray]], path: str |
                    title: str = "Precision against threshold") -> Path:
     """Figure 5: precision against normalised threshold, one line per method and traversal.
 
-    ``series`` maps a label to (thresholds, precision); NaN precision (nothing accepted) is a gap.
+    ``series`` maps a label "method traversal" to (thresholds, precision); lines whose labels
+    share the first word (the method) share a colour, as the paper's red and blue, and traversals
+    differ by line style. NaN precision (nothing accepted) leaves a gap.
     """
     fig, (ax,) = _figure()
+    colours: dict[str, str] = {}
+    lines_of: dict[str, int] = {}
+    styles = ["-", "--", ":", "-."]
     for name, (thresholds, precision) in series.items():
-        order = np.argsort(np.asarray(thresholds, dtype=np.float64))
-        ax.plot(np.asarray(thresholds, dtype=np.float64)[order],
-                np.asarray(precision, dtype=np.float64)[order], label=name, linewidth=1.5)
+        method = (name.split(maxsplit=1) or [""])[0]
+        colour = colours.setdefault(method, f"C{len(colours)}")
+        style = styles[lines_of.get(method, 0) % len(styles)]
+        lines_of[method] = lines_of.get(method, 0) + 1
+        x = np.asarray(thresholds, dtype=np.float64)
+        order = np.argsort(x)
+        ax.plot(x[order], np.asarray(precision, dtype=np.float64)[order], label=name, color=colour,
+                linestyle=style, linewidth=1.5)
     ax.set(xlim=(0, 1), xlabel="normalised threshold", ylabel="precision", title=title)
     ax.grid(alpha=0.3)
     if series:
-        ax.legend(loc="lower left")
+        ax.legend(loc="best")
     return _save(fig, path)

@@ -1,0 +1,7 @@
+"""Whole-image descriptors (SPEC.md section 2): ``sad``, ``gist``, ``brisk-gist`` and external."""
+from __future__ import annotations
+
+from wiloc.descriptors.external import read_external
+from wiloc.descriptors.registry import DESCRIPTOR_NAMES, METRICS, DescriptorSpec, get_descriptor
+
+__all__ = ["DESCRIPTOR_NAMES", "METRICS", "DescriptorSpec", "get_descriptor", "read_external"]

@@ -76,52 +76,76 @@ def gabor_bank(rows: int, cols: int) -> NDArray[np.float32]:
             bank[scale * ORIENTATIONS + orientation] = np.exp(
                 radial - 2.0 * angular * np.pi * dtheta**2
             )
-    bank.setflags(write=False)
-    return bank
+    return _readonly(bank)
 
 
 @lru_cache(maxsize=4)
-def _prefilter_lowpass(n: int) -> NDArray[np.float64]:
-    """Half-plane (rfft2 layout) Gaussian of ``prefilt``: exp(-(fx^2 + fy^2) / s1^2)."""
+def _prefilter_lowpass(n: int) -> NDArray[np.float32]:
+    """``prefilt``'s Gaussian exp(-(fx^2 + fy^2) / s1^2) on an n x n grid, rfft2 half-plane."""
     s1 = PREFILTER_FC / np.sqrt(np.log(2.0))
     fx, fy = _centred_frequencies(n, n)
     lowpass = np.exp(-(fx**2 + fy**2) / s1**2)[:, : n // 2 + 1]
-    lowpass.setflags(write=False)
-    return lowpass
+    return _readonly(lowpass.astype(np.float32))
 
 
-def prefilter(image: NDArray[np.floating]) -> NDArray[np.float64]:
-    """LMgist's ``prefilt``: log, whitening and local contrast normalisation (fc = 4)."""
+@lru_cache(maxsize=4)
+def _gabor_bank_2ch(rows: int, cols: int) -> NDArray[np.float32]:
+    """The Gabor bank duplicated into two channels, to multiply OpenCV complex spectra."""
+    return _readonly(np.repeat(gabor_bank(rows, cols)[..., None], 2, axis=3))
+
+
+def _readonly(array: NDArray) -> NDArray:
+    array.setflags(write=False)
+    return array
+
+
+def _lowpass(image: NDArray[np.float32], lowpass: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Circular convolution with a real, even transfer function (``real(ifft2(fft2(x) .* gf))``)."""
+    return scipy.fft.irfft2(scipy.fft.rfft2(image) * lowpass, s=image.shape)
+
+
+def prefilter(image: NDArray[np.floating]) -> NDArray[np.float32]:
+    """LMgist's ``prefilt``: log, whitening and local contrast normalisation (fc = 4).
+
+    Single precision, as LMgist (which converts the image to ``single`` first).
+    """
     w = PREFILTER_PAD
     rows, cols = image.shape
-    padded = np.pad(np.log(image.astype(np.float64) + 1.0), w, mode="symmetric")
+    padded = np.pad(np.log(image.astype(np.float32) + np.float32(1.0)), w, mode="symmetric")
     n = max(padded.shape)
     n += n % 2
     padded = np.pad(padded, ((0, n - padded.shape[0]), (0, n - padded.shape[1])), mode="symmetric")
     lowpass = _prefilter_lowpass(n)
-    whitened = padded - scipy.fft.irfft2(scipy.fft.rfft2(padded) * lowpass, s=padded.shape)
-    local_var = scipy.fft.irfft2(scipy.fft.rfft2(whitened**2) * lowpass, s=padded.shape)
-    normalised = whitened / (0.2 + np.sqrt(np.abs(local_var)))
+    whitened = padded - _lowpass(padded, lowpass)
+    local_std = np.sqrt(np.abs(_lowpass(whitened * whitened, lowpass)))
+    normalised = whitened / (np.float32(0.2) + local_std)
     return normalised[w : w + rows, w : w + cols]
 
 
 def gist_of_prefiltered(image: NDArray[np.floating]) -> NDArray[np.float32]:
-    """LMgist's ``gistGabor`` on a prefiltered image: 512 mean-pooled Gabor magnitudes."""
+    """LMgist's ``gistGabor`` on a prefiltered image: 512 mean-pooled Gabor magnitudes.
+
+    One filter at a time (a 320 x 320 spectrum stays in cache); OpenCV's DFT is about twice as
+    fast as scipy.fft here. The inverse DFT is left unscaled and the pooled means divided by
+    the number of samples instead.
+    """
     b = BOUNDARY
     rows, cols = image.shape
+    if rows % GRID or cols % GRID:
+        raise ValueError(f"image sides must be multiples of {GRID}, got {image.shape}")
     padded = np.pad(image.astype(np.float32), b, mode="symmetric")
-    bank = gabor_bank(*padded.shape)
-    spectrum = scipy.fft.fft2(padded)
-    responses = scipy.fft.ifft2(bank * spectrum[None], axes=(1, 2), overwrite_x=True)
-    magnitude = np.abs(responses[:, b : b + rows, b : b + cols])
-    # downN: block edges fix(linspace(0, n, 5)); blocks in column-major order (row fastest).
-    row_edges = np.linspace(0, rows, GRID + 1).astype(np.intp)
-    col_edges = np.linspace(0, cols, GRID + 1).astype(np.intp)
-    row_sums = np.add.reduceat(magnitude, row_edges[:-1], axis=1)
-    sums = np.add.reduceat(row_sums, col_edges[:-1], axis=2)
-    areas = np.outer(np.diff(row_edges), np.diff(col_edges))
-    pooled = sums / areas[None]
-    return pooled.transpose(0, 2, 1).reshape(-1).astype(np.float32)
+    bank = _gabor_bank_2ch(*padded.shape)
+    spectrum = cv2.dft(padded, flags=cv2.DFT_COMPLEX_OUTPUT)
+    pooled = np.empty((bank.shape[0], GRID, GRID), dtype=np.float32)
+    for k, transfer in enumerate(bank):
+        response = cv2.idft(cv2.multiply(spectrum, transfer), flags=cv2.DFT_COMPLEX_OUTPUT)
+        crop = response[b : b + rows, b : b + cols]
+        magnitude = cv2.magnitude(crop[..., 0], crop[..., 1])
+        # downN: equal blocks (the sides are multiples of GRID), averaged.
+        pooled[k] = magnitude.reshape(GRID, rows // GRID, GRID, cols // GRID).mean(axis=(1, 3))
+    pooled /= np.float32(padded.size)
+    # LMgist order: filter-major, blocks column-major (row index fastest).
+    return pooled.transpose(0, 2, 1).reshape(-1)
 
 
 def compute_gist(gray: NDArray[np.uint8]) -> NDArray[np.float32]:

@@ -82,16 +82,19 @@ def _density(counts: NDArray[np.float64], sigma: float) -> NDArray[np.float64]:
     return np.maximum(dens, 1e-9 / counts.size)
 
 
-def observation_tables(model: HistogramModel, sigma: float, prior: float) -> _Tables:
+def observation_tables(model: HistogramModel, sigma: float, prior: float, outlier: float,
+                       pseudo: float) -> _Tables:
     """Observation terms per bin from the current model.
 
-    The likelihood ratio P(d|L)/P(d|not L) is made non-increasing in d (running minimum): a
-    larger difference is never more evidence of the same place than a smaller one. This keeps an
-    empty or sparse ``b`` tail from favouring large differences.
+    The likelihood ratio P(d|L)/P(d|not L) is made non-increasing in d (running maximum from the
+    large end): a smaller difference is never less evidence of the same place than a larger one.
+    This keeps the sparse low tail of either histogram from penalising very good matches.
     """
-    p_same = _density(model.b, sigma)
     p_diff = _density(model.c, sigma)
-    ratio = np.minimum.accumulate(p_same / p_diff)
+    n_b = model.b.sum()
+    share = max(outlier, pseudo / (n_b + pseudo)) if n_b + pseudo > 0 else 1.0
+    p_same = (1.0 - share) * _density(model.b, sigma) + share * p_diff
+    ratio = np.maximum.accumulate((p_same / p_diff)[::-1])[::-1]
     same = ratio * prior
     p_d = same + (1.0 - prior)  # P(d) / P(d|not L), eq. 6
     return _Tables(log_ratio=np.log(ratio / p_d), p_not_same=(1.0 - prior) / p_d)
@@ -158,6 +161,8 @@ def localize_catgraph(
     bins: int = DEFAULT_BINS,
     smoothing_bins: float = DEFAULT_SMOOTHING_BINS,
     prior: float = DEFAULT_PRIOR,
+    outlier: float = 0.0,
+    pseudo: float = 0.0,
     step_noise: float = DEFAULT_STEP_NOISE,
     noise_floor: float = DEFAULT_NOISE_FLOOR,
     speed_noise: float = DEFAULT_SPEED_NOISE,
@@ -219,7 +224,7 @@ def localize_catgraph(
         row = np.asarray(row, dtype=np.float64)
         if row.shape != (n_nodes,) or not np.all(np.isfinite(row)):
             raise WilocError("catgraph", f"query row {k} must hold {n_nodes} finite differences")
-        tables = observation_tables(model, smoothing_bins, prior)
+        tables = observation_tables(model, smoothing_bins, prior, outlier, pseudo)
 
         if k > 0:  # motion model: s += v u_k + noise
             if speed_noise > 0:

@@ -22,7 +22,7 @@ DEFAULT_INIT = 100
 DEFAULT_BINS = 100
 DEFAULT_EXCLUDE_RECENT = 10
 DEFAULT_SAME_PLACE_WINDOW = 2
-DEFAULT_SMOOTHING = 1.0
+DEFAULT_SMOOTHING = 0.1
 
 Progress = Callable[[int, int], None]
 
@@ -64,21 +64,34 @@ def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
     return float("nan")
 
 
-def _range_edges(values: list[float], bins: int) -> NDArray[np.float64]:
-    """Bin edges fixed from the initialisation values: [min(0, lowest), highest]."""
-    arr = np.asarray(values, dtype=np.float64)
-    low = min(0.0, float(arr.min()))
-    high = float(arr.max())
-    if not high > low:
-        high = low + max(abs(low), 1.0) * 1e-6
-    return np.linspace(low, high, bins + 1)
+def best_matches(rows: Iterable[NDArray[np.float64]], n_frames: int,
+                 where: str) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Per row (argmin, min) over its finite entries: -1 and NaN for rows with no candidate."""
+    best = [finite_minimum(np.asarray(row, dtype=np.float64)) for row in rows]
+    if len(best) != n_frames:
+        raise WilocError(where, f"got {len(best)} difference rows, expected n_frames={n_frames}")
+    match = np.array([z for z, _ in best], dtype=np.int64).reshape(n_frames)
+    difference = np.array([m for _, m in best], dtype=np.float64).reshape(n_frames)
+    return match, difference
+
+
+def model_from_values(values: NDArray[np.float64], bins: int, smoothing: float,
+                      prior: float | None) -> HistogramModel:
+    """An empty model whose ``bins`` equal bins span [min(0, lowest value), highest value].
+
+    Differences are >= 0 for every metric, and same-place values fall below the samples that
+    fix the range (different-place minima), so the low edge is 0, not the lowest value seen.
+    """
+    return HistogramModel.from_range(min(0.0, float(values.min())), float(values.max()), bins,
+                                     smoothing=smoothing, prior=prior)
 
 
 def _initial_model(seen: list[float], bins: int, smoothing: float,
                    prior: float | None) -> HistogramModel:
     """The model at the end of initialisation: range fixed from ``seen``, which fill ``c``."""
-    model = HistogramModel(_range_edges(seen, bins), smoothing=smoothing, prior=prior)
-    model.add_different(seen)
+    values = np.asarray(seen, dtype=np.float64)
+    model = model_from_values(values, bins, smoothing, prior)
+    model.add_different(values)
     return model
 
 
@@ -102,9 +115,9 @@ def localize_online(
     reference traversal against itself outside +-R) fills ``c`` and every query frame is decided.
     The bin range is fixed from the initialisation minima; later values clamp into the edge bins.
     """
-    if init < 0 or bins < 1 or same_place_window < 0 or smoothing < 0:
-        raise WilocError("online", "init, bins, same_place_window and smoothing must be >= 0 "
-                                   "(bins >= 1)")
+    if init < 1 or bins < 1 or same_place_window < 0 or smoothing < 0:
+        raise WilocError("online", "init and bins must be >= 1, same_place_window and smoothing "
+                                   ">= 0")
     if prior is not None and not 0.0 < prior < 1.0:
         raise WilocError("online", f"prior must lie strictly between 0 and 1, got {prior}")
     if not sequence and init_rows is None:
@@ -154,6 +167,6 @@ def localize_online(
 
     params = {"method": "online", "sequence": sequence, "init": init, "bins": bins,
               "same_place_window": same_place_window, "prior": prior, "smoothing": smoothing,
-              "init_frames": len(seen) if not sequence else min(init, len(seen))}
+              "init_frames": len(seen)}
     return Decisions(match=match, difference=difference, confidence=confidence, stage=stage,
                      columns={"m_r": m_r}, model=model, params=params)

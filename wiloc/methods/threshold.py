@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decisions
-from wiloc.methods.online import finite_minimum
+from wiloc.methods.online import best_matches
 
 
 def localize_threshold(rows: Iterable[NDArray[np.float64]], n_frames: int, *,
@@ -27,12 +27,7 @@ def localize_threshold(rows: Iterable[NDArray[np.float64]], n_frames: int, *,
     """
     if normaliser is not None and not (np.isfinite(normaliser) and normaliser > 0):
         raise WilocError("threshold", f"normaliser must be a positive number, got {normaliser}")
-    best = [finite_minimum(np.asarray(row, dtype=np.float64)) for row in rows]
-    if len(best) != n_frames:
-        raise WilocError("threshold", f"got {len(best)} difference rows, expected "
-                                      f"n_frames={n_frames}")
-    match = np.array([z for z, _ in best], dtype=np.int64).reshape(n_frames)
-    difference = np.array([m for _, m in best], dtype=np.float64).reshape(n_frames)
+    match, difference = best_matches(rows, n_frames, "threshold")
     decided = match >= 0
     scale = normaliser
     if scale is None:

@@ -1,0 +1,155 @@
+"""The paper's evaluation protocol on a real dataset, shared by the example scripts.
+
+For every descriptor, method and query traversal: ``wiloc.api.localize`` against the map; then
+``wiloc.api.compare`` (Table I and Table II), the plots (Figure 5 precision against threshold,
+Figure 1 learned histograms, precision-recall curves), and ``summary.json`` with the table rows.
+``render_markdown`` turns a summary into the tables pasted in docs/results.md, which
+tests/test_examples.py regenerates and compares.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+
+from wiloc import api, plots
+from wiloc.cli import progress_bar, table1_view, table2_view
+from wiloc.errors import WilocError
+
+REPO = Path(__file__).resolve().parents[1]
+METHODS = ("online", "threshold", "trained", "catgraph")
+console = Console()
+err = Console(stderr=True)
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One protocol run: a map, its query traversals, descriptors, and how ``trained`` is trained."""
+
+    name: str
+    reference: Path
+    queries: list[Path]
+    descriptors: list[str]
+    training: Callable[[Path], api.Training]  # the labelled pair used when testing one query
+    training_note: str
+    tolerance: int
+
+
+def default_data_root() -> Path:
+    """$WILOC_DATA, else the shared data folder beside the repository."""
+    return Path(os.environ.get("WILOC_DATA") or REPO.parent / "shared" / "data")
+
+
+def parse_args(name: str, description: str, descriptors: bool) -> argparse.Namespace:
+    """The examples' common options: the data folder, the output folder and (maybe) descriptors."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("data", nargs="?", type=Path, default=default_data_root(),
+                        help="folder holding the datasets (default: $WILOC_DATA or ../shared/data)")
+    parser.add_argument("--out", type=Path, default=Path("wiloc-examples") / name,
+                        help="output folder (default: %(default)s)")
+    if descriptors:
+        parser.add_argument("--descriptors", default="sad",
+                            help="comma-separated: sad, gist, brisk-gist (default: %(default)s)")
+    return parser.parse_args()
+
+
+def aligned(tolerance: int) -> api.TruthSource:
+    """Aligned ground truth: the same file name is the same place, +-tolerance frames."""
+    return api.TruthSource(kind="aligned", tolerance=tolerance)
+
+
+def run_experiment(experiment: Experiment, out: Path) -> dict[str, Any]:
+    """Localize every query with every method and descriptor, compare, plot, write summary.json."""
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    with progress_bar(True) as progress:
+        for descriptor in experiment.descriptors:
+            for method in METHODS:
+                for query in experiment.queries:
+                    run = api.localize(
+                        query, reference=experiment.reference, descriptor=descriptor, method=method,
+                        training=experiment.training(query) if method == "trained" else None,
+                        out=out / "results" / f"{query.name}-{descriptor}-{method}.csv", progress=progress)
+                    paths.append(run.path)
+    comparison = api.compare(paths, aligned(experiment.tolerance))
+    evaluations = comparison.evaluations
+    online = next(e for e in evaluations if e.method == "online")
+    files = [plots.plot_threshold(api.threshold_series(evaluations), out / "threshold.png",
+                                  title=f"{experiment.name}: precision against threshold"),
+             plots.plot_model(online.results.model, out / "model.png",
+                              title=f"{experiment.name}: online model learned on {online.traversal}"),
+             plots.plot_pr({f"{e.method} {e.traversal}": e.curve for e in evaluations}, out / "pr.png",
+                           title=f"{experiment.name}: precision-recall")]
+    summary = {"experiment": experiment.name, "map": experiment.reference.name,
+               "queries": [q.name for q in experiment.queries], "descriptors": experiment.descriptors,
+               "ground_truth": f"aligned, +-{experiment.tolerance} frames",
+               "trained_on": experiment.training_note,
+               "table1": comparison.table1.to_dict(orient="records"),
+               "table2": comparison.table2.to_dict(orient="records")}
+    (out / "summary.json").write_text(json.dumps(_finite(summary), indent=2) + "\n", encoding="utf-8")
+    console.print(table1_view(comparison))
+    console.print(table2_view(comparison))
+    console.print(f"trained: {experiment.training_note}")
+    print(render_markdown(summary))
+    for path in [out / "summary.json", *files, out / "results"]:
+        console.print(f"wrote {path}")
+    return summary
+
+
+def _finite(value: Any) -> Any:
+    """JSON-ready: NaN and infinities become null, numpy scalars plain numbers."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    if hasattr(value, "item"):
+        value = value.item()
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def _percent(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.1f}"
+
+
+def render_markdown(summary: dict[str, Any]) -> str:
+    """Table I and Table II of a summary as the markdown pasted in docs/results.md."""
+    lines = [f"<!-- {summary['experiment']}: generated by examples/{summary['experiment']}.py -->",
+             "", "| method | traversal | recall @100 % | @99 % | @90 % | AUC | R@1 | frames |",
+             "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for row in summary["table1"]:
+        auc = "-" if row["auc"] is None else f"{row['auc']:.3f}"
+        lines.append(f"| {row['method']} | {row['traversal']} | {_percent(row['recall@100'])} | "
+                     f"{_percent(row['recall@99'])} | {_percent(row['recall@90'])} | {auc} | "
+                     f"{_percent(row['R@1'])} | {row['frames']} |")
+    lines += ["", "| method | precision | global threshold | traversal | recall | worst |",
+              "|---|---:|---:|---|---:|:---:|"]
+    for row in summary["table2"]:
+        threshold = "-" if row["threshold"] is None else f"{row['threshold']:.4g}"
+        lines.append(f"| {row['method']} | {row['precision']:g} % | {threshold} | {row['traversal']} | "
+                     f"{_percent(row['recall'])} | {'*' if row['worst'] else ''} |")
+    return "\n".join(lines)
+
+
+def main(build: Callable[[], tuple[Experiment, Path]]) -> None:
+    """Run an example: one error line and its exit code for bad input, never a traceback."""
+    try:
+        experiment, out = build()
+        run_experiment(experiment, out)
+    except WilocError as exc:
+        err.print(f"error: {exc}", markup=False, highlight=False)
+        sys.exit(exc.exit_code)
+
+
+def require(folders: Sequence[Path]) -> None:
+    """Stop with a clear message when a dataset folder is missing."""
+    for folder in folders:
+        if not folder.is_dir():
+            raise WilocError(folder, "dataset folder not found (pass the data folder or set WILOC_DATA)")

@@ -1,0 +1,140 @@
+"""The cache's primitives: atomic HDF5 writes, temp-file cleanup, the lock, the journal."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from wiloc.cache import TEMP_SUFFIX, Cache, EntryHeader, FrameRecord, StoredEntry
+from wiloc.errors import CacheBusyError
+
+
+def _header(folder: str = "/data/route", length: int = 4) -> EntryHeader:
+    return EntryHeader.create(folder, "fake", {"k": (1, 2)}, "l1", 2.0, None, np.float32, length)
+
+
+def _record(name: str, value: float, length: int = 4) -> FrameRecord:
+    return FrameRecord(name, 10, 20, f"digest-{name}", np.full(length, value, np.float32), "", 64, 48)
+
+
+def test_default_root_is_wiloc_cache_env(cache_dir: Path) -> None:
+    assert Cache().root == cache_dir.resolve()
+
+
+def test_atomic_h5_replaces_on_success_and_keeps_old_file_on_error(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "c")
+    target = cache.root / "sub" / "m.h5"
+    with cache.atomic_h5(target) as f:
+        f["x"] = np.arange(3)
+    with pytest.raises(RuntimeError), cache.atomic_h5(target) as f:
+        f["x"] = np.arange(5)
+        raise RuntimeError("fail mid-write")
+    with h5py.File(target, "r") as f:
+        np.testing.assert_array_equal(f["x"][()], np.arange(3))
+    assert sorted(p.name for p in target.parent.iterdir()) == ["m.h5"]
+
+
+def test_clean_temp_files_removes_only_orphans(tmp_path: Path) -> None:
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    folder = tmp_path / "c" / "differences"
+    folder.mkdir(parents=True)
+    orphan = folder / f".m.h5.{dead.stdout.strip()}.ab12{TEMP_SUFFIX}"
+    live = folder / f".m.h5.{os.getpid()}.cd34{TEMP_SUFFIX}"
+    orphan.write_bytes(b"half")
+    live.write_bytes(b"half")
+    Cache(tmp_path / "c")  # construction cleans up
+    assert not orphan.exists()
+    assert live.exists()
+
+
+def test_lock_times_out_in_another_process_naming_the_holder(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "c")
+    code = (
+        "import sys; from pathlib import Path; from wiloc.cache import Cache\n"
+        "from wiloc.errors import CacheBusyError\n"
+        "try:\n"
+        f"    with Cache(Path({str(cache.root)!r})).lock('descriptors/k.h5', timeout=0.2): pass\n"
+        "except CacheBusyError as e: print(e); sys.exit(3)\n"
+    )
+    with cache.lock("descriptors/k.h5"), cache.lock("descriptors/k.h5", timeout=0):  # re-entrant
+        busy = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert busy.returncode == 3
+    assert f"(pid {os.getpid()})" in busy.stdout
+    assert str(cache.root / "descriptors" / "k.h5") in busy.stdout
+    free = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert free.returncode == 0, free.stderr
+
+
+def test_lock_rejects_names_outside_the_cache(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "c")
+    for name in ("../x", "/etc/x", ""):
+        with pytest.raises(ValueError), cache.lock(name):
+            pass
+
+
+def test_journal_survives_a_torn_record_and_folds_into_the_entry(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "c")
+    header = _header()
+    journal = cache.open_journal(header)
+    for i in range(3):
+        journal.append(_record(f"f{i}.png", i))
+    journal.close()
+    path = cache.journal_path(header.key)
+    whole = path.stat().st_size
+    with open(path, "ab") as f:  # a kill in the middle of the fourth record
+        f.write(b"WJR1\x40\x00\x00\x00garbage")
+    stored = cache.read_stored(header.key)
+    assert stored is not None and stored.journaled and not stored.complete
+    assert sorted(stored.records) == ["f0.png", "f1.png", "f2.png"]
+    [info] = cache.list_entries()
+    assert (info.frames, info.complete, info.key) == (3, False, header.key)
+
+    journal = cache.open_journal(header)  # truncates the torn tail before appending
+    assert path.stat().st_size == whole
+    journal.append(_record("f3.png", 3))
+    journal.close()
+    stored = cache.read_stored(header.key)
+    entry = cache.write_entry(stored, complete=True)
+    assert not path.exists()
+    assert entry.names == ["f0.png", "f1.png", "f2.png", "f3.png"]
+    np.testing.assert_array_equal(entry.data[:, 0], [0, 1, 2, 3])
+    again = cache.read_entry(header.key)
+    assert again.digest == entry.digest
+    np.testing.assert_array_equal(again.data, entry.data)
+    assert again.params == {"k": [1, 2]}
+
+
+def test_entry_file_layout_is_plain_h5py(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "c")
+    header = _header()
+    stored = StoredEntry(header, {
+        "a10.png": _record("a10.png", 1.0),
+        "a2.png": _record("a2.png", 2.0),
+        "bad.png": FrameRecord("bad.png", 0, 5, "d", None, "empty file (0 bytes)"),
+    })
+    cache.write_entry(stored, complete=True)
+    with h5py.File(cache.entry_path(header.key), "r") as f:
+        assert f.attrs["complete"] and f.attrs["descriptor"] == "fake"
+        assert [n.decode() for n in f["frames/name"][()]] == ["a2.png", "a10.png"]
+        assert f["descriptors"].shape == (2, 4) and f["descriptors"].dtype == np.float32
+        assert [r.decode() for r in f["failed/reason"][()]] == ["empty file (0 bytes)"]
+        for attr in ("folder", "params", "metric", "scale", "dtype", "wiloc_version", "created",
+                     "updated", "digest"):
+            assert attr in f.attrs
+
+
+def test_entry_digest_follows_content_not_mtime(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "c")
+    base = StoredEntry(_header(), {"a.png": _record("a.png", 1.0)})
+    touched = StoredEntry(_header(), {"a.png": FrameRecord("a.png", 10, 99, "digest-a.png",
+                                                           np.full(4, 1.0, np.float32))})
+    edited = StoredEntry(_header(), {"a.png": FrameRecord("a.png", 10, 20, "other",
+                                                          np.full(4, 1.0, np.float32))})
+    assert base.entry().digest == touched.entry().digest != edited.entry().digest
+    assert cache.list_entries() == []

@@ -1,0 +1,114 @@
+"""The command line end to end on small generated traversals: output, --json, errors, exit codes."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from wiloc.cli import app
+
+runner = CliRunner()
+
+
+def _places(n: int, seed: int = 0) -> list[np.ndarray]:
+    """Distinct smooth random 96x64 scenes, one per place."""
+    rng = np.random.default_rng(seed)
+    scenes = []
+    for _ in range(n):
+        small = rng.uniform(0, 255, size=(8, 12)).astype(np.float32)
+        scenes.append(cv2.resize(small, (96, 64), interpolation=cv2.INTER_CUBIC))
+    return scenes
+
+
+def _write_traversal(folder: Path, scenes: list[np.ndarray], gain: float, seed: int) -> Path:
+    rng = np.random.default_rng(seed)
+    folder.mkdir(parents=True)
+    for i, scene in enumerate(scenes):
+        image = np.clip(scene * gain + rng.normal(0, 6, scene.shape), 0, 255).astype(np.uint8)
+        cv2.imwrite(str(folder / f"img{i}.png"), image)
+    return folder
+
+
+@pytest.fixture
+def route(tmp_path: Path, cache_dir: Path) -> tuple[Path, Path]:
+    """A reference and a darker, noisier query over the same 40 places."""
+    scenes = _places(40)
+    return (_write_traversal(tmp_path / "ref", scenes, 1.0, 1),
+            _write_traversal(tmp_path / "query", scenes, 0.7, 2))
+
+
+def _json(result) -> object:
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout)
+
+
+def test_describe_reports_and_reuses_cache(route: tuple[Path, Path]) -> None:
+    ref, _ = route
+    first = _json(runner.invoke(app, ["describe", str(ref), "--json", "--jobs", "1"]))
+    assert first[0]["frames"] == 40 and first[0]["computed"] == 40 and first[0]["shape"] == "1152"
+    second = _json(runner.invoke(app, ["describe", str(ref), "--json", "--jobs", "1"]))
+    assert second[0]["computed"] == 0 and second[0]["reused"] == 40
+    table = runner.invoke(app, ["describe", str(ref), "--jobs", "1"])
+    assert table.exit_code == 0 and "reused" in table.stdout
+
+
+def test_missing_folder_is_one_line_error(tmp_path: Path, cache_dir: Path) -> None:
+    result = runner.invoke(app, ["describe", str(tmp_path / "nope")])
+    assert result.exit_code == 1
+    assert "Traceback" not in result.output
+    assert str(tmp_path / "nope") in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_localize_evaluate_compare(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    runs = tmp_path / "runs"
+    for method in ("online", "threshold"):
+        rows = _json(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", method,
+                                         "--out", str(runs / f"query-{method}.csv"), "--json"]))
+        assert rows[0]["frames"] == 40 and rows[0]["decided"] == 40
+    metrics = _json(runner.invoke(app, ["evaluate", str(runs / "query-online.csv"), "--gt", "aligned",
+                                        "--json"]))
+    assert metrics[0]["frames"] == 40 and 0.0 <= metrics[0]["recall_at_100"] <= 1.0
+    assert metrics[0]["recall_at_1"] > 0.8  # the scenes are distinct; nearest neighbours are right
+    fig5 = tmp_path / "fig5.png"
+    table = _json(runner.invoke(app, ["compare", str(runs / "query-online.csv"), str(runs / "query-threshold.csv"),
+                                      "--gt", "aligned", "--threshold-plot", str(fig5), "--json"]))
+    assert {row["method"] for row in table["table1"]} == {"online", "threshold"}
+    assert {row["precision"] for row in table["table2"]} == {100.0, 99.0}
+    assert fig5.stat().st_size > 0
+
+
+def test_sequence_mode_with_too_few_frames_writes_nothing(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, _ = route
+    out = tmp_path / "seq.csv"
+    result = runner.invoke(app, ["localize", str(ref), "--init", "100", "--out", str(out)])
+    assert result.exit_code == 1
+    assert "too few" in result.stderr and "Traceback" not in result.output
+    assert not out.exists()
+
+
+def test_map_with_one_frame_is_refused(route: tuple[Path, Path], tmp_path: Path) -> None:
+    _, query = route
+    single = tmp_path / "single"
+    single.mkdir()
+    (single / "img0.png").write_bytes((query / "img0.png").read_bytes())
+    result = runner.invoke(app, ["localize", str(query), "--map", str(single)])
+    assert result.exit_code == 1 and "at least 2" in result.stderr
+
+
+def test_evaluate_rejects_a_foreign_csv(tmp_path: Path) -> None:
+    bad = tmp_path / "x.csv"
+    bad.write_text("a,b\n1,2\n")
+    result = runner.invoke(app, ["evaluate", str(bad)])
+    assert result.exit_code == 1 and "not a wiloc results file" in result.stderr
+
+
+def test_help_shows_examples() -> None:
+    for command in ([], ["describe"], ["localize"], ["evaluate"], ["compare"], ["demo"]):
+        result = runner.invoke(app, [*command, "--help"])
+        assert result.exit_code == 0 and "Example" in result.stdout

@@ -1,0 +1,234 @@
+"""describe_folder through the cache: reuse, incremental updates, bad frames, crashes, locking."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+
+from wiloc.cache import Cache, EntryHeader
+from wiloc.describe import describe_folder, import_matrix, load_entry
+from wiloc.errors import CacheBusyError, WilocError
+from wiloc.frames import read_gray
+
+
+@dataclass(frozen=True)
+class FakeSpec:
+    """A cheap stand-in for a DescriptorSpec: the image area-resized to side x side."""
+
+    params: dict[str, Any] = field(default_factory=lambda: {"side": 4})
+    name: str = "fake"
+    metric: str = "l1"
+    dtype: np.dtype = np.dtype(np.float32)
+    scale: float = 1.0
+    min_size: tuple[int, int] | None = None
+    natural_max: float | None = 255.0
+
+    @property
+    def length(self) -> int:
+        return self.params["side"] ** 2
+
+    def compute(self, gray: np.ndarray) -> np.ndarray:
+        side = self.params["side"]
+        return cv2.resize(gray, (side, side), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()
+
+
+def write_images(folder: Path, count: int, seed: int = 0, size: tuple[int, int] = (64, 48)) -> list[str]:
+    """`count` smooth random images, alternating PNG and JPEG, named img0 .. img{count-1}."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    names = []
+    for i in range(count):
+        image = cv2.GaussianBlur(rng.integers(0, 256, (size[1], size[0]), dtype=np.uint8), (5, 5), 0)
+        name = f"img{i}.{'png' if i % 2 else 'jpg'}"
+        assert cv2.imwrite(str(folder / name), image)
+        names.append(name)
+    return names
+
+
+def expected_rows(folder: Path, names: list[str], spec: FakeSpec) -> np.ndarray:
+    return np.stack([spec.compute(read_gray(folder / n, spec.min_size)) for n in names])
+
+
+def test_round_trip_and_incremental_updates(tmp_path: Path) -> None:
+    folder = tmp_path / "route"
+    names = write_images(folder, 12)
+    (folder / "notes.txt").write_text("not an image")
+    cache = Cache(tmp_path / "cache")
+    spec = FakeSpec()
+    calls: list[tuple[int, int]] = []
+
+    first = describe_folder(folder, spec, cache, jobs=2, progress=lambda d, t: calls.append((d, t)))
+    assert (first.computed, first.reused, first.failed, first.frames) == (12, 0, [], 12)
+    assert first.entry.names == names  # natural order: img2 before img10
+    assert first.shape == (12, 16) and first.entry.data.dtype == np.float32
+    np.testing.assert_array_equal(first.entry.data, expected_rows(folder, names, spec))
+    assert first.ignored == ["notes.txt"] and first.sizes == [(64, 48)]
+    assert calls[-1] == (12, 12) and [d for d, _ in calls] == sorted(d for d, _ in calls)
+
+    second = describe_folder(folder, spec, cache, jobs=1)
+    assert (second.computed, second.reused) == (0, 12)
+    assert second.entry.digest == first.entry.digest
+
+    os.utime(folder / names[3], ns=(1, 1))  # same content, new mtime: digest says reuse
+    touched = describe_folder(folder, spec, cache, jobs=1)
+    assert (touched.computed, touched.reused) == (0, 12)
+    assert touched.entry.digest == first.entry.digest
+
+    write_images(tmp_path / "other", 1, seed=7)
+    os.replace(tmp_path / "other" / "img0.jpg", folder / names[4])  # new content
+    changed = describe_folder(folder, spec, cache, jobs=1)
+    assert (changed.computed, changed.reused) == (1, 11)
+    assert changed.entry.digest != first.entry.digest
+    np.testing.assert_array_equal(changed.entry.data, expected_rows(folder, names, spec))
+
+    write_images(tmp_path / "more", 13, seed=3)
+    os.replace(tmp_path / "more" / "img12.jpg", folder / "img12.jpg")
+    added = describe_folder(folder, spec, cache, jobs=1)
+    assert (added.computed, added.reused, added.shape) == (1, 12, (13, 16))
+    assert added.entry.names[-1] == "img12.jpg"
+
+    (folder / names[0]).unlink()
+    removed = describe_folder(folder, spec, cache, jobs=1)
+    assert (removed.computed, removed.shape) == (0, (12, 16))
+    assert names[0] not in removed.entry.names
+
+    other = describe_folder(folder, FakeSpec(params={"side": 2}), cache, jobs=1)
+    assert (other.computed, other.shape) == (12, (12, 4))
+    infos = cache.list_entries()
+    assert len(infos) == 2 and all(i.complete and i.frames == 12 for i in infos)
+    assert sorted(i.params["side"] for i in infos) == [2, 4]
+    assert load_entry(folder, spec, cache).digest == removed.entry.digest
+
+
+def test_bad_frames_are_reported_and_left_out(tmp_path: Path) -> None:
+    folder = tmp_path / "route"
+    names = write_images(folder, 4)
+    (folder / "img10.png").write_bytes(b"")
+    whole = (folder / "img0.jpg").read_bytes()
+    (folder / "img11.jpg").write_bytes(whole[: len(whole) // 2])
+    cache = Cache(tmp_path / "cache")
+    report = describe_folder(folder, FakeSpec(), cache, jobs=2)
+    assert [name for name, _ in report.failed] == ["img10.png", "img11.jpg"]
+    assert all(reason for _, reason in report.failed)
+    assert report.entry.names == names
+    assert (report.computed, report.shape, report.frames) == (4, (4, 16), 6)
+    again = describe_folder(folder, FakeSpec(), cache, jobs=1)
+    assert again.failed == report.failed and again.computed == 0
+
+
+def test_mixed_sizes_are_reported(tmp_path: Path) -> None:
+    folder = tmp_path / "route"
+    write_images(folder, 2)
+    write_images(tmp_path / "big", 1, size=(96, 40))
+    os.replace(tmp_path / "big" / "img0.jpg", folder / "img5.jpg")
+    report = describe_folder(folder, FakeSpec(), Cache(tmp_path / "cache"), jobs=1)
+    assert report.sizes == [(64, 48), (96, 40)]
+    assert report.shape == (3, 16)
+
+
+_RUN = """
+import sys
+from pathlib import Path
+from wiloc.cache import Cache
+from wiloc.describe import describe_folder
+from wiloc.descriptors.registry import get_descriptor
+describe_folder(Path(sys.argv[1]), get_descriptor("gist"), Cache(Path(sys.argv[2])), jobs=int(sys.argv[3]))
+"""
+
+
+def test_describe_in_another_process_reports_a_busy_entry(tmp_path: Path) -> None:
+    from wiloc.descriptors.registry import get_descriptor
+
+    folder = tmp_path / "route"
+    write_images(folder, 2)
+    cache = Cache(tmp_path / "cache")
+    spec = get_descriptor("gist")
+    key = EntryHeader.create(str(folder.resolve()), spec.name, spec.params, spec.metric, spec.scale,
+                             spec.natural_max, spec.dtype, spec.length).key
+    code = _RUN.replace("Cache(Path(sys.argv[2]))", "Cache(Path(sys.argv[2]), lock_timeout=0.3)")
+    with cache.lock(cache.entry_name(key)):
+        busy = subprocess.run([sys.executable, "-c", code, str(folder), str(cache.root), "1"],
+                              capture_output=True, text=True)
+    assert busy.returncode != 0
+    assert f"CacheBusyError: {cache.entry_path(key)}: in use by another wiloc process (pid {os.getpid()})" in busy.stderr
+    assert cache.list_entries() == []
+
+
+def test_missing_folder_and_bad_jobs_are_user_errors(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "cache")
+    with pytest.raises(WilocError, match="does not exist"):
+        describe_folder(tmp_path / "nope", FakeSpec(), cache)
+    write_images(tmp_path / "route", 1)
+    with pytest.raises(WilocError, match="at least 1"):
+        describe_folder(tmp_path / "route", FakeSpec(), cache, jobs=0)
+
+
+
+
+@pytest.mark.parametrize(("sig", "jobs"), [(signal.SIGKILL, 1), (signal.SIGINT, 2)])
+def test_interrupted_describe_resumes(tmp_path: Path, sig: signal.Signals, jobs: int) -> None:
+    from wiloc.descriptors.registry import get_descriptor
+
+    folder = tmp_path / "route"
+    count = 48
+    write_images(folder, count)
+    cache = Cache(tmp_path / "cache")
+    run = subprocess.Popen([sys.executable, "-c", _RUN, str(folder), str(cache.root), str(jobs)],
+                           stderr=subprocess.PIPE)
+    finished = 0
+    deadline = time.monotonic() + 120
+    while finished < 8 and run.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+        finished = sum(info.frames for info in cache.list_entries())
+    assert run.poll() is None, "describe ended before it could be interrupted"
+    run.send_signal(sig)
+    run.wait(timeout=60)
+    assert run.returncode != 0
+
+    for path in cache.root.rglob("*.h5"):
+        with h5py.File(path, "r"):
+            pass
+    [info] = cache.list_entries()
+    assert not info.complete and 8 <= info.frames < count
+    resumed = describe_folder(folder, get_descriptor("gist"), cache, jobs=jobs)
+    assert resumed.computed == count - info.frames
+    assert resumed.reused == info.frames
+    clean = describe_folder(folder, get_descriptor("gist"), Cache(tmp_path / "clean"), jobs=2)
+    assert resumed.entry.names == clean.entry.names
+    # gist itself varies in the last float32 bit between calls (OpenCV's SIMD DFT), so rows are
+    # compared to a few ulp; the frame bookkeeping above and the digest below are exact.
+    np.testing.assert_allclose(resumed.entry.data, clean.entry.data, rtol=1e-5, atol=1e-7)
+    assert resumed.entry.digest == clean.entry.digest
+    assert not list(cache.root.rglob("*.wiloc-tmp")) and not list(cache.root.rglob("*.journal"))
+
+
+def test_import_matrix_is_cached_and_follows_the_file(tmp_path: Path) -> None:
+    matrix = np.random.default_rng(1).random((5, 3)).astype(np.float32)
+    path = tmp_path / "netvlad.npy"
+    np.save(path, matrix)
+    names_path = tmp_path / "names.txt"
+    names_path.write_text("".join(f"f{i}.png\n" for i in range(5)))
+    cache = Cache(tmp_path / "cache")
+    first = import_matrix(path, cache, names_path, "cosine")
+    assert (first.computed, first.shape, first.entry.metric) == (5, (5, 3), "cosine")
+    assert first.entry.names == [f"f{i}.png" for i in range(5)]
+    np.testing.assert_array_equal(first.entry.data, matrix)
+    second = import_matrix(path, cache, names_path, "cosine")
+    assert (second.computed, second.reused) == (0, 5)
+    assert second.entry.digest == first.entry.digest
+    np.save(path, matrix * 2)
+    third = import_matrix(path, cache, names_path, "cosine")
+    assert third.computed == 5 and third.entry.digest != first.entry.digest
+    np.testing.assert_array_equal(third.entry.data, matrix * 2)
+    with pytest.raises(WilocError, match="does not exist"):
+        import_matrix(tmp_path / "missing.npy", cache, None, "cosine")

@@ -1,0 +1,70 @@
+"""The example scripts on the real datasets, and the numbers docs/results.md quotes from them.
+
+Each example runs once (descriptor ``sad``, the scripts' default, which is what docs/results.md
+checks) in a subprocess with a private cache; the markdown tables that
+``examples/protocol.render_markdown`` makes from its ``summary.json`` must appear verbatim in
+docs/results.md and in what the script printed.
+"""
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLES = ("gardens_point", "nordland")
+METHODS = ("online", "threshold", "trained", "catgraph")
+QUERIES = {"gardens_point": {"day_left", "night_right"}, "nordland": {"winter"}}
+
+pytestmark = pytest.mark.realdata
+
+
+def _protocol() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("protocol", REPO / "examples" / "protocol.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def runs(data_root: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[dict, str]]:
+    """Each example's summary.json and printed output (one cache shared by both runs)."""
+    tmp = tmp_path_factory.mktemp("examples")
+    env = {**os.environ, "WILOC_CACHE": str(tmp / "cache"), "COLUMNS": "200"}
+    done = {}
+    for name in EXAMPLES:
+        out = tmp / name
+        proc = subprocess.run([sys.executable, str(REPO / "examples" / f"{name}.py"), str(data_root),
+                               "--out", str(out)], capture_output=True, text=True, env=env, check=False)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        done[name] = (json.loads((out / "summary.json").read_text(encoding="utf-8")), proc.stdout)
+    return done
+
+
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_example_covers_every_method_and_query(runs: dict[str, tuple[dict, str]], name: str) -> None:
+    summary, stdout = runs[name]
+    pairs = {(row["method"], row["traversal"]) for row in summary["table1"]}
+    assert pairs == {(m, q) for m in METHODS for q in QUERIES[name]}
+    for row in summary["table1"]:
+        assert 0.0 <= row["recall@100"] <= row["recall@99"] <= row["recall@90"] <= 1.0
+    worst = [row for row in summary["table2"] if row["worst"]]
+    assert len(worst) == 2 * len(METHODS)  # one per method and target precision (100, 99)
+    assert f"trained: {summary['trained_on']}" in stdout
+    assert "summary.json" in stdout
+
+
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_results_doc_quotes_the_examples(runs: dict[str, tuple[dict, str]], name: str) -> None:
+    summary, stdout = runs[name]
+    tables = _protocol().render_markdown(summary)
+    assert tables in stdout
+    assert tables in (REPO / "docs" / "results.md").read_text(encoding="utf-8"), (
+        f"docs/results.md is out of date for {name}; paste:\n{tables}")

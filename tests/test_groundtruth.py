@@ -1,0 +1,246 @@
+"""Ground-truth readers: the four forms, name matching, warnings and errors."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import scipy.io
+from scipy.spatial.distance import cdist
+
+from wiloc.errors import WilocError
+from wiloc.groundtruth import (EARTH_RADIUS_M, Truth, aligned_truth, load_truth, matrix_truth,
+                               pairs_truth, positions_truth, restrict_sequence)
+
+REFS = [f"img{i}.jpg" for i in range(8)]
+
+
+def dense(truth: Truth) -> np.ndarray:
+    return truth.matrix.toarray()
+
+
+def write_csv(path: Path, rows: dict[str, list]) -> Path:
+    pd.DataFrame(rows).to_csv(path, index=False)
+    return path
+
+
+# --- Truth -----------------------------------------------------------------------------------
+
+def test_is_true_is_vectorised_and_minus_one_is_false() -> None:
+    truth = aligned_truth(REFS[:3], REFS, tolerance=0)
+    got = truth.is_true([0, 1, 2, 2, 0], [0, 0, 2, -1, 7])
+    assert got.tolist() == [True, False, True, False, False]
+    assert truth.has_match().tolist() == [True, True, True]
+
+
+# --- aligned ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("tolerance", [0, 1, 2])
+def test_aligned_by_name_follows_names_not_positions(tolerance: int) -> None:
+    queries = ["img5.jpg", "img0.jpg", "img7.jpg", "other.jpg"]
+    truth = aligned_truth(queries, REFS, tolerance)
+    expected = np.zeros((4, 8), dtype=bool)
+    for row, name in enumerate(queries[:3]):
+        centre = REFS.index(name)
+        for col in range(8):
+            expected[row, col] = abs(col - centre) <= tolerance
+    np.testing.assert_array_equal(dense(truth), expected)
+    assert truth.warnings == ["aligned ground truth (by name): 1 of 4 query frames have no "
+                              "reference frame to align with"]
+
+
+def test_aligned_by_index_pairs_positions() -> None:
+    queries = [f"q{i}" for i in range(10)]
+    truth = aligned_truth(queries, REFS, tolerance=1, by="index")
+    assert truth.is_true([0, 0, 3, 7, 8], [0, 1, 5, 6, 7]).tolist() == [True, True, False, True, False]
+    assert truth.has_match().sum() == 8
+    assert "2 of 10" in truth.warnings[0]
+
+
+def test_aligned_without_any_common_name_is_fatal() -> None:
+    with pytest.raises(WilocError, match="none of the 2 query frames"):
+        aligned_truth(["a", "b"], REFS, tolerance=2)
+
+
+def test_aligned_rejects_negative_tolerance() -> None:
+    with pytest.raises(WilocError, match="tolerance"):
+        aligned_truth(REFS, REFS, tolerance=-1)
+
+
+# --- positions -------------------------------------------------------------------------------
+
+def test_positions_metres_radius(tmp_path: Path) -> None:
+    q = write_csv(tmp_path / "q.csv", {"name": ["a", "b"], "x": [0.0, 10.0], "y": [0.0, 0.0]})
+    r = write_csv(tmp_path / "r.csv", {"name": ["r0", "r1", "r2"], "x": [0.0, 3.0, 13.9],
+                                       "y": [4.0, 0.0, 0.0]})
+    truth = positions_truth(q, r, 4.0, ["a", "b"], ["r0", "r1", "r2"])
+    # a-r0 4.0 m (inside, radius inclusive), a-r1 3 m, b-r1 7 m, b-r2 3.9 m.
+    np.testing.assert_array_equal(dense(truth), [[True, True, False], [False, False, True]])
+    assert truth.warnings == []
+
+
+def test_positions_metres_agree_with_brute_force(tmp_path: Path) -> None:
+    rng = np.random.default_rng(3)
+    qxy, rxy = rng.uniform(0, 50, (30, 2)), rng.uniform(0, 50, (40, 2))
+    qn, rn = [f"q{i}" for i in range(30)], [f"r{i}" for i in range(40)]
+    q = write_csv(tmp_path / "q.csv", {"name": qn, "x": qxy[:, 0], "y": qxy[:, 1]})
+    r = write_csv(tmp_path / "r.csv", {"name": rn, "x": rxy[:, 0], "y": rxy[:, 1]})
+    truth = positions_truth(q, r, 7.5, qn, rn)
+    np.testing.assert_array_equal(dense(truth), cdist(qxy, rxy) <= 7.5)
+
+
+def haversine(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    la, lb = np.radians(a[:, None, :]), np.radians(b[None, :, :])
+    dlat, dlon = lb[..., 0] - la[..., 0], lb[..., 1] - la[..., 1]
+    h = np.sin(dlat / 2) ** 2 + np.cos(la[..., 0]) * np.cos(lb[..., 0]) * np.sin(dlon / 2) ** 2
+    return 2 * EARTH_RADIUS_M * np.arcsin(np.sqrt(h))
+
+
+def test_positions_latlon_uses_metres_on_the_sphere(tmp_path: Path) -> None:
+    # 0.0001 degree of latitude is about 11.1 m.
+    q = write_csv(tmp_path / "q.csv", {"name": ["a"], "lat": [-27.4770], "lon": [153.0280]})
+    r = write_csv(tmp_path / "r.csv", {"name": ["b", "c"], "lat": [-27.4771, -27.4790],
+                                       "lon": [153.0280, 153.0280]})
+    assert dense(positions_truth(q, r, 15.0, ["a"], ["b", "c"])).tolist() == [[True, False]]
+    assert dense(positions_truth(q, r, 10.0, ["a"], ["b", "c"])).tolist() == [[False, False]]
+    assert dense(positions_truth(q, r, 250.0, ["a"], ["b", "c"])).tolist() == [[True, True]]
+
+
+def test_positions_latlon_agree_with_haversine(tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    pts = np.column_stack([rng.uniform(51.750, 51.760, 50), rng.uniform(-1.26, -1.25, 50)])
+    names = [f"f{i:03d}" for i in range(50)]
+    csv = write_csv(tmp_path / "gps.csv", {"name": names, "lat": pts[:, 0], "lon": pts[:, 1]})
+    truth = positions_truth(csv, csv, 120.0, names, names)  # sequence mode: one file
+    expected = haversine(pts, pts) <= 120.0
+    differ = dense(truth) != expected
+    # Chord vs haversine only differ within rounding of the boundary.
+    assert np.all(np.abs(haversine(pts, pts)[differ] - 120.0) < 1e-6)
+    assert dense(truth).diagonal().all()
+
+
+def test_positions_partial_names_are_warned_with_counts(tmp_path: Path) -> None:
+    csv = write_csv(tmp_path / "p.csv", {"name": ["a", "b", "zzz"], "x": [0, 1, 2], "y": [0, 0, 0]})
+    truth = positions_truth(csv, csv, 1.5, ["a", "b", "c"], ["a", "b", "c"])
+    assert any("1 of 3 query frames have no ground-truth row" in w for w in truth.warnings)
+    assert any("1 of 3 ground-truth rows name no query frame" in w for w in truth.warnings)
+    assert truth.has_match().tolist() == [True, True, False]
+
+
+@pytest.mark.parametrize("rows, problem", [
+    ({"name": ["a", "b"], "x": [0.0, 1.0]}, "name,x,y"),
+    ({"frame": ["a", "b"], "x": [0.0, 1.0], "y": [0.0, 1.0]}, "missing column"),
+    ({"name": ["a", "b"], "x": [0.0, np.nan], "y": [0.0, 1.0]}, "missing or non-numeric"),
+    ({"name": ["a", "a"], "x": [0.0, 1.0], "y": [0.0, 1.0]}, "duplicate"),
+    ({"name": ["x1", "x2"], "x": [0.0, 1.0], "y": [0.0, 1.0]}, "no name matches"),
+])
+def test_positions_bad_input_names_the_file(tmp_path: Path, rows: dict, problem: str) -> None:
+    csv = write_csv(tmp_path / "bad.csv", rows)
+    with pytest.raises(WilocError, match=problem) as err:
+        positions_truth(csv, csv, 5.0, ["a", "b"], ["a", "b"])
+    assert err.value.where == str(csv)
+
+
+def test_positions_mixed_coordinate_kinds_are_rejected(tmp_path: Path) -> None:
+    q = write_csv(tmp_path / "q.csv", {"name": ["a"], "x": [0.0], "y": [0.0]})
+    r = write_csv(tmp_path / "r.csv", {"name": ["b"], "lat": [0.0], "lon": [0.0]})
+    with pytest.raises(WilocError, match="lat/lon"):
+        positions_truth(q, r, 5.0, ["a"], ["b"])
+
+
+# --- pairs -----------------------------------------------------------------------------------
+
+def test_pairs_lists_true_matches(tmp_path: Path) -> None:
+    csv = write_csv(tmp_path / "pairs.csv", {"query": ["q0", "q0", "q2"],
+                                             "reference": ["img1.jpg", "img6.jpg", "img3.jpg"]})
+    truth = pairs_truth(csv, ["q0", "q1", "q2"], REFS)
+    expected = np.zeros((3, 8), dtype=bool)
+    expected[0, [1, 6]] = expected[2, 3] = True
+    np.testing.assert_array_equal(dense(truth), expected)
+    assert truth.warnings == []
+
+
+def test_pairs_tolerance_column_widens_per_row(tmp_path: Path) -> None:
+    csv = write_csv(tmp_path / "pairs.csv", {"query": ["q0", "q1"], "reference": ["img0.jpg", "img4.jpg"],
+                                             "tolerance": [2, 1]})
+    truth = pairs_truth(csv, ["q0", "q1"], REFS)
+    assert np.flatnonzero(dense(truth)[0]).tolist() == [0, 1, 2]
+    assert np.flatnonzero(dense(truth)[1]).tolist() == [3, 4, 5]
+
+
+def test_pairs_unknown_names_are_warned_and_duplicates_fatal(tmp_path: Path) -> None:
+    csv = write_csv(tmp_path / "p.csv", {"query": ["q0", "nope"], "reference": ["img0.jpg", "img1.jpg"]})
+    truth = pairs_truth(csv, ["q0"], REFS)
+    assert truth.warnings == [f"{csv}: 1 of 2 rows name no query frame (skipped)"]
+    dup = write_csv(tmp_path / "d.csv", {"query": ["q0", "q0"], "reference": ["img0.jpg", "img0.jpg"]})
+    with pytest.raises(WilocError, match="duplicate"):
+        pairs_truth(dup, ["q0"], REFS)
+    missing = write_csv(tmp_path / "m.csv", {"query": ["q0"], "ref": ["img0.jpg"]})
+    with pytest.raises(WilocError, match="reference"):
+        pairs_truth(missing, ["q0"], REFS)
+    with pytest.raises(WilocError, match="none of the 2 rows"):
+        pairs_truth(csv, ["x"], REFS)
+
+
+# --- matrix ----------------------------------------------------------------------------------
+
+@pytest.fixture
+def mask() -> np.ndarray:
+    rng = np.random.default_rng(11)
+    return (rng.random((5, 8)) < 0.3).astype(np.uint8)
+
+
+@pytest.mark.parametrize("suffix", [".npy", ".csv", ".mat"])
+def test_matrix_forms_read_nonzero_as_same_place(tmp_path: Path, mask: np.ndarray, suffix: str) -> None:
+    path = tmp_path / f"mask{suffix}"
+    if suffix == ".npy":
+        np.save(path, mask)
+    elif suffix == ".csv":
+        np.savetxt(path, mask, delimiter=",", fmt="%d")
+    else:
+        scipy.io.savemat(path, {"truth": mask})
+    truth = matrix_truth(path, [f"q{i}" for i in range(5)], REFS)
+    np.testing.assert_array_equal(dense(truth), mask != 0)
+
+
+def test_matrix_shape_and_mat_choice_errors(tmp_path: Path, mask: np.ndarray) -> None:
+    np.save(tmp_path / "m.npy", mask)
+    with pytest.raises(WilocError, match="matrix is 5 x 8, expected 8 x 8"):
+        matrix_truth(tmp_path / "m.npy", REFS, REFS)
+    scipy.io.savemat(tmp_path / "two.mat", {"gt": mask, "other": mask.T})
+    names = [f"q{i}" for i in range(5)]
+    with pytest.raises(WilocError, match="holds 2 2-D arrays, name one of: gt, other"):
+        matrix_truth(tmp_path / "two.mat", names, REFS)
+    picked = matrix_truth(tmp_path / "two.mat", names, REFS, variable="gt")
+    np.testing.assert_array_equal(dense(picked), mask != 0)
+    with pytest.raises(WilocError, match="no such file"):
+        matrix_truth(tmp_path / "absent.npy", names, REFS)
+
+
+# --- sequence restriction and dispatch -------------------------------------------------------
+
+def test_restrict_sequence_keeps_earlier_frames_outside_the_window() -> None:
+    full = Truth(np.ones((6, 6), dtype=bool), REFS[:6], REFS[:6])
+    kept = dense(restrict_sequence(full, exclude_recent=2))
+    rows, cols = np.indices((6, 6))
+    np.testing.assert_array_equal(kept, cols < rows - 2)
+    assert restrict_sequence(full, 2).has_match().tolist() == [False] * 3 + [True] * 3
+    with pytest.raises(WilocError, match="same frames"):
+        restrict_sequence(aligned_truth(REFS[:3], REFS, 0), 2)
+
+
+def test_load_truth_dispatches_each_kind(tmp_path: Path, mask: np.ndarray) -> None:
+    names = [f"q{i}" for i in range(5)]
+    np.save(tmp_path / "m.npy", mask)
+    pairs = write_csv(tmp_path / "p.csv", {"query": ["q1"], "reference": ["img2.jpg"]})
+    pos = write_csv(tmp_path / "pos.csv", {"name": REFS, "x": np.arange(8.0), "y": np.zeros(8)})
+    assert dense(load_truth("matrix", tmp_path / "m.npy", query_names=names, ref_names=REFS)).sum() == mask.sum()
+    assert load_truth("pairs", pairs, query_names=names, ref_names=REFS).is_true(1, 2)
+    assert dense(load_truth("aligned", None, query_names=REFS, ref_names=REFS, tolerance=1)).sum() == 8 + 2 * 7
+    seq = load_truth("positions", pos, query_names=REFS, ref_names=REFS, radius=1.0)
+    assert dense(seq).sum() == 8 + 2 * 7
+    with pytest.raises(WilocError, match="unknown ground-truth kind"):
+        load_truth("gps", pos, query_names=REFS, ref_names=REFS)
+    with pytest.raises(WilocError, match="radius"):
+        load_truth("positions", pos, query_names=REFS, ref_names=REFS)

@@ -1,0 +1,166 @@
+"""The online model: the Appendix logic on hand-made rows, causality, and unsupervised convergence."""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from wiloc.errors import WilocError
+from wiloc.methods.online import localize_online, near_miss
+
+INF = np.inf
+
+
+def _seq(values: list[list[float]], n: int) -> list[np.ndarray]:
+    """Sequence-mode rows: row k lists the differences to frames 0..len-1, the rest not candidates."""
+    rows = []
+    for vals in values:
+        row = np.full(n, INF)
+        row[: len(vals)] = vals
+        rows.append(row)
+    return rows
+
+
+def test_initialisation_adds_only_to_c() -> None:
+    rows = _seq([[], [0.5], [0.7, 0.3], [0.9, 0.6, 0.4]], 4)
+    calls: list[tuple[int, int]] = []
+    out = localize_online(rows, 4, sequence=True, init=3, bins=10,
+                          progress=lambda done, total: calls.append((done, total)))
+    assert calls[-1] == (4, 4) and len(calls) == 4
+    assert out.stage.tolist() == ["none", "init", "init", "init"]
+    assert not out.decided.any()
+    assert out.model is not None and out.model.b.sum() == 0
+    assert out.model.c.sum() == 3
+    assert np.array_equal(out.model.c, np.bincount(out.model.bin_of([0.5, 0.3, 0.4]), minlength=10))
+    # the bin range is fixed from the minima seen, starting at 0
+    assert out.model.edges[0] == 0.0 and out.model.edges[-1] == pytest.approx(0.5)
+
+
+def test_update_adds_minimum_to_b_and_near_miss_to_c() -> None:
+    rows = _seq([[], [0.8], [0.9, 0.7], [0.2, 0.6, 0.9]], 4)
+    out = localize_online(rows, 4, sequence=True, init=2, bins=8, same_place_window=0)
+    assert out.stage.tolist() == ["none", "init", "init", "update"]
+    assert out.match[3] == 0 and out.difference[3] == 0.2
+    assert out.columns["m_r"][3] == 0.6
+    model = out.model
+    assert np.array_equal(model.b, np.bincount(model.bin_of([0.2]), minlength=8))
+    assert np.array_equal(model.c, np.bincount(model.bin_of([0.8, 0.7, 0.6]), minlength=8))
+
+
+def test_candidate_whose_match_is_in_m_is_skipped() -> None:
+    match = np.array([-1, -1, -1, 0, -1, -1, -1])
+    row = np.array([0.1, INF, 0.5, 0.2, 0.3, INF, INF])
+    # z = 0; frame 3 was matched to 0, so it is the same place; frame 4 is not
+    assert near_miss(row, 0, match, window=0) == 0.3
+    assert near_miss(row, 0, np.full(7, -1), window=0) == 0.2
+
+
+def test_candidate_that_is_the_match_of_min_m_is_skipped() -> None:
+    match = np.array([-1, -1, -1, -1, -1, 1, -1, -1])
+    row = np.array([INF, 0.2, 0.3, INF, INF, 0.1, INF, INF])
+    # z = 5 was matched to 1, so frame 1 is the same place; frame 2 is not
+    assert near_miss(row, 5, match, window=0) == 0.3
+    assert near_miss(row, 5, np.full(8, -1), window=0) == 0.2
+
+
+def test_chain_of_links_grows_m() -> None:
+    # visits 0, 3, 6 of one place: match(6) = 3, match(3) = 0; z = 6 -> 3 -> 0 all excluded
+    match = np.array([-1, -1, -1, 0, -1, -1, 3, -1, -1])
+    row = np.array([0.15, 0.9, 0.8, 0.12, INF, INF, 0.1, INF, INF])
+    assert near_miss(row, 6, match, window=0) == 0.8
+
+
+def test_frames_within_window_of_z_are_skipped() -> None:
+    row = np.array([0.9, 0.3, 0.25, 0.1, 0.2, 0.35, 0.5])
+    assert near_miss(row, 3, None, window=0) == 0.2
+    assert near_miss(row, 3, None, window=2) == 0.5
+    assert np.isnan(near_miss(row, 3, None, window=6))
+
+
+def test_match_links_are_recorded_by_the_run() -> None:
+    n = 5
+    rows = _seq([[], [0.9], [0.3, 0.8], [0.95, 0.9, 0.85], [0.25, 0.6, 0.2, 0.7]], n)
+    out = localize_online(rows, n, sequence=True, init=1, bins=10, same_place_window=0)
+    assert out.match[2] == 0
+    # frame 4: z = 2; frame 0 is excluded because match(2) = 0; frame 1 (0.6) is the near miss
+    assert out.match[4] == 2 and out.columns["m_r"][4] == 0.6
+
+
+def test_probability_is_computed_before_the_update() -> None:
+    rng = np.random.default_rng(5)
+    n = 40
+    rows = [np.where(np.arange(n) < k - 2, rng.uniform(0.0, 1.0, n), INF) for k in range(n)]
+    for k in (20, 33):
+        before = localize_online(rows[:k], k, sequence=True, init=10, bins=10).model
+        frozen = copy.deepcopy(before)
+        after = localize_online(rows[: k + 1], k + 1, sequence=True, init=10, bins=10)
+        assert after.confidence[k] == frozen.posterior(after.difference[k])
+        assert after.model.b.sum() == before.b.sum() + 1
+
+
+def test_map_mode_initialises_from_reference_rows() -> None:
+    ref = [np.array([INF, 0.6, 0.8]), np.array([0.6, INF, 0.7]), np.array([0.8, 0.7, INF])]
+    queries = [np.array([0.1, 0.5, 0.9]), np.array([0.4, 0.2, 0.3])]
+    out = localize_online(queries, 2, sequence=False, init_rows=ref, bins=5, same_place_window=0)
+    assert out.stage.tolist() == ["update", "update"]
+    assert out.match.tolist() == [0, 1]
+    assert out.columns["m_r"].tolist() == [0.5, 0.3]
+    assert out.model.b.sum() == 2 and out.model.c.sum() == 5
+    with pytest.raises(WilocError):
+        localize_online(queries, 2, sequence=False)
+    with pytest.raises(WilocError):
+        localize_online(queries, 3, sequence=False, init_rows=ref)
+    with pytest.raises(WilocError):
+        localize_online(queries, 2, sequence=True, init=0)
+
+
+def _bin_posterior(edges: np.ndarray, same: stats.rv_continuous, diff: stats.rv_continuous,
+                   prior: float) -> np.ndarray:
+    """The posterior a histogram with these edges converges to under the known densities."""
+    fb = np.diff(same.cdf(edges))
+    fc = np.diff(diff.cdf(edges))
+    return prior * fb / (prior * fb + (1 - prior) * fc)
+
+
+def test_online_posterior_converges_to_truth_without_labels() -> None:
+    """A route of P places driven L times; row k compares frame k with frames before k - R.
+
+    Each earlier visit of the place is a little further from frame k the older it is (the latest
+    visit looks most alike), so the runs' own match links form the chain the recursive test
+    follows; no labels reach the model.
+    """
+    rng = np.random.default_rng(7)
+    places, laps, recent = 80, 12, 5
+    same = stats.gamma(4.0, scale=0.05)             # same place: mean 0.2
+    near = stats.norm(0.6, 0.08)                    # smallest difference to another place
+    n = places * laps
+    rows = []
+    for k in range(n):
+        row = np.full(n, INF)
+        cand = np.arange(max(0, k - recent))
+        if cand.size:
+            visits = cand[cand % places == k % places]
+            others = cand[cand % places != k % places]
+            nm = max(near.rvs(random_state=rng), 0.01)
+            row[others] = nm + rng.exponential(0.3, others.size)
+            row[rng.choice(others)] = nm
+            if visits.size:
+                # the latest visit gets the same-place value, older visits are close behind it
+                age = np.arange(visits.size)[::-1]
+                row[visits] = same.rvs(random_state=rng) + 0.04 * age + rng.uniform(0, 0.02) * (age > 0)
+        rows.append(row)
+    out = localize_online(rows, n, sequence=True, init=places - recent - 1, bins=20,
+                          same_place_window=0)
+    model = out.model
+    truth = _bin_posterior(model.edges, same, near, model.prior_same())
+    centres = 0.5 * (model.edges[1:] + model.edges[:-1])
+    # the bulk: bins that hold at least 1 % of the pooled samples
+    counts = model.b + model.c
+    bulk = counts >= 0.01 * counts.sum()
+    assert bulk.sum() >= 8
+    err = np.abs(model.posterior(centres) - truth)[bulk]
+    assert err.max() < 0.2 and err.mean() < 0.05
+    # the repaired recursive test keeps earlier visits out of c
+    assert np.mean(out.columns["m_r"][out.decided] < 0.35) < 0.02

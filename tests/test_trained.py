@@ -1,0 +1,71 @@
+"""The trained model: histograms from labelled pairs, decisions with P(L | m)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse
+from scipy import stats
+
+from wiloc.errors import WilocError
+from wiloc.methods.trained import localize_trained, train_model
+
+
+def _labelled(rng: np.random.Generator, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows over m candidates: the true match of row k is candidate k % m (gamma), others normal."""
+    labels = np.zeros((n, m), dtype=bool)
+    labels[np.arange(n), np.arange(n) % m] = True
+    rows = stats.norm(0.7, 0.1).rvs(size=(n, m), random_state=rng)
+    rows[labels] = stats.gamma(4.0, scale=0.08).rvs(size=n, random_state=rng)
+    return rows, labels
+
+
+def test_all_pairs_posterior_matches_truth() -> None:
+    rng = np.random.default_rng(11)
+    rows, labels = _labelled(rng, 3000, 4)
+    model = train_model(list(rows), scipy.sparse.csr_matrix(labels), bins=25, pairs="all")
+    assert model.b.sum() == labels.sum() and model.c.sum() == (~labels).sum()
+    fb = np.diff(stats.gamma(4.0, scale=0.08).cdf(model.edges))
+    fc = np.diff(stats.norm(0.7, 0.1).cdf(model.edges))
+    prior = model.prior_same()
+    assert prior == pytest.approx(0.25)
+    truth = prior * fb / (prior * fb + (1 - prior) * fc)
+    counts = model.b + model.c
+    bulk = counts >= 0.01 * counts.sum()
+    centres = 0.5 * (model.edges[1:] + model.edges[:-1])
+    err = np.abs(model.posterior(centres) - truth)[bulk]
+    assert bulk.sum() >= 10 and err.max() < 0.1
+
+
+def test_minima_pairs_label_each_best_match() -> None:
+    rng = np.random.default_rng(12)
+    rows, labels = _labelled(rng, 400, 6)
+    rows[::7] = np.inf
+    model = train_model(iter(rows), labels, bins=10)
+    decided = np.isfinite(rows).any(axis=1)
+    right = labels[np.arange(400), np.argmin(rows, axis=1)] & decided
+    assert model.b.sum() == right.sum()
+    assert model.c.sum() == decided.sum() - right.sum()
+
+
+def test_localize_trained_uses_the_posterior_of_the_minimum() -> None:
+    rng = np.random.default_rng(13)
+    rows, labels = _labelled(rng, 300, 5)
+    model = train_model(list(rows), labels, bins=20)
+    test_rows, _ = _labelled(rng, 50, 5)
+    test_rows[4] = np.inf
+    out = localize_trained(list(test_rows), 50, model)
+    assert out.match[4] == -1 and np.isnan(out.confidence[4])
+    ok = out.decided
+    assert np.array_equal(out.match[ok], np.argmin(test_rows[ok], axis=1))
+    assert np.allclose(out.confidence[ok], model.posterior(test_rows[ok].min(axis=1)))
+    assert out.model is model
+
+
+def test_training_needs_both_classes_and_matching_shapes() -> None:
+    rows = np.ones((3, 4))
+    with pytest.raises(WilocError):
+        train_model(list(rows), np.zeros((3, 4), dtype=bool))
+    with pytest.raises(WilocError):
+        train_model(list(rows), np.eye(3, 5, dtype=bool))
+    with pytest.raises(WilocError):
+        train_model(list(rows), np.eye(3, 4, dtype=bool), pairs="some")  # type: ignore[arg-type]

@@ -1,0 +1,227 @@
+"""Folder -> descriptor matrix through the cache, computed in worker processes.
+
+Unchanged frames are reused (same size and mtime, or else the same content digest); only new or
+changed frames are computed, each journaled the moment its result arrives, so an interrupted run
+resumes where it stopped. Unreadable frames are reported and left out, never invented.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, replace
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from wiloc.cache import Cache, Entry, EntryHeader, FrameRecord, StoredEntry, entry_key
+from wiloc.descriptors.external import read_external
+from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
+from wiloc.errors import FrameError, WilocError
+from wiloc.frames import fingerprint, jpeg_size, list_traversal, read_gray
+
+Progress = Callable[[int, int], None]
+#: Most frames one worker task handles: large enough that process round trips cost little,
+#: small enough that results stream back (and are journaled) within a second or so.
+MAX_CHUNK = 16
+_Task = tuple[Path, FrameRecord | None]
+
+
+@dataclass(frozen=True)
+class DescribeReport:
+    """What a describe run did: counts, bad and ignored files, image sizes, speed, and the entry."""
+
+    folder: str
+    descriptor: str
+    shape: tuple[int, int]
+    frames: int
+    computed: int
+    reused: int
+    failed: list[tuple[str, str]]
+    ignored: list[str]
+    sizes: list[tuple[int, int]]
+    seconds: float
+    images_per_second: float
+    entry: Entry
+
+
+def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int | None = None,
+                    progress: Progress | None = None) -> DescribeReport:
+    """Describe every image of a traversal folder with `spec`, reusing what the cache holds.
+
+    `jobs` worker processes compute (default: all cores; 1 computes in this process).
+    `progress(done, total)` is called as frames are settled, reused ones first.
+    """
+    start = time.perf_counter()
+    jobs = _check_jobs(jobs)
+    traversal = list_traversal(folder)
+    header = EntryHeader.create(
+        str(Path(folder).resolve()), spec.name, spec.params, spec.metric, spec.scale,
+        spec.natural_max, spec.dtype, spec.length)
+    total = len(traversal.frames)
+    with cache.lock(cache.entry_name(header.key)):
+        stored = cache.read_stored(header.key)
+        if stored is None or stored.header != header:
+            stored = StoredEntry(header)
+        elif stored.journaled:
+            cache.write_entry(stored, complete=False)
+        names = set(traversal.names)
+        removed = [name for name in stored.records if name not in names]
+        for name in removed:
+            del stored.records[name]
+        tasks = [(path, stored.records.get(path.name)) for path in traversal.frames
+                 if not _unchanged(path, stored.records.get(path.name))]
+        done = total - len(tasks)
+        if progress is not None:
+            progress(done, total)
+        computed = 0
+        if tasks:
+            journal = cache.open_journal(header)
+            try:
+                for record, fresh in _compute(spec, tasks, jobs):
+                    journal.append(record)
+                    stored.records[record.name] = record
+                    computed += fresh
+                    done += 1
+                    if progress is not None:
+                        progress(done, total)
+            finally:
+                journal.close()
+        if tasks or removed or not stored.complete:
+            entry = cache.write_entry(stored, complete=True)
+        else:
+            entry = stored.entry()
+    records = stored.ordered()
+    failed = [(r.name, r.reason) for r in records if r.row is None]
+    seconds = time.perf_counter() - start
+    return DescribeReport(
+        folder=header.folder, descriptor=spec.name, shape=entry.data.shape, frames=total,
+        computed=computed, reused=total - computed - len(failed), failed=failed,
+        ignored=[p.name for p in traversal.ignored],
+        sizes=sorted({(r.width, r.height) for r in records if r.row is not None}),
+        seconds=seconds, images_per_second=computed / seconds, entry=entry,
+    )
+
+
+def load_entry(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int | None = None,
+               progress: Progress | None = None) -> Entry:
+    """The complete cache entry of `folder` under `spec`, describing whatever is missing first."""
+    return describe_folder(folder, spec, cache, jobs=jobs, progress=progress).entry
+
+
+def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str) -> DescribeReport:
+    """Bring a user's N x D descriptor matrix into the cache as an entry of its own.
+
+    The entry is keyed by the file's resolved path, the metric and the content digests of the
+    matrix file and of the names file, so an edited file makes a new entry, never a silent mix.
+    """
+    start = time.perf_counter()
+    sources = [Path(p).resolve() for p in (path, names_path) if p is not None]
+    for source in sources:
+        if not source.is_file():
+            raise WilocError(source, "file does not exist")
+    prints = [fingerprint(source) for source in sources]
+    params = {"metric": metric, "file_digest": prints[0].digest,
+              "names": str(sources[1]) if names_path is not None else None,
+              "names_digest": prints[1].digest if names_path is not None else None}
+    key = entry_key(str(sources[0]), "external", params)
+    with cache.lock(cache.entry_name(key)):
+        stored = cache.read_stored(key)
+        fresh = stored is None or not stored.complete
+        if fresh:
+            names, matrix = read_external(sources[0], names_path, metric)
+            spec = get_descriptor("external", metric=metric, length=matrix.shape[1], dtype=matrix.dtype.name)
+            header = EntryHeader.create(str(sources[0]), "external", params, spec.metric, spec.scale,
+                                        spec.natural_max, spec.dtype, spec.length)
+            stored = StoredEntry(header, {
+                name: FrameRecord(name, prints[0].size, prints[0].mtime_ns, prints[0].digest, row)
+                for name, row in zip(names, matrix)})
+            entry = cache.write_entry(stored, complete=True)
+        else:
+            entry = stored.entry()
+    seconds = time.perf_counter() - start
+    n = len(entry.names)
+    return DescribeReport(
+        folder=str(sources[0]), descriptor="external", shape=entry.data.shape, frames=n,
+        computed=n if fresh else 0, reused=0 if fresh else n, failed=[], ignored=[], sizes=[],
+        seconds=seconds, images_per_second=(n if fresh else 0) / seconds, entry=entry,
+    )
+
+
+def _check_jobs(jobs: int | None) -> int:
+    if jobs is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if jobs < 1:
+        raise WilocError("--jobs", f"must be at least 1, got {jobs}")
+    return jobs
+
+
+def _unchanged(path: Path, old: FrameRecord | None) -> bool:
+    """Fast path: a stored frame whose file has the same size and mtime is reused unread."""
+    if old is None:
+        return False
+    try:
+        stat = path.stat()
+    except OSError:
+        return False
+    return stat.st_size == old.size and stat.st_mtime_ns == old.mtime_ns
+
+
+def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterator[tuple[FrameRecord, bool]]:
+    """Settle each task, yielding (record, computed) as results arrive, over `jobs` processes."""
+    if jobs == 1 or len(tasks) == 1:
+        for path, old in tasks:
+            yield _describe_one(spec, path, old)
+        return
+    size = max(1, min(MAX_CHUNK, len(tasks) // (4 * jobs)))
+    chunks = [tasks[i:i + size] for i in range(0, len(tasks), size)]
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=get_context("forkserver"),
+                               initializer=_init_worker)
+    try:
+        futures = [pool.submit(_describe_chunk, spec, chunk) for chunk in chunks]
+        for future in as_completed(futures):
+            yield from future.result()
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+
+
+def _init_worker() -> None:
+    """Workers leave Ctrl-C to the parent, which stops them and keeps what was journaled. (They
+    keep OpenCV's default threads: its thread count changes some descriptors in the last bit,
+    and rows must not depend on `jobs`.)"""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _describe_chunk(spec: DescriptorSpec, chunk: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:
+    return [_describe_one(spec, path, old) for path, old in chunk]
+
+
+def _describe_one(spec: DescriptorSpec, path: Path, old: FrameRecord | None) -> tuple[FrameRecord, bool]:
+    """One frame's record and whether its descriptor was computed (False: reused or failed).
+    A frame whose content digest matches its stored record keeps that record's row or failure."""
+    try:
+        fp = fingerprint(path)
+    except OSError as exc:
+        return FrameRecord(path.name, -1, -1, "", None, f"cannot read file ({exc.strerror or exc})"), False
+    if old is not None and old.digest == fp.digest:
+        return replace(old, size=fp.size, mtime_ns=fp.mtime_ns), False
+    try:
+        gray = read_gray(path, spec.min_size)
+    except FrameError as exc:
+        return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, None, exc.problem), False
+    row = np.asarray(spec.compute(gray), dtype=spec.dtype)
+    width, height = _full_size(path, gray)
+    return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, row, "", width, height), True
+
+
+def _full_size(path: Path, gray: np.ndarray) -> tuple[int, int]:
+    """(width, height) of the image file: a JPEG's header size (its decode may be reduced),
+    else the decoded size."""
+    head = np.fromfile(path, np.uint8, count=65536)
+    is_jpeg = head.size >= 2 and head[0] == 0xFF and head[1] == 0xD8
+    return (jpeg_size(head) if is_jpeg else None) or (gray.shape[1], gray.shape[0])
