@@ -232,3 +232,17 @@ def test_import_matrix_is_cached_and_follows_the_file(tmp_path: Path) -> None:
     np.testing.assert_array_equal(third.entry.data, matrix * 2)
     with pytest.raises(WilocError, match="does not exist"):
         import_matrix(tmp_path / "missing.npy", cache, None, "cosine")
+
+
+@pytest.mark.realdata
+def test_gardens_point_day_left_with_sad(data_root: Path, tmp_path: Path) -> None:
+    from wiloc.descriptors.registry import get_descriptor
+
+    folder = data_root / "gardens-point-walking" / "day_left"
+    cache = Cache(tmp_path / "cache")
+    first = describe_folder(folder, get_descriptor("sad"), cache)
+    assert first.failed == [] and first.computed == first.frames == 200
+    assert first.shape == (200, 1152) and first.entry.data.dtype == np.uint8
+    assert len(first.sizes) == 1  # one camera: one image size, read from the JPEG headers
+    again = describe_folder(folder, get_descriptor("sad"), cache)
+    assert (again.computed, again.reused, again.entry.digest) == (0, 200, first.entry.digest)

@@ -16,7 +16,7 @@ import secrets
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -88,7 +88,7 @@ class FrameRecord:
 
 @dataclass(frozen=True)
 class Entry:
-    """A complete cached descriptor matrix: rows in frame order, named by file name."""
+    """A cached descriptor matrix: rows in frame order, named by file name."""
 
     key: str
     folder: str
@@ -151,8 +151,9 @@ def entry_key(folder: str, descriptor: str, params: dict[str, Any]) -> str:
 
 
 def entry_digest(header: EntryHeader, records: Iterable[FrameRecord]) -> str:
-    """A hash over descriptor params, names and row fingerprints: changes whenever the rows do."""
-    h = hashlib.sha256(json.dumps([header.descriptor, header.params], sort_keys=True).encode())
+    """A hash over the entry key, descriptor params, names and row content digests: it changes
+    whenever the rows do, so results derived from an entry can tell they are stale."""
+    h = hashlib.sha256(json.dumps([header.key, header.descriptor, header.params], sort_keys=True).encode())
     for record in records:
         h.update(f"{record.name}\0{record.digest}\n".encode())
     return h.hexdigest()
@@ -167,8 +168,8 @@ def _pid_alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except PermissionError:
-        return True
+    except PermissionError:  # alive, owned by another user
+        pass
     return True
 
 
@@ -405,17 +406,23 @@ class Cache:
                       | {p.stem for p in (self.root / _DESCRIPTORS).glob("*.journal")})
         infos = []
         for key in keys:
-            stored = self.read_stored(key)
-            if stored is None:
-                continue
-            files = [self.entry_path(key), self.journal_path(key)]
-            size = sum(p.stat().st_size for p in files if p.exists())
-            updated = datetime.fromtimestamp(max(p.stat().st_mtime for p in files if p.exists()), timezone.utc)
-            h = stored.header
+            stats = {}
+            for p in (self.entry_path(key), self.journal_path(key)):
+                with suppress(FileNotFoundError):  # a run may fold its journal meanwhile
+                    stats[p] = p.stat()
+            stored = self.read_stored(key) if self.journal_path(key) in stats else None
+            if stored is not None:
+                header, complete = stored.header, stored.complete
+                frames = sum(r.row is not None for r in stored.records.values())
+            else:  # no journal: the attributes and the name count say it all
+                with h5py.File(self.entry_path(key), "r") as f:
+                    header, complete = _header_from_attrs(f.attrs), bool(f.attrs["complete"])
+                    frames = len(f["frames/name"])
+            updated = datetime.fromtimestamp(max(st.st_mtime for st in stats.values()), timezone.utc)
             infos.append(EntryInfo(
-                key=key, folder=h.folder, descriptor=h.descriptor, params=h.params,
-                frames=sum(r.row is not None for r in stored.records.values()),
-                complete=stored.complete, size=size, updated=updated.isoformat(timespec="seconds"),
+                key=key, folder=header.folder, descriptor=header.descriptor, params=header.params,
+                frames=frames, complete=complete, size=sum(st.st_size for st in stats.values()),
+                updated=updated.isoformat(timespec="seconds"),
             ))
         return infos
 

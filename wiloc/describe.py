@@ -178,7 +178,7 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterato
         return
     size = max(1, min(MAX_CHUNK, len(tasks) // (4 * jobs)))
     chunks = [tasks[i:i + size] for i in range(0, len(tasks), size)]
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=get_context("forkserver"),
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=get_context("fork"),
                                initializer=_init_worker)
     try:
         futures = [pool.submit(_describe_chunk, spec, chunk) for chunk in chunks]

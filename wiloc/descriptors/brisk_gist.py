@@ -32,7 +32,9 @@ def _brisk() -> cv2.BRISK:
     return cv2.BRISK_create()
 
 
-def compute_brisk_gist(gray: NDArray[np.uint8], keypoint_size: float = 16.0) -> NDArray[np.uint8]:
+def compute_brisk_gist(
+    gray: NDArray[np.uint8], keypoint_size: float = 48.0
+) -> NDArray[np.uint8]:
     """25 tile-centre BRISK descriptors of a grayscale image, flat (1600 uint8)."""
     image = cv2.resize(gray, (IMAGE_SIZE, IMAGE_SIZE), interpolation=cv2.INTER_AREA)
     pad = max(0, math.ceil(_PAD_PER_SIZE * keypoint_size) - TILE // 2)

@@ -125,9 +125,10 @@ def prefilter(image: NDArray[np.floating]) -> NDArray[np.float32]:
 def gist_of_prefiltered(image: NDArray[np.floating]) -> NDArray[np.float32]:
     """LMgist's ``gistGabor`` on a prefiltered image: 512 mean-pooled Gabor magnitudes.
 
-    One filter at a time (a 320 x 320 spectrum stays in cache); OpenCV's DFT is about twice as
-    fast as scipy.fft here. The inverse DFT is left unscaled and the pooled means divided by
-    the number of samples instead.
+    One filter at a time (a 320 x 320 spectrum stays in cache, where one batched 32-filter
+    scipy.fft call measured 2-3 ms per filter); OpenCV's DFT measured 0.42 ms per 320 x 320
+    complex inverse against scipy.fft's 0.56 ms. The inverse DFT is left unscaled and the pooled
+    means are divided by the number of samples instead.
     """
     b = BOUNDARY
     rows, cols = image.shape
@@ -139,10 +140,9 @@ def gist_of_prefiltered(image: NDArray[np.floating]) -> NDArray[np.float32]:
     pooled = np.empty((bank.shape[0], GRID, GRID), dtype=np.float32)
     for k, transfer in enumerate(bank):
         response = cv2.idft(cv2.multiply(spectrum, transfer), flags=cv2.DFT_COMPLEX_OUTPUT)
-        crop = response[b : b + rows, b : b + cols]
-        magnitude = cv2.magnitude(crop[..., 0], crop[..., 1])
-        # downN: equal blocks (the sides are multiples of GRID), averaged.
-        pooled[k] = magnitude.reshape(GRID, rows // GRID, GRID, cols // GRID).mean(axis=(1, 3))
+        magnitude = np.abs(response.view(np.complex64)[b : b + rows, b : b + cols, 0])
+        # downN: with sides a multiple of GRID, area resampling is exactly the block mean.
+        pooled[k] = cv2.resize(magnitude, (GRID, GRID), interpolation=cv2.INTER_AREA)
     pooled /= np.float32(padded.size)
     # LMgist order: filter-major, blocks column-major (row index fastest).
     return pooled.transpose(0, 2, 1).reshape(-1)

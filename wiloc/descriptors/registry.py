@@ -106,7 +106,7 @@ def _gist(params: Mapping[str, Any]) -> DescriptorSpec:
 
 
 def _brisk_gist(params: Mapping[str, Any]) -> DescriptorSpec:
-    p = _check_params("brisk-gist", params, {"keypoint_size": 16.0})
+    p = _check_params("brisk-gist", params, {"keypoint_size": 48.0})
     size = p["keypoint_size"]
     if isinstance(size, bool) or not isinstance(size, (int, float)) or not 4 <= size <= 96:
         raise ValueError(f"brisk-gist keypoint_size must be a number in [4, 96]; got {size!r}")

@@ -1,7 +1,7 @@
 """Whole-image CAT-Graph: a particle filter along the reference trajectory (paper III.C, eqs 7-10).
 
 The reference traversal is a trajectory: node j sits at arc length s_j. M particles live at
-continuous positions on it, each with its own speed ratio (query speed over nominal step).
+continuous positions on it, optionally each with its own speed ratio (``speed_noise`` > 0).
 Per query frame: move the particles, re-seed a few at the frame's best single-frame matches,
 weight each by P(d|L)/P(d) of the difference interpolated at its position (eq. 8), weigh a
 new-place particle by the mean P(not L | d) over sampled nodes (eq. 10), normalise, read out the
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
-from scipy.special import expit, logsumexp
+from scipy.special import expit
 
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decisions
@@ -29,15 +29,17 @@ Progress = Callable[[int, int], None]
 DEFAULT_PARTICLES = 2000
 DEFAULT_EXCLUDE_RECENT = 10
 DEFAULT_BINS = 100
-DEFAULT_SMOOTHING_BINS = 4.0
-DEFAULT_PRIOR = 0.5
+DEFAULT_SMOOTHING_BINS = 16.0
+DEFAULT_PRIOR = 0.01
+DEFAULT_OUTLIER = 0.05
+DEFAULT_PSEUDO = 10.0
 DEFAULT_STEP_NOISE = 0.3
 DEFAULT_NOISE_FLOOR = 0.5
-DEFAULT_SPEED_NOISE = 0.05
+DEFAULT_SPEED_NOISE = 0.0
 DEFAULT_SPEED_RANGE = (0.0, 3.0)
 DEFAULT_RESAMPLE_ESS = 0.5
-DEFAULT_RESEED = 0.02
-DEFAULT_RESEED_TOP = 5
+DEFAULT_RESEED = 0.01
+DEFAULT_RESEED_TOP = 1
 DEFAULT_NEW_PLACE_SAMPLES = 100
 DEFAULT_MODE_WINDOW = 2
 
@@ -129,14 +131,18 @@ def _steps(query_steps: NDArray[np.float64] | None, n_frames: int, spacing: floa
     return u
 
 
-def _interpolate(row: NDArray[np.float64], nodes: NDArray[np.float64],
-                 pos: NDArray[np.float64]) -> NDArray[np.float64]:
-    """d at each particle: linear interpolation between the two nodes around it."""
+def _locate(nodes: NDArray[np.float64], pos: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """For each particle: the node j just before it and its fraction a of the way to node j + 1."""
     j = np.clip(np.searchsorted(nodes, pos, side="right") - 1, 0, nodes.size - 2)
     gap = nodes[j + 1] - nodes[j]
     a = np.divide(pos - nodes[j], gap, out=np.zeros_like(pos), where=gap > 0)
-    a = np.clip(a, 0.0, 1.0)
-    return (1.0 - a) * row[j] + a * row[j + 1]
+    return j, np.clip(a, 0.0, 1.0)
+
+
+def _log_normalizer(log_w: NDArray[np.float64]) -> float:
+    """log(sum(exp(log_w))), computed stably."""
+    top = float(log_w.max())
+    return top + float(np.log(np.exp(log_w - top).sum()))
 
 
 def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.intp]:
@@ -161,8 +167,8 @@ def localize_catgraph(
     bins: int = DEFAULT_BINS,
     smoothing_bins: float = DEFAULT_SMOOTHING_BINS,
     prior: float = DEFAULT_PRIOR,
-    outlier: float = 0.0,
-    pseudo: float = 0.0,
+    outlier: float = DEFAULT_OUTLIER,
+    pseudo: float = DEFAULT_PSEUDO,
     step_noise: float = DEFAULT_STEP_NOISE,
     noise_floor: float = DEFAULT_NOISE_FLOOR,
     speed_noise: float = DEFAULT_SPEED_NOISE,
@@ -237,19 +243,18 @@ def localize_catgraph(
             pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
             speed[weakest] = speed[rng.integers(0, particles, n_reseed)]
             log_w[weakest] = -np.log(particles)
-            log_w = log_w - logsumexp(log_w)
+            log_w = log_w - _log_normalizer(log_w)
 
-        log_w = log_w + tables.log_ratio[model.bin_of(_interpolate(row, nodes, pos))]
-        log_total = logsumexp(log_w)  # log of sum_i w_i P(d_i|L)/P(d_i), the prior mass being 1
+        j, a = _locate(nodes, pos)  # eq. 8: d linearly interpolated between the nodes around
+        log_w = log_w + tables.log_ratio[model.bin_of((1.0 - a) * row[j] + a * row[j + 1])]
+        log_total = _log_normalizer(log_w)  # log of sum_i w_i P(d_i|L)/P(d_i), the prior mass being 1
         sampled = rng.integers(0, n_nodes, new_place_samples)
         log_new = np.log(tables.p_not_same[model.bin_of(row[sampled])].mean())
         p_new = float(expit(log_new - log_total))  # eq. 10 weight normalised with the particles
         log_w = log_w - log_total
         w = np.exp(log_w)
 
-        nearest = np.clip(np.searchsorted(nodes, pos), 1, n_nodes - 1)
-        nearest -= (pos - nodes[nearest - 1]) < (nodes[nearest] - pos)
-        mass = np.convolve(np.bincount(nearest, weights=w, minlength=n_nodes), window, mode="same")
+        mass = np.convolve(np.bincount(j + (a >= 0.5), weights=w, minlength=n_nodes), window, mode="same")
         mode = int(np.argmax(mass))
         match[k], difference[k] = mode, row[mode]
         confidence[k] = mass[mode] * (1.0 - p_new)

@@ -1,0 +1,144 @@
+"""Tests of the whole-image CAT-Graph particle filter on synthetic traversals with known truth."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wiloc.errors import WilocError
+from wiloc.methods.catgraph import bulk_model, localize_catgraph, observation_tables
+
+N_REF = 300
+TOL = 2
+
+
+def _rows(truth: np.ndarray, n_ref: int, rng: np.random.Generator, noise: float = 0.08) -> np.ndarray:
+    """Differences to every node: a dip of ~0.35 around the true position, ~1 elsewhere.
+
+    ``truth`` holds the true (continuous) node position per frame, NaN for an unmapped place.
+    """
+    j = np.arange(n_ref, dtype=np.float64)
+    offset = np.where(np.isnan(truth), np.inf, truth)[:, None] - j[None, :]
+    dip = 0.65 * np.exp(-0.5 * (offset / 1.5) ** 2)
+    return 1.0 + noise * rng.standard_normal((truth.size, n_ref)) - dip
+
+
+def _ref_self(rng: np.random.Generator) -> np.ndarray:
+    return _rows(np.arange(N_REF, dtype=np.float64), N_REF, rng)
+
+
+def _hits(match: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    return np.abs(match - np.round(truth)) <= TOL
+
+
+def test_tracks_query_faster_than_map() -> None:
+    rng = np.random.default_rng(1)
+    truth = 10.0 + 1.5 * np.arange(180)  # the query covers 1.5 nodes per frame
+    dec = localize_catgraph(iter(_rows(truth, N_REF, rng)), _ref_self(rng), truth.size)
+    assert _hits(dec.match[20:], truth[20:]).mean() >= 0.9
+
+
+def test_tracks_with_odometry_steps() -> None:
+    rng = np.random.default_rng(2)
+    arc = np.cumsum(rng.uniform(0.5, 1.5, N_REF))  # uneven node spacing in metres
+    truth_m = np.linspace(arc[5], arc[-5], 150)
+    truth = np.interp(truth_m, arc, np.arange(N_REF, dtype=np.float64))
+    steps = np.r_[0.0, np.diff(truth_m)]
+    dec = localize_catgraph(iter(_rows(truth, N_REF, rng)), _ref_self(rng), truth.size,
+                            ref_arclength=arc, query_steps=steps)
+    assert _hits(dec.match[20:], truth[20:]).mean() >= 0.9
+
+
+def test_detour_raises_new_place_and_relocalizes() -> None:
+    rng = np.random.default_rng(3)
+    truth = np.arange(20.0, 220.0)
+    detour = slice(80, 110)  # 30 frames through places absent from the map
+    truth[detour] = np.nan
+    truth[110:] += 60.0  # rejoins the map further along
+    dec = localize_catgraph(iter(_rows(truth, N_REF, rng)), _ref_self(rng), truth.size)
+    p_new = dec.columns["new_place"]
+    assert np.median(p_new[detour]) > 0.5
+    assert np.median(p_new[30:80]) < 0.5
+    assert _hits(dec.match[30:80], truth[30:80]).mean() >= 0.9
+    relocalize = 10
+    assert _hits(dec.match[110 + relocalize:], truth[110 + relocalize:]).mean() >= 0.9
+    # confidence drops while the filter is lost
+    assert np.median(dec.confidence[detour]) < np.median(dec.confidence[30:80])
+
+
+def test_same_seed_same_decisions_other_seed_differs() -> None:
+    rng = np.random.default_rng(4)
+    truth = np.arange(100.0)
+    rows, ref = _rows(truth, N_REF, rng), _ref_self(rng)
+    a = localize_catgraph(iter(rows), ref, truth.size, seed=7)
+    b = localize_catgraph(iter(rows), ref, truth.size, seed=7)
+    c = localize_catgraph(iter(rows), ref, truth.size, seed=8)
+    for x, y in [(a.match, b.match), (a.confidence, b.confidence),
+                 (a.columns["new_place"], b.columns["new_place"])]:
+        np.testing.assert_array_equal(x, y)
+    assert not np.array_equal(a.confidence, c.confidence)
+
+
+def test_output_shape_model_and_params() -> None:
+    rng = np.random.default_rng(5)
+    truth = np.arange(40.0)
+    rows = _rows(truth, N_REF, rng)
+    calls: list[tuple[int, int]] = []
+    dec = localize_catgraph(iter(rows), _ref_self(rng), truth.size, particles=300,
+                            progress=lambda done, total: calls.append((done, total)))
+    assert len(dec) == truth.size and set(dec.stage) == {"track"}
+    assert dec.decided.all()
+    np.testing.assert_array_equal(dec.difference, rows[np.arange(truth.size), dec.match])
+    assert np.all((dec.confidence >= 0) & (dec.confidence <= 1))
+    assert dec.model is not None and dec.model.b.sum() == truth.size  # one d_min per frame
+    assert dec.params["particles"] == 300 and dec.params["method"] == "catgraph"
+    assert calls[-1] == (truth.size, truth.size) and len(calls) == truth.size
+
+
+def test_observation_ratio_never_increases_with_d() -> None:
+    rng = np.random.default_rng(6)
+    model = bulk_model(_ref_self(rng), exclude_recent=5, bins=50)
+    model.add_same(rng.normal(0.4, 0.05, 200))
+    tables = observation_tables(model, sigma=4.0, prior=0.01, outlier=0.05, pseudo=10.0)
+    assert np.all(np.diff(tables.log_ratio) <= 1e-12)
+    assert tables.log_ratio[model.bin_of(0.4)[()]] > tables.log_ratio[model.bin_of(1.0)[()]] + 1.0
+    assert np.all((tables.p_not_same > 0) & (tables.p_not_same <= 1))
+
+
+def test_empty_b_gives_uninformative_ratio() -> None:
+    rng = np.random.default_rng(7)
+    model = bulk_model(_ref_self(rng), exclude_recent=5, bins=50)
+    tables = observation_tables(model, sigma=4.0, prior=0.01, outlier=0.0, pseudo=10.0)
+    np.testing.assert_allclose(tables.log_ratio, 0.0, atol=1e-9)
+
+
+def test_bulk_model_excludes_recent_pairs() -> None:
+    ref = np.full((6, 6), 5.0)
+    ref[np.abs(np.subtract.outer(np.arange(6), np.arange(6))) <= 1] = 0.0
+    model = bulk_model(ref, exclude_recent=1, bins=10)
+    assert model.c.sum() == 6 * 5 - 10  # off-diagonal pairs further apart than 1
+    assert model.c[model.bin_of(5.0)[()]] == model.c.sum()
+
+
+@pytest.mark.parametrize("kwargs, where", [
+    ({"particles": 0}, "catgraph"),
+    ({"prior": 1.0}, "catgraph"),
+    ({"ref_arclength": np.arange(N_REF - 1.0)}, "ref_arclength"),
+    ({"ref_arclength": np.r_[np.arange(N_REF - 1.0), 0.0]}, "ref_arclength"),
+    ({"query_steps": np.ones(10)}, "query_steps"),
+    ({"ref_arclength": np.arange(float(N_REF)), "query_steps": -np.ones(10)}, "query_steps"),
+])
+def test_bad_parameters_raise(kwargs: dict, where: str) -> None:
+    rng = np.random.default_rng(8)
+    rows = _rows(np.arange(10.0), N_REF, rng)
+    with pytest.raises(WilocError) as err:
+        localize_catgraph(iter(rows), _ref_self(rng), 10, **kwargs)
+    assert err.value.where == where
+
+
+def test_row_count_must_match_n_frames() -> None:
+    rng = np.random.default_rng(9)
+    rows = _rows(np.arange(10.0), N_REF, rng)
+    with pytest.raises(WilocError, match="expected n_frames=11"):
+        localize_catgraph(iter(rows), _ref_self(rng), 11)
+    with pytest.raises(WilocError, match="more query rows"):
+        localize_catgraph(iter(rows), _ref_self(rng), 9)

@@ -1,0 +1,175 @@
+"""Reading user-supplied descriptor matrices (wiloc/descriptors/external.py)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from wiloc.descriptors.external import read_external
+from wiloc.errors import WilocError
+
+NAMES = ["a.png", "b.png", "c.png"]
+
+
+def _matrix(dtype: type = np.float32) -> np.ndarray:
+    return np.arange(12, dtype=np.float64).reshape(3, 4).astype(dtype) + 1
+
+
+def _csv(path: Path, rows: list[list[object]]) -> Path:
+    path.write_text("\n".join(",".join(map(str, row)) for row in rows) + "\n", encoding="utf-8")
+    return path
+
+
+def test_npy_with_generated_names(tmp_path: Path) -> None:
+    np.save(tmp_path / "m.npy", _matrix())
+    names, matrix = read_external(tmp_path / "m.npy", None, "l1")
+    assert names == ["frame000000", "frame000001", "frame000002"]
+    assert matrix.dtype == np.float32 and np.array_equal(matrix, _matrix())
+
+
+@pytest.mark.parametrize("sidecar", ["names.txt", "names.csv"])
+def test_npy_with_sidecar_names(tmp_path: Path, sidecar: str) -> None:
+    np.save(tmp_path / "m.npy", _matrix(np.float64))
+    text = "name\n" + "\n".join(NAMES) if sidecar.endswith(".csv") else "\n".join(NAMES) + "\n\n"
+    (tmp_path / sidecar).write_text(text, encoding="utf-8")
+    names, matrix = read_external(tmp_path / "m.npy", tmp_path / sidecar, "sqeuclidean")
+    assert names == NAMES
+    assert matrix.dtype == np.float64 and np.array_equal(matrix, _matrix(np.float64))
+
+
+@pytest.mark.parametrize("header", [True, False])
+def test_csv_round_trip(tmp_path: Path, header: bool) -> None:
+    rows = [[n, *row] for n, row in zip(NAMES, _matrix().tolist())]
+    path = _csv(tmp_path / "m.csv", ([["name", "d0", "d1", "d2", "d3"]] if header else []) + rows)
+    names, matrix = read_external(path, None, "cosine")
+    assert names == NAMES and np.array_equal(matrix, _matrix())
+
+
+def test_csv_hamming_becomes_uint8(tmp_path: Path) -> None:
+    path = _csv(tmp_path / "h.csv", [["x", 0, 255], ["y", 17, 3]])
+    names, matrix = read_external(path, None, "hamming")
+    assert names == ["x", "y"] and matrix.dtype == np.uint8
+    assert matrix.tolist() == [[0, 255], [17, 3]]
+
+
+@pytest.mark.parametrize("as_bytes", [True, False])
+def test_h5_round_trip(tmp_path: Path, as_bytes: bool) -> None:
+    path = tmp_path / "m.h5"
+    packed = np.random.default_rng(0).integers(0, 256, (3, 8), dtype=np.uint8)
+    with h5py.File(path, "w") as handle:
+        handle["descriptors"] = packed
+        handle["names"] = [n.encode() for n in NAMES] if as_bytes else np.array(NAMES, dtype=object)
+    names, matrix = read_external(path, None, "hamming")
+    assert names == NAMES and matrix.dtype == np.uint8 and np.array_equal(matrix, packed)
+
+
+def _bad_npy_1d(tmp: Path) -> tuple[Path, Path | None, str]:
+    np.save(tmp / "m.npy", np.ones(5, np.float32))
+    return tmp / "m.npy", None, "l1"
+
+
+def _bad_npy_nan(tmp: Path) -> tuple[Path, Path | None, str]:
+    m = _matrix()
+    m[1, 2] = np.nan
+    np.save(tmp / "m.npy", m)
+    return tmp / "m.npy", None, "l1"
+
+
+def _bad_npy_inf(tmp: Path) -> tuple[Path, Path | None, str]:
+    m = _matrix()
+    m[0, 0] = np.inf
+    np.save(tmp / "m.npy", m)
+    return tmp / "m.npy", None, "sqeuclidean"
+
+
+def _bad_duplicates(tmp: Path) -> tuple[Path, Path | None, str]:
+    np.save(tmp / "m.npy", _matrix())
+    (tmp / "n.txt").write_text("a\nb\na\n")
+    return tmp / "m.npy", tmp / "n.txt", "l1"
+
+
+def _bad_count(tmp: Path) -> tuple[Path, Path | None, str]:
+    np.save(tmp / "m.npy", _matrix())
+    (tmp / "n.txt").write_text("a\nb\n")
+    return tmp / "m.npy", tmp / "n.txt", "l1"
+
+
+def _bad_metric(tmp: Path) -> tuple[Path, Path | None, str]:
+    np.save(tmp / "m.npy", _matrix())
+    return tmp / "m.npy", None, "manhattan"
+
+
+def _bad_cell(tmp: Path) -> tuple[Path, Path | None, str]:
+    return _csv(tmp / "m.csv", [["a", 1, 2], ["b", 3, "x7"]]), None, "l1"
+
+
+def _bad_hamming_float(tmp: Path) -> tuple[Path, Path | None, str]:
+    np.save(tmp / "m.npy", _matrix())
+    return tmp / "m.npy", None, "hamming"
+
+
+def _bad_hamming_csv(tmp: Path) -> tuple[Path, Path | None, str]:
+    return _csv(tmp / "m.csv", [["a", 1, 256], ["b", 3, 4]]), None, "hamming"
+
+
+def _bad_h5_missing(tmp: Path) -> tuple[Path, Path | None, str]:
+    with h5py.File(tmp / "m.h5", "w") as handle:
+        handle["other"] = _matrix()
+    return tmp / "m.h5", None, "l1"
+
+
+def _bad_h5_names(tmp: Path) -> tuple[Path, Path | None, str]:
+    with h5py.File(tmp / "m.h5", "w") as handle:
+        handle["descriptors"] = _matrix()
+        handle["names"] = [b"a", b"b"]
+    return tmp / "m.h5", None, "l1"
+
+
+def _bad_cosine_zero(tmp: Path) -> tuple[Path, Path | None, str]:
+    m = _matrix()
+    m[2] = 0
+    np.save(tmp / "m.npy", m)
+    return tmp / "m.npy", None, "cosine"
+
+
+def _bad_suffix(tmp: Path) -> tuple[Path, Path | None, str]:
+    (tmp / "m.mat").write_bytes(b"x")
+    return tmp / "m.mat", None, "l1"
+
+
+def _bad_missing(tmp: Path) -> tuple[Path, Path | None, str]:
+    return tmp / "nothing.npy", None, "l1"
+
+
+def _bad_not_npy(tmp: Path) -> tuple[Path, Path | None, str]:
+    (tmp / "m.npy").write_bytes(b"garbage")
+    return tmp / "m.npy", None, "l1"
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (_bad_npy_1d, "N x D"),
+        (_bad_npy_nan, "NaN"),
+        (_bad_npy_inf, "infinite"),
+        (_bad_duplicates, "duplicate"),
+        (_bad_count, "2 frame names for 3"),
+        (_bad_metric, "unknown metric"),
+        (_bad_cell, "'x7' is not a number"),
+        (_bad_hamming_float, "uint8"),
+        (_bad_hamming_csv, "uint8"),
+        (_bad_h5_missing, "descriptors"),
+        (_bad_h5_names, "2 frame names for 3"),
+        (_bad_cosine_zero, "all zeros"),
+        (_bad_suffix, "unknown matrix format"),
+        (_bad_missing, "does not exist"),
+        (_bad_not_npy, "npy"),
+    ],
+)
+def test_bad_input_raises_wiloc_error_naming_the_file(tmp_path: Path, make, match: str) -> None:
+    path, names_path, metric = make(tmp_path)
+    with pytest.raises(WilocError, match=match) as err:
+        read_external(path, names_path, metric)
+    assert err.value.where in (str(path), str(names_path))

@@ -1,0 +1,145 @@
+"""Traversal listing, fingerprints and grayscale reading (wiloc/frames.py)."""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from wiloc.errors import FrameError, WilocError
+from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, natural_key, read_gray
+
+
+def _write(path: Path, image: np.ndarray, ext: str | None = None) -> Path:
+    ok, buf = cv2.imencode(ext or path.suffix, image)
+    assert ok
+    buf.tofile(path)
+    return path
+
+
+def _textured(h: int, w: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return cv2.GaussianBlur(rng.integers(0, 256, (h, w), dtype=np.uint8), (0, 0), 2)
+
+
+def test_natural_key_orders_numbers_by_value() -> None:
+    names = ["img10.png", "img2.png", "img1.png", "Img3.png", "img2b.png"]
+    assert sorted(names, key=natural_key) == [
+        "img1.png", "img2.png", "img2b.png", "Img3.png", "img10.png"
+    ]
+
+
+def test_list_traversal_natural_order_and_ignored(tmp_path: Path) -> None:
+    for i in (10, 2, 1):
+        _write(tmp_path / f"img{i}.png", _textured(8, 8, i))
+    (tmp_path / "notes.txt").write_text("not an image")
+    (tmp_path / ".hidden.png").write_bytes(b"")
+    (tmp_path / "UPPER.JPG").write_bytes(b"")
+    (tmp_path / "sub.png").mkdir()
+    trav = list_traversal(tmp_path)
+    assert trav.names == ["img1.png", "img2.png", "img10.png", "UPPER.JPG"]
+    assert {p.name for p in trav.ignored} == {"notes.txt", ".hidden.png", "sub.png"}
+
+
+@pytest.mark.parametrize("make", ["missing", "file", "empty", "only-text"])
+def test_list_traversal_errors_name_the_folder(tmp_path: Path, make: str) -> None:
+    folder = tmp_path / "trav"
+    if make == "file":
+        folder.write_text("x")
+    elif make in ("empty", "only-text"):
+        folder.mkdir()
+        if make == "only-text":
+            (folder / "a.txt").write_text("x")
+    with pytest.raises(WilocError) as err:
+        list_traversal(folder)
+    assert err.value.where == str(folder)
+
+
+def test_fingerprint_matches_content(tmp_path: Path) -> None:
+    path = tmp_path / "a.bin"
+    path.write_bytes(b"hello wiloc")
+    fp = fingerprint(path)
+    assert isinstance(fp, Fingerprint)
+    assert fp.size == 11
+    assert fp.digest == hashlib.blake2b(b"hello wiloc", digest_size=16).hexdigest()
+    path.write_bytes(b"hello wilod")
+    assert fingerprint(path).digest != fp.digest
+
+
+def test_read_unicode_name(tmp_path: Path) -> None:
+    image = _textured(20, 30)
+    path = _write(tmp_path / "Straße_夜_01.png", image)
+    assert np.array_equal(read_gray(path), image)
+
+
+def test_read_grayscale_png_passes_unchanged(tmp_path: Path) -> None:
+    image = _textured(17, 23)
+    out = read_gray(_write(tmp_path / "g.png", image))
+    assert out.dtype == np.uint8 and np.array_equal(out, image)
+
+
+def test_read_16bit_png_is_scaled_not_truncated(tmp_path: Path) -> None:
+    values = np.linspace(0, 65535, 64 * 16).astype(np.uint16).reshape(16, 64)
+    out = read_gray(_write(tmp_path / "deep.png", values))
+    expected = np.rint(values.astype(np.float64) * 255 / 65535)
+    assert out.dtype == np.uint8
+    assert np.abs(out.astype(np.float64) - expected).max() <= 1
+    assert out.max() == 255 and out.min() == 0
+
+
+def test_read_rgba_png_drops_alpha(tmp_path: Path) -> None:
+    bgr = np.dstack([_textured(12, 12, s) for s in (1, 2, 3)])
+    alpha = np.zeros((12, 12), np.uint8)  # fully transparent must not blank the image
+    out = read_gray(_write(tmp_path / "rgba.png", np.dstack([bgr, alpha])))
+    expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(int)
+    assert out.shape == (12, 12)
+    assert np.abs(out.astype(int) - expected).max() <= 1  # libpng's own luma rounding
+
+
+def test_read_zero_byte_file(tmp_path: Path) -> None:
+    path = tmp_path / "empty.jpg"
+    path.write_bytes(b"")
+    with pytest.raises(FrameError, match="empty") as err:
+        read_gray(path)
+    assert err.value.where == str(path)
+
+
+def test_read_truncated_jpeg(tmp_path: Path) -> None:
+    path = _write(tmp_path / "full.jpg", _textured(64, 64))
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(FrameError, match="truncated") as err:
+        read_gray(cut)
+    assert err.value.where == str(cut)
+
+
+def test_read_jpeg_with_zero_padding_after_eoi(tmp_path: Path) -> None:
+    path = _write(tmp_path / "padded.jpg", _textured(32, 32))
+    path.write_bytes(path.read_bytes() + b"\x00" * 16)
+    assert read_gray(path).shape == (32, 32)
+
+
+def test_read_undecodable_data(tmp_path: Path) -> None:
+    path = tmp_path / "junk.png"
+    path.write_bytes(b"this is not an image at all")
+    with pytest.raises(FrameError, match="decode"):
+        read_gray(path)
+
+
+@pytest.mark.parametrize("min_size", [(100, 50), (200, 150), (401, 10), (800, 600)])
+def test_reduced_decode_keeps_min_size(tmp_path: Path, min_size: tuple[int, int]) -> None:
+    path = _write(tmp_path / "big.jpg", _textured(600, 800))
+    assert jpeg_size(np.fromfile(path, np.uint8)) == (800, 600)
+    out = read_gray(path, min_size)
+    assert out.shape[1] >= min_size[0] and out.shape[0] >= min_size[1]
+    factor = 800 // out.shape[1]
+    assert factor in (1, 2, 4, 8)
+    if factor < 8:  # the next reduction would have been too small
+        assert -(-800 // (2 * factor)) < min_size[0] or -(-600 // (2 * factor)) < min_size[1]
+
+
+def test_reduced_decode_of_small_image_is_full(tmp_path: Path) -> None:
+    path = _write(tmp_path / "small.jpg", _textured(30, 40))
+    assert read_gray(path, (256, 256)).shape == (30, 40)

@@ -1,0 +1,74 @@
+"""Tests of reading odometry CSVs into per-frame arc length."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wiloc.errors import WilocError
+from wiloc.odometry import read_odometry, steps
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "odo.csv"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_distance_form_with_header(tmp_path: Path) -> None:
+    odo = read_odometry(_write(tmp_path, "name,distance\na.png,10\nb.png,12.5\nc.png,20\n"))
+    assert odo.names == ("a.png", "b.png", "c.png")
+    np.testing.assert_allclose(odo.arclength(), [0.0, 2.5, 10.0])
+
+
+def test_xy_form_without_header_sums_step_lengths(tmp_path: Path) -> None:
+    odo = read_odometry(_write(tmp_path, "a,0,0\nb,3,4\nc,3,10\n"))
+    np.testing.assert_allclose(odo.arclength(), [0.0, 5.0, 11.0])
+
+
+def test_arclength_follows_requested_frame_order(tmp_path: Path) -> None:
+    odo = read_odometry(_write(tmp_path, "name,x,y\nc,3,10\na,0,0\nb,3,4\nextra,100,100\n"))
+    np.testing.assert_allclose(odo.arclength(["a", "b", "c"]), [0.0, 5.0, 11.0])
+
+
+def test_steps_are_differences_starting_at_zero() -> None:
+    np.testing.assert_allclose(steps(np.array([2.0, 3.0, 7.0])), [0.0, 1.0, 4.0])
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("", "no odometry rows"),
+    ("name,distance\n", "no odometry rows"),
+    ("a,1,2,3\n", "4 columns"),
+    ("a,1\nb,1,2\n", "line 2: expected 2 columns"),
+    ("a,1\nb,x\n", "line 2: not a number"),
+    ("a,1\nb,nan\n", "line 2: non-finite"),
+    ("a,1\n,2\n", "line 2: empty frame name"),
+    ("a,1\na,2\n", "'a' appears more than once"),
+])
+def test_bad_files_raise(tmp_path: Path, text: str, problem: str) -> None:
+    path = _write(tmp_path, text)
+    with pytest.raises(WilocError, match=problem) as err:
+        read_odometry(path)
+    assert err.value.where == str(path)
+
+
+def test_decreasing_distance_raises(tmp_path: Path) -> None:
+    odo = read_odometry(_write(tmp_path, "a,5\nb,3\n"))
+    with pytest.raises(WilocError, match="decreases at frame 'b'"):
+        odo.arclength()
+
+
+def test_missing_frame_raises(tmp_path: Path) -> None:
+    odo = read_odometry(_write(tmp_path, "a,0\nb,1\n"))
+    with pytest.raises(WilocError, match="first 'z'"):
+        odo.arclength(["a", "z"])
+
+
+def test_unreadable_file_raises(tmp_path: Path) -> None:
+    with pytest.raises(WilocError, match="cannot read"):
+        read_odometry(tmp_path / "absent.csv")
+    binary = tmp_path / "bin.csv"
+    binary.write_bytes(b"\xff\xfe\x00\x81")
+    with pytest.raises(WilocError, match="cannot read"):
+        read_odometry(binary)

@@ -1,0 +1,323 @@
+"""Difference kernels: one per metric, computed blockwise so no N x N matrix must fit in RAM.
+
+``l1`` (uint8 and float32) and ``hamming`` run in one numba kernel built from explicit LLVM vector
+code: rows are cut into 64-byte chunks and a 4 x 4 tile of (query, reference) row pairs is
+accumulated per chunk, so each loaded chunk is used four times from registers. The per-chunk
+operation is chosen when numba compiles for the CPU at hand (see docs/kernels.md):
+
+* ``l1`` on uint8: the x86 ``psadbw`` instruction at the widest width the CPU has (AVX-512BW,
+  AVX2, SSE2), or portable max - min arithmetic on other CPUs;
+* ``hamming``: popcount of the XOR of uint64 words (``llvm.ctpop``, which becomes ``vpopcntq``
+  where the CPU has it and a shuffle-table popcount elsewhere);
+* ``l1`` on float32: |a - b| summed in float32 vector lanes.
+
+``sqeuclidean`` and ``cosine`` use a BLAS matrix product.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import llvmlite.binding as llvm_binding
+import numpy as np
+from llvmlite import ir
+from numba import config, njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+METRICS = ("l1", "sqeuclidean", "hamming", "cosine")
+
+CHUNK_BYTES = 64  # rows are zero-padded to a multiple of this for the SIMD kernel
+TILE = 4  # query rows x reference rows accumulated together per chunk
+PANEL_ROWS = 64  # query rows per parallel work item (about 74 KB of sad rows: stays in L2)
+
+_I8 = ir.IntType(8)
+_I64 = ir.IntType(64)
+_F32 = ir.FloatType()
+_F64 = ir.DoubleType()
+
+
+def _cpu_features() -> frozenset[str]:
+    """The CPU features numba compiles for (its override variable first, as numba does)."""
+    text = config.CPU_FEATURES if config.CPU_FEATURES is not None else llvm_binding.get_host_cpu_features().flatten()
+    return frozenset(f[1:] for f in text.split(",") if f.startswith("+"))
+
+
+def simd_path() -> str:
+    """Name of the instruction set the kernels use on this CPU: avx512, avx2, sse2 or generic."""
+    features = _cpu_features()
+    for name, feature in (("avx512", "avx512bw"), ("avx2", "avx2"), ("sse2", "sse2")):
+        if feature in features:
+            return name
+    return "generic"
+
+
+_VECTOR_BYTES = {"avx512": 64, "avx2": 32, "sse2": 16, "generic": 16}
+_PSADBW = {
+    "avx512": "llvm.x86.avx512.psad.bw.512",
+    "avx2": "llvm.x86.avx2.psad.bw",
+    "sse2": "llvm.x86.sse2.psad.bw",
+}
+
+# A chunk operation: (builder, loaded vector a, loaded vector b) -> partial sums to accumulate.
+_ChunkOp = Callable[[ir.IRBuilder, ir.Value, ir.Value], ir.Value]
+
+
+def _declare(builder: ir.IRBuilder, name: str, ret: ir.Type, *args: ir.Type) -> ir.Function:
+    return cgutils.get_or_insert_function(builder.module, ir.FunctionType(ret, list(args)), name)
+
+
+def _chunk_op(builder: ir.IRBuilder, dtype: types.Type, path: str) -> tuple[ir.VectorType, ir.VectorType, _ChunkOp]:
+    """(load type, accumulator type, operation) for one vector of the given element type."""
+    width = _VECTOR_BYTES[path]
+    if dtype == types.uint8:
+        load = ir.VectorType(_I8, width)
+        if path in _PSADBW:
+            acc = ir.VectorType(_I64, width // 8)
+            psadbw = _declare(builder, _PSADBW[path], acc, load, load)
+            return load, acc, lambda b, x, y: b.call(psadbw, [x, y])
+        acc = ir.VectorType(_I64, width)
+        umax = _declare(builder, f"llvm.umax.v{width}i8", load, load, load)
+        umin = _declare(builder, f"llvm.umin.v{width}i8", load, load, load)
+        return load, acc, lambda b, x, y: b.zext(b.sub(b.call(umax, [x, y]), b.call(umin, [x, y])), acc)
+    if dtype == types.uint64:
+        load = ir.VectorType(_I64, width // 8)
+        ctpop = _declare(builder, f"llvm.ctpop.v{width // 8}i64", load, load)
+        return load, load, lambda b, x, y: b.call(ctpop, [b.xor(x, y)])
+    load = ir.VectorType(_F32, width // 4)
+    fabs = _declare(builder, f"llvm.fabs.v{width // 4}f32", load, load)
+    return load, load, lambda b, x, y: b.call(fabs, [b.fsub(x, y)])
+
+
+def _reduce(builder: ir.IRBuilder, acc: ir.Value) -> ir.Value:
+    """Sum of the lanes of an accumulator, as a double."""
+    lanes = acc.type.count
+    if isinstance(acc.type.element, ir.IntType):
+        total = builder.call(_declare(builder, f"llvm.vector.reduce.add.v{lanes}i64", _I64, acc.type), [acc])
+        return builder.uitofp(total, _F64)
+    fadd = _declare(builder, f"llvm.vector.reduce.fadd.v{lanes}f32", _F32, _F32, acc.type)
+    return builder.fpext(builder.call(fadd, [ir.Constant(_F32, 0.0), acc]), _F64)
+
+
+def _make_tile(rows: int, cols: int) -> Callable[..., None]:
+    """An intrinsic ``tile(a, i, b, j, sums)``: sums[r * cols + s] = diff(a[i + r], b[j + s]).
+
+    ``a`` and ``b`` are C-contiguous 2-D arrays of one dtype (uint8 -> SAD, uint64 -> popcount of
+    XOR, float32 -> sum of |a - b|) whose rows are a multiple of CHUNK_BYTES long; ``sums`` is a
+    float64 array of at least rows * cols values.
+    """
+
+    @intrinsic
+    def tile(typingctx, a, i, b, j, sums):  # type: ignore[no-untyped-def]
+        supported = (types.uint8, types.uint64, types.float32)
+        arrays = (a, b)
+        if not all(isinstance(x, types.Array) and x.ndim == 2 and x.layout == "C" and x.dtype == a.dtype for x in arrays):
+            return None
+        if a.dtype not in supported or not isinstance(sums, types.Array) or sums.dtype != types.float64:
+            return None
+        sig = types.void(a, i, b, j, sums)
+
+        def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+            path = simd_path()
+            load_type, acc_type, op = _chunk_op(builder, signature.args[0].dtype, path)
+            if _VECTOR_BYTES[path] == 64:
+                # Explicit 512-bit vectors: without this LLVM splits them on CPUs tuned to prefer
+                # 256-bit vectors (every AVX-512 Intel core), as clang does for 512-bit intrinsics.
+                set.add(builder.function.attributes, '"min-legal-vector-width"="512"')
+            arr_a = context.make_array(signature.args[0])(context, builder, args[0])
+            arr_b = context.make_array(signature.args[2])(context, builder, args[2])
+            arr_s = context.make_array(signature.args[4])(context, builder, args[4])
+            row0 = context.cast(builder, args[1], signature.args[1], types.intp)
+            col0 = context.cast(builder, args[3], signature.args[3], types.intp)
+            width = cgutils.unpack_tuple(builder, arr_a.shape)[1]
+            step = ir.Constant(_I64, load_type.count)
+
+            def row_pointers(arr: cgutils.Structure, first: ir.Value, count: int) -> list[ir.Value]:
+                start = builder.mul(first, width)
+                return [builder.gep(arr.data, [builder.add(start, builder.mul(ir.Constant(_I64, r), width))]) for r in range(count)]
+
+            pa = row_pointers(arr_a, row0, rows)
+            pb = row_pointers(arr_b, col0, cols)
+            accs = [cgutils.alloca_once_value(builder, ir.Constant(acc_type, None)) for _ in range(rows * cols)]
+            n_chunks = builder.udiv(width, step)
+            with cgutils.for_range(builder, n_chunks) as loop:
+                offset = builder.mul(loop.index, step)
+
+                def load(p: ir.Value) -> ir.Value:
+                    return builder.load(builder.bitcast(builder.gep(p, [offset]), load_type.as_pointer()), align=1)
+
+                va = [load(p) for p in pa]
+                vb = [load(p) for p in pb]
+                for r in range(rows):
+                    for s in range(cols):
+                        acc = accs[r * cols + s]
+                        part = op(builder, va[r], vb[s])
+                        add = builder.fadd if isinstance(acc_type.element, ir.FloatType) else builder.add
+                        builder.store(add(builder.load(acc), part), acc)
+            for k, acc in enumerate(accs):
+                builder.store(_reduce(builder, builder.load(acc)), builder.gep(arr_s.data, [ir.Constant(_I64, k)]))
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+    return tile
+
+
+_tile_square = _make_tile(TILE, TILE)
+_tile_single = _make_tile(1, 1)
+
+
+@njit(cache=True)
+def _panel(a: np.ndarray, b: np.ndarray, out: np.ndarray, start: int, stop: int, scale: float) -> None:
+    """out[start:stop] for query rows start..stop: 4 x 4 tiles, then the leftover rows and columns."""
+    sums = np.empty(TILE * TILE, np.float64)
+    m = b.shape[0]
+    j = 0
+    while j + TILE <= m:
+        i = start
+        while i + TILE <= stop:
+            _tile_square(a, i, b, j, sums)
+            for r in range(TILE):
+                for s in range(TILE):
+                    out[i + r, j + s] = np.float32(sums[r * TILE + s] * scale)
+            i += TILE
+        for k in range(i, stop):
+            for s in range(TILE):
+                _tile_single(a, k, b, j + s, sums)
+                out[k, j + s] = np.float32(sums[0] * scale)
+        j += TILE
+    for s in range(j, m):
+        for k in range(start, stop):
+            _tile_single(a, k, b, s, sums)
+            out[k, s] = np.float32(sums[0] * scale)
+
+
+@njit(parallel=True, cache=True)
+def _simd_pairwise(a: np.ndarray, b: np.ndarray, out: np.ndarray, scale: float) -> None:
+    """out[i, j] = scale * diff(a[i], b[j]) over panels of PANEL_ROWS query rows in parallel."""
+    n = a.shape[0]
+    for p in prange((n + PANEL_ROWS - 1) // PANEL_ROWS):
+        _panel(a, b, out, p * PANEL_ROWS, min(n, (p + 1) * PANEL_ROWS), scale)
+
+
+def _padded(x: np.ndarray, dtype: type[np.generic]) -> np.ndarray:
+    """C-contiguous ``x`` as ``dtype``, rows zero-padded to a multiple of CHUNK_BYTES."""
+    per_chunk = CHUNK_BYTES // np.dtype(dtype).itemsize
+    pad = -x.shape[1] % per_chunk
+    if pad == 0:
+        return np.ascontiguousarray(x, dtype=dtype)
+    padded = np.zeros((x.shape[0], x.shape[1] + pad), dtype=dtype)
+    padded[:, : x.shape[1]] = x
+    return padded
+
+
+@dataclass(frozen=True)
+class _Reference:
+    """The reference side prepared once for every query block: kernel-ready rows and extras."""
+
+    metric: str
+    rows: np.ndarray
+    norms: np.ndarray | None = None  # squared norms (sqeuclidean)
+    mean: np.ndarray | None = None  # subtracted from both sides (sqeuclidean)
+
+
+def _check_pair(a: np.ndarray, b: np.ndarray, metric: str) -> tuple[np.ndarray, np.ndarray, np.dtype]:
+    """Both sides as 2-D arrays of equal row length, and the dtype the metric's kernel works in."""
+    a, b = np.asarray(a), np.asarray(b)
+    if metric not in METRICS:
+        raise ValueError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")
+    if a.ndim != 2 or b.ndim != 2:
+        raise ValueError(f"rows must be 2-D arrays (frames x values), got shapes {a.shape} and {b.shape}")
+    if a.shape[1] != b.shape[1]:
+        raise ValueError(f"rows differ in length: {a.shape[1]} and {b.shape[1]} values")
+    if metric == "hamming" and not a.dtype == b.dtype == np.uint8:
+        raise ValueError(f"hamming needs uint8 rows of packed bits, got {a.dtype} and {b.dtype}")
+    uint8 = metric in ("l1", "hamming") and a.dtype == b.dtype == np.uint8
+    return a, b, np.dtype(np.uint8 if uint8 else np.float32)
+
+
+def _kernel_rows(x: np.ndarray, metric: str, dtype: np.dtype) -> np.ndarray:
+    """Rows as the SIMD kernel reads them (``l1``, ``hamming``): padded, packed bits as uint64."""
+    rows = _padded(x, dtype.type)
+    return rows.view(np.uint64) if metric == "hamming" else rows
+
+
+def _prepare_reference(b: np.ndarray, metric: str, dtype: np.dtype) -> _Reference:
+    if metric in ("l1", "hamming"):
+        return _Reference(metric, _kernel_rows(b, metric, dtype))
+    rows = np.asarray(b, dtype=np.float32)
+    if metric == "cosine":
+        return _Reference(metric, _unit_rows(rows))
+    # Centring both sides on the reference mean leaves the differences unchanged and shrinks the
+    # norms, hence the cancellation in |a|^2 + |b|^2 - 2ab (GIST values are all positive).
+    mean = rows.mean(axis=0, dtype=np.float64).astype(np.float32) if len(rows) else np.zeros(rows.shape[1], np.float32)
+    centred = np.ascontiguousarray(rows - mean)
+    return _Reference(metric, centred, norms=np.einsum("ij,ij->i", centred, centred), mean=mean)
+
+
+def _unit_rows(x: np.ndarray) -> np.ndarray:
+    """Rows scaled to unit length; all-zero rows stay zero (difference 1 to everything)."""
+    norms = np.sqrt(np.einsum("ij,ij->i", x, x, dtype=np.float64))
+    safe = np.where(norms > 0, norms, 1.0)
+    return np.ascontiguousarray(x / safe[:, None], dtype=np.float32)
+
+
+def _fill(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray) -> None:
+    """out = scale * difference(a rows, reference rows)."""
+    if ref.metric in ("l1", "hamming"):
+        dtype = np.dtype(np.uint8) if ref.metric == "hamming" else ref.rows.dtype
+        _simd_pairwise(_kernel_rows(a, ref.metric, dtype), ref.rows, out, float(scale))
+        return
+    if ref.metric == "cosine":
+        np.matmul(_unit_rows(np.asarray(a, dtype=np.float32)), ref.rows.T, out=out)
+        np.subtract(1.0, out, out=out)
+        np.clip(out, 0.0, 2.0, out=out)
+    else:
+        centred = np.asarray(a, dtype=np.float32) - ref.mean
+        np.matmul(centred, ref.rows.T, out=out)
+        out *= -2.0
+        out += np.einsum("ij,ij->i", centred, centred)[:, None]
+        out += ref.norms[None, :]
+        np.maximum(out, 0.0, out=out)
+    if scale != 1.0:
+        out *= np.float32(scale)
+
+
+def pairwise(a: np.ndarray, b: np.ndarray, metric: str, scale: float = 1.0, out: np.ndarray | None = None) -> np.ndarray:
+    """The len(a) x len(b) float32 matrix of scale * difference between every row of a and of b.
+
+    ``l1``: sum of |a - b| (uint8 rows use the SAD kernel; scale turns the sum into a mean);
+    ``sqeuclidean``: sum of squared differences (float32, matrix-product form, negatives clamped);
+    ``hamming``: differing bits of uint8-packed rows; ``cosine``: 1 - cosine similarity.
+    ``out``, if given, must be a C-contiguous float32 array of that shape; it is filled and returned.
+    """
+    a, b, dtype = _check_pair(a, b, metric)
+    shape = (a.shape[0], b.shape[0])
+    if out is None:
+        out = np.empty(shape, dtype=np.float32)
+    elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
+    if out.size:
+        _fill(a, _prepare_reference(b, metric, dtype), scale, out)
+    return out
+
+
+def pairwise_blocks(
+    a: np.ndarray, b: np.ndarray, metric: str, scale: float = 1.0, block_rows: int = 1024
+) -> Iterator[tuple[int, int, np.ndarray]]:
+    """Yield (start, stop, block) with block = pairwise(a[start:stop], b, ...), one row block at a time.
+
+    The reference side is prepared once; the same float32 buffer is reused for every block, so
+    a consumer that keeps a block must copy it.
+    """
+    a, b, dtype = _check_pair(a, b, metric)
+    if block_rows < 1:
+        raise ValueError(f"block_rows must be at least 1, got {block_rows}")
+    ref = _prepare_reference(b, metric, dtype)
+    buffer = np.empty((min(block_rows, a.shape[0]), b.shape[0]), dtype=np.float32)
+    for start in range(0, a.shape[0], block_rows):
+        stop = min(start + block_rows, a.shape[0])
+        block = buffer[: stop - start]
+        if block.size:
+            _fill(a[start:stop], ref, scale, block)
+        yield start, stop, block

@@ -1,0 +1,100 @@
+"""Odometry CSVs: arc length travelled at each frame, for the CAT-Graph motion model.
+
+Two forms, one row per frame, an optional header row:
+- ``name,distance``: the cumulative distance travelled (odometer reading) at that frame;
+- ``name,x,y``: the position (metres); arc length is the summed step length in frame order.
+Frames are matched by file name. docs/catgraph.md describes how the filter uses them.
+"""
+from __future__ import annotations
+
+import csv
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.errors import WilocError
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """Per-frame values read from an odometry CSV, in file order."""
+
+    names: tuple[str, ...]
+    values: NDArray[np.float64]  # (n, 1) cumulative distance or (n, 2) positions
+    path: str
+
+    def arclength(self, names: Sequence[str] | None = None) -> NDArray[np.float64]:
+        """Arc length at each of ``names`` (default: the file's order), in that order.
+
+        Every name must appear in the file; names in the file but not asked for are ignored.
+        A cumulative distance must not decrease along ``names``.
+        """
+        order = self.names if names is None else tuple(names)
+        index = {name: i for i, name in enumerate(self.names)}
+        missing = [name for name in order if name not in index]
+        if missing:
+            raise WilocError(self.path, f"no odometry for {len(missing)} frame(s), first {missing[0]!r}")
+        vals = self.values[[index[name] for name in order]]
+        if vals.shape[1] == 2:
+            return np.r_[0.0, np.cumsum(np.hypot(*np.diff(vals, axis=0).T))]
+        dist = vals[:, 0]
+        drops = np.flatnonzero(np.diff(dist) < 0)
+        if drops.size:
+            raise WilocError(self.path, f"distance decreases at frame {order[drops[0] + 1]!r}: "
+                                        "expected the cumulative distance travelled")
+        return dist - dist[0] if dist.size else dist
+
+
+def steps(arclength: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distance travelled since the previous frame (0 for the first): the filter's u_k."""
+    arc = np.asarray(arclength, dtype=np.float64)
+    return np.diff(arc, prepend=arc[:1])
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def read_odometry(path: str | Path) -> Odometry:
+    """Read a ``name,distance`` or ``name,x,y`` CSV; WilocError naming the line on any problem."""
+    where = str(path)
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = [(n, row) for n, row in enumerate(csv.reader(fh), start=1)
+                    if row and any(cell.strip() for cell in row)]
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise WilocError(where, f"cannot read odometry: {exc}") from exc
+    if rows and not all(_is_number(cell) for cell in rows[0][1][1:]):
+        rows = rows[1:]  # header
+    if not rows:
+        raise WilocError(where, "no odometry rows")
+    width = len(rows[0][1])
+    if width not in (2, 3):
+        raise WilocError(where, f"line {rows[0][0]}: expected name,distance or name,x,y, "
+                                f"got {width} columns")
+    names: list[str] = []
+    values = np.empty((len(rows), width - 1), dtype=np.float64)
+    for i, (line, row) in enumerate(rows):
+        if len(row) != width:
+            raise WilocError(where, f"line {line}: expected {width} columns, got {len(row)}")
+        cells = [cell.strip() for cell in row]
+        if not cells[0]:
+            raise WilocError(where, f"line {line}: empty frame name")
+        if not all(_is_number(cell) for cell in cells[1:]):
+            raise WilocError(where, f"line {line}: not a number in {','.join(cells[1:])!r}")
+        values[i] = [float(cell) for cell in cells[1:]]
+        if not np.all(np.isfinite(values[i])):
+            raise WilocError(where, f"line {line}: non-finite value")
+        names.append(cells[0])
+    twice = [name for name, count in Counter(names).items() if count > 1]
+    if twice:
+        raise WilocError(where, f"frame {twice[0]!r} appears more than once")
+    return Odometry(names=tuple(names), values=values, path=where)
