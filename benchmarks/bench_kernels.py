@@ -12,6 +12,7 @@ real descriptors: ``sad`` 1152 uint8 values quantised as 128 + 32 z, ``hamming``
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from collections.abc import Callable
 
@@ -64,7 +65,10 @@ def main() -> None:
 
     rng = np.random.default_rng(0)
     metric_of = {"sad": "l1", "hamming": "hamming", "sqeuclidean": "sqeuclidean"}
-    print(f"N = {args.n}, SIMD path {simd_path()}, {numba.get_num_threads()} numba threads, block {args.block_rows} rows")
+    print(
+        f"N = {args.n}, SIMD path {simd_path()}, {numba.get_num_threads()} numba threads, "
+        f"block {args.block_rows} rows, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
+    )
     header = f"{'kernel':<12} {'values':>7} {'dtype':>8} {'ours s':>8} {'ours cpu s':>11} {'numpy s':>9} {'numpy rows':>11} {'numpy/ours':>11}"
     print(header)
     print("-" * len(header))

@@ -49,7 +49,7 @@ def _json(result) -> object:
 def test_describe_reports_and_reuses_cache(route: tuple[Path, Path]) -> None:
     ref, _ = route
     first = _json(runner.invoke(app, ["describe", str(ref), "--json", "--jobs", "1"]))
-    assert first[0]["frames"] == 40 and first[0]["computed"] == 40 and first[0]["shape"] == "1152"
+    assert first[0]["frames"] == 40 and first[0]["computed"] == 40 and first[0]["shape"] == "40x1152"
     second = _json(runner.invoke(app, ["describe", str(ref), "--json", "--jobs", "1"]))
     assert second[0]["computed"] == 0 and second[0]["reused"] == 40
     table = runner.invoke(app, ["describe", str(ref), "--jobs", "1"])

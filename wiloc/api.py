@@ -228,11 +228,10 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
 def _motion(query_odometry: Path | None, ref_odometry: Path | None, query_names: list[str],
             ref_names: list[str]) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Reference arc length per node and query step per frame from odometry CSVs, when given."""
-    from wiloc.odometry import read_arclength
-    ref = read_arclength(ref_odometry, ref_names) if ref_odometry else None
-    query = read_arclength(query_odometry, query_names) if query_odometry else None
-    steps = None if query is None else np.diff(query, prepend=query[0])
-    return ref, steps
+    from wiloc.odometry import read_odometry, steps
+    ref = read_odometry(ref_odometry).arclength(ref_names) if ref_odometry else None
+    query = steps(read_odometry(query_odometry).arclength(query_names)) if query_odometry else None
+    return ref, query
 
 
 # ----------------------------------------------------------------------------------------- evaluate

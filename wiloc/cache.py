@@ -17,7 +17,7 @@ import struct
 import zlib
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -186,7 +186,7 @@ class Journal:
             f.truncate(valid)
         self._file = open(path, "ab", buffering=0)
         if valid == 0:
-            self._write(json.dumps(_header_to_json(header)).encode(), b"")
+            self._write(json.dumps(asdict(header)).encode(), b"")
 
     def append(self, record: FrameRecord) -> None:
         """Write one frame record; it reaches the OS before this returns, so SIGKILL keeps it."""
@@ -232,14 +232,6 @@ def _scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], in
             records.append(FrameRecord(row=values, **meta))
         offset += _RECORD.size + length
     return header, records, offset
-
-
-def _header_to_json(header: EntryHeader) -> dict[str, Any]:
-    return {
-        "key": header.key, "folder": header.folder, "descriptor": header.descriptor,
-        "params": header.params, "metric": header.metric, "scale": header.scale,
-        "natural_max": header.natural_max, "dtype": header.dtype, "length": header.length,
-    }
 
 
 class Cache:
@@ -368,7 +360,7 @@ class Cache:
         bad = [r for r in records if r.row is None]
         text = h5py.string_dtype()
         with self.atomic_h5(self.entry_path(header.key)) as f:
-            attrs = _header_to_json(header)
+            attrs = asdict(header)
             attrs.update(
                 format=FORMAT, format_version=FORMAT_VERSION, params=json.dumps(header.params, sort_keys=True),
                 natural_max=np.nan if header.natural_max is None else header.natural_max,

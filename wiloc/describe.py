@@ -10,8 +10,8 @@ import os
 import signal
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
+from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -24,9 +24,9 @@ from wiloc.errors import FrameError, WilocError
 from wiloc.frames import fingerprint, jpeg_size, list_traversal, read_gray
 
 Progress = Callable[[int, int], None]
-#: Most frames one worker task handles: large enough that process round trips cost little,
-#: small enough that results stream back (and are journaled) within a second or so.
-MAX_CHUNK = 16
+#: Frames per round trip to a worker: enough that the round trip costs little even for the
+#: fastest descriptor, few enough that results stream back (and are journaled) promptly.
+CHUNK = 4
 _Task = tuple[Path, FrameRecord | None]
 
 
@@ -53,7 +53,8 @@ def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int 
     """Describe every image of a traversal folder with `spec`, reusing what the cache holds.
 
     `jobs` worker processes compute (default: all cores; 1 computes in this process).
-    `progress(done, total)` is called as frames are settled, reused ones first.
+    `progress(done, total)` is called as frames are settled, reused ones first. Holds the
+    entry's lock throughout; raises CacheBusyError if another process keeps it too long.
     """
     start = time.perf_counter()
     jobs = _check_jobs(jobs)
@@ -133,9 +134,10 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
         fresh = stored is None or not stored.complete
         if fresh:
             names, matrix = read_external(sources[0], names_path, metric)
-            spec = get_descriptor("external", metric=metric, length=matrix.shape[1], dtype=matrix.dtype.name)
-            header = EntryHeader.create(str(sources[0]), "external", params, spec.metric, spec.scale,
-                                        spec.natural_max, spec.dtype, spec.length)
+            spec = get_descriptor("external", metric=metric, length=matrix.shape[1],
+                                  dtype=matrix.dtype.name)
+            header = EntryHeader.create(str(sources[0]), "external", params, spec.metric,
+                                        spec.scale, spec.natural_max, spec.dtype, spec.length)
             stored = StoredEntry(header, {
                 name: FrameRecord(name, prints[0].size, prints[0].mtime_ns, prints[0].digest, row)
                 for name, row in zip(names, matrix)})
@@ -152,6 +154,7 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
 
 
 def _check_jobs(jobs: int | None) -> int:
+    """The worker count: the cores this process may use by default, else at least 1."""
     if jobs is None:
         return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     if jobs < 1:
@@ -173,37 +176,33 @@ def _unchanged(path: Path, old: FrameRecord | None) -> bool:
 def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterator[tuple[FrameRecord, bool]]:
     """Settle each task, yielding (record, computed) as results arrive, over `jobs` processes."""
     if jobs == 1 or len(tasks) == 1:
-        for path, old in tasks:
-            yield _describe_one(spec, path, old)
+        for task in tasks:
+            yield _describe_one(spec, task)
         return
-    size = max(1, min(MAX_CHUNK, len(tasks) // (4 * jobs)))
-    chunks = [tasks[i:i + size] for i in range(0, len(tasks), size)]
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=get_context("fork"),
-                               initializer=_init_worker)
+    # forkserver: workers never fork a parent that may run threads (a progress display). The
+    # server imports this module once (about 1 s, most of it pandas and scipy); each worker then
+    # starts from it in milliseconds instead of importing again.
+    context = get_context("forkserver")
+    context.set_forkserver_preload([__name__])
+    pool = context.Pool(min(jobs, len(tasks)), initializer=_init_worker)
     try:
-        futures = [pool.submit(_describe_chunk, spec, chunk) for chunk in chunks]
-        for future in as_completed(futures):
-            yield from future.result()
+        yield from pool.imap_unordered(partial(_describe_one, spec), tasks, chunksize=CHUNK)
     except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
+        pool.terminate()  # an interrupted run keeps what was journaled; in-flight work is lost
         raise
-    pool.shutdown()
+    pool.close()
+    pool.join()
 
 
 def _init_worker() -> None:
-    """Workers leave Ctrl-C to the parent, which stops them and keeps what was journaled. (They
-    keep OpenCV's default threads: its thread count changes some descriptors in the last bit,
-    and rows must not depend on `jobs`.)"""
+    """Workers leave Ctrl-C to the parent, which stops them and keeps what was journaled."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _describe_chunk(spec: DescriptorSpec, chunk: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:
-    return [_describe_one(spec, path, old) for path, old in chunk]
-
-
-def _describe_one(spec: DescriptorSpec, path: Path, old: FrameRecord | None) -> tuple[FrameRecord, bool]:
+def _describe_one(spec: DescriptorSpec, task: _Task) -> tuple[FrameRecord, bool]:
     """One frame's record and whether its descriptor was computed (False: reused or failed).
     A frame whose content digest matches its stored record keeps that record's row or failure."""
+    path, old = task
     try:
         fp = fingerprint(path)
     except OSError as exc:

@@ -115,7 +115,7 @@ def _is_current(path: Path, query: Entry, ref: Entry) -> bool:
 def _write(f: h5py.File, query: Entry, ref: Entry, block_rows: int, progress: Progress | None) -> None:
     """Fill an open HDF5 file with the difference matrix, block of rows by block of rows."""
     shape = (len(query.names), len(ref.names))
-    chunk_rows = max(1, min(block_rows, _CHUNK_BYTES // (4 * max(shape[1], 1))))
+    chunk_rows = max(1, min(block_rows, shape[0], _CHUNK_BYTES // (4 * max(shape[1], 1))))
     chunks = (chunk_rows, shape[1]) if all(shape) else None
     d = f.create_dataset("d", shape=shape, dtype=np.float32, chunks=chunks)
     f.create_dataset("query_names", data=query.names, dtype=h5py.string_dtype())

@@ -109,11 +109,9 @@ def _make_tile(rows: int, cols: int) -> Callable[..., None]:
 
     @intrinsic
     def tile(typingctx, a, i, b, j, sums):  # type: ignore[no-untyped-def]
-        supported = (types.uint8, types.uint64, types.float32)
-        arrays = (a, b)
-        if not all(isinstance(x, types.Array) and x.ndim == 2 and x.layout == "C" and x.dtype == a.dtype for x in arrays):
+        if not all(isinstance(x, types.Array) and x.ndim == 2 and x.layout == "C" and x.dtype == a.dtype for x in (a, b)):
             return None
-        if a.dtype not in supported or not isinstance(sums, types.Array) or sums.dtype != types.float64:
+        if a.dtype not in (types.uint8, types.uint64, types.float32) or not isinstance(sums, types.Array) or sums.dtype != types.float64:
             return None
         sig = types.void(a, i, b, j, sums)
 
@@ -122,7 +120,9 @@ def _make_tile(rows: int, cols: int) -> Callable[..., None]:
             load_type, acc_type, op = _chunk_op(builder, signature.args[0].dtype, path)
             if _VECTOR_BYTES[path] == 64:
                 # Explicit 512-bit vectors: without this LLVM splits them on CPUs tuned to prefer
-                # 256-bit vectors (every AVX-512 Intel core), as clang does for 512-bit intrinsics.
+                # 256-bit vectors (every AVX-512 Intel core); clang sets the same attribute for
+                # 512-bit intrinsics. llvmlite only checks names of keyword attributes, so a
+                # string attribute goes in through the underlying set.
                 set.add(builder.function.attributes, '"min-legal-vector-width"="512"')
             arr_a = context.make_array(signature.args[0])(context, builder, args[0])
             arr_b = context.make_array(signature.args[2])(context, builder, args[2])
@@ -139,6 +139,7 @@ def _make_tile(rows: int, cols: int) -> Callable[..., None]:
             pa = row_pointers(arr_a, row0, rows)
             pb = row_pointers(arr_b, col0, cols)
             accs = [cgutils.alloca_once_value(builder, ir.Constant(acc_type, None)) for _ in range(rows * cols)]
+            add = builder.fadd if isinstance(acc_type.element, ir.FloatType) else builder.add
             n_chunks = builder.udiv(width, step)
             with cgutils.for_range(builder, n_chunks) as loop:
                 offset = builder.mul(loop.index, step)
@@ -151,9 +152,7 @@ def _make_tile(rows: int, cols: int) -> Callable[..., None]:
                 for r in range(rows):
                     for s in range(cols):
                         acc = accs[r * cols + s]
-                        part = op(builder, va[r], vb[s])
-                        add = builder.fadd if isinstance(acc_type.element, ir.FloatType) else builder.add
-                        builder.store(add(builder.load(acc), part), acc)
+                        builder.store(add(builder.load(acc), op(builder, va[r], vb[s])), acc)
             for k, acc in enumerate(accs):
                 builder.store(_reduce(builder, builder.load(acc)), builder.gep(arr_s.data, [ir.Constant(_I64, k)]))
             return context.get_dummy_value()

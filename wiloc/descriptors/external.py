@@ -70,8 +70,8 @@ def _read_h5(path: Path) -> tuple[NDArray, list[str] | None]:
             matrix = handle["descriptors"][()]
             names = None
             if "names" in handle:
-                raw = handle["names"][()]
-                names = [n.decode("utf-8") if isinstance(n, bytes) else str(n) for n in np.ravel(raw)]
+                raw = np.ravel(handle["names"][()])
+                names = [n.decode("utf-8") if isinstance(n, bytes) else str(n) for n in raw]
     except OSError as exc:
         raise WilocError(path, f"not a readable HDF5 file ({exc})") from exc
     return matrix, names

@@ -63,7 +63,9 @@ def _choose(value: Any, choices: tuple, what: str) -> Any:
     return value
 
 
-def _check_params(name: str, given: Mapping[str, Any], defaults: Mapping[str, Any]) -> dict[str, Any]:
+def _check_params(
+    name: str, given: Mapping[str, Any], defaults: Mapping[str, Any]
+) -> dict[str, Any]:
     unknown = sorted(set(given) - set(defaults))
     if unknown:
         valid = ", ".join(defaults) or "none"
@@ -164,5 +166,6 @@ def get_descriptor(name: str, **params: Any) -> DescriptorSpec:
     length=D, dtype="float32")``.
     """
     if name not in _BUILDERS:
-        raise ValueError(f"unknown descriptor {name!r}; choose one of {', '.join(DESCRIPTOR_NAMES)}")
+        choices = ", ".join(DESCRIPTOR_NAMES)
+        raise ValueError(f"unknown descriptor {name!r}; choose one of {choices}")
     return _BUILDERS[name](params)
