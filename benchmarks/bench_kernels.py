@@ -59,8 +59,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--n", type=int, default=20_000, help="frames (the matrix is N x N)")
     parser.add_argument("--block-rows", type=int, default=1024, help="query rows per block of our kernel")
-    parser.add_argument("--baseline-rows", type=int, default=100, help="query rows timed for the numpy baseline (x10 for sqeuclidean)")
-    parser.add_argument("--kinds", nargs="+", default=["sad", "hamming", "sqeuclidean"], choices=["sad", "hamming", "sqeuclidean"])
+    parser.add_argument(
+        "--baseline-rows", type=int, default=100, help="query rows timed for the numpy baseline (x10 for sqeuclidean)"
+    )
+    kinds = ["sad", "hamming", "sqeuclidean"]
+    parser.add_argument("--kinds", nargs="+", default=kinds, choices=kinds)
     args = parser.parse_args()
 
     rng = np.random.default_rng(0)
@@ -69,7 +72,10 @@ def main() -> None:
         f"N = {args.n}, SIMD path {simd_path()}, {numba.get_num_threads()} numba threads, "
         f"block {args.block_rows} rows, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
     )
-    header = f"{'kernel':<12} {'values':>7} {'dtype':>8} {'ours s':>8} {'ours cpu s':>11} {'numpy s':>9} {'numpy rows':>11} {'numpy/ours':>11}"
+    header = (
+        f"{'kernel':<12} {'values':>7} {'dtype':>8} {'ours s':>8} {'ours cpu s':>11} "
+        f"{'numpy s':>9} {'numpy rows':>11} {'numpy/ours':>11}"
+    )
     print(header)
     print("-" * len(header))
     for kind in args.kinds:

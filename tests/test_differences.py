@@ -128,7 +128,11 @@ def test_candidate_rows_reject_bad_requests(cache: Cache) -> None:
 
 @pytest.mark.parametrize(
     ("ref_change", "problem"),
-    [({"metric": "hamming"}, "metric l1 vs hamming"), ({"scale": 1.0}, "scale 0.5 vs 1"), ({"length": 40}, "length 48 vs 40")],
+    [
+        ({"metric": "hamming"}, "metric l1 vs hamming"),
+        ({"scale": 1.0}, "scale 0.5 vs 1"),
+        ({"length": 40}, "length 48 vs 40"),
+    ],
 )
 def test_incompatible_entries_name_both_folders(cache: Cache, ref_change: dict, problem: str) -> None:
     query, ref = make_entry("q", 4, 1), make_entry("r", 3, 2, **ref_change)

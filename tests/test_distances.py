@@ -196,11 +196,15 @@ def test_kernels_compile_for_other_cpus() -> None:
     usual cache and later runs load them instead of compiling again.
     """
     haswell = "+sse2,+sse3,+ssse3,+sse4.1,+sse4.2,+popcnt,+avx,+avx2,+fma,+bmi,+bmi2,+f16c,+lzcnt,+movbe"
-    targets = {"avx2": {"NUMBA_CPU_NAME": "haswell", "NUMBA_CPU_FEATURES": haswell}, "generic": {"NUMBA_CPU_NAME": "generic"}}
+    targets = {
+        "avx2": {"NUMBA_CPU_NAME": "haswell", "NUMBA_CPU_FEATURES": haswell},
+        "generic": {"NUMBA_CPU_NAME": "generic"},
+    }
 
     def run(path: str) -> subprocess.CompletedProcess[str]:
         env = {**os.environ, **targets[path], "NUMBA_NUM_THREADS": "1"}
-        return subprocess.run([sys.executable, "-c", _PORTABILITY_SCRIPT], env=env, capture_output=True, text=True, timeout=300)
+        command = [sys.executable, "-c", _PORTABILITY_SCRIPT]
+        return subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
 
     with ThreadPoolExecutor(2) as pool:
         results = dict(zip(targets, pool.map(run, targets)))

@@ -40,7 +40,9 @@ class DifferenceMatrix:
     def __enter__(self) -> DifferenceMatrix:
         return self
 
-    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None, tb: TracebackType | None) -> None:
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, tb: TracebackType | None
+    ) -> None:
         self.close()
 
     def close(self) -> None:
@@ -101,7 +103,7 @@ def _is_current(path: Path, query: Entry, ref: Entry) -> bool:
     try:
         with h5py.File(path, "r") as f:
             attrs = f.attrs
-            return (
+            return bool(
                 attrs.get("query_digest") == query.digest
                 and attrs.get("ref_digest") == ref.digest
                 and attrs.get("metric") == query.metric

@@ -109,9 +109,11 @@ def _make_tile(rows: int, cols: int) -> Callable[..., None]:
 
     @intrinsic
     def tile(typingctx, a, i, b, j, sums):  # type: ignore[no-untyped-def]
-        if not all(isinstance(x, types.Array) and x.ndim == 2 and x.layout == "C" and x.dtype == a.dtype for x in (a, b)):
-            return None
-        if a.dtype not in (types.uint8, types.uint64, types.float32) or not isinstance(sums, types.Array) or sums.dtype != types.float64:
+        kernel_dtypes = (types.uint8, types.uint64, types.float32)
+        for x in (a, b):
+            if not (isinstance(x, types.Array) and x.ndim == 2 and x.layout == "C" and x.dtype == a.dtype):
+                return None
+        if a.dtype not in kernel_dtypes or not (isinstance(sums, types.Array) and sums.dtype == types.float64):
             return None
         sig = types.void(a, i, b, j, sums)
 
@@ -134,7 +136,8 @@ def _make_tile(rows: int, cols: int) -> Callable[..., None]:
 
             def row_pointers(arr: cgutils.Structure, first: ir.Value, count: int) -> list[ir.Value]:
                 start = builder.mul(first, width)
-                return [builder.gep(arr.data, [builder.add(start, builder.mul(ir.Constant(_I64, r), width))]) for r in range(count)]
+                offsets = [builder.add(start, builder.mul(ir.Constant(_I64, r), width)) for r in range(count)]
+                return [builder.gep(arr.data, [offset]) for offset in offsets]
 
             pa = row_pointers(arr_a, row0, rows)
             pb = row_pointers(arr_b, col0, cols)
@@ -282,7 +285,9 @@ def _fill(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray) -> None
         out *= np.float32(scale)
 
 
-def pairwise(a: np.ndarray, b: np.ndarray, metric: str, scale: float = 1.0, out: np.ndarray | None = None) -> np.ndarray:
+def pairwise(
+    a: np.ndarray, b: np.ndarray, metric: str, scale: float = 1.0, out: np.ndarray | None = None
+) -> np.ndarray:
     """The len(a) x len(b) float32 matrix of scale * difference between every row of a and of b.
 
     ``l1``: sum of |a - b| (uint8 rows use the SAD kernel; scale turns the sum into a mean);

@@ -2,8 +2,8 @@
 
 The reference traversal is a trajectory: node j sits at arc length s_j. M particles live at
 continuous positions on it, optionally each with its own speed ratio (``speed_noise`` > 0).
-Per query frame: move the particles, re-seed a few at the frame's best single-frame matches,
-weight each by P(d|L)/P(d) of the difference interpolated at its position (eq. 8), weigh a
+Per query frame: move the particles, re-seed a few at the best nodes of a causal sequence score
+(a leaky sum of contrast-normalised differences along straight trajectories), weight each by P(d|L)/P(d) of the difference interpolated at its position (eq. 8), weigh a
 new-place particle by the mean P(not L | d) over sampled nodes (eq. 10), normalise, read out the
 mode of the particle density and resample when the effective sample size drops. P(d|L) comes from
 the online, training-free ``b`` (each frame's smallest difference, added after the frame is used);
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import gaussian_filter1d
+from scipy.ndimage import gaussian_filter1d, uniform_filter1d
 from scipy.special import expit
 
 from wiloc.errors import WilocError
@@ -40,6 +40,9 @@ DEFAULT_SPEED_RANGE = (0.0, 3.0)
 DEFAULT_RESAMPLE_ESS = 0.5
 DEFAULT_RESEED = 0.01
 DEFAULT_RESEED_TOP = 1
+DEFAULT_SEQUENCE_RATE = 0.1
+DEFAULT_SEQUENCE_SPEEDS = (0.5, 1.0, 1.5, 2.0)
+DEFAULT_CONTRAST_WINDOW = 10
 DEFAULT_NEW_PLACE_SAMPLES = 100
 DEFAULT_MODE_WINDOW = 2
 
@@ -139,6 +142,32 @@ def _locate(nodes: NDArray[np.float64], pos: NDArray[np.float64]) -> tuple[NDArr
     return j, np.clip(a, 0.0, 1.0)
 
 
+def contrast_normalise(row: NDArray[np.float64], half_window: int) -> NDArray[np.float64]:
+    """Each difference minus the mean of its +-``half_window`` neighbouring nodes, over their std.
+
+    Removes what a whole stretch of the map shares (a tunnel, snow, a dark scene all look alike
+    to every query frame), so a node stands out only by being lower than its neighbours
+    (SeqSLAM's local contrast enhancement, on one row: causal). A constant stretch gives 0.
+    """
+    size = 2 * half_window + 1
+    mean = uniform_filter1d(row, size, mode="nearest")
+    var = np.maximum(uniform_filter1d(row * row, size, mode="nearest") - mean * mean, 0.0)
+    sd = np.sqrt(var)
+    return np.divide(row - mean, sd, out=np.zeros_like(row), where=sd > 0)
+
+
+def _advance(score: NDArray[np.float64], nodes: NDArray[np.float64],
+             shifts: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Row v of ``score`` read at s_j - shifts[v] for every node j (clamped to the trajectory).
+
+    The leaky sequence score ending at node j now continues the one that ended a step back.
+    """
+    j, a = _locate(nodes, (nodes[None, :] - shifts[:, None]).ravel())
+    flat = (np.arange(shifts.size).repeat(nodes.size) * nodes.size + j)
+    prev = score.ravel()
+    return ((1.0 - a) * prev[flat] + a * prev[flat + 1]).reshape(score.shape)
+
+
 def _log_normalizer(log_w: NDArray[np.float64]) -> float:
     """log(sum(exp(log_w))), computed stably."""
     top = float(log_w.max())
@@ -176,6 +205,9 @@ def localize_catgraph(
     resample_ess: float = DEFAULT_RESAMPLE_ESS,
     reseed: float = DEFAULT_RESEED,
     reseed_top: int = DEFAULT_RESEED_TOP,
+    sequence_rate: float = DEFAULT_SEQUENCE_RATE,
+    sequence_speeds: tuple[float, ...] = DEFAULT_SEQUENCE_SPEEDS,
+    contrast_window: int = DEFAULT_CONTRAST_WINDOW,
     new_place_samples: int = DEFAULT_NEW_PLACE_SAMPLES,
     mode_window: int = DEFAULT_MODE_WINDOW,
     progress: Progress | None = None,
@@ -187,6 +219,9 @@ def localize_catgraph(
     Positions are in arc-length units (``ref_arclength``, else node index); ``query_steps`` are
     the query's travelled distances since its previous frame in the same units. The noise and
     ``noise_floor`` are relative to the step and to the mean node spacing respectively.
+    Re-seeding uses a causal sequence score per node: for each speed ratio in ``sequence_speeds``
+    an exponentially weighted (rate ``sequence_rate``) sum of contrast-normalised differences
+    (+-``contrast_window`` nodes) along the trajectory ending there; the lowest over speeds counts.
     Returns per frame the node at the density mode, its difference, the weight mass within
     +-``mode_window`` nodes of it (after normalising with the new-place particle) as confidence,
     and ``columns["new_place"]``. The same seed gives identical Decisions.
@@ -198,6 +233,10 @@ def localize_catgraph(
               (0.0 <= speed_range[0] <= speed_range[1], "speed_range must be (low, high), 0 <= low <= high"),
               (0.0 <= resample_ess <= 1.0, "resample_ess must lie in [0, 1]"),
               (0.0 <= reseed <= 1.0, "reseed must lie in [0, 1]"), (reseed_top >= 1, "reseed_top must be >= 1"),
+              (0.0 < sequence_rate <= 1.0, "sequence_rate must lie in (0, 1]"),
+              (len(sequence_speeds) >= 1 and min(sequence_speeds, default=0.0) >= 0,
+               "sequence_speeds must hold at least one speed ratio >= 0"),
+              (contrast_window >= 1, "contrast_window must be >= 1"),
               (new_place_samples >= 1, "new_place_samples must be >= 1"), (mode_window >= 0, "mode_window must be >= 0")]
     for ok, problem in checks:
         if not ok:
@@ -217,6 +256,8 @@ def localize_catgraph(
     log_w = np.full(particles, -np.log(particles))
     n_reseed = int(round(reseed * particles))
     window = np.ones(2 * mode_window + 1)
+    speeds_v = np.asarray(sequence_speeds, dtype=np.float64)
+    sequence = np.zeros((speeds_v.size, n_nodes))
 
     match = np.full(n_frames, -1, dtype=np.int64)
     difference = np.full(n_frames, np.nan)
@@ -231,15 +272,22 @@ def localize_catgraph(
         if row.shape != (n_nodes,) or not np.all(np.isfinite(row)):
             raise WilocError("catgraph", f"query row {k} must hold {n_nodes} finite differences")
         tables = observation_tables(model, smoothing_bins, prior, outlier, pseudo)
+        contrast = contrast_normalise(row, contrast_window)
+        if k == 0:
+            sequence[:] = contrast
+        else:  # the leaky sum along each speed's trajectory: causal, O(speeds x nodes) per frame
+            sequence = ((1.0 - sequence_rate) * _advance(sequence, nodes, speeds_v * steps[k])
+                        + sequence_rate * contrast)
 
         if k > 0:  # motion model: s += v u_k + noise
             if speed_noise > 0:
                 speed = np.clip(speed + rng.normal(0.0, speed_noise, particles), *speed_range)
             sd = np.hypot(step_noise * steps[k], noise_floor * spacing)
             pos = np.clip(pos + speed * steps[k] + rng.normal(0.0, sd, particles), nodes[0], nodes[-1])
-        if n_reseed > 0:  # re-seed the weakest particles at the best single-frame matches
+        if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
             weakest = np.argpartition(log_w, n_reseed - 1)[:n_reseed]
-            best = np.argpartition(row, min(reseed_top, n_nodes) - 1)[:reseed_top]
+            score = sequence.min(axis=0)
+            best = np.argpartition(score, min(reseed_top, n_nodes) - 1)[:reseed_top]
             pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
             speed[weakest] = speed[rng.integers(0, particles, n_reseed)]
             log_w[weakest] = -np.log(particles)
@@ -274,6 +322,8 @@ def localize_catgraph(
               "bins": bins, "smoothing_bins": smoothing_bins, "prior": prior, "step_noise": step_noise,
               "noise_floor": noise_floor, "speed_noise": speed_noise, "speed_range": list(speed_range),
               "resample_ess": resample_ess, "reseed": reseed, "reseed_top": reseed_top,
+              "sequence_rate": sequence_rate, "sequence_speeds": list(sequence_speeds),
+              "contrast_window": contrast_window,
               "new_place_samples": new_place_samples, "mode_window": mode_window,
               "odometry": query_steps is not None}
     return Decisions(match=match, difference=difference, confidence=confidence,
