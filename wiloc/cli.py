@@ -39,6 +39,8 @@ def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             return func(*args, **kwargs)
         except WilocError as exc:
             _fail(str(exc), exc.exit_code)
+        except OSError as exc:
+            _fail(f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc), 1)
         except KeyboardInterrupt:
             _fail("interrupted; finished work is kept in the cache, rerun to resume", EXIT_INTERRUPTED)
     return wrapper
@@ -142,9 +144,10 @@ def describe(
             params = {"crop": crop} if descriptor == "sad" else {}
             reports = api.describe(folders, descriptor, descriptor_params=params, cache=store,
                                    jobs=jobs, progress=progress)
-    rows = [{"folder": str(r.folder), "frames": r.frames, "descriptor": r.descriptor,
+    rows = [{"folder": str(given), "frames": r.frames, "descriptor": r.descriptor,
              "shape": "x".join(map(str, r.shape)), "computed": r.computed, "reused": r.reused,
-             "failed": len(r.failed), "images/s": round(float(r.images_per_second), 1)} for r in reports]
+             "failed": len(r.failed), "images/s": f"{r.images_per_second:.1f}"}
+            for given, r in zip([import_file] if import_file is not None else folders, reports)]
     if as_json:
         _print_json([{**row, "failed_frames": [list(f) for f in r.failed], "ignored": list(r.ignored)}
                      for row, r in zip(rows, reports)])
@@ -211,15 +214,15 @@ def localize(
         if not (train_query and train_map and train_gt):
             _fail("--method trained needs --train-query, --train-map and --train-gt", 2)
         training = api.Training(train_query, train_map, _truth_source(train_gt, None, train_tolerance, 0.0))
-    if len(queries) > 1 and out_path is not None and out_path.suffix:
+    out_folder = out_path is not None and (out_path.is_dir() or not out_path.suffix)
+    if len(queries) > 1 and out_path is not None and not out_folder:
         _fail(f"{out_path}: with several queries --out names a folder", 2)
     runs = []
     with progress_bar(not as_json) as progress:
         for query in queries:
-            target = None
-            if out_path is not None:
-                target = out_path / f"{query.stem if query.is_file() else query.name}-{method}.csv" \
-                    if len(queries) > 1 else out_path
+            target = out_path
+            if out_path is not None and out_folder:
+                target = out_path / f"{query.stem if query.is_file() else query.name}-{method}.csv"
             runs.append(api.localize(query, reference=reference, descriptor=descriptor,
                                      descriptor_params={"crop": crop} if descriptor == "sad" else {},
                                      metric=metric, method=method, method_params=params,
