@@ -146,7 +146,7 @@ def describe(
                                    jobs=jobs, progress=progress)
     rows = [{"folder": str(given), "frames": r.frames, "descriptor": r.descriptor,
              "shape": "x".join(map(str, r.shape)), "computed": r.computed, "reused": r.reused,
-             "failed": len(r.failed), "images/s": f"{r.images_per_second:.1f}"}
+             "failed": len(r.failed), "images/s": f"{r.images_per_second:.1f}" if r.computed else "-"}
             for given, r in zip([import_file] if import_file is not None else folders, reports)]
     if as_json:
         _print_json([{**row, "failed_frames": [list(f) for f in r.failed], "ignored": list(r.ignored)}

@@ -74,8 +74,11 @@ def write_results(path: Path, decisions: Decisions, *, query_names: list[str], r
               "model": decisions.model.to_dict() if decisions.model is not None else None,
               "reference_frames": list(ref_names)}
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise WilocError(path, f"cannot write the results file ({exc.strerror})") from None
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as out:
             for key, value in header.items():
