@@ -4,7 +4,7 @@ Reproduces the paper's protocols (Table I, Table II, Figure 5, Figure 1) with al
 +-2 frames. The ``trained`` comparator for one query is trained on the OTHER query against the
 same map (labelled with the same aligned ground truth), never on the pair it is tested on.
 
-    python examples/gardens_point.py [DATA] [--out FOLDER] [--descriptors sad,gist,brisk-gist]
+    python examples/gardens_point.py [DATA] [--out FOLDER] [--update-docs] [--descriptors sad,gist,brisk-gist]
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from wiloc import api
 TOLERANCE = 2
 
 
-def build() -> tuple[Experiment, Path]:
+def build() -> tuple[Experiment, Path, bool]:
     """The Gardens Point experiment from the command line."""
     args = parse_args("gardens_point", __doc__.splitlines()[0], descriptors=True)
     root = args.data / "gardens-point-walking"
@@ -34,7 +34,7 @@ def build() -> tuple[Experiment, Path]:
         training=training, training_note="each query's model is trained on the other query "
                                           "(day_left <-> night_right) against day_right",
         tolerance=TOLERANCE)
-    return experiment, args.out
+    return experiment, args.out, args.update_docs
 
 
 if __name__ == "__main__":

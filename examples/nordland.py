@@ -4,7 +4,7 @@ Reproduces the paper's protocols (Table I, Table II, Figure 5, Figure 1) with al
 +-2 frames. Nordland has a single labelled pair, which is the test pair, so the ``trained``
 comparator is trained on another environment: Gardens Point day_left against day_right.
 
-    python examples/nordland.py [DATA] [--out FOLDER]
+    python examples/nordland.py [DATA] [--out FOLDER] [--update-docs]
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from wiloc import api
 TOLERANCE = 2
 
 
-def build() -> tuple[Experiment, Path]:
+def build() -> tuple[Experiment, Path, bool]:
     """The Nordland experiment from the command line."""
     args = parse_args("nordland", __doc__.splitlines()[0], descriptors=False)
     root = args.data / "nordland-summer-winter-64x32"
@@ -31,7 +31,7 @@ def build() -> tuple[Experiment, Path]:
         training_note="Gardens Point day_left against day_right (another environment: Nordland's "
                       "only labelled pair is the test pair)",
         tolerance=TOLERANCE)
-    return experiment, args.out
+    return experiment, args.out, args.update_docs
 
 
 if __name__ == "__main__":

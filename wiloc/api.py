@@ -219,7 +219,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
         meta.update(train_query=str(training.query), train_map=str(training.reference))
     path = Path(out) if out else Path.cwd() / f"{query.stem if query.is_file() else query.name}-{method}.csv"
     results = write_results(path, decisions, query_names=q.names, ref_names=r.names,
-                            meta={k: (v if isinstance(v, (str, int, float)) else str(v)) for k, v in meta.items()})
+                            meta=meta)
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
                        decisions=decisions, results=results, path=path,
                        seconds=time.perf_counter() - started, query_names=list(q.names))

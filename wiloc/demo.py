@@ -160,8 +160,9 @@ def make_world(rng: np.random.Generator, width: int, height: int = STRIP_H,
                repeat: float = 0.1) -> Image:
     """A street strip: sky and road gradients, smooth textures and a sequence of distinct places.
 
-    About ``repeat`` of the places copy an earlier one (slightly recoloured): the perceptual
-    aliasing that keeps recall at high precision from being trivial.
+    About ``repeat`` of the places copy a run of one to three earlier ones, recoloured and with a
+    new pole in front: the perceptual aliasing that keeps recall at high precision from being
+    trivial.
     """
     texture = _smooth_texture(rng, height, width, 12)
     sky = np.linspace(0.9, 0.5, height, dtype=np.float32)[:, None]
@@ -179,6 +180,7 @@ def make_world(rng: np.random.Generator, width: int, height: int = STRIP_H,
             w = min(src1 - src0, width - x)
             shift = rng.integers(-25, 26, 3)
             canvas[:, x:x + w] = np.clip(canvas[:, src0:src0 + w].astype(np.int16) + shift, 0, 255)
+            _pole(rng, canvas, x, min(x + w, width - 1))  # similar, not identical
         else:
             w = int(rng.integers(30, 90))
             PLACE_KINDS[int(rng.integers(len(PLACE_KINDS)))](rng, canvas, x, min(x + w, width - 1))

@@ -3,7 +3,8 @@
 The reference traversal is a trajectory: node j sits at arc length s_j. M particles live at
 continuous positions on it, optionally each with its own speed ratio (``speed_noise`` > 0).
 Per query frame: move the particles, re-seed a few at the best nodes of a causal sequence score
-(a leaky sum of contrast-normalised differences along straight trajectories), weight each by P(d|L)/P(d) of the difference interpolated at its position (eq. 8), weigh a
+(a leaky sum of contrast-normalised differences along straight trajectories), weight each by
+P(d|L)/P(d) of the difference interpolated at its position (eq. 8), weigh a
 new-place particle by the mean P(not L | d) over sampled nodes (eq. 10), normalise, read out the
 mode of the particle density and resample when the effective sample size drops. P(d|L) comes from
 the online, training-free ``b`` (each frame's smallest difference, added after the frame is used);
@@ -147,13 +148,14 @@ def contrast_normalise(row: NDArray[np.float64], half_window: int) -> NDArray[np
 
     Removes what a whole stretch of the map shares (a tunnel, snow, a dark scene all look alike
     to every query frame), so a node stands out only by being lower than its neighbours
-    (SeqSLAM's local contrast enhancement, on one row: causal). A constant stretch gives 0.
+    (SeqSLAM's local contrast enhancement, on one row: causal). A flat stretch (std within
+    rounding of 0) gives 0.
     """
     size = 2 * half_window + 1
     mean = uniform_filter1d(row, size, mode="nearest")
-    var = np.maximum(uniform_filter1d(row * row, size, mode="nearest") - mean * mean, 0.0)
-    sd = np.sqrt(var)
-    return np.divide(row - mean, sd, out=np.zeros_like(row), where=sd > 0)
+    sd = np.sqrt(np.maximum(uniform_filter1d(row * row, size, mode="nearest") - mean * mean, 0.0))
+    flat = sd <= 1e-6 * np.abs(mean)
+    return np.divide(row - mean, sd, out=np.zeros_like(row), where=~flat & (sd > 0))
 
 
 def _advance(score: NDArray[np.float64], nodes: NDArray[np.float64],
@@ -163,9 +165,9 @@ def _advance(score: NDArray[np.float64], nodes: NDArray[np.float64],
     The leaky sequence score ending at node j now continues the one that ended a step back.
     """
     j, a = _locate(nodes, (nodes[None, :] - shifts[:, None]).ravel())
-    flat = (np.arange(shifts.size).repeat(nodes.size) * nodes.size + j)
+    at = np.arange(shifts.size).repeat(nodes.size) * nodes.size + j
     prev = score.ravel()
-    return ((1.0 - a) * prev[flat] + a * prev[flat + 1]).reshape(score.shape)
+    return ((1.0 - a) * prev[at] + a * prev[at + 1]).reshape(score.shape)
 
 
 def _log_normalizer(log_w: NDArray[np.float64]) -> float:
