@@ -160,11 +160,10 @@ def update_docs(summary: dict[str, Any], out: Path) -> None:
     doc = REPO / "docs" / "results.md"
     text = doc.read_text(encoding="utf-8")
     begin, end = doc_block(name)
-    old = block_in(text, name)
-    if not old and begin not in text:
-        raise WilocError(doc, f"no '{begin}' marker to update")
-    doc.write_text(text.replace(f"{begin}\n{old}\n{end}", f"{begin}\n{render_markdown(summary)}\n{end}"),
-                   encoding="utf-8")
+    start, stop = text.find(begin), text.find(end)
+    if not 0 <= start < stop:
+        raise WilocError(doc, f"no '{begin}' ... '{end}' markers to update")
+    doc.write_text(f"{text[:start + len(begin)]}\n{render_markdown(summary)}\n{text[stop:]}", encoding="utf-8")
     for plot in ("threshold", "model", "pr"):
         shutil.copyfile(out / f"{plot}.png", REPO / "docs" / "img" / f"{name}-{plot}.png")
     console.print(f"updated {doc} and docs/img/{name}-*.png")

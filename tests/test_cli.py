@@ -112,3 +112,29 @@ def test_help_shows_examples() -> None:
     for command in ([], ["describe"], ["localize"], ["evaluate"], ["compare"], ["demo"]):
         result = runner.invoke(app, [*command, "--help"])
         assert result.exit_code == 0 and "Example" in result.stdout
+
+
+def test_catgraph_with_odometry_is_reproducible(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    for name, folder in (("ref.csv", ref), ("query.csv", query)):
+        lines = ["name,distance"] + [f"img{i}.png,{1.0 if i else 0.0}" for i in range(40)]
+        (tmp_path / name).write_text("\n".join(lines) + "\n")
+    outs = []
+    for run in ("a", "b"):
+        out = tmp_path / f"{run}.csv"
+        rows = _json(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "catgraph",
+                                         "--odometry", str(tmp_path / "query.csv"),
+                                         "--map-odometry", str(tmp_path / "ref.csv"), "--seed", "3",
+                                         "--particles", "500", "--out", str(out), "--json"]))
+        assert rows[0]["frames"] == 40
+        outs.append(out.read_text())
+    assert outs[0] == outs[1]
+    assert "new_place" in outs[0].splitlines()[-41]
+
+
+def test_odometry_missing_a_frame_is_reported(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    (tmp_path / "odo.csv").write_text("img0.png,0\nimg1.png,1\n")
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "catgraph",
+                                 "--odometry", str(tmp_path / "odo.csv")])
+    assert result.exit_code == 1 and "no odometry for 38 frame(s)" in result.stderr

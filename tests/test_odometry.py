@@ -17,9 +17,14 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 
 def test_distance_form_with_header(tmp_path: Path) -> None:
-    odo = read_odometry(_write(tmp_path, "name,distance\na.png,10\nb.png,12.5\nc.png,20\n"))
+    odo = read_odometry(_write(tmp_path, "name,distance\na.png,10\nb.png,2.5\nc.png,7.5\n"))
     assert odo.names == ("a.png", "b.png", "c.png")
     np.testing.assert_allclose(odo.arclength(), [0.0, 2.5, 10.0])
+
+
+def test_distance_of_a_left_out_frame_still_counts(tmp_path: Path) -> None:
+    odo = read_odometry(_write(tmp_path, "a,0\nb,2\nc,3\nd,1\n"))
+    np.testing.assert_allclose(odo.arclength(["a", "c", "d"]), [0.0, 5.0, 6.0])
 
 
 def test_xy_form_without_header_sums_step_lengths(tmp_path: Path) -> None:
@@ -53,9 +58,9 @@ def test_bad_files_raise(tmp_path: Path, text: str, problem: str) -> None:
     assert err.value.where == str(path)
 
 
-def test_decreasing_distance_raises(tmp_path: Path) -> None:
-    odo = read_odometry(_write(tmp_path, "a,5\nb,3\n"))
-    with pytest.raises(WilocError, match="decreases at frame 'b'"):
+def test_negative_distance_raises(tmp_path: Path) -> None:
+    odo = read_odometry(_write(tmp_path, "a,5\nb,-3\n"))
+    with pytest.raises(WilocError, match="negative distance at frame 'b'"):
         odo.arclength()
 
 

@@ -1,7 +1,8 @@
 """Odometry CSVs: arc length travelled at each frame, for the CAT-Graph motion model.
 
 Two forms, one row per frame, an optional header row:
-- ``name,distance``: the cumulative distance travelled (odometer reading) at that frame;
+- ``name,distance``: the distance travelled since the previous frame of the file (the first
+  row's value is ignored: nothing was travelled before the first frame);
 - ``name,x,y``: the position (metres); arc length is the summed step length in frame order.
 Frames are matched by file name. docs/catgraph.md describes how the filter uses them.
 """
@@ -30,23 +31,27 @@ class Odometry:
     def arclength(self, names: Sequence[str] | None = None) -> NDArray[np.float64]:
         """Arc length at each of ``names`` (default: the file's order), in that order.
 
-        Every name must appear in the file; names in the file but not asked for are ignored.
-        A cumulative distance must not decrease along ``names``.
+        Every name must appear in the file; names in the file but not asked for are ignored
+        (their distances still count: a frame left out of the traversal was still driven past).
+        Distances travelled must not be negative.
         """
         order = self.names if names is None else tuple(names)
         index = {name: i for i, name in enumerate(self.names)}
         missing = [name for name in order if name not in index]
         if missing:
             raise WilocError(self.path, f"no odometry for {len(missing)} frame(s), first {missing[0]!r}")
-        vals = self.values[[index[name] for name in order]]
-        if vals.shape[1] == 2:
-            return np.r_[0.0, np.cumsum(np.hypot(*np.diff(vals, axis=0).T))]
-        dist = vals[:, 0]
-        drops = np.flatnonzero(np.diff(dist) < 0)
-        if drops.size:
-            raise WilocError(self.path, f"distance decreases at frame {order[drops[0] + 1]!r}: "
-                                        "expected the cumulative distance travelled")
-        return dist - dist[0] if dist.size else dist
+        rows = [index[name] for name in order]
+        if self.values.shape[1] == 2:
+            vals = self.values[rows]
+            return np.r_[0.0, np.cumsum(np.hypot(*np.diff(vals, axis=0).T))] if len(rows) else np.zeros(0)
+        travelled = self.values[:, 0].copy()
+        negative = np.flatnonzero(travelled < 0)
+        if negative.size:
+            raise WilocError(self.path, f"negative distance at frame {self.names[negative[0]]!r}: "
+                                        "expected the distance travelled since the previous frame")
+        travelled[0] = 0.0
+        cumulative = np.cumsum(travelled)[rows]
+        return cumulative - cumulative[0] if len(rows) else cumulative
 
 
 def steps(arclength: NDArray[np.float64]) -> NDArray[np.float64]:
