@@ -7,7 +7,7 @@ import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 from rich.console import Console
@@ -270,16 +270,20 @@ def _guess_kind(path: str) -> str:
 GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames), 'positions:Q.csv' (with "
            "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat'. '{query}' in a path is "
            "replaced by the query folder's name.")
+GtOption = Annotated[str, typer.Option("--gt", help=GT_HELP)]
+GtMapOption = Annotated[Optional[str], typer.Option("--gt-map", help="positions: the reference's positions CSV.")]
+ToleranceOption = Annotated[int, typer.Option("--tolerance", "-T", help="aligned/pairs: +-frames.")]
+RadiusOption = Annotated[float, typer.Option("--radius", help="positions: same place within this many metres.")]
 
 
 @app.command()
 @handles_errors
 def evaluate(
     results: list[Path] = typer.Argument(..., help="Results files written by `wiloc localize`."),
-    gt: str = typer.Option("aligned", "--gt", help=GT_HELP),
-    gt_map: Optional[str] = typer.Option(None, "--gt-map", help="positions: the reference's positions CSV."),
-    tolerance: int = typer.Option(0, "--tolerance", "-T", help="aligned/pairs: +-frames."),
-    radius: float = typer.Option(0.0, "--radius", help="positions: same place within this many metres."),
+    gt: GtOption = "aligned",
+    gt_map: GtMapOption = None,
+    tolerance: ToleranceOption = 0,
+    radius: RadiusOption = 0.0,
     pr_plot: Optional[Path] = typer.Option(None, help="Draw the precision-recall curves."),
     csv_out: Optional[Path] = typer.Option(None, "--csv", help="Write metrics (and curves beside it) as CSV."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
@@ -329,10 +333,10 @@ def _write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list
 @handles_errors
 def compare(
     results: list[Path] = typer.Argument(..., help="Results files: several methods x query traversals."),
-    gt: str = typer.Option("aligned", "--gt", help=GT_HELP),
-    gt_map: Optional[str] = typer.Option(None, "--gt-map", help="positions: the reference's positions CSV."),
-    tolerance: int = typer.Option(0, "--tolerance", "-T", help="aligned/pairs: +-frames."),
-    radius: float = typer.Option(0.0, "--radius", help="positions: same place within this many metres."),
+    gt: GtOption = "aligned",
+    gt_map: GtMapOption = None,
+    tolerance: ToleranceOption = 0,
+    radius: RadiusOption = 0.0,
     global_threshold: bool = typer.Option(True, "--global-threshold/--no-global-threshold",
                                           help="Table II: one threshold per method for all traversals."),
     precision: str = typer.Option("100,99", help="Table II target precisions in percent, comma-separated."),
