@@ -138,3 +138,13 @@ def test_odometry_missing_a_frame_is_reported(route: tuple[Path, Path], tmp_path
     result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "catgraph",
                                  "--odometry", str(tmp_path / "odo.csv")])
     assert result.exit_code == 1 and "no odometry for 38 frame(s)" in result.stderr
+
+
+def test_describe_list_shows_entries(route: tuple[Path, Path]) -> None:
+    ref, query = route
+    assert runner.invoke(app, ["describe", str(ref), str(query), "--jobs", "1"]).exit_code == 0
+    entries = _json(runner.invoke(app, ["describe", "--list", "--json"]))
+    assert sorted(Path(e["folder"]).name for e in entries) == ["query", "ref"]
+    assert all(e["frames"] == 40 and e["complete"] for e in entries)
+    table = runner.invoke(app, ["describe", "--list"])
+    assert table.exit_code == 0 and "sad" in table.stdout

@@ -29,6 +29,7 @@ def _protocol() -> ModuleType:
     spec = importlib.util.spec_from_file_location("protocol", REPO / "examples" / "protocol.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while the class is built
     spec.loader.exec_module(module)
     return module
 

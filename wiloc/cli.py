@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import functools
 import json
+from dataclasses import asdict
 import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -132,7 +133,8 @@ def describe(
     from wiloc.cache import Cache
     store = Cache(cache)
     if list_cache:
-        rows = [info.as_dict() for info in store.list_entries()]
+        rows = [{**asdict(info), "params": json.dumps(info.params, sort_keys=True)}
+                for info in store.list_entries()]
         _print_json(rows) if as_json else out.print(_table(f"cache {store.root}", rows))
         return
     if import_file is None and not folders:

@@ -21,7 +21,6 @@ cache inside the output folder, and writes the tables and the three plots.
 from __future__ import annotations
 
 import csv
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
