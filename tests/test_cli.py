@@ -148,3 +148,17 @@ def test_describe_list_shows_entries(route: tuple[Path, Path]) -> None:
     assert all(e["frames"] == 40 and e["complete"] for e in entries)
     table = runner.invoke(app, ["describe", "--list"])
     assert table.exit_code == 0 and "sad" in table.stdout
+
+
+def test_external_matrices_localize_and_nan_is_refused(tmp_path: Path, cache_dir: Path) -> None:
+    rng = np.random.default_rng(0)
+    for name in ("q", "r"):
+        np.save(tmp_path / f"{name}.npy", rng.random((20, 8)).astype(np.float32))
+    assert runner.invoke(app, ["describe", "--import", str(tmp_path / "q.npy"), "--metric", "cosine"]).exit_code == 0
+    result = runner.invoke(app, ["localize", str(tmp_path / "q.npy"), "--map", str(tmp_path / "r.npy"),
+                                 "--metric", "cosine", "--out", str(tmp_path / "ok.csv")])
+    assert result.exit_code == 0, result.output
+    bad = tmp_path / "nan.npy"
+    np.save(bad, np.full((5, 8), np.nan, dtype=np.float32))
+    result = runner.invoke(app, ["localize", str(bad), "--map", str(tmp_path / "r.npy"), "--metric", "cosine"])
+    assert result.exit_code == 1 and str(bad) in result.stderr and "Traceback" not in result.output
