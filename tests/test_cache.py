@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from wiloc.cache import TEMP_SUFFIX, Cache, EntryHeader, FrameRecord, StoredEntry
-from wiloc.errors import CacheBusyError
 
 
 def _header(folder: str = "/data/route", length: int = 4) -> EntryHeader:

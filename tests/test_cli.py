@@ -116,7 +116,7 @@ def test_help_shows_examples() -> None:
 
 def test_catgraph_with_odometry_is_reproducible(route: tuple[Path, Path], tmp_path: Path) -> None:
     ref, query = route
-    for name, folder in (("ref.csv", ref), ("query.csv", query)):
+    for name in ("ref.csv", "query.csv"):
         lines = ["name,distance"] + [f"img{i}.png,{1.0 if i else 0.0}" for i in range(40)]
         (tmp_path / name).write_text("\n".join(lines) + "\n")
     outs = []

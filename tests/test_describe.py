@@ -17,7 +17,7 @@ import pytest
 
 from wiloc.cache import Cache, EntryHeader
 from wiloc.describe import describe_folder, import_matrix, load_entry
-from wiloc.errors import CacheBusyError, WilocError
+from wiloc.errors import WilocError
 from wiloc.frames import read_gray
 
 
