@@ -80,11 +80,14 @@ def _print_json(data: Any) -> None:
     out.print_json(json.dumps(_json_ready(data)))
 
 
-def _table(title: str, rows: list[dict[str, Any]], columns: list[str] | None = None) -> Table:
+def _table(title: str, rows: list[dict[str, Any]], columns: list[str] | None = None,
+           labels: dict[str, str] | None = None) -> Table:
+    """A rich table of ``rows`` (dicts), ``columns`` in order, headed by ``labels`` where given."""
     columns = columns or (list(rows[0]) if rows else [])
     table = Table(title=title)
     for column in columns:
-        table.add_column(column, justify="left" if not rows or isinstance(rows[0].get(column), str) else "right")
+        table.add_column((labels or {}).get(column, column),
+                         justify="left" if not rows or isinstance(rows[0].get(column), str) else "right")
     for row in rows:
         table.add_row(*[_cell(row.get(c)) for c in columns])
     return table
@@ -312,9 +315,10 @@ def evaluate(
     for e in evaluations:
         for warning in e.truth.warnings:
             err.print(f"[yellow]warning[/yellow] {e.path}: {warning}", highlight=False)
-    columns = ["results", "method", "traversal", "recall_at_100", "recall_at_99", "recall_at_90", "auc",
-               "max_f1", "max_f1_threshold", "recall_at_1", "frames", "decided", "with_true_match"]
-    out.print(_table("evaluate", rows, columns))
+    labels = {"recall_at_100": "R@P100", "recall_at_99": "R@P99", "recall_at_90": "R@P90", "auc": "AUC",
+              "max_f1": "max F1", "max_f1_threshold": "at", "recall_at_1": "R@1", "with_true_match": "matchable"}
+    out.print(_table("evaluate: recall at 100/99/90 % precision, AUC, max F1 (at threshold), R@1", rows,
+                     ["results", "method", "traversal", *labels, "frames", "decided"], labels))
     for path in (pr_plot, csv_out):
         if path is not None:
             out.print(f"wrote {path}")
