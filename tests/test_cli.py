@@ -162,3 +162,10 @@ def test_external_matrices_localize_and_nan_is_refused(tmp_path: Path, cache_dir
     np.save(bad, np.full((5, 8), np.nan, dtype=np.float32))
     result = runner.invoke(app, ["localize", str(bad), "--map", str(tmp_path / "r.npy"), "--metric", "cosine"])
     assert result.exit_code == 1 and str(bad) in result.stderr and "Traceback" not in result.output
+
+
+def test_the_four_verbs_are_package_functions() -> None:
+    import wiloc
+    import wiloc.pipeline  # noqa: F401  (a submodule import must not shadow a verb)
+    assert all(callable(getattr(wiloc, verb)) and getattr(wiloc, verb).__module__ == "wiloc.api"
+               for verb in ("describe", "localize", "evaluate", "compare"))

@@ -1,4 +1,19 @@
-"""wiloc: training-free appearance-based localization with whole-image descriptors."""
+"""wiloc: training-free appearance-based localization with whole-image descriptors.
+
+The four verbs are plain functions for notebooks and scripts: ``wiloc.describe``,
+``wiloc.localize``, ``wiloc.evaluate``, ``wiloc.compare`` (see wiloc.api).
+"""
 from __future__ import annotations
 
+from typing import Any
+
 __version__ = "0.1.0"
+__all__ = ["__version__", "compare", "describe", "evaluate", "localize"]
+
+
+def __getattr__(name: str) -> Any:
+    """Load wiloc.api on first use of a verb, so that importing a submodule stays light."""
+    if name in ("describe", "localize", "evaluate", "compare"):
+        from wiloc import api
+        return getattr(api, name)
+    raise AttributeError(f"module 'wiloc' has no attribute {name!r}")

@@ -16,7 +16,7 @@ import pandas as pd
 
 from wiloc import __version__
 from wiloc.cache import Cache, Entry
-from wiloc.describe import DescribeReport, describe_folder, import_matrix, load_entry
+from wiloc.pipeline import DescribeReport, describe_folder, import_matrix, load_entry
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matrix
 from wiloc.errors import WilocError

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from wiloc.cache import Cache, EntryHeader
-from wiloc.describe import describe_folder, import_matrix, load_entry
+from wiloc.pipeline import describe_folder, import_matrix, load_entry
 from wiloc.errors import WilocError
 from wiloc.frames import read_gray
 
@@ -140,7 +140,7 @@ _RUN = """
 import sys
 from pathlib import Path
 from wiloc.cache import Cache
-from wiloc.describe import describe_folder
+from wiloc.pipeline import describe_folder
 from wiloc.descriptors.registry import get_descriptor
 describe_folder(Path(sys.argv[1]), get_descriptor("gist"), Cache(Path(sys.argv[2])), jobs=int(sys.argv[3]))
 """
