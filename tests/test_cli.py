@@ -125,10 +125,12 @@ def test_catgraph_with_odometry_is_reproducible(route: tuple[Path, Path], tmp_pa
         rows = _json(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "catgraph",
                                          "--odometry", str(tmp_path / "query.csv"),
                                          "--map-odometry", str(tmp_path / "ref.csv"), "--seed", "3",
-                                         "--particles", "500", "--out", str(out), "--json"]))
+                                         "--particles", "500", "--reseed", "0.02", "--step-noise", "0.4",
+                                         "--out", str(out), "--json"]))
         assert rows[0]["frames"] == 40
         outs.append(out.read_text())
     assert outs[0] == outs[1]
+    assert '"reseed": 0.02' in outs[0] and '"step_noise": 0.4' in outs[0] and '"particles": 500' in outs[0]
     assert "new_place" in outs[0].splitlines()[-41]
 
 

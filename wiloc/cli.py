@@ -191,6 +191,11 @@ def localize(
     train_tolerance: int = typer.Option(2, help="trained: +-frames for aligned ground truth."),
     particles: Optional[int] = typer.Option(None, help="catgraph: number of particles."),
     seed: Optional[int] = typer.Option(None, help="catgraph: random seed (runs are reproducible)."),
+    step_noise: Optional[float] = typer.Option(None, help="catgraph: motion noise, a fraction of each step."),
+    noise_floor: Optional[float] = typer.Option(None, help="catgraph: motion noise floor, a fraction of the mean node spacing."),
+    speed_noise: Optional[float] = typer.Option(None, help="catgraph: per-particle speed noise (0: no velocity state)."),
+    reseed: Optional[float] = typer.Option(None, help="catgraph: share of particles re-seeded each frame at the best sequence score."),
+    resample_ess: Optional[float] = typer.Option(None, help="catgraph: resample when the effective sample size falls below this share."),
     odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y)."),
     map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV."),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Results file (a folder with several queries)."),
@@ -212,7 +217,8 @@ def localize(
     elif method == "trained":
         params = {"bins": bins, "smoothing": smoothing}
     elif method == "catgraph":
-        params = {"particles": particles, "seed": seed}
+        params = {"particles": particles, "seed": seed, "step_noise": step_noise, "noise_floor": noise_floor,
+                  "speed_noise": speed_noise, "reseed": reseed, "resample_ess": resample_ess}
     params = {k: v for k, v in params.items() if v is not None}
     training = None
     if method == "trained":
