@@ -171,3 +171,13 @@ def test_the_four_verbs_are_package_functions() -> None:
     import wiloc.pipeline  # noqa: F401  (a submodule import must not shadow a verb)
     assert all(callable(getattr(wiloc, verb)) and getattr(wiloc, verb).__module__ == "wiloc.api"
                for verb in ("describe", "localize", "evaluate", "compare"))
+
+
+def test_localize_names_frames_it_left_out(route: tuple[Path, Path]) -> None:
+    ref, query = route
+    (query / "img5.png").write_bytes(b"")
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
+                                 "--jobs", "1", "--out", str(query.parent / "t.csv")])
+    assert result.exit_code == 0, result.output
+    assert f"skipped {query / 'img5.png'}" in result.stderr
+    assert "img5.png" not in (query.parent / "t.csv").read_text().split("frame,match")[1]

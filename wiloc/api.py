@@ -16,7 +16,7 @@ import pandas as pd
 
 from wiloc import __version__
 from wiloc.cache import Cache, Entry
-from wiloc.pipeline import DescribeReport, describe_folder, import_matrix, load_entry
+from wiloc.pipeline import DescribeReport, describe_folder, import_matrix
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matrix
 from wiloc.errors import WilocError
@@ -105,18 +105,24 @@ class LocalizeRun:
     path: Path
     seconds: float
     query_names: list[str] = field(default_factory=list)
+    skipped: list[tuple[str, str]] = field(default_factory=list)  # (image path, why it was left out)
 
 
 def _entry(source: Path, descriptor: str, descriptor_params: Mapping[str, Any], metric: str | None,
-           cache: Cache, jobs: int | None, progress: Progress | None) -> Entry:
-    """Descriptors of a folder (computed on demand) or of an imported matrix file."""
+           cache: Cache, jobs: int | None, progress: Progress | None, skipped: list[tuple[str, str]]) -> Entry:
+    """Descriptors of a folder (computed on demand) or of an imported matrix file.
+
+    Frames that could not be described are appended to ``skipped`` as (path, reason).
+    """
     source = Path(source)
     if source.is_file():
         if metric is None:
             raise WilocError(source, "a descriptor matrix file needs --metric")
         return import_matrix(source, cache, None, metric).entry
     spec = get_descriptor(descriptor, **dict(descriptor_params))
-    entry = load_entry(source, spec, cache, jobs=jobs, progress=_stage(progress, f"describe {source.name}"))
+    report = describe_folder(source, spec, cache, jobs=jobs, progress=_stage(progress, f"describe {source.name}"))
+    skipped.extend((str(source / name), reason) for name, reason in report.failed)
+    entry = report.entry
     if len(entry.names) == 0:
         raise WilocError(source, "no usable frames (every image failed to load)")
     if entry.data.dtype.kind == "f" and not np.all(np.isfinite(entry.data)):
@@ -187,8 +193,9 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     R = default_exclude_recent() if exclude_recent is None else int(exclude_recent)
     sequence = reference is None
     query = Path(query)
-    q = _entry(query, descriptor, dparams, metric, cache, jobs, progress)
-    r = q if sequence else _entry(Path(reference), descriptor, dparams, metric, cache, jobs, progress)
+    skipped: list[tuple[str, str]] = []
+    q = _entry(query, descriptor, dparams, metric, cache, jobs, progress, skipped)
+    r = q if sequence else _entry(Path(reference), descriptor, dparams, metric, cache, jobs, progress, skipped)
     if not sequence and len(r.names) < 2:
         raise WilocError(reference, f"the map has {len(r.names)} frame(s); it needs at least 2")
     init = int(params.get("init", 0) or 0)
@@ -200,8 +207,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
 
     def training_data() -> tuple[Any, Any]:
         assert training is not None
-        tq = _entry(training.query, descriptor, dparams, metric, cache, jobs, progress)
-        tr = _entry(training.reference, descriptor, dparams, metric, cache, jobs, progress)
+        tq = _entry(training.query, descriptor, dparams, metric, cache, jobs, progress, skipped)
+        tr = _entry(training.reference, descriptor, dparams, metric, cache, jobs, progress, skipped)
         tmatrix = difference_matrix(tq, tr, cache, progress=_stage(progress, "training differences"))
         truth = training.truth.load(tq.names, tr.names, str(training.query), False, R)
         return list(candidate_rows(tmatrix, False, R)), truth.matrix
@@ -222,7 +229,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
                             meta=meta)
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
                        decisions=decisions, results=results, path=path,
-                       seconds=time.perf_counter() - started, query_names=list(q.names))
+                       seconds=time.perf_counter() - started, query_names=list(q.names), skipped=skipped)
 
 
 def _motion(query_odometry: Path | None, ref_odometry: Path | None, query_names: list[str],

@@ -12,6 +12,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -28,8 +29,13 @@ err = Console(stderr=True)
 
 
 def _fail(message: str, code: int) -> None:
-    err.print(f"[bold red]error:[/bold red] {message}", highlight=False, soft_wrap=True)
+    err.print(f"[bold red]error:[/bold red] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def _note(kind: str, message: str) -> None:
+    """One unwrapped line on stderr about something left out or worth knowing."""
+    err.print(f"[yellow]{kind}[/yellow] {escape(message)}", highlight=False, soft_wrap=True)
 
 
 def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -160,10 +166,9 @@ def describe(
         out.print(_table("describe", rows))
         for r in reports:
             for name, reason in r.failed:
-                err.print(f"[yellow]skipped[/yellow] {Path(r.folder) / name}: {reason}", highlight=False)
+                _note("skipped", f"{Path(r.folder) / name}: {reason}")
             if len(r.sizes) > 1:
-                err.print(f"[yellow]note[/yellow] {r.folder}: images of {len(r.sizes)} different sizes",
-                          highlight=False)
+                _note("note", f"{r.folder}: images of {len(r.sizes)} different sizes")
     if any(r.frames == 0 for r in reports):
         raise typer.Exit(1)
 
@@ -254,9 +259,12 @@ def localize(
         if not models:
             _fail(f"{model_plot}: method '{method}' has no histogram model to draw", 2)
         plot_model(models[0].decisions.model, model_plot, title=f"{models[0].query.name} ({method})")
+    skipped = list(dict.fromkeys(item for run in runs for item in run.skipped))
     if as_json:
-        _print_json(rows)
+        _print_json([{**row, "skipped": [list(item) for item in run.skipped]} for row, run in zip(rows, runs)])
     else:
+        for path, reason in skipped:
+            _note("skipped", f"{path}: {reason}")
         out.print(_table("localize", rows))
         if model_plot is not None:
             out.print(f"model plot: {model_plot}")
@@ -320,7 +328,7 @@ def evaluate(
         return
     for e in evaluations:
         for warning in e.truth.warnings:
-            err.print(f"[yellow]warning[/yellow] {e.path}: {warning}", highlight=False)
+            _note("warning", f"{e.path}: {warning}")
     labels = {"recall_at_100": "R@P100", "recall_at_99": "R@P99", "recall_at_90": "R@P90", "auc": "AUC",
               "max_f1": "max F1", "max_f1_threshold": "at", "recall_at_1": "R@1", "with_true_match": "matchable"}
     out.print(_table("evaluate: recall at 100/99/90 % precision, AUC, max F1 (at threshold), R@1", rows,
