@@ -185,7 +185,7 @@ def localize(
     metric: Optional[str] = typer.Option(None, help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
     method: str = typer.Option("online", help="online | threshold | trained | catgraph"),
     exclude_recent: Optional[int] = typer.Option(None, "--exclude-recent", "-R", help="Recent frames excluded as candidates (sequence mode) and around each map frame when initialising."),
-    init: Optional[int] = typer.Option(None, help="online: initialisation frames (default 100)."),
+    init: Optional[int] = typer.Option(None, help="online, sequence mode: initialisation frames (default 100; map mode initialises from every map frame)."),
     bins: Optional[int] = typer.Option(None, help="online/trained: histogram bins (default 100)."),
     same_place_window: Optional[int] = typer.Option(None, "--same-place-window", "-W", help="online: frames within +-W of the best match are the same place."),
     prior: Optional[float] = typer.Option(None, help="online: P(L); default: the share of same-place samples."),
