@@ -84,13 +84,12 @@ def run_experiment(experiment: Experiment, out: Path) -> dict[str, Any]:
                         out=out / "results" / f"{query.name}-{descriptor}-{method}.csv", progress=progress)
                     paths.append(run.path)
     comparison = api.compare(paths, aligned(experiment.tolerance))
-    evaluations = comparison.evaluations
-    online = next(e for e in evaluations if e.method == "online")
-    files = [plots.plot_threshold(api.threshold_series(evaluations), out / "threshold.png",
+    online = next(e for e in comparison.evaluations if e.method == "online")
+    files = [plots.plot_threshold(api.threshold_series(comparison), out / "threshold.png",
                                   title=f"{experiment.name}: precision against threshold"),
              plots.plot_model(online.results.model, out / "model.png",
                               title=f"{experiment.name}: online model learned on {online.traversal}"),
-             plots.plot_pr({f"{e.method} {e.traversal}": e.curve for e in evaluations}, out / "pr.png",
+             plots.plot_pr(api.pr_series(comparison), out / "pr.png",
                            title=f"{experiment.name}: precision-recall")]
     summary = _finite({"experiment": experiment.name, "map": experiment.reference.name,
                "queries": [q.name for q in experiment.queries], "descriptors": experiment.descriptors,

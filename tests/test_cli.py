@@ -181,3 +181,53 @@ def test_localize_names_frames_it_left_out(route: tuple[Path, Path]) -> None:
     assert result.exit_code == 0, result.output
     assert f"skipped {query / 'img5.png'}" in result.stderr
     assert "img5.png" not in (query.parent / "t.csv").read_text().split("frame,match")[1]
+
+
+def test_bad_options_are_usage_errors(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    for args in (["describe", str(ref), "--descriptor", "foo"],
+                 ["localize", str(query), "--map", str(ref), "--descriptor", "foo"],
+                 ["localize", str(query), "--map", str(ref), "--crop", "bogus"],
+                 ["localize", str(query), "--map", str(ref), "-R", "-3"],
+                 ["localize", str(query), "--map", str(ref), "--method", "nope"],
+                 ["localize", str(query), "--map", str(ref), "--method", "threshold", "--model-plot", "m.png"]):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, (args, result.output)
+        assert "Traceback" not in result.output and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_map_too_short_for_exclude_recent(route: tuple[Path, Path]) -> None:
+    ref, query = route
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "-R", "39"])
+    assert result.exit_code == 1 and str(ref) in result.stderr and "--exclude-recent 39" in result.stderr
+
+
+def test_sequence_mode_checks_the_default_init(route: tuple[Path, Path], tmp_path: Path) -> None:
+    _, query = route
+    result = runner.invoke(app, ["localize", str(query), "--out", str(tmp_path / "s.csv")])
+    assert result.exit_code == 1 and "--init 100" in result.stderr
+    assert not (tmp_path / "s.csv").exists()
+
+
+def test_two_queries_with_one_name_are_refused(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    twin = tmp_path / "other" / "query"
+    twin.parent.mkdir()
+    twin.symlink_to(query, target_is_directory=True)
+    result = runner.invoke(app, ["localize", str(query), str(twin), "--map", str(ref), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and "same results file" in result.stderr
+
+
+def test_evaluate_positions_needs_a_radius(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    out = tmp_path / "t.csv"
+    assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
+                               "--out", str(out)]).exit_code == 0
+    for name in ("q.csv", "r.csv"):
+        (tmp_path / name).write_text("name,x,y\n" + "".join(f"img{i}.png,{i},0\n" for i in range(40)))
+    result = runner.invoke(app, ["evaluate", str(out), "--gt", f"positions:{tmp_path / 'q.csv'}",
+                                 "--gt-map", str(tmp_path / "r.csv")])
+    assert result.exit_code == 1 and "radius" in result.stderr
+    ok = _json(runner.invoke(app, ["evaluate", str(out), "--gt", f"positions:{tmp_path / 'q.csv'}",
+                                   "--gt-map", str(tmp_path / "r.csv"), "--radius", "1.5", "--json"]))
+    assert ok[0]["with_true_match"] == 40

@@ -60,7 +60,7 @@ def test_missing_column_and_duplicates(tmp_path: Path) -> None:
     path.write_text(text.replace("confidence", "conf"), encoding="utf-8")
     with pytest.raises(WilocError, match="missing column"):
         read_results(path)
-    lines = text.splitlines()
+    lines = text.replace("# frames: 3", "# frames: 4").splitlines()
     path.write_text("\n".join(lines + [lines[-1]]) + "\n", encoding="utf-8")
     with pytest.raises(WilocError, match="duplicate row"):
         read_results(path)
@@ -69,3 +69,15 @@ def test_missing_column_and_duplicates(tmp_path: Path) -> None:
 def test_missing_file() -> None:
     with pytest.raises(WilocError, match="does not exist"):
         read_results(Path("/nonexistent/run.csv"))
+
+
+def test_cut_file_and_binary_file_are_refused(tmp_path: Path) -> None:
+    path = tmp_path / "run.csv"
+    write_results(path, _decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], meta={})
+    text = path.read_text(encoding="utf-8")
+    path.write_text(text[: text.rindex("\n", 0, len(text) - 1) + 1], encoding="utf-8")
+    with pytest.raises(WilocError, match="holds 2 rows, its header says 3"):
+        read_results(path)
+    path.write_bytes(b"\xff\xfe\x00binary")
+    with pytest.raises(WilocError, match="not UTF-8"):
+        read_results(path)

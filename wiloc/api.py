@@ -5,6 +5,7 @@ The CLI and the demo call these; so can a notebook. Nothing here prints. Long st
 """
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -17,9 +18,9 @@ import pandas as pd
 from wiloc import __version__
 from wiloc.cache import Cache, Entry
 from wiloc.pipeline import DescribeReport, describe_folder, import_matrix
-from wiloc.descriptors.registry import get_descriptor
+from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matrix
-from wiloc.errors import WilocError
+from wiloc.errors import UsageError, WilocError
 from wiloc.groundtruth import Truth, load_truth, restrict_sequence
 from wiloc.methods.base import Decisions
 from wiloc.metrics import PRCurve, Summary, global_threshold, precision_at_thresholds, summarize
@@ -38,11 +39,19 @@ def _stage(progress: Progress | None, label: str) -> Callable[[int, int], None] 
 
 # ----------------------------------------------------------------------------------------- describe
 
+def _spec(descriptor: str, descriptor_params: Mapping[str, Any] | None) -> DescriptorSpec:
+    """The descriptor's spec; an unknown name or parameter is a usage error naming the choices."""
+    try:
+        return get_descriptor(descriptor, **dict(descriptor_params or {}))
+    except ValueError as exc:
+        raise UsageError("--descriptor", str(exc)) from None
+
+
 def describe(folders: Sequence[Path], descriptor: str = "sad", *,
              descriptor_params: Mapping[str, Any] | None = None, cache: Cache | None = None,
              jobs: int | None = None, progress: Progress | None = None) -> list[DescribeReport]:
     """Compute (or reuse from the cache) one descriptor per image of each folder."""
-    spec = get_descriptor(descriptor, **dict(descriptor_params or {}))
+    spec = _spec(descriptor, descriptor_params)
     cache = cache or Cache()
     return [describe_folder(Path(folder), spec, cache, jobs=jobs,
                             progress=_stage(progress, f"describe {Path(folder).name}"))
@@ -78,7 +87,7 @@ class TruthSource:
     path: str | None = None
     ref_path: str | None = None
     tolerance: int = 0
-    radius: float = 0.0
+    radius: float | None = None
     by: str = "name"
 
     def load(self, query_names: list[str], ref_names: list[str], query_folder: str,
@@ -109,17 +118,19 @@ class LocalizeRun:
 
 
 def _entry(source: Path, descriptor: str, descriptor_params: Mapping[str, Any], metric: str | None,
-           cache: Cache, jobs: int | None, progress: Progress | None, skipped: list[tuple[str, str]]) -> Entry:
-    """Descriptors of a folder (computed on demand) or of an imported matrix file.
+           cache: Cache, jobs: int | None, progress: Progress | None, skipped: list[tuple[str, str]],
+           names: Path | None = None) -> Entry:
+    """Descriptors of a folder (computed on demand) or of an imported matrix file (``names``: its
+    frame names, one per line, for .npy matrices).
 
     Frames that could not be described are appended to ``skipped`` as (path, reason).
     """
     source = Path(source)
     if source.is_file():
         if metric is None:
-            raise WilocError(source, "a descriptor matrix file needs --metric")
-        return import_matrix(source, cache, None, metric).entry
-    spec = get_descriptor(descriptor, **dict(descriptor_params))
+            raise UsageError(source, "a descriptor matrix file needs --metric")
+        return import_matrix(source, cache, names, metric).entry
+    spec = _spec(descriptor, descriptor_params)
     report = describe_folder(source, spec, cache, jobs=jobs, progress=_stage(progress, f"describe {source.name}"))
     skipped.extend((str(source / name), reason) for name, reason in report.failed)
     entry = report.entry
@@ -138,20 +149,33 @@ def _banded_rows(matrix: DifferenceMatrix, exclude_recent: int) -> Iterator[np.n
         yield row
 
 
-def _run_method(method: str, matrix: DifferenceMatrix, self_matrix: DifferenceMatrix, *,
+def _largest(matrix: DifferenceMatrix, block_rows: int = 1024) -> float:
+    """The largest finite difference in a matrix, read block by block."""
+    largest = 0.0
+    for start in range(0, matrix.shape[0], block_rows):
+        block = matrix.rows(start, min(start + block_rows, matrix.shape[0]))
+        finite = block[np.isfinite(block)]
+        largest = max(largest, float(finite.max()) if finite.size else 0.0)
+    return largest
+
+
+def _run_method(method: str, matrix: DifferenceMatrix, self_matrix: Callable[[], DifferenceMatrix], *,
                 sequence: bool, exclude_recent: int, params: dict[str, Any], natural_max: float | None,
                 training: Callable[[], tuple[Any, Any]] | None, steps: tuple[Any, Any],
                 progress: Callable[[int, int], None] | None) -> Decisions:
-    """Dispatch to one method with the rows it needs."""
+    """Dispatch to one method with the rows it needs (the map's self-differences only on demand)."""
     n = matrix.shape[0]
     rows = candidate_rows(matrix, sequence, exclude_recent)
     if method == "online":
         from wiloc.methods.online import localize_online
-        init_rows = None if sequence else _banded_rows(self_matrix, exclude_recent)
+        init_rows = None if sequence else _banded_rows(self_matrix(), exclude_recent)
         return localize_online(rows, n, sequence=sequence, init_rows=init_rows, progress=progress, **params)
     if method == "threshold":
         from wiloc.methods.threshold import localize_threshold
-        return localize_threshold(rows, n, normaliser=natural_max, **params)
+        # Without a natural maximum the map's own largest difference fixes the scale, so that one
+        # normalised threshold means the same raw threshold for every query against this map.
+        normaliser = natural_max if natural_max is not None else _largest(self_matrix())
+        return localize_threshold(rows, n, normaliser=normaliser or None, **params)
     if method == "trained":
         from wiloc.methods.trained import localize_trained, train_model
         if training is None:
@@ -164,10 +188,10 @@ def _run_method(method: str, matrix: DifferenceMatrix, self_matrix: DifferenceMa
         if sequence:
             raise WilocError(None, "--method catgraph needs --map (a reference trajectory)")
         ref_arclength, query_steps = steps
-        return localize_catgraph(rows, self_matrix.rows(0, self_matrix.shape[0]).astype(np.float64), n,
+        return localize_catgraph(rows, self_matrix(), n,
                                  ref_arclength=ref_arclength, query_steps=query_steps,
                                  exclude_recent=exclude_recent, progress=progress, **params)
-    raise WilocError(None, f"unknown method '{method}' (choose from {', '.join(METHODS)})")
+    raise UsageError("--method", f"unknown method '{method}' (choose from {', '.join(METHODS)})")
 
 
 def default_exclude_recent() -> int:
@@ -181,29 +205,45 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
              method: str = "online", method_params: Mapping[str, Any] | None = None,
              exclude_recent: int | None = None, training: Training | None = None,
              query_odometry: Path | None = None, ref_odometry: Path | None = None,
+             query_names_file: Path | None = None, ref_names_file: Path | None = None,
              out: Path | None = None, cache: Cache | None = None, jobs: int | None = None,
              progress: Progress | None = None) -> LocalizeRun:
-    """Localize every frame of ``query`` (against ``reference``, or within itself) and write results."""
+    """Localize every frame of ``query`` (against ``reference``, or within itself) and write results.
+
+    ``query`` and ``reference`` are image folders, or descriptor matrix files (with ``metric`` and,
+    for .npy, optional ``*_names_file``).
+    """
     if method not in METHODS:
-        raise WilocError(None, f"unknown method '{method}' (choose from {', '.join(METHODS)})")
+        raise UsageError("--method", f"unknown method '{method}' (choose from {', '.join(METHODS)})")
     started = time.perf_counter()
     cache = cache or Cache()
     params = dict(method_params or {})
     dparams = dict(descriptor_params or {})
     R = default_exclude_recent() if exclude_recent is None else int(exclude_recent)
+    if R < 0:
+        raise UsageError("--exclude-recent", f"must be >= 0, got {R}")
     sequence = reference is None
     query = Path(query)
     skipped: list[tuple[str, str]] = []
-    q = _entry(query, descriptor, dparams, metric, cache, jobs, progress, skipped)
-    r = q if sequence else _entry(Path(reference), descriptor, dparams, metric, cache, jobs, progress, skipped)
+    q = _entry(query, descriptor, dparams, metric, cache, jobs, progress, skipped, query_names_file)
+    r = q if sequence else _entry(Path(reference), descriptor, dparams, metric, cache, jobs, progress,
+                                  skipped, ref_names_file)
     if not sequence and len(r.names) < 2:
         raise WilocError(reference, f"the map has {len(r.names)} frame(s); it needs at least 2")
-    init = int(params.get("init", 0) or 0)
-    if sequence and method == "online" and len(q.names) <= init + R:
-        raise WilocError(query, f"has {len(q.names)} frames, too few for --init {init} "
-                                f"with --exclude-recent {R}")
+    if not sequence and method in ("online", "catgraph") and len(r.names) <= R + 1:
+        raise WilocError(reference, f"the map has {len(r.names)} frames: with --exclude-recent {R} no two "
+                                    "map frames are far enough apart to learn different-place differences")
+    if sequence and method == "online":
+        from wiloc.methods.online import DEFAULT_INIT
+        init = int(params.get("init", DEFAULT_INIT))
+        if len(q.names) <= init + R:
+            raise WilocError(query, f"has {len(q.names)} frames, too few for --init {init} "
+                                    f"with --exclude-recent {R}")
     matrix = difference_matrix(q, r, cache, progress=_stage(progress, "differences"))
-    self_matrix = matrix if sequence else difference_matrix(r, r, cache, progress=_stage(progress, "map differences"))
+
+    @functools.cache
+    def self_matrix() -> DifferenceMatrix:
+        return matrix if sequence else difference_matrix(r, r, cache, progress=_stage(progress, "map differences"))
 
     def training_data() -> tuple[Any, Any]:
         assert training is not None
@@ -284,27 +324,38 @@ def evaluate(path: Path, truth: TruthSource) -> Evaluation:
 
 @dataclass
 class Comparison:
-    """Methods x traversals side by side: the paper's Table I and Table II."""
+    """Methods x traversals side by side: the paper's Table I and Table II.
+
+    ``labels[i]`` names the method of ``evaluations[i]`` in the tables: the method, with the
+    descriptor when several are compared, and with the results file's name when one method holds
+    the same traversal more than once (say, two parameter settings).
+    """
 
     evaluations: list[Evaluation]
+    labels: list[str]
     table1: pd.DataFrame
     table2: pd.DataFrame
 
 
-def _label(evaluation: Evaluation, with_descriptor: bool) -> str:
-    meta = evaluation.results.meta
-    return f"{evaluation.method}/{meta.get('descriptor')}" if with_descriptor else evaluation.method
+def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
+    """One distinct table label per (method, traversal) run; see :class:`Comparison`."""
+    with_descriptor = len({e.results.meta.get("descriptor") for e in evaluations}) > 1
+    bases = [f"{e.method}/{e.results.meta.get('descriptor')}" if with_descriptor else e.method
+             for e in evaluations]
+    pairs = list(zip(bases, (e.traversal for e in evaluations)))
+    repeated = {base for base, traversal in pairs if pairs.count((base, traversal)) > 1}
+    return [f"{base} [{e.path.stem}]" if base in repeated else base for base, e in zip(bases, evaluations)]
 
 
 def compare(paths: Sequence[Path], truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
             global_thresholds: bool = True) -> Comparison:
     """Table I (recall at 100/99/90 % precision per traversal and method) and Table II."""
     evaluations = [evaluate(Path(p), truth) for p in paths]
-    with_descriptor = len({e.results.meta.get("descriptor") for e in evaluations}) > 1
+    labels = method_labels(evaluations)
     rows = []
-    for e in evaluations:
+    for label, e in zip(labels, evaluations):
         s = e.summary.as_dict()
-        rows.append({"method": _label(e, with_descriptor), "traversal": e.traversal,
+        rows.append({"method": label, "traversal": e.traversal,
                      "recall@100": s["recall_at_100"], "recall@99": s["recall_at_99"],
                      "recall@90": s["recall_at_90"], "auc": s["auc"], "R@1": s["recall_at_1"],
                      "frames": s["frames"]})
@@ -312,8 +363,8 @@ def compare(paths: Sequence[Path], truth: TruthSource, *, precisions: Sequence[f
     rows2 = []
     if global_thresholds:
         by_method: dict[str, list[Evaluation]] = {}
-        for e in evaluations:
-            by_method.setdefault(_label(e, with_descriptor), []).append(e)
+        for label, e in zip(labels, evaluations):
+            by_method.setdefault(label, []).append(e)
         for method, group in by_method.items():
             inputs = [(e.results.confidence, e.correct, int(e.summary.as_dict()["with_true_match"])) for e in group]
             for target in precisions:
@@ -323,11 +374,16 @@ def compare(paths: Sequence[Path], truth: TruthSource, *, precisions: Sequence[f
                     rows2.append({"method": method, "precision": float(target), "threshold": threshold,
                                   "traversal": e.traversal, "recall": recall, "worst": i == worst})
     table2 = pd.DataFrame(rows2, columns=["method", "precision", "threshold", "traversal", "recall", "worst"])
-    return Comparison(evaluations=evaluations, table1=table1, table2=table2)
+    return Comparison(evaluations=evaluations, labels=labels, table1=table1, table2=table2)
 
 
-def threshold_series(evaluations: Sequence[Evaluation], points: int = 201) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def threshold_series(comparison: Comparison, points: int = 201) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Precision against normalised threshold per method and traversal (the paper's Figure 5)."""
     grid = np.linspace(0.0, 1.0, points)
-    return {f"{e.method} {e.traversal}": (grid, precision_at_thresholds(e.results.confidence, e.correct, grid))
-            for e in evaluations}
+    return {f"{label} {e.traversal}": (grid, precision_at_thresholds(e.results.confidence, e.correct, grid))
+            for label, e in zip(comparison.labels, comparison.evaluations)}
+
+
+def pr_series(comparison: Comparison) -> dict[str, PRCurve]:
+    """The precision-recall curve of each method and traversal, labelled as in the tables."""
+    return {f"{label} {e.traversal}": e.curve for label, e in zip(comparison.labels, comparison.evaluations)}

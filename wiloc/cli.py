@@ -169,8 +169,9 @@ def describe(
                 _note("skipped", f"{Path(r.folder) / name}: {reason}")
             if len(r.sizes) > 1:
                 _note("note", f"{r.folder}: images of {len(r.sizes)} different sizes")
-    if any(r.frames == 0 for r in reports):
-        raise typer.Exit(1)
+    empty = [r.folder for r in reports if r.entry.data.shape[0] == 0]
+    if empty:
+        _fail(f"{empty[0]}: no image could be described (see the lines above)", 1)
 
 
 # ------------------------------------------------------------------------------------------ localize
@@ -192,8 +193,10 @@ def localize(
     smoothing: Optional[float] = typer.Option(None, help="online/trained: pseudo-count added to every histogram bin."),
     train_query: Optional[Path] = typer.Option(None, help="trained: labelled training query traversal."),
     train_map: Optional[Path] = typer.Option(None, help="trained: its reference traversal."),
-    train_gt: Optional[str] = typer.Option(None, help="trained: ground truth (aligned | positions | pairs | matrix, or a file)."),
-    train_tolerance: int = typer.Option(2, help="trained: +-frames for aligned ground truth."),
+    train_gt: Optional[str] = typer.Option(None, help="trained: ground truth, as --gt of `wiloc evaluate`."),
+    train_gt_map: Optional[str] = typer.Option(None, help="trained: the training map's positions CSV (positions form)."),
+    train_tolerance: int = typer.Option(2, help="trained: +-frames for aligned or pairs ground truth."),
+    train_radius: Optional[float] = typer.Option(None, help="trained: metres, for positions ground truth."),
     particles: Optional[int] = typer.Option(None, help="catgraph: number of particles."),
     seed: Optional[int] = typer.Option(None, help="catgraph: random seed (runs are reproducible)."),
     step_noise: Optional[float] = typer.Option(None, help="catgraph: motion noise, a fraction of each step."),
@@ -201,6 +204,8 @@ def localize(
     speed_noise: Optional[float] = typer.Option(None, help="catgraph: per-particle speed noise (0: no velocity state)."),
     reseed: Optional[float] = typer.Option(None, help="catgraph: share of particles re-seeded each frame at the best sequence score."),
     resample_ess: Optional[float] = typer.Option(None, help="catgraph: resample when the effective sample size falls below this share."),
+    names: Optional[Path] = typer.Option(None, help="A .npy QUERY matrix: its frame names, one per line."),
+    map_names: Optional[Path] = typer.Option(None, help="A .npy --map matrix: its frame names, one per line."),
     odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y)."),
     map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV."),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Results file (a folder with several queries)."),
@@ -229,21 +234,29 @@ def localize(
     if method == "trained":
         if not (train_query and train_map and train_gt):
             _fail("--method trained needs --train-query, --train-map and --train-gt", 2)
-        training = api.Training(train_query, train_map, _truth_source(train_gt, None, train_tolerance, 0.0))
+        training = api.Training(train_query, train_map,
+                                _truth_source(train_gt, train_gt_map, train_tolerance, train_radius))
     out_folder = out_path is not None and (out_path.is_dir() or not out_path.suffix)
     if len(queries) > 1 and out_path is not None and not out_folder:
         _fail(f"{out_path}: with several queries --out names a folder", 2)
+    if model_plot is not None and method not in ("online", "trained"):
+        _fail(f"{model_plot}: method '{method}' learns no histogram model to draw", 2)
+    if out_path is not None and not out_folder:
+        targets = [out_path]
+    else:
+        targets = [(out_path or Path.cwd()) / f"{q.stem if q.is_file() else q.name}-{method}.csv" for q in queries]
+    clash = next((t for t in targets if targets.count(t) > 1), None)
+    if clash is not None:
+        _fail(f"{clash}: two queries would write the same results file; give each its own --out", 2)
     runs = []
     with progress_bar(not as_json) as progress:
-        for query in queries:
-            target = out_path
-            if out_path is not None and out_folder:
-                target = out_path / f"{query.stem if query.is_file() else query.name}-{method}.csv"
+        for query, target in zip(queries, targets):
             runs.append(api.localize(query, reference=reference, descriptor=descriptor,
                                      descriptor_params={"crop": crop} if descriptor == "sad" else {},
                                      metric=metric, method=method, method_params=params,
                                      exclude_recent=exclude_recent, training=training,
-                                     query_odometry=odometry, ref_odometry=map_odometry, out=target,
+                                     query_odometry=odometry, ref_odometry=map_odometry,
+                                     query_names_file=names, ref_names_file=map_names, out=target,
                                      cache=store, jobs=jobs, progress=progress))
     rows = []
     for run in runs:
@@ -255,10 +268,7 @@ def localize(
                      "seconds": round(run.seconds, 2), "results": str(run.path)})
     if model_plot is not None:
         from wiloc.plots import plot_model
-        models = [r for r in runs if r.decisions.model is not None]
-        if not models:
-            _fail(f"{model_plot}: method '{method}' has no histogram model to draw", 2)
-        plot_model(models[0].decisions.model, model_plot, title=f"{models[0].query.name} ({method})")
+        plot_model(runs[0].decisions.model, model_plot, title=f"{runs[0].query.name} ({method})")
     skipped = list(dict.fromkeys(item for run in runs for item in run.skipped))
     if as_json:
         _print_json([{**row, "skipped": [list(item) for item in run.skipped]} for row, run in zip(rows, runs)])
@@ -272,7 +282,7 @@ def localize(
 
 # ------------------------------------------------------------------------------------------ evaluate
 
-def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float) -> api.TruthSource:
+def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | None) -> api.TruthSource:
     """`--gt` is a form name (aligned) or KIND:PATH (positions:q.csv, pairs:p.csv, matrix:m.npy)."""
     kind, sep, path = gt.partition(":")
     if not sep:
@@ -292,7 +302,7 @@ GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames), 'posit
 GtOption = Annotated[str, typer.Option("--gt", help=GT_HELP)]
 GtMapOption = Annotated[Optional[str], typer.Option("--gt-map", help="positions: the reference's positions CSV.")]
 ToleranceOption = Annotated[int, typer.Option("--tolerance", "-T", help="aligned/pairs: +-frames.")]
-RadiusOption = Annotated[float, typer.Option("--radius", help="positions: same place within this many metres.")]
+RadiusOption = Annotated[Optional[float], typer.Option("--radius", help="positions: same place within this many metres.")]
 
 
 @app.command()
@@ -302,7 +312,7 @@ def evaluate(
     gt: GtOption = "aligned",
     gt_map: GtMapOption = None,
     tolerance: ToleranceOption = 0,
-    radius: RadiusOption = 0.0,
+    radius: RadiusOption = None,
     pr_plot: Optional[Path] = typer.Option(None, help="Draw the precision-recall curves."),
     csv_out: Optional[Path] = typer.Option(None, "--csv", help="Write metrics (and curves beside it) as CSV."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
@@ -326,16 +336,39 @@ def evaluate(
                                 "thresholds": e.curve.thresholds.tolist()}}
                      for row, e in zip(rows, evaluations)])
         return
-    for e in evaluations:
-        for warning in e.truth.warnings:
-            _note("warning", f"{e.path}: {warning}")
-    labels = {"recall_at_100": "R@P100", "recall_at_99": "R@P99", "recall_at_90": "R@P90", "auc": "AUC",
-              "max_f1": "max F1", "max_f1_threshold": "at", "recall_at_1": "R@1", "with_true_match": "matchable"}
-    out.print(_table("evaluate: recall at 100/99/90 % precision, AUC, max F1 (at threshold), R@1", rows,
-                     ["results", "method", "traversal", *labels, "frames", "decided"], labels))
+    _warn_about_truth(evaluations)
+    out.print(metrics_view(rows))
     for path in (pr_plot, csv_out):
         if path is not None:
             out.print(f"wrote {path}")
+
+
+METRIC_LABELS = {"recall_at_100": "recall at 100 % precision", "recall_at_99": "recall at 99 % precision",
+                 "recall_at_90": "recall at 90 % precision", "auc": "area under PR curve", "max_f1": "max F1",
+                 "max_f1_threshold": "threshold at max F1", "recall_at_1": "R@1 (best match right)",
+                 "frames": "frames", "decided": "decided frames", "with_true_match": "frames with a true match"}
+
+
+def metrics_view(rows: list[dict[str, Any]]) -> Table:
+    """Metrics down, one column per results file: stays readable in 80 columns for a few runs."""
+    table = Table(title="evaluate")
+    table.add_column("")
+    for row in rows:
+        table.add_column(f"{row['method']}\n{row['traversal']}", justify="right")
+    table.add_row("results", *[row["results"] for row in rows])
+    for key, label in METRIC_LABELS.items():
+        table.add_row(label, *[_cell(row[key]) for row in rows])
+    return table
+
+
+def _warn_about_truth(evaluations: list[api.Evaluation]) -> None:
+    """Name-matching warnings, and runs whose ground truth leaves nothing to recall."""
+    for e in evaluations:
+        for warning in e.truth.warnings:
+            _note("warning", f"{e.path}: {warning}")
+        if not e.truth.has_match().any():
+            _note("warning", f"{e.path}: no frame has a true match under this ground truth, so every "
+                             "recall is 0 (check --gt, --tolerance, --radius)")
 
 
 def _write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list[api.Evaluation]) -> None:
@@ -356,7 +389,7 @@ def compare(
     gt: GtOption = "aligned",
     gt_map: GtMapOption = None,
     tolerance: ToleranceOption = 0,
-    radius: RadiusOption = 0.0,
+    radius: RadiusOption = None,
     global_threshold: bool = typer.Option(True, "--global-threshold/--no-global-threshold",
                                           help="Table II: one threshold per method for all traversals."),
     precision: str = typer.Option("100,99", help="Table II target precisions in percent, comma-separated."),
@@ -375,6 +408,7 @@ def compare(
         _fail(f"--precision {precision}: give percentages such as 100,99.5", 2)
     source = _truth_source(gt, gt_map, tolerance, radius)
     comparison = api.compare(results, source, precisions=targets, global_thresholds=global_threshold)
+    _warn_about_truth(comparison.evaluations)
     written = _compare_plots(comparison, threshold_plot, model_plot, pr_plot)
     if as_json:
         _print_json({"table1": comparison.table1.to_dict(orient="records"),
@@ -392,16 +426,17 @@ def _compare_plots(comparison: api.Comparison, threshold_plot: Path | None, mode
     from wiloc import plots
     written = []
     if threshold_plot is not None:
-        plots.plot_threshold(api.threshold_series(comparison.evaluations), threshold_plot)
+        plots.plot_threshold(api.threshold_series(comparison), threshold_plot)
         written.append(threshold_plot)
     if model_plot is not None:
-        online = [e for e in comparison.evaluations if e.results.model is not None]
-        if not online:
-            _fail(f"{model_plot}: none of the results carries a histogram model", 1)
-        plots.plot_model(online[0].results.model, model_plot, title=f"{online[0].method} {online[0].traversal}")
+        learned = sorted((e for e in comparison.evaluations if e.method in ("online", "trained")),
+                         key=lambda e: e.method != "online")
+        if not learned:
+            _fail(f"{model_plot}: none of the results is an online or trained run with a model", 1)
+        plots.plot_model(learned[0].results.model, model_plot, title=f"{learned[0].method} {learned[0].traversal}")
         written.append(model_plot)
     if pr_plot is not None:
-        plots.plot_pr({f"{e.method} {e.traversal}": e.curve for e in comparison.evaluations}, pr_plot)
+        plots.plot_pr(api.pr_series(comparison), pr_plot)
         written.append(pr_plot)
     return written
 

@@ -323,10 +323,9 @@ def run_demo(out_dir: Path, progress: Progress | None = None) -> DemoReport:
     for name, table in (("table1.csv", comparison.table1), ("table2.csv", comparison.table2)):
         table.to_csv(out_dir / name, index=False)
         files.append(out_dir / name)
-    evaluations = comparison.evaluations
-    files.append(plots.plot_pr({f"{e.method} {e.traversal}": e.curve for e in evaluations},
+    files.append(plots.plot_pr(api.pr_series(comparison),
                                out_dir / "pr.png", title="Demo route: precision-recall"))
-    files.append(plots.plot_threshold(api.threshold_series(evaluations), out_dir / "threshold.png"))
+    files.append(plots.plot_threshold(api.threshold_series(comparison), out_dir / "threshold.png"))
     online = next(run for run in runs if run.method == "online")
     files.append(plots.plot_model(online.decisions.model, out_dir / "model.png",
                                   title=f"Online model learned on '{online.query.name}'"))

@@ -29,3 +29,9 @@ class CacheBusyError(WilocError):
     """Another wiloc process holds the cache entry this one needs."""
 
     exit_code = EXIT_BUSY
+
+
+class UsageError(WilocError):
+    """An option value that cannot work (unknown name, out of range)."""
+
+    exit_code = EXIT_USAGE

@@ -70,7 +70,7 @@ def write_results(path: Path, decisions: Decisions, *, query_names: list[str], r
                   meta: dict[str, Any]) -> Results:
     """Write a results file atomically and return what was written."""
     frame = decisions_to_frame(decisions, query_names, ref_names)
-    header = {"wiloc-results": FORMAT_VERSION, **meta, "params": decisions.params,
+    header = {"wiloc-results": FORMAT_VERSION, **meta, "frames": len(frame), "params": decisions.params,
               "model": decisions.model.to_dict() if decisions.model is not None else None,
               "reference_frames": list(ref_names)}
     path = Path(path)
@@ -99,18 +99,21 @@ def read_results(path: Path) -> Results:
         raise WilocError(path, "results file does not exist")
     meta: dict[str, Any] = {}
     n_header = 0
-    with path.open(encoding="utf-8") as handle:
-        for line in handle:
-            if not line.startswith("# "):
-                break
-            key, sep, value = line[2:].rstrip("\n").partition(": ")
-            if not sep:
-                raise WilocError(path, f"malformed header line {n_header + 1}")
-            try:
-                meta[key] = json.loads(value) if key in JSON_KEYS else value
-            except json.JSONDecodeError as exc:
-                raise WilocError(path, f"header '{key}' is not valid JSON ({exc.msg})") from None
-            n_header += 1
+    try:
+        with path.open(encoding="utf-8") as handle:
+            for line in handle:
+                if not line.startswith("# "):
+                    break
+                key, sep, value = line[2:].rstrip("\n").partition(": ")
+                if not sep:
+                    raise WilocError(path, f"malformed header line {n_header + 1}")
+                try:
+                    meta[key] = json.loads(value) if key in JSON_KEYS else value
+                except json.JSONDecodeError as exc:
+                    raise WilocError(path, f"header '{key}' is not valid JSON ({exc.msg})") from None
+                n_header += 1
+    except UnicodeDecodeError:
+        raise WilocError(path, "not a wiloc results file (not UTF-8 text)") from None
     if meta.get("wiloc-results") != FORMAT_VERSION:
         raise WilocError(path, "not a wiloc results file (no '# wiloc-results: 1' header)")
     try:
@@ -120,6 +123,9 @@ def read_results(path: Path) -> Results:
     missing = [c for c in BASE_COLUMNS if c not in frames.columns]
     if missing:
         raise WilocError(path, f"missing column(s): {', '.join(missing)}")
+    if "frames" in meta and str(len(frames)) != meta["frames"]:
+        raise WilocError(path, f"holds {len(frames)} rows, its header says {meta['frames']}: "
+                               "the file is incomplete or was edited")
     if frames["frame"].duplicated().any():
         dup = frames["frame"][frames["frame"].duplicated()].iloc[0]
         raise WilocError(path, f"duplicate row for frame '{dup}'")
