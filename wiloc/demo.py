@@ -26,7 +26,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from wiloc import api
@@ -287,17 +286,11 @@ def make_demo_route(root: Path, seed: int = SEED, progress: Progress | None = No
 
 @dataclass
 class DemoReport:
-    """What ``wiloc demo`` produced: the comparison, the files written and the worst recalls."""
+    """What ``wiloc demo`` produced: the route, the comparison (Table I and II), the files written."""
 
     route: DemoRoute
     comparison: api.Comparison
     files: list[Path]
-
-    @property
-    def worst_recall(self) -> pd.DataFrame:
-        """Per method and target precision (Table II): the worst traversal and its recall."""
-        t2 = self.comparison.table2
-        return t2[t2["worst"]].drop(columns="worst").reset_index(drop=True)
 
 
 def run_demo(out_dir: Path, progress: Progress | None = None) -> DemoReport:
