@@ -231,3 +231,16 @@ def test_evaluate_positions_needs_a_radius(route: tuple[Path, Path], tmp_path: P
     ok = _json(runner.invoke(app, ["evaluate", str(out), "--gt", f"positions:{tmp_path / 'q.csv'}",
                                    "--gt-map", str(tmp_path / "r.csv"), "--radius", "1.5", "--json"]))
     assert ok[0]["with_true_match"] == 40
+
+
+def test_matrix_ground_truth_picks_a_mat_variable(route: tuple[Path, Path], tmp_path: Path) -> None:
+    import scipy.io
+    ref, query = route
+    out = tmp_path / "t.csv"
+    assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
+                               "--out", str(out)]).exit_code == 0
+    scipy.io.savemat(tmp_path / "gt.mat", {"truth": np.eye(40), "other": np.zeros((40, 40))})
+    ambiguous = runner.invoke(app, ["evaluate", str(out), "--gt", f"matrix:{tmp_path / 'gt.mat'}"])
+    assert ambiguous.exit_code == 1 and "truth" in ambiguous.stderr and "other" in ambiguous.stderr
+    picked = _json(runner.invoke(app, ["evaluate", str(out), "--gt", f"matrix:{tmp_path / 'gt.mat'}:truth", "--json"]))
+    assert picked[0]["with_true_match"] == 40 and picked[0]["recall_at_1"] > 0.8

@@ -89,6 +89,7 @@ class TruthSource:
     tolerance: int = 0
     radius: float | None = None
     by: str = "name"
+    variable: str | None = None  # matrix form, .mat files holding several arrays: which one
 
     def load(self, query_names: list[str], ref_names: list[str], query_folder: str,
              sequence: bool, exclude_recent: int) -> Truth:
@@ -98,7 +99,7 @@ class TruthSource:
         ref_path = Path(self.ref_path.format(query=name)) if self.ref_path else None
         truth = load_truth(self.kind, path, query_names=query_names, ref_names=ref_names,
                            tolerance=self.tolerance, radius=self.radius, ref_path=ref_path,
-                           by=self.by)
+                           by=self.by, variable=self.variable)
         return restrict_sequence(truth, exclude_recent) if sequence else truth
 
 

@@ -289,7 +289,11 @@ def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | N
         kind, path = ("aligned", "") if gt == "aligned" else (_guess_kind(gt), gt)
     if kind not in ("aligned", "positions", "pairs", "matrix"):
         _fail(f"--gt {gt}: unknown ground-truth form '{kind}' (aligned, positions, pairs, matrix)", 2)
-    return api.TruthSource(kind=kind, path=path or None, ref_path=gt_ref, tolerance=tolerance, radius=radius)
+    variable = None
+    if kind == "matrix" and ".mat:" in path:
+        path, variable = path.rsplit(":", 1)
+    return api.TruthSource(kind=kind, path=path or None, ref_path=gt_ref, tolerance=tolerance, radius=radius,
+                           variable=variable)
 
 
 def _guess_kind(path: str) -> str:
@@ -297,7 +301,7 @@ def _guess_kind(path: str) -> str:
 
 
 GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames), 'positions:Q.csv' (with "
-           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat'. '{query}' in a path is "
+           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat' ('matrix:M.mat:NAME' picks one array of a .mat). '{query}' in a path is "
            "replaced by the query folder's name.")
 GtOption = Annotated[str, typer.Option("--gt", help=GT_HELP)]
 GtMapOption = Annotated[Optional[str], typer.Option("--gt-map", help="positions: the reference's positions CSV.")]
