@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from wiloc.errors import WilocError
+from wiloc.methods import catgraph
 from wiloc.methods.catgraph import bulk_model, contrast_normalise, localize_catgraph, observation_tables
 
 N_REF = 300
@@ -151,10 +152,11 @@ def test_bulk_model_excludes_recent_pairs() -> None:
     ({"sequence_rate": 0.0}, "catgraph"),
     ({"sequence_speeds": ()}, "catgraph"),
     ({"contrast_window": 0}, "catgraph"),
-    ({"ref_arclength": np.arange(N_REF - 1.0)}, "ref_arclength"),
-    ({"ref_arclength": np.r_[np.arange(N_REF - 1.0), 0.0]}, "ref_arclength"),
-    ({"query_steps": np.ones(10)}, "query_steps"),
-    ({"ref_arclength": np.arange(float(N_REF)), "query_steps": -np.ones(10)}, "query_steps"),
+    ({"ref_arclength": np.arange(N_REF - 1.0)}, "--map-odometry"),
+    ({"ref_arclength": np.r_[np.arange(N_REF - 1.0), 0.0]}, "--map-odometry"),
+    ({"ref_arclength": np.zeros(N_REF)}, "--map-odometry"),
+    ({"query_steps": np.ones(10)}, "--odometry"),
+    ({"ref_arclength": np.arange(float(N_REF)), "query_steps": -np.ones(10)}, "--odometry"),
 ])
 def test_bad_parameters_raise(kwargs: dict, where: str) -> None:
     rng = np.random.default_rng(8)
@@ -171,3 +173,74 @@ def test_row_count_must_match_n_frames() -> None:
         localize_catgraph(iter(rows), _ref_self(rng), 11)
     with pytest.raises(WilocError, match="more query rows"):
         localize_catgraph(iter(rows), _ref_self(rng), 9)
+
+
+def test_messages_name_the_cli_options_not_internal_parameters() -> None:
+    rng = np.random.default_rng(8)
+    rows = _rows(np.arange(10.0), N_REF, rng)
+    with pytest.raises(WilocError, match=r"query odometry CSV needs the map's too \(--map-odometry\)"):
+        localize_catgraph(iter(rows), _ref_self(rng), 10, query_steps=np.ones(10))
+    with pytest.raises(WilocError, match="--particles must be >= 1"):
+        localize_catgraph(iter(rows), _ref_self(rng), 10, particles=0)
+
+
+def test_one_frame_map_says_so() -> None:
+    with pytest.raises(WilocError, match="the map needs at least 2 frames, got 1"):
+        localize_catgraph(iter(np.ones((3, 1))), np.zeros((1, 1)), 3)
+
+
+class _Reader:
+    """A row-block reader over an array, recording the rows asked for, like DifferenceMatrix."""
+
+    def __init__(self, data: np.ndarray) -> None:
+        self._data = data
+        self.reads: list[tuple[int, int]] = []
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self._data.shape
+
+    def rows(self, start: int, stop: int) -> np.ndarray:
+        self.reads.append((start, stop))
+        return self._data[start:stop].astype(np.float32)
+
+
+def test_reader_gives_the_same_decisions_as_the_array_block_by_block(monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(10)
+    truth = np.arange(10.0, 110.0)
+    rows = _rows(truth, N_REF, rng)
+    ref = _ref_self(rng).astype(np.float32).astype(np.float64)  # what a float32 file holds
+    whole = localize_catgraph(iter(rows), ref, truth.size, seed=3)
+    monkeypatch.setattr(catgraph, "BULK_BLOCK_VALUES", 7 * N_REF)  # 7 rows per block: 43 blocks
+    reader = _Reader(ref)
+    blocked = localize_catgraph(iter(rows), reader, truth.size, seed=3)
+    assert max(stop - start for start, stop in reader.reads) == 7
+    np.testing.assert_array_equal(blocked.model.c, whole.model.c)
+    np.testing.assert_array_equal(blocked.model.edges, whole.model.edges)
+    for x, y in [(whole.match, blocked.match), (whole.difference, blocked.difference),
+                 (whole.confidence, blocked.confidence), (whole.columns["new_place"], blocked.columns["new_place"])]:
+        np.testing.assert_array_equal(x, y)
+
+
+def test_bulk_model_blocks_count_each_far_pair_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    ref = np.arange(49.0).reshape(7, 7)
+    ref[2, 6] = np.nan
+    expected = bulk_model(ref, exclude_recent=1, bins=10)
+    monkeypatch.setattr(catgraph, "BULK_BLOCK_VALUES", 2 * 7)
+    blocked = bulk_model(_Reader(ref), exclude_recent=1, bins=10)
+    assert blocked.c.sum() == expected.c.sum() == 7 * 6 - 12 - 1  # ordered pairs > 1 apart, one NaN
+    np.testing.assert_array_equal(blocked.c, expected.c)
+    np.testing.assert_array_equal(blocked.edges, expected.edges)
+
+
+@pytest.mark.parametrize("node", [0, 2])
+def test_mode_on_a_map_shorter_than_the_mode_window(node: int) -> None:
+    # 3 nodes < 2 * mode_window + 1 = 5: np.convolve(..., "same") returned 5 masses, shifted by
+    # one node, and every node's window holds all the weight, so the mass alone cannot decide.
+    rng = np.random.default_rng(12)
+    rows = 1.0 + 0.02 * rng.standard_normal((30, 3))
+    rows[:, node] -= 0.6
+    ref = np.array([[0.0, 1.0, 1.1], [1.0, 0.0, 0.9], [1.1, 0.9, 0.0]])
+    dec = localize_catgraph(iter(rows), ref, rows.shape[0], exclude_recent=0, particles=200)
+    assert np.all(dec.match[5:] == node)
+    np.testing.assert_array_equal(dec.difference, rows[np.arange(rows.shape[0]), dec.match])

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from numba import njit
 
+from wiloc.descriptors import registry
 from wiloc.distances import METRICS, _panel, pairwise, pairwise_blocks, simd_path
 
 SAD_SCALE = 1.0 / (32 * 1152)  # 1152 values quantised as 128 + 32 z
@@ -211,3 +212,7 @@ def test_kernels_compile_for_other_cpus() -> None:
     for path, result in results.items():
         assert result.returncode == 0, result.stderr[-2000:]
         assert result.stdout.strip() == path
+
+
+def test_metrics_is_the_registry_list() -> None:
+    assert METRICS is registry.METRICS

@@ -185,3 +185,23 @@ def test_global_threshold_keeps_precision_everywhere_and_is_lowest(
     for (c, ok, n), r in zip(inputs, recalls):
         tp = int(np.sum(ok & (c >= threshold)))  # NaN >= threshold is False
         assert r == pytest.approx(tp / n if n else 0.0)
+
+
+def test_precision_target_in_percent_is_met_exactly() -> None:
+    # 999 of 1000 is 99.9 %, but 999 / 1000 >= 99.9 / 100 is False in floating point.
+    conf = np.r_[np.full(999, 0.8), 0.8, np.full(500, 0.3)]
+    ok = np.r_[np.ones(999, bool), False, np.zeros(500, bool)]
+    target = 99.9 / 100
+    assert recall_at_precision(pr_curve(conf, ok, 1000), target) == (pytest.approx(0.999), 0.8)
+    threshold, recalls = global_threshold([(conf, ok, 1000)], target)
+    assert threshold == 0.8 and recalls == [pytest.approx(0.999)]
+    # the slack is relative and tiny: 100 % still rejects one error in a million
+    big = np.r_[np.ones(999_999, bool), False]
+    recall, threshold = recall_at_precision(pr_curve(np.ones(big.size), big, big.size), 1.0)
+    assert recall == 0.0 and np.isnan(threshold)
+
+
+def test_max_f1_has_no_threshold_when_every_f1_is_zero() -> None:
+    curve = pr_curve([0.994, 0.5, 0.2], [False, False, False], 3)
+    f1, threshold = max_f1(curve)
+    assert f1 == 0.0 and np.isnan(threshold)

@@ -25,7 +25,8 @@ from numba import config, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-METRICS = ("l1", "sqeuclidean", "hamming", "cosine")
+# The one list of metric names lives in the registry; re-exported here.
+from wiloc.descriptors.registry import METRICS
 
 CHUNK_BYTES = 64  # rows are zero-padded to a multiple of this for the SIMD kernel
 TILE = 4  # query rows x reference rows accumulated together per chunk

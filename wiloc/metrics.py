@@ -19,6 +19,10 @@ from wiloc.groundtruth import Truth
 PRECISION_LEVELS = (1.0, 0.99, 0.90)
 """The precisions at which recall is reported (the paper's Table I)."""
 
+PRECISION_RTOL = 1e-9
+"""Relative slack when testing precision >= target: a target given in percent is rounded
+(99.9 / 100 > 0.999), yet 999 of 1000 meets it; 100 % stays exact below 10**9 accepted frames."""
+
 
 @dataclass(frozen=True)
 class PRCurve:
@@ -57,6 +61,12 @@ def _counts_at(confidence: ArrayLike, correct: ArrayLike,
     return tp, (conf.size - first).astype(np.int64) - tp
 
 
+def _reaches(tp: ArrayLike, fp: ArrayLike, target: float) -> NDArray[np.bool_]:
+    """Whether precision tp / (tp + fp) >= target, in integer form with ``PRECISION_RTOL`` slack."""
+    tp = np.asarray(tp, dtype=np.float64)
+    return tp >= target * (tp + np.asarray(fp, dtype=np.float64)) * (1.0 - PRECISION_RTOL)
+
+
 def pr_curve(confidence: ArrayLike, correct: ArrayLike, n_positive: int) -> PRCurve:
     """The exact precision-recall curve, one point per distinct confidence (ties form one step).
 
@@ -79,7 +89,7 @@ def recall_at_precision(curve: PRCurve, precision: float) -> tuple[float, float]
 
     The threshold is the highest one reaching that recall. With no such point: (0.0, NaN).
     """
-    ok = np.flatnonzero(curve.precision >= precision)
+    ok = np.flatnonzero(_reaches(curve.tp, curve.fp, precision) & (curve.tp + curve.fp > 0))
     if ok.size == 0:
         return 0.0, float("nan")
     best = ok[np.argmax(curve.recall[ok])]  # argmax takes the first, i.e. highest threshold
@@ -97,10 +107,10 @@ def average_precision(curve: PRCurve) -> float:
 
 
 def max_f1(curve: PRCurve) -> tuple[float, float]:
-    """(F1, threshold) at the operating point of largest F1; (0.0, NaN) for an empty curve."""
+    """(F1, threshold) at the operating point of largest F1; (0.0, NaN) when no F1 is above 0."""
     p, r = curve.precision, curve.recall
     f1 = np.divide(2 * p * r, p + r, out=np.zeros_like(p), where=(p + r) > 0)
-    if f1.size == 0:
+    if not np.any(f1 > 0):
         return 0.0, float("nan")
     best = int(np.argmax(f1))
     return float(f1[best]), float(curve.thresholds[best])
@@ -135,7 +145,7 @@ def global_threshold(inputs: Sequence[tuple[ArrayLike, ArrayLike, int]],
     keeps = np.ones(candidates.size, dtype=np.bool_)
     for tp, fp in counts:
         accepted = tp + fp
-        keeps &= (accepted == 0) | (tp / np.maximum(accepted, 1) >= target_precision)
+        keeps &= (accepted == 0) | _reaches(tp, fp, target_precision)
     if not keeps.any():
         return float("nan"), [0.0] * len(inputs)
     at = int(np.argmax(keeps))  # candidates ascend: the first that keeps is the lowest

@@ -8,13 +8,15 @@ P(d|L)/P(d) of the difference interpolated at its position (eq. 8), weigh a
 new-place particle by the mean P(not L | d) over sampled nodes (eq. 10), normalise, read out the
 mode of the particle density and resample when the effective sample size drops. P(d|L) comes from
 the online, training-free ``b`` (each frame's smallest difference, added after the frame is used);
-P(d|not L) from the bulk of the reference's differences to itself outside +-R. docs/catgraph.md
-gives the formulation in full and the measurements behind every default.
+P(d|not L) from the bulk of the reference's differences to itself outside +-R, read block of rows
+by block of rows. docs/catgraph.md gives the formulation in full and the measurements behind
+every default.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,13 +25,12 @@ from scipy.special import expit
 
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decisions
+from wiloc.methods.online import DEFAULT_BINS, DEFAULT_EXCLUDE_RECENT
 from wiloc.model import HistogramModel
 
 Progress = Callable[[int, int], None]
 
 DEFAULT_PARTICLES = 2000
-DEFAULT_EXCLUDE_RECENT = 10
-DEFAULT_BINS = 100
 DEFAULT_SMOOTHING_BINS = 16.0
 DEFAULT_PRIOR = 0.01
 DEFAULT_OUTLIER = 0.05
@@ -46,27 +47,61 @@ DEFAULT_SEQUENCE_SPEEDS = (0.5, 1.0, 1.5, 2.0)
 DEFAULT_CONTRAST_WINDOW = 10
 DEFAULT_NEW_PLACE_SAMPLES = 100
 DEFAULT_MODE_WINDOW = 2
+BULK_BLOCK_VALUES = 1 << 22  # reference differences read per block for the bulk histogram (32 MB as float64)
+MODE_TIE = 1e-12  # window masses (shares of a unit total) this close to the largest count as tied
 
 
-def bulk_model(ref_self: NDArray[np.float64], exclude_recent: int, bins: int) -> HistogramModel:
+class RowBlocks(Protocol):
+    """A matrix read block of rows by block of rows, e.g. ``wiloc.differences.DifferenceMatrix``."""
+
+    @property
+    def shape(self) -> tuple[int, int]: ...
+
+    def rows(self, start: int, stop: int) -> NDArray[np.float32]: ...
+
+
+def _bulk_blocks(ref_self: NDArray[np.floating] | RowBlocks,
+                 exclude_recent: int) -> Iterator[NDArray[np.float64]]:
+    """The finite differences of every reference pair further apart than ``exclude_recent``.
+
+    One block of rows at a time, each ordered pair (i, j) once; never the whole matrix.
+    """
+    n_rows, n_cols = ref_self.shape
+    step = max(1, BULK_BLOCK_VALUES // max(n_cols, 1))
+    cols = np.arange(n_cols)
+    for start in range(0, n_rows, step):
+        stop = min(start + step, n_rows)
+        block = ref_self.rows(start, stop) if hasattr(ref_self, "rows") else ref_self[start:stop]
+        far = np.abs(np.arange(start, stop)[:, None] - cols[None, :]) > exclude_recent
+        values = np.asarray(block, dtype=np.float64)[far]
+        yield values[np.isfinite(values)]
+
+
+def bulk_model(ref_self: NDArray[np.floating] | RowBlocks, exclude_recent: int,
+               bins: int) -> HistogramModel:
     """The observation model before the query run: ``c`` holds the bulk of ordinary differences.
 
-    Every pair of reference frames further apart than ``exclude_recent`` counts as a different
-    place (no labels: along one traversal, frames apart are mostly different places). Bins span
-    [min(0, lowest), highest] of those differences; ``b`` starts empty.
+    ``ref_self``: the reference-by-reference differences, an array or a row-block reader (any
+    object with ``.shape`` and ``.rows(start, stop)``), read in blocks of rows, twice (range,
+    then counts). Every pair of reference frames further apart than ``exclude_recent`` counts as
+    a different place (no labels: along one traversal, frames apart are mostly different places).
+    Bins span [min(0, lowest), highest] of those differences; ``b`` starts empty.
     """
-    ref_self = np.asarray(ref_self, dtype=np.float64)
-    if ref_self.ndim != 2 or ref_self.shape[0] != ref_self.shape[1]:
-        raise WilocError("catgraph", f"ref_self must be a square matrix, got shape {ref_self.shape}")
-    n = ref_self.shape[0]
-    i, j = np.triu_indices(n, k=exclude_recent + 1)
-    values = np.concatenate([ref_self[i, j], ref_self[j, i]])
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        raise WilocError("catgraph", f"no finite reference difference outside +-{exclude_recent} "
-                                     f"frames ({n} reference frames)")
-    model = HistogramModel.from_range(min(0.0, float(values.min())), float(values.max()), bins)
-    model.c = np.bincount(model.bin_of(values), minlength=model.n_bins).astype(np.float64)
+    if not hasattr(ref_self, "rows"):
+        ref_self = np.asarray(ref_self)
+    shape = tuple(ref_self.shape)
+    if len(shape) != 2 or shape[0] != shape[1]:
+        raise WilocError("catgraph", f"the map's differences to itself must be a square matrix, got shape {shape}")
+    low, high, count = np.inf, -np.inf, 0
+    for values in _bulk_blocks(ref_self, exclude_recent):
+        if values.size:
+            low, high, count = min(low, float(values.min())), max(high, float(values.max())), count + values.size
+    if count == 0:
+        raise WilocError("catgraph", f"no finite map difference between frames more than {exclude_recent} "
+                                     f"apart ({shape[0]} map frames)")
+    model = HistogramModel.from_range(min(0.0, low), high, bins)
+    for values in _bulk_blocks(ref_self, exclude_recent):
+        model.c += np.bincount(model.bin_of(values), minlength=model.n_bins)
     return model
 
 
@@ -112,11 +147,11 @@ def _arclength(ref_arclength: NDArray[np.float64] | None, n_nodes: int) -> NDArr
         return np.arange(n_nodes, dtype=np.float64)
     s = np.asarray(ref_arclength, dtype=np.float64)
     if s.shape != (n_nodes,):
-        raise WilocError("ref_arclength", f"has {s.size} values for {n_nodes} reference frames")
+        raise WilocError("--map-odometry", f"gives {s.size} positions for {n_nodes} map frames")
     if not np.all(np.isfinite(s)) or np.any(np.diff(s) < 0):
-        raise WilocError("ref_arclength", "must be finite and non-decreasing")
+        raise WilocError("--map-odometry", "the map's distances along its route must be finite and non-decreasing")
     if not s[-1] > s[0]:
-        raise WilocError("ref_arclength", "the reference trajectory has zero length")
+        raise WilocError("--map-odometry", "the map's route has zero length (the odometry never moves)")
     return s
 
 
@@ -126,12 +161,12 @@ def _steps(query_steps: NDArray[np.float64] | None, n_frames: int, spacing: floa
     if query_steps is None:
         return np.full(n_frames, spacing)
     if not have_arclength:
-        raise WilocError("query_steps", "needs ref_arclength in the same units")
+        raise WilocError("--odometry", "a query odometry CSV needs the map's too (--map-odometry), in the same units")
     u = np.asarray(query_steps, dtype=np.float64)
     if u.shape != (n_frames,):
-        raise WilocError("query_steps", f"has {u.size} values for {n_frames} query frames")
+        raise WilocError("--odometry", f"gives {u.size} steps for {n_frames} query frames")
     if not np.all(np.isfinite(u)) or np.any(u < 0):
-        raise WilocError("query_steps", "must be finite and >= 0")
+        raise WilocError("--odometry", "the query's steps must be finite and >= 0")
     return u
 
 
@@ -187,7 +222,7 @@ def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArr
 
 def localize_catgraph(
     query_rows: Iterable[NDArray[np.float64]],
-    ref_self: NDArray[np.float64],
+    ref_self: NDArray[np.floating] | RowBlocks,
     n_frames: int,
     *,
     ref_arclength: NDArray[np.float64] | None = None,
@@ -217,24 +252,27 @@ def localize_catgraph(
     """Track the query along the reference trajectory with the whole-image CAT-Graph filter.
 
     ``query_rows`` yields ``n_frames`` rows of differences of query frame k to every reference
-    node; ``ref_self`` is the reference-by-reference difference matrix (for P(d|not L)).
+    node; ``ref_self`` is the reference-by-reference difference matrix (for P(d|not L)), an array
+    or a row-block reader such as ``DifferenceMatrix``, read a block of rows at a time.
     Positions are in arc-length units (``ref_arclength``, else node index); ``query_steps`` are
     the query's travelled distances since its previous frame in the same units. The noise and
     ``noise_floor`` are relative to the step and to the mean node spacing respectively.
     Re-seeding uses a causal sequence score per node: for each speed ratio in ``sequence_speeds``
     an exponentially weighted (rate ``sequence_rate``) sum of contrast-normalised differences
     (+-``contrast_window`` nodes) along the trajectory ending there; the lowest over speeds counts.
-    Returns per frame the node at the density mode, its difference, the weight mass within
-    +-``mode_window`` nodes of it (after normalising with the new-place particle) as confidence,
-    and ``columns["new_place"]``. The same seed gives identical Decisions.
+    Returns per frame the node at the density mode (the largest weight mass within
+    +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
+    that mass (after normalising with the new-place particle) as confidence, and
+    ``columns["new_place"]``. The same seed gives identical Decisions.
     """
-    checks = [(particles >= 1, "particles must be >= 1"), (exclude_recent >= 0, "exclude_recent must be >= 0"),
+    checks = [(particles >= 1, "--particles must be >= 1"), (exclude_recent >= 0, "--exclude-recent must be >= 0"),
               (bins >= 2, "bins must be >= 2"), (smoothing_bins >= 0, "smoothing_bins must be >= 0"),
               (0.0 <= prior < 1.0, "prior must lie in [0, 1)"),
-              (min(step_noise, noise_floor, speed_noise) >= 0, "noise parameters must be >= 0"),
+              (min(step_noise, noise_floor, speed_noise) >= 0,
+               "--step-noise, --noise-floor and --speed-noise must be >= 0"),
               (0.0 <= speed_range[0] <= speed_range[1], "speed_range must be (low, high), 0 <= low <= high"),
-              (0.0 <= resample_ess <= 1.0, "resample_ess must lie in [0, 1]"),
-              (0.0 <= reseed <= 1.0, "reseed must lie in [0, 1]"), (reseed_top >= 1, "reseed_top must be >= 1"),
+              (0.0 <= resample_ess <= 1.0, "--resample-ess must lie in [0, 1]"),
+              (0.0 <= reseed <= 1.0, "--reseed must lie in [0, 1]"), (reseed_top >= 1, "reseed_top must be >= 1"),
               (0.0 < sequence_rate <= 1.0, "sequence_rate must lie in (0, 1]"),
               (len(sequence_speeds) >= 1 and min(sequence_speeds, default=0.0) >= 0,
                "sequence_speeds must hold at least one speed ratio >= 0"),
@@ -244,10 +282,10 @@ def localize_catgraph(
         if not ok:
             raise WilocError("catgraph", problem)
 
-    model = bulk_model(ref_self, exclude_recent, bins)
     n_nodes = ref_self.shape[0]
     if n_nodes < 2:
-        raise WilocError("catgraph", "the reference needs at least 2 frames")
+        raise WilocError("catgraph", f"the map needs at least 2 frames, got {n_nodes}")
+    model = bulk_model(ref_self, exclude_recent, bins)
     nodes = _arclength(ref_arclength, n_nodes)
     spacing = (nodes[-1] - nodes[0]) / (n_nodes - 1)
     steps = _steps(query_steps, n_frames, spacing, ref_arclength is not None)
@@ -272,7 +310,7 @@ def localize_catgraph(
             raise WilocError("catgraph", f"more query rows than n_frames={n_frames}")
         row = np.asarray(row, dtype=np.float64)
         if row.shape != (n_nodes,) or not np.all(np.isfinite(row)):
-            raise WilocError("catgraph", f"query row {k} must hold {n_nodes} finite differences")
+            raise WilocError("catgraph", f"query frame {k}: expected {n_nodes} finite differences to the map")
         tables = observation_tables(model, smoothing_bins, prior, outlier, pseudo)
         contrast = contrast_normalise(row, contrast_window)
         if k == 0:
@@ -304,8 +342,10 @@ def localize_catgraph(
         log_w = log_w - log_total
         w = np.exp(log_w)
 
-        mass = np.convolve(np.bincount(j + (a >= 0.5), weights=w, minlength=n_nodes), window, mode="same")
-        mode = int(np.argmax(mass))
+        own = np.bincount(j + (a >= 0.5), weights=w, minlength=n_nodes)
+        mass = np.convolve(own, window)[mode_window:mode_window + n_nodes]  # "same" is wrong for a short map
+        tied = np.flatnonzero(mass >= mass.max() - MODE_TIE)
+        mode = int(tied[np.argmax(own[tied])])
         match[k], difference[k] = mode, row[mode]
         confidence[k] = mass[mode] * (1.0 - p_new)
         new_place[k] = p_new
