@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from wiloc.errors import WilocError
 from wiloc.model import HistogramModel
 
 
@@ -59,3 +60,9 @@ def test_round_trip_through_dict() -> None:
     again = HistogramModel.from_dict(model.to_dict())
     assert np.array_equal(again.b, model.b) and np.array_equal(again.c, model.c)
     assert again.posterior(0.1) == model.posterior(0.1)
+
+
+@pytest.mark.parametrize("bins", [0, -3])
+def test_bin_count_below_one_names_the_option(bins: int) -> None:
+    with pytest.raises(WilocError, match="--bins must be an integer >= 1"):
+        HistogramModel.from_range(0.0, 1.0, bins=bins)

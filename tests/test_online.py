@@ -79,6 +79,19 @@ def test_frames_within_window_of_z_are_skipped() -> None:
     assert np.isnan(near_miss(row, 3, None, window=6))
 
 
+def test_frames_within_window_of_z_join_m() -> None:
+    n = 200
+    row = np.full(n, INF)
+    row[[50, 120, 130, 140]] = [0.1, 0.2, 0.3, 0.4]
+    match = np.full(n, -1)
+    match[120] = 51
+    # 51 lies within +-2 of z = 50, so frame 120, matched to 51, is the same place as z
+    assert near_miss(row, 50, match, window=2) == 0.3
+    # min(M) is 48, the window's first frame: the frame it was matched to is the same place too
+    match[48] = 130
+    assert near_miss(row, 50, match, window=2) == 0.4
+
+
 def test_match_links_are_recorded_by_the_run() -> None:
     n = 5
     rows = _seq([[], [0.9], [0.3, 0.8], [0.95, 0.9, 0.85], [0.25, 0.6, 0.2, 0.7]], n)
@@ -114,6 +127,29 @@ def test_map_mode_initialises_from_reference_rows() -> None:
         localize_online(queries, 3, sequence=False, init_rows=ref)
     with pytest.raises(WilocError):
         localize_online(queries, 2, sequence=True, init=0)
+
+
+def test_default_prior_is_one_half() -> None:
+    ref = [np.array([INF, 0.6, 0.8]), np.array([0.6, INF, 0.7]), np.array([0.8, 0.7, INF])]
+    queries = [np.array([0.1, 0.5, 0.9]), np.array([0.4, 0.2, 0.3])]
+    out = localize_online(queries, 2, sequence=False, init_rows=ref, bins=5)
+    assert out.params["prior"] == 0.5 and out.model.prior_same() == 0.5
+    # b is empty for the first frame: P(d|L) = 1/5 uniform, P(d|~L) = 0.1 / (3 + 0.5) in bin 0
+    assert out.confidence[0] == pytest.approx(0.2 / (0.2 + 0.1 / 3.5))
+    # None keeps the share of samples in b, which is 0 for the first decided frame
+    share = localize_online(queries, 2, sequence=False, init_rows=ref, bins=5, prior=None)
+    assert share.confidence[0] == 0.0
+
+
+@pytest.mark.parametrize(("option", "value"), [
+    ("init", 0), ("bins", 0), ("same_place_window", -1), ("smoothing", 0.0),
+    ("smoothing", -0.5), ("smoothing", np.nan), ("prior", 1.0), ("prior", 0.0)])
+def test_bad_option_names_the_cli_option(option: str, value: float) -> None:
+    rows = _seq([[], [0.5], [0.7, 0.3]], 3)
+    with pytest.raises(WilocError) as err:
+        localize_online(rows, 3, sequence=True, **{option: value})
+    assert err.value.where is None
+    assert err.value.problem.startswith("--" + option.replace("_", "-") + " must ")
 
 
 def _bin_posterior(edges: np.ndarray, same: stats.rv_continuous, diff: stats.rv_continuous,

@@ -38,6 +38,11 @@ def test_given_normaliser_is_used() -> None:
     out = localize_threshold(iter(rows), len(rows), normaliser=4.0)
     d = out.decided
     assert np.allclose(out.confidence[d], 1.0 - np.min(rows[d], axis=1) / 4.0)
+    assert out.params["normaliser"] == 4.0 and out.params["normaliser_given"]
+    # a constant from elsewhere (e.g. the map) can be exceeded: no clipping, order is kept
+    out = localize_threshold(iter(rows), len(rows), normaliser=0.3)
+    assert out.confidence[d].min() < 0
+    assert np.array_equal(np.argsort(out.confidence[d]), np.argsort(-out.difference[d]))
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, np.inf, np.nan])

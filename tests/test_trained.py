@@ -69,3 +69,12 @@ def test_training_needs_both_classes_and_matching_shapes() -> None:
         train_model(list(rows), np.eye(3, 5, dtype=bool))
     with pytest.raises(WilocError):
         train_model(list(rows), np.eye(3, 4, dtype=bool), pairs="some")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("option", "value"), [
+    ("bins", 0), ("smoothing", 0.0), ("smoothing", -1.0), ("prior", 1.5)])
+def test_bad_option_names_the_cli_option(option: str, value: float) -> None:
+    rows, labels = _labelled(np.random.default_rng(13), 20, 4)
+    with pytest.raises(WilocError) as err:
+        train_model(list(rows), labels, **{option: value})
+    assert err.value.where is None and err.value.problem.startswith(f"--{option} must ")

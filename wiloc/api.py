@@ -180,14 +180,14 @@ def _run_method(method: str, matrix: DifferenceMatrix, self_matrix: Callable[[],
     if method == "trained":
         from wiloc.methods.trained import localize_trained, train_model
         if training is None:
-            raise WilocError(None, "--method trained needs --train-query, --train-map and --train-gt")
+            raise UsageError(None, "--method trained needs --train-query, --train-map and --train-gt")
         train_rows, labels = training()
         model_params = {k: v for k, v in params.items() if k in ("bins", "smoothing")}
         return localize_trained(rows, n, train_model(train_rows, labels, **model_params))
     if method == "catgraph":
         from wiloc.methods.catgraph import localize_catgraph
         if sequence:
-            raise WilocError(None, "--method catgraph needs --map (a reference trajectory)")
+            raise UsageError(None, "--method catgraph needs --map (a reference trajectory)")
         ref_arclength, query_steps = steps
         return localize_catgraph(rows, self_matrix(), n,
                                  ref_arclength=ref_arclength, query_steps=query_steps,

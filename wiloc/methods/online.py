@@ -14,15 +14,16 @@ from collections.abc import Callable, Iterable
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.errors import WilocError
+from wiloc.errors import UsageError, WilocError
 from wiloc.methods.base import Decisions
-from wiloc.model import HistogramModel
+from wiloc.model import HistogramModel, check_options
 
 DEFAULT_INIT = 100
 DEFAULT_BINS = 100
 DEFAULT_EXCLUDE_RECENT = 10
 DEFAULT_SAME_PLACE_WINDOW = 2
 DEFAULT_SMOOTHING = 0.1
+DEFAULT_PRIOR = 0.5
 
 Progress = Callable[[int, int], None]
 
@@ -40,19 +41,19 @@ def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
               window: int) -> float:
     """m_r: the smallest difference in ``row`` to a frame that is not the same place as ``z``.
 
-    The Appendix's recursive test, repaired and iterative. ``z`` is excluded first and starts the
-    same-place set M. Candidates are visited once in increasing difference; a candidate z_r joins
-    M when ``match[z_r]`` is in M or ``match[min(M)] == z_r`` (``match`` holds -1 for frames never
-    decided, which never passes the test; ``None`` in map mode, where candidates are reference
-    frames that are never decided). Frames within +-``window`` of z are skipped as the same place
-    too. NaN when no candidate is left.
+    The Appendix's recursive test, repaired and iterative. The same-place set M starts as z and
+    the frames within +-``window`` of z (all skipped). Candidates are visited once in increasing
+    difference; a candidate z_r joins M when ``match[z_r]`` is in M or ``match[min(M)] == z_r``
+    (``match`` holds -1 for frames never decided, which never passes the test; ``None`` in map
+    mode, where candidates are reference frames that are never decided). NaN when no candidate is
+    left.
     """
     finite = np.flatnonzero(np.isfinite(row))
     order = finite[np.argsort(row[finite], kind="stable")]
-    same = {z}
-    first = z
+    same = set(range(max(0, z - window), min(row.size, z + window + 1)))
+    first = min(same)
     for cand in order.tolist():
-        if abs(cand - z) <= window:
+        if cand in same:
             continue
         if match is not None:
             linked = match[cand]
@@ -103,7 +104,7 @@ def localize_online(
     init: int = DEFAULT_INIT,
     bins: int = DEFAULT_BINS,
     same_place_window: int = DEFAULT_SAME_PLACE_WINDOW,
-    prior: float | None = None,
+    prior: float | None = DEFAULT_PRIOR,
     smoothing: float = DEFAULT_SMOOTHING,
     init_rows: Iterable[NDArray[np.float64]] | None = None,
     progress: Progress | None = None,
@@ -114,12 +115,13 @@ def localize_online(
     first ``init`` frames that have a candidate only fill ``c``; in map mode ``init_rows`` (the
     reference traversal against itself outside +-R) fills ``c`` and every query frame is decided.
     The bin range is fixed from the initialisation minima; later values clamp into the edge bins.
+    P(L) is ``prior`` (0.5 by default, SPEC.md section 3); None uses the share of samples in ``b``.
     """
-    if init < 1 or bins < 1 or same_place_window < 0 or smoothing < 0:
-        raise WilocError("online", "init and bins must be >= 1, same_place_window and smoothing "
-                                   ">= 0")
-    if prior is not None and not 0.0 < prior < 1.0:
-        raise WilocError("online", f"prior must lie strictly between 0 and 1, got {prior}")
+    if init < 1:
+        raise UsageError(None, f"--init must be >= 1, got {init}")
+    if same_place_window < 0:
+        raise UsageError(None, f"--same-place-window must be >= 0, got {same_place_window}")
+    check_options(bins, smoothing, prior)
     if not sequence and init_rows is None:
         raise WilocError("online", "map mode needs init_rows: the reference traversal's "
                                    "difference rows against itself")

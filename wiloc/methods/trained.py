@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decisions
 from wiloc.methods.online import DEFAULT_BINS, best_matches, finite_minimum, model_from_values
-from wiloc.model import HistogramModel
+from wiloc.model import HistogramModel, check_options
 
 DEFAULT_TRAIN_SMOOTHING = 0.1
 DEFAULT_TRAIN_PAIRS = "minima"
@@ -43,6 +43,7 @@ def train_model(rows: Iterable[NDArray[np.float64]],
     ``labels`` (n_train_query x n_candidates, dense bool or scipy.sparse) marks true matches.
     The bin range spans [min(0, lowest), highest] of the training values used.
     """
+    check_options(bins, smoothing, prior)
     if pairs not in ("minima", "all"):
         raise WilocError("train", f"pairs must be 'minima' or 'all', got {pairs!r}")
     if scipy.sparse.issparse(labels):
