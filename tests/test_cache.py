@@ -137,3 +137,40 @@ def test_entry_digest_follows_content_not_mtime(tmp_path: Path) -> None:
                                                           np.full(4, 1.0, np.float32))})
     assert base.entry().digest == touched.entry().digest != edited.entry().digest
     assert cache.list_entries() == []
+
+
+def test_external_entry_keeps_the_file_row_order(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "c")
+    names = ["zeta", "alpha", "mid10", "mid2", "beta"]  # time order, not name order
+    header = EntryHeader.create("/data/m.npy", "external", {}, "l1", 1.0, None, np.float32, 4)
+    stored = StoredEntry(header, {name: _record(name, i) for i, name in enumerate(names)})
+    assert stored.entry().names == names
+    cache.write_entry(stored, complete=True)
+    again = cache.read_entry(header.key)
+    assert again.names == names
+    np.testing.assert_array_equal(again.data[:, 0], np.arange(5))
+    folder = StoredEntry(_header(), {name: _record(name, i) for i, name in enumerate(names)})
+    assert folder.entry().names == ["alpha", "beta", "mid2", "mid10", "zeta"]
+
+
+@pytest.mark.parametrize("content", ["garbage", "empty-h5", "garbage+journal"])
+def test_list_entries_shows_an_unreadable_entry(tmp_path: Path, content: str) -> None:
+    cache = Cache(tmp_path / "c")
+    good = StoredEntry(_header(), {"a.png": _record("a.png", 1.0)})
+    cache.write_entry(good, complete=True)
+    bad = cache.entry_path("0badbadbadbadbadbadbadba")
+    if content == "empty-h5":
+        with h5py.File(bad, "w") as f:
+            f["x"] = 1
+    else:
+        bad.write_bytes(b"this is not an HDF5 file" * 10)
+    if content.endswith("journal"):
+        header = _header("/d")
+        cache.open_journal(header).close()
+        cache.journal_path(header.key).rename(cache.journal_path("0badbadbadbadbadbadbadba"))
+    infos = {info.key: info for info in cache.list_entries()}
+    assert infos[good.header.key].complete and infos[good.header.key].problem == ""
+    info = infos["0badbadbadbadbadbadbadba"]
+    assert (info.descriptor, info.complete, info.frames, info.size > 0) == ("unreadable", False, 0, True)
+    assert info.problem.startswith(f"{bad}: unreadable cache entry")
+    assert "\n" not in info.problem

@@ -8,8 +8,15 @@ import cv2
 import numpy as np
 import pytest
 
-from wiloc.descriptors import DESCRIPTOR_NAMES, get_descriptor
-from wiloc.descriptors import brisk_gist, gist, sad
+from wiloc.descriptors import (
+    DESCRIPTOR_NAMES,
+    METRICS,
+    brisk_gist,
+    get_descriptor,
+    gist,
+    registry,
+    sad,
+)
 from wiloc.frames import read_gray
 
 
@@ -226,3 +233,7 @@ def test_brisk_gist_every_gardens_point_frame_gives_25_tiles(data_root: Path) ->
     for path in frames:
         tiles = spec.compute(read_gray(path, spec.min_size)).reshape(25, 64)
         assert np.all(tiles.any(axis=1)), path.name
+
+
+def test_registry_exports_the_metrics() -> None:
+    assert registry.METRICS == METRICS == ("l1", "sqeuclidean", "hamming", "cosine")

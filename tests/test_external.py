@@ -54,6 +54,14 @@ def test_csv_hamming_becomes_uint8(tmp_path: Path) -> None:
     assert matrix.tolist() == [[0, 255], [17, 3]]
 
 
+def test_rows_keep_the_file_order(tmp_path: Path) -> None:
+    order = ["zeta", "alpha", "mid10", "mid2", "beta"]  # time order, not name order
+    values = np.arange(10, dtype=np.float32).reshape(5, 2) + 1
+    path = _csv(tmp_path / "seq.csv", [[n, *row] for n, row in zip(order, values.tolist())])
+    names, matrix = read_external(path, None, "l1")
+    assert names == order and np.array_equal(matrix, values)
+
+
 @pytest.mark.parametrize("as_bytes", [True, False])
 def test_h5_round_trip(tmp_path: Path, as_bytes: bool) -> None:
     path = tmp_path / "m.h5"

@@ -121,6 +121,47 @@ def test_read_jpeg_with_zero_padding_after_eoi(tmp_path: Path) -> None:
     assert read_gray(path).shape == (32, 32)
 
 
+# A phone-style trailer after EOI (Samsung's starts "SEFH"): several KB not ending in FF D9.
+_TRAILER = b"SEFH" + bytes(range(256)) * 24 + b"SEFT"
+
+
+@pytest.mark.parametrize("params", [[], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1],
+                                    [cv2.IMWRITE_JPEG_RST_INTERVAL, 2]])
+def test_read_jpeg_with_trailer_after_eoi(tmp_path: Path, params: list[int]) -> None:
+    image = _textured(64, 96)
+    ok, buf = cv2.imencode(".jpg", image, params)
+    assert ok
+    whole = buf.tobytes()
+    phone = tmp_path / "phone.jpg"
+    phone.write_bytes(whole + _TRAILER)
+    assert len(_TRAILER) > 4096
+    assert np.array_equal(read_gray(phone), cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE))
+    assert read_gray(phone, (24, 16)).shape == (16, 24)
+    cut = tmp_path / "cut.jpg"
+    for end in (len(whole) - 2, len(whole) // 2, len(whole) // 10):
+        cut.write_bytes(whole[:end])
+        with pytest.raises(FrameError, match="truncated"):
+            read_gray(cut)
+        cut.write_bytes(whole[:end] + b"\x00" * 64)  # zero padding does not hide the cut
+        with pytest.raises(FrameError, match="truncated"):
+            read_gray(cut)
+
+
+def test_thumbnail_eoi_does_not_hide_a_cut_jpeg(tmp_path: Path) -> None:
+    ok, thumb = cv2.imencode(".jpg", _textured(8, 8, 1))
+    ok2, main = cv2.imencode(".jpg", _textured(64, 64, 2))
+    assert ok and ok2
+    payload = b"Exif\x00\x00" + thumb.tobytes()  # an APP1 segment holding a whole JPEG
+    app1 = b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload
+    whole = main.tobytes()[:2] + app1 + main.tobytes()[2:]
+    path = tmp_path / "exif.jpg"
+    path.write_bytes(whole)
+    assert read_gray(path).shape == (64, 64)
+    path.write_bytes(whole[: len(whole) - 200])
+    with pytest.raises(FrameError, match="truncated"):
+        read_gray(path)
+
+
 def test_read_undecodable_data(tmp_path: Path) -> None:
     path = tmp_path / "junk.png"
     path.write_bytes(b"this is not an image at all")

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from wiloc.cache import Cache, EntryHeader
-from wiloc.pipeline import describe_folder, import_matrix, load_entry
 from wiloc.errors import WilocError
 from wiloc.frames import read_gray
+from wiloc.pipeline import describe_folder, import_matrix
 
 
 @dataclass(frozen=True)
@@ -107,7 +107,7 @@ def test_round_trip_and_incremental_updates(tmp_path: Path) -> None:
     infos = cache.list_entries()
     assert len(infos) == 2 and all(i.complete and i.frames == 12 for i in infos)
     assert sorted(i.params["side"] for i in infos) == [2, 4]
-    assert load_entry(folder, spec, cache).digest == removed.entry.digest
+    assert describe_folder(folder, spec, cache, jobs=1).entry.digest == removed.entry.digest
 
 
 def test_bad_frames_are_reported_and_left_out(tmp_path: Path) -> None:
@@ -144,6 +144,32 @@ from wiloc.pipeline import describe_folder
 from wiloc.descriptors.registry import get_descriptor
 describe_folder(Path(sys.argv[1]), get_descriptor("gist"), Cache(Path(sys.argv[2])), jobs=int(sys.argv[3]))
 """
+
+
+def test_describe_keeps_decoder_warnings_off_stderr(tmp_path: Path) -> None:
+    folder = tmp_path / "route"
+    names = write_images(folder, 4, size=(160, 120))
+    png = (folder / names[1]).read_bytes()
+    (folder / "img4.png").write_bytes(png[: len(png) // 2])  # OpenCV: "[ WARN ...] incomplete"
+    (folder / "img6.png").write_bytes(png[: len(png) * 2 // 3])  # libpng: "libpng error: ..."
+    jpeg = (folder / names[0]).read_bytes()
+    (folder / "img5.jpg").write_bytes(jpeg[: len(jpeg) // 2] + b"\xff\xd9")  # libjpeg: "Corrupt JPEG"
+    code = (
+        "import sys, cv2; from pathlib import Path; from wiloc.cache import Cache\n"
+        "from wiloc.descriptors.registry import get_descriptor; from wiloc.pipeline import describe_folder\n"
+        "level = cv2.utils.logging.getLogLevel()\n"
+        "r = describe_folder(Path(sys.argv[1]), get_descriptor('sad'), Cache(Path(sys.argv[2])), jobs=int(sys.argv[3]))\n"
+        "assert cv2.utils.logging.getLogLevel() == level\n"
+        "print(r.computed, len(r.failed))\n"
+    )
+    for jobs in (2, 1):
+        args = [sys.executable, "-c", code, str(folder), str(tmp_path / f"cache{jobs}"), str(jobs)]
+        run = subprocess.run(args, capture_output=True, text=True, timeout=120, check=False)
+        assert run.returncode == 0, run.stderr
+        assert run.stdout.split() == ["5", "2"]  # the cut PNGs fail; the patched JPEG decodes
+        assert "WARN" not in run.stderr
+        if jobs > 1:  # libpng's and libjpeg's own messages are silenced in worker processes only
+            assert run.stderr == ""
 
 
 def test_describe_in_another_process_reports_a_busy_entry(tmp_path: Path) -> None:
@@ -223,6 +249,8 @@ def test_import_matrix_is_cached_and_follows_the_file(tmp_path: Path) -> None:
     first = import_matrix(path, cache, names_path, "cosine")
     assert (first.computed, first.shape, first.entry.metric) == (5, (5, 3), "cosine")
     assert first.entry.names == [f"f{i}.png" for i in range(5)]
+    [info] = cache.list_entries()
+    assert (info.descriptor, info.frames, info.complete) == ("external", 5, True)
     np.testing.assert_array_equal(first.entry.data, matrix)
     second = import_matrix(path, cache, names_path, "cosine")
     assert (second.computed, second.reused) == (0, 5)
@@ -233,6 +261,20 @@ def test_import_matrix_is_cached_and_follows_the_file(tmp_path: Path) -> None:
     np.testing.assert_array_equal(third.entry.data, matrix * 2)
     with pytest.raises(WilocError, match="does not exist"):
         import_matrix(tmp_path / "missing.npy", cache, None, "cosine")
+
+
+def test_import_matrix_keeps_the_file_row_order(tmp_path: Path) -> None:
+    names = ["zeta", "alpha", "mid10", "mid2", "beta"]  # time order, not name order
+    matrix = np.arange(1, 16, dtype=np.float32).reshape(5, 3)
+    path = tmp_path / "seq.npy"
+    np.save(path, matrix)
+    names_path = tmp_path / "names.txt"
+    names_path.write_text("\n".join(names))
+    cache = Cache(tmp_path / "cache")
+    for report in (import_matrix(path, cache, names_path, "l1"), import_matrix(path, cache, names_path, "l1")):
+        assert report.entry.names == names
+        np.testing.assert_array_equal(report.entry.data, matrix)
+    assert report.reused == 5
 
 
 @pytest.mark.realdata

@@ -17,7 +17,7 @@ import struct
 import zlib
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -37,6 +37,10 @@ FORMAT_VERSION = 1
 #: enough to ride out a concurrent fold or a small describe, short enough to report a stuck run.
 DEFAULT_LOCK_TIMEOUT = 60.0
 TEMP_SUFFIX = ".wiloc-tmp"
+#: Descriptor name of imported matrices, whose rows keep the order of the file they came from.
+EXTERNAL = "external"
+#: Descriptor shown by `Cache.list_entries` for an entry whose files cannot be read.
+UNREADABLE = "unreadable"
 _DESCRIPTORS = "descriptors"
 _RECORD = struct.Struct("<4sII")  # magic, payload length, CRC-32 of the payload
 _MAGIC = b"WJR1"
@@ -114,6 +118,7 @@ class EntryInfo:
     complete: bool
     size: int
     updated: str
+    problem: str = ""  # "<file>: why it cannot be read" when descriptor is "unreadable"
 
 
 @dataclass
@@ -127,7 +132,10 @@ class StoredEntry:
     journaled: bool = False
 
     def ordered(self) -> list[FrameRecord]:
-        """The records in frame order (natural sort of names, as traversals list them)."""
+        """The records in frame order: a folder's by natural sort of names (as traversals list
+        them); an imported matrix's in its file's row order, which is its time order."""
+        if self.header.descriptor == EXTERNAL:
+            return list(self.records.values())
         return [self.records[name] for name in sorted(self.records, key=natural_key)]
 
     def entry(self) -> Entry:
@@ -338,7 +346,7 @@ class Cache:
         if path.exists():
             try:
                 stored = _read_h5(path)
-            except (OSError, KeyError, ValueError) as exc:
+            except (OSError, KeyError, ValueError, TypeError) as exc:
                 raise WilocError(path, f"unreadable cache entry ({exc}); delete it to rebuild") from exc
         header, records, _ = _scan_journal(self.journal_path(key))
         if header is None:
@@ -393,7 +401,9 @@ class Cache:
         return stored.entry()
 
     def list_entries(self) -> list[EntryInfo]:
-        """Every descriptor entry in the cache, including ones only a killed run's journal holds."""
+        """Every descriptor entry in the cache, including ones only a killed run's journal holds.
+        An entry whose files cannot be read is listed as descriptor "unreadable", incomplete,
+        with the reason in `problem`."""
         keys = sorted({p.stem for p in (self.root / _DESCRIPTORS).glob("*.h5")}
                       | {p.stem for p in (self.root / _DESCRIPTORS).glob("*.journal")})
         infos = []
@@ -402,21 +412,37 @@ class Cache:
             for p in (self.entry_path(key), self.journal_path(key)):
                 with suppress(FileNotFoundError):  # a run may fold its journal meanwhile
                     stats[p] = p.stat()
-            stored = self.read_stored(key) if self.journal_path(key) in stats else None
-            if stored is not None:
-                header, complete = stored.header, stored.complete
-                frames = sum(r.row is not None for r in stored.records.values())
-            else:  # no journal: the attributes and the name count say it all
-                with h5py.File(self.entry_path(key), "r") as f:
+            if not stats:  # deleted since the listing
+                continue
+            updated = datetime.fromtimestamp(max(st.st_mtime for st in stats.values()), timezone.utc)
+            info = EntryInfo(
+                key=key, folder="", descriptor=UNREADABLE, params={}, frames=0, complete=False,
+                size=sum(st.st_size for st in stats.values()),
+                updated=updated.isoformat(timespec="seconds"),
+            )
+            try:
+                info = self._entry_info(info, with_journal=self.journal_path(key) in stats)
+            except WilocError as exc:
+                info = replace(info, problem=str(exc))
+            infos.append(info)
+        return infos
+
+    def _entry_info(self, info: EntryInfo, with_journal: bool) -> EntryInfo:
+        """`info` filled in from the entry's files; WilocError naming the file if unreadable."""
+        stored = self.read_stored(info.key) if with_journal else None
+        if stored is not None:
+            header, complete = stored.header, stored.complete
+            frames = sum(r.row is not None for r in stored.records.values())
+        else:  # no journal: the attributes and the name count say it all
+            path = self.entry_path(info.key)
+            try:
+                with h5py.File(path, "r") as f:
                     header, complete = _header_from_attrs(f.attrs), bool(f.attrs["complete"])
                     frames = len(f["frames/name"])
-            updated = datetime.fromtimestamp(max(st.st_mtime for st in stats.values()), timezone.utc)
-            infos.append(EntryInfo(
-                key=key, folder=header.folder, descriptor=header.descriptor, params=header.params,
-                frames=frames, complete=complete, size=sum(st.st_size for st in stats.values()),
-                updated=updated.isoformat(timespec="seconds"),
-            ))
-        return infos
+            except (OSError, KeyError, ValueError, TypeError) as exc:
+                raise WilocError(path, f"unreadable cache entry ({exc}); delete it to rebuild") from exc
+        return replace(info, folder=header.folder, descriptor=header.descriptor,
+                       params=header.params, frames=frames, complete=complete)
 
 
 def _header_from_attrs(attrs: h5py.AttributeManager) -> EntryHeader:

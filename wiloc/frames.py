@@ -23,7 +23,11 @@ IMAGE_SUFFIXES: frozenset[str] = frozenset(
     {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 )
 
-_EOI_SEARCH = 1024  # bytes at the end of a JPEG searched for the end-of-image marker
+# A JPEG marker: FF, optional FF fill bytes, then a code that is neither byte stuffing (00), a
+# restart marker (D0-D7, inside entropy-coded data) nor another fill byte.
+_MARKER = re.compile(rb"\xff\xff*([^\x00\xd0-\xd7\xff])")
+_EOI = 0xD9
+_STANDALONE = frozenset({0x01, 0xD8})  # TEM and SOI: markers without a length field
 _REDUCED_FLAGS = (
     (8, cv2.IMREAD_REDUCED_GRAYSCALE_8),
     (4, cv2.IMREAD_REDUCED_GRAYSCALE_4),
@@ -117,6 +121,27 @@ def jpeg_size(data: NDArray[np.uint8]) -> tuple[int, int] | None:
     return None
 
 
+def _has_eoi(data: NDArray[np.uint8]) -> bool:
+    """Whether a JPEG's marker chain reaches its end-of-image marker (EOI, FF D9).
+
+    Segments are skipped by their length (so an EXIF thumbnail's own EOI is never taken for the
+    image's) and entropy-coded data up to its next marker; whatever follows the EOI (zero
+    padding, the trailers some phones append) is not looked at. A cut file runs out first.
+    """
+    raw = memoryview(data)
+    pos = 2
+    while (match := _MARKER.search(raw, pos)) is not None:
+        code = match.group(1)[0]
+        if code == _EOI:
+            return True
+        pos = match.end()
+        if code not in _STANDALONE:
+            if pos + 2 > len(raw):
+                return False
+            pos += int.from_bytes(raw[pos : pos + 2], "big")
+    return False
+
+
 def _reduction(full: tuple[int, int], min_size: tuple[int, int]) -> int:
     """Largest JPEG reduction (1, 2, 4, 8) whose decode keeps both sides >= min_size."""
     for factor, _ in _REDUCED_FLAGS:
@@ -151,11 +176,8 @@ def read_gray(path: Path, min_size: tuple[int, int] | None = None) -> NDArray[np
     if data.size == 0:
         raise FrameError(path, "empty file (0 bytes)")
     is_jpeg = data.size >= 2 and data[0] == 0xFF and data[1] == 0xD8
-    if is_jpeg:
-        tail = data[-_EOI_SEARCH:]
-        end = np.flatnonzero(tail != 0)  # some writers pad with zeros after the EOI marker
-        if end.size == 0 or end[-1] < 1 or tail[end[-1] - 1] != 0xFF or tail[end[-1]] != 0xD9:
-            raise FrameError(path, "truncated JPEG (no end-of-image marker)")
+    if is_jpeg and not _has_eoi(data):
+        raise FrameError(path, "truncated JPEG (no end-of-image marker)")
     factor = 1
     if is_jpeg and min_size is not None:
         full = jpeg_size(data)

@@ -10,17 +10,27 @@ import os
 import signal
 import time
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
 
+import cv2
 import numpy as np
 
-from wiloc.cache import Cache, Entry, EntryHeader, FrameRecord, StoredEntry, entry_key
+from wiloc.cache import (
+    EXTERNAL,
+    Cache,
+    Entry,
+    EntryHeader,
+    FrameRecord,
+    StoredEntry,
+    entry_key,
+)
 from wiloc.descriptors.external import read_external
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
-from wiloc.errors import FrameError, WilocError
+from wiloc.errors import FrameError, UsageError, WilocError
 from wiloc.frames import fingerprint, jpeg_size, list_traversal, read_gray
 
 Progress = Callable[[int, int], None]
@@ -28,6 +38,8 @@ Progress = Callable[[int, int], None]
 #: fastest descriptor, few enough that results stream back (and are journaled) promptly.
 CHUNK = 4
 _Task = tuple[Path, FrameRecord | None]
+#: In a worker process: a descriptor open on /dev/null, where its image decoders' stderr goes.
+_devnull: int | None = None
 
 
 @dataclass(frozen=True)
@@ -107,12 +119,6 @@ def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int 
     )
 
 
-def load_entry(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int | None = None,
-               progress: Progress | None = None) -> Entry:
-    """The complete cache entry of `folder` under `spec`, describing whatever is missing first."""
-    return describe_folder(folder, spec, cache, jobs=jobs, progress=progress).entry
-
-
 def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str) -> DescribeReport:
     """Bring a user's N x D descriptor matrix into the cache as an entry of its own.
 
@@ -128,15 +134,15 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
     params = {"metric": metric, "file_digest": prints[0].digest,
               "names": str(sources[1]) if names_path is not None else None,
               "names_digest": prints[1].digest if names_path is not None else None}
-    key = entry_key(str(sources[0]), "external", params)
+    key = entry_key(str(sources[0]), EXTERNAL, params)
     with cache.lock(cache.entry_name(key)):
         stored = cache.read_stored(key)
         fresh = stored is None or not stored.complete
         if fresh:
             names, matrix = read_external(sources[0], names_path, metric)
-            spec = get_descriptor("external", metric=metric, length=matrix.shape[1],
+            spec = get_descriptor(EXTERNAL, metric=metric, length=matrix.shape[1],
                                   dtype=matrix.dtype.name)
-            header = EntryHeader.create(str(sources[0]), "external", params, spec.metric,
+            header = EntryHeader.create(str(sources[0]), EXTERNAL, params, spec.metric,
                                         spec.scale, spec.natural_max, spec.dtype, spec.length)
             stored = StoredEntry(header, {
                 name: FrameRecord(name, prints[0].size, prints[0].mtime_ns, prints[0].digest, row)
@@ -147,7 +153,7 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
     seconds = time.perf_counter() - start
     n = len(entry.names)
     return DescribeReport(
-        folder=str(sources[0]), descriptor="external", shape=entry.data.shape, frames=n,
+        folder=str(sources[0]), descriptor=EXTERNAL, shape=entry.data.shape, frames=n,
         computed=n if fresh else 0, reused=0 if fresh else n, failed=[], ignored=[], sizes=[],
         seconds=seconds, images_per_second=(n if fresh else 0) / seconds, entry=entry,
     )
@@ -158,7 +164,7 @@ def _check_jobs(jobs: int | None) -> int:
     if jobs is None:
         return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     if jobs < 1:
-        raise WilocError("--jobs", f"must be at least 1, got {jobs}")
+        raise UsageError("--jobs", f"must be at least 1, got {jobs}")
     return jobs
 
 
@@ -176,8 +182,9 @@ def _unchanged(path: Path, old: FrameRecord | None) -> bool:
 def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterator[tuple[FrameRecord, bool]]:
     """Settle each task, yielding (record, computed) as results arrive, over `jobs` processes."""
     if jobs == 1 or len(tasks) == 1:
-        for task in tasks:
-            yield _describe_one(spec, task)
+        with _opencv_quiet():
+            for task in tasks:
+                yield _describe_one(spec, task)
         return
     # forkserver: workers never fork a parent that may run threads (a progress display). The
     # server imports this module once (about 1 s, most of it pandas and scipy); each worker then
@@ -195,8 +202,37 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterato
 
 
 def _init_worker() -> None:
-    """Workers leave Ctrl-C to the parent, which stops them and keeps what was journaled."""
+    """Workers leave Ctrl-C to the parent, which stops them and keeps what was journaled, and
+    keep OpenCV's and libjpeg's warnings to themselves: wiloc reports bad frames itself."""
+    global _devnull
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    _devnull = os.open(os.devnull, os.O_WRONLY)
+
+
+@contextmanager
+def _opencv_quiet() -> Iterator[None]:
+    """OpenCV's own warnings ("PNG input buffer is incomplete") off, then the previous level."""
+    previous = cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(previous)
+
+
+def _read_gray(path: Path, min_size: tuple[int, int] | None) -> np.ndarray:
+    """`read_gray`, in a worker with file descriptor 2 on /dev/null meanwhile: libjpeg prints
+    "Corrupt JPEG data: ..." there itself. Workers run no other thread, so nothing else is lost;
+    in the caller's process (jobs=1) other threads may write to it, so it is left alone."""
+    if _devnull is None:
+        return read_gray(path, min_size)
+    saved = os.dup(2)
+    os.dup2(_devnull, 2)
+    try:
+        return read_gray(path, min_size)
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def _describe_one(spec: DescriptorSpec, task: _Task) -> tuple[FrameRecord, bool]:
@@ -210,7 +246,7 @@ def _describe_one(spec: DescriptorSpec, task: _Task) -> tuple[FrameRecord, bool]
     if old is not None and old.digest == fp.digest:
         return replace(old, size=fp.size, mtime_ns=fp.mtime_ns), False
     try:
-        gray = read_gray(path, spec.min_size)
+        gray = _read_gray(path, spec.min_size)
     except FrameError as exc:
         return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, None, exc.problem), False
     row = np.asarray(spec.compute(gray), dtype=spec.dtype)
