@@ -142,9 +142,16 @@ def describe(
     from wiloc.cache import Cache
     store = Cache(cache)
     if list_cache:
-        rows = [{**asdict(info), "params": json.dumps(info.params, sort_keys=True)}
-                for info in store.list_entries()]
-        _print_json(rows) if as_json else out.print(_table(f"cache {store.root}", rows))
+        infos = store.list_entries()
+        if as_json:
+            _print_json([asdict(info) for info in infos])
+            return
+        rows = [{"folder": info.folder, "descriptor": info.descriptor,
+                 "params": ", ".join(f"{k}={v}" for k, v in sorted(info.params.items())),
+                 "frames": info.frames, "complete": info.complete, "MB": f"{info.size / 1e6:.1f}",
+                 "updated": info.updated[:16].replace("T", " "), "problem": info.problem} for info in infos]
+        columns = ["folder", "descriptor", "params", "frames", "complete", "MB", "updated"]
+        out.print(_table(f"cache {store.root}", rows, columns + ["problem"] * any(i.problem for i in infos)))
         return
     if import_file is None and not folders:
         _fail("give image folders, --import FILE or --list", 2)
