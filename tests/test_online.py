@@ -129,16 +129,17 @@ def test_map_mode_initialises_from_reference_rows() -> None:
         localize_online(queries, 2, sequence=True, init=0)
 
 
-def test_default_prior_is_one_half() -> None:
+def test_default_prior_is_the_share_of_b_and_a_fixed_prior_is_kept() -> None:
     ref = [np.array([INF, 0.6, 0.8]), np.array([0.6, INF, 0.7]), np.array([0.8, 0.7, INF])]
     queries = [np.array([0.1, 0.5, 0.9]), np.array([0.4, 0.2, 0.3])]
-    out = localize_online(queries, 2, sequence=False, init_rows=ref, bins=5)
-    assert out.params["prior"] == 0.5 and out.model.prior_same() == 0.5
-    # b is empty for the first frame: P(d|L) = 1/5 uniform, P(d|~L) = 0.1 / (3 + 0.5) in bin 0
-    assert out.confidence[0] == pytest.approx(0.2 / (0.2 + 0.1 / 3.5))
-    # None keeps the share of samples in b, which is 0 for the first decided frame
-    share = localize_online(queries, 2, sequence=False, init_rows=ref, bins=5, prior=None)
-    assert share.confidence[0] == 0.0
+    share = localize_online(queries, 2, sequence=False, init_rows=ref, bins=5)
+    # b is empty for the first decided frame: P(L) = 0, no claim without same-place evidence
+    assert share.params["prior"] is None and share.confidence[0] == 0.0
+    # b: the 2 decided minima; c: the 3 initial minima (no m_r: every map frame is within +-W of z)
+    assert share.model.prior_same() == pytest.approx(2 / 5)
+    fixed = localize_online(queries, 2, sequence=False, init_rows=ref, bins=5, prior=0.5)
+    # P(d|L) = 1/5 uniform (b empty), P(d|~L) = 0.1 / (3 + 0.5) in bin 0
+    assert fixed.confidence[0] == pytest.approx(0.2 / (0.2 + 0.1 / 3.5))
 
 
 @pytest.mark.parametrize(("option", "value"), [

@@ -196,7 +196,7 @@ def localize(
     init: Optional[int] = typer.Option(None, help="online, sequence mode: initialisation frames (default 100; map mode initialises from every map frame)."),
     bins: Optional[int] = typer.Option(None, help="online/trained: histogram bins (default 100)."),
     same_place_window: Optional[int] = typer.Option(None, "--same-place-window", "-W", help="online: frames within +-W of the best match are the same place."),
-    prior: Optional[float] = typer.Option(None, help="online: P(L), the prior that a frame revisits a place (default 0.5)."),
+    prior: Optional[float] = typer.Option(None, help="online: P(L), the prior that a frame revisits a place (default: the share of same-place samples)."),
     smoothing: Optional[float] = typer.Option(None, help="online/trained: pseudo-count added to every histogram bin."),
     train_query: Optional[Path] = typer.Option(None, help="trained: labelled training query traversal."),
     train_map: Optional[Path] = typer.Option(None, help="trained: its reference traversal."),

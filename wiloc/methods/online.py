@@ -23,7 +23,7 @@ DEFAULT_BINS = 100
 DEFAULT_EXCLUDE_RECENT = 10
 DEFAULT_SAME_PLACE_WINDOW = 2
 DEFAULT_SMOOTHING = 0.1
-DEFAULT_PRIOR = 0.5
+DEFAULT_PRIOR: float | None = None  # P(L) = the share of samples in b; docs/algorithm.md says why
 
 Progress = Callable[[int, int], None]
 
