@@ -22,7 +22,8 @@ def make_entry(key: str, rows: int, seed: int, metric: str = "l1", scale: float 
     data = np.random.default_rng(seed).integers(0, 256, (rows, length), dtype=np.uint8)
     return Entry(
         key=key, folder=f"/routes/{key}", descriptor="sad", params={}, metric=metric, scale=scale,
-        natural_max=None, names=[f"{key}{i:04d}.png" for i in range(rows)], data=data,
+        natural_max=None, dtype=data.dtype.str, length=length,
+        names=[f"{key}{i:04d}.png" for i in range(rows)], data=data,
         digest=f"{key}-{seed}-{rows}-{length}",
     )
 

@@ -91,16 +91,10 @@ class FrameRecord:
 
 
 @dataclass(frozen=True)
-class Entry:
-    """A cached descriptor matrix: rows in frame order, named by file name."""
+class Entry(EntryHeader):
+    """A cached descriptor matrix: the header's fields, rows in frame order named by file name,
+    and a digest of the content (names, fingerprints, params) that derived files are keyed by."""
 
-    key: str
-    folder: str
-    descriptor: str
-    params: dict[str, Any]
-    metric: str
-    scale: float
-    natural_max: float | None
     names: list[str]
     data: np.ndarray
     digest: str
@@ -145,11 +139,7 @@ class StoredEntry:
         data = np.empty((len(good), h.length), np.dtype(h.dtype))
         for i, record in enumerate(good):
             data[i] = record.row
-        return Entry(
-            key=h.key, folder=h.folder, descriptor=h.descriptor, params=h.params, metric=h.metric,
-            scale=h.scale, natural_max=h.natural_max, names=[r.name for r in good], data=data,
-            digest=entry_digest(h, good),
-        )
+        return Entry(**asdict(h), names=[r.name for r in good], data=data, digest=entry_digest(h, good))
 
 
 def entry_key(folder: str, descriptor: str, params: dict[str, Any]) -> str:
