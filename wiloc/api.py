@@ -237,6 +237,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     if sequence and method == "online":
         from wiloc.methods.online import DEFAULT_INIT
         init = int(params.get("init", DEFAULT_INIT))
+        if init < 1:
+            raise UsageError(None, f"--init must be >= 1, got {init}")
         if len(q.names) <= init + R:
             raise WilocError(query, f"has {len(q.names)} frames, too few for --init {init} "
                                     f"with --exclude-recent {R}")
