@@ -114,7 +114,6 @@ class LocalizeRun:
     results: Results
     path: Path
     seconds: float
-    query_names: list[str] = field(default_factory=list)
     skipped: list[tuple[str, str]] = field(default_factory=list)  # (image path, why it was left out)
 
 
@@ -179,20 +178,22 @@ def _run_method(method: str, matrix: DifferenceMatrix, self_matrix: Callable[[],
         return localize_threshold(rows, n, normaliser=normaliser or None, **params)
     if method == "trained":
         from wiloc.methods.trained import localize_trained, train_model
-        if training is None:
-            raise UsageError(None, "--method trained needs --train-query, --train-map and --train-gt")
+        assert training is not None
         train_rows, labels = training()
         model_params = {k: v for k, v in params.items() if k in ("bins", "smoothing")}
         return localize_trained(rows, n, train_model(train_rows, labels, **model_params))
     if method == "catgraph":
         from wiloc.methods.catgraph import localize_catgraph
-        if sequence:
-            raise UsageError(None, "--method catgraph needs --map (a reference trajectory)")
         ref_arclength, query_steps = steps
         return localize_catgraph(rows, self_matrix(), n,
                                  ref_arclength=ref_arclength, query_steps=query_steps,
                                  exclude_recent=exclude_recent, progress=progress, **params)
-    raise UsageError("--method", f"unknown method '{method}' (choose from {', '.join(METHODS)})")
+    raise AssertionError(f"unhandled method {method}")  # localize() checks the name first
+
+
+def results_name(query: Path, method: str) -> str:
+    """The default results file name of one query traversal (folder or matrix file) and method."""
+    return f"{query.stem if query.is_file() else query.name}-{method}.csv"
 
 
 def default_exclude_recent() -> int:
@@ -216,6 +217,10 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     """
     if method not in METHODS:
         raise UsageError("--method", f"unknown method '{method}' (choose from {', '.join(METHODS)})")
+    if method == "trained" and training is None:
+        raise UsageError(None, "--method trained needs --train-query, --train-map and --train-gt")
+    if method == "catgraph" and reference is None:
+        raise UsageError(None, "--method catgraph needs --map (a reference trajectory)")
     started = time.perf_counter()
     cache = cache or Cache()
     params = dict(method_params or {})
@@ -267,12 +272,12 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
             "exclude_recent": R, "wiloc": __version__}
     if training:
         meta.update(train_query=str(training.query), train_map=str(training.reference))
-    path = Path(out) if out else Path.cwd() / f"{query.stem if query.is_file() else query.name}-{method}.csv"
+    path = Path(out) if out else Path.cwd() / results_name(query, method)
     results = write_results(path, decisions, query_names=q.names, ref_names=r.names,
                             meta=meta)
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
                        decisions=decisions, results=results, path=path,
-                       seconds=time.perf_counter() - started, query_names=list(q.names), skipped=skipped)
+                       seconds=time.perf_counter() - started, skipped=skipped)
 
 
 def _motion(query_odometry: Path | None, ref_odometry: Path | None, query_names: list[str],

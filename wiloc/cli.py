@@ -107,6 +107,11 @@ def _cell(value: Any) -> str:
     return "" if value is None else str(value)
 
 
+def _descriptor_params(descriptor: str, crop: str) -> dict[str, str]:
+    """The descriptor parameters the command line sets: only `sad` takes --crop."""
+    return {"crop": crop} if descriptor == "sad" else {}
+
+
 def _version(value: bool) -> None:
     if value:
         out.print(f"wiloc {__version__}")
@@ -159,9 +164,8 @@ def describe(
         if import_file is not None:
             reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store)]
         else:
-            params = {"crop": crop} if descriptor == "sad" else {}
-            reports = api.describe(folders, descriptor, descriptor_params=params, cache=store,
-                                   jobs=jobs, progress=progress)
+            reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop),
+                                   cache=store, jobs=jobs, progress=progress)
     rows = [{"folder": str(given), "frames": r.frames, "descriptor": r.descriptor,
              "shape": "x".join(map(str, r.shape)), "computed": r.computed, "reused": r.reused,
              "failed": len(r.failed), "images/s": f"{r.images_per_second:.1f}" if r.computed else "-"}
@@ -251,7 +255,7 @@ def localize(
     if out_path is not None and not out_folder:
         targets = [out_path]
     else:
-        targets = [(out_path or Path.cwd()) / f"{q.stem if q.is_file() else q.name}-{method}.csv" for q in queries]
+        targets = [(out_path or Path.cwd()) / api.results_name(q, method) for q in queries]
     clash = next((t for t in targets if targets.count(t) > 1), None)
     if clash is not None:
         _fail(f"{clash}: two queries would write the same results file; give each its own --out", 2)
@@ -259,7 +263,7 @@ def localize(
     with progress_bar(not as_json) as progress:
         for query, target in zip(queries, targets):
             runs.append(api.localize(query, reference=reference, descriptor=descriptor,
-                                     descriptor_params={"crop": crop} if descriptor == "sad" else {},
+                                     descriptor_params=_descriptor_params(descriptor, crop),
                                      metric=metric, method=method, method_params=params,
                                      exclude_recent=exclude_recent, training=training,
                                      query_odometry=odometry, ref_odometry=map_odometry,
