@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 
 from wiloc.cache import Cache
-from wiloc.pipeline import describe_folder
+from wiloc.describing import describe_folder
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.frames import list_traversal
 

@@ -47,9 +47,17 @@ def test_clean_temp_files_removes_only_orphans(tmp_path: Path) -> None:
     live = folder / f".m.h5.{os.getpid()}.cd34{TEMP_SUFFIX}"
     orphan.write_bytes(b"half")
     live.write_bytes(b"half")
-    Cache(tmp_path / "c")  # construction cleans up
+    cache = Cache(tmp_path / "c")
+    assert orphan.exists()  # construction does no work
+    with cache.atomic_h5(folder / "other.h5") as f:  # the first write sweeps
+        f["x"] = np.arange(2)
     assert not orphan.exists()
     assert live.exists()
+
+
+def test_construction_creates_nothing(tmp_path: Path) -> None:
+    Cache(tmp_path / "new")
+    assert not (tmp_path / "new").exists()
 
 
 def test_lock_times_out_in_another_process_naming_the_holder(tmp_path: Path) -> None:

@@ -17,7 +17,7 @@ import pandas as pd
 
 from wiloc import __version__
 from wiloc.cache import Cache, Entry
-from wiloc.pipeline import DescribeReport, describe_folder, import_matrix
+from wiloc.describing import DescribeReport, describe_folder, import_matrix
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matrix
 from wiloc.errors import UsageError, WilocError

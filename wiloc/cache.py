@@ -241,11 +241,14 @@ class Cache:
             root = Path(env) if env else Path(platformdirs.user_cache_dir("wiloc"))
         self.root = Path(root).expanduser().resolve()
         self.lock_timeout = lock_timeout
+        self._swept = False  # temporary files of dead writers are removed before the first write
+
+    def _make_folder(self, folder: Path) -> None:
+        """Create a folder inside the cache (and the cache itself) on first use."""
         try:
-            (self.root / _DESCRIPTORS).mkdir(parents=True, exist_ok=True)
+            folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise WilocError(self.root, f"cannot create the cache folder ({exc.strerror})") from exc
-        self.clean_temp_files()
 
     # -- primitives shared with other modules -------------------------------------------------
 
@@ -257,7 +260,7 @@ class Cache:
         target = self._inside(name)
         lock_path = target.with_name(target.name + ".lock")
         owner_path = target.with_name(target.name + ".owner")
-        lock_path.parent.mkdir(parents=True, exist_ok=True)
+        self._make_folder(lock_path.parent)
         lock = FileLock(lock_path, is_singleton=True)
         try:
             lock.acquire(timeout=self.lock_timeout if timeout is None else timeout)
@@ -279,7 +282,10 @@ class Cache:
         """Yield an HDF5 file open for writing on a temporary file beside `path`; rename it onto
         `path` only when the block succeeds, so readers never see a half-written file."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        self._make_folder(path.parent)
+        if not self._swept:
+            self.clean_temp_files()
+            self._swept = True
         temp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{TEMP_SUFFIX}")
         try:
             with h5py.File(temp, "w") as f:
@@ -327,6 +333,7 @@ class Cache:
 
     def open_journal(self, header: EntryHeader) -> Journal:
         """Open the entry's journal for appending (call with the entry lock held)."""
+        self._make_folder(self.root / _DESCRIPTORS)
         return Journal(self.journal_path(header.key), header)
 
     def read_stored(self, key: str) -> StoredEntry | None:

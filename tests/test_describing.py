@@ -18,7 +18,7 @@ import pytest
 from wiloc.cache import Cache, EntryHeader
 from wiloc.errors import WilocError
 from wiloc.frames import read_gray
-from wiloc.pipeline import describe_folder, import_matrix
+from wiloc.describing import describe_folder, import_matrix
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ _RUN = """
 import sys
 from pathlib import Path
 from wiloc.cache import Cache
-from wiloc.pipeline import describe_folder
+from wiloc.describing import describe_folder
 from wiloc.descriptors.registry import get_descriptor
 describe_folder(Path(sys.argv[1]), get_descriptor("gist"), Cache(Path(sys.argv[2])), jobs=int(sys.argv[3]))
 """
@@ -156,7 +156,7 @@ def test_describe_keeps_decoder_warnings_off_stderr(tmp_path: Path) -> None:
     (folder / "img5.jpg").write_bytes(jpeg[: len(jpeg) // 2] + b"\xff\xd9")  # libjpeg: "Corrupt JPEG"
     code = (
         "import sys, cv2; from pathlib import Path; from wiloc.cache import Cache\n"
-        "from wiloc.descriptors.registry import get_descriptor; from wiloc.pipeline import describe_folder\n"
+        "from wiloc.descriptors.registry import get_descriptor; from wiloc.describing import describe_folder\n"
         "level = cv2.utils.logging.getLogLevel()\n"
         "r = describe_folder(Path(sys.argv[1]), get_descriptor('sad'), Cache(Path(sys.argv[2])), jobs=int(sys.argv[3]))\n"
         "assert cv2.utils.logging.getLogLevel() == level\n"
