@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from wiloc.errors import WilocError
-from wiloc.methods import catgraph
-from wiloc.methods.catgraph import bulk_model, contrast_normalise, localize_catgraph, observation_tables
+from wiloc.methods import base
+from wiloc.methods.base import ArrayRows, Decisions, run_on_rows
+from wiloc.methods.catgraph import CatGraph, bulk_model, contrast_normalise, observation_tables
 
 N_REF = 300
 TOL = 2
@@ -26,6 +27,13 @@ def _rows(truth: np.ndarray, n_ref: int, rng: np.random.Generator, noise: float 
 
 def _ref_self(rng: np.random.Generator) -> np.ndarray:
     return _rows(np.arange(N_REF, dtype=np.float64), N_REF, rng)
+
+
+def localize_catgraph(rows, ref, n: int, *, ref_arclength=None, query_steps=None, exclude_recent: int = 10,
+                      progress=None, **params) -> Decisions:
+    """A catgraph run on arrays, with every parameter at its default unless given."""
+    return run_on_rows(CatGraph(**params), rows, n, map_self=ref, exclude_recent=exclude_recent,
+                       arclength=ref_arclength, odometry=query_steps, progress=progress)
 
 
 def _hits(match: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -123,7 +131,7 @@ def test_output_shape_model_and_params() -> None:
 
 def test_observation_ratio_never_increases_with_d() -> None:
     rng = np.random.default_rng(6)
-    model = bulk_model(_ref_self(rng), exclude_recent=5, bins=50)
+    model = bulk_model(ArrayRows(_ref_self(rng)), exclude_recent=5, bins=50)
     model.add_same(rng.normal(0.4, 0.05, 200))
     tables = observation_tables(model, sigma=4.0, prior=0.01, outlier=0.05, pseudo=10.0)
     assert np.all(np.diff(tables.log_ratio) <= 1e-12)
@@ -133,7 +141,7 @@ def test_observation_ratio_never_increases_with_d() -> None:
 
 def test_empty_b_gives_uninformative_ratio() -> None:
     rng = np.random.default_rng(7)
-    model = bulk_model(_ref_self(rng), exclude_recent=5, bins=50)
+    model = bulk_model(ArrayRows(_ref_self(rng)), exclude_recent=5, bins=50)
     tables = observation_tables(model, sigma=4.0, prior=0.01, outlier=0.0, pseudo=10.0)
     np.testing.assert_allclose(tables.log_ratio, 0.0, atol=1e-9)
 
@@ -141,29 +149,33 @@ def test_empty_b_gives_uninformative_ratio() -> None:
 def test_bulk_model_excludes_recent_pairs() -> None:
     ref = np.full((6, 6), 5.0)
     ref[np.abs(np.subtract.outer(np.arange(6), np.arange(6))) <= 1] = 0.0
-    model = bulk_model(ref, exclude_recent=1, bins=10)
+    model = bulk_model(ArrayRows(ref), exclude_recent=1, bins=10)
     assert model.c.sum() == 6 * 5 - 10  # off-diagonal pairs further apart than 1
     assert model.c[model.bin_of(5.0)[()]] == model.c.sum()
 
 
 @pytest.mark.parametrize("kwargs, where", [
-    ({"particles": 0}, "catgraph"),
-    ({"prior": 1.0}, "catgraph"),
-    ({"sequence_rate": 0.0}, "catgraph"),
-    ({"sequence_speeds": ()}, "catgraph"),
-    ({"contrast_window": 0}, "catgraph"),
-    ({"ref_arclength": np.arange(N_REF - 1.0)}, "--map-odometry"),
-    ({"ref_arclength": np.r_[np.arange(N_REF - 1.0), 0.0]}, "--map-odometry"),
-    ({"ref_arclength": np.zeros(N_REF)}, "--map-odometry"),
-    ({"query_steps": np.ones(10)}, "--odometry"),
-    ({"ref_arclength": np.arange(float(N_REF)), "query_steps": -np.ones(10)}, "--odometry"),
+    ({"particles": 0}, "particles"),
+    ({"particles": 1.5}, "particles"),
+    ({"prior": 1.0}, "prior"),
+    ({"sequence_rate": 0.0}, "sequence_rate"),
+    ({"sequence_speeds": ()}, "sequence_speeds"),
+    ({"speed_range": (2.0, 1.0)}, "speed_range"),
+    ({"contrast_window": 0}, "contrast_window"),
+    ({"seed": -1}, "seed"),
+    ({"bin": 50}, "bin"),
+    ({"ref_arclength": np.arange(N_REF - 1.0)}, "map_odometry"),
+    ({"ref_arclength": np.r_[np.arange(N_REF - 1.0), 0.0]}, "map_odometry"),
+    ({"ref_arclength": np.zeros(N_REF)}, "map_odometry"),
+    ({"query_steps": np.ones(10)}, "odometry"),
+    ({"ref_arclength": np.arange(float(N_REF)), "query_steps": -np.ones(10)}, "odometry"),
 ])
-def test_bad_parameters_raise(kwargs: dict, where: str) -> None:
+def test_bad_parameters_raise_naming_the_parameter(kwargs: dict, where: str) -> None:
     rng = np.random.default_rng(8)
     rows = _rows(np.arange(10.0), N_REF, rng)
     with pytest.raises(WilocError) as err:
         localize_catgraph(iter(rows), _ref_self(rng), 10, **kwargs)
-    assert err.value.where == where
+    assert err.value.parameter == where and err.value.where == where
 
 
 def test_row_count_must_match_n_frames() -> None:
@@ -171,16 +183,16 @@ def test_row_count_must_match_n_frames() -> None:
     rows = _rows(np.arange(10.0), N_REF, rng)
     with pytest.raises(WilocError, match="expected n_frames=11"):
         localize_catgraph(iter(rows), _ref_self(rng), 11)
-    with pytest.raises(WilocError, match="more query rows"):
+    with pytest.raises(WilocError, match="more difference rows"):
         localize_catgraph(iter(rows), _ref_self(rng), 9)
 
 
-def test_messages_name_the_cli_options_not_internal_parameters() -> None:
+def test_messages_name_parameters_not_flags() -> None:
     rng = np.random.default_rng(8)
     rows = _rows(np.arange(10.0), N_REF, rng)
-    with pytest.raises(WilocError, match=r"query odometry CSV needs the map's too \(--map-odometry\)"):
+    with pytest.raises(WilocError, match=r"^odometry: a query odometry needs the map's too \(map_odometry\)"):
         localize_catgraph(iter(rows), _ref_self(rng), 10, query_steps=np.ones(10))
-    with pytest.raises(WilocError, match="--particles must be >= 1"):
+    with pytest.raises(WilocError, match=r"^particles: must lie in \[1, 1000000\], got 0"):
         localize_catgraph(iter(rows), _ref_self(rng), 10, particles=0)
 
 
@@ -211,7 +223,7 @@ def test_reader_gives_the_same_decisions_as_the_array_block_by_block(monkeypatch
     rows = _rows(truth, N_REF, rng)
     ref = _ref_self(rng).astype(np.float32).astype(np.float64)  # what a float32 file holds
     whole = localize_catgraph(iter(rows), ref, truth.size, seed=3)
-    monkeypatch.setattr(catgraph, "BULK_BLOCK_VALUES", 7 * N_REF)  # 7 rows per block: 43 blocks
+    monkeypatch.setattr(base, "BLOCK_VALUES", 7 * N_REF)  # 7 rows per block: 43 blocks
     reader = _Reader(ref)
     blocked = localize_catgraph(iter(rows), reader, truth.size, seed=3)
     assert max(stop - start for start, stop in reader.reads) == 7
@@ -225,8 +237,8 @@ def test_reader_gives_the_same_decisions_as_the_array_block_by_block(monkeypatch
 def test_bulk_model_blocks_count_each_far_pair_once(monkeypatch: pytest.MonkeyPatch) -> None:
     ref = np.arange(49.0).reshape(7, 7)
     ref[2, 6] = np.nan
-    expected = bulk_model(ref, exclude_recent=1, bins=10)
-    monkeypatch.setattr(catgraph, "BULK_BLOCK_VALUES", 2 * 7)
+    expected = bulk_model(ArrayRows(ref), exclude_recent=1, bins=10)
+    monkeypatch.setattr(base, "BLOCK_VALUES", 2 * 7)
     blocked = bulk_model(_Reader(ref), exclude_recent=1, bins=10)
     assert blocked.c.sum() == expected.c.sum() == 7 * 6 - 12 - 1  # ordered pairs > 1 apart, one NaN
     np.testing.assert_array_equal(blocked.c, expected.c)

@@ -190,22 +190,48 @@ def test_bad_options_are_usage_errors(route: tuple[Path, Path], tmp_path: Path) 
                  ["localize", str(query), "--map", str(ref), "--crop", "bogus"],
                  ["localize", str(query), "--map", str(ref), "-R", "-3"],
                  ["localize", str(query), "--map", str(ref), "--method", "nope"],
-                 ["localize", str(query), "--map", str(ref), "--method", "threshold", "--model-plot", "m.png"]):
+                 ["localize", str(query), "--map", str(ref), "--method", "threshold", "--model-plot", "m.png"],
+                 ["localize", str(query), "--map", str(ref), "--method", "online", "--particles", "100"],
+                 ["localize", str(query), "--map", str(ref), "--method", "catgraph", "--particles", "0"],
+                 ["localize", str(query), "--map", str(ref), "--method", "catgraph", "--sequence-speeds", "1,x"],
+                 ["localize", str(query), "--map", str(ref), "--method", "online", "--odometry", str(ref)],
+                 ["localize", str(query), "--method", "catgraph"]):
         result = runner.invoke(app, args)
         assert result.exit_code == 2, (args, result.output)
         assert "Traceback" not in result.output and len(result.stderr.strip().splitlines()) == 1
 
 
+def test_options_of_other_methods_name_the_method_and_library_errors_name_flags(
+        route: tuple[Path, Path]) -> None:
+    ref, query = route
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--particles", "100"])
+    assert result.exit_code == 2
+    assert result.stderr.strip() == ("error: --particles: method 'online' takes no such option "
+                                     "(it is an option of catgraph)")
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "catgraph", "--seed", "-1"])
+    assert result.exit_code == 2 and result.stderr.strip() == "error: --seed: must be >= 0, got -1"
+
+
+def test_help_groups_method_options_with_their_defaults() -> None:
+    result = runner.invoke(app, ["localize", "--help"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0
+    text = result.output
+    for panel in ("online options", "catgraph options", "threshold options", "trained options"):
+        assert panel in text
+    catgraph = text[text.index("catgraph options"):]
+    assert "--particles" in catgraph and "2000" in catgraph and "0.5,1,1.5,2" in catgraph
+
+
 def test_map_too_short_for_exclude_recent(route: tuple[Path, Path]) -> None:
     ref, query = route
     result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "-R", "39"])
-    assert result.exit_code == 1 and str(ref) in result.stderr and "--exclude-recent 39" in result.stderr
+    assert result.exit_code == 1 and str(ref) in result.stderr and "exclude_recent=39" in result.stderr
 
 
 def test_sequence_mode_checks_the_default_init(route: tuple[Path, Path], tmp_path: Path) -> None:
     _, query = route
     result = runner.invoke(app, ["localize", str(query), "--out", str(tmp_path / "s.csv")])
-    assert result.exit_code == 1 and "--init 100" in result.stderr
+    assert result.exit_code == 1 and "init=100 with exclude_recent=10" in result.stderr
     assert not (tmp_path / "s.csv").exists()
 
 

@@ -63,6 +63,6 @@ def test_round_trip_through_dict() -> None:
 
 
 @pytest.mark.parametrize("bins", [0, -3])
-def test_bin_count_below_one_names_the_option(bins: int) -> None:
-    with pytest.raises(WilocError, match="--bins must be an integer >= 1"):
+def test_bin_count_below_one_is_refused(bins: int) -> None:
+    with pytest.raises(ValueError, match="bins must be >= 1"):
         HistogramModel.from_range(0.0, 1.0, bins=bins)

@@ -8,9 +8,17 @@ import pytest
 from scipy import stats
 
 from wiloc.errors import WilocError
-from wiloc.methods.online import localize_online, near_miss
+from wiloc.methods.base import Decisions, run_on_rows
+from wiloc.methods.online import Online, near_miss
 
 INF = np.inf
+
+
+def localize_online(rows: list[np.ndarray], n: int, *, sequence: bool, init_rows: list[np.ndarray] | None = None,
+                    progress=None, **params) -> Decisions:
+    """An online run on arrays; ``init_rows``: the map against itself, inf on the diagonal."""
+    return run_on_rows(Online(**params), rows, n, sequence=sequence, exclude_recent=0, progress=progress,
+                       map_self=None if init_rows is None else np.array(init_rows))
 
 
 def _seq(values: list[list[float]], n: int) -> list[np.ndarray]:
@@ -145,12 +153,12 @@ def test_default_prior_is_the_share_of_b_and_a_fixed_prior_is_kept() -> None:
 @pytest.mark.parametrize(("option", "value"), [
     ("init", 0), ("bins", 0), ("same_place_window", -1), ("smoothing", 0.0),
     ("smoothing", -0.5), ("smoothing", np.nan), ("prior", 1.0), ("prior", 0.0)])
-def test_bad_option_names_the_cli_option(option: str, value: float) -> None:
+def test_bad_option_names_the_parameter(option: str, value: float) -> None:
     rows = _seq([[], [0.5], [0.7, 0.3]], 3)
     with pytest.raises(WilocError) as err:
         localize_online(rows, 3, sequence=True, **{option: value})
-    assert err.value.where is None
-    assert err.value.problem.startswith("--" + option.replace("_", "-") + " must ")
+    assert err.value.parameter == option and err.value.exit_code == 2
+    assert err.value.problem.startswith("must ")
 
 
 def _bin_posterior(edges: np.ndarray, same: stats.rv_continuous, diff: stats.rv_continuous,

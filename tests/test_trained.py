@@ -7,7 +7,8 @@ import scipy.sparse
 from scipy import stats
 
 from wiloc.errors import WilocError
-from wiloc.methods.trained import localize_trained, train_model
+from wiloc.methods.base import TrainingRows, run_on_rows
+from wiloc.methods.trained import Trained, TrainedParams, train_model
 
 
 def _labelled(rng: np.random.Generator, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
@@ -22,7 +23,7 @@ def _labelled(rng: np.random.Generator, n: int, m: int) -> tuple[np.ndarray, np.
 def test_all_pairs_posterior_matches_truth() -> None:
     rng = np.random.default_rng(11)
     rows, labels = _labelled(rng, 3000, 4)
-    model = train_model(list(rows), scipy.sparse.csr_matrix(labels), bins=25, pairs="all")
+    model = train_model(list(rows), scipy.sparse.csr_matrix(labels), TrainedParams(bins=25, pairs="all"))
     assert model.b.sum() == labels.sum() and model.c.sum() == (~labels).sum()
     fb = np.diff(stats.gamma(4.0, scale=0.08).cdf(model.edges))
     fc = np.diff(stats.norm(0.7, 0.1).cdf(model.edges))
@@ -40,7 +41,7 @@ def test_minima_pairs_label_each_best_match() -> None:
     rng = np.random.default_rng(12)
     rows, labels = _labelled(rng, 400, 6)
     rows[::7] = np.inf
-    model = train_model(iter(rows), labels, bins=10)
+    model = train_model(iter(rows), labels, TrainedParams(bins=10))
     decided = np.isfinite(rows).any(axis=1)
     right = labels[np.arange(400), np.argmin(rows, axis=1)] & decided
     assert model.b.sum() == right.sum()
@@ -50,15 +51,17 @@ def test_minima_pairs_label_each_best_match() -> None:
 def test_localize_trained_uses_the_posterior_of_the_minimum() -> None:
     rng = np.random.default_rng(13)
     rows, labels = _labelled(rng, 300, 5)
-    model = train_model(list(rows), labels, bins=20)
+    model = train_model(list(rows), labels, TrainedParams(bins=20))
     test_rows, _ = _labelled(rng, 50, 5)
     test_rows[4] = np.inf
-    out = localize_trained(list(test_rows), 50, model)
+    out = run_on_rows(Trained(bins=20), list(test_rows), 50, training=TrainingRows(list(rows), labels))
     assert out.match[4] == -1 and np.isnan(out.confidence[4])
     ok = out.decided
     assert np.array_equal(out.match[ok], np.argmin(test_rows[ok], axis=1))
     assert np.allclose(out.confidence[ok], model.posterior(test_rows[ok].min(axis=1)))
-    assert out.model is model
+    for learned, trained in [(out.model.b, model.b), (out.model.c, model.c), (out.model.edges, model.edges)]:
+        np.testing.assert_array_equal(learned, trained)
+    assert out.params["bins"] == 20 and out.params["method"] == "trained"
 
 
 def test_training_needs_both_classes_and_matching_shapes() -> None:
@@ -68,13 +71,12 @@ def test_training_needs_both_classes_and_matching_shapes() -> None:
     with pytest.raises(WilocError):
         train_model(list(rows), np.eye(3, 5, dtype=bool))
     with pytest.raises(WilocError):
-        train_model(list(rows), np.eye(3, 4, dtype=bool), pairs="some")  # type: ignore[arg-type]
+        TrainedParams(pairs="some")  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(("option", "value"), [
     ("bins", 0), ("smoothing", 0.0), ("smoothing", -1.0), ("prior", 1.5)])
-def test_bad_option_names_the_cli_option(option: str, value: float) -> None:
-    rows, labels = _labelled(np.random.default_rng(13), 20, 4)
+def test_bad_option_names_the_parameter(option: str, value: float) -> None:
     with pytest.raises(WilocError) as err:
-        train_model(list(rows), labels, **{option: value})
-    assert err.value.where is None and err.value.problem.startswith(f"--{option} must ")
+        Trained(**{option: value})
+    assert err.value.parameter == option and err.value.problem.startswith("must ")

@@ -1,14 +1,15 @@
 """wiloc: training-free appearance-based localization with whole-image descriptors.
 
 The four verbs are plain functions for notebooks and scripts: ``wiloc.describe``,
-``wiloc.localize``, ``wiloc.evaluate``, ``wiloc.compare`` (see wiloc.api).
+``wiloc.localize``, ``wiloc.evaluate``, ``wiloc.compare`` (see wiloc.api); ``wiloc.Localizer``
+decides frame by frame, for a robot, a camera loop or a notebook (see wiloc.localizer).
 """
 from __future__ import annotations
 
 from typing import Any
 
 __version__ = "0.1.0"
-__all__ = ["__version__", "compare", "describe", "evaluate", "localize"]
+__all__ = ["Localizer", "__version__", "compare", "describe", "evaluate", "localize"]
 
 
 def __getattr__(name: str) -> Any:
@@ -16,4 +17,7 @@ def __getattr__(name: str) -> Any:
     if name in ("describe", "localize", "evaluate", "compare"):
         from wiloc import api
         return getattr(api, name)
+    if name == "Localizer":
+        from wiloc.localizer import Localizer
+        return Localizer
     raise AttributeError(f"module 'wiloc' has no attribute {name!r}")

@@ -17,7 +17,10 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from wiloc import __version__, api
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.cli_params import flag, method_params, with_method_options
 from wiloc.errors import EXIT_INTERRUPTED, WilocError
+from wiloc.methods.registry import METHODS, method_class
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
@@ -45,7 +48,7 @@ def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return func(*args, **kwargs)
         except WilocError as exc:
-            _fail(str(exc), exc.exit_code)
+            _fail(f"{flag(exc.parameter)}: {exc.problem}" if exc.parameter else str(exc), exc.exit_code)
         except OSError as exc:
             _fail(f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc), 1)
         except KeyboardInterrupt:
@@ -189,62 +192,44 @@ def describe(
 
 @app.command()
 @handles_errors
+@with_method_options
 def localize(
     queries: list[Path] = typer.Argument(..., help="Query traversal folder(s) (or descriptor matrix files)."),
     reference: Optional[Path] = typer.Option(None, "--map", "-m", help="Reference traversal; omit for sequence mode (loop closure)."),
     descriptor: str = typer.Option("sad", "--descriptor", "-d", help="sad | gist | brisk-gist"),
     crop: str = typer.Option("none", help="sad only: none | top-half"),
     metric: Optional[str] = typer.Option(None, help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
-    method: str = typer.Option("online", help="online | threshold | trained | catgraph"),
-    exclude_recent: Optional[int] = typer.Option(None, "--exclude-recent", "-R", help="Recent frames excluded as candidates (sequence mode) and around each map frame when initialising."),
-    init: Optional[int] = typer.Option(None, help="online, sequence mode: initialisation frames (default 100; map mode initialises from every map frame)."),
-    bins: Optional[int] = typer.Option(None, help="online/trained: histogram bins (default 100)."),
-    same_place_window: Optional[int] = typer.Option(None, "--same-place-window", "-W", help="online: frames within +-W of the best match are the same place."),
-    prior: Optional[float] = typer.Option(None, help="online: P(L), the prior that a frame revisits a place (default: the share of same-place samples)."),
-    smoothing: Optional[float] = typer.Option(None, help="online/trained: pseudo-count added to every histogram bin."),
-    train_query: Optional[Path] = typer.Option(None, help="trained: labelled training query traversal."),
-    train_map: Optional[Path] = typer.Option(None, help="trained: its reference traversal."),
-    train_gt: Optional[str] = typer.Option(None, help="trained: ground truth, as --gt of `wiloc evaluate`."),
-    train_gt_map: Optional[str] = typer.Option(None, help="trained: the training map's positions CSV (positions form)."),
-    train_tolerance: int = typer.Option(2, help="trained: +-frames for aligned or pairs ground truth."),
-    train_radius: Optional[float] = typer.Option(None, help="trained: metres, for positions ground truth."),
-    particles: Optional[int] = typer.Option(None, help="catgraph: number of particles."),
-    seed: Optional[int] = typer.Option(None, help="catgraph: random seed (runs are reproducible)."),
-    step_noise: Optional[float] = typer.Option(None, help="catgraph: motion noise, a fraction of each step."),
-    noise_floor: Optional[float] = typer.Option(None, help="catgraph: motion noise floor, a fraction of the mean node spacing."),
-    speed_noise: Optional[float] = typer.Option(None, help="catgraph: per-particle speed noise (0: no velocity state)."),
-    reseed: Optional[float] = typer.Option(None, help="catgraph: share of particles re-seeded each frame at the best sequence score."),
-    resample_ess: Optional[float] = typer.Option(None, help="catgraph: resample when the effective sample size falls below this share."),
+    method: str = typer.Option("online", help=" | ".join(METHODS)),
+    exclude_recent: int = typer.Option(DEFAULT_EXCLUDE_RECENT, "--exclude-recent", "-R", help="Recent frames excluded as candidates (sequence mode) and around each map frame when learning from the map."),
+    train_query: Optional[Path] = typer.Option(None, help="trained: labelled training query traversal.", rich_help_panel="trained inputs"),
+    train_map: Optional[Path] = typer.Option(None, help="trained: its reference traversal.", rich_help_panel="trained inputs"),
+    train_gt: Optional[str] = typer.Option(None, help="trained: ground truth, as --gt of `wiloc evaluate`.", rich_help_panel="trained inputs"),
+    train_gt_map: Optional[str] = typer.Option(None, help="trained: the training map's positions CSV (positions form).", rich_help_panel="trained inputs"),
+    train_tolerance: int = typer.Option(2, help="trained: +-frames for aligned or pairs ground truth.", rich_help_panel="trained inputs"),
+    train_radius: Optional[float] = typer.Option(None, help="trained: metres, for positions ground truth.", rich_help_panel="trained inputs"),
     names: Optional[Path] = typer.Option(None, help="A .npy QUERY matrix: its frame names, one per line."),
     map_names: Optional[Path] = typer.Option(None, help="A .npy --map matrix: its frame names, one per line."),
-    odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y)."),
-    map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV."),
+    odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y).", rich_help_panel="catgraph inputs"),
+    map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV.", rich_help_panel="catgraph inputs"),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Results file (a folder with several queries)."),
-    model_plot: Optional[Path] = typer.Option(None, help="online: draw the learned histograms (the paper's Figure 1)."),
+    model_plot: Optional[Path] = typer.Option(None, help="online/trained: draw the learned histograms (the paper's Figure 1)."),
     cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Worker processes for describing."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+    method_options: Optional[dict[str, Any]] = None,
 ) -> None:
     """Decide, frame by frame, where each query frame was seen before and how sure that is.
 
     Example: wiloc localize data/day_left data/night_right --map data/day_right --method online
     """
     from wiloc.cache import Cache
-    store = Cache(cache)
-    params: dict[str, Any] = {}
-    if method in ("online",):
-        params = {"init": init, "bins": bins, "same_place_window": same_place_window,
-                  "prior": prior, "smoothing": smoothing}
-    elif method == "trained":
-        params = {"bins": bins, "smoothing": smoothing}
-    elif method == "catgraph":
-        params = {"particles": particles, "seed": seed, "step_noise": step_noise, "noise_floor": noise_floor,
-                  "speed_noise": speed_noise, "reseed": reseed, "resample_ess": resample_ess}
-    params = {k: v for k, v in params.items() if v is not None}
+    method_class(method)
+    params = method_params(method, method_options or {})
+    train_inputs = (train_query, train_map, train_gt)
     training = None
-    if method == "trained":
-        if not (train_query and train_map and train_gt):
-            _fail("--method trained needs --train-query, --train-map and --train-gt", 2)
+    if any(train_inputs):
+        if not all(train_inputs):
+            _fail("--train-query, --train-map and --train-gt go together", 2)
         training = api.Training(train_query, train_map,
                                 _truth_source(train_gt, train_gt_map, train_tolerance, train_radius))
     out_folder = out_path is not None and (out_path.is_dir() or not out_path.suffix)
@@ -259,6 +244,7 @@ def localize(
     clash = next((t for t in targets if targets.count(t) > 1), None)
     if clash is not None:
         _fail(f"{clash}: two queries would write the same results file; give each its own --out", 2)
+    store = Cache(cache)
     runs = []
     with progress_bar(not as_json) as progress:
         for query, target in zip(queries, targets):
@@ -266,7 +252,7 @@ def localize(
                                      descriptor_params=_descriptor_params(descriptor, crop),
                                      metric=metric, method=method, method_params=params,
                                      exclude_recent=exclude_recent, training=training,
-                                     query_odometry=odometry, ref_odometry=map_odometry,
+                                     odometry=odometry, map_odometry=map_odometry,
                                      query_names_file=names, ref_names_file=map_names, out=target,
                                      cache=store, jobs=jobs, progress=progress))
     rows = []

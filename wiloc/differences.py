@@ -20,7 +20,7 @@ import numpy as np
 
 from wiloc import __version__
 from wiloc.cache import Cache, Entry
-from wiloc.distances import pairwise_blocks
+from wiloc.distances import DifferencesTo, pairwise_blocks
 from wiloc.errors import WilocError
 
 Progress = Callable[[int, int], None]
@@ -83,6 +83,23 @@ class DifferenceMatrix:
         """Every row in order as float64, reading the file block_rows rows at a time."""
         for start in range(0, self.shape[0], block_rows):
             yield from self.rows(start, start + block_rows).astype(np.float64)
+
+
+class ComputedDifferences:
+    """Differences of descriptor rows to fixed references, computed block of rows by block of rows
+    when read and never stored: a row-block reader like :class:`DifferenceMatrix` without a file."""
+
+    def __init__(self, data: np.ndarray, to: DifferencesTo) -> None:
+        self._data = data
+        self._to = to
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return int(self._data.shape[0]), int(self._to.shape[0])
+
+    def rows(self, start: int, stop: int) -> np.ndarray:
+        """Rows start..stop as a float32 block, computed now."""
+        return self._to(self._data[start:stop])
 
 
 def _check_comparable(query: Entry, ref: Entry) -> None:

@@ -269,7 +269,11 @@ def _fill(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray) -> None
     """out = scale * difference(a rows, reference rows)."""
     if ref.metric in ("l1", "hamming"):
         dtype = np.dtype(np.uint8) if ref.metric == "hamming" else ref.rows.dtype
-        _simd_pairwise(_kernel_rows(a, ref.metric, dtype), ref.rows, out, float(scale))
+        rows = _kernel_rows(a, ref.metric, dtype)
+        if rows.shape[0] <= PANEL_ROWS:  # one panel: no parallel region to start and join (frame by frame)
+            _panel(rows, ref.rows, out, 0, rows.shape[0], float(scale))
+        else:
+            _simd_pairwise(rows, ref.rows, out, float(scale))
         return
     if ref.metric == "cosine":
         np.matmul(_unit_rows(np.asarray(a, dtype=np.float32)), ref.rows.T, out=out)
@@ -286,6 +290,36 @@ def _fill(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray) -> None
         out *= np.float32(scale)
 
 
+class DifferencesTo:
+    """Differences to one fixed set of reference rows, prepared for the kernel once.
+
+    ``DifferencesTo(b, metric, scale)(a)`` is ``pairwise(a, b, metric, scale)``; a caller that
+    compares many query rows with the same references (a map, frame by frame) pays the reference
+    side's preparation (padding, centring, norms) only once.
+    """
+
+    def __init__(self, b: np.ndarray, metric: str, scale: float = 1.0, dtype: np.dtype | None = None) -> None:
+        b = np.asarray(b)
+        self._probe = b[:0]  # an empty row block of b's dtype and width, for checking queries
+        self._dtype = dtype if dtype is not None else _check_pair(b[:0], b, metric)[2]
+        self._ref = _prepare_reference(b, metric, self._dtype)
+        self.metric, self.scale, self.shape = metric, float(scale), b.shape
+
+    def __call__(self, a: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The len(a) x len(b) float32 differences (into ``out`` when given: C-contiguous float32)."""
+        a, _, _ = _check_pair(a, self._probe, self.metric)
+        if self._dtype == np.uint8 and a.dtype != np.uint8:
+            raise ValueError(f"query rows of {a.dtype} cannot be compared with uint8 reference rows")
+        shape = (a.shape[0], self.shape[0])
+        if out is None:
+            out = np.empty(shape, dtype=np.float32)
+        elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
+            raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
+        if out.size:
+            _fill(a, self._ref, self.scale, out)
+        return out
+
+
 def pairwise(
     a: np.ndarray, b: np.ndarray, metric: str, scale: float = 1.0, out: np.ndarray | None = None
 ) -> np.ndarray:
@@ -296,15 +330,8 @@ def pairwise(
     ``hamming``: differing bits of uint8-packed rows; ``cosine``: 1 - cosine similarity.
     ``out``, if given, must be a C-contiguous float32 array of that shape; it is filled and returned.
     """
-    a, b, dtype = _check_pair(a, b, metric)
-    shape = (a.shape[0], b.shape[0])
-    if out is None:
-        out = np.empty(shape, dtype=np.float32)
-    elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
-        raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
-    if out.size:
-        _fill(a, _prepare_reference(b, metric, dtype), scale, out)
-    return out
+    _, _, dtype = _check_pair(a, b, metric)
+    return DifferencesTo(b, metric, scale, dtype)(a, out)
 
 
 def pairwise_blocks(
@@ -318,11 +345,8 @@ def pairwise_blocks(
     a, b, dtype = _check_pair(a, b, metric)
     if block_rows < 1:
         raise ValueError(f"block_rows must be at least 1, got {block_rows}")
-    ref = _prepare_reference(b, metric, dtype)
+    to_b = DifferencesTo(b, metric, scale, dtype)
     buffer = np.empty((min(block_rows, a.shape[0]), b.shape[0]), dtype=np.float32)
     for start in range(0, a.shape[0], block_rows):
         stop = min(start + block_rows, a.shape[0])
-        block = buffer[: stop - start]
-        if block.size:
-            _fill(a[start:stop], ref, scale, block)
-        yield start, stop, block
+        yield start, stop, to_b(a[start:stop], buffer[: stop - start])

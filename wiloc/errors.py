@@ -11,13 +11,18 @@ EXIT_INTERRUPTED = 130
 
 
 class WilocError(Exception):
-    """A problem with the user's input: printed as one line naming the file, never a traceback."""
+    """A problem with the user's input: printed as one line naming the file, never a traceback.
+
+    ``parameter`` names the library parameter the problem came through (``where`` is then that
+    name), so that a front end can name its own spelling of it (the CLI: its flag).
+    """
 
     exit_code = EXIT_BAD_INPUT
 
-    def __init__(self, where: str | Path | None, problem: str) -> None:
-        self.where = None if where is None else str(where)
+    def __init__(self, where: str | Path | None, problem: str, *, parameter: str | None = None) -> None:
+        self.where = parameter if parameter is not None else None if where is None else str(where)
         self.problem = problem
+        self.parameter = parameter
         super().__init__(f"{self.where}: {problem}" if self.where else problem)
 
 
@@ -35,3 +40,10 @@ class UsageError(WilocError):
     """An option value that cannot work (unknown name, out of range)."""
 
     exit_code = EXIT_USAGE
+
+
+class ParameterError(UsageError):
+    """A parameter value that cannot work, named by its library name (``particles``, ``bins``)."""
+
+    def __init__(self, parameter: str, problem: str) -> None:
+        super().__init__(None, problem, parameter=parameter)

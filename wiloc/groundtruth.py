@@ -355,3 +355,31 @@ def restrict_sequence(truth: Truth, exclude_recent: int) -> Truth:
     keep = coo.col.astype(np.int64) < coo.row.astype(np.int64) - int(exclude_recent)
     return _truth_from_pairs(coo.row[keep].astype(np.int64), coo.col[keep].astype(np.int64),
                              truth.query_names, truth.ref_names, list(truth.warnings))
+
+
+@dataclass(frozen=True)
+class TruthSource:
+    """Which ground truth to use: a form (SPEC.md section 7) and its files and tolerances.
+
+    ``path`` and ``ref_path`` may contain ``{query}``, replaced by the query folder's name, so that
+    several query traversals can each find their own file.
+    """
+
+    kind: str = "aligned"
+    path: str | None = None
+    ref_path: str | None = None
+    tolerance: int = 0
+    radius: float | None = None
+    by: Literal["name", "index"] = "name"
+    variable: str | None = None  # matrix form, .mat files holding several arrays: which one
+
+    def load(self, query_names: list[str], ref_names: list[str], query_folder: str,
+             sequence: bool, exclude_recent: int) -> Truth:
+        """The truth matrix over these frames (sequence mode: earlier frames outside +-R only)."""
+        name = Path(query_folder).name
+        path = Path(self.path.format(query=name)) if self.path else None
+        ref_path = Path(self.ref_path.format(query=name)) if self.ref_path else None
+        truth = load_truth(self.kind, path, query_names=query_names, ref_names=ref_names,
+                           tolerance=self.tolerance, radius=self.radius, ref_path=ref_path,
+                           by=self.by, variable=self.variable)
+        return restrict_sequence(truth, exclude_recent) if sequence else truth

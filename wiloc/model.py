@@ -12,26 +12,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from wiloc.errors import UsageError
-
-
-def check_bins(bins: int) -> None:
-    """Raise WilocError naming ``--bins`` unless ``bins`` is an integer >= 1."""
-    if isinstance(bins, bool) or not isinstance(bins, (int, np.integer)) or bins < 1:
-        raise UsageError(None, f"--bins must be an integer >= 1, got {bins}")
-
-
-def check_options(bins: int, smoothing: float, prior: float | None) -> None:
-    """Raise WilocError naming the CLI option for bins, smoothing or a prior that cannot work.
-
-    Smoothing must be finite and > 0 (0 gives 0/0 in bins empty in both histograms, < 0 negative
-    probabilities); a prior must lie strictly between 0 and 1.
-    """
-    check_bins(bins)
-    if not (np.isfinite(smoothing) and smoothing > 0):
-        raise UsageError(None, f"--smoothing must be a finite number > 0, got {smoothing}")
-    if prior is not None and not 0.0 < prior < 1.0:
-        raise UsageError(None, f"--prior must lie strictly between 0 and 1, got {prior}")
 
 
 @dataclass
@@ -58,10 +38,20 @@ class HistogramModel:
     @classmethod
     def from_range(cls, low: float, high: float, bins: int = 100, **kwargs: float | None) -> "HistogramModel":
         """A model with ``bins`` equal bins spanning [low, high]."""
-        check_bins(bins)
+        if bins < 1:
+            raise ValueError(f"bins must be >= 1, got {bins}")
         if not high > low:
             high = low + max(abs(low), 1.0) * 1e-6
         return cls(np.linspace(low, high, bins + 1), **kwargs)  # type: ignore[arg-type]
+
+    @classmethod
+    def from_values(cls, values: NDArray[np.float64], bins: int, **kwargs: float | None) -> "HistogramModel":
+        """An empty model whose ``bins`` equal bins span [min(0, lowest value), highest value].
+
+        Differences are >= 0 for every metric, and same-place values fall below the samples that
+        fix the range (different-place minima), so the low edge is 0, not the lowest value seen.
+        """
+        return cls.from_range(min(0.0, float(values.min())), float(values.max()), bins, **kwargs)
 
     @property
     def n_bins(self) -> int:

@@ -1,18 +1,126 @@
-"""The common output of every localization method."""
+"""What every localization method shares: its per-frame step, what it is started on, its output.
+
+A method is a :class:`Method` subclass with its parameters declared as one frozen
+:class:`~wiloc.parameters.Parameters` dataclass. It is started on a map (:class:`MapContext`, or
+on nothing but the recent window in sequence mode) and then steps one query frame at a time: a
+difference row (and, for methods that take it, an odometry step) in, one :class:`Decision` out.
+Batch runs are that same step repeated (:meth:`Method.run`); ``wiloc.localizer.Localizer`` feeds
+it frame by frame. Adding a method is one module with a subclass and one line in
+``wiloc/methods/registry.py``.
+"""
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.errors import UsageError, WilocError
 from wiloc.model import HistogramModel
+from wiloc.parameters import Parameters
+
+Progress = Callable[[int, int], None]
+
+BLOCK_VALUES = 1 << 22
+"""Map self-differences read per block when a method learns from them (32 MB as float64)."""
+
+#: What a method can declare in ``needs``:
+#: ``map``: it cannot run in sequence mode; ``map_self``: in map mode it learns from the map's
+#: differences to itself outside +-R (so the map needs frames that far apart); ``training``: a
+#: labelled training pair; ``odometry``: it takes the query's travelled distance per frame.
+NEEDS = ("map", "map_self", "training", "odometry")
+
+
+class RowBlocks(Protocol):
+    """A matrix read block of rows by block of rows, e.g. ``wiloc.differences.DifferenceMatrix``."""
+
+    @property
+    def shape(self) -> tuple[int, int]: ...
+
+    def rows(self, start: int, stop: int) -> NDArray[np.float32]: ...
+
+
+@dataclass(frozen=True)
+class ArrayRows:
+    """An in-memory matrix as a :class:`RowBlocks` reader."""
+
+    array: NDArray[np.floating]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        rows, cols = np.shape(self.array)
+        return int(rows), int(cols)
+
+    def rows(self, start: int, stop: int) -> NDArray[np.floating]:
+        return np.asarray(self.array[start:stop])
+
+
+def iter_blocks(matrix: RowBlocks, block_values: int | None = None) -> Iterator[tuple[int, NDArray[np.float64]]]:
+    """(first row, float64 block of whole rows) over ``matrix``, about ``block_values`` values
+    (default :data:`BLOCK_VALUES`) each."""
+    n_rows, n_cols = matrix.shape
+    step = max(1, (block_values or BLOCK_VALUES) // max(n_cols, 1))
+    for start in range(0, n_rows, step):
+        yield start, np.asarray(matrix.rows(start, min(start + step, n_rows)), dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class TrainingRows:
+    """A labelled training pair: its difference rows and truth matrix (n_rows x n_candidates)."""
+
+    rows: list[NDArray[np.float64]]
+    labels: Any  # dense bool array or scipy.sparse matrix
+
+
+@dataclass(frozen=True)
+class MapContext:
+    """What a method is started on. Reading the map is lazy: a method reads only what it needs.
+
+    ``map_self`` gives the map's differences to itself (in sequence mode, when given, the run's own
+    matrix), read block of rows by block of rows; ``training`` the labelled pair of ``trained``.
+    """
+
+    sequence: bool
+    exclude_recent: int
+    n_map: int = 0  # map frames (0 in sequence mode, where the candidates grow frame by frame)
+    natural_max: float | None = None  # the descriptor's largest possible difference, if it has one
+    arclength: NDArray[np.float64] | None = None  # map node positions along the route (odometry)
+    map_self: Callable[[], RowBlocks] | None = None
+    training: Callable[[], TrainingRows] | None = None
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One query frame's decision.
+
+    ``match`` is the candidate's position (-1 when undecided); ``difference`` its difference;
+    ``confidence`` the method's belief that the match is the same place (NaN when undecided);
+    ``new_place`` the probability that the frame shows a place absent from the map (NaN where the
+    method has none); ``stage`` what the method did (``init``, ``update``, ``track``, ``none``);
+    ``extra`` method-specific values (``m_r`` of the online model). ``frame`` and ``match_name``
+    carry frame names where the caller knows them (``Localizer``).
+    """
+
+    match: int
+    difference: float
+    confidence: float
+    stage: str
+    new_place: float = float("nan")
+    extra: Mapping[str, float] = field(default_factory=dict)
+    frame: str = ""
+    match_name: str = ""
+
+    @property
+    def decided(self) -> bool:
+        return self.match >= 0 and not np.isnan(self.confidence)
 
 
 @dataclass
 class Decisions:
-    """Per query frame: best match, its difference, confidence (higher = more sure) and stage.
+    """Per query frame of a batch run: best match, its difference, confidence and stage.
 
     ``match`` is -1 and ``difference``/``confidence`` are NaN for undecided frames (for example
     the online model's initialisation stage). ``columns`` holds method-specific per-frame values
@@ -45,3 +153,153 @@ class Decisions:
     def decided(self) -> NDArray[np.bool_]:
         """Frames that carry a decision (a match and a confidence)."""
         return (self.match >= 0) & np.isfinite(self.confidence)
+
+    @classmethod
+    def collect(cls, steps: list[Decision], columns: tuple[str, ...], **kwargs: Any) -> Decisions:
+        """The batch form of per-frame decisions; ``columns`` names the per-frame extras kept
+        (``new_place`` reads :attr:`Decision.new_place`, any other name ``Decision.extra``)."""
+        def column(name: str) -> NDArray[np.float64]:
+            return np.array([d.new_place if name == "new_place" else d.extra.get(name, np.nan) for d in steps],
+                            dtype=np.float64)
+        return cls(match=np.array([d.match for d in steps], dtype=np.int64),
+                   difference=np.array([d.difference for d in steps], dtype=np.float64),
+                   confidence=np.array([d.confidence for d in steps], dtype=np.float64),
+                   stage=np.array([d.stage for d in steps], dtype=np.str_),
+                   columns={name: column(name) for name in columns}, **kwargs)
+
+
+class Method(ABC):
+    """A localization method: declared parameters, started on a map, stepped one frame at a time.
+
+    Subclasses set ``name``, ``Params`` (a :class:`Parameters` dataclass), ``needs`` (a subset of
+    :data:`NEEDS`) and ``columns`` (the per-frame extras written to results files), and implement
+    :meth:`prepare`, :meth:`decide`, :meth:`save_state` and :meth:`load_state`.
+    """
+
+    name: ClassVar[str]
+    Params: ClassVar[type[Parameters]]
+    needs: ClassVar[frozenset[str]] = frozenset()
+    columns: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, params: Parameters | Mapping[str, Any] | None = None, **values: Any) -> None:
+        if isinstance(params, Parameters):
+            if values:
+                raise TypeError("give parameters either as one Parameters object or as keywords")
+            if not isinstance(params, self.Params):
+                raise TypeError(f"{self.name} takes {self.Params.__name__}, got {type(params).__name__}")
+            self.params = params
+        else:
+            self.params = self.Params.create({**dict(params or {}), **values})
+        self.context: MapContext | None = None
+        self.frames = 0  # query frames stepped since start
+
+    def __repr__(self) -> str:
+        changed = {k: v for k, v in self.params.as_dict().items()
+                   if v != self.Params.create().as_dict().get(k)}
+        return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in changed.items())})"
+
+    def check_inputs(self, *, sequence: bool, training: bool, odometry: bool = False,
+                     map_odometry: bool = False) -> None:
+        """Refuse a run without what the method needs (``needs``), or with inputs it does not take."""
+        if "map" in self.needs and sequence:
+            raise UsageError(None, f"method '{self.name}' needs a map (a reference trajectory)",
+                             parameter="reference")
+        if ("training" in self.needs) != training:
+            problem = "needs a labelled training pair" if not training else "takes no training pair"
+            raise UsageError(None, f"method '{self.name}' {problem}", parameter="training")
+        for given, parameter in ((odometry, "odometry"), (map_odometry, "map_odometry")):
+            if given and "odometry" not in self.needs:
+                raise UsageError(None, f"method '{self.name}' takes no odometry", parameter=parameter)
+
+    def query_problem(self, n_frames: int, sequence: bool, exclude_recent: int) -> str | None:
+        """Why a query of ``n_frames`` frames cannot be run (in sequence mode or against a map,
+        with this recent window), or None."""
+        return None
+
+    def start(self, context: MapContext) -> None:
+        """Reset to the state before the first query frame, learning what it needs from the map."""
+        self.context = context
+        self.frames = 0
+        self.prepare(context)
+
+    def step(self, row: NDArray[np.float64], odometry: float | None = None) -> Decision:
+        """Decide one query frame from its difference row (and its travelled distance, for
+        methods that take odometry)."""
+        if self.context is None:
+            raise RuntimeError(f"{self.name}: call start() before step()")
+        if odometry is not None and "odometry" not in self.needs:
+            raise WilocError(self.name, f"method '{self.name}' takes no odometry", parameter="odometry")
+        decision = self.decide(np.asarray(row, dtype=np.float64), odometry)
+        self.frames += 1
+        return decision
+
+    @abstractmethod
+    def prepare(self, context: MapContext) -> None:
+        """Learn from the map what the method needs before the first query frame."""
+
+    @abstractmethod
+    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+        """Query frame number ``self.frames``: its decision, updating what the method learns."""
+
+    @property
+    def model(self) -> HistogramModel | None:
+        """The probability model as learned so far (None for methods without one)."""
+        return None
+
+    def facts(self) -> dict[str, Any]:
+        """What the run learned or derived that the results header records besides the parameters."""
+        return {}
+
+    def header(self) -> dict[str, Any]:
+        """The results header's ``params``: the method, its declared parameters and its facts."""
+        return {"method": self.name, **self.params.as_dict(), **self.facts()}
+
+    def state(self) -> dict[str, Any]:
+        """Everything :meth:`restore` needs to continue with identical decisions: numpy arrays and
+        JSON-ready values."""
+        return {"frames": self.frames, **self.save_state()}
+
+    def restore(self, context: MapContext, state: Mapping[str, Any]) -> None:
+        """Continue from a :meth:`state` taken in the same context."""
+        self.context = context
+        self.frames = int(state["frames"])
+        self.load_state(state)
+
+    @abstractmethod
+    def save_state(self) -> dict[str, Any]:
+        """What the method learned so far (see :meth:`state`)."""
+
+    @abstractmethod
+    def load_state(self, state: Mapping[str, Any]) -> None:
+        """Set what :meth:`save_state` returned."""
+
+    def run(self, rows: Iterable[NDArray[np.float64]], n_frames: int,
+            odometry: NDArray[np.float64] | None = None, progress: Progress | None = None) -> Decisions:
+        """Step every row (``n_frames`` of them) and collect the decisions (after :meth:`start`)."""
+        steps: list[Decision] = []
+        for k, row in enumerate(rows):
+            if k >= n_frames:
+                raise WilocError(self.name, f"more difference rows than n_frames={n_frames}")
+            steps.append(self.step(row, None if odometry is None else float(odometry[k])))
+            if progress is not None:
+                progress(k + 1, n_frames)
+        if len(steps) != n_frames:
+            raise WilocError(self.name, f"got {len(steps)} difference rows, expected n_frames={n_frames}")
+        return Decisions.collect(steps, self.columns, model=self.model, params=self.header())
+
+
+def run_on_rows(method: Method, rows: Iterable[NDArray[np.float64]], n_frames: int, *,
+                map_self: NDArray[np.floating] | RowBlocks | None = None, sequence: bool = False,
+                exclude_recent: int = 10, natural_max: float | None = None,
+                arclength: NDArray[np.float64] | None = None, odometry: NDArray[np.float64] | None = None,
+                training: TrainingRows | None = None, progress: Progress | None = None) -> Decisions:
+    """Start ``method`` on plain arrays and step it over ``rows``: the batch run without files.
+
+    ``map_self`` is the map's difference matrix to itself (an array or a row-block reader).
+    """
+    self_rows = map_self if map_self is None or hasattr(map_self, "rows") else ArrayRows(np.asarray(map_self))
+    method.start(MapContext(sequence=sequence, exclude_recent=exclude_recent,
+                            n_map=0 if self_rows is None else self_rows.shape[0], natural_max=natural_max,
+                            arclength=arclength, map_self=None if self_rows is None else lambda: self_rows,
+                            training=None if training is None else lambda: training))
+    return method.run(rows, n_frames, odometry=odometry, progress=progress)

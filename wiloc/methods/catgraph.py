@@ -14,81 +14,45 @@ every default.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d, uniform_filter1d
 from scipy.special import expit
 
-from wiloc.errors import WilocError
-from wiloc.methods.base import Decisions
-from wiloc.methods.online import DEFAULT_BINS, DEFAULT_EXCLUDE_RECENT
+from wiloc.errors import ParameterError, WilocError
+from wiloc.methods.base import Decision, MapContext, Method, RowBlocks, iter_blocks
 from wiloc.model import HistogramModel
+from wiloc.parameters import Parameters, param
 
-Progress = Callable[[int, int], None]
-
-DEFAULT_PARTICLES = 2000
-DEFAULT_SMOOTHING_BINS = 16.0
-DEFAULT_PRIOR = 0.01
-DEFAULT_OUTLIER = 0.05
-DEFAULT_PSEUDO = 10.0
-DEFAULT_STEP_NOISE = 0.3
-DEFAULT_NOISE_FLOOR = 0.5
-DEFAULT_SPEED_NOISE = 0.0
-DEFAULT_SPEED_RANGE = (0.0, 3.0)
-DEFAULT_RESAMPLE_ESS = 0.5
-DEFAULT_RESEED = 0.01
-DEFAULT_RESEED_TOP = 1
-DEFAULT_SEQUENCE_RATE = 0.1
-DEFAULT_SEQUENCE_SPEEDS = (0.5, 1.0, 1.5, 2.0)
-DEFAULT_CONTRAST_WINDOW = 10
-DEFAULT_NEW_PLACE_SAMPLES = 100
-DEFAULT_MODE_WINDOW = 2
-BULK_BLOCK_VALUES = 1 << 22  # reference differences read per block for the bulk histogram (32 MB as float64)
 MODE_TIE = 1e-12  # window masses (shares of a unit total) this close to the largest count as tied
 
 
-class RowBlocks(Protocol):
-    """A matrix read block of rows by block of rows, e.g. ``wiloc.differences.DifferenceMatrix``."""
-
-    @property
-    def shape(self) -> tuple[int, int]: ...
-
-    def rows(self, start: int, stop: int) -> NDArray[np.float32]: ...
-
-
-def _bulk_blocks(ref_self: NDArray[np.floating] | RowBlocks,
-                 exclude_recent: int) -> Iterator[NDArray[np.float64]]:
+def _bulk_blocks(ref_self: RowBlocks, exclude_recent: int) -> Iterator[NDArray[np.float64]]:
     """The finite differences of every reference pair further apart than ``exclude_recent``.
 
     One block of rows at a time, each ordered pair (i, j) once; never the whole matrix.
     """
-    n_rows, n_cols = ref_self.shape
-    step = max(1, BULK_BLOCK_VALUES // max(n_cols, 1))
-    cols = np.arange(n_cols)
-    for start in range(0, n_rows, step):
-        stop = min(start + step, n_rows)
-        block = ref_self.rows(start, stop) if hasattr(ref_self, "rows") else ref_self[start:stop]
-        far = np.abs(np.arange(start, stop)[:, None] - cols[None, :]) > exclude_recent
-        values = np.asarray(block, dtype=np.float64)[far]
+    cols = np.arange(ref_self.shape[1])
+    for start, block in iter_blocks(ref_self):
+        far = np.abs(np.arange(start, start + block.shape[0])[:, None] - cols[None, :]) > exclude_recent
+        values = block[far]
         yield values[np.isfinite(values)]
 
 
-def bulk_model(ref_self: NDArray[np.floating] | RowBlocks, exclude_recent: int,
-               bins: int) -> HistogramModel:
+def bulk_model(ref_self: RowBlocks, exclude_recent: int, bins: int) -> HistogramModel:
     """The observation model before the query run: ``c`` holds the bulk of ordinary differences.
 
-    ``ref_self``: the reference-by-reference differences, an array or a row-block reader (any
-    object with ``.shape`` and ``.rows(start, stop)``), read in blocks of rows, twice (range,
-    then counts). Every pair of reference frames further apart than ``exclude_recent`` counts as
-    a different place (no labels: along one traversal, frames apart are mostly different places).
-    Bins span [min(0, lowest), highest] of those differences; ``b`` starts empty.
+    ``ref_self``: the reference-by-reference differences as a row-block reader (``.shape`` and
+    ``.rows(start, stop)``; ``wiloc.methods.base.ArrayRows`` wraps an array), read in blocks of
+    rows, twice (range, then counts). Every pair of reference frames further apart than
+    ``exclude_recent`` counts as a different place (no labels: along one traversal, frames apart
+    are mostly different places). Bins span [min(0, lowest), highest] of those differences; ``b``
+    starts empty.
     """
-    if not hasattr(ref_self, "rows"):
-        ref_self = np.asarray(ref_self)
     shape = tuple(ref_self.shape)
     if len(shape) != 2 or shape[0] != shape[1]:
         raise WilocError("catgraph", f"the map's differences to itself must be a square matrix, got shape {shape}")
@@ -147,27 +111,14 @@ def _arclength(ref_arclength: NDArray[np.float64] | None, n_nodes: int) -> NDArr
         return np.arange(n_nodes, dtype=np.float64)
     s = np.asarray(ref_arclength, dtype=np.float64)
     if s.shape != (n_nodes,):
-        raise WilocError("--map-odometry", f"gives {s.size} positions for {n_nodes} map frames")
+        raise WilocError(None, f"gives {s.size} positions for {n_nodes} map frames", parameter="map_odometry")
     if not np.all(np.isfinite(s)) or np.any(np.diff(s) < 0):
-        raise WilocError("--map-odometry", "the map's distances along its route must be finite and non-decreasing")
+        raise WilocError(None, "the map's distances along its route must be finite and non-decreasing",
+                         parameter="map_odometry")
     if not s[-1] > s[0]:
-        raise WilocError("--map-odometry", "the map's route has zero length (the odometry never moves)")
+        raise WilocError(None, "the map's route has zero length (the odometry never moves)",
+                         parameter="map_odometry")
     return s
-
-
-def _steps(query_steps: NDArray[np.float64] | None, n_frames: int, spacing: float,
-           have_arclength: bool) -> NDArray[np.float64]:
-    """u_k per query frame: the odometry steps, else the mean node spacing."""
-    if query_steps is None:
-        return np.full(n_frames, spacing)
-    if not have_arclength:
-        raise WilocError("--odometry", "a query odometry CSV needs the map's too (--map-odometry), in the same units")
-    u = np.asarray(query_steps, dtype=np.float64)
-    if u.shape != (n_frames,):
-        raise WilocError("--odometry", f"gives {u.size} steps for {n_frames} query frames")
-    if not np.all(np.isfinite(u)) or np.any(u < 0):
-        raise WilocError("--odometry", "the query's steps must be finite and >= 0")
-    return u
 
 
 def _locate(nodes: NDArray[np.float64], pos: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
@@ -193,14 +144,19 @@ def contrast_normalise(row: NDArray[np.float64], half_window: int) -> NDArray[np
     return np.divide(row - mean, sd, out=np.zeros_like(row), where=~flat & (sd > 0))
 
 
-def _advance(score: NDArray[np.float64], nodes: NDArray[np.float64],
-             shifts: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Row v of ``score`` read at s_j - shifts[v] for every node j (clamped to the trajectory).
+def _shifted_reads(nodes: NDArray[np.float64],
+                   shifts: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """Where each row v of a (speeds x nodes) score is read at s_j - shifts[v], clamped to the
+    trajectory: flat indices of the node before and the fraction of the way to the next."""
+    j, a = _locate(nodes, (nodes[None, :] - shifts[:, None]).ravel())
+    return np.arange(shifts.size).repeat(nodes.size) * nodes.size + j, a
+
+
+def _advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``score`` read where :func:`_shifted_reads` says, linearly interpolated.
 
     The leaky sequence score ending at node j now continues the one that ended a step back.
     """
-    j, a = _locate(nodes, (nodes[None, :] - shifts[:, None]).ravel())
-    at = np.arange(shifts.size).repeat(nodes.size) * nodes.size + j
     prev = score.ravel()
     return ((1.0 - a) * prev[at] + a * prev[at + 1]).reshape(score.shape)
 
@@ -220,154 +176,187 @@ def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArr
     return np.searchsorted(cum, pointers, side="left")
 
 
-def localize_catgraph(
-    query_rows: Iterable[NDArray[np.float64]],
-    ref_self: NDArray[np.floating] | RowBlocks,
-    n_frames: int,
-    *,
-    ref_arclength: NDArray[np.float64] | None = None,
-    query_steps: NDArray[np.float64] | None = None,
-    particles: int = DEFAULT_PARTICLES,
-    seed: int | None = 0,
-    exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
-    bins: int = DEFAULT_BINS,
-    smoothing_bins: float = DEFAULT_SMOOTHING_BINS,
-    prior: float = DEFAULT_PRIOR,
-    outlier: float = DEFAULT_OUTLIER,
-    pseudo: float = DEFAULT_PSEUDO,
-    step_noise: float = DEFAULT_STEP_NOISE,
-    noise_floor: float = DEFAULT_NOISE_FLOOR,
-    speed_noise: float = DEFAULT_SPEED_NOISE,
-    speed_range: tuple[float, float] = DEFAULT_SPEED_RANGE,
-    resample_ess: float = DEFAULT_RESAMPLE_ESS,
-    reseed: float = DEFAULT_RESEED,
-    reseed_top: int = DEFAULT_RESEED_TOP,
-    sequence_rate: float = DEFAULT_SEQUENCE_RATE,
-    sequence_speeds: tuple[float, ...] = DEFAULT_SEQUENCE_SPEEDS,
-    contrast_window: int = DEFAULT_CONTRAST_WINDOW,
-    new_place_samples: int = DEFAULT_NEW_PLACE_SAMPLES,
-    mode_window: int = DEFAULT_MODE_WINDOW,
-    progress: Progress | None = None,
-) -> Decisions:
+@dataclass(frozen=True)
+class CatGraphParams(Parameters):
+    """Parameters of the whole-image CAT-Graph filter (docs/catgraph.md: every default measured)."""
+
+    owner = "catgraph"
+    particles: int = param(2000, "Number of particles.", low=1, high=1_000_000)
+    seed: int | None = param(0, "Random seed: the same seed gives identical decisions (none: a fresh one).",
+                             low=0)
+    bins: int = param(100, "Histogram bins of the observation model.", low=2, high=100_000)
+    smoothing_bins: float = param(16.0, "Gaussian smoothing of both histograms, in bins.", low=0.0)
+    prior: float = param(0.01, "P(L) of eq. 6 for a particle's place.", low=0.0, high=1.0, high_open=True)
+    outlier: float = param(0.05, "Floor of the bulk's share in P(d|L): bounds the penalty of one odd frame.",
+                           low=0.0, high=1.0)
+    pseudo: float = param(10.0, "Pseudo-count of the bulk in P(d|L): uninformative until b has samples.",
+                          low=0.0)
+    step_noise: float = param(0.3, "Motion noise, a fraction of each step.", low=0.0)
+    noise_floor: float = param(0.5, "Motion noise floor, a fraction of the mean node spacing.", low=0.0)
+    speed_noise: float = param(0.0, "Per-particle speed noise per frame (0: no velocity state).", low=0.0)
+    speed_range: tuple[float, float] = param((0.0, 3.0), "Range of the particles' speed ratios (low, high).",
+                                             low=0.0)
+    resample_ess: float = param(0.5, "Resample when the effective sample size falls below this share.",
+                                low=0.0, high=1.0)
+    reseed: float = param(0.01, "Share of particles re-seeded each frame at the best sequence score.",
+                          low=0.0, high=1.0)
+    reseed_top: int = param(1, "Nodes of best sequence score that re-seeded particles go to.", low=1)
+    sequence_rate: float = param(0.1, "Rate of the leaky sequence score (about 1 / frames remembered).",
+                                 low=0.0, high=1.0, low_open=True)
+    sequence_speeds: tuple[float, ...] = param((0.5, 1.0, 1.5, 2.0), "Speed ratios of the sequence score.",
+                                               low=0.0)
+    contrast_window: int = param(10, "Half window (nodes) of the sequence score's contrast normalisation.",
+                                 low=1)
+    new_place_samples: int = param(100, "Map nodes sampled per frame for the new-place particle (eq. 10).",
+                                   low=1, high=1_000_000)
+    mode_window: int = param(2, "Half window (nodes) summed around the mode for the confidence.", low=0)
+
+    def check(self) -> None:
+        low, high = self.speed_range
+        if low > high:
+            raise ParameterError("speed_range", f"must be (low, high) with low <= high, got {self.speed_range!r}")
+
+
+class CatGraph(Method):
     """Track the query along the reference trajectory with the whole-image CAT-Graph filter.
 
-    ``query_rows`` yields ``n_frames`` rows of differences of query frame k to every reference
-    node; ``ref_self`` is the reference-by-reference difference matrix (for P(d|not L)), an array
-    or a row-block reader such as ``DifferenceMatrix``, read a block of rows at a time.
-    Positions are in arc-length units (``ref_arclength``, else node index); ``query_steps`` are
-    the query's travelled distances since its previous frame in the same units. The noise and
-    ``noise_floor`` are relative to the step and to the mean node spacing respectively.
+    Started on a map: its differences to itself (for P(d|not L)) and optionally its node
+    positions (``MapContext.arclength``, from odometry; else the node index). Each step takes the
+    query frame's differences to every map node and optionally its travelled distance since the
+    previous frame (odometry, same units as the map's); without it, the mean node spacing. The
+    noise and ``noise_floor`` are relative to the step and to the mean node spacing respectively.
     Re-seeding uses a causal sequence score per node: for each speed ratio in ``sequence_speeds``
     an exponentially weighted (rate ``sequence_rate``) sum of contrast-normalised differences
     (+-``contrast_window`` nodes) along the trajectory ending there; the lowest over speeds counts.
-    Returns per frame the node at the density mode (the largest weight mass within
+    Each decision is the node at the density mode (the largest weight mass within
     +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
-    that mass (after normalising with the new-place particle) as confidence, and
-    ``columns["new_place"]``. The same seed gives identical Decisions.
+    that mass (after normalising with the new-place particle) as confidence, and the new-place
+    probability. The same seed gives identical decisions.
     """
-    checks = [(particles >= 1, "--particles must be >= 1"), (exclude_recent >= 0, "--exclude-recent must be >= 0"),
-              (bins >= 2, "bins must be >= 2"), (smoothing_bins >= 0, "smoothing_bins must be >= 0"),
-              (0.0 <= prior < 1.0, "prior must lie in [0, 1)"),
-              (min(step_noise, noise_floor, speed_noise) >= 0,
-               "--step-noise, --noise-floor and --speed-noise must be >= 0"),
-              (0.0 <= speed_range[0] <= speed_range[1], "speed_range must be (low, high), 0 <= low <= high"),
-              (0.0 <= resample_ess <= 1.0, "--resample-ess must lie in [0, 1]"),
-              (0.0 <= reseed <= 1.0, "--reseed must lie in [0, 1]"), (reseed_top >= 1, "reseed_top must be >= 1"),
-              (0.0 < sequence_rate <= 1.0, "sequence_rate must lie in (0, 1]"),
-              (len(sequence_speeds) >= 1 and min(sequence_speeds, default=0.0) >= 0,
-               "sequence_speeds must hold at least one speed ratio >= 0"),
-              (contrast_window >= 1, "contrast_window must be >= 1"),
-              (new_place_samples >= 1, "new_place_samples must be >= 1"), (mode_window >= 0, "mode_window must be >= 0")]
-    for ok, problem in checks:
-        if not ok:
-            raise WilocError("catgraph", problem)
 
-    n_nodes = ref_self.shape[0]
-    if n_nodes < 2:
-        raise WilocError("catgraph", f"the map needs at least 2 frames, got {n_nodes}")
-    model = bulk_model(ref_self, exclude_recent, bins)
-    nodes = _arclength(ref_arclength, n_nodes)
-    spacing = (nodes[-1] - nodes[0]) / (n_nodes - 1)
-    steps = _steps(query_steps, n_frames, spacing, ref_arclength is not None)
-    rng = np.random.default_rng(seed)
+    name = "catgraph"
+    Params = CatGraphParams
+    needs = frozenset({"map", "map_self", "odometry"})
+    columns = ("new_place",)
+    params: CatGraphParams
 
-    pos = rng.uniform(nodes[0], nodes[-1], particles)
-    speed = rng.uniform(speed_range[0], speed_range[1], particles) if speed_noise > 0 else np.ones(particles)
-    log_w = np.full(particles, -np.log(particles))
-    n_reseed = int(round(reseed * particles))
-    window = np.ones(2 * mode_window + 1)
-    speeds_v = np.asarray(sequence_speeds, dtype=np.float64)
-    sequence = np.zeros((speeds_v.size, n_nodes))
+    def prepare(self, context: MapContext) -> None:
+        p = self.params
+        if context.sequence or context.map_self is None:
+            raise WilocError("catgraph", "needs a map (a reference trajectory)", parameter="map")
+        ref_self = context.map_self()
+        n_nodes = ref_self.shape[0]
+        if n_nodes < 2:
+            raise WilocError("catgraph", f"the map needs at least 2 frames, got {n_nodes}")
+        self._model = bulk_model(ref_self, context.exclude_recent, p.bins)
+        self._nodes = _arclength(context.arclength, n_nodes)
+        self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
+        self._rng = np.random.default_rng(p.seed)
+        self._pos = self._rng.uniform(self._nodes[0], self._nodes[-1], p.particles)
+        self._speed = (self._rng.uniform(p.speed_range[0], p.speed_range[1], p.particles) if p.speed_noise > 0
+                       else np.ones(p.particles))
+        self._log_w = np.full(p.particles, -np.log(p.particles))
+        self._sequence = np.zeros((len(p.sequence_speeds), n_nodes))
+        self._odometry = False  # whether any step came with odometry
+        self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64]]] | None = None
 
-    match = np.full(n_frames, -1, dtype=np.int64)
-    difference = np.full(n_frames, np.nan)
-    confidence = np.full(n_frames, np.nan)
-    new_place = np.full(n_frames, np.nan)
+    def _shift_lookup(self, u: float) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        """:func:`_shifted_reads` for step u: the same for every frame of equal step (always,
+        without odometry), so it is computed once per distinct step."""
+        if self._shifted is None or self._shifted[0] != u:
+            shifts = np.asarray(self.params.sequence_speeds, dtype=np.float64) * u
+            self._shifted = (u, _shifted_reads(self._nodes, shifts))
+        return self._shifted[1]
 
-    k = -1
-    for k, row in enumerate(query_rows):
-        if k >= n_frames:
-            raise WilocError("catgraph", f"more query rows than n_frames={n_frames}")
-        row = np.asarray(row, dtype=np.float64)
+    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+        p, model, rng, nodes = self.params, self._model, self._rng, self._nodes
+        n_nodes = nodes.size
         if row.shape != (n_nodes,) or not np.all(np.isfinite(row)):
-            raise WilocError("catgraph", f"query frame {k}: expected {n_nodes} finite differences to the map")
-        tables = observation_tables(model, smoothing_bins, prior, outlier, pseudo)
-        contrast = contrast_normalise(row, contrast_window)
-        if k == 0:
-            sequence[:] = contrast
+            raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite differences to the map")
+        u = self._travelled(odometry)
+        tables = observation_tables(model, p.smoothing_bins, p.prior, p.outlier, p.pseudo)
+        contrast = contrast_normalise(row, p.contrast_window)
+        if self.frames == 0:
+            self._sequence[:] = contrast
         else:  # the leaky sum along each speed's trajectory: causal, O(speeds x nodes) per frame
-            sequence = ((1.0 - sequence_rate) * _advance(sequence, nodes, speeds_v * steps[k])
-                        + sequence_rate * contrast)
+            self._sequence = ((1.0 - p.sequence_rate) * _advance(self._sequence, *self._shift_lookup(u))
+                              + p.sequence_rate * contrast)
 
-        if k > 0:  # motion model: s += v u_k + noise
-            if speed_noise > 0:
-                speed = np.clip(speed + rng.normal(0.0, speed_noise, particles), *speed_range)
-            sd = np.hypot(step_noise * steps[k], noise_floor * spacing)
-            pos = np.clip(pos + speed * steps[k] + rng.normal(0.0, sd, particles), nodes[0], nodes[-1])
+        pos, speed, log_w = self._pos, self._speed, self._log_w
+        if self.frames > 0:  # motion model: s += v u_k + noise
+            if p.speed_noise > 0:
+                speed = np.clip(speed + rng.normal(0.0, p.speed_noise, p.particles), *p.speed_range)
+            sd = np.hypot(p.step_noise * u, p.noise_floor * self._spacing)
+            pos = np.clip(pos + speed * u + rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
+        n_reseed = int(round(p.reseed * p.particles))
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
             weakest = np.argpartition(log_w, n_reseed - 1)[:n_reseed]
-            score = sequence.min(axis=0)
-            best = np.argpartition(score, min(reseed_top, n_nodes) - 1)[:reseed_top]
+            score = self._sequence.min(axis=0)
+            best = np.argpartition(score, min(p.reseed_top, n_nodes) - 1)[:p.reseed_top]
             pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
-            speed[weakest] = speed[rng.integers(0, particles, n_reseed)]
-            log_w[weakest] = -np.log(particles)
+            speed[weakest] = speed[rng.integers(0, p.particles, n_reseed)]
+            log_w[weakest] = -np.log(p.particles)
             log_w = log_w - _log_normalizer(log_w)
 
         j, a = _locate(nodes, pos)  # eq. 8: d linearly interpolated between the nodes around
         log_w = log_w + tables.log_ratio[model.bin_of((1.0 - a) * row[j] + a * row[j + 1])]
         log_total = _log_normalizer(log_w)  # log of sum_i w_i P(d_i|L)/P(d_i), the prior mass being 1
-        sampled = rng.integers(0, n_nodes, new_place_samples)
+        sampled = rng.integers(0, n_nodes, p.new_place_samples)
         log_new = np.log(tables.p_not_same[model.bin_of(row[sampled])].mean())
         p_new = float(expit(log_new - log_total))  # eq. 10 weight normalised with the particles
         log_w = log_w - log_total
         w = np.exp(log_w)
 
         own = np.bincount(j + (a >= 0.5), weights=w, minlength=n_nodes)
-        mass = np.convolve(own, window)[mode_window:mode_window + n_nodes]  # "same" is wrong for a short map
+        window = np.ones(2 * p.mode_window + 1)
+        mass = np.convolve(own, window)[p.mode_window:p.mode_window + n_nodes]  # "same" is wrong for a short map
         tied = np.flatnonzero(mass >= mass.max() - MODE_TIE)
         mode = int(tied[np.argmax(own[tied])])
-        match[k], difference[k] = mode, row[mode]
-        confidence[k] = mass[mode] * (1.0 - p_new)
-        new_place[k] = p_new
 
-        if 1.0 / np.sum(w * w) < resample_ess * particles:
+        if 1.0 / np.sum(w * w) < p.resample_ess * p.particles:
             idx = _systematic(w, rng)
             pos, speed = pos[idx], speed[idx]
-            log_w = np.full(particles, -np.log(particles))
+            log_w = np.full(p.particles, -np.log(p.particles))
+        self._pos, self._speed, self._log_w = pos, speed, log_w
         model.add_same(row.min())  # causal online b: the frame's smallest difference, after use
-        if progress is not None:
-            progress(k + 1, n_frames)
-    if k + 1 != n_frames:
-        raise WilocError("catgraph", f"got {k + 1} query rows, expected n_frames={n_frames}")
+        return Decision(match=mode, difference=float(row[mode]), confidence=float(mass[mode] * (1.0 - p_new)),
+                        stage="track", new_place=p_new)
 
-    params = {"method": "catgraph", "particles": particles, "seed": seed, "exclude_recent": exclude_recent,
-              "bins": bins, "smoothing_bins": smoothing_bins, "prior": prior, "step_noise": step_noise,
-              "noise_floor": noise_floor, "speed_noise": speed_noise, "speed_range": list(speed_range),
-              "resample_ess": resample_ess, "reseed": reseed, "reseed_top": reseed_top,
-              "sequence_rate": sequence_rate, "sequence_speeds": list(sequence_speeds),
-              "contrast_window": contrast_window,
-              "new_place_samples": new_place_samples, "mode_window": mode_window,
-              "odometry": query_steps is not None}
-    return Decisions(match=match, difference=difference, confidence=confidence,
-                     stage=np.full(n_frames, "track"), columns={"new_place": new_place},
-                     model=model, params=params)
+    def _travelled(self, odometry: float | None) -> float:
+        """u_k: the query's odometry step, else the mean node spacing."""
+        if odometry is None:
+            return self._spacing
+        if self.context is None or self.context.arclength is None:
+            raise WilocError(None, "a query odometry needs the map's too (map_odometry), in the same units",
+                             parameter="odometry")
+        if not (np.isfinite(odometry) and odometry >= 0):
+            raise WilocError(None, f"query frame {self.frames}: the step must be finite and >= 0, got {odometry}",
+                             parameter="odometry")
+        self._odometry = True
+        return float(odometry)
+
+    @property
+    def model(self) -> HistogramModel | None:
+        return getattr(self, "_model", None)
+
+    def facts(self) -> dict[str, Any]:
+        return {"exclude_recent": self.context.exclude_recent if self.context else None,
+                "odometry": self._odometry}
+
+    def save_state(self) -> dict[str, Any]:
+        return {"model": self._model.to_dict(), "nodes": self._nodes, "pos": self._pos, "speed": self._speed,
+                "log_w": self._log_w, "sequence": self._sequence, "odometry": self._odometry,
+                "rng": self._rng.bit_generator.state}
+
+    def load_state(self, state: Mapping[str, Any]) -> None:
+        self._model = HistogramModel.from_dict(state["model"])
+        self._nodes = np.asarray(state["nodes"], dtype=np.float64)
+        self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
+        self._pos = np.asarray(state["pos"], dtype=np.float64).copy()
+        self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
+        self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
+        self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
+        self._odometry = bool(state["odometry"])
+        self._rng = np.random.default_rng()
+        self._rng.bit_generator.state = state["rng"]
+        self._shifted = None

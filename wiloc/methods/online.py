@@ -9,32 +9,33 @@ same place as z. See docs/algorithm.md for every choice and the measurements beh
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.errors import UsageError, WilocError
-from wiloc.methods.base import Decisions
-from wiloc.model import HistogramModel, check_options
-
-DEFAULT_INIT = 100
-DEFAULT_BINS = 100
-DEFAULT_EXCLUDE_RECENT = 10
-DEFAULT_SAME_PLACE_WINDOW = 2
-DEFAULT_SMOOTHING = 0.1
-DEFAULT_PRIOR: float | None = None  # P(L) = the share of samples in b; docs/algorithm.md says why
-
-Progress = Callable[[int, int], None]
+from wiloc.candidates import finite_minimum
+from wiloc.errors import WilocError
+from wiloc.methods.base import Decision, MapContext, Method, iter_blocks
+from wiloc.model import HistogramModel
+from wiloc.parameters import Parameters, param
 
 
-def finite_minimum(row: NDArray[np.float64]) -> tuple[int, float]:
-    """(argmin, min) over the finite entries of a difference row; (-1, nan) when there are none."""
-    if row.size == 0:
-        return -1, float("nan")
-    z = int(np.argmin(row))
-    m = float(row[z])
-    return (z, m) if np.isfinite(m) else (-1, float("nan"))
+@dataclass(frozen=True)
+class OnlineParams(Parameters):
+    """Parameters of the online model (docs/algorithm.md gives the measurements behind each)."""
+
+    owner = "online"
+    init: int = param(100, "Sequence mode: initialisation frames, whose minima fill c (map mode "
+                           "initialises from every map frame).", low=1)
+    bins: int = param(100, "Histogram bins.", low=1, high=100_000)
+    same_place_window: int = param(2, "Frames within +-W of the best match are the same place.", low=0)
+    prior: float | None = param(None, "P(L), the prior that a frame revisits a place; default: the "
+                                      "share of same-place samples.", low=0.0, high=1.0, low_open=True,
+                                high_open=True)
+    smoothing: float = param(0.1, "Pseudo-count added to every histogram bin.", low=0.0, low_open=True)
 
 
 def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
@@ -65,110 +66,103 @@ def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
     return float("nan")
 
 
-def best_matches(rows: Iterable[NDArray[np.float64]], n_frames: int,
-                 where: str) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """Per row (argmin, min) over its finite entries: -1 and NaN for rows with no candidate."""
-    best = [finite_minimum(np.asarray(row, dtype=np.float64)) for row in rows]
-    if len(best) != n_frames:
-        raise WilocError(where, f"got {len(best)} difference rows, expected n_frames={n_frames}")
-    match = np.array([z for z, _ in best], dtype=np.int64).reshape(n_frames)
-    difference = np.array([m for _, m in best], dtype=np.float64).reshape(n_frames)
-    return match, difference
+def map_minima(context: MapContext) -> NDArray[np.float64]:
+    """Each map frame's smallest difference to the map frames outside its +-R: the samples that
+    initialise ``c`` in map mode (frames with no such difference give none)."""
+    if context.map_self is None:
+        raise WilocError("online", "map mode needs the map's differences to itself")
+    matrix = context.map_self()
+    n_cols = matrix.shape[1]
+    R = context.exclude_recent
+    minima = []
+    for start, block in iter_blocks(matrix):
+        rows = np.arange(start, start + block.shape[0])
+        band = np.abs(rows[:, None] - np.arange(n_cols)[None, :]) <= R
+        block[band] = np.inf
+        block[~np.isfinite(block)] = np.inf
+        minima.append(block.min(axis=1, initial=np.inf))
+    values = np.concatenate(minima) if minima else np.empty(0)
+    return values[np.isfinite(values)]
 
 
-def model_from_values(values: NDArray[np.float64], bins: int, smoothing: float,
-                      prior: float | None) -> HistogramModel:
-    """An empty model whose ``bins`` equal bins span [min(0, lowest value), highest value].
+class Online(Method):
+    """The online model: decide with P(L | m), then learn from the frame (SPEC.md section 4)."""
 
-    Differences are >= 0 for every metric, and same-place values fall below the samples that
-    fix the range (different-place minima), so the low edge is 0, not the lowest value seen.
-    """
-    return HistogramModel.from_range(min(0.0, float(values.min())), float(values.max()), bins,
-                                     smoothing=smoothing, prior=prior)
+    name = "online"
+    Params = OnlineParams
+    needs = frozenset({"map_self"})
+    columns = ("m_r",)
+    params: OnlineParams
 
+    def query_problem(self, n_frames: int, sequence: bool, exclude_recent: int) -> str | None:
+        init, R = self.params.init, exclude_recent
+        if sequence and n_frames <= init + R:
+            return f"has {n_frames} frames, too few for init={init} with exclude_recent={R}"
+        return None
 
-def _initial_model(seen: list[float], bins: int, smoothing: float,
-                   prior: float | None) -> HistogramModel:
-    """The model at the end of initialisation: range fixed from ``seen``, which fill ``c``."""
-    values = np.asarray(seen, dtype=np.float64)
-    model = model_from_values(values, bins, smoothing, prior)
-    model.add_different(values)
-    return model
+    def prepare(self, context: MapContext) -> None:
+        self._model: HistogramModel | None = None
+        self._seen: list[float] = []
+        self._match = np.empty(0, dtype=np.int64)  # sequence mode: recorded matches, for near_miss
+        if not context.sequence:
+            self._seen = map_minima(context).tolist()
+            if not self._seen:
+                raise WilocError("online", "the map's differences to itself hold no finite value")
+            self._model = self._initial_model()
 
+    def _initial_model(self) -> HistogramModel:
+        """The model at the end of initialisation: range fixed from the minima seen, which fill c."""
+        p = self.params
+        values = np.asarray(self._seen, dtype=np.float64)
+        model = HistogramModel.from_values(values, p.bins, smoothing=p.smoothing, prior=p.prior)
+        model.add_different(values)
+        return model
 
-def localize_online(
-    rows: Iterable[NDArray[np.float64]],
-    n_frames: int,
-    *,
-    sequence: bool,
-    init: int = DEFAULT_INIT,
-    bins: int = DEFAULT_BINS,
-    same_place_window: int = DEFAULT_SAME_PLACE_WINDOW,
-    prior: float | None = DEFAULT_PRIOR,
-    smoothing: float = DEFAULT_SMOOTHING,
-    init_rows: Iterable[NDArray[np.float64]] | None = None,
-    progress: Progress | None = None,
-) -> Decisions:
-    """Localize each query frame with the online, training-free model (SPEC.md section 4).
-
-    ``rows`` yields ``n_frames`` difference rows (np.inf = not a candidate). In sequence mode the
-    first ``init`` frames that have a candidate only fill ``c``; in map mode ``init_rows`` (the
-    reference traversal against itself outside +-R) fills ``c`` and every query frame is decided.
-    The bin range is fixed from the initialisation minima; later values clamp into the edge bins.
-    P(L) is ``prior`` (0.5 by default, SPEC.md section 3); None uses the share of samples in ``b``.
-    """
-    if init < 1:
-        raise UsageError(None, f"--init must be >= 1, got {init}")
-    if same_place_window < 0:
-        raise UsageError(None, f"--same-place-window must be >= 0, got {same_place_window}")
-    check_options(bins, smoothing, prior)
-    if not sequence and init_rows is None:
-        raise WilocError("online", "map mode needs init_rows: the reference traversal's "
-                                   "difference rows against itself")
-
-    match = np.full(n_frames, -1, dtype=np.int64)
-    difference = np.full(n_frames, np.nan)
-    confidence = np.full(n_frames, np.nan)
-    m_r = np.full(n_frames, np.nan)
-    stage = np.full(n_frames, "none", dtype="<U6")
-
-    seen: list[float] = []
-    if not sequence:
-        seen = [m for _, m in map(finite_minimum, init_rows) if np.isfinite(m)]  # type: ignore[arg-type]
-        if not seen:
-            raise WilocError("online", "init_rows hold no finite difference")
-    model = None if sequence else _initial_model(seen, bins, smoothing, prior)
-    recorded = match if sequence else None
-
-    k = -1
-    for k, row in enumerate(rows):
-        if k >= n_frames:
-            raise WilocError("online", f"more difference rows than n_frames={n_frames}")
-        row = np.asarray(row, dtype=np.float64)
+    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+        sequence = self.context is not None and self.context.sequence
         z, m = finite_minimum(row)
-        if z >= 0 and model is None:
-            stage[k] = "init"
-            seen.append(m)
-            if len(seen) == init:
-                model = _initial_model(seen, bins, smoothing, prior)
+        decision = Decision(match=-1, difference=np.nan, confidence=np.nan, stage="none", extra={"m_r": np.nan})
+        if z >= 0 and self._model is None:
+            self._seen.append(m)
+            if len(self._seen) == self.params.init:
+                self._model = self._initial_model()
+            decision = Decision(match=-1, difference=np.nan, confidence=np.nan, stage="init",
+                                extra={"m_r": np.nan})
         elif z >= 0:
-            assert model is not None
-            stage[k] = "update"
-            confidence[k] = float(model.posterior(m))
-            model.add_same(m)
-            m_r[k] = near_miss(row, z, recorded, same_place_window)
-            if np.isfinite(m_r[k]):
-                model.add_different(m_r[k])
-            match[k], difference[k] = z, m
-        if progress is not None:
-            progress(k + 1, n_frames)
-    if k + 1 != n_frames:
-        raise WilocError("online", f"got {k + 1} difference rows, expected n_frames={n_frames}")
-    if model is None and seen:
-        model = _initial_model(seen, bins, smoothing, prior)
+            assert self._model is not None
+            p = float(self._model.posterior(m))
+            self._model.add_same(m)
+            recorded = self._match[:self.frames] if sequence else None
+            m_r = near_miss(row, z, recorded, self.params.same_place_window)
+            if np.isfinite(m_r):
+                self._model.add_different(m_r)
+            decision = Decision(match=z, difference=m, confidence=p, stage="update", new_place=1.0 - p,
+                                extra={"m_r": m_r})
+        if sequence:
+            self._record(decision.match)
+        return decision
 
-    params = {"method": "online", "sequence": sequence, "init": init, "bins": bins,
-              "same_place_window": same_place_window, "prior": prior, "smoothing": smoothing,
-              "init_frames": len(seen)}
-    return Decisions(match=match, difference=difference, confidence=confidence, stage=stage,
-                     columns={"m_r": m_r}, model=model, params=params)
+    def _record(self, match: int) -> None:
+        """Record this frame's match (the array's capacity doubles, so appends are O(1))."""
+        n = self.frames
+        if n == self._match.size:
+            self._match = np.concatenate([self._match, np.full(max(16, n), -1, dtype=np.int64)])
+        self._match[n] = match
+
+    @property
+    def model(self) -> HistogramModel | None:
+        if self._model is None and getattr(self, "_seen", None):
+            return self._initial_model()  # a run that never left initialisation: c as learned
+        return getattr(self, "_model", None)
+
+    def facts(self) -> dict[str, Any]:
+        return {"sequence": bool(self.context and self.context.sequence), "init_frames": len(self._seen)}
+
+    def save_state(self) -> dict[str, Any]:
+        return {"seen": np.asarray(self._seen, dtype=np.float64), "match": self._match[:self.frames].copy(),
+                "model": None if self._model is None else self._model.to_dict()}
+
+    def load_state(self, state: Mapping[str, Any]) -> None:
+        self._seen = np.asarray(state["seen"], dtype=np.float64).tolist()
+        self._match = np.asarray(state["match"], dtype=np.int64).copy()
+        self._model = None if state["model"] is None else HistogramModel.from_dict(state["model"])

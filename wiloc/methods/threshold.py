@@ -7,34 +7,68 @@ confidence >= 1 - t' is the same as accepting m <= t' * normaliser.
 """
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.errors import WilocError
-from wiloc.methods.base import Decisions
-from wiloc.methods.online import best_matches
+from wiloc.candidates import finite_minimum
+from wiloc.errors import ParameterError
+from wiloc.methods.base import Decision, MapContext, Method, iter_blocks
+from wiloc.parameters import Parameters, param
 
 
-def localize_threshold(rows: Iterable[NDArray[np.float64]], n_frames: int, *,
-                       normaliser: float | None = None) -> Decisions:
+@dataclass(frozen=True)
+class ThresholdParams(Parameters):
+    """Parameters of the threshold baseline."""
+
+    owner = "threshold"
+    normaliser: float | None = param(None, "The difference that maps to confidence 0; default: the "
+                                           "descriptor's largest possible difference, else the map's "
+                                           "largest difference to itself.", low=0.0, low_open=True)
+
+
+def largest_difference(context: MapContext) -> float:
+    """The largest finite difference of the map to itself (0 when it has none), block by block."""
+    if context.map_self is None:
+        raise ParameterError("normaliser", "needed: the descriptor has no largest possible difference "
+                                           "and no map differences are at hand to take it from")
+    largest = 0.0
+    for _, block in iter_blocks(context.map_self()):
+        finite = block[np.isfinite(block)]
+        largest = max(largest, float(finite.max()) if finite.size else 0.0)
+    return largest
+
+
+class Threshold(Method):
     """Best match per frame with confidence 1 - m / normaliser.
 
-    ``normaliser`` is the descriptor's natural maximum difference where it has one (the caller
-    knows the descriptor); when None, the largest finite m of the run, so confidences span [0, 1]
-    with the worst decided frame at 0.
+    The normaliser is the ``normaliser`` parameter when given, else the descriptor's natural
+    maximum difference, else the map's largest difference to itself: a constant of the map, so
+    that one normalised threshold means one raw threshold for every query against that map.
     """
-    if normaliser is not None and not (np.isfinite(normaliser) and normaliser > 0):
-        raise WilocError("threshold", f"normaliser must be a positive number, got {normaliser}")
-    match, difference = best_matches(rows, n_frames, "threshold")
-    decided = match >= 0
-    scale = normaliser
-    if scale is None:
-        largest = float(difference[decided].max()) if decided.any() else 0.0
-        scale = largest if largest > 0 else 1.0
-    confidence = np.where(decided, 1.0 - difference / scale, np.nan)
-    stage = np.where(decided, "update", "none")
-    return Decisions(match=match, difference=difference, confidence=confidence, stage=stage,
-                     params={"method": "threshold", "normaliser": float(scale),
-                             "normaliser_given": normaliser is not None})
+
+    name = "threshold"
+    Params = ThresholdParams
+    params: ThresholdParams
+
+    def prepare(self, context: MapContext) -> None:
+        scale = self.params.normaliser or context.natural_max or largest_difference(context)
+        self._scale = float(scale) if scale > 0 else 1.0
+
+    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+        z, m = finite_minimum(row)
+        if z < 0:
+            return Decision(match=-1, difference=np.nan, confidence=np.nan, stage="none")
+        return Decision(match=z, difference=m, confidence=1.0 - m / self._scale, stage="update")
+
+    def facts(self) -> dict[str, Any]:
+        return {"normaliser_used": self._scale}
+
+    def save_state(self) -> dict[str, Any]:
+        return {"scale": self._scale}
+
+    def load_state(self, state: Mapping[str, Any]) -> None:
+        self._scale = float(state["scale"])

@@ -8,22 +8,32 @@ docs/algorithm.md for the measurement behind the default.
 """
 from __future__ import annotations
 
-from collections.abc import Iterable
-from typing import Literal
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
 import scipy.sparse
 from numpy.typing import NDArray
 
+from wiloc.candidates import finite_minimum
 from wiloc.errors import WilocError
-from wiloc.methods.base import Decisions
-from wiloc.methods.online import DEFAULT_BINS, best_matches, finite_minimum, model_from_values
-from wiloc.model import HistogramModel, check_options
+from wiloc.methods.base import Decision, MapContext, Method
+from wiloc.model import HistogramModel
+from wiloc.parameters import Parameters, param
 
-DEFAULT_TRAIN_SMOOTHING = 0.1
-DEFAULT_TRAIN_PAIRS = "minima"
 
-Pairs = Literal["minima", "all"]
+@dataclass(frozen=True)
+class TrainedParams(Parameters):
+    """Parameters of the trained comparator."""
+
+    owner = "trained"
+    bins: int = param(100, "Histogram bins.", low=1, high=100_000)
+    smoothing: float = param(0.1, "Pseudo-count added to every histogram bin.", low=0.0, low_open=True)
+    pairs: Literal["minima", "all"] = param("minima", "Training samples: each frame's best match "
+                                                      "(minima) or every pair (all, the paper's III.B).")
+    prior: float | None = param(None, "P(L); default: the share of same-place training samples.",
+                                low=0.0, high=1.0, low_open=True, high_open=True)
 
 
 def _label_row(labels: NDArray[np.bool_] | scipy.sparse.sparray | scipy.sparse.spmatrix,
@@ -36,16 +46,12 @@ def _label_row(labels: NDArray[np.bool_] | scipy.sparse.sparray | scipy.sparse.s
 
 def train_model(rows: Iterable[NDArray[np.float64]],
                 labels: NDArray[np.bool_] | scipy.sparse.sparray | scipy.sparse.spmatrix,
-                bins: int = DEFAULT_BINS, smoothing: float = DEFAULT_TRAIN_SMOOTHING, *,
-                pairs: Pairs = DEFAULT_TRAIN_PAIRS, prior: float | None = None) -> HistogramModel:
+                params: TrainedParams = TrainedParams()) -> HistogramModel:
     """Fill ``b`` with true-match and ``c`` with false-match differences of a training run.
 
     ``labels`` (n_train_query x n_candidates, dense bool or scipy.sparse) marks true matches.
     The bin range spans [min(0, lowest), highest] of the training values used.
     """
-    check_options(bins, smoothing, prior)
-    if pairs not in ("minima", "all"):
-        raise WilocError("train", f"pairs must be 'minima' or 'all', got {pairs!r}")
     if scipy.sparse.issparse(labels):
         labels = scipy.sparse.csr_array(labels)
     shape = labels.shape
@@ -58,7 +64,7 @@ def train_model(rows: Iterable[NDArray[np.float64]],
             raise WilocError("train", f"labels are {shape[0]} x {shape[1]}, difference row {k} "
                                       f"has {row.size} values")
         truth = _label_row(labels, k)
-        if pairs == "minima":
+        if params.pairs == "minima":
             z, m = finite_minimum(row)
             if z >= 0:
                 (same if truth[z] else different).append(np.array([m]))
@@ -73,20 +79,40 @@ def train_model(rows: Iterable[NDArray[np.float64]],
     if b.size == 0 or c.size == 0:
         raise WilocError("train", "training needs both true and false matches "
                                   f"(got {b.size} true, {c.size} false)")
-    model = model_from_values(np.concatenate([b, c]), bins, smoothing, prior)
+    model = HistogramModel.from_values(np.concatenate([b, c]), params.bins, smoothing=params.smoothing,
+                                       prior=params.prior)
     model.add_same(b)
     model.add_different(c)
     return model
 
 
-def localize_trained(rows: Iterable[NDArray[np.float64]], n_frames: int,
-                     model: HistogramModel) -> Decisions:
-    """Best match per frame with confidence P(L | m) from a trained model."""
-    match, difference = best_matches(rows, n_frames, "trained")
-    decided = match >= 0
-    confidence = np.full(n_frames, np.nan)
-    confidence[decided] = model.posterior(difference[decided])
-    stage = np.where(decided, "update", "none")
-    return Decisions(match=match, difference=difference, confidence=confidence, stage=stage,
-                     model=model, params={"method": "trained", "bins": model.n_bins,
-                                          "smoothing": model.smoothing, "prior": model.prior})
+class Trained(Method):
+    """Best match per frame with confidence P(L | m) from a model trained on a labelled pair."""
+
+    name = "trained"
+    Params = TrainedParams
+    needs = frozenset({"training"})
+    params: TrainedParams
+
+    def prepare(self, context: MapContext) -> None:
+        if context.training is None:
+            raise WilocError("trained", "needs a labelled training pair", parameter="training")
+        pair = context.training()
+        self._model = train_model(pair.rows, pair.labels, self.params)
+
+    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+        z, m = finite_minimum(row)
+        if z < 0:
+            return Decision(match=-1, difference=np.nan, confidence=np.nan, stage="none")
+        p = float(self._model.posterior(m))
+        return Decision(match=z, difference=m, confidence=p, stage="update", new_place=1.0 - p)
+
+    @property
+    def model(self) -> HistogramModel | None:
+        return getattr(self, "_model", None)
+
+    def save_state(self) -> dict[str, Any]:
+        return {"model": self._model.to_dict()}
+
+    def load_state(self, state: Mapping[str, Any]) -> None:
+        self._model = HistogramModel.from_dict(state["model"])

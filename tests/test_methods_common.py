@@ -1,0 +1,170 @@
+"""Checks every registered method must pass (as scikit-learn runs common checks over every
+estimator), plus the example method of docs/architecture.md added the documented way."""
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from wiloc import api, demo
+from wiloc.cache import Cache
+from wiloc.candidates import finite_minimum
+from wiloc.errors import ParameterError
+from wiloc.localizer import Localizer
+from wiloc.methods import registry
+from wiloc.methods.base import ArrayRows, Decision, Decisions, MapContext, Method, TrainingRows
+from wiloc.parameters import Parameters, declared, param
+
+
+# --- the example of docs/architecture.md: one module (here inline) and one registry line ----------
+
+@dataclass(frozen=True)
+class RatioParams(Parameters):
+    owner = "ratio"
+    window: int = param(2, "Frames within +-window of the best match are the same place.", low=0)
+
+
+class Ratio(Method):
+    """Lowe's ratio test on whole images: confidence 1 - m / m2, m2 the best difference outside
+    +-window of the best match."""
+
+    name = "ratio"
+    Params = RatioParams
+    columns = ("second",)
+    params: RatioParams
+
+    def prepare(self, context: MapContext) -> None:
+        pass
+
+    def decide(self, row: np.ndarray, odometry: float | None) -> Decision:
+        z, m = finite_minimum(row)
+        if z < 0:
+            return Decision(match=-1, difference=np.nan, confidence=np.nan, stage="none")
+        others = row.copy()
+        others[max(0, z - self.params.window):z + self.params.window + 1] = np.inf
+        second = float(others.min()) if np.isfinite(others).any() else np.inf
+        confidence = 1.0 - m / second if second > 0 and np.isfinite(second) else 0.0
+        return Decision(match=z, difference=m, confidence=confidence, stage="update", extra={"second": second})
+
+    def save_state(self) -> dict[str, Any]:
+        return {}
+
+    def load_state(self, state: Mapping[str, Any]) -> None:
+        pass
+
+
+@pytest.fixture
+def with_ratio(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(registry.METHODS, "ratio", Ratio)  # the one registry line
+
+
+ALL = [*registry.METHODS, "ratio"]
+
+
+# --- synthetic map and query ---------------------------------------------------------------------
+
+def _rows(truth: np.ndarray, n_map: int, rng: np.random.Generator) -> np.ndarray:
+    offset = truth[:, None] - np.arange(n_map)[None, :]
+    return 1.0 + 0.08 * rng.standard_normal((truth.size, n_map)) - 0.6 * np.exp(-0.5 * (offset / 1.5) ** 2)
+
+
+def _context(method: Method, rng: np.random.Generator) -> MapContext:
+    n_map = 80
+    ref = ArrayRows(_rows(np.arange(n_map, dtype=np.float64), n_map, rng))
+    labels = np.arange(50)[:, None] == np.arange(n_map)[None, :]  # strict: some best matches are wrong
+    train = TrainingRows(list(_rows(np.arange(50, dtype=np.float64), n_map, rng)), labels)
+    return MapContext(sequence=False, exclude_recent=5, n_map=n_map, natural_max=2.0,
+                      map_self=lambda: ref, training=lambda: train)
+
+
+def _query(rng: np.random.Generator) -> np.ndarray:
+    return _rows(np.linspace(5.0, 70.0, 40), 80, rng)
+
+
+def _method(name: str, **params: Any) -> Method:
+    return registry.make_method(name, {"particles": 300, **params} if name == "catgraph" else params)
+
+
+def _equal(a: Decisions, b: Decisions) -> None:
+    for x, y in [(a.match, b.match), (a.difference, b.difference), (a.confidence, b.confidence),
+                 (a.stage, b.stage)]:
+        np.testing.assert_array_equal(x, y)
+    assert a.columns.keys() == b.columns.keys()
+    for name in a.columns:
+        np.testing.assert_array_equal(a.columns[name], b.columns[name])
+
+
+# --- the checks ----------------------------------------------------------------------------------
+
+@pytest.mark.usefixtures("with_ratio")
+@pytest.mark.parametrize("name", ALL)
+def test_parameters_are_declared_with_help_and_validated(name: str) -> None:
+    cls = registry.method_class(name)
+    assert issubclass(cls.Params, Parameters) and cls.Params.__dataclass_params__.frozen
+    for d in declared(cls.Params):
+        assert d.help, f"{name}.{d.name} has no help"
+    with pytest.raises(ParameterError) as err:
+        cls(no_such_parameter=1)
+    assert err.value.parameter == "no_such_parameter" and name in err.value.problem
+    for d in declared(cls.Params):
+        if d.low is not None:
+            with pytest.raises(ParameterError) as err:
+                cls(**{d.name: (d.low - 1,) * (d.length or 1) if d.kind == "floats" else d.low - 1})
+            assert err.value.parameter == d.name
+
+
+@pytest.mark.usefixtures("with_ratio")
+@pytest.mark.parametrize("name", ALL)
+def test_batch_run_equals_stepping_and_records_every_parameter(name: str) -> None:
+    rng = np.random.default_rng(1)
+    context, query = _context(_method(name), rng), _query(rng)
+    batch_method = _method(name)
+    batch_method.start(context)
+    batch = batch_method.run(iter(query), len(query))
+    stepper = _method(name)
+    stepper.start(context)
+    steps = [stepper.step(row) for row in query]
+    _equal(batch, Decisions.collect(steps, stepper.columns))
+    assert set(batch.columns) == set(stepper.columns)
+    header = batch.params
+    assert header["method"] == name
+    assert {f.name for f in fields(stepper.Params)} <= set(header)
+    assert batch.decided.mean() > 0.9
+
+
+@pytest.mark.usefixtures("with_ratio")
+@pytest.mark.parametrize("name", ALL)
+def test_state_restores_identical_later_decisions(name: str) -> None:
+    rng = np.random.default_rng(2)
+    context, query = _context(_method(name), rng), _query(rng)
+    whole = _method(name, **({"seed": 9} if name == "catgraph" else {}))
+    whole.start(context)
+    expected = [whole.step(row) for row in query]
+    first = _method(name, **({"seed": 9} if name == "catgraph" else {}))
+    first.start(context)
+    for row in query[:20]:
+        first.step(row)
+    state = copy.deepcopy(first.state())
+    resumed = _method(name, **({"seed": 9} if name == "catgraph" else {}))
+    resumed.restore(context, state)
+    assert resumed.frames == 20
+    assert [resumed.step(row) for row in query[20:]] == expected[20:]
+
+
+@pytest.mark.usefixtures("with_ratio")
+def test_the_example_method_runs_through_localize_and_the_localizer(tmp_path: Path) -> None:
+    route = demo.make_demo_route(tmp_path / "route")
+    cache = Cache(tmp_path / "cache")
+    run = api.localize(route.queries[0], reference=route.reference, method="ratio", method_params={"window": 3},
+                       out=tmp_path / "ratio.csv", cache=cache)
+    assert run.results.frames.columns.tolist()[-1] == "second"
+    assert run.results.meta["params"]["window"] == 3
+    loc = Localizer(route.reference, method="ratio", window=3, cache=cache)
+    first = loc.observe(sorted(route.queries[0].iterdir())[0])
+    assert first.match_name == run.results.frames["match"].iloc[0]
+    assert f"{first.confidence:.9g}" == f"{run.decisions.confidence[0]:.9g}"

@@ -1,0 +1,124 @@
+"""Command-line options made from the methods' declared parameters, and flags for library names.
+
+Every parameter of every registered method becomes one ``--flag`` of ``wiloc localize``, shown in
+the help panel of the method(s) that take it, with its default and valid range. A flag given for a
+method that does not take it is a usage error naming the method. Library errors name parameters
+(``particles``, ``map_odometry``); :func:`flag` turns those into the flags a user typed.
+"""
+from __future__ import annotations
+
+import functools
+import inspect
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import typer
+
+from wiloc.errors import UsageError
+from wiloc.methods.registry import METHODS
+from wiloc.parameters import Declared, declared
+
+#: Library parameter names whose flag is not simply ``--`` + the name with dashes.
+FLAGS = {"reference": "--map", "training": "--train-query", "query_names_file": "--names",
+         "ref_names_file": "--map-names", "out": "--out"}
+
+_TYPES = {"int": int, "float": float, "str": str, "bool": bool, "floats": str}
+
+
+def flag(parameter: str) -> str:
+    """The command-line flag of a library parameter name."""
+    return FLAGS.get(parameter, "--" + parameter.replace("_", "-"))
+
+
+@dataclass(frozen=True)
+class MethodOption:
+    """One command-line option: a parameter name and the methods that declare it."""
+
+    name: str
+    by_method: dict[str, Declared]
+
+    @property
+    def first(self) -> Declared:
+        return next(iter(self.by_method.values()))
+
+    def default_text(self) -> str:
+        """Each method's default, as the help shows it."""
+        def shown(d: Declared) -> str:
+            value = d.default
+            text = ",".join(f"{v:g}" for v in value) if isinstance(value, tuple) else str(value)
+            return "none" if value is None else text
+        if len(self.by_method) == 1:
+            return shown(self.first)
+        return "; ".join(f"{m}: {shown(d)}" for m, d in self.by_method.items())
+
+    def help(self) -> str:
+        d = self.first
+        parts = [d.help]
+        if d.range_text:
+            parts.append(f"({d.range_text})")
+        if d.kind == "floats":
+            parts.append("Comma-separated numbers.")
+        return " ".join(parts)
+
+    def parse(self, value: Any) -> Any:
+        """The option's value as the parameter takes it (comma-separated text -> tuple of floats)."""
+        if self.first.kind != "floats":
+            return value
+        try:
+            return tuple(float(part) for part in str(value).split(",") if part.strip())
+        except ValueError:
+            raise UsageError(flag(self.name), f"give comma-separated numbers, got {value!r}") from None
+
+
+@functools.cache
+def method_options() -> dict[str, MethodOption]:
+    """Every declared parameter of every registered method, once, in registry order."""
+    options: dict[str, dict[str, Declared]] = {}
+    for method, cls in METHODS.items():
+        for d in declared(cls.Params):
+            options.setdefault(d.name, {})[method] = d
+    return {name: MethodOption(name, by_method) for name, by_method in options.items()}
+
+
+def _panel(option: MethodOption) -> str:
+    methods = list(option.by_method)
+    return f"{methods[0]} options" if len(methods) == 1 else "options of " + ", ".join(methods)
+
+
+def with_method_options(command: Callable[..., Any]) -> Callable[..., Any]:
+    """``command`` with one keyword option per method parameter, collected into its
+    ``method_options`` argument as {name: value} for the options the user gave."""
+    signature = inspect.signature(command, eval_str=True)
+    static = [p for p in signature.parameters.values() if p.name != "method_options"]
+    taken = {p.name for p in static}
+    generated = []
+    for name, option in method_options().items():
+        if name in taken:
+            raise RuntimeError(f"method parameter '{name}' clashes with an option of {command.__name__}")
+        generated.append(inspect.Parameter(
+            name, inspect.Parameter.KEYWORD_ONLY, annotation=Optional[_TYPES[option.first.kind]],
+            default=typer.Option(None, flag(name), help=option.help(), show_default=option.default_text(),
+                                 rich_help_panel=_panel(option))))
+
+    @functools.wraps(command)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        given = {name: kwargs.pop(name) for name in method_options() if name in kwargs}
+        return command(*args, method_options={k: v for k, v in given.items() if v is not None}, **kwargs)
+
+    wrapper.__signature__ = signature.replace(parameters=[*static, *generated])  # type: ignore[attr-defined]
+    return wrapper
+
+
+def method_params(method: str, given: Mapping[str, Any]) -> dict[str, Any]:
+    """The parameters for ``method`` from the method options given; an option that the method
+    does not take is a usage error naming the method and the methods that do take it."""
+    options = method_options()
+    params = {}
+    for name, value in given.items():
+        option = options[name]
+        if method not in option.by_method:
+            takers = ", ".join(option.by_method)
+            raise UsageError(flag(name), f"method '{method}' takes no such option (it is an option of {takers})")
+        params[name] = option.parse(value)
+    return params

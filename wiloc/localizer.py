@@ -1,0 +1,260 @@
+"""The streaming localizer: one frame in (an image, an image file or a descriptor), a decision out.
+
+``Localizer`` describes each frame, computes its differences to the map (or, in sequence mode, to
+every earlier frame outside the recent window: the map grows as frames arrive) and steps the
+chosen method. Per-frame cost is bounded by the map's size: no N x N matrix is built; the map's
+differences to itself, which some methods learn from when started, are computed block by block
+and never stored. ``save``/``load`` let a long run stop and resume with identical decisions.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc import __version__
+from wiloc.cache import Cache, Entry
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
+from wiloc.differences import ComputedDifferences
+from wiloc.distances import DifferencesTo, pairwise
+from wiloc.errors import WilocError
+from wiloc.frames import read_gray
+from wiloc.methods.base import Decision, MapContext, Method, TrainingRows
+from wiloc.methods.registry import make_method
+from wiloc.training import Training, training_rows
+from wiloc.traversals import Describer
+
+STATE_FORMAT = "wiloc-localizer-state"
+STATE_VERSION = 1
+
+
+class Localizer:
+    """Frame-by-frame localization against a map (or within the run itself, in sequence mode).
+
+    ``map`` is a traversal folder, a descriptor matrix file (with ``metric``) or an in-memory
+    ``Entry`` (``wiloc.traversals.entry_from_array``), None for sequence mode (loop closure within
+    the frames observed). ``method`` names a registered method and
+    ``params`` its parameters; ``training`` is the labelled pair of ``trained`` (traversals, or
+    their difference rows and truth as ``TrainingRows``); ``map_odometry``
+    the map's odometry CSV for methods that take odometry.
+
+        loc = Localizer(map="day_right/", descriptor="sad", method="catgraph", seed=0)
+        for path in sorted(Path("day_left").glob("*.jpg")):
+            decision = loc.observe(path)
+    """
+
+    def __init__(self, map: str | Path | Entry | None = None, *, descriptor: str = "sad",
+                 descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
+                 method: str = "online", exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
+                 training: Training | TrainingRows | None = None, map_odometry: str | Path | None = None,
+                 map_names: str | Path | None = None, cache: Cache | None = None, jobs: int | None = None,
+                 **params: Any) -> None:
+        self._setup(map, descriptor, descriptor_params, metric, method, exclude_recent, training,
+                    map_odometry, map_names, cache, jobs, params)
+        self.method.check_inputs(sequence=self.sequence, training=training is not None,
+                                 map_odometry=map_odometry is not None)
+        self.method.start(self._context())
+
+    def _setup(self, map: str | Path | Entry | None, descriptor: str, descriptor_params: Mapping[str, Any] | None,
+               metric: str | None, method: str, exclude_recent: int, training: Training | TrainingRows | None,
+               map_odometry: str | Path | None, map_names: str | Path | None, cache: Cache | None,
+               jobs: int | None, params: Mapping[str, Any]) -> None:
+        """Everything but the method's start: shared by a new localizer and a loaded one."""
+        self.method: Method = make_method(method, params)
+        self.exclude_recent = check_exclude_recent(exclude_recent)
+        self.sequence = map is None
+        self._describer = Describer(descriptor, dict(descriptor_params or {}), cache or Cache(), metric=metric,
+                                    jobs=jobs)
+        self._training = training
+        self._map_path = None if map is None or isinstance(map, Entry) else Path(map)
+        self._map_odometry = None if map_odometry is None else Path(map_odometry)
+        self._spec = None if self._map_path is not None and self._map_path.is_file() else self._describer.spec
+        self.names: list[str] = []  # the frames observed, in order
+        if map is None:
+            self._map: Entry | None = None
+            self._seen = np.empty((0, self._spec.length), dtype=self._spec.dtype)
+            self._metric, self._scale = self._spec.metric, self._spec.scale
+            self._natural_max = self._spec.natural_max
+            return
+        self._map = map if isinstance(map, Entry) else \
+            self._describer.entry(self._map_path, None if map_names is None else Path(map_names))
+        n_map, R = len(self._map.names), self.exclude_recent
+        if n_map < 2:
+            raise WilocError(self._map.folder, f"the map has {n_map} frame(s); it needs at least 2")
+        if "map_self" in self.method.needs and n_map <= R + 1:
+            raise WilocError(self._map.folder, f"the map has {n_map} frames: with exclude_recent={R} no two map "
+                                             "frames are far enough apart to learn different-place differences")
+        self._metric, self._scale, self._natural_max = self._map.metric, self._map.scale, self._map.natural_max
+        self._seen = self._map.data[:0]  # sequence mode's growing candidates; none against a map
+        self._to_map = DifferencesTo(self._map.data, self._metric, self._scale)
+
+    def _context(self) -> MapContext:
+        """What the method is started on: the map, read lazily and never stored whole."""
+        R = self.exclude_recent
+        if self._map is None:
+            return MapContext(sequence=True, exclude_recent=R, natural_max=self._natural_max)
+        arclength = None
+        if self._map_odometry is not None:
+            from wiloc.odometry import read_odometry
+            arclength = read_odometry(self._map_odometry).arclength(self._map.names)
+        return MapContext(
+            sequence=False, exclude_recent=R, n_map=len(self._map.names), natural_max=self._natural_max,
+            arclength=arclength, map_self=lambda: ComputedDifferences(self._map.data, self._to_map),
+            training=self._training_rows if self._training is not None else None)
+
+    def _training_rows(self) -> TrainingRows:
+        """The labelled pair of ``trained``: given as rows, or computed from its traversals."""
+        if isinstance(self._training, TrainingRows):
+            return self._training
+        return training_rows(self._training, self._describer, self.exclude_recent)
+
+    @property
+    def map_names(self) -> list[str]:
+        """The candidate frames' names: the map's, or in sequence mode the frames observed."""
+        return self.names if self._map is None else self._map.names
+
+    def describe(self, frame: NDArray | str | Path) -> NDArray:
+        """The descriptor of an image file, a decoded image (gray, or BGR as OpenCV decodes) or a
+        descriptor given as it is."""
+        if isinstance(frame, (str, Path)):
+            if self._spec is None:
+                raise WilocError(frame, "a map of imported descriptors takes descriptors, not images")
+            return np.asarray(self._spec.compute(read_gray(Path(frame), self._spec.min_size)), dtype=self._spec.dtype)
+        array = np.asarray(frame)
+        length = self._map.data.shape[1] if self._map is not None else self._spec.length
+        if array.ndim == 1:
+            if array.size != length:
+                raise WilocError("observe", f"a descriptor of {array.size} values; this map's have {length}")
+            return array
+        if self._spec is None:
+            raise WilocError("observe", "a map of imported descriptors takes descriptors, not images")
+        if array.ndim == 3 and array.shape[2] in (3, 4):
+            array = cv2.cvtColor(array, cv2.COLOR_BGR2GRAY if array.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+        if array.ndim != 2 or array.dtype != np.uint8:
+            raise WilocError("observe", f"an image must be 8-bit gray or BGR, got shape {array.shape} of {array.dtype}")
+        return np.asarray(self._spec.compute(array), dtype=self._spec.dtype)
+
+    def differences(self, descriptor: NDArray) -> NDArray[np.float64]:
+        """The difference row of the next frame: to every map frame, or in sequence mode to every
+        observed frame, inf within the recent window."""
+        row_desc = np.asarray(descriptor)[None, :]
+        if self._map is not None:
+            return self._to_map(row_desc)[0].astype(np.float64)
+        k = len(self.names)
+        row = np.full(k, np.inf)
+        far = max(0, k - self.exclude_recent)
+        if far:
+            row[:far] = pairwise(row_desc, self._seen[:far], self._metric, self._scale)[0]
+        return mask_recent(row, k, self.exclude_recent)
+
+    def observe(self, frame: NDArray | str | Path, name: str | None = None,
+                odometry: float | None = None) -> Decision:
+        """Decide one frame: describe it, compare it, step the method. ``name`` defaults to the
+        file's name, else the frame's index (zero-padded); ``odometry`` is the distance travelled
+        since the previous frame, for methods that take it."""
+        descriptor = self.describe(frame)
+        k = len(self.names)
+        if name is None:
+            name = Path(frame).name if isinstance(frame, (str, Path)) else f"{k:06d}"
+        decision = self.method.step(self.differences(descriptor), odometry)
+        if self._map is None:
+            self._grow(descriptor)
+        self.names.append(name)
+        candidates = self.map_names
+        match_name = candidates[decision.match] if decision.match >= 0 else ""
+        return replace(decision, frame=name, match_name=match_name)
+
+    def _grow(self, descriptor: NDArray) -> None:
+        """Sequence mode: keep the frame's descriptor as a candidate for later frames."""
+        k = len(self.names)
+        if k == self._seen.shape[0]:
+            grown = np.empty((max(16, 2 * k), self._seen.shape[1]), dtype=self._seen.dtype)
+            grown[:k] = self._seen
+            self._seen = grown
+        self._seen[k] = descriptor
+
+    # -------------------------------------------------------------------------------- save / load
+
+    def state(self) -> dict[str, Any]:
+        """Everything needed to continue: the setup, the frames observed and the method's state."""
+        return {"format": STATE_FORMAT, "version": STATE_VERSION, "wiloc": __version__,
+                "map": None if self._map_path is None else str(self._map_path.resolve()),
+                "map_digest": None if self._map is None else self._map.digest,
+                "map_odometry": None if self._map_odometry is None else str(self._map_odometry.resolve()),
+                "descriptor": self._describer.descriptor, "descriptor_params": dict(self._describer.params),
+                "metric": self._describer.metric, "method": self.method.name,
+                "params": self.method.params.as_dict(), "exclude_recent": self.exclude_recent,
+                "names": list(self.names), "seen": self._seen[:len(self.names)],
+                "method_state": self.method.state()}
+
+    def save(self, path: str | Path) -> Path:
+        """Write :meth:`state` to ``path`` (an .npz file), atomically: a kill leaves the old file."""
+        path = Path(path)
+        state = self.state()
+        arrays = {"seen": state.pop("seen")}
+        method_state = state.pop("method_state")
+        state["method_state"] = {}
+        for key, value in method_state.items():
+            if isinstance(value, np.ndarray):
+                arrays[f"method.{key}"] = value
+            else:
+                state["method_state"][key] = value
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as out:
+                np.savez(out, meta=np.array(json.dumps(state)), **arrays)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, cache: Cache | None = None, jobs: int | None = None,
+             map: Entry | None = None) -> Localizer:
+        """A localizer continuing from a state written by :meth:`save`: its next decisions are the
+        ones the saved localizer would have made. The map must be unchanged; a map that was held
+        in memory is given again as ``map``."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                meta = json.loads(str(data["meta"]))
+                arrays = {key: data[key] for key in data.files if key != "meta"}
+        except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
+            raise WilocError(path, f"not a saved localizer state ({exc})") from None
+        if meta.get("format") != STATE_FORMAT or meta.get("version") != STATE_VERSION:
+            raise WilocError(path, "not a saved localizer state of this wiloc version")
+        if meta["map"] is None and meta["map_digest"] is not None and map is None:
+            raise WilocError(path, "was saved with a map held in memory: give it again (map=...)")
+        loc = cls.__new__(cls)
+        loc._setup(map if map is not None else meta["map"], meta["descriptor"], meta["descriptor_params"], meta["metric"], meta["method"],
+                   meta["exclude_recent"], None, meta["map_odometry"], None, cache, jobs,
+                   {k: tuple(v) if isinstance(v, list) else v for k, v in meta["params"].items()})
+        if loc._map is not None and loc._map.digest != meta["map_digest"]:
+            raise WilocError(loc._map.folder, f"the map changed since {path} was saved")
+        loc.names = list(meta["names"])
+        seen = arrays["seen"]
+        if loc._map is None:
+            loc._seen = seen.astype(loc._seen.dtype, copy=True)
+        method_state = dict(meta["method_state"])
+        method_state.update({key[len("method."):]: value for key, value in arrays.items() if key.startswith("method.")})
+        loc.method.restore(loc._context(), method_state)
+        return loc
+
+    @property
+    def frames(self) -> int:
+        """Frames observed so far."""
+        return len(self.names)
+
+    def __repr__(self) -> str:
+        where = "sequence mode" if self._map is None else f"map={self._map.folder!r}"
+        return f"Localizer({where}, descriptor={self._describer.descriptor!r}, method={self.method!r}, frames={self.frames})"

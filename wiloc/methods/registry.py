@@ -1,0 +1,31 @@
+"""Method names -> method classes. Adding a method is one module and one line here."""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from wiloc.errors import ParameterError
+from wiloc.methods.base import Method
+from wiloc.methods.catgraph import CatGraph
+from wiloc.methods.online import Online
+from wiloc.methods.threshold import Threshold
+from wiloc.methods.trained import Trained
+
+METHODS: dict[str, type[Method]] = {
+    "online": Online,
+    "threshold": Threshold,
+    "trained": Trained,
+    "catgraph": CatGraph,
+}
+
+
+def method_class(name: str) -> type[Method]:
+    """The class registered under ``name``; a ParameterError naming the choices otherwise."""
+    if name not in METHODS:
+        raise ParameterError("method", f"unknown method '{name}' (choose from {', '.join(METHODS)})")
+    return METHODS[name]
+
+
+def make_method(name: str, params: Mapping[str, Any] | None = None) -> Method:
+    """A new method object of the registered ``name`` with ``params`` (defaults for the rest)."""
+    return method_class(name)(params)

@@ -1,0 +1,31 @@
+"""The labelled traversal pair of the ``trained`` comparator: its difference rows and truth."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from wiloc.candidates import check_exclude_recent
+from wiloc.differences import candidate_rows, difference_matrix
+from wiloc.groundtruth import TruthSource
+from wiloc.methods.base import TrainingRows
+from wiloc.traversals import Describer, stage
+
+
+@dataclass(frozen=True)
+class Training:
+    """A labelled traversal pair for the ``trained`` comparator (never the tested pair)."""
+
+    query: Path
+    reference: Path
+    truth: TruthSource
+
+
+def training_rows(training: Training, describer: Describer, exclude_recent: int) -> TrainingRows:
+    """The pair's difference rows (query against reference) and its truth matrix."""
+    R = check_exclude_recent(exclude_recent)
+    tq, tr = describer.entry(Path(training.query)), describer.entry(Path(training.reference))
+    with difference_matrix(tq, tr, describer.cache,
+                           progress=stage(describer.progress, "training differences")) as matrix:
+        rows = list(candidate_rows(matrix, False, R))
+    truth = training.truth.load(tq.names, tr.names, str(training.query), False, R)
+    return TrainingRows(rows=rows, labels=truth.matrix)

@@ -1,0 +1,88 @@
+"""Traversals as descriptor matrices: an image folder described through the cache, a user's
+descriptor matrix file imported into it, or descriptors held in memory."""
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wiloc.cache import Cache, Entry, EntryHeader
+from wiloc.describing import describe_folder, import_matrix
+from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
+from wiloc.errors import ParameterError, UsageError, WilocError
+
+Progress = Callable[[str, int, int], None]
+
+
+def descriptor_spec(descriptor: str, params: Mapping[str, Any] | None = None) -> DescriptorSpec:
+    """The descriptor's spec; an unknown name or parameter is an error naming ``descriptor``."""
+    try:
+        return get_descriptor(descriptor, **dict(params or {}))
+    except ValueError as exc:
+        raise ParameterError("descriptor", str(exc)) from None
+
+
+def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, source: str = "memory") -> Entry:
+    """Descriptors computed elsewhere (one row per frame, named) as an entry that is not cached:
+    a map held in memory. Its digest is a hash of names and values, so a change is seen."""
+    data = np.ascontiguousarray(data, dtype=spec.dtype)
+    if data.ndim != 2 or data.shape[1] != spec.length or data.shape[0] != len(names):
+        raise WilocError(source, f"descriptors of shape {data.shape} for {len(names)} names; "
+                                 f"'{spec.name}' rows have {spec.length} values")
+    header = EntryHeader.create(source, spec.name, dict(spec.params), spec.metric, spec.scale, spec.natural_max,
+                                spec.dtype, spec.length)
+    digest = hashlib.sha256("\0".join(names).encode() + data.tobytes()).hexdigest()
+    return Entry(**asdict(header), names=list(names), data=data, digest=digest)
+
+
+def stage(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
+    """A per-step ``progress(done, total)`` callback that tags the step's label."""
+    if progress is None:
+        return None
+    return lambda done, total: progress(label, done, total)
+
+
+@dataclass
+class Describer:
+    """How traversals become descriptor matrices: one descriptor with its parameters, through one
+    cache. ``metric`` is the difference of imported matrix files; ``skipped`` collects the frames
+    that could not be described, as (image path, why)."""
+
+    descriptor: str = "sad"
+    params: Mapping[str, Any] = field(default_factory=dict)
+    cache: Cache = field(default_factory=Cache)
+    metric: str | None = None
+    jobs: int | None = None
+    progress: Progress | None = None
+    skipped: list[tuple[str, str]] = field(default_factory=list)
+
+    @property
+    def spec(self) -> DescriptorSpec:
+        return descriptor_spec(self.descriptor, self.params)
+
+    def label(self, source: Path) -> str:
+        """What results headers call the descriptor of ``source``."""
+        return f"external:{self.metric}" if Path(source).is_file() else self.descriptor
+
+    def entry(self, source: Path, names: Path | None = None) -> Entry:
+        """The descriptors of a folder (computed on demand) or of an imported matrix file
+        (``names``: its frame names, one per line, for .npy matrices)."""
+        source = Path(source)
+        if source.is_file():
+            if self.metric is None:
+                raise UsageError(source, "a descriptor matrix file needs a metric (l1, sqeuclidean, hamming, cosine)")
+            return import_matrix(source, self.cache, names, self.metric).entry
+        report = describe_folder(source, self.spec, self.cache, jobs=self.jobs,
+                                 progress=stage(self.progress, f"describe {source.name}"))
+        self.skipped.extend((str(source / name), reason) for name, reason in report.failed)
+        entry = report.entry
+        if len(entry.names) == 0:
+            raise WilocError(source, "no usable frames (every image failed to load)")
+        if entry.data.dtype.kind == "f" and not np.all(np.isfinite(entry.data)):
+            bad = entry.names[int(np.flatnonzero(~np.all(np.isfinite(entry.data), axis=1))[0])]
+            raise WilocError(source, f"descriptor of frame '{bad}' holds NaN or infinite values")
+        return entry
