@@ -3,13 +3,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib.colors
 import matplotlib.image
 import numpy as np
 import pytest
 
 from wiloc.metrics import pr_curve, precision_at_thresholds
 from wiloc.model import HistogramModel
-from wiloc.plots import plot_model, plot_pr, plot_threshold
+from wiloc.plots import plot_model, plot_pr, plot_reliability, plot_threshold
+from wiloc.reliability import reliability_bins
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -54,3 +56,16 @@ def test_plot_threshold_writes_png(tmp_path: Path, run: tuple[np.ndarray, np.nda
     series = {"probabilistic / day": (grid, precision_at_thresholds(confidence, correct, grid)),
               "threshold / day": (grid, precision_at_thresholds(1 - confidence, correct, grid))}
     read_png(plot_threshold(series, tmp_path / "fig5.png"))
+
+
+def test_plot_reliability_writes_png_with_legend_beside_the_axes(tmp_path: Path,
+                                                                run: tuple[np.ndarray, np.ndarray]) -> None:
+    confidence, correct = run
+    series = {"online day_left": reliability_bins(confidence, correct),
+              "threshold day_left": reliability_bins(np.full(10, 0.5), np.ones(10, dtype=bool))}
+    image = read_png(plot_reliability(series, tmp_path / "sub" / "reliability.png"))[..., :3]
+    height, width = image.shape[:2]
+    for colour in ("#1f77b4", "#ff7f0e"):  # matplotlib's C0 and C1, one per run
+        near = np.all(np.abs(image - matplotlib.colors.to_rgb(colour)) < 0.06, axis=-1)
+        assert near[:, : int(0.75 * width)].any()  # drawn in the data
+        assert near[: height // 4, int(0.76 * width):].any()  # and in the legend, right of the axes

@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any
 
 import numpy as np
@@ -23,9 +23,11 @@ from wiloc.describing import DescribeReport, describe_folder, import_matrix
 from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matrix
 from wiloc.errors import UsageError, WilocError
 from wiloc.groundtruth import Truth, TruthSource
-from wiloc.methods.base import Decisions, MapContext, Method
+from wiloc.methods.base import Decisions, MapContext
 from wiloc.methods.registry import make_method
-from wiloc.metrics import PRCurve, Summary, global_threshold, precision_at_thresholds, summarize
+from wiloc.metrics import (PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
+                           precision_at_thresholds, summarize)
+from wiloc.reliability import DEFAULT_CUTS, Calibration, ReliabilityBins, summarize_calibration
 from wiloc.results import Results, read_results, write_results
 from wiloc.training import Training, training_rows
 from wiloc.traversals import Describer, Progress, descriptor_spec, stage
@@ -157,13 +159,15 @@ def _query_steps(odometry: Path | None, names: list[str]) -> np.ndarray | None:
 
 @dataclass
 class Evaluation:
-    """One results file scored against ground truth."""
+    """One results file scored against ground truth; ``confidence`` is NaN for undecided frames."""
 
     path: Path
     results: Results
     truth: Truth
     correct: np.ndarray
     summary: Summary
+    confidence: np.ndarray
+    calibration: Calibration
 
     @property
     def traversal(self) -> str:
@@ -178,8 +182,9 @@ class Evaluation:
         return self.summary.curve
 
 
-def evaluate(path: Path, truth: TruthSource) -> Evaluation:
-    """Precision-recall metrics of one results file against ground truth."""
+def evaluate(path: Path, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS) -> Evaluation:
+    """Precision-recall metrics and calibration (with precision and recall at fixed confidence
+    ``cuts``) of one results file against ground truth."""
     results = read_results(Path(path))
     query_names = results.frames["frame"].tolist()
     sequence = results.meta.get("mode") == "sequence"
@@ -188,25 +193,47 @@ def evaluate(path: Path, truth: TruthSource) -> Evaluation:
                         int(results.meta.get("exclude_recent", 0) or 0))
     match = results.match_index
     summary = summarize(match, results.confidence, loaded)
-    correct = loaded.is_true(np.arange(len(match)), match)
-    return Evaluation(path=Path(path), results=results, truth=loaded, correct=correct, summary=summary)
+    correct = correct_matches(match, loaded)
+    confidence = decided_confidence(match, results.confidence)
+    calibration = summarize_calibration(confidence, correct, summary.with_true_match, cuts)
+    return Evaluation(path=Path(path), results=results, truth=loaded, correct=correct, summary=summary,
+                      confidence=confidence, calibration=calibration)
 
 
 # ------------------------------------------------------------------------------------------ compare
 
 @dataclass
 class Comparison:
-    """Methods x traversals side by side: the paper's Table I and Table II.
+    """Methods x traversals side by side: the paper's Table I, Table II and the calibration table.
 
     ``labels[i]`` names the method of ``evaluations[i]`` in the tables: the method, with the
     descriptor when several are compared, and with the results file's name when one method holds
-    the same traversal more than once (say, two parameter settings).
+    the same traversal more than once (say, two parameter settings). ``traversals[i]`` names its
+    query traversal (see :func:`traversal_labels`). ``cut_table`` has one row per run: ECE, Brier
+    score, mean confidence, share correct and precision@c, recall@c, accepted@c per cut c.
     """
 
     evaluations: list[Evaluation]
     labels: list[str]
+    traversals: list[str]
     table1: pd.DataFrame
     table2: pd.DataFrame
+    cut_table: pd.DataFrame
+
+
+def traversal_labels(evaluations: Sequence[Evaluation]) -> list[str]:
+    """Each run's query traversal: its folder name, or as many trailing parts of its path as keep
+    apart traversals of one name from different folders (say, two datasets' ``winter``)."""
+    paths = [PurePath(str(e.results.meta.get("query") or e.path.stem)) for e in evaluations]
+    labels = [p.name for p in paths]
+    for depth in range(2, max((len(p.parts) for p in paths), default=0) + 1):
+        clashing = {label for label in labels
+                    if len({p for p, other in zip(paths, labels) if other == label}) > 1}
+        if not clashing:
+            break
+        labels = [str(PurePath(*p.parts[-depth:])) if label in clashing else label
+                  for p, label in zip(paths, labels)]
+    return labels
 
 
 def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
@@ -214,48 +241,64 @@ def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
     with_descriptor = len({e.results.meta.get("descriptor") for e in evaluations}) > 1
     bases = [f"{e.method}/{e.results.meta.get('descriptor')}" if with_descriptor else e.method
              for e in evaluations]
-    pairs = list(zip(bases, (e.traversal for e in evaluations)))
+    pairs = list(zip(bases, traversal_labels(evaluations)))
     repeated = {base for base, traversal in pairs if pairs.count((base, traversal)) > 1}
     return [f"{base} [{e.path.stem}]" if base in repeated else base for base, e in zip(bases, evaluations)]
 
 
 def compare(paths: Sequence[Path], truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
-            global_thresholds: bool = True) -> Comparison:
-    """Table I (recall at 100/99/90 % precision per traversal and method) and Table II."""
-    evaluations = [evaluate(Path(p), truth) for p in paths]
+            global_thresholds: bool = True, cuts: Sequence[float] = DEFAULT_CUTS) -> Comparison:
+    """Table I (recall at 100/99/90 % precision per traversal and method), Table II and the
+    calibration table with precision and recall at the fixed confidence ``cuts``."""
+    evaluations = [evaluate(Path(p), truth, cuts) for p in paths]
     labels = method_labels(evaluations)
+    traversals = traversal_labels(evaluations)
     rows = []
-    for label, e in zip(labels, evaluations):
+    for label, traversal, e in zip(labels, traversals, evaluations):
         s = e.summary.as_dict()
-        rows.append({"method": label, "traversal": e.traversal,
+        rows.append({"method": label, "traversal": traversal,
                      "recall@100": s["recall_at_100"], "recall@99": s["recall_at_99"],
                      "recall@90": s["recall_at_90"], "auc": s["auc"], "R@1": s["recall_at_1"],
                      "frames": s["frames"]})
     table1 = pd.DataFrame(rows)
     rows2 = []
     if global_thresholds:
-        by_method: dict[str, list[Evaluation]] = {}
-        for label, e in zip(labels, evaluations):
-            by_method.setdefault(label, []).append(e)
+        by_method: dict[str, list[tuple[str, Evaluation]]] = {}
+        for label, traversal, e in zip(labels, traversals, evaluations):
+            by_method.setdefault(label, []).append((traversal, e))
         for method, group in by_method.items():
-            inputs = [(e.results.confidence, e.correct, int(e.summary.as_dict()["with_true_match"])) for e in group]
+            inputs = [(e.confidence, e.correct, e.summary.with_true_match) for _, e in group]
             for target in precisions:
                 threshold, recalls = global_threshold(inputs, float(target) / 100.0)
                 worst = int(np.argmin(recalls)) if len(recalls) else -1
-                for i, (e, recall) in enumerate(zip(group, recalls)):
+                for i, ((traversal, _), recall) in enumerate(zip(group, recalls)):
                     rows2.append({"method": method, "precision": float(target), "threshold": threshold,
-                                  "traversal": e.traversal, "recall": recall, "worst": i == worst})
+                                  "traversal": traversal, "recall": recall, "worst": i == worst})
     table2 = pd.DataFrame(rows2, columns=["method", "precision", "threshold", "traversal", "recall", "worst"])
-    return Comparison(evaluations=evaluations, labels=labels, table1=table1, table2=table2)
+    cut_table = pd.DataFrame([{"method": label, "traversal": traversal, **e.calibration.row()}
+                              for label, traversal, e in zip(labels, traversals, evaluations)])
+    return Comparison(evaluations=evaluations, labels=labels, traversals=traversals, table1=table1,
+                      table2=table2, cut_table=cut_table)
+
+
+def run_names(evaluations: Sequence[Evaluation]) -> list[str]:
+    """One distinct "method traversal" name per run, as the tables label it (for plot legends)."""
+    return [f"{label} {traversal}"
+            for label, traversal in zip(method_labels(evaluations), traversal_labels(evaluations))]
 
 
 def threshold_series(comparison: Comparison, points: int = 201) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Precision against normalised threshold per method and traversal (the paper's Figure 5)."""
     grid = np.linspace(0.0, 1.0, points)
-    return {f"{label} {e.traversal}": (grid, precision_at_thresholds(e.results.confidence, e.correct, grid))
-            for label, e in zip(comparison.labels, comparison.evaluations)}
+    return {name: (grid, precision_at_thresholds(e.confidence, e.correct, grid))
+            for name, e in zip(run_names(comparison.evaluations), comparison.evaluations)}
 
 
 def pr_series(comparison: Comparison) -> dict[str, PRCurve]:
     """The precision-recall curve of each method and traversal, labelled as in the tables."""
-    return {f"{label} {e.traversal}": e.curve for label, e in zip(comparison.labels, comparison.evaluations)}
+    return {name: e.curve for name, e in zip(run_names(comparison.evaluations), comparison.evaluations)}
+
+
+def reliability_series(evaluations: Sequence[Evaluation]) -> dict[str, ReliabilityBins]:
+    """The reliability bins of each run, labelled as in the tables (for the reliability diagram)."""
+    return {name: e.calibration.bins for name, e in zip(run_names(evaluations), evaluations)}

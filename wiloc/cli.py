@@ -21,6 +21,7 @@ from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.cli_params import flag, method_params, with_method_options
 from wiloc.errors import EXIT_INTERRUPTED, WilocError
 from wiloc.methods.registry import METHODS, method_class
+from wiloc.reliability import DEFAULT_CUTS
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
@@ -304,6 +305,22 @@ GtOption = Annotated[str, typer.Option("--gt", help=GT_HELP)]
 GtMapOption = Annotated[Optional[str], typer.Option("--gt-map", help="positions: the reference's positions CSV.")]
 ToleranceOption = Annotated[int, typer.Option("--tolerance", "-T", help="aligned/pairs: +-frames.")]
 RadiusOption = Annotated[Optional[float], typer.Option("--radius", help="positions: same place within this many metres.")]
+CutsOption = Annotated[str, typer.Option("--cuts", help="Confidence cuts for precision and recall at a fixed "
+                                                        "cut, comma-separated, each in [0, 1].")]
+CalibrationPlotOption = Annotated[Optional[Path], typer.Option(
+    "--calibration-plot", help="Draw the reliability diagram (share correct against confidence).")]
+CUTS_TEXT = ",".join(f"{cut:g}" for cut in DEFAULT_CUTS)
+
+
+def _parse_cuts(text: str) -> list[float]:
+    """`--cuts 0.5,0.9,0.99`: numbers in [0, 1]; anything else is a usage error."""
+    try:
+        cuts = [float(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        cuts = []
+    if not cuts or not all(0.0 <= cut <= 1.0 for cut in cuts):
+        _fail(f"--cuts {text}: give confidences in [0, 1], comma-separated, such as {CUTS_TEXT}", 2)
+    return cuts
 
 
 @app.command()
@@ -315,31 +332,38 @@ def evaluate(
     tolerance: ToleranceOption = 0,
     radius: RadiusOption = None,
     pr_plot: Optional[Path] = typer.Option(None, help="Draw the precision-recall curves."),
+    calibration_plot: CalibrationPlotOption = None,
+    cuts: CutsOption = CUTS_TEXT,
     csv_out: Optional[Path] = typer.Option(None, "--csv", help="Write metrics (and curves beside it) as CSV."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
-    """Precision-recall of results files against ground truth.
+    """Precision-recall and calibration of results files against ground truth.
 
-    Example: wiloc evaluate day_left-online.csv --gt aligned --tolerance 2 --pr-plot pr.png
+    Example: wiloc evaluate day_left-online.csv --gt aligned --tolerance 2 --pr-plot pr.png --cuts 0.9,0.99
     """
+    at = _parse_cuts(cuts)
     source = _truth_source(gt, gt_map, tolerance, radius)
-    evaluations = [api.evaluate(path, source) for path in results]
-    rows = [{"results": e.path.name, "method": e.method, "traversal": e.traversal, **e.summary.as_dict()}
-            for e in evaluations]
+    evaluations = [api.evaluate(path, source, at) for path in results]
+    heads = [{"results": e.path.name, "method": e.method, "traversal": e.traversal, **e.summary.as_dict()}
+             for e in evaluations]
+    rows = [{**head, **e.calibration.row()} for head, e in zip(heads, evaluations)]
     if pr_plot is not None:
         from wiloc.plots import plot_pr
-        plot_pr({f"{e.method} {e.traversal}": e.curve for e in evaluations}, pr_plot)
+        plot_pr(dict(zip(api.run_names(evaluations), (e.curve for e in evaluations))), pr_plot)
+    if calibration_plot is not None:
+        from wiloc.plots import plot_reliability
+        plot_reliability(api.reliability_series(evaluations), calibration_plot)
     if csv_out is not None:
         _write_metrics_csv(csv_out, rows, evaluations)
     if as_json:
-        _print_json([{**row, "warnings": e.truth.warnings,
+        _print_json([{**head, **e.calibration.as_dict(), "warnings": e.truth.warnings,
                       "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
                                 "thresholds": e.curve.thresholds.tolist()}}
-                     for row, e in zip(rows, evaluations)])
+                     for head, e in zip(heads, evaluations)])
         return
     _warn_about_truth(evaluations)
-    out.print(metrics_view(rows))
-    for path in (pr_plot, csv_out):
+    out.print(metrics_view(rows, at))
+    for path in (pr_plot, calibration_plot, csv_out):
         if path is not None:
             out.print(f"wrote {path}")
 
@@ -347,18 +371,30 @@ def evaluate(
 METRIC_LABELS = {"recall_at_100": "recall at 100 % precision", "recall_at_99": "recall at 99 % precision",
                  "recall_at_90": "recall at 90 % precision", "auc": "area under PR curve", "max_f1": "max F1",
                  "max_f1_threshold": "threshold at max F1", "recall_at_1": "R@1 (best match right)",
-                 "frames": "frames", "decided": "decided frames", "with_true_match": "frames with a true match"}
+                 "frames": "frames", "decided": "decided frames", "with_true_match": "frames with a true match",
+                 "ece": "ECE", "brier": "Brier score", "mean_confidence": "mean confidence",
+                 "share_correct": "share correct"}
 
 
-def metrics_view(rows: list[dict[str, Any]]) -> Table:
+CUT_CAPTION = "at a cut: P precision, R recall, n frames accepted (decided, confidence >= cut)"
+
+
+def _at_cut(row: dict[str, Any], cut: float) -> str:
+    """Precision, recall and accepted frames at one confidence cut of a table row, one a line."""
+    return f"P {_cell(row[f'precision@{cut:g}'])}\nR {_cell(row[f'recall@{cut:g}'])}\nn {row[f'accepted@{cut:g}']}"
+
+
+def metrics_view(rows: list[dict[str, Any]], cuts: list[float]) -> Table:
     """Metrics down, one column per results file: stays readable in 80 columns for a few runs."""
-    table = Table(title="evaluate")
+    table = Table(title="evaluate", caption=CUT_CAPTION)
     table.add_column("")
     for row in rows:
         table.add_column(f"{row['method']}\n{row['traversal']}", justify="right")
     table.add_row("results", *[row["results"] for row in rows])
     for key, label in METRIC_LABELS.items():
         table.add_row(label, *[_cell(row[key]) for row in rows])
+    for cut in cuts:
+        table.add_row(f"cut {cut:g}", *[_at_cut(row, cut) for row in rows])
     return table
 
 
@@ -394,12 +430,14 @@ def compare(
     global_threshold: bool = typer.Option(True, "--global-threshold/--no-global-threshold",
                                           help="Table II: one threshold per method for all traversals."),
     precision: str = typer.Option("100,99", help="Table II target precisions in percent, comma-separated."),
+    cuts: CutsOption = CUTS_TEXT,
     threshold_plot: Optional[Path] = typer.Option(None, help="Precision against normalised threshold (the paper's Figure 5)."),
     model_plot: Optional[Path] = typer.Option(None, help="Learned histograms of the first online run (Figure 1)."),
     pr_plot: Optional[Path] = typer.Option(None, help="All precision-recall curves."),
+    calibration_plot: CalibrationPlotOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
-    """Methods and traversals side by side: the paper's Table I and Table II.
+    """Methods and traversals side by side: the paper's Table I, calibration at fixed cuts, Table II.
 
     Example: wiloc compare *-online.csv *-threshold.csv --gt aligned -T 2 --precision 100,99
     """
@@ -407,15 +445,20 @@ def compare(
         targets = [float(p) for p in precision.split(",") if p.strip()]
     except ValueError:
         _fail(f"--precision {precision}: give percentages such as 100,99.5", 2)
+    at = _parse_cuts(cuts)
     source = _truth_source(gt, gt_map, tolerance, radius)
-    comparison = api.compare(results, source, precisions=targets, global_thresholds=global_threshold)
+    comparison = api.compare(results, source, precisions=targets, global_thresholds=global_threshold, cuts=at)
     _warn_about_truth(comparison.evaluations)
-    written = _compare_plots(comparison, threshold_plot, model_plot, pr_plot)
+    written = _compare_plots(comparison, threshold_plot, model_plot, pr_plot, calibration_plot)
     if as_json:
-        _print_json({"table1": comparison.table1.to_dict(orient="records"),
+        calibration = [{"method": label, "traversal": traversal, **e.calibration.as_dict()} for label, traversal, e
+                       in zip(comparison.labels, comparison.traversals, comparison.evaluations)]
+        _print_json({"table1": comparison.table1.to_dict(orient="records"), "calibration": calibration,
                      "table2": comparison.table2.to_dict(orient="records"), "plots": [str(p) for p in written]})
         return
     out.print(table1_view(comparison))
+    for table in cut_views(comparison, at):
+        out.print(table)
     if global_threshold:
         out.print(table2_view(comparison))
     for path in written:
@@ -423,7 +466,7 @@ def compare(
 
 
 def _compare_plots(comparison: api.Comparison, threshold_plot: Path | None, model_plot: Path | None,
-                   pr_plot: Path | None) -> list[Path]:
+                   pr_plot: Path | None, calibration_plot: Path | None) -> list[Path]:
     from wiloc import plots
     written = []
     if threshold_plot is not None:
@@ -439,7 +482,29 @@ def _compare_plots(comparison: api.Comparison, threshold_plot: Path | None, mode
     if pr_plot is not None:
         plots.plot_pr(api.pr_series(comparison), pr_plot)
         written.append(pr_plot)
+    if calibration_plot is not None:
+        plots.plot_reliability(api.reliability_series(comparison.evaluations), calibration_plot)
+        written.append(calibration_plot)
     return written
+
+
+def cut_views(comparison: api.Comparison, cuts: list[float]) -> list[Table]:
+    """Per traversal, one row per method: calibration and precision / recall at each fixed cut."""
+    tables = []
+    for traversal, group in comparison.cut_table.groupby("traversal", sort=False):
+        table = Table(title=f"Calibration and fixed confidence cuts: {traversal}", caption=CUT_CAPTION,
+                      pad_edge=False)
+        table.add_column("method", overflow="fold")
+        for column in ("ECE", "Brier", "mean\nconf.", "share\ncorrect"):
+            table.add_column(column, justify="right")
+        for cut in cuts:
+            table.add_column(f"cut\n{cut:g}")
+        for row in group.to_dict(orient="records"):
+            table.add_row(row["method"], *[_cell(row[key]) for key in ("ece", "brier", "mean_confidence",
+                                                                         "share_correct")],
+                          *[_at_cut(row, cut) for cut in cuts])
+        tables.append(table)
+    return tables
 
 
 def table1_view(comparison: api.Comparison) -> Table:

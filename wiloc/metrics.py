@@ -182,6 +182,11 @@ def correct_matches(match: ArrayLike, truth: Truth) -> NDArray[np.bool_]:
     return truth.is_true(np.arange(m.size), m)
 
 
+def decided_confidence(match: ArrayLike, confidence: ArrayLike) -> NDArray[np.float64]:
+    """Per frame: its confidence, NaN when it is undecided (no match, -1, or NaN confidence)."""
+    return np.where(np.asarray(match, dtype=np.int64) >= 0, np.asarray(confidence, dtype=np.float64), np.nan)
+
+
 def summarize(match: ArrayLike, confidence: ArrayLike, truth: Truth) -> Summary:
     """All reported metrics of one run: recall at 100/99/90 % precision, AUC, max F1, R@1, counts.
 
@@ -190,7 +195,7 @@ def summarize(match: ArrayLike, confidence: ArrayLike, truth: Truth) -> Summary:
     """
     m = np.asarray(match, dtype=np.int64)
     correct = correct_matches(m, truth)
-    conf = np.where(m >= 0, np.asarray(confidence, dtype=np.float64), np.nan)
+    conf = decided_confidence(m, confidence)
     has_match = truth.has_match()
     curve = pr_curve(conf, correct, int(has_match.sum()))
     r100, r99, r90 = (recall_at_precision(curve, p)[0] for p in PRECISION_LEVELS)

@@ -1,4 +1,5 @@
-"""Figures written to files: PR curves, the learned histograms (Figure 1), precision vs threshold.
+"""Figures written to files: PR curves, the learned histograms (Figure 1), precision vs threshold,
+the reliability diagram.
 
 Figures are built on ``matplotlib.figure.Figure`` with the Agg canvas, never through pyplot, so
 no global figure state is kept and nothing is shown; the format follows the file suffix.
@@ -6,6 +7,7 @@ no global figure state is kept and nothing is shown; the format follows the file
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -14,12 +16,17 @@ from matplotlib.figure import Figure
 
 from wiloc.metrics import PRCurve
 from wiloc.model import HistogramModel
+from wiloc.reliability import ReliabilityBins
+
+STYLES = ("-", "--", ":", "-.")
+"""Line styles telling apart lines of one colour."""
 
 
-def _figure(ncols: int = 1, width: float = 6.0) -> tuple[Figure, list[Axes]]:
-    fig = Figure(figsize=(width, 4.5), layout="constrained")
+def _figure(ncols: int = 1, width: float = 6.0, nrows: int = 1, height: float = 4.5,
+            **subplots: Any) -> tuple[Figure, list[Axes]]:
+    fig = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(fig)
-    return fig, list(np.atleast_1d(fig.subplots(1, ncols)))
+    return fig, list(np.atleast_1d(fig.subplots(nrows, ncols, **subplots)).ravel())
 
 
 def _save(fig: Figure, path: str | Path) -> Path:
@@ -69,11 +76,10 @@ def plot_threshold(series: dict[str, tuple[np.ndarray, np.ndarray]], path: str |
     fig, (ax,) = _figure()
     colours: dict[str, str] = {}
     lines_of: dict[str, int] = {}
-    styles = ["-", "--", ":", "-."]
     for name, (thresholds, precision) in series.items():
         method = (name.split(maxsplit=1) or [""])[0]
         colour = colours.setdefault(method, f"C{len(colours)}")
-        style = styles[lines_of.get(method, 0) % len(styles)]
+        style = STYLES[lines_of.get(method, 0) % len(STYLES)]
         lines_of[method] = lines_of.get(method, 0) + 1
         x = np.asarray(thresholds, dtype=np.float64)
         order = np.argsort(x)
@@ -83,4 +89,29 @@ def plot_threshold(series: dict[str, tuple[np.ndarray, np.ndarray]], path: str |
     ax.grid(alpha=0.3)
     if series:
         ax.legend(loc="best")
+    return _save(fig, path)
+
+
+def plot_reliability(series: dict[str, ReliabilityBins], path: str | Path,
+                     title: str = "Reliability: share correct against confidence") -> Path:
+    """Reliability diagram: per confidence bin, the share of correct matches against the bin's
+    mean confidence (on the diagonal when calibrated), one line per run; below, the decided frames
+    per bin (log scale), one bar per run. Colours repeat after ten runs, with another line style.
+    The legend sits outside the axes."""
+    fig, (ax, counts) = _figure(width=8.0, nrows=2, height=6.0, sharex=True, height_ratios=[3, 1])
+    ax.plot([0, 1], [0, 1], color="0.5", linestyle="--", linewidth=1, label="calibrated")
+    for k, (name, bins) in enumerate(series.items()):
+        filled = bins.count > 0
+        ax.plot(bins.mean_confidence[filled], bins.share_correct[filled], marker="o", markersize=4,
+                linewidth=1.5, color=f"C{k}", linestyle=STYLES[k // 10 % len(STYLES)], label=name)
+        width = np.diff(bins.edges) * 0.8 / max(len(series), 1)
+        counts.bar(bins.edges[:-1] + np.diff(bins.edges) * 0.1 + width * k, bins.count, width=width,
+                   align="edge", color=f"C{k}")
+    ax.set(xlim=(0, 1), ylim=(0, 1.02), ylabel="share correct", title=title)
+    counts.set(xlabel="confidence", ylabel="frames")
+    counts.set_yscale("log")
+    for axes in (ax, counts):
+        axes.set_xticks(np.linspace(0, 1, 11))
+        axes.grid(alpha=0.3)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper")
     return _save(fig, path)

@@ -1,0 +1,153 @@
+"""Calibration in `wiloc evaluate` and `wiloc compare`: --cuts, --calibration-plot, the fixed-cut
+table and Table II over results files from different maps."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from wiloc import api
+from wiloc.cli import app
+
+runner = CliRunner()
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _results(path: Path, query: str, reference: str, ref_names: list[str], method: str,
+             rows: list[tuple[str, str, float]]) -> Path:
+    """A results file in the documented format: (frame, match or "", confidence or NaN) per row."""
+    header = {"wiloc-results": "1", "method": method, "descriptor": "sad", "mode": "map", "query": query,
+              "map": reference, "exclude_recent": "0", "frames": str(len(rows)),
+              "reference_frames": json.dumps(ref_names)}
+    lines = [f"# {key}: {value}" for key, value in header.items()]
+    lines.append("frame,match,difference,confidence,stage")
+    for frame, match, confidence in rows:
+        decided = bool(match) and not math.isnan(confidence)
+        lines.append(f"{frame},{match},{0.5 if decided else ''},{confidence if decided else ''},"
+                     f"{'update' if decided else 'init'}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def _gardens(folder: Path, method: str = "online") -> Path:
+    """Map day_right of 10 frames; query day_left: 5 right at 0.95, 4 wrong at 0.6, one undecided,
+    and a frame of a new place (no true match) accepted at 0.7."""
+    names = [f"img{i}.png" for i in range(10)]
+    rows = ([(names[i], names[i], 0.95) for i in range(5)] + [(names[i], names[0], 0.6) for i in range(5, 9)]
+            + [(names[9], "", math.nan), ("new.png", names[0], 0.7)])
+    return _results(folder / f"day_left-{method}.csv", "/data/gardens/day_left", "/data/gardens/day_right",
+                    names, method, rows)
+
+
+def _nordland(folder: Path, method: str = "online", dataset: str = "nordland") -> Path:
+    """Another map, summer, of 20 frames; query winter: 6 right at 0.97, 14 wrong at 0.92."""
+    names = [f"f{i:02d}.png" for i in range(20)]
+    rows = [(names[i], names[i], 0.97) for i in range(6)] + [(names[i], names[0], 0.92) for i in range(6, 20)]
+    return _results(folder / f"{dataset}-winter-{method}.csv", f"/data/{dataset}/winter",
+                    f"/data/{dataset}/summer", names, method, rows)
+
+
+def _json(result) -> object:
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout)
+
+
+def test_evaluate_reports_calibration_at_the_given_cuts(tmp_path: Path) -> None:
+    path = _gardens(tmp_path)
+    (row,) = _json(runner.invoke(app, ["evaluate", str(path), "--gt", "aligned", "--cuts", "0.6,0.7,0.95",
+                                       "--json"]))
+    assert row["decided"] == 10 and row["with_true_match"] == 10
+    # bins: 0.6 (4 frames, none right), 0.7 (the new place, wrong), 0.95 (5 frames, all right)
+    assert row["ece"] == pytest.approx((4 * 0.6 + 0.7 + 5 * 0.05) / 10)
+    assert row["brier"] == pytest.approx((4 * 0.36 + 0.49 + 5 * 0.0025) / 10)
+    assert row["mean_confidence"] == pytest.approx(0.785) and row["share_correct"] == 0.5
+    assert [(c["cut"], c["accepted"]) for c in row["cuts"]] == [(0.6, 10), (0.7, 6), (0.95, 5)]
+    assert [c["precision"] for c in row["cuts"]] == pytest.approx([0.5, 5 / 6, 1.0])
+    assert [c["recall"] for c in row["cuts"]] == pytest.approx([0.5, 0.5, 0.5])
+    assert [b["count"] for b in row["reliability"]] == [0, 0, 0, 0, 0, 0, 4, 1, 0, 5]
+    table = runner.invoke(app, ["evaluate", str(path), "--gt", "aligned", "--cuts", "0.6,0.7,0.95"])
+    assert table.exit_code == 0, table.output
+    for text in ("ECE", "0.335", "Brier score", "0.194", "cut 0.95", "P 0.833", "n 6"):
+        assert text in table.stdout
+
+
+def test_evaluate_default_cuts_accept_nothing_above_every_confidence(tmp_path: Path) -> None:
+    (row,) = _json(runner.invoke(app, ["evaluate", str(_gardens(tmp_path)), "--json"]))
+    assert [c["cut"] for c in row["cuts"]] == [0.5, 0.9, 0.99]
+    assert row["cuts"][2]["accepted"] == 0 and row["cuts"][2]["precision"] is None  # NaN -> null
+
+
+@pytest.mark.parametrize("cuts", ["0.5,1.5", "abc", "0.9,", "-0.1", "nan", ""])
+def test_bad_cuts_are_one_line_usage_errors(tmp_path: Path, cuts: str) -> None:
+    path = _gardens(tmp_path)
+    for command in ("evaluate", "compare"):
+        result = runner.invoke(app, [command, str(path), "--cuts", cuts])
+        if cuts == "0.9,":  # a trailing comma is forgiven, as in --precision
+            assert result.exit_code == 0, result.output
+            continue
+        assert result.exit_code == 2, result.output
+        assert len(result.stderr.strip().splitlines()) == 1 and "--cuts" in result.stderr
+        assert "Traceback" not in result.output
+
+
+def test_calibration_plot_is_written(tmp_path: Path) -> None:
+    plot = tmp_path / "plots" / "reliability.png"
+    result = runner.invoke(app, ["evaluate", str(_gardens(tmp_path)), str(_nordland(tmp_path)),
+                                 "--calibration-plot", str(plot)])
+    assert result.exit_code == 0, result.output
+    assert plot.read_bytes()[:8] == PNG_SIGNATURE and "wrote" in result.stdout
+    compare_plot = tmp_path / "compare.png"
+    data = _json(runner.invoke(app, ["compare", str(_gardens(tmp_path)), "--calibration-plot", str(compare_plot),
+                                     "--json"]))
+    assert data["plots"] == [str(compare_plot)] and compare_plot.read_bytes()[:8] == PNG_SIGNATURE
+
+
+def test_compare_over_two_maps_prints_cut_tables_and_table2(tmp_path: Path) -> None:
+    paths = [str(p) for method in ("online", "threshold")
+             for p in (_gardens(tmp_path, method), _nordland(tmp_path, method))]
+    data = _json(runner.invoke(app, ["compare", *paths, "--gt", "aligned", "--json"]))
+    table2 = [row for row in data["table2"] if row["method"] == "online" and row["precision"] == 100.0]
+    # One threshold for both maps: 0.95 keeps day_left exact (0.7 would take the new place) and
+    # winter exact (0.92 would take its wrong matches).
+    assert {row["threshold"] for row in table2} == {0.95}
+    assert {row["traversal"]: (row["recall"], row["worst"]) for row in table2} == {
+        "day_left": (0.5, False), "winter": (0.3, True)}
+    calibration = {(row["method"], row["traversal"]): row for row in data["calibration"]}
+    assert set(calibration) == {(m, t) for m in ("online", "threshold") for t in ("day_left", "winter")}
+    winter = calibration[("online", "winter")]
+    assert winter["cuts"][1] == {"cut": 0.9, "precision": pytest.approx(6 / 20), "recall": pytest.approx(6 / 20),
+                                 "accepted": 20}
+    assert winter["mean_confidence"] == pytest.approx((6 * 0.97 + 14 * 0.92) / 20)
+
+    result = runner.invoke(app, ["compare", *paths, "--gt", "aligned"])
+    assert result.exit_code == 0, result.output
+    text = result.stdout
+    order = [text.index("Table I:"), text.index("fixed confidence cuts: day_left"),
+             text.index("fixed confidence cuts: winter"), text.index("Table II")]
+    assert order == sorted(order)
+    assert "0.950" in text[order[3]:]  # the global threshold
+
+
+def test_same_traversal_name_from_two_datasets_gets_distinct_labels(tmp_path: Path) -> None:
+    paths = [_gardens(tmp_path), _nordland(tmp_path, dataset="nordland"),
+             _nordland(tmp_path, dataset="other")]
+    comparison = api.compare(paths, api.TruthSource(kind="aligned"), precisions=(100.0,))
+    assert comparison.traversals == ["day_left", "nordland/winter", "other/winter"]
+    assert comparison.labels == ["online"] * 3  # one method, so Table II has one threshold for all
+    assert comparison.table2["traversal"].tolist() == comparison.traversals
+    assert comparison.cut_table["traversal"].tolist() == comparison.traversals
+    assert list(comparison.cut_table.columns[:2]) == ["method", "traversal"]
+    assert comparison.cut_table["accepted@0.9"].tolist() == [5, 20, 20]
+    assert list(api.reliability_series(comparison.evaluations)) == [
+        "online day_left", "online nordland/winter", "online other/winter"]
+
+
+def test_traversal_labels_keep_one_name_when_the_folder_is_the_same(tmp_path: Path) -> None:
+    paths = [_gardens(tmp_path, "online"), _gardens(tmp_path, "threshold")]
+    evaluations = [api.evaluate(p, api.TruthSource(kind="aligned")) for p in paths]
+    assert api.traversal_labels(evaluations) == ["day_left", "day_left"]
+    assert api.run_names(evaluations) == ["online day_left", "threshold day_left"]
