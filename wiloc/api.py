@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import functools
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
@@ -28,7 +28,10 @@ from wiloc.methods.registry import make_method
 from wiloc.metrics import (PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
                            precision_at_thresholds, summarize)
 from wiloc.reliability import DEFAULT_CUTS, Calibration, ReliabilityBins, summarize_calibration
-from wiloc.results import Results, read_results, write_results
+from wiloc.follow import FolderWatch, Skipped, follow
+from wiloc.localizer import Localizer
+from wiloc.methods.base import Decision
+from wiloc.results import Results, ResultsStream, read_results, write_results
 from wiloc.training import Training, training_rows
 from wiloc.traversals import Describer, Progress, descriptor_spec, stage
 
@@ -130,17 +133,84 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
         decisions = algo.run(candidate_rows(matrix, sequence, R), len(q.names),
                              odometry=_query_steps(odometry, q.names),
                              progress=stage(progress, f"{method} {query.name}"))
-    meta = {"method": method, "descriptor": describer.label(query),
-            "descriptor_params": dict(descriptor_params or {}), "metric": q.metric,
-            "mode": "sequence" if sequence else "map", "query": str(query.resolve()),
-            "map": str(Path(reference).resolve()) if reference else "", "exclude_recent": R, "wiloc": __version__}
-    if training:
-        meta.update(train_query=str(training.query), train_map=str(training.reference))
+    meta = _run_meta(method, describer, query, q.metric, reference, R, training)
     path = Path(out) if out else Path.cwd() / results_name(query, method)
     results = write_results(path, decisions, query_names=q.names, ref_names=r.names, meta=meta)
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
                        decisions=decisions, results=results, path=path,
                        seconds=time.perf_counter() - started, skipped=describer.skipped)
+
+
+def _run_meta(method: str, describer: Describer, query: Path, metric: str, reference: Path | None,
+              exclude_recent: int, training: Training | None) -> dict[str, Any]:
+    """What a results header says about a run besides the method's parameters."""
+    meta = {"method": method, "descriptor": describer.label(query), "descriptor_params": dict(describer.params),
+            "metric": metric, "mode": "sequence" if reference is None else "map", "query": str(Path(query).resolve()),
+            "map": str(Path(reference).resolve()) if reference else "", "exclude_recent": exclude_recent,
+            "wiloc": __version__}
+    if training:
+        meta.update(train_query=str(training.query), train_map=str(training.reference))
+    return meta
+
+
+@dataclass
+class FollowRun:
+    """A followed query folder: iterate it for each decision (or frame left out) as frames arrive.
+
+    Opening it resumes a results file the same settings wrote before: the frames it lists are
+    decided again, in its order, and must give the same rows (so later decisions are the ones an
+    uninterrupted run makes); ``resumed`` counts them.
+    """
+
+    query: Path
+    localizer: Localizer
+    stream: ResultsStream
+    idle: float | None
+    poll: float
+    resumed: int = 0
+
+    @property
+    def path(self) -> Path:
+        return self.stream.path
+
+    def __iter__(self) -> Iterator[Decision | Skipped]:
+        watch = FolderWatch(self.query, done=self.stream.rows["frame"].tolist())
+        try:
+            for event in follow(self.localizer, watch, idle=self.idle, poll=self.poll):
+                if isinstance(event, Decision):
+                    self.stream.append(event)
+                yield event
+        finally:
+            self.stream.close()
+
+
+def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str = "sad",
+                  descriptor_params: Mapping[str, Any] | None = None, method: str = "online",
+                  method_params: Mapping[str, Any] | None = None, exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
+                  training: Training | None = None, map_odometry: Path | None = None, out: Path | None = None,
+                  cache: Cache | None = None, jobs: int | None = None, idle: float | None = None,
+                  poll: float = 0.2) -> FollowRun:
+    """Follow a folder that is still being filled: each frame decided as it arrives, its row
+    appended to the results file at once (see :class:`FollowRun`). Ends after ``idle`` seconds
+    without a new frame (None: when interrupted)."""
+    query = Path(query)
+    localizer = Localizer(reference, descriptor=descriptor, descriptor_params=descriptor_params, method=method,
+                          exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
+                          cache=cache, jobs=jobs, **dict(method_params or {}))
+    meta = {**_run_meta(method, localizer.describer, query, localizer.metric, reference, localizer.exclude_recent,
+                        training),
+            "params": localizer.method.header(),
+            "reference_frames": [] if reference is None else localizer.map_names}
+    path = Path(out) if out else Path.cwd() / results_name(query, method)
+    stream = ResultsStream(path, meta, localizer.method.columns, resume=True)
+    names = stream.rows["frame"].tolist()
+    for name, line in zip(names, stream.written_lines()):
+        decision = localizer.observe(query / name)
+        if stream.line(decision) != line:
+            stream.close()
+            raise WilocError(path, f"frame '{name}' decided again differs from its row: the map, the frames or "
+                                   "the settings changed; give another --out to start anew")
+    return FollowRun(query=query, localizer=localizer, stream=stream, idle=idle, poll=poll, resumed=len(names))
 
 
 def _map_arclength(map_odometry: Path | None, names: list[str]) -> np.ndarray | None:

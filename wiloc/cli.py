@@ -1,8 +1,10 @@
 """The `wiloc` command line: parse options, call wiloc.api, render rich tables or JSON."""
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
+import time
 from dataclasses import asdict
 import math
 from collections.abc import Callable, Iterator
@@ -216,12 +218,16 @@ def localize(
     model_plot: Optional[Path] = typer.Option(None, help="online/trained: draw the learned histograms (the paper's Figure 1)."),
     cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Worker processes for describing."),
-    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables (with --follow: one JSON line per frame)."),
+    follow: bool = typer.Option(False, "--follow", help="Decide the frames already in the QUERY folder, then each new one as it arrives; rerun to resume.", rich_help_panel="live"),
+    idle: Optional[float] = typer.Option(None, min=0.0, help="With --follow: stop after this many seconds without a new frame (default: run until Ctrl-C).", rich_help_panel="live"),
     method_options: Optional[dict[str, Any]] = None,
 ) -> None:
     """Decide, frame by frame, where each query frame was seen before and how sure that is.
 
     Example: wiloc localize data/day_left data/night_right --map data/day_right --method online
+
+    Live: wiloc localize camera/ --map data/day_right --method catgraph --follow --idle 30
     """
     from wiloc.cache import Cache
     method_class(method)
@@ -233,6 +239,20 @@ def localize(
             _fail("--train-query, --train-map and --train-gt go together", 2)
         training = api.Training(train_query, train_map,
                                 _truth_source(train_gt, train_gt_map, train_tolerance, train_radius))
+    if follow:
+        given = [flag for flag, value in (("--odometry", odometry), ("--names", names), ("--map-names", map_names),
+                                          ("--metric", metric), ("--model-plot", model_plot)) if value is not None]
+        if len(queries) != 1 or given:
+            _fail(f"--follow takes one query folder{' and not ' + ', '.join(given) if given else ''}", 2)
+        _follow(queries[0], api.follow_folder(
+            queries[0], reference=reference, descriptor=descriptor,
+            descriptor_params=_descriptor_params(descriptor, crop), method=method, method_params=params,
+            exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
+            out=out_path / api.results_name(queries[0], method) if out_path is not None and out_path.is_dir() else out_path,
+            cache=Cache(cache), jobs=jobs, idle=idle), as_json)
+        return
+    if idle is not None:
+        _fail("--idle goes with --follow", 2)
     out_folder = out_path is not None and (out_path.is_dir() or not out_path.suffix)
     if len(queries) > 1 and out_path is not None and not out_folder:
         _fail(f"{out_path}: with several queries --out names a folder", 2)
@@ -276,6 +296,46 @@ def localize(
         out.print(_table("localize", rows))
         if model_plot is not None:
             out.print(f"model plot: {model_plot}")
+
+
+def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
+    """Render a followed run: a live table on a terminal, else one line (or JSON line) per frame."""
+    from collections import deque
+
+    from rich.live import Live
+
+    from wiloc.methods.base import Decision
+
+    started, decided = time.perf_counter(), 0
+    latest: deque[Decision] = deque(maxlen=10)
+
+    def view() -> Table:
+        rate = decided / max(time.perf_counter() - started, 1e-9)
+        table = Table(title=f"following {query} -> {run.path}",
+                      caption=f"{run.resumed + decided} frames ({run.resumed} resumed), {rate:.1f} frames/s; Ctrl-C stops")
+        for column in ("frame", "match", "confidence", "P(new place)", "stage"):
+            table.add_column(column, justify="left" if column in ("frame", "match", "stage") else "right")
+        for d in latest:
+            table.add_row(d.frame, d.match_name or "-", _cell(d.confidence), _cell(d.new_place), d.stage)
+        return table
+
+    live = Live(view(), console=out, auto_refresh=False) if out.is_terminal and not as_json else None
+    with live if live is not None else contextlib.nullcontext():
+        for event in run:
+            if isinstance(event, Decision):
+                decided += 1
+                latest.append(event)
+                if live is not None:
+                    live.update(view(), refresh=True)
+                elif as_json:
+                    print(json.dumps(_json_ready({"frame": event.frame, "match": event.match_name,
+                                                  "confidence": event.confidence, "new_place": event.new_place,
+                                                  "stage": event.stage})), flush=True)
+                else:
+                    print(f"{event.frame}\t{event.match_name or '-'}\t{_cell(event.confidence)}\t"
+                          f"{_cell(event.new_place)}\t{event.stage}", flush=True)
+            else:
+                _note("skipped", f"{event.path}: {event.reason}")
 
 
 # ------------------------------------------------------------------------------------------ evaluate

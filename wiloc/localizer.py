@@ -117,6 +117,16 @@ class Localizer:
         return training_rows(self._training, self._describer, self.exclude_recent)
 
     @property
+    def describer(self) -> Describer:
+        """How frames are described: the descriptor, its parameters and the cache."""
+        return self._describer
+
+    @property
+    def metric(self) -> str:
+        """The difference the frames are compared with."""
+        return self._metric
+
+    @property
     def map_names(self) -> list[str]:
         """The candidate frames' names: the map's, or in sequence mode the frames observed."""
         return self.names if self._map is None else self._map.names

@@ -2,12 +2,17 @@
 
 Layout (documented in docs/formats.md): header lines start with ``# `` and hold ``key: value``
 pairs (values of ``params``, ``model`` and ``reference_frames`` are JSON); the first is
-``# wiloc-results: 1``. Then a plain CSV table, one row per query frame. Files are written to a
-temporary name and renamed, so a killed run never leaves a file that looks complete.
+``# wiloc-results: 1``. Then a plain CSV table, one row per query frame. Batch files are written
+to a temporary name and renamed, so a killed run never leaves a file that looks complete. A
+followed run's file (``follow: true`` in its header, no ``frames`` count) grows a row per frame
+as it is decided: each row is one write, and a torn last row is cut off when the run resumes.
 """
 from __future__ import annotations
 
+import csv
+import io
 import json
+import math
 import os
 import tempfile
 from dataclasses import dataclass, field
@@ -18,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from wiloc.errors import WilocError
-from wiloc.methods.base import Decisions
+from wiloc.methods.base import Decision, Decisions
 from wiloc.model import HistogramModel
 
 FORMAT_VERSION = "1"
@@ -66,14 +71,9 @@ def decisions_to_frame(decisions: Decisions, query_names: list[str], ref_names: 
     return pd.DataFrame(table)
 
 
-def write_results(path: Path, decisions: Decisions, *, query_names: list[str], ref_names: list[str],
-                  meta: dict[str, Any]) -> Results:
-    """Write a results file atomically and return what was written."""
-    frame = decisions_to_frame(decisions, query_names, ref_names)
-    header = {"wiloc-results": FORMAT_VERSION, **meta, "frames": len(frame), "params": decisions.params,
-              "model": decisions.model.to_dict() if decisions.model is not None else None,
-              "reference_frames": list(ref_names)}
-    path = Path(path)
+def _write_atomically(path: Path, header: dict[str, Any], write_table: Any) -> None:
+    """Write the header lines and then ``write_table(file)`` to a temporary file renamed onto
+    ``path``, so a kill leaves the old file or the whole new one."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -84,17 +84,98 @@ def write_results(path: Path, decisions: Decisions, *, query_names: list[str], r
             for key, value in header.items():
                 text = json.dumps(value) if key in JSON_KEYS else str(value)
                 out.write(f"# {key}: {text}\n")
-            frame.to_csv(out, index=False, float_format="%.9g")
+            write_table(out)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def write_results(path: Path, decisions: Decisions, *, query_names: list[str], ref_names: list[str],
+                  meta: dict[str, Any]) -> Results:
+    """Write a results file atomically and return what was written."""
+    frame = decisions_to_frame(decisions, query_names, ref_names)
+    header = {"wiloc-results": FORMAT_VERSION, **meta, "frames": len(frame), "params": decisions.params,
+              "model": decisions.model.to_dict() if decisions.model is not None else None,
+              "reference_frames": list(ref_names)}
+    _write_atomically(Path(path), header, lambda out: frame.to_csv(out, index=False, float_format="%.9g"))
     return Results(meta=header, frames=frame, reference_frames=list(ref_names))
 
 
+def _cell(value: Any) -> Any:
+    """A value as the batch table writes it: floats with 9 significant digits, NaN empty."""
+    if isinstance(value, float):
+        return "" if math.isnan(value) else "%.9g" % value
+    return value
+
+
+def _csv_line(cells: list[Any]) -> str:
+    text = io.StringIO()
+    csv.writer(text, lineterminator="\n").writerow(cells)
+    return text.getvalue()
+
+
+class ResultsStream:
+    """A followed run's results file, written row by row as frames are decided.
+
+    Opening it writes the header (``follow: true``, no ``frames`` count, no model) and the column
+    line atomically, unless ``resume`` and the file exists: then a torn last row is cut off and
+    :attr:`rows` holds the rows already written (as text), for the caller to replay and check.
+    Each :meth:`append` is one write of one whole line, so the file never holds half a row.
+    """
+
+    def __init__(self, path: Path, meta: dict[str, Any], columns: tuple[str, ...], *, resume: bool) -> None:
+        self.path = Path(path)
+        self.columns = (*BASE_COLUMNS, *columns)
+        self.header = {"wiloc-results": FORMAT_VERSION, **meta, "follow": True}
+        self.rows = pd.DataFrame(columns=list(self.columns))
+        if resume and self.path.exists():
+            self._repair()
+            found, self.rows = _read_table(self.path)
+            expected = {k: json.loads(json.dumps(v)) if k in JSON_KEYS else str(v) for k, v in self.header.items()}
+            if {k: v for k, v in found.items() if k != "wiloc"} != {k: v for k, v in expected.items() if k != "wiloc"}:
+                raise WilocError(self.path, "holds a run with other settings; give another --out to start anew")
+        else:
+            _write_atomically(self.path, self.header, lambda out: out.write(",".join(self.columns) + "\n"))
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
+
+    def _repair(self) -> None:
+        """Cut a torn last line (a kill during its write) off the file."""
+        data = self.path.read_bytes()
+        if data and not data.endswith(b"\n"):
+            os.truncate(self.path, data.rfind(b"\n") + 1)
+
+    def line(self, decision: Decision) -> str:
+        """The CSV line of one decision, as the batch writer formats it."""
+        values = {"frame": decision.frame, "match": decision.match_name, "difference": decision.difference,
+                  "confidence": decision.confidence, "stage": decision.stage, "new_place": decision.new_place,
+                  **decision.extra}
+        return _csv_line([_cell(values[c]) for c in self.columns])
+
+    def written_lines(self) -> list[str]:
+        """The rows already in the file (when resumed), as :meth:`line` formats them."""
+        return [_csv_line(list(row)) for row in self.rows.itertuples(index=False)]
+
+    def append(self, decision: Decision) -> None:
+        """Add one decided frame's row; it reaches the OS before this returns."""
+        os.write(self._fd, self.line(decision).encode("utf-8"))
+
+    def close(self) -> None:
+        os.close(self._fd)
+
+
 def read_results(path: Path) -> Results:
-    """Read a results file written by :func:`write_results`; WilocError when it is not one."""
+    """Read a results file written by :func:`write_results` (or a followed run's); WilocError
+    when it is not one."""
     path = Path(path)
+    meta, frames = _read_table(path)
+    for column in frames.columns.difference(["frame", "match", "stage"]):
+        frames[column] = pd.to_numeric(frames[column], errors="coerce")
+    return Results(meta=meta, frames=frames, reference_frames=list(meta.get("reference_frames") or []))
+
+
+def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame]:
+    """A results file's header and its table, every cell as text."""
     if not path.is_file():
         raise WilocError(path, "results file does not exist")
     meta: dict[str, Any] = {}
@@ -129,6 +210,4 @@ def read_results(path: Path) -> Results:
     if frames["frame"].duplicated().any():
         dup = frames["frame"][frames["frame"].duplicated()].iloc[0]
         raise WilocError(path, f"duplicate row for frame '{dup}'")
-    for column in frames.columns.difference(["frame", "match", "stage"]):
-        frames[column] = pd.to_numeric(frames[column], errors="coerce")
-    return Results(meta=meta, frames=frames, reference_frames=list(meta.get("reference_frames") or []))
+    return meta, frames

@@ -1,0 +1,145 @@
+"""`wiloc localize --follow`: a folder filled while wiloc runs gives the batch decisions, row by row,
+and a killed follower resumes to the same file."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from wiloc import api, demo
+from wiloc.follow import SETTLE_SECONDS, FolderWatch, Skipped, follow
+from wiloc.localizer import Localizer
+
+CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
+
+# Copies the frames into a folder one by one, each written in two halves with a pause between,
+# as a camera writing files would.
+FEEDER = """
+import sys, time
+from pathlib import Path
+src, dst, pause = Path(sys.argv[1]), Path(sys.argv[2]), float(sys.argv[3])
+for path in sorted(src.iterdir(), key=lambda p: p.name):
+    data = path.read_bytes()
+    with open(dst / path.name, "wb") as out:
+        out.write(data[: len(data) // 2]); out.flush(); time.sleep(pause / 2)
+        out.write(data[len(data) // 2:])
+    time.sleep(pause / 2)
+"""
+
+
+@pytest.fixture(scope="module")
+def route(tmp_path_factory: pytest.TempPathFactory) -> demo.DemoRoute:
+    return demo.make_demo_route(tmp_path_factory.mktemp("route"))
+
+
+def _rows(path: Path) -> pd.DataFrame:
+    return pd.read_csv(path, comment="#", dtype=str, keep_default_na=False)
+
+
+def _follower(folder: Path, ref: Path, out: Path, method: str, idle: float) -> subprocess.Popen:
+    args = ["localize", str(folder), "--map", str(ref), "--method", method, "--follow", "--idle", str(idle),
+            "--out", str(out)]
+    return subprocess.Popen([sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+
+
+def test_watch_hands_out_stable_files_in_natural_order(tmp_path: Path) -> None:
+    for name in ("f10.png", "f2.png", "notes.txt", ".hidden.png"):
+        (tmp_path / name).write_bytes(b"x" * 10)
+    watch = FolderWatch(tmp_path)
+    assert watch.poll() == []  # first sight: not yet known to be stable
+    assert [p.name for p in watch.poll()] == ["f2.png", "f10.png"]
+    (tmp_path / "f11.png").write_bytes(b"half")
+    assert watch.poll() == []
+    with open(tmp_path / "f11.png", "ab") as grow:
+        grow.write(b" and the rest")
+    assert watch.poll() == []  # it grew since the last poll
+    assert [p.name for p in watch.poll()] == ["f11.png"]
+    assert watch.poll() == []
+
+
+def test_an_undecodable_frame_is_retried_then_left_out(route: demo.DemoRoute, tmp_path: Path,
+                                                       cache_dir: Path) -> None:
+    good = sorted(route.queries[0].iterdir())[:3]
+    for path in good:
+        (tmp_path / path.name).write_bytes(path.read_bytes())
+    (tmp_path / "frame001.jpg").write_bytes(good[1].read_bytes()[:500])  # truncated for good
+    now = [0.0]
+    events = list(follow(Localizer(route.reference, method="threshold"), FolderWatch(tmp_path), idle=1.0, poll=0.5,
+                         clock=lambda: now[0], sleep=lambda s: now.__setitem__(0, now[0] + s)))
+    skipped = [e for e in events if isinstance(e, Skipped)]
+    assert [e.frame for e in events if not isinstance(e, Skipped)] == [good[0].name, good[2].name]
+    assert len(skipped) == 1 and skipped[0].path.name == "frame001.jpg" and "truncated" in skipped[0].reason
+    assert now[0] >= SETTLE_SECONDS
+
+
+@pytest.mark.parametrize("method", ["online", "catgraph"])
+def test_a_filling_folder_gives_the_batch_rows_and_a_killed_follower_resumes(
+        route: demo.DemoRoute, method: str, tmp_path: Path, cache_dir: Path) -> None:
+    query = route.queries[2]  # the detour: a stretch the map never saw
+    batch = api.localize(query, reference=route.reference, method=method, out=tmp_path / "batch.csv")
+    live = tmp_path / "live"
+    live.mkdir()
+    out = tmp_path / "follow.csv"
+    feeder = subprocess.Popen([sys.executable, "-c", FEEDER, str(query), str(live), "0.02"])
+    follower = _follower(live, route.reference, out, method, idle=60)
+    n = len(batch.results.frames)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and (not out.exists() or len(_rows(out)) < n // 2):
+        time.sleep(0.05)
+    follower.send_signal(signal.SIGKILL)
+    follower.wait()
+    halfway = len(_rows(out))
+    assert 0 < halfway < n
+    feeder.wait(timeout=120)
+    resumed = _follower(live, route.reference, out, method, idle=2)
+    stdout, stderr = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0, stderr
+    assert len(stdout.splitlines()) == n - halfway  # one plain line per frame decided after the resume
+    expected, got = _rows(batch.path), _rows(out)
+    assert got.columns.tolist() == expected.columns.tolist()
+    pd.testing.assert_frame_equal(got, expected)
+
+
+def test_follow_refuses_what_it_cannot_follow(route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+    runner = CliRunner()
+    result = runner.invoke(app, ["localize", str(route.queries[0]), str(route.queries[1]), "--map",
+                                 str(route.reference), "--follow"])
+    assert result.exit_code == 2 and "--follow takes one query folder" in result.stderr
+    result = runner.invoke(app, ["localize", str(route.queries[0]), "--map", str(route.reference), "--idle", "3"])
+    assert result.exit_code == 2 and "--idle goes with --follow" in result.stderr
+    out = tmp_path / "r.csv"
+    first = runner.invoke(app, ["localize", str(route.queries[0]), "--map", str(route.reference), "--follow",
+                                "--idle", "0.5", "--out", str(out)])
+    assert first.exit_code == 0, first.output
+    other = runner.invoke(app, ["localize", str(route.queries[0]), "--map", str(route.reference), "--follow",
+                                "--idle", "0.5", "--out", str(out), "--method", "threshold"])
+    assert other.exit_code == 1 and "holds a run with other settings" in other.stderr
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("method", ["online", "catgraph"])
+def test_gardens_point_fed_frame_by_frame_equals_batch(data_root: Path, method: str, tmp_path: Path,
+                                                       cache_dir: Path) -> None:
+    gp = data_root / "gardens-point-walking"
+    batch = api.localize(gp / "day_left", reference=gp / "day_right", method=method, out=tmp_path / "batch.csv")
+    live = tmp_path / "day_left"
+    live.mkdir()
+    feeder = subprocess.Popen([sys.executable, "-c", FEEDER, str(gp / "day_left"), str(live), "0.01"])
+    follower = _follower(live, gp / "day_right", tmp_path / "follow.csv", method, idle=3)
+    feeder.wait(timeout=300)
+    _, stderr = follower.communicate(timeout=300)
+    assert follower.returncode == 0, stderr
+    pd.testing.assert_frame_equal(_rows(tmp_path / "follow.csv"), _rows(batch.path))
+    assert np.all(_rows(batch.path)["frame"].to_numpy() == sorted(p.name for p in live.iterdir()))
+    assert os.environ.get("WILOC_CACHE") == str(cache_dir)
