@@ -9,7 +9,7 @@ import pytest
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decisions
 from wiloc.model import HistogramModel
-from wiloc.results import read_results, write_results
+from wiloc.results import make_results, read_results, write_results
 
 
 def _decisions() -> Decisions:
@@ -23,8 +23,8 @@ def _decisions() -> Decisions:
 
 def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
-    write_results(path, _decisions(), query_names=["q,1.png", "q2.png", "q 3.png"],
-                  ref_names=["r0.png", "r1.png", "r#2.png"], meta={"method": "online", "query": "/x"})
+    write_results(path, make_results(_decisions(), query_names=["q,1.png", "q2.png", "q 3.png"],
+                                     ref_names=["r0.png", "r1.png", "r#2.png"], meta={"method": "online", "query": "/x"}))
     back = read_results(path)
     assert back.method == "online"
     assert back.frames["frame"].tolist() == ["q,1.png", "q2.png", "q 3.png"]
@@ -39,8 +39,8 @@ def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
 
 def test_header_names_the_run(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
-    write_results(path, _decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
-                  meta={"method": "threshold", "descriptor": "sad", "wiloc": "0.1.0"})
+    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
+                                     meta={"method": "threshold", "descriptor": "sad", "wiloc": "0.1.0"}))
     head = path.read_text(encoding="utf-8").splitlines()[:4]
     assert head[0] == "# wiloc-results: 1"
     assert "# method: threshold" in head and "# descriptor: sad" in head
@@ -55,7 +55,7 @@ def test_not_a_results_file(tmp_path: Path) -> None:
 
 def test_missing_column_and_duplicates(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
-    write_results(path, _decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], meta={})
+    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], meta={}))
     text = path.read_text(encoding="utf-8")
     path.write_text(text.replace("confidence", "conf"), encoding="utf-8")
     with pytest.raises(WilocError, match="missing column"):
@@ -73,7 +73,7 @@ def test_missing_file() -> None:
 
 def test_cut_file_and_binary_file_are_refused(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
-    write_results(path, _decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], meta={})
+    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], meta={}))
     text = path.read_text(encoding="utf-8")
     path.write_text(text[: text.rindex("\n", 0, len(text) - 1) + 1], encoding="utf-8")
     with pytest.raises(WilocError, match="holds 2 rows, its header says 3"):
@@ -81,3 +81,51 @@ def test_cut_file_and_binary_file_are_refused(tmp_path: Path) -> None:
     path.write_bytes(b"\xff\xfe\x00binary")
     with pytest.raises(WilocError, match="not UTF-8"):
         read_results(path)
+
+
+def _written(tmp_path: Path) -> tuple[Path, str]:
+    path = tmp_path / "run.csv"
+    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
+                                     meta={"mode": "map", "exclude_recent": 10}))
+    return path, path.read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t.replace("b,z,0.25,0.9", "b,z,0.25,high"), r"line \d+: confidence 'high' is not a number"),
+    (lambda t: t.replace("b,z,0.25", "b,w,0.25"), r"line \d+: match 'w' is not a frame of the map"),
+    (lambda t: "\n".join(l for l in t.splitlines() if not l.startswith("# reference_frames")) + "\n",
+     "no 'reference_frames' header"),
+    (lambda t: t.replace('# reference_frames: ["x", "y", "z"]', "# reference_frames: 3"),
+     "'reference_frames' must be a list"),
+    (lambda t: t.replace("# exclude_recent: 10", "# exclude_recent: ten"), "'exclude_recent' must be a whole number"),
+    (lambda t: t.replace('"edges": [', '"edges": ["x", '), "header 'model' is not a histogram model"),
+])
+def test_a_results_file_no_run_writes_is_refused_naming_the_line(tmp_path: Path, edit, message: str) -> None:
+    path, text = _written(tmp_path)
+    path.write_text(edit(text), encoding="utf-8")
+    with pytest.raises(WilocError, match=message):
+        read_results(path)
+
+
+def test_a_replaced_file_keeps_its_mode_and_killed_writers_leave_nothing(tmp_path: Path) -> None:
+    import os
+    import subprocess
+    import sys
+    path, _ = _written(tmp_path)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~_umask()
+    os.chmod(path, 0o640)
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True, check=True).stdout.strip()
+    orphan = tmp_path / f".run.csv.{dead}.abc123.tmp"
+    orphan.write_text("half a file")
+    assert write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
+                                            meta={}))
+    assert path.stat().st_mode & 0o777 == 0o640
+    assert not orphan.exists()
+
+
+def _umask() -> int:
+    import os
+    current = os.umask(0)
+    os.umask(current)
+    return current

@@ -31,9 +31,9 @@ from wiloc.reliability import DEFAULT_CUTS, Calibration, ReliabilityBins, summar
 from wiloc.follow import FolderWatch, Skipped, follow
 from wiloc.localizer import Localizer
 from wiloc.methods.base import Decision
-from wiloc.results import Results, ResultsStream, read_results, write_results
+from wiloc.results import Results, ResultsStream, make_results, read_results, write_results
 from wiloc.training import Training, training_rows
-from wiloc.traversals import Describer, Progress, descriptor_spec, stage
+from wiloc.traversals import Describer, Progress, descriptor_label, descriptor_spec, stage
 
 __all__ = ["Comparison", "Evaluation", "LocalizeRun", "Training", "TruthSource", "compare", "describe",
            "evaluate", "import_descriptors", "localize"]
@@ -62,21 +62,30 @@ def import_descriptors(path: Path, *, metric: str, names: Path | None = None,
 
 @dataclass
 class LocalizeRun:
-    """One query traversal localized: the decisions, where they were written, and the timing."""
+    """One query traversal localized: the decisions, the results (and the file they were written
+    to, when one was asked for), and the timing."""
 
     query: Path
     reference: Path
     method: str
     decisions: Decisions
     results: Results
-    path: Path
+    path: Path | None
     seconds: float
     skipped: list[tuple[str, str]] = field(default_factory=list)  # (image path, why it was left out)
+    replaced: bool = False  # the results file existed before and was replaced
+
+    def __repr__(self) -> str:
+        written = f", path={str(self.path)!r}" if self.path else ""
+        return (f"LocalizeRun(query={self.query.name!r}, method={self.method!r}, frames={len(self.decisions)}, "
+                f"decided={int(self.decisions.decided.sum())}{written})")
 
 
-def results_name(query: Path, method: str) -> str:
-    """The default results file name of one query traversal (folder or matrix file) and method."""
-    return f"{query.stem if query.is_file() else query.name}-{method}.csv"
+def results_name(query: Path, method: str, descriptor: str, metric: str | None = None) -> str:
+    """The default results file name of one query traversal (folder or matrix file, whose
+    ``metric`` then names it), descriptor and method: ``day_left-sad-online.csv``."""
+    label = descriptor_label(query, descriptor, metric).replace(":", "-")
+    return f"{query.stem if query.is_file() else query.name}-{label}-{method}.csv"
 
 
 def localize(query: Path, *, reference: Path | None = None, descriptor: str = "sad",
@@ -94,7 +103,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     (``wiloc.methods.registry``) and ``method_params`` its parameters; the method is stepped over
     the query's difference rows, read from the cache block by block. ``odometry`` and
     ``map_odometry`` are odometry CSVs (for methods that take them); ``training`` is the labelled
-    pair of the ``trained`` comparator.
+    pair of the ``trained`` comparator. The results are written to ``out`` when given (else kept
+    in memory only: ``wiloc.api.evaluate`` takes the run itself).
     """
     started = time.perf_counter()
     algo = make_method(method, method_params)
@@ -134,11 +144,11 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
                              odometry=_query_steps(odometry, q.names),
                              progress=stage(progress, f"{method} {query.name}"))
     meta = _run_meta(method, describer, query, q.metric, reference, R, training)
-    path = Path(out) if out else Path.cwd() / results_name(query, method)
-    results = write_results(path, decisions, query_names=q.names, ref_names=r.names, meta=meta)
+    results = make_results(decisions, query_names=q.names, ref_names=r.names, meta=meta)
+    replaced = write_results(Path(out), results) if out is not None else False
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
-                       decisions=decisions, results=results, path=path,
-                       seconds=time.perf_counter() - started, skipped=describer.skipped)
+                       decisions=decisions, results=results, path=None if out is None else Path(out),
+                       seconds=time.perf_counter() - started, skipped=describer.skipped, replaced=replaced)
 
 
 def _run_meta(method: str, describer: Describer, query: Path, metric: str, reference: Path | None,
@@ -201,7 +211,7 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
                         training),
             "params": localizer.method.header(),
             "reference_frames": [] if reference is None else localizer.map_names}
-    path = Path(out) if out else Path.cwd() / results_name(query, method)
+    path = Path(out) if out else Path.cwd() / results_name(query, method, descriptor)
     stream = ResultsStream(path, meta, localizer.method.columns, resume=True)
     names = stream.rows["frame"].tolist()
     for name, line in zip(names, stream.written_lines()):
@@ -229,9 +239,10 @@ def _query_steps(odometry: Path | None, names: list[str]) -> np.ndarray | None:
 
 @dataclass
 class Evaluation:
-    """One results file scored against ground truth; ``confidence`` is NaN for undecided frames."""
+    """One run's results scored against ground truth; ``confidence`` is NaN for undecided frames.
+    ``path`` is the results file (None for a run evaluated in memory)."""
 
-    path: Path
+    path: Path | None
     results: Results
     truth: Truth
     correct: np.ndarray
@@ -240,8 +251,13 @@ class Evaluation:
     calibration: Calibration
 
     @property
+    def name(self) -> str:
+        """The results file's name, or for a run in memory its query traversal and method."""
+        return self.path.name if self.path else f"{Path(str(self.results.meta.get('query', ''))).name}-{self.method}"
+
+    @property
     def traversal(self) -> str:
-        return Path(str(self.results.meta.get("query", self.path.stem))).name
+        return Path(str(self.results.meta.get("query") or self.name)).name
 
     @property
     def method(self) -> str:
@@ -252,10 +268,19 @@ class Evaluation:
         return self.summary.curve
 
 
-def evaluate(path: Path, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS) -> Evaluation:
+Run = Path | str | LocalizeRun | Results
+
+
+def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS) -> Evaluation:
     """Precision-recall metrics and calibration (with precision and recall at fixed confidence
-    ``cuts``) of one results file against ground truth."""
-    results = read_results(Path(path))
+    ``cuts``) of one run against ground truth: a results file, or a run in memory."""
+    if isinstance(run, LocalizeRun):
+        path, results = run.path, run.results
+    elif isinstance(run, Results):
+        path, results = None, run
+    else:
+        path = Path(run)
+        results = read_results(path)
     query_names = results.frames["frame"].tolist()
     sequence = results.meta.get("mode") == "sequence"
     ref_names = results.reference_frames or query_names
@@ -266,7 +291,7 @@ def evaluate(path: Path, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUT
     correct = correct_matches(match, loaded)
     confidence = decided_confidence(match, results.confidence)
     calibration = summarize_calibration(confidence, correct, summary.with_true_match, cuts)
-    return Evaluation(path=Path(path), results=results, truth=loaded, correct=correct, summary=summary,
+    return Evaluation(path=path, results=results, truth=loaded, correct=correct, summary=summary,
                       confidence=confidence, calibration=calibration)
 
 
@@ -294,7 +319,7 @@ class Comparison:
 def traversal_labels(evaluations: Sequence[Evaluation]) -> list[str]:
     """Each run's query traversal: its folder name, or as many trailing parts of its path as keep
     apart traversals of one name from different folders (say, two datasets' ``winter``)."""
-    paths = [PurePath(str(e.results.meta.get("query") or e.path.stem)) for e in evaluations]
+    paths = [PurePath(str(e.results.meta.get("query") or e.name)) for e in evaluations]
     labels = [p.name for p in paths]
     for depth in range(2, max((len(p.parts) for p in paths), default=0) + 1):
         clashing = {label for label in labels
@@ -313,14 +338,15 @@ def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
              for e in evaluations]
     pairs = list(zip(bases, traversal_labels(evaluations)))
     repeated = {base for base, traversal in pairs if pairs.count((base, traversal)) > 1}
-    return [f"{base} [{e.path.stem}]" if base in repeated else base for base, e in zip(bases, evaluations)]
+    return [f"{base} [{Path(e.name).stem}]" if base in repeated else base for base, e in zip(bases, evaluations)]
 
 
-def compare(paths: Sequence[Path], truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
+def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
             global_thresholds: bool = True, cuts: Sequence[float] = DEFAULT_CUTS) -> Comparison:
     """Table I (recall at 100/99/90 % precision per traversal and method), Table II and the
-    calibration table with precision and recall at the fixed confidence ``cuts``."""
-    evaluations = [evaluate(Path(p), truth, cuts) for p in paths]
+    calibration table with precision and recall at the fixed confidence ``cuts``, over results
+    files or runs in memory."""
+    evaluations = [evaluate(run, truth, cuts) for run in runs]
     labels = method_labels(evaluations)
     traversals = traversal_labels(evaluations)
     rows = []

@@ -248,7 +248,7 @@ def localize(
             queries[0], reference=reference, descriptor=descriptor,
             descriptor_params=_descriptor_params(descriptor, crop), method=method, method_params=params,
             exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
-            out=out_path / api.results_name(queries[0], method) if out_path is not None and out_path.is_dir() else out_path,
+            out=out_path / api.results_name(queries[0], method, descriptor) if out_path is not None and out_path.is_dir() else out_path,
             cache=Cache(cache), jobs=jobs, idle=idle), as_json)
         return
     if idle is not None:
@@ -261,7 +261,7 @@ def localize(
     if out_path is not None and not out_folder:
         targets = [out_path]
     else:
-        targets = [(out_path or Path.cwd()) / api.results_name(q, method) for q in queries]
+        targets = [(out_path or Path.cwd()) / api.results_name(q, method, descriptor, metric) for q in queries]
     clash = next((t for t in targets if targets.count(t) > 1), None)
     if clash is not None:
         _fail(f"{clash}: two queries would write the same results file; give each its own --out", 2)
@@ -288,11 +288,16 @@ def localize(
         from wiloc.plots import plot_model
         plot_model(runs[0].decisions.model, model_plot, title=f"{runs[0].query.name} ({method})")
     skipped = list(dict.fromkeys(item for run in runs for item in run.skipped))
+    replaced = [f"replaced the existing results file {run.path}" for run in runs if run.replaced]
     if as_json:
-        _print_json([{**row, "skipped": [list(item) for item in run.skipped]} for row, run in zip(rows, runs)])
+        _print_json([{**row, "skipped": [list(item) for item in run.skipped],
+                      "warnings": [f"replaced the existing results file {run.path}"] if run.replaced else []}
+                     for row, run in zip(rows, runs)])
     else:
         for path, reason in skipped:
             _note("skipped", f"{path}: {reason}")
+        for line in replaced:
+            _note("note", line)
         out.print(_table("localize", rows))
         if model_plot is not None:
             out.print(f"model plot: {model_plot}")
@@ -404,7 +409,7 @@ def evaluate(
     at = _parse_cuts(cuts)
     source = _truth_source(gt, gt_map, tolerance, radius)
     evaluations = [api.evaluate(path, source, at) for path in results]
-    heads = [{"results": e.path.name, "method": e.method, "traversal": e.traversal, **e.summary.as_dict()}
+    heads = [{"results": e.name, "method": e.method, "traversal": e.traversal, **e.summary.as_dict()}
              for e in evaluations]
     rows = [{**head, **e.calibration.row()} for head, e in zip(heads, evaluations)]
     if pr_plot is not None:
@@ -471,7 +476,7 @@ def _warn_about_truth(evaluations: list[api.Evaluation]) -> None:
 def _write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list[api.Evaluation]) -> None:
     import pandas as pd
     pd.DataFrame(rows).to_csv(path, index=False)
-    curves = pd.concat([pd.DataFrame({"results": e.path.name, "threshold": e.curve.thresholds,
+    curves = pd.concat([pd.DataFrame({"results": e.name, "threshold": e.curve.thresholds,
                                       "precision": e.curve.precision, "recall": e.curve.recall})
                         for e in evaluations])
     curves.to_csv(path.with_name(path.stem + "-curves.csv"), index=False)

@@ -15,6 +15,7 @@ import json
 import math
 import os
 import tempfile
+from glob import escape as glob_escape
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,12 +72,15 @@ def decisions_to_frame(decisions: Decisions, query_names: list[str], ref_names: 
     return pd.DataFrame(table)
 
 
-def _write_atomically(path: Path, header: dict[str, Any], write_table: Any) -> None:
+def _write_atomically(path: Path, header: dict[str, Any], write_table: Any, mode: int | None = None) -> None:
     """Write the header lines and then ``write_table(file)`` to a temporary file renamed onto
-    ``path``, so a kill leaves the old file or the whole new one."""
+    ``path``, so a kill leaves the old file or the whole new one; temporary files that killed
+    writers left beside it are removed. The file gets ``mode``, else the usual new-file mode."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        _remove_orphans(path)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
+        os.chmod(tmp, mode if mode is not None else 0o666 & ~_umask())
     except OSError as exc:
         raise WilocError(path, f"cannot write the results file ({exc.strerror})") from None
     try:
@@ -91,15 +95,49 @@ def _write_atomically(path: Path, header: dict[str, Any], write_table: Any) -> N
         raise
 
 
-def write_results(path: Path, decisions: Decisions, *, query_names: list[str], ref_names: list[str],
-                  meta: dict[str, Any]) -> Results:
-    """Write a results file atomically and return what was written."""
+def _umask() -> int:
+    current = os.umask(0)
+    os.umask(current)
+    return current
+
+
+def _remove_orphans(path: Path) -> None:
+    """Delete ``.NAME.<pid>.*.tmp`` files beside ``path`` whose writing process is gone."""
+    for temp in path.parent.glob(f".{glob_escape(path.name)}.*.tmp"):
+        pid = temp.name[len(path.name) + 2:].split(".", 1)[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            temp.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass
+    return True
+
+
+def make_results(decisions: Decisions, *, query_names: list[str], ref_names: list[str],
+                 meta: dict[str, Any]) -> Results:
+    """A run's results in memory, with the header a results file holds."""
     frame = decisions_to_frame(decisions, query_names, ref_names)
     header = {"wiloc-results": FORMAT_VERSION, **meta, "frames": len(frame), "params": decisions.params,
               "model": decisions.model.to_dict() if decisions.model is not None else None,
               "reference_frames": list(ref_names)}
-    _write_atomically(Path(path), header, lambda out: frame.to_csv(out, index=False, float_format="%.9g"))
     return Results(meta=header, frames=frame, reference_frames=list(ref_names))
+
+
+def write_results(path: Path, results: Results) -> bool:
+    """Write a results file atomically (keeping the mode of a file it replaces); True when it
+    replaced one."""
+    path = Path(path)
+    replaced = path.exists()
+    mode = path.stat().st_mode & 0o7777 if replaced else None
+    _write_atomically(path, results.meta,
+                      lambda out: results.frames.to_csv(out, index=False, float_format="%.9g"), mode=mode)
+    return replaced
 
 
 def _cell(value: Any) -> Any:
@@ -131,7 +169,7 @@ class ResultsStream:
         self.rows = pd.DataFrame(columns=list(self.columns))
         if resume and self.path.exists():
             self._repair()
-            found, self.rows = _read_table(self.path)
+            found, self.rows, _ = _read_table(self.path)
             expected = {k: json.loads(json.dumps(v)) if k in JSON_KEYS else str(v) for k, v in self.header.items()}
             if {k: v for k, v in found.items() if k != "wiloc"} != {k: v for k, v in expected.items() if k != "wiloc"}:
                 raise WilocError(self.path, "holds a run with other settings; give another --out to start anew")
@@ -166,16 +204,47 @@ class ResultsStream:
 
 def read_results(path: Path) -> Results:
     """Read a results file written by :func:`write_results` (or a followed run's); WilocError
-    when it is not one."""
+    naming the file and line when it is not one or holds something no run writes."""
     path = Path(path)
-    meta, frames = _read_table(path)
+    meta, frames, first_line = _read_table(path)
+    reference = _reference_frames(path, meta, frames)
+    known = set(reference)
+    for i, match in enumerate(frames["match"]):
+        if match and match not in known:
+            raise WilocError(path, f"line {first_line + i}: match '{match}' is not a frame of the map")
     for column in frames.columns.difference(["frame", "match", "stage"]):
-        frames[column] = pd.to_numeric(frames[column], errors="coerce")
-    return Results(meta=meta, frames=frames, reference_frames=list(meta.get("reference_frames") or []))
+        numbers = pd.to_numeric(frames[column].replace("", np.nan), errors="coerce")
+        bad = numbers.isna() & (frames[column] != "")
+        if bad.any():
+            i = int(np.flatnonzero(bad.to_numpy())[0])
+            raise WilocError(path, f"line {first_line + i}: {column} '{frames[column].iloc[i]}' is not a number")
+        frames[column] = numbers.astype(np.float64)
+    if meta.get("model"):
+        try:
+            HistogramModel.from_dict(meta["model"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise WilocError(path, f"header 'model' is not a histogram model ({exc})") from None
+    return Results(meta=meta, frames=frames, reference_frames=reference)
 
 
-def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame]:
-    """A results file's header and its table, every cell as text."""
+def _reference_frames(path: Path, meta: dict[str, Any], frames: pd.DataFrame) -> list[str]:
+    """The frames matches may name: the header's ``reference_frames``; in sequence mode, when a
+    followed run could not list them up front, the query frames themselves."""
+    reference = meta.get("reference_frames")
+    if reference is not None and (not isinstance(reference, list) or not all(isinstance(n, str) for n in reference)):
+        raise WilocError(path, "header 'reference_frames' must be a list of frame names")
+    if "exclude_recent" in meta and not str(meta["exclude_recent"]).isdigit():
+        raise WilocError(path, f"header 'exclude_recent' must be a whole number >= 0, got {meta['exclude_recent']!r}")
+    if reference:
+        return list(reference)
+    if meta.get("mode") == "sequence":
+        return frames["frame"].tolist()
+    raise WilocError(path, "no 'reference_frames' header: the map frames the matches name are unknown")
+
+
+def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame, int]:
+    """A results file's header, its table (every cell as text) and the line number of the
+    table's first row."""
     if not path.is_file():
         raise WilocError(path, "results file does not exist")
     meta: dict[str, Any] = {}
@@ -210,4 +279,4 @@ def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame]:
     if frames["frame"].duplicated().any():
         dup = frames["frame"][frames["frame"].duplicated()].iloc[0]
         raise WilocError(path, f"duplicate row for frame '{dup}'")
-    return meta, frames
+    return meta, frames, n_header + 2

@@ -39,6 +39,12 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
     return Entry(**asdict(header), names=list(names), data=data, digest=digest)
 
 
+def descriptor_label(source: Path, descriptor: str, metric: str | None) -> str:
+    """The descriptor of a traversal as results name it: ``sad``, or ``external:cosine`` for an
+    imported matrix file."""
+    return f"external:{metric}" if Path(source).is_file() else descriptor
+
+
 def stage(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
     """A per-step ``progress(done, total)`` callback that tags the step's label."""
     if progress is None:
@@ -66,7 +72,7 @@ class Describer:
 
     def label(self, source: Path) -> str:
         """What results headers call the descriptor of ``source``."""
-        return f"external:{self.metric}" if Path(source).is_file() else self.descriptor
+        return descriptor_label(source, self.descriptor, self.metric)
 
     def entry(self, source: Path, names: Path | None = None) -> Entry:
         """The descriptors of a folder (computed on demand) or of an imported matrix file
