@@ -314,6 +314,7 @@ class Comparison:
     table1: pd.DataFrame
     table2: pd.DataFrame
     cut_table: pd.DataFrame
+    ground_truth: str = ""  # the ground truth in words, e.g. "aligned by name, +-2 frames"
 
 
 def traversal_labels(evaluations: Sequence[Evaluation]) -> list[str]:
@@ -374,7 +375,7 @@ def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[flo
     cut_table = pd.DataFrame([{"method": label, "traversal": traversal, **e.calibration.row()}
                               for label, traversal, e in zip(labels, traversals, evaluations)])
     return Comparison(evaluations=evaluations, labels=labels, traversals=traversals, table1=table1,
-                      table2=table2, cut_table=cut_table)
+                      table2=table2, cut_table=cut_table, ground_truth=truth.describe())
 
 
 def run_names(evaluations: Sequence[Evaluation]) -> list[str]:

@@ -346,9 +346,13 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
 # ------------------------------------------------------------------------------------------ evaluate
 
 def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | None) -> api.TruthSource:
-    """`--gt` is a form name (aligned) or KIND:PATH (positions:q.csv, pairs:p.csv, matrix:m.npy)."""
+    """`--gt` is a form name (aligned) or KIND:PATH (positions:q.csv, pairs:p.csv, matrix:m.npy),
+    or a path whose suffix tells the form."""
     kind, sep, path = gt.partition(":")
     if not sep:
+        if gt != "aligned" and not Path(gt).is_file() and "{query}" not in gt:
+            _fail(f"--gt {gt}: neither a ground-truth form nor a file (forms: aligned, positions:Q.csv, "
+                  "pairs:P.csv, matrix:M.npy)", 2)
         kind, path = ("aligned", "") if gt == "aligned" else (_guess_kind(gt), gt)
     if kind not in ("aligned", "positions", "pairs", "matrix"):
         _fail(f"--gt {gt}: unknown ground-truth form '{kind}' (aligned, positions, pairs, matrix)", 2)
@@ -368,7 +372,7 @@ GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames), 'posit
            "replaced by the query folder's name.")
 GtOption = Annotated[str, typer.Option("--gt", help=GT_HELP)]
 GtMapOption = Annotated[Optional[str], typer.Option("--gt-map", help="positions: the reference's positions CSV.")]
-ToleranceOption = Annotated[int, typer.Option("--tolerance", "-T", help="aligned/pairs: +-frames.")]
+ToleranceOption = Annotated[int, typer.Option("--tolerance", "-T", min=0, help="aligned: same place within +-T frames (published evaluations use 2).")]
 RadiusOption = Annotated[Optional[float], typer.Option("--radius", help="positions: same place within this many metres.")]
 CutsOption = Annotated[str, typer.Option("--cuts", help="Confidence cuts for precision and recall at a fixed "
                                                         "cut, comma-separated, each in [0, 1].")]
@@ -394,7 +398,7 @@ def evaluate(
     results: list[Path] = typer.Argument(..., help="Results files written by `wiloc localize`."),
     gt: GtOption = "aligned",
     gt_map: GtMapOption = None,
-    tolerance: ToleranceOption = 0,
+    tolerance: ToleranceOption = 2,
     radius: RadiusOption = None,
     pr_plot: Optional[Path] = typer.Option(None, help="Draw the precision-recall curves."),
     calibration_plot: CalibrationPlotOption = None,
@@ -421,13 +425,13 @@ def evaluate(
     if csv_out is not None:
         _write_metrics_csv(csv_out, rows, evaluations)
     if as_json:
-        _print_json([{**head, **e.calibration.as_dict(), "warnings": e.truth.warnings,
+        _print_json([{**head, "ground_truth": source.describe(), **e.calibration.as_dict(), "warnings": e.truth.warnings,
                       "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
                                 "thresholds": e.curve.thresholds.tolist()}}
                      for head, e in zip(heads, evaluations)])
         return
     _warn_about_truth(evaluations)
-    out.print(metrics_view(rows, at))
+    out.print(metrics_view(rows, at, source.describe()))
     for path in (pr_plot, calibration_plot, csv_out):
         if path is not None:
             out.print(f"wrote {path}")
@@ -449,9 +453,9 @@ def _at_cut(row: dict[str, Any], cut: float) -> str:
     return f"P {_cell(row[f'precision@{cut:g}'])}\nR {_cell(row[f'recall@{cut:g}'])}\nn {row[f'accepted@{cut:g}']}"
 
 
-def metrics_view(rows: list[dict[str, Any]], cuts: list[float]) -> Table:
+def metrics_view(rows: list[dict[str, Any]], cuts: list[float], ground_truth: str) -> Table:
     """Metrics down, one column per results file: stays readable in 80 columns for a few runs."""
-    table = Table(title="evaluate", caption=CUT_CAPTION)
+    table = Table(title=f"evaluate (ground truth: {ground_truth})", caption=CUT_CAPTION)
     table.add_column("")
     for row in rows:
         table.add_column(f"{row['method']}\n{row['traversal']}", justify="right")
@@ -490,7 +494,7 @@ def compare(
     results: list[Path] = typer.Argument(..., help="Results files: several methods x query traversals."),
     gt: GtOption = "aligned",
     gt_map: GtMapOption = None,
-    tolerance: ToleranceOption = 0,
+    tolerance: ToleranceOption = 2,
     radius: RadiusOption = None,
     global_threshold: bool = typer.Option(True, "--global-threshold/--no-global-threshold",
                                           help="Table II: one threshold per method for all traversals."),
@@ -518,7 +522,8 @@ def compare(
     if as_json:
         calibration = [{"method": label, "traversal": traversal, **e.calibration.as_dict()} for label, traversal, e
                        in zip(comparison.labels, comparison.traversals, comparison.evaluations)]
-        _print_json({"table1": comparison.table1.to_dict(orient="records"), "calibration": calibration,
+        _print_json({"ground_truth": comparison.ground_truth,
+                     "table1": comparison.table1.to_dict(orient="records"), "calibration": calibration,
                      "table2": comparison.table2.to_dict(orient="records"), "plots": [str(p) for p in written]})
         return
     out.print(table1_view(comparison))
@@ -557,7 +562,8 @@ def cut_views(comparison: api.Comparison, cuts: list[float]) -> list[Table]:
     """Per traversal, one row per method: calibration and precision / recall at each fixed cut."""
     tables = []
     for traversal, group in comparison.cut_table.groupby("traversal", sort=False):
-        table = Table(title=f"Calibration and fixed confidence cuts: {traversal}", caption=CUT_CAPTION,
+        table = Table(title=f"Calibration and fixed confidence cuts: {traversal} ({comparison.ground_truth})",
+                      caption=CUT_CAPTION,
                       pad_edge=False)
         table.add_column("method", overflow="fold")
         for column in ("ECE", "Brier", "mean\nconf.", "share\ncorrect"):
@@ -576,7 +582,7 @@ def table1_view(comparison: api.Comparison) -> Table:
     """Table I: recall at 100/99/90 % precision, one row per traversal, columns per method."""
     t1 = comparison.table1
     methods = list(dict.fromkeys(t1["method"]))
-    table = Table(title="Table I: recall at 100 / 99 / 90 % precision (plus AUC, R@1)")
+    table = Table(title=f"Table I: recall at 100 / 99 / 90 % precision (plus AUC, R@1); {comparison.ground_truth}")
     table.add_column("traversal")
     for m in methods:
         table.add_column(m, justify="right")
@@ -598,7 +604,7 @@ def table2_view(comparison: api.Comparison) -> Table:
     """Table II: the global threshold per method and precision, recall per traversal, worst marked."""
     t2 = comparison.table2
     traversals = list(dict.fromkeys(t2["traversal"]))
-    table = Table(title="Table II: one global threshold per method (worst traversal marked *)")
+    table = Table(title=f"Table II: one global threshold per method (worst traversal marked *); {comparison.ground_truth}")
     for column in ("method", "precision", "threshold", *traversals):
         table.add_column(column, justify="left" if column == "method" else "right")
     for (method, target), group in t2.groupby(["method", "precision"], sort=False):

@@ -77,14 +77,25 @@ def _truth_from_pairs(rows: NDArray[np.int64], cols: NDArray[np.int64], query_na
     return Truth(matrix.tocsr(), list(query_names), list(ref_names), warnings)
 
 
-def _band(rows: NDArray[np.int64], centres: NDArray[np.int64],
-          tolerance: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Expand each (row, centre) into (row, centre - T .. centre + T); T may differ per row."""
+def _band(rows: NDArray[np.int64], centres: NDArray[np.int64], tolerance: ArrayLike,
+          n_ref: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Expand each (row, centre) into (row, centre - T .. centre + T) within the n_ref reference
+    frames; T may differ per row. A band marking more than MAX_TRUE_PAIRS pairs is refused
+    before anything is allocated."""
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.int64), rows.shape)
-    width = 2 * tol + 1
+    first = np.clip(centres - tol, 0, n_ref)
+    width = np.clip(centres + tol + 1, 0, n_ref) - first
+    total = int(width.sum())
+    if total > MAX_TRUE_PAIRS:
+        raise WilocError(None, f"this tolerance makes {total:,} true pairs (at most {MAX_TRUE_PAIRS:,}): "
+                               "every frame would match most of the map", parameter="tolerance")
     starts = np.cumsum(width) - width
-    offset = np.arange(width.sum(), dtype=np.int64) - np.repeat(starts, width)
-    return np.repeat(rows, width), np.repeat(centres - tol, width) + offset
+    offset = np.arange(total, dtype=np.int64) - np.repeat(starts, width)
+    return np.repeat(rows, width), np.repeat(first, width) + offset
+
+
+MAX_TRUE_PAIRS = 50_000_000
+"""The most (query, reference) pairs a ground truth may mark true: 1.2 GB as index pairs."""
 
 
 def _index(names: Sequence[str]) -> pd.Index:
@@ -97,8 +108,8 @@ def _lookup(wanted: ArrayLike, names: Sequence[str]) -> NDArray[np.int64]:
 
 
 def _check_tolerance(tolerance: int) -> int:
-    if int(tolerance) != tolerance or tolerance < 0:
-        raise WilocError(None, f"tolerance must be a whole number of frames >= 0, got {tolerance}")
+    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, np.integer)) or tolerance < 0:
+        raise WilocError(None, f"must be a whole number of frames >= 0, got {tolerance!r}", parameter="tolerance")
     return int(tolerance)
 
 
@@ -129,7 +140,7 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
                                 f"{'of the same name' if by == 'name' else 'at its position'}")
     warnings = _unmatched(where, int((~found).sum()), n_query,
                           "query frames have no reference frame to align with")
-    rows, cols = _band(np.flatnonzero(found).astype(np.int64), centres[found], tol)
+    rows, cols = _band(np.flatnonzero(found).astype(np.int64), centres[found], tol, len(ref_names))
     return _truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 
@@ -265,7 +276,7 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     warnings = _unmatched(path, int((q < 0).sum()), len(frame), "rows name no query frame (skipped)")
     warnings += _unmatched(path, int((r < 0).sum()), len(frame),
                            "rows name no reference frame (skipped)")
-    rows, cols = _band(q[usable], r[usable], tolerance[usable])
+    rows, cols = _band(q[usable], r[usable], tolerance[usable], len(ref_names))
     return _truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 
@@ -368,10 +379,18 @@ class TruthSource:
     kind: str = "aligned"
     path: str | None = None
     ref_path: str | None = None
-    tolerance: int = 0
+    tolerance: int = 2
     radius: float | None = None
     by: Literal["name", "index"] = "name"
     variable: str | None = None  # matrix form, .mat files holding several arrays: which one
+
+    def describe(self) -> str:
+        """The ground truth in words, as tables print it: 'aligned, +-2 frames'."""
+        if self.kind == "aligned":
+            return f"aligned by {self.by}, +-{self.tolerance} frames"
+        if self.kind == "positions":
+            return f"positions within {self.radius:g} m ({self.path})"
+        return f"{self.kind} {self.path}"
 
     def load(self, query_names: list[str], ref_names: list[str], query_folder: str,
              sequence: bool, exclude_recent: int) -> Truth:
