@@ -209,3 +209,15 @@ def test_online_posterior_converges_to_truth_without_labels() -> None:
     assert err.max() < 0.2 and err.mean() < 0.05
     # the repaired recursive test keeps earlier visits out of c
     assert np.mean(out.columns["m_r"][out.decided] < 0.35) < 0.02
+
+
+def test_candidates_come_in_the_order_of_a_stable_sort_of_the_row() -> None:
+    from wiloc.methods.online import _increasing
+    rng = np.random.default_rng(1)
+    for _ in range(300):
+        n = int(rng.integers(0, 400))
+        row = np.round(rng.random(n) * rng.integers(1, 20)) / 7  # many ties
+        row[rng.random(n) < 0.2] = INF
+        finite = np.flatnonzero(np.isfinite(row))
+        expected = finite[np.argsort(row[finite], kind="stable")].tolist()
+        assert list(_increasing(row, first=int(rng.integers(1, 10)))) == expected

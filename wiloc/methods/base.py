@@ -69,9 +69,10 @@ def iter_blocks(matrix: RowBlocks, block_values: int | None = None) -> Iterator[
 
 @dataclass(frozen=True)
 class TrainingRows:
-    """A labelled training pair: its difference rows and truth matrix (n_rows x n_candidates)."""
+    """A labelled training pair: its difference rows (an iterable read once) and its truth
+    matrix (n_rows x n_candidates)."""
 
-    rows: list[NDArray[np.float64]]
+    rows: Iterable[NDArray[np.float64]]
     labels: Any  # dense bool array or scipy.sparse matrix
 
 

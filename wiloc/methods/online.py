@@ -9,7 +9,7 @@ same place as z. See docs/algorithm.md for every choice and the measurements beh
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -49,11 +49,9 @@ def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
     mode, where candidates are reference frames that are never decided). NaN when no candidate is
     left.
     """
-    finite = np.flatnonzero(np.isfinite(row))
-    order = finite[np.argsort(row[finite], kind="stable")]
     same = set(range(max(0, z - window), min(row.size, z + window + 1)))
     first = min(same)
-    for cand in order.tolist():
+    for cand in _increasing(row):
         if cand in same:
             continue
         if match is not None:
@@ -64,6 +62,21 @@ def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
                 continue
         return float(row[cand])
     return float("nan")
+
+
+def _increasing(row: NDArray[np.float64], first: int = 32) -> Iterator[int]:
+    """The finite candidates of ``row`` in increasing difference, ties in index order (a stable
+    sort), found a few at a time: the near miss is nearly always among the first few, so the
+    whole row is partitioned, not sorted (0.4 instead of 7 ms per frame at 35,000 candidates)."""
+    index = np.flatnonzero(np.isfinite(row))
+    values = row[index]
+    k = first
+    while index.size:
+        take = values <= np.partition(values, k - 1)[k - 1] if index.size > k else np.ones(index.size, bool)
+        chunk, chunk_values = index[take], values[take]
+        yield from chunk[np.lexsort((chunk, chunk_values))].tolist()
+        index, values = index[~take], values[~take]
+        k *= 8
 
 
 def map_minima(context: MapContext) -> NDArray[np.float64]:
