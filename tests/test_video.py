@@ -14,12 +14,16 @@ import h5py
 import numpy as np
 import pytest
 from test_describing import FakeSpec
+from typer.testing import CliRunner
 
+from wiloc import api
 from wiloc.cache import Cache
+from wiloc.cli import app
 from wiloc.describing import describe_folder, describe_video
 from wiloc.errors import UsageError, WilocError
 from wiloc.frames import list_traversal, read_gray
-from wiloc.video import Sampling, frame_name, video_fingerprint
+from wiloc.traversals import Describer
+from wiloc.video import Sampling, frame_name, is_video, video_fingerprint
 
 
 def write_video(path: Path, count: int, *, fps: float = 10.0, size: tuple[int, int] = (64, 48),
@@ -220,11 +224,39 @@ def test_cut_video_keeps_its_good_frames(tmp_path: Path) -> None:
     assert stopped.failed == [] and stopped.entry.names == names(range(good))
 
 
-def test_a_file_that_is_no_video_is_a_user_error(tmp_path: Path) -> None:
+def _cli(*args: str, cache: Path) -> subprocess.CompletedProcess:
+    """The command line in a fresh process, where the CLI sets FFmpeg's log level before cv2 loads."""
+    code = "import sys; from wiloc.cli import app; sys.argv[0] = 'wiloc'; app()"
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "WILOC_CACHE": str(cache), "COLUMNS": "200"}, check=False)
+
+
+def test_cli_reports_a_cut_video_as_one_error_line(tmp_path: Path) -> None:
+    whole = write_video(tmp_path / "whole.mkv", 50, fourcc="FFV1")
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 6 // 10])
+    good = len(decoded_gray(cut))
+    run = _cli("describe", str(cut), "--json", cache=tmp_path / "cache")
+    assert run.returncode == 1
+    assert run.stderr.splitlines() == [
+        f"error: {cut.resolve()}: cannot decode frame {frame_name(good)} of 50 (the file is cut or damaged "
+        f"there); the last good frame is {frame_name(good - 1)}, and the frames up to it are kept"]
+    [row] = json.loads(run.stdout)
+    assert (row["frames"], row["computed"], row["failed"]) == (good + 1, good, 1)
+    [info] = Cache(tmp_path / "cache").list_entries()
+    assert info.complete and info.frames == good
+
+
+def test_a_file_that_is_no_video_is_one_error_line(tmp_path: Path) -> None:
     fake = tmp_path / "x.mp4"
     fake.write_text("not a video\n" * 100)
     with pytest.raises(WilocError, match="not a video"):
         describe_video(fake, FakeSpec(), Cache(tmp_path / "cache"))
+    run = _cli("describe", str(fake), cache=tmp_path / "cache")
+    assert run.returncode == 1
+    assert run.stderr.splitlines() == [
+        f"error: {fake}: not a video wiloc can read (no video stream found; an MP4 or MOV cut before "
+        "its index cannot be opened either)"]
     assert not (tmp_path / "cache").exists()
     with pytest.raises(WilocError, match="does not exist"):
         describe_video(tmp_path / "missing.avi", FakeSpec(), Cache(tmp_path / "cache"))
@@ -260,6 +292,34 @@ def test_fingerprint_reads_ends_and_samples_of_a_large_file(tmp_path: Path) -> N
         assert video_fingerprint(path).digest != base.digest, offset
     path.write_bytes(data + b"\0")
     assert video_fingerprint(path).digest != base.digest
+
+
+def test_api_describe_and_describer_take_videos(tmp_path: Path) -> None:
+    video = write_video(tmp_path / "route.avi", 20, size=(96, 64))
+    cache = Cache(tmp_path / "cache")
+    [report] = api.describe([video], "sad", cache=cache, sampling=Sampling(every=5))
+    assert report.entry.names == names([0, 5, 10, 15]) and report.shape == (4, 1152)
+    describer = Describer("sad", cache=cache, sampling=Sampling(every=5))
+    assert describer.entry(video).digest == report.entry.digest and describer.skipped == []
+    assert describer.label(video) == "sad"
+    assert Describer("sad", cache=cache).entry(video).names == names(range(20))
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    with pytest.raises(UsageError, match="apply to video files only"):
+        api.describe([video, folder], "sad", cache=cache, sampling=Sampling(fps=2))
+    assert is_video(video) and not is_video(folder) and not is_video(tmp_path / "x.npy")
+
+
+def test_cli_describe_samples_videos(tmp_path: Path, cache_dir: Path) -> None:
+    video = write_video(tmp_path / "route.avi", 30)
+    result = CliRunner().invoke(app, ["describe", str(video), "--start", "1s", "--every", "5", "--json"])
+    assert result.exit_code == 0, result.output
+    [row] = json.loads(result.stdout)
+    assert (row["frames"], row["computed"], row["failed"]) == (4, 4, 0)
+    bad = CliRunner().invoke(app, ["describe", str(video), "--fps", "0"])
+    assert bad.exit_code == 2 and "--fps" in bad.output
+    none = CliRunner().invoke(app, ["describe", str(video), "--start", "40"])
+    assert none.exit_code == 1 and "--start 40 picks no frame of this video (it has 30 frames)" in none.output
 
 
 @pytest.mark.realdata
