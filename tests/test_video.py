@@ -20,7 +20,7 @@ from wiloc import api
 from wiloc.cache import Cache
 from wiloc.cli import app
 from wiloc.describing import describe_folder, describe_video
-from wiloc.errors import UsageError, WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.frames import list_traversal, read_gray
 from wiloc.traversals import Describer
 from wiloc.video import Sampling, frame_name, is_video, video_fingerprint
@@ -114,17 +114,18 @@ def test_sampling_rule_on_timestamps() -> None:
     assert Sampling().estimate(None, 0.0) is None
 
 
-@pytest.mark.parametrize(("kwargs", "option"), [
-    ({"every": 0}, "--every"), ({"every": 1.5}, "--every"), ({"every": True}, "--every"),
-    ({"fps": 0}, "--fps"), ({"fps": float("nan")}, "--fps"), ({"fps": 5, "every": 2}, "--fps"),
-    ({"start": -1}, "--start"), ({"start": "x"}, "--start"), ({"start": "-2s"}, "--start"),
-    ({"start": 2.5}, "--start"), ({"stop": "inf s"}, "--stop"), ({"start": 10, "stop": 10}, "--stop"),
-    ({"start": "3s", "stop": "1.5s"}, "--stop"),
+@pytest.mark.parametrize(("kwargs", "parameter"), [
+    ({"every": 0}, "every"), ({"every": 1.5}, "every"), ({"every": True}, "every"),
+    ({"fps": 0}, "fps"), ({"fps": float("nan")}, "fps"), ({"fps": True}, "fps"), ({"fps": 5, "every": 2}, "fps"),
+    ({"start": -1}, "start"), ({"start": "x"}, "start"), ({"start": "-2s"}, "start"),
+    ({"start": 2.5}, "start"), ({"stop": "inf s"}, "stop"), ({"start": 10, "stop": 10}, "stop"),
+    ({"start": "3s", "stop": "1.5s"}, "stop"),
 ])
-def test_sampling_checks_name_the_option(kwargs: dict, option: str) -> None:
-    with pytest.raises(UsageError) as caught:
+def test_sampling_checks_name_the_parameter(kwargs: dict, parameter: str) -> None:
+    with pytest.raises(ParameterError) as caught:
         Sampling(**kwargs)
-    assert caught.value.where == option and "\n" not in str(caught.value)
+    assert caught.value.parameter == parameter and "\n" not in str(caught.value)
+    assert str(caught.value).startswith(f"{parameter}: ")
 
 
 def test_sampling_normalises_positions() -> None:
@@ -305,7 +306,7 @@ def test_api_describe_and_describer_take_videos(tmp_path: Path) -> None:
     assert Describer("sad", cache=cache).entry(video).names == names(range(20))
     folder = tmp_path / "frames"
     folder.mkdir()
-    with pytest.raises(UsageError, match="apply to video files only"):
+    with pytest.raises(ParameterError, match="^sampling: applies to video files only"):
         api.describe([video, folder], "sad", cache=cache, sampling=Sampling(fps=2))
     assert is_video(video) and not is_video(folder) and not is_video(tmp_path / "x.npy")
 
@@ -319,7 +320,12 @@ def test_cli_describe_samples_videos(tmp_path: Path, cache_dir: Path) -> None:
     bad = CliRunner().invoke(app, ["describe", str(video), "--fps", "0"])
     assert bad.exit_code == 2 and "--fps" in bad.output
     none = CliRunner().invoke(app, ["describe", str(video), "--start", "40"])
-    assert none.exit_code == 1 and "--start 40 picks no frame of this video (it has 30 frames)" in none.output
+    assert none.exit_code == 1 and "the cut (start 40) holds no frame of this video (it has 30 frames)" in none.output
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    mixed = CliRunner().invoke(app, ["describe", str(video), str(folder), "--every", "2"])
+    assert mixed.exit_code == 2
+    assert f"--every/--fps/--start/--stop: applies to video files only; {folder} is not one" in mixed.output
 
 
 @pytest.mark.realdata

@@ -32,7 +32,7 @@ from wiloc.cache import (
 )
 from wiloc.descriptors.external import read_external
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
-from wiloc.errors import FrameError, UsageError, WilocError
+from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
 from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, read_gray
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
 
@@ -76,10 +76,10 @@ def describe_source(source: Path, spec: DescriptorSpec, cache: Cache, *, jobs: i
 
 
 def check_sampling(source: Path, sampling: Sampling | None) -> None:
-    """UsageError when a sampling other than every frame is given for a folder: it applies to
+    """ParameterError when a sampling other than every frame is given for a folder: it applies to
     video files only."""
     if sampling is not None and sampling != Sampling() and not is_video(source):
-        raise UsageError("--every/--fps/--start/--stop", f"apply to video files only; {source} is not one")
+        raise ParameterError("sampling", f"applies to video files only; {source} is not one")
 
 
 def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int | None = None,
@@ -145,9 +145,9 @@ def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sam
                 results = (_describe_frame(spec, video_print, frame) for frame in frames)
                 computed = _journal(cache, stored, results, done, total, progress)
                 if not stored.records:
-                    cut = f"--start {sampling.start}" + ("" if sampling.stop is None else f" --stop {sampling.stop}")
+                    cut = f"start {sampling.start}" + ("" if sampling.stop is None else f", stop {sampling.stop}")
                     length = "" if video.frame_count is None else f" (it has {video.frame_count} frames)"
-                    raise WilocError(path, f"{cut} picks no frame of this video{length}")
+                    raise WilocError(path, f"the cut ({cut}) holds no frame of this video{length}")
                 entry = cache.write_entry(stored, complete=True)
     return _report(stored, entry, computed, start, video=True)
 

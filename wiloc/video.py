@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.errors import UsageError, WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.frames import Fingerprint
 
 #: File name endings taken for videos (then verified by opening the file): the usual containers
@@ -31,7 +31,7 @@ VIDEO_SUFFIXES: frozenset[str] = frozenset({
 #: digits and still sort after them by natural sort, the order wiloc uses everywhere.
 NAME_WIDTH = 6
 #: Timestamps are decoder milliseconds in floating point (99.99999 for 100): a frame within this
-#: many ms before a --start, --stop or --fps boundary counts as reaching it.
+#: many ms before a start, stop or fps boundary counts as reaching it.
 TOLERANCE_MS = 0.5
 #: The fingerprint reads the head and the tail (containers keep their index at either end) and
 #: a block at each ninth of the file: 2.5 MiB whatever the file's size.
@@ -72,11 +72,11 @@ def video_fingerprint(path: Path) -> Fingerprint:
     return Fingerprint(size=size, mtime_ns=stat.st_mtime_ns, digest=digest.hexdigest())
 
 
-def _position(value: object, option: str) -> int | str:
-    """A --start/--stop value as stored: a frame index (int) or seconds as ``"<number>s"``."""
+def _position(value: object, parameter: str) -> int | str:
+    """A start/stop value as stored: a frame index (int) or seconds as ``"<number>s"``."""
     if isinstance(value, Integral) and not isinstance(value, bool):
         if value < 0:
-            raise UsageError(option, f"must be a frame index >= 0 or seconds such as 12.5s, got {value}")
+            raise ParameterError(parameter, f"must be a frame index >= 0 or seconds such as 12.5s, got {value}")
         return int(value)
     text = value.strip() if isinstance(value, str) else ""
     if text.isdigit():
@@ -86,17 +86,17 @@ def _position(value: object, option: str) -> int | str:
     except ValueError:
         seconds = math.nan
     if not math.isfinite(seconds) or seconds < 0:
-        raise UsageError(option, f"must be a frame index >= 0 or seconds such as 12.5s, got {value!r}")
+        raise ParameterError(parameter, f"must be a frame index >= 0 or seconds such as 12.5s, got {value!r}")
     return f"{seconds!r}".removesuffix(".0") + "s"
 
 
 def _value(bound: int | str) -> float:
-    """A --start/--stop position's number: the frame index, or the seconds."""
+    """A start/stop position's number: the frame index, or the seconds."""
     return float(bound) if isinstance(bound, int) else float(bound[:-1])
 
 
 def _reached(bound: int | str, index: int, timestamp_ms: float) -> bool:
-    """Whether a frame is at or after a --start/--stop position."""
+    """Whether a frame is at or after a start/stop position."""
     if isinstance(bound, int):
         return index >= bound
     return timestamp_ms + TOLERANCE_MS >= _value(bound) * 1000.0
@@ -115,7 +115,8 @@ class Sampling:
     seconds of decoder time (``"12.5s"``); ``stop=None`` runs to the end. Of the frames in the
     cut, ``every=K`` keeps the first and every K-th after it; ``fps=F`` instead keeps the first
     frame whose timestamp reaches each multiple of 1/F s after the cut's first frame (every
-    frame when F is at least the video's rate). Invalid values raise UsageError naming the option.
+    frame when F is at least the video's rate). An invalid value raises ParameterError naming it
+    (the command line's --every, --fps, --start, --stop).
     """
 
     every: int = 1
@@ -126,21 +127,21 @@ class Sampling:
     def __post_init__(self) -> None:
         every = self.every
         if not isinstance(every, Integral) or isinstance(every, bool) or every < 1:
-            raise UsageError("--every", f"must be a whole number >= 1, got {every!r}")
+            raise ParameterError("every", f"must be a whole number >= 1, got {every!r}")
         object.__setattr__(self, "every", int(every))
         if self.fps is not None:
             fps = self.fps
             if not isinstance(fps, Real) or isinstance(fps, bool) or not math.isfinite(fps) or fps <= 0:
-                raise UsageError("--fps", f"must be a number of frames per second > 0, got {fps!r}")
+                raise ParameterError("fps", f"must be a number of frames per second > 0, got {fps!r}")
             if self.every != 1:
-                raise UsageError("--fps", "give either --every or --fps, not both")
+                raise ParameterError("fps", f"cannot be combined with every (got every={self.every})")
             object.__setattr__(self, "fps", float(fps))
-        object.__setattr__(self, "start", _position(self.start, "--start"))
+        object.__setattr__(self, "start", _position(self.start, "start"))
         if self.stop is not None:
-            stop = _position(self.stop, "--stop")
+            stop = _position(self.stop, "stop")
             object.__setattr__(self, "stop", stop)
             if type(stop) is type(self.start) and _value(stop) <= _value(self.start):
-                raise UsageError("--stop", f"must come after --start ({self.start}), got {stop}")
+                raise ParameterError("stop", f"must come after start ({self.start}), got {stop}")
 
     def pick(self, stream: Iterable[tuple[int, float]]) -> Iterator[tuple[int, float]]:
         """The (index, timestamp ms) pairs of `stream` this sampling keeps, in order. Stops
