@@ -182,3 +182,26 @@ def test_list_entries_shows_an_unreadable_entry(tmp_path: Path, content: str) ->
     assert (info.descriptor, info.complete, info.frames, info.size > 0) == ("unreadable", False, 0, True)
     assert info.problem.startswith(f"{bad}: unreadable cache entry")
     assert "\n" not in info.problem
+
+
+def test_timestamps_round_trip_through_journal_and_file(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    cache = Cache(tmp_path / "c")
+    header = _header("/data/route.avi")
+    journal = cache.open_journal(header)
+    journal.append(replace(_record("000000", 0.0), timestamp_ms=0.0))
+    journal.append(replace(_record("000002", 2.0), timestamp_ms=66.733))
+    journal.close()
+    stored = cache.read_stored(header.key)
+    assert [r.timestamp_ms for r in stored.ordered()] == [0.0, 66.733]
+    entry = cache.write_entry(stored, complete=True)
+    np.testing.assert_array_equal(entry.timestamps_ms, [0.0, 66.733])
+    np.testing.assert_array_equal(cache.read_entry(header.key).timestamps_ms, [0.0, 66.733])
+    with h5py.File(cache.entry_path(header.key), "r+") as f:  # as written before videos were traversals
+        del f["frames/timestamp_ms"]
+    assert np.isnan(cache.read_entry(header.key).timestamps_ms).all()
+    images = StoredEntry(_header(), {"a.png": _record("a.png", 1.0)})
+    cache.write_entry(images, complete=True)
+    with h5py.File(cache.entry_path(images.header.key), "r") as f:
+        assert np.isnan(f["frames/timestamp_ms"][()]).all()

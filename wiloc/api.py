@@ -19,7 +19,7 @@ import pandas as pd
 from wiloc import __version__
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent
-from wiloc.describing import DescribeReport, describe_folder, import_matrix
+from wiloc.describing import DescribeReport, check_sampling, describe_source, import_matrix
 from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matrix
 from wiloc.errors import UsageError, WilocError
 from wiloc.groundtruth import Truth, TruthSource
@@ -34,20 +34,26 @@ from wiloc.methods.base import Decision
 from wiloc.results import Results, ResultsStream, make_results, read_results, write_results
 from wiloc.training import Training, training_rows
 from wiloc.traversals import Describer, Progress, descriptor_label, descriptor_spec, stage
+from wiloc.video import Sampling
 
-__all__ = ["Comparison", "Evaluation", "LocalizeRun", "Training", "TruthSource", "compare", "describe",
-           "evaluate", "import_descriptors", "localize"]
+__all__ = ["Comparison", "Evaluation", "LocalizeRun", "Sampling", "Training", "TruthSource", "compare",
+           "describe", "evaluate", "import_descriptors", "localize"]
 
 
 # ----------------------------------------------------------------------------------------- describe
 
 def describe(folders: Sequence[Path], descriptor: str = "sad", *,
              descriptor_params: Mapping[str, Any] | None = None, cache: Cache | None = None,
-             jobs: int | None = None, progress: Progress | None = None) -> list[DescribeReport]:
-    """Compute (or reuse from the cache) one descriptor per image of each folder."""
+             jobs: int | None = None, progress: Progress | None = None,
+             sampling: Sampling | None = None) -> list[DescribeReport]:
+    """Compute (or reuse from the cache) one descriptor per image of each folder, or per frame
+    of each video file that ``sampling`` picks (default: every frame). ``jobs`` worker processes
+    describe folders; videos are decoded and described in this process."""
     spec = descriptor_spec(descriptor, descriptor_params)
     cache = cache or Cache()
-    return [describe_folder(Path(folder), spec, cache, jobs=jobs,
+    for folder in folders:
+        check_sampling(Path(folder), sampling)
+    return [describe_source(Path(folder), spec, cache, jobs=jobs, sampling=sampling,
                             progress=stage(progress, f"describe {Path(folder).name}"))
             for folder in folders]
 

@@ -78,7 +78,8 @@ class EntryHeader:
 
 @dataclass(frozen=True)
 class FrameRecord:
-    """One frame of an entry: its fingerprint and either its descriptor row or why it failed."""
+    """One frame of an entry: its fingerprint and either its descriptor row or why it failed.
+    A video's frames carry the video's fingerprint and their decoder timestamp."""
 
     name: str
     size: int
@@ -88,16 +89,19 @@ class FrameRecord:
     reason: str = ""
     width: int = 0
     height: int = 0
+    timestamp_ms: float | None = None
 
 
 @dataclass(frozen=True)
 class Entry(EntryHeader):
-    """A cached descriptor matrix: the header's fields, rows in frame order named by file name,
-    and a digest of the content (names, fingerprints, params) that derived files are keyed by."""
+    """A cached descriptor matrix: the header's fields, rows in frame order named by file name
+    (a video's frames by index), a digest of the content (names, fingerprints, params) that
+    derived files are keyed by, and per row the decoder timestamp in ms (NaN for image files)."""
 
     names: list[str]
     data: np.ndarray
     digest: str
+    timestamps_ms: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -139,7 +143,13 @@ class StoredEntry:
         data = np.empty((len(good), h.length), np.dtype(h.dtype))
         for i, record in enumerate(good):
             data[i] = record.row
-        return Entry(**asdict(h), names=[r.name for r in good], data=data, digest=entry_digest(h, good))
+        return Entry(**asdict(h), names=[r.name for r in good], data=data, digest=entry_digest(h, good),
+                     timestamps_ms=_timestamps(good))
+
+
+def _timestamps(records: list[FrameRecord]) -> np.ndarray:
+    """Each record's timestamp in ms, NaN where it has none (image files)."""
+    return np.array([np.nan if r.timestamp_ms is None else r.timestamp_ms for r in records], np.float64)
 
 
 def entry_key(folder: str, descriptor: str, params: dict[str, Any]) -> str:
@@ -191,7 +201,7 @@ class Journal:
         meta = {
             "name": record.name, "size": record.size, "mtime_ns": record.mtime_ns,
             "digest": record.digest, "reason": record.reason,
-            "width": record.width, "height": record.height,
+            "width": record.width, "height": record.height, "timestamp_ms": record.timestamp_ms,
         }
         row = b"" if record.row is None else np.ascontiguousarray(record.row, self._dtype).tobytes()
         self._write(json.dumps(meta).encode(), row)
@@ -383,6 +393,7 @@ class Cache:
                 if group == "frames":
                     g.create_dataset("width", data=np.array([r.width for r in rows], np.int32))
                     g.create_dataset("height", data=np.array([r.height for r in rows], np.int32))
+                    g.create_dataset("timestamp_ms", data=_timestamps(rows))
                 else:
                     g.create_dataset("reason", data=[r.reason for r in rows], dtype=text)
         self.journal_path(header.key).unlink(missing_ok=True)
@@ -464,10 +475,13 @@ def _read_h5(path: Path) -> StoredEntry:
             sizes, mtimes = g["size"][()], g["mtime_ns"][()]
             if group == "frames":
                 widths, heights = g["width"][()], g["height"][()]
+                # absent in entries written before videos were traversals
+                stamps = g["timestamp_ms"][()] if "timestamp_ms" in g else np.full(len(names), np.nan)
                 for i, name in enumerate(names):
                     stored.records[name] = FrameRecord(
                         name, int(sizes[i]), int(mtimes[i]), digests[i], data[i],
-                        width=int(widths[i]), height=int(heights[i]))
+                        width=int(widths[i]), height=int(heights[i]),
+                        timestamp_ms=None if np.isnan(stamps[i]) else float(stamps[i]))
             else:
                 reasons = [r.decode() for r in g["reason"][()]]
                 for i, name in enumerate(names):

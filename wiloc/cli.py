@@ -4,6 +4,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
+import os
 import time
 from dataclasses import asdict
 import math
@@ -18,7 +19,11 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from wiloc import __version__, api
+# FFmpeg inside OpenCV reads its log level once, when cv2 is loaded: keep its lines about damaged
+# videos ("[mpeg4 @ 0x...] header damaged") off the terminal, since wiloc reports them itself.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
+
+from wiloc import __version__, api  # loads cv2
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.cli_params import flag, method_params, with_method_options
 from wiloc.errors import EXIT_INTERRUPTED, WilocError
@@ -34,8 +39,13 @@ out = Console()
 err = Console(stderr=True)
 
 
-def _fail(message: str, code: int) -> None:
+def _error(message: str) -> None:
+    """One unwrapped `error:` line on stderr."""
     err.print(f"[bold red]error:[/bold red] {escape(message)}", highlight=False, soft_wrap=True)
+
+
+def _fail(message: str, code: int) -> None:
+    _error(message)
     raise typer.Exit(code)
 
 
@@ -135,18 +145,22 @@ def main(version: bool = typer.Option(False, "--version", callback=_version, is_
 @app.command()
 @handles_errors
 def describe(
-    folders: list[Path] = typer.Argument(None, help="Image folders (one traversal each)."),
+    folders: list[Path] = typer.Argument(None, help="Image folders or video files (one traversal each)."),
     descriptor: str = typer.Option("sad", "--descriptor", "-d", help="sad | gist | brisk-gist"),
     crop: str = typer.Option("none", help="sad only: none | top-half"),
     import_file: Optional[Path] = typer.Option(None, "--import", help="External N x D matrix (.npy, .csv, .h5)."),
     names: Optional[Path] = typer.Option(None, help="With --import .npy: text file of frame names, one a line."),
     metric: str = typer.Option("l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
+    every: int = typer.Option(1, help="Videos: every K-th frame of the cut."),
+    fps: Optional[float] = typer.Option(None, help="Videos: about F frames per second (by timestamp), instead of --every."),
+    start: str = typer.Option("0", help="Videos: first frame, an index (120) or seconds (12.5s)."),
+    stop: Optional[str] = typer.Option(None, help="Videos: end of the cut (excluded), an index or seconds; default: the end."),
     list_cache: bool = typer.Option(False, "--list", help="Show what the cache holds."),
     cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Worker processes (default: all cores)."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Worker processes for image folders (default: all cores)."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
-    """Compute whole-image descriptors of image folders into the HDF5 cache.
+    """Compute whole-image descriptors of image folders or video files into the HDF5 cache.
 
     Example: wiloc describe data/gardens-point-walking/day_right --descriptor gist
     """
@@ -165,13 +179,14 @@ def describe(
         out.print(_table(f"cache {store.root}", rows, columns + ["problem"] * any(i.problem for i in infos)))
         return
     if import_file is None and not folders:
-        _fail("give image folders, --import FILE or --list", 2)
+        _fail("give image folders, video files, --import FILE or --list", 2)
+    sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
     with progress_bar(not as_json) as progress:
         if import_file is not None:
             reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store)]
         else:
             reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop),
-                                   cache=store, jobs=jobs, progress=progress)
+                                   cache=store, jobs=jobs, progress=progress, sampling=sampling)
     rows = [{"folder": str(given), "frames": r.frames, "descriptor": r.descriptor,
              "shape": "x".join(map(str, r.shape)), "computed": r.computed, "reused": r.reused,
              "failed": len(r.failed), "images/s": f"{r.images_per_second:.1f}" if r.computed else "-"}
@@ -182,13 +197,18 @@ def describe(
     else:
         out.print(_table("describe", rows))
         for r in reports:
-            for name, reason in r.failed:
+            for name, reason in r.failed if not r.video else ():
                 _note("skipped", f"{Path(r.folder) / name}: {reason}")
             if len(r.sizes) > 1:
                 _note("note", f"{r.folder}: images of {len(r.sizes)} different sizes")
-    empty = [r.folder for r in reports if r.entry.data.shape[0] == 0]
-    if empty:
-        _fail(f"{empty[0]}: no image could be described (see the lines above)", 1)
+    # A video that stops decoding early is an error, after its good frames went into the cache.
+    problems = [f"{r.folder}: {reason}" for r in reports if r.video for _, reason in r.failed]
+    problems += [f"{r.folder}: no image could be described (see the lines above)"
+                 for r in reports if r.entry.data.shape[0] == 0]
+    for problem in problems:
+        _error(problem)
+    if problems:
+        raise typer.Exit(1)
 
 
 # ------------------------------------------------------------------------------------------ localize

@@ -1,17 +1,19 @@
-"""Folder -> descriptor matrix through the cache, computed in worker processes.
+"""Traversal (folder or video) -> descriptor matrix through the cache.
 
-Unchanged frames are reused (same size and mtime, or else the same content digest); only new or
-changed frames are computed, each journaled the moment its result arrives, so an interrupted run
-resumes where it stopped. Unreadable frames are reported and left out, never invented.
+A folder's unchanged frames are reused (same size and mtime, or else the same content digest);
+only new or changed frames are computed, in worker processes. A video's frames are decoded in
+order and described in this process. Either way each frame is journaled the moment its result
+arrives, so an interrupted run resumes where it stopped. Unreadable frames are reported and left
+out, never invented.
 """
 from __future__ import annotations
 
 import os
 import signal
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
@@ -30,8 +32,9 @@ from wiloc.cache import (
 )
 from wiloc.descriptors.external import read_external
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
-from wiloc.errors import FrameError, UsageError, WilocError
-from wiloc.frames import fingerprint, jpeg_size, list_traversal, read_gray
+from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
+from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, read_gray
+from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
 
 Progress = Callable[[int, int], None]
 #: Frames per round trip to a worker: enough that the round trip costs little even for the
@@ -44,7 +47,8 @@ _devnull: int | None = None
 
 @dataclass(frozen=True)
 class DescribeReport:
-    """What a describe run did: counts, bad and ignored files, image sizes, speed, and the entry."""
+    """What a describe run did: counts, bad and ignored files, image sizes, speed, and the entry.
+    For a video (`video` true), `failed` holds at most the frame where decoding stopped early."""
 
     folder: str
     descriptor: str
@@ -58,6 +62,24 @@ class DescribeReport:
     seconds: float
     images_per_second: float
     entry: Entry
+    video: bool = False
+
+
+def describe_source(source: Path, spec: DescriptorSpec, cache: Cache, *, jobs: int | None = None,
+                    sampling: Sampling | None = None, progress: Progress | None = None) -> DescribeReport:
+    """Describe a traversal: a video file (recognised by its suffix) with `sampling`, else a
+    folder of images with `jobs` worker processes."""
+    check_sampling(source, sampling)
+    if is_video(source):
+        return describe_video(source, spec, cache, sampling, progress)
+    return describe_folder(source, spec, cache, jobs, progress)
+
+
+def check_sampling(source: Path, sampling: Sampling | None) -> None:
+    """ParameterError when a sampling other than every frame is given for a folder: it applies to
+    video files only."""
+    if sampling is not None and sampling != Sampling() and not is_video(source):
+        raise ParameterError("sampling", f"applies to video files only; {source} is not one")
 
 
 def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int | None = None,
@@ -71,16 +93,9 @@ def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int 
     start = time.perf_counter()
     jobs = _check_jobs(jobs)
     traversal = list_traversal(folder)
-    header = EntryHeader.create(
-        str(Path(folder).resolve()), spec.name, spec.params, spec.metric, spec.scale,
-        spec.natural_max, spec.dtype, spec.length)
+    header = _header(str(Path(folder).resolve()), spec, spec.params)
     total = len(traversal.frames)
-    with cache.lock(cache.entry_name(header.key)):
-        stored = cache.read_stored(header.key)
-        if stored is None or stored.header != header:
-            stored = StoredEntry(header)
-        elif stored.journaled:
-            cache.write_entry(stored, complete=False)
+    with _locked_entry(cache, header) as stored:
         names = set(traversal.names)
         removed = [name for name in stored.records if name not in names]
         for name in removed:
@@ -90,33 +105,51 @@ def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int 
         done = total - len(tasks)
         if progress is not None:
             progress(done, total)
-        computed = 0
-        if tasks:
-            journal = cache.open_journal(header)
-            try:
-                for record, fresh in _compute(spec, tasks, jobs):
-                    journal.append(record)
-                    stored.records[record.name] = record
-                    computed += fresh
-                    done += 1
-                    if progress is not None:
-                        progress(done, total)
-            finally:
-                journal.close()
+        computed = _journal(cache, stored, _compute(spec, tasks, jobs), done, total, progress) if tasks else 0
         if tasks or removed or not stored.complete:
             entry = cache.write_entry(stored, complete=True)
         else:
             entry = stored.entry()
-    records = stored.ordered()
-    failed = [(r.name, r.reason) for r in records if r.row is None]
-    seconds = time.perf_counter() - start
-    return DescribeReport(
-        folder=header.folder, descriptor=spec.name, shape=entry.data.shape, frames=total,
-        computed=computed, reused=total - computed - len(failed), failed=failed,
-        ignored=[p.name for p in traversal.ignored],
-        sizes=sorted({(r.width, r.height) for r in records if r.row is not None}),
-        seconds=seconds, images_per_second=computed / seconds, entry=entry,
-    )
+    return _report(stored, entry, computed, start, ignored=[p.name for p in traversal.ignored])
+
+
+def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampling | None = None,
+                   progress: Progress | None = None) -> DescribeReport:
+    """Describe the frames of a video that `sampling` picks (default: all), reusing the cache.
+
+    The entry is keyed by the video's path and fingerprint, the descriptor and the sampling.
+    Frames are decoded in order and described in this process (worker processes measured
+    slower: decoding is sequential and frames would have to be pickled to them). A run killed
+    midway resumes, passing over the journaled frames undecoded. When decoding stops before the
+    container's frame count, that frame is recorded as failed (its reason names the last good
+    frame) and the frames before it are kept. Raises WilocError for a file that is not a
+    readable video, before anything is written, or when the sampling picks no frame.
+    """
+    start = time.perf_counter()
+    sampling = sampling or Sampling()
+    path = Path(path)
+    with _opencv_quiet(), Video(path) as video:
+        video_print = video_fingerprint(path)
+        params = {**spec.params, "video": video_print.digest, "sampling": asdict(sampling)}
+        header = _header(str(path.resolve()), spec, params)
+        with _locked_entry(cache, header) as stored:
+            computed = 0
+            if stored.complete:
+                entry = stored.entry()
+            else:
+                total = sampling.estimate(video.frame_count, video.rate)
+                done = len(stored.records)
+                if progress is not None:
+                    progress(done, max(done, total or 0))
+                frames = video.frames(sampling, skip=stored.records)
+                results = (_describe_frame(spec, video_print, frame) for frame in frames)
+                computed = _journal(cache, stored, results, done, total, progress)
+                if not stored.records:
+                    cut = f"start {sampling.start}" + ("" if sampling.stop is None else f", stop {sampling.stop}")
+                    length = "" if video.frame_count is None else f" (it has {video.frame_count} frames)"
+                    raise WilocError(path, f"the cut ({cut}) holds no frame of this video{length}")
+                entry = cache.write_entry(stored, complete=True)
+    return _report(stored, entry, computed, start, video=True)
 
 
 def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str) -> DescribeReport:
@@ -156,6 +189,62 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
         folder=str(sources[0]), descriptor=EXTERNAL, shape=entry.data.shape, frames=n,
         computed=n if fresh else 0, reused=0 if fresh else n, failed=[], ignored=[], sizes=[],
         seconds=seconds, images_per_second=(n if fresh else 0) / seconds, entry=entry,
+    )
+
+
+def _header(source: str, spec: DescriptorSpec, params: dict) -> EntryHeader:
+    """The header of `source`'s entry for `spec`, keyed by `params`."""
+    return EntryHeader.create(source, spec.name, params, spec.metric, spec.scale, spec.natural_max,
+                              spec.dtype, spec.length)
+
+
+@contextmanager
+def _locked_entry(cache: Cache, header: EntryHeader) -> Iterator[StoredEntry]:
+    """Hold the entry's lock and yield what it stores (nothing when absent or made for other
+    params); a killed run's journal is folded into the file first."""
+    with cache.lock(cache.entry_name(header.key)):
+        stored = cache.read_stored(header.key)
+        if stored is None or stored.header != header:
+            stored = StoredEntry(header)
+        elif stored.journaled:
+            cache.write_entry(stored, complete=False)
+        yield stored
+
+
+def _journal(cache: Cache, stored: StoredEntry, results: Iterable[tuple[FrameRecord, bool]], done: int,
+             total: int | None, progress: Progress | None) -> int:
+    """Journal each settled frame the moment it arrives and add it to `stored`; returns how many
+    descriptors were computed. The journal is opened on the first result: no result, no file."""
+    journal = None
+    computed = 0
+    try:
+        for record, fresh in results:
+            if journal is None:
+                journal = cache.open_journal(stored.header)
+            journal.append(record)
+            stored.records[record.name] = record
+            computed += fresh
+            done += 1
+            if progress is not None:
+                progress(done, max(done, total or 0))
+    finally:
+        if journal is not None:
+            journal.close()
+    return computed
+
+
+def _report(stored: StoredEntry, entry: Entry, computed: int, started: float, ignored: Sequence[str] = (),
+            video: bool = False) -> DescribeReport:
+    """The report of a run that settled every frame of `stored` and wrote (or reused) `entry`."""
+    records = stored.ordered()
+    failed = [(r.name, r.reason) for r in records if r.row is None]
+    seconds = time.perf_counter() - started
+    return DescribeReport(
+        folder=stored.header.folder, descriptor=stored.header.descriptor, shape=entry.data.shape,
+        frames=len(records), computed=computed, reused=len(records) - computed - len(failed),
+        failed=failed, ignored=list(ignored),
+        sizes=sorted({(r.width, r.height) for r in records if r.row is not None}),
+        seconds=seconds, images_per_second=computed / seconds, entry=entry, video=video,
     )
 
 
@@ -252,6 +341,17 @@ def _describe_one(spec: DescriptorSpec, task: _Task) -> tuple[FrameRecord, bool]
     row = np.asarray(spec.compute(gray), dtype=spec.dtype)
     width, height = _full_size(path, gray)
     return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, row, "", width, height), True
+
+
+def _describe_frame(spec: DescriptorSpec, video: Fingerprint, frame: VideoFrame) -> tuple[FrameRecord, bool]:
+    """One video frame's record, with the video's fingerprint and the frame's timestamp, and
+    whether its descriptor was computed (False for the frame where decoding stopped)."""
+    if frame.gray is None:
+        return FrameRecord(frame.name, video.size, video.mtime_ns, video.digest, None, frame.problem), False
+    row = np.asarray(spec.compute(frame.gray), dtype=spec.dtype)
+    height, width = frame.gray.shape
+    return FrameRecord(frame.name, video.size, video.mtime_ns, video.digest, row, "", width, height,
+                       frame.timestamp_ms), True
 
 
 def _full_size(path: Path, gray: np.ndarray) -> tuple[int, int]:

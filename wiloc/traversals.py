@@ -1,5 +1,5 @@
-"""Traversals as descriptor matrices: an image folder described through the cache, a user's
-descriptor matrix file imported into it, or descriptors held in memory."""
+"""Traversals as descriptor matrices: an image folder or a video file described through the
+cache, a user's descriptor matrix file imported into it, or descriptors held in memory."""
 from __future__ import annotations
 
 import hashlib
@@ -11,9 +11,10 @@ from typing import Any
 import numpy as np
 
 from wiloc.cache import Cache, Entry, EntryHeader
-from wiloc.describing import describe_folder, import_matrix
+from wiloc.describing import describe_source, import_matrix
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import ParameterError, UsageError, WilocError
+from wiloc.video import Sampling, is_video
 
 Progress = Callable[[str, int, int], None]
 
@@ -42,7 +43,7 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
 def descriptor_label(source: Path, descriptor: str, metric: str | None) -> str:
     """The descriptor of a traversal as results name it: ``sad``, or ``external:cosine`` for an
     imported matrix file."""
-    return f"external:{metric}" if Path(source).is_file() else descriptor
+    return f"external:{metric}" if Path(source).is_file() and not is_video(source) else descriptor
 
 
 def stage(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
@@ -55,8 +56,9 @@ def stage(progress: Progress | None, label: str) -> Callable[[int, int], None] |
 @dataclass
 class Describer:
     """How traversals become descriptor matrices: one descriptor with its parameters, through one
-    cache. ``metric`` is the difference of imported matrix files; ``skipped`` collects the frames
-    that could not be described, as (image path, why)."""
+    cache. ``metric`` is the difference of imported matrix files; ``sampling`` picks the frames of
+    video files (default: all); ``skipped`` collects the frames that could not be described, as
+    (image path, why)."""
 
     descriptor: str = "sad"
     params: Mapping[str, Any] = field(default_factory=dict)
@@ -65,6 +67,7 @@ class Describer:
     jobs: int | None = None
     progress: Progress | None = None
     skipped: list[tuple[str, str]] = field(default_factory=list)
+    sampling: Sampling | None = None
 
     @property
     def spec(self) -> DescriptorSpec:
@@ -75,14 +78,14 @@ class Describer:
         return descriptor_label(source, self.descriptor, self.metric)
 
     def entry(self, source: Path, names: Path | None = None) -> Entry:
-        """The descriptors of a folder (computed on demand) or of an imported matrix file
-        (``names``: its frame names, one per line, for .npy matrices)."""
+        """The descriptors of a folder or of a video's sampled frames (computed on demand), or of
+        an imported matrix file (``names``: its frame names, one per line, for .npy matrices)."""
         source = Path(source)
-        if source.is_file():
+        if source.is_file() and not is_video(source):
             if self.metric is None:
                 raise UsageError(source, "a descriptor matrix file needs a metric (l1, sqeuclidean, hamming, cosine)")
             return import_matrix(source, self.cache, names, self.metric).entry
-        report = describe_folder(source, self.spec, self.cache, jobs=self.jobs,
+        report = describe_source(source, self.spec, self.cache, jobs=self.jobs, sampling=self.sampling,
                                  progress=stage(self.progress, f"describe {source.name}"))
         self.skipped.extend((str(source / name), reason) for name, reason in report.failed)
         entry = report.entry

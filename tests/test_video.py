@@ -1,0 +1,350 @@
+"""Video files as traversals: names, timestamps, sampling, fingerprints, resume, damaged files."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+from test_describing import FakeSpec
+from typer.testing import CliRunner
+
+from wiloc import api
+from wiloc.cache import Cache
+from wiloc.cli import app
+from wiloc.describing import describe_folder, describe_video
+from wiloc.errors import ParameterError, WilocError
+from wiloc.frames import list_traversal, read_gray
+from wiloc.traversals import Describer
+from wiloc.video import Sampling, frame_name, is_video, video_fingerprint
+
+
+def write_video(path: Path, count: int, *, fps: float = 10.0, size: tuple[int, int] = (64, 48),
+                seed: int = 0, fourcc: str = "MJPG") -> Path:
+    """`count` smooth random frames; MJPG in .avi is written by every opencv-python build."""
+    rng = np.random.default_rng(seed)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, size)
+    assert writer.isOpened()
+    for _ in range(count):
+        writer.write(cv2.GaussianBlur(rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8), (5, 5), 0))
+    writer.release()
+    return path
+
+
+def decoded_gray(path: Path) -> list[np.ndarray]:
+    """Every frame of a video as OpenCV decodes it, in grayscale."""
+    capture = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    frames = []
+    while (read := capture.read())[0]:
+        frames.append(cv2.cvtColor(read[1], cv2.COLOR_BGR2GRAY))
+    capture.release()
+    return frames
+
+
+def names(indices: range | list[int]) -> list[str]:
+    return [frame_name(i) for i in indices]
+
+
+def test_frames_are_named_by_index_with_timestamps(tmp_path: Path) -> None:
+    video = write_video(tmp_path / "route.avi", 25)
+    cache = Cache(tmp_path / "cache")
+    spec = FakeSpec()
+    first = describe_video(video, spec, cache)
+    assert first.video and (first.frames, first.computed, first.reused, first.failed) == (25, 25, 0, [])
+    assert first.entry.names == [f"{i:06d}" for i in range(25)]
+    np.testing.assert_allclose(first.entry.timestamps_ms, np.arange(25) * 100.0, atol=1e-6)
+    np.testing.assert_array_equal(first.entry.data, np.stack([spec.compute(g) for g in decoded_gray(video)]))
+    assert first.sizes == [(64, 48)] and first.folder == str(video.resolve())
+    with h5py.File(cache.entry_path(first.entry.key), "r") as f:
+        np.testing.assert_allclose(f["frames/timestamp_ms"][()], first.entry.timestamps_ms)
+        assert json.loads(f.attrs["params"])["sampling"] == {"every": 1, "fps": None, "start": 0, "stop": None}
+    again = describe_video(video, spec, cache)
+    assert (again.computed, again.reused, again.entry.digest) == (0, 25, first.entry.digest)
+    [info] = cache.list_entries()
+    assert (info.folder, info.frames, info.complete) == (str(video.resolve()), 25, True)
+
+
+def test_folders_keep_nan_timestamps(tmp_path: Path) -> None:
+    from test_describing import write_images
+
+    write_images(tmp_path / "route", 3)
+    report = describe_folder(tmp_path / "route", FakeSpec(), Cache(tmp_path / "cache"), jobs=1)
+    assert report.entry.timestamps_ms.shape == (3,) and np.isnan(report.entry.timestamps_ms).all()
+
+
+@pytest.mark.parametrize(("sampling", "expected"), [
+    (Sampling(every=3), list(range(0, 30, 3))),
+    (Sampling(fps=2.5), list(range(0, 30, 4))),
+    (Sampling(fps=25), list(range(30))),
+    (Sampling(start=5, stop=12), list(range(5, 12))),
+    (Sampling(start="1s", stop="2.05s"), list(range(10, 21))),
+    (Sampling(every=4, start=3, stop="2s"), [3, 7, 11, 15, 19]),
+    (Sampling(fps=3, start="0.5s"), [5, 9, 12, 15, 19, 22, 25, 29]),
+])
+def test_sampling_picks_and_keeps_the_video_indices(tmp_path: Path, sampling: Sampling, expected: list[int]) -> None:
+    video = write_video(tmp_path / "route.avi", 30)
+    report = describe_video(video, FakeSpec(), Cache(tmp_path / "cache"), sampling)
+    assert report.entry.names == names(expected)
+    np.testing.assert_allclose(report.entry.timestamps_ms, np.array(expected) * 100.0, atol=1e-6)
+    all_rows = describe_video(video, FakeSpec(), Cache(tmp_path / "all")).entry.data
+    np.testing.assert_array_equal(report.entry.data, all_rows[expected])
+
+
+def test_sampling_rule_on_timestamps() -> None:
+    ntsc = [(i, i * 1000 / 29.97) for i in range(300)]  # 29.97 frames/s, float timestamps
+    assert [i for i, _ in Sampling(fps=10).pick(ntsc)] == list(range(0, 300, 3))
+    ragged = [(0, 0.0), (1, 40.0), (2, 99.7), (3, 130.0), (4, 260.0), (5, 299.99999), (6, 420.0)]
+    assert [i for i, _ in Sampling(fps=10).pick(ragged)] == [0, 2, 4, 5, 6]  # one per 100 ms slot
+
+    def endless():
+        index = 0
+        while True:
+            yield index, index * 100.0
+            index += 1
+    assert [i for i, _ in Sampling(stop="1s").pick(endless())] == list(range(10))  # stops drawing
+    assert Sampling(every=3).estimate(30, 10.0) == 10
+    assert Sampling(fps=2.5, start="1s").estimate(30, 10.0) == 5
+    assert Sampling().estimate(None, 0.0) is None
+
+
+@pytest.mark.parametrize(("kwargs", "parameter"), [
+    ({"every": 0}, "every"), ({"every": 1.5}, "every"), ({"every": True}, "every"),
+    ({"fps": 0}, "fps"), ({"fps": float("nan")}, "fps"), ({"fps": True}, "fps"), ({"fps": 5, "every": 2}, "fps"),
+    ({"start": -1}, "start"), ({"start": "x"}, "start"), ({"start": "-2s"}, "start"),
+    ({"start": 2.5}, "start"), ({"stop": "inf s"}, "stop"), ({"start": 10, "stop": 10}, "stop"),
+    ({"start": "3s", "stop": "1.5s"}, "stop"),
+])
+def test_sampling_checks_name_the_parameter(kwargs: dict, parameter: str) -> None:
+    with pytest.raises(ParameterError) as caught:
+        Sampling(**kwargs)
+    assert caught.value.parameter == parameter and "\n" not in str(caught.value)
+    assert str(caught.value).startswith(f"{parameter}: ")
+
+
+def test_sampling_normalises_positions() -> None:
+    assert Sampling(start="12", stop="1.50s") == Sampling(start=12, stop="1.5s")
+    assert Sampling(start=" 90s ").start == "90s"
+    assert Sampling(start=np.int64(4)).start == 4
+    assert Sampling(start="2s", stop=5) != Sampling()  # mixed units are checked by the video
+
+
+def test_resume_passes_over_journaled_frames_undecoded(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    video = write_video(tmp_path / "route.avi", 20)
+    cache = Cache(tmp_path / "cache")
+    spec = FakeSpec()
+    clean = describe_video(video, spec, Cache(tmp_path / "clean"), Sampling(every=2))
+    stored = Cache(tmp_path / "clean").read_stored(clean.entry.key)
+    journal = cache.open_journal(stored.header)  # a run killed after its first four frames
+    for name in names([0, 2, 4, 6]):
+        journal.append(stored.records[name])
+    journal.close()
+    retrieved = []
+    real = cv2.VideoCapture
+
+    class Counting:  # a wrapper: a Python subclass of cv2.VideoCapture can crash the interpreter
+        def __init__(self, *args: object) -> None:
+            self.capture = real(*args)
+
+        def __getattr__(self, name: str) -> object:
+            return getattr(self.capture, name)
+
+        def retrieve(self) -> tuple[bool, np.ndarray]:  # converts the frame grabbed last
+            retrieved.append(int(self.capture.get(cv2.CAP_PROP_POS_FRAMES)) - 1)
+            return self.capture.retrieve()
+    monkeypatch.setattr(cv2, "VideoCapture", Counting)
+    resumed = describe_video(video, spec, cache, Sampling(every=2))
+    assert (resumed.computed, resumed.reused) == (6, 4)
+    assert retrieved == [8, 10, 12, 14, 16, 18]
+    assert resumed.entry.digest == clean.entry.digest
+    np.testing.assert_array_equal(resumed.entry.data, clean.entry.data)
+    np.testing.assert_array_equal(resumed.entry.timestamps_ms, clean.entry.timestamps_ms)
+
+
+_RUN = """
+import sys
+from pathlib import Path
+from wiloc.cache import Cache
+from wiloc.describing import describe_video
+from wiloc.descriptors.registry import get_descriptor
+from wiloc.video import Sampling
+describe_video(Path(sys.argv[1]), get_descriptor("gist"), Cache(Path(sys.argv[2])), Sampling(every=2))
+"""
+
+
+def test_killed_describe_resumes_with_what_is_missing(tmp_path: Path) -> None:
+    from wiloc.descriptors.registry import get_descriptor
+
+    video = write_video(tmp_path / "route.avi", 96, size=(160, 120))
+    count = 48
+    cache = Cache(tmp_path / "cache")
+    run = subprocess.Popen([sys.executable, "-c", _RUN, str(video), str(cache.root)], stderr=subprocess.PIPE)
+    finished = 0
+    deadline = time.monotonic() + 120
+    while finished < 6 and run.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+        finished = sum(info.frames for info in cache.list_entries())
+    assert run.poll() is None, "describe ended before it could be killed"
+    run.send_signal(signal.SIGKILL)
+    run.wait(timeout=60)
+    assert run.returncode == -signal.SIGKILL
+    [info] = cache.list_entries()
+    assert not info.complete and 6 <= info.frames < count
+    resumed = describe_video(video, get_descriptor("gist"), cache, Sampling(every=2))
+    assert (resumed.computed, resumed.reused, resumed.frames) == (count - info.frames, info.frames, count)
+    clean = describe_video(video, get_descriptor("gist"), Cache(tmp_path / "clean"), Sampling(every=2))
+    assert resumed.entry.names == clean.entry.names == names(range(0, 96, 2))
+    np.testing.assert_array_equal(resumed.entry.timestamps_ms, clean.entry.timestamps_ms)
+    np.testing.assert_allclose(resumed.entry.data, clean.entry.data, rtol=1e-5, atol=1e-7)  # gist: a few ulp
+    assert resumed.entry.digest == clean.entry.digest
+    assert not list(cache.root.rglob("*.wiloc-tmp")) and not list(cache.root.rglob("*.journal"))
+
+
+def test_cut_video_keeps_its_good_frames(tmp_path: Path) -> None:
+    whole = write_video(tmp_path / "whole.avi", 50)
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 6 // 10])
+    good = len(decoded_gray(cut))
+    assert 0 < good < 50
+    cache = Cache(tmp_path / "cache")
+    report = describe_video(cut, FakeSpec(), cache)
+    assert report.entry.names == names(range(good))
+    [(name, reason)] = report.failed
+    assert name == frame_name(good)
+    assert f"cannot decode frame {frame_name(good)} of 50" in reason
+    assert f"the last good frame is {frame_name(good - 1)}" in reason
+    again = describe_video(cut, FakeSpec(), cache)
+    assert (again.computed, again.reused, again.failed) == (0, good, report.failed)
+    stopped = describe_video(cut, FakeSpec(), cache, Sampling(stop=good))  # the cut ends before the damage
+    assert stopped.failed == [] and stopped.entry.names == names(range(good))
+
+
+def _cli(*args: str, cache: Path) -> subprocess.CompletedProcess:
+    """The command line in a fresh process, where the CLI sets FFmpeg's log level before cv2 loads."""
+    code = "import sys; from wiloc.cli import app; sys.argv[0] = 'wiloc'; app()"
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "WILOC_CACHE": str(cache), "COLUMNS": "200"}, check=False)
+
+
+def test_cli_reports_a_cut_video_as_one_error_line(tmp_path: Path) -> None:
+    whole = write_video(tmp_path / "whole.mkv", 50, fourcc="FFV1")
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 6 // 10])
+    good = len(decoded_gray(cut))
+    run = _cli("describe", str(cut), "--json", cache=tmp_path / "cache")
+    assert run.returncode == 1
+    assert run.stderr.splitlines() == [
+        f"error: {cut.resolve()}: cannot decode frame {frame_name(good)} of 50 (the file is cut or damaged "
+        f"there); the last good frame is {frame_name(good - 1)}, and the frames up to it are kept"]
+    [row] = json.loads(run.stdout)
+    assert (row["frames"], row["computed"], row["failed"]) == (good + 1, good, 1)
+    [info] = Cache(tmp_path / "cache").list_entries()
+    assert info.complete and info.frames == good
+
+
+def test_a_file_that_is_no_video_is_one_error_line(tmp_path: Path) -> None:
+    fake = tmp_path / "x.mp4"
+    fake.write_text("not a video\n" * 100)
+    with pytest.raises(WilocError, match="not a video"):
+        describe_video(fake, FakeSpec(), Cache(tmp_path / "cache"))
+    run = _cli("describe", str(fake), cache=tmp_path / "cache")
+    assert run.returncode == 1
+    assert run.stderr.splitlines() == [
+        f"error: {fake}: not a video wiloc can read (no video stream found; an MP4 or MOV cut before "
+        "its index cannot be opened either)"]
+    assert not (tmp_path / "cache").exists()
+    with pytest.raises(WilocError, match="does not exist"):
+        describe_video(tmp_path / "missing.avi", FakeSpec(), Cache(tmp_path / "cache"))
+
+
+def test_an_edited_video_makes_a_new_entry(tmp_path: Path) -> None:
+    video = write_video(tmp_path / "route.avi", 12)
+    cache = Cache(tmp_path / "cache")
+    first = describe_video(video, FakeSpec(), cache)
+    stat = video.stat()
+    os.utime(video, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))  # touched: same entry
+    assert describe_video(video, FakeSpec(), cache).computed == 0
+    write_video(video, 12, seed=1)
+    edited = describe_video(video, FakeSpec(), cache)
+    assert edited.computed == 12 and edited.entry.key != first.entry.key
+    assert edited.entry.digest != first.entry.digest
+    assert not np.array_equal(edited.entry.data, first.entry.data)
+    assert len(cache.list_entries()) == 2
+    other = describe_video(video, FakeSpec(), cache, Sampling(every=2))  # another sampling: its own entry
+    assert other.computed == 6 and len(cache.list_entries()) == 3
+
+
+def test_fingerprint_reads_ends_and_samples_of_a_large_file(tmp_path: Path) -> None:
+    path = tmp_path / "big.mp4"
+    data = bytearray(np.random.default_rng(0).integers(0, 256, 8 << 20, dtype=np.uint8).tobytes())
+    path.write_bytes(data)
+    base = video_fingerprint(path)
+    assert base.size == len(data)
+    for offset in (10, len(data) - 10, len(data) * 4 // 9 + 3):  # head, tail, a middle block
+        changed = bytearray(data)
+        changed[offset] ^= 0xFF
+        path.write_bytes(changed)
+        assert video_fingerprint(path).digest != base.digest, offset
+    path.write_bytes(data + b"\0")
+    assert video_fingerprint(path).digest != base.digest
+
+
+def test_api_describe_and_describer_take_videos(tmp_path: Path) -> None:
+    video = write_video(tmp_path / "route.avi", 20, size=(96, 64))
+    cache = Cache(tmp_path / "cache")
+    [report] = api.describe([video], "sad", cache=cache, sampling=Sampling(every=5))
+    assert report.entry.names == names([0, 5, 10, 15]) and report.shape == (4, 1152)
+    describer = Describer("sad", cache=cache, sampling=Sampling(every=5))
+    assert describer.entry(video).digest == report.entry.digest and describer.skipped == []
+    assert describer.label(video) == "sad"
+    assert Describer("sad", cache=cache).entry(video).names == names(range(20))
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    with pytest.raises(ParameterError, match="^sampling: applies to video files only"):
+        api.describe([video, folder], "sad", cache=cache, sampling=Sampling(fps=2))
+    assert is_video(video) and not is_video(folder) and not is_video(tmp_path / "x.npy")
+
+
+def test_cli_describe_samples_videos(tmp_path: Path, cache_dir: Path) -> None:
+    video = write_video(tmp_path / "route.avi", 30)
+    result = CliRunner().invoke(app, ["describe", str(video), "--start", "1s", "--every", "5", "--json"])
+    assert result.exit_code == 0, result.output
+    [row] = json.loads(result.stdout)
+    assert (row["frames"], row["computed"], row["failed"]) == (4, 4, 0)
+    bad = CliRunner().invoke(app, ["describe", str(video), "--fps", "0"])
+    assert bad.exit_code == 2 and "--fps" in bad.output
+    none = CliRunner().invoke(app, ["describe", str(video), "--start", "40"])
+    assert none.exit_code == 1 and "the cut (start 40) holds no frame of this video (it has 30 frames)" in none.output
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    mixed = CliRunner().invoke(app, ["describe", str(video), str(folder), "--every", "2"])
+    assert mixed.exit_code == 2
+    assert f"--every/--fps/--start/--stop: applies to video files only; {folder} is not one" in mixed.output
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("season", ["summer", "winter"])
+def test_nordland_as_a_lossless_video_gives_the_folder_descriptors(data_root: Path, tmp_path: Path,
+                                                                  season: str) -> None:
+    from wiloc.descriptors.registry import get_descriptor
+
+    folder = data_root / "nordland-summer-winter-64x32" / season
+    frames = list_traversal(folder).frames
+    video = tmp_path / f"{season}.mkv"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 10.0, (64, 32))  # lossless
+    for path in frames:
+        writer.write(cv2.cvtColor(read_gray(path), cv2.COLOR_GRAY2BGR))
+    writer.release()
+    spec = get_descriptor("sad")
+    cache = Cache(tmp_path / "cache")
+    from_video = describe_video(video, spec, cache)
+    from_folder = describe_folder(folder, spec, cache, jobs=1)
+    assert from_video.failed == [] and from_video.entry.names == names(range(len(frames)))
+    assert from_folder.entry.names == [p.name for p in frames]
+    np.testing.assert_array_equal(from_video.entry.data, from_folder.entry.data)
