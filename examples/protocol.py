@@ -90,13 +90,16 @@ def run_experiment(experiment: Experiment, out: Path) -> dict[str, Any]:
              plots.plot_model(online.results.model, out / "model.png",
                               title=f"{experiment.name}: online model learned on {online.traversal}"),
              plots.plot_pr(api.pr_series(comparison), out / "pr.png",
-                           title=f"{experiment.name}: precision-recall")]
+                           title=f"{experiment.name}: precision-recall"),
+             plots.plot_reliability(api.reliability_series(comparison.evaluations), out / "reliability.png",
+                                    title=f"{experiment.name}: reliability of the confidences")]
     summary = _finite({"experiment": experiment.name, "map": experiment.reference.name,
                "queries": [q.name for q in experiment.queries], "descriptors": experiment.descriptors,
                "ground_truth": f"aligned, +-{experiment.tolerance} frames",
                "trained_on": experiment.training_note,
                "table1": comparison.table1.to_dict(orient="records"),
-               "table2": comparison.table2.to_dict(orient="records")})
+               "table2": comparison.table2.to_dict(orient="records"),
+               "calibration": comparison.cut_table.to_dict(orient="records")})
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     console.print(table1_view(comparison))
     console.print(table2_view(comparison))
@@ -137,7 +140,19 @@ def render_markdown(summary: dict[str, Any]) -> str:
         threshold = "-" if row["threshold"] is None else f"{row['threshold']:.4g}"
         lines.append(f"| {row['method']} | {row['precision']:g} % | {threshold} | {row['traversal']} | "
                      f"{_percent(row['recall'])} | {'*' if row['worst'] else ''} |")
+    lines += ["", "| method | traversal | ECE | Brier | mean confidence | share correct | "
+                  "P / R at 0.5 | at 0.9 | at 0.99 |",
+              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for row in summary["calibration"]:
+        at = [f"{_fraction(row[f'precision@{cut:g}'])} / {_fraction(row[f'recall@{cut:g}'])}"
+              for cut in (0.5, 0.9, 0.99)]
+        lines.append(f"| {row['method']} | {row['traversal']} | {_fraction(row['ece'])} | {_fraction(row['brier'])} | "
+                     f"{_fraction(row['mean_confidence'])} | {_fraction(row['share_correct'])} | {' | '.join(at)} |")
     return "\n".join(lines)
+
+
+def _fraction(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
 
 
 def doc_block(name: str) -> tuple[str, str]:
@@ -163,7 +178,7 @@ def update_docs(summary: dict[str, Any], out: Path) -> None:
     if not 0 <= start < stop:
         raise WilocError(doc, f"no '{begin}' ... '{end}' markers to update")
     doc.write_text(f"{text[:start + len(begin)]}\n{render_markdown(summary)}\n{text[stop:]}", encoding="utf-8")
-    for plot in ("threshold", "model", "pr"):
+    for plot in ("threshold", "model", "pr", "reliability"):
         shutil.copyfile(out / f"{plot}.png", REPO / "docs" / "img" / f"{name}-{plot}.png")
     console.print(f"updated {doc} and docs/img/{name}-*.png")
 

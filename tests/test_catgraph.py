@@ -7,7 +7,7 @@ import pytest
 from wiloc.errors import WilocError
 from wiloc.methods import base
 from wiloc.methods.base import ArrayRows, Decisions, run_on_rows
-from wiloc.methods.catgraph import CatGraph, bulk_model, contrast_normalise, observation_tables
+from wiloc.methods.catgraph import CatGraph, contrast_normalise
 
 N_REF = 300
 TOL = 2
@@ -41,25 +41,47 @@ def _hits(match: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("speed", [0.5, 1.5, 2.0])
-def test_tracks_query_at_other_speed_than_map(speed: float) -> None:
+def test_tracks_query_at_other_speed_than_map_with_odometry(speed: float) -> None:
     rng = np.random.default_rng(1)
     truth = 10.0 + speed * np.arange(int(270 / speed))  # the query covers `speed` nodes per frame
-    dec = localize_catgraph(iter(_rows(truth, N_REF, rng)), _ref_self(rng), truth.size)
+    dec = localize_catgraph(iter(_rows(truth, N_REF, rng)), _ref_self(rng), truth.size,
+                            ref_arclength=np.arange(float(N_REF)), query_steps=np.r_[0.0, np.diff(truth)])
     assert _hits(dec.match[20:], truth[20:]).mean() >= 0.9
+
+
+@pytest.mark.parametrize("speed", [0.5, 1.5])
+def test_without_odometry_a_looser_motion_model_follows_another_speed(speed: float) -> None:
+    # The default motion noise (0.15 node spacings per frame) assumes the map's pace, which
+    # calibrates the posterior on real routes (docs/calibration.md); without odometry a query at
+    # another pace needs a looser model.
+    rng = np.random.default_rng(1)
+    truth = 10.0 + speed * np.arange(int(270 / speed))
+    rows, ref = _rows(truth, N_REF, rng), _ref_self(rng)
+    assert _hits(localize_catgraph(iter(rows), ref, truth.size, step_noise=0.6).match[20:], truth[20:]).mean() >= 0.9
+    assert _hits(localize_catgraph(iter(rows), ref, truth.size).match[20:], truth[20:]).mean() < 0.5
 
 
 def test_finds_track_where_a_map_stretch_resembles_every_frame() -> None:
     # Nodes 100-159 look 0.25 closer to every query frame (a tunnel, snow): single frames match
-    # there (true node best for ~10 % of frames) and so did particles re-seeded at them (hits
-    # 0.325-0.35 over seeds 0-4 before sequence re-seeding, 0.81-0.83 with it). The query skips
-    # that stretch: 20-99, then 180-299.
+    # there (true node best for 10 % of frames), so particles re-seeded at single-frame matches
+    # would go there; the contrast-normalised sequence score finds the track.
     rng = np.random.default_rng(11)
-    truth = np.r_[np.arange(20.0, 100.0), np.arange(180.0, 300.0)]
+    truth = np.arange(20.0, 100.0)
     alike = np.where((np.arange(N_REF) >= 100) & (np.arange(N_REF) < 160), -0.25, 0.0)
     rows = _rows(truth, N_REF, rng, depth=0.3) + alike
     assert _hits(rows.argmin(axis=1), truth).mean() < 0.2
     dec = localize_catgraph(iter(rows), _ref_self(rng), truth.size)
-    assert _hits(dec.match, truth).mean() >= 0.7
+    assert _hits(dec.match[40:], truth[40:]).mean() >= 0.9
+
+
+def test_relocalises_after_a_jump_along_the_map() -> None:
+    # The query jumps 80 nodes ahead (kidnapped): the jump prior (0.001 per frame) makes the
+    # filter wait for a settled sequence score before it believes the jump.
+    rng = np.random.default_rng(11)
+    truth = np.r_[np.arange(20.0, 100.0), np.arange(180.0, 300.0)]
+    dec = localize_catgraph(iter(_rows(truth, N_REF, rng, depth=0.3)), _ref_self(rng), truth.size)
+    hits = _hits(dec.match, truth)
+    assert hits[40:80].mean() >= 0.9 and hits[150:].mean() >= 0.9
 
 
 def test_contrast_normalise_removes_what_a_stretch_shares() -> None:
@@ -91,8 +113,7 @@ def test_detour_raises_new_place_and_relocalizes() -> None:
     truth[110:] += 60.0  # rejoins the map further along
     dec = localize_catgraph(iter(_rows(truth, N_REF, rng)), _ref_self(rng), truth.size)
     p_new = dec.columns["new_place"]
-    assert np.median(p_new[detour]) > 0.5
-    assert np.median(p_new[30:80]) < 0.5
+    assert p_new[detour].mean() > 0.3 and p_new[detour].mean() > 20 * p_new[30:80].mean()
     assert _hits(dec.match[30:80], truth[30:80]).mean() >= 0.9
     relocalize = 10
     assert _hits(dec.match[110 + relocalize:], truth[110 + relocalize:]).mean() >= 0.9
@@ -124,40 +145,18 @@ def test_output_shape_model_and_params() -> None:
     assert dec.decided.all()
     np.testing.assert_array_equal(dec.difference, rows[np.arange(truth.size), dec.match])
     assert np.all((dec.confidence >= 0) & (dec.confidence <= 1))
-    assert dec.model is not None and dec.model.b.sum() == truth.size  # one d_min per frame
+    assert dec.model is None  # no histogram model: the observation model is the rank likelihood
     assert dec.params["particles"] == 300 and dec.params["method"] == "catgraph"
+    assert 0.02 <= dec.params["learned_a"] < 1.0 and 0 < dec.params["departure_share"] <= 1
     assert calls[-1] == (truth.size, truth.size) and len(calls) == truth.size
-
-
-def test_observation_ratio_never_increases_with_d() -> None:
-    rng = np.random.default_rng(6)
-    model = bulk_model(ArrayRows(_ref_self(rng)), exclude_recent=5, bins=50)
-    model.add_same(rng.normal(0.4, 0.05, 200))
-    tables = observation_tables(model, sigma=4.0, prior=0.01, outlier=0.05, pseudo=10.0)
-    assert np.all(np.diff(tables.log_ratio) <= 1e-12)
-    assert tables.log_ratio[model.bin_of(0.4)[()]] > tables.log_ratio[model.bin_of(1.0)[()]] + 1.0
-    assert np.all((tables.p_not_same > 0) & (tables.p_not_same <= 1))
-
-
-def test_empty_b_gives_uninformative_ratio() -> None:
-    rng = np.random.default_rng(7)
-    model = bulk_model(ArrayRows(_ref_self(rng)), exclude_recent=5, bins=50)
-    tables = observation_tables(model, sigma=4.0, prior=0.01, outlier=0.0, pseudo=10.0)
-    np.testing.assert_allclose(tables.log_ratio, 0.0, atol=1e-9)
-
-
-def test_bulk_model_excludes_recent_pairs() -> None:
-    ref = np.full((6, 6), 5.0)
-    ref[np.abs(np.subtract.outer(np.arange(6), np.arange(6))) <= 1] = 0.0
-    model = bulk_model(ArrayRows(ref), exclude_recent=1, bins=10)
-    assert model.c.sum() == 6 * 5 - 10  # off-diagonal pairs further apart than 1
-    assert model.c[model.bin_of(5.0)[()]] == model.c.sum()
 
 
 @pytest.mark.parametrize("kwargs, where", [
     ({"particles": 0}, "particles"),
     ({"particles": 1.5}, "particles"),
-    ({"prior": 1.0}, "prior"),
+    ({"leave": 1.0}, "leave"),
+    ({"stretch_close": 0.6}, "stretch_close"),
+    ({"departure_prior": (0.0, 1.0)}, "departure_prior"),
     ({"sequence_rate": 0.0}, "sequence_rate"),
     ({"sequence_speeds": ()}, "sequence_speeds"),
     ({"speed_range": (2.0, 1.0)}, "speed_range"),
@@ -201,50 +200,6 @@ def test_one_frame_map_says_so() -> None:
         localize_catgraph(iter(np.ones((3, 1))), np.zeros((1, 1)), 3)
 
 
-class _Reader:
-    """A row-block reader over an array, recording the rows asked for, like DifferenceMatrix."""
-
-    def __init__(self, data: np.ndarray) -> None:
-        self._data = data
-        self.reads: list[tuple[int, int]] = []
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return self._data.shape
-
-    def rows(self, start: int, stop: int) -> np.ndarray:
-        self.reads.append((start, stop))
-        return self._data[start:stop].astype(np.float32)
-
-
-def test_reader_gives_the_same_decisions_as_the_array_block_by_block(monkeypatch: pytest.MonkeyPatch) -> None:
-    rng = np.random.default_rng(10)
-    truth = np.arange(10.0, 110.0)
-    rows = _rows(truth, N_REF, rng)
-    ref = _ref_self(rng).astype(np.float32).astype(np.float64)  # what a float32 file holds
-    whole = localize_catgraph(iter(rows), ref, truth.size, seed=3)
-    monkeypatch.setattr(base, "BLOCK_VALUES", 7 * N_REF)  # 7 rows per block: 43 blocks
-    reader = _Reader(ref)
-    blocked = localize_catgraph(iter(rows), reader, truth.size, seed=3)
-    assert max(stop - start for start, stop in reader.reads) == 7
-    np.testing.assert_array_equal(blocked.model.c, whole.model.c)
-    np.testing.assert_array_equal(blocked.model.edges, whole.model.edges)
-    for x, y in [(whole.match, blocked.match), (whole.difference, blocked.difference),
-                 (whole.confidence, blocked.confidence), (whole.columns["new_place"], blocked.columns["new_place"])]:
-        np.testing.assert_array_equal(x, y)
-
-
-def test_bulk_model_blocks_count_each_far_pair_once(monkeypatch: pytest.MonkeyPatch) -> None:
-    ref = np.arange(49.0).reshape(7, 7)
-    ref[2, 6] = np.nan
-    expected = bulk_model(ArrayRows(ref), exclude_recent=1, bins=10)
-    monkeypatch.setattr(base, "BLOCK_VALUES", 2 * 7)
-    blocked = bulk_model(_Reader(ref), exclude_recent=1, bins=10)
-    assert blocked.c.sum() == expected.c.sum() == 7 * 6 - 12 - 1  # ordered pairs > 1 apart, one NaN
-    np.testing.assert_array_equal(blocked.c, expected.c)
-    np.testing.assert_array_equal(blocked.edges, expected.edges)
-
-
 @pytest.mark.parametrize("node", [0, 2])
 def test_mode_on_a_map_shorter_than_the_mode_window(node: int) -> None:
     # 3 nodes < 2 * mode_window + 1 = 5: np.convolve(..., "same") returned 5 masses, shifted by
@@ -253,6 +208,7 @@ def test_mode_on_a_map_shorter_than_the_mode_window(node: int) -> None:
     rows = 1.0 + 0.02 * rng.standard_normal((30, 3))
     rows[:, node] -= 0.6
     ref = np.array([[0.0, 1.0, 1.1], [1.0, 0.0, 0.9], [1.1, 0.9, 0.0]])
-    dec = localize_catgraph(iter(rows), ref, rows.shape[0], exclude_recent=0, particles=200)
-    assert np.all(dec.match[5:] == node)
+    dec = localize_catgraph(iter(rows), ref, rows.shape[0], exclude_recent=0, particles=200,
+                            ref_arclength=np.arange(3.0), query_steps=np.zeros(rows.shape[0]))  # standing still
+    assert np.all(dec.match[10:] == node)
     np.testing.assert_array_equal(dec.difference, rows[np.arange(rows.shape[0]), dec.match])

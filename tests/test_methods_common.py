@@ -78,8 +78,9 @@ def _context(method: Method, rng: np.random.Generator) -> MapContext:
     ref = ArrayRows(_rows(np.arange(n_map, dtype=np.float64), n_map, rng))
     labels = np.arange(50)[:, None] == np.arange(n_map)[None, :]  # strict: some best matches are wrong
     train = TrainingRows(list(_rows(np.arange(50, dtype=np.float64), n_map, rng)), labels)
+    steps = np.diagonal(ref.array, 1).copy()
     return MapContext(sequence=False, exclude_recent=5, n_map=n_map, natural_max=2.0,
-                      map_self=lambda: ref, training=lambda: train)
+                      map_self=lambda: ref, neighbours=lambda: steps, training=lambda: train)
 
 
 def _query(rng: np.random.Generator) -> np.ndarray:

@@ -141,13 +141,26 @@ def test_default_prior_is_the_share_of_b_and_a_fixed_prior_is_kept() -> None:
     ref = [np.array([INF, 0.6, 0.8]), np.array([0.6, INF, 0.7]), np.array([0.8, 0.7, INF])]
     queries = [np.array([0.1, 0.5, 0.9]), np.array([0.4, 0.2, 0.3])]
     share = localize_online(queries, 2, sequence=False, init_rows=ref, bins=5)
-    # b is empty for the first decided frame: P(L) = 0, no claim without same-place evidence
-    assert share.params["prior"] is None and share.confidence[0] == 0.0
     # b: the 2 decided minima; c: the 3 initial minima (no m_r: every map frame is within +-W of z)
-    assert share.model.prior_same() == pytest.approx(2 / 5)
+    assert share.params["prior"] is None and share.model.prior_same() == pytest.approx(2 / 5)
     fixed = localize_online(queries, 2, sequence=False, init_rows=ref, bins=5, prior=0.5)
-    # P(d|L) = 1/5 uniform (b empty), P(d|~L) = 0.1 / (3 + 0.5) in bin 0
-    assert fixed.confidence[0] == pytest.approx(0.2 / (0.2 + 0.1 / 3.5))
+    assert fixed.model.prior_same() == 0.5
+    # in sequence mode the confidence is P(L | m): b is empty for the first decided frame, so
+    # P(L) = 0, no claim without same-place evidence
+    rows = _seq([[], [0.8], [0.9, 0.7], [0.2, 0.6, 0.9]], 4)
+    assert localize_online(rows, 4, sequence=True, init=2, bins=8).confidence[3] == 0.0
+
+
+def test_map_mode_confidence_is_the_map_filters_probability_of_the_best_match() -> None:
+    rng = np.random.default_rng(3)
+    n = 60
+    ref = 1.0 + 0.05 * rng.standard_normal((n, n)) - 0.5 * np.exp(-0.5 * (np.subtract.outer(np.arange(n), np.arange(n)) / 1.5) ** 2)
+    truth = np.arange(5, 55)
+    queries = list(ref[truth] + 0.05 * rng.standard_normal((truth.size, n)))
+    out = localize_online(queries, truth.size, sequence=False, init_rows=list(ref))
+    assert np.all(out.match == np.argmin(np.array(queries), axis=1))  # the single-frame decision
+    assert np.mean(out.confidence[10:]) > 0.9  # the track is certain once found
+    assert np.all((out.confidence >= 0) & (out.confidence <= 1)) and np.all(np.isfinite(out.columns["m_r"]))
 
 
 @pytest.mark.parametrize(("option", "value"), [

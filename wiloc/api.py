@@ -9,7 +9,7 @@ import functools
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path, PurePath
 from typing import Any
 
@@ -21,6 +21,7 @@ from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent
 from wiloc.describing import DescribeReport, check_sampling, describe_source, import_matrix
 from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matrix
+from wiloc.distances import consecutive
 from wiloc.errors import UsageError, WilocError
 from wiloc.groundtruth import Truth, TruthSource
 from wiloc.methods.base import Decisions, MapContext
@@ -34,7 +35,7 @@ from wiloc.methods.base import Decision
 from wiloc.results import Results, ResultsStream, make_results, read_results, write_results
 from wiloc.training import Training, training_rows
 from wiloc.traversals import Describer, Progress, descriptor_label, descriptor_spec, stage
-from wiloc.video import Sampling
+from wiloc.video import Sampling, is_video
 
 __all__ = ["Comparison", "Evaluation", "LocalizeRun", "Sampling", "Training", "TruthSource", "compare",
            "describe", "evaluate", "import_descriptors", "localize"]
@@ -101,7 +102,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
              odometry: Path | None = None, map_odometry: Path | None = None,
              query_names_file: Path | None = None, ref_names_file: Path | None = None,
              out: Path | None = None, cache: Cache | None = None, jobs: int | None = None,
-             progress: Progress | None = None) -> LocalizeRun:
+             sampling: Sampling | None = None, progress: Progress | None = None) -> LocalizeRun:
     """Localize every frame of ``query`` (against ``reference``, or within itself) and write results.
 
     ``query`` and ``reference`` are image folders, or descriptor matrix files (with ``metric`` and,
@@ -109,8 +110,9 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     (``wiloc.methods.registry``) and ``method_params`` its parameters; the method is stepped over
     the query's difference rows, read from the cache block by block. ``odometry`` and
     ``map_odometry`` are odometry CSVs (for methods that take them); ``training`` is the labelled
-    pair of the ``trained`` comparator. The results are written to ``out`` when given (else kept
-    in memory only: ``wiloc.api.evaluate`` takes the run itself).
+    pair of the ``trained`` comparator. ``sampling`` picks the frames of video files (query, map
+    and training traversals alike; default: every frame). The results are written to ``out`` when
+    given (else kept in memory only: ``wiloc.api.evaluate`` takes the run itself).
     """
     started = time.perf_counter()
     algo = make_method(method, method_params)
@@ -118,8 +120,10 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     sequence = reference is None
     algo.check_inputs(sequence=sequence, training=training is not None, odometry=odometry is not None,
                       map_odometry=map_odometry is not None)
+    videos = [Path(source) for source in (query, reference) if source is not None and is_video(Path(source))]
+    check_sampling(videos[0] if videos else Path(query), sampling)
     describer = Describer(descriptor, dict(descriptor_params or {}), cache or Cache(), metric=metric, jobs=jobs,
-                          progress=progress)
+                          progress=progress, sampling=sampling)
     query = Path(query)
     q = describer.entry(query, query_names_file)
     r = q if sequence else describer.entry(Path(reference), ref_names_file)
@@ -144,12 +148,15 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
         context = MapContext(
             sequence=sequence, exclude_recent=R, n_map=0 if sequence else len(r.names),
             natural_max=r.natural_max, arclength=_map_arclength(map_odometry, r.names), map_self=map_self,
+            neighbours=None if sequence else lambda: consecutive(r.data, r.metric, r.scale),
             training=(lambda: training_rows(training, describer, R)) if training else None)
         algo.start(context)
         decisions = algo.run(candidate_rows(matrix, sequence, R), len(q.names),
                              odometry=_query_steps(odometry, q.names),
                              progress=stage(progress, f"{method} {query.name}"))
     meta = _run_meta(method, describer, query, q.metric, reference, R, training)
+    if videos:
+        meta["sampling"] = asdict(sampling or Sampling())
     results = make_results(decisions, query_names=q.names, ref_names=r.names, meta=meta)
     replaced = write_results(Path(out), results) if out is not None else False
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,

@@ -142,6 +142,12 @@ def main(version: bool = typer.Option(False, "--version", callback=_version, is_
 
 # ------------------------------------------------------------------------------------------ describe
 
+EveryOption = Annotated[int, typer.Option(help="Videos: every K-th frame of the cut.", rich_help_panel="video files")]
+FpsOption = Annotated[Optional[float], typer.Option(help="Videos: about F frames per second (by timestamp), instead of --every.", rich_help_panel="video files")]
+StartOption = Annotated[str, typer.Option(help="Videos: first frame, an index (120) or seconds (12.5s).", rich_help_panel="video files")]
+StopOption = Annotated[Optional[str], typer.Option(help="Videos: end of the cut (excluded), an index or seconds; default: the end.", rich_help_panel="video files")]
+
+
 @app.command()
 @handles_errors
 def describe(
@@ -151,10 +157,10 @@ def describe(
     import_file: Optional[Path] = typer.Option(None, "--import", help="External N x D matrix (.npy, .csv, .h5)."),
     names: Optional[Path] = typer.Option(None, help="With --import .npy: text file of frame names, one a line."),
     metric: str = typer.Option("l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
-    every: int = typer.Option(1, help="Videos: every K-th frame of the cut."),
-    fps: Optional[float] = typer.Option(None, help="Videos: about F frames per second (by timestamp), instead of --every."),
-    start: str = typer.Option("0", help="Videos: first frame, an index (120) or seconds (12.5s)."),
-    stop: Optional[str] = typer.Option(None, help="Videos: end of the cut (excluded), an index or seconds; default: the end."),
+    every: EveryOption = 1,
+    fps: FpsOption = None,
+    start: StartOption = "0",
+    stop: StopOption = None,
     list_cache: bool = typer.Option(False, "--list", help="Show what the cache holds."),
     cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Worker processes for image folders (default: all cores)."),
@@ -239,6 +245,10 @@ def localize(
     cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Worker processes for describing."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables (with --follow: one JSON line per frame)."),
+    every: EveryOption = 1,
+    fps: FpsOption = None,
+    start: StartOption = "0",
+    stop: StopOption = None,
     follow: bool = typer.Option(False, "--follow", help="Decide the frames already in the QUERY folder, then each new one as it arrives; rerun to resume.", rich_help_panel="live"),
     idle: Optional[float] = typer.Option(None, min=0.0, help="With --follow: stop after this many seconds without a new frame (default: run until Ctrl-C).", rich_help_panel="live"),
     method_options: Optional[dict[str, Any]] = None,
@@ -259,9 +269,11 @@ def localize(
             _fail("--train-query, --train-map and --train-gt go together", 2)
         training = api.Training(train_query, train_map,
                                 _truth_source(train_gt, train_gt_map, train_tolerance, train_radius))
+    sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
     if follow:
         given = [flag for flag, value in (("--odometry", odometry), ("--names", names), ("--map-names", map_names),
                                           ("--metric", metric), ("--model-plot", model_plot)) if value is not None]
+        given += ["video sampling"] * (sampling != api.Sampling())
         if len(queries) != 1 or given:
             _fail(f"--follow takes one query folder{' and not ' + ', '.join(given) if given else ''}", 2)
         _follow(queries[0], api.follow_folder(
@@ -289,7 +301,7 @@ def localize(
     runs = []
     with progress_bar(not as_json) as progress:
         for query, target in zip(queries, targets):
-            runs.append(api.localize(query, reference=reference, descriptor=descriptor,
+            runs.append(api.localize(query, reference=reference, descriptor=descriptor, sampling=sampling,
                                      descriptor_params=_descriptor_params(descriptor, crop),
                                      metric=metric, method=method, method_params=params,
                                      exclude_recent=exclude_recent, training=training,

@@ -350,3 +350,28 @@ def pairwise_blocks(
     for start in range(0, a.shape[0], block_rows):
         stop = min(start + block_rows, a.shape[0])
         yield start, stop, to_b(a[start:stop], buffer[: stop - start])
+
+
+def _paired(a: np.ndarray, b: np.ndarray, metric: str) -> np.ndarray:
+    """difference(a[i], b[i]) for every i, in float64 numpy (rows of equal shape)."""
+    if metric == "hamming":
+        return np.unpackbits(np.bitwise_xor(a, b), axis=1).sum(axis=1, dtype=np.float64)
+    x, y = a.astype(np.float64), b.astype(np.float64)
+    if metric == "l1":
+        return np.abs(x - y).sum(axis=1)
+    if metric == "sqeuclidean":
+        return ((x - y) ** 2).sum(axis=1)
+    norms = np.linalg.norm(x, axis=1) * np.linalg.norm(y, axis=1)
+    dots = np.einsum("ij,ij->i", x, y)
+    return np.where(norms > 0, 1.0 - dots / np.where(norms > 0, norms, 1.0), 1.0)
+
+
+def consecutive(a: np.ndarray, metric: str, scale: float = 1.0, block_rows: int = 4096) -> np.ndarray:
+    """scale * difference of each row of ``a`` to the next (len(a) - 1 values, float32): a
+    route's steps, with no N x N work (within float rounding of the kernels' values)."""
+    a, _, _ = _check_pair(a, a, metric)
+    out = np.empty(max(a.shape[0] - 1, 0), dtype=np.float32)
+    for start in range(0, out.size, block_rows):
+        stop = min(start + block_rows, out.size)
+        out[start:stop] = scale * _paired(a[start:stop], a[start + 1:stop + 1], metric)
+    return out

@@ -12,7 +12,7 @@ import json
 import os
 import tempfile
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,13 +24,14 @@ from wiloc import __version__
 from wiloc.cache import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
 from wiloc.differences import ComputedDifferences
-from wiloc.distances import DifferencesTo, pairwise
+from wiloc.distances import DifferencesTo, consecutive, pairwise
 from wiloc.errors import WilocError
 from wiloc.frames import read_gray
 from wiloc.methods.base import Decision, MapContext, Method, TrainingRows
 from wiloc.methods.registry import make_method
 from wiloc.training import Training, training_rows
-from wiloc.traversals import Describer
+from wiloc.traversals import Describer, is_matrix_file
+from wiloc.video import Sampling
 
 STATE_FORMAT = "wiloc-localizer-state"
 STATE_VERSION = 1
@@ -43,7 +44,7 @@ class Localizer:
     ``Entry`` (``wiloc.traversals.entry_from_array``), None for sequence mode (loop closure within
     the frames observed). ``method`` names a registered method and
     ``params`` its parameters; ``training`` is the labelled pair of ``trained`` (traversals, or
-    their difference rows and truth as ``TrainingRows``); ``map_odometry``
+    their difference rows and truth as ``TrainingRows``); ``sampling`` the frames of a map video; ``map_odometry``
     the map's odometry CSV for methods that take odometry.
 
         loc = Localizer(map="day_right/", descriptor="sad", method="catgraph", seed=0)
@@ -55,28 +56,28 @@ class Localizer:
                  descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
                  method: str = "online", exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
                  training: Training | TrainingRows | None = None, map_odometry: str | Path | None = None,
-                 map_names: str | Path | None = None, cache: Cache | None = None, jobs: int | None = None,
-                 **params: Any) -> None:
+                 map_names: str | Path | None = None, sampling: Sampling | None = None, cache: Cache | None = None,
+                 jobs: int | None = None, **params: Any) -> None:
         self._setup(map, descriptor, descriptor_params, metric, method, exclude_recent, training,
-                    map_odometry, map_names, cache, jobs, params)
+                    map_odometry, map_names, sampling, cache, jobs, params)
         self.method.check_inputs(sequence=self.sequence, training=training is not None,
                                  map_odometry=map_odometry is not None)
         self.method.start(self._context())
 
     def _setup(self, map: str | Path | Entry | None, descriptor: str, descriptor_params: Mapping[str, Any] | None,
                metric: str | None, method: str, exclude_recent: int, training: Training | TrainingRows | None,
-               map_odometry: str | Path | None, map_names: str | Path | None, cache: Cache | None,
-               jobs: int | None, params: Mapping[str, Any]) -> None:
+               map_odometry: str | Path | None, map_names: str | Path | None, sampling: Sampling | None,
+               cache: Cache | None, jobs: int | None, params: Mapping[str, Any]) -> None:
         """Everything but the method's start: shared by a new localizer and a loaded one."""
         self.method: Method = make_method(method, params)
         self.exclude_recent = check_exclude_recent(exclude_recent)
         self.sequence = map is None
         self._describer = Describer(descriptor, dict(descriptor_params or {}), cache or Cache(), metric=metric,
-                                    jobs=jobs)
+                                    jobs=jobs, sampling=sampling)
         self._training = training
         self._map_path = None if map is None or isinstance(map, Entry) else Path(map)
         self._map_odometry = None if map_odometry is None else Path(map_odometry)
-        self._spec = None if self._map_path is not None and self._map_path.is_file() else self._describer.spec
+        self._spec = None if self._map_path is not None and is_matrix_file(self._map_path) else self._describer.spec
         self.names: list[str] = []  # the frames observed, in order
         if map is None:
             self._map: Entry | None = None
@@ -108,6 +109,7 @@ class Localizer:
         return MapContext(
             sequence=False, exclude_recent=R, n_map=len(self._map.names), natural_max=self._natural_max,
             arclength=arclength, map_self=lambda: ComputedDifferences(self._map.data, self._to_map),
+            neighbours=lambda: consecutive(self._map.data, self._metric, self._scale),
             training=self._training_rows if self._training is not None else None)
 
     def _training_rows(self) -> TrainingRows:
@@ -201,6 +203,7 @@ class Localizer:
                 "map_odometry": None if self._map_odometry is None else str(self._map_odometry.resolve()),
                 "descriptor": self._describer.descriptor, "descriptor_params": dict(self._describer.params),
                 "metric": self._describer.metric, "method": self.method.name,
+                "sampling": None if self._describer.sampling is None else asdict(self._describer.sampling),
                 "params": self.method.params.as_dict(), "exclude_recent": self.exclude_recent,
                 "names": list(self.names), "seen": self._seen[:len(self.names)],
                 "method_state": self.method.state()}
@@ -209,19 +212,13 @@ class Localizer:
         """Write :meth:`state` to ``path`` (an .npz file), atomically: a kill leaves the old file."""
         path = Path(path)
         state = self.state()
-        arrays = {"seen": state.pop("seen")}
-        method_state = state.pop("method_state")
-        state["method_state"] = {}
-        for key, value in method_state.items():
-            if isinstance(value, np.ndarray):
-                arrays[f"method.{key}"] = value
-            else:
-                state["method_state"][key] = value
+        arrays: dict[str, NDArray] = {}
+        meta = _split(state, "", arrays)
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as out:
-                np.savez(out, meta=np.array(json.dumps(state)), **arrays)
+                np.savez(out, meta=np.array(json.dumps(meta)), **arrays)
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
@@ -237,8 +234,7 @@ class Localizer:
         path = Path(path)
         try:
             with np.load(path, allow_pickle=False) as data:
-                meta = json.loads(str(data["meta"]))
-                arrays = {key: data[key] for key in data.files if key != "meta"}
+                meta = _join(json.loads(str(data["meta"])), {key: data[key] for key in data.files if key != "meta"})
         except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
             raise WilocError(path, f"not a saved localizer state ({exc})") from None
         if meta.get("format") != STATE_FORMAT or meta.get("version") != STATE_VERSION:
@@ -247,17 +243,15 @@ class Localizer:
             raise WilocError(path, "was saved with a map held in memory: give it again (map=...)")
         loc = cls.__new__(cls)
         loc._setup(map if map is not None else meta["map"], meta["descriptor"], meta["descriptor_params"], meta["metric"], meta["method"],
-                   meta["exclude_recent"], None, meta["map_odometry"], None, cache, jobs,
+                   meta["exclude_recent"], None, meta["map_odometry"], None,
+                   None if meta["sampling"] is None else Sampling(**meta["sampling"]), cache, jobs,
                    {k: tuple(v) if isinstance(v, list) else v for k, v in meta["params"].items()})
         if loc._map is not None and loc._map.digest != meta["map_digest"]:
             raise WilocError(loc._map.folder, f"the map changed since {path} was saved")
         loc.names = list(meta["names"])
-        seen = arrays["seen"]
         if loc._map is None:
-            loc._seen = seen.astype(loc._seen.dtype, copy=True)
-        method_state = dict(meta["method_state"])
-        method_state.update({key[len("method."):]: value for key, value in arrays.items() if key.startswith("method.")})
-        loc.method.restore(loc._context(), method_state)
+            loc._seen = np.asarray(meta["seen"]).astype(loc._seen.dtype, copy=True)
+        loc.method.restore(loc._context(), meta["method_state"])
         return loc
 
     @property
@@ -268,3 +262,29 @@ class Localizer:
     def __repr__(self) -> str:
         where = "sequence mode" if self._map is None else f"map={self._map.folder!r}"
         return f"Localizer({where}, descriptor={self._describer.descriptor!r}, method={self.method!r}, frames={self.frames})"
+
+
+ARRAY = "__array__"  # marks, in a saved state's JSON, a value stored as an array of the .npz
+
+
+def _split(value: Any, key: str, arrays: dict[str, NDArray]) -> Any:
+    """``value`` as JSON, its numpy arrays moved into ``arrays`` under dotted keys."""
+    if isinstance(value, np.ndarray):
+        arrays[key] = value
+        return {ARRAY: key}
+    if isinstance(value, dict):
+        return {k: _split(v, f"{key}.{k}" if key else str(k), arrays) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_split(v, f"{key}.{i}", arrays) for i, v in enumerate(value)]
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _join(value: Any, arrays: dict[str, NDArray]) -> Any:
+    """The inverse of :func:`_split`."""
+    if isinstance(value, dict):
+        if set(value) == {ARRAY}:
+            return arrays[value[ARRAY]]
+        return {k: _join(v, arrays) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_join(v, arrays) for v in value]
+    return value

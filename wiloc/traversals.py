@@ -40,10 +40,15 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
     return Entry(**asdict(header), names=list(names), data=data, digest=digest)
 
 
+def is_matrix_file(source: Path) -> bool:
+    """Whether a traversal is a user's descriptor matrix file (not a folder, not a video)."""
+    return Path(source).is_file() and not is_video(Path(source))
+
+
 def descriptor_label(source: Path, descriptor: str, metric: str | None) -> str:
     """The descriptor of a traversal as results name it: ``sad``, or ``external:cosine`` for an
     imported matrix file."""
-    return f"external:{metric}" if Path(source).is_file() and not is_video(source) else descriptor
+    return f"external:{metric}" if is_matrix_file(source) else descriptor
 
 
 def stage(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
@@ -81,7 +86,7 @@ class Describer:
         """The descriptors of a folder or of a video's sampled frames (computed on demand), or of
         an imported matrix file (``names``: its frame names, one per line, for .npy matrices)."""
         source = Path(source)
-        if source.is_file() and not is_video(source):
+        if is_matrix_file(source):
             if self.metric is None:
                 raise UsageError(source, "a descriptor matrix file needs a metric (l1, sqeuclidean, hamming, cosine)")
             return import_matrix(source, self.cache, names, self.metric).entry

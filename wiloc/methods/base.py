@@ -29,9 +29,10 @@ BLOCK_VALUES = 1 << 22
 
 #: What a method can declare in ``needs``:
 #: ``map``: it cannot run in sequence mode; ``map_self``: in map mode it learns from the map's
-#: differences to itself outside +-R (so the map needs frames that far apart); ``training``: a
-#: labelled training pair; ``odometry``: it takes the query's travelled distance per frame.
-NEEDS = ("map", "map_self", "training", "odometry")
+#: differences to itself outside +-R (so the map needs frames that far apart); ``map_neighbours``:
+#: the difference of each map frame to the next; ``training``: a labelled training pair;
+#: ``odometry``: it takes the query's travelled distance per frame.
+NEEDS = ("map", "map_self", "map_neighbours", "training", "odometry")
 
 
 class RowBlocks(Protocol):
@@ -81,7 +82,8 @@ class MapContext:
     """What a method is started on. Reading the map is lazy: a method reads only what it needs.
 
     ``map_self`` gives the map's differences to itself (in sequence mode, when given, the run's own
-    matrix), read block of rows by block of rows; ``training`` the labelled pair of ``trained``.
+    matrix), read block of rows by block of rows; ``neighbours`` each map frame's difference to the
+    next; ``training`` the labelled pair of ``trained``.
     """
 
     sequence: bool
@@ -90,6 +92,7 @@ class MapContext:
     natural_max: float | None = None  # the descriptor's largest possible difference, if it has one
     arclength: NDArray[np.float64] | None = None  # map node positions along the route (odometry)
     map_self: Callable[[], RowBlocks] | None = None
+    neighbours: Callable[[], NDArray[np.float64]] | None = None  # map frame j's difference to frame j + 1
     training: Callable[[], TrainingRows] | None = None
 
 
@@ -296,11 +299,15 @@ def run_on_rows(method: Method, rows: Iterable[NDArray[np.float64]], n_frames: i
                 training: TrainingRows | None = None, progress: Progress | None = None) -> Decisions:
     """Start ``method`` on plain arrays and step it over ``rows``: the batch run without files.
 
-    ``map_self`` is the map's difference matrix to itself (an array or a row-block reader).
+    ``map_self`` is the map's difference matrix to itself (an array or a row-block reader); the
+    map's steps (``MapContext.neighbours``) are read off its first off-diagonal.
     """
     self_rows = map_self if map_self is None or hasattr(map_self, "rows") else ArrayRows(np.asarray(map_self))
+    steps = None if self_rows is None else \
+        np.array([self_rows.rows(i, i + 1)[0, i + 1] for i in range(self_rows.shape[0] - 1)], dtype=np.float64)
     method.start(MapContext(sequence=sequence, exclude_recent=exclude_recent,
                             n_map=0 if self_rows is None else self_rows.shape[0], natural_max=natural_max,
                             arclength=arclength, map_self=None if self_rows is None else lambda: self_rows,
+                            neighbours=None if steps is None else lambda: steps,
                             training=None if training is None else lambda: training))
     return method.run(rows, n_frames, odometry=odometry, progress=progress)

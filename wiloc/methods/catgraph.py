@@ -3,106 +3,36 @@
 The reference traversal is a trajectory: node j sits at arc length s_j. M particles live at
 continuous positions on it, optionally each with its own speed ratio (``speed_noise`` > 0).
 Per query frame: move the particles, re-seed a few at the best nodes of a causal sequence score
-(a leaky sum of contrast-normalised differences along straight trajectories), weight each by
-P(d|L)/P(d) of the difference interpolated at its position (eq. 8), weigh a
-new-place particle by the mean P(not L | d) over sampled nodes (eq. 10), normalise, read out the
-mode of the particle density and resample when the effective sample size drops. P(d|L) comes from
-the online, training-free ``b`` (each frame's smallest difference, added after the frame is used);
-P(d|not L) from the bulk of the reference's differences to itself outside +-R, read block of rows
-by block of rows. docs/catgraph.md gives the formulation in full and the measurements behind
+(a leaky sum of contrast-normalised differences along straight trajectories), weight each by the
+likelihood ratio of the difference interpolated at its position (eq. 8), weigh the hypothesis that
+the map does not explain the frame (a new place or a blind spot: eq. 10's role), normalise, read
+out the mode of the particle density and resample when the effective sample size drops.
+
+The observation model and the unexplained state are the ones of ``wiloc.calibration``: a
+difference is scored by its rank within its own row (Beta(a, 1) at the same place, uniform
+elsewhere, a learned online by EM), so the posterior is a probability: the confidence is the
+posterior mass within +-``mode_window`` nodes of the decided node, times 1 - P(new place).
+docs/catgraph.md gives the formulation in full and docs/calibration.md the measurements behind
 every default.
 """
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import gaussian_filter1d, uniform_filter1d
-from scipy.special import expit
+from scipy.ndimage import uniform_filter1d
+from scipy.special import logsumexp
 
+from wiloc.calibration import RankLikelihood, Unexplained, novelty_weights
 from wiloc.errors import ParameterError, WilocError
-from wiloc.methods.base import Decision, MapContext, Method, RowBlocks, iter_blocks
-from wiloc.model import HistogramModel
+from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
 
 MODE_TIE = 1e-12  # window masses (shares of a unit total) this close to the largest count as tied
-
-
-def _bulk_blocks(ref_self: RowBlocks, exclude_recent: int) -> Iterator[NDArray[np.float64]]:
-    """The finite differences of every reference pair further apart than ``exclude_recent``.
-
-    One block of rows at a time, each ordered pair (i, j) once; never the whole matrix.
-    """
-    cols = np.arange(ref_self.shape[1])
-    for start, block in iter_blocks(ref_self):
-        far = np.abs(np.arange(start, start + block.shape[0])[:, None] - cols[None, :]) > exclude_recent
-        values = block[far]
-        yield values[np.isfinite(values)]
-
-
-def bulk_model(ref_self: RowBlocks, exclude_recent: int, bins: int) -> HistogramModel:
-    """The observation model before the query run: ``c`` holds the bulk of ordinary differences.
-
-    ``ref_self``: the reference-by-reference differences as a row-block reader (``.shape`` and
-    ``.rows(start, stop)``; ``wiloc.methods.base.ArrayRows`` wraps an array), read in blocks of
-    rows, twice (range, then counts). Every pair of reference frames further apart than
-    ``exclude_recent`` counts as a different place (no labels: along one traversal, frames apart
-    are mostly different places). Bins span [min(0, lowest), highest] of those differences; ``b``
-    starts empty.
-    """
-    shape = tuple(ref_self.shape)
-    if len(shape) != 2 or shape[0] != shape[1]:
-        raise WilocError("catgraph", f"the map's differences to itself must be a square matrix, got shape {shape}")
-    low, high, count = np.inf, -np.inf, 0
-    for values in _bulk_blocks(ref_self, exclude_recent):
-        if values.size:
-            low, high, count = min(low, float(values.min())), max(high, float(values.max())), count + values.size
-    if count == 0:
-        raise WilocError("catgraph", f"no finite map difference between frames more than {exclude_recent} "
-                                     f"apart ({shape[0]} map frames)")
-    model = HistogramModel.from_range(min(0.0, low), high, bins)
-    for values in _bulk_blocks(ref_self, exclude_recent):
-        model.c += np.bincount(model.bin_of(values), minlength=model.n_bins)
-    return model
-
-
-@dataclass(frozen=True)
-class _Tables:
-    """Per-bin observation terms: log P(d|L)/P(d) for particles, P(not L|d) for the new place."""
-
-    log_ratio: NDArray[np.float64]
-    p_not_same: NDArray[np.float64]
-
-
-def _density(counts: NDArray[np.float64], sigma: float) -> NDArray[np.float64]:
-    """Gaussian-smoothed histogram as a density, with a floor so no bin is empty."""
-    smooth = gaussian_filter1d(counts, sigma, mode="nearest") if sigma > 0 else counts.copy()
-    total = smooth.sum()
-    if total <= 0:
-        return np.full(counts.size, 1.0 / counts.size)
-    dens = smooth / total
-    return np.maximum(dens, 1e-9 / counts.size)
-
-
-def observation_tables(model: HistogramModel, sigma: float, prior: float, outlier: float,
-                       pseudo: float) -> _Tables:
-    """Observation terms per bin from the current model.
-
-    The likelihood ratio P(d|L)/P(d|not L) is made non-increasing in d (running maximum from the
-    large end): a smaller difference is never less evidence of the same place than a larger one.
-    This keeps the sparse low tail of either histogram from penalising very good matches.
-    """
-    p_diff = _density(model.c, sigma)
-    n_b = model.b.sum()
-    share = max(outlier, pseudo / (n_b + pseudo)) if n_b + pseudo > 0 else 1.0
-    p_same = (1.0 - share) * _density(model.b, sigma) + share * p_diff
-    ratio = np.maximum.accumulate((p_same / p_diff)[::-1])[::-1]
-    same = ratio * prior
-    p_d = same + (1.0 - prior)  # P(d) / P(d|not L), eq. 6
-    return _Tables(log_ratio=np.log(ratio / p_d), p_not_same=(1.0 - prior) / p_d)
+TINY = 1e-300  # the smallest prior mass a hypothesis keeps, so that its log is finite
 
 
 def _arclength(ref_arclength: NDArray[np.float64] | None, n_nodes: int) -> NDArray[np.float64]:
@@ -161,12 +91,6 @@ def _advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.flo
     return ((1.0 - a) * prev[at] + a * prev[at + 1]).reshape(score.shape)
 
 
-def _log_normalizer(log_w: NDArray[np.float64]) -> float:
-    """log(sum(exp(log_w))), computed stably."""
-    top = float(log_w.max())
-    return top + float(np.log(np.exp(log_w - top).sum()))
-
-
 def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.intp]:
     """Indices drawn by systematic resampling (one uniform offset, M evenly spaced pointers)."""
     m = weights.size
@@ -178,21 +102,14 @@ def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArr
 
 @dataclass(frozen=True)
 class CatGraphParams(Parameters):
-    """Parameters of the whole-image CAT-Graph filter (docs/catgraph.md: every default measured)."""
+    """Parameters of the whole-image CAT-Graph filter (docs/catgraph.md, docs/calibration.md)."""
 
     owner = "catgraph"
     particles: int = param(2000, "Number of particles.", low=1, high=1_000_000)
     seed: int | None = param(0, "Random seed: the same seed gives identical decisions (none: a fresh one).",
                              low=0)
-    bins: int = param(100, "Histogram bins of the observation model.", low=2, high=100_000)
-    smoothing_bins: float = param(16.0, "Gaussian smoothing of both histograms, in bins.", low=0.0)
-    prior: float = param(0.01, "P(L) of eq. 6 for a particle's place.", low=0.0, high=1.0, high_open=True)
-    outlier: float = param(0.05, "Floor of the bulk's share in P(d|L): bounds the penalty of one odd frame.",
-                           low=0.0, high=1.0)
-    pseudo: float = param(10.0, "Pseudo-count of the bulk in P(d|L): uninformative until b has samples.",
-                          low=0.0)
-    step_noise: float = param(0.3, "Motion noise, a fraction of each step.", low=0.0)
-    noise_floor: float = param(0.5, "Motion noise floor, a fraction of the mean node spacing.", low=0.0)
+    step_noise: float = param(0.15, "Motion noise, a fraction of each step.", low=0.0)
+    noise_floor: float = param(0.0, "Motion noise floor, a fraction of the mean node spacing.", low=0.0)
     speed_noise: float = param(0.0, "Per-particle speed noise per frame (0: no velocity state).", low=0.0)
     speed_range: tuple[float, float] = param((0.0, 3.0), "Range of the particles' speed ratios (low, high).",
                                              low=0.0)
@@ -207,56 +124,83 @@ class CatGraphParams(Parameters):
                                                low=0.0)
     contrast_window: int = param(10, "Half window (nodes) of the sequence score's contrast normalisation.",
                                  low=1)
-    new_place_samples: int = param(100, "Map nodes sampled per frame for the new-place particle (eq. 10).",
-                                   low=1, high=1_000_000)
-    mode_window: int = param(2, "Half window (nodes) summed around the mode for the confidence.", low=0)
+    mode_window: int = param(2, "Half window (nodes) around the decided node whose posterior mass is "
+                                "the confidence: the ground truth's tolerance.", low=0)
+    a0: float = param(0.5, "Prior shape of the same-place rank model Beta(a, 1), before any frame.",
+                      low=0.0, high=1.0, low_open=True)
+    n0: float = param(10.0, "Weight of that prior, in frames.", low=0.0, low_open=True)
+    a_min: float = param(0.02, "Smallest shape the rank model may learn (the sharpest evidence).",
+                         low=0.0, high=1.0, low_open=True)
+    jump: float = param(0.001, "Prior probability per frame of jumping elsewhere on the map.", low=0.0, high=1.0)
+    leave: float = param(0.001, "Prior probability per frame of leaving the map (new place or blind spot).",
+                         low=0.0, high=1.0, high_open=True)
+    rejoin: float = param(0.001, "Prior probability per frame of rejoining the map once off it.",
+                          low=0.0, high=1.0, high_open=True)
+    unexplained0: float = param(0.5, "Probability that the map does not explain the first frame.",
+                                low=0.0, high=1.0, low_open=True, high_open=True)
+    departure_prior: tuple[float, float] = param((1.9, 0.1), "Beta prior (departures, blind spots) of the share "
+                                                             "of off-map stretches that leave the map.", low=0.0)
+    stretch_open: float = param(0.5, "An off-map stretch opens when P(unexplained) reaches this.",
+                                low=0.0, high=1.0)
+    stretch_close: float = param(0.1, "... and closes when it falls below this.", low=0.0, high=1.0)
+    near_duplicate: float = param(0.25, "Map frames closer to their neighbours than this share of the "
+                                        "median step count as less evidence (0: off).", low=0.0)
 
     def check(self) -> None:
         low, high = self.speed_range
         if low > high:
             raise ParameterError("speed_range", f"must be (low, high) with low <= high, got {self.speed_range!r}")
+        if self.stretch_close > self.stretch_open:
+            raise ParameterError("stretch_close", f"must not exceed stretch_open ({self.stretch_open}), "
+                                                  f"got {self.stretch_close}")
+        if min(self.departure_prior) <= 0:
+            raise ParameterError("departure_prior", f"both counts must be > 0, got {self.departure_prior!r}")
 
 
 class CatGraph(Method):
     """Track the query along the reference trajectory with the whole-image CAT-Graph filter.
 
-    Started on a map: its differences to itself (for P(d|not L)) and optionally its node
-    positions (``MapContext.arclength``, from odometry; else the node index). Each step takes the
-    query frame's differences to every map node and optionally its travelled distance since the
-    previous frame (odometry, same units as the map's); without it, the mean node spacing. The
-    noise and ``noise_floor`` are relative to the step and to the mean node spacing respectively.
-    Re-seeding uses a causal sequence score per node: for each speed ratio in ``sequence_speeds``
-    an exponentially weighted (rate ``sequence_rate``) sum of contrast-normalised differences
-    (+-``contrast_window`` nodes) along the trajectory ending there; the lowest over speeds counts.
-    Each decision is the node at the density mode (the largest weight mass within
-    +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
-    that mass (after normalising with the new-place particle) as confidence, and the new-place
-    probability. The same seed gives identical decisions.
+    Started on a map: the differences of each map frame to the next (to damp near-duplicates)
+    and optionally its node positions (``MapContext.arclength``, from odometry; else the node
+    index). Each step takes the query frame's differences to every map node and optionally its
+    travelled distance since the previous frame (odometry, same units as the map's); without it,
+    the mean node spacing. Re-seeding uses a causal sequence score per node: for each speed ratio
+    in ``sequence_speeds`` an exponentially weighted (rate ``sequence_rate``) sum of contrast-
+    normalised differences (+-``contrast_window`` nodes) along the trajectory ending there; the
+    lowest over speeds counts. Each decision is the node at the density mode (the largest weight
+    mass within +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its
+    difference, the confidence (that mass times 1 - P(new place)) and P(new place). The same seed
+    gives identical decisions.
     """
 
     name = "catgraph"
     Params = CatGraphParams
-    needs = frozenset({"map", "map_self", "odometry"})
+    needs = frozenset({"map", "map_neighbours", "odometry"})
     columns = ("new_place",)
     params: CatGraphParams
 
     def prepare(self, context: MapContext) -> None:
         p = self.params
-        if context.sequence or context.map_self is None:
-            raise WilocError("catgraph", "needs a map (a reference trajectory)", parameter="map")
-        ref_self = context.map_self()
-        n_nodes = ref_self.shape[0]
+        if context.sequence or context.neighbours is None:
+            raise WilocError("catgraph", "needs a map (a reference trajectory)", parameter="reference")
+        neighbours = np.asarray(context.neighbours(), dtype=np.float64)
+        n_nodes = neighbours.size + 1
         if n_nodes < 2:
             raise WilocError("catgraph", f"the map needs at least 2 frames, got {n_nodes}")
-        self._model = bulk_model(ref_self, context.exclude_recent, p.bins)
         self._nodes = _arclength(context.arclength, n_nodes)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
+        self._omega = novelty_weights(neighbours, p.near_duplicate)
+        self._likelihood = RankLikelihood(p.a0, p.n0, p.a_min)
+        self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
+                                        p.stretch_open, p.stretch_close)
         self._rng = np.random.default_rng(p.seed)
         self._pos = self._rng.uniform(self._nodes[0], self._nodes[-1], p.particles)
         self._speed = (self._rng.uniform(p.speed_range[0], p.speed_range[1], p.particles) if p.speed_noise > 0
                        else np.ones(p.particles))
         self._log_w = np.full(p.particles, -np.log(p.particles))
         self._sequence = np.zeros((len(p.sequence_speeds), n_nodes))
+        self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
+        self._odometer = 0.0  # distance travelled since the first frame, in the map's units
         self._odometry = False  # whether any step came with odometry
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64]]] | None = None
 
@@ -268,59 +212,81 @@ class CatGraph(Method):
             self._shifted = (u, _shifted_reads(self._nodes, shifts))
         return self._shifted[1]
 
+    @property
+    def motion_sigma(self) -> float:
+        """The motion noise of a frame without odometry, in node spacings."""
+        return float(np.hypot(self.params.step_noise, self.params.noise_floor))
+
     def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
-        p, model, rng, nodes = self.params, self._model, self._rng, self._nodes
-        n_nodes = nodes.size
+        p, rng, nodes = self.params, self._rng, self._nodes
+        n_nodes, first = nodes.size, self.frames == 0
         if row.shape != (n_nodes,) or not np.all(np.isfinite(row)):
             raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite differences to the map")
         u = self._travelled(odometry)
-        tables = observation_tables(model, p.smoothing_bins, p.prior, p.outlier, p.pseudo)
         contrast = contrast_normalise(row, p.contrast_window)
-        if self.frames == 0:
+        if first:
             self._sequence[:] = contrast
         else:  # the leaky sum along each speed's trajectory: causal, O(speeds x nodes) per frame
             self._sequence = ((1.0 - p.sequence_rate) * _advance(self._sequence, *self._shift_lookup(u))
                               + p.sequence_rate * contrast)
+            self._odometer += u
+        likelihood, unexplained = self._likelihood, self._unexplained
+        likelihood.use_row(row)
+        log_mean_ratio = float(logsumexp(likelihood.log_ratio(likelihood.t(row), self._omega))) - np.log(n_nodes)
+        prior = unexplained.transition(first)
 
         pos, speed, log_w = self._pos, self._speed, self._log_w
-        if self.frames > 0:  # motion model: s += v u_k + noise
+        if not first:  # motion model: s += v u_k + noise
             if p.speed_noise > 0:
                 speed = np.clip(speed + rng.normal(0.0, p.speed_noise, p.particles), *p.speed_range)
             sd = np.hypot(p.step_noise * u, p.noise_floor * self._spacing)
             pos = np.clip(pos + speed * u + rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
         n_reseed = int(round(p.reseed * p.particles))
+        kept = np.ones(p.particles, dtype=bool)
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
             weakest = np.argpartition(log_w, n_reseed - 1)[:n_reseed]
+            kept[weakest] = False
+            log_w = log_w - float(logsumexp(log_w[kept])) if kept.any() else log_w
             score = self._sequence.min(axis=0)
             best = np.argpartition(score, min(p.reseed_top, n_nodes) - 1)[:p.reseed_top]
             pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
             speed[weakest] = speed[rng.integers(0, p.particles, n_reseed)]
-            log_w[weakest] = -np.log(p.particles)
-            log_w = log_w - _log_normalizer(log_w)
 
         j, a = _locate(nodes, pos)  # eq. 8: d linearly interpolated between the nodes around
-        log_w = log_w + tables.log_ratio[model.bin_of((1.0 - a) * row[j] + a * row[j + 1])]
-        log_total = _log_normalizer(log_w)  # log of sum_i w_i P(d_i|L)/P(d_i), the prior mass being 1
-        sampled = rng.integers(0, n_nodes, p.new_place_samples)
-        log_new = np.log(tables.p_not_same[model.bin_of(row[sampled])].mean())
-        p_new = float(expit(log_new - log_total))  # eq. 10 weight normalised with the particles
-        log_w = log_w - log_total
+        t = likelihood.t((1.0 - a) * row[j] + a * row[j + 1])
+        omega = (1.0 - a) * self._omega[j] + a * self._omega[j + 1]
+        log_w = np.where(kept, np.log(max(prior.track, TINY)) + log_w + likelihood.log_ratio(t, omega),
+                         np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1)))
+        log_map = float(logsumexp(log_w))  # the map's total mass against the unexplained hypothesis
+        unexplained.update(log_map, prior.unexplained)
+        log_w = log_w - log_map
         w = np.exp(log_w)
 
-        own = np.bincount(j + (a >= 0.5), weights=w, minlength=n_nodes)
-        window = np.ones(2 * p.mode_window + 1)
-        mass = np.convolve(own, window)[p.mode_window:p.mode_window + n_nodes]  # "same" is wrong for a short map
+        self._own = np.bincount(j + (a >= 0.5), weights=w, minlength=n_nodes)
+        mass = self._window_mass()
         tied = np.flatnonzero(mass >= mass.max() - MODE_TIE)
-        mode = int(tied[np.argmax(own[tied])])
+        mode = int(tied[np.argmax(self._own[tied])])
+        p_new = unexplained.new_place
+        unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
+        likelihood.learn(w * omega, t, 1.0 - unexplained.u)
 
         if 1.0 / np.sum(w * w) < p.resample_ess * p.particles:
             idx = _systematic(w, rng)
             pos, speed = pos[idx], speed[idx]
             log_w = np.full(p.particles, -np.log(p.particles))
         self._pos, self._speed, self._log_w = pos, speed, log_w
-        model.add_same(row.min())  # causal online b: the frame's smallest difference, after use
         return Decision(match=mode, difference=float(row[mode]), confidence=float(mass[mode] * (1.0 - p_new)),
                         stage="track", new_place=p_new)
+
+    def _window_mass(self) -> NDArray[np.float64]:
+        """The last frame's posterior mass within +-mode_window nodes of each node."""
+        n, half = self._own.size, self.params.mode_window
+        return np.convolve(self._own, np.ones(2 * half + 1))[half:half + n]  # "same" is wrong for a short map
+
+    def probability_near(self, node: int) -> float:
+        """After a step: the probability that the frame shows the place of ``node`` (within
+        +-mode_window nodes), the map explaining it."""
+        return float(self._window_mass()[node] * (1.0 - self._unexplained.new_place))
 
     def _travelled(self, odometry: float | None) -> float:
         """u_k: the query's odometry step, else the mean node spacing."""
@@ -335,28 +301,34 @@ class CatGraph(Method):
         self._odometry = True
         return float(odometry)
 
-    @property
-    def model(self) -> HistogramModel | None:
-        return getattr(self, "_model", None)
-
     def facts(self) -> dict[str, Any]:
-        return {"exclude_recent": self.context.exclude_recent if self.context else None,
-                "odometry": self._odometry}
+        return {"odometry": getattr(self, "_odometry", False),
+                "learned_a": self._likelihood.a if hasattr(self, "_likelihood") else None,
+                "departure_share": self._unexplained.q if hasattr(self, "_unexplained") else None}
 
     def save_state(self) -> dict[str, Any]:
-        return {"model": self._model.to_dict(), "nodes": self._nodes, "pos": self._pos, "speed": self._speed,
-                "log_w": self._log_w, "sequence": self._sequence, "odometry": self._odometry,
-                "rng": self._rng.bit_generator.state}
+        return {"nodes": self._nodes, "omega": self._omega, "pos": self._pos, "speed": self._speed,
+                "log_w": self._log_w, "sequence": self._sequence, "own": self._own, "odometer": self._odometer,
+                "odometry": self._odometry, "likelihood": self._likelihood.state(),
+                "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
-        self._model = HistogramModel.from_dict(state["model"])
+        p = self.params
         self._nodes = np.asarray(state["nodes"], dtype=np.float64)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
+        self._omega = np.asarray(state["omega"], dtype=np.float64)
         self._pos = np.asarray(state["pos"], dtype=np.float64).copy()
         self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
+        self._own = np.asarray(state["own"], dtype=np.float64).copy()
+        self._odometer = float(state["odometer"])
         self._odometry = bool(state["odometry"])
+        self._likelihood = RankLikelihood(p.a0, p.n0, p.a_min)
+        self._likelihood.load(state["likelihood"])
+        self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
+                                        p.stretch_open, p.stretch_close)
+        self._unexplained.load(state["unexplained"])
         self._rng = np.random.default_rng()
         self._rng.bit_generator.state = state["rng"]
         self._shifted = None

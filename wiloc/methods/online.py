@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from wiloc.candidates import finite_minimum
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decision, MapContext, Method, iter_blocks
+from wiloc.methods.catgraph import CatGraph
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters, param
 
@@ -36,6 +37,8 @@ class OnlineParams(Parameters):
                                       "share of same-place samples.", low=0.0, high=1.0, low_open=True,
                                 high_open=True)
     smoothing: float = param(0.1, "Pseudo-count added to every histogram bin.", low=0.0, low_open=True)
+    seed: int | None = param(0, "Map mode: random seed of the map filter whose posterior calibrates the "
+                                "confidence (none: a fresh one).", low=0)
 
 
 def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
@@ -99,11 +102,17 @@ def map_minima(context: MapContext) -> NDArray[np.float64]:
 
 
 class Online(Method):
-    """The online model: decide with P(L | m), then learn from the frame (SPEC.md section 4)."""
+    """The online model: decide the best match z, then learn from the frame (SPEC.md section 4).
+
+    In sequence mode the confidence is the histogram model's P(L | m). In map mode it is the
+    probability that z is the place (within +-2 nodes), given every frame so far: the posterior of
+    a CAT-Graph filter run alongside on the same rows (``wiloc.calibration``; the decision stays
+    the single-frame best match). The histograms are learned in both modes (the paper's Figure 1).
+    """
 
     name = "online"
     Params = OnlineParams
-    needs = frozenset({"map_self"})
+    needs = frozenset({"map_self", "map_neighbours"})
     columns = ("m_r",)
     params: OnlineParams
 
@@ -117,11 +126,14 @@ class Online(Method):
         self._model: HistogramModel | None = None
         self._seen: list[float] = []
         self._match = np.empty(0, dtype=np.int64)  # sequence mode: recorded matches, for near_miss
+        self._filter: CatGraph | None = None
         if not context.sequence:
             self._seen = map_minima(context).tolist()
             if not self._seen:
                 raise WilocError("online", "the map's differences to itself hold no finite value")
             self._model = self._initial_model()
+            self._filter = CatGraph(seed=self.params.seed)
+            self._filter.start(context)
 
     def _initial_model(self) -> HistogramModel:
         """The model at the end of initialisation: range fixed from the minima seen, which fill c."""
@@ -144,12 +156,16 @@ class Online(Method):
         elif z >= 0:
             assert self._model is not None
             p = float(self._model.posterior(m))
+            new_place = 1.0 - p
+            if self._filter is not None:
+                new_place = self._filter.step(row).new_place
+                p = self._filter.probability_near(z)
             self._model.add_same(m)
             recorded = self._match[:self.frames] if sequence else None
             m_r = near_miss(row, z, recorded, self.params.same_place_window)
             if np.isfinite(m_r):
                 self._model.add_different(m_r)
-            decision = Decision(match=z, difference=m, confidence=p, stage="update", new_place=1.0 - p,
+            decision = Decision(match=z, difference=m, confidence=p, stage="update", new_place=new_place,
                                 extra={"m_r": m_r})
         if sequence:
             self._record(decision.match)
@@ -173,9 +189,14 @@ class Online(Method):
 
     def save_state(self) -> dict[str, Any]:
         return {"seen": np.asarray(self._seen, dtype=np.float64), "match": self._match[:self.frames].copy(),
+                "filter": None if self._filter is None else self._filter.state(),
                 "model": None if self._model is None else self._model.to_dict()}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
         self._seen = np.asarray(state["seen"], dtype=np.float64).tolist()
         self._match = np.asarray(state["match"], dtype=np.int64).copy()
         self._model = None if state["model"] is None else HistogramModel.from_dict(state["model"])
+        self._filter = None
+        if state["filter"] is not None:
+            self._filter = CatGraph(seed=self.params.seed)
+            self._filter.restore(self.context, state["filter"])  # type: ignore[arg-type]

@@ -1,0 +1,177 @@
+"""The calibration mechanisms (wiloc.calibration) and the filter's confidence on data drawn from
+its own model, where the probability of being right is what the reliability check measures."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import integrate
+
+from wiloc.calibration import RankLikelihood, Unexplained, novelty_weights
+from wiloc.methods.base import run_on_rows
+from wiloc.methods.catgraph import CatGraph
+from wiloc.reliability import reliability_bins
+
+
+def test_rank_ratio_is_a_proper_likelihood_ratio_and_falls_with_the_difference() -> None:
+    model = RankLikelihood(a0=0.4, n0=10.0, a_min=0.02)
+    assert model.a == pytest.approx(0.4)
+    mean, _ = integrate.quad(lambda u: np.exp(model.log_ratio(np.array([-np.log(u)]), np.ones(1))[0]), 0, 1)
+    assert mean == pytest.approx(1.0, rel=1e-6)  # its mean over ordinary places is exactly 1
+    row = np.array([0.9, 0.1, 0.5, 0.3, 0.7])
+    model.use_row(row)
+    t = model.t(np.sort(row))
+    assert np.all(np.diff(t) < 0) and t[0] == pytest.approx(-np.log(0.5 / 5))
+    ratio = model.log_ratio(t, np.ones(5))
+    assert np.all(np.diff(ratio) < 0)
+    np.testing.assert_allclose(model.log_ratio(t, np.zeros(5)), 0.0)  # omega 0: no evidence at all
+
+
+def test_em_learns_the_shape_the_data_were_drawn_with() -> None:
+    rng = np.random.default_rng(0)
+    model = RankLikelihood(a0=0.5, n0=10.0, a_min=0.02)
+    for _ in range(3000):  # the posterior weight sits on the same place: t ~ Exp(a) when u ~ Beta(a, 1)
+        model.learn(np.ones(1), -np.log(rng.uniform(size=1)) / 0.25, in_map=1.0)
+    assert model.a == pytest.approx(0.25, abs=0.02)
+
+
+def test_near_duplicate_map_frames_count_as_less_evidence() -> None:
+    steps = np.ones(20)
+    steps[8:12] = 0.02  # the vehicle stood still around frames 8-12
+    omega = novelty_weights(steps, 0.25)
+    assert omega.shape == (21,) and omega[0] == 1.0 and omega[-1] == 1.0
+    assert np.all(omega[9:12] < 0.2) and np.all(omega[:7] == 1.0)
+    np.testing.assert_array_equal(novelty_weights(steps, 0.0), 1.0)
+
+
+def test_unexplained_masses_sum_to_one_and_stretches_teach_the_departure_share() -> None:
+    chain = Unexplained(u0=0.5, h_in=0.01, h_out=0.02, jump=0.03, q_prior=(1.0, 1.0), open_at=0.5, close_at=0.1)
+    for first in (True, False):
+        prior = chain.transition(first)
+        assert prior.track + prior.jump + prior.unexplained == pytest.approx(1.0)
+    assert chain.q == pytest.approx(0.5)
+    chain.u = 0.01
+    chain.follow(frame=0, odometer=0.0, position=10.0, spacing=1.0, sigma=0.15)  # anchored
+    chain.u = 0.9
+    chain.follow(frame=5, odometer=5.0, position=15.0, spacing=1.0, sigma=0.15)  # a stretch opens
+    chain.u = 0.01
+    chain.follow(frame=9, odometer=9.0, position=60.0, spacing=1.0, sigma=0.15)  # back, far from 19
+    assert chain.departures == 1 and chain.blind_spots == 0 and chain.q == pytest.approx(2 / 3)
+    chain.u = 0.9
+    chain.follow(frame=12, odometer=12.0, position=63.0, spacing=1.0, sigma=0.15)
+    chain.u = 0.01
+    chain.follow(frame=15, odometer=15.0, position=66.0, spacing=1.0, sigma=0.15)  # back where reckoned
+    assert chain.blind_spots == 1 and chain.q == pytest.approx(2 / 4)
+
+
+def _route_rows(rng: np.random.Generator, truth: np.ndarray, n_map: int) -> np.ndarray:
+    """Differences to every node: about 1 elsewhere, a smooth dip around the true position
+    (neighbouring map frames look alike, as along a real route); NaN truth: no dip at all."""
+    offset = np.where(np.isnan(truth), np.inf, truth)[:, None] - np.arange(n_map)[None, :]
+    return 1.0 + 0.08 * rng.standard_normal((truth.size, n_map)) - 0.3 * np.exp(-0.5 * (offset / 1.5) ** 2)
+
+
+def test_confidence_is_calibrated_on_a_generated_route_with_a_stretch_off_the_map() -> None:
+    """Within 0.05 of the observed share correct in every confidence bin holding 100+ frames:
+    eight drives at the map's pace (motion noise as the filter's), each leaving the map for 30
+    frames, where an accepted match is wrong."""
+    n_map, confidence, correct = 300, [], []
+    for drive in range(8):
+        rng = np.random.default_rng(drive)
+        truth = np.clip(5.0 + np.cumsum(1.0 + rng.normal(0.0, 0.15, 285)), 0, n_map - 1)
+        truth[150:180] = np.nan
+        rows = _route_rows(rng, truth, n_map)
+        ref = _route_rows(rng, np.arange(n_map, dtype=np.float64), n_map)
+        out = run_on_rows(CatGraph(seed=drive, particles=1000), iter(rows), truth.size, map_self=ref)
+        confidence.append(out.confidence[30:])  # after the first lock-on
+        correct.append((np.abs(out.match - np.nan_to_num(np.round(truth), nan=-100.0)) <= 2)[30:])
+    bins = reliability_bins(np.concatenate(confidence), np.concatenate(correct))
+    populated = bins.count >= 100
+    assert populated[0] and populated[-1]  # the frames off the map, and the tracked ones
+    gap = np.abs(bins.mean_confidence - bins.share_correct)[populated]
+    assert gap.max() <= 0.05, (bins.count, bins.mean_confidence, bins.share_correct)
+
+
+# --- on the shared data: issue's acceptance figures, default settings --------------------------
+
+TRAVERSALS = [("gardens-point-walking", "day_left", "day_right", "sad"),
+              ("gardens-point-walking", "day_left", "day_right", "gist"),
+              ("gardens-point-walking", "night_right", "day_right", "sad"),
+              ("gardens-point-walking", "night_right", "day_right", "gist"),
+              ("nordland-summer-winter-64x32", "winter", "summer", "sad")]
+# catgraph's AP and R@1 before the calibrated filter (default seed): neither may fall by more than 0.02
+BEFORE = {("day_left", "sad"): (0.974, 0.975), ("day_left", "gist"): (0.940, 0.950),
+          ("night_right", "sad"): (0.702, 0.800), ("night_right", "gist"): (0.960, 0.960),
+          ("winter", "sad"): (0.931, 0.935)}
+
+
+@pytest.fixture(scope="module")
+def runs(data_root, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    from wiloc import api
+    from wiloc.cache import Cache
+    cache = Cache(tmp_path_factory.mktemp("cache"))
+    out = {}
+    for dataset, query, reference, descriptor in TRAVERSALS:
+        root = data_root / dataset
+        for method in ("catgraph", "online"):
+            run = api.localize(root / query, reference=root / reference, descriptor=descriptor, method=method,
+                               cache=cache)
+            out[(method, query, descriptor)] = api.evaluate(run, api.TruthSource(tolerance=2))
+    return out
+
+
+def _at(evaluation, cut: float) -> tuple[float, float]:
+    cuts = evaluation.calibration.cuts
+    i = list(cuts.cuts).index(cut)
+    return float(cuts.precision[i]), float(cuts.recall[i])
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("query, descriptor", [(q, d) for _, q, _, d in TRAVERSALS])
+def test_catgraph_confidence_is_calibrated_on_every_traversal(runs: dict, query: str, descriptor: str) -> None:
+    e = runs[("catgraph", query, descriptor)]
+    assert e.calibration.ece <= (0.05 if query == "winter" else 0.08)
+    assert _at(e, 0.9)[0] >= 0.9 and _at(e, 0.99)[0] >= 0.98
+    ap, r1 = BEFORE[(query, descriptor)]
+    summary = e.summary.as_dict()
+    assert summary["auc"] >= ap - 0.02 and summary["recall_at_1"] >= r1 - 0.02
+    assert runs[("online", query, descriptor)].calibration.ece <= 0.08
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("query, descriptor", [
+    (q, d) if (q, d) != ("night_right", "sad") else
+    pytest.param(q, d, marks=pytest.mark.xfail(strict=True, reason="night evidence is weak: P(new place) "
+                                                "stays near 0.04, so few frames reach 0.99 (docs/calibration.md)"))
+    for _, q, _, d in TRAVERSALS])
+def test_cut_099_keeps_most_of_the_recall_at_99_percent_precision(runs: dict, query: str, descriptor: str) -> None:
+    e = runs[("catgraph", query, descriptor)]
+    assert _at(e, 0.99)[1] >= 0.8 * e.summary.as_dict()["recall_at_99"]
+
+
+@pytest.mark.realdata
+def test_one_threshold_across_environments_keeps_each_traversals_recall(runs: dict) -> None:
+    from wiloc.metrics import global_threshold
+    evaluations = [runs[("catgraph", q, d)] for _, q, _, d in TRAVERSALS]
+    _, recalls = global_threshold([(e.confidence, e.correct, e.summary.with_true_match) for e in evaluations], 0.99)
+    for e, recall in zip(evaluations, recalls):
+        assert recall >= 0.8 * e.summary.as_dict()["recall_at_99"]
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("query", ["day_left", "night_right"])
+def test_a_query_that_leaves_the_map_says_so(data_root, query: str, tmp_path, cache_dir) -> None:
+    """Map frames 60-99 left out: query frames 60-99 have no true match."""
+    import shutil
+    from wiloc import api
+    gp = data_root / "gardens-point-walking"
+    partial = tmp_path / "day_right"
+    partial.mkdir()
+    for image in (gp / "day_right").glob("*.jpg"):
+        if not 60 <= int(image.stem[-3:]) <= 99:
+            shutil.copy(image, partial / image.name)
+    run = api.localize(gp / query, reference=partial, method="catgraph")
+    e = api.evaluate(run, api.TruthSource(tolerance=2))
+    assert _at(e, 0.9)[0] >= 0.9 and _at(e, 0.99)[0] >= 0.98
+    frames = run.results.frames
+    gone = frames["frame"].str[5:8].astype(int).between(60, 99).to_numpy()
+    assert frames["new_place"].to_numpy()[gone].mean() > 0.5
