@@ -70,7 +70,8 @@ def main() -> None:
         ms = 1000 * (time.perf_counter() - start) / len(query_names)
         print(f"{training:12} {reference:10} {query:12} {vocabulary.n_words:5d} "
               f"{report.seconds:8.1f} {vocabulary.training_occurrences.sum(1).mean():9.1f} "
-              f"{np.mean(bow_ms) if bow_ms else float('nan'):6.1f} {np.mean(hits):6.3f} {np.mean(confidence):9.3f} {np.mean(new):7.3f} "
+              f"{np.mean(bow_ms) if bow_ms else float('nan'):6.1f} {np.mean(hits):6.3f} "
+              f"{np.mean(confidence):9.3f} {np.mean(new):7.3f} "
               f"{tree_seconds:6.2f} {ms:8.2f}")
 
 
