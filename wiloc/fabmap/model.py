@@ -151,13 +151,24 @@ class FabMap:
 
     def log_likelihoods(self, z: ArrayLike) -> NDArray[np.float64]:
         """``(places,)`` log p(Z | L_j) of the observation ``z`` ``(K,)`` at every map place."""
-        places = self._places
-        return self._rows(self.word_factors(z), places.positives, places.observations)
+        return self._place_rows(self.word_factors(z))
 
     def new_place_log_likelihood(self, z: ArrayLike) -> float:
         """log p(Z | new place): sampled (log of the mean over the training place models) or
         mean-field (the average place)."""
+        return self._new_place(self.word_factors(z))
+
+    def frame_log_likelihoods(self, z: ArrayLike) -> tuple[NDArray[np.float64], float]:
+        """Both of the above for one query frame, its word factors computed once: what an
+        observation model needs per frame."""
         factors = self.word_factors(z)
+        return self._place_rows(factors), self._new_place(factors)
+
+    def _place_rows(self, factors: NDArray[np.float64]) -> NDArray[np.float64]:
+        places = self._places
+        return self._rows(factors, places.positives, places.observations)
+
+    def _new_place(self, factors: NDArray[np.float64]) -> float:
         if self.params.new_place == "mean-field":
             c0, c1 = factors
             return float(np.log(c0 + (c1 - c0) * self.tree.marginal).sum())
@@ -184,7 +195,8 @@ class FabMap:
         p_new = self.params.new_place_prior
         with np.errstate(divide="ignore"):
             log_prior = np.append(np.log(weights) + np.log1p(-p_new), np.log(p_new))
-        log_joint = log_prior + np.append(self.log_likelihoods(z), self.new_place_log_likelihood(z))
+        rows, new = self.frame_log_likelihoods(z)
+        log_joint = log_prior + np.append(rows, new)
         post = np.exp(log_joint - logsumexp(log_joint))
         sigma = self.params.posterior_smoothing
         post = sigma * post + (1.0 - sigma) / (n + 1)
