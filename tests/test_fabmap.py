@@ -6,8 +6,16 @@ import itertools
 import numpy as np
 import pytest
 
-from wiloc.errors import UsageError
-from wiloc.fabmap import ChowLiuTree, Detector, FabMap, FabMapParams, mutual_information
+from wiloc.errors import ParameterError
+from wiloc.fabmap import (
+    NEW_PLACE_METHODS,
+    ChowLiuTree,
+    Detector,
+    FabMap,
+    FabMapParams,
+    mutual_information,
+)
+from wiloc.parameters import declared
 
 
 def _tree_samples(rng: np.random.Generator, parent: np.ndarray, p_root: float,
@@ -75,9 +83,9 @@ def test_smoothing_keeps_probabilities_inside_0_1_and_falls_back_to_the_marginal
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), "1"])
 def test_tree_smoothing_is_checked(bad: object) -> None:
-    with pytest.raises(UsageError) as info:
+    with pytest.raises(ParameterError) as info:
         ChowLiuTree.fit(np.eye(4, dtype=bool), smoothing=bad)  # type: ignore[arg-type]
-    assert info.value.where == "smoothing"
+    assert info.value.parameter == "smoothing"
 
 
 # ----------------------------------------------------------------------------- brute force
@@ -262,9 +270,15 @@ def test_new_place_probability_rises_on_a_detour() -> None:
     ("seed", -1), ("false_negative", float("nan")), ("new_place_prior", True),
 ])
 def test_every_parameter_is_checked_and_named(name: str, value: object) -> None:
-    with pytest.raises(UsageError) as info:
+    with pytest.raises(ParameterError) as info:
         FabMapParams(**{name: value})
-    assert info.value.where == name
+    assert info.value.parameter == name
+
+
+def test_every_parameter_is_declared_with_help_and_range() -> None:
+    for d in declared(FabMapParams):
+        assert d.help and (d.choices or d.kind == "int" or d.range_text), d.name
+    assert declared(FabMapParams)[2].choices == NEW_PLACE_METHODS
 
 
 def test_defaults_are_the_published_ones() -> None:
@@ -276,9 +290,9 @@ def test_defaults_are_the_published_ones() -> None:
 
 def test_sampling_needs_training_and_is_capped_and_seeded(tiny: tuple) -> None:
     tree, train = tiny
-    with pytest.raises(UsageError) as info:
+    with pytest.raises(ParameterError) as info:
         FabMap(tree)
-    assert info.value.where == "new_place"
+    assert info.value.parameter == "new_place"
     assert len(FabMap(tree, training=train).new_place_samples) == len(train)  # fewer than 3000
     a = FabMap(tree, FabMapParams(samples=10, seed=1), training=train).new_place_samples
     b = FabMap(tree, FabMapParams(samples=10, seed=1), training=train).new_place_samples

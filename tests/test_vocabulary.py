@@ -19,7 +19,7 @@ from wiloc.cache import Cache
 from wiloc.clustering import assign, kmajority, kmeans
 from wiloc.describing import describe_folder
 from wiloc.descriptors import get_descriptor
-from wiloc.errors import UsageError, WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.features import extract_features, to_scale
 from wiloc.vocabulary import (
     VocabularyParams,
@@ -121,9 +121,9 @@ def test_too_few_features_for_the_words() -> None:
     ("seed", -1), ("words", 2.0), ("words", True),
 ])
 def test_vocabulary_parameters_are_checked_and_named(name: str, value: object) -> None:
-    with pytest.raises(UsageError) as info:
+    with pytest.raises(ParameterError) as info:
         VocabularyParams(**{name: value})
-    assert info.value.where == name
+    assert info.value.parameter == name
 
 
 def test_word_presence_packs_and_unpacks() -> None:
@@ -175,9 +175,9 @@ def test_orb_vocabulary_and_unreadable_frames(tmp_path: Path, cache_dir: Path) -
 
 def test_too_many_words_for_the_features_is_a_usage_error(tmp_path: Path, cache_dir: Path) -> None:
     folder = _folder(tmp_path / "train", range(2))
-    with pytest.raises(UsageError) as info:
+    with pytest.raises(ParameterError) as info:
         build_vocabulary([folder], Cache(cache_dir), VocabularyParams(words=5000, max_side=320))
-    assert info.value.where == "words"
+    assert info.value.parameter == "words"
     assert not list((cache_dir / "vocabularies").glob("*.h5"))
 
 

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import h5py
 import numpy as np
@@ -22,45 +23,30 @@ from numpy.typing import NDArray
 
 from wiloc import __version__
 from wiloc.clustering import assign, kmajority, kmeans
-from wiloc.errors import UsageError, WilocError
-from wiloc.features import DTYPES, FEATURES, extract_features
+from wiloc.errors import ParameterError, WilocError
+from wiloc.features import DTYPES, extract_features
+from wiloc.parameters import Parameters, param
 
 FORMAT = "wiloc-vocabulary"
 FORMAT_VERSION = 1
 
 
 @dataclass(frozen=True)
-class VocabularyParams:
-    """How a vocabulary is made; every field takes part in its cache key.
+class VocabularyParams(Parameters):
+    """How a vocabulary is made; every field takes part in its cache key."""
 
-    feature: local feature, ``sift`` (k-means) or ``orb`` (k-majority).
-    words: K, the number of visual words.
-    max_features: features kept per image, strongest first.
-    max_side: images are shrunk so their longer side is at most this many pixels.
-    iterations: at most this many clustering rounds (fewer once assignments stop changing).
-    seed: seeds the random choice of the initial centres.
-    """
+    feature: Literal["sift", "orb"] = param("sift", "local feature: sift (k-means) or orb (k-majority)")
+    words: int = param(1000, "K, the number of visual words", low=2)
+    max_features: int = param(500, "local features kept per image, strongest first", low=1)
+    max_side: int = param(640, "images are shrunk so their longer side is at most this many pixels",
+                          low=16)
+    iterations: int = param(25, "at most this many clustering rounds (fewer once assignments stop "
+                                "changing)", low=1)
+    seed: int = param(0, "seeds the random choice of the initial centres", low=0)
 
-    feature: str = "sift"
-    words: int = 1000
-    max_features: int = 500
-    max_side: int = 640
-    iterations: int = 25
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if self.feature not in FEATURES:
-            raise UsageError("feature", f"must be one of {', '.join(FEATURES)}, got {self.feature!r}")
-        for name, low in (("words", 2), ("max_features", 1), ("max_side", 16), ("iterations", 1),
-                          ("seed", 0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-                raise UsageError(name, f"must be an integer >= {low}, got {value!r}")
-            object.__setattr__(self, name, int(value))
-
-    def as_dict(self) -> dict[str, int | str]:
-        """The parameters as plain JSON-ready values."""
-        return asdict(self)
+    def to_json(self) -> str:
+        """Canonical JSON of the values (numpy scalars as plain numbers)."""
+        return json.dumps(self.as_dict(), sort_keys=True, default=lambda v: v.item())
 
 
 def pack_words(present: NDArray[np.bool_]) -> NDArray[np.uint8]:
@@ -121,7 +107,7 @@ def train_vocabulary(key: str, params: VocabularyParams, frames: Sequence[str],
                          f"{len(features)} for {len(frames)} frames")
     pooled = np.concatenate(features).astype(DTYPES[params.feature])
     if len(pooled) < params.words:
-        raise UsageError("words", f"{params.words} words need at least as many training features; "
+        raise ParameterError("words", f"{params.words} words need at least as many training features; "
                                   f"the training images gave {len(pooled)}")
     cluster = kmeans if params.feature == "sift" else kmajority
     centres = cluster(pooled, params.words, params.iterations, params.seed, step)
@@ -133,7 +119,7 @@ def write_vocabulary(f: h5py.File, vocabulary: Vocabulary, attrs: dict[str, obje
     """Write `vocabulary` into an open HDF5 file, with extra attributes (provenance)."""
     f.attrs.update({
         "format": FORMAT, "format_version": FORMAT_VERSION, "wiloc_version": __version__,
-        "key": vocabulary.key, "params": json.dumps(vocabulary.params.as_dict(), sort_keys=True),
+        "key": vocabulary.key, "params": vocabulary.params.to_json(),
         "n_words": vocabulary.n_words, **attrs,
     })
     f.create_dataset("centres", data=vocabulary.centres)

@@ -52,7 +52,7 @@ class VocabularyReport:
 
 def vocabulary_key(digests: Sequence[str], params: VocabularyParams) -> str:
     """The key of the vocabulary trained with `params` on frames of these content digests."""
-    text = json.dumps([FORMAT_VERSION, params.as_dict(), list(digests)], sort_keys=True)
+    text = json.dumps([FORMAT_VERSION, json.loads(params.to_json()), list(digests)], sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:24]
 
 

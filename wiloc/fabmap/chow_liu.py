@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 
-from wiloc.errors import UsageError
+from wiloc.errors import ParameterError
 
 #: The pseudo-count ``a`` of the smoothing (docs/fabmap.md).
 DEFAULT_SMOOTHING = 1.0
@@ -93,7 +93,7 @@ class ChowLiuTree:
         """The Chow-Liu tree of the word occurrences ``(N, K)`` of N training images."""
         if isinstance(smoothing, bool) or not isinstance(smoothing, (int, float)) \
                 or not (np.isfinite(smoothing) and smoothing > 0):
-            raise UsageError("smoothing", f"must be a finite number > 0, got {smoothing!r}")
+            raise ParameterError("smoothing", f"must be a finite number > 0, got {smoothing!r}")
         z = _occurrences(occurrences)
         n, k = z.shape
         info = mutual_information(z)

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import logsumexp
 
-from wiloc.errors import UsageError
+from wiloc.errors import ParameterError
 from wiloc.fabmap.chow_liu import ChowLiuTree
 from wiloc.fabmap.detector import Detector
 from wiloc.fabmap.params import FabMapParams
@@ -86,7 +86,7 @@ class FabMap:
         self._source = np.where(tree.parent < 0, np.arange(tree.n_words), tree.parent)
         if self.params.new_place == "sampled":
             if training is None:
-                raise UsageError("new_place", "'sampled' needs the training occurrences (training=)")
+                raise ParameterError("new_place", "'sampled' needs the training occurrences (training=)")
             occurrences = self._check(training)
             n = min(self.params.samples, len(occurrences))
             chosen = np.random.default_rng(self.params.seed).choice(len(occurrences), n, replace=False)
