@@ -7,6 +7,7 @@ name, so a spec pickles cheaply into worker processes. ``params`` always holds e
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -14,7 +15,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.descriptors import brisk_gist, gist, sad
+from wiloc.descriptors import bow, brisk_gist, gist, sad
+from wiloc.features import decode_size
+from wiloc.vocabulary import read_vocabulary_header
 
 DESCRIPTOR_NAMES = ("sad", "gist", "brisk-gist")
 METRICS = ("l1", "sqeuclidean", "hamming", "cosine")
@@ -29,6 +32,7 @@ _COMPUTE: dict[str, Callable[..., NDArray]] = {
     "sad": sad.compute_sad,
     "gist": gist.compute_gist,
     "brisk-gist": brisk_gist.compute_brisk_gist,
+    "bow": bow.compute_bow,
 }
 
 
@@ -126,6 +130,28 @@ def _brisk_gist(params: Mapping[str, Any]) -> DescriptorSpec:
     )
 
 
+def _bow(params: Mapping[str, Any]) -> DescriptorSpec:
+    """Word presence over a vocabulary: ``file`` (a vocabulary .h5) required; ``vocabulary``, its
+    key, is read from the file (given, it must match)."""
+    p = _check_params("bow", params, {"file": None, "vocabulary": None})
+    if not isinstance(p["file"], (str, Path)):
+        raise ValueError(f"bow needs file=<vocabulary .h5 file>; got {p['file']!r}")
+    file = Path(p["file"]).expanduser().resolve()
+    key, vocabulary, n_words = read_vocabulary_header(file)
+    if p["vocabulary"] not in (None, key):
+        raise ValueError(f"bow vocabulary {p['vocabulary']!r} does not match {file} (key {key})")
+    return DescriptorSpec(
+        name="bow",
+        params={"file": str(file), "vocabulary": key},
+        metric="hamming",
+        dtype=np.dtype(np.uint8),
+        length=(n_words + 7) // 8,
+        scale=1.0,
+        min_size=decode_size(vocabulary.max_side),
+        natural_max=float(n_words),
+    )
+
+
 def _external(params: Mapping[str, Any]) -> DescriptorSpec:
     """A user's matrix: ``metric`` and ``length`` required; ``dtype`` uint8 for hamming."""
     p = _check_params("external", params, {"metric": None, "length": None, "dtype": "float32"})
@@ -155,6 +181,7 @@ _BUILDERS: dict[str, Callable[[Mapping[str, Any]], DescriptorSpec]] = {
     "sad": _sad,
     "gist": _gist,
     "brisk-gist": _brisk_gist,
+    "bow": _bow,
     "external": _external,
 }
 
@@ -163,7 +190,8 @@ def get_descriptor(name: str, **params: Any) -> DescriptorSpec:
     """The spec of a named descriptor with the given parameters (defaults for the rest).
 
     ``external`` describes an imported matrix: ``get_descriptor("external", metric="cosine",
-    length=D, dtype="float32")``.
+    length=D, dtype="float32")``; ``bow`` a vocabulary's word presence:
+    ``get_descriptor("bow", file=VOCABULARY_H5)``.
     """
     if name not in _BUILDERS:
         choices = ", ".join(DESCRIPTOR_NAMES)

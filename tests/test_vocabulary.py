@@ -1,0 +1,276 @@
+"""Local features, clustering, the visual vocabulary and its cache file, the bow descriptor."""
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+
+from wiloc.cache import Cache
+from wiloc.clustering import assign, kmajority, kmeans
+from wiloc.describing import describe_folder
+from wiloc.descriptors import get_descriptor
+from wiloc.errors import ParameterError, WilocError
+from wiloc.features import extract_features, to_scale
+from wiloc.vocabulary import (
+    VocabularyParams,
+    pack_words,
+    read_vocabulary,
+    unpack_words,
+)
+from wiloc.vocabulary_build import build_vocabulary, vocabulary_path
+
+REPO = Path(__file__).resolve().parents[1]
+SMALL = VocabularyParams(words=16, max_features=60, max_side=320, iterations=10)
+
+
+def _scene(seed: int, h: int = 180, w: int = 240) -> np.ndarray:
+    """A textured image with blobs and rectangles: plenty of corners and blobs."""
+    rng = np.random.default_rng(seed)
+    image = cv2.GaussianBlur(rng.integers(0, 256, (h, w), dtype=np.uint8), (0, 0), 3)
+    for _ in range(12):
+        x, y = int(rng.integers(10, w - 40)), int(rng.integers(10, h - 40))
+        cv2.rectangle(image, (x, y), (x + int(rng.integers(8, 30)), y + int(rng.integers(8, 30))),
+                      int(rng.integers(0, 256)), -1)
+        cv2.circle(image, (int(rng.integers(0, w)), int(rng.integers(0, h))),
+                   int(rng.integers(3, 12)), int(rng.integers(0, 256)), -1)
+    return image
+
+
+def _folder(path: Path, seeds: range) -> Path:
+    path.mkdir(parents=True, exist_ok=True)
+    for i, seed in enumerate(seeds):
+        cv2.imwrite(str(path / f"img{i}.png"), _scene(seed))
+    return path
+
+
+# ----------------------------------------------------------------------------- features
+
+@pytest.mark.parametrize(("feature", "width", "dtype"), [("sift", 128, np.float32), ("orb", 32, np.uint8)])
+def test_features_are_capped_typed_and_empty_on_a_flat_image(feature: str, width: int, dtype: type) -> None:
+    image = _scene(0, 360, 480)
+    many = extract_features(image, feature, max_features=500)
+    few = extract_features(image, feature, max_features=25)
+    assert many.dtype == dtype and many.shape[1] == width and len(many) > 25
+    assert few.shape == (25, width)
+    flat = extract_features(np.full((100, 100), 128, np.uint8), feature)
+    assert flat.shape == (0, width) and flat.dtype == dtype
+
+
+def test_images_are_shrunk_to_max_side_never_enlarged() -> None:
+    assert to_scale(np.zeros((540, 960), np.uint8), 640).shape == (360, 640)
+    assert to_scale(np.zeros((960, 540), np.uint8), 640).shape == (640, 360)
+    assert to_scale(np.zeros((100, 200), np.uint8), 640).shape == (100, 200)
+
+
+# ----------------------------------------------------------------------------- clustering
+
+def test_assign_matches_brute_force_for_both_metrics() -> None:
+    rng = np.random.default_rng(0)
+    x, c = rng.normal(size=(300, 16)).astype(np.float32), rng.normal(size=(20, 16)).astype(np.float32)
+    brute = np.argmin(((x[:, None] - c[None]) ** 2).sum(-1), axis=1)
+    assert np.array_equal(assign(x, c), brute)
+    b, cb = rng.integers(0, 256, (300, 32), dtype=np.uint8), rng.integers(0, 256, (20, 32), dtype=np.uint8)
+    hamming = np.unpackbits(b[:, None] ^ cb[None], axis=-1).sum(-1)
+    assert np.array_equal(hamming[np.arange(300), assign(b, cb)], hamming.min(axis=1))
+    with pytest.raises(ValueError, match="do not match"):
+        assign(x, cb)
+
+
+def test_kmeans_finds_separated_clusters_and_stops_when_stable() -> None:
+    rng = np.random.default_rng(1)
+    truth = rng.normal(scale=20, size=(4, 8)).astype(np.float32)
+    x = (truth[rng.integers(0, 4, 2000)] + rng.normal(size=(2000, 8))).astype(np.float32)
+    rounds: list[int] = []
+    centres = kmeans(x, 4, 50, seed=0, step=rounds.append)
+    nearest = np.min(((centres[:, None] - truth[None]) ** 2).sum(-1), axis=0)
+    assert np.all(np.sqrt(nearest) < 0.3)
+    assert rounds == list(range(1, len(rounds) + 1)) and len(rounds) < 50
+
+
+def test_kmajority_recovers_binary_prototypes() -> None:
+    rng = np.random.default_rng(2)
+    prototypes = rng.integers(0, 256, (5, 32), dtype=np.uint8)
+    bits = np.unpackbits(prototypes[rng.integers(0, 5, 3000)], axis=1)
+    noisy = np.packbits(bits ^ (rng.random(bits.shape) < 0.1), axis=1)  # 10 % of bits flipped
+    rounds: list[int] = []
+    centres = kmajority(noisy, 5, 30, seed=0, step=rounds.append)
+    distance = np.unpackbits(centres[:, None] ^ prototypes[None], axis=-1).sum(-1)
+    assert np.all(distance.min(axis=0) == 0)  # every prototype found exactly
+    assert len(rounds) < 30
+
+
+def test_too_few_features_for_the_words() -> None:
+    with pytest.raises(ValueError, match="cannot make"):
+        kmeans(np.zeros((3, 4), np.float32), 4, 5, seed=0)
+
+
+# ----------------------------------------------------------------------------- vocabulary
+
+@pytest.mark.parametrize(("name", "value"), [
+    ("feature", "surf"), ("words", 1), ("max_features", 0), ("max_side", 8), ("iterations", 0),
+    ("seed", -1), ("words", 2.0), ("words", True),
+])
+def test_vocabulary_parameters_are_checked_and_named(name: str, value: object) -> None:
+    with pytest.raises(ParameterError) as info:
+        VocabularyParams(**{name: value})
+    assert info.value.parameter == name
+
+
+def test_word_presence_packs_and_unpacks() -> None:
+    present = np.random.default_rng(0).random((3, 21)) < 0.5
+    packed = pack_words(present)
+    assert packed.shape == (3, 3) and packed.dtype == np.uint8
+    assert np.array_equal(unpack_words(packed, 21), present)
+
+
+def test_vocabulary_round_trips_through_the_cache(tmp_path: Path, cache_dir: Path) -> None:
+    folder = _folder(tmp_path / "train", range(6))
+    cache = Cache(cache_dir)
+    calls: list[tuple[int, int]] = []
+    report = build_vocabulary([folder], cache, SMALL, progress=lambda d, t: calls.append((d, t)))
+    vocabulary = report.vocabulary
+    assert report.built and report.path == cache_dir / "vocabularies" / f"{vocabulary.key}.h5"
+    assert report.path == vocabulary_path(cache, vocabulary.key)
+    assert vocabulary.centres.shape == (16, 128) and vocabulary.training_occurrences.shape == (6, 16)
+    assert calls[-1] == (6 + SMALL.iterations, 6 + SMALL.iterations)
+    assert [d for d, _ in calls] == sorted(d for d, _ in calls)
+    stored = read_vocabulary(report.path)
+    assert stored.key == vocabulary.key and stored.params == SMALL
+    assert np.array_equal(stored.centres, vocabulary.centres)
+    assert np.array_equal(stored.training_occurrences, vocabulary.training_occurrences)
+    assert stored.training_frames == tuple(str((folder / f"img{i}.png").resolve()) for i in range(6))
+    with h5py.File(report.path, "r") as f:
+        assert f.attrs["features"] == report.features > 16
+    # Again: read, not built; the same images elsewhere: the same key.
+    again = build_vocabulary([folder], cache, SMALL)
+    assert not again.built and again.vocabulary.key == vocabulary.key
+    copy = shutil.copytree(folder, tmp_path / "copy")
+    assert build_vocabulary([copy], cache, SMALL).vocabulary.key == vocabulary.key
+    # A changed image or other parameters: another vocabulary.
+    cv2.imwrite(str(copy / "img0.png"), _scene(99))
+    assert build_vocabulary([copy], cache, SMALL).vocabulary.key != vocabulary.key
+    other = VocabularyParams(words=8, max_features=60, max_side=320, iterations=10)
+    assert build_vocabulary([folder], cache, other).vocabulary.key != vocabulary.key
+
+
+def test_orb_vocabulary_and_unreadable_frames(tmp_path: Path, cache_dir: Path) -> None:
+    folder = _folder(tmp_path / "train", range(5))
+    (folder / "img9.png").write_bytes(b"not an image")
+    params = VocabularyParams(feature="orb", words=16, max_features=60, max_side=320, iterations=10)
+    report = build_vocabulary([folder], Cache(cache_dir), params)
+    assert report.vocabulary.centres.dtype == np.uint8 and report.vocabulary.centres.shape == (16, 32)
+    assert [name for name, _ in report.failed] == [str(folder / "img9.png")]
+    assert len(report.vocabulary.training_frames) == 5
+
+
+def test_too_many_words_for_the_features_is_a_usage_error(tmp_path: Path, cache_dir: Path) -> None:
+    folder = _folder(tmp_path / "train", range(2))
+    with pytest.raises(ParameterError) as info:
+        build_vocabulary([folder], Cache(cache_dir), VocabularyParams(words=5000, max_side=320))
+    assert info.value.parameter == "words"
+    assert not list((cache_dir / "vocabularies").glob("*.h5"))
+
+
+def test_an_incomplete_file_is_not_a_vocabulary(tmp_path: Path) -> None:
+    path = tmp_path / "half.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = "wiloc-vocabulary"
+    with pytest.raises(WilocError, match="not a complete"):
+        read_vocabulary(path)
+    with pytest.raises(WilocError, match="no such"):
+        read_vocabulary(tmp_path / "absent.h5")
+
+
+_KILLED_BUILD = textwrap.dedent("""
+    import sys, time
+    from pathlib import Path
+    import wiloc.vocabulary_build as build
+    from wiloc.cache import Cache
+    from wiloc.vocabulary import VocabularyParams
+
+    folder, marker, stage = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
+    params = VocabularyParams(words=16, max_features=60, max_side=320, iterations=10)
+
+    def stop_here():
+        marker.write_text("now")
+        time.sleep(120)
+
+    def progress(done, total):
+        if (stage == "features" and done == 2) or (stage == "clustering" and done == 7):
+            stop_here()
+
+    if stage == "writing":
+        write = build.write_vocabulary
+        def half_write(f, vocabulary, attrs):
+            f.create_dataset("centres", data=vocabulary.centres)
+            f.flush()
+            stop_here()
+        build.write_vocabulary = half_write
+    build.build_vocabulary([folder], Cache(), params, progress=progress)
+""")
+
+
+@pytest.mark.parametrize("stage", ["features", "clustering", "writing"])
+def test_a_killed_build_leaves_no_complete_file_and_the_rerun_works(
+        tmp_path: Path, cache_dir: Path, stage: str) -> None:
+    folder = _folder(tmp_path / "train", range(6))
+    marker = tmp_path / "marker"
+    proc = subprocess.Popen([sys.executable, "-c", _KILLED_BUILD, str(folder), str(marker), stage],
+                            env={**os.environ, "WILOC_CACHE": str(cache_dir)}, cwd=REPO)
+    deadline = time.monotonic() + 60
+    while not marker.exists():
+        assert proc.poll() is None, "the build ended before the kill"
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    folder_files = list((cache_dir / "vocabularies").iterdir())
+    assert not [p for p in folder_files if p.suffix == ".h5"]  # no file that looks complete
+    if stage == "writing":
+        assert [p for p in folder_files if p.name.endswith(".wiloc-tmp")]  # the half-written one
+    rerun = build_vocabulary([folder], Cache(cache_dir), SMALL)
+    assert rerun.built and read_vocabulary(rerun.path).key == rerun.vocabulary.key
+    assert not list((cache_dir / "vocabularies").glob("*.wiloc-tmp"))  # swept on the rerun
+    fresh = build_vocabulary([folder], Cache(tmp_path / "fresh"), SMALL)
+    assert np.array_equal(fresh.vocabulary.centres, rerun.vocabulary.centres)
+
+
+# ----------------------------------------------------------------------------- bow descriptor
+
+def test_bow_descriptor_through_workers_and_the_cache(tmp_path: Path, cache_dir: Path) -> None:
+    cache = Cache(cache_dir)
+    report = build_vocabulary([_folder(tmp_path / "train", range(6))], cache, SMALL)
+    spec = get_descriptor("bow", file=report.path)
+    assert spec.params == {"file": str(report.path), "vocabulary": report.vocabulary.key}
+    assert (spec.metric, spec.dtype, spec.length, spec.natural_max) == ("hamming", np.uint8, 2, 16.0)
+    assert get_descriptor("bow", file=report.path, vocabulary=report.vocabulary.key).key == spec.key
+    with pytest.raises(ValueError, match="does not match"):
+        get_descriptor("bow", file=report.path, vocabulary="0" * 24)
+    with pytest.raises(ValueError, match="file="):
+        get_descriptor("bow")
+    image = _scene(3)
+    assert np.array_equal(spec.compute(image), pack_words(report.vocabulary.bag_of_words(image)))
+
+    query = _folder(tmp_path / "query", range(20, 28))
+    serial = describe_folder(query, spec, cache, jobs=1).entry
+    shutil.rmtree(cache_dir / "descriptors")
+    parallel = describe_folder(query, spec, cache, jobs=2).entry
+    assert np.array_equal(serial.data, parallel.data) and serial.data.shape == (8, 2)
+    assert np.array_equal(cache.read_entry(parallel.key).data, parallel.data)
+    assert unpack_words(parallel.data, 16).any(axis=1).all()
+
+    other = build_vocabulary([tmp_path / "train"], cache,
+                             VocabularyParams(words=8, max_features=60, max_side=320, iterations=10))
+    other_spec = get_descriptor("bow", file=other.path)
+    assert other_spec.key != spec.key
+    assert describe_folder(query, other_spec, cache).entry.key != parallel.key
