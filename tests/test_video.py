@@ -348,3 +348,26 @@ def test_nordland_as_a_lossless_video_gives_the_folder_descriptors(data_root: Pa
     assert from_video.failed == [] and from_video.entry.names == names(range(len(frames)))
     assert from_folder.entry.names == [p.name for p in frames]
     np.testing.assert_array_equal(from_video.entry.data, from_folder.entry.data)
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("method", ["online", "catgraph"])
+def test_nordland_videos_localize_as_the_folders_do(data_root: Path, tmp_path: Path, method: str) -> None:
+    from wiloc import api
+
+    root = data_root / "nordland-summer-winter-64x32"
+    videos = {}
+    for season in ("summer", "winter"):
+        videos[season] = tmp_path / f"{season}.mkv"
+        writer = cv2.VideoWriter(str(videos[season]), cv2.VideoWriter_fourcc(*"FFV1"), 10.0, (64, 32))
+        for path in list_traversal(root / season).frames:
+            writer.write(cv2.cvtColor(read_gray(path), cv2.COLOR_GRAY2BGR))
+        writer.release()
+    cache = Cache(tmp_path / "cache")
+    on_video = api.localize(videos["winter"], reference=videos["summer"], method=method, cache=cache)
+    on_folder = api.localize(root / "winter", reference=root / "summer", method=method, cache=cache)
+    for got, want in [(on_video.decisions.match, on_folder.decisions.match),
+                      (on_video.decisions.confidence, on_folder.decisions.confidence),
+                      (on_video.decisions.difference, on_folder.decisions.difference)]:
+        np.testing.assert_array_equal(got, want)
+    assert on_video.results.meta["descriptor"] == "sad" and on_video.results.meta["sampling"]["every"] == 1

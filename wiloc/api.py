@@ -212,7 +212,7 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
                   method_params: Mapping[str, Any] | None = None, exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
                   training: Training | None = None, map_odometry: Path | None = None, out: Path | None = None,
                   cache: Cache | None = None, jobs: int | None = None, idle: float | None = None,
-                  poll: float = 0.2) -> FollowRun:
+                  poll: float = 0.1) -> FollowRun:
     """Follow a folder that is still being filled: each frame decided as it arrives, its row
     appended to the results file at once (see :class:`FollowRun`). Ends after ``idle`` seconds
     without a new frame (None: when interrupted)."""

@@ -1,0 +1,115 @@
+"""`wiloc localize --follow` on Nordland: frames per second, and latency from a file's arrival to
+its row in the results file.
+
+    python benchmarks/bench_follow.py [DATA] [--methods online,catgraph] [--rate 20] [--frames 300]
+
+Throughput: the winter frames (3576) are put in a folder first, then `--follow --idle 1` decides
+them all (descriptor included: each frame is read and described as it is decided); frames/s =
+frames / (wall time - start-up - idle), start-up being a run on an empty folder. Latency: a
+feeder writes `--frames` winter frames into an empty folder at `--rate` frames/s, each file
+written whole under a temporary name and renamed (as a camera driver would); the time from the
+rename to the row appearing in the results file is taken for every frame (the results file is
+polled every millisecond). Medians of the per-frame latencies, wall clock.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
+
+
+def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> subprocess.Popen:
+    """A `wiloc localize --follow` process, its output discarded."""
+    return subprocess.Popen([sys.executable, "-c", CLI, "localize", str(folder), "--map", str(summer),
+                             "--method", method, "--follow", "--idle", str(idle), "--out", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def rows(path: Path) -> int:
+    """Rows written so far (lines after the header and the column line)."""
+    if not path.exists():
+        return 0
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return max(0, sum(not line.startswith("#") for line in lines) - 1)
+
+
+def throughput(winter: Path, summer: Path, method: str, work: Path) -> float:
+    """Frames per second deciding a folder already full, descriptor included."""
+    empty, full = work / f"empty-{method}", work / f"full-{method}"
+    empty.mkdir()
+    shutil.copytree(winter, full)
+    idle = 1.0
+    start = time.perf_counter()
+    follow(empty, summer, work / f"empty-{method}.csv", method, idle).wait()
+    startup = time.perf_counter() - start - idle
+    start = time.perf_counter()
+    follow(full, summer, work / f"full-{method}.csv", method, idle).wait()
+    spent = time.perf_counter() - start - idle - startup
+    return rows(work / f"full-{method}.csv") / spent
+
+
+def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, frames: int) -> list[float]:
+    """Seconds from each frame file's arrival to its row, for ``frames`` frames fed at ``rate``."""
+    live, out = work / f"live-{method}", work / f"live-{method}.csv"
+    live.mkdir()
+    process = follow(live, summer, out, method, idle=3.0)
+    while not out.exists():  # the map is described and the method started: the run is ready
+        time.sleep(0.01)
+    arrived: list[float] = []
+
+    def feed() -> None:
+        for path in sorted(winter.iterdir())[:frames]:
+            tmp = live / f".{path.name}.part"
+            shutil.copyfile(path, tmp)
+            os.replace(tmp, live / path.name)
+            arrived.append(time.perf_counter())
+            time.sleep(1.0 / rate)
+    feeder = threading.Thread(target=feed)
+    feeder.start()
+    decided: list[float] = []
+    while len(decided) < frames and process.poll() is None:
+        n = rows(out)
+        decided.extend([time.perf_counter()] * (n - len(decided)))
+        time.sleep(0.001)
+    feeder.join()
+    process.wait()
+    return [d - a for a, d in zip(arrived, decided)]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("data", nargs="?", type=Path,
+                        default=Path(os.environ.get("WILOC_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data"))
+    parser.add_argument("--methods", default="online,catgraph")
+    parser.add_argument("--rate", type=float, default=20.0, help="frames per second fed for the latency")
+    parser.add_argument("--frames", type=int, default=300, help="frames fed for the latency")
+    args = parser.parse_args()
+    root = args.data / "nordland-summer-winter-64x32"
+    table = Table(title=f"--follow on Nordland (map summer, query winter), latency at {args.rate:g} frames/s")
+    for column in ("method", "frames/s (folder full)", "latency median ms", "latency 90 % ms"):
+        table.add_column(column, justify="right")
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        os.environ.setdefault("WILOC_CACHE", str(work / "cache"))
+        for method in args.methods.split(","):
+            rate = throughput(root / "winter", root / "summer", method, work)
+            waits = sorted(latency(root / "winter", root / "summer", method, work, args.rate, args.frames))
+            table.add_row(method, f"{rate:.0f}", f"{1000 * statistics.median(waits):.0f}",
+                          f"{1000 * waits[int(0.9 * (len(waits) - 1))]:.0f}")
+    Console().print(table)
+
+
+if __name__ == "__main__":
+    main()
