@@ -168,8 +168,10 @@ def block_in(text: str, name: str) -> str:
     return text[start + len(begin):stop].strip("\n") if 0 <= start < stop else ""
 
 
-def update_docs(summary: dict[str, Any], out: Path) -> None:
-    """Rewrite the example's block in docs/results.md and copy its plots to docs/img/."""
+def update_docs(summary: dict[str, Any], out: Path, markdown: str | None = None,
+                plots: Sequence[str] = ("threshold", "model", "pr", "reliability")) -> None:
+    """Rewrite the example's block in docs/results.md (``markdown``, default: the protocol's
+    tables) and copy its plots to docs/img/."""
     name = summary["experiment"]
     doc = REPO / "docs" / "results.md"
     text = doc.read_text(encoding="utf-8")
@@ -177,8 +179,9 @@ def update_docs(summary: dict[str, Any], out: Path) -> None:
     start, stop = text.find(begin), text.find(end)
     if not 0 <= start < stop:
         raise WilocError(doc, f"no '{begin}' ... '{end}' markers to update")
-    doc.write_text(f"{text[:start + len(begin)]}\n{render_markdown(summary)}\n{text[stop:]}", encoding="utf-8")
-    for plot in ("threshold", "model", "pr", "reliability"):
+    block = render_markdown(summary) if markdown is None else markdown
+    doc.write_text(f"{text[:start + len(begin)]}\n{block}\n{text[stop:]}", encoding="utf-8")
+    for plot in plots:
         shutil.copyfile(out / f"{plot}.png", REPO / "docs" / "img" / f"{name}-{plot}.png")
     console.print(f"updated {doc} and docs/img/{name}-*.png")
 

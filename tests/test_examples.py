@@ -70,3 +70,33 @@ def test_results_doc_quotes_the_examples(runs: dict[str, tuple[dict, str]], name
     assert tables in stdout
     quoted = protocol.block_in((REPO / "docs" / "results.md").read_text(encoding="utf-8"), name)
     assert quoted == tables, f"docs/results.md is out of date: run examples/{name}.py --update-docs"
+
+
+@pytest.fixture(scope="module")
+def table1(data_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
+    """examples/table1.py's summary.json and printed output, on a private cache."""
+    tmp = tmp_path_factory.mktemp("table1")
+    env = {**os.environ, "WILOC_CACHE": str(tmp / "cache"), "COLUMNS": "200"}
+    proc = subprocess.run([sys.executable, str(REPO / "examples" / "table1.py"), str(data_root), "--out",
+                           str(tmp / "out")], capture_output=True, text=True, env=env, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads((tmp / "out" / "summary.json").read_text(encoding="utf-8")), proc.stdout
+
+
+def test_table1_trains_vocabularies_on_the_other_query_and_the_doc_quotes_it(table1: tuple[dict, str]) -> None:
+    summary, stdout = table1
+    assert {q: v["trained_on"] for q, v in summary["vocabularies"].items()} == \
+        {"day_left": "night_right", "night_right": "day_left"}
+    assert len(summary["table"]) == 10 and all(row["ms_per_frame"] > 0 for row in summary["table"])
+    spec = importlib.util.spec_from_file_location("table1", REPO / "examples" / "table1.py")
+    assert spec is not None and spec.loader is not None
+    sys.path.insert(0, str(REPO / "examples"))
+    try:
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(REPO / "examples"))
+    tables = module.render(summary)
+    assert tables in stdout
+    quoted = _protocol().block_in((REPO / "docs" / "results.md").read_text(encoding="utf-8"), "table1")
+    assert quoted == tables, "docs/results.md is out of date: run examples/table1.py --update-docs"

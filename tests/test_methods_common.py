@@ -74,13 +74,24 @@ def _rows(truth: np.ndarray, n_map: int, rng: np.random.Generator) -> np.ndarray
 
 
 def _context(method: Method, rng: np.random.Generator) -> MapContext:
+    """A map of 80 places; rows are differences, or for a method reading FAB-MAP's evidence,
+    their negation (high: alike)."""
     n_map = 80
     ref = ArrayRows(_rows(np.arange(n_map, dtype=np.float64), n_map, rng))
     labels = np.arange(50)[:, None] == np.arange(n_map)[None, :]  # strict: some best matches are wrong
     train = TrainingRows(list(_rows(np.arange(50, dtype=np.float64), n_map, rng)), labels)
     steps = np.diagonal(ref.array, 1).copy()
-    return MapContext(sequence=False, exclude_recent=5, n_map=n_map, natural_max=2.0,
+    return MapContext(sequence=False, exclude_recent=5, n_map=n_map, natural_max=2.0, rows=_kind(method),
                       map_self=lambda: ref, neighbours=lambda: steps, training=lambda: train)
+
+
+def _kind(method: Method) -> str:
+    return "differences" if "differences" in method.rows else "log_ratio"
+
+
+def _query_for(method: Method, rng: np.random.Generator) -> np.ndarray:
+    rows = _query(rng)
+    return rows if _kind(method) == "differences" else -rows
 
 
 def _query(rng: np.random.Generator) -> np.ndarray:
@@ -123,7 +134,7 @@ def test_parameters_are_declared_with_help_and_validated(name: str) -> None:
 @pytest.mark.parametrize("name", ALL)
 def test_batch_run_equals_stepping_and_records_every_parameter(name: str) -> None:
     rng = np.random.default_rng(1)
-    context, query = _context(_method(name), rng), _query(rng)
+    context, query = _context(_method(name), rng), _query_for(_method(name), rng)
     batch_method = _method(name)
     batch_method.start(context)
     batch = batch_method.run(iter(query), len(query))
@@ -142,7 +153,7 @@ def test_batch_run_equals_stepping_and_records_every_parameter(name: str) -> Non
 @pytest.mark.parametrize("name", ALL)
 def test_state_restores_identical_later_decisions(name: str) -> None:
     rng = np.random.default_rng(2)
-    context, query = _context(_method(name), rng), _query(rng)
+    context, query = _context(_method(name), rng), _query_for(_method(name), rng)
     whole = _method(name, **({"seed": 9} if name == "catgraph" else {}))
     whole.start(context)
     expected = [whole.step(row) for row in query]

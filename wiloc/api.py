@@ -24,6 +24,7 @@ from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matri
 from wiloc.distances import consecutive
 from wiloc.errors import UsageError, WilocError
 from wiloc.groundtruth import Truth, TruthSource
+from wiloc.fabmap.evidence import FabMapEvidence, evidence_rows
 from wiloc.methods.base import Decisions, MapContext
 from wiloc.methods.registry import make_method
 from wiloc.metrics import (PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
@@ -36,6 +37,8 @@ from wiloc.results import Results, ResultsStream, make_results, read_results, wr
 from wiloc.training import Training, training_rows
 from wiloc.traversals import Describer, Progress, descriptor_label, descriptor_spec, stage
 from wiloc.video import Sampling, is_video
+from wiloc.vocabulary import VocabularyParams
+from wiloc.vocabulary_build import VocabularyReport, build_vocabulary, vocabulary_path
 
 __all__ = ["Comparison", "Evaluation", "LocalizeRun", "Sampling", "Training", "TruthSource", "compare",
            "describe", "evaluate", "import_descriptors", "localize"]
@@ -63,6 +66,26 @@ def import_descriptors(path: Path, *, metric: str, names: Path | None = None,
                        cache: Cache | None = None) -> DescribeReport:
     """Bring an external N x D descriptor matrix (NetVLAD, ...) into the cache."""
     return import_matrix(Path(path), cache or Cache(), names, metric)
+
+
+def vocabulary(folders: Sequence[Path], params: Mapping[str, Any] | None = None, *, cache: Cache | None = None,
+               progress: Progress | None = None) -> VocabularyReport:
+    """Build (or reuse from the cache) the visual vocabulary of the images in ``folders``: local
+    features clustered into words, for the ``bow`` descriptor and FAB-MAP (docs/fabmap.md)."""
+    return build_vocabulary([Path(f) for f in folders], cache or Cache(), VocabularyParams.create(params),
+                            progress=stage(progress, "vocabulary"))
+
+
+def vocabulary_file(vocabulary: str | Path, cache: Cache | None = None) -> Path:
+    """A vocabulary's file: ``vocabulary`` is the file, or the key of a vocabulary in the cache."""
+    path = Path(vocabulary).expanduser()
+    if path.is_file():
+        return path
+    in_cache = vocabulary_path(cache or Cache(), str(vocabulary))
+    if str(vocabulary).isalnum() and in_cache.is_file():
+        return in_cache
+    raise WilocError(None, f"{str(vocabulary)!r} is neither a vocabulary file nor the key of one in the cache",
+                     parameter="vocabulary")
 
 
 # ----------------------------------------------------------------------------------------- localize
@@ -135,28 +158,39 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     problem = algo.query_problem(len(q.names), sequence, R)
     if problem is not None:
         raise WilocError(query, problem)
+    kind = algo.row_kind(describer.descriptor)
     with ExitStack() as files:
-        matrix = files.enter_context(difference_matrix(q, r, describer.cache, progress=stage(progress, "differences")))
+        if kind == "log_ratio":  # FAB-MAP's evidence from bag-of-words descriptors
+            evidence = FabMapEvidence.of(describer.spec)
+            if not sequence:
+                evidence.add_places(r.data)
+            rows = evidence_rows(evidence, q.data, sequence, R)
+            matrix = None
+        else:
+            matrix = files.enter_context(difference_matrix(q, r, describer.cache, progress=stage(progress, "differences")))
+            rows = candidate_rows(matrix, sequence, R)
 
         @functools.cache
         def map_self() -> DifferenceMatrix:
             """The map's differences to itself on first use (sequence mode: the run's own matrix)."""
-            if sequence:
+            if sequence and matrix is not None:
                 return matrix
             return files.enter_context(difference_matrix(r, r, describer.cache,
                                                          progress=stage(progress, "map differences")))
         context = MapContext(
-            sequence=sequence, exclude_recent=R, n_map=0 if sequence else len(r.names),
+            sequence=sequence, exclude_recent=R, n_map=0 if sequence else len(r.names), rows=kind,
             natural_max=r.natural_max, arclength=_map_arclength(map_odometry, r.names), map_self=map_self,
             neighbours=None if sequence else lambda: consecutive(r.data, r.metric, r.scale),
             training=(lambda: training_rows(training, describer, R)) if training else None)
         algo.start(context)
-        decisions = algo.run(candidate_rows(matrix, sequence, R), len(q.names),
+        decisions = algo.run(rows, len(q.names),
                              odometry=_query_steps(odometry, q.names),
                              progress=stage(progress, f"{method} {query.name}"))
     meta = _run_meta(method, describer, query, q.metric, reference, R, training)
     if videos:
         meta["sampling"] = asdict(sampling or Sampling())
+    if kind == "log_ratio":
+        meta["rows"] = "fabmap"
     results = make_results(decisions, query_names=q.names, ref_names=r.names, meta=meta)
     replaced = write_results(Path(out), results) if out is not None else False
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,

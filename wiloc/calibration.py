@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import logsumexp
 
 
 def novelty_weights(neighbours: NDArray[np.float64], threshold: float) -> NDArray[np.float64]:
@@ -41,12 +42,19 @@ def novelty_weights(neighbours: NDArray[np.float64], threshold: float) -> NDArra
 
 
 class RankLikelihood:
-    """Beta(a, 1) against Uniform(0, 1) on a difference's rank within its own row; a by EM."""
+    """Beta(a, 1) against Uniform(0, 1) on a difference's rank within its own row; a by EM.
+
+    The observation model of a filter over difference rows: :meth:`use_row` for each frame, then
+    :meth:`at` the particles' positions and :meth:`mean` over the map, :meth:`learn` after the
+    frame's posterior is known.
+    """
 
     def __init__(self, a0: float, n0: float, a_min: float) -> None:
         self.a_min = a_min
         self.s0, self.s1 = n0, n0 / a0  # EM sufficient statistics: weight and weighted sum of t
         self._sorted = np.empty(0)
+        self._row = np.empty(0)
+        self._t = np.empty(0)  # t at the particles of the current frame
 
     @property
     def a(self) -> float:
@@ -55,7 +63,18 @@ class RankLikelihood:
 
     def use_row(self, row: NDArray[np.float64]) -> None:
         """Rank later differences against this query row."""
+        self._row = row
         self._sorted = np.sort(row)
+
+    def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
+        """ln lambda at positions a ``frac`` of the way from node j to j + 1 (the difference
+        interpolated there), each with its near-duplicate weight ``omega``."""
+        self._t = self.t((1.0 - frac) * self._row[j] + frac * self._row[j + 1])
+        return self.log_ratio(self._t, omega)
+
+    def mean(self, omega: NDArray[np.float64]) -> float:
+        """ln of the mean lambda over every map node: the evidence for "somewhere on the map"."""
+        return float(logsumexp(self.log_ratio(self.t(self._row), omega))) - np.log(self._row.size)
 
     def t(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
         """-ln u of each difference: its mid-rank p-value in the row."""
@@ -66,17 +85,46 @@ class RankLikelihood:
         a = 1.0 - omega * (1.0 - self.a)
         return np.log(a) + (1.0 - a) * t
 
-    def learn(self, weight: NDArray[np.float64], t: NDArray[np.float64], in_map: float) -> None:
-        """EM step: the frame's posterior weights at the same place (times the probability that
-        the map explains the frame) add to the sufficient statistics."""
+    def learn(self, weight: NDArray[np.float64], in_map: float) -> None:
+        """EM step: the frame's posterior weights of the particles (times their near-duplicate
+        weight, and the probability that the map explains the frame) add to the statistics."""
         self.s0 += in_map * float(weight.sum())
-        self.s1 += in_map * float(np.dot(weight, t))
+        self.s1 += in_map * float(np.dot(weight, self._t))
 
     def state(self) -> dict[str, Any]:
         return {"s0": self.s0, "s1": self.s1}
 
     def load(self, state: dict[str, Any]) -> None:
         self.s0, self.s1 = float(state["s0"]), float(state["s1"])
+
+
+class GivenEvidence:
+    """The observation model of a filter over rows that already hold log-likelihood ratios
+    (FAB-MAP's log p(Z | L_j) - log p(Z | new place), ``wiloc.fabmap.evidence``): interpolated
+    linearly between nodes; nothing to learn, no near-duplicate damping."""
+
+    a = None
+
+    def __init__(self) -> None:
+        self._row = np.empty(0)
+
+    def use_row(self, row: NDArray[np.float64]) -> None:
+        self._row = row
+
+    def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (1.0 - frac) * self._row[j] + frac * self._row[j + 1]
+
+    def mean(self, omega: NDArray[np.float64]) -> float:
+        return float(logsumexp(self._row)) - np.log(self._row.size)
+
+    def learn(self, weight: NDArray[np.float64], in_map: float) -> None:
+        pass
+
+    def state(self) -> dict[str, Any]:
+        return {}
+
+    def load(self, state: dict[str, Any]) -> None:
+        pass
 
 
 @dataclass(frozen=True)

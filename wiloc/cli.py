@@ -123,9 +123,20 @@ def _cell(value: Any) -> str:
     return "" if value is None else str(value)
 
 
-def _descriptor_params(descriptor: str, crop: str) -> dict[str, str]:
-    """The descriptor parameters the command line sets: only `sad` takes --crop."""
+def _descriptor_params(descriptor: str, crop: str, vocabulary: str | None = None,
+                       cache: Path | None = None) -> dict[str, str]:
+    """The descriptor parameters the command line sets: only `sad` takes --crop, only `bow`
+    (which needs it) --vocabulary."""
+    if (vocabulary is not None) != (descriptor == "bow"):
+        _fail("--vocabulary goes with --descriptor bow, and bow needs it", 2)
+    if descriptor == "bow":
+        from wiloc.cache import Cache
+        return {"file": str(api.vocabulary_file(vocabulary, Cache(cache)))}
     return {"crop": crop} if descriptor == "sad" else {}
+
+
+VocabularyOption = Annotated[Optional[str], typer.Option(
+    help="bow: the vocabulary (its file, or its key in the cache) from `wiloc vocabulary`.")]
 
 
 def _version(value: bool) -> None:
@@ -152,8 +163,9 @@ StopOption = Annotated[Optional[str], typer.Option(help="Videos: end of the cut 
 @handles_errors
 def describe(
     folders: list[Path] = typer.Argument(None, help="Image folders or video files (one traversal each)."),
-    descriptor: str = typer.Option("sad", "--descriptor", "-d", help="sad | gist | brisk-gist"),
+    descriptor: str = typer.Option("sad", "--descriptor", "-d", help="sad | gist | brisk-gist | bow"),
     crop: str = typer.Option("none", help="sad only: none | top-half"),
+    vocabulary: VocabularyOption = None,
     import_file: Optional[Path] = typer.Option(None, "--import", help="External N x D matrix (.npy, .csv, .h5)."),
     names: Optional[Path] = typer.Option(None, help="With --import .npy: text file of frame names, one a line."),
     metric: str = typer.Option("l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
@@ -191,7 +203,7 @@ def describe(
         if import_file is not None:
             reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store)]
         else:
-            reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop),
+            reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
                                    cache=store, jobs=jobs, progress=progress, sampling=sampling)
     rows = [{"folder": str(given), "frames": r.frames, "descriptor": r.descriptor,
              "shape": "x".join(map(str, r.shape)), "computed": r.computed, "reused": r.reused,
@@ -217,6 +229,44 @@ def describe(
         raise typer.Exit(1)
 
 
+# ---------------------------------------------------------------------------------------- vocabulary
+
+@app.command()
+@handles_errors
+def vocabulary(
+    folders: list[Path] = typer.Argument(..., help="Training image folders (never the pair you will test on)."),
+    feature: str = typer.Option("sift", help="Local feature: sift (k-means) or orb (k-majority)."),
+    words: int = typer.Option(1000, help="K, the number of visual words."),
+    max_features: int = typer.Option(500, help="Local features kept per image, strongest first."),
+    max_side: int = typer.Option(640, help="Images are shrunk so their longer side is at most this many pixels."),
+    iterations: int = typer.Option(25, help="At most this many clustering rounds."),
+    seed: int = typer.Option(0, help="Seeds the initial centres."),
+    cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+) -> None:
+    """Cluster the local features of training folders into a visual vocabulary, kept in the cache,
+    for the bow descriptor and FAB-MAP.
+
+    Example: wiloc vocabulary data/night_right --words 1000, then
+    wiloc localize data/day_left --map data/day_right --descriptor bow --vocabulary KEY --method fabmap
+    """
+    from wiloc.cache import Cache
+    params = {"feature": feature, "words": words, "max_features": max_features, "max_side": max_side,
+              "iterations": iterations, "seed": seed}
+    with progress_bar(not as_json) as progress:
+        report = api.vocabulary(folders, params, cache=Cache(cache), progress=progress)
+    row = {"key": report.vocabulary.key, "words": report.vocabulary.n_words,
+           "training frames": len(report.vocabulary.training_frames), "built": report.built,
+           "seconds": round(report.seconds, 1), "file": str(report.path)}
+    if as_json:
+        _print_json({**{k.replace(" ", "_"): v for k, v in row.items()},
+                     "failed": [list(item) for item in report.failed]})
+        return
+    for path, reason in report.failed:
+        _note("skipped", f"{path}: {reason}")
+    out.print(_table("vocabulary", [row]))
+
+
 # ------------------------------------------------------------------------------------------ localize
 
 @app.command()
@@ -225,8 +275,9 @@ def describe(
 def localize(
     queries: list[Path] = typer.Argument(..., help="Query traversal folder(s) (or descriptor matrix files)."),
     reference: Optional[Path] = typer.Option(None, "--map", "-m", help="Reference traversal; omit for sequence mode (loop closure)."),
-    descriptor: str = typer.Option("sad", "--descriptor", "-d", help="sad | gist | brisk-gist"),
+    descriptor: str = typer.Option("sad", "--descriptor", "-d", help="sad | gist | brisk-gist | bow (with --vocabulary; fabmap and catgraph then read FAB-MAP's evidence)"),
     crop: str = typer.Option("none", help="sad only: none | top-half"),
+    vocabulary: VocabularyOption = None,
     metric: Optional[str] = typer.Option(None, help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
     method: str = typer.Option("online", help=" | ".join(METHODS)),
     exclude_recent: int = typer.Option(DEFAULT_EXCLUDE_RECENT, "--exclude-recent", "-R", help="Recent frames excluded as candidates (sequence mode) and around each map frame when learning from the map."),
@@ -278,7 +329,7 @@ def localize(
             _fail(f"--follow takes one query folder{' and not ' + ', '.join(given) if given else ''}", 2)
         _follow(queries[0], api.follow_folder(
             queries[0], reference=reference, descriptor=descriptor,
-            descriptor_params=_descriptor_params(descriptor, crop), method=method, method_params=params,
+            descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache), method=method, method_params=params,
             exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
             out=out_path / api.results_name(queries[0], method, descriptor) if out_path is not None and out_path.is_dir() else out_path,
             cache=Cache(cache), jobs=jobs, idle=idle), as_json)
@@ -302,7 +353,7 @@ def localize(
     with progress_bar(not as_json) as progress:
         for query, target in zip(queries, targets):
             runs.append(api.localize(query, reference=reference, descriptor=descriptor, sampling=sampling,
-                                     descriptor_params=_descriptor_params(descriptor, crop),
+                                     descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
                                      metric=metric, method=method, method_params=params,
                                      exclude_recent=exclude_recent, training=training,
                                      odometry=odometry, map_odometry=map_odometry,

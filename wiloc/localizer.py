@@ -26,6 +26,7 @@ from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_
 from wiloc.differences import ComputedDifferences
 from wiloc.distances import DifferencesTo, consecutive, pairwise
 from wiloc.errors import WilocError
+from wiloc.fabmap.evidence import FabMapEvidence
 from wiloc.frames import read_gray
 from wiloc.methods.base import Decision, MapContext, Method, TrainingRows
 from wiloc.methods.registry import make_method
@@ -79,6 +80,8 @@ class Localizer:
         self._map_odometry = None if map_odometry is None else Path(map_odometry)
         self._spec = None if self._map_path is not None and is_matrix_file(self._map_path) else self._describer.spec
         self.names: list[str] = []  # the frames observed, in order
+        self._kind = self.method.row_kind(descriptor)
+        self._evidence = FabMapEvidence.of(self._describer.spec) if self._kind == "log_ratio" else None
         if map is None:
             self._map: Entry | None = None
             self._seen = np.empty((0, self._spec.length), dtype=self._spec.dtype)
@@ -96,18 +99,20 @@ class Localizer:
         self._metric, self._scale, self._natural_max = self._map.metric, self._map.scale, self._map.natural_max
         self._seen = self._map.data[:0]  # sequence mode's growing candidates; none against a map
         self._to_map = DifferencesTo(self._map.data, self._metric, self._scale)
+        if self._evidence is not None:
+            self._evidence.add_places(self._map.data)
 
     def _context(self) -> MapContext:
         """What the method is started on: the map, read lazily and never stored whole."""
         R = self.exclude_recent
         if self._map is None:
-            return MapContext(sequence=True, exclude_recent=R, natural_max=self._natural_max)
+            return MapContext(sequence=True, exclude_recent=R, natural_max=self._natural_max, rows=self._kind)
         arclength = None
         if self._map_odometry is not None:
             from wiloc.odometry import read_odometry
             arclength = read_odometry(self._map_odometry).arclength(self._map.names)
         return MapContext(
-            sequence=False, exclude_recent=R, n_map=len(self._map.names), natural_max=self._natural_max,
+            sequence=False, exclude_recent=R, n_map=len(self._map.names), natural_max=self._natural_max, rows=self._kind,
             arclength=arclength, map_self=lambda: ComputedDifferences(self._map.data, self._to_map),
             neighbours=lambda: consecutive(self._map.data, self._metric, self._scale),
             training=self._training_rows if self._training is not None else None)
@@ -154,15 +159,22 @@ class Localizer:
             raise WilocError("observe", f"an image must be 8-bit gray or BGR, got shape {array.shape} of {array.dtype}")
         return np.asarray(self._spec.compute(array), dtype=self._spec.dtype)
 
-    def differences(self, descriptor: NDArray) -> NDArray[np.float64]:
-        """The difference row of the next frame: to every map frame, or in sequence mode to every
-        observed frame, inf within the recent window."""
+    def row(self, descriptor: NDArray) -> NDArray[np.float64]:
+        """The next frame's row: its differences to every map frame, or in sequence mode to every
+        observed frame (inf within the recent window); FAB-MAP's evidence for methods reading it
+        (-inf for no candidate)."""
         row_desc = np.asarray(descriptor)[None, :]
+        k = len(self.names)
+        far = max(0, k - self.exclude_recent)
+        if self._evidence is not None:
+            if self._map is not None:
+                return self._evidence.row(descriptor)
+            row = np.full(k, -np.inf)
+            row[:far] = self._evidence.row(descriptor)[:far]
+            return row
         if self._map is not None:
             return self._to_map(row_desc)[0].astype(np.float64)
-        k = len(self.names)
         row = np.full(k, np.inf)
-        far = max(0, k - self.exclude_recent)
         if far:
             row[:far] = pairwise(row_desc, self._seen[:far], self._metric, self._scale)[0]
         return mask_recent(row, k, self.exclude_recent)
@@ -176,9 +188,11 @@ class Localizer:
         k = len(self.names)
         if name is None:
             name = Path(frame).name if isinstance(frame, (str, Path)) else f"{k:06d}"
-        decision = self.method.step(self.differences(descriptor), odometry)
+        decision = self.method.step(self.row(descriptor), odometry)
         if self._map is None:
             self._grow(descriptor)
+            if self._evidence is not None:
+                self._evidence.add_places(descriptor)
         self.names.append(name)
         candidates = self.map_names
         match_name = candidates[decision.match] if decision.match >= 0 else ""
@@ -251,6 +265,8 @@ class Localizer:
         loc.names = list(meta["names"])
         if loc._map is None:
             loc._seen = np.asarray(meta["seen"]).astype(loc._seen.dtype, copy=True)
+            if loc._evidence is not None and len(loc._seen):
+                loc._evidence.add_places(loc._seen)
         loc.method.restore(loc._context(), meta["method_state"])
         return loc
 

@@ -34,6 +34,11 @@ BLOCK_VALUES = 1 << 22
 #: ``odometry``: it takes the query's travelled distance per frame.
 NEEDS = ("map", "map_self", "map_neighbours", "training", "odometry")
 
+#: What a query frame's row can hold: ``differences`` to each candidate (low: alike; inf: no
+#: candidate) or FAB-MAP's ``log_ratio`` log p(Z | L_j) - log p(Z | new place) (high: alike;
+#: -inf: no candidate), from bag-of-words descriptors (``wiloc.fabmap.evidence``).
+ROWS = ("differences", "log_ratio")
+
 
 class RowBlocks(Protocol):
     """A matrix read block of rows by block of rows, e.g. ``wiloc.differences.DifferenceMatrix``."""
@@ -88,7 +93,8 @@ class MapContext:
 
     sequence: bool
     exclude_recent: int
-    n_map: int = 0  # map frames (0 in sequence mode, where the candidates grow frame by frame)
+    n_map: int = 0
+    rows: str = "differences"  # what the rows hold: differences (low: alike) or log_ratio (high: alike)  # map frames (0 in sequence mode, where the candidates grow frame by frame)
     natural_max: float | None = None  # the descriptor's largest possible difference, if it has one
     arclength: NDArray[np.float64] | None = None  # map node positions along the route (odometry)
     map_self: Callable[[], RowBlocks] | None = None
@@ -176,13 +182,15 @@ class Method(ABC):
     """A localization method: declared parameters, started on a map, stepped one frame at a time.
 
     Subclasses set ``name``, ``Params`` (a :class:`Parameters` dataclass), ``needs`` (a subset of
-    :data:`NEEDS`) and ``columns`` (the per-frame extras written to results files), and implement
+    :data:`NEEDS`), ``rows`` (the row kinds of :data:`ROWS` it reads) and ``columns`` (the
+    per-frame extras written to results files), and implement
     :meth:`prepare`, :meth:`decide`, :meth:`save_state` and :meth:`load_state`.
     """
 
     name: ClassVar[str]
     Params: ClassVar[type[Parameters]]
     needs: ClassVar[frozenset[str]] = frozenset()
+    rows: ClassVar[frozenset[str]] = frozenset({"differences"})  # the row kinds it reads (see ROWS)
     columns: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, params: Parameters | Mapping[str, Any] | None = None, **values: Any) -> None:
@@ -214,6 +222,17 @@ class Method(ABC):
         for given, parameter in ((odometry, "odometry"), (map_odometry, "map_odometry")):
             if given and "odometry" not in self.needs:
                 raise UsageError(None, f"method '{self.name}' takes no odometry", parameter=parameter)
+
+    def row_kind(self, descriptor: str) -> str:
+        """What this method's rows hold with this descriptor: FAB-MAP's evidence (``log_ratio``)
+        for bag-of-words (``bow``) when it reads that, else differences; a UsageError for a
+        method that reads evidence only."""
+        if descriptor == "bow" and "log_ratio" in self.rows:
+            return "log_ratio"
+        if "differences" not in self.rows:
+            raise UsageError(None, f"method '{self.name}' reads FAB-MAP's evidence: give descriptor 'bow' "
+                                   "with a vocabulary", parameter="descriptor")
+        return "differences"
 
     def query_problem(self, n_frames: int, sequence: bool, exclude_recent: int) -> str | None:
         """Why a query of ``n_frames`` frames cannot be run (in sequence mode or against a map,

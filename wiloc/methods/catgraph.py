@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter1d
 from scipy.special import logsumexp
 
-from wiloc.calibration import RankLikelihood, Unexplained, novelty_weights
+from wiloc.calibration import GivenEvidence, RankLikelihood, Unexplained, novelty_weights
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -176,6 +176,7 @@ class CatGraph(Method):
     name = "catgraph"
     Params = CatGraphParams
     needs = frozenset({"map", "map_neighbours", "odometry"})
+    rows = frozenset({"differences", "log_ratio"})
     columns = ("new_place",)
     params: CatGraphParams
 
@@ -190,7 +191,7 @@ class CatGraph(Method):
         self._nodes = _arclength(context.arclength, n_nodes)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
         self._omega = novelty_weights(neighbours, p.near_duplicate)
-        self._likelihood = RankLikelihood(p.a0, p.n0, p.a_min)
+        self._likelihood = self._observation_model()
         self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
                                         p.stretch_open, p.stretch_close)
         self._rng = np.random.default_rng(p.seed)
@@ -203,6 +204,13 @@ class CatGraph(Method):
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
         self._odometry = False  # whether any step came with odometry
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64]]] | None = None
+
+    def _observation_model(self) -> RankLikelihood | GivenEvidence:
+        """Ranks within difference rows (whole images), or FAB-MAP's given log-likelihood ratios."""
+        p = self.params
+        if self.context is not None and self.context.rows == "log_ratio":
+            return GivenEvidence()
+        return RankLikelihood(p.a0, p.n0, p.a_min)
 
     def _shift_lookup(self, u: float) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         """:func:`_shifted_reads` for step u: the same for every frame of equal step (always,
@@ -221,9 +229,10 @@ class CatGraph(Method):
         p, rng, nodes = self.params, self._rng, self._nodes
         n_nodes, first = nodes.size, self.frames == 0
         if row.shape != (n_nodes,) or not np.all(np.isfinite(row)):
-            raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite differences to the map")
+            raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
         u = self._travelled(odometry)
-        contrast = contrast_normalise(row, p.contrast_window)
+        evidence = self.context is not None and self.context.rows == "log_ratio"
+        contrast = contrast_normalise(-row if evidence else row, p.contrast_window)  # low = alike
         if first:
             self._sequence[:] = contrast
         else:  # the leaky sum along each speed's trajectory: causal, O(speeds x nodes) per frame
@@ -232,7 +241,7 @@ class CatGraph(Method):
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
         likelihood.use_row(row)
-        log_mean_ratio = float(logsumexp(likelihood.log_ratio(likelihood.t(row), self._omega))) - np.log(n_nodes)
+        log_mean_ratio = likelihood.mean(self._omega)
         prior = unexplained.transition(first)
 
         pos, speed, log_w = self._pos, self._speed, self._log_w
@@ -252,10 +261,9 @@ class CatGraph(Method):
             pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
             speed[weakest] = speed[rng.integers(0, p.particles, n_reseed)]
 
-        j, a = _locate(nodes, pos)  # eq. 8: d linearly interpolated between the nodes around
-        t = likelihood.t((1.0 - a) * row[j] + a * row[j + 1])
+        j, a = _locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
         omega = (1.0 - a) * self._omega[j] + a * self._omega[j + 1]
-        log_w = np.where(kept, np.log(max(prior.track, TINY)) + log_w + likelihood.log_ratio(t, omega),
+        log_w = np.where(kept, np.log(max(prior.track, TINY)) + log_w + likelihood.at(j, a, omega),
                          np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1)))
         log_map = float(logsumexp(log_w))  # the map's total mass against the unexplained hypothesis
         unexplained.update(log_map, prior.unexplained)
@@ -268,7 +276,7 @@ class CatGraph(Method):
         mode = int(tied[np.argmax(self._own[tied])])
         p_new = unexplained.new_place
         unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
-        likelihood.learn(w * omega, t, 1.0 - unexplained.u)
+        likelihood.learn(w * omega, 1.0 - unexplained.u)
 
         if 1.0 / np.sum(w * w) < p.resample_ess * p.particles:
             idx = _systematic(w, rng)
@@ -324,7 +332,7 @@ class CatGraph(Method):
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
         self._odometer = float(state["odometer"])
         self._odometry = bool(state["odometry"])
-        self._likelihood = RankLikelihood(p.a0, p.n0, p.a_min)
+        self._likelihood = self._observation_model()
         self._likelihood.load(state["likelihood"])
         self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
                                         p.stretch_open, p.stretch_close)

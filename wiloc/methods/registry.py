@@ -7,6 +7,7 @@ from typing import Any
 from wiloc.errors import ParameterError
 from wiloc.methods.base import Method
 from wiloc.methods.catgraph import CatGraph
+from wiloc.methods.fabmap import FabMapMethod
 from wiloc.methods.online import Online
 from wiloc.methods.threshold import Threshold
 from wiloc.methods.trained import Trained
@@ -16,6 +17,7 @@ METHODS: dict[str, type[Method]] = {
     "threshold": Threshold,
     "trained": Trained,
     "catgraph": CatGraph,
+    "fabmap": FabMapMethod,
 }
 
 

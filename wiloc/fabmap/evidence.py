@@ -1,0 +1,72 @@
+"""FAB-MAP as an observation model: each query frame's row of evidence over the map's places.
+
+For a frame's word presence Z the row holds, per candidate place j, the log-likelihood ratio
+r_j = log p(Z | L_j) - log p(Z | new place): how much better place j explains the frame than an
+unseen place does (the denominator is FAB-MAP's new-place likelihood, from sampled training
+images). Methods that take such rows (``rows`` holding ``"log_ratio"``: the single-frame
+``fabmap`` method, and CAT-Graph, whose particles are then weighted by FAB-MAP's likelihood: the
+local-feature CAT-Graph of the paper's Table I) read them as they read difference rows, with
+-inf where a frame is no candidate. The Chow-Liu tree and the new-place samples are learned from
+the vocabulary's training images, a traversal other than the tested pair.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.candidates import check_exclude_recent
+from wiloc.descriptors.bow import load_vocabulary
+from wiloc.descriptors.registry import DescriptorSpec
+from wiloc.fabmap.chow_liu import ChowLiuTree
+from wiloc.fabmap.model import FabMap
+from wiloc.fabmap.params import FabMapParams
+from wiloc.vocabulary import Vocabulary, unpack_words
+
+
+class FabMapEvidence:
+    """FAB-MAP 1.0 over one vocabulary: places added from packed word-presence rows (the ``bow``
+    descriptor), evidence rows for query frames."""
+
+    def __init__(self, vocabulary: Vocabulary, params: FabMapParams | None = None) -> None:
+        self.vocabulary = vocabulary
+        occurrences = vocabulary.training_occurrences
+        self.model = FabMap(ChowLiuTree.fit(occurrences), params, training=occurrences)
+
+    @classmethod
+    def of(cls, spec: DescriptorSpec, params: FabMapParams | None = None) -> FabMapEvidence:
+        """The model of a ``bow`` descriptor's vocabulary."""
+        return cls(load_vocabulary(spec.params["file"], spec.params["vocabulary"]), params)
+
+    def words(self, packed: NDArray[np.uint8]) -> NDArray[np.bool_]:
+        """Word presence ``(..., K)`` of packed ``bow`` rows."""
+        return unpack_words(np.asarray(packed, dtype=np.uint8), self.vocabulary.n_words)
+
+    def add_places(self, packed: NDArray[np.uint8]) -> None:
+        """One map place per packed row, in order (each seen once)."""
+        for z in np.atleast_2d(self.words(packed)):
+            self.model.add_place(z)
+
+    def row(self, packed: NDArray[np.uint8]) -> NDArray[np.float64]:
+        """r_j = log p(Z | L_j) - log p(Z | new place) over the places so far."""
+        rows, new = self.model.frame_log_likelihoods(self.words(packed))
+        return rows - new
+
+
+def evidence_rows(evidence: FabMapEvidence, query: NDArray[np.uint8], sequence: bool,
+                  exclude_recent: int) -> Iterator[NDArray[np.float64]]:
+    """The query's evidence rows, one per frame. Map mode: over the places already added (the
+    map). Sequence mode: over the earlier frames, each added as a place once decided; frames
+    i >= k - R are no candidates (-inf)."""
+    R = check_exclude_recent(exclude_recent)
+    for k, packed in enumerate(query):
+        if not sequence:
+            yield evidence.row(packed)
+            continue
+        row = np.full(k, -np.inf)
+        far = max(0, k - R)
+        if far:
+            row[:far] = evidence.row(packed)[:far]
+        yield row
+        evidence.add_places(packed)
