@@ -78,6 +78,7 @@ def test_bow_methods_read_fabmap_evidence_and_stream_as_they_batch(setup, method
     run = api.localize(query, reference=route.reference, descriptor="bow", descriptor_params=bow, method=method,
                        out=tmp_path / "batch.csv", cache=cache)
     assert run.results.meta["rows"] == "fabmap" and "new_place" in run.results.frames.columns
+    assert run.results.meta["fabmap_training"] == [str(route.training.resolve())]
     evaluation = api.evaluate(run, TruthSource(tolerance=2))
     assert evaluation.summary.as_dict()["recall_at_1"] >= least  # chance: 5 / 60
     loc = Localizer(route.reference, descriptor="bow", descriptor_params=bow, method=method, cache=cache)

@@ -189,8 +189,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     meta = _run_meta(method, describer, query, q.metric, reference, R, training)
     if videos:
         meta["sampling"] = asdict(sampling or Sampling())
-    if kind == "log_ratio":
-        meta["rows"] = "fabmap"
+    if kind == "log_ratio":  # FAB-MAP's training data: the vocabulary's images
+        meta.update(rows="fabmap", fabmap_training=evidence.training_folders)
     results = make_results(decisions, query_names=q.names, ref_names=r.names, meta=meta)
     replaced = write_results(Path(out), results) if out is not None else False
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,

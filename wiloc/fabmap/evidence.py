@@ -12,6 +12,7 @@ the vocabulary's training images, a traversal other than the tested pair.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,6 +39,11 @@ class FabMapEvidence:
     def of(cls, spec: DescriptorSpec, params: FabMapParams | None = None) -> FabMapEvidence:
         """The model of a ``bow`` descriptor's vocabulary."""
         return cls(load_vocabulary(spec.params["file"], spec.params["vocabulary"]), params)
+
+    @property
+    def training_folders(self) -> list[str]:
+        """The folders of the images the vocabulary, the tree and the new-place samples come from."""
+        return sorted({str(Path(frame).parent) for frame in self.vocabulary.training_frames})
 
     def words(self, packed: NDArray[np.uint8]) -> NDArray[np.bool_]:
         """Word presence ``(..., K)`` of packed ``bow`` rows."""
