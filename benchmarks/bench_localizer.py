@@ -98,7 +98,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", default="1000,10000,35000", help="map sizes, comma-separated")
     parser.add_argument("--frames", type=int, default=200, help="query frames timed per method and size")
-    parser.add_argument("--methods", default=",".join(METHODS), help="methods, comma-separated")
+    parser.add_argument("--methods", default=",".join(m for m, cls in METHODS.items() if "differences" in cls.rows),
+                        help="methods, comma-separated (those reading difference rows)")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     table = Table(title="Localizer.observe: median ms per frame (wall / CPU); batch: ms per frame of one run")

@@ -80,16 +80,14 @@ def test_an_undecodable_frame_is_retried_then_left_out(route: demo.DemoRoute, tm
     assert now[0] >= SETTLE_SECONDS
 
 
-@pytest.mark.parametrize("method", ["online", "catgraph"])
-def test_a_filling_folder_gives_the_batch_rows_and_a_killed_follower_resumes(
-        route: demo.DemoRoute, method: str, tmp_path: Path, cache_dir: Path) -> None:
-    query = route.queries[2]  # the detour: a stretch the map never saw
-    batch = api.localize(query, reference=route.reference, method=method, out=tmp_path / "batch.csv")
+def _killed_and_resumed(query: Path, reference: Path, method: str, tmp_path: Path) -> None:
+    """Feed ``query`` into a folder, kill the follower halfway, resume: the batch rows."""
+    batch = api.localize(query, reference=reference, method=method, out=tmp_path / "batch.csv")
     live = tmp_path / "live"
     live.mkdir()
     out = tmp_path / "follow.csv"
     feeder = subprocess.Popen([sys.executable, "-c", FEEDER, str(query), str(live), "0.02"])
-    follower = _follower(live, route.reference, out, method, idle=60)
+    follower = _follower(live, reference, out, method, idle=60)
     n = len(batch.results.frames)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and (not out.exists() or len(_rows(out)) < n // 2):
@@ -99,13 +97,27 @@ def test_a_filling_folder_gives_the_batch_rows_and_a_killed_follower_resumes(
     halfway = len(_rows(out))
     assert 0 < halfway < n
     feeder.wait(timeout=120)
-    resumed = _follower(live, route.reference, out, method, idle=2)
+    resumed = _follower(live, reference, out, method, idle=2)
     stdout, stderr = resumed.communicate(timeout=300)
     assert resumed.returncode == 0, stderr
     assert len(stdout.splitlines()) == n - halfway  # one plain line per frame decided after the resume
     expected, got = _rows(batch.path), _rows(out)
     assert got.columns.tolist() == expected.columns.tolist()
     pd.testing.assert_frame_equal(got, expected)
+
+
+@pytest.mark.parametrize("method", ["online", "catgraph"])
+def test_a_filling_folder_gives_the_batch_rows_and_a_killed_follower_resumes(
+        route: demo.DemoRoute, method: str, tmp_path: Path, cache_dir: Path) -> None:
+    _killed_and_resumed(route.queries[2], route.reference, method, tmp_path)  # the detour: a stretch off the map
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("method", ["online", "catgraph"])
+def test_gardens_point_follower_killed_halfway_resumes_identically(data_root: Path, method: str, tmp_path: Path,
+                                                                   cache_dir: Path) -> None:
+    gp = data_root / "gardens-point-walking"
+    _killed_and_resumed(gp / "day_left", gp / "day_right", method, tmp_path)
 
 
 def test_follow_refuses_what_it_cannot_follow(route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
