@@ -221,8 +221,8 @@ _KILLED_BUILD = textwrap.dedent("""
 
 
 @pytest.mark.parametrize("stage", ["features", "clustering", "writing"])
-def test_a_killed_build_leaves_no_complete_file_and_the_rerun_works(
-        tmp_path: Path, cache_dir: Path, stage: str) -> None:
+def test_a_killed_build_leaves_no_complete_file_and_the_rerun_resumes(
+        tmp_path: Path, cache_dir: Path, stage: str, monkeypatch: pytest.MonkeyPatch) -> None:
     folder = _folder(tmp_path / "train", range(6))
     marker = tmp_path / "marker"
     proc = subprocess.Popen([sys.executable, "-c", _KILLED_BUILD, str(folder), str(marker), stage],
@@ -238,7 +238,14 @@ def test_a_killed_build_leaves_no_complete_file_and_the_rerun_works(
     assert not [p for p in folder_files if p.suffix == ".h5"]  # no file that looks complete
     if stage == "writing":
         assert [p for p in folder_files if p.name.endswith(".wiloc-tmp")]  # the half-written one
+    import wiloc.vocabulary_build as build
+    extracted = []
+    real = build._features
+    monkeypatch.setattr(build, "_features", lambda *args: extracted.append(args[0]) or real(*args))
     rerun = build_vocabulary([folder], Cache(cache_dir), SMALL)
+    # the journal kept every frame finished before the kill: only the others are extracted again
+    assert len(extracted) == (4 if stage == "features" else 0)
+    assert not list((cache_dir / "vocabularies").glob("*.journal"))
     assert rerun.built and read_vocabulary(rerun.path).key == rerun.vocabulary.key
     assert not list((cache_dir / "vocabularies").glob("*.wiloc-tmp"))  # swept on the rerun
     fresh = build_vocabulary([folder], Cache(tmp_path / "fresh"), SMALL)

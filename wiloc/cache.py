@@ -187,7 +187,7 @@ class Journal:
     def __init__(self, path: Path, header: EntryHeader) -> None:
         self.path = path
         self._dtype = np.dtype(header.dtype)
-        found, _, valid = _scan_journal(path)
+        found, _, valid = scan_journal(path)
         if found != header:
             valid = 0
         with open(path, "ab") as f:
@@ -215,7 +215,7 @@ class Journal:
         self._file.close()
 
 
-def _scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], int]:
+def scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], int]:
     """A journal's header, its valid frame records and the byte length they span; reading stops
     at the first torn or corrupt record (a kill mid-write), which the next writer truncates."""
     try:
@@ -355,7 +355,7 @@ class Cache:
                 stored = _read_h5(path)
             except (OSError, KeyError, ValueError, TypeError) as exc:
                 raise WilocError(path, f"unreadable cache entry ({exc}); delete it to rebuild") from exc
-        header, records, _ = _scan_journal(self.journal_path(key))
+        header, records, _ = scan_journal(self.journal_path(key))
         if header is None:
             return stored
         if stored is None or stored.header != header:

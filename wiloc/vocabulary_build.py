@@ -8,7 +8,10 @@ same vocabulary, a changed image a new one.
 A build holds the cache lock on its file from start to end, so two processes never build the
 same vocabulary twice at once, and writes the file in one atomic step at the end: a killed
 build leaves no file that looks complete (at most a temporary file, which the next write
-removes once its process is gone), and the next run starts the build again from scratch.
+removes once its process is gone). Each training frame's local features are journaled as they
+are extracted (``<key>.features.journal``, the descriptor cache's crash-safe journal), so a
+killed build resumes with the frames it had not reached; the journal goes once the vocabulary
+is written.
 """
 from __future__ import annotations
 
@@ -20,10 +23,10 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from wiloc.cache import Cache
+from wiloc.cache import Cache, EntryHeader, FrameRecord, Journal, scan_journal
 from wiloc.errors import FrameError, WilocError
-from wiloc.features import decode_size, extract_features
-from wiloc.frames import fingerprint, list_traversal, read_gray
+from wiloc.features import DTYPES, WIDTHS, decode_size, extract_features
+from wiloc.frames import Fingerprint, fingerprint, list_traversal, read_gray
 from wiloc.vocabulary import (
     FORMAT_VERSION,
     Vocabulary,
@@ -66,6 +69,16 @@ def vocabulary_path(cache: Cache, key: str) -> Path:
     return cache.root / vocabulary_name(key)
 
 
+def _features(frame: Path, print_: Fingerprint, params: VocabularyParams) -> FrameRecord:
+    """One training frame's local features (flattened), or why it could not be read."""
+    try:
+        gray = read_gray(frame, decode_size(params.max_side))
+    except FrameError as exc:
+        return FrameRecord(str(frame.resolve()), print_.size, print_.mtime_ns, print_.digest, None, exc.problem)
+    found = extract_features(gray, params.feature, params.max_features, params.max_side)
+    return FrameRecord(str(frame.resolve()), print_.size, print_.mtime_ns, print_.digest, found.ravel())
+
+
 def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyParams | None = None,
                      progress: Progress | None = None) -> VocabularyReport:
     """The vocabulary of the images in `folders` (each a traversal folder), from the cache when
@@ -96,17 +109,27 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
                 return VocabularyReport(vocabulary, path, False, 0, [],
                                         time.perf_counter() - start)
         names, features, failed = [], [], []
-        for done, frame in enumerate(frames, 1):
-            try:
-                gray = read_gray(frame, decode_size(params.max_side))
-            except FrameError as exc:
-                failed.append((str(frame), exc.problem))
-            else:
-                names.append(str(frame.resolve()))
-                features.append(extract_features(gray, params.feature, params.max_features,
-                                                 params.max_side))
-            if progress is not None:
-                progress(done, total)
+        journal_path = path.with_name(f"{key}.features.journal")
+        header = EntryHeader.create(f"vocabulary:{key}", "local-features", params.as_dict(), "none", 1.0, None,
+                                    DTYPES[params.feature], WIDTHS[params.feature])
+        found, records, _ = scan_journal(journal_path)
+        journaled = {r.name: r for r in records} if found == header else {}
+        journal = Journal(journal_path, header)
+        try:
+            for done, frame in enumerate(frames, 1):
+                record = journaled.get(str(frame.resolve()))
+                if record is None or record.digest != prints[frame].digest:
+                    record = _features(frame, prints[frame], params)
+                    journal.append(record)
+                if record.row is None:
+                    failed.append((str(frame), record.reason))
+                else:
+                    names.append(record.name)
+                    features.append(record.row.reshape(-1, WIDTHS[params.feature]))
+                if progress is not None:
+                    progress(done, total)
+        finally:
+            journal.close()
         if not names:
             raise WilocError(folders[0], "no readable training image")
         step = None if progress is None else (lambda i: progress(len(frames) + i, total))
@@ -119,6 +142,7 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
                 "failed": json.dumps(failed), "features": count, "build_seconds": seconds,
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             })
+        journal_path.unlink(missing_ok=True)
     if progress is not None:
         progress(total, total)
     return VocabularyReport(vocabulary, path, True, count, failed, time.perf_counter() - start)
