@@ -23,8 +23,6 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import sparse
-from scipy.cluster.vq import kmeans2
 
 #: Features per block of the assignment, so a block's distance matrix stays a few tens of MB.
 BLOCK = 8192
@@ -74,6 +72,8 @@ def kmeans(features: NDArray[np.float32], k: int, iterations: int, seed: int,
            step: Step | None = None) -> NDArray[np.float32]:
     """``k`` centres of float features by Lloyd's k-means, at most ``iterations`` rounds.
     ``step(i)`` is called after round i (1-based)."""
+    from scipy.cluster.vq import kmeans2  # scipy loads in 0.3-0.5 s: only when a vocabulary is built
+
     data = np.ascontiguousarray(features, dtype=np.float32)
     centres = _initial(data, k, seed)
     labels = None
@@ -94,6 +94,8 @@ def kmajority(features: NDArray[np.uint8], k: int, iterations: int, seed: int,
               step: Step | None = None) -> NDArray[np.uint8]:
     """``k`` packed-bit centres of packed-bit features by k-majority, at most ``iterations``
     rounds. ``step(i)`` is called after round i (1-based)."""
+    from scipy import sparse
+
     data = np.ascontiguousarray(features, dtype=np.uint8)
     centres = _initial(data, k, seed)
     bits = np.unpackbits(data, axis=1).astype(np.float32)

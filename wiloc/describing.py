@@ -9,13 +9,11 @@ out, never invented.
 from __future__ import annotations
 
 import os
-import signal
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from functools import partial
-from multiprocessing import get_context
 from pathlib import Path
 
 import cv2
@@ -35,6 +33,7 @@ from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
 from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, read_gray
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
+from wiloc.workers import WorkerError, WorkerPool
 
 Progress = Callable[[int, int], None]
 #: Frames per round trip to a worker: enough that the round trip costs little even for the
@@ -275,14 +274,15 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterato
             for task in tasks:
                 yield _describe_one(spec, task)
         return
-    # forkserver: workers never fork a parent that may run threads (a progress display). The
-    # server imports this module once (about 1 s, most of it pandas and scipy); each worker then
-    # starts from it in milliseconds instead of importing again.
-    context = get_context("forkserver")
-    context.set_forkserver_preload([__name__])
-    pool = context.Pool(min(jobs, len(tasks)), initializer=_init_worker)
+    # Fresh interpreters that import the installed wiloc and never the caller's main module
+    # (wiloc.workers says why not multiprocessing's start methods).
+    pool = WorkerPool(min(jobs, len(tasks)), initializer=_init_worker)
     try:
         yield from pool.imap_unordered(partial(_describe_one, spec), tasks, chunksize=CHUNK)
+    except WorkerError as exc:
+        pool.terminate()
+        names = ", ".join(path.name for path, _ in exc.items)
+        raise WilocError(tasks[0][0].parent, f"{exc.problem} while describing {names}") from None
     except BaseException:
         pool.terminate()  # an interrupted run keeps what was journaled; in-flight work is lost
         raise
@@ -291,10 +291,9 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterato
 
 
 def _init_worker() -> None:
-    """Workers leave Ctrl-C to the parent, which stops them and keeps what was journaled, and
-    keep OpenCV's and libjpeg's warnings to themselves: wiloc reports bad frames itself."""
+    """Workers keep OpenCV's and libjpeg's warnings to themselves: wiloc reports bad frames itself.
+    (They leave Ctrl-C to the parent, which stops them and keeps what was journaled.)"""
     global _devnull
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
     _devnull = os.open(os.devnull, os.O_WRONLY)
 

@@ -17,9 +17,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import h5py
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from wiloc.descriptors.registry import METRICS
@@ -39,6 +37,8 @@ def read_names(path: Path) -> list[str]:
 
     Blank lines are skipped; a first entry ``name``, ``frame`` or ``file`` is taken as a header.
     """
+    import pandas as pd  # pandas and h5py load in 0.2-0.5 s: only when a matrix is imported
+
     try:
         if path.suffix.lower() == ".csv":
             table = pd.read_csv(path, header=None, dtype=str, keep_default_na=False, usecols=[0])
@@ -63,6 +63,8 @@ def _read_npy(path: Path) -> NDArray:
 
 
 def _read_h5(path: Path) -> tuple[NDArray, list[str] | None]:
+    import h5py
+
     try:
         with h5py.File(path, "r") as handle:
             if "descriptors" not in handle or not isinstance(handle["descriptors"], h5py.Dataset):
@@ -78,6 +80,8 @@ def _read_h5(path: Path) -> tuple[NDArray, list[str] | None]:
 
 
 def _read_csv(path: Path) -> tuple[NDArray, list[str]]:
+    import pandas as pd
+
     try:
         table = pd.read_csv(path, header=None, dtype=str, keep_default_na=False)
     except (OSError, ValueError, pd.errors.ParserError) as exc:

@@ -16,7 +16,6 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
-import scipy.fft
 from numpy.typing import NDArray
 
 IMAGE_SIZE = 256
@@ -101,6 +100,8 @@ def _readonly(array: NDArray) -> NDArray:
 
 def _lowpass(image: NDArray[np.float32], lowpass: NDArray[np.float32]) -> NDArray[np.float32]:
     """Circular convolution with a real, even transfer function (``real(ifft2(fft2(x) .* gf))``)."""
+    import scipy.fft  # here, not at import: worker processes start without scipy (0.3 s) for other descriptors
+
     return scipy.fft.irfft2(scipy.fft.rfft2(image) * lowpass, s=image.shape)
 
 
