@@ -10,11 +10,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from wiloc.groundtruth import Truth
+if TYPE_CHECKING:
+    from wiloc.groundtruth import Truth
 
 PRECISION_LEVELS = (1.0, 0.99, 0.90)
 """The precisions at which recall is reported (the paper's Table I)."""

@@ -23,8 +23,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import uniform_filter1d
-from scipy.special import logsumexp
 
 from wiloc.calibration import GivenEvidence, RankLikelihood, Unexplained, novelty_weights
 from wiloc.errors import ParameterError, WilocError
@@ -67,6 +65,8 @@ def contrast_normalise(row: NDArray[np.float64], half_window: int) -> NDArray[np
     (SeqSLAM's local contrast enhancement, on one row: causal). A flat stretch (std within
     rounding of 0) gives 0.
     """
+    from scipy.ndimage import uniform_filter1d  # scipy loads on first use, not with the command line
+
     size = 2 * half_window + 1
     mean = uniform_filter1d(row, size, mode="nearest")
     sd = np.sqrt(np.maximum(uniform_filter1d(row * row, size, mode="nearest") - mean * mean, 0.0))
@@ -226,6 +226,8 @@ class CatGraph(Method):
         return float(np.hypot(self.params.step_noise, self.params.noise_floor))
 
     def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+        from scipy.special import logsumexp  # scipy loads on first use, not with the command line
+
         p, rng, nodes = self.params, self._rng, self._nodes
         n_nodes, first = nodes.size, self.frames == 0
         if row.shape != (n_nodes,) or not np.all(np.isfinite(row)):

@@ -10,10 +10,9 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-import scipy.sparse
 from numpy.typing import NDArray
 
 from wiloc.candidates import finite_minimum
@@ -21,6 +20,9 @@ from wiloc.errors import WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters, param
+
+if TYPE_CHECKING:
+    import scipy.sparse
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,8 @@ class TrainedParams(Parameters):
 def _label_row(labels: NDArray[np.bool_] | scipy.sparse.sparray | scipy.sparse.spmatrix,
                k: int) -> NDArray[np.bool_]:
     """Row k of the truth matrix as a dense boolean array."""
+    import scipy.sparse  # scipy loads on first use, not with the command line
+
     if scipy.sparse.issparse(labels):
         return np.asarray(labels[[k], :].toarray(), dtype=bool).ravel()
     return np.asarray(labels[k], dtype=bool)
@@ -52,6 +56,8 @@ def train_model(rows: Iterable[NDArray[np.float64]],
     ``labels`` (n_train_query x n_candidates, dense bool or scipy.sparse) marks true matches.
     The bin range spans [min(0, lowest), highest] of the training values used.
     """
+    import scipy.sparse
+
     if scipy.sparse.issparse(labels):
         labels = scipy.sparse.csr_array(labels)
     shape = labels.shape
