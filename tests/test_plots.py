@@ -1,4 +1,5 @@
-"""Figures are written as non-empty PNG files of the expected layout."""
+"""Figures are written as non-empty PNG files of the expected layout; a suffix that is no figure
+format is refused before drawing."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,8 +11,10 @@ import pytest
 
 from wiloc.metrics import pr_curve, precision_at_thresholds
 from wiloc.model import HistogramModel
-from wiloc.plots import plot_model, plot_pr, plot_reliability, plot_threshold
+from wiloc.errors import WilocError
+from wiloc.plots import check_plot_path, plot_matrix, plot_model, plot_pairs, plot_pr, plot_reliability, plot_threshold
 from wiloc.reliability import reliability_bins
+from wiloc.run_figures import ImagePair, MatrixPicture
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -41,13 +44,23 @@ def test_plot_pr_writes_png(tmp_path: Path, run: tuple[np.ndarray, np.ndarray]) 
     read_png(out)
 
 
-def test_plot_model_writes_two_panels(tmp_path: Path) -> None:
+def _colour_columns(image: np.ndarray, colour: str) -> np.ndarray:
+    """Columns of the plot area (the upper 70 % of ``image``, above the legend) near ``colour``."""
+    plot_area = image[: int(0.7 * image.shape[0]), :, :3]
+    near = np.all(np.abs(plot_area - matplotlib.colors.to_rgb(colour)) < 0.06, axis=-1)
+    return np.flatnonzero(near.any(axis=0))
+
+
+def test_plot_model_overlays_both_histograms_on_one_axis(tmp_path: Path) -> None:
     rng = np.random.default_rng(1)
     model = HistogramModel.from_range(0.0, 1.0, bins=100)
     model.add_same(rng.normal(0.3, 0.08, 500))
     model.add_different(rng.normal(0.6, 0.1, 2000))
     image = read_png(plot_model(model, tmp_path / "model.png", title="SAD, day_right"))
-    assert image.shape[1] > image.shape[0]  # two panels side by side
+    red, blue = _colour_columns(image, "tab:red"), _colour_columns(image, "tab:blue")
+    # one axis: the two outlines share the horizontal range of one plot, the same-place one left
+    assert np.median(red) < np.median(blue)
+    assert red.min() < blue.min() < red.max() < blue.max()
 
 
 def test_plot_threshold_writes_png(tmp_path: Path, run: tuple[np.ndarray, np.ndarray]) -> None:
@@ -58,8 +71,8 @@ def test_plot_threshold_writes_png(tmp_path: Path, run: tuple[np.ndarray, np.nda
     read_png(plot_threshold(series, tmp_path / "fig5.png"))
 
 
-def test_plot_reliability_writes_png_with_legend_beside_the_axes(tmp_path: Path,
-                                                                run: tuple[np.ndarray, np.ndarray]) -> None:
+def test_plot_reliability_writes_png_with_legend_below_the_axes(tmp_path: Path,
+                                                               run: tuple[np.ndarray, np.ndarray]) -> None:
     confidence, correct = run
     series = {"online day_left": reliability_bins(confidence, correct),
               "threshold day_left": reliability_bins(np.full(10, 0.5), np.ones(10, dtype=bool))}
@@ -67,5 +80,46 @@ def test_plot_reliability_writes_png_with_legend_beside_the_axes(tmp_path: Path,
     height, width = image.shape[:2]
     for colour in ("#1f77b4", "#ff7f0e"):  # matplotlib's C0 and C1, one per run
         near = np.all(np.abs(image - matplotlib.colors.to_rgb(colour)) < 0.06, axis=-1)
-        assert near[:, : int(0.75 * width)].any()  # drawn in the data
-        assert near[: height // 4, int(0.76 * width):].any()  # and in the legend, right of the axes
+        assert near[: int(0.6 * height)].any()  # drawn in the data
+        assert near[int(0.85 * height):].any()  # and in the legend, below the axes
+
+
+def test_an_unknown_figure_suffix_is_refused_naming_the_file(tmp_path: Path) -> None:
+    with pytest.raises(WilocError, match=r"pr\.pgn: '\.pgn' is not a figure format.*\.png"):
+        check_plot_path(tmp_path / "pr.pgn")
+    with pytest.raises(WilocError, match="no suffix"):
+        plot_pr({}, tmp_path / "pr")
+    check_plot_path(tmp_path / "pr.PDF")  # any case
+
+
+def test_plot_threshold_marks_table_ii_thresholds(tmp_path: Path) -> None:
+    grid = np.linspace(0, 1, 11)
+    nothing = {"online day": (grid, np.full(11, np.nan))}  # no line of its own: only the mark is C0
+    image = read_png(plot_threshold(nothing, tmp_path / "fig5.png", marks={"online": [(100.0, 0.5), (99.0, 0.5)]}))
+    plot_area = image[: int(0.6 * image.shape[0]), :, :3]
+    near = np.all(np.abs(plot_area - matplotlib.colors.to_rgb("#1f77b4")) < 0.08, axis=-1)
+    columns = np.flatnonzero(near.sum(axis=0) > 0.1 * plot_area.shape[0])  # a vertical (dotted) line
+    assert columns.size and np.ptp(columns) < 5  # one line for both targets sharing the threshold
+
+
+def test_plot_matrix_draws_right_and_wrong_matches(tmp_path: Path) -> None:
+    n = 30
+    image = np.abs(np.subtract.outer(np.arange(n), np.arange(n))).astype(np.float64)
+    match = np.arange(n)
+    match[20:] = 3  # wrong
+    picture = MatrixPicture(image=image, shape=(n, n), truth_rows=np.arange(n), truth_cols=np.arange(n),
+                            match=match, correct=match == np.arange(n), confidence=np.full(n, 0.9),
+                            query="q", reference="r", descriptor="sad")
+    drawn = read_png(plot_matrix(picture, tmp_path / "matrix.png"))[..., :3]
+    for colour in ("#2ca02c", "#d62728"):
+        assert np.all(np.abs(drawn - matplotlib.colors.to_rgb(colour)) < 0.08, axis=-1).any()
+    assert "20 x" not in repr(picture) and "30 x 30 frames" in repr(picture)
+
+
+def test_plot_pairs_shows_each_example(tmp_path: Path) -> None:
+    gray = np.tile(np.arange(64, dtype=np.uint8), (48, 1))
+    pairs = [ImagePair("q1.png", "r1.png", None, 0.99, True, gray, gray, None),
+             ImagePair("q2.png", "r9.png", "r2.png", 0.8, False, gray, gray[::-1], gray)]
+    image = read_png(plot_pairs(pairs, tmp_path / "pairs.png"))
+    assert image.shape[0] > image.shape[1] * 0.5  # one row per example
+    assert "wrong" in repr(pairs[1]) and "0.800" in repr(pairs[1])

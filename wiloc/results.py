@@ -29,7 +29,7 @@ from wiloc.model import HistogramModel
 
 FORMAT_VERSION = "1"
 BASE_COLUMNS = ("frame", "match", "difference", "confidence", "stage")
-JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames")
+JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "sampling")
 
 
 @dataclass

@@ -1,0 +1,171 @@
+"""What one localization run looked like, rebuilt from its results file for a figure: the
+difference matrix reduced to a picture with the decided matches and the ground truth, and example
+matched image pairs (the most confident right and wrong ones).
+
+The descriptors and differences come back through the cache from what the results header names
+(the query and map traversals, the descriptor and its parameters, a video's sampling), so
+nothing is recomputed that the run cached. A header whose traversals no longer give the frames
+the file lists is an error naming the file.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.errors import WilocError
+
+if TYPE_CHECKING:
+    from wiloc.api import Evaluation
+    from wiloc.cache import Cache, Entry
+
+#: The most pixels a side of the matrix picture gets; larger matrices are min-pooled to it.
+MAX_SIDE = 800
+
+
+@dataclass(frozen=True, repr=False)
+class MatrixPicture:
+    """A run's difference matrix for display: ``image`` holds the smallest difference of each block
+    of (query, reference) cells (inf where no cell is a candidate), ``shape`` the full matrix's
+    size; the ground truth's true pairs and each query frame's match, correctness and confidence
+    are in full-matrix coordinates."""
+
+    image: NDArray[np.float64]
+    shape: tuple[int, int]
+    truth_rows: NDArray[np.int64]
+    truth_cols: NDArray[np.int64]
+    match: NDArray[np.int64]
+    correct: NDArray[np.bool_]
+    confidence: NDArray[np.float64]
+    query: str
+    reference: str
+    descriptor: str
+
+    def __repr__(self) -> str:
+        return (f"MatrixPicture({self.query} x {self.reference}, {self.shape[0]} x {self.shape[1]} frames, "
+                f"image {self.image.shape[0]} x {self.image.shape[1]})")
+
+
+@dataclass(frozen=True, repr=False)
+class ImagePair:
+    """One decided match to show: the query image, the map image it matched and, for a wrong match
+    of a frame that has a true place, that place's image (the middle of its true frames)."""
+
+    query_name: str
+    match_name: str
+    truth_name: str | None
+    confidence: float
+    correct: bool
+    query_image: NDArray[np.uint8]
+    match_image: NDArray[np.uint8]
+    truth_image: NDArray[np.uint8] | None
+
+    def __repr__(self) -> str:
+        return (f"ImagePair({self.query_name} -> {self.match_name}, "
+                f"{'right' if self.correct else 'wrong'}, confidence {self.confidence:.3f})")
+
+
+def _traversals(evaluation: Evaluation) -> tuple[Path, Path, bool]:
+    """(query, reference, sequence mode) as the results header names them."""
+    meta = evaluation.results.meta
+    query = Path(str(meta.get("query", "")))
+    sequence = meta.get("mode") == "sequence"
+    return query, query if sequence else Path(str(meta.get("map", ""))), sequence
+
+
+def _entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]:
+    """The query's and the map's descriptors, through the cache, checked against the file's frames."""
+    from wiloc.traversals import Describer
+    from wiloc.video import Sampling
+
+    meta = evaluation.results.meta
+    label = str(meta.get("descriptor", "sad"))
+    external = label.startswith("external:")
+    sampling = meta.get("sampling")
+    describer = Describer("sad" if external else label, dict(meta.get("descriptor_params") or {}), cache,
+                          metric=label.split(":", 1)[1] if external else None,
+                          sampling=Sampling(**sampling) if isinstance(sampling, dict) else None)
+    query, reference, sequence = _traversals(evaluation)
+    q = describer.entry(query)
+    r = q if sequence else describer.entry(reference)
+    results = evaluation.results
+    if q.names != results.frames["frame"].tolist() or (results.reference_frames and r.names != results.reference_frames):
+        raise WilocError(evaluation.path, "its query and map no longer give the frames it lists (the folders "
+                                          "changed, or the run named its frames with --names); cannot draw it")
+    return q, r
+
+
+def _pooled(rows: NDArray[np.float64], factor: int) -> NDArray[np.float64]:
+    """The minimum of each run of ``factor`` columns (the last run may be shorter)."""
+    pad = (-rows.shape[-1]) % factor
+    padded = np.pad(rows, (0, pad), constant_values=np.inf) if pad else rows
+    return padded.reshape(-1, factor).min(axis=1)
+
+
+def matrix_picture(evaluation: Evaluation, cache: Cache, max_side: int = MAX_SIDE) -> MatrixPicture:
+    """The run's difference matrix, min-pooled to at most ``max_side`` pixels a side (memory:
+    one block of rows), with its matches and ground truth."""
+    from wiloc.candidates import mask_recent
+    from wiloc.differences import difference_matrix
+
+    q, r = _entries(evaluation, cache)
+    _, _, sequence = _traversals(evaluation)
+    exclude = int(evaluation.results.meta.get("exclude_recent", 0) or 0)
+    n_query, n_ref = len(q.names), len(r.names)
+    fy, fx = math.ceil(n_query / max_side), math.ceil(n_ref / max_side)
+    image = np.empty((math.ceil(n_query / fy), math.ceil(n_ref / fx)))
+    with difference_matrix(q, r, cache) as matrix:
+        for i, start in enumerate(range(0, n_query, fy)):
+            block = matrix.rows(start, min(start + fy, n_query)).astype(np.float64)
+            if sequence:
+                for k in range(block.shape[0]):
+                    mask_recent(block[k], start + k, exclude)
+            image[i] = _pooled(block.min(axis=0), fx)
+    coo = evaluation.truth.matrix.tocoo()
+    return MatrixPicture(image=image, shape=(n_query, n_ref), truth_rows=coo.row.astype(np.int64),
+                         truth_cols=coo.col.astype(np.int64), match=evaluation.results.match_index,
+                         correct=evaluation.correct, confidence=evaluation.confidence,
+                         query=Path(q.folder).name, reference=Path(r.folder).name,
+                         descriptor=str(evaluation.results.meta.get("descriptor", "")))
+
+
+def _read_rgb(path: Path) -> NDArray[np.uint8]:
+    import cv2
+
+    from wiloc.frames import read_gray
+
+    colour = cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_COLOR) if path.is_file() else None
+    if colour is None:
+        return read_gray(path)  # raises FrameError naming the file
+    return cv2.cvtColor(colour, cv2.COLOR_BGR2RGB)
+
+
+def example_pairs(evaluation: Evaluation, count: int = 3) -> list[ImagePair]:
+    """Up to ``count`` most confident right matches, then up to ``count`` most confident wrong
+    ones, with their images read from the folders the results header names."""
+    query, reference, _ = _traversals(evaluation)
+    for folder in dict.fromkeys((query, reference)):
+        if not folder.is_dir():
+            raise WilocError(evaluation.path, f"example images need the image folders the run named; {folder} "
+                                              "is not a folder")
+    results = evaluation.results
+    names, ref_names = results.frames["frame"].tolist(), results.reference_frames or results.frames["frame"].tolist()
+    match, confidence, correct = results.match_index, evaluation.confidence, evaluation.correct
+    decided = np.flatnonzero((match >= 0) & np.isfinite(confidence))
+    by_confidence = decided[np.argsort(-confidence[decided], kind="stable")]
+    chosen = [*[k for k in by_confidence if correct[k]][:count], *[k for k in by_confidence if not correct[k]][:count]]
+    truth = evaluation.truth.matrix
+    pairs = []
+    for k in chosen:
+        true = truth.indices[truth.indptr[k]:truth.indptr[k + 1]]
+        truth_name = ref_names[int(np.sort(true)[true.size // 2])] if not correct[k] and true.size else None
+        pairs.append(ImagePair(
+            query_name=names[k], match_name=ref_names[match[k]], truth_name=truth_name,
+            confidence=float(confidence[k]), correct=bool(correct[k]),
+            query_image=_read_rgb(query / names[k]), match_image=_read_rgb(reference / ref_names[match[k]]),
+            truth_image=_read_rgb(reference / truth_name) if truth_name else None))
+    return pairs
