@@ -23,7 +23,7 @@ from typing import Any
 from rich.console import Console
 
 from wiloc import api, plots
-from wiloc.cli import progress_bar, table1_view, table2_view
+from wiloc.cli_views import progress_bar, table1_view, table2_view
 from wiloc.errors import WilocError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -131,9 +131,9 @@ def render_markdown(summary: dict[str, Any]) -> str:
              "|---|---|---:|---:|---:|---:|---:|---:|"]
     for row in summary["table1"]:
         auc = "-" if row["auc"] is None else f"{row['auc']:.3f}"
-        lines.append(f"| {row['method']} | {row['traversal']} | {_percent(row['recall@100'])} | "
-                     f"{_percent(row['recall@99'])} | {_percent(row['recall@90'])} | {auc} | "
-                     f"{_percent(row['R@1'])} | {row['frames']} |")
+        lines.append(f"| {row['method']} | {row['traversal']} | {_percent(row['recall_at_100'])} | "
+                     f"{_percent(row['recall_at_99'])} | {_percent(row['recall_at_90'])} | {auc} | "
+                     f"{_percent(row['recall_at_1'])} | {row['frames']} |")
     lines += ["", "| method | precision | global threshold | traversal | recall | worst |",
               "|---|---:|---:|---|---:|:---:|"]
     for row in summary["table2"]:

@@ -59,7 +59,7 @@ def _json(result) -> object:
 def test_evaluate_reports_calibration_at_the_given_cuts(tmp_path: Path) -> None:
     path = _gardens(tmp_path)
     (row,) = _json(runner.invoke(app, ["evaluate", str(path), "--gt", "aligned", "--cuts", "0.6,0.7,0.95",
-                                       "--json"]))
+                                       "--json"]))["runs"]
     assert row["decided"] == 10 and row["with_true_match"] == 10
     # bins: 0.6 (4 frames, none right), 0.7 (the new place, wrong), 0.95 (5 frames, all right)
     assert row["ece"] == pytest.approx((4 * 0.6 + 0.7 + 5 * 0.05) / 10)
@@ -76,7 +76,7 @@ def test_evaluate_reports_calibration_at_the_given_cuts(tmp_path: Path) -> None:
 
 
 def test_evaluate_default_cuts_accept_nothing_above_every_confidence(tmp_path: Path) -> None:
-    (row,) = _json(runner.invoke(app, ["evaluate", str(_gardens(tmp_path)), "--json"]))
+    (row,) = _json(runner.invoke(app, ["evaluate", str(_gardens(tmp_path)), "--json"]))["runs"]
     assert [c["cut"] for c in row["cuts"]] == [0.5, 0.9, 0.99]
     assert row["cuts"][2]["accepted"] == 0 and row["cuts"][2]["precision"] is None  # NaN -> null
 

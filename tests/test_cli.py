@@ -72,7 +72,7 @@ def test_localize_evaluate_compare(route: tuple[Path, Path], tmp_path: Path) -> 
                                          "--out", str(runs / f"query-{method}.csv"), "--json"]))
         assert rows[0]["frames"] == 40 and rows[0]["decided"] == 40
     metrics = _json(runner.invoke(app, ["evaluate", str(runs / "query-online.csv"), "--gt", "aligned",
-                                        "--json"]))
+                                        "--json"]))["runs"]
     assert metrics[0]["frames"] == 40 and 0.0 <= metrics[0]["recall_at_100"] <= 1.0
     assert metrics[0]["recall_at_1"] > 0.8  # the scenes are distinct; nearest neighbours are right
     fig5 = tmp_path / "fig5.png"
@@ -255,7 +255,7 @@ def test_evaluate_positions_needs_a_radius(route: tuple[Path, Path], tmp_path: P
                                  "--gt-map", str(tmp_path / "r.csv")])
     assert result.exit_code == 1 and "radius" in result.stderr
     ok = _json(runner.invoke(app, ["evaluate", str(out), "--gt", f"positions:{tmp_path / 'q.csv'}",
-                                   "--gt-map", str(tmp_path / "r.csv"), "--radius", "1.5", "--json"]))
+                                   "--gt-map", str(tmp_path / "r.csv"), "--radius", "1.5", "--json"]))["runs"]
     assert ok[0]["with_true_match"] == 40
 
 
@@ -268,5 +268,19 @@ def test_matrix_ground_truth_picks_a_mat_variable(route: tuple[Path, Path], tmp_
     scipy.io.savemat(tmp_path / "gt.mat", {"truth": np.eye(40), "other": np.zeros((40, 40))})
     ambiguous = runner.invoke(app, ["evaluate", str(out), "--gt", f"matrix:{tmp_path / 'gt.mat'}"])
     assert ambiguous.exit_code == 1 and "truth" in ambiguous.stderr and "other" in ambiguous.stderr
-    picked = _json(runner.invoke(app, ["evaluate", str(out), "--gt", f"matrix:{tmp_path / 'gt.mat'}:truth", "--json"]))
+    picked = _json(runner.invoke(app, ["evaluate", str(out), "--gt", f"matrix:{tmp_path / 'gt.mat'}:truth",
+                                       "--json"]))["runs"]
     assert picked[0]["with_true_match"] == 40 and picked[0]["recall_at_1"] > 0.8
+
+
+def test_evaluate_draws_the_matrix_and_example_pairs_of_each_run(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    runs = [tmp_path / f"query-{method}.csv" for method in ("online", "threshold")]
+    for method, out in zip(("online", "threshold"), runs):
+        assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", method,
+                                   "--out", str(out)]).exit_code == 0
+    report = _json(runner.invoke(app, ["evaluate", *map(str, runs), "--matrix-plot", str(tmp_path / "m.png"),
+                                       "--pairs-plot", str(tmp_path / "p.png"), "--json"]))
+    names = sorted(Path(f).name for f in report["files"])
+    assert names == ["m-query-online.png", "m-query-threshold.png", "p-query-online.png", "p-query-threshold.png"]
+    assert all(Path(f).read_bytes()[:4] == b"\x89PNG" for f in report["files"])

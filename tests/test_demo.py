@@ -100,6 +100,6 @@ def test_demo_methods_differ_and_recall_is_not_trivial(demo_runs: tuple[Path, di
     _, report, _ = demo_runs
     table1 = pd.DataFrame(report["table1"])
     assert set(table1["method"]) == set(demo.METHODS)
-    assert table1["recall@100"].min() < 1.0
+    assert table1["recall_at_100"].min() < 1.0
     by_method = table1.groupby("method")["auc"].mean()
     assert by_method.nunique() == len(demo.METHODS)

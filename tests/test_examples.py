@@ -55,7 +55,7 @@ def test_example_covers_every_method_and_query(runs: dict[str, tuple[dict, str]]
     pairs = {(row["method"], row["traversal"]) for row in summary["table1"]}
     assert pairs == {(m, q) for m in METHODS for q in QUERIES[name]}
     for row in summary["table1"]:
-        assert 0.0 <= row["recall@100"] <= row["recall@99"] <= row["recall@90"] <= 1.0
+        assert 0.0 <= row["recall_at_100"] <= row["recall_at_99"] <= row["recall_at_90"] <= 1.0
     worst = [row for row in summary["table2"] if row["worst"]]
     assert len(worst) == 2 * len(METHODS)  # one per method and target precision (100, 99)
     assert f"trained: {summary['trained_on']}" in stdout

@@ -123,7 +123,7 @@ def test_the_command_line_builds_a_vocabulary_and_runs_fabmap(setup, tmp_path: P
     assert done.exit_code == 0, done.output
     assert len(_rows(out)) == FRAMES
     wrong = runner.invoke(app, ["localize", str(route.query), "--map", str(route.reference), "--vocabulary", key])
-    assert wrong.exit_code == 2 and "--vocabulary goes with --descriptor bow" in wrong.stderr
+    assert wrong.exit_code == 2 and "--vocabulary: applies to --descriptor bow only" in wrong.stderr
     missing = runner.invoke(app, ["localize", str(route.query), "--map", str(route.reference), "--descriptor",
                                   "bow", "--vocabulary", "nope", "--cache", str(cache.root)])
     assert missing.exit_code == 1 and "--vocabulary: 'nope' is neither a vocabulary file" in missing.stderr

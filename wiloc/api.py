@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field
-from pathlib import Path, PurePath
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,6 +25,7 @@ from wiloc.distances import consecutive
 from wiloc.errors import UsageError, WilocError
 from wiloc.groundtruth import Truth, TruthSource
 from wiloc.fabmap.evidence import FabMapEvidence, evidence_rows
+from wiloc.labels import short_names
 from wiloc.methods.base import Decisions, MapContext
 from wiloc.methods.registry import make_method
 from wiloc.metrics import (PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
@@ -367,16 +368,7 @@ class Comparison:
 def traversal_labels(evaluations: Sequence[Evaluation]) -> list[str]:
     """Each run's query traversal: its folder name, or as many trailing parts of its path as keep
     apart traversals of one name from different folders (say, two datasets' ``winter``)."""
-    paths = [PurePath(str(e.results.meta.get("query") or e.name)) for e in evaluations]
-    labels = [p.name for p in paths]
-    for depth in range(2, max((len(p.parts) for p in paths), default=0) + 1):
-        clashing = {label for label in labels
-                    if len({p for p, other in zip(paths, labels) if other == label}) > 1}
-        if not clashing:
-            break
-        labels = [str(PurePath(*p.parts[-depth:])) if label in clashing else label
-                  for p, label in zip(paths, labels)]
-    return labels
+    return short_names([str(e.results.meta.get("query") or e.name) for e in evaluations])
 
 
 def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
@@ -387,6 +379,10 @@ def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
     pairs = list(zip(bases, traversal_labels(evaluations)))
     repeated = {base for base, traversal in pairs if pairs.count((base, traversal)) > 1}
     return [f"{base} [{Path(e.name).stem}]" if base in repeated else base for base, e in zip(bases, evaluations)]
+
+
+#: Table I's metrics per (method, traversal), as Summary names them.
+TABLE1_KEYS = ("recall_at_100", "recall_at_99", "recall_at_90", "auc", "recall_at_1", "frames")
 
 
 def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
@@ -400,10 +396,7 @@ def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[flo
     rows = []
     for label, traversal, e in zip(labels, traversals, evaluations):
         s = e.summary.as_dict()
-        rows.append({"method": label, "traversal": traversal,
-                     "recall@100": s["recall_at_100"], "recall@99": s["recall_at_99"],
-                     "recall@90": s["recall_at_90"], "auc": s["auc"], "R@1": s["recall_at_1"],
-                     "frames": s["frames"]})
+        rows.append({"method": label, "traversal": traversal, **{key: s[key] for key in TABLE1_KEYS}})
     table1 = pd.DataFrame(rows)
     rows2 = []
     if global_thresholds:
@@ -429,6 +422,23 @@ def run_names(evaluations: Sequence[Evaluation]) -> list[str]:
     """One distinct "method traversal" name per run, as the tables label it (for plot legends)."""
     return [f"{label} {traversal}"
             for label, traversal in zip(method_labels(evaluations), traversal_labels(evaluations))]
+
+
+def run_subject(evaluations: Sequence[Evaluation], truth: TruthSource) -> str:
+    """What a figure of these runs shows, for its title: the dataset (the query folders' parent
+    folder), the descriptor and the ground truth with its tolerance, e.g.
+    ``gardens-point-walking, sad, aligned by name, +-2 frames``."""
+    datasets = dict.fromkeys(Path(str(e.results.meta.get("query", ""))).parent.name or "?" for e in evaluations)
+    descriptors = dict.fromkeys(str(e.results.meta.get("descriptor", "?")) for e in evaluations)
+    return f"{' + '.join(datasets)}, {' + '.join(descriptors)}, {truth.describe()}"
+
+
+def threshold_marks(comparison: Comparison) -> dict[str, list[tuple[float, float]]]:
+    """Table II's global threshold per method label: (target precision in %, threshold)."""
+    marks: dict[str, list[tuple[float, float]]] = {}
+    for (method, target), group in comparison.table2.groupby(["method", "precision"], sort=False):
+        marks.setdefault(str(method), []).append((float(target), float(group["threshold"].iloc[0])))
+    return marks
 
 
 def threshold_series(comparison: Comparison, points: int = 201) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -1,142 +1,50 @@
-"""The `wiloc` command line: parse options, call wiloc.api, render rich tables or JSON."""
+"""The `wiloc` command line: parse options, call wiloc.api, render rich tables or JSON.
+
+This module loads quickly (``wiloc --help`` answers without pandas, scipy, h5py or OpenCV): the
+commands import wiloc.api when they run. Shared machinery is in wiloc.cli_core (errors, parsing)
+and wiloc.cli_views (tables, JSON, progress).
+"""
 from __future__ import annotations
 
 import contextlib
-import functools
 import json
 import os
 import time
 from dataclasses import asdict
-import math
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
-from rich.console import Console
-from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
+
+from wiloc import __version__
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, note, out, refuse_unused
+from wiloc.cli_params import method_params, with_method_options
+from wiloc.cli_views import (cell, cut_views, json_ready, metrics_views, print_json, progress_bar, table,
+                             table1_view, table2_view)
+from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE, WilocError
+from wiloc.labels import short_names
+from wiloc.methods.registry import METHODS, method_class
+from wiloc.reliability import DEFAULT_CUTS
+
+if TYPE_CHECKING:
+    from wiloc import api
 
 # FFmpeg inside OpenCV reads its log level once, when cv2 is loaded: keep its lines about damaged
 # videos ("[mpeg4 @ 0x...] header damaged") off the terminal, since wiloc reports them itself.
 os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
 
-from wiloc import __version__, api  # loads cv2
-from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
-from wiloc.cli_params import flag, method_params, with_method_options
-from wiloc.errors import EXIT_INTERRUPTED, WilocError
-from wiloc.methods.registry import METHODS, method_class
-from wiloc.reliability import DEFAULT_CUTS
-
 app = typer.Typer(
-    add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
+    cls=CommandLine, add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
     help="Appearance-based localization with whole-image descriptors and a probability model "
          "learned online.\n\nExample: [bold]wiloc demo[/bold], then\n\n"
          "  wiloc localize data/day_left --map data/day_right --descriptor sad --method online")
-out = Console()
-err = Console(stderr=True)
 
 
-def _error(message: str) -> None:
-    """One unwrapped `error:` line on stderr."""
-    err.print(f"[bold red]error:[/bold red] {escape(message)}", highlight=False, soft_wrap=True)
-
-
-def _fail(message: str, code: int) -> None:
-    _error(message)
-    raise typer.Exit(code)
-
-
-def _note(kind: str, message: str) -> None:
-    """One unwrapped line on stderr about something left out or worth knowing."""
-    err.print(f"[yellow]{kind}[/yellow] {escape(message)}", highlight=False, soft_wrap=True)
-
-
-def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:
-    """One line and an exit code for input problems and Ctrl-C; never a traceback."""
-    @functools.wraps(func)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return func(*args, **kwargs)
-        except WilocError as exc:
-            _fail(f"{flag(exc.parameter)}: {exc.problem}" if exc.parameter else str(exc), exc.exit_code)
-        except OSError as exc:
-            _fail(f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc), 1)
-        except KeyboardInterrupt:
-            _fail("interrupted; finished work is kept in the cache, rerun to resume", EXIT_INTERRUPTED)
-    return wrapper
-
-
-@contextmanager
-def progress_bar(enabled: bool) -> Iterator[api.Progress | None]:
-    """A rich progress bar on stderr, one task per step label; None when disabled."""
-    if not enabled:
-        yield None
-        return
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-    with Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as bar:
-        tasks: dict[str, Any] = {}
-
-        def update(label: str, done: int, total: int) -> None:
-            if label not in tasks:
-                tasks[label] = bar.add_task(label, total=total)
-            bar.update(tasks[label], completed=done, total=total)
-        yield update
-
-
-def _json_ready(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    if hasattr(value, "item"):
-        return _json_ready(value.item())
-    return value
-
-
-def _print_json(data: Any) -> None:
-    out.print_json(json.dumps(_json_ready(data)))
-
-
-def _table(title: str, rows: list[dict[str, Any]], columns: list[str] | None = None,
-           labels: dict[str, str] | None = None) -> Table:
-    """A rich table of ``rows`` (dicts), ``columns`` in order, headed by ``labels`` where given."""
-    columns = columns or (list(rows[0]) if rows else [])
-    table = Table(title=title)
-    for column in columns:
-        table.add_column((labels or {}).get(column, column),
-                         justify="left" if not rows or isinstance(rows[0].get(column), str) else "right")
-    for row in rows:
-        table.add_row(*[_cell(row.get(c)) for c in columns])
-    return table
-
-
-def _cell(value: Any) -> str:
-    if isinstance(value, bool):
-        return "yes" if value else ""
-    if isinstance(value, float):
-        return "-" if not math.isfinite(value) else f"{value:.3f}"
-    return "" if value is None else str(value)
-
-
-def _descriptor_params(descriptor: str, crop: str, vocabulary: str | None = None,
-                       cache: Path | None = None) -> dict[str, str]:
-    """The descriptor parameters the command line sets: only `sad` takes --crop, only `bow`
-    (which needs it) --vocabulary."""
-    if (vocabulary is not None) != (descriptor == "bow"):
-        _fail("--vocabulary goes with --descriptor bow, and bow needs it", 2)
-    if descriptor == "bow":
-        from wiloc.cache import Cache
-        return {"file": str(api.vocabulary_file(vocabulary, Cache(cache)))}
-    return {"crop": crop} if descriptor == "sad" else {}
-
-
-VocabularyOption = Annotated[Optional[str], typer.Option(
-    help="bow: the vocabulary (its file, or its key in the cache) from `wiloc vocabulary`.")]
+def run(args: list[str] | None = None) -> int:
+    """Run the command line on ``args`` (default: the process's) and return its exit code."""
+    return typer.main.get_command(app).main(args, prog_name="wiloc", standalone_mode=False)
 
 
 def _version(value: bool) -> None:
@@ -151,20 +59,60 @@ def main(version: bool = typer.Option(False, "--version", callback=_version, is_
     """wiloc: have I been here before, where, and how sure am I?"""
 
 
+def _plot_file(value: Path | None) -> Path | None:
+    """A plot option's file, checked as the options are read, before any work: its suffix must
+    name a format the figures can be written in."""
+    if value is not None:
+        from wiloc.plots import check_plot_path
+        try:
+            check_plot_path(value)
+        except WilocError as exc:
+            raise typer.BadParameter(exc.problem) from None
+    return value
+
+
+def _descriptor_params(descriptor: str, crop: str, vocabulary: str | None, cache: Path | None) -> dict[str, str]:
+    """The descriptor parameters the command line sets: `sad` takes --crop, `bow` needs its
+    --vocabulary."""
+    if descriptor == "bow":
+        if vocabulary is None:
+            fail("--vocabulary: --descriptor bow needs one (a file, or a key from `wiloc vocabulary`)", EXIT_USAGE)
+        from wiloc import api
+        from wiloc.cache import Cache
+        return {"file": str(api.vocabulary_file(vocabulary, Cache(cache)))}
+    return {"crop": crop} if descriptor == "sad" else {}
+
+
+DescriptorOption = Annotated[str, typer.Option(
+    "--descriptor", "-d", help="sad | gist | brisk-gist | bow (with --vocabulary; fabmap and catgraph then read "
+                               "FAB-MAP's evidence)")]
+CropOption = Annotated[str, typer.Option(help="sad only: none | top-half")]
+VocabularyOption = Annotated[Optional[str], typer.Option(
+    help="bow: the vocabulary (its file, or its key in the cache) from `wiloc vocabulary`.")]
+CacheOption = Annotated[Optional[Path], typer.Option(envvar="WILOC_CACHE", show_default="the per-user cache folder",
+                                                     help="Cache folder.")]
+JobsOption = Annotated[Optional[int], typer.Option("--jobs", "-j", show_default="all cores",
+                                                   help="Worker processes for describing image folders.")]
+EveryOption = Annotated[int, typer.Option(help="Videos: every K-th frame of the cut.", rich_help_panel="video files")]
+FpsOption = Annotated[Optional[float], typer.Option(
+    show_default="every frame, as --every", rich_help_panel="video files",
+    help="Videos: about F frames per second (by timestamp), instead of --every.")]
+StartOption = Annotated[str, typer.Option(help="Videos: first frame, an index (120) or seconds (12.5s).",
+                                          rich_help_panel="video files")]
+StopOption = Annotated[Optional[str], typer.Option(help="Videos: end of the cut (excluded), an index or seconds.",
+                                                   show_default="the end", rich_help_panel="video files")]
+SAMPLING = ("every", "fps", "start", "stop")
+
+
 # ------------------------------------------------------------------------------------------ describe
 
-EveryOption = Annotated[int, typer.Option(help="Videos: every K-th frame of the cut.", rich_help_panel="video files")]
-FpsOption = Annotated[Optional[float], typer.Option(help="Videos: about F frames per second (by timestamp), instead of --every.", rich_help_panel="video files")]
-StartOption = Annotated[str, typer.Option(help="Videos: first frame, an index (120) or seconds (12.5s).", rich_help_panel="video files")]
-StopOption = Annotated[Optional[str], typer.Option(help="Videos: end of the cut (excluded), an index or seconds; default: the end.", rich_help_panel="video files")]
-
-
-@app.command()
+@app.command(cls=Command)
 @handles_errors
 def describe(
-    folders: list[Path] = typer.Argument(None, help="Image folders or video files (one traversal each)."),
-    descriptor: str = typer.Option("sad", "--descriptor", "-d", help="sad | gist | brisk-gist | bow"),
-    crop: str = typer.Option("none", help="sad only: none | top-half"),
+    folders: list[Path] = typer.Argument(None, metavar="FOLDER...", show_default=False,
+                                         help="Image folders or video files (one traversal each)."),
+    descriptor: DescriptorOption = "sad",
+    crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
     import_file: Optional[Path] = typer.Option(None, "--import", help="External N x D matrix (.npy, .csv, .h5)."),
     names: Optional[Path] = typer.Option(None, help="With --import .npy: text file of frame names, one a line."),
@@ -174,74 +122,109 @@ def describe(
     start: StartOption = "0",
     stop: StopOption = None,
     list_cache: bool = typer.Option(False, "--list", help="Show what the cache holds."),
-    cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Worker processes for image folders (default: all cores)."),
+    cache: CacheOption = None,
+    jobs: JobsOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
     """Compute whole-image descriptors of image folders or video files into the HDF5 cache.
 
     Example: wiloc describe data/gardens-point-walking/day_right --descriptor gist
     """
+    from wiloc import api
     from wiloc.cache import Cache
+
+    importing = import_file is not None
+    if list_cache and (folders or importing):
+        fail("--list: shows what the cache holds; give it no FOLDER and no --import", EXIT_USAGE)
+    refuse_unused({"descriptor": (not importing, "image folders and video files"),
+                   "crop": (descriptor == "sad" and not importing, "--descriptor sad"),
+                   "vocabulary": (descriptor == "bow" and not importing, "--descriptor bow"),
+                   "metric": (importing, "--import"), "names": (importing, "--import"),
+                   "jobs": (not importing, "image folders"),
+                   **{name: (not importing, "video files") for name in SAMPLING}})
     store = Cache(cache)
     if list_cache:
-        infos = store.list_entries()
-        if as_json:
-            _print_json([asdict(info) for info in infos])
-            return
-        rows = [{"folder": info.folder, "descriptor": info.descriptor,
-                 "params": ", ".join(f"{k}={v}" for k, v in sorted(info.params.items())),
-                 "frames": info.frames, "complete": info.complete, "MB": f"{info.size / 1e6:.1f}",
-                 "updated": info.updated[:16].replace("T", " "), "problem": info.problem} for info in infos]
-        columns = ["folder", "descriptor", "params", "frames", "complete", "MB", "updated"]
-        out.print(_table(f"cache {store.root}", rows, columns + ["problem"] * any(i.problem for i in infos)))
+        _list_cache(store, as_json)
         return
-    if import_file is None and not folders:
-        _fail("give image folders, video files, --import FILE or --list", 2)
+    if not importing and not folders:
+        fail("FOLDER...: give image folders, video files, --import FILE or --list", EXIT_USAGE)
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
     with progress_bar(not as_json) as progress:
-        if import_file is not None:
+        if importing:
             reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store)]
         else:
             reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
                                    cache=store, jobs=jobs, progress=progress, sampling=sampling)
-    rows = [{"folder": str(given), "frames": r.frames, "descriptor": r.descriptor,
-             "shape": "x".join(map(str, r.shape)), "computed": r.computed, "reused": r.reused,
-             "failed": len(r.failed), "images/s": f"{r.images_per_second:.1f}" if r.computed else "-"}
-            for given, r in zip([import_file] if import_file is not None else folders, reports)]
+    rows, notes = [], []
+    for label, r in zip(short_names([r.folder for r in reports]), reports):
+        said = Notes()
+        for name, reason in r.failed if not r.video else ():
+            said.add("skipped", f"{Path(r.folder) / name}: {reason}")
+        if len(r.sizes) > 1:
+            said.add("note", f"{r.folder}: images of {len(r.sizes)} different sizes")
+        notes.append(said)
+        rows.append({"folder": label, "descriptor": r.descriptor, "frames": r.frames,
+                     "shape": "x".join(map(str, r.shape)), "computed": r.computed, "reused": r.reused,
+                     "failed": len(r.failed), "images_per_second": r.images_per_second if r.computed else None})
     if as_json:
-        _print_json([{**row, "failed_frames": [list(f) for f in r.failed], "ignored": list(r.ignored)}
-                     for row, r in zip(rows, reports)])
+        print_json([{**row, "folder": r.folder, "failed_frames": [list(f) for f in r.failed],
+                     "ignored": list(r.ignored), "warnings": said} for row, r, said in zip(rows, reports, notes)])
     else:
-        out.print(_table("describe", rows))
-        for r in reports:
-            for name, reason in r.failed if not r.video else ():
-                _note("skipped", f"{Path(r.folder) / name}: {reason}")
-            if len(r.sizes) > 1:
-                _note("note", f"{r.folder}: images of {len(r.sizes)} different sizes")
+        out.print(table("describe", rows, labels={"images_per_second": "images/s"}, digits={"images_per_second": 1}))
     # A video that stops decoding early is an error, after its good frames went into the cache.
     problems = [f"{r.folder}: {reason}" for r in reports if r.video for _, reason in r.failed]
     problems += [f"{r.folder}: no image could be described (see the lines above)"
                  for r in reports if r.entry.data.shape[0] == 0]
     for problem in problems:
-        _error(problem)
+        error(problem)
     if problems:
-        raise typer.Exit(1)
+        raise typer.Exit(EXIT_BAD_INPUT)
+
+
+def _list_cache(store: Any, as_json: bool) -> None:
+    """`describe --list`: one row per cache entry, told apart by folder, descriptor and parameters."""
+    infos = store.list_entries()
+    if as_json:
+        print_json([asdict(info) for info in infos])
+        return
+    rows = [{"folder": label, "descriptor": info.descriptor, "params": _params_text(info.descriptor, info.params),
+             "frames": info.frames, "complete": info.complete, "MB": info.size / 1e6,
+             "updated": info.updated[:10], "problem": info.problem}
+            for label, info in zip(short_names([i.folder for i in infos]), infos)]
+    columns = ["folder", "descriptor", "params", "frames", "complete", "MB", "updated"]
+    out.print(table(f"cache {store.root}", rows, columns + ["problem"] * any(i.problem for i in infos),
+                    labels={"complete": "done"}, digits={"MB": 1},
+                    caption="params: those that differ from the descriptor's defaults"))
+
+
+def _params_text(descriptor: str, params: dict[str, Any]) -> str:
+    """An entry's parameters as a table shows them: those that differ from the descriptor's
+    defaults, a video's sampling, an import's metric; never the content digests."""
+    from wiloc.descriptors.registry import DESCRIPTOR_NAMES, get_descriptor
+
+    defaults = get_descriptor(descriptor).params if descriptor in DESCRIPTOR_NAMES else {}
+    parts = []
+    for key, value in sorted(params.items()):
+        if key == "sampling":
+            parts += [f"{k}={v}" for k, v in value.items() if v is not None and (k, v) not in (("every", 1), ("start", "0"))]
+        elif value is not None and key not in ("video", "file_digest", "names_digest") and defaults.get(key) != value:
+            parts.append(f"{key}={Path(value).name if key == 'names' else value}")
+    return ", ".join(parts) or "defaults"
 
 
 # ---------------------------------------------------------------------------------------- vocabulary
 
-@app.command()
+@app.command(cls=Command)
 @handles_errors
 def vocabulary(
-    folders: list[Path] = typer.Argument(..., help="Training image folders (never the pair you will test on)."),
+    folders: list[Path] = typer.Argument(..., metavar="FOLDER...", help="Training image folders (never the pair you will test on)."),
     feature: str = typer.Option("sift", help="Local feature: sift (k-means) or orb (k-majority)."),
     words: int = typer.Option(1000, help="K, the number of visual words."),
     max_features: int = typer.Option(500, help="Local features kept per image, strongest first."),
     max_side: int = typer.Option(640, help="Images are shrunk so their longer side is at most this many pixels."),
     iterations: int = typer.Option(25, help="At most this many clustering rounds."),
     seed: int = typer.Option(0, help="Seeds the initial centres."),
-    cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
+    cache: CacheOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
     """Cluster the local features of training folders into a visual vocabulary, kept in the cache,
@@ -250,33 +233,38 @@ def vocabulary(
     Example: wiloc vocabulary data/night_right --words 1000, then
     wiloc localize data/day_left --map data/day_right --descriptor bow --vocabulary KEY --method fabmap
     """
+    from wiloc import api
     from wiloc.cache import Cache
+
     params = {"feature": feature, "words": words, "max_features": max_features, "max_side": max_side,
               "iterations": iterations, "seed": seed}
     with progress_bar(not as_json) as progress:
         report = api.vocabulary(folders, params, cache=Cache(cache), progress=progress)
-    row = {"key": report.vocabulary.key, "words": report.vocabulary.n_words,
-           "training frames": len(report.vocabulary.training_frames), "built": report.built,
-           "seconds": round(report.seconds, 1), "file": str(report.path)}
-    if as_json:
-        _print_json({**{k.replace(" ", "_"): v for k, v in row.items()},
-                     "failed": [list(item) for item in report.failed]})
-        return
+    notes = Notes()
     for path, reason in report.failed:
-        _note("skipped", f"{path}: {reason}")
-    out.print(_table("vocabulary", [row]))
+        notes.add("skipped", f"{path}: {reason}")
+    row = {"key": report.vocabulary.key, "words": report.vocabulary.n_words,
+           "training_frames": len(report.vocabulary.training_frames), "built": report.built,
+           "seconds": report.seconds, "file": str(report.path)}
+    if as_json:
+        print_json({**row, "failed": [list(item) for item in report.failed], "warnings": notes})
+        return
+    out.print(table("vocabulary", [{**row, "file": report.path.name}], labels={"training_frames": "training\nframes"},
+                    digits={"seconds": 1}, caption=f"in {report.path.parent}"))
 
 
 # ------------------------------------------------------------------------------------------ localize
 
-@app.command()
+@app.command(cls=Command)
 @handles_errors
 @with_method_options
 def localize(
-    queries: list[Path] = typer.Argument(..., help="Query traversal folder(s) (or descriptor matrix files)."),
-    reference: Optional[Path] = typer.Option(None, "--map", "-m", help="Reference traversal; omit for sequence mode (loop closure)."),
-    descriptor: str = typer.Option("sad", "--descriptor", "-d", help="sad | gist | brisk-gist | bow (with --vocabulary; fabmap and catgraph then read FAB-MAP's evidence)"),
-    crop: str = typer.Option("none", help="sad only: none | top-half"),
+    queries: list[Path] = typer.Argument(..., metavar="QUERY...",
+                                         help="Query traversal folder(s) (or descriptor matrix files)."),
+    reference: Optional[Path] = typer.Option(None, "--map", "-m", show_default="none: sequence mode",
+                                             help="Reference traversal; omit for sequence mode (loop closure)."),
+    descriptor: DescriptorOption = "sad",
+    crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
     metric: Optional[str] = typer.Option(None, help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
     method: str = typer.Option("online", help=" | ".join(METHODS)),
@@ -285,23 +273,24 @@ def localize(
     train_map: Optional[Path] = typer.Option(None, help="trained: its reference traversal.", rich_help_panel="trained inputs"),
     train_gt: Optional[str] = typer.Option(None, help="trained: ground truth, as --gt of `wiloc evaluate`.", rich_help_panel="trained inputs"),
     train_gt_map: Optional[str] = typer.Option(None, help="trained: the training map's positions CSV (positions form).", rich_help_panel="trained inputs"),
-    train_tolerance: int = typer.Option(2, help="trained: +-frames for aligned or pairs ground truth.", rich_help_panel="trained inputs"),
+    train_tolerance: int = typer.Option(2, help="trained: +-frames for aligned ground truth.", rich_help_panel="trained inputs"),
     train_radius: Optional[float] = typer.Option(None, help="trained: metres, for positions ground truth.", rich_help_panel="trained inputs"),
     names: Optional[Path] = typer.Option(None, help="A .npy QUERY matrix: its frame names, one per line."),
     map_names: Optional[Path] = typer.Option(None, help="A .npy --map matrix: its frame names, one per line."),
     odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y).", rich_help_panel="catgraph inputs"),
     map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV.", rich_help_panel="catgraph inputs"),
-    out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Results file (a folder with several queries)."),
-    model_plot: Optional[Path] = typer.Option(None, help="online/trained: draw the learned histograms (the paper's Figure 1)."),
-    cache: Optional[Path] = typer.Option(None, envvar="WILOC_CACHE", help="Cache folder."),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Worker processes for describing."),
+    out_path: Optional[Path] = typer.Option(None, "--out", "-o", show_default="QUERY-DESCRIPTOR-METHOD.csv here",
+                                            help="Results file (a folder with several queries)."),
+    model_plot: Optional[Path] = typer.Option(None, callback=_plot_file, help="online/trained: draw the learned histograms (the paper's Figure 1)."),
+    cache: CacheOption = None,
+    jobs: JobsOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables (with --follow: one JSON line per frame)."),
     every: EveryOption = 1,
     fps: FpsOption = None,
     start: StartOption = "0",
     stop: StopOption = None,
     follow: bool = typer.Option(False, "--follow", help="Decide the frames already in the QUERY folder, then each new one as it arrives; rerun to resume.", rich_help_panel="live"),
-    idle: Optional[float] = typer.Option(None, min=0.0, help="With --follow: stop after this many seconds without a new frame (default: run until Ctrl-C).", rich_help_panel="live"),
+    idle: Optional[float] = typer.Option(None, min=0.0, show_default="run until Ctrl-C", help="With --follow: stop after this many seconds without a new frame.", rich_help_panel="live"),
     method_options: Optional[dict[str, Any]] = None,
 ) -> None:
     """Decide, frame by frame, where each query frame was seen before and how sure that is.
@@ -310,23 +299,34 @@ def localize(
 
     Live: wiloc localize camera/ --map data/day_right --method catgraph --follow --idle 30
     """
+    from wiloc import api
     from wiloc.cache import Cache
+    from wiloc.traversals import is_matrix_file
+
     method_class(method)
     params = method_params(method, method_options or {})
+    matrices = [is_matrix_file(Path(p)) for p in (*queries, reference, train_query, train_map) if p is not None]
+    refuse_unused({"descriptor": (not all(matrices), "image folders and video files"),
+                   "crop": (descriptor == "sad" and not all(matrices), "--descriptor sad"),
+                   "vocabulary": (descriptor == "bow" and not all(matrices), "--descriptor bow"),
+                   "metric": (any(matrices), "descriptor matrix files (.npy, .csv, .h5)"),
+                   "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
+                   "map_names": (reference is not None and is_matrix_file(reference),
+                                 "a descriptor matrix file as --map")})
     train_inputs = (train_query, train_map, train_gt)
     training = None
     if any(train_inputs):
         if not all(train_inputs):
-            _fail("--train-query, --train-map and --train-gt go together", 2)
+            fail("--train-query, --train-map and --train-gt go together", EXIT_USAGE)
         training = api.Training(train_query, train_map,
-                                _truth_source(train_gt, train_gt_map, train_tolerance, train_radius))
+                                _truth_source(train_gt, train_gt_map, train_tolerance, train_radius, prefix="train_"))
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
     if follow:
         given = [flag for flag, value in (("--odometry", odometry), ("--names", names), ("--map-names", map_names),
                                           ("--metric", metric), ("--model-plot", model_plot)) if value is not None]
         given += ["video sampling"] * (sampling != api.Sampling())
         if len(queries) != 1 or given:
-            _fail(f"--follow takes one query folder{' and not ' + ', '.join(given) if given else ''}", 2)
+            fail(f"--follow takes one query folder{' and not ' + ', '.join(given) if given else ''}", EXIT_USAGE)
         _follow(queries[0], api.follow_folder(
             queries[0], reference=reference, descriptor=descriptor,
             descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache), method=method, method_params=params,
@@ -335,19 +335,19 @@ def localize(
             cache=Cache(cache), jobs=jobs, idle=idle), as_json)
         return
     if idle is not None:
-        _fail("--idle goes with --follow", 2)
+        fail("--idle goes with --follow", EXIT_USAGE)
     out_folder = out_path is not None and (out_path.is_dir() or not out_path.suffix)
     if len(queries) > 1 and out_path is not None and not out_folder:
-        _fail(f"{out_path}: with several queries --out names a folder", 2)
+        fail(f"{out_path}: with several queries --out names a folder", EXIT_USAGE)
     if model_plot is not None and method not in ("online", "trained"):
-        _fail(f"{model_plot}: method '{method}' learns no histogram model to draw", 2)
+        fail(f"{model_plot}: method '{method}' learns no histogram model to draw", EXIT_USAGE)
     if out_path is not None and not out_folder:
         targets = [out_path]
     else:
         targets = [(out_path or Path.cwd()) / api.results_name(q, method, descriptor, metric) for q in queries]
     clash = next((t for t in targets if targets.count(t) > 1), None)
     if clash is not None:
-        _fail(f"{clash}: two queries would write the same results file; give each its own --out", 2)
+        fail(f"{clash}: two queries would write the same results file; give each its own --out", EXIT_USAGE)
     store = Cache(cache)
     runs = []
     with progress_bar(not as_json) as progress:
@@ -359,31 +359,38 @@ def localize(
                                      odometry=odometry, map_odometry=map_odometry,
                                      query_names_file=names, ref_names_file=map_names, out=target,
                                      cache=store, jobs=jobs, progress=progress))
-    rows = []
-    for run in runs:
-        d = run.decisions
-        conf = d.confidence[d.decided]
-        rows.append({"query": run.query.name, "method": run.method, "frames": len(d),
-                     "decided": int(d.decided.sum()),
-                     "median confidence": float(sorted(conf)[len(conf) // 2]) if len(conf) else float("nan"),
-                     "seconds": round(run.seconds, 2), "results": str(run.path)})
     if model_plot is not None:
         from wiloc.plots import plot_model
         plot_model(runs[0].decisions.model, model_plot, title=f"{runs[0].query.name} ({method})")
-    skipped = list(dict.fromkeys(item for run in runs for item in run.skipped))
-    replaced = [f"replaced the existing results file {run.path}" for run in runs if run.replaced]
+    shown = set()
+    rows, notes = [], []
+    for label, run in zip(short_names([r.query for r in runs]), runs):
+        said = Notes()
+        for path, reason in run.skipped:
+            if (path, reason) not in shown:
+                said.add("skipped", f"{path}: {reason}")
+            shown.add((path, reason))
+        if run.replaced:
+            said.add("note", f"replaced the existing results file {run.path}")
+        notes.append(said)
+        d = run.decisions
+        conf = d.confidence[d.decided]
+        rows.append({"query": label, "method": run.method, "frames": len(d), "decided": int(d.decided.sum()),
+                     "median_confidence": float(sorted(conf)[len(conf) // 2]) if len(conf) else float("nan"),
+                     "seconds": run.seconds, "results": run.path.name})
     if as_json:
-        _print_json([{**row, "skipped": [list(item) for item in run.skipped],
-                      "warnings": [f"replaced the existing results file {run.path}"] if run.replaced else []}
-                     for row, run in zip(rows, runs)])
-    else:
-        for path, reason in skipped:
-            _note("skipped", f"{path}: {reason}")
-        for line in replaced:
-            _note("note", line)
-        out.print(_table("localize", rows))
-        if model_plot is not None:
-            out.print(f"model plot: {model_plot}")
+        print_json([{**row, "query": str(run.query.resolve()), "results": str(run.path.resolve()),
+                     "skipped": [list(item) for item in run.skipped], "warnings": said}
+                    for row, run, said in zip(rows, runs, notes)])
+        return
+    for row in rows:
+        row["decided"] = f"{row['decided']}/{row.pop('frames')}"
+    folders = ", ".join(dict.fromkeys(str(run.path.parent) for run in runs))
+    out.print(table("localize", rows, ["query", "method", "decided", "median_confidence", "results"],
+                    labels={"median_confidence": "median\nconf."},
+                    caption=f"results in {folders}; {sum(run.seconds for run in runs):.1f} s"))
+    if model_plot is not None:
+        out.print(f"wrote {model_plot}")
 
 
 def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
@@ -399,13 +406,13 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
 
     def view() -> Table:
         rate = decided / max(time.perf_counter() - started, 1e-9)
-        table = Table(title=f"following {query} -> {run.path}",
-                      caption=f"{run.resumed + decided} frames ({run.resumed} resumed), {rate:.1f} frames/s; Ctrl-C stops")
+        live_table = Table(title=cell(f"following {query} -> {run.path}"),
+                           caption=f"{run.resumed + decided} frames ({run.resumed} resumed), {rate:.1f} frames/s; Ctrl-C stops")
         for column in ("frame", "match", "confidence", "P(new place)", "stage"):
-            table.add_column(column, justify="left" if column in ("frame", "match", "stage") else "right")
+            live_table.add_column(column, justify="left" if column in ("frame", "match", "stage") else "right")
         for d in latest:
-            table.add_row(d.frame, d.match_name or "-", _cell(d.confidence), _cell(d.new_place), d.stage)
-        return table
+            live_table.add_row(cell(d.frame), cell(d.match_name), cell(d.confidence), cell(d.new_place), d.stage)
+        return live_table
 
     live = Live(view(), console=out, auto_refresh=False) if out.is_terminal and not as_json else None
     with live if live is not None else contextlib.nullcontext():
@@ -416,29 +423,39 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
                 if live is not None:
                     live.update(view(), refresh=True)
                 elif as_json:
-                    print(json.dumps(_json_ready({"frame": event.frame, "match": event.match_name,
-                                                  "confidence": event.confidence, "new_place": event.new_place,
-                                                  "stage": event.stage})), flush=True)
+                    print(json.dumps(json_ready({"frame": event.frame, "match": event.match_name,
+                                                 "confidence": event.confidence, "new_place": event.new_place,
+                                                 "stage": event.stage})), flush=True)
                 else:
-                    print(f"{event.frame}\t{event.match_name or '-'}\t{_cell(event.confidence)}\t"
-                          f"{_cell(event.new_place)}\t{event.stage}", flush=True)
+                    print(f"{event.frame}\t{event.match_name or '-'}\t{cell(event.confidence)}\t"
+                          f"{cell(event.new_place)}\t{event.stage}", flush=True)
             else:
-                _note("skipped", f"{event.path}: {event.reason}")
+                note("skipped", f"{event.path}: {event.reason}")
 
 
 # ------------------------------------------------------------------------------------------ evaluate
 
-def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | None) -> api.TruthSource:
+FORMS = "aligned, positions:Q.csv, pairs:P.csv, matrix:M.npy"
+
+
+def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | None,
+                  prefix: str = "") -> api.TruthSource:
     """`--gt` is a form name (aligned) or KIND:PATH (positions:q.csv, pairs:p.csv, matrix:m.npy),
-    or a path whose suffix tells the form."""
+    or a path whose suffix tells the form. Options of another form are refused (``prefix``:
+    the options' name prefix, ``train_`` for the trained method's)."""
+    from wiloc import api
+
+    flag = f"--{prefix.replace('_', '-')}gt"
     kind, sep, path = gt.partition(":")
     if not sep:
         if gt != "aligned" and not Path(gt).is_file() and "{query}" not in gt:
-            _fail(f"--gt {gt}: neither a ground-truth form nor a file (forms: aligned, positions:Q.csv, "
-                  "pairs:P.csv, matrix:M.npy)", 2)
+            fail(f"{flag}: '{gt}' is neither a ground-truth form nor a file (forms: {FORMS})", EXIT_USAGE)
         kind, path = ("aligned", "") if gt == "aligned" else (_guess_kind(gt), gt)
     if kind not in ("aligned", "positions", "pairs", "matrix"):
-        _fail(f"--gt {gt}: unknown ground-truth form '{kind}' (aligned, positions, pairs, matrix)", 2)
+        fail(f"{flag}: unknown ground-truth form '{kind}' in '{gt}' (forms: {FORMS})", EXIT_USAGE)
+    refuse_unused({f"{prefix}tolerance": (kind == "aligned", "--gt aligned (pairs files carry their own)"),
+                   f"{prefix}gt_map": (kind == "positions", "positions ground truth"),
+                   f"{prefix}radius": (kind == "positions", "positions ground truth")})
     variable = None
     if kind == "matrix" and ".mat:" in path:
         path, variable = path.rsplit(":", 1)
@@ -459,8 +476,9 @@ ToleranceOption = Annotated[int, typer.Option("--tolerance", "-T", min=0, help="
 RadiusOption = Annotated[Optional[float], typer.Option("--radius", help="positions: same place within this many metres.")]
 CutsOption = Annotated[str, typer.Option("--cuts", help="Confidence cuts for precision and recall at a fixed "
                                                         "cut, comma-separated, each in [0, 1].")]
+PrPlotOption = Annotated[Optional[Path], typer.Option(callback=_plot_file, help="Draw the precision-recall curves.")]
 CalibrationPlotOption = Annotated[Optional[Path], typer.Option(
-    "--calibration-plot", help="Draw the reliability diagram (share correct against confidence).")]
+    "--calibration-plot", callback=_plot_file, help="Draw the reliability diagram (share correct against confidence).")]
 CUTS_TEXT = ",".join(f"{cut:g}" for cut in DEFAULT_CUTS)
 
 
@@ -471,110 +489,132 @@ def _parse_cuts(text: str) -> list[float]:
     except ValueError:
         cuts = []
     if not cuts or not all(0.0 <= cut <= 1.0 for cut in cuts):
-        _fail(f"--cuts {text}: give confidences in [0, 1], comma-separated, such as {CUTS_TEXT}", 2)
+        fail(f"--cuts: '{text}': give confidences in [0, 1], comma-separated, such as {CUTS_TEXT}", EXIT_USAGE)
     return cuts
 
 
-@app.command()
+@app.command(cls=Command)
 @handles_errors
 def evaluate(
-    results: list[Path] = typer.Argument(..., help="Results files written by `wiloc localize`."),
+    results: list[Path] = typer.Argument(..., metavar="RESULTS...", help="Results files written by `wiloc localize`."),
     gt: GtOption = "aligned",
     gt_map: GtMapOption = None,
     tolerance: ToleranceOption = 2,
     radius: RadiusOption = None,
-    pr_plot: Optional[Path] = typer.Option(None, help="Draw the precision-recall curves."),
+    pr_plot: PrPlotOption = None,
     calibration_plot: CalibrationPlotOption = None,
     cuts: CutsOption = CUTS_TEXT,
-    csv_out: Optional[Path] = typer.Option(None, "--csv", help="Write metrics (and curves beside it) as CSV."),
+    matrix_plot: Optional[Path] = typer.Option(
+        None, callback=_plot_file, help="Draw the difference matrix with the decided matches and the ground truth "
+                                        "(with several results files: one FILE-RESULTS figure each)."),
+    pairs_plot: Optional[Path] = typer.Option(
+        None, callback=_plot_file, help="Show the most confident right and wrong matches as image pairs (image "
+                                        "folders; with several results files: one FILE-RESULTS figure each)."),
+    csv_out: Optional[Path] = typer.Option(None, "--csv", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
+    cache: CacheOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
     """Precision-recall and calibration of results files against ground truth.
 
     Example: wiloc evaluate day_left-online.csv --gt aligned --tolerance 2 --pr-plot pr.png --cuts 0.9,0.99
     """
+    from wiloc import api
+
     at = _parse_cuts(cuts)
     source = _truth_source(gt, gt_map, tolerance, radius)
     evaluations = [api.evaluate(path, source, at) for path in results]
-    heads = [{"results": e.name, "method": e.method, "traversal": e.traversal, **e.summary.as_dict()}
-             for e in evaluations]
+    notes = _warn_about_truth(evaluations)
+    names = short_names([e.path for e in evaluations])
+    heads = [{"run": run, "results": name, "method": e.method, "traversal": e.traversal, **e.summary.as_dict()}
+             for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
     rows = [{**head, **e.calibration.row()} for head, e in zip(heads, evaluations)]
+    written = []
     if pr_plot is not None:
         from wiloc.plots import plot_pr
-        plot_pr(dict(zip(api.run_names(evaluations), (e.curve for e in evaluations))), pr_plot)
+        written.append(plot_pr(dict(zip(api.run_names(evaluations), (e.curve for e in evaluations))), pr_plot,
+                               title=f"Precision-recall: {api.run_subject(evaluations, source)}"))
     if calibration_plot is not None:
         from wiloc.plots import plot_reliability
-        plot_reliability(api.reliability_series(evaluations), calibration_plot)
+        written.append(plot_reliability(api.reliability_series(evaluations), calibration_plot))
+    written += _run_plots(evaluations, matrix_plot, pairs_plot, cache)
     if csv_out is not None:
-        _write_metrics_csv(csv_out, rows, evaluations)
+        written += _write_metrics_csv(csv_out, rows, evaluations, notes)
     if as_json:
-        _print_json([{**head, "ground_truth": source.describe(), **e.calibration.as_dict(), "warnings": e.truth.warnings,
-                      "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
-                                "thresholds": e.curve.thresholds.tolist()}}
-                     for head, e in zip(heads, evaluations)])
+        print_json({"ground_truth": source.describe(), "files": [str(p) for p in written], "warnings": notes,
+                    "runs": [{**head, "results": str(e.path), "ground_truth": source.describe(),
+                              **e.calibration.as_dict(), "warnings": e.truth.warnings,
+                              "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
+                                        "thresholds": e.curve.thresholds.tolist()}}
+                             for head, e in zip(heads, evaluations)]})
         return
-    _warn_about_truth(evaluations)
-    out.print(metrics_view(rows, at, source.describe()))
-    for path in (pr_plot, calibration_plot, csv_out):
-        if path is not None:
-            out.print(f"wrote {path}")
+    for view in metrics_views(rows, at, source.describe()):
+        out.print(view)
+    for path in written:
+        out.print(f"wrote {path}")
 
 
-METRIC_LABELS = {"recall_at_100": "recall at 100 % precision", "recall_at_99": "recall at 99 % precision",
-                 "recall_at_90": "recall at 90 % precision", "auc": "area under PR curve", "max_f1": "max F1",
-                 "max_f1_threshold": "threshold at max F1", "recall_at_1": "R@1 (best match right)",
-                 "frames": "frames", "decided": "decided frames", "with_true_match": "frames with a true match",
-                 "ece": "ECE", "brier": "Brier score", "mean_confidence": "mean confidence",
-                 "share_correct": "share correct"}
+def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pairs_plot: Path | None,
+               cache: Path | None) -> list[Path]:
+    """Each run's difference matrix and example pairs; with several runs each file is named after
+    its results file too (``matrix-day_left-sad-online.png``)."""
+    if matrix_plot is None and pairs_plot is None:
+        return []
+    from wiloc.cache import Cache
+    from wiloc.plots import plot_matrix, plot_pairs
+    from wiloc.run_figures import example_pairs, matrix_picture
+
+    store = Cache(cache)
+    written = []
+    for e in evaluations:
+        def target(path: Path) -> Path:
+            return path.with_name(f"{path.stem}-{Path(e.name).stem}{path.suffix}") if len(evaluations) > 1 else path
+        descriptor = e.results.meta.get("descriptor", "")
+        if matrix_plot is not None:
+            picture = matrix_picture(e, store)
+            written.append(plot_matrix(picture, target(matrix_plot), title=(
+                f"{e.method} on {picture.query} against {picture.reference} ({descriptor}): differences, "
+                "decided matches and ground truth")))
+        if pairs_plot is not None:
+            written.append(plot_pairs(example_pairs(e), target(pairs_plot), title=(
+                f"{e.method} on {e.traversal} ({descriptor}): the most confident right and wrong matches")))
+    return written
 
 
-CUT_CAPTION = "at a cut: P precision, R recall, n frames accepted (decided, confidence >= cut)"
-
-
-def _at_cut(row: dict[str, Any], cut: float) -> str:
-    """Precision, recall and accepted frames at one confidence cut of a table row, one a line."""
-    return f"P {_cell(row[f'precision@{cut:g}'])}\nR {_cell(row[f'recall@{cut:g}'])}\nn {row[f'accepted@{cut:g}']}"
-
-
-def metrics_view(rows: list[dict[str, Any]], cuts: list[float], ground_truth: str) -> Table:
-    """Metrics down, one column per results file: stays readable in 80 columns for a few runs."""
-    table = Table(title=f"evaluate (ground truth: {ground_truth})", caption=CUT_CAPTION)
-    table.add_column("")
-    for row in rows:
-        table.add_column(f"{row['method']}\n{row['traversal']}", justify="right")
-    table.add_row("results", *[row["results"] for row in rows])
-    for key, label in METRIC_LABELS.items():
-        table.add_row(label, *[_cell(row[key]) for row in rows])
-    for cut in cuts:
-        table.add_row(f"cut {cut:g}", *[_at_cut(row, cut) for row in rows])
-    return table
-
-
-def _warn_about_truth(evaluations: list[api.Evaluation]) -> None:
+def _warn_about_truth(evaluations: list[api.Evaluation]) -> Notes:
     """Name-matching warnings, and runs whose ground truth leaves nothing to recall."""
+    notes = Notes()
     for e in evaluations:
         for warning in e.truth.warnings:
-            _note("warning", f"{e.path}: {warning}")
+            notes.add("warning", f"{e.path}: {warning}")
         if not e.truth.has_match().any():
-            _note("warning", f"{e.path}: no frame has a true match under this ground truth, so every "
-                             "recall is 0 (check --gt, --tolerance, --radius)")
+            notes.add("warning", f"{e.path}: no frame has a true match under this ground truth, so every "
+                                 "recall is 0 (check --gt, --tolerance, --radius)")
+    return notes
 
 
-def _write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list[api.Evaluation]) -> None:
+def _write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list[api.Evaluation],
+                       notes: Notes) -> list[Path]:
+    """The metrics to ``path`` and the curves to ``<stem>-curves.csv`` beside it; a file replaced
+    is said so. Returns both paths."""
     import pandas as pd
-    pd.DataFrame(rows).to_csv(path, index=False)
-    curves = pd.concat([pd.DataFrame({"results": e.name, "threshold": e.curve.thresholds,
+
+    curves_path = path.with_name(path.stem + "-curves.csv")
+    curves = pd.concat([pd.DataFrame({"results": str(e.path), "threshold": e.curve.thresholds,
                                       "precision": e.curve.precision, "recall": e.curve.recall})
                         for e in evaluations])
-    curves.to_csv(path.with_name(path.stem + "-curves.csv"), index=False)
+    for target, frame in ((path, pd.DataFrame(rows)), (curves_path, curves)):
+        if target.exists():
+            notes.add("note", f"replaced the existing file {target}")
+        frame.to_csv(target, index=False)
+    return [path, curves_path]
 
 
 # ------------------------------------------------------------------------------------------- compare
 
-@app.command()
+@app.command(cls=Command)
 @handles_errors
 def compare(
-    results: list[Path] = typer.Argument(..., help="Results files: several methods x query traversals."),
+    results: list[Path] = typer.Argument(..., metavar="RESULTS...", help="Results files: several methods x query traversals."),
     gt: GtOption = "aligned",
     gt_map: GtMapOption = None,
     tolerance: ToleranceOption = 2,
@@ -583,9 +623,9 @@ def compare(
                                           help="Table II: one threshold per method for all traversals."),
     precision: str = typer.Option("100,99", help="Table II target precisions in percent, comma-separated."),
     cuts: CutsOption = CUTS_TEXT,
-    threshold_plot: Optional[Path] = typer.Option(None, help="Precision against normalised threshold (the paper's Figure 5)."),
-    model_plot: Optional[Path] = typer.Option(None, help="Learned histograms of the first online run (Figure 1)."),
-    pr_plot: Optional[Path] = typer.Option(None, help="All precision-recall curves."),
+    threshold_plot: Optional[Path] = typer.Option(None, callback=_plot_file, help="Precision against normalised threshold (the paper's Figure 5)."),
+    model_plot: Optional[Path] = typer.Option(None, callback=_plot_file, help="Learned histograms of the first online run (Figure 1)."),
+    pr_plot: PrPlotOption = None,
     calibration_plot: CalibrationPlotOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
@@ -593,113 +633,61 @@ def compare(
 
     Example: wiloc compare *-online.csv *-threshold.csv --gt aligned -T 2 --precision 100,99
     """
+    from wiloc import api
+
     try:
         targets = [float(p) for p in precision.split(",") if p.strip()]
     except ValueError:
-        _fail(f"--precision {precision}: give percentages such as 100,99.5", 2)
+        fail(f"--precision: '{precision}': give percentages such as 100,99.5", EXIT_USAGE)
     at = _parse_cuts(cuts)
     source = _truth_source(gt, gt_map, tolerance, radius)
     comparison = api.compare(results, source, precisions=targets, global_thresholds=global_threshold, cuts=at)
-    _warn_about_truth(comparison.evaluations)
-    written = _compare_plots(comparison, threshold_plot, model_plot, pr_plot, calibration_plot)
+    notes = _warn_about_truth(comparison.evaluations)
+    written = _compare_plots(comparison, source, threshold_plot, model_plot, pr_plot, calibration_plot)
     if as_json:
         calibration = [{"method": label, "traversal": traversal, **e.calibration.as_dict()} for label, traversal, e
                        in zip(comparison.labels, comparison.traversals, comparison.evaluations)]
-        _print_json({"ground_truth": comparison.ground_truth,
-                     "table1": comparison.table1.to_dict(orient="records"), "calibration": calibration,
-                     "table2": comparison.table2.to_dict(orient="records"), "plots": [str(p) for p in written]})
+        print_json({"ground_truth": comparison.ground_truth,
+                    "table1": comparison.table1.to_dict(orient="records"), "calibration": calibration,
+                    "table2": comparison.table2.to_dict(orient="records"), "plots": [str(p) for p in written],
+                    "warnings": notes})
         return
     out.print(table1_view(comparison))
-    for table in cut_views(comparison, at):
-        out.print(table)
+    for view in cut_views(comparison, at):
+        out.print(view)
     if global_threshold:
         out.print(table2_view(comparison))
     for path in written:
         out.print(f"wrote {path}")
 
 
-def _compare_plots(comparison: api.Comparison, threshold_plot: Path | None, model_plot: Path | None,
-                   pr_plot: Path | None, calibration_plot: Path | None) -> list[Path]:
-    from wiloc import plots
+def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshold_plot: Path | None,
+                   model_plot: Path | None, pr_plot: Path | None, calibration_plot: Path | None) -> list[Path]:
+    from wiloc import api, plots
+
+    subject = api.run_subject(comparison.evaluations, source)
     written = []
     if threshold_plot is not None:
-        plots.plot_threshold(api.threshold_series(comparison), threshold_plot)
-        written.append(threshold_plot)
+        written.append(plots.plot_threshold(api.threshold_series(comparison), threshold_plot,
+                                            marks=api.threshold_marks(comparison),
+                                            title=f"Precision against threshold: {subject}"))
     if model_plot is not None:
         learned = sorted((e for e in comparison.evaluations if e.method in ("online", "trained")),
                          key=lambda e: e.method != "online")
         if not learned:
-            _fail(f"{model_plot}: none of the results is an online or trained run with a model", 1)
-        plots.plot_model(learned[0].results.model, model_plot, title=f"{learned[0].method} {learned[0].traversal}")
-        written.append(model_plot)
+            fail(f"{model_plot}: none of the results is an online or trained run with a model", EXIT_BAD_INPUT)
+        written.append(plots.plot_model(learned[0].results.model, model_plot,
+                                        title=f"Learned model: {learned[0].method}, {learned[0].traversal}"))
     if pr_plot is not None:
-        plots.plot_pr(api.pr_series(comparison), pr_plot)
-        written.append(pr_plot)
+        written.append(plots.plot_pr(api.pr_series(comparison), pr_plot, title=f"Precision-recall: {subject}"))
     if calibration_plot is not None:
-        plots.plot_reliability(api.reliability_series(comparison.evaluations), calibration_plot)
-        written.append(calibration_plot)
+        written.append(plots.plot_reliability(api.reliability_series(comparison.evaluations), calibration_plot))
     return written
-
-
-def cut_views(comparison: api.Comparison, cuts: list[float]) -> list[Table]:
-    """Per traversal, one row per method: calibration and precision / recall at each fixed cut."""
-    tables = []
-    for traversal, group in comparison.cut_table.groupby("traversal", sort=False):
-        table = Table(title=f"Calibration and fixed confidence cuts: {traversal} ({comparison.ground_truth})",
-                      caption=CUT_CAPTION,
-                      pad_edge=False)
-        table.add_column("method", overflow="fold")
-        for column in ("ECE", "Brier", "mean\nconf.", "share\ncorrect"):
-            table.add_column(column, justify="right")
-        for cut in cuts:
-            table.add_column(f"cut\n{cut:g}")
-        for row in group.to_dict(orient="records"):
-            table.add_row(row["method"], *[_cell(row[key]) for key in ("ece", "brier", "mean_confidence",
-                                                                         "share_correct")],
-                          *[_at_cut(row, cut) for cut in cuts])
-        tables.append(table)
-    return tables
-
-
-def table1_view(comparison: api.Comparison) -> Table:
-    """Table I: recall at 100/99/90 % precision, one row per traversal, columns per method."""
-    t1 = comparison.table1
-    methods = list(dict.fromkeys(t1["method"]))
-    table = Table(title=f"Table I: recall at 100 / 99 / 90 % precision (plus AUC, R@1); {comparison.ground_truth}")
-    table.add_column("traversal")
-    for m in methods:
-        table.add_column(m, justify="right")
-    for traversal in dict.fromkeys(t1["traversal"]):
-        cells = []
-        for m in methods:
-            sel = t1[(t1["traversal"] == traversal) & (t1["method"] == m)]
-            if sel.empty:
-                cells.append("")
-                continue
-            r = sel.iloc[0]
-            cells.append(f"{r['recall@100']:.1%} / {r['recall@99']:.1%} / {r['recall@90']:.1%}\n"
-                         f"AUC {r['auc']:.3f}  R@1 {r['R@1']:.3f}")
-        table.add_row(traversal, *cells)
-    return table
-
-
-def table2_view(comparison: api.Comparison) -> Table:
-    """Table II: the global threshold per method and precision, recall per traversal, worst marked."""
-    t2 = comparison.table2
-    traversals = list(dict.fromkeys(t2["traversal"]))
-    table = Table(title=f"Table II: one global threshold per method (worst traversal marked *); {comparison.ground_truth}")
-    for column in ("method", "precision", "threshold", *traversals):
-        table.add_column(column, justify="left" if column == "method" else "right")
-    for (method, target), group in t2.groupby(["method", "precision"], sort=False):
-        cells = {row.traversal: f"{row.recall:.1%}{' *' if row.worst else ''}" for row in group.itertuples()}
-        threshold = group["threshold"].iloc[0]
-        table.add_row(method, f"{target:g}%", _cell(float(threshold)), *[cells.get(t, "") for t in traversals])
-    return table
 
 
 # ---------------------------------------------------------------------------------------------- demo
 
-@app.command()
+@app.command(cls=Command)
 @handles_errors
 def demo(
     out_dir: Path = typer.Option(Path("wiloc-demo"), "--out", help="Where the demo route, results and plots go."),
@@ -713,9 +701,9 @@ def demo(
     with progress_bar(not as_json) as progress:
         report = run_demo(out_dir, progress=progress)
     if as_json:
-        _print_json({"table1": report.comparison.table1.to_dict(orient="records"),
-                     "table2": report.comparison.table2.to_dict(orient="records"),
-                     "out": str(out_dir), "files": [str(p) for p in report.files]})
+        print_json({"table1": report.comparison.table1.to_dict(orient="records"),
+                    "table2": report.comparison.table2.to_dict(orient="records"),
+                    "out": str(out_dir), "files": [str(p) for p in report.files]})
         return
     out.print(table1_view(report.comparison))
     out.print(table2_view(report.comparison))

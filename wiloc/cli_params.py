@@ -4,6 +4,7 @@ Every parameter of every registered method becomes one ``--flag`` of ``wiloc loc
 the help panel of the method(s) that take it, with its default and valid range. A flag given for a
 method that does not take it is a usage error naming the method. Library errors name parameters
 (``particles``, ``map_odometry``); :func:`flag` turns those into the flags a user typed.
+:func:`given` tells an option typed on the command line from its default.
 """
 from __future__ import annotations
 
@@ -14,6 +15,8 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 import typer
+from typer._click.core import ParameterSource
+from typer._click.globals import get_current_context
 
 from wiloc.errors import UsageError
 from wiloc.methods.registry import METHODS
@@ -31,6 +34,13 @@ def flag(parameter: str) -> str:
     return FLAGS.get(parameter, "--" + parameter.replace("_", "-"))
 
 
+def given(parameter: str) -> bool:
+    """Whether the running command's option ``parameter`` (its Python name) was typed on the
+    command line or set by its environment variable, rather than left at its default."""
+    source = get_current_context().get_parameter_source(parameter)
+    return source in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
+
+
 @dataclass(frozen=True)
 class MethodOption:
     """One command-line option: a parameter name and the methods that declare it."""
@@ -42,15 +52,22 @@ class MethodOption:
     def first(self) -> Declared:
         return next(iter(self.by_method.values()))
 
-    def default_text(self) -> str:
-        """Each method's default, as the help shows it."""
-        def shown(d: Declared) -> str:
-            value = d.default
-            text = ",".join(f"{v:g}" for v in value) if isinstance(value, tuple) else str(value)
-            return "none" if value is None else text
-        if len(self.by_method) == 1:
-            return shown(self.first)
-        return "; ".join(f"{m}: {shown(d)}" for m, d in self.by_method.items())
+    @property
+    def shared(self) -> bool:
+        """Whether every method taking the option has the same default."""
+        return len({d.default for d in self.by_method.values()}) == 1
+
+    def default(self) -> Any:
+        """The option's default as it takes it (a list of numbers as text); None when the methods
+        taking it differ (the help then names each method's)."""
+        value = self.first.default if self.shared else None
+        return ",".join(f"{v:g}" for v in value) if isinstance(value, tuple) else value
+
+    def default_text(self) -> str | bool:
+        """What the help shows as the default: the default itself, or each method's when they differ."""
+        if self.shared:
+            return True
+        return "; ".join(f"{m}: {'none' if d.default is None else d.default}" for m, d in self.by_method.items())
 
     def help(self) -> str:
         d = self.first
@@ -88,7 +105,7 @@ def _panel(option: MethodOption) -> str:
 
 def with_method_options(command: Callable[..., Any]) -> Callable[..., Any]:
     """``command`` with one keyword option per method parameter, collected into its
-    ``method_options`` argument as {name: value} for the options the user gave."""
+    ``method_options`` argument as {name: value} for the options typed on the command line."""
     signature = inspect.signature(command, eval_str=True)
     static = [p for p in signature.parameters.values() if p.name != "method_options"]
     taken = {p.name for p in static}
@@ -98,13 +115,13 @@ def with_method_options(command: Callable[..., Any]) -> Callable[..., Any]:
             raise RuntimeError(f"method parameter '{name}' clashes with an option of {command.__name__}")
         generated.append(inspect.Parameter(
             name, inspect.Parameter.KEYWORD_ONLY, annotation=Optional[_TYPES[option.first.kind]],
-            default=typer.Option(None, flag(name), help=option.help(), show_default=option.default_text(),
-                                 rich_help_panel=_panel(option))))
+            default=typer.Option(option.default(), flag(name), help=option.help(),
+                                 show_default=option.default_text(), rich_help_panel=_panel(option))))
 
     @functools.wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        given = {name: kwargs.pop(name) for name in method_options() if name in kwargs}
-        return command(*args, method_options={k: v for k, v in given.items() if v is not None}, **kwargs)
+        values = {name: kwargs.pop(name) for name in method_options() if name in kwargs}
+        return command(*args, method_options={k: v for k, v in values.items() if given(k)}, **kwargs)
 
     wrapper.__signature__ = signature.replace(parameters=[*static, *generated])  # type: ignore[attr-defined]
     return wrapper

@@ -1,0 +1,188 @@
+"""How the command line shows results: rich tables that stay readable at 80 columns, JSON with one
+key scheme, and the progress bar.
+
+Tables never cut a cell short: text wraps within its column (``overflow="fold"``), so the part
+that tells rows apart (a folder's name, a results file) is always whole. Paths are shown by
+their own name, or as many trailing parts as keep two of the same name apart
+(:func:`wiloc.labels.short_names`); ``--json`` carries the full paths. JSON keys are snake_case
+(``recall_at_100``, ``images_per_second``); docs/formats.md lists them per command.
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from typing import TYPE_CHECKING, Any
+
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from wiloc.cli_core import err, out
+
+if TYPE_CHECKING:
+    from wiloc import api
+
+CUT_CAPTION = "at a cut: P precision, R recall, n frames accepted (decided, confidence >= cut)"
+METRIC_LABELS = {"recall_at_100": "recall at 100 % precision", "recall_at_99": "recall at 99 % precision",
+                 "recall_at_90": "recall at 90 % precision", "auc": "area under PR curve", "max_f1": "max F1",
+                 "max_f1_threshold": "threshold at max F1", "recall_at_1": "R@1 (best match right)",
+                 "frames": "frames", "decided": "decided frames", "with_true_match": "frames with a true match",
+                 "ece": "ECE", "brier": "Brier score", "mean_confidence": "mean confidence",
+                 "share_correct": "share correct"}
+#: Columns of the runs-down metrics table (one row per results file), with short headers.
+RUN_COLUMNS = {"recall_at_100": "R\n@100%P", "recall_at_99": "R\n@99%P", "recall_at_90": "R\n@90%P",
+               "auc": "AUC", "max_f1": "max\nF1", "recall_at_1": "R@1", "decided": "deci-\nded"}
+CALIBRATION_COLUMNS = {"ece": "ECE", "brier": "Brier", "mean_confidence": "mean\nconf.",
+                       "share_correct": "share\ncorrect"}
+#: Width one results file takes as a column of the metrics-down table.
+_RUN_WIDTH = 16
+
+
+@contextmanager
+def progress_bar(enabled: bool) -> Iterator[api.Progress | None]:
+    """A rich progress bar on stderr, one task per step label; None when disabled."""
+    if not enabled:
+        yield None
+        return
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    with Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as bar:
+        tasks: dict[str, Any] = {}
+
+        def update(label: str, done: int, total: int) -> None:
+            if label not in tasks:
+                tasks[label] = bar.add_task(label, total=total)
+            bar.update(tasks[label], completed=done, total=total)
+        yield update
+
+
+def json_ready(value: Any) -> Any:
+    """``value`` as JSON holds it: NaN and infinities as null, numpy scalars as numbers."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if hasattr(value, "item"):
+        return json_ready(value.item())
+    return value
+
+
+def print_json(data: Any) -> None:
+    out.print_json(json.dumps(json_ready(data)))
+
+
+def cell(value: Any, digits: int = 3) -> str:
+    """A table cell: ``digits`` decimals, "-" for NaN or None, "yes" or nothing for a flag; text
+    is shown as it is (a label such as ``online [run-b]`` is no markup)."""
+    if isinstance(value, bool):
+        return "yes" if value else ""
+    if isinstance(value, float):
+        return "-" if not math.isfinite(value) else f"{value:.{digits}f}"
+    return "-" if value is None else escape(str(value))
+
+
+def table(title: str, rows: list[dict[str, Any]], columns: Sequence[str] | None = None,
+          labels: dict[str, str] | None = None, caption: str | None = None,
+          digits: dict[str, int] | None = None) -> Table:
+    """A rich table of ``rows`` (dicts), ``columns`` in order, headed by ``labels`` where given,
+    numbers with 3 decimals unless ``digits`` says otherwise. Text wraps rather than being cut."""
+    columns = list(columns or (rows[0] if rows else []))
+    view = Table(title=escape(title), caption=caption)
+    for column in columns:
+        text = not rows or isinstance(rows[0].get(column), str)
+        view.add_column((labels or {}).get(column, column), justify="left" if text else "right",
+                        overflow="fold", no_wrap=not text)
+    for row in rows:
+        view.add_row(*[cell(row.get(c), (digits or {}).get(c, 3)) for c in columns])
+    return view
+
+
+def at_cut(row: dict[str, Any], cut: float) -> str:
+    """Precision, recall and accepted frames at one confidence cut of a table row, one a line."""
+    return f"P {cell(row[f'precision@{cut:g}'])}\nR {cell(row[f'recall@{cut:g}'])}\nn {row[f'accepted@{cut:g}']}"
+
+
+def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_truth: str) -> list[Table]:
+    """`wiloc evaluate`'s tables: metrics down and one column per results file while the runs fit
+    the console; else one row per results file (its name whole), in two tables."""
+    title = f"evaluate (ground truth: {ground_truth})"
+    if 28 + _RUN_WIDTH * len(rows) <= out.width:
+        return [_metrics_down(rows, cuts, title)]
+    cut_columns = {f"cut {cut:g}": cut for cut in cuts}
+    calibration = [{"run": row["run"], **{k: row[k] for k in CALIBRATION_COLUMNS},
+                    **{name: at_cut(row, cut) for name, cut in cut_columns.items()}} for row in rows]
+    return [table(title, rows, ["run", *RUN_COLUMNS], RUN_COLUMNS,
+                  caption="R@x%P: recall at x % precision; R@1: best match right"),
+            table(f"calibration and fixed confidence cuts (ground truth: {ground_truth})", calibration,
+                  ["run", *CALIBRATION_COLUMNS, *cut_columns], CALIBRATION_COLUMNS, caption=CUT_CAPTION)]
+
+
+def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str) -> Table:
+    view = Table(title=escape(title), caption=CUT_CAPTION)
+    view.add_column("")
+    for row in rows:
+        view.add_column(escape(f"{row['method']}\n{row['traversal']}"), justify="right", overflow="fold")
+    view.add_row("results", *[cell(row["results"]) for row in rows])
+    for key, label in METRIC_LABELS.items():
+        view.add_row(label, *[cell(row[key]) for row in rows])
+    for cut in cuts:
+        view.add_row(f"cut {cut:g}", *[at_cut(row, cut) for row in rows])
+    return view
+
+
+def cut_views(comparison: api.Comparison, cuts: Sequence[float]) -> list[Table]:
+    """Per traversal, one row per method: calibration and precision / recall at each fixed cut."""
+    tables = []
+    for traversal, group in comparison.cut_table.groupby("traversal", sort=False):
+        view = Table(title=cell(f"Calibration and fixed confidence cuts: {traversal} ({comparison.ground_truth})"),
+                     caption=CUT_CAPTION, pad_edge=False)
+        view.add_column("method", overflow="fold")
+        for column in CALIBRATION_COLUMNS.values():
+            view.add_column(column, justify="right")
+        for cut in cuts:
+            view.add_column(f"cut\n{cut:g}")
+        for row in group.to_dict(orient="records"):
+            view.add_row(cell(row["method"]), *[cell(row[key]) for key in CALIBRATION_COLUMNS],
+                         *[at_cut(row, cut) for cut in cuts])
+        tables.append(view)
+    return tables
+
+
+def table1_view(comparison: api.Comparison) -> Table:
+    """Table I: recall at 100/99/90 % precision, one row per traversal, columns per method."""
+    t1 = comparison.table1
+    methods = list(dict.fromkeys(t1["method"]))
+    view = Table(title=escape(f"Table I: recall at 100 / 99 / 90 % precision (plus AUC, R@1); {comparison.ground_truth}"))
+    view.add_column("traversal", overflow="fold")
+    for m in methods:
+        view.add_column(cell(m), justify="right", overflow="fold")
+    for traversal in dict.fromkeys(t1["traversal"]):
+        cells = []
+        for m in methods:
+            sel = t1[(t1["traversal"] == traversal) & (t1["method"] == m)]
+            if sel.empty:
+                cells.append("")
+                continue
+            r = sel.iloc[0]
+            cells.append(f"{r['recall_at_100']:.1%} / {r['recall_at_99']:.1%} / {r['recall_at_90']:.1%}\n"
+                         f"AUC {r['auc']:.3f}  R@1 {r['recall_at_1']:.3f}")
+        view.add_row(cell(traversal), *cells)
+    return view
+
+
+def table2_view(comparison: api.Comparison) -> Table:
+    """Table II: the global threshold per method and precision, recall per traversal, worst marked."""
+    t2 = comparison.table2
+    traversals = list(dict.fromkeys(t2["traversal"]))
+    view = Table(title=escape(f"Table II: one global threshold per method (worst traversal marked *); "
+                              f"{comparison.ground_truth}"))
+    for column in ("method", "precision", "threshold", *traversals):
+        view.add_column(cell(column), justify="left" if column == "method" else "right", overflow="fold")
+    for (method, target), group in t2.groupby(["method", "precision"], sort=False):
+        cells = {row.traversal: f"{row.recall:.1%}{' *' if row.worst else ''}" for row in group.itertuples()}
+        threshold = group["threshold"].iloc[0]
+        view.add_row(cell(method), f"{target:g}%", cell(float(threshold)), *[cells.get(t, "") for t in traversals])
+    return view
