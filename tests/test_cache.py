@@ -198,9 +198,6 @@ def test_timestamps_round_trip_through_journal_and_file(tmp_path: Path) -> None:
     entry = cache.write_entry(stored, complete=True)
     np.testing.assert_array_equal(entry.timestamps_ms, [0.0, 66.733])
     np.testing.assert_array_equal(cache.read_entry(header.key).timestamps_ms, [0.0, 66.733])
-    with h5py.File(cache.entry_path(header.key), "r+") as f:  # as written before videos were traversals
-        del f["frames/timestamp_ms"]
-    assert np.isnan(cache.read_entry(header.key).timestamps_ms).all()
     images = StoredEntry(_header(), {"a.png": _record("a.png", 1.0)})
     cache.write_entry(images, complete=True)
     with h5py.File(cache.entry_path(images.header.key), "r") as f:

@@ -6,16 +6,24 @@ One entry per (resolved folder, descriptor name, descriptor params) lives in
 every write goes to a temporary file beside the target and is renamed onto it, so a kill leaves
 either the old file or the new one. Frames finished during a run are appended to
 ``<key>.journal`` (one CRC-checked record each), which the next run folds into the HDF5 file.
+Every frame in an entry file carries a CRC-32 of what is stored of it: a frame whose bytes no
+longer match is dropped when the file is read, and described again by the next run (see
+:attr:`Cache.repairs`). Cache files are never written through a symbolic link, and a lock file
+lives only while its lock is held.
 """
 from __future__ import annotations
 
+import errno
+import fcntl
 import hashlib
 import json
 import os
 import secrets
 import struct
+import threading
+import time
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
@@ -25,14 +33,15 @@ from typing import Any
 import h5py
 import numpy as np
 import platformdirs
-from filelock import FileLock, Timeout
 
 from wiloc import __version__
 from wiloc.errors import CacheBusyError, WilocError
 from wiloc.frames import natural_key
 
 FORMAT = "wiloc-descriptors"
-FORMAT_VERSION = 1
+#: 2: every frame's CRC-32 in ``frames/crc32`` and ``failed/crc32``. Files of another version are
+#: described again.
+FORMAT_VERSION = 2
 #: Seconds a process waits for another one holding the same entry before CacheBusyError: long
 #: enough to ride out a concurrent fold or a small describe, short enough to report a stuck run.
 DEFAULT_LOCK_TIMEOUT = 60.0
@@ -45,6 +54,9 @@ _DESCRIPTORS = "descriptors"
 _RECORD = struct.Struct("<4sII")  # magic, payload length, CRC-32 of the payload
 _MAGIC = b"WJR1"
 _JSON_LENGTH = struct.Struct("<I")
+#: How often a process waiting for a lock tries again, in seconds.
+_LOCK_POLL = 0.05
+_NO_FOLLOW = os.O_NOFOLLOW | os.O_CLOEXEC
 
 
 @dataclass(frozen=True)
@@ -128,6 +140,7 @@ class StoredEntry:
     complete: bool = False
     created: str = ""
     journaled: bool = False
+    dropped: int = 0  # frames whose stored bytes failed their checksum: not in ``records``
 
     def ordered(self) -> list[FrameRecord]:
         """The records in frame order: a folder's by natural sort of names (as traversals list
@@ -150,6 +163,19 @@ class StoredEntry:
 def _timestamps(records: list[FrameRecord]) -> np.ndarray:
     """Each record's timestamp in ms, NaN where it has none (image files)."""
     return np.array([np.nan if r.timestamp_ms is None else r.timestamp_ms for r in records], np.float64)
+
+
+def checksum(record: FrameRecord, dtype: np.dtype | str) -> int:
+    """CRC-32 of what an entry file stores of a frame: its name, fingerprint and either its size,
+    timestamp and row bytes, or why it failed."""
+    if record.row is None:
+        fields: list[Any] = [record.name, record.size, record.mtime_ns, record.digest, record.reason]
+        row = b""
+    else:
+        fields = [record.name, record.size, record.mtime_ns, record.digest, record.width, record.height,
+                  record.timestamp_ms]
+        row = np.ascontiguousarray(record.row, np.dtype(dtype)).tobytes()
+    return zlib.crc32(json.dumps(fields).encode() + row)
 
 
 def entry_key(folder: str, descriptor: str, params: dict[str, Any]) -> str:
@@ -190,9 +216,9 @@ class Journal:
         found, _, valid = scan_journal(path)
         if found != header:
             valid = 0
-        with open(path, "ab") as f:
-            f.truncate(valid)
-        self._file = open(path, "ab", buffering=0)
+        fd = _open_no_follow(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
+        os.ftruncate(fd, valid)
+        self._file = os.fdopen(fd, "ab", buffering=0)
         if valid == 0:
             self._write(json.dumps(asdict(header)).encode(), b"")
 
@@ -218,6 +244,8 @@ class Journal:
 def scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], int]:
     """A journal's header, its valid frame records and the byte length they span; reading stops
     at the first torn or corrupt record (a kill mid-write), which the next writer truncates."""
+    if path.is_symlink():  # not written by wiloc: never read through it (and replaced on writing)
+        return None, [], 0
     try:
         blob = path.read_bytes()
     except FileNotFoundError:
@@ -242,8 +270,62 @@ def scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], int
     return header, records, offset
 
 
+def _open_no_follow(path: Path, flags: int, mode: int = 0o666) -> int:
+    """A descriptor on ``path`` opened without following a symbolic link: a link found there
+    (wiloc never makes one) is removed, not written through, and a regular file made instead."""
+    try:
+        return os.open(path, flags | _NO_FOLLOW, mode)
+    except OSError as exc:
+        if exc.errno != errno.ELOOP:
+            raise
+    path.unlink()
+    return os.open(path, flags | _NO_FOLLOW | os.O_EXCL | os.O_CREAT, mode)
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    """Whether ``path`` still names the file open on ``fd``."""
+    try:
+        there = os.stat(path, follow_symlinks=False)
+    except FileNotFoundError:
+        return False
+    here = os.fstat(fd)
+    return (here.st_dev, here.st_ino) == (there.st_dev, there.st_ino)
+
+
+def _lock_file(path: Path, deadline: float, busy: Callable[[str], Exception]) -> int:
+    """An exclusive ``flock`` on the lock file ``path``, created as needed; the holder's pid is
+    written into it. Waits until the monotonic ``deadline``, then raises ``busy(holder pid)``.
+    A holder removes the file as it lets go, so a waiter that locked a removed file tries again."""
+    while True:
+        fd = _open_no_follow(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            while True:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    if time.monotonic() >= deadline:
+                        raise busy(os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown") from None
+                    time.sleep(_LOCK_POLL)
+            if _same_file(fd, path):
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+                return fd
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)
+
+
 class Cache:
-    """The descriptor cache under one root folder (default: $WILOC_CACHE, else the user cache dir)."""
+    """The descriptor cache under one root folder (default: $WILOC_CACHE, else the user cache dir).
+
+    ``repairs`` lists, as ``<file>: what`` lines, the entries this object found damaged and had
+    described again (frames failing their checksum, unreadable files), for a front end to report.
+    """
+
+    #: Locks this process holds, per thread: lock file -> [descriptor, depth].
+    _held = threading.local()
 
     def __init__(self, root: Path | None = None, lock_timeout: float = DEFAULT_LOCK_TIMEOUT) -> None:
         if root is None:
@@ -251,6 +333,7 @@ class Cache:
             root = Path(env) if env else Path(platformdirs.user_cache_dir("wiloc"))
         self.root = Path(root).expanduser().resolve()
         self.lock_timeout = lock_timeout
+        self.repairs: list[str] = []
         self._swept = False  # temporary files of dead writers are removed before the first write
 
     def _make_folder(self, folder: Path) -> None:
@@ -265,27 +348,32 @@ class Cache:
     @contextmanager
     def lock(self, name: str, timeout: float | None = None) -> Iterator[None]:
         """Hold the cross-process lock on `name`, a path relative to the root naming what it guards
-        (e.g. ``descriptors/<key>.h5``). Waits up to `timeout` seconds (default: the cache's
-        `lock_timeout`), then raises CacheBusyError naming the holder's pid. Re-entrant."""
+        (e.g. ``descriptors/<key>.h5``; the lock file is ``<name>.lock``, holding the holder's
+        pid, removed on release). Waits up to `timeout` seconds (default: the cache's
+        `lock_timeout`), then raises CacheBusyError naming the holder's pid. Re-entrant within a
+        thread."""
         target = self._inside(name)
-        lock_path = target.with_name(target.name + ".lock")
-        owner_path = target.with_name(target.name + ".owner")
-        self._make_folder(lock_path.parent)
-        lock = FileLock(lock_path, is_singleton=True)
-        try:
-            lock.acquire(timeout=self.lock_timeout if timeout is None else timeout)
-        except Timeout:
+        path = target.with_name(target.name + ".lock")
+        held = self._held.__dict__.setdefault("locks", {})
+        if path in held:
+            held[path][1] += 1
             try:
-                pid = owner_path.read_text().strip() or "unknown"
-            except FileNotFoundError:
-                pid = "unknown"
-            raise CacheBusyError(target, f"in use by another wiloc process (pid {pid})") from None
+                yield
+            finally:
+                held[path][1] -= 1
+            return
+        self._make_folder(path.parent)
+        deadline = time.monotonic() + (self.lock_timeout if timeout is None else timeout)
+        fd = _lock_file(path, deadline, lambda pid: CacheBusyError(target, f"in use by another wiloc process (pid {pid})"))
+        held[path] = [fd, 1]
         try:
-            if lock.lock_counter == 1:
-                owner_path.write_text(f"{os.getpid()}\n")
             yield
         finally:
-            lock.release()
+            del held[path]
+            try:
+                path.unlink(missing_ok=True)  # while still holding it: a waiter sees it gone and retries
+            finally:
+                os.close(fd)
 
     @contextmanager
     def atomic_h5(self, path: Path) -> Iterator[h5py.File]:
@@ -347,14 +435,23 @@ class Cache:
         return Journal(self.journal_path(header.key), header)
 
     def read_stored(self, key: str) -> StoredEntry | None:
-        """The entry's HDF5 contents with its journal folded in (in memory), or None if absent."""
+        """The entry's HDF5 contents with its journal folded in (in memory), or None if absent.
+        Frames whose stored bytes fail their checksum are left out (``dropped``; the entry is then
+        incomplete); a file that cannot be read, or was written without checksums, counts as
+        absent. Either is noted in ``repairs``: the next describe run fills the entry again."""
         path = self.entry_path(key)
         stored = None
         if path.exists():
             try:
                 stored = _read_h5(path)
             except (OSError, KeyError, ValueError, TypeError) as exc:
-                raise WilocError(path, f"unreadable cache entry ({exc}); delete it to rebuild") from exc
+                self.repairs.append(f"{path}: unreadable cache entry ({exc}); described again")
+            else:
+                if stored is None:
+                    self.repairs.append(f"{path}: cache entry written without checksums; described again")
+                elif stored.dropped:
+                    self.repairs.append(f"{path}: {stored.dropped} frame(s) failed their checksum (the file is "
+                                        "damaged); described again")
         header, records, _ = scan_journal(self.journal_path(key))
         if header is None:
             return stored
@@ -362,7 +459,7 @@ class Cache:
             stored = StoredEntry(header, created=_now())
         stored.records.update((r.name, r) for r in records)
         stored.journaled = bool(records)
-        stored.complete = stored.complete and not records
+        stored.complete = stored.complete and not records and not stored.dropped
         return stored
 
     def write_entry(self, stored: StoredEntry, complete: bool) -> Entry:
@@ -386,6 +483,7 @@ class Cache:
             f.create_dataset("descriptors", data=entry.data)
             for group, rows in (("frames", good), ("failed", bad)):
                 g = f.create_group(group)
+                g.create_dataset("crc32", data=np.array([checksum(r, header.dtype) for r in rows], np.uint32))
                 g.create_dataset("name", data=[r.name for r in rows], dtype=text)
                 g.create_dataset("size", data=np.array([r.size for r in rows], np.int64))
                 g.create_dataset("mtime_ns", data=np.array([r.mtime_ns for r in rows], np.int64))
@@ -402,10 +500,12 @@ class Cache:
         return entry
 
     def read_entry(self, key: str) -> Entry:
-        """The entry stored under `key` (journaled frames included), as listed by `list_entries`."""
+        """The entry stored under `key` (journaled frames included), as listed by `list_entries`;
+        WilocError when absent or damaged (describe its folder again to repair it)."""
         stored = self.read_stored(key)
-        if stored is None:
-            raise WilocError(self.entry_path(key), "no such cache entry")
+        if stored is None or stored.dropped:
+            raise WilocError(self.entry_path(key), self.repairs[-1] if stored is not None or self.repairs
+                             else "no such cache entry")
         return stored.entry()
 
     def list_entries(self) -> list[EntryInfo]:
@@ -437,18 +537,19 @@ class Cache:
 
     def _entry_info(self, info: EntryInfo, with_journal: bool) -> EntryInfo:
         """`info` filled in from the entry's files; WilocError naming the file if unreadable."""
-        stored = self.read_stored(info.key) if with_journal else None
-        if stored is not None:
-            header, complete = stored.header, stored.complete
-            frames = sum(r.row is not None for r in stored.records.values())
-        else:  # no journal: the attributes and the name count say it all
-            path = self.entry_path(info.key)
+        path = self.entry_path(info.key)
+        if path.exists():
             try:
                 with h5py.File(path, "r") as f:
                     header, complete = _header_from_attrs(f.attrs), bool(f.attrs["complete"])
                     frames = len(f["frames/name"])
             except (OSError, KeyError, ValueError, TypeError) as exc:
-                raise WilocError(path, f"unreadable cache entry ({exc}); delete it to rebuild") from exc
+                raise WilocError(path, f"unreadable cache entry ({exc}); describing its folder again "
+                                       "rebuilds it") from exc
+        stored = self.read_stored(info.key) if with_journal else None
+        if stored is not None:  # a killed run's journal adds frames
+            header, complete = stored.header, stored.complete
+            frames = sum(r.row is not None for r in stored.records.values())
         return replace(info, folder=header.folder, descriptor=header.descriptor,
                        params=header.params, frames=frames, complete=complete)
 
@@ -463,28 +564,34 @@ def _header_from_attrs(attrs: h5py.AttributeManager) -> EntryHeader:
     )
 
 
-def _read_h5(path: Path) -> StoredEntry:
+def _read_h5(path: Path) -> StoredEntry | None:
+    """The entry file's contents, frames failing their checksum left out; None for a file of
+    another format version (written without checksums)."""
     with h5py.File(path, "r") as f:
+        if int(f.attrs.get("format_version", 0)) != FORMAT_VERSION:
+            return None
         header = _header_from_attrs(f.attrs)
         stored = StoredEntry(header, complete=bool(f.attrs["complete"]), created=str(f.attrs["created"]))
         data = f["descriptors"][()]
         for group in ("frames", "failed"):
             g = f[group]
-            names = [n.decode() for n in g["name"][()]]
-            digests = [d.decode() for d in g["digest"][()]]
+            # damaged bytes may be no UTF-8: decoded anyway, they fail the frame's checksum
+            names = [n.decode(errors="replace") for n in g["name"][()]]
+            digests = [d.decode(errors="replace") for d in g["digest"][()]]
             sizes, mtimes = g["size"][()], g["mtime_ns"][()]
             if group == "frames":
-                widths, heights = g["width"][()], g["height"][()]
-                # absent in entries written before videos were traversals
-                stamps = g["timestamp_ms"][()] if "timestamp_ms" in g else np.full(len(names), np.nan)
-                for i, name in enumerate(names):
-                    stored.records[name] = FrameRecord(
-                        name, int(sizes[i]), int(mtimes[i]), digests[i], data[i],
-                        width=int(widths[i]), height=int(heights[i]),
-                        timestamp_ms=None if np.isnan(stamps[i]) else float(stamps[i]))
+                widths, heights, stamps = g["width"][()], g["height"][()], g["timestamp_ms"][()]
+                records = [FrameRecord(name, int(sizes[i]), int(mtimes[i]), digests[i], data[i],
+                                       width=int(widths[i]), height=int(heights[i]),
+                                       timestamp_ms=None if np.isnan(stamps[i]) else float(stamps[i]))
+                           for i, name in enumerate(names)]
             else:
-                reasons = [r.decode() for r in g["reason"][()]]
-                for i, name in enumerate(names):
-                    stored.records[name] = FrameRecord(
-                        name, int(sizes[i]), int(mtimes[i]), digests[i], None, reasons[i])
+                reasons = [r.decode(errors="replace") for r in g["reason"][()]]
+                records = [FrameRecord(name, int(sizes[i]), int(mtimes[i]), digests[i], None, reasons[i])
+                           for i, name in enumerate(names)]
+            for record, crc in zip(records, g["crc32"][()]):
+                if checksum(record, header.dtype) == crc:
+                    stored.records[record.name] = record
+                else:
+                    stored.dropped += 1
     return stored

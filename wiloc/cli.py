@@ -149,15 +149,21 @@ def describe(
     if not importing and not folders:
         fail("FOLDER...: give image folders, video files, --import FILE or --list", EXIT_USAGE)
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
+    reports, repairs = [], []
     with progress_bar(not as_json) as progress:
-        if importing:
-            reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store)]
-        else:
-            reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
-                                   cache=store, jobs=jobs, progress=progress, sampling=sampling)
+        for source in [import_file] if importing else folders:
+            known = len(store.repairs)
+            if importing:
+                reports.append(api.import_descriptors(source, metric=metric, names=names, cache=store))
+            else:
+                reports += api.describe([source], descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
+                                        cache=store, jobs=jobs, progress=progress, sampling=sampling)
+            repairs.append(store.repairs[known:])
     rows, notes = [], []
-    for label, r in zip(short_names([r.folder for r in reports]), reports):
+    for label, r, repaired in zip(short_names([r.folder for r in reports]), reports, repairs):
         said = Notes()
+        for line in repaired:
+            said.add("note", line)
         for name, reason in r.failed if not r.video else ():
             said.add("skipped", f"{Path(r.folder) / name}: {reason}")
         if len(r.sizes) > 1:
@@ -349,9 +355,10 @@ def localize(
     if clash is not None:
         fail(f"{clash}: two queries would write the same results file; give each its own --out", EXIT_USAGE)
     store = Cache(cache)
-    runs = []
+    runs, repairs = [], []
     with progress_bar(not as_json) as progress:
         for query, target in zip(queries, targets):
+            known = len(store.repairs)
             runs.append(api.localize(query, reference=reference, descriptor=descriptor, sampling=sampling,
                                      descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
                                      metric=metric, method=method, method_params=params,
@@ -359,13 +366,16 @@ def localize(
                                      odometry=odometry, map_odometry=map_odometry,
                                      query_names_file=names, ref_names_file=map_names, out=target,
                                      cache=store, jobs=jobs, progress=progress))
+            repairs.append(store.repairs[known:])
     if model_plot is not None:
         from wiloc.plots import plot_model
         plot_model(runs[0].decisions.model, model_plot, title=f"{runs[0].query.name} ({method})")
     shown = set()
     rows, notes = [], []
-    for label, run in zip(short_names([r.query for r in runs]), runs):
+    for label, run, repaired in zip(short_names([r.query for r in runs]), runs, repairs):
         said = Notes()
+        for line in repaired:
+            said.add("note", line)
         for path, reason in run.skipped:
             if (path, reason) not in shown:
                 said.add("skipped", f"{path}: {reason}")

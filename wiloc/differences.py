@@ -7,7 +7,9 @@ attributes ``query_digest``, ``ref_digest``, ``metric``, ``scale``, ``query_fold
 ``ref_folder`` and ``wiloc_version``. A file is reused only while both entry digests and the
 metric and scale match; otherwise it is recomputed under the cache lock for its name, blockwise
 (memory stays at one block of rows) and written through an atomic rename, so a killed writer
-never leaves a file that looks complete.
+never leaves a file that looks complete. Each chunk of ``d`` carries a Fletcher-32 checksum
+(HDF5's filter): a damaged chunk is a WilocError naming the file when it is read, and the file
+is removed, so that the next run computes it again.
 """
 from __future__ import annotations
 
@@ -72,12 +74,18 @@ class DifferenceMatrix:
         return [str(n) for n in self._file["ref_names"].asstr()[()]]
 
     def rows(self, start: int, stop: int) -> np.ndarray:
-        """Rows start..stop as a float32 block read from the file."""
-        return self._d[start:stop]
+        """Rows start..stop as a float32 block read from the file; WilocError when they fail
+        their checksum (the damaged file is removed: the next run computes it again)."""
+        try:
+            return self._d[start:stop]
+        except OSError as exc:
+            self.path.unlink(missing_ok=True)
+            raise WilocError(self.path, f"cached differences damaged (rows {start}-{stop}: {exc}); removed it, "
+                                        "run again to compute them anew") from None
 
     def row(self, k: int) -> np.ndarray:
         """The differences of query frame k to every reference frame, as a float64 row."""
-        return self._d[k].astype(np.float64)
+        return self.rows(k, k + 1)[0].astype(np.float64)
 
     def iter_rows(self, block_rows: int = DEFAULT_BLOCK_ROWS) -> Iterator[np.ndarray]:
         """Every row in order as float64, reading the file block_rows rows at a time."""
@@ -126,6 +134,7 @@ def _is_current(path: Path, query: Entry, ref: Entry) -> bool:
                 and attrs.get("metric") == query.metric
                 and attrs.get("scale") == query.scale
                 and f["d"].shape == (len(query.names), len(ref.names))
+                and (f["d"].fletcher32 or f["d"].chunks is None)  # written with checksums
             )
     except (OSError, KeyError):
         return False
@@ -136,7 +145,7 @@ def _write(f: h5py.File, query: Entry, ref: Entry, block_rows: int, progress: Pr
     shape = (len(query.names), len(ref.names))
     chunk_rows = max(1, min(block_rows, shape[0], _CHUNK_BYTES // (4 * max(shape[1], 1))))
     chunks = (chunk_rows, shape[1]) if all(shape) else None
-    d = f.create_dataset("d", shape=shape, dtype=np.float32, chunks=chunks)
+    d = f.create_dataset("d", shape=shape, dtype=np.float32, chunks=chunks, fletcher32=chunks is not None)
     f.create_dataset("query_names", data=query.names, dtype=h5py.string_dtype())
     f.create_dataset("ref_names", data=ref.names, dtype=h5py.string_dtype())
     f.attrs.update(

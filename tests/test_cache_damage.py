@@ -1,0 +1,127 @@
+"""A damaged cache never gives a silently different result: frames failing their checksum are
+described again, damaged differences are refused and computed anew; cache files are never
+written through a symbolic link; lock files do not pile up and still exclude each other."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from test_describing import FakeSpec, write_images
+
+from wiloc import api
+from wiloc.cache import Cache
+from wiloc.describing import describe_folder
+from wiloc.differences import difference_matrix
+from wiloc.errors import WilocError
+
+
+def _overwrite(path: Path, offset: int, data: bytes = b"\xde\xad\xbe\xef") -> None:
+    """Bytes overwritten in place, as a bad disk or a stray write would."""
+    with open(path, "r+b") as f:
+        f.seek(offset)
+        f.write(data)
+
+
+def _data_offset(path: Path, dataset: str, element: int = 0) -> int:
+    """The file offset of ``element`` of a contiguous dataset, or inside the first chunk of a chunked one."""
+    with h5py.File(path, "r") as f:
+        d = f[dataset]
+        if d.chunks is None:
+            return d.id.get_offset() + element * d.dtype.itemsize * int(np.prod(d.shape[1:]))
+        return d.id.get_chunk_info(0).byte_offset + 16
+
+
+@pytest.mark.parametrize("dataset", ["descriptors", "frames/size", "frames/crc32"])
+def test_a_damaged_frame_is_described_again_and_reported(tmp_path: Path, dataset: str) -> None:
+    folder = tmp_path / "route"
+    write_images(folder, 8)
+    first = describe_folder(folder, FakeSpec(), Cache(tmp_path / "c"), jobs=1)
+    entry_file = Cache(tmp_path / "c").entry_path(first.entry.key)
+    _overwrite(entry_file, _data_offset(entry_file, dataset, element=3))
+    cache = Cache(tmp_path / "c")
+    again = describe_folder(folder, FakeSpec(), cache, jobs=1)
+    assert again.computed == 1  # only the damaged frame
+    np.testing.assert_array_equal(again.entry.data, first.entry.data)
+    assert again.entry.digest == first.entry.digest
+    assert cache.repairs == [f"{entry_file}: 1 frame(s) failed their checksum (the file is damaged); described again"]
+    assert Cache(tmp_path / "c").read_stored(first.entry.key).dropped == 0  # repaired on disk
+
+
+def test_an_unreadable_or_unchecked_entry_file_is_described_anew(tmp_path: Path) -> None:
+    folder = tmp_path / "route"
+    write_images(folder, 5)
+    first = describe_folder(folder, FakeSpec(), Cache(tmp_path / "c"), jobs=1)
+    entry_file = Cache(tmp_path / "c").entry_path(first.entry.key)
+    with h5py.File(entry_file, "r+") as f:
+        f.attrs["format_version"] = 1  # written before frames carried checksums
+    cache = Cache(tmp_path / "c")
+    assert describe_folder(folder, FakeSpec(), cache, jobs=1).computed == 5
+    assert "written without checksums" in cache.repairs[0]
+    entry_file.write_bytes(b"not an HDF5 file" * 64)
+    cache = Cache(tmp_path / "c")
+    again = describe_folder(folder, FakeSpec(), cache, jobs=1)
+    assert again.computed == 5 and again.entry.digest == first.entry.digest
+    assert "unreadable cache entry" in cache.repairs[0]
+
+
+def test_damaged_differences_are_refused_once_and_computed_anew(tmp_path: Path) -> None:
+    spec = FakeSpec()
+    write_images(tmp_path / "q", 20, seed=1)
+    write_images(tmp_path / "r", 20, seed=2)
+    cache = Cache(tmp_path / "c")
+    q = describe_folder(tmp_path / "q", spec, cache, jobs=1).entry
+    r = describe_folder(tmp_path / "r", spec, cache, jobs=1).entry
+    with difference_matrix(q, r, cache) as matrix:
+        clean, path = matrix.rows(0, 20).copy(), matrix.path
+    _overwrite(path, _data_offset(path, "d"))
+    with difference_matrix(q, r, cache) as matrix, pytest.raises(WilocError, match="differences damaged"):
+        matrix.rows(0, 20)
+    assert not path.exists()
+    with difference_matrix(q, r, cache) as matrix:
+        np.testing.assert_array_equal(matrix.rows(0, 20), clean)
+
+
+def test_cache_writes_never_follow_symbolic_links(tmp_path: Path) -> None:
+    folder = tmp_path / "route"
+    names = write_images(folder, 6)
+    cache = Cache(tmp_path / "c")
+    key = describe_folder(folder, FakeSpec(), cache, jobs=1).entry.key
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me\n")
+    for path in (cache.journal_path(key), cache.entry_path(key).with_name(f"{key}.h5.lock")):
+        path.symlink_to(victim)
+    (folder / names[0]).write_bytes((folder / names[1]).read_bytes())  # a changed frame: journaled
+    describe_folder(folder, FakeSpec(), cache, jobs=1)
+    assert victim.read_text() == "keep me\n"
+    assert not cache.journal_path(key).exists()  # folded into the entry, and the link is gone
+
+
+def test_lock_files_do_not_pile_up(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "c")
+    for folder in ("a", "b"):
+        write_images(tmp_path / folder, 4, seed=len(folder))
+    report = api.describe([tmp_path / "a", tmp_path / "b"], "sad", cache=cache, jobs=1)
+    with difference_matrix(report[0].entry, report[1].entry, cache):
+        pass
+    leftovers = sorted(p.name for p in cache.root.rglob("*") if p.suffix in (".lock", ".owner"))
+    assert leftovers == []
+
+
+def test_the_lock_excludes_other_processes_while_lock_files_come_and_go(tmp_path: Path) -> None:
+    counter = tmp_path / "counter"
+    counter.write_text("0")
+    code = (
+        "import sys; from pathlib import Path; from wiloc.cache import Cache\n"
+        f"cache, counter = Cache(Path({str(tmp_path / 'c')!r})), Path({str(counter)!r})\n"
+        "for _ in range(40):\n"
+        "    with cache.lock('descriptors/k.h5'):\n"
+        "        value = int(counter.read_text()); counter.write_text(str(value + 1))\n"
+    )
+    workers = [subprocess.Popen([sys.executable, "-c", code]) for _ in range(3)]
+    assert [w.wait(timeout=120) for w in workers] == [0, 0, 0]
+    assert counter.read_text() == "120"  # no increment lost: never two holders at once
+    assert not (tmp_path / "c" / "descriptors" / "k.h5.lock").exists()
