@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
 
 app = typer.Typer(
-    cls=CommandLine, add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
+    name="wiloc", cls=CommandLine, add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
     help="Appearance-based localization with whole-image descriptors and a probability model "
          "learned online.\n\nExample: [bold]wiloc demo[/bold], then\n\n"
          "  wiloc localize data/day_left --map data/day_right --descriptor sad --method online")

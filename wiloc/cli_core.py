@@ -25,7 +25,7 @@ from typer._click.globals import get_current_context
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from wiloc.cli_params import flag, given
-from wiloc.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError
+from wiloc.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError, interrupted
 
 out = Console()
 err = Console(stderr=True)
@@ -76,7 +76,9 @@ def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             fail(f"{flag(exc.parameter)}: {exc.problem}" if exc.parameter else str(exc), exc.exit_code)
         except OSError as exc:
             fail(f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc), EXIT_BAD_INPUT)
-        except KeyboardInterrupt:
+        except BaseException as exc:
+            if not interrupted(exc):
+                raise
             fail("interrupted; finished work is kept in the cache, rerun to resume", EXIT_INTERRUPTED)
     return wrapper
 
@@ -186,7 +188,12 @@ class CommandLine(_PlainFlags, TyperGroup):
         except click.ClickException as exc:
             error(_lower(exc.format_message()))
             return exc.exit_code
-        except (KeyboardInterrupt, typer.Abort):
+        except typer.Abort:
+            error("interrupted")
+            return EXIT_INTERRUPTED
+        except BaseException as exc:
+            if not interrupted(exc):
+                raise
             error("interrupted")
             return EXIT_INTERRUPTED
         return 0

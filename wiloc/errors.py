@@ -47,3 +47,15 @@ class ParameterError(UsageError):
 
     def __init__(self, parameter: str, problem: str) -> None:
         super().__init__(None, problem, parameter=parameter)
+
+
+def interrupted(exc: BaseException | None) -> bool:
+    """Whether ``exc`` is Ctrl-C or was raised while handling it (a library that turns an
+    interrupted import or call into an error of its own)."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False

@@ -159,6 +159,18 @@ def _to_uint8(image: NDArray, path: Path) -> NDArray[np.uint8]:
     raise FrameError(path, f"unsupported sample type {image.dtype} (need 8- or 16-bit integers)")
 
 
+def decode(data: NDArray[np.uint8], flags: int, path: Path) -> NDArray | None:
+    """``cv2.imdecode``, with OpenCV's own refusals (an image over its pixel limit, a broken
+    header it asserts on) raised as FrameError naming the file; None when it cannot decode."""
+    try:
+        return cv2.imdecode(data, flags)
+    except cv2.error as exc:
+        if "CV_IO_MAX_IMAGE_PIXELS" in str(exc):
+            raise FrameError(path, "image over OpenCV's size limit (2^30 pixels; the environment variable "
+                                   "OPENCV_IO_MAX_IMAGE_PIXELS raises it)") from None
+        raise FrameError(path, f"cannot decode image data ({exc.err or 'OpenCV refused it'})") from None
+
+
 def read_gray(path: Path, min_size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
     """Decode an image as 8-bit grayscale (H x W).
 
@@ -185,13 +197,13 @@ def read_gray(path: Path, min_size: tuple[int, int] | None = None) -> NDArray[np
             raise FrameError(path, "corrupt JPEG (no frame header)")
         factor = _reduction(full, min_size)
     if factor > 1:
-        image = cv2.imdecode(data, dict(_REDUCED_FLAGS)[factor])
+        image = decode(data, dict(_REDUCED_FLAGS)[factor], path)
         if image is not None and (image.shape[1] < min_size[0] or image.shape[0] < min_size[1]):
             image = None  # EXIF rotation swapped the sides: decode in full instead
     else:
         image = None
     if image is None:
-        image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
+        image = decode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH, path)
     if image is None or image.size == 0:
         raise FrameError(path, "cannot decode image data")
     if image.ndim != 2:

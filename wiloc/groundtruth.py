@@ -318,6 +318,8 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
     if not path.is_file():
         raise WilocError(path, "no such file")
     data = _read_matrix(path, variable)
+    if data.dtype.kind not in "biuf":
+        raise WilocError(path, f"matrix holds {data.dtype} values; give numbers or booleans (nonzero = same place)")
     expected = (len(query_names), len(ref_names))
     if data.ndim != 2 or data.shape != expected:
         raise WilocError(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "

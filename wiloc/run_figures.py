@@ -134,13 +134,14 @@ def matrix_picture(evaluation: Evaluation, cache: Cache, max_side: int = MAX_SID
 
 
 def _read_rgb(path: Path) -> NDArray[np.uint8]:
+    """An image file in colour (RGB), else as read_gray reads it (which names a bad file)."""
     import cv2
 
-    from wiloc.frames import read_gray
+    from wiloc.frames import decode, read_gray
 
-    colour = cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_COLOR) if path.is_file() else None
+    colour = decode(np.fromfile(path, np.uint8), cv2.IMREAD_COLOR, path) if path.is_file() else None
     if colour is None:
-        return read_gray(path)  # raises FrameError naming the file
+        return read_gray(path)
     return cv2.cvtColor(colour, cv2.COLOR_BGR2RGB)
 
 

@@ -72,11 +72,20 @@ def _read_h5(path: Path) -> tuple[NDArray, list[str] | None]:
             matrix = handle["descriptors"][()]
             names = None
             if "names" in handle:
-                raw = np.ravel(handle["names"][()])
-                names = [n.decode("utf-8") if isinstance(n, bytes) else str(n) for n in raw]
+                names = [_text(path, i, n) for i, n in enumerate(np.ravel(handle["names"][()]))]
     except OSError as exc:
         raise WilocError(path, f"not a readable HDF5 file ({exc})") from exc
     return matrix, names
+
+
+def _text(path: Path, i: int, name: object) -> str:
+    """One frame name of an HDF5 ``names`` dataset as text; WilocError when its bytes are no UTF-8."""
+    if not isinstance(name, bytes):
+        return str(name)
+    try:
+        return name.decode("utf-8")
+    except UnicodeDecodeError:
+        raise WilocError(path, f"dataset 'names', entry {i + 1}: {name[:40]!r} is not UTF-8 text") from None
 
 
 def _read_csv(path: Path) -> tuple[NDArray, list[str]]:

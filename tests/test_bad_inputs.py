@@ -1,0 +1,362 @@
+"""Bad inputs through the command line: each ends in exactly one stderr line starting ``error:``,
+the documented exit code (1 bad input, 2 usage, 3 cache busy, 130 interrupted), no traceback and
+nothing half-written. Bad frames inside a folder are skipped with a note, not fatal.
+
+Usage errors are checked before any work: the tests give them files that do not exist, or ask
+for outputs that must not appear. Where the entry point matters (Ctrl-C while loading) the
+console script runs in a subprocess.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+import zlib
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from test_cli import _places, _write_traversal
+from typer.testing import CliRunner
+
+from wiloc import cache as cache_module
+from wiloc.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture
+def route(tmp_path: Path, cache_dir: Path) -> tuple[Path, Path]:
+    """A reference and a query over the same 30 places (img0.png ... img29.png)."""
+    scenes = _places(30)
+    return (_write_traversal(tmp_path / "ref", scenes, 1.0, 1),
+            _write_traversal(tmp_path / "query", scenes, 0.7, 2))
+
+
+@pytest.fixture
+def results(route: tuple[Path, Path], tmp_path: Path) -> Path:
+    """A threshold run of the query against the reference."""
+    ref, query = route
+    out = tmp_path / "run.csv"
+    assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
+                               "--out", str(out), "--jobs", "1"]).exit_code == 0
+    return out
+
+
+NOTES = ("skipped ", "note ", "warning ")
+
+
+def ends_in_one_error(result, code: int, *fragments: str) -> None:
+    """Exit ``code``, one stderr line ``error: ...`` holding each fragment and coming last (the
+    lines before it, if any, are notes on frames left out), no traceback."""
+    assert result.exit_code == code, (result.exit_code, result.output)
+    *notes, last = result.stderr.strip().splitlines() or [""]
+    assert last.startswith("error: ") and all(line.startswith(NOTES) for line in notes), result.stderr
+    assert "Traceback" not in result.output
+    for fragment in fragments:
+        assert fragment in last, (fragment, last)
+
+
+# ------------------------------------------------------------------------------- 2: usage errors
+
+USAGE = {
+    "missing argument": (["localize"], "QUERY...: missing (usage: wiloc localize [OPTIONS] QUERY...)"),
+    "missing results": (["evaluate"], "RESULTS...: missing"),
+    "not a number": (["localize", "Q", "--particles", "abc"], "--particles: input should be a valid integer"),
+    "unknown option": (["localize", "Q", "--partcles", "3"], "--partcles: no such option of wiloc localize"),
+    "unknown command": (["frob"], "frob: no such command (describe, localize, evaluate, compare, demo)"),
+    "option without value": (["localize", "Q", "--out"], "--out: needs a value"),
+    "flag with value": (["describe", "F", "--json=3"], "--json: takes no value"),
+    "negative tolerance": (["evaluate", "R", "--tolerance", "-1"], "--tolerance: input should be greater"),
+    "nothing to describe": (["describe"], "FOLDER...: give image folders"),
+    "list with folders": (["describe", "--list", "F"], "--list: shows what the cache holds"),
+    "unknown method": (["localize", "Q", "--method", "nope"], "--method: unknown method 'nope'"),
+    "bad precision": (["compare", "R", "--precision", "abc"], "--precision: 'abc'"),
+    "bad cuts": (["evaluate", "R", "--cuts", "1.5"], "--cuts: '1.5'"),
+    "misspelt form": (["evaluate", "R", "--gt", "alined"], "--gt: 'alined' is neither a ground-truth form"),
+    "unknown form": (["evaluate", "R", "--gt", "foo:bar.csv"], "--gt: unknown ground-truth form 'foo'"),
+    "plot suffix": (["evaluate", "R", "--pr-plot", "pr.pgn"], "--pr-plot: '.pgn' is not a figure format"),
+    "plot without suffix": (["compare", "R", "--threshold-plot", "fig5"], "--threshold-plot: no suffix"),
+    "model plot suffix": (["localize", "Q", "--model-plot", "m.xyz"], "--model-plot: '.xyz'"),
+    "matrix plot suffix": (["evaluate", "R", "--matrix-plot", "m.jpgg"], "--matrix-plot: '.jpgg'"),
+    "idle without follow": (["localize", "Q", "--idle", "3"], "--idle goes with --follow"),
+    "partial training": (["localize", "Q", "--train-query", "T"], "--train-query, --train-map and --train-gt go together"),
+    "seed out of range": (["localize", "Q", "--method", "catgraph", "--seed", "-1"], "--seed: must be >= 0"),
+    "too many particles": (["localize", "Q", "--method", "catgraph", "--particles", "1000000000"], "--particles: must lie in"),
+    "too many bins": (["localize", "Q", "--bins", "100000000"], "--bins: must lie in"),
+    "option of another method": (["localize", "Q", "--particles", "5"], "--particles: method 'online' takes no such option"),
+    "exclude recent": (["localize", "Q", "-R", "-1"], "--exclude-recent: must be an integer >= 0"),
+    "radius with aligned": (["evaluate", "R", "--radius", "3"], "--radius: applies to positions ground truth only"),
+    "gt map with aligned": (["evaluate", "R", "--gt-map", "m.csv"], "--gt-map: applies to positions ground truth only"),
+}
+
+
+@pytest.mark.parametrize("case", USAGE)
+def test_usage_errors_are_one_line_before_any_work(case: str, tmp_path: Path, cache_dir: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)  # relative names: nothing exists, nothing may be written
+    args, message = USAGE[case]
+    ends_in_one_error(runner.invoke(app, args), 2, message)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+UNUSED = {
+    "crop with gist": (["describe", "{ref}", "--descriptor", "gist", "--crop", "top-half"], "--crop: applies to --descriptor sad only"),
+    "metric with folders": (["localize", "{query}", "--map", "{ref}", "--metric", "cosine"], "--metric: applies to descriptor matrix files"),
+    "metric without import": (["describe", "{ref}", "--metric", "cosine"], "--metric: applies to --import only"),
+    "names without import": (["describe", "{ref}", "--names", "n.txt"], "--names: applies to --import only"),
+    "names for a folder": (["localize", "{query}", "--map", "{ref}", "--names", "n.txt"], "--names: applies to a descriptor matrix file"),
+    "sampling with import": (["describe", "--import", "{ref}/x.npy", "--every", "2"], "--every: applies to video files only"),
+    "sampling with a folder": (["describe", "{ref}", "--every", "2"], "--every/--fps/--start/--stop: applies to video files only"),
+    "jobs below one": (["describe", "{ref}", "--jobs", "0"], "--jobs: must be at least 1"),
+    "several queries one file": (["localize", "{query}", "{ref}", "--map", "{ref}", "--out", "{tmp}/o.csv"], "with several queries --out names a folder"),
+}
+
+
+@pytest.mark.parametrize("case", UNUSED)
+def test_options_the_input_does_not_use_are_refused(case: str, route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    args, message = UNUSED[case]
+    args = [a.format(ref=ref, query=query, tmp=tmp_path) for a in args]
+    ends_in_one_error(runner.invoke(app, args), 2, message)
+    assert not (tmp_path / "o.csv").exists() and not list(tmp_path.glob("*.csv"))
+
+
+# --------------------------------------------------------------------------- 1: bad input files
+
+def _huge_png(path: Path) -> Path:
+    """A PNG whose header says 40000 x 40000 pixels: over OpenCV's decode limit."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 40000, 40000, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(b"\0" * 16)) + chunk(b"IEND", b""))
+    return path
+
+
+def _h5_with_names(path: Path, names: list[bytes]) -> Path:
+    with h5py.File(path, "w") as f:
+        f["descriptors"] = np.random.default_rng(0).random((len(names), 4)).astype(np.float32)
+        f["names"] = np.array(names, dtype=object).astype("S")
+    return path
+
+
+def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str], str]]:
+    """Each bad-input case: its arguments and a fragment of its one error line."""
+    (tmp / "empty").mkdir()
+    (tmp / "notes.txt").write_text("not images\n")
+    (tmp / "bad-only").mkdir()
+    (tmp / "bad-only" / "a.png").write_bytes(b"")
+    (tmp / "bad-only" / "b.jpg").write_bytes(b"\xff\xd8 cut")
+    np.save(tmp / "nan.npy", np.full((5, 4), np.nan, np.float32))
+    np.save(tmp / "text-gt.npy", np.array([["yes", "no"]] * 2))
+    np.save(tmp / "shape-gt.npy", np.eye(3))
+    (tmp / "pairs.csv").write_text("a,b\nimg0.png,img0.png\n")
+    (tmp / "x.mp4").write_text("no video\n" * 50)
+    lines = results.read_text().splitlines()
+    confidence = lines.index(next(l for l in lines if l.startswith("frame,"))) + 1
+    row = lines[confidence].split(",")
+    row[3] = "high"
+    (tmp / "text-confidence.csv").write_text("\n".join(lines[:confidence] + [",".join(row)] + lines[confidence + 1:]) + "\n")
+    (tmp / "single").mkdir()
+    (tmp / "single" / "img0.png").write_bytes((ref / "img0.png").read_bytes())
+    (tmp / "odo.csv").write_text("name,distance\nimg0.png,0\n")
+    return {
+        "missing folder": (["describe", str(tmp / "nope")], "folder does not exist"),
+        "a text file": (["describe", str(tmp / "notes.txt")], "not a folder"),
+        "no images": (["describe", str(tmp / "empty")], "no image files"),
+        "only bad images": (["describe", str(tmp / "bad-only"), "--jobs", "1"], "no image could be described"),
+        "h5 names not utf-8": (["describe", "--import", str(_h5_with_names(tmp / "n.h5", [b"a", b"\xff\xfe"]))],
+                               "entry 2: b'\\xff\\xfe' is not UTF-8 text"),
+        "nan descriptors": (["describe", "--import", str(tmp / "nan.npy")], "NaN or infinite value in row 1"),
+        "missing matrix": (["describe", "--import", str(tmp / "none.npy")], "file does not exist"),
+        "unknown matrix format": (["describe", "--import", str(tmp / "notes.txt")], "unknown matrix format"),
+        "not a video": (["describe", str(tmp / "x.mp4")], "not a video wiloc can read"),
+        "missing results": (["evaluate", str(tmp / "none.csv")], "results file does not exist"),
+        "foreign csv": (["evaluate", str(tmp / "pairs.csv")], "not a wiloc results file"),
+        "text confidence": (["evaluate", str(tmp / "text-confidence.csv")], "confidence 'high' is not a number"),
+        "text ground truth": (["evaluate", str(results), "--gt", f"matrix:{tmp / 'text-gt.npy'}"],
+                              "matrix holds <U3 values; give numbers"),
+        "ground truth shape": (["evaluate", str(results), "--gt", f"matrix:{tmp / 'shape-gt.npy'}"], "matrix is 3 x 3"),
+        "pairs columns": (["evaluate", str(results), "--gt", f"pairs:{tmp / 'pairs.csv'}"], "missing column(s) query, reference"),
+        "positions file": (["evaluate", str(results), "--gt", f"positions:{tmp / 'none.csv'}", "--radius", "2"], "no such file"),
+        "map of one frame": (["localize", str(ref), "--map", str(tmp / "single")], "it needs at least 2"),
+        "odometry": (["localize", str(ref), "--map", str(ref), "--method", "catgraph", "--odometry", str(tmp / "odo.csv")],
+                     "no odometry for 29 frame(s)"),
+        "no model to draw": (["compare", str(results), "--model-plot", str(tmp / "fig1.png")], "none of the results is an online"),
+    }
+
+
+CASES = ("missing folder", "a text file", "no images", "only bad images", "h5 names not utf-8", "nan descriptors",
+         "missing matrix", "unknown matrix format", "not a video", "missing results", "foreign csv", "text confidence",
+         "text ground truth", "ground truth shape", "pairs columns", "positions file", "map of one frame", "odometry",
+         "no model to draw")
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_input_files_are_one_line_with_exit_code_1(case: str, route: tuple[Path, Path], results: Path,
+                                                      tmp_path: Path) -> None:
+    ref, _ = route
+    args, message = _case_files(tmp_path, ref, results)[case]
+    ends_in_one_error(runner.invoke(app, args), 1, message)
+    assert not (tmp_path / "fig1.png").exists()
+
+
+def test_an_unreadable_folder_is_exit_code_1(route: tuple[Path, Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    ref, _ = route
+    iterdir = Path.iterdir
+
+    def refuse(self: Path):  # as a folder without read permission does (the tests may run as root)
+        if self == ref:
+            raise PermissionError(13, "Permission denied", str(self))
+        return iterdir(self)
+    monkeypatch.setattr(Path, "iterdir", refuse)
+    ends_in_one_error(runner.invoke(app, ["describe", str(ref)]), 1, f"{ref}: Permission denied")
+
+
+def test_an_image_over_the_pixel_limit_is_skipped_like_any_bad_frame(route: tuple[Path, Path]) -> None:
+    ref, _ = route
+    _huge_png(ref / "img99.png")
+    for jobs in ("1", "2"):
+        result = runner.invoke(app, ["describe", str(ref), "--jobs", jobs, "--json"])
+        assert result.exit_code == 0, result.output
+        [row] = json.loads(result.stdout)
+        assert (row["frames"], row["failed"]) == (31, 1)
+        assert row["warnings"] == [f"skipped: {ref / 'img99.png'}: image over OpenCV's size limit (2^30 pixels; "
+                                   "the environment variable OPENCV_IO_MAX_IMAGE_PIXELS raises it)"]
+        assert result.stderr.strip().startswith("skipped ") and "Traceback" not in result.output
+
+
+def test_a_run_whose_folders_changed_cannot_be_drawn(route: tuple[Path, Path], results: Path, tmp_path: Path) -> None:
+    _, query = route
+    (query / "img3.png").unlink()
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--matrix-plot", str(tmp_path / "m.png")]), 1,
+                      "no longer give the frames it lists")
+    assert not (tmp_path / "m.png").exists()
+
+
+def test_example_pairs_need_image_folders(tmp_path: Path, cache_dir: Path) -> None:
+    rng = np.random.default_rng(0)
+    for name in ("q", "r"):
+        np.save(tmp_path / f"{name}.npy", rng.random((12, 8)).astype(np.float32))
+    out = tmp_path / "run.csv"
+    assert runner.invoke(app, ["localize", str(tmp_path / "q.npy"), "--map", str(tmp_path / "r.npy"), "--metric",
+                               "cosine", "--method", "threshold", "--out", str(out)]).exit_code == 0
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(out), "--gt", "aligned", "--gt", "aligned",
+                                          "--pairs-plot", str(tmp_path / "p.png")]), 1, "need the image folders")
+
+
+def test_csv_says_which_files_it_replaced(results: Path, tmp_path: Path) -> None:
+    (tmp_path / "m-curves.csv").write_text("old\n")
+    result = runner.invoke(app, ["evaluate", str(results), "--csv", str(tmp_path / "m.csv"), "--json"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    assert report["warnings"] == [f"note: replaced the existing file {tmp_path / 'm-curves.csv'}"]
+    assert result.stderr.strip() == f"note replaced the existing file {tmp_path / 'm-curves.csv'}"
+    assert report["files"] == [str(tmp_path / "m.csv"), str(tmp_path / "m-curves.csv")]
+
+
+# ------------------------------------------------------------------------------ damaged cache
+
+def _entry_file(cache_dir: Path, folder: Path) -> Path:
+    infos = [i for i in cache_module.Cache(cache_dir).list_entries() if i.folder == str(folder.resolve())]
+    return cache_module.Cache(cache_dir).entry_path(infos[0].key)
+
+
+def _damage(path: Path, dataset: str) -> None:
+    with h5py.File(path, "r") as f:
+        d = f[dataset]
+        offset = d.id.get_offset() if d.chunks is None else d.id.get_chunk_info(0).byte_offset
+    with open(path, "r+b") as f:
+        f.seek(offset + 64)
+        f.write(b"\xde\xad\xbe\xef" * 4)
+
+
+def test_damaged_descriptors_are_described_again_with_a_note(route: tuple[Path, Path], results: Path,
+                                                             cache_dir: Path, tmp_path: Path) -> None:
+    ref, query = route
+    _damage(_entry_file(cache_dir, ref), "descriptors")
+    again = tmp_path / "again.csv"
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
+                                 "--out", str(again), "--jobs", "1", "--json"])
+    assert result.exit_code == 0, result.output
+    assert "failed their checksum (the file is damaged); described again" in json.loads(result.stdout)[0]["warnings"][0]
+    assert again.read_text().split("frame,")[1] == results.read_text().split("frame,")[1]  # the same decisions
+
+
+def test_damaged_differences_are_one_error_then_computed_anew(route: tuple[Path, Path], results: Path,
+                                                              cache_dir: Path, tmp_path: Path) -> None:
+    ref, query = route
+    [matrix] = (cache_dir / "differences").glob("*.h5")
+    _damage(matrix, "d")
+    again = tmp_path / "again.csv"
+    args = ["localize", str(query), "--map", str(ref), "--method", "threshold", "--out", str(again)]
+    ends_in_one_error(runner.invoke(app, args), 1, f"{matrix}: cached differences damaged")
+    assert not again.exists()
+    assert runner.invoke(app, args).exit_code == 0
+    assert again.read_text().split("frame,")[1] == results.read_text().split("frame,")[1]
+
+
+# ---------------------------------------------------------------------------------- 3: busy
+
+def test_a_busy_entry_is_exit_code_3(route: tuple[Path, Path], cache_dir: Path,
+                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    ref, _ = route
+    assert runner.invoke(app, ["describe", str(ref), "--jobs", "1"]).exit_code == 0
+    entry = _entry_file(cache_dir, ref)
+    holder = subprocess.Popen([sys.executable, "-c",
+                               "import sys, time; from pathlib import Path; from wiloc.cache import Cache\n"
+                               f"with Cache(Path({str(cache_dir)!r})).lock('descriptors/{entry.name}'):\n"
+                               "    print('held', flush=True); time.sleep(30)\n"],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        monkeypatch.setattr(cache_module.Cache.__init__, "__defaults__", (None, 0.3))
+        ends_in_one_error(runner.invoke(app, ["describe", str(ref)]), 3, f"in use by another wiloc process (pid {holder.pid})")
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+# ------------------------------------------------------------------------- 130: interrupted
+
+def _console_script() -> Path:
+    script = Path(sys.executable).parent / "wiloc"
+    if not script.exists():
+        pytest.skip("the wiloc console script is not installed beside this interpreter")
+    return script
+
+
+@pytest.mark.parametrize("delay", [0.15, 0.3, 0.6, 1.0, 2.0])
+def test_ctrl_c_at_any_moment_is_one_line_and_exit_code_130(delay: float, route: tuple[Path, Path],
+                                                            tmp_path: Path) -> None:
+    """From the first second (the command line still loading) to the work itself: a million
+    particles keep catgraph busy for seconds."""
+    ref, query = route
+    out = tmp_path / "run.csv"
+    run = subprocess.Popen([str(_console_script()), "localize", str(query), "--map", str(ref), "--method", "catgraph",
+                            "--particles", "1000000", "--jobs", "1", "--out", str(out)],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(delay)
+    run.send_signal(signal.SIGINT)
+    _, stderr = run.communicate(timeout=120)
+    assert run.returncode == 130, stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: interrupted"), stderr
+    assert not out.exists()
+
+
+def test_ctrl_c_after_the_work_leaves_the_exit_code_alone(route: tuple[Path, Path], tmp_path: Path) -> None:
+    """A Ctrl-C while the finished process exits (interpreter teardown) neither kills it nor
+    prints anything: the command's own exit code stands."""
+    code = ("import signal, sys, wiloc.__main__ as entry\n"
+            "sys.argv = ['wiloc', '--version']\n"
+            "status = entry.main()\n"
+            "signal.raise_signal(signal.SIGINT)\n"
+            "sys.exit(status)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert (result.returncode, result.stderr) == (0, "")
