@@ -34,6 +34,7 @@ from wiloc.reliability import DEFAULT_CUTS, Calibration, ReliabilityBins, summar
 from wiloc.follow import FolderWatch, Skipped, follow
 from wiloc.localizer import Localizer
 from wiloc.methods.base import Decision
+from wiloc.reprs import short_repr
 from wiloc.results import Results, ResultsStream, make_results, read_results, write_results
 from wiloc.training import Training, training_rows
 from wiloc.traversals import Describer, Progress, descriptor_label, descriptor_spec, stage
@@ -285,6 +286,7 @@ def _query_steps(odometry: Path | None, names: list[str]) -> np.ndarray | None:
 
 # ----------------------------------------------------------------------------------------- evaluate
 
+@short_repr
 @dataclass
 class Evaluation:
     """One run's results scored against ground truth; ``confidence`` is NaN for undecided frames.
@@ -345,6 +347,7 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS)
 
 # ------------------------------------------------------------------------------------------ compare
 
+@short_repr
 @dataclass
 class Comparison:
     """Methods x traversals side by side: the paper's Table I, Table II and the calibration table.
@@ -377,8 +380,8 @@ def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
     bases = [f"{e.method}/{e.results.meta.get('descriptor')}" if with_descriptor else e.method
              for e in evaluations]
     pairs = list(zip(bases, traversal_labels(evaluations)))
-    repeated = {base for base, traversal in pairs if pairs.count((base, traversal)) > 1}
-    return [f"{base} [{Path(e.name).stem}]" if base in repeated else base for base, e in zip(bases, evaluations)]
+    return [f"{pair[0]} [{Path(e.name).stem}]" if pairs.count(pair) > 1 else pair[0]
+            for pair, e in zip(pairs, evaluations)]
 
 
 #: Table I's metrics per (method, traversal), as Summary names them.

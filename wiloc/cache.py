@@ -37,6 +37,7 @@ import platformdirs
 from wiloc import __version__
 from wiloc.errors import CacheBusyError, WilocError
 from wiloc.frames import natural_key
+from wiloc.reprs import short_repr
 
 FORMAT = "wiloc-descriptors"
 #: 2: every frame's CRC-32 in ``frames/crc32`` and ``failed/crc32``. Files of another version are
@@ -104,6 +105,7 @@ class FrameRecord:
     timestamp_ms: float | None = None
 
 
+@short_repr
 @dataclass(frozen=True)
 class Entry(EntryHeader):
     """A cached descriptor matrix: the header's fields, rows in frame order named by file name

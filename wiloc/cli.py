@@ -197,7 +197,7 @@ def _list_cache(store: Any, as_json: bool) -> None:
              "frames": info.frames, "complete": info.complete, "MB": info.size / 1e6,
              "updated": info.updated[:10], "problem": info.problem}
             for label, info in zip(short_names([i.folder for i in infos]), infos)]
-    columns = ["folder", "descriptor", "params", "frames", "complete", "MB", "updated"]
+    columns = ["folder", "descriptor", "params", "frames", "complete", "MB"]  # --json: when each was updated
     out.print(table(f"cache {store.root}", rows, columns + ["problem"] * any(i.problem for i in infos),
                     labels={"complete": "done"}, digits={"MB": 1},
                     caption="params: those that differ from the descriptor's defaults"))

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from wiloc import api
 from wiloc.cache import Cache
+from wiloc.reprs import short_repr
 
 SEED = 2014
 FRAME_W, FRAME_H = 160, 120
@@ -284,6 +285,7 @@ def make_demo_route(root: Path, seed: int = SEED, progress: Progress | None = No
 
 # ------------------------------------------------------------------------------------------ the run
 
+@short_repr
 @dataclass
 class DemoReport:
     """What ``wiloc demo`` produced: the route, the comparison (Table I and II), the files written."""

@@ -32,6 +32,7 @@ from wiloc.descriptors.external import read_external
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
 from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, read_gray
+from wiloc.reprs import short_repr
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
 from wiloc.workers import WorkerError, WorkerPool
 
@@ -44,6 +45,7 @@ _Task = tuple[Path, FrameRecord | None]
 _devnull: int | None = None
 
 
+@short_repr
 @dataclass(frozen=True)
 class DescribeReport:
     """What a describe run did: counts, bad and ignored files, image sizes, speed, and the entry.

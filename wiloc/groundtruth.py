@@ -21,6 +21,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from wiloc.errors import WilocError
+from wiloc.reprs import short_repr
 
 EARTH_RADIUS_M = 6_371_008.8
 """Mean Earth radius (IUGG) used for lat/lon distances on a sphere."""
@@ -28,6 +29,7 @@ EARTH_RADIUS_M = 6_371_008.8
 KINDS = ("aligned", "positions", "pairs", "matrix")
 
 
+@short_repr
 @dataclass
 class Truth:
     """Which (query, reference) frame pairs are the same place, with the names of both axes."""

@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from wiloc.reprs import short_repr
+
 if TYPE_CHECKING:
     from wiloc.groundtruth import Truth
 
@@ -26,6 +28,7 @@ PRECISION_RTOL = 1e-9
 (99.9 / 100 > 0.999), yet 999 of 1000 meets it; 100 % stays exact below 10**9 accepted frames."""
 
 
+@short_repr
 @dataclass(frozen=True)
 class PRCurve:
     """Operating points in order of falling threshold: accepting every confidence >= threshold."""
@@ -155,6 +158,7 @@ def global_threshold(inputs: Sequence[tuple[ArrayLike, ArrayLike, int]],
     return float(candidates[at]), recalls
 
 
+@short_repr
 @dataclass(frozen=True)
 class Summary:
     """Counts and metrics of one run against its ground truth, with the PR curve behind them."""

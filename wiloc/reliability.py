@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from wiloc.metrics import _counts_at, _decided
+from wiloc.reprs import short_repr
 
 N_BINS = 10
 """Equal-width confidence bins: [0, 0.1), [0.1, 0.2), ..., [0.9, 1.0]."""
@@ -25,6 +26,7 @@ DEFAULT_CUTS = (0.5, 0.9, 0.99)
 """Confidence cuts at which precision and recall are reported: accept confidence >= cut."""
 
 
+@short_repr
 @dataclass(frozen=True)
 class ReliabilityBins:
     """Decided frames per equal-width confidence bin, the bins' mean confidence and share correct.
@@ -50,6 +52,7 @@ class ReliabilityBins:
         return float(np.sum(self.count[filled] / total * gaps))
 
 
+@short_repr
 @dataclass(frozen=True)
 class CutCounts:
     """Precision and recall when accepting decided frames with confidence >= each cut."""
@@ -115,6 +118,7 @@ def counts_at_cuts(confidence: ArrayLike, correct: ArrayLike, n_positive: int,
                      recall=np.asarray(recall, dtype=np.float64))
 
 
+@short_repr
 @dataclass(frozen=True)
 class Calibration:
     """How well one run's confidences are calibrated, over its decided frames."""

@@ -26,12 +26,14 @@ import pandas as pd
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decision, Decisions
 from wiloc.model import HistogramModel
+from wiloc.reprs import short_repr
 
 FORMAT_VERSION = "1"
 BASE_COLUMNS = ("frame", "match", "difference", "confidence", "stage")
 JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "sampling")
 
 
+@short_repr
 @dataclass
 class Results:
     """One localization run: what was run (``meta``) and what it decided (``frames``)."""

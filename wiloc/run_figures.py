@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import WilocError
+from wiloc.reprs import short_repr
 
 if TYPE_CHECKING:
     from wiloc.api import Evaluation
@@ -27,7 +28,8 @@ if TYPE_CHECKING:
 MAX_SIDE = 800
 
 
-@dataclass(frozen=True, repr=False)
+@short_repr
+@dataclass(frozen=True)
 class MatrixPicture:
     """A run's difference matrix for display: ``image`` holds the smallest difference of each block
     of (query, reference) cells (inf where no cell is a candidate), ``shape`` the full matrix's
@@ -45,12 +47,9 @@ class MatrixPicture:
     reference: str
     descriptor: str
 
-    def __repr__(self) -> str:
-        return (f"MatrixPicture({self.query} x {self.reference}, {self.shape[0]} x {self.shape[1]} frames, "
-                f"image {self.image.shape[0]} x {self.image.shape[1]})")
 
-
-@dataclass(frozen=True, repr=False)
+@short_repr
+@dataclass(frozen=True)
 class ImagePair:
     """One decided match to show: the query image, the map image it matched and, for a wrong match
     of a frame that has a true place, that place's image (the middle of its true frames)."""
@@ -63,10 +62,6 @@ class ImagePair:
     query_image: NDArray[np.uint8]
     match_image: NDArray[np.uint8]
     truth_image: NDArray[np.uint8] | None
-
-    def __repr__(self) -> str:
-        return (f"ImagePair({self.query_name} -> {self.match_name}, "
-                f"{'right' if self.correct else 'wrong'}, confidence {self.confidence:.3f})")
 
 
 def _traversals(evaluation: Evaluation) -> tuple[Path, Path, bool]:

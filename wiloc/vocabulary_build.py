@@ -27,6 +27,7 @@ from wiloc.cache import Cache, EntryHeader, FrameRecord, Journal, scan_journal
 from wiloc.errors import FrameError, WilocError
 from wiloc.features import DTYPES, WIDTHS, decode_size, extract_features
 from wiloc.frames import Fingerprint, fingerprint, list_traversal, read_gray
+from wiloc.reprs import short_repr
 from wiloc.vocabulary import (
     FORMAT_VERSION,
     Vocabulary,
@@ -40,6 +41,7 @@ VOCABULARIES = "vocabularies"
 Progress = Callable[[int, int], None]
 
 
+@short_repr
 @dataclass(frozen=True)
 class VocabularyReport:
     """What `build_vocabulary` did: the vocabulary, its file, whether it was built now (False:

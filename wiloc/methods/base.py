@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from wiloc.errors import UsageError, WilocError
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters
+from wiloc.reprs import short_repr
 
 Progress = Callable[[int, int], None]
 
@@ -128,6 +129,7 @@ class Decision:
         return self.match >= 0 and not np.isnan(self.confidence)
 
 
+@short_repr
 @dataclass
 class Decisions:
     """Per query frame of a batch run: best match, its difference, confidence and stage.

@@ -1,0 +1,121 @@
+"""Output people can read: help pages, tables at 80 columns, one JSON key scheme, short reprs, and
+a command line that starts without loading the heavy libraries."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from test_cli import _places, _write_traversal
+from typer.testing import CliRunner
+
+from wiloc import api
+from wiloc.cli import app
+
+runner = CliRunner()
+NARROW = {"COLUMNS": "80"}
+
+
+def _route(tmp_path: Path, n: int = 24) -> tuple[Path, Path]:
+    scenes = _places(n)
+    return (_write_traversal(tmp_path / "ref", scenes, 1.0, 1), _write_traversal(tmp_path / "query", scenes, 0.7, 2))
+
+
+def test_help_pages_name_arguments_show_defaults_and_no_flag_types() -> None:
+    usage = {"describe": "Usage: wiloc describe [OPTIONS] [FOLDER...]",
+             "localize": "Usage: wiloc localize [OPTIONS] QUERY...",
+             "evaluate": "Usage: wiloc evaluate [OPTIONS] RESULTS...",
+             "compare": "Usage: wiloc compare [OPTIONS] RESULTS..."}
+    for command, line in usage.items():
+        text = runner.invoke(app, [command, "--help"], env={"COLUMNS": "200"}).stdout
+        assert line in text and "<bool>" not in text and "{" not in text.split("\n", 3)[1]
+    localize = runner.invoke(app, ["localize", "--help"], env={"COLUMNS": "200"}).stdout
+    for default in ("[default: (all cores)]", "[default: 2000]", "[default: 0,3]", "[default: 100]",
+                    "[default: (QUERY-DESCRIPTOR-METHOD.csv here)]"):
+        assert default in localize
+    assert "(online:" not in localize  # one default shown once, not per method
+    assert "<bool>" not in runner.invoke(app, ["--help"]).stdout
+
+
+def test_the_command_line_loads_without_the_heavy_libraries() -> None:
+    heavy = ("pandas", "scipy", "h5py", "cv2", "matplotlib", "numba", "wiloc.api")
+    code = f"import sys, wiloc.cli; print([m for m in {heavy!r} if m in sys.modules])"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert result.stdout.strip() == "[]"
+
+
+def test_cache_list_tells_entries_apart_at_80_columns(tmp_path: Path, cache_dir: Path) -> None:
+    scenes = _places(6)
+    for parent in ("nordland", "gardens"):
+        folder = _write_traversal(tmp_path / parent / "winter", scenes, 1.0, 1)
+        assert runner.invoke(app, ["describe", str(folder), "--jobs", "1"]).exit_code == 0
+    assert runner.invoke(app, ["describe", str(folder), "--crop", "top-half", "--jobs", "1"]).exit_code == 0
+    text = runner.invoke(app, ["describe", "--list"], env=NARROW).stdout
+    assert "…" not in text and max(map(len, text.splitlines())) <= 80
+    rows = [line for line in text.splitlines() if line.startswith("│") and "sad" in line]
+    assert sorted(row.split("│")[1].strip() for row in rows) == ["gardens/winter", "gardens/winter", "nordland/winter"]
+    assert sorted(row.split("│")[3].strip() for row in rows) == ["crop=top-half", "defaults", "defaults"]
+
+
+def test_evaluate_with_seven_runs_stays_readable_at_80_columns(tmp_path: Path, cache_dir: Path) -> None:
+    ref, query = _route(tmp_path)
+    paths = []
+    for method in ("online", "threshold", "catgraph"):
+        for q in (query, ref):
+            paths.append(tmp_path / f"{q.name}-{method}.csv")
+            assert runner.invoke(app, ["localize", str(q), "--map", str(ref), "--method", method, "--out",
+                                       str(paths[-1]), "--jobs", "1"]).exit_code == 0
+    paths.append(tmp_path / "again.csv")
+    paths[-1].write_bytes(paths[0].read_bytes())
+    result = runner.invoke(app, ["evaluate", *map(str, paths)], env=NARROW)
+    assert result.exit_code == 0, result.output
+    assert "…" not in result.stdout and max(map(len, result.stdout.splitlines())) <= 80
+    for label in api.run_names([api.evaluate(p, api.TruthSource()) for p in paths]):
+        assert all(word in result.stdout for word in label.split())
+
+
+def _keys(value: Any, skip: frozenset[str] = frozenset({"params", "descriptor_params"})) -> set[str]:
+    """Every key of a JSON value, except inside the parameter records (whose keys are names)."""
+    if isinstance(value, dict):
+        return {k for k in value} | {key for k, v in value.items() if k not in skip for key in _keys(v)}
+    if isinstance(value, list):
+        return {key for v in value for key in _keys(v)}
+    return set()
+
+
+def test_json_keys_are_snake_case_and_carry_the_warnings(tmp_path: Path, cache_dir: Path) -> None:
+    ref, query = _route(tmp_path)
+    (query / "img3.png").write_bytes(b"")
+    out = tmp_path / "run.csv"
+    outputs = []
+    for args in (["describe", str(query), "--jobs", "1", "--json"], ["describe", "--list", "--json"],
+                 ["localize", str(query), "--map", str(ref), "--out", str(out), "--json"],
+                 ["localize", str(query), "--map", str(ref), "--out", str(out), "--json"],
+                 ["evaluate", str(out), "--json"], ["compare", str(out), "--json"]):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 0, result.output
+        outputs.append(json.loads(result.stdout))
+    for output in outputs:
+        assert all(re.fullmatch(r"[a-z][a-z0-9_]*", key) for key in _keys(output)), sorted(_keys(output))
+    describe, _, _, replaced, evaluate, _ = outputs
+    assert describe[0]["warnings"] == [f"skipped: {query / 'img3.png'}: empty file (0 bytes)"]
+    assert describe[0]["folder"] == str(query.resolve())  # full paths in JSON, names in tables
+    assert replaced[0]["warnings"][-1] == f"note: replaced the existing results file {out}"
+    assert set(evaluate) == {"ground_truth", "runs", "files", "warnings"}
+
+
+def test_reports_have_short_reprs(tmp_path: Path, cache_dir: Path) -> None:
+    ref, query = _route(tmp_path, 40)
+    report = api.describe([query], "sad", jobs=1)[0]
+    run = api.localize(query, reference=ref, method="online")
+    evaluation = api.evaluate(run, api.TruthSource())
+    comparison = api.compare([run], api.TruthSource())
+    for obj in (report, report.entry, run, run.decisions, run.results, evaluation, evaluation.truth,
+                evaluation.summary, evaluation.curve, comparison):
+        assert len(repr(obj)) < 500 and "\n" not in repr(obj), repr(obj)
+    assert "ndarray(40 x 1152)" in repr(report.entry) and "<list of 40>" in repr(report.entry)
+    np.testing.assert_array_equal(report.entry.data.shape, (40, 1152))
