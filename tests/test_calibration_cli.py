@@ -103,7 +103,7 @@ def test_calibration_plot_is_written(tmp_path: Path) -> None:
     compare_plot = tmp_path / "compare.png"
     data = _json(runner.invoke(app, ["compare", str(_gardens(tmp_path)), "--calibration-plot", str(compare_plot),
                                      "--json"]))
-    assert data["plots"] == [str(compare_plot)] and compare_plot.read_bytes()[:8] == PNG_SIGNATURE
+    assert data["files"] == [str(compare_plot)] and compare_plot.read_bytes()[:8] == PNG_SIGNATURE
 
 
 def test_compare_over_two_maps_prints_cut_tables_and_table2(tmp_path: Path) -> None:

@@ -659,7 +659,7 @@ def compare(
                        in zip(comparison.labels, comparison.traversals, comparison.evaluations)]
         print_json({"ground_truth": comparison.ground_truth,
                     "table1": comparison.table1.to_dict(orient="records"), "calibration": calibration,
-                    "table2": comparison.table2.to_dict(orient="records"), "plots": [str(p) for p in written],
+                    "table2": comparison.table2.to_dict(orient="records"), "files": [str(p) for p in written],
                     "warnings": notes})
         return
     out.print(table1_view(comparison))
