@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import logsumexp
 
 
 def novelty_weights(neighbours: NDArray[np.float64], threshold: float) -> NDArray[np.float64]:
@@ -74,6 +73,8 @@ class RankLikelihood:
 
     def mean(self, omega: NDArray[np.float64]) -> float:
         """ln of the mean lambda over every map node: the evidence for "somewhere on the map"."""
+        from scipy.special import logsumexp  # scipy loads on first use, not with the command line
+
         return float(logsumexp(self.log_ratio(self.t(self._row), omega))) - np.log(self._row.size)
 
     def t(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -115,6 +116,8 @@ class GivenEvidence:
         return (1.0 - frac) * self._row[j] + frac * self._row[j + 1]
 
     def mean(self, omega: NDArray[np.float64]) -> float:
+        from scipy.special import logsumexp  # scipy loads on first use, not with the command line
+
         return float(logsumexp(self._row)) - np.log(self._row.size)
 
     def learn(self, weight: NDArray[np.float64], in_map: float) -> None:

@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import logsumexp
 
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -48,6 +47,8 @@ class FabMapMethod(Method):
         pass  # the evidence rows carry everything FAB-MAP learned from the map and its training
 
     def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+        from scipy.special import logsumexp  # scipy loads on first use, not with the command line
+
         p = self.params
         candidates = np.isfinite(row)
         n = int(candidates.sum())
