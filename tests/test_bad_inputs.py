@@ -360,3 +360,13 @@ def test_ctrl_c_after_the_work_leaves_the_exit_code_alone(route: tuple[Path, Pat
             "sys.exit(status)\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert (result.returncode, result.stderr) == (0, "")
+
+
+@pytest.mark.parametrize("args, message", [(["localize", "Q", "--particles", "abc"], "error: --particles: input should"),
+                                           (["frob"], "error: frob: no such command"),
+                                           (["evaluate"], "error: RESULTS...: missing")])
+def test_usage_errors_are_one_line_from_the_console_script_too(args: list[str], message: str, tmp_path: Path) -> None:
+    result = subprocess.run([str(_console_script()), *args], capture_output=True, text=True, cwd=tmp_path,
+                            timeout=120)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.splitlines() == [result.stderr.strip()] and result.stderr.startswith(message)

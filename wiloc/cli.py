@@ -214,6 +214,8 @@ def _params_text(descriptor: str, params: dict[str, Any]) -> str:
         if key == "sampling":
             parts += [f"{k}={v}" for k, v in value.items() if v is not None and (k, v) not in (("every", 1), ("start", "0"))]
         elif value is not None and key not in ("video", "file_digest", "names_digest") and defaults.get(key) != value:
+            if key == "file" and "vocabulary" in params:
+                continue  # a bow entry's vocabulary file: its key says which
             parts.append(f"{key}={Path(value).name if key == 'names' else value}")
     return ", ".join(parts) or "defaults"
 
