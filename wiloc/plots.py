@@ -216,9 +216,10 @@ def plot_matrix(picture: MatrixPicture, path: str | Path, title: str = "Differen
     ax.set(xlim=(-0.5, n_ref - 0.5), ylim=(n_query - 0.5, -0.5),
            xlabel=f"reference frame ({picture.reference})", ylabel=f"query frame ({picture.query})")
     legend = fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=3, fontsize="small",
-                        markerscale=2.0, facecolor="0.85")
-    for handle in legend.legend_handles:
+                        facecolor="0.85")
+    for handle in legend.legend_handles:  # legend markers of a readable size, whatever the dots' size
         handle.set_alpha(1.0)
+        handle.set_sizes([30.0])
     return _save(fig, path)
 
 
