@@ -26,7 +26,7 @@ from rich.table import Table
 
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.differences import ComputedDifferences
-from wiloc.distances import DifferencesTo
+from wiloc.distances import DifferencesTo, consecutive
 from wiloc.localizer import Localizer
 from wiloc.methods.base import MapContext, TrainingRows
 from wiloc.methods.registry import METHODS, make_method
@@ -81,8 +81,10 @@ def measure(method: str, n_map: int, frames: int, rng: np.random.Generator) -> d
     to_map = DifferencesTo(map_data, SPEC.metric, SPEC.scale)
     self_rows = ComputedDifferences(map_data, to_map)
     batch_method = make_method(method, params)
+    steps = consecutive(map_data, SPEC.metric, SPEC.scale)
     context = MapContext(sequence=False, exclude_recent=10, n_map=n_map, natural_max=SPEC.natural_max,
-                         map_self=lambda: self_rows, training=(lambda: pair) if pair is not None else None)
+                         map_self=lambda: self_rows, neighbours=lambda: steps,
+                         training=(lambda: pair) if pair is not None else None)
     batch_method.start(context)
     wall, cpu, _ = timed(lambda: batch_method.run(iter(to_map(query).astype(np.float64)), frames))
     ms = 1000.0
