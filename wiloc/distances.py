@@ -170,7 +170,7 @@ _tile_square = _make_tile(TILE, TILE)
 _tile_single = _make_tile(1, 1)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _panel(a: np.ndarray, b: np.ndarray, out: np.ndarray, start: int, stop: int, scale: float) -> None:
     """out[start:stop] for query rows start..stop: 4 x 4 tiles, then the leftover rows and columns."""
     sums = np.empty(TILE * TILE, np.float64)
@@ -195,12 +195,30 @@ def _panel(a: np.ndarray, b: np.ndarray, out: np.ndarray, start: int, stop: int,
             out[k, s] = np.float32(sums[0] * scale)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _simd_pairwise(a: np.ndarray, b: np.ndarray, out: np.ndarray, scale: float) -> None:
     """out[i, j] = scale * diff(a[i], b[j]) over panels of PANEL_ROWS query rows in parallel."""
     n = a.shape[0]
     for p in prange((n + PANEL_ROWS - 1) // PANEL_ROWS):
         _panel(a, b, out, p * PANEL_ROWS, min(n, (p + 1) * PANEL_ROWS), scale)
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def band_extremes(block: np.ndarray, first: int, exclude: int, minima: np.ndarray, largest: np.ndarray) -> None:
+    """For each row r of a block of a square self-difference matrix starting at row ``first``:
+    lower ``minima[r]`` to its smallest finite value outside columns first + r +- ``exclude`` and
+    raise ``largest[r]`` to its largest finite value (one pass, in parallel over rows)."""
+    for r in prange(block.shape[0]):
+        i = first + r
+        low, high = minima[r], largest[r]
+        for j in range(block.shape[1]):
+            v = block[r, j]
+            if np.isfinite(v):
+                if v > high:
+                    high = v
+                if abs(i - j) > exclude and v < low:
+                    low = v
+        minima[r], largest[r] = low, high
 
 
 def _padded(x: np.ndarray, dtype: type[np.generic]) -> np.ndarray:
