@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy import integrate
+from scipy.special import logsumexp
 
 from wiloc.calibration import RankLikelihood, Unexplained, novelty_weights
 from wiloc.methods.base import run_on_rows
@@ -183,3 +184,17 @@ def test_a_query_that_leaves_the_map_says_so(data_root, query: str, tmp_path, ca
     frames = run.results.frames
     gone = frames["frame"].str[5:8].astype(int).between(60, 99).to_numpy()
     assert frames["new_place"].to_numpy()[gone].mean() > 0.5
+
+
+def test_ranks_from_one_sort_are_the_searched_ranks_with_ties() -> None:
+    rng = np.random.default_rng(4)
+    for n in (1, 7, 3000):
+        row = np.round(rng.random(n) * 40) / 7  # many ties
+        model = RankLikelihood(0.5, 10.0, 0.02)
+        model.use_row(row)
+        searched = np.searchsorted(np.sort(row), row, side="left")
+        omega = np.ones(n)
+        want = float(logsumexp(model.log_ratio(-np.log((searched + 0.5) / n), omega))) - np.log(n)
+        assert model.mean(omega) == want
+        d = rng.random(50) * 8
+        assert np.array_equal(model.t(d), -np.log((np.searchsorted(np.sort(row), d, side="left") + 0.5) / n))

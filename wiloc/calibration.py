@@ -53,6 +53,8 @@ class RankLikelihood:
         self.s0, self.s1 = n0, n0 / a0  # EM sufficient statistics: weight and weighted sum of t
         self._sorted = np.empty(0)
         self._row = np.empty(0)
+        self._row_t = np.empty(0)  # t of the current row's own differences
+        self._table = np.empty(0)  # t of each left rank 0..N for rows of N values
         self._t = np.empty(0)  # t at the particles of the current frame
 
     @property
@@ -61,9 +63,19 @@ class RankLikelihood:
         return min(1.0, max(self.a_min, self.s0 / self.s1))
 
     def use_row(self, row: NDArray[np.float64]) -> None:
-        """Rank later differences against this query row."""
-        self._row = row
-        self._sorted = np.sort(row)
+        """Rank later differences against this query row (finite values), and its own: from one
+        sort (a search per value measured 2.3x slower at 35,000 nodes)."""
+        order = np.argsort(row)
+        self._row, self._sorted = row, row[order]
+        n = row.size
+        if self._table.size != n + 1:
+            self._table = -np.log((np.arange(n + 1) + 0.5) / n)
+        first = np.empty(n, dtype=bool)  # where a run of equal values starts: its left rank
+        first[:1] = True
+        np.not_equal(self._sorted[1:], self._sorted[:-1], out=first[1:])
+        left = np.maximum.accumulate(np.where(first, np.arange(n), 0))
+        self._row_t = np.empty(n)
+        self._row_t[order] = self._table[left]
 
     def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
         """ln lambda at positions a ``frac`` of the way from node j to j + 1 (the difference
@@ -75,11 +87,11 @@ class RankLikelihood:
         """ln of the mean lambda over every map node: the evidence for "somewhere on the map"."""
         from scipy.special import logsumexp  # scipy loads on first use, not with the command line
 
-        return float(logsumexp(self.log_ratio(self.t(self._row), omega))) - np.log(self._row.size)
+        return float(logsumexp(self.log_ratio(self._row_t, omega))) - np.log(self._row.size)
 
     def t(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
         """-ln u of each difference: its mid-rank p-value in the row."""
-        return -np.log((np.searchsorted(self._sorted, d, side="left") + 0.5) / self._sorted.size)
+        return self._table[np.searchsorted(self._sorted, d, side="left")]
 
     def log_ratio(self, t: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
         """ln lambda = ln a_j + (1 - a_j) t, a_j = 1 - omega (1 - a)."""
