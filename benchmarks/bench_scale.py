@@ -1,0 +1,227 @@
+"""End-to-end `wiloc.api.localize` at scale against the SAD kernel time of the same blocks, and
+`describe` with 1 and 2 workers.
+
+    python benchmarks/bench_scale.py                              # N = 1,000 .. 35,000 (long)
+    python benchmarks/bench_scale.py --sizes 1000,5000 --repeat 3 # quicker
+    python benchmarks/bench_scale.py --sizes 0 --describe         # the describe table only
+
+One query of N frames against one map of N frames, map mode, generated ``sad`` descriptors (an
+AR(1) walk, the query following the map with noise; see bench_localizer.py). Each traversal is a
+folder of N empty ``.jpg`` files whose descriptors are put into a fresh cache beforehand, so
+``localize`` runs exactly as on real folders and finds every frame described. Every run is a
+child process (its peak RSS is its own): *cold* starts from a cache holding only the
+descriptors, *warm* repeats it on the cache the cold run left. ``trained`` learns from a labelled
+pair of min(1,000, N / 2) frames against the same map.
+
+The kernel column is the SAD kernel alone (``pairwise_blocks``, 1024-row blocks) over the blocks
+the method needs, in this run: query x map for every method, plus map x map for ``online``, plus
+training query x map for ``trained``; ratio = cold wall / kernel wall. Times are medians over
+``--repeat`` runs; CPU seconds are the child's process time (all its threads).
+
+The describe table times ``describe_folder`` on the 600 Gardens Point images (fresh cache each
+run) with ``jobs`` 1 and 2, against plain JPEG decoding, in the same run.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench_describe import TRAVERSALS, data_root, plain_decode_rate
+from bench_localizer import SPEC, route
+from wiloc.cache import Cache, EntryHeader, FrameRecord, StoredEntry
+
+METHODS = ("online", "threshold", "trained", "catgraph")
+KERNEL_BLOCKS = {"online": ("query", "map"), "threshold": ("query",), "trained": ("query", "train"),
+                 "catgraph": ("query",)}
+
+
+def seed_folder(folder: Path, data: np.ndarray, names: list[str], cache: Cache) -> None:
+    """A folder of empty image files whose `sad` descriptors the cache already holds."""
+    folder.mkdir(parents=True)
+    records = {}
+    for name, row in zip(names, data):
+        path = folder / name
+        path.touch()
+        stat = path.stat()
+        records[name] = FrameRecord(name, stat.st_size, stat.st_mtime_ns, "", row, "", 64, 32)
+    header = EntryHeader.create(str(folder.resolve()), SPEC.name, SPEC.params, SPEC.metric, SPEC.scale,
+                                SPEC.natural_max, SPEC.dtype, SPEC.length)
+    cache.write_entry(StoredEntry(header, records), complete=True)
+
+
+def make_case(root: Path, n: int) -> dict[str, Any]:
+    """Map, query and training folders of a generated route, described into ``root/cache``."""
+    rng = np.random.default_rng(n)
+    cache = Cache(root / "cache")
+    map_data, query, _ = route(n, n, rng)
+    names = [f"f{i:06d}.jpg" for i in range(n)]
+    seed_folder(root / "map", map_data, names, cache)
+    seed_folder(root / "query", query, names, cache)
+    # training: frames at known map nodes, named as those nodes (ground truth aligned by name);
+    # every fourth is unrelated noise, so that training sees wrong best matches too
+    nodes = np.unique(np.rint(np.linspace(0, n - 1, min(1000, n // 2))).astype(int))
+    noisy = np.clip(map_data[nodes].astype(float) + rng.normal(0, 20, (nodes.size, SPEC.length)), 0, 255)
+    noisy[::4] = np.clip(128 + 32 * rng.standard_normal((noisy[::4].shape)), 0, 255)  # some wrong best matches
+    seed_folder(root / "train", noisy.astype(np.uint8), [names[i] for i in nodes], cache)
+    return {"query": query, "map": map_data, "train": noisy.astype(np.uint8)}
+
+
+def child_localize(args: argparse.Namespace) -> dict[str, float]:
+    """One localize run in this (child) process: wall, CPU, peak RSS."""
+    from wiloc import api
+    from wiloc.groundtruth import TruthSource
+
+    root = Path(args.root)
+    training = None
+    if args.method == "trained":
+        training = api.Training(root / "train", root / "map", TruthSource("aligned", tolerance=2))
+    extra = {"scheduler": args.scheduler} if args.scheduler else {}
+    wall, cpu = time.perf_counter(), time.process_time()
+    run = api.localize(root / "query", reference=root / "map", method=args.method, training=training,
+                       cache=Cache(root / "cache"), jobs=1, **extra)
+    return {"wall": time.perf_counter() - wall, "cpu": time.process_time() - cpu,
+            "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "decided": int(run.decisions.decided.sum())}
+
+
+def child_kernel(args: argparse.Namespace) -> dict[str, float]:
+    """The SAD kernel alone over query x map, map x map and training x map: wall and CPU each."""
+    from wiloc.distances import pairwise, pairwise_blocks
+    from wiloc.cache import Cache
+
+    cache = Cache(Path(args.root) / "cache")
+    entries = {e.folder: cache.read_entry(e.key) for e in cache.list_entries()}
+    data = {Path(folder).name: entry.data for folder, entry in entries.items()}
+    pairwise(data["map"][:9], data["map"][:9], SPEC.metric, SPEC.scale)  # compile outside the timing
+    out: dict[str, float] = {}
+    for side in ("query", "map", "train"):
+        wall, cpu = time.perf_counter(), time.process_time()
+        for _ in pairwise_blocks(data[side], data["map"], SPEC.metric, SPEC.scale):
+            pass
+        out[f"{side}_wall"], out[f"{side}_cpu"] = time.perf_counter() - wall, time.process_time() - cpu
+    return out
+
+
+def run_child(*argv: str) -> dict[str, float]:
+    """Run this script as a child with ``argv`` and return the JSON it prints last."""
+    done = subprocess.run([sys.executable, __file__, *argv], check=True, capture_output=True, text=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def median_of(runs: list[dict[str, float]]) -> dict[str, float]:
+    return {key: statistics.median(r[key] for r in runs) for key in runs[0]}
+
+
+def folder_mb(folder: Path) -> float:
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
+
+
+def scale_rows(n: int, methods: list[str], repeat: int, scheduler: str | None, work: Path) -> list[str]:
+    """The table rows of one size N."""
+    root = work / f"n{n}"
+    shutil.rmtree(root, ignore_errors=True)
+    make_case(root, n)
+    cache = root / "cache"
+    kernel = median_of([run_child("--child", "kernel", "--root", str(root)) for _ in range(repeat)])
+    rows = []
+    for method in methods:
+        argv = ["--child", "localize", "--root", str(root), "--method", method]
+        argv += ["--scheduler", scheduler] if scheduler else []
+        cold, warm, size = [], [], []
+        for _ in range(repeat):
+            for derived in cache.iterdir():
+                if derived.name != "descriptors":
+                    shutil.rmtree(derived)
+            cold.append(run_child(*argv))
+            size.append({"mb": sum(folder_mb(d) for d in cache.iterdir() if d.name != "descriptors")})
+            warm.append(run_child(*argv))
+        c, w = median_of(cold), median_of(warm)
+        k_wall = sum(kernel[f"{side}_wall"] for side in KERNEL_BLOCKS[method])
+        k_cpu = sum(kernel[f"{side}_cpu"] for side in KERNEL_BLOCKS[method])
+        rows.append(f"{n:>7,} {method:<10} {k_wall:>8.2f} {k_cpu:>8.2f} {c['wall']:>8.2f} {c['cpu']:>8.2f} "
+                    f"{c['wall'] / k_wall:>6.2f}x {w['wall']:>8.2f} {w['cpu']:>8.2f} {w['wall'] / k_wall:>6.2f}x "
+                    f"{max(c['rss_mb'], w['rss_mb']):>8.0f} {median_of(size)['mb']:>9.1f}")
+    shutil.rmtree(root, ignore_errors=True)
+    return rows
+
+
+def describe_rows(data: Path, repeat: int, descriptors: list[str]) -> list[str]:
+    """Images/s of each descriptor with 1 and 2 workers, against plain decoding, medians."""
+    from wiloc.describing import describe_folder
+    from wiloc.descriptors.registry import get_descriptor
+
+    folders = [data / "gardens-point-walking" / t for t in TRAVERSALS]
+    decode = statistics.median(plain_decode_rate(folders) for _ in range(repeat))
+    rows = [f"{'cv2.imread full size':<14} {'':>5} {decode:>9.1f} {1.0:>7.2f} {'':>8}"]
+
+    def rate(name: str, jobs: int) -> float:
+        with tempfile.TemporaryDirectory() as temp:
+            cache = Cache(Path(temp))
+            start = time.perf_counter()
+            computed = sum(describe_folder(f, get_descriptor(name), cache, jobs).computed for f in folders)
+            return computed / (time.perf_counter() - start)
+
+    for name in descriptors:
+        rates: dict[int, list[float]] = {1: [], 2: []}
+        for _ in range(repeat):  # alternate, so that load on the machine hits both alike
+            for jobs in (1, 2):
+                rates[jobs].append(rate(name, jobs))
+        one, two = statistics.median(rates[1]), statistics.median(rates[2])
+        rows.append(f"{name:<14} {1:>5} {one:>9.1f} {one / decode:>7.2f} {'':>8}")
+        rows.append(f"{name:<14} {2:>5} {two:>9.1f} {two / decode:>7.2f} {two / one:>7.2f}x")
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sizes", default="1000,5000,20000,35000", help="N, comma-separated (0: none)")
+    parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--repeat", type=int, default=3, help="runs per figure; medians are reported")
+    parser.add_argument("--scheduler", help="localize through this Dask scheduler (or 'local')")
+    parser.add_argument("--describe", action="store_true", help="also the describe table")
+    parser.add_argument("--descriptors", default="sad,gist,brisk-gist")
+    parser.add_argument("--data", help="folder holding gardens-point-walking/ (default: $WILOC_DATA)")
+    parser.add_argument("--work", help="scratch folder (default: a temporary one)")
+    parser.add_argument("--child", choices=("localize", "kernel"), help=argparse.SUPPRESS)
+    parser.add_argument("--root", help=argparse.SUPPRESS)
+    parser.add_argument("--method", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        child: Callable[[argparse.Namespace], dict[str, float]] = \
+            child_localize if args.child == "localize" else child_kernel
+        print(json.dumps(child(args)))
+        return
+    print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, medians of {args.repeat}")
+    sizes = [int(s) for s in args.sizes.split(",") if int(s) > 0]
+    if sizes:
+        header = (f"{'N':>7} {'method':<10} {'kernel s':>8} {'kern cpu':>8} {'cold s':>8} {'cold cpu':>8} "
+                  f"{'ratio':>7} {'warm s':>8} {'warm cpu':>8} {'ratio':>7} {'RSS MB':>8} {'cache MB':>9}")
+        print(header)
+        print("-" * len(header))
+        with tempfile.TemporaryDirectory(dir=args.work) as temp:
+            for n in sizes:
+                for row in scale_rows(n, args.methods.split(","), args.repeat, args.scheduler, Path(temp)):
+                    print(row, flush=True)
+        print("kernel: SAD kernel wall and CPU s over the blocks the method needs; ratio: wall / kernel wall;"
+              " cache MB: what localize left in the cache besides the descriptors.")
+    if args.describe:
+        print(f"\n{'descriptor':<14} {'jobs':>5} {'images/s':>9} {'/decode':>7} {'2 vs 1':>8}")
+        for row in describe_rows(data_root(args.data), args.repeat, args.descriptors.split(",")):
+            print(row, flush=True)
+
+
+if __name__ == "__main__":
+    main()
