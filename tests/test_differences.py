@@ -1,8 +1,9 @@
-"""Cached difference matrices: reuse, invalidation, blockwise reading, masking, errors, crash safety."""
+"""Difference rows computed block by block; the map summary: values, cache reuse, invalidation,
+errors, crash safety."""
 from __future__ import annotations
 
 import dataclasses
-import os
+import threading
 import subprocess
 import sys
 from pathlib import Path
@@ -12,9 +13,10 @@ import numpy as np
 import pytest
 
 from wiloc.cache import Cache, Entry
-from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matrix
+from wiloc.differences import MapSummary, candidate_rows, differences, map_summary, prefetched_blocks, summarize
 from wiloc.distances import pairwise
 from wiloc.errors import WilocError
+from wiloc.methods.base import ArrayRows
 
 
 def make_entry(key: str, rows: int, seed: int, metric: str = "l1", scale: float = 0.5, length: int = 48) -> Entry:
@@ -43,75 +45,120 @@ def cache(tmp_path: Path) -> Cache:
     return Cache(tmp_path / "cache")
 
 
-def test_matrix_holds_the_differences(cache: Cache) -> None:
+def brute_summary(entry: Entry, exclude: int) -> MapSummary:
+    """The summary the slow way: the whole matrix in float64, the band masked."""
+    d = pairwise(entry.data, entry.data, entry.metric, entry.scale).astype(np.float64)
+    n = d.shape[0]
+    band = np.abs(np.arange(n)[:, None] - np.arange(n)[None, :]) <= exclude
+    return MapSummary(minima=np.where(band, np.inf, d).min(axis=1, initial=np.inf), largest=float(d.max(initial=0.0)))
+
+
+def test_rows_are_the_kernels_differences_in_any_block_size() -> None:
     query, ref = make_entry("q", 10, 1), make_entry("r", 7, 2)
-    with difference_matrix(query, ref, cache) as m:
-        assert m.shape == (10, 7)
-        assert m.path == cache.root / "differences" / "q-r.h5"
-        assert m.metric == "l1" and m.scale == 0.5
-        assert m.query_names == query.names and m.ref_names == ref.names
-        expected = pairwise(query.data, ref.data, "l1", 0.5)
-        block = m.rows(2, 5)
-        assert block.dtype == np.float32
-        np.testing.assert_array_equal(block, expected[2:5])
-        assert m.row(4).dtype == np.float64
-        np.testing.assert_array_equal(m.row(4), expected[4])
-    with h5py.File(m.path, "r") as f:
-        assert f.attrs["query_digest"] == query.digest and f.attrs["ref_digest"] == ref.digest
-        assert "wiloc_version" in f.attrs
-
-
-def test_second_call_reuses_the_file(cache: Cache) -> None:
-    query, ref = make_entry("q", 10, 1), make_entry("r", 7, 2)
-    first, second = Counter(), Counter()
-    with difference_matrix(query, ref, cache, progress=first) as m:
-        stamp = m.path.stat().st_mtime_ns
-    with difference_matrix(query, ref, cache, progress=second) as m:
-        assert m.path.stat().st_mtime_ns == stamp
-    assert first.calls and not second.calls
-
-
-@pytest.mark.parametrize("change", ["query", "ref", "metric"])
-def test_changed_entry_recomputes(cache: Cache, change: str) -> None:
-    query, ref = make_entry("q", 10, 1), make_entry("r", 7, 2)
-    difference_matrix(query, ref, cache).close()
-    if change == "query":
-        query = make_entry("q", 12, 3)
-    elif change == "ref":
-        ref = make_entry("r", 7, 4)
-    else:
-        query = dataclasses.replace(query, metric="hamming")
-        ref = dataclasses.replace(ref, metric="hamming")
-    counter = Counter()
-    with difference_matrix(query, ref, cache, progress=counter) as m:
-        np.testing.assert_array_equal(m.rows(0, m.shape[0]), pairwise(query.data, ref.data, query.metric, 0.5))
-    assert counter.calls
-
-
-def test_small_blocks_write_and_read_everything(cache: Cache) -> None:
-    query, ref = make_entry("q", 10, 1), make_entry("r", 7, 2)
-    counter = Counter()
-    with difference_matrix(query, ref, cache, progress=counter, block_rows=3) as m:
-        assert counter.calls == [(3, 10), (6, 10), (9, 10), (10, 10)]
-        rows = list(m.iter_rows(block_rows=4))
+    m = differences(query, ref)
     expected = pairwise(query.data, ref.data, "l1", 0.5)
-    assert len(rows) == 10 and all(r.dtype == np.float64 for r in rows)
-    np.testing.assert_array_equal(np.stack(rows), expected)
+    assert m.shape == (10, 7)
+    np.testing.assert_array_equal(m.rows(2, 5), expected[2:5])
+    for block_rows in (1, 3, 4, 10, 64):
+        rows = list(m.iter_rows(block_rows))
+        assert len(rows) == 10 and all(r.dtype == np.float64 for r in rows)
+        np.testing.assert_array_equal(np.stack(rows), expected)
 
 
-def test_empty_query(cache: Cache) -> None:
-    with difference_matrix(make_entry("q", 0, 1), make_entry("r", 5, 2), cache) as m:
-        assert m.shape == (0, 5)
-        assert list(m.iter_rows()) == []
+def test_empty_query_has_no_rows() -> None:
+    m = differences(make_entry("q", 0, 1), make_entry("r", 5, 2))
+    assert m.shape == (0, 5)
+    assert list(m.iter_rows()) == []
 
 
-def test_candidate_rows_mask_recent_frames_in_sequence_mode(cache: Cache) -> None:
+def test_prefetching_hands_a_kernel_error_to_the_reader() -> None:
+    def failing(rows: np.ndarray) -> np.ndarray:
+        if rows[0, 0] == 3:
+            raise RuntimeError("kernel failed")
+        return rows.astype(np.float32)
+
+    data = np.arange(6, dtype=np.float32)[:, None]
+    blocks = prefetched_blocks(data, failing, [(0, 2), (2, 3), (3, 6)])  # type: ignore[arg-type]
+    assert next(blocks).tolist() == [[0.0], [1.0]]
+    assert next(blocks).tolist() == [[2.0]]
+    with pytest.raises(RuntimeError, match="kernel failed"):
+        next(blocks)
+
+
+def test_a_reader_that_stops_early_stops_the_helper_thread() -> None:
+    query, ref = make_entry("q", 50, 1), make_entry("r", 7, 2)
+    before = threading.active_count()
+    rows = differences(query, ref).iter_rows(block_rows=2)
+    next(rows)
+    rows.close()
+    assert threading.active_count() == before
+
+
+@pytest.mark.parametrize("exclude", [0, 2, 30])
+def test_summary_is_the_band_masked_minimum_and_the_largest_value(exclude: int) -> None:
+    entry = make_entry("r", 23, 3)
+    got = summarize(differences(entry, entry), exclude)
+    want = brute_summary(entry, exclude)
+    np.testing.assert_array_equal(got.minima, want.minima)
+    assert got.largest == want.largest
+    from_array = summarize(ArrayRows(pairwise(entry.data, entry.data, "l1", 0.5)), exclude)
+    np.testing.assert_array_equal(from_array.minima, want.minima)
+    assert from_array.largest == want.largest
+    assert np.isinf(got.minima).all() == (exclude >= 22)
+
+
+def test_summary_ignores_values_that_are_not_finite() -> None:
+    s = summarize(ArrayRows(np.array([[0, np.nan, 5], [np.inf, 0, 2], [4, 1, 0]], np.float32)), 0)
+    np.testing.assert_array_equal(s.minima, [5.0, 2.0, 1.0])
+    assert s.largest == 5.0
+
+
+def test_map_summary_is_cached_and_reused(cache: Cache) -> None:
+    ref = make_entry("r", 12, 2)
+    first, second = Counter(), Counter()
+    s1 = map_summary(ref, cache, 2, progress=first)
+    path = cache.root / "differences" / "r-self-r2.h5"
+    stamp = path.stat().st_mtime_ns
+    s2 = map_summary(ref, cache, 2, progress=second)
+    assert first.calls[-1] == (12, 12) and not second.calls
+    assert path.stat().st_mtime_ns == stamp
+    np.testing.assert_array_equal(s1.minima, s2.minima)
+    assert s1.largest == s2.largest == brute_summary(ref, 2).largest
+    with h5py.File(path, "r") as f:
+        assert f.attrs["ref_digest"] == ref.digest and f.attrs["exclude_recent"] == 2
+        assert "wiloc_version" in f.attrs
+    assert path.stat().st_size < 20_000  # no N x N matrix in the cache
+
+
+@pytest.mark.parametrize("change", ["ref", "metric", "scale"])
+def test_changed_map_recomputes_its_summary(cache: Cache, change: str) -> None:
+    ref = make_entry("r", 12, 2)
+    map_summary(ref, cache, 2)
+    if change == "ref":
+        ref = make_entry("r", 12, 4)
+    else:
+        ref = dataclasses.replace(ref, **({"metric": "hamming"} if change == "metric" else {"scale": 0.25}))
+    counter = Counter()
+    got = map_summary(ref, cache, 2, progress=counter)
+    assert counter.calls
+    np.testing.assert_array_equal(got.minima, brute_summary(ref, 2).minima)
+
+
+def test_another_recent_window_is_another_summary(cache: Cache) -> None:
+    ref = make_entry("r", 12, 2)
+    wide, narrow = map_summary(ref, cache, 5), map_summary(ref, cache, 1)
+    np.testing.assert_array_equal(wide.minima, brute_summary(ref, 5).minima)
+    np.testing.assert_array_equal(narrow.minima, brute_summary(ref, 1).minima)
+    assert {p.name for p in (cache.root / "differences").glob("*.h5")} == {"r-self-r5.h5", "r-self-r1.h5"}
+
+
+def test_candidate_rows_mask_recent_frames_in_sequence_mode() -> None:
     route = make_entry("s", 9, 5)
     exclude = 2
-    with difference_matrix(route, route, cache) as m:
-        full = m.rows(0, 9).astype(np.float64)
-        seq = list(candidate_rows(m, sequence=True, exclude_recent=exclude))
-        mapped = list(candidate_rows(m, sequence=False, exclude_recent=exclude))
+    m = differences(route, route)
+    full = m.rows(0, 9).astype(np.float64)
+    seq = list(candidate_rows(m, sequence=True, exclude_recent=exclude))
+    mapped = list(candidate_rows(m, sequence=False, exclude_recent=exclude))
     for k, row in enumerate(seq):
         candidates = np.arange(9) < k - exclude
         assert np.all(np.isinf(row[~candidates]))
@@ -119,12 +166,12 @@ def test_candidate_rows_mask_recent_frames_in_sequence_mode(cache: Cache) -> Non
     np.testing.assert_array_equal(np.stack(mapped), full)
 
 
-def test_candidate_rows_reject_bad_requests(cache: Cache) -> None:
-    with difference_matrix(make_entry("q", 4, 1), make_entry("r", 3, 2), cache) as m:
-        with pytest.raises(ValueError, match="square"):
-            next(candidate_rows(m, sequence=True, exclude_recent=0))
-        with pytest.raises(ValueError, match="exclude_recent"):
-            next(candidate_rows(m, sequence=False, exclude_recent=-1))
+def test_candidate_rows_reject_bad_requests() -> None:
+    m = differences(make_entry("q", 4, 1), make_entry("r", 3, 2))
+    with pytest.raises(ValueError, match="square"):
+        next(candidate_rows(m, sequence=True, exclude_recent=0))
+    with pytest.raises(ValueError, match="exclude_recent"):
+        next(candidate_rows(m, sequence=False, exclude_recent=-1))
 
 
 @pytest.mark.parametrize(
@@ -135,14 +182,13 @@ def test_candidate_rows_reject_bad_requests(cache: Cache) -> None:
         ({"length": 40}, "length 48 vs 40"),
     ],
 )
-def test_incompatible_entries_name_both_folders(cache: Cache, ref_change: dict, problem: str) -> None:
+def test_incompatible_entries_name_both_folders(ref_change: dict, problem: str) -> None:
     query, ref = make_entry("q", 4, 1), make_entry("r", 3, 2, **ref_change)
     with pytest.raises(WilocError) as caught:
-        difference_matrix(query, ref, cache)
+        differences(query, ref)
     message = str(caught.value)
     assert query.folder in message and ref.folder in message and problem in message
     assert "\n" not in message
-    assert not (cache.root / "differences" / "q-r.h5").exists()
 
 
 _KILLED_WRITER = """
@@ -150,31 +196,36 @@ import os, signal, sys
 sys.path.insert(0, {tests!r})
 from test_differences import make_entry
 from wiloc.cache import Cache
-from wiloc.differences import difference_matrix
+from wiloc.differences import map_summary
 
 def die(done, total):
-    os.kill(os.getpid(), signal.SIGKILL)
+    if done == total:
+        os.kill(os.getpid(), signal.SIGKILL)
 
-difference_matrix(make_entry("q", 10, 1), make_entry("r", 7, 2), Cache({root!r}), progress=die, block_rows=3)
+map_summary(make_entry("r", 10, 2), Cache({root!r}), 2, progress=die)
 """
 
 
-def test_killed_writer_leaves_no_complete_looking_file(cache: Cache) -> None:
+def test_killed_summary_writer_leaves_no_file(cache: Cache) -> None:
     script = _KILLED_WRITER.format(tests=str(Path(__file__).parent), root=str(cache.root))
     result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert result.returncode == -9, result.stderr[-2000:]
-    final = cache.root / "differences" / "q-r.h5"
-    assert not final.exists()
-    assert any(p.name.startswith(".q-r.h5") for p in final.parent.iterdir())  # the abandoned temp file
-    query, ref = make_entry("q", 10, 1), make_entry("r", 7, 2)
-    with difference_matrix(query, ref, cache) as m:
-        np.testing.assert_array_equal(m.rows(0, 10), pairwise(query.data, ref.data, "l1", 0.5))
+    assert not (cache.root / "differences" / "r-self-r2.h5").exists()
+    ref = make_entry("r", 10, 2)
+    np.testing.assert_array_equal(map_summary(ref, cache, 2).minima, brute_summary(ref, 2).minima)
 
 
-def test_matrix_file_closes(cache: Cache) -> None:
-    m = difference_matrix(make_entry("q", 3, 1), make_entry("r", 3, 2), cache)
-    assert isinstance(m, DifferenceMatrix)
-    m.close()
-    with pytest.raises((ValueError, RuntimeError, KeyError, OSError)):
-        m.rows(0, 1)
-    os.remove(m.path)  # closed: the file can go
+def test_a_damaged_summary_is_computed_again(cache: Cache) -> None:
+    ref = make_entry("r", 12, 2)
+    map_summary(ref, cache, 2)
+    path = cache.root / "differences" / "r-self-r2.h5"
+    with h5py.File(path, "r") as f:
+        offset = f["minima"].id.get_offset() if f["minima"].chunks is None else \
+            f["minima"].id.get_chunk_info(0).byte_offset
+    data = bytearray(path.read_bytes())
+    data[offset:offset + 16] = bytes(16)  # zero the first values: the checksum no longer holds
+    path.write_bytes(bytes(data))
+    counter = Counter()
+    got = map_summary(ref, cache, 2, progress=counter)
+    assert counter.calls
+    np.testing.assert_array_equal(got.minima, brute_summary(ref, 2).minima)

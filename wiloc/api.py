@@ -5,10 +5,8 @@ The CLI and the demo call these; so can a notebook. Nothing here prints. Long st
 """
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,7 +18,7 @@ from wiloc import __version__
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent
 from wiloc.describing import DescribeReport, check_sampling, describe_source, import_matrix
-from wiloc.differences import DifferenceMatrix, candidate_rows, difference_matrix
+from wiloc.differences import candidate_rows, run_differences
 from wiloc.distances import consecutive
 from wiloc.errors import UsageError, WilocError
 from wiloc.groundtruth import Truth, TruthSource
@@ -161,33 +159,23 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     if problem is not None:
         raise WilocError(query, problem)
     kind = algo.row_kind(describer.descriptor)
-    with ExitStack() as files:
-        if kind == "log_ratio":  # FAB-MAP's evidence from bag-of-words descriptors
-            evidence = FabMapEvidence.of(describer.spec)
-            if not sequence:
-                evidence.add_places(r.data)
-            rows = evidence_rows(evidence, q.data, sequence, R)
-            matrix = None
-        else:
-            matrix = files.enter_context(difference_matrix(q, r, describer.cache, progress=stage(progress, "differences")))
-            rows = candidate_rows(matrix, sequence, R)
-
-        @functools.cache
-        def map_self() -> DifferenceMatrix:
-            """The map's differences to itself on first use (sequence mode: the run's own matrix)."""
-            if sequence and matrix is not None:
-                return matrix
-            return files.enter_context(difference_matrix(r, r, describer.cache,
-                                                         progress=stage(progress, "map differences")))
-        context = MapContext(
-            sequence=sequence, exclude_recent=R, n_map=0 if sequence else len(r.names), rows=kind,
-            natural_max=r.natural_max, arclength=_map_arclength(map_odometry, r.names), map_self=map_self,
-            neighbours=None if sequence else lambda: consecutive(r.data, r.metric, r.scale),
-            training=(lambda: training_rows(training, describer, R)) if training else None)
-        algo.start(context)
-        decisions = algo.run(rows, len(q.names),
-                             odometry=_query_steps(odometry, q.names),
-                             progress=stage(progress, f"{method} {query.name}"))
+    source = run_differences(q, r, describer.cache, R, describer.runner, progress=stage(progress, "map differences"))
+    if kind == "log_ratio":  # FAB-MAP's evidence from bag-of-words descriptors
+        evidence = FabMapEvidence.of(describer.spec)
+        if not sequence:
+            evidence.add_places(r.data)
+        rows = evidence_rows(evidence, q.data, sequence, R)
+    else:
+        rows = candidate_rows(source.rows, sequence, R)
+    context = MapContext(
+        sequence=sequence, exclude_recent=R, n_map=0 if sequence else len(r.names), rows=kind,
+        natural_max=r.natural_max, arclength=_map_arclength(map_odometry, r.names), map_self=source.map_self,
+        map_summary=source.map_summary, neighbours=None if sequence else lambda: consecutive(r.data, r.metric, r.scale),
+        training=(lambda: training_rows(training, describer, R)) if training else None)
+    algo.start(context)
+    decisions = algo.run(rows, len(q.names),
+                         odometry=_query_steps(odometry, q.names),
+                         progress=stage(progress, f"{method} {query.name}"))
     meta = _run_meta(method, describer, query, q.metric, reference, R, training)
     if videos:
         meta["sampling"] = asdict(sampling or Sampling())

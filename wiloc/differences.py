@@ -1,116 +1,156 @@
-"""Query x reference difference matrices, cached in HDF5 and read back row block by row block.
+"""A run's difference rows, computed block of rows by block of rows and never stored; the map's
+self-difference summary, small, cached.
 
-``<cache root>/differences/<query key>-<reference key>.h5`` holds dataset ``d`` (float32, query
-frames x reference frames, chunked by a few rows so one row reads cheaply), datasets
-``query_names`` and ``ref_names`` (datasets, not attributes: HDF5 caps an attribute at 64 KB) and
-attributes ``query_digest``, ``ref_digest``, ``metric``, ``scale``, ``query_folder``,
-``ref_folder`` and ``wiloc_version``. A file is reused only while both entry digests and the
-metric and scale match; otherwise it is recomputed under the cache lock for its name, blockwise
-(memory stays at one block of rows) and written through an atomic rename, so a killed writer
-never leaves a file that looks complete. Each chunk of ``d`` carries a Fletcher-32 checksum
-(HDF5's filter): a damaged chunk is a WilocError naming the file when it is read, and the file
-is removed, so that the next run computes it again.
+Nothing N x N is kept: at N = 35,000 the SAD kernel computes the query x map rows in about the
+time HDF5 reads them back from a cache, and in a fraction of the time it takes to write them
+(4.9 GB per matrix; docs/kernels.md gives the measurements). What methods learn from the map's
+differences to itself is small and is cached: each map frame's smallest difference outside its
++-R (``online``) and the largest difference (``threshold`` without a natural maximum), in
+``<cache root>/differences/<map key>-self-r<R>.h5``: dataset ``minima`` (float64, one per map
+frame, inf where a frame has no difference outside +-R), attributes ``largest``, ``ref_digest``,
+``metric``, ``scale``, ``exclude_recent``, ``ref_folder`` and ``wiloc_version``. A summary is
+reused only while the map's entry digest, metric, scale and R match and its checksum
+(HDF5's Fletcher-32 filter) holds; otherwise it is recomputed under the cache lock for its name
+and written through an atomic rename.
 """
 from __future__ import annotations
 
+import queue
+import threading
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
+from typing import Protocol
 
 import h5py
 import numpy as np
+from numpy.typing import NDArray
 
 from wiloc import __version__
 from wiloc.cache import Cache, Entry
-from wiloc.distances import DifferencesTo, pairwise_blocks
+from wiloc.distances import DifferencesTo, band_extremes
 from wiloc.errors import WilocError
 
 Progress = Callable[[int, int], None]
 
 DEFAULT_BLOCK_ROWS = 1024
-_CHUNK_BYTES = 1 << 20  # target size of one HDF5 chunk of rows
+BLOCK_VALUES = 1 << 23
+"""Differences per block when a whole matrix is swept (32 MB of float32)."""
 
 
-class DifferenceMatrix:
-    """A cached difference matrix opened for reading; use as a context manager or call close()."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = Path(path)
-        self._file = h5py.File(self.path, "r")
-        self._d = self._file["d"]
-
-    def __enter__(self) -> DifferenceMatrix:
-        return self
-
-    def __exit__(
-        self, kind: type[BaseException] | None, error: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
-
-    def close(self) -> None:
-        """Close the HDF5 file."""
-        self._file.close()
+class RowBlocks(Protocol):
+    """A matrix read block of rows by block of rows (e.g. :class:`ComputedDifferences`)."""
 
     @property
-    def shape(self) -> tuple[int, int]:
-        """(query frames, reference frames)."""
-        rows, cols = self._d.shape
-        return int(rows), int(cols)
+    def shape(self) -> tuple[int, int]: ...
 
-    @property
-    def metric(self) -> str:
-        return str(self._file.attrs["metric"])
+    def rows(self, start: int, stop: int) -> NDArray[np.floating]: ...
 
-    @property
-    def scale(self) -> float:
-        return float(self._file.attrs["scale"])
 
-    @property
-    def query_names(self) -> list[str]:
-        return [str(n) for n in self._file["query_names"].asstr()[()]]
+#: Computes blocks of query rows against fixed references and yields them in order: the query
+#: rows, the references prepared for the kernel, and (start, stop) of each block.
+BlockRunner = Callable[[NDArray, DifferencesTo, list[tuple[int, int]]], Iterator[NDArray[np.float32]]]
 
-    @property
-    def ref_names(self) -> list[str]:
-        return [str(n) for n in self._file["ref_names"].asstr()[()]]
 
-    def rows(self, start: int, stop: int) -> np.ndarray:
-        """Rows start..stop as a float32 block read from the file; WilocError when they fail
-        their checksum (the damaged file is removed: the next run computes it again)."""
+def prefetched_blocks(data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
+    """The blocks in order, each computed in a helper thread while the caller works on the one
+    before (the kernels release the GIL), so a method's steps and the kernel overlap."""
+    ahead: queue.Queue = queue.Queue(maxsize=1)
+    stop = threading.Event()
+
+    def compute() -> None:
         try:
-            return self._d[start:stop]
-        except OSError as exc:
-            self.path.unlink(missing_ok=True)
-            raise WilocError(self.path, f"cached differences damaged (rows {start}-{stop}: {exc}); removed it, "
-                                        "run again to compute them anew") from None
+            for start, end in ranges:
+                block = to(data[start:end])
+                while not stop.is_set():
+                    try:
+                        ahead.put(block, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+        except BaseException as exc:  # handed to the caller, raised there
+            ahead.put(exc)
 
-    def row(self, k: int) -> np.ndarray:
-        """The differences of query frame k to every reference frame, as a float64 row."""
-        return self.rows(k, k + 1)[0].astype(np.float64)
-
-    def iter_rows(self, block_rows: int = DEFAULT_BLOCK_ROWS) -> Iterator[np.ndarray]:
-        """Every row in order as float64, reading the file block_rows rows at a time."""
-        for start in range(0, self.shape[0], block_rows):
-            yield from self.rows(start, start + block_rows).astype(np.float64)
+    worker = threading.Thread(target=compute, name="wiloc-differences", daemon=True)
+    worker.start()
+    try:
+        for _ in ranges:
+            block = ahead.get()
+            if isinstance(block, BaseException):
+                raise block
+            yield block
+    finally:
+        stop.set()
+        worker.join()
 
 
 class ComputedDifferences:
-    """Differences of descriptor rows to fixed references, computed block of rows by block of rows
-    when read and never stored: a row-block reader like :class:`DifferenceMatrix` without a file."""
+    """Differences of descriptor rows to fixed references, computed block of rows by block of
+    rows when read and never stored. ``runner`` computes the blocks of :meth:`iter_rows` (default:
+    in this process, one block ahead; ``wiloc.cluster`` runs them on a Dask cluster)."""
 
-    def __init__(self, data: np.ndarray, to: DifferencesTo) -> None:
+    def __init__(self, data: NDArray, to: DifferencesTo, runner: BlockRunner | None = None) -> None:
         self._data = data
         self._to = to
+        self._runner = runner or prefetched_blocks
 
     @property
     def shape(self) -> tuple[int, int]:
         return int(self._data.shape[0]), int(self._to.shape[0])
 
-    def rows(self, start: int, stop: int) -> np.ndarray:
+    def rows(self, start: int, stop: int) -> NDArray[np.float32]:
         """Rows start..stop as a float32 block, computed now."""
         return self._to(self._data[start:stop])
 
+    def blocks(self, block_rows: int = DEFAULT_BLOCK_ROWS) -> Iterator[tuple[int, NDArray[np.float32]]]:
+        """(first row, float32 block) over every row in order, computed by the runner."""
+        ranges = [(start, min(start + block_rows, self.shape[0])) for start in range(0, self.shape[0], block_rows)]
+        for (start, _), block in zip(ranges, self._runner(self._data, self._to, ranges)):
+            yield start, block
 
-def _check_comparable(query: Entry, ref: Entry) -> None:
+    def iter_rows(self, block_rows: int = DEFAULT_BLOCK_ROWS) -> Iterator[NDArray[np.float64]]:
+        """Every row in order as float64."""
+        for _, block in self.blocks(block_rows):
+            yield from block.astype(np.float64)
+
+
+@dataclass(frozen=True)
+class MapSummary:
+    """What methods learn from a map's differences to itself: each frame's smallest difference
+    to the frames outside its +-R (inf where there is none) and the largest finite difference
+    (0 when there is none)."""
+
+    minima: NDArray[np.float64]
+    largest: float
+
+
+def _sweep(matrix: RowBlocks, block_rows: int) -> Iterator[tuple[int, NDArray[np.floating]]]:
+    """(first row, block) over every row of ``matrix``; a computed one computes ahead."""
+    if isinstance(matrix, ComputedDifferences):
+        yield from matrix.blocks(block_rows)
+        return
+    for start in range(0, matrix.shape[0], block_rows):
+        yield start, matrix.rows(start, min(start + block_rows, matrix.shape[0]))
+
+
+def summarize(matrix: RowBlocks, exclude_recent: int, progress: Progress | None = None) -> MapSummary:
+    """The summary of a square self-difference matrix, swept once block by block; non-finite
+    values count as no difference."""
+    n_rows, n_cols = matrix.shape
+    minima = np.full(n_rows, np.inf)
+    largest = np.zeros(n_rows)
+    for start, block in _sweep(matrix, max(1, BLOCK_VALUES // max(n_cols, 1))):
+        stop = start + block.shape[0]
+        band_extremes(np.ascontiguousarray(block, dtype=np.float32), start, exclude_recent,
+                      minima[start:stop], largest[start:stop])
+        if progress is not None:
+            progress(stop, n_rows)
+    return MapSummary(minima=minima, largest=float(largest.max(initial=0.0)))
+
+
+def check_comparable(query: Entry, ref: Entry) -> None:
     """Raise WilocError naming both folders when the two entries cannot be compared."""
     problems = []
     if query.metric != ref.metric:
@@ -123,64 +163,53 @@ def _check_comparable(query: Entry, ref: Entry) -> None:
         raise WilocError(query.folder, f"cannot be compared with {ref.folder}: {', '.join(problems)}")
 
 
-def _is_current(path: Path, query: Entry, ref: Entry) -> bool:
-    """Whether the file at path holds the differences of exactly these two entries."""
+def differences(query: Entry, ref: Entry, runner: BlockRunner | None = None) -> ComputedDifferences:
+    """The query x reference differences as a row-block reader, computed as read."""
+    check_comparable(query, ref)
+    return ComputedDifferences(query.data, DifferencesTo(ref.data, ref.metric, ref.scale), runner)
+
+
+def _summary_attrs(ref: Entry, exclude_recent: int) -> dict[str, object]:
+    return {"ref_digest": ref.digest, "metric": ref.metric, "scale": ref.scale, "exclude_recent": exclude_recent}
+
+
+def _read_summary(path: Path, ref: Entry, exclude_recent: int) -> MapSummary | None:
+    """The summary stored at ``path`` if it is the one of exactly this map and R, else None."""
     try:
         with h5py.File(path, "r") as f:
-            attrs = f.attrs
-            return bool(
-                attrs.get("query_digest") == query.digest
-                and attrs.get("ref_digest") == ref.digest
-                and attrs.get("metric") == query.metric
-                and attrs.get("scale") == query.scale
-                and f["d"].shape == (len(query.names), len(ref.names))
-                and (f["d"].fletcher32 or f["d"].chunks is None)  # written with checksums
-            )
+            current = all(f.attrs.get(k) == v for k, v in _summary_attrs(ref, exclude_recent).items())
+            if not current or f["minima"].shape != (len(ref.names),):
+                return None
+            return MapSummary(minima=f["minima"][()], largest=float(f.attrs["largest"]))
     except (OSError, KeyError):
-        return False
+        return None
 
 
-def _write(f: h5py.File, query: Entry, ref: Entry, block_rows: int, progress: Progress | None) -> None:
-    """Fill an open HDF5 file with the difference matrix, block of rows by block of rows."""
-    shape = (len(query.names), len(ref.names))
-    chunk_rows = max(1, min(block_rows, shape[0], _CHUNK_BYTES // (4 * max(shape[1], 1))))
-    chunks = (chunk_rows, shape[1]) if all(shape) else None
-    d = f.create_dataset("d", shape=shape, dtype=np.float32, chunks=chunks, fletcher32=chunks is not None)
-    f.create_dataset("query_names", data=query.names, dtype=h5py.string_dtype())
-    f.create_dataset("ref_names", data=ref.names, dtype=h5py.string_dtype())
-    f.attrs.update(
-        query_digest=query.digest, ref_digest=ref.digest, metric=query.metric, scale=query.scale,
-        query_folder=query.folder, ref_folder=ref.folder, wiloc_version=__version__,
-    )
-    for start, stop, block in pairwise_blocks(query.data, ref.data, query.metric, query.scale, block_rows):
-        d[start:stop] = block
-        if progress is not None:
-            progress(stop, shape[0])
-
-
-def difference_matrix(
-    query: Entry, ref: Entry, cache: Cache, progress: Progress | None = None, block_rows: int = DEFAULT_BLOCK_ROWS
-) -> DifferenceMatrix:
-    """The len(query) x len(ref) float32 difference matrix, reused from the cache or computed into it.
-
-    ``progress(done, total)`` counts query rows while computing; it is not called on reuse.
-    """
-    _check_comparable(query, ref)
-    name = f"differences/{query.key}-{ref.key}.h5"
+def map_summary(ref: Entry, cache: Cache, exclude_recent: int, runner: BlockRunner | None = None,
+                progress: Progress | None = None) -> MapSummary:
+    """The map's self-difference summary, reused from the cache or computed (``progress(done,
+    total)`` counts map rows then; the N x N differences are swept once and never stored)."""
+    name = f"differences/{ref.key}-self-r{exclude_recent}.h5"
     path = cache.root / name
-    if not _is_current(path, query, ref):
-        with cache.lock(name):
-            if not _is_current(path, query, ref):  # another process may have written it meanwhile
-                with cache.atomic_h5(path) as f:
-                    _write(f, query, ref, block_rows, progress)
-    return DifferenceMatrix(path)
+    summary = _read_summary(path, ref, exclude_recent)
+    if summary is not None:
+        return summary
+    with cache.lock(name):
+        summary = _read_summary(path, ref, exclude_recent)  # another process may have written it meanwhile
+        if summary is None:
+            summary = summarize(differences(ref, ref, runner), exclude_recent, progress)
+            with cache.atomic_h5(path) as f:
+                f.create_dataset("minima", data=summary.minima, fletcher32=True)
+                f.attrs.update(largest=summary.largest, ref_folder=ref.folder, wiloc_version=__version__,
+                               **_summary_attrs(ref, exclude_recent))
+    return summary
 
 
-def candidate_rows(matrix: DifferenceMatrix, sequence: bool, exclude_recent: int) -> Iterator[np.ndarray]:
+def candidate_rows(matrix: ComputedDifferences, sequence: bool, exclude_recent: int) -> Iterator[NDArray[np.float64]]:
     """Difference rows over the candidate frames, float64, np.inf where a frame is no candidate.
 
-    Map mode: the rows as they are. Sequence mode (the matrix is the traversal against itself):
-    row k keeps only frames i < k - exclude_recent.
+    Map mode: the rows as they are. Sequence mode (the traversal against itself): row k keeps
+    only frames i < k - exclude_recent.
     """
     if exclude_recent < 0:
         raise ValueError(f"exclude_recent must be >= 0, got {exclude_recent}")
@@ -190,3 +219,22 @@ def candidate_rows(matrix: DifferenceMatrix, sequence: bool, exclude_recent: int
         if sequence:
             row[max(0, k - exclude_recent) :] = np.inf
         yield row
+
+
+@dataclass(frozen=True)
+class RunDifferences:
+    """Where a run's differences come from: its query rows (against the map, or in sequence mode
+    against the traversal itself), the map's differences to itself and their cached summary."""
+
+    rows: ComputedDifferences
+    map_self: Callable[[], ComputedDifferences]
+    map_summary: Callable[[], MapSummary]
+
+
+def run_differences(query: Entry, ref: Entry, cache: Cache, exclude_recent: int, runner: BlockRunner | None = None,
+                    progress: Progress | None = None) -> RunDifferences:
+    """The row-block readers of a run of ``query`` against ``ref`` (the same entry in sequence
+    mode), computed as read; the map's summary is read from ``cache`` or computed into it on
+    first use (``progress`` counts its map rows)."""
+    return RunDifferences(rows=differences(query, ref, runner), map_self=lambda: differences(ref, ref, runner),
+                          map_summary=lambda: map_summary(ref, cache, exclude_recent, runner, progress))

@@ -6,7 +6,7 @@ import hashlib
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -15,6 +15,10 @@ from wiloc.describing import describe_source, import_matrix
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import ParameterError, UsageError, WilocError
 from wiloc.video import Sampling, is_video
+
+if TYPE_CHECKING:
+    from wiloc.cluster import Cluster
+    from wiloc.differences import BlockRunner
 
 Progress = Callable[[str, int, int], None]
 
@@ -58,11 +62,24 @@ def stage(progress: Progress | None, label: str) -> Callable[[int, int], None] |
     return lambda done, total: progress(label, done, total)
 
 
+def open_cluster(scheduler: str | None, workers: int | None = None) -> Cluster | None:
+    """The Dask cluster at ``scheduler`` (an address, or ``local`` with ``workers`` processes);
+    None without one. Dask is imported only here, only when asked for."""
+    if scheduler is None:
+        return None
+    try:
+        from wiloc.cluster import connect
+    except ImportError:
+        raise UsageError("--scheduler", "needs Dask: pip install 'wiloc[dask]'") from None
+    return connect(scheduler, workers)
+
+
 @dataclass
 class Describer:
     """How traversals become descriptor matrices: one descriptor with its parameters, through one
     cache. ``metric`` is the difference of imported matrix files; ``sampling`` picks the frames of
-    video files (default: all); ``skipped`` collects the frames that could not be described, as
+    video files (default: all); ``cluster`` (``wiloc.cluster``) describes folders and computes
+    differences on Dask workers; ``skipped`` collects the frames that could not be described, as
     (image path, why)."""
 
     descriptor: str = "sad"
@@ -73,6 +90,12 @@ class Describer:
     progress: Progress | None = None
     skipped: list[tuple[str, str]] = field(default_factory=list)
     sampling: Sampling | None = None
+    cluster: Cluster | None = None  # a Dask cluster that describes folders and computes differences
+
+    @property
+    def runner(self) -> BlockRunner | None:
+        """How difference blocks are computed: on the cluster, else (None) in this process."""
+        return None if self.cluster is None else self.cluster.blocks
 
     @property
     def spec(self) -> DescriptorSpec:
@@ -91,7 +114,7 @@ class Describer:
                 raise UsageError(source, "a descriptor matrix file needs a metric (l1, sqeuclidean, hamming, cosine)")
             return import_matrix(source, self.cache, names, self.metric).entry
         report = describe_source(source, self.spec, self.cache, jobs=self.jobs, sampling=self.sampling,
-                                 progress=stage(self.progress, f"describe {source.name}"))
+                                 progress=stage(self.progress, f"describe {source.name}"), cluster=self.cluster)
         self.skipped.extend((str(source / name), reason) for name, reason in report.failed)
         entry = report.entry
         if len(entry.names) == 0:

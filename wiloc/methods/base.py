@@ -13,20 +13,18 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.differences import MapSummary, RowBlocks, summarize
 from wiloc.errors import UsageError, WilocError
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters
 from wiloc.reprs import short_repr
 
 Progress = Callable[[int, int], None]
-
-BLOCK_VALUES = 1 << 22
-"""Map self-differences read per block when a method learns from them (32 MB as float64)."""
 
 #: What a method can declare in ``needs``:
 #: ``map``: it cannot run in sequence mode; ``map_self``: in map mode it learns from the map's
@@ -39,15 +37,6 @@ NEEDS = ("map", "map_self", "map_neighbours", "training", "odometry")
 #: candidate) or FAB-MAP's ``log_ratio`` log p(Z | L_j) - log p(Z | new place) (high: alike;
 #: -inf: no candidate), from bag-of-words descriptors (``wiloc.fabmap.evidence``).
 ROWS = ("differences", "log_ratio")
-
-
-class RowBlocks(Protocol):
-    """A matrix read block of rows by block of rows, e.g. ``wiloc.differences.DifferenceMatrix``."""
-
-    @property
-    def shape(self) -> tuple[int, int]: ...
-
-    def rows(self, start: int, stop: int) -> NDArray[np.float32]: ...
 
 
 @dataclass(frozen=True)
@@ -65,13 +54,13 @@ class ArrayRows:
         return np.asarray(self.array[start:stop])
 
 
-def iter_blocks(matrix: RowBlocks, block_values: int | None = None) -> Iterator[tuple[int, NDArray[np.float64]]]:
-    """(first row, float64 block of whole rows) over ``matrix``, about ``block_values`` values
-    (default :data:`BLOCK_VALUES`) each."""
-    n_rows, n_cols = matrix.shape
-    step = max(1, (block_values or BLOCK_VALUES) // max(n_cols, 1))
-    for start in range(0, n_rows, step):
-        yield start, np.asarray(matrix.rows(start, min(start + step, n_rows)), dtype=np.float64)
+def self_summary(context: MapContext) -> MapSummary:
+    """The map's self-difference summary: the one given (cached), else swept from ``map_self``."""
+    if context.map_summary is not None:
+        return context.map_summary()
+    if context.map_self is None:
+        raise WilocError(None, "needs the map's differences to itself", parameter="reference")
+    return summarize(context.map_self(), context.exclude_recent)
 
 
 @dataclass(frozen=True)
@@ -88,8 +77,9 @@ class MapContext:
     """What a method is started on. Reading the map is lazy: a method reads only what it needs.
 
     ``map_self`` gives the map's differences to itself (in sequence mode, when given, the run's own
-    matrix), read block of rows by block of rows; ``neighbours`` each map frame's difference to the
-    next; ``training`` the labelled pair of ``trained``.
+    matrix), read block of rows by block of rows; ``map_summary`` what methods learn from them
+    (each frame's minimum outside +-R, the largest), when a cache holds it; ``neighbours`` each map
+    frame's difference to the next; ``training`` the labelled pair of ``trained``.
     """
 
     sequence: bool
@@ -99,6 +89,7 @@ class MapContext:
     natural_max: float | None = None  # the descriptor's largest possible difference, if it has one
     arclength: NDArray[np.float64] | None = None  # map node positions along the route (odometry)
     map_self: Callable[[], RowBlocks] | None = None
+    map_summary: Callable[[], MapSummary] | None = None
     neighbours: Callable[[], NDArray[np.float64]] | None = None  # map frame j's difference to frame j + 1
     training: Callable[[], TrainingRows] | None = None
 

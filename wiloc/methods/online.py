@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from wiloc.candidates import finite_minimum
 from wiloc.errors import WilocError
-from wiloc.methods.base import Decision, MapContext, Method, iter_blocks
+from wiloc.methods.base import Decision, MapContext, Method, self_summary
 from wiloc.methods.catgraph import CatGraph
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters, param
@@ -85,20 +85,8 @@ def _increasing(row: NDArray[np.float64], first: int = 32) -> Iterator[int]:
 def map_minima(context: MapContext) -> NDArray[np.float64]:
     """Each map frame's smallest difference to the map frames outside its +-R: the samples that
     initialise ``c`` in map mode (frames with no such difference give none)."""
-    if context.map_self is None:
-        raise WilocError("online", "map mode needs the map's differences to itself")
-    matrix = context.map_self()
-    n_cols = matrix.shape[1]
-    R = context.exclude_recent
-    minima = []
-    for start, block in iter_blocks(matrix):
-        rows = np.arange(start, start + block.shape[0])
-        band = np.abs(rows[:, None] - np.arange(n_cols)[None, :]) <= R
-        block[band] = np.inf
-        block[~np.isfinite(block)] = np.inf
-        minima.append(block.min(axis=1, initial=np.inf))
-    values = np.concatenate(minima) if minima else np.empty(0)
-    return values[np.isfinite(values)]
+    minima = self_summary(context).minima
+    return minima[np.isfinite(minima)]
 
 
 class Online(Method):

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from wiloc.candidates import finite_minimum
 from wiloc.errors import ParameterError
-from wiloc.methods.base import Decision, MapContext, Method, iter_blocks
+from wiloc.methods.base import Decision, MapContext, Method, self_summary
 from wiloc.parameters import Parameters, param
 
 
@@ -31,15 +31,11 @@ class ThresholdParams(Parameters):
 
 
 def largest_difference(context: MapContext) -> float:
-    """The largest finite difference of the map to itself (0 when it has none), block by block."""
-    if context.map_self is None:
+    """The largest finite difference of the map to itself (0 when it has none)."""
+    if context.map_self is None and context.map_summary is None:
         raise ParameterError("normaliser", "needed: the descriptor has no largest possible difference "
                                            "and no map differences are at hand to take it from")
-    largest = 0.0
-    for _, block in iter_blocks(context.map_self()):
-        finite = block[np.isfinite(block)]
-        largest = max(largest, float(finite.max()) if finite.size else 0.0)
-    return largest
+    return self_summary(context).largest
 
 
 class Threshold(Method):
