@@ -35,7 +35,7 @@ from wiloc.methods.base import Decision
 from wiloc.reprs import short_repr
 from wiloc.results import Results, ResultsStream, make_results, read_results, write_results
 from wiloc.training import Training, training_rows
-from wiloc.traversals import Describer, Progress, descriptor_label, descriptor_spec, stage
+from wiloc.traversals import Describer, Progress, descriptor_label, descriptor_spec, open_cluster, stage
 from wiloc.video import Sampling, is_video
 from wiloc.vocabulary import VocabularyParams
 from wiloc.vocabulary_build import VocabularyReport, build_vocabulary, vocabulary_path
@@ -49,16 +49,18 @@ __all__ = ["Comparison", "Evaluation", "LocalizeRun", "Sampling", "Training", "T
 def describe(folders: Sequence[Path], descriptor: str = "sad", *,
              descriptor_params: Mapping[str, Any] | None = None, cache: Cache | None = None,
              jobs: int | None = None, progress: Progress | None = None,
-             sampling: Sampling | None = None) -> list[DescribeReport]:
+             sampling: Sampling | None = None, scheduler: str | None = None) -> list[DescribeReport]:
     """Compute (or reuse from the cache) one descriptor per image of each folder, or per frame
     of each video file that ``sampling`` picks (default: every frame). ``jobs`` worker processes
-    describe folders; videos are decoded and described in this process."""
+    describe folders, or the workers of the Dask ``scheduler`` (an address, or ``local``: a local
+    cluster of ``jobs`` workers); videos are decoded and described in this process."""
     spec = descriptor_spec(descriptor, descriptor_params)
     cache = cache or Cache()
     for folder in folders:
         check_sampling(Path(folder), sampling)
+    cluster = open_cluster(scheduler, jobs)
     return [describe_source(Path(folder), spec, cache, jobs=jobs, sampling=sampling,
-                            progress=stage(progress, f"describe {Path(folder).name}"))
+                            progress=stage(progress, f"describe {Path(folder).name}"), cluster=cluster)
             for folder in folders]
 
 
@@ -125,7 +127,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
              odometry: Path | None = None, map_odometry: Path | None = None,
              query_names_file: Path | None = None, ref_names_file: Path | None = None,
              out: Path | None = None, cache: Cache | None = None, jobs: int | None = None,
-             sampling: Sampling | None = None, progress: Progress | None = None) -> LocalizeRun:
+             sampling: Sampling | None = None, progress: Progress | None = None,
+             scheduler: str | None = None) -> LocalizeRun:
     """Localize every frame of ``query`` (against ``reference``, or within itself) and write results.
 
     ``query`` and ``reference`` are image folders, or descriptor matrix files (with ``metric`` and,
@@ -135,7 +138,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     ``map_odometry`` are odometry CSVs (for methods that take them); ``training`` is the labelled
     pair of the ``trained`` comparator. ``sampling`` picks the frames of video files (query, map
     and training traversals alike; default: every frame). The results are written to ``out`` when
-    given (else kept in memory only: ``wiloc.api.evaluate`` takes the run itself).
+    given (else kept in memory only: ``wiloc.api.evaluate`` takes the run itself). ``scheduler``
+    (a Dask scheduler's address, or ``local``) describes and computes the differences on its workers.
     """
     started = time.perf_counter()
     algo = make_method(method, method_params)
@@ -146,7 +150,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     videos = [Path(source) for source in (query, reference) if source is not None and is_video(Path(source))]
     check_sampling(videos[0] if videos else Path(query), sampling)
     describer = Describer(descriptor, dict(descriptor_params or {}), cache or Cache(), metric=metric, jobs=jobs,
-                          progress=progress, sampling=sampling)
+                          progress=progress, sampling=sampling, cluster=open_cluster(scheduler, jobs))
     query = Path(query)
     q = describer.entry(query, query_names_file)
     r = q if sequence else describer.entry(Path(reference), ref_names_file)

@@ -101,6 +101,10 @@ StartOption = Annotated[str, typer.Option(help="Videos: first frame, an index (1
                                           rich_help_panel="video files")]
 StopOption = Annotated[Optional[str], typer.Option(help="Videos: end of the cut (excluded), an index or seconds.",
                                                    show_default="the end", rich_help_panel="video files")]
+SchedulerOption = Annotated[Optional[str], typer.Option(
+    envvar="WILOC_SCHEDULER", show_default="none: this machine",
+    help="Dask scheduler address (tcp://host:8786), or 'local' for a local cluster of --jobs workers; "
+         "needs the optional dask extra (docs/scaling.md).")]
 SAMPLING = ("every", "fps", "start", "stop")
 
 
@@ -124,6 +128,7 @@ def describe(
     list_cache: bool = typer.Option(False, "--list", help="Show what the cache holds."),
     cache: CacheOption = None,
     jobs: JobsOption = None,
+    scheduler: SchedulerOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
     """Compute whole-image descriptors of image folders or video files into the HDF5 cache.
@@ -157,7 +162,8 @@ def describe(
                 reports.append(api.import_descriptors(source, metric=metric, names=names, cache=store))
             else:
                 reports += api.describe([source], descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
-                                        cache=store, jobs=jobs, progress=progress, sampling=sampling)
+                                        cache=store, jobs=jobs, progress=progress, sampling=sampling,
+                                        scheduler=scheduler)
             repairs.append(store.repairs[known:])
     rows, notes = [], []
     for label, r, repaired in zip(short_names([r.folder for r in reports]), reports, repairs):
@@ -292,6 +298,7 @@ def localize(
     model_plot: Optional[Path] = typer.Option(None, callback=_plot_file, help="online/trained: draw the learned histograms (the paper's Figure 1)."),
     cache: CacheOption = None,
     jobs: JobsOption = None,
+    scheduler: SchedulerOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables (with --follow: one JSON line per frame)."),
     every: EveryOption = 1,
     fps: FpsOption = None,
@@ -367,7 +374,7 @@ def localize(
                                      exclude_recent=exclude_recent, training=training,
                                      odometry=odometry, map_odometry=map_odometry,
                                      query_names_file=names, ref_names_file=map_names, out=target,
-                                     cache=store, jobs=jobs, progress=progress))
+                                     cache=store, jobs=jobs, progress=progress, scheduler=scheduler))
             repairs.append(store.repairs[known:])
     if model_plot is not None:
         from wiloc.plots import plot_model

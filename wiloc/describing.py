@@ -15,6 +15,7 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -35,6 +36,9 @@ from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, re
 from wiloc.reprs import short_repr
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
 from wiloc.workers import WorkerError, WorkerPool
+
+if TYPE_CHECKING:
+    from wiloc.cluster import Cluster
 
 Progress = Callable[[int, int], None]
 #: Frames per round trip to a worker: enough that the round trip costs little even for the
@@ -67,13 +71,14 @@ class DescribeReport:
 
 
 def describe_source(source: Path, spec: DescriptorSpec, cache: Cache, *, jobs: int | None = None,
-                    sampling: Sampling | None = None, progress: Progress | None = None) -> DescribeReport:
+                    sampling: Sampling | None = None, progress: Progress | None = None,
+                    cluster: Cluster | None = None) -> DescribeReport:
     """Describe a traversal: a video file (recognised by its suffix) with `sampling`, else a
-    folder of images with `jobs` worker processes."""
+    folder of images with `jobs` worker processes, or on `cluster`'s workers."""
     check_sampling(source, sampling)
     if is_video(source):
         return describe_video(source, spec, cache, sampling, progress)
-    return describe_folder(source, spec, cache, jobs, progress)
+    return describe_folder(source, spec, cache, jobs, progress, cluster)
 
 
 def check_sampling(source: Path, sampling: Sampling | None) -> None:
@@ -84,10 +89,11 @@ def check_sampling(source: Path, sampling: Sampling | None) -> None:
 
 
 def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int | None = None,
-                    progress: Progress | None = None) -> DescribeReport:
+                    progress: Progress | None = None, cluster: Cluster | None = None) -> DescribeReport:
     """Describe every image of a traversal folder with `spec`, reusing what the cache holds.
 
-    `jobs` worker processes compute (default: all cores; 1 computes in this process).
+    `jobs` worker processes compute (default: all cores; 1 computes in this process), or the
+    workers of a Dask `cluster` (``wiloc.cluster``; this process still journals and writes).
     `progress(done, total)` is called as frames are settled, reused ones first. Holds the
     entry's lock throughout; raises CacheBusyError if another process keeps it too long.
     """
@@ -106,7 +112,8 @@ def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int 
         done = total - len(tasks)
         if progress is not None:
             progress(done, total)
-        computed = _journal(cache, stored, _compute(spec, tasks, jobs), done, total, progress) if tasks else 0
+        results = cluster.describe(spec, tasks) if cluster is not None else _compute(spec, tasks, jobs)
+        computed = _journal(cache, stored, results, done, total, progress) if tasks else 0
         if tasks or removed or not stored.complete:
             entry = cache.write_entry(stored, complete=True)
         else:
@@ -290,6 +297,12 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterato
         raise
     pool.close()
     pool.join()
+
+
+def describe_quietly(spec: DescriptorSpec, tasks: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:
+    """Each task's (record, computed), OpenCV's own warnings off meanwhile (a Dask worker's batch)."""
+    with _opencv_quiet():
+        return [_describe_one(spec, task) for task in tasks]
 
 
 def _init_worker() -> None:

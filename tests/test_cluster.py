@@ -1,0 +1,118 @@
+"""Describe and localize on a Dask cluster (2 worker processes): the same cache entries and results
+as a local run, and a worker killed mid-run costs nothing but time."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+pytest.importorskip("distributed")
+from distributed import LocalCluster  # noqa: E402
+
+from wiloc import api  # noqa: E402
+from wiloc.cache import Cache  # noqa: E402
+from wiloc.cluster import connect, disconnect  # noqa: E402
+from wiloc.differences import ComputedDifferences  # noqa: E402
+from wiloc.distances import DifferencesTo  # noqa: E402
+
+TRAVERSALS = ("day_right", "day_left", "night_right")
+VOLATILE = {"created", "updated"}  # times of writing: the only attributes allowed to differ
+
+
+@pytest.fixture(scope="module")
+def scheduler() -> Iterator[str]:
+    """The address of a local cluster of 2 worker processes (each restarted by its nanny)."""
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        yield cluster.scheduler_address
+        disconnect(cluster.scheduler_address)
+
+
+def kill_a_worker(address: str) -> None:
+    """SIGKILL one worker process (its nanny starts a new one)."""
+    pids = connect(address).client.run(os.getpid)
+    os.kill(sorted(pids.values())[0], signal.SIGKILL)
+
+
+def dataset_bytes(item: h5py.Dataset) -> bytes:
+    """A dataset's values as bytes: its raw buffer, or its strings joined."""
+    if item.dtype.kind == "O":
+        return "\0".join(item.asstr()[()]).encode()
+    return item[()].tobytes()
+
+
+def entry_contents(path: Path) -> dict[str, bytes | str]:
+    """Every dataset's bytes and every attribute but the write times of one HDF5 file."""
+    contents: dict[str, bytes | str] = {}
+    with h5py.File(path, "r") as f:
+        contents.update({f"@{k}": repr(v) for k, v in f.attrs.items() if k not in VOLATILE})
+        f.visititems(lambda name, item: contents.__setitem__(name, dataset_bytes(item))
+                     if isinstance(item, h5py.Dataset) else None)
+    return contents
+
+
+def cache_contents(root: Path) -> dict[str, dict[str, bytes | str]]:
+    return {p.name: entry_contents(p) for p in sorted(root.rglob("*.h5"))}
+
+
+def test_blocks_on_the_cluster_are_the_local_blocks_despite_a_killed_worker(scheduler: str) -> None:
+    rng = np.random.default_rng(0)
+    query = rng.integers(0, 256, (200, 1152), dtype=np.uint8)
+    to = DifferencesTo(rng.integers(0, 256, (300, 1152), dtype=np.uint8), "l1", 1 / 1152)
+    cluster = connect(scheduler)
+    remote = ComputedDifferences(query, to, cluster.blocks).blocks(block_rows=16)
+    first = [next(remote)]
+    kill_a_worker(scheduler)
+    got = np.concatenate([block for _, block in first + list(remote)])
+    assert got.tobytes() == to(query).tobytes()
+
+
+def test_without_a_scheduler_nothing_imports_dask(tmp_path: Path) -> None:
+    code = ("import sys, wiloc.api, wiloc.cli; "
+            "print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed'))))")
+    run = subprocess.run([sys.executable, "-c", "import json; " + code], capture_output=True, text=True, check=True)
+    assert json.loads(run.stdout) == []
+
+
+def test_an_unreachable_scheduler_is_one_error_line(tmp_path: Path) -> None:
+    code = ("import dask, sys; from wiloc.cli import app; dask.config.set({'distributed.comm.timeouts.connect': '2s'}); "
+            "sys.argv = ['wiloc', 'describe', sys.argv[1], '--scheduler', 'tcp://127.0.0.1:9']; app()")
+    run = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "WILOC_CACHE": str(tmp_path / "cache")})
+    assert run.returncode == 1, run.stderr
+    assert run.stderr.count("error:") == 1 and "tcp://127.0.0.1:9: cannot reach the Dask scheduler" in run.stderr
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_describe_and_localize_on_a_cluster_match_the_local_run(scheduler: str, data_root: Path,
+                                                                tmp_path: Path) -> None:
+    folders = [data_root / "gardens-point-walking" / t for t in TRAVERSALS]
+    runs = {}
+    for where in ("local", "cluster"):
+        cache = Cache(tmp_path / where / "cache")
+        kill = {"done": False}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if where == "cluster" and not kill["done"] and stage.startswith("describe day_left") and done >= total // 3:
+                kill["done"] = True
+                kill_a_worker(scheduler)  # mid-run: its batches are run again elsewhere
+
+        reports = api.describe(folders, "sad", cache=cache, jobs=2, progress=progress,
+                               scheduler=scheduler if where == "cluster" else None)
+        assert [r.computed for r in reports] == [200, 200, 200]
+        assert kill["done"] == (where == "cluster")
+        for method in ("online", "threshold", "catgraph"):
+            api.localize(folders[1], reference=folders[0], method=method, cache=cache, jobs=2,
+                         out=tmp_path / where / f"{method}.csv", scheduler=scheduler if where == "cluster" else None)
+        runs[where] = cache_contents(cache.root), {p.name: p.read_bytes() for p in (tmp_path / where).glob("*.csv")}
+    local, cluster = runs["local"], runs["cluster"]
+    assert len(local[0]) == 4 and local[0] == cluster[0]  # 3 descriptor entries and the map's summary
+    assert len(local[1]) == 3 and local[1] == cluster[1]

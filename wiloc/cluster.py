@@ -1,0 +1,122 @@
+"""Running describe batches and difference blocks on a Dask cluster (``wiloc[dask]``).
+
+Only imported when a scheduler is asked for (``--scheduler``, ``WILOC_SCHEDULER``): without one
+nothing imports dask. The cache stays the calling process's alone: workers get image paths (and
+the stored record of a frame, to reuse a row whose content is unchanged) or blocks of descriptor
+rows, and return records or arrays; the caller journals and writes, exactly as a local run does,
+so the entries are the same. A task whose worker dies is run again elsewhere by Dask.
+docs/scaling.md tells how to start a scheduler and workers.
+"""
+from __future__ import annotations
+
+import atexit
+import os
+from collections import deque
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+from distributed import Client, LocalCluster, as_completed
+from numpy.typing import NDArray
+
+from wiloc.cache import FrameRecord
+from wiloc.descriptors.registry import DescriptorSpec
+from wiloc.distances import DifferencesTo
+from wiloc.errors import WilocError
+
+LOCAL = "local"
+#: Frames per describe task: enough that a task's round trip costs little next to its images.
+BATCH = 16
+_Task = tuple[Path, FrameRecord | None]
+
+
+def _describe_batch(spec: DescriptorSpec, tasks: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:
+    """On a worker: each frame's record, as a local worker process computes it."""
+    from wiloc.describing import describe_quietly
+
+    return describe_quietly(spec, tasks)
+
+
+def _block(to: DifferencesTo, rows: NDArray) -> NDArray[np.float32]:
+    """On a worker: one block of differences."""
+    return to(rows)
+
+
+class Cluster:
+    """A connection to a Dask scheduler (or a local cluster of worker processes it started)."""
+
+    def __init__(self, scheduler: str, workers: int | None = None) -> None:
+        self.scheduler = scheduler
+        self._local: LocalCluster | None = None
+        try:
+            if scheduler == LOCAL:
+                count = workers or len(os.sched_getaffinity(0))
+                self._local = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
+                                           dashboard_address=None)
+                self.client = Client(self._local)
+            else:
+                self.client = Client(scheduler)
+        except (OSError, TimeoutError) as exc:
+            raise WilocError(scheduler, f"cannot reach the Dask scheduler ({exc})") from None
+
+    @property
+    def workers(self) -> int:
+        """Workers connected now (at least 1, for sizing how much work is sent ahead)."""
+        return max(1, len(self.client.scheduler_info(n_workers=-1)["workers"]))
+
+    def describe(self, spec: DescriptorSpec, tasks: Sequence[_Task]) -> Iterator[tuple[FrameRecord, bool]]:
+        """Each task's (record, computed) as batches finish, in any order."""
+        batches = [list(tasks[i:i + BATCH]) for i in range(0, len(tasks), BATCH)]
+        futures = [self.client.submit(_describe_batch, spec, batch, pure=False) for batch in batches]
+        try:
+            for future in as_completed(futures):
+                yield from future.result()
+        finally:
+            self.client.cancel(futures)
+
+    def blocks(self, data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
+        """A ``wiloc.differences.BlockRunner``: the blocks in order, a few per worker in flight;
+        the prepared references go to every worker once."""
+        [shared] = self.client.scatter([to], broadcast=True)
+        ahead = 2 * self.workers
+        pending: deque = deque()
+        todo = iter(ranges)
+        try:
+            for start, stop in todo:
+                pending.append(self.client.submit(_block, shared, data[start:stop], pure=False))
+                if len(pending) >= ahead:
+                    break
+            while pending:
+                block = pending.popleft().result()
+                for start, stop in todo:
+                    pending.append(self.client.submit(_block, shared, data[start:stop], pure=False))
+                    break
+                yield block
+        finally:
+            self.client.cancel(list(pending) + [shared])
+
+    def close(self) -> None:
+        self.client.close()
+        if self._local is not None:
+            self._local.close()
+
+
+_open: dict[tuple[str, int | None], Cluster] = {}
+
+
+def connect(scheduler: str, workers: int | None = None) -> Cluster:
+    """The cluster at ``scheduler`` (an address such as ``tcp://host:8786``, or ``local``: a
+    local cluster of ``workers`` processes, default one per core), one per process, closed at
+    exit or by :func:`disconnect`."""
+    key = (scheduler, workers if scheduler == LOCAL else None)
+    if key not in _open:
+        _open[key] = Cluster(scheduler, workers)
+        atexit.register(disconnect, scheduler, workers)
+    return _open[key]
+
+
+def disconnect(scheduler: str, workers: int | None = None) -> None:
+    """Close the connection :func:`connect` made (and a local cluster it started), if open."""
+    cluster = _open.pop((scheduler, workers if scheduler == LOCAL else None), None)
+    if cluster is not None:
+        cluster.close()
