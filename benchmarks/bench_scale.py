@@ -79,6 +79,15 @@ def make_case(root: Path, n: int) -> dict[str, Any]:
     return {"query": query, "map": map_data, "train": noisy.astype(np.uint8)}
 
 
+def peak_rss_mb() -> float:
+    """This process's peak resident memory (VmHWM: unlike ru_maxrss, not inherited across exec
+    from the forked parent)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def child_localize(args: argparse.Namespace) -> dict[str, float]:
     """One localize run in this (child) process: wall, CPU, peak RSS."""
     from wiloc import api
@@ -93,7 +102,7 @@ def child_localize(args: argparse.Namespace) -> dict[str, float]:
     run = api.localize(root / "query", reference=root / "map", method=args.method, training=training,
                        cache=Cache(root / "cache"), jobs=1, **extra)
     return {"wall": time.perf_counter() - wall, "cpu": time.process_time() - cpu,
-            "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "rss_mb": peak_rss_mb(),
             "decided": int(run.decisions.decided.sum())}
 
 
