@@ -212,3 +212,15 @@ def test_mode_on_a_map_shorter_than_the_mode_window(node: int) -> None:
                             ref_arclength=np.arange(3.0), query_steps=np.zeros(rows.shape[0]))  # standing still
     assert np.all(dec.match[10:] == node)
     np.testing.assert_array_equal(dec.difference, rows[np.arange(rows.shape[0]), dec.match])
+
+
+def test_sequence_score_step_is_the_numpy_expression_value_for_value() -> None:
+    from wiloc.methods.catgraph import _advance, _shifted_reads
+
+    rng = np.random.default_rng(3)
+    nodes = np.cumsum(rng.random(700))
+    score, contrast = rng.normal(size=(4, 700)), rng.normal(size=700)
+    at, a = _shifted_reads(nodes, np.array([0.5, 1.0, 1.5, 2.0]) * 0.8)
+    prev = score.ravel()
+    want = (1.0 - 0.1) * ((1.0 - a) * prev[at] + a * prev[at + 1]).reshape(score.shape) + 0.1 * contrast
+    assert np.array_equal(_advance(score, at, a, contrast, 0.1), want)
