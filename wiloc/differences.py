@@ -34,8 +34,8 @@ from wiloc.errors import WilocError
 Progress = Callable[[int, int], None]
 
 DEFAULT_BLOCK_ROWS = 1024
-BLOCK_VALUES = 1 << 23
-"""Differences per block when a whole matrix is swept (32 MB of float32)."""
+"""Query rows per block: the blocks the kernels computed when matrices were stored, so that
+BLAS-based metrics give the same last digits as before."""
 
 
 class RowBlocks(Protocol):
@@ -111,9 +111,10 @@ class ComputedDifferences:
             yield start, block
 
     def iter_rows(self, block_rows: int = DEFAULT_BLOCK_ROWS) -> Iterator[NDArray[np.float64]]:
-        """Every row in order as float64."""
+        """Every row in order as float64 (converted one at a time: a block stays float32)."""
         for _, block in self.blocks(block_rows):
-            yield from block.astype(np.float64)
+            for row in block:
+                yield row.astype(np.float64)
 
 
 @dataclass(frozen=True)
@@ -138,10 +139,10 @@ def _sweep(matrix: RowBlocks, block_rows: int) -> Iterator[tuple[int, NDArray[np
 def summarize(matrix: RowBlocks, exclude_recent: int, progress: Progress | None = None) -> MapSummary:
     """The summary of a square self-difference matrix, swept once block by block; non-finite
     values count as no difference."""
-    n_rows, n_cols = matrix.shape
+    n_rows = matrix.shape[0]
     minima = np.full(n_rows, np.inf)
     largest = np.zeros(n_rows)
-    for start, block in _sweep(matrix, max(1, BLOCK_VALUES // max(n_cols, 1))):
+    for start, block in _sweep(matrix, DEFAULT_BLOCK_ROWS):
         stop = start + block.shape[0]
         band_extremes(np.ascontiguousarray(block, dtype=np.float32), start, exclude_recent,
                       minima[start:stop], largest[start:stop])
