@@ -19,7 +19,9 @@ training query x map for ``trained``; ratio = cold wall / kernel wall. Times are
 ``--repeat`` runs; CPU seconds are the child's process time (all its threads).
 
 The describe table times ``describe_folder`` on the 600 Gardens Point images (fresh cache each
-run) with ``jobs`` 1 and 2, against plain JPEG decoding, in the same run.
+run) with ``jobs`` 1 and 2 (and with ``--scheduler``, on that Dask cluster with 2 workers),
+against plain JPEG decoding, in the same run. Each describe runs in a fresh process and pays the
+start of its workers, as one ``wiloc describe`` call does.
 """
 from __future__ import annotations
 
@@ -167,30 +169,41 @@ def scale_rows(n: int, methods: list[str], repeat: int, scheduler: str | None, w
     return rows
 
 
-def describe_rows(data: Path, repeat: int, descriptors: list[str]) -> list[str]:
-    """Images/s of each descriptor with 1 and 2 workers, against plain decoding, medians."""
+def child_describe(args: argparse.Namespace) -> dict[str, float]:
+    """One describe of the Gardens Point folders in this (child) process, as one `wiloc
+    describe` call: workers (or the Dask client) start inside the timing."""
     from wiloc.describing import describe_folder
     from wiloc.descriptors.registry import get_descriptor
+    from wiloc.traversals import open_cluster
 
-    folders = [data / "gardens-point-walking" / t for t in TRAVERSALS]
-    decode = statistics.median(plain_decode_rate(folders) for _ in range(repeat))
-    rows = [f"{'cv2.imread full size':<14} {'':>5} {decode:>9.1f} {1.0:>7.2f} {'':>8}"]
+    folders = [Path(args.root) / "gardens-point-walking" / t for t in TRAVERSALS]
+    with tempfile.TemporaryDirectory() as temp:
+        cache = Cache(Path(temp))
+        start = time.perf_counter()
+        cluster = open_cluster(args.scheduler, args.jobs)
+        computed = sum(describe_folder(f, get_descriptor(args.method), cache, args.jobs, cluster=cluster).computed
+                       for f in folders)
+        return {"rate": computed / (time.perf_counter() - start)}
 
-    def rate(name: str, jobs: int) -> float:
-        with tempfile.TemporaryDirectory() as temp:
-            cache = Cache(Path(temp))
-            start = time.perf_counter()
-            computed = sum(describe_folder(f, get_descriptor(name), cache, jobs).computed for f in folders)
-            return computed / (time.perf_counter() - start)
 
+def describe_rows(data: Path, repeat: int, descriptors: list[str], scheduler: str | None) -> list[str]:
+    """Images/s of each descriptor with 1 and 2 processes (and on the Dask ``scheduler`` with
+    2 workers, when given), against plain decoding, medians; each run a fresh process."""
+    decode = statistics.median(plain_decode_rate([data / "gardens-point-walking" / t for t in TRAVERSALS])
+                               for _ in range(repeat))
+    rows = [f"{'cv2.imread full size':<14} {'':>7} {decode:>9.1f} {1.0:>7.2f} {'':>8}"]
+    ways = {"1": ["--jobs", "1"], "2": ["--jobs", "2"],
+            **({"dask": ["--jobs", "2", "--scheduler", scheduler]} if scheduler else {})}
     for name in descriptors:
-        rates: dict[int, list[float]] = {1: [], 2: []}
-        for _ in range(repeat):  # alternate, so that load on the machine hits both alike
-            for jobs in (1, 2):
-                rates[jobs].append(rate(name, jobs))
-        one, two = statistics.median(rates[1]), statistics.median(rates[2])
-        rows.append(f"{name:<14} {1:>5} {one:>9.1f} {one / decode:>7.2f} {'':>8}")
-        rows.append(f"{name:<14} {2:>5} {two:>9.1f} {two / decode:>7.2f} {two / one:>7.2f}x")
+        rates: dict[str, list[float]] = {way: [] for way in ways}
+        for _ in range(repeat):  # alternate, so that load on the machine hits each alike
+            for way, argv in ways.items():
+                rates[way].append(run_child("--child", "describe", "--root", str(data), "--method", name, *argv)["rate"])
+        one = statistics.median(rates["1"])
+        for way in ways:
+            r = statistics.median(rates[way])
+            vs = f"{r / one:>7.2f}x" if way != "1" else f"{'':>8}"
+            rows.append(f"{name:<14} {way:>7} {r:>9.1f} {r / decode:>7.2f} {vs}")
     return rows
 
 
@@ -199,19 +212,20 @@ def main() -> None:
     parser.add_argument("--sizes", default="1000,5000,20000,35000", help="N, comma-separated (0: none)")
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--repeat", type=int, default=3, help="runs per figure; medians are reported")
-    parser.add_argument("--scheduler", help="localize through this Dask scheduler (or 'local')")
+    parser.add_argument("--scheduler", help="localize (and describe) on this Dask scheduler, or 'local'")
     parser.add_argument("--describe", action="store_true", help="also the describe table")
     parser.add_argument("--descriptors", default="sad,gist,brisk-gist")
     parser.add_argument("--data", help="folder holding gardens-point-walking/ (default: $WILOC_DATA)")
     parser.add_argument("--work", help="scratch folder (default: a temporary one)")
-    parser.add_argument("--child", choices=("localize", "kernel"), help=argparse.SUPPRESS)
+    parser.add_argument("--child", choices=("localize", "kernel", "describe"), help=argparse.SUPPRESS)
+    parser.add_argument("--jobs", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--root", help=argparse.SUPPRESS)
     parser.add_argument("--method", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        child: Callable[[argparse.Namespace], dict[str, float]] = \
-            child_localize if args.child == "localize" else child_kernel
-        print(json.dumps(child(args)))
+        children: dict[str, Callable[[argparse.Namespace], dict[str, float]]] = {
+            "localize": child_localize, "kernel": child_kernel, "describe": child_describe}
+        print(json.dumps(children[args.child](args)))
         return
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, medians of {args.repeat}")
     sizes = [int(s) for s in args.sizes.split(",") if int(s) > 0]
@@ -227,8 +241,8 @@ def main() -> None:
         print("kernel: SAD kernel wall and CPU s over the blocks the method needs; ratio: wall / kernel wall;"
               " cache MB: what localize left in the cache besides the descriptors.")
     if args.describe:
-        print(f"\n{'descriptor':<14} {'jobs':>5} {'images/s':>9} {'/decode':>7} {'2 vs 1':>8}")
-        for row in describe_rows(data_root(args.data), args.repeat, args.descriptors.split(",")):
+        print(f"\n{'descriptor':<14} {'jobs':>7} {'images/s':>9} {'/decode':>7} {'vs 1':>8}")
+        for row in describe_rows(data_root(args.data), args.repeat, args.descriptors.split(","), args.scheduler):
             print(row, flush=True)
 
 
