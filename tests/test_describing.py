@@ -42,6 +42,17 @@ class FakeSpec:
         return cv2.resize(gray, (side, side), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()
 
 
+@dataclass(frozen=True)
+class PidSpec(FakeSpec):
+    """Rows that hold the id of the process that computed them, after `seconds` of work."""
+
+    seconds: float = 0.0
+
+    def compute(self, gray: np.ndarray) -> np.ndarray:
+        time.sleep(self.seconds)
+        return np.full(self.length, os.getpid(), dtype=np.float32)
+
+
 def write_images(folder: Path, count: int, seed: int = 0, size: tuple[int, int] = (64, 48)) -> list[str]:
     """`count` smooth random images, alternating PNG and JPEG, named img0 .. img{count-1}."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -146,6 +157,16 @@ describe_folder(Path(sys.argv[1]), get_descriptor("gist"), Cache(Path(sys.argv[2
 """
 
 
+def test_short_work_stays_in_this_process_and_long_work_goes_to_workers(tmp_path: Path) -> None:
+    write_images(tmp_path / "route", 30)
+    short = describe_folder(tmp_path / "route", PidSpec(params={"side": 1}), Cache(tmp_path / "a"), jobs=2)
+    assert set(short.entry.data[:, 0].astype(int).tolist()) == {os.getpid()}  # less work than starting workers
+    long = describe_folder(tmp_path / "route", PidSpec(params={"side": 1}, seconds=0.05), Cache(tmp_path / "b"),
+                           jobs=2)
+    pids = long.entry.data[:, 0].astype(int).tolist()
+    assert os.getpid() in pids[:9] and len(set(pids[9:]) - {os.getpid()}) == 2  # 21 x 0.05 s left: 2 workers
+
+
 def test_describe_keeps_decoder_warnings_off_stderr(tmp_path: Path) -> None:
     folder = tmp_path / "route"
     names = write_images(folder, 4, size=(160, 120))
@@ -168,8 +189,7 @@ def test_describe_keeps_decoder_warnings_off_stderr(tmp_path: Path) -> None:
         assert run.returncode == 0, run.stderr
         assert run.stdout.split() == ["5", "2"]  # the cut PNGs fail; the patched JPEG decodes
         assert "WARN" not in run.stderr
-        if jobs > 1:  # libpng's and libjpeg's own messages are silenced in worker processes only
-            assert run.stderr == ""
+        assert run.stderr == ""  # libpng's and libjpeg's own messages too: stderr is no terminal
 
 
 def test_describe_in_another_process_reports_a_busy_entry(tmp_path: Path) -> None:

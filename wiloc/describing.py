@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
@@ -41,6 +42,11 @@ if TYPE_CHECKING:
     from wiloc.cluster import Cluster
 
 Progress = Callable[[int, int], None]
+#: Seconds of work left above which this process hands frames to workers: starting 2 workers
+#: (fresh interpreters importing what describing needs) costs about 0.5 s (docs/formats.md).
+WORKER_START = 0.5
+#: Frames this process times before it estimates the work left.
+ESTIMATE_FRAMES = 8
 #: Frames per round trip to a worker: enough that the round trip costs little even for the
 #: fastest descriptor, few enough that results stream back (and are journaled) promptly.
 CHUNK = 4
@@ -277,12 +283,20 @@ def _unchanged(path: Path, old: FrameRecord | None) -> bool:
 
 
 def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterator[tuple[FrameRecord, bool]]:
-    """Settle each task, yielding (record, computed) as results arrive, over `jobs` processes."""
-    if jobs == 1 or len(tasks) == 1:
-        with _opencv_quiet():
-            for task in tasks:
-                yield _describe_one(spec, task)
+    """Settle each task, yielding (record, computed) as results arrive, over `jobs` processes.
+    This process computes first, and hands what is left to workers once it would take it longer
+    than starting them (WORKER_START, by the median time of its frames after the first)."""
+    pending = deque(tasks)
+    timed: list[float] = []
+    with _opencv_quiet():
+        while pending and not _worth_workers(jobs, timed, len(pending)):
+            started = time.perf_counter()
+            record = _describe_one(spec, pending.popleft())
+            timed.append(time.perf_counter() - started)
+            yield record
+    if not pending:
         return
+    tasks = list(pending)
     # Fresh interpreters that import the installed wiloc and never the caller's main module
     # (wiloc.workers says why not multiprocessing's start methods).
     pool = WorkerPool(min(jobs, len(tasks)), initializer=_init_worker)
@@ -297,6 +311,14 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterato
         raise
     pool.close()
     pool.join()
+
+
+def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
+    """Whether `left` frames, at the median of this process's frame times so far, would take
+    longer than starting `jobs` - 1 workers (judged after ESTIMATE_FRAMES frames)."""
+    if jobs == 1 or len(timed) <= ESTIMATE_FRAMES:
+        return False
+    return float(np.median(timed[1:])) * left > WORKER_START
 
 
 def describe_quietly(spec: DescriptorSpec, tasks: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:
@@ -324,11 +346,15 @@ def _opencv_quiet() -> Iterator[None]:
 
 
 def _read_gray(path: Path, min_size: tuple[int, int] | None) -> np.ndarray:
-    """`read_gray`, in a worker with file descriptor 2 on /dev/null meanwhile: libjpeg prints
-    "Corrupt JPEG data: ..." there itself. Workers run no other thread, so nothing else is lost;
-    in the caller's process (jobs=1) other threads may write to it, so it is left alone."""
+    """`read_gray` with file descriptor 2 on /dev/null meanwhile: libjpeg prints "Corrupt JPEG
+    data: ..." there itself. Always in a worker, which runs no other thread, so nothing else is
+    lost; in the caller's process only when stderr is no terminal: on a terminal other threads
+    of the caller (a progress display) write there, so it is left alone."""
+    global _devnull
     if _devnull is None:
-        return read_gray(path, min_size)
+        if os.isatty(2):
+            return read_gray(path, min_size)
+        _devnull = os.open(os.devnull, os.O_WRONLY)
     saved = os.dup(2)
     os.dup2(_devnull, 2)
     try:
