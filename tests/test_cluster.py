@@ -29,10 +29,15 @@ VOLATILE = {"created", "updated"}  # times of writing: the only attributes allow
 
 @pytest.fixture(scope="module")
 def scheduler() -> Iterator[str]:
-    """The address of a local cluster of 2 worker processes (each restarted by its nanny)."""
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    """The address of a local cluster of 2 worker processes (each restarted by its nanny). Its
+    nannies set variables in this process for the workers (one BLAS thread, ...), which later
+    tests' child processes must not inherit."""
+    environ = dict(os.environ)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         yield cluster.scheduler_address
         disconnect(cluster.scheduler_address)
+    os.environ.clear()
+    os.environ.update(environ)
 
 
 def kill_a_worker(address: str) -> None:
@@ -72,6 +77,13 @@ def test_blocks_on_the_cluster_are_the_local_blocks_despite_a_killed_worker(sche
     kill_a_worker(scheduler)
     got = np.concatenate([block for _, block in first + list(remote)])
     assert got.tobytes() == to(query).tobytes()
+
+
+def test_a_local_cluster_leaves_the_environment_alone() -> None:
+    before = dict(os.environ)
+    connect("local", 1)
+    disconnect("local", 1)
+    assert dict(os.environ) == before
 
 
 def test_without_a_scheduler_nothing_imports_dask(tmp_path: Path) -> None:

@@ -12,11 +12,12 @@ from __future__ import annotations
 import atexit
 import os
 from collections import deque
+from concurrent.futures import CancelledError
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
-from distributed import Client, LocalCluster, as_completed
+from distributed import Client, Future, LocalCluster, as_completed
 from numpy.typing import NDArray
 
 from wiloc.cache import FrameRecord
@@ -51,8 +52,10 @@ class Cluster:
         try:
             if scheduler == LOCAL:
                 count = workers or len(os.sched_getaffinity(0))
+                environ = dict(os.environ)
                 self._local = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
-                                           dashboard_address=None)
+                                           dashboard_address=":0")
+                _restore(environ)
                 self.client = Client(self._local)
             else:
                 self.client = Client(scheduler)
@@ -76,29 +79,48 @@ class Cluster:
 
     def blocks(self, data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
         """A ``wiloc.differences.BlockRunner``: the blocks in order, a few per worker in flight;
-        the prepared references go to every worker once."""
-        [shared] = self.client.scatter([to], broadcast=True)
+        the prepared references go to every worker once (again if a dying worker took the last
+        copy with it, and the blocks that needed it are sent again)."""
+        shared = self.client.scatter(to, broadcast=True)
         ahead = 2 * self.workers
-        pending: deque = deque()
-        todo = iter(ranges)
+        todo = deque(ranges)
+        pending: deque[tuple[tuple[int, int], Future]] = deque()
+
+        def fill() -> None:
+            while todo and len(pending) < ahead:
+                start, stop = todo.popleft()
+                pending.append(((start, stop), self.client.submit(_block, shared, data[start:stop], pure=False)))
+
         try:
-            for start, stop in todo:
-                pending.append(self.client.submit(_block, shared, data[start:stop], pure=False))
-                if len(pending) >= ahead:
-                    break
+            fill()
             while pending:
-                block = pending.popleft().result()
-                for start, stop in todo:
-                    pending.append(self.client.submit(_block, shared, data[start:stop], pure=False))
-                    break
+                span, future = pending[0]
+                try:
+                    block = future.result()
+                except CancelledError:  # lost dependencies: the references went with a worker
+                    todo.extendleft(reversed([s for s, _ in pending]))
+                    self.client.cancel([f for _, f in pending])
+                    pending.clear()
+                    shared = self.client.scatter(to, broadcast=True)
+                    fill()
+                    continue
+                pending.popleft()
+                fill()
                 yield block
         finally:
-            self.client.cancel(list(pending) + [shared])
+            self.client.cancel([f for _, f in pending] + [shared])
 
     def close(self) -> None:
         self.client.close()
         if self._local is not None:
             self._local.close()
+
+
+def _restore(environ: dict[str, str]) -> None:
+    """Put back this process's environment: starting workers sets variables for them here (one
+    BLAS thread, a hash seed) that later child processes of the caller must not inherit."""
+    os.environ.clear()
+    os.environ.update(environ)
 
 
 _open: dict[tuple[str, int | None], Cluster] = {}
