@@ -1,5 +1,5 @@
 """A damaged cache never gives a silently different result: frames failing their checksum are
-described again, damaged differences are refused and computed anew; cache files are never
+described again, a damaged map summary is computed anew; cache files are never
 written through a symbolic link; lock files do not pile up and still exclude each other."""
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from test_describing import FakeSpec, write_images
 from wiloc import api
 from wiloc.cache import Cache
 from wiloc.describing import describe_folder
-from wiloc.differences import difference_matrix
+from wiloc.differences import map_summary
 from wiloc.errors import WilocError
 
 
@@ -68,21 +68,18 @@ def test_an_unreadable_or_unchecked_entry_file_is_described_anew(tmp_path: Path)
     assert "unreadable cache entry" in cache.repairs[0]
 
 
-def test_damaged_differences_are_refused_once_and_computed_anew(tmp_path: Path) -> None:
-    spec = FakeSpec()
-    write_images(tmp_path / "q", 20, seed=1)
+def test_a_damaged_map_summary_is_computed_anew(tmp_path: Path) -> None:
     write_images(tmp_path / "r", 20, seed=2)
     cache = Cache(tmp_path / "c")
-    q = describe_folder(tmp_path / "q", spec, cache, jobs=1).entry
-    r = describe_folder(tmp_path / "r", spec, cache, jobs=1).entry
-    with difference_matrix(q, r, cache) as matrix:
-        clean, path = matrix.rows(0, 20).copy(), matrix.path
-    _overwrite(path, _data_offset(path, "d"))
-    with difference_matrix(q, r, cache) as matrix, pytest.raises(WilocError, match="differences damaged"):
-        matrix.rows(0, 20)
-    assert not path.exists()
-    with difference_matrix(q, r, cache) as matrix:
-        np.testing.assert_array_equal(matrix.rows(0, 20), clean)
+    r = describe_folder(tmp_path / "r", FakeSpec(), cache, jobs=1).entry
+    clean = map_summary(r, cache, 2)
+    path = cache.root / "differences" / f"{r.key}-self-r2.h5"
+    _overwrite(path, _data_offset(path, "minima"))
+    calls = []
+    again = map_summary(r, cache, 2, progress=lambda done, total: calls.append(done))
+    assert calls  # the damaged file was not used
+    np.testing.assert_array_equal(again.minima, clean.minima)
+    assert again.largest == clean.largest
 
 
 def test_cache_writes_never_follow_symbolic_links(tmp_path: Path) -> None:
@@ -105,8 +102,7 @@ def test_lock_files_do_not_pile_up(tmp_path: Path) -> None:
     for folder in ("a", "b"):
         write_images(tmp_path / folder, 4, seed=len(folder))
     report = api.describe([tmp_path / "a", tmp_path / "b"], "sad", cache=cache, jobs=1)
-    with difference_matrix(report[0].entry, report[1].entry, cache):
-        pass
+    map_summary(report[1].entry, cache, 1)
     leftovers = sorted(p.name for p in cache.root.rglob("*") if p.suffix in (".lock", ".owner"))
     assert leftovers == []
 

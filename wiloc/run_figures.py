@@ -2,9 +2,9 @@
 difference matrix reduced to a picture with the decided matches and the ground truth, and example
 matched image pairs (the most confident right and wrong ones).
 
-The descriptors and differences come back through the cache from what the results header names
-(the query and map traversals, the descriptor and its parameters, a video's sampling), so
-nothing is recomputed that the run cached. A header whose traversals no longer give the frames
+The descriptors come back through the cache from what the results header names (the query and
+map traversals, the descriptor and its parameters, a video's sampling), so nothing is described
+again; the differences are computed block by block, as the run computed them. A header whose traversals no longer give the frames
 the file lists is an error naming the file.
 """
 from __future__ import annotations
@@ -105,7 +105,7 @@ def matrix_picture(evaluation: Evaluation, cache: Cache, max_side: int = MAX_SID
     """The run's difference matrix, min-pooled to at most ``max_side`` pixels a side (memory:
     one block of rows), with its matches and ground truth."""
     from wiloc.candidates import mask_recent
-    from wiloc.differences import difference_matrix
+    from wiloc.differences import differences
 
     q, r = _entries(evaluation, cache)
     _, _, sequence = _traversals(evaluation)
@@ -113,13 +113,13 @@ def matrix_picture(evaluation: Evaluation, cache: Cache, max_side: int = MAX_SID
     n_query, n_ref = len(q.names), len(r.names)
     fy, fx = math.ceil(n_query / max_side), math.ceil(n_ref / max_side)
     image = np.empty((math.ceil(n_query / fy), math.ceil(n_ref / fx)))
-    with difference_matrix(q, r, cache) as matrix:
-        for i, start in enumerate(range(0, n_query, fy)):
-            block = matrix.rows(start, min(start + fy, n_query)).astype(np.float64)
-            if sequence:
-                for k in range(block.shape[0]):
-                    mask_recent(block[k], start + k, exclude)
-            image[i] = _pooled(block.min(axis=0), fx)
+    matrix = differences(q, r)  # computed block by block, never stored
+    for i, start in enumerate(range(0, n_query, fy)):
+        block = matrix.rows(start, min(start + fy, n_query)).astype(np.float64)
+        if sequence:
+            for k in range(block.shape[0]):
+                mask_recent(block[k], start + k, exclude)
+        image[i] = _pooled(block.min(axis=0), fx)
     coo = evaluation.truth.matrix.tocoo()
     return MatrixPicture(image=image, shape=(n_query, n_ref), truth_rows=coo.row.astype(np.int64),
                          truth_cols=coo.col.astype(np.int64), match=evaluation.results.match_index,
