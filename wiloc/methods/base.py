@@ -13,16 +13,18 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.differences import MapSummary, RowBlocks, summarize
 from wiloc.errors import UsageError, WilocError
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters
 from wiloc.reprs import short_repr
+
+if TYPE_CHECKING:
+    from wiloc.differences import MapSummary, RowBlocks
 
 Progress = Callable[[int, int], None]
 
@@ -60,6 +62,8 @@ def self_summary(context: MapContext) -> MapSummary:
         return context.map_summary()
     if context.map_self is None:
         raise WilocError(None, "needs the map's differences to itself", parameter="reference")
+    from wiloc.differences import summarize  # the kernels load where a map is summarized, not with the command line
+
     return summarize(context.map_self(), context.exclude_recent)
 
 

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from wiloc.calibration import GivenEvidence, RankLikelihood, Unexplained, novelty_weights
@@ -81,21 +80,6 @@ def _shifted_reads(nodes: NDArray[np.float64],
     trajectory: flat indices of the node before and the fraction of the way to the next."""
     j, a = _locate(nodes, (nodes[None, :] - shifts[:, None]).ravel())
     return np.arange(shifts.size).repeat(nodes.size) * nodes.size + j, a
-
-
-@njit(cache=True, nogil=True)
-def _advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.float64],
-             contrast: NDArray[np.float64], rate: float) -> NDArray[np.float64]:
-    """The leaky sequence score one frame on: ``score`` read where :func:`_shifted_reads` says,
-    linearly interpolated (the score ending at node j continues the one that ended a step back),
-    times 1 - rate, plus rate times this frame's ``contrast``. One pass: the numpy expression
-    ``(1 - rate) * ((1 - a) * prev[at] + a * prev[at + 1]) + rate * contrast``, value for value."""
-    prev = score.ravel()
-    out = np.empty_like(prev)
-    n = contrast.size
-    for k in range(prev.size):
-        out[k] = (1.0 - rate) * ((1.0 - a[k]) * prev[at[k]] + a[k] * prev[at[k] + 1]) + rate * contrast[k % n]
-    return out.reshape(score.shape)
 
 
 def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.intp]:
@@ -245,7 +229,9 @@ class CatGraph(Method):
         if first:
             self._sequence[:] = contrast
         else:  # the leaky sum along each speed's trajectory: causal, O(speeds x nodes) per frame
-            self._sequence = _advance(self._sequence, *self._shift_lookup(u), contrast, p.sequence_rate)
+            from wiloc.methods.sequence_score import advance  # numba loads with the first frame, not the command line
+
+            self._sequence = advance(self._sequence, *self._shift_lookup(u), contrast, p.sequence_rate)
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
         likelihood.use_row(row)
