@@ -9,6 +9,8 @@ out, never invented.
 from __future__ import annotations
 
 import os
+import queue
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -284,8 +286,9 @@ def _unchanged(path: Path, old: FrameRecord | None) -> bool:
 
 def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterator[tuple[FrameRecord, bool]]:
     """Settle each task, yielding (record, computed) as results arrive, over `jobs` processes.
-    This process computes first, and hands what is left to workers once it would take it longer
-    than starting them (WORKER_START, by the median time of its frames after the first)."""
+    This process computes first; once the frames left would take it longer than starting
+    workers (WORKER_START, by the median time of its frames after the first), `jobs` - 1 workers
+    start and take frames from the same queue while this process goes on computing."""
     pending = deque(tasks)
     timed: list[float] = []
     with _opencv_quiet():
@@ -294,23 +297,79 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterato
             record = _describe_one(spec, pending.popleft())
             timed.append(time.perf_counter() - started)
             yield record
-    if not pending:
-        return
-    tasks = list(pending)
+        if pending:
+            with _opencv_threads(1):
+                yield from _compute_with_workers(spec, pending, jobs - 1)
+
+
+def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: int) -> Iterator[tuple[FrameRecord, bool]]:
+    """The pending tasks settled by this process and `workers` worker processes together: a
+    helper thread feeds the workers from `pending` and queues their results, this process
+    computes from the same deque and yields both."""
+    folder = pending[0][0].parent
     # Fresh interpreters that import the installed wiloc and never the caller's main module
     # (wiloc.workers says why not multiprocessing's start methods).
-    pool = WorkerPool(min(jobs, len(tasks)), initializer=_init_worker)
+    pool = WorkerPool(workers, initializer=_init_worker)
+    results: queue.Queue = queue.Queue()
+
+    def take() -> Iterator[_Task]:
+        while (task := _take(pending)) is not None:
+            yield task
+
+    def drive() -> None:
+        try:
+            for result in pool.imap_unordered(partial(_describe_one, spec), take(), chunksize=CHUNK):
+                results.put(result)
+            results.put(None)
+        except BaseException as exc:  # raised in this process by the loop below
+            results.put(exc)
+
+    driver = threading.Thread(target=drive, name="wiloc-workers", daemon=True)
+    driver.start()
     try:
-        yield from pool.imap_unordered(partial(_describe_one, spec), tasks, chunksize=CHUNK)
+        finished = False
+        while not finished:
+            task = _take(pending)
+            if task is not None:
+                yield _describe_one(spec, task)
+            while not finished and (task is None or not results.empty()):  # nothing left here: wait
+                item = results.get()
+                if isinstance(item, BaseException):
+                    raise item
+                finished = item is None
+                if not finished:
+                    yield item
     except WorkerError as exc:
         pool.terminate()
         names = ", ".join(path.name for path, _ in exc.items)
-        raise WilocError(tasks[0][0].parent, f"{exc.problem} while describing {names}") from None
+        raise WilocError(folder, f"{exc.problem} while describing {names}") from None
     except BaseException:
         pool.terminate()  # an interrupted run keeps what was journaled; in-flight work is lost
         raise
+    finally:
+        driver.join(timeout=60)
     pool.close()
     pool.join()
+
+
+def _take(pending: deque[_Task]) -> _Task | None:
+    """The next task, or None when there is none left (deques pop atomically across threads)."""
+    try:
+        return pending.popleft()
+    except IndexError:
+        return None
+
+
+@contextmanager
+def _opencv_threads(count: int) -> Iterator[None]:
+    """OpenCV's own thread count set to `count`, then restored: with several processes
+    computing, each one's internal threads only compete for the same cores."""
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(count)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(previous)
 
 
 def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
@@ -332,6 +391,7 @@ def _init_worker() -> None:
     (They leave Ctrl-C to the parent, which stops them and keeps what was journaled.)"""
     global _devnull
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    cv2.setNumThreads(1)  # the processes share out the cores already
     _devnull = os.open(os.devnull, os.O_WRONLY)
 
 
