@@ -13,7 +13,7 @@ import pytest
 
 from wiloc import api, demo
 from wiloc.cache import Cache
-from wiloc.candidates import finite_minimum
+from wiloc.candidates import RANKED, finite_minimum
 from wiloc.errors import ParameterError
 from wiloc.localizer import Localizer
 from wiloc.methods import registry
@@ -109,6 +109,9 @@ def _equal(a: Decisions, b: Decisions) -> None:
     assert a.columns.keys() == b.columns.keys()
     for name in a.columns:
         np.testing.assert_array_equal(a.columns[name], b.columns[name])
+    assert (a.ranking is None) == (b.ranking is None)
+    if a.ranking is not None:
+        np.testing.assert_array_equal(a.ranking, b.ranking)
 
 
 # --- the checks ----------------------------------------------------------------------------------
@@ -141,12 +144,30 @@ def test_batch_run_equals_stepping_and_records_every_parameter(name: str) -> Non
     stepper = _method(name)
     stepper.start(context)
     steps = [stepper.step(row) for row in query]
-    _equal(batch, Decisions.collect(steps, stepper.columns))
+    _equal(batch, Decisions.collect(steps, stepper.columns, ranked=stepper.ranks))
     assert set(batch.columns) == set(stepper.columns)
     header = batch.params
     assert header["method"] == name
     assert {f.name for f in fields(stepper.Params)} <= set(header)
     assert batch.decided.mean() > 0.9
+
+
+@pytest.mark.usefixtures("with_ratio")
+@pytest.mark.parametrize("name", ALL)
+def test_a_ranking_method_ranks_its_match_first_and_the_rest_by_its_row(name: str) -> None:
+    rng = np.random.default_rng(3)
+    method = _method(name)
+    context, query = _context(method, rng), _query_for(method, rng)
+    method.start(context)
+    steps = [(row, method.step(row)) for row in query]
+    if not method.ranks:
+        assert all(d.ranking == () for _, d in steps)
+        return
+    sign = -1.0 if context.rows == "log_ratio" else 1.0
+    for row, d in steps:
+        order = [int(i) for i in np.argsort(sign * row, kind="stable") if np.isfinite(row[i])]
+        assert d.ranking == (tuple(order[:RANKED]) if d.match >= 0 else ())
+        assert d.match < 0 or d.ranking[0] == d.match
 
 
 @pytest.mark.usefixtures("with_ratio")
@@ -174,7 +195,7 @@ def test_the_example_method_runs_through_localize_and_the_localizer(tmp_path: Pa
     cache = Cache(tmp_path / "cache")
     run = api.localize(route.queries[0], reference=route.reference, method="ratio", method_params={"window": 3},
                        out=tmp_path / "ratio.csv", cache=cache)
-    assert run.results.frames.columns.tolist()[-1] == "second"
+    assert run.results.frames.columns.tolist()[-2:] == ["second", "ranking"]  # a new method ranks by default
     assert run.results.meta["params"]["window"] == 3
     loc = Localizer(route.reference, method="ratio", window=3, cache=cache)
     first = loc.observe(sorted(route.queries[0].iterdir())[0])

@@ -18,7 +18,8 @@ def _decisions() -> Decisions:
     model.add_different([0.9])
     return Decisions(match=np.array([-1, 2, 0]), difference=np.array([np.nan, 0.25, 0.5]),
                      confidence=np.array([np.nan, 0.9, 0.1]), stage=np.array(["init", "update", "update"]),
-                     columns={"m_r": np.array([np.nan, 0.7, 0.8])}, model=model, params={"init": 1})
+                     columns={"m_r": np.array([np.nan, 0.7, 0.8])}, model=model, params={"init": 1},
+                     ranking=np.array([[-1, -1], [2, 1], [0, -1]]))
 
 
 def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
@@ -32,6 +33,7 @@ def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
     assert back.match_index.tolist() == [-1, 2, 0]
     assert np.isnan(back.confidence[0]) and back.confidence[1] == pytest.approx(0.9)
     assert back.frames["m_r"].iloc[1] == pytest.approx(0.7)
+    assert back.ranking.tolist() == [[-1, -1], [2, 1], [0, -1]]
     assert back.meta["params"] == {"init": 1}
     assert back.model is not None and back.model.b.tolist() == [1.0, 1.0, 0.0, 0.0]
     assert not list(tmp_path.glob(".*tmp"))
@@ -99,6 +101,11 @@ def _written(tmp_path: Path) -> tuple[Path, str]:
      "'reference_frames' must be a list"),
     (lambda t: t.replace("# exclude_recent: 10", "# exclude_recent: ten"), "'exclude_recent' must be a whole number"),
     (lambda t: t.replace('"edges": [', '"edges": ["x", '), "header 'model' is not a histogram model"),
+    (lambda t: t.replace(",2 1\n", ",2 one\n"), r"line \d+: ranking '2 one' is not positions separated by spaces"),
+    (lambda t: t.replace(",2 1\n", ",2 7\n"), r"line \d+: ranking names position 7; the map has 3 frames"),
+    (lambda t: t.replace(",2 1\n", ",2 2\n"), r"line \d+: ranking names a frame twice"),
+    (lambda t: t.replace(",2 1\n", ",1 2\n"), r"line \d+: ranking does not start with the match"),
+    (lambda t: t.replace(",2 1\n", ",\n"), r"line \d+: ranking does not start with the match"),
 ])
 def test_a_results_file_no_run_writes_is_refused_naming_the_line(tmp_path: Path, edit, message: str) -> None:
     path, text = _written(tmp_path)

@@ -33,7 +33,7 @@ from wiloc.follow import FolderWatch, Skipped, follow
 from wiloc.localizer import Localizer
 from wiloc.methods.base import Decision
 from wiloc.reprs import short_repr
-from wiloc.results import Results, ResultsStream, make_results, read_results, write_results
+from wiloc.results import RANKING, Results, ResultsStream, make_results, read_results, write_results
 from wiloc.training import Training, training_rows
 from wiloc.traversals import Describer, Progress, descriptor_label, descriptor_spec, open_cluster, stage
 from wiloc.video import Sampling, is_video
@@ -253,7 +253,8 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
             "params": localizer.method.header(),
             "reference_frames": [] if reference is None else localizer.map_names}
     path = Path(out) if out else Path.cwd() / results_name(query, method, descriptor)
-    stream = ResultsStream(path, meta, localizer.method.columns, resume=True)
+    ranked = (RANKING,) if localizer.method.ranks else ()
+    stream = ResultsStream(path, meta, (*localizer.method.columns, *ranked), resume=True)
     names = stream.rows["frame"].tolist()
     for name, line in zip(names, stream.written_lines()):
         decision = localizer.observe(query / name)
@@ -329,7 +330,7 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS)
     loaded = truth.load(query_names, ref_names, str(results.meta.get("query", "")), sequence,
                         int(results.meta.get("exclude_recent", 0) or 0))
     match = results.match_index
-    summary = summarize(match, results.confidence, loaded)
+    summary = summarize(match, results.confidence, loaded, results.ranking)
     correct = correct_matches(match, loaded)
     confidence = decided_confidence(match, results.confidence)
     calibration = summarize_calibration(confidence, correct, summary.with_true_match, cuts)
@@ -376,8 +377,10 @@ def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
             for pair, e in zip(pairs, evaluations)]
 
 
-#: Table I's metrics per (method, traversal), as Summary names them.
-TABLE1_KEYS = ("recall_at_100", "recall_at_99", "recall_at_90", "auc", "recall_at_1", "frames")
+#: Table I's metrics per (method, traversal), as Summary names them; Recall@5 and @10 only for
+#: runs whose results rank the map (``Summary.as_dict`` leaves them out for the others).
+TABLE1_KEYS = ("recall_at_100", "recall_at_99", "recall_at_90", "auc", "recall_at_1", "recall_at_5",
+               "recall_at_10", "frames")
 
 
 def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
@@ -391,7 +394,7 @@ def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[flo
     rows = []
     for label, traversal, e in zip(labels, traversals, evaluations):
         s = e.summary.as_dict()
-        rows.append({"method": label, "traversal": traversal, **{key: s[key] for key in TABLE1_KEYS}})
+        rows.append({"method": label, "traversal": traversal, **{key: s[key] for key in TABLE1_KEYS if key in s}})
     table1 = pd.DataFrame(rows)
     rows2 = []
     if global_thresholds:

@@ -37,3 +37,21 @@ def finite_minimum(row: NDArray[np.float64]) -> tuple[int, float]:
     z = int(np.argmin(row))
     m = float(row[z])
     return (z, m) if np.isfinite(m) else (-1, float("nan"))
+
+
+RANKED = 10
+"""K of the ranking a single-frame method's results keep per query frame: its K best candidates,
+enough for Recall@1, @5 and @10 (docs/evaluation.md)."""
+
+
+def best_candidates(row: NDArray[np.float64], k: int = RANKED, *, descending: bool = False) -> NDArray[np.int64]:
+    """The positions of a row's ``k`` best candidates, best first: ascending difference (or, with
+    ``descending``, falling evidence), equal values in order of position, so the first is
+    :func:`finite_minimum`'s argmin. Entries that are no candidate (infinite, NaN) are never
+    ranked; a row with fewer candidates gives fewer positions."""
+    score = -row if descending else row
+    ranked = np.flatnonzero(np.isfinite(score))
+    if ranked.size > k:
+        values = score[ranked]
+        ranked = ranked[values <= np.partition(values, k - 1)[k - 1]]  # the k best, and any tied with the k-th
+    return ranked[np.argsort(score[ranked], kind="stable")][:k].astype(np.int64)

@@ -22,7 +22,7 @@ from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, note, out, refuse_unused
 from wiloc.cli_params import method_params, with_method_options
 from wiloc.cli_views import (cell, cut_views, json_ready, metrics_views, print_json, progress_bar, table,
-                             table1_view, table2_view)
+                             table1_records, table1_view, table2_view)
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE, WilocError
 from wiloc.labels import short_names
 from wiloc.methods.registry import METHODS, method_class
@@ -667,7 +667,7 @@ def compare(
         calibration = [{"method": label, "traversal": traversal, **e.calibration.as_dict()} for label, traversal, e
                        in zip(comparison.labels, comparison.traversals, comparison.evaluations)]
         print_json({"ground_truth": comparison.ground_truth,
-                    "table1": comparison.table1.to_dict(orient="records"), "calibration": calibration,
+                    "table1": table1_records(comparison), "calibration": calibration,
                     "table2": comparison.table2.to_dict(orient="records"), "files": [str(p) for p in written],
                     "warnings": notes})
         return
@@ -720,7 +720,7 @@ def demo(
     with progress_bar(not as_json) as progress:
         report = run_demo(out_dir, progress=progress)
     if as_json:
-        print_json({"table1": report.comparison.table1.to_dict(orient="records"),
+        print_json({"table1": table1_records(report.comparison),
                     "table2": report.comparison.table2.to_dict(orient="records"),
                     "out": str(out_dir), "files": [str(p) for p in report.files]})
         return

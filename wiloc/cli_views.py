@@ -28,12 +28,16 @@ CUT_CAPTION = "at a cut: P precision, R recall, n frames accepted (decided, conf
 METRIC_LABELS = {"recall_at_100": "recall at 100 % precision", "recall_at_99": "recall at 99 % precision",
                  "recall_at_90": "recall at 90 % precision", "auc": "area under PR curve", "max_f1": "max F1",
                  "max_f1_threshold": "threshold at max F1", "recall_at_1": "R@1 (best match right)",
+                 "recall_at_5": "R@5 (a true match in the 5 best)", "recall_at_10": "R@10 (a true match in the 10 best)",
                  "frames": "frames", "decided": "decided frames", "with_true_match": "frames with a true match",
                  "ece": "ECE", "brier": "Brier score", "mean_confidence": "mean confidence",
                  "share_correct": "share correct"}
 #: Columns of the runs-down metrics table (one row per results file), with short headers.
 RUN_COLUMNS = {"recall_at_100": "R\n@100%P", "recall_at_99": "R\n@99%P", "recall_at_90": "R\n@90%P",
                "auc": "AUC", "max_f1": "max\nF1", "recall_at_1": "R@1", "decided": "deci-\nded"}
+#: Metrics only runs whose results rank the map have (Recall@K): shown when one of the runs has them.
+RANKED_METRICS = ("recall_at_5", "recall_at_10")
+RECALL_AT_K_COLUMNS = {"recall_at_1": "R@1", "recall_at_5": "R@5", "recall_at_10": "R@10"}
 CALIBRATION_COLUMNS = {"ece": "ECE", "brier": "Brier", "mean_confidence": "mean\nconf.",
                        "share_correct": "share\ncorrect"}
 #: Width one results file takes as a column of the metrics-down table.
@@ -109,25 +113,35 @@ def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_trut
     """`wiloc evaluate`'s tables: metrics down and one column per results file while the runs fit
     the console; else one row per results file (its name whole), in two tables."""
     title = f"evaluate (ground truth: {ground_truth})"
+    shown = _shown(rows)
     if 28 + _RUN_WIDTH * len(rows) <= out.width:
-        return [_metrics_down(rows, cuts, title)]
+        return [_metrics_down(rows, cuts, title, [key for key in METRIC_LABELS if key in shown])]
     cut_columns = {f"cut {cut:g}": cut for cut in cuts}
     calibration = [{"run": row["run"], **{k: row[k] for k in CALIBRATION_COLUMNS},
                     **{name: at_cut(row, cut) for name, cut in cut_columns.items()}} for row in rows]
-    return [table(title, rows, ["run", *RUN_COLUMNS], RUN_COLUMNS,
-                  caption="R@x%P: recall at x % precision; R@1: best match right"),
-            table(f"calibration and fixed confidence cuts (ground truth: {ground_truth})", calibration,
-                  ["run", *CALIBRATION_COLUMNS, *cut_columns], CALIBRATION_COLUMNS, caption=CUT_CAPTION)]
+    views = [table(title, rows, ["run", *RUN_COLUMNS], RUN_COLUMNS,
+                   caption="R@x%P: recall at x % precision; R@1: best match right"),
+             table(f"calibration and fixed confidence cuts (ground truth: {ground_truth})", calibration,
+                   ["run", *CALIBRATION_COLUMNS, *cut_columns], CALIBRATION_COLUMNS, caption=CUT_CAPTION)]
+    if set(RANKED_METRICS) & shown:
+        views.append(table(f"Recall@K (ground truth: {ground_truth})", rows, ["run", *RECALL_AT_K_COLUMNS],
+                           RECALL_AT_K_COLUMNS, caption="R@K: a true match among the K best map frames (-: not ranked)"))
+    return views
 
 
-def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str) -> Table:
+def _shown(rows: list[dict[str, Any]]) -> set[str]:
+    """The metric keys to show: all but Recall@K when no run has it (a run without it shows "-")."""
+    return {key for key in METRIC_LABELS if key not in RANKED_METRICS or any(key in row for row in rows)}
+
+
+def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str, keys: list[str]) -> Table:
     view = Table(title=escape(title), caption=CUT_CAPTION)
     view.add_column("")
     for row in rows:
         view.add_column(escape(f"{row['method']}\n{row['traversal']}"), justify="right", overflow="fold")
     view.add_row("results", *[cell(row["results"]) for row in rows])
-    for key, label in METRIC_LABELS.items():
-        view.add_row(label, *[cell(row[key]) for row in rows])
+    for key in keys:
+        view.add_row(METRIC_LABELS[key], *[cell(row.get(key)) for row in rows])
     for cut in cuts:
         view.add_row(f"cut {cut:g}", *[at_cut(row, cut) for row in rows])
     return view
@@ -155,7 +169,10 @@ def table1_view(comparison: api.Comparison) -> Table:
     """Table I: recall at 100/99/90 % precision, one row per traversal, columns per method."""
     t1 = comparison.table1
     methods = list(dict.fromkeys(t1["method"]))
-    view = Table(title=escape(f"Table I: recall at 100 / 99 / 90 % precision (plus AUC, R@1); {comparison.ground_truth}"))
+    ranked = [key for key in RANKED_METRICS if key in t1 and t1[key].notna().any()]
+    recall_at = ", R@1/5/10" if ranked else ", R@1"
+    view = Table(title=escape(f"Table I: recall at 100 / 99 / 90 % precision (plus AUC{recall_at}); "
+                              f"{comparison.ground_truth}"))
     view.add_column("traversal", overflow="fold")
     for m in methods:
         view.add_column(cell(m), justify="right", overflow="fold")
@@ -167,10 +184,21 @@ def table1_view(comparison: api.Comparison) -> Table:
                 cells.append("")
                 continue
             r = sel.iloc[0]
+            at_k = "".join(f" / {r[key]:.3f}" for key in ranked if not math.isnan(r[key]))
             cells.append(f"{r['recall_at_100']:.1%} / {r['recall_at_99']:.1%} / {r['recall_at_90']:.1%}\n"
-                         f"AUC {r['auc']:.3f}  R@1 {r['recall_at_1']:.3f}")
+                         f"AUC {r['auc']:.3f}\nR@1{'/5/10' if at_k else ''} {r['recall_at_1']:.3f}{at_k}")
         view.add_row(cell(traversal), *cells)
     return view
+
+
+def table1_records(comparison: api.Comparison) -> list[dict[str, Any]]:
+    """Table I for --json: one object per run, without the Recall@K keys of runs that have none."""
+    return [{key: value for key, value in row.items() if not (key in RANKED_METRICS and _missing(value))}
+            for row in comparison.table1.to_dict(orient="records")]
+
+
+def _missing(value: Any) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value))
 
 
 def table2_view(comparison: api.Comparison) -> Table:

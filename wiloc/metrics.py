@@ -23,6 +23,9 @@ if TYPE_CHECKING:
 PRECISION_LEVELS = (1.0, 0.99, 0.90)
 """The precisions at which recall is reported (the paper's Table I)."""
 
+RANKED_KS = (5, 10)
+"""The K of Recall@K reported beside R@1 for runs whose results rank the map (docs/evaluation.md)."""
+
 PRECISION_RTOL = 1e-9
 """Relative slack when testing precision >= target: a target given in percent is rounded
 (99.9 / 100 > 0.999), yet 999 of 1000 meets it; 100 % stays exact below 10**9 accepted frames."""
@@ -128,6 +131,20 @@ def recall_at_1(correct: ArrayLike, has_match: ArrayLike) -> float:
     return float(ok[positive].mean()) if positive.any() else 0.0
 
 
+def recall_at_k(ranking: ArrayLike, truth: Truth, k: int) -> float:
+    """Recall@K as place recognition reports it: the share of frames with a true match that have
+    one among their ``k`` best-ranked candidates (``ranking``: frames x ranks, best first, -1
+    padding), under the same ground truth and tolerance as :func:`recall_at_1`; frames without a
+    true match are left out, frames without a ranking (undecided) count as missed."""
+    ranked = np.asarray(ranking, dtype=np.int64)
+    if ranked.ndim != 2 or ranked.shape[0] != len(truth.query_names):
+        raise ValueError(f"ranking {ranked.shape} must have one row per ground-truth query frame")
+    ranked = ranked[:, :k]
+    hit = truth.is_true(np.arange(ranked.shape[0])[:, None], ranked).any(axis=1)
+    positive = truth.has_match()
+    return float(hit[positive].mean()) if positive.any() else 0.0
+
+
 def precision_at_thresholds(confidence: ArrayLike, correct: ArrayLike,
                             thresholds: ArrayLike) -> NDArray[np.float64]:
     """Precision when accepting confidence >= each threshold (Figure 5); NaN where none is accepted."""
@@ -174,10 +191,14 @@ class Summary:
     max_f1_threshold: float
     recall_at_1: float
     curve: PRCurve = field(repr=False)
+    recall_at_5: float | None = None  # Recall@K: runs whose results rank the map only
+    recall_at_10: float | None = None
 
     def as_dict(self) -> dict[str, float | int]:
-        """The counts and metrics as a flat dict (no curve), e.g. for --json or a table row."""
-        return {name: getattr(self, name) for name in self.__dataclass_fields__ if name != "curve"}
+        """The counts and metrics as a flat dict (no curve; no Recall@K a run cannot tell), e.g.
+        for --json or a table row."""
+        return {name: getattr(self, name) for name in self.__dataclass_fields__
+                if name != "curve" and getattr(self, name) is not None}
 
 
 def correct_matches(match: ArrayLike, truth: Truth) -> NDArray[np.bool_]:
@@ -193,8 +214,9 @@ def decided_confidence(match: ArrayLike, confidence: ArrayLike) -> NDArray[np.fl
     return np.where(np.asarray(match, dtype=np.int64) >= 0, np.asarray(confidence, dtype=np.float64), np.nan)
 
 
-def summarize(match: ArrayLike, confidence: ArrayLike, truth: Truth) -> Summary:
-    """All reported metrics of one run: recall at 100/99/90 % precision, AUC, max F1, R@1, counts.
+def summarize(match: ArrayLike, confidence: ArrayLike, truth: Truth, ranking: ArrayLike | None = None) -> Summary:
+    """All reported metrics of one run: recall at 100/99/90 % precision, AUC, max F1, R@1, counts,
+    and with each frame's ``ranking`` (best candidates first) Recall@5 and @10.
 
     ``match`` and ``confidence`` are per query frame in the order of ``truth.query_names``; a
     frame is decided when its match is >= 0 and its confidence is not NaN.
@@ -210,4 +232,5 @@ def summarize(match: ArrayLike, confidence: ArrayLike, truth: Truth) -> Summary:
                    with_true_match=int(has_match.sum()), recall_at_100=r100, recall_at_99=r99,
                    recall_at_90=r90, auc=average_precision(curve), max_f1=f1,
                    max_f1_threshold=f1_threshold, recall_at_1=recall_at_1(correct, has_match),
-                   curve=curve)
+                   curve=curve, **({} if ranking is None else
+                                   {f"recall_at_{k}": recall_at_k(ranking, truth, k) for k in RANKED_KS}))

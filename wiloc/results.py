@@ -30,6 +30,8 @@ from wiloc.reprs import short_repr
 
 FORMAT_VERSION = "1"
 BASE_COLUMNS = ("frame", "match", "difference", "confidence", "stage")
+RANKING = "ranking"  # the column of each frame's best candidates (methods that rank; docs/formats.md)
+TEXT_COLUMNS = ("frame", "match", "stage", RANKING)
 JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "sampling")
 
 
@@ -62,6 +64,35 @@ class Results:
     def confidence(self) -> np.ndarray:
         return self.frames["confidence"].to_numpy(dtype=np.float64)
 
+    @property
+    def ranking(self) -> np.ndarray | None:
+        """Each frame's best candidates as reference positions, best first, padded with -1
+        (frames x K); None for a run without the column (catgraph, files of older versions)."""
+        if RANKING not in self.frames.columns:
+            return None
+        return parse_ranking(self.frames[RANKING].tolist())
+
+
+def ranking_text(ranking: Any) -> str:
+    """A ranking as its results-file cell: positions separated by spaces, best first."""
+    return " ".join(str(int(i)) for i in ranking if i >= 0)
+
+
+def _positions(text: str) -> list[int] | None:
+    """A ranking cell's positions; None when it is not whole numbers separated by spaces."""
+    parts = str(text).split()
+    return [int(part) for part in parts] if all(part.isdigit() for part in parts) else None
+
+
+def parse_ranking(cells: list[str]) -> np.ndarray:
+    """The rankings of a results table's column (checked by :func:`read_results`): frames x the
+    longest, padded with -1."""
+    rows = [_positions(text) or [] for text in cells]
+    ranking = np.full((len(rows), max(map(len, rows), default=0)), -1, dtype=np.int64)
+    for out, row in zip(ranking, rows):
+        out[:len(row)] = row
+    return ranking
+
 
 def decisions_to_frame(decisions: Decisions, query_names: list[str], ref_names: list[str]) -> pd.DataFrame:
     """The per-frame table of a run, with frame names instead of positions."""
@@ -71,6 +102,8 @@ def decisions_to_frame(decisions: Decisions, query_names: list[str], ref_names: 
     table = {"frame": list(query_names), "match": matched, "difference": decisions.difference,
              "confidence": decisions.confidence, "stage": decisions.stage}
     table.update(decisions.columns)
+    if decisions.ranking is not None:
+        table[RANKING] = [ranking_text(row) for row in decisions.ranking]
     return pd.DataFrame(table)
 
 
@@ -189,7 +222,7 @@ class ResultsStream:
         """The CSV line of one decision, as the batch writer formats it."""
         values = {"frame": decision.frame, "match": decision.match_name, "difference": decision.difference,
                   "confidence": decision.confidence, "stage": decision.stage, "new_place": decision.new_place,
-                  **decision.extra}
+                  RANKING: ranking_text(decision.ranking), **decision.extra}
         return _csv_line([_cell(values[c]) for c in self.columns])
 
     def written_lines(self) -> list[str]:
@@ -214,7 +247,9 @@ def read_results(path: Path) -> Results:
     for i, match in enumerate(frames["match"]):
         if match and match not in known:
             raise WilocError(path, f"line {first_line + i}: match '{match}' is not a frame of the map")
-    for column in frames.columns.difference(["frame", "match", "stage"]):
+    if RANKING in frames.columns:
+        _check_ranking(path, frames, reference, first_line)
+    for column in frames.columns.difference(TEXT_COLUMNS):
         numbers = pd.to_numeric(frames[column].replace("", np.nan), errors="coerce")
         bad = numbers.isna() & (frames[column] != "")
         if bad.any():
@@ -227,6 +262,26 @@ def read_results(path: Path) -> Results:
         except (KeyError, TypeError, ValueError) as exc:
             raise WilocError(path, f"header 'model' is not a histogram model ({exc})") from None
     return Results(meta=meta, frames=frames, reference_frames=reference)
+
+
+def _check_ranking(path: Path, frames: pd.DataFrame, reference: list[str], first_line: int) -> None:
+    """A WilocError naming the file and line of a ranking that no run writes: text that is no
+    positions, a position off the map, one twice, or a first that is not the match."""
+    lookup = {name: i for i, name in enumerate(reference)}
+    for i, (text, match) in enumerate(zip(frames[RANKING], frames["match"])):
+        positions = _positions(text)
+        ranked = np.asarray(positions or [], dtype=np.int64)
+        problem = None
+        if positions is None:
+            problem = f"ranking '{text}' is not positions separated by spaces"
+        elif ranked.size and ranked.max() >= len(reference):
+            problem = f"ranking names position {int(ranked.max())}; the map has {len(reference)} frames"
+        elif np.unique(ranked).size != ranked.size:
+            problem = "ranking names a frame twice"
+        elif (lookup.get(match, -1) if match else -1) != (int(ranked[0]) if ranked.size else -1):
+            problem = "ranking does not start with the match"
+        if problem:
+            raise WilocError(path, f"line {first_line + i}: {problem}")
 
 
 def _reference_frames(path: Path, meta: dict[str, Any], frames: pd.DataFrame) -> list[str]:

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.candidates import best_candidates
 from wiloc.errors import UsageError, WilocError
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters
@@ -107,7 +108,9 @@ class Decision:
     ``new_place`` the probability that the frame shows a place absent from the map (NaN where the
     method has none); ``stage`` what the method did (``init``, ``update``, ``track``, ``none``);
     ``extra`` method-specific values (``m_r`` of the online model). ``frame`` and ``match_name``
-    carry frame names where the caller knows them (``Localizer``).
+    carry frame names where the caller knows them (``Localizer``). ``ranking`` holds the
+    positions of the row's best candidates, best first (the match first), for methods that rank
+    (:attr:`Method.ranks`), when the frame has a match.
     """
 
     match: int
@@ -118,6 +121,7 @@ class Decision:
     extra: Mapping[str, float] = field(default_factory=dict)
     frame: str = ""
     match_name: str = ""
+    ranking: tuple[int, ...] = ()
 
     @property
     def decided(self) -> bool:
@@ -131,7 +135,8 @@ class Decisions:
 
     ``match`` is -1 and ``difference``/``confidence`` are NaN for undecided frames (for example
     the online model's initialisation stage). ``columns`` holds method-specific per-frame values
-    (``m_r`` for the online model, ``new_place`` for CAT-Graph).
+    (``m_r`` for the online model, ``new_place`` for CAT-Graph). ``ranking`` (methods that rank
+    only) holds each frame's best candidates, best first, one row per frame padded with -1.
     """
 
     match: NDArray[np.int64]
@@ -141,6 +146,7 @@ class Decisions:
     columns: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     model: HistogramModel | None = None
     params: dict[str, Any] = field(default_factory=dict)
+    ranking: NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.match)
@@ -148,8 +154,9 @@ class Decisions:
         self.difference = np.asarray(self.difference, dtype=np.float64)
         self.confidence = np.asarray(self.confidence, dtype=np.float64)
         self.stage = np.asarray(self.stage, dtype=np.str_)
+        ranking = [] if self.ranking is None else [("ranking", self.ranking)]
         for name, arr in [("difference", self.difference), ("confidence", self.confidence),
-                          ("stage", self.stage), *self.columns.items()]:
+                          ("stage", self.stage), *self.columns.items(), *ranking]:
             if len(arr) != n:
                 raise ValueError(f"{name} has {len(arr)} rows, match has {n}")
 
@@ -162,17 +169,24 @@ class Decisions:
         return (self.match >= 0) & np.isfinite(self.confidence)
 
     @classmethod
-    def collect(cls, steps: list[Decision], columns: tuple[str, ...], **kwargs: Any) -> Decisions:
+    def collect(cls, steps: list[Decision], columns: tuple[str, ...], *, ranked: bool = False,
+                **kwargs: Any) -> Decisions:
         """The batch form of per-frame decisions; ``columns`` names the per-frame extras kept
-        (``new_place`` reads :attr:`Decision.new_place`, any other name ``Decision.extra``)."""
+        (``new_place`` reads :attr:`Decision.new_place`, any other name ``Decision.extra``);
+        ``ranked`` keeps the rankings."""
         def column(name: str) -> NDArray[np.float64]:
             return np.array([d.new_place if name == "new_place" else d.extra.get(name, np.nan) for d in steps],
                             dtype=np.float64)
+        ranking = None
+        if ranked:
+            ranking = np.full((len(steps), max((len(d.ranking) for d in steps), default=0)), -1, dtype=np.int64)
+            for row, d in zip(ranking, steps):
+                row[:len(d.ranking)] = d.ranking
         return cls(match=np.array([d.match for d in steps], dtype=np.int64),
                    difference=np.array([d.difference for d in steps], dtype=np.float64),
                    confidence=np.array([d.confidence for d in steps], dtype=np.float64),
                    stage=np.array([d.stage for d in steps], dtype=np.str_),
-                   columns={name: column(name) for name in columns}, **kwargs)
+                   columns={name: column(name) for name in columns}, ranking=ranking, **kwargs)
 
 
 class Method(ABC):
@@ -181,7 +195,9 @@ class Method(ABC):
     Subclasses set ``name``, ``Params`` (a :class:`Parameters` dataclass), ``needs`` (a subset of
     :data:`NEEDS`), ``rows`` (the row kinds of :data:`ROWS` it reads) and ``columns`` (the
     per-frame extras written to results files), and implement
-    :meth:`prepare`, :meth:`decide`, :meth:`save_state` and :meth:`load_state`.
+    :meth:`prepare`, :meth:`decide`, :meth:`save_state` and :meth:`load_state`. A method whose
+    match is its row's best candidate ``ranks``: each decision then carries the row's best
+    candidates (Recall@K); a method deciding otherwise (a filter over the route) sets it False.
     """
 
     name: ClassVar[str]
@@ -189,6 +205,7 @@ class Method(ABC):
     needs: ClassVar[frozenset[str]] = frozenset()
     rows: ClassVar[frozenset[str]] = frozenset({"differences"})  # the row kinds it reads (see ROWS)
     columns: ClassVar[tuple[str, ...]] = ()
+    ranks: ClassVar[bool] = True  # the match is the row's best candidate, so the row ranks the map
 
     def __init__(self, params: Parameters | Mapping[str, Any] | None = None, **values: Any) -> None:
         if isinstance(params, Parameters):
@@ -249,8 +266,12 @@ class Method(ABC):
             raise RuntimeError(f"{self.name}: call start() before step()")
         if odometry is not None and "odometry" not in self.needs:
             raise WilocError(self.name, f"method '{self.name}' takes no odometry", parameter="odometry")
-        decision = self.decide(np.asarray(row, dtype=np.float64), odometry)
+        row = np.asarray(row, dtype=np.float64)
+        decision = self.decide(row, odometry)
         self.frames += 1
+        if self.ranks and decision.match >= 0:
+            best = best_candidates(row, descending=self.context.rows == "log_ratio")
+            decision = replace(decision, ranking=tuple(best.tolist()))
         return decision
 
     @abstractmethod
@@ -305,7 +326,7 @@ class Method(ABC):
                 progress(k + 1, n_frames)
         if len(steps) != n_frames:
             raise WilocError(self.name, f"got {len(steps)} difference rows, expected n_frames={n_frames}")
-        return Decisions.collect(steps, self.columns, model=self.model, params=self.header())
+        return Decisions.collect(steps, self.columns, ranked=self.ranks, model=self.model, params=self.header())
 
 
 def run_on_rows(method: Method, rows: Iterable[NDArray[np.float64]], n_frames: int, *,

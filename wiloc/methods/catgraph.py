@@ -169,6 +169,7 @@ class CatGraph(Method):
     needs = frozenset({"map", "map_neighbours", "odometry"})
     rows = frozenset({"differences", "log_ratio"})
     columns = ("new_place",)
+    ranks = False  # the match is the filter's mode, not the row's best
     params: CatGraphParams
 
     def prepare(self, context: MapContext) -> None:
