@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 from test_cli import _places, _write_traversal
 from typer.testing import CliRunner
 
@@ -119,3 +120,28 @@ def test_reports_have_short_reprs(tmp_path: Path, cache_dir: Path) -> None:
         assert len(repr(obj)) < 500 and "\n" not in repr(obj), repr(obj)
     assert "ndarray(40 x 1152)" in repr(report.entry) and "<list of 40>" in repr(report.entry)
     np.testing.assert_array_equal(report.entry.data.shape, (40, 1152))
+
+
+def test_localize_without_out_writes_nothing_and_evaluate_takes_the_run(tmp_path: Path, cache_dir: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    import wiloc
+
+    ref, query = _route(tmp_path, 30)
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    def files() -> set[Path]:
+        return {p for p in tmp_path.rglob("*") if not p.is_relative_to(cache_dir)}
+    before = files()
+    run = wiloc.localize(query, reference=ref, method="threshold")
+    assert run.path is None and not run.replaced
+    assert files() == before and (cache_dir / "descriptors").is_dir()  # only the cache grew
+    in_memory = wiloc.evaluate(run, api.TruthSource())
+    assert in_memory.path is None and in_memory.name == "query-threshold"
+    written = tmp_path / "run.csv"
+    again = wiloc.localize(query, reference=ref, method="threshold", out=written)
+    assert again.path == written and written.is_file()
+    from_file = wiloc.evaluate(written, api.TruthSource())
+    assert in_memory.summary.as_dict() == pytest.approx(from_file.summary.as_dict(), rel=1e-8)  # 9 digits in files
+    np.testing.assert_array_equal(in_memory.correct, from_file.correct)
+    assert wiloc.compare([run, written], api.TruthSource()).table1["recall_at_1"].nunique() == 1
