@@ -145,3 +145,50 @@ def test_localize_without_out_writes_nothing_and_evaluate_takes_the_run(tmp_path
     assert in_memory.summary.as_dict() == pytest.approx(from_file.summary.as_dict(), rel=1e-8)  # 9 digits in files
     np.testing.assert_array_equal(in_memory.correct, from_file.correct)
     assert wiloc.compare([run, written], api.TruthSource()).table1["recall_at_1"].nunique() == 1
+
+
+def _json_warnings(documents: list[Any]) -> list[str]:
+    """The ``warnings`` of a command's JSON documents: of each object, or of each object of a list
+    (one per folder or query)."""
+    objects = [item for doc in documents for item in (doc if isinstance(doc, list) else [doc])]
+    return [line for item in objects for line in item.get("warnings", [])]
+
+
+def test_every_json_output_carries_the_lines_printed_on_stderr(tmp_path: Path, cache_dir: Path) -> None:
+    ref, query = _route(tmp_path)
+    (query / "img3.png").write_bytes(b"")  # a bad frame: skipped with a note
+    live = tmp_path / "live"
+    live.mkdir()
+    for name in ("img0.png", "img1.png"):
+        (live / name).write_bytes((query / name).read_bytes())
+    (live / "img2.png").write_bytes((query / "img1.png").read_bytes()[:200])  # never decodes: left out
+    pairs = tmp_path / "pairs.csv"
+    pairs.write_text("query,reference\nimg0.png,img0.png\nimg1.png,nowhere.png\n")
+    out, csv = tmp_path / "run.csv", tmp_path / "metrics.csv"
+    csv.write_text("old\n")
+    commands = {
+        "describe": ["describe", str(query), "--jobs", "1"],
+        "describe --list": ["describe", "--list"],
+        "vocabulary": ["vocabulary", str(query), "--words", "4", "--max-side", "96"],
+        "localize": ["localize", str(query), "--map", str(ref), "--out", str(out), "--jobs", "1"],
+        "localize again": ["localize", str(query), "--map", str(ref), "--out", str(out), "--jobs", "1"],
+        "localize --follow": ["localize", str(live), "--map", str(ref), "--out", str(tmp_path / "live.csv"),
+                              "--follow", "--idle", "3"],
+        "evaluate": ["evaluate", str(out), "--gt", f"pairs:{pairs}", "--csv", str(csv)],
+        "compare": ["compare", str(out), "--gt", f"pairs:{pairs}"],
+        "demo": ["demo", "--out", str(tmp_path / "demo")],
+    }
+    said = {}
+    for name, args in commands.items():
+        result = runner.invoke(app, [*args, "--json"])
+        assert result.exit_code == 0, (name, result.output)
+        documents = [json.loads(line) for line in result.stdout.splitlines()] if "--follow" in args \
+            else [json.loads(result.stdout)]
+        on_stderr = [line.replace(" ", ": ", 1) for line in result.stderr.splitlines()]
+        assert _json_warnings(documents) == on_stderr, name
+        said[name] = on_stderr
+    assert said["describe"] == [f"skipped: {query / 'img3.png'}: empty file (0 bytes)"]
+    assert said["vocabulary"] and said["localize"] and said["evaluate"] and said["compare"]
+    assert said["localize again"][-1] == f"note: replaced the existing results file {out}"
+    assert [line.split(":")[0] for line in said["localize --follow"]] == ["skipped"]
+    assert f"note: replaced the existing file {csv}" in said["evaluate"]

@@ -19,7 +19,7 @@ from rich.table import Table
 
 from wiloc import __version__
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
-from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, note, out, refuse_unused
+from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, out, refuse_unused
 from wiloc.cli_params import method_params, with_method_options
 from wiloc.cli_views import (cell, cut_views, json_ready, metrics_views, print_json, progress_bar, table,
                              table1_records, table1_view, table2_view)
@@ -413,7 +413,8 @@ def localize(
 
 
 def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
-    """Render a followed run: a live table on a terminal, else one line (or JSON line) per frame."""
+    """Render a followed run: a live table on a terminal, else one line (or JSON line) per frame;
+    a frame left out is a note on stderr (with --json also a line ``{"warnings": [...]}``)."""
     from collections import deque
 
     from rich.live import Live
@@ -422,6 +423,7 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
 
     started, decided = time.perf_counter(), 0
     latest: deque[Decision] = deque(maxlen=10)
+    notes = Notes()
 
     def view() -> Table:
         rate = decided / max(time.perf_counter() - started, 1e-9)
@@ -449,7 +451,9 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
                     print(f"{event.frame}\t{event.match_name or '-'}\t{cell(event.confidence)}\t"
                           f"{cell(event.new_place)}\t{event.stage}", flush=True)
             else:
-                note("skipped", f"{event.path}: {event.reason}")
+                notes.add("skipped", f"{event.path}: {event.reason}")
+                if as_json:  # the line on stderr, as every --json carries it
+                    print(json.dumps({"warnings": notes[-1:]}), flush=True)
 
 
 # ------------------------------------------------------------------------------------------ evaluate
