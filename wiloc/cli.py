@@ -329,6 +329,8 @@ def localize(
                    "map_names": (reference is not None and is_matrix_file(reference),
                                  "a descriptor matrix file as --map")})
     train_inputs = (train_query, train_map, train_gt)
+    refuse_unused({name: (any(train_inputs), "a training pair (--train-query, --train-map, --train-gt)")
+                   for name in ("train_gt_map", "train_tolerance", "train_radius")})
     training = None
     if any(train_inputs):
         if not all(train_inputs):
@@ -658,6 +660,7 @@ def compare(
     """
     from wiloc import api
 
+    refuse_unused({"precision": (global_threshold, "Table II (--global-threshold)")})
     try:
         targets = [float(p) for p in precision.split(",") if p.strip()]
     except ValueError:
