@@ -12,6 +12,8 @@ from typing import Any
 import numpy as np
 import pytest
 from test_cli import _places, _write_traversal
+import typer
+from typer.core import TyperArgument, TyperOption
 from typer.testing import CliRunner
 
 from wiloc import api
@@ -26,20 +28,45 @@ def _route(tmp_path: Path, n: int = 24) -> tuple[Path, Path]:
     return (_write_traversal(tmp_path / "ref", scenes, 1.0, 1), _write_traversal(tmp_path / "query", scenes, 0.7, 2))
 
 
-def test_help_pages_name_arguments_show_defaults_and_no_flag_types() -> None:
-    usage = {"describe": "Usage: wiloc describe [OPTIONS] [FOLDER...]",
-             "localize": "Usage: wiloc localize [OPTIONS] QUERY...",
-             "evaluate": "Usage: wiloc evaluate [OPTIONS] RESULTS...",
-             "compare": "Usage: wiloc compare [OPTIONS] RESULTS..."}
-    for command, line in usage.items():
-        text = runner.invoke(app, [command, "--help"], env={"COLUMNS": "200"}).stdout
-        assert line in text and "<bool>" not in text and "{" not in text.split("\n", 3)[1]
+def _option_rows(text: str) -> dict[str, str]:
+    """A help page's option rows, by long flag, each with its continuation lines."""
+    rows: dict[str, str] = {}
+    current = None
+    for line in text.splitlines():
+        match = re.match(r"│ (?:\*\s+)?(--[a-z0-9-]+)", line)
+        if match:
+            current = match.group(1)
+            rows[current] = line
+        elif line.startswith("│") and current:
+            rows[current] += " " + line
+        else:
+            current = None
+    return rows
+
+
+def test_help_pages_name_arguments_show_every_default_and_no_type_placeholders() -> None:
+    group = typer.main.get_command(app)
+    pages = {"": group, **group.commands}
+    for name, command in pages.items():
+        text = runner.invoke(app, [*name.split(), "--help"], env={"COLUMNS": "400"}).stdout
+        arguments = [p for p in command.params if isinstance(p, TyperArgument)]
+        usage = " ".join(["Usage: wiloc", *name.split(), "[OPTIONS]",
+                          *(p.metavar if p.required else f"[{p.metavar}]" for p in arguments)])
+        assert usage in text, (name, text[:300])
+        assert "<bool>" not in text and "<list[" not in text and not re.search(r"<\w+\[", text), name
+        rows = _option_rows(text)
+        for option in command.params:
+            if isinstance(option, TyperOption) and not option.hidden:
+                flag = next(o for o in option.opts if o.startswith("--"))
+                assert flag in rows, (name, flag)
+                if not option.is_flag:
+                    assert "[default:" in rows[flag], (name, rows[flag])
     localize = runner.invoke(app, ["localize", "--help"], env={"COLUMNS": "200"}).stdout
     for default in ("[default: (all cores)]", "[default: 2000]", "[default: 0,3]", "[default: 100]",
-                    "[default: (QUERY-DESCRIPTOR-METHOD.csv here)]"):
+                    "[default: (QUERY-DESCRIPTOR-METHOD.csv here)]", "[default: (the share of same-place samples)]"):
         assert default in localize
     assert "(online:" not in localize  # one default shown once, not per method
-    assert "<bool>" not in runner.invoke(app, ["--help"]).stdout
+    assert "; default:" not in localize  # said where every default is said
 
 
 def test_the_command_line_loads_without_the_heavy_libraries() -> None:

@@ -295,7 +295,7 @@ def localize(
     map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV.", rich_help_panel="catgraph inputs"),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", show_default="QUERY-DESCRIPTOR-METHOD.csv here",
                                             help="Results file (a folder with several queries)."),
-    model_plot: Optional[Path] = typer.Option(None, callback=_plot_file, help="online/trained: draw the learned histograms (the paper's Figure 1)."),
+    model_plot: Optional[Path] = typer.Option(None, callback=_plot_file, show_default="none: not drawn", help="online/trained: draw the learned histograms (the paper's Figure 1)."),
     cache: CacheOption = None,
     jobs: JobsOption = None,
     scheduler: SchedulerOption = None,
@@ -501,9 +501,9 @@ ToleranceOption = Annotated[int, typer.Option("--tolerance", "-T", min=0, help="
 RadiusOption = Annotated[Optional[float], typer.Option("--radius", help="positions: same place within this many metres.")]
 CutsOption = Annotated[str, typer.Option("--cuts", help="Confidence cuts for precision and recall at a fixed "
                                                         "cut, comma-separated, each in [0, 1].")]
-PrPlotOption = Annotated[Optional[Path], typer.Option(callback=_plot_file, help="Draw the precision-recall curves.")]
+PrPlotOption = Annotated[Optional[Path], typer.Option(callback=_plot_file, show_default="none: not drawn", help="Draw the precision-recall curves.")]
 CalibrationPlotOption = Annotated[Optional[Path], typer.Option(
-    "--calibration-plot", callback=_plot_file, help="Draw the reliability diagram (share correct against confidence).")]
+    "--calibration-plot", callback=_plot_file, show_default="none: not drawn", help="Draw the reliability diagram (share correct against confidence).")]
 CUTS_TEXT = ",".join(f"{cut:g}" for cut in DEFAULT_CUTS)
 
 
@@ -530,12 +530,12 @@ def evaluate(
     calibration_plot: CalibrationPlotOption = None,
     cuts: CutsOption = CUTS_TEXT,
     matrix_plot: Optional[Path] = typer.Option(
-        None, callback=_plot_file, help="Draw the difference matrix with the decided matches and the ground truth "
+        None, callback=_plot_file, show_default="none: not drawn", help="Draw the difference matrix with the decided matches and the ground truth "
                                         "(with several results files: one FILE-RESULTS figure each)."),
     pairs_plot: Optional[Path] = typer.Option(
-        None, callback=_plot_file, help="Show the most confident right and wrong matches as image pairs (image "
+        None, callback=_plot_file, show_default="none: not drawn", help="Show the most confident right and wrong matches as image pairs (image "
                                         "folders; with several results files: one FILE-RESULTS figure each)."),
-    csv_out: Optional[Path] = typer.Option(None, "--csv", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
+    csv_out: Optional[Path] = typer.Option(None, "--csv", show_default="none: not written", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
     cache: CacheOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
@@ -648,8 +648,8 @@ def compare(
                                           help="Table II: one threshold per method for all traversals."),
     precision: str = typer.Option("100,99", help="Table II target precisions in percent, comma-separated."),
     cuts: CutsOption = CUTS_TEXT,
-    threshold_plot: Optional[Path] = typer.Option(None, callback=_plot_file, help="Precision against normalised threshold (the paper's Figure 5)."),
-    model_plot: Optional[Path] = typer.Option(None, callback=_plot_file, help="Learned histograms of the first online run (Figure 1)."),
+    threshold_plot: Optional[Path] = typer.Option(None, callback=_plot_file, show_default="none: not drawn", help="Precision against normalised threshold (the paper's Figure 5)."),
+    model_plot: Optional[Path] = typer.Option(None, callback=_plot_file, show_default="none: not drawn", help="Learned histograms of the first online run (Figure 1)."),
     pr_plot: PrPlotOption = None,
     calibration_plot: CalibrationPlotOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),

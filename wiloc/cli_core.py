@@ -6,7 +6,8 @@ Every problem ends as one line on stderr, ``error: WHERE: PROBLEM``, and the doc
 library errors through :func:`handles_errors`, the parser's own (a missing argument, a value that
 is no number, an unknown option or command) through :class:`CommandLine`, which runs the parser
 with the same formatting from the console script and from a test runner. Help pages show
-argument names in the usage line (``QUERY...``) and no type placeholder for flags.
+argument names in the usage line (``QUERY...``), no type placeholder for flags or arguments, and
+every option's default.
 """
 from __future__ import annotations
 
@@ -134,15 +135,28 @@ def _plain_flag(param: click.Parameter) -> None:
         param.metavar = ""
 
 
+def _plain_help(param: click.Parameter) -> None:
+    """How a parameter reads in help: a flag without ``<bool>``, an argument by its name alone
+    (``FOLDER...``, not ``<list[Path]>`` beside it), an option without a default value saying
+    ``[default: (none)]`` unless it names what happens then."""
+    _plain_flag(param)
+    if isinstance(param, TyperArgument):
+        param.display_type_rich = lambda ctx: None  # type: ignore[method-assign]
+    elif isinstance(param, TyperOption) and not param.is_flag and param.default is None \
+            and not isinstance(param.show_default, str):
+        param.show_default = "none"
+
+
 class _PlainFlags:
-    """Help that shows no ``<bool>`` type beside a flag (including --help)."""
+    """Help that shows no type placeholder beside a flag (including --help) or an argument, and
+    every option's default."""
 
     params: list[click.Parameter]
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         for param in self.params:
-            _plain_flag(param)
+            _plain_help(param)
 
     def get_help_option(self, ctx: click.Context) -> TyperOption | None:
         option = super().get_help_option(ctx)  # type: ignore[misc]

@@ -64,14 +64,16 @@ class MethodOption:
         return ",".join(f"{v:g}" for v in value) if isinstance(value, tuple) else value
 
     def default_text(self) -> str | bool:
-        """What the help shows as the default: the default itself, or each method's when they differ."""
+        """What the help shows as the default: the default itself, what happens without one when
+        the parameter's help says so (``default: the share of ...``), or each method's when they
+        differ."""
         if self.shared:
-            return True
+            return _said_default(self.first.help)[1] or True
         return "; ".join(f"{m}: {'none' if d.default is None else d.default}" for m, d in self.by_method.items())
 
     def help(self) -> str:
         d = self.first
-        parts = [d.help]
+        parts = [_said_default(d.help)[0] if self.shared else d.help]
         if d.range_text:
             parts.append(f"({d.range_text})")
         if d.kind == "floats":
@@ -86,6 +88,13 @@ class MethodOption:
             return tuple(float(part) for part in str(value).split(",") if part.strip())
         except ValueError:
             raise UsageError(flag(self.name), f"give comma-separated numbers, got {value!r}") from None
+
+
+def _said_default(help: str) -> tuple[str, str | None]:
+    """A parameter's help without its closing "; default: WHAT." and that WHAT (None when the
+    help says no default), so the help page shows it where it shows every default."""
+    text, sep, default = help.partition("; default: ")
+    return (f"{text}.", default.rstrip(".")) if sep else (help, None)
 
 
 @functools.cache
