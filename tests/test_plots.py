@@ -123,3 +123,17 @@ def test_plot_pairs_shows_each_example(tmp_path: Path) -> None:
     image = read_png(plot_pairs(pairs, tmp_path / "pairs.png"))
     assert image.shape[0] > image.shape[1] * 0.5  # one row per example
     assert "correct=False" in repr(pairs[1]) and "ndarray(48 x 64)" in repr(pairs[1])
+
+
+def test_every_figure_the_docs_show_exists_and_every_figure_in_docs_img_is_shown() -> None:
+    """The plots the examples regenerate into docs/img/ (``--update-docs``) are the ones the pages
+    embed: none missing, none left over."""
+    import re
+
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    shown = {Path(m).name for page in docs.glob("*.md") for m in re.findall(r"\(img/([^)]+)\)", page.read_text())}
+    kept = {p.name for p in (docs / "img").iterdir()}
+    assert shown and shown == kept
+    for name in kept:
+        picture = matplotlib.image.imread(docs / "img" / name)
+        assert picture.shape[0] > 200 and picture.shape[1] > 200, name
