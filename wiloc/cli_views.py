@@ -111,7 +111,8 @@ def at_cut(row: dict[str, Any], cut: float) -> str:
 
 def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_truth: str) -> list[Table]:
     """`wiloc evaluate`'s tables: metrics down and one column per results file while the runs fit
-    the console; else one row per results file (its name whole), in two tables."""
+    the console; else one row per results file (its name whole), in two tables, and a third for
+    Recall@K when a run has it."""
     title = f"evaluate (ground truth: {ground_truth})"
     shown = _shown(rows)
     if 28 + _RUN_WIDTH * len(rows) <= out.width:
@@ -184,9 +185,10 @@ def table1_view(comparison: api.Comparison) -> Table:
                 cells.append("")
                 continue
             r = sel.iloc[0]
-            at_k = "".join(f" / {r[key]:.3f}" for key in ranked if not math.isnan(r[key]))
+            at = ["recall_at_1", *(key for key in ranked if not math.isnan(r[key]))]
             cells.append(f"{r['recall_at_100']:.1%} / {r['recall_at_99']:.1%} / {r['recall_at_90']:.1%}\n"
-                         f"AUC {r['auc']:.3f}\nR@1{'/5/10' if at_k else ''} {r['recall_at_1']:.3f}{at_k}")
+                         f"AUC {r['auc']:.3f}\nR@{'/'.join(key.removeprefix('recall_at_') for key in at)} "
+                         f"{' / '.join(f'{r[key]:.3f}' for key in at)}")
         view.add_row(cell(traversal), *cells)
     return view
 
