@@ -86,7 +86,11 @@ class RankLikelihood:
     def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
         """ln lambda at positions a ``frac`` of the way from node j to j + 1 (the difference
         interpolated there), each with its near-duplicate weight ``omega``."""
-        self._t = self.t((1.0 - frac) * self._row[j] + frac * self._row[j + 1])
+        from wiloc.methods.filter_kernels import interpolate  # numba loads with the first frame
+
+        d = np.empty(j.size)
+        interpolate(self._row, j, frac, d)
+        self._t = self.t(d)
         return self.log_ratio(self._t, omega)
 
     def mean(self, omega: NDArray[np.float64]) -> float:

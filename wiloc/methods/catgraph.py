@@ -50,11 +50,13 @@ def _arclength(ref_arclength: NDArray[np.float64] | None, n_nodes: int) -> NDArr
 
 
 def _locate(nodes: NDArray[np.float64], pos: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-    """For each particle: the node j just before it and its fraction a of the way to node j + 1."""
-    j = np.clip(np.searchsorted(nodes, pos, side="right") - 1, 0, nodes.size - 2)
-    gap = nodes[j + 1] - nodes[j]
-    a = np.divide(pos - nodes[j], gap, out=np.zeros_like(pos), where=gap > 0)
-    return j, np.clip(a, 0.0, 1.0)
+    """For each particle: the node j just before it and its fraction a of the way to node j + 1
+    (``filter_kernels.locate``)."""
+    from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
+
+    j, a = np.empty(pos.size, dtype=np.intp), np.empty(pos.size)
+    filter_kernels.locate(nodes, pos, j, a)
+    return j, a
 
 
 def contrast_normalise(row: NDArray[np.float64], half_window: int) -> NDArray[np.float64]:
@@ -88,6 +90,19 @@ def _lowest(score: NDArray[np.float64], top: int) -> NDArray[np.intp]:
         if np.count_nonzero(score == score[best]) == 1:
             return np.array([best])
     return np.argpartition(score, min(top, score.size) - 1)[:top]
+
+
+def _read_runs(at: NDArray[np.intp], a: NDArray[np.float64], n_nodes: int,
+               shortest: int = 16) -> NDArray[np.intp]:
+    """The stretches of :func:`_shifted_reads` (rows: first, end) at least ``shortest`` long
+    that stay within one speed's row and read consecutive positions at one fraction: nearly
+    everything on evenly spaced nodes, little on uneven ones (``filter_kernels.advance``)."""
+    k = np.arange(at.size)
+    new = (k % n_nodes == 0) | np.concatenate(([True], (at[1:] != at[:-1] + 1) | (a[1:] != a[:-1])))
+    first = np.flatnonzero(new)
+    end = np.append(first[1:], at.size)
+    long = end - first >= shortest
+    return np.column_stack((first[long], end[long])).astype(np.intp)
 
 
 def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.intp]:
@@ -204,7 +219,7 @@ class CatGraph(Method):
         self._mass = np.zeros(n_nodes)  # ... and within +-mode_window nodes of each
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
         self._odometry = False  # whether any step came with odometry
-        self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64]]] | None = None
+        self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
 
     def _observation_model(self) -> RankLikelihood | GivenEvidence:
         """Ranks within difference rows (whole images), or FAB-MAP's given log-likelihood ratios."""
@@ -213,12 +228,13 @@ class CatGraph(Method):
             return GivenEvidence()
         return RankLikelihood(p.a0, p.n0, p.a_min)
 
-    def _shift_lookup(self, u: float) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        """:func:`_shifted_reads` for step u: the same for every frame of equal step (always,
-        without odometry), so it is computed once per distinct step."""
+    def _shift_lookup(self, u: float) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]:
+        """:func:`_shifted_reads` for step u and their :func:`_read_runs`: the same for every
+        frame of equal step (always, without odometry), so they are computed once per distinct step."""
         if self._shifted is None or self._shifted[0] != u:
             shifts = np.asarray(self.params.sequence_speeds, dtype=np.float64) * u
-            self._shifted = (u, _shifted_reads(self._nodes, shifts))
+            at, a = _shifted_reads(self._nodes, shifts)
+            self._shifted = (u, (at, a, _read_runs(at, a, self._nodes.size)))
         return self._shifted[1]
 
     @property
@@ -268,7 +284,8 @@ class CatGraph(Method):
             speed[weakest] = speed[rng.integers(0, p.particles, n_reseed)]
 
         j, a = _locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
-        omega = (1.0 - a) * self._omega[j] + a * self._omega[j + 1]
+        omega = np.empty(p.particles)
+        filter_kernels.interpolate(self._omega, j, a, omega)
         log_w = np.where(kept, np.log(max(prior.track, TINY)) + log_w + likelihood.at(j, a, omega),
                          np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1)))
         log_map = logsumexp(log_w)  # the map's total mass against the unexplained hypothesis
@@ -276,10 +293,8 @@ class CatGraph(Method):
         log_w = log_w - log_map
         w = np.exp(log_w)
 
-        self._own = np.bincount(j + (a >= 0.5), weights=w, minlength=n_nodes)
-        self._mass = mass = self._window_mass()
-        tied = np.flatnonzero(mass >= mass.max() - MODE_TIE)
-        mode = int(tied[np.argmax(self._own[tied])])
+        self._own, self._mass = own, mass = np.empty(n_nodes), np.empty(n_nodes)  # read-out: the density's mode
+        mode = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, own, mass)
         p_new = unexplained.new_place
         unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
         likelihood.learn(w * omega, 1.0 - unexplained.u)
@@ -291,11 +306,6 @@ class CatGraph(Method):
         self._pos, self._speed, self._log_w = pos, speed, log_w
         return Decision(match=mode, difference=float(row[mode]), confidence=float(mass[mode] * (1.0 - p_new)),
                         stage="track", new_place=p_new)
-
-    def _window_mass(self) -> NDArray[np.float64]:
-        """The last frame's posterior mass within +-mode_window nodes of each node."""
-        n, half = self._own.size, self.params.mode_window
-        return np.convolve(self._own, np.ones(2 * half + 1))[half:half + n]  # "same" is wrong for a short map
 
     def probability_near(self, node: int) -> float:
         """After a step: the probability that the frame shows the place of ``node`` (within
@@ -337,7 +347,10 @@ class CatGraph(Method):
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
         self._spare = np.empty_like(self._sequence)
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
-        self._mass = self._window_mass()
+        from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
+
+        self._mass = np.empty(self._own.size)
+        filter_kernels.window_mass(self._own, p.mode_window, self._mass)
         self._odometer = float(state["odometer"])
         self._odometry = bool(state["odometry"])
         self._likelihood = self._observation_model()

@@ -52,28 +52,44 @@ def contrast_normalise(row: NDArray[np.float64], half_window: int, sign: float,
 
 
 @njit(cache=True, nogil=True)
-def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.float64],
+def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.float64], runs: NDArray[np.intp],
             contrast: NDArray[np.float64], rate: float, out: NDArray[np.float64],
             lowest: NDArray[np.float64]) -> None:
     """The leaky sequence score one frame on, and its minimum over speeds per node.
 
-    ``out`` (speeds x nodes) = ``score`` read where ``catgraph._shifted_reads`` says, linearly
-    interpolated (the score ending at node j continues the one that ended a step back), times
-    1 - rate, plus rate times this frame's ``contrast``: the numpy expression
+    ``out`` (speeds x nodes) = ``score`` read where ``catgraph._shifted_reads`` says (flat
+    positions ``at``, fractions ``a``), linearly interpolated (the score ending at node j
+    continues the one that ended a step back), times 1 - rate, plus rate times this frame's
+    ``contrast``: the numpy expression
     ``(1 - rate) * ((1 - a) * prev[at] + a * prev[at + 1]) + rate * contrast``, value for value.
+    ``runs`` (``catgraph._read_runs``: first, end) are long stretches that read consecutive
+    positions at one fraction, as evenly spaced nodes give: there the loop vectorises.
     ``lowest[j]`` = ``out[:, j].min()``, the score that re-seeding ranks nodes by.
     """
-    prev = score.ravel()
-    flat = out.ravel()
-    speeds, n = score.shape
-    for j in range(n):
-        low = np.inf
-        for v in range(speeds):
-            k = v * n + j
-            value = (1.0 - rate) * ((1.0 - a[k]) * prev[at[k]] + a[k] * prev[at[k] + 1]) + rate * contrast[j]
-            flat[k] = value
-            low = min(low, value)
-        lowest[j] = low
+    prev, flat = score.ravel(), out.ravel()
+    n = contrast.size
+    keep = 1.0 - rate
+    k = 0
+    for r in range(runs.shape[0] + 1):
+        end = runs[r, 0] if r < runs.shape[0] else flat.size
+        j = k % n
+        for k in range(k, end):  # uneven reads: one position at a time
+            flat[k] = keep * ((1.0 - a[k]) * prev[at[k]] + a[k] * prev[at[k] + 1]) + rate * contrast[j]
+            j = j + 1 if j + 1 < n else 0
+        if r == runs.shape[0]:
+            break
+        k, end = runs[r, 0], runs[r, 1]
+        length, first, f = end - k, at[k], a[k]
+        here, before, after = flat[k:end], prev[first:first + length], prev[first + 1:first + 1 + length]
+        now = contrast[k % n:k % n + length]
+        for i in range(length):  # plain indices into views: the loop vectorises
+            here[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
+        k = end
+    lowest[:] = out[0]
+    for v in range(1, out.shape[0]):
+        row = out[v]
+        for j in range(n):
+            lowest[j] = min(lowest[j], row[j])
 
 
 @njit(cache=True, nogil=True)
@@ -92,3 +108,77 @@ def rank_ratio_sum(ordered: NDArray[np.float64], ratio: NDArray[np.float64]) -> 
             left = i
         total += ratio[left]
     return total
+
+
+@njit(cache=True, nogil=True)
+def locate(nodes: NDArray[np.float64], pos: NDArray[np.float64], j: NDArray[np.intp],
+           frac: NDArray[np.float64]) -> None:
+    """For each particle: ``j``, the node just before it (the last node at or before its position,
+    kept within 0..N - 2), and ``frac``, its fraction of the way to node j + 1 (in [0, 1]; 0 where
+    the two nodes coincide): ``np.searchsorted(nodes, pos, side="right") - 1`` clipped, and
+    ``(pos - nodes[j]) / (nodes[j + 1] - nodes[j])`` clipped, value for value."""
+    n = nodes.size
+    for p in range(pos.size):
+        k = min(max(np.searchsorted(nodes, pos[p], side="right") - 1, 0), n - 2)
+        gap = nodes[k + 1] - nodes[k]
+        j[p] = k
+        frac[p] = min(max((pos[p] - nodes[k]) / gap, 0.0), 1.0) if gap > 0 else 0.0
+
+
+@njit(cache=True, nogil=True)
+def interpolate(values: NDArray[np.float64], j: NDArray[np.intp], frac: NDArray[np.float64],
+                out: NDArray[np.float64]) -> None:
+    """Per-node ``values`` read between nodes j and j + 1: ``(1 - frac) * values[j] + frac *
+    values[j + 1]`` (eq. 8's interpolated observation, or a near-duplicate weight)."""
+    for p in range(j.size):
+        out[p] = (1.0 - frac[p]) * values[j[p]] + frac[p] * values[j[p] + 1]
+
+
+@njit(cache=True, nogil=True)
+def window_mass(own: NDArray[np.float64], half: int, mass: NDArray[np.float64]) -> None:
+    """``mass`` = the posterior weight ``own`` summed within +-``half`` nodes of each node.
+
+    Each window is summed in the order ``np.convolve(own, np.ones(2 half + 1))`` sums it for
+    half <= 2 (from its first node on; on a map shorter than the window, from its last node
+    back): the same values, digit for digit. Inside the map, one shifted pass per window node.
+    """
+    n = own.size
+    inner = n - 2 * half
+    if inner > 0:
+        centre = mass[half:n - half]
+        centre[:] = own[:inner]
+        for k in range(1, 2 * half + 1):
+            shifted = own[k:k + inner]
+            for i in range(inner):  # plain indices into views: the loop vectorises
+                centre[i] += shifted[i]
+        edges = list(range(half)) + list(range(n - half, n))
+    else:
+        edges = list(range(n))
+    for i in edges:  # where the window is cut short
+        total = 0.0
+        if inner > 0:
+            for k in range(max(i - half, 0), min(i + half, n - 1) + 1):
+                total += own[k]
+        else:  # a map shorter than the window: np.convolve sums from the last node back
+            for k in range(min(i + half, n - 1), max(i - half, 0) - 1, -1):
+                total += own[k]
+        mass[i] = total
+
+
+@njit(cache=True, nogil=True)
+def posterior_mode(j: NDArray[np.intp], frac: NDArray[np.float64], w: NDArray[np.float64], half: int,
+                   tie: float, own: NDArray[np.float64], mass: NDArray[np.float64]) -> int:
+    """The read-out of the posterior: ``own`` = the particles' weight per nearest node
+    (``np.bincount(j + (frac >= 0.5), w)``), ``mass`` = its :func:`window_mass`, and the returned
+    mode: among the nodes whose mass is within ``tie`` of the largest, the first of those holding
+    most weight themselves."""
+    own[:] = 0.0
+    for p in range(j.size):
+        own[j[p] + (1 if frac[p] >= 0.5 else 0)] += w[p]
+    window_mass(own, half, mass)
+    top = mass.max()
+    mode = -1
+    for i in range(own.size):
+        if mass[i] >= top - tie and (mode < 0 or own[i] > own[mode]):
+            mode = i
+    return mode
