@@ -116,13 +116,18 @@ def locate(nodes: NDArray[np.float64], pos: NDArray[np.float64], j: NDArray[np.i
     """For each particle: ``j``, the node just before it (the last node at or before its position,
     kept within 0..N - 2), and ``frac``, its fraction of the way to node j + 1 (in [0, 1]; 0 where
     the two nodes coincide): ``np.searchsorted(nodes, pos, side="right") - 1`` clipped, and
-    ``(pos - nodes[j]) / (nodes[j + 1] - nodes[j])`` clipped, value for value."""
+    ``(pos - nodes[j]) / (nodes[j + 1] - nodes[j])`` clipped, value for value. The node is looked
+    up where even spacing would put it, and searched for only when it is not there."""
     n = nodes.size
+    spacing = (nodes[n - 1] - nodes[0]) / (n - 1)
     for p in range(pos.size):
-        k = min(max(np.searchsorted(nodes, pos[p], side="right") - 1, 0), n - 2)
+        x = pos[p]
+        k = min(max(int((x - nodes[0]) / spacing), 0), n - 2) if spacing > 0 else 0
+        if not ((k == 0 or nodes[k] <= x) and (k == n - 2 or x < nodes[k + 1])):
+            k = min(max(np.searchsorted(nodes, x, side="right") - 1, 0), n - 2)
         gap = nodes[k + 1] - nodes[k]
         j[p] = k
-        frac[p] = min(max((pos[p] - nodes[k]) / gap, 0.0), 1.0) if gap > 0 else 0.0
+        frac[p] = min(max((x - nodes[k]) / gap, 0.0), 1.0) if gap > 0 else 0.0
 
 
 @njit(cache=True, nogil=True)
