@@ -72,13 +72,19 @@ class RankLikelihood:
         """The current shape: S0 / S1, kept in [a_min, 1] (1: no evidence at all)."""
         return min(1.0, max(self.a_min, self.s0 / self.s1))
 
-    def use_row(self, row: NDArray[np.float64]) -> None:
-        """Rank later differences against this query row (finite values): one sort of its values,
-        as float32 when they are float32 values, as the difference kernels give them (that sort
+    @staticmethod
+    def order(row: NDArray[np.float64]) -> NDArray[np.float64]:
+        """A row's values in increasing order, what :meth:`use_row` ranks against: sorted as
+        float32 when they are float32 values, as the difference kernels give them (that sort
         took 0.07 ms against float64's 0.18 ms and an argsort's 0.34 ms at 35,000 nodes)."""
         narrow = row.astype(np.float32)
+        return np.sort(narrow).astype(np.float64) if np.array_equal(narrow, row) else np.sort(row)
+
+    def use_row(self, row: NDArray[np.float64], ordered: NDArray[np.float64] | None = None) -> None:
+        """Rank later differences against this query row (finite values), given its
+        :meth:`order` when it was computed ahead."""
         self._row = row
-        self._sorted = np.sort(narrow).astype(np.float64) if np.array_equal(narrow, row) else np.sort(row)
+        self._sorted = self.order(row) if ordered is None else ordered
         n = row.size
         if self._table.size != n + 1:
             self._table = -np.log((np.arange(n + 1) + 0.5) / n)
@@ -143,7 +149,12 @@ class GivenEvidence:
     def __init__(self) -> None:
         self._row = np.empty(0)
 
-    def use_row(self, row: NDArray[np.float64]) -> None:
+    @staticmethod
+    def order(row: NDArray[np.float64]) -> None:
+        """Nothing to rank."""
+        return None
+
+    def use_row(self, row: NDArray[np.float64], ordered: None = None) -> None:
         self._row = row
 
     def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:

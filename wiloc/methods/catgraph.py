@@ -17,7 +17,7 @@ every default.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -112,6 +112,18 @@ def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArr
     cum[-1] = 1.0
     pointers = (rng.random() + np.arange(m)) / m
     return np.searchsorted(cum, pointers, side="left")
+
+
+@dataclass(frozen=True)
+class RowReading:
+    """What the filter reads from one query row alone, whichever frame it is: whether the row
+    holds one finite value per node, its contrast (the sequence score's input, low = alike) and
+    its values in increasing order (the rank model's; None for evidence rows)."""
+
+    row: NDArray[np.float64]
+    valid: bool
+    contrast: NDArray[np.float64]
+    ordered: NDArray[np.float64] | None
 
 
 @dataclass(frozen=True)
@@ -220,6 +232,7 @@ class CatGraph(Method):
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
         self._odometry = False  # whether any step came with odometry
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
+        self._reading: RowReading | None = None  # the next row's, when read ahead
 
     def _observation_model(self) -> RankLikelihood | GivenEvidence:
         """Ranks within difference rows (whole images), or FAB-MAP's given log-likelihood ratios."""
@@ -242,16 +255,41 @@ class CatGraph(Method):
         """The motion noise of a frame without odometry, in node spacings."""
         return float(np.hypot(self.params.step_noise, self.params.noise_floor))
 
+    def _read(self, row: NDArray[np.float64]) -> RowReading:
+        """The row's :class:`RowReading` (depends on the row and the parameters only, so it may
+        be computed ahead, in another thread)."""
+        from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
+
+        n_nodes = self._nodes.size
+        contrast = np.empty(n_nodes)
+        evidence = self.context is not None and self.context.rows == "log_ratio"
+        valid = row.shape == (n_nodes,) and filter_kernels.contrast_normalise(
+            row, self.params.contrast_window, -1.0 if evidence else 1.0, contrast)
+        return RowReading(row, valid, contrast, self._likelihood.order(row) if valid else None)
+
+    def read_ahead(self, rows: Iterable[NDArray[np.float64]]) -> Iterator[NDArray[np.float64]]:
+        """The rows, each one's :class:`RowReading` computed in a helper thread up to 16 rows
+        ahead while this thread steps the filter (the contrast pass and the sort release the
+        GIL: on 2 cores they cost the step nothing)."""
+        from wiloc.differences import computed_ahead
+
+        def read(row: NDArray[np.float64]) -> RowReading:
+            return self._read(np.asarray(row, dtype=np.float64))
+
+        for reading in computed_ahead((read(row) for row in rows), depth=16):
+            self._reading = reading
+            yield reading.row
+
     def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
         from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
 
         p, rng, nodes = self.params, self._rng, self._nodes
         n_nodes, first = nodes.size, self.frames == 0
-        evidence = self.context is not None and self.context.rows == "log_ratio"
-        contrast = np.empty(n_nodes)  # low = alike
-        if row.shape != (n_nodes,) or not filter_kernels.contrast_normalise(row, p.contrast_window,
-                                                                            -1.0 if evidence else 1.0, contrast):
+        reading = self._reading if self._reading is not None and self._reading.row is row else self._read(row)
+        self._reading = None
+        if not reading.valid:
             raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
+        contrast = reading.contrast
         u = self._travelled(odometry)
         if first:
             self._sequence[:] = contrast
@@ -263,7 +301,7 @@ class CatGraph(Method):
             self._sequence, self._spare = self._spare, self._sequence
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
-        likelihood.use_row(row)
+        likelihood.use_row(row, reading.ordered)
         log_mean_ratio = likelihood.mean(self._omega)
         prior = unexplained.transition(first)
 
@@ -361,3 +399,4 @@ class CatGraph(Method):
         self._rng = np.random.default_rng()
         self._rng.bit_generator.state = state["rng"]
         self._shifted = None
+        self._reading = None
