@@ -51,6 +51,16 @@ def logsumexp(x: NDArray[np.float64]) -> float:
     return float(np.log1p(rest / count) + np.log(count) + top)
 
 
+@dataclass(frozen=True)
+class SortedRow:
+    """A row's values in increasing order, the left rank of each distinct value (the number of
+    values below it) and how many values share it."""
+
+    values: NDArray[np.float64]
+    left: NDArray[np.intp]
+    counts: NDArray[np.float64]
+
+
 class RankLikelihood:
     """Beta(a, 1) against Uniform(0, 1) on a difference's rank within its own row; a by EM.
 
@@ -62,7 +72,7 @@ class RankLikelihood:
     def __init__(self, a0: float, n0: float, a_min: float) -> None:
         self.a_min = a_min
         self.s0, self.s1 = n0, n0 / a0  # EM sufficient statistics: weight and weighted sum of t
-        self._sorted = np.empty(0)  # the current row's values in increasing order
+        self._sorted = SortedRow(np.empty(0), np.empty(0, dtype=np.intp), np.empty(0))  # the current row's
         self._row = np.empty(0)
         self._table = np.empty(0)  # t of each left rank 0..N for rows of N values
         self._t = np.empty(0)  # t at the particles of the current frame
@@ -73,14 +83,17 @@ class RankLikelihood:
         return min(1.0, max(self.a_min, self.s0 / self.s1))
 
     @staticmethod
-    def order(row: NDArray[np.float64]) -> NDArray[np.float64]:
-        """A row's values in increasing order, what :meth:`use_row` ranks against: sorted as
-        float32 when they are float32 values, as the difference kernels give them (that sort
-        took 0.07 ms against float64's 0.18 ms and an argsort's 0.34 ms at 35,000 nodes)."""
-        narrow = row.astype(np.float32)
-        return np.sort(narrow).astype(np.float64) if np.array_equal(narrow, row) else np.sort(row)
+    def order(row: NDArray[np.float64]) -> SortedRow:
+        """What :meth:`use_row` ranks against: the row sorted, as float32 when its values are
+        float32 values, as the difference kernels give them (that sort took 0.07 ms against
+        float64's 0.18 ms and an argsort's 0.34 ms at 35,000 nodes), and its distinct ranks."""
+        from wiloc.methods.filter_kernels import distinct_ranks  # numba loads with the first frame
 
-    def use_row(self, row: NDArray[np.float64], ordered: NDArray[np.float64] | None = None) -> None:
+        narrow = row.astype(np.float32)
+        ordered = np.sort(narrow).astype(np.float64) if np.array_equal(narrow, row) else np.sort(row)
+        return SortedRow(ordered, *distinct_ranks(ordered))
+
+    def use_row(self, row: NDArray[np.float64], ordered: SortedRow | None = None) -> None:
         """Rank later differences against this query row (finite values), given its
         :meth:`order` when it was computed ahead."""
         self._row = row
@@ -99,27 +112,26 @@ class RankLikelihood:
         self._t = self.t(d)
         return self.log_ratio(self._t, omega)
 
-    def mean(self, omega: NDArray[np.float64]) -> float:
+    def mean(self, omega: NDArray[np.float64], damped: NDArray[np.intp] | None = None) -> float:
         """ln of the mean lambda over every map node: the evidence for "somewhere on the map".
 
         A node of weight omega 1 has the ratio of its rank alone, so the sum needs no ranks per
-        node: the sum over the row's ranks as if every node had weight 1 (one pass over the
-        sorted row), corrected at the damped nodes (omega < 1, a stopped vehicle's few), each
-        ranked by a search.
+        node: lambda at each distinct rank of the row, weighted by how many nodes share it, as if
+        every node had weight 1, corrected at the ``damped`` nodes (omega < 1, a stopped
+        vehicle's few; found in ``omega`` unless given), each ranked by a search.
         """
-        from wiloc.methods.filter_kernels import rank_ratio_sum  # numba loads with the first frame
-
-        ratio = np.exp(self.log_ratio(self._table, np.ones(1)))  # lambda per left rank, at weight 1
-        total = rank_ratio_sum(self._sorted, ratio)
-        damped = np.flatnonzero(omega < 1.0)
+        ones = np.ones(1)
+        ranks = self._sorted
+        total = float(np.dot(ranks.counts, np.exp(self.log_ratio(self._table[ranks.left], ones))))
+        damped = np.flatnonzero(omega < 1.0) if damped is None else damped
         if damped.size:
-            rank = np.searchsorted(self._sorted, self._row[damped], side="left")
-            total += float(np.sum(np.exp(self.log_ratio(self._table[rank], omega[damped])) - ratio[rank]))
+            t = self._table[np.searchsorted(ranks.values, self._row[damped], side="left")]
+            total += float(np.sum(np.exp(self.log_ratio(t, omega[damped])) - np.exp(self.log_ratio(t, ones))))
         return float(np.log(total)) - np.log(self._row.size)
 
     def t(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
         """-ln u of each difference: its mid-rank p-value in the row."""
-        return self._table[np.searchsorted(self._sorted, d, side="left")]
+        return self._table[np.searchsorted(self._sorted.values, d, side="left")]
 
     def log_ratio(self, t: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
         """ln lambda = ln a_j + (1 - a_j) t, a_j = 1 - omega (1 - a)."""
@@ -160,7 +172,7 @@ class GivenEvidence:
     def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
         return (1.0 - frac) * self._row[j] + frac * self._row[j + 1]
 
-    def mean(self, omega: NDArray[np.float64]) -> float:
+    def mean(self, omega: NDArray[np.float64], damped: NDArray[np.intp] | None = None) -> float:
         return logsumexp(self._row) - np.log(self._row.size)
 
     def learn(self, weight: NDArray[np.float64], in_map: float) -> None:

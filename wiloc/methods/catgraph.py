@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.calibration import GivenEvidence, RankLikelihood, Unexplained, logsumexp, novelty_weights
+from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, logsumexp, novelty_weights
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -123,7 +123,7 @@ class RowReading:
     row: NDArray[np.float64]
     valid: bool
     contrast: NDArray[np.float64]
-    ordered: NDArray[np.float64] | None
+    ordered: SortedRow | None
 
 
 @dataclass(frozen=True)
@@ -217,6 +217,7 @@ class CatGraph(Method):
         self._nodes = _arclength(context.arclength, n_nodes)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
         self._omega = novelty_weights(neighbours, p.near_duplicate)
+        self._damped = np.flatnonzero(self._omega < 1.0)  # near duplicates
         self._likelihood = self._observation_model()
         self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
                                         p.stretch_open, p.stretch_close)
@@ -302,7 +303,7 @@ class CatGraph(Method):
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
         likelihood.use_row(row, reading.ordered)
-        log_mean_ratio = likelihood.mean(self._omega)
+        log_mean_ratio = likelihood.mean(self._omega, self._damped)
         prior = unexplained.transition(first)
 
         pos, speed, log_w = self._pos, self._speed, self._log_w
@@ -379,6 +380,7 @@ class CatGraph(Method):
         self._nodes = np.asarray(state["nodes"], dtype=np.float64)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
         self._omega = np.asarray(state["omega"], dtype=np.float64)
+        self._damped = np.flatnonzero(self._omega < 1.0)
         self._pos = np.asarray(state["pos"], dtype=np.float64).copy()
         self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()

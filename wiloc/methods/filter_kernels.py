@@ -93,21 +93,20 @@ def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.floa
 
 
 @njit(cache=True, nogil=True)
-def rank_ratio_sum(ordered: NDArray[np.float64], ratio: NDArray[np.float64]) -> float:
-    """Sum over the values of a sorted row of ``ratio[left rank]``: the left rank of a value is
-    the number of values below it (equal values share the rank of the first of them).
-
-    With ``ratio`` the rank model's lambda per left rank, this is the sum of lambda over every
-    map node as if none were damped as a near duplicate (``RankLikelihood.mean``), without
-    ordering the nodes: only the multiset of ranks counts.
-    """
-    total = 0.0
-    left = 0
+def distinct_ranks(ordered: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """The left rank of each distinct value of a sorted row (the number of values below it) and
+    how many values share it: the multiset of ranks the row's nodes take, which is all the rank
+    model's mean over the map needs (``RankLikelihood.mean``)."""
+    left = np.empty(ordered.size, dtype=np.intp)
+    counts = np.empty(ordered.size)
+    d = -1
     for i in range(ordered.size):
-        if i > 0 and ordered[i] != ordered[i - 1]:
-            left = i
-        total += ratio[left]
-    return total
+        if i == 0 or ordered[i] != ordered[i - 1]:
+            d += 1
+            left[d] = i
+            counts[d] = 0.0
+        counts[d] += 1.0
+    return left[:d + 1].copy(), counts[:d + 1].copy()
 
 
 @njit(cache=True, nogil=True)
