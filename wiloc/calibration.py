@@ -82,22 +82,16 @@ class RankLikelihood:
         """The current shape: S0 / S1, kept in [a_min, 1] (1: no evidence at all)."""
         return min(1.0, max(self.a_min, self.s0 / self.s1))
 
-    @staticmethod
-    def order(row: NDArray[np.float64]) -> SortedRow:
-        """What :meth:`use_row` ranks against: the row sorted, as float32 when its values are
-        float32 values, as the difference kernels give them (that sort took 0.07 ms against
-        float64's 0.18 ms and an argsort's 0.34 ms at 35,000 nodes), and its distinct ranks."""
+    def use_row(self, row: NDArray[np.float64]) -> None:
+        """Rank later differences against this query row (finite values): one sort of its values,
+        as float32 when they are float32 values, as the difference kernels give them (that sort
+        took 0.07 ms against float64's 0.18 ms and an argsort's 0.34 ms at 35,000 nodes), and
+        the distinct ranks they take."""
         from wiloc.methods.filter_kernels import distinct_ranks  # numba loads with the first frame
 
         narrow = row.astype(np.float32)
         ordered = np.sort(narrow).astype(np.float64) if np.array_equal(narrow, row) else np.sort(row)
-        return SortedRow(ordered, *distinct_ranks(ordered))
-
-    def use_row(self, row: NDArray[np.float64], ordered: SortedRow | None = None) -> None:
-        """Rank later differences against this query row (finite values), given its
-        :meth:`order` when it was computed ahead."""
-        self._row = row
-        self._sorted = self.order(row) if ordered is None else ordered
+        self._row, self._sorted = row, SortedRow(ordered, *distinct_ranks(ordered))
         n = row.size
         if self._table.size != n + 1:
             self._table = -np.log((np.arange(n + 1) + 0.5) / n)
@@ -161,12 +155,7 @@ class GivenEvidence:
     def __init__(self) -> None:
         self._row = np.empty(0)
 
-    @staticmethod
-    def order(row: NDArray[np.float64]) -> None:
-        """Nothing to rank."""
-        return None
-
-    def use_row(self, row: NDArray[np.float64], ordered: None = None) -> None:
+    def use_row(self, row: NDArray[np.float64]) -> None:
         self._row = row
 
     def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -20,7 +20,7 @@ import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, TypeVar
+from typing import Protocol
 
 import h5py
 import numpy as np
@@ -32,7 +32,6 @@ from wiloc.distances import DifferencesTo, band_extremes
 from wiloc.errors import WilocError
 
 Progress = Callable[[int, int], None]
-T = TypeVar("T")
 
 DEFAULT_BLOCK_ROWS = 1024
 """Query rows per block: the blocks the kernels computed when matrices were stored, so that
@@ -53,55 +52,38 @@ class RowBlocks(Protocol):
 BlockRunner = Callable[[NDArray, DifferencesTo, list[tuple[int, int]]], Iterator[NDArray[np.float32]]]
 
 
-def computed_ahead(items: Iterator[T], depth: int = 1) -> Iterator[T]:
-    """The items of ``items`` in order, computed by a helper thread up to ``depth`` items ahead
-    of the caller. Work that releases the GIL (the kernels, numpy's sorts) then runs beside the
-    caller's; an exception raised computing an item is raised here, in its place."""
-    ahead: queue.Queue = queue.Queue(maxsize=depth)
-    stop = threading.Event()
-
-    def hand(item: tuple[bool, object]) -> bool:
-        """Queue ``item`` unless the caller has stopped; whether it was queued."""
-        while not stop.is_set():
-            try:
-                ahead.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
-        return False
-
-    def compute() -> None:
-        try:
-            for item in items:
-                if not hand((True, item)):
-                    return
-            hand((False, None))
-        except BaseException as exc:  # handed to the caller, raised there
-            hand((False, exc))
-        finally:
-            close = getattr(items, "close", None)
-            if close is not None:
-                close()
-
-    worker = threading.Thread(target=compute, name="wiloc-ahead", daemon=True)
-    worker.start()
-    try:
-        while True:
-            more, item = ahead.get()
-            if not more:
-                if item is not None:
-                    raise item  # type: ignore[misc]
-                return
-            yield item  # type: ignore[misc]
-    finally:
-        stop.set()
-        worker.join()
-
-
 def prefetched_blocks(data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
     """The blocks in order, each computed in a helper thread while the caller works on the one
     before (the kernels release the GIL), so a method's steps and the kernel overlap."""
-    return computed_ahead(to(data[start:end]) for start, end in ranges)
+    ahead: queue.Queue = queue.Queue(maxsize=1)
+    stop = threading.Event()
+
+    def compute() -> None:
+        try:
+            for start, end in ranges:
+                block = to(data[start:end])
+                while not stop.is_set():
+                    try:
+                        ahead.put(block, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+        except BaseException as exc:  # handed to the caller, raised there
+            ahead.put(exc)
+
+    worker = threading.Thread(target=compute, name="wiloc-differences", daemon=True)
+    worker.start()
+    try:
+        for _ in ranges:
+            block = ahead.get()
+            if isinstance(block, BaseException):
+                raise block
+            yield block
+    finally:
+        stop.set()
+        worker.join()
 
 
 class ComputedDifferences:

@@ -293,17 +293,11 @@ class Method(ABC):
     def load_state(self, state: Mapping[str, Any]) -> None:
         """Set what :meth:`save_state` returned."""
 
-    def read_ahead(self, rows: Iterable[NDArray[np.float64]]) -> Iterable[NDArray[np.float64]]:
-        """The rows of a batch run as :meth:`run` steps over them. A method that derives values
-        from each row alone may compute them here, ahead, in a helper thread (the same values
-        its step would compute: a batch run decides as the same rows stepped one by one)."""
-        return rows
-
     def run(self, rows: Iterable[NDArray[np.float64]], n_frames: int,
             odometry: NDArray[np.float64] | None = None, progress: Progress | None = None) -> Decisions:
         """Step every row (``n_frames`` of them) and collect the decisions (after :meth:`start`)."""
         steps: list[Decision] = []
-        for k, row in enumerate(self.read_ahead(rows)):
+        for k, row in enumerate(rows):
             if k >= n_frames:
                 raise WilocError(self.name, f"more difference rows than n_frames={n_frames}")
             steps.append(self.step(row, None if odometry is None else float(odometry[k])))

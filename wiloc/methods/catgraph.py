@@ -17,14 +17,14 @@ every default.
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, logsumexp, novelty_weights
+from wiloc.calibration import GivenEvidence, RankLikelihood, Unexplained, logsumexp, novelty_weights
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -112,18 +112,6 @@ def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArr
     cum[-1] = 1.0
     pointers = (rng.random() + np.arange(m)) / m
     return np.searchsorted(cum, pointers, side="left")
-
-
-@dataclass(frozen=True)
-class RowReading:
-    """What the filter reads from one query row alone, whichever frame it is: whether the row
-    holds one finite value per node, its contrast (the sequence score's input, low = alike) and
-    its values in increasing order (the rank model's; None for evidence rows)."""
-
-    row: NDArray[np.float64]
-    valid: bool
-    contrast: NDArray[np.float64]
-    ordered: SortedRow | None
 
 
 @dataclass(frozen=True)
@@ -227,13 +215,11 @@ class CatGraph(Method):
                        else np.ones(p.particles))
         self._log_w = np.full(p.particles, -np.log(p.particles))
         self._sequence = np.zeros((len(p.sequence_speeds), n_nodes))
-        self._spare = np.empty_like(self._sequence)  # the next frame's sequence score is written here
         self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
         self._mass = np.zeros(n_nodes)  # ... and within +-mode_window nodes of each
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
         self._odometry = False  # whether any step came with odometry
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
-        self._reading: RowReading | None = None  # the next row's, when read ahead
 
     def _observation_model(self) -> RankLikelihood | GivenEvidence:
         """Ranks within difference rows (whole images), or FAB-MAP's given log-likelihood ratios."""
@@ -256,53 +242,35 @@ class CatGraph(Method):
         """The motion noise of a frame without odometry, in node spacings."""
         return float(np.hypot(self.params.step_noise, self.params.noise_floor))
 
-    def _read(self, row: NDArray[np.float64]) -> RowReading:
-        """The row's :class:`RowReading` (depends on the row and the parameters only, so it may
-        be computed ahead, in another thread)."""
+    def _advance(self, sequence: NDArray[np.float64], contrast: NDArray[np.float64], u: float,
+                 first: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The sequence score after a frame of this contrast and step u (a new array: the leaky
+        sum along each speed's trajectory, causal, O(speeds x nodes)), and its lowest over speeds
+        per node, which re-seeding ranks nodes by."""
         from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
 
-        n_nodes = self._nodes.size
-        contrast = np.empty(n_nodes)
-        evidence = self.context is not None and self.context.rows == "log_ratio"
-        valid = row.shape == (n_nodes,) and filter_kernels.contrast_normalise(
-            row, self.params.contrast_window, -1.0 if evidence else 1.0, contrast)
-        return RowReading(row, valid, contrast, self._likelihood.order(row) if valid else None)
-
-    def read_ahead(self, rows: Iterable[NDArray[np.float64]]) -> Iterator[NDArray[np.float64]]:
-        """The rows, each one's :class:`RowReading` computed in a helper thread up to 16 rows
-        ahead while this thread steps the filter (the contrast pass and the sort release the
-        GIL: on 2 cores they cost the step nothing)."""
-        from wiloc.differences import computed_ahead
-
-        def read(row: NDArray[np.float64]) -> RowReading:
-            return self._read(np.asarray(row, dtype=np.float64))
-
-        for reading in computed_ahead((read(row) for row in rows), depth=16):
-            self._reading = reading
-            yield reading.row
+        if first:
+            return np.broadcast_to(contrast, sequence.shape).copy(), contrast
+        after, lowest = np.empty_like(sequence), np.empty(contrast.size)
+        filter_kernels.advance(sequence, *self._shift_lookup(u), contrast, self.params.sequence_rate, after, lowest)
+        return after, lowest
 
     def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
         from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
 
         p, rng, nodes = self.params, self._rng, self._nodes
         n_nodes, first = nodes.size, self.frames == 0
-        reading = self._reading if self._reading is not None and self._reading.row is row else self._read(row)
-        self._reading = None
-        if not reading.valid:
+        evidence = self.context is not None and self.context.rows == "log_ratio"
+        contrast = np.empty(n_nodes)  # low = alike
+        if row.shape != (n_nodes,) or not filter_kernels.contrast_normalise(row, p.contrast_window,
+                                                                            -1.0 if evidence else 1.0, contrast):
             raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
-        contrast = reading.contrast
         u = self._travelled(odometry)
-        if first:
-            self._sequence[:] = contrast
-            score = contrast
-        else:  # the leaky sum along each speed's trajectory: causal, O(speeds x nodes) per frame
-            score = np.empty(n_nodes)  # the lowest over speeds
-            filter_kernels.advance(self._sequence, *self._shift_lookup(u), contrast, p.sequence_rate, self._spare,
-                                   score)
-            self._sequence, self._spare = self._spare, self._sequence
+        self._sequence, score = self._advance(self._sequence, contrast, u, first)
+        if not first:
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
-        likelihood.use_row(row, reading.ordered)
+        likelihood.use_row(row)
         log_mean_ratio = likelihood.mean(self._omega, self._damped)
         prior = unexplained.transition(first)
 
@@ -371,7 +339,7 @@ class CatGraph(Method):
 
     def save_state(self) -> dict[str, Any]:
         return {"nodes": self._nodes, "omega": self._omega, "pos": self._pos, "speed": self._speed,
-                "log_w": self._log_w, "sequence": self._sequence.copy(), "own": self._own, "odometer": self._odometer,
+                "log_w": self._log_w, "sequence": self._sequence, "own": self._own, "odometer": self._odometer,
                 "odometry": self._odometry, "likelihood": self._likelihood.state(),
                 "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state}
 
@@ -385,7 +353,6 @@ class CatGraph(Method):
         self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
-        self._spare = np.empty_like(self._sequence)
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
         from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
 
@@ -401,4 +368,3 @@ class CatGraph(Method):
         self._rng = np.random.default_rng()
         self._rng.bit_generator.state = state["rng"]
         self._shifted = None
-        self._reading = None

@@ -9,7 +9,7 @@ same place as z. See docs/algorithm.md for every choice and the measurements beh
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -139,10 +139,6 @@ class Online(Method):
         model = HistogramModel.from_values(values, p.bins, smoothing=p.smoothing, prior=p.prior)
         model.add_different(values)
         return model
-
-    def read_ahead(self, rows: Iterable[NDArray[np.float64]]) -> Iterable[NDArray[np.float64]]:
-        """Map mode: the filter's :meth:`CatGraph.read_ahead` (it steps on the same rows)."""
-        return rows if self._filter is None else self._filter.read_ahead(rows)
 
     def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
         sequence = self.context is not None and self.context.sequence
