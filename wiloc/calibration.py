@@ -87,11 +87,11 @@ class RankLikelihood:
         as float32 when they are float32 values, as the difference kernels give them (that sort
         took 0.07 ms against float64's 0.18 ms and an argsort's 0.34 ms at 35,000 nodes), and
         the distinct ranks they take."""
-        from wiloc.methods.filter_kernels import distinct_ranks  # numba loads with the first frame
-
         narrow = row.astype(np.float32)
         ordered = np.sort(narrow).astype(np.float64) if np.array_equal(narrow, row) else np.sort(row)
-        self._row, self._sorted = row, SortedRow(ordered, *distinct_ranks(ordered))
+        left = np.flatnonzero(np.concatenate(([True], ordered[1:] != ordered[:-1])))  # where each value first appears
+        self._row = row
+        self._sorted = SortedRow(ordered, left, np.diff(np.append(left, ordered.size)).astype(np.float64))
         n = row.size
         if self._table.size != n + 1:
             self._table = -np.log((np.arange(n + 1) + 0.5) / n)

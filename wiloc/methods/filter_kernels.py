@@ -93,23 +93,6 @@ def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.floa
 
 
 @njit(cache=True, nogil=True)
-def distinct_ranks(ordered: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-    """The left rank of each distinct value of a sorted row (the number of values below it) and
-    how many values share it: the multiset of ranks the row's nodes take, which is all the rank
-    model's mean over the map needs (``RankLikelihood.mean``)."""
-    left = np.empty(ordered.size, dtype=np.intp)
-    counts = np.empty(ordered.size)
-    d = -1
-    for i in range(ordered.size):
-        if i == 0 or ordered[i] != ordered[i - 1]:
-            d += 1
-            left[d] = i
-            counts[d] = 0.0
-        counts[d] += 1.0
-    return left[:d + 1].copy(), counts[:d + 1].copy()
-
-
-@njit(cache=True, nogil=True)
 def locate(nodes: NDArray[np.float64], pos: NDArray[np.float64], j: NDArray[np.intp],
            frac: NDArray[np.float64]) -> None:
     """For each particle: ``j``, the node just before it (the last node at or before its position,
