@@ -72,7 +72,7 @@ class RankLikelihood:
     def __init__(self, a0: float, n0: float, a_min: float) -> None:
         self.a_min = a_min
         self.s0, self.s1 = n0, n0 / a0  # EM sufficient statistics: weight and weighted sum of t
-        self._sorted = SortedRow(np.empty(0), np.empty(0, dtype=np.intp), np.empty(0))  # the current row's
+        self._sorted = SortedRow(np.empty(0), np.empty(0, dtype=np.intp), np.empty(0))  # the current row, sorted
         self._row = np.empty(0)
         self._table = np.empty(0)  # t of each left rank 0..N for rows of N values
         self._t = np.empty(0)  # t at the particles of the current frame
@@ -89,7 +89,7 @@ class RankLikelihood:
         the distinct ranks they take."""
         narrow = row.astype(np.float32)
         ordered = np.sort(narrow).astype(np.float64) if np.array_equal(narrow, row) else np.sort(row)
-        left = np.flatnonzero(np.concatenate(([True], ordered[1:] != ordered[:-1])))  # where each value first appears
+        left = np.flatnonzero(np.concatenate(([True], ordered[1:] != ordered[:-1])))  # each value's first place
         self._row = row
         self._sorted = SortedRow(ordered, left, np.diff(np.append(left, ordered.size)).astype(np.float64))
         n = row.size

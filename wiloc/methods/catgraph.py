@@ -344,6 +344,8 @@ class CatGraph(Method):
                 "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
+        from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
+
         p = self.params
         self._nodes = np.asarray(state["nodes"], dtype=np.float64)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
@@ -354,8 +356,6 @@ class CatGraph(Method):
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
-        from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
-
         self._mass = np.empty(self._own.size)
         filter_kernels.window_mass(self._own, p.mode_window, self._mass)
         self._odometer = float(state["odometer"])
