@@ -189,12 +189,13 @@ def test_a_query_that_leaves_the_map_says_so(data_root, query: str, tmp_path, ca
 def test_ranks_from_one_sort_are_the_searched_ranks_with_ties() -> None:
     rng = np.random.default_rng(4)
     for n in (1, 7, 3000):
-        row = np.round(rng.random(n) * 40) / 7  # many ties
-        model = RankLikelihood(0.5, 10.0, 0.02)
-        model.use_row(row)
-        searched = np.searchsorted(np.sort(row), row, side="left")
-        omega = np.ones(n)
-        want = float(logsumexp(model.log_ratio(-np.log((searched + 0.5) / n), omega))) - np.log(n)
-        assert model.mean(omega) == want
+        for row in (np.round(rng.random(n) * 40) / 7,  # many ties, float64 values
+                    np.round(rng.random(n) * 40).astype(np.float32).astype(np.float64)):  # float32 values
+            model = RankLikelihood(0.5, 10.0, 0.02)
+            model.use_row(row)
+            searched = np.searchsorted(np.sort(row), row, side="left")
+            for omega in (np.ones(n), np.where(rng.random(n) < 0.1, rng.random(n), 1.0)):  # some damped nodes
+                want = float(logsumexp(model.log_ratio(-np.log((searched + 0.5) / n), omega))) - np.log(n)
+                assert model.mean(omega) == pytest.approx(want, rel=1e-13, abs=1e-15)  # the sum in another order
         d = rng.random(50) * 8
         assert np.array_equal(model.t(d), -np.log((np.searchsorted(np.sort(row), d, side="left") + 0.5) / n))

@@ -214,14 +214,17 @@ def test_mode_on_a_map_shorter_than_the_mode_window(node: int) -> None:
     np.testing.assert_array_equal(dec.difference, rows[np.arange(rows.shape[0]), dec.match])
 
 
-def test_sequence_score_step_is_the_numpy_expression_value_for_value() -> None:
-    from wiloc.methods.catgraph import _shifted_reads
-    from wiloc.methods.sequence_score import advance
+@pytest.mark.parametrize("even", [True, False])
+def test_sequence_score_step_is_the_numpy_expression_value_for_value(even: bool) -> None:
+    from wiloc.methods.catgraph import _read_runs, _shifted_reads
+    from wiloc.methods.filter_kernels import advance
 
     rng = np.random.default_rng(3)
-    nodes = np.cumsum(rng.random(700))
+    nodes = np.arange(700.0) if even else np.cumsum(rng.random(700) * (rng.random(700) < 0.9))
     score, contrast = rng.normal(size=(4, 700)), rng.normal(size=700)
     at, a = _shifted_reads(nodes, np.array([0.5, 1.0, 1.5, 2.0]) * 0.8)
     prev = score.ravel()
     want = (1.0 - 0.1) * ((1.0 - a) * prev[at] + a * prev[at + 1]).reshape(score.shape) + 0.1 * contrast
-    assert np.array_equal(advance(score, at, a, contrast, 0.1), want)
+    out, lowest = np.empty_like(score), np.empty(700)
+    advance(score, at, a, _read_runs(at, a, 700), contrast, 0.1, out, lowest)
+    assert np.array_equal(out, want) and np.array_equal(lowest, want.min(axis=0))

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.calibration import GivenEvidence, RankLikelihood, Unexplained, novelty_weights
+from wiloc.calibration import GivenEvidence, RankLikelihood, Unexplained, logsumexp, novelty_weights
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -50,11 +50,13 @@ def _arclength(ref_arclength: NDArray[np.float64] | None, n_nodes: int) -> NDArr
 
 
 def _locate(nodes: NDArray[np.float64], pos: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-    """For each particle: the node j just before it and its fraction a of the way to node j + 1."""
-    j = np.clip(np.searchsorted(nodes, pos, side="right") - 1, 0, nodes.size - 2)
-    gap = nodes[j + 1] - nodes[j]
-    a = np.divide(pos - nodes[j], gap, out=np.zeros_like(pos), where=gap > 0)
-    return j, np.clip(a, 0.0, 1.0)
+    """For each particle: the node j just before it and its fraction a of the way to node j + 1
+    (``filter_kernels.locate``)."""
+    from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
+
+    j, a = np.empty(pos.size, dtype=np.intp), np.empty(pos.size)
+    filter_kernels.locate(nodes, pos, j, a)
+    return j, a
 
 
 def contrast_normalise(row: NDArray[np.float64], half_window: int) -> NDArray[np.float64]:
@@ -63,15 +65,13 @@ def contrast_normalise(row: NDArray[np.float64], half_window: int) -> NDArray[np
     Removes what a whole stretch of the map shares (a tunnel, snow, a dark scene all look alike
     to every query frame), so a node stands out only by being lower than its neighbours
     (SeqSLAM's local contrast enhancement, on one row: causal). A flat stretch (std within
-    rounding of 0) gives 0.
+    rounding of 0) gives 0. One compiled pass (``filter_kernels.contrast_normalise``).
     """
-    from scipy.ndimage import uniform_filter1d  # scipy loads on first use, not with the command line
+    from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
 
-    size = 2 * half_window + 1
-    mean = uniform_filter1d(row, size, mode="nearest")
-    sd = np.sqrt(np.maximum(uniform_filter1d(row * row, size, mode="nearest") - mean * mean, 0.0))
-    flat = sd <= 1e-6 * np.abs(mean)
-    return np.divide(row - mean, sd, out=np.zeros_like(row), where=~flat & (sd > 0))
+    out = np.empty(row.size)
+    filter_kernels.contrast_normalise(np.asarray(row, dtype=np.float64), half_window, 1.0, out)
+    return out
 
 
 def _shifted_reads(nodes: NDArray[np.float64],
@@ -80,6 +80,29 @@ def _shifted_reads(nodes: NDArray[np.float64],
     trajectory: flat indices of the node before and the fraction of the way to the next."""
     j, a = _locate(nodes, (nodes[None, :] - shifts[:, None]).ravel())
     return np.arange(shifts.size).repeat(nodes.size) * nodes.size + j, a
+
+
+def _lowest(score: NDArray[np.float64], top: int) -> NDArray[np.intp]:
+    """The ``top`` nodes of lowest score, as ``np.argpartition`` gives them; for one node with a
+    score of its own (the default, nearly always) that is the argmin, found 10x faster."""
+    if top == 1:
+        best = int(np.argmin(score))
+        if np.count_nonzero(score == score[best]) == 1:
+            return np.array([best])
+    return np.argpartition(score, min(top, score.size) - 1)[:top]
+
+
+def _read_runs(at: NDArray[np.intp], a: NDArray[np.float64], n_nodes: int,
+               shortest: int = 16) -> NDArray[np.intp]:
+    """The stretches of :func:`_shifted_reads` (rows: first, end) at least ``shortest`` long
+    that stay within one speed's row and read consecutive positions at one fraction: nearly
+    everything on evenly spaced nodes, little on uneven ones (``filter_kernels.advance``)."""
+    k = np.arange(at.size)
+    new = (k % n_nodes == 0) | np.concatenate(([True], (at[1:] != at[:-1] + 1) | (a[1:] != a[:-1])))
+    first = np.flatnonzero(new)
+    end = np.append(first[1:], at.size)
+    long = end - first >= shortest
+    return np.column_stack((first[long], end[long])).astype(np.intp)
 
 
 def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.intp]:
@@ -183,6 +206,7 @@ class CatGraph(Method):
         self._nodes = _arclength(context.arclength, n_nodes)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
         self._omega = novelty_weights(neighbours, p.near_duplicate)
+        self._damped = np.flatnonzero(self._omega < 1.0)  # near duplicates
         self._likelihood = self._observation_model()
         self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
                                         p.stretch_open, p.stretch_close)
@@ -193,9 +217,10 @@ class CatGraph(Method):
         self._log_w = np.full(p.particles, -np.log(p.particles))
         self._sequence = np.zeros((len(p.sequence_speeds), n_nodes))
         self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
+        self._mass = np.zeros(n_nodes)  # ... and within +-mode_window nodes of each
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
         self._odometry = False  # whether any step came with odometry
-        self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64]]] | None = None
+        self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
 
     def _observation_model(self) -> RankLikelihood | GivenEvidence:
         """Ranks within difference rows (whole images), or FAB-MAP's given log-likelihood ratios."""
@@ -204,12 +229,13 @@ class CatGraph(Method):
             return GivenEvidence()
         return RankLikelihood(p.a0, p.n0, p.a_min)
 
-    def _shift_lookup(self, u: float) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        """:func:`_shifted_reads` for step u: the same for every frame of equal step (always,
-        without odometry), so it is computed once per distinct step."""
+    def _shift_lookup(self, u: float) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]:
+        """:func:`_shifted_reads` for step u and their :func:`_read_runs`: the same for every
+        frame of equal step (always, without odometry), so they are computed once per distinct step."""
         if self._shifted is None or self._shifted[0] != u:
             shifts = np.asarray(self.params.sequence_speeds, dtype=np.float64) * u
-            self._shifted = (u, _shifted_reads(self._nodes, shifts))
+            at, a = _shifted_reads(self._nodes, shifts)
+            self._shifted = (u, (at, a, _read_runs(at, a, self._nodes.size)))
         return self._shifted[1]
 
     @property
@@ -217,26 +243,36 @@ class CatGraph(Method):
         """The motion noise of a frame without odometry, in node spacings."""
         return float(np.hypot(self.params.step_noise, self.params.noise_floor))
 
+    def _advance(self, sequence: NDArray[np.float64], contrast: NDArray[np.float64], u: float,
+                 first: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The sequence score after a frame of this contrast and step u (a new array: the leaky
+        sum along each speed's trajectory, causal, O(speeds x nodes)), and its lowest over speeds
+        per node, which re-seeding ranks nodes by."""
+        from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
+
+        if first:
+            return np.broadcast_to(contrast, sequence.shape).copy(), contrast
+        after, lowest = np.empty_like(sequence), np.empty(contrast.size)
+        filter_kernels.advance(sequence, *self._shift_lookup(u), contrast, self.params.sequence_rate, after, lowest)
+        return after, lowest
+
     def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
-        from scipy.special import logsumexp  # scipy loads on first use, not with the command line
+        from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
 
         p, rng, nodes = self.params, self._rng, self._nodes
         n_nodes, first = nodes.size, self.frames == 0
-        if row.shape != (n_nodes,) or not np.all(np.isfinite(row)):
+        evidence = self.context is not None and self.context.rows == "log_ratio"
+        contrast = np.empty(n_nodes)  # low = alike
+        if row.shape != (n_nodes,) or not filter_kernels.contrast_normalise(row, p.contrast_window,
+                                                                            -1.0 if evidence else 1.0, contrast):
             raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
         u = self._travelled(odometry)
-        evidence = self.context is not None and self.context.rows == "log_ratio"
-        contrast = contrast_normalise(-row if evidence else row, p.contrast_window)  # low = alike
-        if first:
-            self._sequence[:] = contrast
-        else:  # the leaky sum along each speed's trajectory: causal, O(speeds x nodes) per frame
-            from wiloc.methods.sequence_score import advance  # numba loads with the first frame, not the command line
-
-            self._sequence = advance(self._sequence, *self._shift_lookup(u), contrast, p.sequence_rate)
+        self._sequence, score = self._advance(self._sequence, contrast, u, first)
+        if not first:
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
         likelihood.use_row(row)
-        log_mean_ratio = likelihood.mean(self._omega)
+        log_mean_ratio = likelihood.mean(self._omega, self._damped)
         prior = unexplained.transition(first)
 
         pos, speed, log_w = self._pos, self._speed, self._log_w
@@ -250,25 +286,23 @@ class CatGraph(Method):
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
             weakest = np.argpartition(log_w, n_reseed - 1)[:n_reseed]
             kept[weakest] = False
-            log_w = log_w - float(logsumexp(log_w[kept])) if kept.any() else log_w
-            score = self._sequence.min(axis=0)
-            best = np.argpartition(score, min(p.reseed_top, n_nodes) - 1)[:p.reseed_top]
+            log_w = log_w - logsumexp(log_w[kept]) if kept.any() else log_w
+            best = _lowest(score, p.reseed_top)
             pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
             speed[weakest] = speed[rng.integers(0, p.particles, n_reseed)]
 
         j, a = _locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
-        omega = (1.0 - a) * self._omega[j] + a * self._omega[j + 1]
+        omega = np.empty(p.particles)
+        filter_kernels.interpolate(self._omega, j, a, omega)
         log_w = np.where(kept, np.log(max(prior.track, TINY)) + log_w + likelihood.at(j, a, omega),
                          np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1)))
-        log_map = float(logsumexp(log_w))  # the map's total mass against the unexplained hypothesis
+        log_map = logsumexp(log_w)  # the map's total mass against the unexplained hypothesis
         unexplained.update(log_map, prior.unexplained)
         log_w = log_w - log_map
         w = np.exp(log_w)
 
-        self._own = np.bincount(j + (a >= 0.5), weights=w, minlength=n_nodes)
-        mass = self._window_mass()
-        tied = np.flatnonzero(mass >= mass.max() - MODE_TIE)
-        mode = int(tied[np.argmax(self._own[tied])])
+        self._own, self._mass = own, mass = np.empty(n_nodes), np.empty(n_nodes)  # read-out: the density's mode
+        mode = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, own, mass)
         p_new = unexplained.new_place
         unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
         likelihood.learn(w * omega, 1.0 - unexplained.u)
@@ -281,15 +315,10 @@ class CatGraph(Method):
         return Decision(match=mode, difference=float(row[mode]), confidence=float(mass[mode] * (1.0 - p_new)),
                         stage="track", new_place=p_new)
 
-    def _window_mass(self) -> NDArray[np.float64]:
-        """The last frame's posterior mass within +-mode_window nodes of each node."""
-        n, half = self._own.size, self.params.mode_window
-        return np.convolve(self._own, np.ones(2 * half + 1))[half:half + n]  # "same" is wrong for a short map
-
     def probability_near(self, node: int) -> float:
         """After a step: the probability that the frame shows the place of ``node`` (within
         +-mode_window nodes), the map explaining it."""
-        return float(self._window_mass()[node] * (1.0 - self._unexplained.new_place))
+        return float(self._mass[node] * (1.0 - self._unexplained.new_place))
 
     def _travelled(self, odometry: float | None) -> float:
         """u_k: the query's odometry step, else the mean node spacing."""
@@ -316,15 +345,20 @@ class CatGraph(Method):
                 "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
+        from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
+
         p = self.params
         self._nodes = np.asarray(state["nodes"], dtype=np.float64)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
         self._omega = np.asarray(state["omega"], dtype=np.float64)
+        self._damped = np.flatnonzero(self._omega < 1.0)
         self._pos = np.asarray(state["pos"], dtype=np.float64).copy()
         self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
+        self._mass = np.empty(self._own.size)
+        filter_kernels.window_mass(self._own, p.mode_window, self._mass)
         self._odometer = float(state["odometer"])
         self._odometry = bool(state["odometry"])
         self._likelihood = self._observation_model()

@@ -52,7 +52,16 @@ def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
     mode, where candidates are reference frames that are never decided). NaN when no candidate is
     left.
     """
-    same = set(range(max(0, z - window), min(row.size, z + window + 1)))
+    low, high = max(0, z - window), min(row.size, z + window + 1)
+    if match is None:  # map mode: M never grows, so m_r is the smallest finite difference outside z's window
+        rest = (row[:low], row[high:])
+        smallest = min(float(np.fmin.reduce(part, initial=np.inf)) for part in rest)  # NaN-blind, no copy
+        if np.isfinite(smallest):
+            return smallest
+        finite = np.concatenate(rest)  # none finite, or a -inf to skip
+        finite = finite[np.isfinite(finite)]
+        return float(finite.min()) if finite.size else float("nan")
+    same = set(range(low, high))
     first = min(same)
     for cand in _increasing(row):
         if cand in same:

@@ -1,0 +1,81 @@
+"""CPU milliseconds of one method step (one query frame's row in, one decision out) against
+generated maps: what a batch run pays per frame besides the difference kernel.
+
+    python benchmarks/bench_step.py                                  # N = 10,000 and 35,000
+    python benchmarks/bench_step.py --sizes 35000 --profile catgraph # and where the time goes
+
+A generated ``sad`` route (``bench_localizer.route``); the query follows the map node by node
+from its 10 % mark with noise, so the filters track as on real data. The rows are computed
+beforehand as float32 (as the difference blocks arrive) and each is converted to float64 inside
+the timing, as ``ComputedDifferences.iter_rows`` does. Figures are medians over the timed frames
+(after ``--warmup`` frames: the first frame compiles numba kernels) of this process's CPU time.
+"""
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+import statistics
+import time
+
+import numpy as np
+
+from bench_localizer import SPEC, route
+from wiloc.differences import ComputedDifferences, summarize
+from wiloc.distances import DifferencesTo, consecutive
+from wiloc.methods.base import MapContext
+from wiloc.methods.registry import make_method
+
+
+def rows_and_context(n_map: int, frames: int, rng: np.random.Generator) -> tuple[np.ndarray, MapContext]:
+    """The query's float32 difference rows and the map context of a generated route."""
+    map_data, _, _ = route(n_map, 1, rng)
+    nodes = np.arange(frames) + n_map // 10
+    query = np.clip(map_data[nodes].astype(np.float64) + rng.normal(0, 20, (frames, SPEC.length)), 0, 255)
+    to_map = DifferencesTo(map_data, SPEC.metric, SPEC.scale)
+    rows = to_map(query.astype(np.uint8))
+    steps = consecutive(map_data, SPEC.metric, SPEC.scale)
+    summary = summarize(ComputedDifferences(map_data, to_map), 10)
+    context = MapContext(sequence=False, exclude_recent=10, n_map=n_map, natural_max=SPEC.natural_max,
+                         map_summary=lambda: summary, neighbours=lambda: steps)
+    return rows, context
+
+
+def step_ms(method: str, rows: np.ndarray, context: MapContext, warmup: int,
+            profile: bool) -> list[float]:
+    """CPU ms of each step after the first ``warmup`` frames (profiled to stdout when asked)."""
+    m = make_method(method, {})
+    m.start(context)
+    times = []
+    profiler = cProfile.Profile() if profile else None
+    for k, row in enumerate(rows):
+        if k == warmup and profiler is not None:
+            profiler.enable()
+        cpu = time.process_time()
+        m.step(row.astype(np.float64))
+        times.append(1000.0 * (time.process_time() - cpu))
+    if profiler is not None:
+        profiler.disable()
+        pstats.Stats(profiler).sort_stats("tottime").print_stats(18)
+    return times[warmup:]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sizes", default="10000,35000", help="map sizes, comma-separated")
+    parser.add_argument("--methods", default="catgraph,online")
+    parser.add_argument("--frames", type=int, default=300, help="query frames per size")
+    parser.add_argument("--warmup", type=int, default=20, help="frames not timed")
+    parser.add_argument("--profile", default="", help="methods to profile (cProfile, comma-separated)")
+    args = parser.parse_args()
+    print(f"{'N':>7} {'method':<10} {'median ms':>9} {'p10 ms':>7} {'p90 ms':>7}")
+    for n_map in (int(s) for s in args.sizes.split(",")):
+        rows, context = rows_and_context(n_map, args.frames, np.random.default_rng(n_map))
+        for method in args.methods.split(","):
+            t = step_ms(method, rows, context, args.warmup, method in args.profile.split(","))
+            q = statistics.quantiles(t, n=10)
+            print(f"{n_map:>7,} {method:<10} {statistics.median(t):>9.3f} {q[0]:>7.3f} {q[-1]:>7.3f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

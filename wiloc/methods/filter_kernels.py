@@ -1,0 +1,171 @@
+"""The CAT-Graph filter's passes over every map node, compiled: one pass each instead of a chain
+of numpy expressions (docs/scaling.md gives the per-frame cost before and after).
+
+``wiloc.methods.catgraph`` and ``wiloc.calibration`` import this module with a filter's first
+frame, so the command line loads no numba. Each kernel's docstring says which piece of the
+filter it computes (docs/catgraph.md, docs/calibration.md) and how its arithmetic relates to the
+plain numpy expression it replaces.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+
+@njit(cache=True, nogil=True)
+def contrast_normalise(row: NDArray[np.float64], half_window: int, sign: float,
+                       out: NDArray[np.float64]) -> bool:
+    """The sequence score's local contrast: ``out`` = each value of ``sign * row`` minus the mean
+    of its +-``half_window`` neighbouring nodes, over their standard deviation (0 where that is
+    within rounding of 0); returns whether every value of ``row`` is finite.
+
+    Means are box means over the row extended by its end values (scipy's
+    ``uniform_filter1d(..., mode="nearest")``, whose running sums and order of operations this
+    repeats: the same values, digit for digit); the std is sqrt(max(mean of squares - mean^2, 0)).
+    Two passes: the running sums (sequential), then the normalisation (vectorised).
+    """
+    n = row.size
+    size = 2 * half_window + 1
+    total = 0.0
+    squares = 0.0
+    for k in range(-half_window, half_window + 1):
+        x = sign * row[min(max(k, 0), n - 1)]
+        total += x
+        squares += x * x
+    square_sums = np.empty(n)
+    out[0], square_sums[0] = total, squares  # out holds the window sums until the second pass
+    for i in range(1, n):
+        new = sign * row[min(i + half_window, n - 1)]
+        old = sign * row[max(i - half_window - 1, 0)]
+        total += new - old
+        squares += new * new - old * old
+        out[i], square_sums[i] = total, squares
+    finite = True
+    for i in range(n):
+        x = sign * row[i]
+        finite &= np.isfinite(x)
+        mean = out[i] / size
+        sd = np.sqrt(max(square_sums[i] / size - mean * mean, 0.0))
+        out[i] = (x - mean) / sd if sd > 1e-6 * abs(mean) and sd > 0 else 0.0
+    return finite
+
+
+@njit(cache=True, nogil=True)
+def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.float64], runs: NDArray[np.intp],
+            contrast: NDArray[np.float64], rate: float, out: NDArray[np.float64],
+            lowest: NDArray[np.float64]) -> None:
+    """The leaky sequence score one frame on, and its minimum over speeds per node.
+
+    ``out`` (speeds x nodes) = ``score`` read where ``catgraph._shifted_reads`` says (flat
+    positions ``at``, fractions ``a``), linearly interpolated (the score ending at node j
+    continues the one that ended a step back), times 1 - rate, plus rate times this frame's
+    ``contrast``: the numpy expression
+    ``(1 - rate) * ((1 - a) * prev[at] + a * prev[at + 1]) + rate * contrast``, value for value.
+    ``runs`` (``catgraph._read_runs``: first, end) are long stretches that read consecutive
+    positions at one fraction, as evenly spaced nodes give: there the loop vectorises.
+    ``lowest[j]`` = ``out[:, j].min()``, the score that re-seeding ranks nodes by.
+    """
+    prev, flat = score.ravel(), out.ravel()
+    n = contrast.size
+    keep = 1.0 - rate
+    k = 0
+    for r in range(runs.shape[0] + 1):
+        end = runs[r, 0] if r < runs.shape[0] else flat.size
+        j = k % n
+        for k in range(k, end):  # uneven reads: one position at a time
+            flat[k] = keep * ((1.0 - a[k]) * prev[at[k]] + a[k] * prev[at[k] + 1]) + rate * contrast[j]
+            j = j + 1 if j + 1 < n else 0
+        if r == runs.shape[0]:
+            break
+        k, end = runs[r, 0], runs[r, 1]
+        length, first, f = end - k, at[k], a[k]
+        here, before, after = flat[k:end], prev[first:first + length], prev[first + 1:first + 1 + length]
+        now = contrast[k % n:k % n + length]
+        for i in range(length):  # plain indices into views: the loop vectorises
+            here[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
+        k = end
+    lowest[:] = out[0]
+    for v in range(1, out.shape[0]):
+        row = out[v]
+        for j in range(n):
+            lowest[j] = min(lowest[j], row[j])
+
+
+@njit(cache=True, nogil=True)
+def locate(nodes: NDArray[np.float64], pos: NDArray[np.float64], j: NDArray[np.intp],
+           frac: NDArray[np.float64]) -> None:
+    """For each particle: ``j``, the node just before it (the last node at or before its position,
+    kept within 0..N - 2), and ``frac``, its fraction of the way to node j + 1 (in [0, 1]; 0 where
+    the two nodes coincide): ``np.searchsorted(nodes, pos, side="right") - 1`` clipped, and
+    ``(pos - nodes[j]) / (nodes[j + 1] - nodes[j])`` clipped, value for value. The node is looked
+    up where even spacing would put it, and searched for only when it is not there."""
+    n = nodes.size
+    spacing = (nodes[n - 1] - nodes[0]) / (n - 1)
+    for p in range(pos.size):
+        x = pos[p]
+        k = min(max(int((x - nodes[0]) / spacing), 0), n - 2) if spacing > 0 else 0
+        if not ((k == 0 or nodes[k] <= x) and (k == n - 2 or x < nodes[k + 1])):
+            k = min(max(np.searchsorted(nodes, x, side="right") - 1, 0), n - 2)
+        gap = nodes[k + 1] - nodes[k]
+        j[p] = k
+        frac[p] = min(max((x - nodes[k]) / gap, 0.0), 1.0) if gap > 0 else 0.0
+
+
+@njit(cache=True, nogil=True)
+def interpolate(values: NDArray[np.float64], j: NDArray[np.intp], frac: NDArray[np.float64],
+                out: NDArray[np.float64]) -> None:
+    """Per-node ``values`` read between nodes j and j + 1: ``(1 - frac) * values[j] + frac *
+    values[j + 1]`` (eq. 8's interpolated observation, or a near-duplicate weight)."""
+    for p in range(j.size):
+        out[p] = (1.0 - frac[p]) * values[j[p]] + frac[p] * values[j[p] + 1]
+
+
+@njit(cache=True, nogil=True)
+def window_mass(own: NDArray[np.float64], half: int, mass: NDArray[np.float64]) -> None:
+    """``mass`` = the posterior weight ``own`` summed within +-``half`` nodes of each node.
+
+    Each window is summed in the order ``np.convolve(own, np.ones(2 half + 1))`` sums it for
+    half <= 2 (from its first node on; on a map shorter than the window, from its last node
+    back): the same values, digit for digit. Inside the map, one shifted pass per window node.
+    """
+    n = own.size
+    inner = n - 2 * half
+    if inner > 0:
+        centre = mass[half:n - half]
+        centre[:] = own[:inner]
+        for k in range(1, 2 * half + 1):
+            shifted = own[k:k + inner]
+            for i in range(inner):  # plain indices into views: the loop vectorises
+                centre[i] += shifted[i]
+        edges = list(range(half)) + list(range(n - half, n))
+    else:
+        edges = list(range(n))
+    for i in edges:  # where the window is cut short
+        total = 0.0
+        if inner > 0:
+            for k in range(max(i - half, 0), min(i + half, n - 1) + 1):
+                total += own[k]
+        else:  # a map shorter than the window: np.convolve sums from the last node back
+            for k in range(min(i + half, n - 1), max(i - half, 0) - 1, -1):
+                total += own[k]
+        mass[i] = total
+
+
+@njit(cache=True, nogil=True)
+def posterior_mode(j: NDArray[np.intp], frac: NDArray[np.float64], w: NDArray[np.float64], half: int,
+                   tie: float, own: NDArray[np.float64], mass: NDArray[np.float64]) -> int:
+    """The read-out of the posterior: ``own`` = the particles' weight per nearest node
+    (``np.bincount(j + (frac >= 0.5), w)``), ``mass`` = its :func:`window_mass`, and the returned
+    mode: among the nodes whose mass is within ``tie`` of the largest, the first of those holding
+    most weight themselves."""
+    own[:] = 0.0
+    for p in range(j.size):
+        own[j[p] + (1 if frac[p] >= 0.5 else 0)] += w[p]
+    window_mass(own, half, mass)
+    top = mass.max()
+    mode = -1
+    for i in range(own.size):
+        if mass[i] >= top - tie and (mode < 0 or own[i] > own[mode]):
+            mode = i
+    return mode
