@@ -38,15 +38,17 @@ from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
 from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, read_gray
 from wiloc.reprs import short_repr
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
-from wiloc.workers import WorkerError, WorkerPool
+from wiloc.workers import WorkerError, WorkerPool, can_fork
 
 if TYPE_CHECKING:
     from wiloc.cluster import Cluster
 
 Progress = Callable[[int, int], None]
 #: Seconds of work left above which this process hands frames to workers: starting 2 workers
-#: (fresh interpreters importing what describing needs) costs about 0.5 s (docs/formats.md).
+#: as fresh interpreters importing what describing needs costs about 0.5 s (docs/formats.md);
+#: forked (wiloc.workers.can_fork) they answer within 10 ms.
 WORKER_START = 0.5
+FORKED_WORKER_START = 0.05
 #: Frames this process times before it estimates the work left.
 ESTIMATE_FRAMES = 8
 #: Frames per round trip to a worker: enough that the round trip costs little even for the
@@ -307,8 +309,8 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: 
     helper thread feeds the workers from `pending` and queues their results, this process
     computes from the same deque and yields both."""
     folder = pending[0][0].parent
-    # Fresh interpreters that import the installed wiloc and never the caller's main module
-    # (wiloc.workers says why not multiprocessing's start methods).
+    # Forked from this process while it runs no other thread, else fresh interpreters; never the
+    # caller's main module (wiloc.workers says why not multiprocessing's start methods).
     pool = WorkerPool(workers, initializer=_init_worker)
     results: queue.Queue = queue.Queue()
 
@@ -377,7 +379,8 @@ def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
     longer than starting `jobs` - 1 workers (judged after ESTIMATE_FRAMES frames)."""
     if jobs == 1 or len(timed) <= ESTIMATE_FRAMES:
         return False
-    return float(np.median(timed[1:])) * left > WORKER_START
+    start = FORKED_WORKER_START if can_fork() else WORKER_START
+    return float(np.median(timed[1:])) * left > start
 
 
 def describe_quietly(spec: DescriptorSpec, tasks: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:
