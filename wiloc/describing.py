@@ -44,13 +44,21 @@ if TYPE_CHECKING:
     from wiloc.cluster import Cluster
 
 Progress = Callable[[int, int], None]
-#: Seconds of work left above which this process hands frames to workers: starting 2 workers
-#: as fresh interpreters importing what describing needs costs about 0.5 s (docs/formats.md);
-#: forked (wiloc.workers.can_fork) they answer within 10 ms.
-WORKER_START = 0.5
-FORKED_WORKER_START = 0.05
-#: Frames this process times before it estimates the work left.
-ESTIMATE_FRAMES = 8
+
+
+@dataclass(frozen=True)
+class WorkerStart:
+    """What starting workers costs: `seconds` of work left above which this process hands frames
+    to them, judged after timing `frames` frames of its own (the first is left out: warm-up)."""
+
+    seconds: float
+    frames: int
+
+
+#: Fresh interpreters importing what describing needs: about 0.5 s for 2 (docs/formats.md).
+FRESH_START = WorkerStart(seconds=0.5, frames=8)
+#: Forked workers (wiloc.workers.can_fork): the first result comes back within 10 ms.
+FORKED_START = WorkerStart(seconds=0.05, frames=2)
 #: Frames per round trip to a worker: enough that the round trip costs little even for the
 #: fastest descriptor, few enough that results stream back (and are journaled) promptly.
 CHUNK = 4
@@ -289,7 +297,7 @@ def _unchanged(path: Path, old: FrameRecord | None) -> bool:
 def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterator[tuple[FrameRecord, bool]]:
     """Settle each task, yielding (record, computed) as results arrive, over `jobs` processes.
     This process computes first; once the frames left would take it longer than starting
-    workers (WORKER_START, by the median time of its frames after the first), `jobs` - 1 workers
+    workers (`WorkerStart`, by the median time of its frames after the first), `jobs` - 1 workers
     start and take frames from the same queue while this process goes on computing."""
     pending = deque(tasks)
     timed: list[float] = []
@@ -376,11 +384,11 @@ def _opencv_threads(count: int) -> Iterator[None]:
 
 def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
     """Whether `left` frames, at the median of this process's frame times so far, would take
-    longer than starting `jobs` - 1 workers (judged after ESTIMATE_FRAMES frames)."""
-    if jobs == 1 or len(timed) <= ESTIMATE_FRAMES:
+    longer than starting `jobs` - 1 workers (FORKED_START or FRESH_START)."""
+    start = FORKED_START if can_fork() else FRESH_START
+    if jobs == 1 or len(timed) <= start.frames:
         return False
-    start = FORKED_WORKER_START if can_fork() else WORKER_START
-    return float(np.median(timed[1:])) * left > start
+    return float(np.median(timed[1:])) * left > start.seconds
 
 
 def describe_quietly(spec: DescriptorSpec, tasks: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:
