@@ -59,9 +59,12 @@ class WorkerStart:
 FRESH_START = WorkerStart(seconds=0.5, frames=8)
 #: Forked workers (wiloc.workers.can_fork): the first result comes back within 10 ms.
 FORKED_START = WorkerStart(seconds=0.05, frames=2)
-#: Frames per round trip to a worker: enough that the round trip costs little even for the
-#: fastest descriptor, few enough that results stream back (and are journaled) promptly.
-CHUNK = 4
+#: Seconds of work per round trip to a worker (by this process's median frame time; at least one
+#: frame, at most MAX_CHUNK): enough that the round trip costs little even for the fastest
+#: descriptor (sad: 4-6 frames), little enough that results stream back (and are journaled)
+#: promptly and that this process seldom waits long for a worker's last frames (gist: 1).
+CHUNK_SECONDS = 0.008
+MAX_CHUNK = 16
 _Task = tuple[Path, FrameRecord | None]
 #: In a worker process: a descriptor open on /dev/null, where its image decoders' stderr goes.
 _devnull: int | None = None
@@ -308,14 +311,16 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterato
             timed.append(time.perf_counter() - started)
             yield record
         if pending:
+            chunk = min(MAX_CHUNK, max(1, round(CHUNK_SECONDS / float(np.median(timed[1:])))))
             with _opencv_threads(1):
-                yield from _compute_with_workers(spec, pending, jobs - 1)
+                yield from _compute_with_workers(spec, pending, jobs - 1, chunk)
 
 
-def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: int) -> Iterator[tuple[FrameRecord, bool]]:
+def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: int,
+                          chunk: int) -> Iterator[tuple[FrameRecord, bool]]:
     """The pending tasks settled by this process and `workers` worker processes together: a
-    helper thread feeds the workers from `pending` and queues their results, this process
-    computes from the same deque and yields both."""
+    helper thread feeds the workers from `pending`, `chunk` tasks at a time, and queues their
+    results; this process computes from the same deque and yields both."""
     folder = pending[0][0].parent
     # Forked from this process while it runs no other thread, else fresh interpreters; never the
     # caller's main module (wiloc.workers says why not multiprocessing's start methods).
@@ -328,7 +333,7 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: 
 
     def drive() -> None:
         try:
-            for result in pool.imap_unordered(partial(_describe_one, spec), take(), chunksize=CHUNK):
+            for result in pool.imap_unordered(partial(_describe_one, spec), take(), chunksize=chunk):
                 results.put(result)
             results.put(None)
         except BaseException as exc:  # raised in this process by the loop below
