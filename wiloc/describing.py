@@ -13,7 +13,7 @@ import queue
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from functools import partial
@@ -240,10 +240,14 @@ def _locked_entry(cache: Cache, header: EntryHeader) -> Iterator[StoredEntry]:
         yield stored
 
 
-def _journal(cache: Cache, stored: StoredEntry, results: Iterable[tuple[FrameRecord, bool]], done: int,
+def _journal(cache: Cache, stored: StoredEntry, results: Iterator[tuple[FrameRecord, bool]], done: int,
              total: int | None, progress: Progress | None) -> int:
     """Journal each settled frame the moment it arrives and add it to `stored`; returns how many
-    descriptors were computed. The journal is opened on the first result: no result, no file."""
+    descriptors were computed. The journal is opened on the first result: no result, no file.
+    A generator `results` is closed on the way out, whatever ends the loop: an interrupt landing
+    here rather than in the generator stops its workers now (left to the garbage collector, they
+    were stopped only as the interpreter exited, where the helper thread no longer runs: a 60 s
+    hang)."""
     journal = None
     computed = 0
     try:
@@ -257,6 +261,8 @@ def _journal(cache: Cache, stored: StoredEntry, results: Iterable[tuple[FrameRec
             if progress is not None:
                 progress(done, max(done, total or 0))
     finally:
+        if isinstance(results, Generator):
+            results.close()
         if journal is not None:
             journal.close()
     return computed
@@ -355,16 +361,18 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: 
                 if not finished:
                     yield item
     except WorkerError as exc:
-        pool.terminate()
+        pool.kill()
         names = ", ".join(path.name for path, _ in exc.items)
         raise WilocError(folder, f"{exc.problem} while describing {names}") from None
     except BaseException:
-        pool.terminate()  # an interrupted run keeps what was journaled; in-flight work is lost
+        pool.kill()  # an interrupted run keeps what was journaled; in-flight work is lost
         raise
     finally:
-        driver.join(timeout=60)
-    pool.close()
-    pool.join()
+        # The helper thread ends once every worker has answered or died. Only then are the pipes
+        # closed: closing one the thread waits on (epoll) would leave it waiting forever.
+        driver.join()
+        pool.close()
+        pool.join()
 
 
 def _take(pending: deque[_Task]) -> _Task | None:

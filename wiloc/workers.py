@@ -153,8 +153,9 @@ class _Forked:
 
 class WorkerPool:
     """``processes`` worker processes, each started with ``initializer()``; the calls of
-    multiprocessing's Pool that wiloc uses (imap_unordered, close, join, terminate). The workers
-    are forked when this process runs no other thread (:attr:`forked`), else fresh interpreters."""
+    multiprocessing's Pool that wiloc uses (imap_unordered, close, join, terminate), and kill.
+    The workers are forked when this process runs no other thread (:attr:`forked`), else fresh
+    interpreters."""
 
     def __init__(self, processes: int, initializer: Callable[[], None] | None = None) -> None:
         self.forked = can_fork()
@@ -221,10 +222,17 @@ class WorkerPool:
             worker.wait()
             worker.stdout.close()
 
-    def terminate(self) -> None:
-        """Stop the workers now; work in flight is lost."""
+    def kill(self) -> None:
+        """SIGKILL every worker; their pipes stay open, so that a thread waiting on them in
+        :meth:`imap_unordered` sees them end (and raises WorkerError). Then :meth:`close` and
+        :meth:`join`."""
         for worker in self._workers:
             worker.kill()
+
+    def terminate(self) -> None:
+        """Stop the workers now (from the thread that reads them, or with none reading); work in
+        flight is lost."""
+        self.kill()
         self.close()
         self.join()
 
