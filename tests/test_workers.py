@@ -7,14 +7,13 @@ import os
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from wiloc.workers import WorkerError, WorkerPool
+from wiloc.workers import WorkerError, WorkerPool, can_fork
 
 TIMEOUT = 120  # seconds; a hang fails the test instead of the suite
 
@@ -28,26 +27,32 @@ def _folder(path: Path, n: int = 12) -> Path:
 
 
 @pytest.fixture(params=["forked", "fresh"])
-def start(request: pytest.FixtureRequest) -> Iterator[str]:
-    """How the pools of a test start their workers: forked, or (while another thread runs here)
-    as fresh interpreters."""
-    if request.param == "forked":
-        yield request.param
-        return
+def start(request: pytest.FixtureRequest) -> str:
+    """How the pools of a test start their workers."""
+    return request.param
+
+
+def _pool(processes: int, start: str) -> WorkerPool:
+    pool = WorkerPool(processes, fork=start == "forked")
+    assert pool.forked == (start == "forked")
+    return pool
+
+
+def test_workers_are_forked_only_while_no_other_thread_runs() -> None:
     stop = threading.Event()
     other = threading.Thread(target=stop.wait)
     other.start()
     try:
-        yield request.param
+        assert not can_fork()
+        pool = WorkerPool(1)
+        try:
+            assert not pool.forked
+            assert list(pool.imap_unordered(abs, [-2])) == [2]
+        finally:
+            pool.terminate()
     finally:
         stop.set()
         other.join()
-
-
-def _pool(processes: int, start: str) -> WorkerPool:
-    pool = WorkerPool(processes)
-    assert pool.forked == (start == "forked")
-    return pool
 
 
 #: Prepended to the scripts below: the caller runs another thread, so its workers are fresh

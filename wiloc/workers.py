@@ -24,6 +24,7 @@ import struct
 import subprocess
 import sys
 import threading
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from itertools import islice
 from typing import Any, BinaryIO, Protocol
@@ -119,7 +120,9 @@ class _Forked:
         for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
             if stream is not None:
                 stream.flush()
-        pid = os.fork()
+        with warnings.catch_warnings():  # Python 3.12+ warns of native threads too (can_fork)
+            warnings.filterwarnings("ignore", r".*use of fork\(\) may lead to deadlocks", DeprecationWarning)
+            pid = os.fork()
         if pid == 0:  # pragma: no cover - the child process
             code = 1
             try:
@@ -154,11 +157,12 @@ class _Forked:
 class WorkerPool:
     """``processes`` worker processes, each started with ``initializer()``; the calls of
     multiprocessing's Pool that wiloc uses (imap_unordered, close, join, terminate), and kill.
-    The workers are forked when this process runs no other thread (:attr:`forked`), else fresh
-    interpreters."""
+    The workers are forked when ``fork`` says so, by default when :func:`can_fork` (:attr:`forked`),
+    else fresh interpreters."""
 
-    def __init__(self, processes: int, initializer: Callable[[], None] | None = None) -> None:
-        self.forked = can_fork()
+    def __init__(self, processes: int, initializer: Callable[[], None] | None = None,
+                 fork: bool | None = None) -> None:
+        self.forked = can_fork() if fork is None else fork
         boot = _BOOT.format(path=[os.path.abspath(p) for p in sys.path], init=wiloc.__file__,
                             package=wiloc.__path__[0])
         self._workers: list[_Worker] = []
@@ -238,9 +242,11 @@ class WorkerPool:
 
 
 def can_fork() -> bool:
-    """Whether workers can be forked safely: on a system with ``fork``, while this process runs no
-    thread but the calling one (another thread may hold a lock the child would wait on forever)."""
-    return hasattr(os, "fork") and threading.active_count() == 1
+    """Whether workers can be forked safely: on Linux (macOS's system libraries are not fork-safe),
+    while this process runs no Python thread but the calling one (another thread may hold a lock
+    the child would wait on forever). Native threads of numpy's BLAS and OpenCV are idle there:
+    OpenBLAS stops its own at a fork, OpenCV runs on one thread while workers run."""
+    return sys.platform == "linux" and threading.active_count() == 1
 
 
 def _how(code: int) -> str:
