@@ -13,7 +13,7 @@ import queue
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from functools import partial
@@ -38,20 +38,33 @@ from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
 from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, read_gray
 from wiloc.reprs import short_repr
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
-from wiloc.workers import WorkerError, WorkerPool
+from wiloc.workers import WorkerError, WorkerPool, can_fork
 
 if TYPE_CHECKING:
     from wiloc.cluster import Cluster
 
 Progress = Callable[[int, int], None]
-#: Seconds of work left above which this process hands frames to workers: starting 2 workers
-#: (fresh interpreters importing what describing needs) costs about 0.5 s (docs/formats.md).
-WORKER_START = 0.5
-#: Frames this process times before it estimates the work left.
-ESTIMATE_FRAMES = 8
-#: Frames per round trip to a worker: enough that the round trip costs little even for the
-#: fastest descriptor, few enough that results stream back (and are journaled) promptly.
-CHUNK = 4
+
+
+@dataclass(frozen=True)
+class WorkerStart:
+    """What starting workers costs: `seconds` of work left above which this process hands frames
+    to them, judged after timing `frames` frames of its own (the first is left out: warm-up)."""
+
+    seconds: float
+    frames: int
+
+
+#: Fresh interpreters importing what describing needs: about 0.5 s for 2 (docs/formats.md).
+FRESH_START = WorkerStart(seconds=0.5, frames=8)
+#: Forked workers (wiloc.workers.can_fork): the first result comes back within 10 ms.
+FORKED_START = WorkerStart(seconds=0.05, frames=2)
+#: Seconds of work per round trip to a worker (by this process's median frame time; at least one
+#: frame, at most MAX_CHUNK): enough that the round trip costs little even for the fastest
+#: descriptor (sad: 4-6 frames), little enough that results stream back (and are journaled)
+#: promptly and that this process seldom waits long for a worker's last frames (gist: 1).
+CHUNK_SECONDS = 0.008
+MAX_CHUNK = 16
 _Task = tuple[Path, FrameRecord | None]
 #: In a worker process: a descriptor open on /dev/null, where its image decoders' stderr goes.
 _devnull: int | None = None
@@ -227,10 +240,14 @@ def _locked_entry(cache: Cache, header: EntryHeader) -> Iterator[StoredEntry]:
         yield stored
 
 
-def _journal(cache: Cache, stored: StoredEntry, results: Iterable[tuple[FrameRecord, bool]], done: int,
+def _journal(cache: Cache, stored: StoredEntry, results: Iterator[tuple[FrameRecord, bool]], done: int,
              total: int | None, progress: Progress | None) -> int:
     """Journal each settled frame the moment it arrives and add it to `stored`; returns how many
-    descriptors were computed. The journal is opened on the first result: no result, no file."""
+    descriptors were computed. The journal is opened on the first result: no result, no file.
+    A generator `results` is closed on the way out, whatever ends the loop: an interrupt landing
+    here rather than in the generator stops its workers now (left to the garbage collector, they
+    were stopped only as the interpreter exited, where the helper thread no longer runs: a 60 s
+    hang)."""
     journal = None
     computed = 0
     try:
@@ -244,6 +261,8 @@ def _journal(cache: Cache, stored: StoredEntry, results: Iterable[tuple[FrameRec
             if progress is not None:
                 progress(done, max(done, total or 0))
     finally:
+        if isinstance(results, Generator):
+            results.close()
         if journal is not None:
             journal.close()
     return computed
@@ -287,7 +306,7 @@ def _unchanged(path: Path, old: FrameRecord | None) -> bool:
 def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterator[tuple[FrameRecord, bool]]:
     """Settle each task, yielding (record, computed) as results arrive, over `jobs` processes.
     This process computes first; once the frames left would take it longer than starting
-    workers (WORKER_START, by the median time of its frames after the first), `jobs` - 1 workers
+    workers (`WorkerStart`, by the median time of its frames after the first), `jobs` - 1 workers
     start and take frames from the same queue while this process goes on computing."""
     pending = deque(tasks)
     timed: list[float] = []
@@ -298,17 +317,19 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterato
             timed.append(time.perf_counter() - started)
             yield record
         if pending:
+            chunk = min(MAX_CHUNK, max(1, round(CHUNK_SECONDS / float(np.median(timed[1:])))))
             with _opencv_threads(1):
-                yield from _compute_with_workers(spec, pending, jobs - 1)
+                yield from _compute_with_workers(spec, pending, jobs - 1, chunk)
 
 
-def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: int) -> Iterator[tuple[FrameRecord, bool]]:
+def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: int,
+                          chunk: int) -> Iterator[tuple[FrameRecord, bool]]:
     """The pending tasks settled by this process and `workers` worker processes together: a
-    helper thread feeds the workers from `pending` and queues their results, this process
-    computes from the same deque and yields both."""
+    helper thread feeds the workers from `pending`, `chunk` tasks at a time, and queues their
+    results; this process computes from the same deque and yields both."""
     folder = pending[0][0].parent
-    # Fresh interpreters that import the installed wiloc and never the caller's main module
-    # (wiloc.workers says why not multiprocessing's start methods).
+    # Forked from this process while it runs no other thread, else fresh interpreters; never the
+    # caller's main module (wiloc.workers says why not multiprocessing's start methods).
     pool = WorkerPool(workers, initializer=_init_worker)
     results: queue.Queue = queue.Queue()
 
@@ -318,7 +339,7 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: 
 
     def drive() -> None:
         try:
-            for result in pool.imap_unordered(partial(_describe_one, spec), take(), chunksize=CHUNK):
+            for result in pool.imap_unordered(partial(_describe_one, spec), take(), chunksize=chunk):
                 results.put(result)
             results.put(None)
         except BaseException as exc:  # raised in this process by the loop below
@@ -340,16 +361,18 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: 
                 if not finished:
                     yield item
     except WorkerError as exc:
-        pool.terminate()
+        pool.kill()
         names = ", ".join(path.name for path, _ in exc.items)
         raise WilocError(folder, f"{exc.problem} while describing {names}") from None
     except BaseException:
-        pool.terminate()  # an interrupted run keeps what was journaled; in-flight work is lost
+        pool.kill()  # an interrupted run keeps what was journaled; in-flight work is lost
         raise
     finally:
-        driver.join(timeout=60)
-    pool.close()
-    pool.join()
+        # The helper thread ends once every worker has answered or died. Only then are the pipes
+        # closed: closing one the thread waits on (epoll) would leave it waiting forever.
+        driver.join()
+        pool.close()
+        pool.join()
 
 
 def _take(pending: deque[_Task]) -> _Task | None:
@@ -374,10 +397,11 @@ def _opencv_threads(count: int) -> Iterator[None]:
 
 def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
     """Whether `left` frames, at the median of this process's frame times so far, would take
-    longer than starting `jobs` - 1 workers (judged after ESTIMATE_FRAMES frames)."""
-    if jobs == 1 or len(timed) <= ESTIMATE_FRAMES:
+    longer than starting `jobs` - 1 workers (FORKED_START or FRESH_START)."""
+    start = FORKED_START if can_fork() else FRESH_START
+    if jobs == 1 or len(timed) <= start.frames:
         return False
-    return float(np.median(timed[1:])) * left > WORKER_START
+    return float(np.median(timed[1:])) * left > start.seconds
 
 
 def describe_quietly(spec: DescriptorSpec, tasks: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:

@@ -1,4 +1,4 @@
-"""Worker processes that import the wiloc the caller imported, whatever the current folder, and
+"""Worker processes that run the wiloc the caller imported, whatever the current folder, and
 never run the caller's main module.
 
 multiprocessing's ``spawn`` and ``forkserver`` methods run the caller's main script again in
@@ -6,23 +6,28 @@ every worker (a script without an ``if __name__ == "__main__":`` guard then star
 its workers, and hangs), and the fork server resolves imports against the current folder (a
 folder named ``wiloc`` there was imported instead of the installed package, and hung the pool).
 ``fork`` avoids both but copies a parent that may run threads (a progress display, the caller's
-own), whose locks then stay held in the child. A :class:`WorkerPool` starts each worker as a
-fresh ``python -c BOOT``: BOOT ignores Ctrl-C (the parent stops the workers), sets the module
-search path to the caller's, loads the ``wiloc`` package from the very folder the caller loaded
-it from, and runs :func:`serve`, which answers calls sent over the worker's stdin and stdout as
-length-prefixed pickles. A worker that dies makes the pool raise at once.
+own), whose locks then stay held in the child. So a :class:`WorkerPool` forks its workers only
+while the calling process runs no other thread: a forked worker has everything imported already
+and answers within milliseconds. Otherwise it starts each worker as a fresh ``python -c BOOT``
+(about 0.25 CPU-s of imports): BOOT sets the module search path to the caller's, loads the
+``wiloc`` package from the very folder the caller loaded it from, and runs :func:`serve`. Either
+way a worker ignores Ctrl-C (the parent stops the workers) and answers calls sent over a pair
+of pipes as length-prefixed pickles; a worker that dies makes the pool raise at once.
 """
 from __future__ import annotations
 
 import os
 import pickle
 import selectors
+import signal
 import struct
 import subprocess
 import sys
+import threading
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from itertools import islice
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, Protocol
 
 import wiloc
 from wiloc.errors import WilocError
@@ -70,7 +75,9 @@ def serve() -> None:
     pipes are moved off descriptors 0 and 1 first, so that whatever prints goes to stderr."""
     inbox = os.fdopen(os.dup(0), "rb")
     outbox = os.fdopen(os.dup(1), "wb")
-    os.dup2(os.open(os.devnull, os.O_RDONLY), 0)
+    devnull = os.open(os.devnull, os.O_RDONLY)
+    os.dup2(devnull, 0)
+    os.close(devnull)
     os.dup2(2, 1)
     try:
         initializer = _receive(inbox)
@@ -90,18 +97,79 @@ def serve() -> None:
         pass
 
 
+class _Worker(Protocol):
+    """What the pool uses of a worker process (a ``subprocess.Popen`` or a :class:`_Forked`)."""
+
+    stdin: BinaryIO
+    stdout: BinaryIO
+
+    def wait(self) -> int: ...
+
+    def kill(self) -> None: ...
+
+
+class _Forked:
+    """A worker forked from this process, with the parts of ``subprocess.Popen`` the pool uses.
+    The child keeps only its two pipes (on descriptors 0 and 1) and stderr, ignores Ctrl-C, runs
+    :func:`serve` and leaves with ``os._exit``: none of the parent's exit handlers, finalizers
+    or buffered output run in it."""
+
+    def __init__(self) -> None:
+        down_read, down_write = os.pipe()
+        up_read, up_write = os.pipe()
+        for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
+            if stream is not None:
+                stream.flush()
+        with warnings.catch_warnings():  # Python 3.12+ warns of native threads too (can_fork)
+            warnings.filterwarnings("ignore", r".*use of fork\(\) may lead to deadlocks", DeprecationWarning)
+            pid = os.fork()
+        if pid == 0:  # pragma: no cover - the child process
+            code = 1
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+                os.dup2(down_read, 0)
+                os.dup2(up_write, 1)
+                os.closerange(3, os.sysconf("SC_OPEN_MAX"))  # other workers' pipes, the cache's locks
+                serve()
+                code = 0
+            finally:
+                os._exit(code)
+        os.close(down_read)
+        os.close(up_write)
+        self.pid = pid
+        self.returncode: int | None = None
+        self.stdin = os.fdopen(down_write, "wb")
+        self.stdout = os.fdopen(up_read, "rb")
+
+    def wait(self) -> int:
+        """The exit code, negative for a signal (as ``Popen.wait``), once the child has ended."""
+        if self.returncode is None:
+            _, status = os.waitpid(self.pid, 0)
+            self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def kill(self) -> None:
+        """SIGKILL, unless the child has been waited for already."""
+        if self.returncode is None:
+            os.kill(self.pid, signal.SIGKILL)
+
+
 class WorkerPool:
     """``processes`` worker processes, each started with ``initializer()``; the calls of
-    multiprocessing's Pool that wiloc uses (imap_unordered, close, join, terminate)."""
+    multiprocessing's Pool that wiloc uses (imap_unordered, close, join, terminate), and kill.
+    The workers are forked when ``fork`` says so, by default when :func:`can_fork` (:attr:`forked`),
+    else fresh interpreters."""
 
-    def __init__(self, processes: int, initializer: Callable[[], None] | None = None) -> None:
+    def __init__(self, processes: int, initializer: Callable[[], None] | None = None,
+                 fork: bool | None = None) -> None:
+        self.forked = can_fork() if fork is None else fork
         boot = _BOOT.format(path=[os.path.abspath(p) for p in sys.path], init=wiloc.__file__,
                             package=wiloc.__path__[0])
-        self._workers: list[subprocess.Popen[bytes]] = []
+        self._workers: list[_Worker] = []
         try:
             for _ in range(processes):
-                worker = subprocess.Popen([sys.executable, "-c", boot], stdin=subprocess.PIPE,
-                                          stdout=subprocess.PIPE)
+                worker: _Worker = _Forked() if self.forked else subprocess.Popen(
+                    [sys.executable, "-c", boot], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
                 self._workers.append(worker)
                 self._post(worker, initializer, [])
         except BaseException:
@@ -109,7 +177,7 @@ class WorkerPool:
             raise
 
     @staticmethod
-    def _post(worker: subprocess.Popen[bytes], message: Any, items: list[Any]) -> None:
+    def _post(worker: _Worker, message: Any, items: list[Any]) -> None:
         try:
             _send(worker.stdin, message)
         except BrokenPipeError:
@@ -120,9 +188,9 @@ class WorkerPool:
         yielded as the chunks come back. A worker's exception is raised here; a worker that
         ends without answering raises WorkerError."""
         pending = iter(items)
-        busy: dict[subprocess.Popen[bytes], list[Any]] = {}
+        busy: dict[_Worker, list[Any]] = {}
         with selectors.DefaultSelector() as selector:
-            def give(worker: subprocess.Popen[bytes]) -> None:
+            def give(worker: _Worker) -> None:
                 chunk = list(islice(pending, chunksize))
                 if chunk:
                     busy[worker] = chunk
@@ -158,12 +226,27 @@ class WorkerPool:
             worker.wait()
             worker.stdout.close()
 
-    def terminate(self) -> None:
-        """Stop the workers now; work in flight is lost."""
+    def kill(self) -> None:
+        """SIGKILL every worker; their pipes stay open, so that a thread waiting on them in
+        :meth:`imap_unordered` sees them end (and raises WorkerError). Then :meth:`close` and
+        :meth:`join`."""
         for worker in self._workers:
             worker.kill()
+
+    def terminate(self) -> None:
+        """Stop the workers now (from the thread that reads them, or with none reading); work in
+        flight is lost."""
+        self.kill()
         self.close()
         self.join()
+
+
+def can_fork() -> bool:
+    """Whether workers can be forked safely: on Linux (macOS's system libraries are not fork-safe),
+    while this process runs no Python thread but the calling one (another thread may hold a lock
+    the child would wait on forever). Native threads of numpy's BLAS and OpenCV are idle there:
+    OpenBLAS stops its own at a fork, OpenCV runs on one thread while workers run."""
+    return sys.platform == "linux" and threading.active_count() == 1
 
 
 def _how(code: int) -> str:
