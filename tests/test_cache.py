@@ -202,3 +202,13 @@ def test_timestamps_round_trip_through_journal_and_file(tmp_path: Path) -> None:
     cache.write_entry(images, complete=True)
     with h5py.File(cache.entry_path(images.header.key), "r") as f:
         assert np.isnan(f["frames/timestamp_ms"][()]).all()
+
+
+def test_list_entries_skips_a_journal_a_run_has_only_just_opened(tmp_path: Path) -> None:
+    """A describe run creates its journal before writing the header: a listing at that moment
+    neither fails nor shows an entry."""
+    cache = Cache(tmp_path / "c")
+    good = StoredEntry(_header(), {"a.png": _record("a.png", 1.0)})
+    cache.write_entry(good, complete=True)
+    cache.journal_path("0newnewnewnewnewnewnewne").write_bytes(b"")
+    assert [info.key for info in cache.list_entries()] == [good.header.key]

@@ -531,15 +531,18 @@ class Cache:
                 updated=updated.isoformat(timespec="seconds"),
             )
             try:
-                info = self._entry_info(info, with_journal=self.journal_path(key) in stats)
+                filled = self._entry_info(info, with_journal=self.journal_path(key) in stats)
             except WilocError as exc:
-                info = replace(info, problem=str(exc))
-            infos.append(info)
+                filled = replace(info, problem=str(exc))
+            if filled is not None:
+                infos.append(filled)
         return infos
 
-    def _entry_info(self, info: EntryInfo, with_journal: bool) -> EntryInfo:
-        """`info` filled in from the entry's files; WilocError naming the file if unreadable."""
+    def _entry_info(self, info: EntryInfo, with_journal: bool) -> EntryInfo | None:
+        """`info` filled in from the entry's files; None while a run has only opened its journal
+        (no header written yet: nothing to list); WilocError naming the file if unreadable."""
         path = self.entry_path(info.key)
+        header = None
         if path.exists():
             try:
                 with h5py.File(path, "r") as f:
@@ -552,6 +555,8 @@ class Cache:
         if stored is not None:  # a killed run's journal adds frames
             header, complete = stored.header, stored.complete
             frames = sum(r.row is not None for r in stored.records.values())
+        if header is None:
+            return None
         return replace(info, folder=header.folder, descriptor=header.descriptor,
                        params=header.params, frames=frames, complete=complete)
 
