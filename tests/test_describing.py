@@ -223,16 +223,10 @@ def test_missing_folder_and_bad_jobs_are_user_errors(tmp_path: Path) -> None:
 
 
 
-@pytest.mark.parametrize(("sig", "jobs"), [(signal.SIGKILL, 1), (signal.SIGINT, 2)])
-def test_interrupted_describe_resumes(tmp_path: Path, sig: signal.Signals, jobs: int) -> None:
-    from wiloc.descriptors.registry import get_descriptor
-
-    folder = tmp_path / "route"
-    count = 32
-    write_images(folder, count)
-    cache = Cache(tmp_path / "cache")
-    run = subprocess.Popen([sys.executable, "-c", _RUN, str(folder), str(cache.root), str(jobs)],
-                           stderr=subprocess.PIPE)
+def interrupt_after_six_frames(args: list[str], cache: Cache, sig: signal.Signals) -> subprocess.Popen:
+    """Run ``python -c args...`` (a describe into ``cache``), send ``sig`` once the cache holds 6
+    described frames, and return the ended process."""
+    run = subprocess.Popen([sys.executable, "-c", *args], stderr=subprocess.PIPE)
     finished = 0
     deadline = time.monotonic() + 120
     while finished < 6 and run.poll() is None and time.monotonic() < deadline:
@@ -241,6 +235,18 @@ def test_interrupted_describe_resumes(tmp_path: Path, sig: signal.Signals, jobs:
     assert run.poll() is None, "describe ended before it could be interrupted"
     run.send_signal(sig)
     run.wait(timeout=60)
+    return run
+
+
+@pytest.mark.parametrize(("sig", "jobs"), [(signal.SIGKILL, 1), (signal.SIGINT, 2)])
+def test_interrupted_describe_resumes(tmp_path: Path, sig: signal.Signals, jobs: int) -> None:
+    from wiloc.descriptors.registry import get_descriptor
+
+    folder = tmp_path / "route"
+    count = 32
+    write_images(folder, count)
+    cache = Cache(tmp_path / "cache")
+    run = interrupt_after_six_frames([_RUN, str(folder), str(cache.root), str(jobs)], cache, sig)
     assert run.returncode != 0
 
     for path in cache.root.rglob("*.h5"):

@@ -6,14 +6,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import cv2
 import h5py
 import numpy as np
 import pytest
-from test_describing import FakeSpec
+from test_describing import FakeSpec, interrupt_after_six_frames
 from typer.testing import CliRunner
 
 from wiloc import api
@@ -184,15 +183,7 @@ def test_killed_describe_resumes_with_what_is_missing(tmp_path: Path) -> None:
     video = write_video(tmp_path / "route.avi", 96, size=(160, 120))
     count = 48
     cache = Cache(tmp_path / "cache")
-    run = subprocess.Popen([sys.executable, "-c", _RUN, str(video), str(cache.root)], stderr=subprocess.PIPE)
-    finished = 0
-    deadline = time.monotonic() + 120
-    while finished < 6 and run.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.05)
-        finished = sum(info.frames for info in cache.list_entries())
-    assert run.poll() is None, "describe ended before it could be killed"
-    run.send_signal(signal.SIGKILL)
-    run.wait(timeout=60)
+    run = interrupt_after_six_frames([_RUN, str(video), str(cache.root)], cache, signal.SIGKILL)
     assert run.returncode == -signal.SIGKILL
     [info] = cache.list_entries()
     assert not info.complete and 6 <= info.frames < count
