@@ -22,7 +22,8 @@ from typing import Any
 
 from rich.console import Console
 
-from wiloc import api, plots
+from wiloc import api, plots, run_figures
+from wiloc.cache import Cache
 from wiloc.cli_views import progress_bar, table1_view, table2_view
 from wiloc.errors import WilocError
 
@@ -92,7 +93,9 @@ def run_experiment(experiment: Experiment, out: Path) -> dict[str, Any]:
              plots.plot_pr(api.pr_series(comparison), out / "pr.png",
                            title=f"{experiment.name}: precision-recall"),
              plots.plot_reliability(api.reliability_series(comparison.evaluations), out / "reliability.png",
-                                    title=f"{experiment.name}: reliability of the confidences")]
+                                    title=f"{experiment.name}: reliability of the confidences"),
+             *run_plots(next(e for e in reversed(comparison.evaluations) if e.method == "catgraph"), out,
+                        experiment.name)]
     summary = _finite({"experiment": experiment.name, "map": experiment.reference.name,
                "queries": [q.name for q in experiment.queries], "descriptors": experiment.descriptors,
                "ground_truth": f"aligned, +-{experiment.tolerance} frames",
@@ -108,6 +111,17 @@ def run_experiment(experiment: Experiment, out: Path) -> dict[str, Any]:
     for path in [out / "summary.json", *files, out / "results"]:
         console.print(f"wrote {path}")
     return summary
+
+
+def run_plots(evaluation: api.Evaluation, out: Path, name: str) -> list[Path]:
+    """One run's difference matrix (decided matches and ground truth over it) and its most
+    confident right and wrong matches as image pairs."""
+    picture = run_figures.matrix_picture(evaluation, Cache())
+    return [plots.plot_matrix(picture, out / "matrix.png", title=(
+                f"{name}: {evaluation.method} on {picture.query} against {picture.reference}, differences, "
+                "decided matches and ground truth")),
+            plots.plot_pairs(run_figures.example_pairs(evaluation), out / "pairs.png", title=(
+                f"{name}: {evaluation.method} on {evaluation.traversal}, the most confident right and wrong matches"))]
 
 
 def _finite(value: Any) -> Any:
@@ -127,13 +141,14 @@ def _percent(value: float | None) -> str:
 
 def render_markdown(summary: dict[str, Any]) -> str:
     """Table I and Table II of a summary as the markdown pasted in docs/results.md."""
-    lines = ["| method | traversal | recall @100 % | @99 % | @90 % | AUC | R@1 | frames |",
-             "|---|---|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| method | traversal | recall @100 % | @99 % | @90 % | AUC | R@1 | R@5 | R@10 | frames |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for row in summary["table1"]:
         auc = "-" if row["auc"] is None else f"{row['auc']:.3f}"
         lines.append(f"| {row['method']} | {row['traversal']} | {_percent(row['recall_at_100'])} | "
                      f"{_percent(row['recall_at_99'])} | {_percent(row['recall_at_90'])} | {auc} | "
-                     f"{_percent(row['recall_at_1'])} | {row['frames']} |")
+                     f"{_percent(row['recall_at_1'])} | {_percent(row.get('recall_at_5'))} | "
+                     f"{_percent(row.get('recall_at_10'))} | {row['frames']} |")
     lines += ["", "| method | precision | global threshold | traversal | recall | worst |",
               "|---|---:|---:|---|---:|:---:|"]
     for row in summary["table2"]:
@@ -169,7 +184,7 @@ def block_in(text: str, name: str) -> str:
 
 
 def update_docs(summary: dict[str, Any], out: Path, markdown: str | None = None,
-                plots: Sequence[str] = ("threshold", "model", "pr", "reliability")) -> None:
+                plots: Sequence[str] = ("threshold", "model", "pr", "reliability", "matrix", "pairs")) -> None:
     """Rewrite the example's block in docs/results.md (``markdown``, default: the protocol's
     tables) and copy its plots to docs/img/."""
     name = summary["experiment"]
