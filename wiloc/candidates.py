@@ -50,8 +50,11 @@ def best_candidates(row: NDArray[np.float64], k: int = RANKED, *, descending: bo
     :func:`finite_minimum`'s argmin. Entries that are no candidate (infinite, NaN) are never
     ranked; a row with fewer candidates gives fewer positions."""
     score = -row if descending else row
-    ranked = np.flatnonzero(np.isfinite(score))
-    if ranked.size > k:
-        values = score[ranked]
-        ranked = ranked[values <= np.partition(values, k - 1)[k - 1]]  # the k best, and any tied with the k-th
+    kth = np.partition(score, k - 1)[k - 1] if score.size > k else np.nan  # NaN and +inf sort last
+    ranked = np.flatnonzero(score <= kth)  # the k best and any tied with the k-th (none if kth is NaN)
+    if not (np.isfinite(kth) and np.isfinite(score[ranked]).all()):  # fewer than k candidates, or a -inf
+        ranked = np.flatnonzero(np.isfinite(score))
+        if ranked.size > k:
+            values = score[ranked]
+            ranked = ranked[values <= np.partition(values, k - 1)[k - 1]]
     return ranked[np.argsort(score[ranked], kind="stable")][:k].astype(np.int64)
