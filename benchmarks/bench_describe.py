@@ -18,6 +18,7 @@ from wiloc.cache import Cache
 from wiloc.describing import describe_folder
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.frames import list_traversal
+from wiloc.workers import keeping_pools
 
 TRAVERSALS = ("day_left", "day_right", "night_right")
 DESCRIPTORS = ("sad", "gist", "brisk-gist")
@@ -47,7 +48,8 @@ def describe_rate(name: str, folders: list[Path]) -> tuple[int, float]:
     with tempfile.TemporaryDirectory() as temp:
         cache = Cache(Path(temp))
         start = time.perf_counter()
-        computed = sum(describe_folder(folder, spec, cache).computed for folder in folders)
+        with keeping_pools():  # one set of workers for all folders, as one `wiloc describe` call
+            computed = sum(describe_folder(folder, spec, cache).computed for folder in folders)
         return computed, computed / (time.perf_counter() - start)
 
 
