@@ -62,10 +62,10 @@ FORKED_START = WorkerStart(seconds=0.05, frames=2)
 #: Workers kept running from the previous folder (wiloc.workers.keeping_pools): nothing to start;
 #: two frames timed here give the median that sizes their batches.
 KEPT_START = WorkerStart(seconds=0.0, frames=1)
-#: Seconds of work per round trip to a worker (by this process's median frame time; at least one
-#: frame, at most MAX_CHUNK): enough that the round trip costs little even for the fastest
+#: Seconds of work per batch sent to a worker (by this process's median frame time; at least one
+#: frame, at most MAX_CHUNK): enough that sending and answering cost little even for the fastest
 #: descriptor (sad: 4-6 frames), little enough that results stream back (and are journaled)
-#: promptly and that this process seldom waits long for a worker's last frames (gist: 1).
+#: promptly (gist: 1). Batches shrink below it as a folder's frames run out (`_batches`).
 CHUNK_SECONDS = 0.008
 MAX_CHUNK = 16
 _Task = tuple[Path, FrameRecord | None]
