@@ -175,14 +175,16 @@ def child_describe(args: argparse.Namespace) -> dict[str, float]:
     from wiloc.describing import describe_folder
     from wiloc.descriptors.registry import get_descriptor
     from wiloc.traversals import open_cluster
+    from wiloc.workers import keeping_pools
 
     folders = [Path(args.root) / "gardens-point-walking" / t for t in TRAVERSALS]
     with tempfile.TemporaryDirectory() as temp:
         cache = Cache(Path(temp))
         start = time.perf_counter()
         cluster = open_cluster(args.scheduler, args.jobs)
-        computed = sum(describe_folder(f, get_descriptor(args.method), cache, args.jobs, cluster=cluster).computed
-                       for f in folders)
+        with keeping_pools():  # one set of workers for the three folders, as `wiloc describe` keeps
+            computed = sum(describe_folder(f, get_descriptor(args.method), cache, args.jobs, cluster=cluster).computed
+                           for f in folders)
         return {"rate": computed / (time.perf_counter() - start)}
 
 

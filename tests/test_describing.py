@@ -316,3 +316,16 @@ def test_gardens_point_day_left_with_sad(data_root: Path, tmp_path: Path) -> Non
     assert len(first.sizes) == 1  # one camera: one image size, read from the JPEG headers
     again = describe_folder(folder, get_descriptor("sad"), cache)
     assert (again.computed, again.reused, again.entry.digest) == (0, 200, first.entry.digest)
+
+
+def test_folders_described_in_one_block_share_their_workers(tmp_path: Path) -> None:
+    from wiloc.workers import keeping_pools
+
+    for name in ("a", "b"):
+        write_images(tmp_path / name, 24)
+    spec = PidSpec(params={"side": 1}, seconds=0.05)
+    with keeping_pools():
+        reports = [describe_folder(tmp_path / name, spec, Cache(tmp_path / "cache"), jobs=2) for name in ("a", "b")]
+    workers = [set(r.entry.data[:, 0].astype(int).tolist()) - {os.getpid()} for r in reports]
+    assert len(workers[0]) == 1 and workers[1] == workers[0]  # started once, for both folders
+    assert [r.computed for r in reports] == [24, 24]

@@ -2,9 +2,11 @@
 
 ``data/filter_decisions_1343bc2.npz`` holds the decisions of ``catgraph`` and ``online`` (default
 parameters, seed 0) on Gardens Point (day_left and night_right against day_right, ``sad`` and
-``gist``) and Nordland (winter against summer, ``sad``), as commit 1343bc2 computed them. Sums
-now taken in another order change the last digits of a confidence; the matches must be the same
-and the confidences within 1e-9.
+``gist``) and Nordland (winter against summer, ``sad``), as commit 1343bc2 computed them (the
+``gist`` cases on today's ``gist`` descriptors: 1343bc2's filter run on a cache that today's
+code described, as the filter's decisions move with the descriptors' last digits). Sums now
+taken in another order change the last digits of a confidence; the matches must be the same and
+the confidences within 1e-9.
 """
 from __future__ import annotations
 

@@ -7,13 +7,15 @@ import os
 import subprocess
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 import pytest
 
-from wiloc.workers import WorkerError, WorkerPool, can_fork
+from wiloc.workers import WorkerError, WorkerPool, borrowed_pool, can_fork, kept_pool, keeping_pools
 
 TIMEOUT = 120  # seconds; a hang fails the test instead of the suite
 
@@ -153,3 +155,63 @@ def test_a_forked_worker_keeps_only_its_pipes_and_stderr(tmp_path: Path) -> None
         finally:
             pool.close()
             pool.join()
+
+
+def _within(seconds: float, job: Callable[[], Any]) -> Any:
+    """``job()``'s result, failing the test (not hanging the suite) if it takes longer."""
+    done: list[Any] = []
+    thread = threading.Thread(target=lambda: done.append(job()), daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert done, f"no result within {seconds} s"
+    return done[0]
+
+
+def test_workers_holding_two_chunks_answer_every_item(start: str) -> None:
+    pool = _pool(2, start)
+    try:  # answers of tiny chunks arrive back to back: none may wait unread behind another
+        assert _within(TIMEOUT, lambda: sorted(pool.imap_unordered(abs, range(-500, 0), ahead=2))) == \
+            list(range(1, 501))
+    finally:
+        pool.close()
+        pool.join()
+
+
+def test_large_chunks_and_answers_do_not_block_each_other(start: str) -> None:
+    pool = _pool(1, start)
+    big = [bytes([i]) * 300_000 for i in range(6)]  # each over any pipe's buffer
+    try:
+        assert _within(TIMEOUT, lambda: sorted(pool.imap_unordered(bytes, big, ahead=2))) == big
+    finally:
+        pool.close()
+        pool.join()
+
+
+def test_a_worker_that_dies_holding_two_chunks_names_both(start: str) -> None:
+    pool = _pool(1, start)
+    try:
+        with pytest.raises(WorkerError, match="exit code 3") as caught:
+            list(pool.imap_unordered(os._exit, [3, 4, 5], chunksize=1, ahead=2))
+    finally:
+        pool.terminate()
+    assert caught.value.items == [3, 4]
+
+
+def test_kept_pools_serve_several_jobs_and_stop_with_the_block() -> None:
+    with keeping_pools():
+        assert not kept_pool(2)
+        with borrowed_pool(2) as pool:
+            first = pool
+        assert kept_pool(2)
+        with borrowed_pool(2) as pool:
+            assert pool is first
+        with pytest.raises(ValueError), borrowed_pool(2) as pool:  # a job that fails: not kept
+            raise ValueError
+        assert not kept_pool(2)
+        with borrowed_pool(2) as pool:
+            assert pool is not first
+            last = pool
+    assert all(worker.poll() is not None for worker in last._workers)  # stopped with the block
+    with borrowed_pool(1) as pool:  # outside a block: stopped after the job
+        alone = pool
+    assert all(worker.poll() is not None for worker in alone._workers)

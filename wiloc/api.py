@@ -37,6 +37,7 @@ from wiloc.results import RANKING, Results, ResultsStream, make_results, read_re
 from wiloc.training import Training, training_rows
 from wiloc.traversals import Describer, Progress, descriptor_label, descriptor_spec, open_cluster, stage
 from wiloc.video import Sampling, is_video
+from wiloc.workers import keeping_pools
 from wiloc.vocabulary import VocabularyParams
 from wiloc.vocabulary_build import VocabularyReport, build_vocabulary, vocabulary_path
 
@@ -59,9 +60,10 @@ def describe(folders: Sequence[Path], descriptor: str = "sad", *,
     for folder in folders:
         check_sampling(Path(folder), sampling)
     cluster = open_cluster(scheduler, jobs)
-    return [describe_source(Path(folder), spec, cache, jobs=jobs, sampling=sampling,
-                            progress=stage(progress, f"describe {Path(folder).name}"), cluster=cluster)
-            for folder in folders]
+    with keeping_pools():  # the folders share their worker processes
+        return [describe_source(Path(folder), spec, cache, jobs=jobs, sampling=sampling,
+                                progress=stage(progress, f"describe {Path(folder).name}"), cluster=cluster)
+                for folder in folders]
 
 
 def import_descriptors(path: Path, *, metric: str, names: Path | None = None,

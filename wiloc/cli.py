@@ -137,6 +137,7 @@ def describe(
     """
     from wiloc import api
     from wiloc.cache import Cache
+    from wiloc.workers import keeping_pools
 
     importing = import_file is not None
     if list_cache and (folders or importing):
@@ -155,7 +156,7 @@ def describe(
         fail("FOLDER...: give image folders, video files, --import FILE or --list", EXIT_USAGE)
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
     reports, repairs = [], []
-    with progress_bar(not as_json) as progress:
+    with progress_bar(not as_json) as progress, keeping_pools():  # the folders share their workers
         for source in [import_file] if importing else folders:
             known = len(store.repairs)
             if importing:

@@ -38,7 +38,7 @@ from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
 from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, read_gray
 from wiloc.reprs import short_repr
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
-from wiloc.workers import WorkerError, WorkerPool, can_fork
+from wiloc.workers import WorkerError, borrowed_pool, can_fork, kept_pool
 
 if TYPE_CHECKING:
     from wiloc.cluster import Cluster
@@ -59,10 +59,13 @@ class WorkerStart:
 FRESH_START = WorkerStart(seconds=0.5, frames=8)
 #: Forked workers (wiloc.workers.can_fork): the first result comes back within 10 ms.
 FORKED_START = WorkerStart(seconds=0.05, frames=2)
-#: Seconds of work per round trip to a worker (by this process's median frame time; at least one
-#: frame, at most MAX_CHUNK): enough that the round trip costs little even for the fastest
+#: Workers kept running from the previous folder (wiloc.workers.keeping_pools): nothing to start;
+#: two frames timed here give the median that sizes their batches.
+KEPT_START = WorkerStart(seconds=0.0, frames=1)
+#: Seconds of work per batch sent to a worker (by this process's median frame time; at least one
+#: frame, at most MAX_CHUNK): enough that sending and answering cost little even for the fastest
 #: descriptor (sad: 4-6 frames), little enough that results stream back (and are journaled)
-#: promptly and that this process seldom waits long for a worker's last frames (gist: 1).
+#: promptly (gist: 1). Batches shrink below it as a folder's frames run out (`_batches`).
 CHUNK_SECONDS = 0.008
 MAX_CHUNK = 16
 _Task = tuple[Path, FrameRecord | None]
@@ -325,54 +328,57 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterato
 def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: int,
                           chunk: int) -> Iterator[tuple[FrameRecord, bool]]:
     """The pending tasks settled by this process and `workers` worker processes together: a
-    helper thread feeds the workers from `pending`, `chunk` tasks at a time, and queues their
-    results; this process computes from the same deque and yields both."""
+    helper thread feeds the workers batches from `pending` (`_batches`), two at a time each, and
+    queues their results; this process computes from the same deque and yields both."""
     folder = pending[0][0].parent
+    results: queue.Queue = queue.Queue()
     # Forked from this process while it runs no other thread, else fresh interpreters; never the
     # caller's main module (wiloc.workers says why not multiprocessing's start methods).
-    pool = WorkerPool(workers, initializer=_init_worker)
-    results: queue.Queue = queue.Queue()
+    with borrowed_pool(workers, _init_worker) as pool:
+        def drive() -> None:
+            try:
+                for batch in pool.imap_unordered(partial(describe_quietly, spec),
+                                                 _batches(pending, chunk, workers + 1), ahead=2):
+                    results.put(batch)
+                results.put(None)
+            except BaseException as exc:  # raised in this process by the loop below
+                results.put(exc)
 
-    def take() -> Iterator[_Task]:
-        while (task := _take(pending)) is not None:
-            yield task
-
-    def drive() -> None:
+        driver = threading.Thread(target=drive, name="wiloc-workers", daemon=True)
+        driver.start()
         try:
-            for result in pool.imap_unordered(partial(_describe_one, spec), take(), chunksize=chunk):
-                results.put(result)
-            results.put(None)
-        except BaseException as exc:  # raised in this process by the loop below
-            results.put(exc)
+            finished = False
+            while not finished:
+                task = _take(pending)
+                if task is not None:
+                    yield _describe_one(spec, task)
+                while not finished and (task is None or not results.empty()):  # nothing left here: wait
+                    item = results.get()
+                    if isinstance(item, BaseException):
+                        raise item
+                    finished = item is None
+                    if not finished:
+                        yield from item
+        except WorkerError as exc:
+            pool.kill()
+            names = ", ".join(path.name for batch in exc.items for path, _ in batch)
+            raise WilocError(folder, f"{exc.problem} while describing {names}") from None
+        except BaseException:
+            pool.kill()  # an interrupted run keeps what was journaled; in-flight work is lost
+            raise
+        finally:
+            # The helper thread ends once every worker has answered or died. Only then may the
+            # pipes be closed: closing one the thread waits on (epoll) would leave it waiting forever.
+            driver.join()
 
-    driver = threading.Thread(target=drive, name="wiloc-workers", daemon=True)
-    driver.start()
-    try:
-        finished = False
-        while not finished:
-            task = _take(pending)
-            if task is not None:
-                yield _describe_one(spec, task)
-            while not finished and (task is None or not results.empty()):  # nothing left here: wait
-                item = results.get()
-                if isinstance(item, BaseException):
-                    raise item
-                finished = item is None
-                if not finished:
-                    yield item
-    except WorkerError as exc:
-        pool.kill()
-        names = ", ".join(path.name for path, _ in exc.items)
-        raise WilocError(folder, f"{exc.problem} while describing {names}") from None
-    except BaseException:
-        pool.kill()  # an interrupted run keeps what was journaled; in-flight work is lost
-        raise
-    finally:
-        # The helper thread ends once every worker has answered or died. Only then are the pipes
-        # closed: closing one the thread waits on (epoll) would leave it waiting forever.
-        driver.join()
-        pool.close()
-        pool.join()
+
+def _batches(pending: deque[_Task], chunk: int, processes: int) -> Iterator[list[_Task]]:
+    """Batches of tasks taken from `pending` as workers ask for them: `chunk` tasks, or fewer as
+    the deque empties (a quarter of each process's share of what is left, at least one), so
+    that at the end no process waits long for another's last batches."""
+    while batch := [task for _ in range(min(chunk, max(1, len(pending) // (4 * processes))))
+                    if (task := _take(pending)) is not None]:
+        yield batch
 
 
 def _take(pending: deque[_Task]) -> _Task | None:
@@ -397,8 +403,11 @@ def _opencv_threads(count: int) -> Iterator[None]:
 
 def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
     """Whether `left` frames, at the median of this process's frame times so far, would take
-    longer than starting `jobs` - 1 workers (FORKED_START or FRESH_START)."""
-    start = FORKED_START if can_fork() else FRESH_START
+    longer than starting `jobs` - 1 workers (KEPT_START, FORKED_START or FRESH_START)."""
+    if jobs > 1 and kept_pool(jobs - 1, _init_worker):
+        start = KEPT_START
+    else:
+        start = FORKED_START if can_fork() else FRESH_START
     if jobs == 1 or len(timed) <= start.frames:
         return False
     return float(np.median(timed[1:])) * left > start.seconds

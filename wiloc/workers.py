@@ -16,6 +16,7 @@ of pipes as length-prefixed pickles; a worker that dies makes the pool raise at 
 """
 from __future__ import annotations
 
+import io
 import os
 import pickle
 import selectors
@@ -25,14 +26,24 @@ import subprocess
 import sys
 import threading
 import warnings
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from itertools import islice
+from contextlib import contextmanager
+from contextvars import ContextVar
+from itertools import chain, islice
 from typing import Any, BinaryIO, Protocol
 
 import wiloc
 from wiloc.errors import WilocError
 
 _LENGTH = struct.Struct("<Q")
+#: The pools :func:`keeping_pools` keeps, by worker count and initializer (None: outside one).
+_kept: ContextVar[dict[tuple[int, Callable[[], None] | None], WorkerPool] | None] = ContextVar("wiloc_kept_pools",
+                                                                                             default=None)
+#: Largest message sent to a worker that still holds a chunk: two such messages unread fit in any
+#: pipe's buffer (16 KiB at least), so that sending never blocks while the worker, blocked on
+#: sending its own answer, waits for this process to read it.
+_AHEAD_BYTES = 8192
 _BOOT = """\
 import importlib.util, signal, sys
 signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -54,19 +65,38 @@ class WorkerError(WilocError):
         self.items = items
 
 
-def _send(stream: BinaryIO, message: Any) -> None:
+def _pack(message: Any) -> bytes:
+    """A message as sent: its pickle, prefixed by the pickle's length."""
     data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
-    stream.write(_LENGTH.pack(len(data)) + data)
+    return _LENGTH.pack(len(data)) + data
+
+
+def _send(stream: BinaryIO, message: Any) -> None:
+    _write(stream, _pack(message))
+
+
+def _write(stream: BinaryIO, packed: bytes) -> None:
+    stream.write(packed)
     stream.flush()
 
 
 def _receive(stream: BinaryIO) -> Any:
-    """The next message, or raise EOFError when the other side closed the pipe."""
-    head = stream.read(_LENGTH.size)
-    if len(head) < _LENGTH.size:
-        raise EOFError
-    data = stream.read(_LENGTH.unpack(head)[0])
-    return pickle.loads(data)
+    """The next message, or raise EOFError when the other side closed the pipe. From a raw
+    (unbuffered) stream too, which may return fewer bytes than asked for at a time."""
+    (length,) = _LENGTH.unpack(_read_exactly(stream, _LENGTH.size))
+    return pickle.loads(_read_exactly(stream, length))
+
+
+def _read_exactly(stream: BinaryIO, size: int) -> bytes:
+    """`size` bytes from `stream`, or EOFError when it ends first."""
+    parts = []
+    while size:
+        part = stream.read(size)
+        if not part:
+            raise EOFError
+        parts.append(part)
+        size -= len(part)
+    return b"".join(parts)
 
 
 def serve() -> None:
@@ -101,9 +131,11 @@ class _Worker(Protocol):
     """What the pool uses of a worker process (a ``subprocess.Popen`` or a :class:`_Forked`)."""
 
     stdin: BinaryIO
-    stdout: BinaryIO
+    stdout: io.BufferedReader
 
     def wait(self) -> int: ...
+
+    def poll(self) -> int | None: ...
 
     def kill(self) -> None: ...
 
@@ -148,6 +180,14 @@ class _Forked:
             self.returncode = os.waitstatus_to_exitcode(status)
         return self.returncode
 
+    def poll(self) -> int | None:
+        """The exit code once the child has ended, else None (as ``Popen.poll``)."""
+        if self.returncode is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
     def kill(self) -> None:
         """SIGKILL, unless the child has been waited for already."""
         if self.returncode is None:
@@ -178,41 +218,64 @@ class WorkerPool:
 
     @staticmethod
     def _post(worker: _Worker, message: Any, items: list[Any]) -> None:
+        WorkerPool._post_packed(worker, _pack(message), items)
+
+    @staticmethod
+    def _post_packed(worker: _Worker, packed: bytes, items: list[Any]) -> None:
         try:
-            _send(worker.stdin, message)
+            _write(worker.stdin, packed)
         except BrokenPipeError:
             raise WorkerError(f"a worker process ended ({_how(worker.wait())})", items) from None
 
-    def imap_unordered(self, func: Callable[[Any], Any], items: Iterable[Any], chunksize: int = 1) -> Iterator[Any]:
+    def imap_unordered(self, func: Callable[[Any], Any], items: Iterable[Any], chunksize: int = 1,
+                       ahead: int = 1) -> Iterator[Any]:
         """``func(item)`` for every item, computed in chunks of ``chunksize`` by the workers and
-        yielded as the chunks come back. A worker's exception is raised here; a worker that
-        ends without answering raises WorkerError."""
+        yielded as the chunks come back. Each worker holds up to ``ahead`` chunks: with 2, its next
+        chunk waits in its pipe while it computes, so it never idles through a round trip to this
+        process (a chunk over _AHEAD_BYTES waits here until the worker holds none). A worker's
+        exception is raised here; a worker that ends without answering raises WorkerError."""
         pending = iter(items)
-        busy: dict[_Worker, list[Any]] = {}
+        sent: dict[_Worker, deque[list[Any]]] = {worker: deque() for worker in self._workers}
+        held: dict[_Worker, tuple[bytes, list[Any]]] = {}
         with selectors.DefaultSelector() as selector:
-            def give(worker: _Worker) -> None:
-                chunk = list(islice(pending, chunksize))
-                if chunk:
-                    busy[worker] = chunk
-                    self._post(worker, (func, chunk), chunk)
-                    selector.register(worker.stdout, selectors.EVENT_READ, worker)
+            def feed(worker: _Worker) -> None:
+                while len(sent[worker]) < ahead:
+                    if worker in held:
+                        packed, chunk = held.pop(worker)
+                    else:
+                        chunk = list(islice(pending, chunksize))
+                        if not chunk:
+                            return
+                        packed = _pack((func, chunk))
+                    if sent[worker] and len(packed) > _AHEAD_BYTES:
+                        held[worker] = packed, chunk
+                        return
+                    self._post_packed(worker, packed, [*chain.from_iterable(sent[worker]), *chunk])
+                    if not sent[worker]:
+                        selector.register(worker.stdout, selectors.EVENT_READ, worker)
+                    sent[worker].append(chunk)
 
             for worker in self._workers:
-                give(worker)
-            while busy:
+                feed(worker)
+            while any(sent.values()):
                 for key, _ in selector.select():
                     worker = key.data
-                    selector.unregister(worker.stdout)
-                    try:
-                        ok, answer = _receive(worker.stdout)
+                    try:  # past the buffer, which may take in an answer the selector would not report
+                        ok, answer = _receive(worker.stdout.raw)
                     except EOFError:
                         raise WorkerError(f"a worker process ended without answering ({_how(worker.wait())})",
-                                          busy[worker]) from None
+                                          [*chain.from_iterable(sent[worker])]) from None
                     if not ok:
                         raise answer
-                    del busy[worker]
+                    sent[worker].popleft()
+                    if not sent[worker]:
+                        selector.unregister(worker.stdout)
+                    feed(worker)
                     yield from answer
-                    give(worker)
+
+    def alive(self) -> bool:
+        """Whether every worker still runs (one that ended between jobs cannot take the next)."""
+        return all(worker.poll() is None for worker in self._workers)
 
     def close(self) -> None:
         """No more work: each worker's stdin is closed, and it exits."""
@@ -239,6 +302,57 @@ class WorkerPool:
         self.kill()
         self.close()
         self.join()
+
+
+@contextmanager
+def keeping_pools() -> Iterator[None]:
+    """Within this block, the pools of :func:`borrowed_pool` outlive each job: the next job
+    asking for as many workers with the same initializer gets the same workers (started once, by
+    the first job: for several folders of one ``describe`` call), and all are stopped on leaving
+    the block. Blocks nest: the outermost keeps."""
+    if _kept.get() is not None:
+        yield
+        return
+    kept: dict[tuple[int, Callable[[], None] | None], WorkerPool] = {}
+    token = _kept.set(kept)
+    try:
+        yield
+    finally:
+        _kept.reset(token)
+        for pool in kept.values():
+            pool.close()
+            pool.join()
+
+
+def kept_pool(processes: int, initializer: Callable[[], None] | None = None) -> bool:
+    """Whether :func:`borrowed_pool` would lend running workers, kept from an earlier job."""
+    pool = (_kept.get() or {}).get((processes, initializer))
+    return pool is not None and pool.alive()
+
+
+@contextmanager
+def borrowed_pool(processes: int, initializer: Callable[[], None] | None = None) -> Iterator[WorkerPool]:
+    """A pool of ``processes`` workers for one job: the one an enclosing :func:`keeping_pools`
+    block keeps (started now if it keeps none alive), else a new pool stopped after the job. A
+    job that raises leaves the pool killed (by the job, with its helper threads done) and not
+    kept."""
+    kept = _kept.get()
+    key = (processes, initializer)
+    pool = kept.pop(key, None) if kept is not None else None
+    if pool is not None and not pool.alive():
+        pool.terminate()
+        pool = None
+    pool = pool or WorkerPool(processes, initializer)
+    try:
+        yield pool
+    except BaseException:
+        pool.terminate()
+        raise
+    if kept is None:
+        pool.close()
+        pool.join()
+    else:
+        kept[key] = pool
 
 
 def can_fork() -> bool:
