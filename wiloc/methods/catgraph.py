@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.calibration import GivenEvidence, RankLikelihood, Unexplained, logsumexp, novelty_weights
+from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, logsumexp, novelty_weights
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -112,6 +112,15 @@ def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArr
     cum[-1] = 1.0
     pointers = (rng.random() + np.arange(m)) / m
     return np.searchsorted(cum, pointers, side="left")
+
+
+@dataclass(frozen=True)
+class RowAhead:
+    """What the filter computes from a row alone (:meth:`CatGraph.ahead`)."""
+
+    contrast: NDArray[np.float64]  # the sequence score's contrast-normalised row, low = alike
+    finite: bool  # whether every value of the row is finite
+    ordered: SortedRow | None  # what the rank model ranks against (None for given evidence)
 
 
 @dataclass(frozen=True)
@@ -256,22 +265,35 @@ class CatGraph(Method):
         filter_kernels.advance(sequence, *self._shift_lookup(u), contrast, self.params.sequence_rate, after, lowest)
         return after, lowest
 
+    def ahead(self, rows: NDArray[np.floating]) -> list[RowAhead | None]:
+        """Each row's contrast (low = alike), whether it is finite, and what the observation
+        model ranks against: computed for a block of rows in compiled passes (None for rows
+        that are not one value per map node)."""
+        from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
+
+        if rows.shape[1] != self._nodes.size:
+            return [None] * rows.shape[0]
+        evidence = self.context is not None and self.context.rows == "log_ratio"
+        contrast, finite = np.empty(rows.shape), np.empty(rows.shape[0], dtype=np.bool_)
+        filter_kernels.contrast_rows(rows, self.params.contrast_window, -1.0 if evidence else 1.0, contrast, finite)
+        ordered = self._likelihood.order(rows)
+        return [RowAhead(contrast[r], bool(finite[r]), ordered[r]) for r in range(rows.shape[0])]
+
     def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
         from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
 
         p, rng, nodes = self.params, self._rng, self._nodes
         n_nodes, first = nodes.size, self.frames == 0
-        evidence = self.context is not None and self.context.rows == "log_ratio"
-        contrast = np.empty(n_nodes)  # low = alike
-        if row.shape != (n_nodes,) or not filter_kernels.contrast_normalise(row, p.contrast_window,
-                                                                            -1.0 if evidence else 1.0, contrast):
+        pre = self.row_ahead(row) if row.shape == (n_nodes,) else None
+        if pre is None or not pre.finite:
             raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
+        contrast = pre.contrast
         u = self._travelled(odometry)
         self._sequence, score = self._advance(self._sequence, contrast, u, first)
         if not first:
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
-        likelihood.use_row(row)
+        likelihood.use_row(row, pre.ordered)
         log_mean_ratio = likelihood.mean(self._omega, self._damped)
         prior = unexplained.transition(first)
 

@@ -169,3 +169,37 @@ def posterior_mode(j: NDArray[np.intp], frac: NDArray[np.float64], w: NDArray[np
         if mass[i] >= top - tie and (mode < 0 or own[i] > own[mode]):
             mode = i
     return mode
+
+
+@njit(cache=True, nogil=True)
+def contrast_rows(rows: NDArray[np.floating], half_window: int, sign: float, out: NDArray[np.float64],
+                  finite: NDArray[np.bool_]) -> None:
+    """:func:`contrast_normalise` of every row of a block (float32 values read as float64, as
+    converting the row first gives): ``out[r]`` and ``finite[r]``."""
+    for r in range(rows.shape[0]):
+        finite[r] = contrast_normalise(rows[r], half_window, sign, out[r])
+
+
+@njit(cache=True, nogil=True)
+def distinct_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64], values: NDArray[np.float64],
+                   t: NDArray[np.float64], counts: NDArray[np.float64], sizes: NDArray[np.intp]) -> None:
+    """For every row of sorted values: ``values[r]`` = the row as
+    float64; ``t[r, :sizes[r]]`` = ``table`` at the left rank of each distinct value (its first
+    place) and ``counts[r, :sizes[r]]`` how many values share it (NaN never equals itself, so
+    each NaN is a value of its own, as numpy's ``!=`` has it)."""
+    for r in range(ordered.shape[0]):
+        row = ordered[r]
+        n = row.size
+        k = 0
+        left = 0
+        for i in range(n):
+            values[r, i] = row[i]
+            if i == 0 or row[i] != row[i - 1]:
+                if k > 0:
+                    counts[r, k - 1] = i - left
+                t[r, k] = table[i]
+                left = i
+                k += 1
+        if k > 0:
+            counts[r, k - 1] = n - left
+        sizes[r] = k
