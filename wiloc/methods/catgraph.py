@@ -226,7 +226,7 @@ class CatGraph(Method):
         self._log_w = np.full(p.particles, -np.log(p.particles))
         self._sequence = np.zeros((len(p.sequence_speeds), n_nodes))
         self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
-        self._mass = np.zeros(n_nodes)  # ... and within +-mode_window nodes of each
+        self._marks = np.zeros(n_nodes, dtype=np.int64)  # the read-out's scratch: the frame that last summed a node
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
         self._odometry = False  # whether any step came with odometry
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
@@ -323,8 +323,9 @@ class CatGraph(Method):
         log_w = log_w - log_map
         w = np.exp(log_w)
 
-        self._own, self._mass = own, mass = np.empty(n_nodes), np.empty(n_nodes)  # read-out: the density's mode
-        mode = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, own, mass)
+        self._own = np.empty(n_nodes)  # read-out: the density's mode
+        mode, mass = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, self._own, self._marks,
+                                                   self.frames + 1)
         p_new = unexplained.new_place
         unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
         likelihood.learn(w * omega, 1.0 - unexplained.u)
@@ -334,13 +335,16 @@ class CatGraph(Method):
             pos, speed = pos[idx], speed[idx]
             log_w = np.full(p.particles, -np.log(p.particles))
         self._pos, self._speed, self._log_w = pos, speed, log_w
-        return Decision(match=mode, difference=float(row[mode]), confidence=float(mass[mode] * (1.0 - p_new)),
+        return Decision(match=mode, difference=float(row[mode]), confidence=float(mass * (1.0 - p_new)),
                         stage="track", new_place=p_new)
 
     def probability_near(self, node: int) -> float:
         """After a step: the probability that the frame shows the place of ``node`` (within
         +-mode_window nodes), the map explaining it."""
-        return float(self._mass[node] * (1.0 - self._unexplained.new_place))
+        from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
+
+        mass = filter_kernels.window_sum(self._own, self.params.mode_window, node)
+        return float(mass * (1.0 - self._unexplained.new_place))
 
     def _travelled(self, odometry: float | None) -> float:
         """u_k: the query's odometry step, else the mean node spacing."""
@@ -367,8 +371,6 @@ class CatGraph(Method):
                 "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
-        from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
-
         p = self.params
         self._nodes = np.asarray(state["nodes"], dtype=np.float64)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
@@ -379,8 +381,7 @@ class CatGraph(Method):
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
-        self._mass = np.empty(self._own.size)
-        filter_kernels.window_mass(self._own, p.mode_window, self._mass)
+        self._marks = np.zeros(self._own.size, dtype=np.int64)
         self._odometer = float(state["odometer"])
         self._odometry = bool(state["odometry"])
         self._likelihood = self._observation_model()

@@ -122,6 +122,20 @@ def interpolate(values: NDArray[np.float64], j: NDArray[np.intp], frac: NDArray[
 
 
 @njit(cache=True, nogil=True)
+def window_sum(own: NDArray[np.float64], half: int, i: int) -> float:
+    """:func:`window_mass` at node i alone, summed in its order."""
+    n = own.size
+    total = 0.0
+    if n - 2 * half > 0:
+        for k in range(max(i - half, 0), min(i + half, n - 1) + 1):
+            total += own[k]
+    else:  # a map shorter than the window: np.convolve sums from the last node back
+        for k in range(min(i + half, n - 1), max(i - half, 0) - 1, -1):
+            total += own[k]
+    return total
+
+
+@njit(cache=True, nogil=True)
 def window_mass(own: NDArray[np.float64], half: int, mass: NDArray[np.float64]) -> None:
     """``mass`` = the posterior weight ``own`` summed within +-``half`` nodes of each node.
 
@@ -142,33 +156,56 @@ def window_mass(own: NDArray[np.float64], half: int, mass: NDArray[np.float64]) 
     else:
         edges = list(range(n))
     for i in edges:  # where the window is cut short
-        total = 0.0
-        if inner > 0:
-            for k in range(max(i - half, 0), min(i + half, n - 1) + 1):
-                total += own[k]
-        else:  # a map shorter than the window: np.convolve sums from the last node back
-            for k in range(min(i + half, n - 1), max(i - half, 0) - 1, -1):
-                total += own[k]
-        mass[i] = total
+        mass[i] = window_sum(own, half, i)
 
 
 @njit(cache=True, nogil=True)
 def posterior_mode(j: NDArray[np.intp], frac: NDArray[np.float64], w: NDArray[np.float64], half: int,
-                   tie: float, own: NDArray[np.float64], mass: NDArray[np.float64]) -> int:
+                   tie: float, own: NDArray[np.float64], marks: NDArray[np.int64], frame: int) -> tuple[int, float]:
     """The read-out of the posterior: ``own`` = the particles' weight per nearest node
-    (``np.bincount(j + (frac >= 0.5), w)``), ``mass`` = its :func:`window_mass`, and the returned
-    mode: among the nodes whose mass is within ``tie`` of the largest, the first of those holding
-    most weight themselves."""
+    (``np.bincount(j + (frac >= 0.5), w)``), and the mode of its :func:`window_mass` with the
+    mode's mass: among the nodes whose mass is within ``tie`` of the largest, the first of those
+    holding most weight themselves.
+
+    Only nodes within +-``half`` of a particle have mass, so only those are summed, each once
+    (``marks[i] == frame`` once node i is; ``frame`` differs in every call): the same masses
+    and mode as a pass over every node, which this falls back to when the largest mass is not
+    beyond ``tie`` (massless nodes would count) or not finite.
+    """
+    n = own.size
     own[:] = 0.0
+    nearest = np.empty(j.size, dtype=np.intp)
     for p in range(j.size):
-        own[j[p] + (1 if frac[p] >= 0.5 else 0)] += w[p]
-    window_mass(own, half, mass)
-    top = mass.max()
+        nearest[p] = j[p] + (1 if frac[p] >= 0.5 else 0)
+        own[nearest[p]] += w[p]
+    nodes = np.empty(j.size * (2 * half + 1), dtype=np.intp)
+    masses = np.empty(nodes.size)
+    count = 0
+    top = 0.0
+    finite = True
+    for p in range(j.size):
+        for i in range(max(nearest[p] - half, 0), min(nearest[p] + half, n - 1) + 1):
+            if marks[i] != frame:
+                marks[i] = frame
+                nodes[count], masses[count] = i, window_sum(own, half, i)
+                finite &= np.isfinite(masses[count])
+                top = max(top, masses[count])
+                count += 1
+    if not (finite and top - tie > 0.0):  # every node's mass, as the pass over all nodes has it
+        masses = np.empty(n)
+        window_mass(own, half, masses)
+        top = masses.max()
+        mode = -1
+        for i in range(n):
+            if masses[i] >= top - tie and (mode < 0 or own[i] > own[mode]):
+                mode = i
+        return mode, masses[mode]
     mode = -1
-    for i in range(own.size):
-        if mass[i] >= top - tie and (mode < 0 or own[i] > own[mode]):
+    for c in range(count):  # the most own weight among the near-top masses, the first node among ties
+        i = nodes[c]
+        if masses[c] >= top - tie and (mode < 0 or own[i] > own[mode] or (own[i] == own[mode] and i < mode)):
             mode = i
-    return mode
+    return mode, window_sum(own, half, mode)
 
 
 @njit(cache=True, nogil=True)
