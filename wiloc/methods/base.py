@@ -264,15 +264,18 @@ class Method(ABC):
         self.frames = 0
         self.prepare(context)
 
-    def step(self, row: NDArray[np.float64], odometry: float | None = None, ahead: Any = None) -> Decision:
+    def step(self, row: NDArray[np.floating], odometry: float | None = None, ahead: Any = None) -> Decision:
         """Decide one query frame from its difference row (and its travelled distance, for
         methods that take odometry); ``ahead`` is what :meth:`ahead` computed for this row, if
-        the caller computed it (else the method does, when it needs it)."""
+        the caller computed it (else the method does, when it needs it). A float32 row (as the
+        difference kernels give them) is decided as it is, every other as float64: methods read
+        its values as float64 either way, so the decisions are the same."""
         if self.context is None:
             raise RuntimeError(f"{self.name}: call start() before step()")
         if odometry is not None and "odometry" not in self.needs:
             raise WilocError(self.name, f"method '{self.name}' takes no odometry", parameter="odometry")
-        row = np.asarray(row, dtype=np.float64)
+        row = np.asarray(row)
+        row = row if row.dtype == np.float32 else row.astype(np.float64, copy=False)
         self._ahead = ahead
         try:
             decision = self.decide(row, odometry)
@@ -289,8 +292,9 @@ class Method(ABC):
         """Learn from the map what the method needs before the first query frame."""
 
     @abstractmethod
-    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
-        """Query frame number ``self.frames``: its decision, updating what the method learns."""
+    def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
+        """Query frame number ``self.frames``: its decision, updating what the method learns
+        (the row float64, or float32 as the difference kernels give it)."""
 
     def ahead(self, rows: NDArray[np.floating]) -> Sequence[Any] | None:
         """What the method computes from each of these consecutive rows alone (no state of
@@ -298,14 +302,14 @@ class Method(ABC):
         for many rows at once, in parallel (default: nothing)."""
         return None
 
-    def _chunks_ahead(self, rows: Iterable[NDArray[np.floating]]) -> Iterator[tuple[NDArray[np.float64], Sequence[Any] | None]]:
-        """Up to ``AHEAD_ROWS`` consecutive rows at a time as float64, with their :meth:`ahead`."""
+    def _chunks_ahead(self, rows: Iterable[NDArray[np.floating]]) -> Iterator[tuple[NDArray[np.floating], Sequence[Any] | None]]:
+        """Up to ``AHEAD_ROWS`` consecutive rows at a time, with their :meth:`ahead`."""
         for item in rows:
             block = np.asarray(item)
             block = block if block.ndim == 2 else block[None, :]
             for first in range(0, block.shape[0], AHEAD_ROWS):
                 chunk = block[first:first + AHEAD_ROWS]
-                yield chunk.astype(np.float64, copy=False), self.ahead(chunk)
+                yield chunk, self.ahead(chunk)
 
     def row_ahead(self, row: NDArray[np.float64]) -> Any:
         """In :meth:`decide`: :meth:`ahead`'s item of the row being decided, given by the caller
@@ -353,8 +357,8 @@ class Method(ABC):
         """Step every row (``n_frames`` of them) and collect the decisions (after :meth:`start`).
 
         ``rows`` yields rows, or 2-D blocks of consecutive rows (as the difference kernels give
-        them). A helper thread reads them ``AHEAD_ROWS`` at a time, as float64, with what the
-        method computes of them :meth:`ahead`, while this thread steps the rows before."""
+        them). A helper thread reads them ``AHEAD_ROWS`` at a time, with what the method
+        computes of them :meth:`ahead`, while this thread steps the rows before."""
         steps: list[Decision] = []
         for chunk, computed in computed_ahead(self._chunks_ahead(rows)):
             if len(steps) + chunk.shape[0] > n_frames:

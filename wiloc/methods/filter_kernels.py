@@ -64,7 +64,8 @@ def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.floa
     ``(1 - rate) * ((1 - a) * prev[at] + a * prev[at + 1]) + rate * contrast``, value for value.
     ``runs`` (``catgraph._read_runs``: first, end) are long stretches that read consecutive
     positions at one fraction, as evenly spaced nodes give: there the loop vectorises.
-    ``lowest[j]`` = ``out[:, j].min()``, the score that re-seeding ranks nodes by.
+    ``lowest[j]`` = ``out[:, j].min()``, the score that re-seeding ranks nodes by, taken in the
+    same pass (speed by speed, as the rows are written).
     """
     prev, flat = score.ravel(), out.ravel()
     n = contrast.size
@@ -74,22 +75,24 @@ def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.floa
         end = runs[r, 0] if r < runs.shape[0] else flat.size
         j = k % n
         for k in range(k, end):  # uneven reads: one position at a time
-            flat[k] = keep * ((1.0 - a[k]) * prev[at[k]] + a[k] * prev[at[k] + 1]) + rate * contrast[j]
+            value = keep * ((1.0 - a[k]) * prev[at[k]] + a[k] * prev[at[k] + 1]) + rate * contrast[j]
+            flat[k] = value
+            lowest[j] = value if k < n else min(lowest[j], value)
             j = j + 1 if j + 1 < n else 0
         if r == runs.shape[0]:
             break
         k, end = runs[r, 0], runs[r, 1]
         length, first, f = end - k, at[k], a[k]
         here, before, after = flat[k:end], prev[first:first + length], prev[first + 1:first + 1 + length]
-        now = contrast[k % n:k % n + length]
-        for i in range(length):  # plain indices into views: the loop vectorises
-            here[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
+        now, low = contrast[k % n:k % n + length], lowest[k % n:k % n + length]
+        if k < n:  # the first speed's row
+            for i in range(length):  # plain indices into views: the loop vectorises
+                here[i] = low[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
+        else:
+            for i in range(length):
+                here[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
+                low[i] = min(low[i], here[i])
         k = end
-    lowest[:] = out[0]
-    for v in range(1, out.shape[0]):
-        row = out[v]
-        for j in range(n):
-            lowest[j] = min(lowest[j], row[j])
 
 
 @njit(cache=True, nogil=True)
