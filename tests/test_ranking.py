@@ -47,8 +47,9 @@ def test_best_candidates_rank_ascending_ties_by_position_and_skip_non_candidates
     assert best_candidates(tied).tolist() == list(range(RANKED))
 
 
+@pytest.mark.parametrize("window", [2, 8])  # 8: often every ranked position is within the window
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_the_compiled_pass_over_a_block_reads_each_row_as_the_numpy_functions_do(dtype: type) -> None:
+def test_the_compiled_pass_over_a_block_reads_each_row_as_the_numpy_functions_do(dtype: type, window: int) -> None:
     from wiloc.candidates import finite_minimum
     from wiloc.methods.online import near_miss
     from wiloc.methods.row_kernels import best_of_rows
@@ -68,7 +69,6 @@ def test_the_compiled_pass_over_a_block_reads_each_row_as_the_numpy_functions_do
             row[rng.integers(0, 40)] = 1.0
         elif kind == 5:
             row[:] = np.inf
-    window = 2
     ranking, counts = np.empty((rows.shape[0], RANKED), dtype=np.int64), np.empty(rows.shape[0], dtype=np.intp)
     match, minimum, near = np.empty(rows.shape[0], dtype=np.intp), np.empty(rows.shape[0]), np.empty(rows.shape[0])
     best_of_rows(rows, window, ranking, counts, match, minimum, near)

@@ -223,23 +223,31 @@ def contrast_rows(rows: NDArray[np.floating], half_window: int, sign: float, out
 @njit(cache=True, nogil=True)
 def distinct_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64], values: NDArray[np.float64],
                    t: NDArray[np.float64], counts: NDArray[np.float64], sizes: NDArray[np.intp]) -> None:
-    """For every row of sorted values: ``values[r]`` = the row as
-    float64; ``t[r, :sizes[r]]`` = ``table`` at the left rank of each distinct value (its first
-    place) and ``counts[r, :sizes[r]]`` how many values share it (NaN never equals itself, so
-    each NaN is a value of its own, as numpy's ``!=`` has it)."""
-    for r in range(ordered.shape[0]):
+    """For every row of sorted values: ``values[r]`` = the row as float64; ``t[r, :sizes[r]]`` =
+    ``table`` at the left rank of each distinct value (its first place) and
+    ``counts[r, :sizes[r]]`` how many values share it (NaN never equals itself, so each NaN is a
+    value of its own, as numpy's ``!=`` has it). The first places are found without a branch
+    (a sorted row's runs of equal values end at unpredictable places): each place's distinct
+    value counted forwards, then each value's place written backwards, the first one last."""
+    n = ordered.shape[1]
+    group = np.empty(n, dtype=np.intp)
+    left = np.empty(n + 1, dtype=np.intp)
+    for r in range(ordered.shape[0] if n else 0):
         row = ordered[r]
-        n = row.size
-        k = 0
-        left = 0
         for i in range(n):
             values[r, i] = row[i]
-            if i == 0 or row[i] != row[i - 1]:
-                if k > 0:
-                    counts[r, k - 1] = i - left
-                t[r, k] = table[i]
-                left = i
-                k += 1
-        if k > 0:
-            counts[r, k - 1] = n - left
-        sizes[r] = k
+        k = 0
+        group[0] = 0
+        for i in range(1, n):
+            k += row[i] != row[i - 1]
+            group[i] = k
+        for i in range(n - 1, -1, -1):
+            left[group[i]] = i
+        size = k + 1
+        left[size] = n
+        for d in range(size):
+            t[r, d] = table[left[d]]
+            counts[r, d] = left[d + 1] - left[d]
+        sizes[r] = size
+    if not n:
+        sizes[:] = 0
