@@ -99,6 +99,8 @@ class OnlineAhead:
     difference: float  # its difference m
     near_miss: float  # m_r: the smallest difference outside z's window
     ranking: tuple[int, ...]  # the row's best candidates, best first
+    same_bin: int  # the histogram bin of m
+    near_bin: int  # ... and of m_r
     filter: Any  # what the map filter computes ahead (CatGraph.ahead)
 
 
@@ -163,9 +165,11 @@ class Online(Method):
         ranking, counts = np.empty((n, RANKED), dtype=np.int64), np.empty(n, dtype=np.intp)
         match, minimum, near = np.empty(n, dtype=np.intp), np.empty(n), np.empty(n)
         best_of_rows(rows, self.params.same_place_window, ranking, counts, match, minimum, near)
+        assert self._model is not None  # map mode: the bins are fixed from the start
+        same, different = self._model.bin_of(minimum).tolist(), self._model.bin_of(near).tolist()
         filtered = self._filter.ahead(rows)
         return [OnlineAhead(int(match[r]), float(minimum[r]), float(near[r]), tuple(ranking[r, :counts[r]].tolist()),
-                            filtered[r]) for r in range(n)]
+                            same[r], different[r], filtered[r]) for r in range(n)]
 
     def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
         sequence = self.context is not None and self.context.sequence
@@ -186,13 +190,14 @@ class Online(Method):
             else:
                 p = float(self._model.posterior(m))
                 new_place = 1.0 - p
-            self._model.add_same(m)
             if pre is None:
                 m_r = near_miss(row, z, self._match[:self.frames] if sequence else None, self.params.same_place_window)
+                self._model.add_same(m)
+                if np.isfinite(m_r):
+                    self._model.add_different(m_r)
             else:
                 m_r = pre.near_miss
-            if np.isfinite(m_r):
-                self._model.add_different(m_r)
+                self._model.count_bins(pre.same_bin, pre.near_bin if np.isfinite(m_r) else None)
             decision = Decision(match=z, difference=m, confidence=p, stage="update", new_place=new_place,
                                 extra={"m_r": m_r}, ranking=() if pre is None else pre.ranking)
         if sequence:
