@@ -53,11 +53,11 @@ def logsumexp(x: NDArray[np.float64]) -> float:
 
 @dataclass(frozen=True)
 class SortedRow:
-    """A row's values in increasing order, and for each distinct value -ln u at its left rank
-    (the number of values below it: ``RankLikelihood``'s table there) and how many values share
-    it."""
+    """A row's values in increasing order (float32 when the row's values are float32 values),
+    and for each distinct value -ln u at its left rank (the number of values below it:
+    ``RankLikelihood``'s table there) and how many values share it."""
 
-    values: NDArray[np.float64]
+    values: NDArray[np.floating]
     t: NDArray[np.float64]
     counts: NDArray[np.float64]
 
@@ -97,11 +97,11 @@ class RankLikelihood:
 
         narrow = rows.astype(np.float32, copy=False)
         ordered = np.sort(narrow if narrow is rows or np.array_equal(narrow, rows) else rows, axis=1)
-        values, t, counts = (np.empty(rows.shape) for _ in range(3))
         sizes = np.empty(rows.shape[0], dtype=np.intp)
-        distinct_ranks(ordered, self._ranks_of(rows.shape[1]), values, t, counts, sizes)
-        return [SortedRow(values[r], t[r, :size].copy(), counts[r, :size].copy())  # copies: rows have few distinct values
-                for r, size in enumerate(sizes.tolist())]
+        t, counts = distinct_ranks(ordered, self._ranks_of(rows.shape[1]), sizes)
+        ends = np.cumsum(sizes).tolist()
+        return [SortedRow(ordered[r], t[end - size:end], counts[end - size:end])
+                for r, (size, end) in enumerate(zip(sizes.tolist(), ends))]
 
     def use_row(self, row: NDArray[np.float64], ordered: SortedRow | None = None) -> None:
         """Rank later differences against this query row (finite values), given its
@@ -139,13 +139,17 @@ class RankLikelihood:
         total = float(np.dot(ranks.counts, np.exp(self.log_ratio(ranks.t, ones))))
         damped = np.flatnonzero(omega < 1.0) if damped is None else damped
         if damped.size:
-            t = self._table[np.searchsorted(ranks.values, self._row[damped], side="left")]
+            t = self.t(self._row[damped])
             total += float(np.sum(np.exp(self.log_ratio(t, omega[damped])) - np.exp(self.log_ratio(t, ones))))
         return float(np.log(total)) - np.log(self._row.size)
 
     def t(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
         """-ln u of each difference: its mid-rank p-value in the row."""
-        return self._table[np.searchsorted(self._sorted.values, d, side="left")]
+        from wiloc.methods.filter_kernels import table_at_ranks  # numba loads with the first frame
+
+        t = np.empty(d.size)
+        table_at_ranks(self._sorted.values, self._table, d, t)
+        return t
 
     def log_ratio(self, t: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
         """ln lambda = ln a_j + (1 - a_j) t, a_j = 1 - omega (1 - a)."""

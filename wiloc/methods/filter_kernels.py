@@ -221,21 +221,27 @@ def contrast_rows(rows: NDArray[np.floating], half_window: int, sign: float, out
 
 
 @njit(cache=True, nogil=True)
-def distinct_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64], values: NDArray[np.float64],
-                   t: NDArray[np.float64], counts: NDArray[np.float64], sizes: NDArray[np.intp]) -> None:
-    """For every row of sorted values: ``values[r]`` = the row as float64; ``t[r, :sizes[r]]`` =
-    ``table`` at the left rank of each distinct value (its first place) and
-    ``counts[r, :sizes[r]]`` how many values share it (NaN never equals itself, so each NaN is a
-    value of its own, as numpy's ``!=`` has it). The first places are found without a branch
-    (a sorted row's runs of equal values end at unpredictable places): each place's distinct
-    value counted forwards, then each value's place written backwards, the first one last."""
-    n = ordered.shape[1]
+def distinct_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64],
+                   sizes: NDArray[np.intp]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """For every row of sorted values: ``sizes[r]``, its number of distinct values, and (row
+    after row in the two returned arrays) ``table`` at the left rank of each distinct value (its
+    first place) and how many values share it. NaN never equals itself, so each NaN is a value
+    of its own, as numpy's ``!=`` has it. The first places are found without a branch (a sorted
+    row's runs of equal values end at unpredictable places): each place's distinct value
+    counted forwards, then each value's place written backwards, the first one last."""
+    rows, n = ordered.shape
+    for r in range(rows):
+        row = ordered[r]
+        k = 1 if n else 0
+        for i in range(1, n):
+            k += row[i] != row[i - 1]
+        sizes[r] = k
+    t, counts = np.empty(sizes.sum()), np.empty(sizes.sum())
     group = np.empty(n, dtype=np.intp)
     left = np.empty(n + 1, dtype=np.intp)
-    for r in range(ordered.shape[0] if n else 0):
+    at = 0
+    for r in range(rows if n else 0):
         row = ordered[r]
-        for i in range(n):
-            values[r, i] = row[i]
         k = 0
         group[0] = 0
         for i in range(1, n):
@@ -243,11 +249,28 @@ def distinct_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64], va
             group[i] = k
         for i in range(n - 1, -1, -1):
             left[group[i]] = i
-        size = k + 1
-        left[size] = n
-        for d in range(size):
-            t[r, d] = table[left[d]]
-            counts[r, d] = left[d + 1] - left[d]
-        sizes[r] = size
-    if not n:
-        sizes[:] = 0
+        left[k + 1] = n
+        for d in range(k + 1):
+            t[at + d] = table[left[d]]
+            counts[at + d] = left[d + 1] - left[d]
+        at += k + 1
+    return t, counts
+
+
+@njit(cache=True, nogil=True)
+def table_at_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64], keys: NDArray[np.floating],
+                   out: NDArray[np.float64]) -> None:
+    """``out`` = ``table[np.searchsorted(ordered, keys, side="left")]``: each key's left rank in
+    the sorted row (its values read as float64; NaN sorting last, as numpy's search has it)."""
+    n = ordered.size
+    for i in range(keys.size):
+        x = np.float64(keys[i])
+        lo, hi = 0, n
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            v = np.float64(ordered[mid])
+            if v < x or (x != x and v == v):
+                lo = mid + 1
+            else:
+                hi = mid
+        out[i] = table[lo]
