@@ -31,8 +31,9 @@ if TYPE_CHECKING:
 Progress = Callable[[int, int], None]
 
 AHEAD_ROWS = 64
-"""Rows whose :meth:`Method.ahead` a batch run computes at once: enough for a parallel pass to
-pay, few enough that what it keeps per row (a few arrays of the row's length) stays small."""
+"""Rows whose :meth:`Method.ahead` a batch run computes at once: enough that its helper thread
+takes the GIL only a few times per 64 rows, few enough that what it keeps per row (an array or
+two of the row's length) stays small."""
 
 #: What a method can declare in ``needs``:
 #: ``map``: it cannot run in sequence mode; ``map_self``: in map mode it learns from the map's
@@ -299,10 +300,11 @@ class Method(ABC):
     def ahead(self, rows: NDArray[np.floating]) -> Sequence[Any] | None:
         """What the method computes from each of these consecutive rows alone (no state of
         earlier frames), one item per row, before they are stepped: a batch run computes it
-        for many rows at once, in parallel (default: nothing)."""
+        for many rows at once, in a helper thread beside the steps (default: nothing)."""
         return None
 
-    def _chunks_ahead(self, rows: Iterable[NDArray[np.floating]]) -> Iterator[tuple[NDArray[np.floating], Sequence[Any] | None]]:
+    def _chunks_ahead(self, rows: Iterable[NDArray[np.floating]]
+                      ) -> Iterator[tuple[NDArray[np.floating], Sequence[Any] | None]]:
         """Up to ``AHEAD_ROWS`` consecutive rows at a time, with their :meth:`ahead`."""
         for item in rows:
             block = np.asarray(item)
@@ -311,7 +313,7 @@ class Method(ABC):
                 chunk = block[first:first + AHEAD_ROWS]
                 yield chunk, self.ahead(chunk)
 
-    def row_ahead(self, row: NDArray[np.float64]) -> Any:
+    def row_ahead(self, row: NDArray[np.floating]) -> Any:
         """In :meth:`decide`: :meth:`ahead`'s item of the row being decided, given by the caller
         or computed now."""
         given = getattr(self, "_ahead", None)

@@ -279,7 +279,7 @@ class CatGraph(Method):
         ordered = self._likelihood.order(rows)
         return [RowAhead(contrast[r], bool(finite[r]), ordered[r]) for r in range(rows.shape[0])]
 
-    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+    def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
         from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
 
         p, rng, nodes = self.params, self._rng, self._nodes

@@ -171,7 +171,7 @@ class Online(Method):
         return [OnlineAhead(int(match[r]), float(minimum[r]), float(near[r]), tuple(ranking[r, :counts[r]].tolist()),
                             same[r], different[r], filtered[r]) for r in range(n)]
 
-    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+    def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
         sequence = self.context is not None and self.context.sequence
         pre = None if sequence else self.row_ahead(row)
         z, m = finite_minimum(row) if pre is None else (pre.match, pre.difference)
