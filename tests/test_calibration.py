@@ -214,3 +214,19 @@ def test_order_ranks_a_block_of_rows_as_numpy_sorts_each(dtype: type) -> None:
         np.testing.assert_array_equal(ordered.values, values)
         assert np.array_equal(ordered.t, rank_table(row.size)[left])
         assert np.array_equal(ordered.counts, np.diff(np.append(left, row.size)).astype(np.float64))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("n", [0, 1, 2, 3, 17, 100, 5000])
+def test_ranks_against_a_sorted_row_are_numpys_left_search(dtype: type, n: int) -> None:
+    from wiloc.methods.filter_kernels import table_at_ranks
+
+    rng = np.random.default_rng(n)
+    ordered = np.sort(rng.integers(0, 50, n).astype(dtype))  # ties
+    if n == 100:
+        ordered[-5:] = np.nan  # NaN sorts last
+    table = rng.random(n + 1)
+    keys = np.concatenate([rng.integers(-2, 53, 50) + rng.choice([0.0, 0.5], 50), [np.nan, -np.inf, np.inf]])
+    out = np.empty(keys.size)
+    table_at_ranks(ordered, table, keys, out)
+    assert np.array_equal(out, table[np.searchsorted(ordered.astype(np.float64), keys, side="left")])
