@@ -1,14 +1,16 @@
-"""CPU milliseconds of one method step (one query frame's row in, one decision out) against
-generated maps: what a batch run pays per frame besides the difference kernel.
+"""CPU milliseconds per query frame of a method against generated maps: what a batch run pays
+per frame besides the difference kernel, split as a batch run splits it between two threads.
 
     python benchmarks/bench_step.py                                  # N = 10,000 and 35,000
-    python benchmarks/bench_step.py --sizes 35000 --profile catgraph # and where the time goes
+    python benchmarks/bench_step.py --sizes 35000 --profile catgraph # and where the step's time goes
 
 A generated ``sad`` route (``bench_localizer.route``); the query follows the map node by node
 from its 10 % mark with noise, so the filters track as on real data. The rows are computed
-beforehand as float32 (as the difference blocks arrive) and each is converted to float64 inside
-the timing, as ``ComputedDifferences.iter_rows`` does. Figures are medians over the timed frames
-(after ``--warmup`` frames: the first frame compiles numba kernels) of this process's CPU time.
+beforehand as float32, as the difference blocks arrive. As ``Method.run`` does, what the method
+computes from the rows alone (``Method.ahead``) is computed for 64 rows at a time (a batch run
+does it in a helper thread: the ``ahead`` column, per frame) and each row is then stepped with
+its item (the ``step`` column: the run's own thread). Figures are medians over the timed frames
+(after ``--warmup`` frames: the first frame compiles numba kernels) of this thread's CPU time.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ import numpy as np
 from bench_localizer import SPEC, route
 from wiloc.differences import ComputedDifferences, summarize
 from wiloc.distances import DifferencesTo, consecutive
-from wiloc.methods.base import MapContext
+from wiloc.methods.base import AHEAD_ROWS, MapContext
 from wiloc.methods.registry import make_method
 
 
@@ -42,22 +44,28 @@ def rows_and_context(n_map: int, frames: int, rng: np.random.Generator) -> tuple
 
 
 def step_ms(method: str, rows: np.ndarray, context: MapContext, warmup: int,
-            profile: bool) -> list[float]:
-    """CPU ms of each step after the first ``warmup`` frames (profiled to stdout when asked)."""
+            profile: bool) -> tuple[list[float], list[float]]:
+    """CPU ms of each frame's ahead and step after the first ``warmup`` frames (the steps
+    profiled to stdout when asked)."""
     m = make_method(method, {})
     m.start(context)
-    times = []
+    ahead_times, step_times = [], []
     profiler = cProfile.Profile() if profile else None
-    for k, row in enumerate(rows):
-        if k == warmup and profiler is not None:
-            profiler.enable()
-        cpu = time.process_time()
-        m.step(row.astype(np.float64))
-        times.append(1000.0 * (time.process_time() - cpu))
+    for first in range(0, len(rows), AHEAD_ROWS):
+        chunk = rows[first:first + AHEAD_ROWS]
+        cpu = time.thread_time()
+        computed = m.ahead(chunk)
+        ahead_times += [1000.0 * (time.thread_time() - cpu) / len(chunk)] * len(chunk)
+        for k, row in enumerate(chunk, first):
+            if k == warmup and profiler is not None:
+                profiler.enable()
+            cpu = time.thread_time()
+            m.step(row, ahead=None if computed is None else computed[k - first])
+            step_times.append(1000.0 * (time.thread_time() - cpu))
     if profiler is not None:
         profiler.disable()
         pstats.Stats(profiler).sort_stats("tottime").print_stats(18)
-    return times[warmup:]
+    return ahead_times[warmup:], step_times[warmup:]
 
 
 def main() -> None:
@@ -68,13 +76,14 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=20, help="frames not timed")
     parser.add_argument("--profile", default="", help="methods to profile (cProfile, comma-separated)")
     args = parser.parse_args()
-    print(f"{'N':>7} {'method':<10} {'median ms':>9} {'p10 ms':>7} {'p90 ms':>7}")
+    print(f"{'N':>7} {'method':<10} {'ahead ms':>9} {'step ms':>9} {'p10 ms':>7} {'p90 ms':>7}")
     for n_map in (int(s) for s in args.sizes.split(",")):
         rows, context = rows_and_context(n_map, args.frames, np.random.default_rng(n_map))
         for method in args.methods.split(","):
-            t = step_ms(method, rows, context, args.warmup, method in args.profile.split(","))
+            ahead, t = step_ms(method, rows, context, args.warmup, method in args.profile.split(","))
             q = statistics.quantiles(t, n=10)
-            print(f"{n_map:>7,} {method:<10} {statistics.median(t):>9.3f} {q[0]:>7.3f} {q[-1]:>7.3f}", flush=True)
+            print(f"{n_map:>7,} {method:<10} {statistics.median(ahead):>9.3f} {statistics.median(t):>9.3f} "
+                  f"{q[0]:>7.3f} {q[-1]:>7.3f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -199,3 +199,34 @@ def test_ranks_from_one_sort_are_the_searched_ranks_with_ties() -> None:
                 assert model.mean(omega) == pytest.approx(want, rel=1e-13, abs=1e-15)  # the sum in another order
         d = rng.random(50) * 8
         assert np.array_equal(model.t(d), -np.log((np.searchsorted(np.sort(row), d, side="left") + 0.5) / n))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_order_ranks_a_block_of_rows_as_numpy_sorts_each(dtype: type) -> None:
+    from wiloc.calibration import rank_table
+
+    rng = np.random.default_rng(5)
+    rows = np.concatenate([rng.integers(0, 30, (6, 200)), rng.random((3, 200)) * 1e-3 + 1.0]).astype(dtype)
+    rows[2, ::7] = np.nan  # each NaN a value of its own
+    for row, ordered in zip(rows, RankLikelihood(0.5, 10.0, 0.02).order(rows)):
+        values = np.sort(row).astype(np.float64)
+        left = np.flatnonzero(np.concatenate(([True], values[1:] != values[:-1])))
+        np.testing.assert_array_equal(ordered.values, values)
+        assert np.array_equal(ordered.t, rank_table(row.size)[left])
+        assert np.array_equal(ordered.counts, np.diff(np.append(left, row.size)).astype(np.float64))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("n", [0, 1, 2, 3, 17, 100, 5000])
+def test_ranks_against_a_sorted_row_are_numpys_left_search(dtype: type, n: int) -> None:
+    from wiloc.methods.filter_kernels import table_at_ranks
+
+    rng = np.random.default_rng(n)
+    ordered = np.sort(rng.integers(0, 50, n).astype(dtype))  # ties
+    if n == 100:
+        ordered[-5:] = np.nan  # NaN sorts last
+    table = rng.random(n + 1)
+    keys = np.concatenate([rng.integers(-2, 53, 50) + rng.choice([0.0, 0.5], 50), [np.nan, -np.inf, np.inf]])
+    out = np.empty(keys.size)
+    table_at_ranks(ordered, table, keys, out)
+    assert np.array_equal(out, table[np.searchsorted(ordered.astype(np.float64), keys, side="left")])

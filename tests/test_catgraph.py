@@ -228,3 +228,26 @@ def test_sequence_score_step_is_the_numpy_expression_value_for_value(even: bool)
     out, lowest = np.empty_like(score), np.empty(700)
     advance(score, at, a, _read_runs(at, a, 700), contrast, 0.1, out, lowest)
     assert np.array_equal(out, want) and np.array_equal(lowest, want.min(axis=0))
+
+
+@pytest.mark.parametrize(("n_nodes", "half"), [(500, 2), (500, 0), (3, 2), (40, 5)])
+def test_posterior_mode_sums_only_nodes_near_particles_and_reads_out_as_a_pass_over_every_node(
+        n_nodes: int, half: int) -> None:
+    from wiloc.methods.filter_kernels import posterior_mode
+
+    rng = np.random.default_rng(n_nodes + half)
+    marks = np.zeros(n_nodes, dtype=np.int64)
+    for frame in range(1, 40):
+        particles = 300
+        j = np.minimum(rng.integers(0, n_nodes - 1, particles) // (1 + frame % 3 * 40), n_nodes - 2)
+        frac = np.round(rng.random(particles), 1)  # some exactly at 0.5
+        w = rng.integers(1, 4, particles).astype(np.float64)  # ties between nodes' weights and masses
+        w /= w.sum()
+        own = np.empty(n_nodes)
+        mode, mass = posterior_mode(j, frac, w, half, 1e-12, own, marks, frame)
+        want_own = np.bincount(j + (frac >= 0.5), w, minlength=n_nodes)
+        want_mass = np.convolve(want_own, np.ones(2 * half + 1))[half:half + n_nodes] if n_nodes > 2 * half else \
+            np.array([want_own[max(i - half, 0):i + half + 1][::-1].sum() for i in range(n_nodes)])
+        near = np.flatnonzero(want_mass >= want_mass.max() - 1e-12)
+        assert np.array_equal(own, want_own)
+        assert mode == near[np.argmax(want_own[near])] and mass == want_mass[mode]

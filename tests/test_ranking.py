@@ -47,6 +47,41 @@ def test_best_candidates_rank_ascending_ties_by_position_and_skip_non_candidates
     assert best_candidates(tied).tolist() == list(range(RANKED))
 
 
+@pytest.mark.parametrize("window", [2, 8])  # 8: often every ranked position is within the window
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_compiled_pass_over_a_block_reads_each_row_as_the_numpy_functions_do(dtype: type, window: int) -> None:
+    from wiloc.candidates import finite_minimum
+    from wiloc.methods.online import near_miss
+    from wiloc.methods.row_kernels import best_of_rows
+
+    rng = np.random.default_rng(3)
+    rows = rng.integers(0, 6, (400, 40)).astype(dtype)  # many ties
+    for r, row in enumerate(rows):  # rows with NaN, +-inf, few or no candidates
+        kind = r % 8
+        if kind == 1:
+            row[rng.integers(0, 40, 3)] = np.nan
+        elif kind == 2:
+            row[rng.integers(0, 40, 30)] = np.inf
+        elif kind == 3:
+            row[rng.integers(0, 40, 2)] = -np.inf
+        elif kind == 4:
+            row[:] = np.inf
+            row[rng.integers(0, 40)] = 1.0
+        elif kind == 5:
+            row[:] = np.inf
+    ranking, counts = np.empty((rows.shape[0], RANKED), dtype=np.int64), np.empty(rows.shape[0], dtype=np.intp)
+    match, minimum, near = np.empty(rows.shape[0], dtype=np.intp), np.empty(rows.shape[0]), np.empty(rows.shape[0])
+    best_of_rows(rows, window, ranking, counts, match, minimum, near)
+    for r, row in enumerate(rows.astype(np.float64)):
+        assert ranking[r, :counts[r]].tolist() == best_candidates(row).tolist()
+        assert (ranking[r, counts[r]:] == -1).all()
+        z, m = finite_minimum(row)
+        assert match[r] == z
+        np.testing.assert_equal(minimum[r], m)
+        if z >= 0:
+            np.testing.assert_equal(near[r], near_miss(row, z, None, window))
+
+
 def test_recall_at_k_counts_a_true_match_among_the_k_best_of_frames_that_have_one() -> None:
     truth = _truth()
     assert truth.has_match().tolist() == [True, True, True, True, False]

@@ -18,7 +18,7 @@ from wiloc import __version__
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent
 from wiloc.describing import DescribeReport, check_sampling, describe_source, import_matrix
-from wiloc.differences import candidate_rows, run_differences
+from wiloc.differences import candidate_blocks, run_differences
 from wiloc.distances import consecutive
 from wiloc.errors import UsageError, WilocError
 from wiloc.groundtruth import Truth, TruthSource
@@ -172,7 +172,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
             evidence.add_places(r.data)
         rows = evidence_rows(evidence, q.data, sequence, R)
     else:
-        rows = candidate_rows(source.rows, sequence, R)
+        rows = candidate_blocks(source.rows, sequence, R)
     context = MapContext(
         sequence=sequence, exclude_recent=R, n_map=0 if sequence else len(r.names), rows=kind,
         natural_max=r.natural_max, arclength=_map_arclength(map_odometry, r.names), map_self=source.map_self,

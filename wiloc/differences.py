@@ -15,8 +15,6 @@ and written through an atomic rename.
 """
 from __future__ import annotations
 
-import queue
-import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc import __version__
+from wiloc.ahead import computed_ahead
 from wiloc.cache import Cache, Entry
 from wiloc.distances import DifferencesTo, band_extremes
 from wiloc.errors import WilocError
@@ -55,35 +54,7 @@ BlockRunner = Callable[[NDArray, DifferencesTo, list[tuple[int, int]]], Iterator
 def prefetched_blocks(data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
     """The blocks in order, each computed in a helper thread while the caller works on the one
     before (the kernels release the GIL), so a method's steps and the kernel overlap."""
-    ahead: queue.Queue = queue.Queue(maxsize=1)
-    stop = threading.Event()
-
-    def compute() -> None:
-        try:
-            for start, end in ranges:
-                block = to(data[start:end])
-                while not stop.is_set():
-                    try:
-                        ahead.put(block, timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
-                    return
-        except BaseException as exc:  # handed to the caller, raised there
-            ahead.put(exc)
-
-    worker = threading.Thread(target=compute, name="wiloc-differences", daemon=True)
-    worker.start()
-    try:
-        for _ in ranges:
-            block = ahead.get()
-            if isinstance(block, BaseException):
-                raise block
-            yield block
-    finally:
-        stop.set()
-        worker.join()
+    return computed_ahead(to(data[start:end]) for start, end in ranges)
 
 
 class ComputedDifferences:
@@ -206,8 +177,10 @@ def map_summary(ref: Entry, cache: Cache, exclude_recent: int, runner: BlockRunn
     return summary
 
 
-def candidate_rows(matrix: ComputedDifferences, sequence: bool, exclude_recent: int) -> Iterator[NDArray[np.float64]]:
-    """Difference rows over the candidate frames, float64, np.inf where a frame is no candidate.
+def candidate_blocks(matrix: ComputedDifferences, sequence: bool,
+                     exclude_recent: int) -> Iterator[NDArray[np.float32]]:
+    """Blocks of consecutive difference rows over the candidate frames, float32 as the kernels
+    give them, inf where a frame is no candidate.
 
     Map mode: the rows as they are. Sequence mode (the traversal against itself): row k keeps
     only frames i < k - exclude_recent.
@@ -216,10 +189,18 @@ def candidate_rows(matrix: ComputedDifferences, sequence: bool, exclude_recent: 
         raise ValueError(f"exclude_recent must be >= 0, got {exclude_recent}")
     if sequence and matrix.shape[0] != matrix.shape[1]:
         raise ValueError(f"sequence mode needs a square matrix, got {matrix.shape}")
-    for k, row in enumerate(matrix.iter_rows()):
+    for start, block in matrix.blocks():
         if sequence:
-            row[max(0, k - exclude_recent) :] = np.inf
-        yield row
+            for k, row in enumerate(block, start):
+                row[max(0, k - exclude_recent):] = np.inf
+        yield block
+
+
+def candidate_rows(matrix: ComputedDifferences, sequence: bool, exclude_recent: int) -> Iterator[NDArray[np.float64]]:
+    """The rows of :func:`candidate_blocks` one by one, float64."""
+    for block in candidate_blocks(matrix, sequence, exclude_recent):
+        for row in block:
+            yield row.astype(np.float64)
 
 
 @dataclass(frozen=True)

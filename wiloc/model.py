@@ -70,6 +70,13 @@ class HistogramModel:
         """Count difference(s) as different-place samples (``c``)."""
         np.add.at(self.c, self.bin_of(np.atleast_1d(d)), 1.0)
 
+    def count_bins(self, same: int, different: int | None = None) -> None:
+        """Count one same-place sample (and one different-place sample) by its bin
+        (:meth:`bin_of`, taken ahead): what :meth:`add_same` and :meth:`add_different` count."""
+        self.b[same] += 1.0
+        if different is not None:
+            self.c[different] += 1.0
+
     def _density(self, counts: NDArray[np.float64]) -> NDArray[np.float64]:
         smoothed = counts + self.smoothing
         total = smoothed.sum()

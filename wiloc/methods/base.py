@@ -11,13 +11,14 @@ it frame by frame. Adding a method is one module with a subclass and one line in
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.ahead import computed_ahead
 from wiloc.candidates import best_candidates
 from wiloc.errors import UsageError, WilocError
 from wiloc.model import HistogramModel
@@ -28,6 +29,11 @@ if TYPE_CHECKING:
     from wiloc.differences import MapSummary, RowBlocks
 
 Progress = Callable[[int, int], None]
+
+AHEAD_ROWS = 64
+"""Rows whose :meth:`Method.ahead` a batch run computes at once: enough that its helper thread
+takes the GIL only a few times per 64 rows, few enough that what it keeps per row (an array or
+two of the row's length) stays small."""
 
 #: What a method can declare in ``needs``:
 #: ``map``: it cannot run in sequence mode; ``map_self``: in map mode it learns from the map's
@@ -259,17 +265,25 @@ class Method(ABC):
         self.frames = 0
         self.prepare(context)
 
-    def step(self, row: NDArray[np.float64], odometry: float | None = None) -> Decision:
+    def step(self, row: NDArray[np.floating], odometry: float | None = None, ahead: Any = None) -> Decision:
         """Decide one query frame from its difference row (and its travelled distance, for
-        methods that take odometry)."""
+        methods that take odometry); ``ahead`` is what :meth:`ahead` computed for this row, if
+        the caller computed it (else the method does, when it needs it). A float32 row (as the
+        difference kernels give them) is decided as it is, every other as float64: methods read
+        its values as float64 either way, so the decisions are the same."""
         if self.context is None:
             raise RuntimeError(f"{self.name}: call start() before step()")
         if odometry is not None and "odometry" not in self.needs:
             raise WilocError(self.name, f"method '{self.name}' takes no odometry", parameter="odometry")
-        row = np.asarray(row, dtype=np.float64)
-        decision = self.decide(row, odometry)
+        row = np.asarray(row)
+        row = row if row.dtype == np.float32 else row.astype(np.float64, copy=False)
+        self._ahead = ahead
+        try:
+            decision = self.decide(row, odometry)
+        finally:
+            self._ahead = None
         self.frames += 1
-        if self.ranks and decision.match >= 0:
+        if self.ranks and decision.match >= 0 and not decision.ranking:
             best = best_candidates(row, descending=self.context.rows == "log_ratio")
             decision = replace(decision, ranking=tuple(best.tolist()))
         return decision
@@ -279,8 +293,34 @@ class Method(ABC):
         """Learn from the map what the method needs before the first query frame."""
 
     @abstractmethod
-    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
-        """Query frame number ``self.frames``: its decision, updating what the method learns."""
+    def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
+        """Query frame number ``self.frames``: its decision, updating what the method learns
+        (the row float64, or float32 as the difference kernels give it)."""
+
+    def ahead(self, rows: NDArray[np.floating]) -> Sequence[Any] | None:
+        """What the method computes from each of these consecutive rows alone (no state of
+        earlier frames), one item per row, before they are stepped: a batch run computes it
+        for many rows at once, in a helper thread beside the steps (default: nothing)."""
+        return None
+
+    def _chunks_ahead(self, rows: Iterable[NDArray[np.floating]]
+                      ) -> Iterator[tuple[NDArray[np.floating], Sequence[Any] | None]]:
+        """Up to ``AHEAD_ROWS`` consecutive rows at a time, with their :meth:`ahead`."""
+        for item in rows:
+            block = np.asarray(item)
+            block = block if block.ndim == 2 else block[None, :]
+            for first in range(0, block.shape[0], AHEAD_ROWS):
+                chunk = block[first:first + AHEAD_ROWS]
+                yield chunk, self.ahead(chunk)
+
+    def row_ahead(self, row: NDArray[np.floating]) -> Any:
+        """In :meth:`decide`: :meth:`ahead`'s item of the row being decided, given by the caller
+        or computed now."""
+        given = getattr(self, "_ahead", None)
+        if given is not None:
+            return given
+        computed = self.ahead(row[None, :])
+        return None if computed is None else computed[0]
 
     @property
     def model(self) -> HistogramModel | None:
@@ -314,16 +354,23 @@ class Method(ABC):
     def load_state(self, state: Mapping[str, Any]) -> None:
         """Set what :meth:`save_state` returned."""
 
-    def run(self, rows: Iterable[NDArray[np.float64]], n_frames: int,
+    def run(self, rows: Iterable[NDArray[np.floating]], n_frames: int,
             odometry: NDArray[np.float64] | None = None, progress: Progress | None = None) -> Decisions:
-        """Step every row (``n_frames`` of them) and collect the decisions (after :meth:`start`)."""
+        """Step every row (``n_frames`` of them) and collect the decisions (after :meth:`start`).
+
+        ``rows`` yields rows, or 2-D blocks of consecutive rows (as the difference kernels give
+        them). A helper thread reads them ``AHEAD_ROWS`` at a time, with what the method
+        computes of them :meth:`ahead`, while this thread steps the rows before."""
         steps: list[Decision] = []
-        for k, row in enumerate(rows):
-            if k >= n_frames:
+        for chunk, computed in computed_ahead(self._chunks_ahead(rows)):
+            if len(steps) + chunk.shape[0] > n_frames:
                 raise WilocError(self.name, f"more difference rows than n_frames={n_frames}")
-            steps.append(self.step(row, None if odometry is None else float(odometry[k])))
-            if progress is not None:
-                progress(k + 1, n_frames)
+            for i, row in enumerate(chunk):
+                k = len(steps)
+                steps.append(self.step(row, None if odometry is None else float(odometry[k]),
+                                       None if computed is None else computed[i]))
+                if progress is not None:
+                    progress(k + 1, n_frames)
         if len(steps) != n_frames:
             raise WilocError(self.name, f"got {len(steps)} difference rows, expected n_frames={n_frames}")
         return Decisions.collect(steps, self.columns, ranked=self.ranks, model=self.model, params=self.header())

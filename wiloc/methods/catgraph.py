@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.calibration import GivenEvidence, RankLikelihood, Unexplained, logsumexp, novelty_weights
+from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, logsumexp, novelty_weights
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -112,6 +112,15 @@ def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArr
     cum[-1] = 1.0
     pointers = (rng.random() + np.arange(m)) / m
     return np.searchsorted(cum, pointers, side="left")
+
+
+@dataclass(frozen=True)
+class RowAhead:
+    """What the filter computes from a row alone (:meth:`CatGraph.ahead`)."""
+
+    contrast: NDArray[np.float64]  # the sequence score's contrast-normalised row, low = alike
+    finite: bool  # whether every value of the row is finite
+    ordered: SortedRow | None  # what the rank model ranks against (None for given evidence)
 
 
 @dataclass(frozen=True)
@@ -217,7 +226,7 @@ class CatGraph(Method):
         self._log_w = np.full(p.particles, -np.log(p.particles))
         self._sequence = np.zeros((len(p.sequence_speeds), n_nodes))
         self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
-        self._mass = np.zeros(n_nodes)  # ... and within +-mode_window nodes of each
+        self._marks = np.zeros(n_nodes, dtype=np.int64)  # the read-out's scratch: the frame that last summed a node
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
         self._odometry = False  # whether any step came with odometry
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
@@ -256,22 +265,35 @@ class CatGraph(Method):
         filter_kernels.advance(sequence, *self._shift_lookup(u), contrast, self.params.sequence_rate, after, lowest)
         return after, lowest
 
-    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+    def ahead(self, rows: NDArray[np.floating]) -> list[RowAhead | None]:
+        """Each row's contrast (low = alike), whether it is finite, and what the observation
+        model ranks against: computed for a block of rows in compiled passes (None for rows
+        that are not one value per map node)."""
+        from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
+
+        if rows.shape[1] != self._nodes.size:
+            return [None] * rows.shape[0]
+        evidence = self.context is not None and self.context.rows == "log_ratio"
+        contrast, finite = np.empty(rows.shape), np.empty(rows.shape[0], dtype=np.bool_)
+        filter_kernels.contrast_rows(rows, self.params.contrast_window, -1.0 if evidence else 1.0, contrast, finite)
+        ordered = self._likelihood.order(rows)
+        return [RowAhead(contrast[r], bool(finite[r]), ordered[r]) for r in range(rows.shape[0])]
+
+    def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
         from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
 
         p, rng, nodes = self.params, self._rng, self._nodes
         n_nodes, first = nodes.size, self.frames == 0
-        evidence = self.context is not None and self.context.rows == "log_ratio"
-        contrast = np.empty(n_nodes)  # low = alike
-        if row.shape != (n_nodes,) or not filter_kernels.contrast_normalise(row, p.contrast_window,
-                                                                            -1.0 if evidence else 1.0, contrast):
+        pre = self.row_ahead(row) if row.shape == (n_nodes,) else None
+        if pre is None or not pre.finite:
             raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
+        contrast = pre.contrast
         u = self._travelled(odometry)
         self._sequence, score = self._advance(self._sequence, contrast, u, first)
         if not first:
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
-        likelihood.use_row(row)
+        likelihood.use_row(row, pre.ordered)
         log_mean_ratio = likelihood.mean(self._omega, self._damped)
         prior = unexplained.transition(first)
 
@@ -301,8 +323,9 @@ class CatGraph(Method):
         log_w = log_w - log_map
         w = np.exp(log_w)
 
-        self._own, self._mass = own, mass = np.empty(n_nodes), np.empty(n_nodes)  # read-out: the density's mode
-        mode = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, own, mass)
+        self._own = np.empty(n_nodes)  # read-out: the density's mode
+        mode, mass = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, self._own, self._marks,
+                                                   self.frames + 1)
         p_new = unexplained.new_place
         unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
         likelihood.learn(w * omega, 1.0 - unexplained.u)
@@ -312,13 +335,16 @@ class CatGraph(Method):
             pos, speed = pos[idx], speed[idx]
             log_w = np.full(p.particles, -np.log(p.particles))
         self._pos, self._speed, self._log_w = pos, speed, log_w
-        return Decision(match=mode, difference=float(row[mode]), confidence=float(mass[mode] * (1.0 - p_new)),
+        return Decision(match=mode, difference=float(row[mode]), confidence=float(mass * (1.0 - p_new)),
                         stage="track", new_place=p_new)
 
     def probability_near(self, node: int) -> float:
         """After a step: the probability that the frame shows the place of ``node`` (within
         +-mode_window nodes), the map explaining it."""
-        return float(self._mass[node] * (1.0 - self._unexplained.new_place))
+        from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
+
+        mass = filter_kernels.window_sum(self._own, self.params.mode_window, node)
+        return float(mass * (1.0 - self._unexplained.new_place))
 
     def _travelled(self, odometry: float | None) -> float:
         """u_k: the query's odometry step, else the mean node spacing."""
@@ -345,8 +371,6 @@ class CatGraph(Method):
                 "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
-        from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
-
         p = self.params
         self._nodes = np.asarray(state["nodes"], dtype=np.float64)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
@@ -357,8 +381,7 @@ class CatGraph(Method):
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
-        self._mass = np.empty(self._own.size)
-        filter_kernels.window_mass(self._own, p.mode_window, self._mass)
+        self._marks = np.zeros(self._own.size, dtype=np.int64)
         self._odometer = float(state["odometer"])
         self._odometry = bool(state["odometry"])
         self._likelihood = self._observation_model()

@@ -64,7 +64,8 @@ def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.floa
     ``(1 - rate) * ((1 - a) * prev[at] + a * prev[at + 1]) + rate * contrast``, value for value.
     ``runs`` (``catgraph._read_runs``: first, end) are long stretches that read consecutive
     positions at one fraction, as evenly spaced nodes give: there the loop vectorises.
-    ``lowest[j]`` = ``out[:, j].min()``, the score that re-seeding ranks nodes by.
+    ``lowest[j]`` = ``out[:, j].min()``, the score that re-seeding ranks nodes by, taken in the
+    same pass (speed by speed, as the rows are written).
     """
     prev, flat = score.ravel(), out.ravel()
     n = contrast.size
@@ -74,22 +75,24 @@ def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.floa
         end = runs[r, 0] if r < runs.shape[0] else flat.size
         j = k % n
         for k in range(k, end):  # uneven reads: one position at a time
-            flat[k] = keep * ((1.0 - a[k]) * prev[at[k]] + a[k] * prev[at[k] + 1]) + rate * contrast[j]
+            value = keep * ((1.0 - a[k]) * prev[at[k]] + a[k] * prev[at[k] + 1]) + rate * contrast[j]
+            flat[k] = value
+            lowest[j] = value if k < n else min(lowest[j], value)
             j = j + 1 if j + 1 < n else 0
         if r == runs.shape[0]:
             break
         k, end = runs[r, 0], runs[r, 1]
         length, first, f = end - k, at[k], a[k]
         here, before, after = flat[k:end], prev[first:first + length], prev[first + 1:first + 1 + length]
-        now = contrast[k % n:k % n + length]
-        for i in range(length):  # plain indices into views: the loop vectorises
-            here[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
+        now, low = contrast[k % n:k % n + length], lowest[k % n:k % n + length]
+        if k < n:  # the first speed's row
+            for i in range(length):  # plain indices into views: the loop vectorises
+                here[i] = low[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
+        else:
+            for i in range(length):
+                here[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
+                low[i] = min(low[i], here[i])
         k = end
-    lowest[:] = out[0]
-    for v in range(1, out.shape[0]):
-        row = out[v]
-        for j in range(n):
-            lowest[j] = min(lowest[j], row[j])
 
 
 @njit(cache=True, nogil=True)
@@ -122,6 +125,20 @@ def interpolate(values: NDArray[np.float64], j: NDArray[np.intp], frac: NDArray[
 
 
 @njit(cache=True, nogil=True)
+def window_sum(own: NDArray[np.float64], half: int, i: int) -> float:
+    """:func:`window_mass` at node i alone, summed in its order."""
+    n = own.size
+    total = 0.0
+    if n - 2 * half > 0:
+        for k in range(max(i - half, 0), min(i + half, n - 1) + 1):
+            total += own[k]
+    else:  # a map shorter than the window: np.convolve sums from the last node back
+        for k in range(min(i + half, n - 1), max(i - half, 0) - 1, -1):
+            total += own[k]
+    return total
+
+
+@njit(cache=True, nogil=True)
 def window_mass(own: NDArray[np.float64], half: int, mass: NDArray[np.float64]) -> None:
     """``mass`` = the posterior weight ``own`` summed within +-``half`` nodes of each node.
 
@@ -142,30 +159,134 @@ def window_mass(own: NDArray[np.float64], half: int, mass: NDArray[np.float64]) 
     else:
         edges = list(range(n))
     for i in edges:  # where the window is cut short
-        total = 0.0
-        if inner > 0:
-            for k in range(max(i - half, 0), min(i + half, n - 1) + 1):
-                total += own[k]
-        else:  # a map shorter than the window: np.convolve sums from the last node back
-            for k in range(min(i + half, n - 1), max(i - half, 0) - 1, -1):
-                total += own[k]
-        mass[i] = total
+        mass[i] = window_sum(own, half, i)
 
 
 @njit(cache=True, nogil=True)
 def posterior_mode(j: NDArray[np.intp], frac: NDArray[np.float64], w: NDArray[np.float64], half: int,
-                   tie: float, own: NDArray[np.float64], mass: NDArray[np.float64]) -> int:
+                   tie: float, own: NDArray[np.float64], marks: NDArray[np.int64], frame: int) -> tuple[int, float]:
     """The read-out of the posterior: ``own`` = the particles' weight per nearest node
-    (``np.bincount(j + (frac >= 0.5), w)``), ``mass`` = its :func:`window_mass`, and the returned
-    mode: among the nodes whose mass is within ``tie`` of the largest, the first of those holding
-    most weight themselves."""
+    (``np.bincount(j + (frac >= 0.5), w)``), and the mode of its :func:`window_mass` with the
+    mode's mass: among the nodes whose mass is within ``tie`` of the largest, the first of those
+    holding most weight themselves.
+
+    Only nodes within +-``half`` of a particle have mass, so only those are summed, each once
+    (``marks[i] == frame`` once node i is; ``frame`` differs in every call): the same masses
+    and mode as a pass over every node, which this falls back to when the largest mass is not
+    beyond ``tie`` (massless nodes would count) or not finite.
+    """
+    n = own.size
     own[:] = 0.0
+    nearest = np.empty(j.size, dtype=np.intp)
     for p in range(j.size):
-        own[j[p] + (1 if frac[p] >= 0.5 else 0)] += w[p]
-    window_mass(own, half, mass)
-    top = mass.max()
+        nearest[p] = j[p] + (1 if frac[p] >= 0.5 else 0)
+        own[nearest[p]] += w[p]
+    nodes = np.empty(j.size * (2 * half + 1), dtype=np.intp)
+    masses = np.empty(nodes.size)
+    count = 0
+    top = 0.0
+    finite = True
+    for p in range(j.size):
+        for i in range(max(nearest[p] - half, 0), min(nearest[p] + half, n - 1) + 1):
+            if marks[i] != frame:
+                marks[i] = frame
+                nodes[count], masses[count] = i, window_sum(own, half, i)
+                finite &= np.isfinite(masses[count])
+                top = max(top, masses[count])
+                count += 1
+    if not (finite and top - tie > 0.0):  # every node's mass, as the pass over all nodes has it
+        masses = np.empty(n)
+        window_mass(own, half, masses)
+        top = masses.max()
+        mode = -1
+        for i in range(n):
+            if masses[i] >= top - tie and (mode < 0 or own[i] > own[mode]):
+                mode = i
+        return mode, masses[mode]
     mode = -1
-    for i in range(own.size):
-        if mass[i] >= top - tie and (mode < 0 or own[i] > own[mode]):
+    for c in range(count):  # the most own weight among the near-top masses, the first node among ties
+        i = nodes[c]
+        if masses[c] >= top - tie and (mode < 0 or own[i] > own[mode] or (own[i] == own[mode] and i < mode)):
             mode = i
-    return mode
+    return mode, window_sum(own, half, mode)
+
+
+@njit(cache=True, nogil=True)
+def contrast_rows(rows: NDArray[np.floating], half_window: int, sign: float, out: NDArray[np.float64],
+                  finite: NDArray[np.bool_]) -> None:
+    """:func:`contrast_normalise` of every row of a block (float32 values read as float64, as
+    converting the row first gives): ``out[r]`` and ``finite[r]``."""
+    for r in range(rows.shape[0]):
+        finite[r] = contrast_normalise(rows[r], half_window, sign, out[r])
+
+
+@njit(cache=True, nogil=True)
+def distinct_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64],
+                   sizes: NDArray[np.intp]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """For every row of sorted values: ``sizes[r]``, its number of distinct values, and (row
+    after row in the two returned arrays) ``table`` at the left rank of each distinct value (its
+    first place) and how many values share it. NaN never equals itself, so each NaN is a value
+    of its own, as numpy's ``!=`` has it. The first places are found without a branch (a sorted
+    row's runs of equal values end at unpredictable places): each place's distinct value
+    counted forwards, then each value's place written backwards, the first one last."""
+    rows, n = ordered.shape
+    for r in range(rows):
+        row = ordered[r]
+        k = 1 if n else 0
+        for i in range(1, n):
+            k += row[i] != row[i - 1]
+        sizes[r] = k
+    t, counts = np.empty(sizes.sum()), np.empty(sizes.sum())
+    group = np.empty(n, dtype=np.intp)
+    left = np.empty(n + 1, dtype=np.intp)
+    at = 0
+    for r in range(rows if n else 0):
+        row = ordered[r]
+        k = 0
+        group[0] = 0
+        for i in range(1, n):
+            k += row[i] != row[i - 1]
+            group[i] = k
+        for i in range(n - 1, -1, -1):
+            left[group[i]] = i
+        left[k + 1] = n
+        for d in range(k + 1):
+            t[at + d] = table[left[d]]
+            counts[at + d] = left[d + 1] - left[d]
+        at += k + 1
+    return t, counts
+
+
+@njit(cache=True, nogil=True)
+def table_at_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64], keys: NDArray[np.floating],
+                   out: NDArray[np.float64]) -> None:
+    """``out`` = ``table[np.searchsorted(ordered, keys, side="left")]``: each key's left rank in
+    the sorted row (its values read as float64; NaN sorting last, as numpy's search has it).
+
+    Sixteen keys are searched side by side, each halving its range without a branch on the
+    comparison: the particles' keys fall anywhere in the row, and sixteen independent reads per
+    halving overlap."""
+    n, m = ordered.size, keys.size
+    group = 16
+    base = np.zeros(group, dtype=np.intp)
+    for first in range(0, m, group):
+        count = min(group, m - first)
+        base[:] = 0
+        length = n
+        while length > 1:
+            half = length >> 1
+            for q in range(count):
+                at = base[q] + half
+                base[q] = at if np.float64(ordered[at]) < np.float64(keys[first + q]) else base[q]
+            length -= half
+        for q in range(count):
+            x = np.float64(keys[first + q])
+            if n == 0:
+                rank = 0
+            elif x != x:  # a NaN key goes after every value but the NaNs
+                rank = 0
+                while rank < n and np.float64(ordered[rank]) == np.float64(ordered[rank]):
+                    rank += 1
+            else:
+                rank = base[q] + (1 if np.float64(ordered[base[q]]) < x else 0)
+            out[first + q] = table[rank]

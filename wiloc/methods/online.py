@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.candidates import finite_minimum
+from wiloc.candidates import RANKED, finite_minimum
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decision, MapContext, Method, self_summary
 from wiloc.methods.catgraph import CatGraph
@@ -91,6 +91,19 @@ def _increasing(row: NDArray[np.float64], first: int = 32) -> Iterator[int]:
         k *= 8
 
 
+@dataclass(frozen=True)
+class OnlineAhead:
+    """What the online model reads off a row alone in map mode (:meth:`Online.ahead`)."""
+
+    match: int  # the best match z (-1: none)
+    difference: float  # its difference m
+    near_miss: float  # m_r: the smallest difference outside z's window
+    ranking: tuple[int, ...]  # the row's best candidates, best first
+    same_bin: int  # the histogram bin of m
+    near_bin: int  # ... and of m_r
+    filter: Any  # what the map filter computes ahead (CatGraph.ahead)
+
+
 def map_minima(context: MapContext) -> NDArray[np.float64]:
     """Each map frame's smallest difference to the map frames outside its +-R: the samples that
     initialise ``c`` in map mode (frames with no such difference give none)."""
@@ -140,9 +153,28 @@ class Online(Method):
         model.add_different(values)
         return model
 
-    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+    def ahead(self, rows: NDArray[np.floating]) -> list[OnlineAhead] | None:
+        """Map mode: each row's best match, its difference, near miss and ranking (one compiled
+        pass over the rows) and what the map filter computes ahead; nothing in sequence mode,
+        where the near miss depends on the matches of earlier frames."""
+        from wiloc.methods.row_kernels import best_of_rows  # numba loads with the first rows
+
+        if self._filter is None:
+            return None
+        n = rows.shape[0]
+        ranking, counts = np.empty((n, RANKED), dtype=np.int64), np.empty(n, dtype=np.intp)
+        match, minimum, near = np.empty(n, dtype=np.intp), np.empty(n), np.empty(n)
+        best_of_rows(rows, self.params.same_place_window, ranking, counts, match, minimum, near)
+        assert self._model is not None  # map mode: the bins are fixed from the start
+        same, different = self._model.bin_of(minimum).tolist(), self._model.bin_of(near).tolist()
+        filtered = self._filter.ahead(rows)
+        return [OnlineAhead(int(match[r]), float(minimum[r]), float(near[r]), tuple(ranking[r, :counts[r]].tolist()),
+                            same[r], different[r], filtered[r]) for r in range(n)]
+
+    def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
         sequence = self.context is not None and self.context.sequence
-        z, m = finite_minimum(row)
+        pre = None if sequence else self.row_ahead(row)
+        z, m = finite_minimum(row) if pre is None else (pre.match, pre.difference)
         decision = Decision(match=-1, difference=np.nan, confidence=np.nan, stage="none", extra={"m_r": np.nan})
         if z >= 0 and self._model is None:
             self._seen.append(m)
@@ -152,18 +184,22 @@ class Online(Method):
                                 extra={"m_r": np.nan})
         elif z >= 0:
             assert self._model is not None
-            p = float(self._model.posterior(m))
-            new_place = 1.0 - p
-            if self._filter is not None:
-                new_place = self._filter.step(row).new_place
+            if self._filter is not None:  # map mode: the filter's posterior
+                new_place = self._filter.step(row, ahead=None if pre is None else pre.filter).new_place
                 p = self._filter.probability_near(z)
-            self._model.add_same(m)
-            recorded = self._match[:self.frames] if sequence else None
-            m_r = near_miss(row, z, recorded, self.params.same_place_window)
-            if np.isfinite(m_r):
-                self._model.add_different(m_r)
+            else:
+                p = float(self._model.posterior(m))
+                new_place = 1.0 - p
+            if pre is None:
+                m_r = near_miss(row, z, self._match[:self.frames] if sequence else None, self.params.same_place_window)
+                self._model.add_same(m)
+                if np.isfinite(m_r):
+                    self._model.add_different(m_r)
+            else:
+                m_r = pre.near_miss
+                self._model.count_bins(pre.same_bin, pre.near_bin if np.isfinite(m_r) else None)
             decision = Decision(match=z, difference=m, confidence=p, stage="update", new_place=new_place,
-                                extra={"m_r": m_r})
+                                extra={"m_r": m_r}, ranking=() if pre is None else pre.ranking)
         if sequence:
             self._record(decision.match)
         return decision
