@@ -217,13 +217,13 @@ def test_bad_input_files_are_one_line_with_exit_code_1(case: str, route: tuple[P
 
 def test_an_unreadable_folder_is_exit_code_1(route: tuple[Path, Path], monkeypatch: pytest.MonkeyPatch) -> None:
     ref, _ = route
-    iterdir = Path.iterdir
+    scandir = os.scandir
 
-    def refuse(self: Path):  # as a folder without read permission does (the tests may run as root)
-        if self == ref:
-            raise PermissionError(13, "Permission denied", str(self))
-        return iterdir(self)
-    monkeypatch.setattr(Path, "iterdir", refuse)
+    def refuse(path):  # as a folder without read permission does (the tests may run as root)
+        if Path(path) == ref:
+            raise PermissionError(13, "Permission denied", str(path))
+        return scandir(path)
+    monkeypatch.setattr(os, "scandir", refuse)
     ends_in_one_error(runner.invoke(app, ["describe", str(ref)]), 1, f"{ref}: Permission denied")
 
 

@@ -35,7 +35,7 @@ from wiloc.cache import (
 from wiloc.descriptors.external import read_external
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
-from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, read_gray
+from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, natural_key, read_gray
 from wiloc.reprs import short_repr
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
 from wiloc.workers import WorkerError, borrowed_pool, can_fork, kept_pool
@@ -274,8 +274,8 @@ def _journal(cache: Cache, stored: StoredEntry, results: Iterator[tuple[FrameRec
 def _report(stored: StoredEntry, entry: Entry, computed: int, started: float, ignored: Sequence[str] = (),
             video: bool = False) -> DescribeReport:
     """The report of a run that settled every frame of `stored` and wrote (or reused) `entry`."""
-    records = stored.ordered()
-    failed = [(r.name, r.reason) for r in records if r.row is None]
+    records = stored.records.values()
+    failed = sorted(((r.name, r.reason) for r in records if r.row is None), key=lambda f: natural_key(f[0]))
     seconds = time.perf_counter() - started
     return DescribeReport(
         folder=stored.header.folder, descriptor=stored.header.descriptor, shape=entry.data.shape,

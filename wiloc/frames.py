@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,13 +71,14 @@ def list_traversal(folder: Path) -> Traversal:
         raise WilocError(folder, "not a folder")
     frames: list[Path] = []
     ignored: list[Path] = []
-    for path in folder.iterdir():
-        is_frame = (
-            not path.name.startswith(".")
-            and path.suffix.lower() in IMAGE_SUFFIXES
-            and path.is_file()
-        )
-        (frames if is_frame else ignored).append(path)
+    with os.scandir(folder) as entries:  # the entries know their type: no stat per file
+        for item in entries:
+            is_frame = (
+                not item.name.startswith(".")
+                and os.path.splitext(item.name)[1].lower() in IMAGE_SUFFIXES
+                and item.is_file()
+            )
+            (frames if is_frame else ignored).append(folder / item.name)
     if not frames:
         raise WilocError(folder, f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))})")
     frames.sort(key=lambda p: natural_key(p.name))
