@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,10 +43,16 @@ from wiloc.vocabulary import VocabularyParams
 from wiloc.vocabulary_build import VocabularyReport, build_vocabulary, vocabulary_path
 
 __all__ = ["Comparison", "Evaluation", "LocalizeRun", "Sampling", "Training", "TruthSource", "compare",
-           "describe", "evaluate", "import_descriptors", "localize"]
+           "describe", "evaluate", "import_descriptors", "localize", "shared_workers"]
 
 
 # ----------------------------------------------------------------------------------------- describe
+
+def shared_workers() -> AbstractContextManager[None]:
+    """Within this block, the describes of several folders share their worker processes (started
+    once, stopped on leaving), as one ``wiloc describe`` call over several folders does."""
+    return keeping_pools()
+
 
 def describe(folders: Sequence[Path], descriptor: str = "sad", *,
              descriptor_params: Mapping[str, Any] | None = None, cache: Cache | None = None,
@@ -60,7 +67,7 @@ def describe(folders: Sequence[Path], descriptor: str = "sad", *,
     for folder in folders:
         check_sampling(Path(folder), sampling)
     cluster = open_cluster(scheduler, jobs)
-    with keeping_pools():  # the folders share their worker processes
+    with shared_workers():
         return [describe_source(Path(folder), spec, cache, jobs=jobs, sampling=sampling,
                                 progress=stage(progress, f"describe {Path(folder).name}"), cluster=cluster)
                 for folder in folders]

@@ -137,7 +137,6 @@ def describe(
     """
     from wiloc import api
     from wiloc.cache import Cache
-    from wiloc.workers import keeping_pools
 
     importing = import_file is not None
     if list_cache and (folders or importing):
@@ -156,7 +155,7 @@ def describe(
         fail("FOLDER...: give image folders, video files, --import FILE or --list", EXIT_USAGE)
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
     reports, repairs = [], []
-    with progress_bar(not as_json) as progress, keeping_pools():  # the folders share their workers
+    with progress_bar(not as_json) as progress, api.shared_workers():
         for source in [import_file] if importing else folders:
             known = len(store.repairs)
             if importing:
