@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from wiloc.cache import Cache, Entry
-from wiloc.differences import MapSummary, candidate_rows, differences, map_summary, prefetched_blocks, summarize
+from wiloc.differences import (MapSummary, RecycledBlocks, candidate_rows, differences, map_summary, prefetched_blocks,
+                               summarize)
 from wiloc.distances import pairwise
 from wiloc.errors import WilocError
 from wiloc.methods.base import ArrayRows
@@ -71,14 +72,21 @@ def test_empty_query_has_no_rows() -> None:
     assert list(m.iter_rows()) == []
 
 
-def test_prefetching_hands_a_kernel_error_to_the_reader() -> None:
-    def failing(rows: np.ndarray) -> np.ndarray:
+class FailingKernel:
+    """Differences to one reference row: the query value itself, failing on a row of value 3."""
+
+    shape = (1, 1)
+
+    def __call__(self, rows: np.ndarray, out: np.ndarray) -> np.ndarray:
         if rows[0, 0] == 3:
             raise RuntimeError("kernel failed")
-        return rows.astype(np.float32)
+        out[:] = rows
+        return out
 
+
+def test_prefetching_hands_a_kernel_error_to_the_reader() -> None:
     data = np.arange(6, dtype=np.float32)[:, None]
-    blocks = prefetched_blocks(data, failing, [(0, 2), (2, 3), (3, 6)])  # type: ignore[arg-type]
+    blocks = prefetched_blocks(data, FailingKernel(), [(0, 2), (2, 3), (3, 6)])  # type: ignore[arg-type]
     assert next(blocks).tolist() == [[0.0], [1.0]]
     assert next(blocks).tolist() == [[2.0]]
     with pytest.raises(RuntimeError, match="kernel failed"):
@@ -229,3 +237,32 @@ def test_a_damaged_summary_is_computed_again(cache: Cache) -> None:
     got = map_summary(ref, cache, 2, progress=counter)
     assert counter.calls
     np.testing.assert_array_equal(got.minima, brute_summary(ref, 2).minima)
+
+
+def test_a_block_s_memory_serves_again_only_once_no_view_of_it_is_left() -> None:
+    blocks = RecycledBlocks()
+    first = blocks.take(3, 4)
+    first[:] = 1.0
+    address = first.__array_interface__["data"][0]
+    row = first[1]  # a view outlives the block it came from
+    del first
+    second = blocks.take(3, 4)
+    assert second.__array_interface__["data"][0] != address  # still in use: fresh memory
+    second[:] = 2.0
+    assert row.tolist() == [1.0] * 4
+    del row
+    third = blocks.take(2, 4)  # smaller: the free memory serves, as a C-contiguous block
+    assert third.__array_interface__["data"][0] == address
+    assert third.shape == (2, 4) and third.dtype == np.float32 and third.flags.c_contiguous
+    del second, third
+    larger = blocks.take(4, 4)  # larger than any free memory: fresh
+    assert larger.__array_interface__["data"][0] != address and larger.shape == (4, 4)
+
+
+def test_recycled_blocks_give_the_same_rows_as_fresh_ones() -> None:
+    query, ref = make_entry("q", 50, 1), make_entry("r", 7, 2)
+    computed = differences(query, ref)
+    kept = [block.copy() for _, block in computed.blocks(block_rows=8)]
+    rows = list(computed.iter_rows(block_rows=8))
+    np.testing.assert_array_equal(np.vstack(kept), computed.rows(0, 50))
+    np.testing.assert_array_equal(np.vstack(rows), computed.rows(0, 50))

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, logsumexp, novelty_weights
+from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, novelty_weights
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -86,8 +86,10 @@ def _lowest(score: NDArray[np.float64], top: int) -> NDArray[np.intp]:
     """The ``top`` nodes of lowest score, as ``np.argpartition`` gives them; for one node with a
     score of its own (the default, nearly always) that is the argmin, found 10x faster."""
     if top == 1:
-        best = int(np.argmin(score))
-        if np.count_nonzero(score == score[best]) == 1:
+        from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
+
+        best, ties = filter_kernels.lowest_node(score)
+        if ties == 1:
             return np.array([best])
     return np.argpartition(score, min(top, score.size) - 1)[:top]
 
@@ -225,6 +227,7 @@ class CatGraph(Method):
                        else np.ones(p.particles))
         self._log_w = np.full(p.particles, -np.log(p.particles))
         self._sequence = np.zeros((len(p.sequence_speeds), n_nodes))
+        self._spare: NDArray[np.float64] | None = None  # memory for the next sequence score
         self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
         self._marks = np.zeros(n_nodes, dtype=np.int64)  # the read-out's scratch: the frame that last summed a node
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
@@ -261,8 +264,11 @@ class CatGraph(Method):
 
         if first:
             return np.broadcast_to(contrast, sequence.shape).copy(), contrast
-        after, lowest = np.empty_like(sequence), np.empty(contrast.size)
+        spare = self._spare  # the score before last: its memory takes the new one (fresh pages cost faults)
+        after = spare if spare is not None and spare.shape == sequence.shape else np.empty_like(sequence)
+        lowest = np.empty(contrast.size)
         filter_kernels.advance(sequence, *self._shift_lookup(u), contrast, self.params.sequence_rate, after, lowest)
+        self._spare = sequence
         return after, lowest
 
     def ahead(self, rows: NDArray[np.floating]) -> list[RowAhead | None]:
@@ -302,13 +308,13 @@ class CatGraph(Method):
             if p.speed_noise > 0:
                 speed = np.clip(speed + rng.normal(0.0, p.speed_noise, p.particles), *p.speed_range)
             sd = np.hypot(p.step_noise * u, p.noise_floor * self._spacing)
-            pos = np.clip(pos + speed * u + rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
+            pos = filter_kernels.move(pos, speed, u, rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
         n_reseed = int(round(p.reseed * p.particles))
         kept = np.ones(p.particles, dtype=bool)
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
             weakest = np.argpartition(log_w, n_reseed - 1)[:n_reseed]
             kept[weakest] = False
-            log_w = log_w - logsumexp(log_w[kept]) if kept.any() else log_w
+            log_w = filter_kernels.normalised_except(log_w, kept) if kept.any() else log_w
             best = _lowest(score, p.reseed_top)
             pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
             speed[weakest] = speed[rng.integers(0, p.particles, n_reseed)]
@@ -316,21 +322,20 @@ class CatGraph(Method):
         j, a = _locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
         omega = np.empty(p.particles)
         filter_kernels.interpolate(self._omega, j, a, omega)
-        log_w = np.where(kept, np.log(max(prior.track, TINY)) + log_w + likelihood.at(j, a, omega),
-                         np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1)))
-        log_map = logsumexp(log_w)  # the map's total mass against the unexplained hypothesis
-        unexplained.update(log_map, prior.unexplained)
-        log_w = log_w - log_map
-        w = np.exp(log_w)
+        log_jump = np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1))
+        weighed, w = np.empty(p.particles), np.empty(p.particles)
+        log_map, squares = filter_kernels.reweigh(log_w, kept, likelihood.at(j, a, omega),
+                                                  np.log(max(prior.track, TINY)), log_jump, weighed, w)
+        log_w = weighed
+        unexplained.update(log_map, prior.unexplained)  # the map's total mass against the unexplained hypothesis
 
-        self._own = np.empty(n_nodes)  # read-out: the density's mode
         mode, mass = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, self._own, self._marks,
                                                    self.frames + 1)
         p_new = unexplained.new_place
         unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
-        likelihood.learn(w * omega, 1.0 - unexplained.u)
+        likelihood.learn(w, omega, 1.0 - unexplained.u)
 
-        if 1.0 / np.sum(w * w) < p.resample_ess * p.particles:
+        if 1.0 / squares < p.resample_ess * p.particles:
             idx = _systematic(w, rng)
             pos, speed = pos[idx], speed[idx]
             log_w = np.full(p.particles, -np.log(p.particles))
@@ -366,7 +371,8 @@ class CatGraph(Method):
 
     def save_state(self) -> dict[str, Any]:
         return {"nodes": self._nodes, "omega": self._omega, "pos": self._pos, "speed": self._speed,
-                "log_w": self._log_w, "sequence": self._sequence, "own": self._own, "odometer": self._odometer,
+                "log_w": self._log_w, "sequence": self._sequence.copy(), "own": self._own.copy(),
+                "odometer": self._odometer,
                 "odometry": self._odometry, "likelihood": self._likelihood.state(),
                 "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state}
 
@@ -380,6 +386,7 @@ class CatGraph(Method):
         self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
+        self._spare = None
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
         self._marks = np.zeros(self._own.size, dtype=np.int64)
         self._odometer = float(state["odometer"])

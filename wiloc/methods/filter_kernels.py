@@ -226,9 +226,9 @@ def distinct_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64],
     """For every row of sorted values: ``sizes[r]``, its number of distinct values, and (row
     after row in the two returned arrays) ``table`` at the left rank of each distinct value (its
     first place) and how many values share it. NaN never equals itself, so each NaN is a value
-    of its own, as numpy's ``!=`` has it. The first places are found without a branch (a sorted
-    row's runs of equal values end at unpredictable places): each place's distinct value
-    counted forwards, then each value's place written backwards, the first one last."""
+    of its own, as numpy's ``!=`` has it. The first places are collected without a branch (a
+    sorted row's runs of equal values end at unpredictable places): each place is written as
+    the next distinct value's first, and kept only when its value differs from the one before."""
     rows, n = ordered.shape
     for r in range(rows):
         row = ordered[r]
@@ -237,18 +237,15 @@ def distinct_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64],
             k += row[i] != row[i - 1]
         sizes[r] = k
     t, counts = np.empty(sizes.sum()), np.empty(sizes.sum())
-    group = np.empty(n, dtype=np.intp)
     left = np.empty(n + 1, dtype=np.intp)
     at = 0
     for r in range(rows if n else 0):
         row = ordered[r]
         k = 0
-        group[0] = 0
+        left[0] = 0
         for i in range(1, n):
+            left[k + 1] = i
             k += row[i] != row[i - 1]
-            group[i] = k
-        for i in range(n - 1, -1, -1):
-            left[group[i]] = i
         left[k + 1] = n
         for d in range(k + 1):
             t[at + d] = table[left[d]]
@@ -290,3 +287,112 @@ def table_at_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64], ke
             else:
                 rank = base[q] + (1 if np.float64(ordered[base[q]]) < x else 0)
             out[first + q] = table[rank]
+
+
+@njit(cache=True, nogil=True)
+def move(pos: NDArray[np.float64], speed: NDArray[np.float64], u: float, noise: NDArray[np.float64],
+         low: float, high: float) -> NDArray[np.float64]:
+    """The motion model's new positions: ``np.clip(pos + speed * u + noise, low, high)``, value
+    for value, in one pass."""
+    out = np.empty(pos.size)
+    for p in range(pos.size):
+        out[p] = min(max(pos[p] + speed[p] * u + noise[p], low), high)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def lowest_node(score: NDArray[np.float64]) -> tuple[int, int]:
+    """The first node of lowest score (``np.argmin``) and how many nodes share that score, in
+    one pass."""
+    best, ties = 0, 1
+    for i in range(1, score.size):
+        if score[i] < score[best]:
+            best, ties = i, 1
+        elif score[i] == score[best]:
+            ties += 1
+    return best, ties
+
+
+@njit(cache=True, nogil=True)
+def log_ratios(t: NDArray[np.float64], omega: NDArray[np.float64], a: float, out: NDArray[np.float64]) -> None:
+    """The rank model's ln lambda of each value: ``out`` = ln a_j + (1 - a_j) t, with a_j =
+    1 - omega (1 - a) (``calibration.RankLikelihood.log_ratio``), in one pass."""
+    for p in range(t.size):
+        shape = 1.0 - omega[p] * (1.0 - a)
+        out[p] = np.log(shape) + (1.0 - shape) * t[p]
+
+
+@njit(cache=True, nogil=True)
+def log_sum_exp(x: NDArray[np.float64]) -> float:
+    """ln sum exp(x) as ``scipy.special.logsumexp`` computes it (the largest terms kept out of
+    the sum, log1p of the rest), in two passes and without its per-call overhead (which the
+    filter would pay twice per frame)."""
+    top = -np.inf
+    for p in range(x.size):
+        top = max(top, x[p])
+    count, rest = 0, 0.0
+    for p in range(x.size):
+        if x[p] == top:
+            count += 1
+        else:
+            rest += np.exp(x[p] - top)
+    return np.log1p(rest / count) + np.log(count) + top
+
+
+@njit(cache=True, nogil=True)
+def reweigh(log_w: NDArray[np.float64], kept: NDArray[np.bool_], log_lambda: NDArray[np.float64],
+            log_track: float, log_jump: float, out_log_w: NDArray[np.float64],
+            out_w: NDArray[np.float64]) -> tuple[float, float]:
+    """One frame's particle weights (eq. 9): each kept particle's log weight plus ``log_track``
+    and its ln lambda, each re-seeded one's ``log_jump``; normalised over the map (``out_log_w``,
+    and ``out_w`` their exponentials). Returns ln of the total before normalising (the map's
+    mass against the unexplained hypothesis) and the sum of squared weights (for the effective
+    sample size)."""
+    for p in range(log_w.size):
+        out_log_w[p] = log_track + log_w[p] + log_lambda[p] if kept[p] else log_jump
+    log_map = log_sum_exp(out_log_w)
+    squares = 0.0
+    for p in range(log_w.size):
+        out_log_w[p] -= log_map
+        out_w[p] = np.exp(out_log_w[p])
+        squares += out_w[p] * out_w[p]
+    return log_map, squares
+
+
+@njit(cache=True, nogil=True)
+def mean_ratio(t: NDArray[np.float64], counts: NDArray[np.float64], a: float) -> float:
+    """Sum over a row's distinct ranks of how many values share each times lambda there (the
+    rank model at weight 1: a e^((1 - a) t)), in one pass."""
+    shape = 1.0 - (1.0 - a)
+    log_shape, slope = np.log(shape), 1.0 - shape
+    total = 0.0
+    for d in range(t.size):
+        total += counts[d] * np.exp(log_shape + slope * t[d])
+    return total
+
+
+@njit(cache=True, nogil=True)
+def normalised_except(log_w: NDArray[np.float64], kept: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """``log_w`` minus ln sum exp over the ``kept`` entries (:func:`log_sum_exp` of those)."""
+    chosen = np.empty(np.count_nonzero(kept))
+    k = 0
+    for p in range(log_w.size):
+        if kept[p]:
+            chosen[k] = log_w[p]
+            k += 1
+    total = log_sum_exp(chosen)
+    out = np.empty(log_w.size)
+    for p in range(log_w.size):
+        out[p] = log_w[p] - total
+    return out
+
+
+@njit(cache=True, nogil=True)
+def weighed_sums(w: NDArray[np.float64], omega: NDArray[np.float64], t: NDArray[np.float64]) -> tuple[float, float]:
+    """The rank model's EM statistics of one frame: sum of w omega and of w omega t."""
+    s0, s1 = 0.0, 0.0
+    for p in range(w.size):
+        weight = w[p] * omega[p]
+        s0 += weight
+        s1 += weight * t[p]
+    return s0, s1
