@@ -11,7 +11,7 @@ import pytest
 from numba import njit
 
 from wiloc.descriptors import registry
-from wiloc.distances import METRICS, _panel, pairwise, pairwise_blocks, simd_path
+from wiloc.distances import METRICS, _panel, consecutive, pairwise, pairwise_blocks, simd_path
 
 SAD_SCALE = 1.0 / (32 * 1152)  # 1152 values quantised as 128 + 32 z
 # (query rows, reference rows, values): odd lengths, single rows, empty sides, more rows than a
@@ -216,3 +216,18 @@ def test_kernels_compile_for_other_cpus() -> None:
 
 def test_metrics_is_the_registry_list() -> None:
     assert METRICS is registry.METRICS
+
+
+@pytest.mark.parametrize("metric", sorted(METRICS))
+def test_consecutive_gives_the_kernel_s_difference_of_each_row_to_the_next(metric: str) -> None:
+    rng = np.random.default_rng(7)
+    rows = rng.integers(0, 256, (40, 96), dtype=np.uint8)
+    if metric in ("sqeuclidean", "cosine"):
+        rows = rows.astype(np.float32)
+    steps = consecutive(rows, metric, 0.25, block_rows=16)
+    full = pairwise(rows, rows, metric, 0.25)
+    want = full[np.arange(39), np.arange(1, 40)]
+    if metric in ("l1", "hamming"):  # integer sums: exact
+        np.testing.assert_array_equal(steps, want)
+    else:
+        np.testing.assert_allclose(steps, want, rtol=1e-5, atol=1e-6)
