@@ -36,7 +36,7 @@ def test_em_learns_the_shape_the_data_were_drawn_with() -> None:
         row[0] = rng.uniform() ** (1 / 0.4)
         model.use_row(row)
         model.at(np.zeros(1, np.intp), np.zeros(1), np.ones(1))
-        model.learn(np.ones(1), np.ones(1), in_map=1.0)
+        model.learn(np.ones(1), in_map=1.0)
         ts.append(model.t(row[:1])[0])
     # the shape's maximum-likelihood estimate from the same ranks (mid-ranks cap t at ln 4000)
     assert model.a == pytest.approx(1.0 / np.mean(ts), abs=0.01)

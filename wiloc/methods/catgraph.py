@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, novelty_weights
+from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, logsumexp, novelty_weights
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -86,10 +86,8 @@ def _lowest(score: NDArray[np.float64], top: int) -> NDArray[np.intp]:
     """The ``top`` nodes of lowest score, as ``np.argpartition`` gives them; for one node with a
     score of its own (the default, nearly always) that is the argmin, found 10x faster."""
     if top == 1:
-        from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
-
-        best, ties = filter_kernels.lowest_node(score)
-        if ties == 1:
+        best = int(np.argmin(score))
+        if np.count_nonzero(score == score[best]) == 1:
             return np.array([best])
     return np.argpartition(score, min(top, score.size) - 1)[:top]
 
@@ -308,13 +306,13 @@ class CatGraph(Method):
             if p.speed_noise > 0:
                 speed = np.clip(speed + rng.normal(0.0, p.speed_noise, p.particles), *p.speed_range)
             sd = np.hypot(p.step_noise * u, p.noise_floor * self._spacing)
-            pos = filter_kernels.move(pos, speed, u, rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
+            pos = np.clip(pos + speed * u + rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
         n_reseed = int(round(p.reseed * p.particles))
         kept = np.ones(p.particles, dtype=bool)
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
             weakest = np.argpartition(log_w, n_reseed - 1)[:n_reseed]
             kept[weakest] = False
-            log_w = filter_kernels.normalised_except(log_w, kept) if kept.any() else log_w
+            log_w = log_w - logsumexp(log_w[kept]) if kept.any() else log_w
             best = _lowest(score, p.reseed_top)
             pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
             speed[weakest] = speed[rng.integers(0, p.particles, n_reseed)]
@@ -322,20 +320,20 @@ class CatGraph(Method):
         j, a = _locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
         omega = np.empty(p.particles)
         filter_kernels.interpolate(self._omega, j, a, omega)
-        log_jump = np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1))
-        weighed, w = np.empty(p.particles), np.empty(p.particles)
-        log_map, squares = filter_kernels.reweigh(log_w, kept, likelihood.at(j, a, omega),
-                                                  np.log(max(prior.track, TINY)), log_jump, weighed, w)
-        log_w = weighed
-        unexplained.update(log_map, prior.unexplained)  # the map's total mass against the unexplained hypothesis
+        log_w = np.where(kept, np.log(max(prior.track, TINY)) + log_w + likelihood.at(j, a, omega),
+                         np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1)))
+        log_map = logsumexp(log_w)  # the map's total mass against the unexplained hypothesis
+        unexplained.update(log_map, prior.unexplained)
+        log_w = log_w - log_map
+        w = np.exp(log_w)
 
         mode, mass = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, self._own, self._marks,
                                                    self.frames + 1)
         p_new = unexplained.new_place
         unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
-        likelihood.learn(w, omega, 1.0 - unexplained.u)
+        likelihood.learn(w * omega, 1.0 - unexplained.u)
 
-        if 1.0 / squares < p.resample_ess * p.particles:
+        if 1.0 / np.sum(w * w) < p.resample_ess * p.particles:
             idx = _systematic(w, rng)
             pos, speed = pos[idx], speed[idx]
             log_w = np.full(p.particles, -np.log(p.particles))
