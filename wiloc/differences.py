@@ -37,6 +37,11 @@ Progress = Callable[[int, int], None]
 DEFAULT_BLOCK_ROWS = 1024
 """Query rows per block: the blocks the kernels computed when matrices were stored, so that
 BLAS-based metrics give the same last digits as before."""
+EXACT_BLOCK_ROWS = 256
+"""Query rows per block where the kernel's sums are exact integers (uint8 rows: SAD, Hamming),
+so that any blocks give the same values: four of the kernel's 64-row panels. Blocks in flight
+are fresh memory at first, and its pages cost faults: at N = 35,000, four 1,024-row blocks
+took 1.2 of catgraph's CPU-s (docs/scaling.md)."""
 
 
 class RowBlocks(Protocol):
@@ -104,13 +109,20 @@ class ComputedDifferences:
         """Rows start..stop as a float32 block, computed now."""
         return self._to(self._data[start:stop])
 
-    def blocks(self, block_rows: int = DEFAULT_BLOCK_ROWS) -> Iterator[tuple[int, NDArray[np.float32]]]:
+    @property
+    def block_rows(self) -> int:
+        """Query rows per block unless told: :data:`EXACT_BLOCK_ROWS` for exact kernels, else
+        :data:`DEFAULT_BLOCK_ROWS`."""
+        return EXACT_BLOCK_ROWS if self._to.exact else DEFAULT_BLOCK_ROWS
+
+    def blocks(self, block_rows: int | None = None) -> Iterator[tuple[int, NDArray[np.float32]]]:
         """(first row, float32 block) over every row in order, computed by the runner."""
+        block_rows = block_rows or self.block_rows
         ranges = [(start, min(start + block_rows, self.shape[0])) for start in range(0, self.shape[0], block_rows)]
         for (start, _), block in zip(ranges, self._runner(self._data, self._to, ranges)):
             yield start, block
 
-    def iter_rows(self, block_rows: int = DEFAULT_BLOCK_ROWS) -> Iterator[NDArray[np.float64]]:
+    def iter_rows(self, block_rows: int | None = None) -> Iterator[NDArray[np.float64]]:
         """Every row in order as float64 (converted one at a time: a block stays float32)."""
         for _, block in self.blocks(block_rows):
             for row in block:
@@ -127,11 +139,12 @@ class MapSummary:
     largest: float
 
 
-def _sweep(matrix: RowBlocks, block_rows: int) -> Iterator[tuple[int, NDArray[np.floating]]]:
+def _sweep(matrix: RowBlocks) -> Iterator[tuple[int, NDArray[np.floating]]]:
     """(first row, block) over every row of ``matrix``; a computed one computes ahead."""
     if isinstance(matrix, ComputedDifferences):
-        yield from matrix.blocks(block_rows)
+        yield from matrix.blocks()
         return
+    block_rows = DEFAULT_BLOCK_ROWS
     for start in range(0, matrix.shape[0], block_rows):
         yield start, matrix.rows(start, min(start + block_rows, matrix.shape[0]))
 
@@ -142,7 +155,7 @@ def summarize(matrix: RowBlocks, exclude_recent: int, progress: Progress | None 
     n_rows = matrix.shape[0]
     minima = np.full(n_rows, np.inf)
     largest = np.zeros(n_rows)
-    for start, block in _sweep(matrix, DEFAULT_BLOCK_ROWS):
+    for start, block in _sweep(matrix):
         stop = start + block.shape[0]
         band_extremes(np.ascontiguousarray(block, dtype=np.float32), start, exclude_recent,
                       minima[start:stop], largest[start:stop])
