@@ -1,16 +1,19 @@
 """The cache's primitives: atomic HDF5 writes, temp-file cleanup, the lock, the journal."""
 from __future__ import annotations
 
+import gc
+import json
 import os
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 
-from wiloc.cache import TEMP_SUFFIX, Cache, EntryHeader, FrameRecord, StoredEntry
+from wiloc.cache import TEMP_SUFFIX, Cache, EntryHeader, FrameRecord, StoredEntry, checksum
 
 
 def _header(folder: str = "/data/route", length: int = 4) -> EntryHeader:
@@ -159,6 +162,68 @@ def test_external_entry_keeps_the_file_row_order(tmp_path: Path) -> None:
     np.testing.assert_array_equal(again.data[:, 0], np.arange(5))
     folder = StoredEntry(_header(), {name: _record(name, i) for i, name in enumerate(names)})
     assert folder.entry().names == ["alpha", "beta", "mid2", "mid10", "zeta"]
+
+
+def test_ordered_takes_a_listing_for_the_sort() -> None:
+    names = ["a10.png", "A2.png", "a02.png", "b.png", "bad.png"]
+    stored = StoredEntry(_header(), {name: _record(name, i) for i, name in enumerate(names)})
+    stored.records["bad.png"] = FrameRecord("bad.png", 0, 5, "d", None, "empty file (0 bytes)")
+    listed = ["A2.png", "a02.png", "a10.png", "b.png", "bad.png"]  # natural order, as listed
+    assert [r.name for r in stored.ordered()] == listed
+    assert stored.ordered(listed) == stored.ordered()
+    by_sort, by_listing = stored.entry(), stored.entry(listed)
+    assert by_sort.names == listed[:4]
+    assert (by_listing.names, by_listing.digest) == (by_sort.names, by_sort.digest)
+    np.testing.assert_array_equal(by_listing.data, by_sort.data)
+
+
+def _json_checksum(record: FrameRecord, dtype: str) -> int:
+    """The checksum as entry files have always stored it: CRC-32 of json.dumps of the fields,
+    then the row bytes."""
+    if record.row is None:
+        fields = [record.name, record.size, record.mtime_ns, record.digest, record.reason]
+        row = b""
+    else:
+        fields = [record.name, record.size, record.mtime_ns, record.digest, record.width, record.height,
+                  record.timestamp_ms]
+        row = np.ascontiguousarray(record.row, np.dtype(dtype)).tobytes()
+    return zlib.crc32(json.dumps(fields).encode() + row)
+
+
+_AWKWARD = ["img1.png", "Ünïcødé 東京 🚗.jpg", 'say "cheese".png', "back\\slash\\.jpg", "tab\tnew\nline.png",
+            "ctl\x00\x01\x1f\x7f.png", "sep\u2028\u2029.png", "bad byte \udcff.jpg", "/", ""]
+
+
+@pytest.mark.parametrize("name", _AWKWARD)
+def test_checksum_is_that_of_its_json_definition(name: str) -> None:
+    """Checksums written by earlier versions must still verify: the same CRC for every record."""
+    row = np.array([0.5, -0.0, np.nan, 1e30], np.float32)
+    for stamp in (None, 0.0, 66.733, -0.0, 1 / 3, 1e16, 5e-324, float("nan"), float("inf"), float("-inf"),
+                  np.float64(33.4)):
+        for size, mtime in ((1234, 1_733_000_000_123_456_789), (-1, -1), (0, 2**70)):
+            record = FrameRecord(name, size, mtime, f"{name}-digest", row, "", 640, 480, stamp)
+            assert checksum(record, "<f4") == _json_checksum(record, "<f4"), (stamp, size)
+            failed = FrameRecord(name, size, mtime, "", None, f"cannot read {name!r} ({name})")
+            assert checksum(failed, "<f4") == _json_checksum(failed, "<f4")
+    odd = FrameRecord(name, 1, 2, "d", row.astype(np.float64), "", True, 3, None)  # json writes a bool its way
+    assert checksum(odd, "<f4") == _json_checksum(odd, "<f4")
+
+
+def test_reading_an_entry_leaves_the_garbage_collector_as_it_was(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "c")
+    stored = StoredEntry(_header(), {"a.png": _record("a.png", 1.0)})
+    cache.write_entry(stored, complete=True)
+    assert gc.isenabled()
+    assert cache.read_stored(stored.header.key).records.keys() == {"a.png"}
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        cache.read_stored(stored.header.key)
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    cache.entry_path(stored.header.key).write_bytes(b"not an HDF5 file")
+    assert cache.read_stored(stored.header.key) is None and gc.isenabled()
 
 
 @pytest.mark.parametrize("content", ["garbage", "empty-h5", "garbage+journal"])

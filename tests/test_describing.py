@@ -121,6 +121,24 @@ def test_round_trip_and_incremental_updates(tmp_path: Path) -> None:
     assert describe_folder(folder, spec, cache, jobs=1).entry.digest == removed.entry.digest
 
 
+def test_a_frame_whose_size_or_mtime_changed_is_checked_again(tmp_path: Path) -> None:
+    folder = tmp_path / "route"
+    names = write_images(folder, 3)
+    cache = Cache(tmp_path / "cache")
+    first = describe_folder(folder, FakeSpec(), cache, jobs=1)
+    os.utime(folder / names[1], ns=(1, 1))  # same content: reused, its new mtime recorded
+    grown = folder / names[2]
+    before = grown.stat()
+    with open(grown, "ab") as f:
+        f.write(b"\0")  # a byte past the end of the image: new content, same mtime
+    os.utime(grown, ns=(before.st_atime_ns, before.st_mtime_ns))
+    again = describe_folder(folder, FakeSpec(), cache, jobs=1)
+    assert (again.computed, again.reused) == (1, 2)
+    records = cache.read_stored(first.entry.key).records
+    assert records[names[1]].mtime_ns == 1
+    assert records[names[2]].size == before.st_size + 1
+
+
 def test_bad_frames_are_reported_and_left_out(tmp_path: Path) -> None:
     folder = tmp_path / "route"
     names = write_images(folder, 4)

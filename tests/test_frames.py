@@ -43,6 +43,18 @@ def test_list_traversal_natural_order_and_ignored(tmp_path: Path) -> None:
     assert {p.name for p in trav.ignored} == {"notes.txt", ".hidden.png", "sub.png"}
 
 
+def test_list_traversal_lists_names_and_makes_paths_in_natural_order(tmp_path: Path) -> None:
+    names = ["img10.jpg", "img9.jpg", "IMG9.jpg", "img09.jpg", "img9a.jpg", "b.png", "A.png", "ä1.png",
+             "x2y10.png", "x2y9.png", "x10y1.png", "10.png", "9.png", "z.JPEG"]
+    for name in names:
+        (tmp_path / name).write_bytes(b"")
+    trav = list_traversal(tmp_path)
+    assert trav.names == sorted(names, key=natural_key)
+    assert trav.names[:4] == ["9.png", "10.png", "A.png", "b.png"]
+    assert trav.frames == tuple(tmp_path / name for name in trav.names)
+    assert trav.frame_names == tuple(trav.names)
+
+
 @pytest.mark.parametrize("make", ["missing", "file", "empty", "only-text"])
 def test_list_traversal_errors_name_the_folder(tmp_path: Path, make: str) -> None:
     folder = tmp_path / "trav"

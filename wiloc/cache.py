@@ -15,18 +15,21 @@ from __future__ import annotations
 
 import errno
 import fcntl
+import gc
 import hashlib
 import json
+import math
 import os
 import secrets
 import struct
 import threading
 import time
 import zlib
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
+from json.encoder import encode_basestring_ascii
 from pathlib import Path
 from typing import Any
 
@@ -144,17 +147,22 @@ class StoredEntry:
     journaled: bool = False
     dropped: int = 0  # frames whose stored bytes failed their checksum: not in ``records``
 
-    def ordered(self) -> list[FrameRecord]:
+    def ordered(self, names: Sequence[str] | None = None) -> list[FrameRecord]:
         """The records in frame order: a folder's by natural sort of names (as traversals list
-        them); an imported matrix's in its file's row order, which is its time order."""
+        them); an imported matrix's in its file's row order, which is its time order. A caller
+        that holds exactly the records' names in that order (a traversal's listing) passes them as
+        `names`, sparing a second natural sort of the same names."""
         if self.header.descriptor == EXTERNAL:
             return list(self.records.values())
-        return [self.records[name] for name in sorted(self.records, key=natural_key)]
+        if names is None:
+            names = sorted(self.records, key=natural_key)
+        return [self.records[name] for name in names]
 
-    def entry(self) -> Entry:
-        """The descriptor matrix of the frames that have a row, in frame order."""
+    def entry(self, names: Sequence[str] | None = None) -> Entry:
+        """The descriptor matrix of the frames that have a row, in frame order (`names`: as for
+        `ordered`)."""
         h = self.header
-        good = [r for r in self.ordered() if r.row is not None]
+        good = [r for r in self.ordered(names) if r.row is not None]
         data = np.empty((len(good), h.length), np.dtype(h.dtype))
         for i, record in enumerate(good):
             data[i] = record.row
@@ -177,7 +185,28 @@ def checksum(record: FrameRecord, dtype: np.dtype | str) -> int:
         fields = [record.name, record.size, record.mtime_ns, record.digest, record.width, record.height,
                   record.timestamp_ms]
         row = np.ascontiguousarray(record.row, np.dtype(dtype)).tobytes()
-    return zlib.crc32(json.dumps(fields).encode() + row)
+    return zlib.crc32(_json_list(fields).encode() + row)
+
+
+def _json_float(value: float) -> str:
+    """A float as json.dumps writes it: its repr, or NaN, Infinity, -Infinity."""
+    return float.__repr__(value) if math.isfinite(value) else json.dumps(value)
+
+
+#: How json.dumps writes a value of each of these exact types (bool, subclasses and others: absent).
+_JSON_WRITERS: dict[type, Callable[[Any], str]] = {
+    str: encode_basestring_ascii, int: int.__repr__, float: _json_float, type(None): lambda _: "null",
+}
+
+
+def _json_list(values: list[Any]) -> str:
+    """``json.dumps(values)`` character for character, written here when every value is a str,
+    int, float or None (in a quarter of the time: json.dumps' set-up per call dominated checking
+    an entry's frames); anything else goes to json.dumps itself."""
+    try:
+        return "[" + ", ".join([_JSON_WRITERS[type(value)](value) for value in values]) + "]"
+    except KeyError:
+        return json.dumps(values)
 
 
 def entry_key(folder: str, descriptor: str, params: dict[str, Any]) -> str:
@@ -571,33 +600,49 @@ def _header_from_attrs(attrs: h5py.AttributeManager) -> EntryHeader:
     )
 
 
+@contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector off meanwhile, then on again if it was. Reading an entry
+    makes a record per frame, none of them in a cycle; as tens of thousands pile up, the passes the
+    collector makes over them cost nearly as much as checking their checksums."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
 def _read_h5(path: Path) -> StoredEntry | None:
     """The entry file's contents, frames failing their checksum left out; None for a file of
     another format version (written without checksums)."""
-    with h5py.File(path, "r") as f:
+    with _collector_paused(), h5py.File(path, "r") as f:
         if int(f.attrs.get("format_version", 0)) != FORMAT_VERSION:
             return None
         header = _header_from_attrs(f.attrs)
         stored = StoredEntry(header, complete=bool(f.attrs["complete"]), created=str(f.attrs["created"]))
         data = f["descriptors"][()]
+        rows = list(data)  # each row's view, made in one go
+        dtype = np.dtype(header.dtype)  # made once, not per frame by checksum
         for group in ("frames", "failed"):
             g = f[group]
             # damaged bytes may be no UTF-8: decoded anyway, they fail the frame's checksum
             names = [n.decode(errors="replace") for n in g["name"][()]]
             digests = [d.decode(errors="replace") for d in g["digest"][()]]
-            sizes, mtimes = g["size"][()], g["mtime_ns"][()]
+            sizes, mtimes = g["size"][()].tolist(), g["mtime_ns"][()].tolist()  # Python ints, in one go
             if group == "frames":
-                widths, heights, stamps = g["width"][()], g["height"][()], g["timestamp_ms"][()]
-                records = [FrameRecord(name, int(sizes[i]), int(mtimes[i]), digests[i], data[i],
-                                       width=int(widths[i]), height=int(heights[i]),
-                                       timestamp_ms=None if np.isnan(stamps[i]) else float(stamps[i]))
+                widths, heights = g["width"][()].tolist(), g["height"][()].tolist()
+                stamps = [None if math.isnan(stamp) else stamp for stamp in g["timestamp_ms"][()].tolist()]
+                records = [FrameRecord(name, sizes[i], mtimes[i], digests[i], rows[i], "", widths[i], heights[i],
+                                       stamps[i])
                            for i, name in enumerate(names)]
             else:
                 reasons = [r.decode(errors="replace") for r in g["reason"][()]]
-                records = [FrameRecord(name, int(sizes[i]), int(mtimes[i]), digests[i], None, reasons[i])
+                records = [FrameRecord(name, sizes[i], mtimes[i], digests[i], None, reasons[i])
                            for i, name in enumerate(names)]
             for record, crc in zip(records, g["crc32"][()]):
-                if checksum(record, header.dtype) == crc:
+                if checksum(record, dtype) == crc:
                     stored.records[record.name] = record
                 else:
                     stored.dropped += 1

@@ -35,7 +35,7 @@ from wiloc.cache import (
 from wiloc.descriptors.external import read_external
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
-from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, natural_key, read_gray
+from wiloc.frames import Fingerprint, Traversal, fingerprint, jpeg_size, list_traversal, natural_key, read_gray
 from wiloc.reprs import short_repr
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
 from wiloc.workers import WorkerError, borrowed_pool, can_fork, kept_pool
@@ -125,14 +125,13 @@ def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int 
     jobs = _check_jobs(jobs)
     traversal = list_traversal(folder)
     header = _header(str(Path(folder).resolve()), spec, spec.params)
-    total = len(traversal.frames)
+    total = len(traversal.frame_names)
     with _locked_entry(cache, header) as stored:
-        names = set(traversal.names)
+        names = set(traversal.frame_names)
         removed = [name for name in stored.records if name not in names]
         for name in removed:
             del stored.records[name]
-        tasks = [(path, stored.records.get(path.name)) for path in traversal.frames
-                 if not _unchanged(path, stored.records.get(path.name))]
+        tasks = _changed(traversal, stored.records)
         done = total - len(tasks)
         if progress is not None:
             progress(done, total)
@@ -141,7 +140,7 @@ def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int 
         if tasks or removed or not stored.complete:
             entry = cache.write_entry(stored, complete=True)
         else:
-            entry = stored.entry()
+            entry = stored.entry(traversal.frame_names)
     return _report(stored, entry, computed, start, ignored=[p.name for p in traversal.ignored])
 
 
@@ -295,12 +294,21 @@ def _check_jobs(jobs: int | None) -> int:
     return jobs
 
 
-def _unchanged(path: Path, old: FrameRecord | None) -> bool:
-    """Fast path: a stored frame whose file has the same size and mtime is reused unread."""
+def _changed(traversal: Traversal, records: dict[str, FrameRecord]) -> list[_Task]:
+    """The frames to settle: new ones, and those whose file's size or mtime differs from their
+    record (the rest are reused unread). Paths are made for these only: a path per frame cost
+    more than the stat that checks it."""
+    prefix = os.path.join(traversal.folder, "")
+    return [(traversal.folder / name, old) for name in traversal.frame_names
+            if not _unchanged(prefix + name, old := records.get(name))]
+
+
+def _unchanged(path: str, old: FrameRecord | None) -> bool:
+    """Fast path: a stored frame whose file at `path` has the same size and mtime is reused unread."""
     if old is None:
         return False
     try:
-        stat = path.stat()
+        stat = os.stat(path)
     except OSError:
         return False
     return stat.st_size == old.size and stat.st_mtime_ns == old.mtime_ns

@@ -12,6 +12,7 @@ import math
 import os
 import re
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import cv2
@@ -41,25 +42,30 @@ _DIGITS = re.compile(r"(\d+)")
 
 def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
     """Sort key that orders digit runs by value, so ``img2`` comes before ``img10``."""
-    return tuple(
-        (0, int(part)) if part.isdigit() else (1, part.casefold())
-        for part in _DIGITS.split(name)
-        if part
-    ) + ((1, name),)
+    key = [(0, int(part)) if part.isdigit() else (1, part.casefold()) for part in _DIGITS.split(name) if part]
+    key.append((1, name))  # tie-break: names equal but for case or leading zeros keep one order
+    return tuple(key)
 
 
 @dataclass(frozen=True)
 class Traversal:
-    """One traversal folder: its image files in natural order, and the files that were skipped."""
+    """One traversal folder: its image files in natural order, and the files that were skipped.
+    Frames are held by name and their paths made on first use: checking a folder against the
+    cache needs names only, and a Path per frame cost as much as the listing itself."""
 
     folder: Path
-    frames: tuple[Path, ...]
+    frame_names: tuple[str, ...]
     ignored: tuple[Path, ...]
+
+    @cached_property
+    def frames(self) -> tuple[Path, ...]:
+        """The image files, in natural order."""
+        return tuple(self.folder / name for name in self.frame_names)
 
     @property
     def names(self) -> list[str]:
         """Frame names (file names), the identifiers used everywhere."""
-        return [path.name for path in self.frames]
+        return list(self.frame_names)
 
 
 def list_traversal(folder: Path) -> Traversal:
@@ -69,8 +75,8 @@ def list_traversal(folder: Path) -> Traversal:
         raise WilocError(folder, "folder does not exist")
     if not folder.is_dir():
         raise WilocError(folder, "not a folder")
-    frames: list[Path] = []
-    ignored: list[Path] = []
+    frames: list[str] = []
+    ignored: list[str] = []
     with os.scandir(folder) as entries:  # the entries know their type: no stat per file
         for item in entries:
             is_frame = (
@@ -78,12 +84,13 @@ def list_traversal(folder: Path) -> Traversal:
                 and os.path.splitext(item.name)[1].lower() in IMAGE_SUFFIXES
                 and item.is_file()
             )
-            (frames if is_frame else ignored).append(folder / item.name)
+            (frames if is_frame else ignored).append(item.name)
     if not frames:
         raise WilocError(folder, f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))})")
-    frames.sort(key=lambda p: natural_key(p.name))
-    ignored.sort(key=lambda p: natural_key(p.name))
-    return Traversal(folder=folder, frames=tuple(frames), ignored=tuple(ignored))
+    frames.sort()  # a plain sort first (cheap) leaves the natural sort few comparisons to make
+    frames.sort(key=natural_key)
+    ignored.sort(key=natural_key)
+    return Traversal(folder=folder, frame_names=tuple(frames), ignored=tuple(folder / name for name in ignored))
 
 
 @dataclass(frozen=True)
