@@ -1,7 +1,6 @@
 """The cache's primitives: atomic HDF5 writes, temp-file cleanup, the lock, the journal."""
 from __future__ import annotations
 
-import gc
 import json
 import os
 import subprocess
@@ -207,23 +206,6 @@ def test_checksum_is_that_of_its_json_definition(name: str) -> None:
             assert checksum(failed, "<f4") == _json_checksum(failed, "<f4")
     odd = FrameRecord(name, 1, 2, "d", row.astype(np.float64), "", True, 3, None)  # json writes a bool its way
     assert checksum(odd, "<f4") == _json_checksum(odd, "<f4")
-
-
-def test_reading_an_entry_leaves_the_garbage_collector_as_it_was(tmp_path: Path) -> None:
-    cache = Cache(tmp_path / "c")
-    stored = StoredEntry(_header(), {"a.png": _record("a.png", 1.0)})
-    cache.write_entry(stored, complete=True)
-    assert gc.isenabled()
-    assert cache.read_stored(stored.header.key).records.keys() == {"a.png"}
-    assert gc.isenabled()
-    gc.disable()
-    try:
-        cache.read_stored(stored.header.key)
-        assert not gc.isenabled()
-    finally:
-        gc.enable()
-    cache.entry_path(stored.header.key).write_bytes(b"not an HDF5 file")
-    assert cache.read_stored(stored.header.key) is None and gc.isenabled()
 
 
 @pytest.mark.parametrize("content", ["garbage", "empty-h5", "garbage+journal"])

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import errno
 import fcntl
-import gc
 import hashlib
 import json
 import math
@@ -600,24 +599,10 @@ def _header_from_attrs(attrs: h5py.AttributeManager) -> EntryHeader:
     )
 
 
-@contextmanager
-def _collector_paused() -> Iterator[None]:
-    """Python's cyclic garbage collector off meanwhile, then on again if it was. Reading an entry
-    makes a record per frame, none of them in a cycle; as tens of thousands pile up, the passes the
-    collector makes over them cost nearly as much as checking their checksums."""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
-
-
 def _read_h5(path: Path) -> StoredEntry | None:
     """The entry file's contents, frames failing their checksum left out; None for a file of
     another format version (written without checksums)."""
-    with _collector_paused(), h5py.File(path, "r") as f:
+    with h5py.File(path, "r") as f:
         if int(f.attrs.get("format_version", 0)) != FORMAT_VERSION:
             return None
         header = _header_from_attrs(f.attrs)
