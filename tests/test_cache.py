@@ -259,3 +259,21 @@ def test_list_entries_skips_a_journal_a_run_has_only_just_opened(tmp_path: Path)
     cache.write_entry(good, complete=True)
     cache.journal_path("0newnewnewnewnewnewnewne").write_bytes(b"")
     assert [info.key for info in cache.list_entries()] == [good.header.key]
+
+
+def test_an_entry_read_back_is_its_rows_in_frame_order_copied_only_when_they_changed(tmp_path: Path) -> None:
+    cache = Cache(tmp_path / "c")
+    records = {f"f{i}.png": _record(f"f{i}.png", float(i)) for i in (10, 2, 1)}
+    cache.write_entry(StoredEntry(_header(), records), complete=True)
+    stored = cache.read_stored(_header().key)
+    want = np.array([[1.0] * 4, [2.0] * 4, [10.0] * 4], np.float32)  # natural order: f1, f2, f10
+    read = stored.entry()
+    np.testing.assert_array_equal(read.data, want)
+    assert read.names == ["f1.png", "f2.png", "f10.png"]
+    assert read.data is stored.read_matrix[0]  # the rows as read, in order: no copy
+    stored.records["f2.png"] = _record("f2.png", 7.0)  # a changed frame: its new row is used
+    changed = stored.entry()
+    np.testing.assert_array_equal(changed.data, np.array([[1.0] * 4, [7.0] * 4, [10.0] * 4], np.float32))
+    assert changed.data is not stored.read_matrix[0]
+    del stored.records["f1.png"]
+    np.testing.assert_array_equal(stored.entry().data, np.array([[7.0] * 4, [10.0] * 4], np.float32))

@@ -145,6 +145,8 @@ class StoredEntry:
     created: str = ""
     journaled: bool = False
     dropped: int = 0  # frames whose stored bytes failed their checksum: not in ``records``
+    # the entry file's descriptor matrix as read, and the view of each of its rows that a record holds
+    read_matrix: tuple[np.ndarray, list[np.ndarray]] | None = field(default=None, repr=False, compare=False)
 
     def ordered(self, names: Sequence[str] | None = None) -> list[FrameRecord]:
         """The records in frame order: a folder's by natural sort of names (as traversals list
@@ -162,11 +164,24 @@ class StoredEntry:
         `ordered`)."""
         h = self.header
         good = [r for r in self.ordered(names) if r.row is not None]
-        data = np.empty((len(good), h.length), np.dtype(h.dtype))
-        for i, record in enumerate(good):
-            data[i] = record.row
+        if self._read_in_order(good):
+            data = self.read_matrix[0]  # type: ignore[index]
+        else:
+            data = np.empty((len(good), h.length), np.dtype(h.dtype))
+            for i, record in enumerate(good):
+                data[i] = record.row
         return Entry(**asdict(h), names=[r.name for r in good], data=data, digest=entry_digest(h, good),
                      timestamps_ms=_timestamps(good))
+
+    def _read_in_order(self, good: list[FrameRecord]) -> bool:
+        """Whether ``good`` are the rows of :attr:`read_matrix`, row after row: the matrix is then
+        the entry's, with no copy (the common case: a folder checked against its entry file, whose
+        frames are stored in frame order; copying 35,000 rows into fresh memory cost 0.2 s)."""
+        if self.read_matrix is None:
+            return False
+        matrix, rows = self.read_matrix
+        return (matrix.dtype == np.dtype(self.header.dtype) and matrix.shape == (len(good), self.header.length)
+                and all(record.row is row for record, row in zip(good, rows)))
 
 
 def _timestamps(records: list[FrameRecord]) -> np.ndarray:
@@ -609,6 +624,7 @@ def _read_h5(path: Path) -> StoredEntry | None:
         stored = StoredEntry(header, complete=bool(f.attrs["complete"]), created=str(f.attrs["created"]))
         data = f["descriptors"][()]
         rows = list(data)  # each row's view, made in one go
+        stored.read_matrix = (data, rows)
         dtype = np.dtype(header.dtype)  # made once, not per frame by checksum
         for group in ("frames", "failed"):
             g = f[group]
