@@ -231,3 +231,12 @@ def test_consecutive_gives_the_kernel_s_difference_of_each_row_to_the_next(metri
         np.testing.assert_array_equal(steps, want)
     else:
         np.testing.assert_allclose(steps, want, rtol=1e-5, atol=1e-6)
+
+
+def test_idle_kernel_threads_sleep_unless_the_user_chose_otherwise() -> None:
+    probe = "import os, wiloc.distances; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    default = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True)
+    chosen = subprocess.run([sys.executable, "-c", probe], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
+                            capture_output=True, text=True, check=True)
+    assert (default.stdout.strip(), chosen.stdout.strip()) == ("PASSIVE", "ACTIVE")

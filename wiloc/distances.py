@@ -12,9 +12,16 @@ operation is chosen when numba compiles for the CPU at hand (see docs/kernels.md
 * ``l1`` on float32: |a - b| summed in float32 vector lanes.
 
 ``sqeuclidean`` and ``cosine`` use a BLAS matrix product.
+
+The kernels' threads idle between blocks while a run's other threads (the method's steps and
+what it reads ahead) work, and OpenMP's default is to keep idle threads spinning: that cost a
+cold ``catgraph`` run at N = 35,000 about 1.6 of its 26 CPU-s (docs/scaling.md). So unless
+``OMP_WAIT_POLICY`` is set, importing this module sets it to ``PASSIVE`` (idle threads sleep),
+before numba starts the kernels' threads; it has no effect where OpenMP is already running.
 """
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
@@ -27,6 +34,8 @@ from numba.extending import intrinsic
 
 # The one list of metric names lives in the registry; re-exported here.
 from wiloc.descriptors.registry import METRICS
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when numba first starts OpenMP (see above)
 
 CHUNK_BYTES = 64  # rows are zero-padded to a multiple of this for the SIMD kernel
 TILE = 4  # query rows x reference rows accumulated together per chunk
