@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 from wiloc.cache import Cache, Entry
-from wiloc.differences import (MapSummary, RecycledBlocks, candidate_rows, differences, map_summary, prefetched_blocks,
-                               summarize)
+from wiloc.differences import MapSummary, candidate_rows, differences, map_summary, prefetched_blocks, summarize
 from wiloc.distances import pairwise
 from wiloc.errors import WilocError
 from wiloc.methods.base import ArrayRows
@@ -237,26 +236,6 @@ def test_a_damaged_summary_is_computed_again(cache: Cache) -> None:
     got = map_summary(ref, cache, 2, progress=counter)
     assert counter.calls
     np.testing.assert_array_equal(got.minima, brute_summary(ref, 2).minima)
-
-
-def test_a_block_s_memory_serves_again_only_once_no_view_of_it_is_left() -> None:
-    blocks = RecycledBlocks()
-    first = blocks.take(3, 4)
-    first[:] = 1.0
-    address = first.__array_interface__["data"][0]
-    row = first[1]  # a view outlives the block it came from
-    del first
-    second = blocks.take(3, 4)
-    assert second.__array_interface__["data"][0] != address  # still in use: fresh memory
-    second[:] = 2.0
-    assert row.tolist() == [1.0] * 4
-    del row
-    third = blocks.take(2, 4)  # smaller: the free memory serves, as a C-contiguous block
-    assert third.__array_interface__["data"][0] == address
-    assert third.shape == (2, 4) and third.dtype == np.float32 and third.flags.c_contiguous
-    del second, third
-    larger = blocks.take(4, 4)  # larger than any free memory: fresh
-    assert larger.__array_interface__["data"][0] != address and larger.shape == (4, 4)
 
 
 def test_recycled_blocks_give_the_same_rows_as_fresh_ones() -> None:

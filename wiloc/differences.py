@@ -15,8 +15,6 @@ and written through an atomic rename.
 """
 from __future__ import annotations
 
-import weakref
-from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +29,7 @@ from wiloc.ahead import computed_ahead
 from wiloc.cache import Cache, Entry
 from wiloc.distances import DifferencesTo, band_extremes
 from wiloc.errors import WilocError
+from wiloc.recycled import RecycledArrays
 
 Progress = Callable[[int, int], None]
 
@@ -58,37 +57,12 @@ class RowBlocks(Protocol):
 BlockRunner = Callable[[NDArray, DifferencesTo, list[tuple[int, int]]], Iterator[NDArray[np.float32]]]
 
 
-class RecycledBlocks:
-    """float32 blocks whose memory serves again once nothing refers to a block any more.
-
-    Fresh memory is paid in page faults: a 1,024-row block against 35,000 map frames is 143 MB,
-    and zeroing the new pages of every block took 2 of a catgraph run's 27 CPU-s (docs/scaling.md).
-    A block is an array over a memoryview of its memory: numpy bases every view of it (a row, a
-    slice) on that array, so only when the last of them is gone does the memory return to the
-    free list. A caller that keeps blocks simply gets fresh ones."""
-
-    def __init__(self) -> None:
-        self._free: deque[NDArray[np.float32]] = deque()  # appended by whichever thread lets go
-
-    def take(self, rows: int, columns: int) -> NDArray[np.float32]:
-        """A C-contiguous (rows, columns) float32 block, of free memory when some is large enough."""
-        size = rows * columns
-        memory = None
-        while self._free and memory is None:
-            candidate = self._free.popleft()
-            memory = candidate if candidate.size >= size else None
-        memory = np.empty(size, dtype=np.float32) if memory is None else memory
-        block = np.frombuffer(memoryview(memory), dtype=np.float32, count=size)  # based on no array:
-        weakref.finalize(block, self._free.append, memory)  # every view of it is based on it
-        return block.reshape(rows, columns)
-
-
 def prefetched_blocks(data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
     """The blocks in order, each computed in a helper thread while the caller works on the one
     before (the kernels release the GIL), so a method's steps and the kernel overlap; the
-    memory of blocks the caller has let go is used again (:class:`RecycledBlocks`)."""
-    blocks = RecycledBlocks()
-    return computed_ahead(to(data[start:end], blocks.take(end - start, to.shape[0])) for start, end in ranges)
+    memory of blocks the caller has let go is used again (``wiloc.recycled``)."""
+    blocks = RecycledArrays(np.float32)
+    return computed_ahead(to(data[start:end], blocks.take((end - start, to.shape[0]))) for start, end in ranges)
 
 
 class ComputedDifferences:

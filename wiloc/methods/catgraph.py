@@ -28,6 +28,7 @@ from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplai
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
+from wiloc.recycled import RecycledArrays
 
 MODE_TIE = 1e-12  # window masses (shares of a unit total) this close to the largest count as tied
 TINY = 1e-300  # the smallest prior mass a hypothesis keeps, so that its log is finite
@@ -231,6 +232,12 @@ class CatGraph(Method):
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
         self._odometry = False  # whether any step came with odometry
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
+        self._recycle()
+
+    def _recycle(self) -> None:
+        """Memory for what :meth:`ahead` computes, used again once its rows are stepped."""
+        self._ahead_memory = RecycledArrays(np.float64)  # the rows' contrast
+        self._sorted_memory = RecycledArrays(np.float32)  # their sorted values
 
     def _observation_model(self) -> RankLikelihood | GivenEvidence:
         """Ranks within difference rows (whole images), or FAB-MAP's given log-likelihood ratios."""
@@ -278,9 +285,9 @@ class CatGraph(Method):
         if rows.shape[1] != self._nodes.size:
             return [None] * rows.shape[0]
         evidence = self.context is not None and self.context.rows == "log_ratio"
-        contrast, finite = np.empty(rows.shape), np.empty(rows.shape[0], dtype=np.bool_)
+        contrast, finite = self._ahead_memory.take(rows.shape), np.empty(rows.shape[0], dtype=np.bool_)
         filter_kernels.contrast_rows(rows, self.params.contrast_window, -1.0 if evidence else 1.0, contrast, finite)
-        ordered = self._likelihood.order(rows)
+        ordered = self._likelihood.order(rows, self._sorted_memory)
         return [RowAhead(contrast[r], bool(finite[r]), ordered[r]) for r in range(rows.shape[0])]
 
     def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
@@ -397,3 +404,4 @@ class CatGraph(Method):
         self._rng = np.random.default_rng()
         self._rng.bit_generator.state = state["rng"]
         self._shifted = None
+        self._recycle()
