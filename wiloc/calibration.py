@@ -187,7 +187,7 @@ class GivenEvidence:
     def __init__(self) -> None:
         self._row = np.empty(0)
 
-    def order(self, rows: NDArray[np.floating]) -> list[None]:
+    def order(self, rows: NDArray[np.floating], memory: RecycledArrays | None = None) -> list[None]:
         """Nothing to rank."""
         return [None] * rows.shape[0]
 
