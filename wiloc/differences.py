@@ -39,8 +39,8 @@ BLAS-based metrics give the same last digits as before."""
 EXACT_BLOCK_ROWS = 256
 """Query rows per block where the kernel's sums are exact integers (uint8 rows: SAD, Hamming),
 so that any blocks give the same values: four of the kernel's 64-row panels. Blocks in flight
-are fresh memory at first, and its pages cost faults: at N = 35,000, four 1,024-row blocks
-took 1.2 of catgraph's CPU-s (docs/scaling.md)."""
+are fresh memory at first, and its pages cost faults: at N = 35,000, zeroing four 1,024-row
+blocks took the kernel's threads about 0.9 CPU-s in a cold catgraph run (docs/scaling.md)."""
 
 
 class RowBlocks(Protocol):
