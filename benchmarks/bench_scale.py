@@ -15,8 +15,10 @@ pair of min(1,000, N / 2) frames against the same map.
 
 The kernel column is the SAD kernel alone (``pairwise_blocks``, 1024-row blocks) over the blocks
 the method needs, in this run: query x map for every method, plus map x map for ``online``, plus
-training query x map for ``trained``; ratio = cold wall / kernel wall. Times are medians over
-``--repeat`` runs; CPU seconds are the child's process time (all its threads).
+training query x map for ``trained``, measured again right before each cold run, so that load on
+the (shared) machine hits both alike; ratio = the median over ``--repeat`` runs of cold (or warm)
+wall / that run's kernel wall. Times are medians over the runs; CPU seconds are the child's
+process time (all its threads).
 
 The describe table times ``describe_folder`` on the 600 Gardens Point images (fresh cache each
 run) with ``jobs`` 1 and 2 (and with ``--scheduler``, on that Dask cluster with 2 workers),
@@ -146,24 +148,26 @@ def scale_rows(n: int, methods: list[str], repeat: int, scheduler: str | None, w
     shutil.rmtree(root, ignore_errors=True)
     make_case(root, n)
     cache = root / "cache"
-    kernel = median_of([run_child("--child", "kernel", "--root", str(root)) for _ in range(repeat)])
     rows = []
     for method in methods:
         argv = ["--child", "localize", "--root", str(root), "--method", method]
         argv += ["--scheduler", scheduler] if scheduler else []
-        cold, warm, size = [], [], []
-        for _ in range(repeat):
+        kernel, cold, warm, size = [], [], [], []
+        for _ in range(repeat):  # each run right after its own kernel run: load on the machine hits both alike
+            measured = run_child("--child", "kernel", "--root", str(root))
+            kernel.append({key: sum(measured[f"{side}_{key}"] for side in KERNEL_BLOCKS[method])
+                           for key in ("wall", "cpu")})
             for derived in cache.iterdir():
                 if derived.name != "descriptors":
                     shutil.rmtree(derived)
             cold.append(run_child(*argv))
             size.append({"mb": sum(folder_mb(d) for d in cache.iterdir() if d.name != "descriptors")})
             warm.append(run_child(*argv))
-        c, w = median_of(cold), median_of(warm)
-        k_wall = sum(kernel[f"{side}_wall"] for side in KERNEL_BLOCKS[method])
-        k_cpu = sum(kernel[f"{side}_cpu"] for side in KERNEL_BLOCKS[method])
-        rows.append(f"{n:>7,} {method:<10} {k_wall:>8.2f} {k_cpu:>8.2f} {c['wall']:>8.2f} {c['cpu']:>8.2f} "
-                    f"{c['wall'] / k_wall:>6.2f}x {w['wall']:>8.2f} {w['cpu']:>8.2f} {w['wall'] / k_wall:>6.2f}x "
+        k, c, w = median_of(kernel), median_of(cold), median_of(warm)
+        cold_ratio = statistics.median(r["wall"] / kk["wall"] for r, kk in zip(cold, kernel))
+        warm_ratio = statistics.median(r["wall"] / kk["wall"] for r, kk in zip(warm, kernel))
+        rows.append(f"{n:>7,} {method:<10} {k['wall']:>8.2f} {k['cpu']:>8.2f} {c['wall']:>8.2f} {c['cpu']:>8.2f} "
+                    f"{cold_ratio:>6.2f}x {w['wall']:>8.2f} {w['cpu']:>8.2f} {warm_ratio:>6.2f}x "
                     f"{max(c['rss_mb'], w['rss_mb']):>8.0f} {median_of(size)['mb']:>9.1f}")
     shutil.rmtree(root, ignore_errors=True)
     return rows
@@ -240,8 +244,9 @@ def main() -> None:
             for n in sizes:
                 for row in scale_rows(n, args.methods.split(","), args.repeat, args.scheduler, Path(temp)):
                     print(row, flush=True)
-        print("kernel: SAD kernel wall and CPU s over the blocks the method needs; ratio: wall / kernel wall;"
-              " cache MB: what localize left in the cache besides the descriptors.")
+        print("kernel: SAD kernel wall and CPU s over the blocks the method needs, measured before each cold run;"
+              " ratio: median of each run's wall / its kernel's wall; cache MB: what localize left in the cache"
+              " besides the descriptors.")
     if args.describe:
         print(f"\n{'descriptor':<14} {'jobs':>7} {'images/s':>9} {'/decode':>7} {'vs 1':>8}")
         for row in describe_rows(data_root(args.data), args.repeat, args.descriptors.split(","), args.scheduler):
