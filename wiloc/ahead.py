@@ -21,14 +21,14 @@ from typing import TypeVar
 
 T = TypeVar("T")
 
-#: How much lower the helper thread's priority is than its caller's (Linux nice increments).
+#: How much lower a helper thread's priority is than the process's main thread's (Linux nice increments).
 HELPER_NICE = 10
 
 
 def _lower_priority(increment: int) -> None:
-    """Give this thread the nice value of the process's main thread plus ``increment`` unless it
-    is lower already (Linux: priorities are per thread, and a helper started by a helper ends at
-    the same level; elsewhere, and where the system refuses, nothing changes)."""
+    """Give this thread the nice value of the process's main thread plus ``increment`` unless its
+    nice value is that high already (Linux: priorities are per thread, and a helper started by a
+    helper ends at the same level; elsewhere, and where the system refuses, nothing changes)."""
     if sys.platform != "linux" or increment <= 0:
         return
     try:
