@@ -287,4 +287,3 @@ def table_at_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64], ke
             else:
                 rank = base[q] + (1 if np.float64(ordered[base[q]]) < x else 0)
             out[first + q] = table[rank]
-
