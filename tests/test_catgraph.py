@@ -251,3 +251,36 @@ def test_posterior_mode_sums_only_nodes_near_particles_and_reads_out_as_a_pass_o
         near = np.flatnonzero(want_mass >= want_mass.max() - 1e-12)
         assert np.array_equal(own, want_own)
         assert mode == near[np.argmax(want_own[near])] and mass == want_mass[mode]
+
+
+@pytest.mark.parametrize("renormalise", [True, False])
+def test_weighing_is_the_numpy_expression_up_to_the_order_of_sums(renormalise: bool) -> None:
+    from wiloc.calibration import RankLikelihood, logsumexp
+    from wiloc.methods.filter_kernels import weigh
+
+    rng = np.random.default_rng(8)
+    row = np.round(rng.random(900) * 60).astype(np.float32).astype(np.float64)  # ties, float32 values
+    model = RankLikelihood(0.4, 10.0, 0.02)
+    model.use_row(row)
+    j = rng.integers(0, 899, 500)
+    frac = np.where(rng.random(500) < 0.3, 0.0, rng.random(500))
+    omega = np.where(rng.random(500) < 0.1, rng.random(500), 1.0)  # some near duplicates
+    log_ratio = model.at(j, frac, omega)
+    t = model.t((1.0 - frac) * row[j] + frac * row[j + 1])
+    want = model.log_ratio(t, omega)
+    assert np.array_equal(log_ratio, want)  # the same values, digit for digit
+    ones = np.ones(1)
+    total = np.dot(model._sorted.counts, np.exp(model.log_ratio(model._sorted.t, ones)))
+    assert model.mean(np.ones(900)) == pytest.approx(np.log(total) - np.log(900), rel=1e-12)
+
+    log_w = np.log(rng.dirichlet(np.ones(500)))
+    kept = rng.random(500) > 0.05
+    prior = log_w - logsumexp(log_w[kept]) if renormalise else log_w
+    expected = np.where(kept, np.log(0.9) + prior + log_ratio, np.log(0.01))
+    log_map = logsumexp(expected)
+    out, w = np.empty(500), np.empty(500)
+    got_map, squares = weigh(log_w, kept, renormalise, log_ratio, np.log(0.9), np.log(0.01), out, w)
+    assert got_map == pytest.approx(log_map, rel=1e-13)
+    np.testing.assert_allclose(out, expected - log_map, rtol=1e-12)
+    np.testing.assert_allclose(w, np.exp(expected - log_map), rtol=1e-12)
+    assert w.sum() == pytest.approx(1.0) and squares == pytest.approx(np.sum(w * w), rel=1e-12)

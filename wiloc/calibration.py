@@ -127,12 +127,11 @@ class RankLikelihood:
     def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
         """ln lambda at positions a ``frac`` of the way from node j to j + 1 (the difference
         interpolated there), each with its near-duplicate weight ``omega``."""
-        from wiloc.methods.filter_kernels import interpolate  # numba loads with the first frame
+        from wiloc.methods.filter_kernels import rank_log_ratio  # numba loads with the first frame
 
-        d = np.empty(j.size)
-        interpolate(self._row, j, frac, d)
-        self._t = self.t(d)
-        return self.log_ratio(self._t, omega)
+        self._t, out = np.empty(j.size), np.empty(j.size)
+        rank_log_ratio(self._row, self._sorted.values, self._table, j, frac, omega, self.a, self._t, out)
+        return out
 
     def mean(self, omega: NDArray[np.float64], damped: NDArray[np.intp] | None = None) -> float:
         """ln of the mean lambda over every map node: the evidence for "somewhere on the map".
@@ -142,9 +141,10 @@ class RankLikelihood:
         every node had weight 1, corrected at the ``damped`` nodes (omega < 1, a stopped
         vehicle's few; found in ``omega`` unless given), each ranked by a search.
         """
+        from wiloc.methods.filter_kernels import ratio_sum  # numba loads with the first frame
+
         ones = np.ones(1)
-        ranks = self._sorted
-        total = float(np.dot(ranks.counts, np.exp(self.log_ratio(ranks.t, ones))))
+        total = ratio_sum(self._sorted.t, self._sorted.counts, self.a)
         damped = np.flatnonzero(omega < 1.0) if damped is None else damped
         if damped.size:
             t = self.t(self._row[damped])

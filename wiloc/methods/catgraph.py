@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, logsumexp, novelty_weights
+from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, novelty_weights
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -308,7 +308,7 @@ class CatGraph(Method):
         log_mean_ratio = likelihood.mean(self._omega, self._damped)
         prior = unexplained.transition(first)
 
-        pos, speed, log_w = self._pos, self._speed, self._log_w
+        pos, speed = self._pos, self._speed
         if not first:  # motion model: s += v u_k + noise
             if p.speed_noise > 0:
                 speed = np.clip(speed + rng.normal(0.0, p.speed_noise, p.particles), *p.speed_range)
@@ -317,9 +317,8 @@ class CatGraph(Method):
         n_reseed = int(round(p.reseed * p.particles))
         kept = np.ones(p.particles, dtype=bool)
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
-            weakest = np.argpartition(log_w, n_reseed - 1)[:n_reseed]
+            weakest = np.argpartition(self._log_w, n_reseed - 1)[:n_reseed]
             kept[weakest] = False
-            log_w = log_w - logsumexp(log_w[kept]) if kept.any() else log_w
             best = _lowest(score, p.reseed_top)
             pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
             speed[weakest] = speed[rng.integers(0, p.particles, n_reseed)]
@@ -327,12 +326,12 @@ class CatGraph(Method):
         j, a = _locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
         omega = np.empty(p.particles)
         filter_kernels.interpolate(self._omega, j, a, omega)
-        log_w = np.where(kept, np.log(max(prior.track, TINY)) + log_w + likelihood.at(j, a, omega),
-                         np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1)))
-        log_map = logsumexp(log_w)  # the map's total mass against the unexplained hypothesis
+        log_w, w = np.empty(p.particles), np.empty(p.particles)  # the posterior, from the prior's weights
+        log_map, squares = filter_kernels.weigh(  # log_map: the map's total mass against the unexplained hypothesis
+            self._log_w, kept, n_reseed > 0 and bool(kept.any()), likelihood.at(j, a, omega),
+            float(np.log(max(prior.track, TINY))),
+            float(np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1))), log_w, w)
         unexplained.update(log_map, prior.unexplained)
-        log_w = log_w - log_map
-        w = np.exp(log_w)
 
         mode, mass = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, self._own, self._marks,
                                                    self.frames + 1)
@@ -340,7 +339,7 @@ class CatGraph(Method):
         unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
         likelihood.learn(w * omega, 1.0 - unexplained.u)
 
-        if 1.0 / np.sum(w * w) < p.resample_ess * p.particles:
+        if 1.0 / squares < p.resample_ess * p.particles:
             idx = _systematic(w, rng)
             pos, speed = pos[idx], speed[idx]
             log_w = np.full(p.particles, -np.log(p.particles))

@@ -287,3 +287,78 @@ def table_at_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64], ke
             else:
                 rank = base[q] + (1 if np.float64(ordered[base[q]]) < x else 0)
             out[first + q] = table[rank]
+
+
+@njit(cache=True, nogil=True)
+def rank_log_ratio(row: NDArray[np.float64], ordered: NDArray[np.floating], table: NDArray[np.float64],
+                   j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64], a: float,
+                   t: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+    """``RankLikelihood.at`` in one call: the difference :func:`interpolate`\\ d at each particle,
+    ``t`` = -ln u of its rank (:func:`table_at_ranks`) and ``out`` = ln lambda = ln a_j +
+    (1 - a_j) t with a_j = 1 - omega (1 - a), value for value the numpy expressions' (ln a_j
+    taken once for the particles of weight 1, nearly all)."""
+    d = np.empty(j.size)
+    interpolate(row, j, frac, d)
+    table_at_ranks(ordered, table, d, t)
+    whole = 1.0 - 1.0 * (1.0 - a)
+    log_whole = np.log(whole)
+    for p in range(j.size):
+        if omega[p] == 1.0:
+            out[p] = log_whole + (1.0 - whole) * t[p]
+        else:
+            a_p = 1.0 - omega[p] * (1.0 - a)
+            out[p] = np.log(a_p) + (1.0 - a_p) * t[p]
+
+
+@njit(cache=True, nogil=True)
+def ratio_sum(t: NDArray[np.float64], counts: NDArray[np.float64], a: float) -> float:
+    """sum of counts x lambda(t) at weight 1: the rank likelihood's total over every map node
+    from the row's distinct ranks (``RankLikelihood.mean``), in one pass."""
+    whole = 1.0 - 1.0 * (1.0 - a)
+    log_whole = np.log(whole)
+    total = 0.0
+    for i in range(t.size):
+        total += counts[i] * np.exp(log_whole + (1.0 - whole) * t[i])
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _logsumexp(x: NDArray[np.float64], use: NDArray[np.bool_], every: bool) -> float:
+    """``calibration.logsumexp`` of x (where ``use``, unless ``every``): the largest terms kept
+    out of the sum, log1p of the rest."""
+    top = -np.inf
+    for p in range(x.size):
+        if every or use[p]:
+            top = max(top, x[p])
+    count = 0
+    rest = 0.0
+    for p in range(x.size):
+        if every or use[p]:
+            if x[p] == top:
+                count += 1
+            else:
+                rest += np.exp(x[p] - top)
+    return np.log1p(rest / count) + np.log(count) + top
+
+
+@njit(cache=True, nogil=True)
+def weigh(log_w: NDArray[np.float64], kept: NDArray[np.bool_], renormalise: bool, log_ratio: NDArray[np.float64],
+          log_track: float, log_jump: float, out: NDArray[np.float64], w: NDArray[np.float64]) -> tuple[float, float]:
+    """The particles' posterior weights after a frame, in one call (the CAT-Graph filter's eq. 8
+    with the unexplained hypothesis): a kept particle's prior log weight (renormalised over the
+    kept ones when some were re-seeded) + ln of the track's prior mass + its ln lambda; a
+    re-seeded one's ``log_jump``. Returns the log of their total (the map's mass against the
+    unexplained hypothesis) and sum w^2 (for the effective sample size); ``out`` = the
+    normalised log weights, ``w`` = their exp. Sums run in another order than numpy's, so the
+    last digits may differ from the numpy expressions'."""
+    m = log_w.size
+    shift = _logsumexp(log_w, kept, False) if renormalise else 0.0
+    for p in range(m):
+        out[p] = log_track + (log_w[p] - shift) + log_ratio[p] if kept[p] else log_jump
+    log_map = _logsumexp(out, kept, True)
+    squares = 0.0
+    for p in range(m):
+        out[p] -= log_map
+        w[p] = np.exp(out[p])
+        squares += w[p] * w[p]
+    return log_map, squares
