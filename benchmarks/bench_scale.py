@@ -176,20 +176,13 @@ def scale_rows(n: int, methods: list[str], repeat: int, scheduler: str | None, w
 def child_describe(args: argparse.Namespace) -> dict[str, float]:
     """One describe of the Gardens Point folders in this (child) process, as one `wiloc
     describe` call: workers (or the Dask client) start inside the timing."""
-    from wiloc.describing import describe_folder
-    from wiloc.descriptors.registry import get_descriptor
-    from wiloc.traversals import open_cluster
-    from wiloc.workers import keeping_pools
+    from wiloc import api
 
     folders = [Path(args.root) / "gardens-point-walking" / t for t in TRAVERSALS]
     with tempfile.TemporaryDirectory() as temp:
-        cache = Cache(Path(temp))
         start = time.perf_counter()
-        cluster = open_cluster(args.scheduler, args.jobs)
-        with keeping_pools():  # one set of workers for the three folders, as `wiloc describe` keeps
-            computed = sum(describe_folder(f, get_descriptor(args.method), cache, args.jobs, cluster=cluster).computed
-                           for f in folders)
-        return {"rate": computed / (time.perf_counter() - start)}
+        reports = api.describe(folders, args.method, cache=Cache(Path(temp)), jobs=args.jobs, scheduler=args.scheduler)
+        return {"rate": sum(report.computed for report in reports) / (time.perf_counter() - start)}
 
 
 def describe_rows(data: Path, repeat: int, descriptors: list[str], scheduler: str | None) -> list[str]:

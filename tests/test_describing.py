@@ -53,6 +53,17 @@ class PidSpec(FakeSpec):
         return np.full(self.length, os.getpid(), dtype=np.float32)
 
 
+@dataclass(frozen=True)
+class SlowSpec(FakeSpec):
+    """FakeSpec's rows after `seconds` of work."""
+
+    seconds: float = 0.0
+
+    def compute(self, gray: np.ndarray) -> np.ndarray:
+        time.sleep(self.seconds)
+        return super().compute(gray)
+
+
 def write_images(folder: Path, count: int, seed: int = 0, size: tuple[int, int] = (64, 48)) -> list[str]:
     """`count` smooth random images, alternating PNG and JPEG, named img0 .. img{count-1}."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -347,3 +358,38 @@ def test_folders_described_in_one_block_share_their_workers(tmp_path: Path) -> N
     workers = [set(r.entry.data[:, 0].astype(int).tolist()) - {os.getpid()} for r in reports]
     assert len(workers[0]) == 1 and workers[1] == workers[0]  # started once, for both folders
     assert [r.computed for r in reports] == [24, 24]
+
+
+def test_folders_described_in_one_stream_match_one_at_a_time(tmp_path: Path) -> None:
+    """Folders whose frames share their names, described together with a worker: each frame's
+    row goes to its own folder's entry, and a folder given twice is described once."""
+    from wiloc.describing import describe_folders
+
+    folders = [tmp_path / name for name in ("a", "b", "c")]
+    for seed, folder in enumerate(folders):
+        write_images(folder, 30, seed=seed)  # img0 .. img29 in each
+    spec = SlowSpec(seconds=0.004)  # 90 frames: worth a worker
+    alone = [describe_folder(folder, spec, Cache(tmp_path / f"alone-{folder.name}"), jobs=1) for folder in folders]
+    calls: dict[str, list[tuple[int, int]]] = {f.name: [] for f in folders}
+    progress = [lambda d, t, n=f.name: calls[n].append((d, t)) for f in folders] + [None]
+    together = describe_folders([*folders, folders[0]], spec, Cache(tmp_path / "together"), jobs=2, progress=progress)
+    assert [Path(r.folder).name for r in together] == ["a", "b", "c", "a"] and together[3] is together[0]
+    for one, both, folder in zip(alone, together, folders):
+        assert both.entry.digest == one.entry.digest and both.computed == 30
+        np.testing.assert_array_equal(both.entry.data, expected_rows(folder, [f"img{i}" + (".png" if i % 2 else ".jpg")
+                                                                           for i in range(30)], spec))
+        assert calls[folder.name][0] == (0, 30) and calls[folder.name][-1] == (30, 30)
+    pids = describe_folders(folders, PidSpec(params={"side": 1}, seconds=0.004), Cache(tmp_path / "pids"), jobs=2)
+    by_worker = [set(r.entry.data[:, 0].astype(int).tolist()) - {os.getpid()} for r in pids]
+    assert all(len(worker) == 1 for worker in by_worker) and by_worker[0] == by_worker[1] == by_worker[2]
+
+
+def test_a_bad_folder_among_several_stops_the_run_before_anything_is_written(tmp_path: Path) -> None:
+    from wiloc.describing import describe_folders
+
+    write_images(tmp_path / "good", 4)
+    (tmp_path / "empty").mkdir()
+    cache = Cache(tmp_path / "cache")
+    with pytest.raises(WilocError, match="empty"):
+        describe_folders([tmp_path / "good", tmp_path / "empty"], FakeSpec(), cache, jobs=1)
+    assert cache.list_entries() == []

@@ -18,7 +18,7 @@ import pandas as pd
 from wiloc import __version__
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent
-from wiloc.describing import DescribeReport, check_sampling, describe_source, import_matrix
+from wiloc.describing import DescribeReport, check_sampling, describe_sources, import_matrix
 from wiloc.differences import candidate_blocks, run_differences
 from wiloc.distances import consecutive
 from wiloc.errors import UsageError, WilocError
@@ -61,16 +61,17 @@ def describe(folders: Sequence[Path], descriptor: str = "sad", *,
     """Compute (or reuse from the cache) one descriptor per image of each folder, or per frame
     of each video file that ``sampling`` picks (default: every frame). ``jobs`` worker processes
     describe folders, or the workers of the Dask ``scheduler`` (an address, or ``local``: a local
-    cluster of ``jobs`` workers); videos are decoded and described in this process."""
+    cluster of ``jobs`` workers); videos are decoded and described in this process. The folders'
+    frames form one stream over the workers (``wiloc.describing.describe_folders``). Reports come
+    in the order of ``folders``."""
     spec = descriptor_spec(descriptor, descriptor_params)
     cache = cache or Cache()
     for folder in folders:
         check_sampling(Path(folder), sampling)
     cluster = open_cluster(scheduler, jobs)
-    with shared_workers():
-        return [describe_source(Path(folder), spec, cache, jobs=jobs, sampling=sampling,
-                                progress=stage(progress, f"describe {Path(folder).name}"), cluster=cluster)
-                for folder in folders]
+    return describe_sources([Path(folder) for folder in folders], spec, cache, jobs=jobs, sampling=sampling,
+                            progress=[stage(progress, f"describe {Path(folder).name}") for folder in folders],
+                            cluster=cluster)
 
 
 def import_descriptors(path: Path, *, metric: str, names: Path | None = None,

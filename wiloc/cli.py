@@ -154,21 +154,16 @@ def describe(
     if not importing and not folders:
         fail("FOLDER...: give image folders, video files, --import FILE or --list", EXIT_USAGE)
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
-    reports, repairs = [], []
-    with progress_bar(not as_json) as progress, api.shared_workers():
-        for source in [import_file] if importing else folders:
-            known = len(store.repairs)
-            if importing:
-                reports.append(api.import_descriptors(source, metric=metric, names=names, cache=store))
-            else:
-                reports += api.describe([source], descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
-                                        cache=store, jobs=jobs, progress=progress, sampling=sampling,
-                                        scheduler=scheduler)
-            repairs.append(store.repairs[known:])
+    with progress_bar(not as_json) as progress:
+        if importing:
+            reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store)]
+        else:  # one call: the folders' frames form one stream over the workers
+            reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
+                                   cache=store, jobs=jobs, progress=progress, sampling=sampling, scheduler=scheduler)
     rows, notes = [], []
-    for label, r, repaired in zip(short_names([r.folder for r in reports]), reports, repairs):
+    for label, r in zip(short_names([r.folder for r in reports]), reports):
         said = Notes()
-        for line in repaired:
+        for line in r.repairs:
             said.add("note", line)
         for name, reason in r.failed if not r.video else ():
             said.add("skipped", f"{Path(r.folder) / name}: {reason}")

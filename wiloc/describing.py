@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import os
 import queue
+import statistics
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Generator, Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import asdict, dataclass, replace
+from contextlib import ExitStack, contextmanager
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -28,6 +29,7 @@ from wiloc.cache import (
     Cache,
     Entry,
     EntryHeader,
+    Journal,
     FrameRecord,
     StoredEntry,
     entry_key,
@@ -91,6 +93,7 @@ class DescribeReport:
     seconds: float
     images_per_second: float
     entry: Entry
+    repairs: list[str] = field(default_factory=list)  # damage found in the cache entry (Cache.repairs)
     video: bool = False
 
 
@@ -99,10 +102,25 @@ def describe_source(source: Path, spec: DescriptorSpec, cache: Cache, *, jobs: i
                     cluster: Cluster | None = None) -> DescribeReport:
     """Describe a traversal: a video file (recognised by its suffix) with `sampling`, else a
     folder of images with `jobs` worker processes, or on `cluster`'s workers."""
-    check_sampling(source, sampling)
-    if is_video(source):
-        return describe_video(source, spec, cache, sampling, progress)
-    return describe_folder(source, spec, cache, jobs, progress, cluster)
+    return describe_sources([source], spec, cache, jobs=jobs, sampling=sampling, progress=[progress],
+                            cluster=cluster)[0]
+
+
+def describe_sources(sources: Sequence[Path], spec: DescriptorSpec, cache: Cache, *, jobs: int | None = None,
+                     sampling: Sampling | None = None, progress: Sequence[Progress | None] | None = None,
+                     cluster: Cluster | None = None) -> list[DescribeReport]:
+    """:func:`describe_source` for each of several traversals (``progress``: one callback each),
+    the reports in their order: the image folders together (:func:`describe_folders`), then
+    each video file."""
+    sources = [Path(source) for source in sources]
+    callbacks = list(progress) if progress is not None else [None] * len(sources)
+    for source in sources:
+        check_sampling(source, sampling)
+    folders = [(source, callback) for source, callback in zip(sources, callbacks) if not is_video(source)]
+    described = iter(describe_folders([f for f, _ in folders], spec, cache, jobs, [c for _, c in folders], cluster)
+                     if folders else [])
+    return [describe_video(source, spec, cache, sampling, callback) if is_video(source) else next(described)
+            for source, callback in zip(sources, callbacks)]
 
 
 def check_sampling(source: Path, sampling: Sampling | None) -> None:
@@ -121,27 +139,128 @@ def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int 
     `progress(done, total)` is called as frames are settled, reused ones first. Holds the
     entry's lock throughout; raises CacheBusyError if another process keeps it too long.
     """
-    start = time.perf_counter()
+    return describe_folders([folder], spec, cache, jobs, [progress], cluster)[0]
+
+
+def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache, jobs: int | None = None,
+                     progress: Sequence[Progress | None] | None = None,
+                     cluster: Cluster | None = None) -> list[DescribeReport]:
+    """:func:`describe_folder` for several folders (``progress``: one callback per folder), as
+    one stream of frames: the workers go on with the next folder's frames while this process
+    writes the entry of the folder whose frames are all in. One folder at a time, they idled
+    through each write, and the next folder started with this process timing its frames alone
+    (docs/scaling.md). Every folder is listed before any frame is described, so a bad folder
+    stops the run before anything is written. Each entry's lock is held from reading the entry
+    until it is written (taken in key order, so that two runs over the same folders never wait
+    on each other crosswise); a folder given twice is described once. On a Dask ``cluster`` the
+    folders are described one after the other."""
+    started = time.perf_counter()
     jobs = _check_jobs(jobs)
-    traversal = list_traversal(folder)
-    header = _header(str(Path(folder).resolve()), spec, spec.params)
-    total = len(traversal.frame_names)
-    with _locked_entry(cache, header) as stored:
+    callbacks = list(progress) if progress is not None else [None] * len(folders)
+    runs: dict[str, _Settling] = {}
+    keys = []
+    for folder, callback in zip(folders, callbacks):
+        traversal = list_traversal(folder)
+        header = _header(str(Path(folder).resolve()), spec, spec.params)
+        runs.setdefault(header.key, _Settling(header, callback, traversal))
+        keys.append(header.key)
+    settling = list(runs.values())
+    with ExitStack() as held:
+        for run in sorted(settling, key=lambda r: r.header.key):
+            run.lock = held.enter_context(ExitStack())
+            run.stored, run.repairs = run.lock.enter_context(_locked_entry(cache, run.header))
+        for run in settling:
+            run.start()
+        finished = [started]  # when the last folder was written: each report counts the time since
+
+        def finish(run: _Settling) -> None:
+            run.finish(cache, finished[-1])
+            finished.append(time.perf_counter())
+
+        for run in settling:
+            if not run.tasks:
+                finish(run)
+        tagged = [(tag, task) for tag, run in enumerate(settling) for task in run.tasks]
+        if tagged:
+            results = _compute(spec, tagged, jobs) if cluster is None else _on_cluster(cluster, spec, settling)
+            _journal(cache, settling, results, finish)
+    return [runs[key].report for key in keys]
+
+
+def _on_cluster(cluster: Cluster, spec: DescriptorSpec,
+                runs: Sequence[_Settling]) -> Iterator[tuple[int, FrameRecord, bool]]:
+    """Each run's tasks settled on the Dask cluster, one run after the other, tagged by run."""
+    for tag, run in enumerate(runs):
+        if run.tasks:
+            for record, fresh in cluster.describe(spec, run.tasks):
+                yield tag, record, fresh
+
+
+class _Settling:
+    """One folder (or video) of a describe run while its frames settle: its stored entry (held
+    under its lock), the frames to compute, its journal once a result arrived, and its report
+    once its entry is written."""
+
+    def __init__(self, header: EntryHeader, progress: Progress | None, traversal: Traversal | None = None,
+                 stored: StoredEntry | None = None) -> None:
+        self.header, self.progress, self.traversal = header, progress, traversal
+        self.stored = stored if stored is not None else StoredEntry(header)
+        self.lock: ExitStack | None = None  # holds the entry's lock, until the entry is written
+        self.repairs: list[str] = []  # what reading the entry found damaged (Cache.repairs)
+        self.tasks: list[_Task] = []
+        self.removed = False
+        self.done = 0  # frames settled
+        self.total: int | None = None  # frames to settle (None: not known in advance, a video's)
+        self.computed = 0
+        self.journal: Journal | None = None
+        self.report: DescribeReport | None = None
+
+    def start(self) -> None:
+        """A folder's stored frames compared with the folder: gone ones dropped, changed and new
+        ones to settle, the unchanged ones reported settled."""
+        traversal, records = self.traversal, self.stored.records
+        assert traversal is not None
         names = set(traversal.frame_names)
-        removed = [name for name in stored.records if name not in names]
+        removed = [name for name in records if name not in names]
         for name in removed:
-            del stored.records[name]
-        tasks = _changed(traversal, stored.records)
-        done = total - len(tasks)
-        if progress is not None:
-            progress(done, total)
-        results = cluster.describe(spec, tasks) if cluster is not None else _compute(spec, tasks, jobs)
-        computed = _journal(cache, stored, results, done, total, progress) if tasks else 0
-        if tasks or removed or not stored.complete:
-            entry = cache.write_entry(stored, complete=True)
+            del records[name]
+        self.removed = bool(removed)
+        self.tasks = _changed(traversal, records)
+        self.total = len(traversal.frame_names)
+        self.done = self.total - len(self.tasks)
+        if self.progress is not None:
+            self.progress(self.done, self.total)
+
+    def settle(self, cache: Cache, record: FrameRecord, fresh: bool) -> bool:
+        """Journal one frame's result (opening the journal on the first) and add it to the entry;
+        whether that was the last frame to settle."""
+        if self.journal is None:
+            self.journal = cache.open_journal(self.header)
+        self.journal.append(record)
+        self.stored.records[record.name] = record
+        self.computed += fresh
+        self.done += 1
+        if self.progress is not None:
+            self.progress(self.done, max(self.done, self.total or 0))
+        return self.done == self.total
+
+    def close(self) -> None:
+        if self.journal is not None:
+            self.journal.close()
+            self.journal = None
+
+    def finish(self, cache: Cache, since: float) -> None:
+        """A folder's entry written (when anything changed), its lock released, its report made
+        with the seconds ``since``."""
+        self.close()
+        if self.tasks or self.removed or not self.stored.complete:
+            entry = cache.write_entry(self.stored, complete=True)
         else:
-            entry = stored.entry(traversal.frame_names)
-    return _report(stored, entry, computed, start, ignored=[p.name for p in traversal.ignored])
+            entry = self.stored.entry(self.traversal.frame_names if self.traversal else None)
+        if self.lock is not None:
+            self.lock.close()
+        ignored = [p.name for p in self.traversal.ignored] if self.traversal else []
+        self.report = _report(self.stored, entry, self.computed, since, ignored=ignored, repairs=self.repairs)
 
 
 def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampling | None = None,
@@ -163,24 +282,24 @@ def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sam
         video_print = video_fingerprint(path)
         params = {**spec.params, "video": video_print.digest, "sampling": asdict(sampling)}
         header = _header(str(path.resolve()), spec, params)
-        with _locked_entry(cache, header) as stored:
+        with _locked_entry(cache, header) as (stored, repairs):
             computed = 0
             if stored.complete:
                 entry = stored.entry()
             else:
-                total = sampling.estimate(video.frame_count, video.rate)
-                done = len(stored.records)
+                run = _Settling(header, progress, stored=stored)
+                run.total, run.done = sampling.estimate(video.frame_count, video.rate), len(stored.records)
                 if progress is not None:
-                    progress(done, max(done, total or 0))
+                    progress(run.done, max(run.done, run.total or 0))
                 frames = video.frames(sampling, skip=stored.records)
-                results = (_describe_frame(spec, video_print, frame) for frame in frames)
-                computed = _journal(cache, stored, results, done, total, progress)
+                _journal(cache, [run], ((0, *_describe_frame(spec, video_print, frame)) for frame in frames))
+                computed = run.computed
                 if not stored.records:
                     cut = f"start {sampling.start}" + ("" if sampling.stop is None else f", stop {sampling.stop}")
                     length = "" if video.frame_count is None else f" (it has {video.frame_count} frames)"
                     raise WilocError(path, f"the cut ({cut}) holds no frame of this video{length}")
                 entry = cache.write_entry(stored, complete=True)
-    return _report(stored, entry, computed, start, video=True)
+    return _report(stored, entry, computed, start, repairs=repairs, video=True)
 
 
 def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str) -> DescribeReport:
@@ -200,7 +319,7 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
               "names_digest": prints[1].digest if names_path is not None else None}
     key = entry_key(str(sources[0]), EXTERNAL, params)
     with cache.lock(cache.entry_name(key)):
-        stored = cache.read_stored(key)
+        stored, repairs = _read_stored(cache, key)
         fresh = stored is None or not stored.complete
         if fresh:
             names, matrix = read_external(sources[0], names_path, metric)
@@ -219,7 +338,7 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
     return DescribeReport(
         folder=str(sources[0]), descriptor=EXTERNAL, shape=entry.data.shape, frames=n,
         computed=n if fresh else 0, reused=0 if fresh else n, failed=[], ignored=[], sizes=[],
-        seconds=seconds, images_per_second=(n if fresh else 0) / seconds, entry=entry,
+        seconds=seconds, images_per_second=(n if fresh else 0) / seconds, entry=entry, repairs=repairs,
     )
 
 
@@ -230,48 +349,48 @@ def _header(source: str, spec: DescriptorSpec, params: dict) -> EntryHeader:
 
 
 @contextmanager
-def _locked_entry(cache: Cache, header: EntryHeader) -> Iterator[StoredEntry]:
+def _locked_entry(cache: Cache, header: EntryHeader) -> Iterator[tuple[StoredEntry, list[str]]]:
     """Hold the entry's lock and yield what it stores (nothing when absent or made for other
-    params); a killed run's journal is folded into the file first."""
+    params) and the repairs reading it called for (``Cache.repairs``); a killed run's journal
+    is folded into the file first."""
     with cache.lock(cache.entry_name(header.key)):
-        stored = cache.read_stored(header.key)
+        stored, repairs = _read_stored(cache, header.key)
         if stored is None or stored.header != header:
             stored = StoredEntry(header)
         elif stored.journaled:
             cache.write_entry(stored, complete=False)
-        yield stored
+        yield stored, repairs
 
 
-def _journal(cache: Cache, stored: StoredEntry, results: Iterator[tuple[FrameRecord, bool]], done: int,
-             total: int | None, progress: Progress | None) -> int:
-    """Journal each settled frame the moment it arrives and add it to `stored`; returns how many
-    descriptors were computed. The journal is opened on the first result: no result, no file.
-    A generator `results` is closed on the way out, whatever ends the loop: an interrupt landing
-    here rather than in the generator stops its workers now (left to the garbage collector, they
-    were stopped only as the interpreter exited, where the helper thread no longer runs: a 60 s
-    hang)."""
-    journal = None
-    computed = 0
+def _read_stored(cache: Cache, key: str) -> tuple[StoredEntry | None, list[str]]:
+    """``Cache.read_stored`` and the repairs it noted (call with the entry lock held)."""
+    known = len(cache.repairs)
+    stored = cache.read_stored(key)
+    return stored, cache.repairs[known:]
+
+
+def _journal(cache: Cache, runs: Sequence[_Settling], results: Iterator[tuple[int, FrameRecord, bool]],
+             finish: Callable[[_Settling], None] | None = None) -> None:
+    """Journal each settled frame the moment it arrives (``(tag, record, computed)``: the frame
+    of ``runs[tag]``), and ``finish`` each run whose frames are all in. A journal is opened on
+    its run's first result: no result, no file. A generator `results` is closed on the way out,
+    whatever ends the loop: an interrupt landing here rather than in the generator stops its
+    workers now (left to the garbage collector, they were stopped only as the interpreter
+    exited, where the helper thread no longer runs: a 60 s hang)."""
     try:
-        for record, fresh in results:
-            if journal is None:
-                journal = cache.open_journal(stored.header)
-            journal.append(record)
-            stored.records[record.name] = record
-            computed += fresh
-            done += 1
-            if progress is not None:
-                progress(done, max(done, total or 0))
+        for tag, record, fresh in results:
+            run = runs[tag]
+            if run.settle(cache, record, fresh) and finish is not None:
+                finish(run)
     finally:
         if isinstance(results, Generator):
             results.close()
-        if journal is not None:
-            journal.close()
-    return computed
+        for run in runs:
+            run.close()
 
 
 def _report(stored: StoredEntry, entry: Entry, computed: int, started: float, ignored: Sequence[str] = (),
-            video: bool = False) -> DescribeReport:
+            repairs: Sequence[str] = (), video: bool = False) -> DescribeReport:
     """The report of a run that settled every frame of `stored` and wrote (or reused) `entry`."""
     records = stored.records.values()
     failed = sorted(((r.name, r.reason) for r in records if r.row is None), key=lambda f: natural_key(f[0]))
@@ -281,7 +400,7 @@ def _report(stored: StoredEntry, entry: Entry, computed: int, started: float, ig
         frames=len(records), computed=computed, reused=len(records) - computed - len(failed),
         failed=failed, ignored=list(ignored),
         sizes=sorted({(r.width, r.height) for r in records if r.row is not None}),
-        seconds=seconds, images_per_second=computed / seconds, entry=entry, video=video,
+        seconds=seconds, images_per_second=computed / seconds, entry=entry, repairs=list(repairs), video=video,
     )
 
 
@@ -314,38 +433,39 @@ def _unchanged(path: str, old: FrameRecord | None) -> bool:
     return stat.st_size == old.size and stat.st_mtime_ns == old.mtime_ns
 
 
-def _compute(spec: DescriptorSpec, tasks: Sequence[_Task], jobs: int) -> Iterator[tuple[FrameRecord, bool]]:
-    """Settle each task, yielding (record, computed) as results arrive, over `jobs` processes.
-    This process computes first; once the frames left would take it longer than starting
-    workers (`WorkerStart`, by the median time of its frames after the first), `jobs` - 1 workers
-    start and take frames from the same queue while this process goes on computing."""
+def _compute(spec: DescriptorSpec, tasks: Sequence[tuple[int, _Task]],
+             jobs: int) -> Iterator[tuple[int, FrameRecord, bool]]:
+    """Settle each tagged task, yielding (tag, record, computed) as results arrive, over `jobs`
+    processes. This process computes first; once the frames left would take it longer than
+    starting workers (`WorkerStart`, by the median time of its frames after the first), `jobs` - 1
+    workers start and take frames from the same queue while this process goes on computing."""
     pending = deque(tasks)
     timed: list[float] = []
     with _opencv_quiet():
         while pending and not _worth_workers(jobs, timed, len(pending)):
             started = time.perf_counter()
-            record = _describe_one(spec, pending.popleft())
+            tag, task = pending.popleft()
+            record = _describe_one(spec, task)
             timed.append(time.perf_counter() - started)
-            yield record
+            yield (tag, *record)
         if pending:
-            chunk = min(MAX_CHUNK, max(1, round(CHUNK_SECONDS / float(np.median(timed[1:])))))
+            chunk = min(MAX_CHUNK, max(1, round(CHUNK_SECONDS / statistics.median(timed[1:]))))
             with _opencv_threads(1):
                 yield from _compute_with_workers(spec, pending, jobs - 1, chunk)
 
 
-def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: int,
-                          chunk: int) -> Iterator[tuple[FrameRecord, bool]]:
-    """The pending tasks settled by this process and `workers` worker processes together: a
-    helper thread feeds the workers batches from `pending` (`_batches`), two at a time each, and
-    queues their results; this process computes from the same deque and yields both."""
-    folder = pending[0][0].parent
+def _compute_with_workers(spec: DescriptorSpec, pending: deque[tuple[int, _Task]], workers: int,
+                          chunk: int) -> Iterator[tuple[int, FrameRecord, bool]]:
+    """The pending tagged tasks settled by this process and `workers` worker processes together:
+    a helper thread feeds the workers batches from `pending` (`_batches`), two at a time each,
+    and queues their results; this process computes from the same deque and yields both."""
     results: queue.Queue = queue.Queue()
     # Forked from this process while it runs no other thread, else fresh interpreters; never the
     # caller's main module (wiloc.workers says why not multiprocessing's start methods).
     with borrowed_pool(workers, _init_worker) as pool:
         def drive() -> None:
             try:
-                for batch in pool.imap_unordered(partial(describe_quietly, spec),
+                for batch in pool.imap_unordered(partial(_describe_tagged, spec),
                                                  _batches(pending, chunk, workers + 1), ahead=2):
                     results.put(batch)
                 results.put(None)
@@ -357,19 +477,22 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: 
         try:
             finished = False
             while not finished:
-                task = _take(pending)
-                if task is not None:
-                    yield _describe_one(spec, task)
-                while not finished and (task is None or not results.empty()):  # nothing left here: wait
-                    item = results.get()
-                    if isinstance(item, BaseException):
-                        raise item
-                    finished = item is None
+                item = _take(pending)
+                if item is not None:
+                    tag, task = item
+                    yield (tag, *_describe_one(spec, task))
+                while not finished and (item is None or not results.empty()):  # nothing left here: wait
+                    answer = results.get()
+                    if isinstance(answer, BaseException):
+                        raise answer
+                    finished = answer is None
                     if not finished:
-                        yield from item
+                        yield from answer
         except WorkerError as exc:
             pool.kill()
-            names = ", ".join(path.name for batch in exc.items for path, _ in batch)
+            paths = [path for batch in exc.items for _, (path, _) in batch]
+            folder = paths[0].parent if paths else None  # a batch may reach into the next folder
+            names = ", ".join(path.name if path.parent == folder else str(path) for path in paths)
             raise WilocError(folder, f"{exc.problem} while describing {names}") from None
         except BaseException:
             pool.kill()  # an interrupted run keeps what was journaled; in-flight work is lost
@@ -380,7 +503,7 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[_Task], workers: 
             driver.join()
 
 
-def _batches(pending: deque[_Task], chunk: int, processes: int) -> Iterator[list[_Task]]:
+def _batches(pending: deque[tuple[int, _Task]], chunk: int, processes: int) -> Iterator[list[tuple[int, _Task]]]:
     """Batches of tasks taken from `pending` as workers ask for them: `chunk` tasks, or fewer as
     the deque empties (a quarter of each process's share of what is left, at least one), so
     that at the end no process waits long for another's last batches."""
@@ -389,7 +512,7 @@ def _batches(pending: deque[_Task], chunk: int, processes: int) -> Iterator[list
         yield batch
 
 
-def _take(pending: deque[_Task]) -> _Task | None:
+def _take(pending: deque[tuple[int, _Task]]) -> tuple[int, _Task] | None:
     """The next task, or None when there is none left (deques pop atomically across threads)."""
     try:
         return pending.popleft()
@@ -418,13 +541,18 @@ def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
         start = FORKED_START if can_fork() else FRESH_START
     if jobs == 1 or len(timed) <= start.frames:
         return False
-    return float(np.median(timed[1:])) * left > start.seconds
+    return statistics.median(timed[1:]) * left > start.seconds  # not np.median: its first call costs 6 ms
 
 
 def describe_quietly(spec: DescriptorSpec, tasks: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:
     """Each task's (record, computed), OpenCV's own warnings off meanwhile (a Dask worker's batch)."""
     with _opencv_quiet():
         return [_describe_one(spec, task) for task in tasks]
+
+
+def _describe_tagged(spec: DescriptorSpec, tasks: Sequence[tuple[int, _Task]]) -> list[tuple[int, FrameRecord, bool]]:
+    """A worker process's batch: each tagged task's (tag, record, computed)."""
+    return [(tag, *result) for (tag, _), result in zip(tasks, describe_quietly(spec, [task for _, task in tasks]))]
 
 
 def _init_worker() -> None:
