@@ -6,7 +6,7 @@ CPU milliseconds per image of the calling process and of its workers.
         (DATA_ROOT default: $WILOC_DATA, else ../shared/data)
 
 Each describe runs in a fresh process, with a fresh temporary cache, over the three folders in
-one `keeping_pools` block (as one `wiloc describe` call: workers start once). CPU is the
+one `describe_folders` call (as one `wiloc describe` call: one stream of frames, workers start once). CPU is the
 process's and its waited-for children's user + system time (getrusage): on a machine that other
 jobs share, wall-time ratios move with the load, while CPU per image shows what `--jobs 2`
 costs: on 2 idle cores its speed-up is at most 2 x CPU(jobs 1) / CPU(jobs 2). Figures are
@@ -28,10 +28,9 @@ from pathlib import Path
 import cv2
 
 from wiloc.cache import Cache
-from wiloc.describing import describe_folder
+from wiloc.describing import describe_folders
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.frames import list_traversal
-from wiloc.workers import keeping_pools
 
 TRAVERSALS = ("day_left", "day_right", "night_right")
 DESCRIPTORS = ("sad", "gist", "brisk-gist")
@@ -69,8 +68,7 @@ def describe_run(name: str, folders: list[Path], jobs: int) -> dict[str, float]:
         cache = Cache(Path(temp))
         wall = time.perf_counter()
         parent, children = _cpu_seconds(resource.RUSAGE_SELF), _cpu_seconds(resource.RUSAGE_CHILDREN)
-        with keeping_pools():  # one set of workers for all folders, as one `wiloc describe` call
-            computed = sum(describe_folder(folder, spec, cache, jobs).computed for folder in folders)
+        computed = sum(report.computed for report in describe_folders(folders, spec, cache, jobs))
         parent = _cpu_seconds(resource.RUSAGE_SELF) - parent
         children = _cpu_seconds(resource.RUSAGE_CHILDREN) - children
         wall = time.perf_counter() - wall
