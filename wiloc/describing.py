@@ -171,10 +171,13 @@ def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache
             run.stored, run.repairs = run.lock.enter_context(_locked_entry(cache, run.header))
         for run in settling:
             run.start()
-        finished = [started]  # when the last folder was written: each report counts the time since
+        finished = [started]  # when the last folder was written (at first: when the call started)
 
         def finish(run: _Settling) -> None:
-            run.finish(cache, finished[-1])
+            """A report's seconds run from the folder's first result, or from the previous folder's
+            end when that came first: with the stream the next folder's frames are under way
+            while a folder ends, and the first folder counts from the call's start."""
+            run.finish(cache, finished[-1] if run.began is None else min(run.began, finished[-1]))
             finished.append(time.perf_counter())
 
         for run in settling:
@@ -212,6 +215,7 @@ class _Settling:
         self.done = 0  # frames settled
         self.total: int | None = None  # frames to settle (None: not known in advance, a video's)
         self.computed = 0
+        self.began: float | None = None  # when the first result arrived
         self.journal: Journal | None = None
         self.report: DescribeReport | None = None
 
@@ -236,6 +240,7 @@ class _Settling:
         whether that was the last frame to settle."""
         if self.journal is None:
             self.journal = cache.open_journal(self.header)
+            self.began = time.perf_counter()
         self.journal.append(record)
         self.stored.records[record.name] = record
         self.computed += fresh
