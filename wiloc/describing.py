@@ -150,10 +150,11 @@ def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache
     writes the entry of the folder whose frames are all in. One folder at a time, they idled
     through each write, and the next folder started with this process timing its frames alone
     (docs/scaling.md). Every folder is listed before any frame is described, so a bad folder
-    stops the run before anything is written. Each entry's lock is held from reading the entry
-    until it is written (taken in key order, so that two runs over the same folders never wait
-    on each other crosswise); a folder given twice is described once. On a Dask ``cluster`` the
-    folders are described one after the other."""
+    stops the run before anything is written. Each entry's lock is held from the start of the
+    call until the entry is written (taken in key order, so that two runs over the same folders
+    never wait on each other crosswise): another process that needs a later folder meanwhile
+    waits for it, up to the cache's lock timeout. A folder given twice is described once. On a
+    Dask ``cluster`` the folders are described one after the other."""
     started = time.perf_counter()
     jobs = _check_jobs(jobs)
     callbacks = list(progress) if progress is not None else [None] * len(folders)
