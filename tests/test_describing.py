@@ -368,7 +368,7 @@ def test_folders_described_in_one_stream_match_one_at_a_time(tmp_path: Path) -> 
     folders = [tmp_path / name for name in ("a", "b", "c")]
     for seed, folder in enumerate(folders):
         write_images(folder, 30, seed=seed)  # img0 .. img29 in each
-    spec = SlowSpec(seconds=0.004)  # 90 frames: worth a worker
+    spec = SlowSpec(seconds=0.01)  # 90 frames: worth a worker, even a fresh interpreter
     alone = [describe_folder(folder, spec, Cache(tmp_path / f"alone-{folder.name}"), jobs=1) for folder in folders]
     calls: dict[str, list[tuple[int, int]]] = {f.name: [] for f in folders}
     progress = [lambda d, t, n=f.name: calls[n].append((d, t)) for f in folders] + [None]
@@ -379,9 +379,11 @@ def test_folders_described_in_one_stream_match_one_at_a_time(tmp_path: Path) -> 
         np.testing.assert_array_equal(both.entry.data, expected_rows(folder, [f"img{i}" + (".png" if i % 2 else ".jpg")
                                                                            for i in range(30)], spec))
         assert calls[folder.name][0] == (0, 30) and calls[folder.name][-1] == (30, 30)
-    pids = describe_folders(folders, PidSpec(params={"side": 1}, seconds=0.004), Cache(tmp_path / "pids"), jobs=2)
+    pids = describe_folders(folders, PidSpec(params={"side": 1}, seconds=0.015), Cache(tmp_path / "pids"), jobs=2)
     by_worker = [set(r.entry.data[:, 0].astype(int).tolist()) - {os.getpid()} for r in pids]
-    assert all(len(worker) == 1 for worker in by_worker) and by_worker[0] == by_worker[1] == by_worker[2]
+    # one worker, started once, took frames of several folders (of all three when forked; a fresh
+    # interpreter, where this process runs other threads, starts a few frames later)
+    assert len(set().union(*by_worker)) == 1 and sum(bool(worker) for worker in by_worker) >= 2
 
 
 def test_a_bad_folder_among_several_stops_the_run_before_anything_is_written(tmp_path: Path) -> None:
