@@ -17,10 +17,11 @@ The kernel column is the SAD kernel alone (``pairwise_blocks``, 1024-row blocks)
 the method needs, in this run: query x map for every method, plus map x map for ``online``, plus
 training query x map for ``trained``, measured again right before each cold run, so that load on
 the (shared) machine hits both alike; ratio = the median over ``--repeat`` runs of cold (or warm)
-wall / that run's kernel wall. Times are medians over the runs; CPU seconds are the child's
-process time (all its threads).
+wall / that run's kernel wall, and cpu ratio the same of CPU seconds (what the run costs against
+the kernel, less moved by the load than wall time: other jobs take cores, not CPU seconds).
+Times are medians over the runs; CPU seconds are the child's process time (all its threads).
 
-The describe table times ``describe_folder`` on the 600 Gardens Point images (fresh cache each
+The describe table times ``api.describe`` on the 600 Gardens Point images (fresh cache each
 run) with ``jobs`` 1 and 2 (and with ``--scheduler``, on that Dask cluster with 2 workers),
 against plain JPEG decoding, in the same run. Each describe runs in a fresh process and pays the
 start of its workers, as one ``wiloc describe`` call does.
@@ -164,10 +165,11 @@ def scale_rows(n: int, methods: list[str], repeat: int, scheduler: str | None, w
             size.append({"mb": sum(folder_mb(d) for d in cache.iterdir() if d.name != "descriptors")})
             warm.append(run_child(*argv))
         k, c, w = median_of(kernel), median_of(cold), median_of(warm)
-        cold_ratio = statistics.median(r["wall"] / kk["wall"] for r, kk in zip(cold, kernel))
-        warm_ratio = statistics.median(r["wall"] / kk["wall"] for r, kk in zip(warm, kernel))
+        ratios = {f"{run}_{key}": statistics.median(r[key] / kk[key] for r, kk in zip(runs, kernel))
+                  for run, runs in (("cold", cold), ("warm", warm)) for key in ("wall", "cpu")}
         rows.append(f"{n:>7,} {method:<10} {k['wall']:>8.2f} {k['cpu']:>8.2f} {c['wall']:>8.2f} {c['cpu']:>8.2f} "
-                    f"{cold_ratio:>6.2f}x {w['wall']:>8.2f} {w['cpu']:>8.2f} {warm_ratio:>6.2f}x "
+                    f"{ratios['cold_wall']:>6.2f}x {ratios['cold_cpu']:>8.2f}x {w['wall']:>8.2f} {w['cpu']:>8.2f} "
+                    f"{ratios['warm_wall']:>6.2f}x {ratios['warm_cpu']:>8.2f}x "
                     f"{max(c['rss_mb'], w['rss_mb']):>8.0f} {median_of(size)['mb']:>9.1f}")
     shutil.rmtree(root, ignore_errors=True)
     return rows
@@ -230,7 +232,8 @@ def main() -> None:
     sizes = [int(s) for s in args.sizes.split(",") if int(s) > 0]
     if sizes:
         header = (f"{'N':>7} {'method':<10} {'kernel s':>8} {'kern cpu':>8} {'cold s':>8} {'cold cpu':>8} "
-                  f"{'ratio':>7} {'warm s':>8} {'warm cpu':>8} {'ratio':>7} {'RSS MB':>8} {'cache MB':>9}")
+                  f"{'ratio':>7} {'cpu ratio':>9} {'warm s':>8} {'warm cpu':>8} {'ratio':>7} {'cpu ratio':>9} "
+                  f"{'RSS MB':>8} {'cache MB':>9}")
         print(header)
         print("-" * len(header))
         with tempfile.TemporaryDirectory(dir=args.work) as temp:
@@ -238,8 +241,8 @@ def main() -> None:
                 for row in scale_rows(n, args.methods.split(","), args.repeat, args.scheduler, Path(temp)):
                     print(row, flush=True)
         print("kernel: SAD kernel wall and CPU s over the blocks the method needs, measured before each cold run;"
-              " ratio: median of each run's wall / its kernel's wall; cache MB: what localize left in the cache"
-              " besides the descriptors.")
+              " ratio (cpu ratio): median of each run's wall (CPU) / its kernel's wall (CPU); cache MB: what"
+              " localize left in the cache besides the descriptors.")
     if args.describe:
         print(f"\n{'descriptor':<14} {'jobs':>7} {'images/s':>9} {'/decode':>7} {'vs 1':>8}")
         for row in describe_rows(data_root(args.data), args.repeat, args.descriptors.split(","), args.scheduler):
