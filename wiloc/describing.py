@@ -251,6 +251,7 @@ class _Settling:
         return self.done == self.total
 
     def close(self) -> None:
+        """The journal closed, if one was opened (what it holds stays until the entry is written)."""
         if self.journal is not None:
             self.journal.close()
             self.journal = None
