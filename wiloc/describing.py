@@ -172,14 +172,15 @@ def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache
             run.stored, run.repairs = run.lock.enter_context(_locked_entry(cache, run.header))
         for run in settling:
             run.start()
-        finished = [started]  # when the last folder was written (at first: when the call started)
+        last = started  # when the last folder was written (at first: when the call started)
 
         def finish(run: _Settling) -> None:
             """A report's seconds run from the folder's first result, or from the previous folder's
             end when that came first: with the stream the next folder's frames are under way
             while a folder ends, and the first folder counts from the call's start."""
-            run.finish(cache, finished[-1] if run.began is None else min(run.began, finished[-1]))
-            finished.append(time.perf_counter())
+            nonlocal last
+            run.finish(cache, last if run.began is None else min(run.began, last))
+            last = time.perf_counter()
 
         for run in settling:
             if not run.tasks:
