@@ -221,7 +221,10 @@ class CatGraph(Method):
         self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
                                         p.stretch_open, p.stretch_close)
         self._rng = np.random.default_rng(p.seed)
-        self._pos = self._rng.uniform(self._nodes[0], self._nodes[-1], p.particles)
+        # evenly spaced from one random offset (stratified): every stretch of the map starts with
+        # its share of particles, so look-alike places start with equal mass
+        self._pos = self._nodes[0] + (np.arange(p.particles) + self._rng.uniform()) / p.particles * (
+            self._nodes[-1] - self._nodes[0])
         self._speed = (self._rng.uniform(p.speed_range[0], p.speed_range[1], p.particles) if p.speed_noise > 0
                        else np.ones(p.particles))
         self._log_w = np.full(p.particles, -np.log(p.particles))
