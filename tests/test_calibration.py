@@ -70,6 +70,7 @@ def test_unexplained_masses_sum_to_one_and_stretches_teach_the_departure_share()
     chain.u = 0.01
     chain.follow(frame=15, odometer=15.0, position=66.0, spacing=1.0, sigma=0.15)  # back where reckoned
     assert chain.blind_spots == 1 and chain.q == pytest.approx(2 / 4)
+    assert type(chain.q) is float  # a plain float, as after a reload (numpy's would print otherwise)
 
 
 def _route_rows(rng: np.random.Generator, truth: np.ndarray, n_map: int) -> np.ndarray:

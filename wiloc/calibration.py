@@ -275,7 +275,7 @@ class Unexplained:
             self.in_stretch = False
             frame0, odometer0, position0 = self.anchor  # type: ignore[misc]
             reckoned = position0 + (odometer - odometer0)
-            blind = abs(position - reckoned) <= 2 * spacing + 3 * sigma * spacing * np.sqrt(frame - frame0)
+            blind = bool(abs(position - reckoned) <= 2 * spacing + 3 * sigma * spacing * np.sqrt(frame - frame0))
             self.blind_spots += blind
             self.departures += not blind
         if self.u < self.close_at and not self.in_stretch:
