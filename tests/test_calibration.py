@@ -129,9 +129,9 @@ def _aliased_drive(copies: int, drive: int, particles: int) -> tuple[np.ndarray,
 
 def test_confidence_is_the_known_probability_where_look_alike_places_leave_the_place_open() -> None:
     """Within 0.05 of the true probability of being right in every confidence bin holding 100+
-    frames after the fifth: drives that start inside one of 2, 3 or 4 identical stretches of the
-    map (known by symmetry: 1 / copies, times the share right within the copy) and leave it for a
-    stretch that settles which copy it was. 8,000 particles: with the default 2,000 the Monte
+    frames (from each drive's sixth on): drives that start inside one of 2, 3 or 4 identical
+    stretches of the map (known by symmetry: 1 / copies, times the share right within the copy)
+    and leave it for a stretch that settles which copy it was. 8,000 particles: with the default 2,000 the Monte
     Carlo error of each copy's mass (about 0.02) puts the frames where one copy's mass strayed
     furthest 0.08 above, in a bin of their own once there are enough drives (docs/calibration.md)."""
     confidence, truth = [], []
