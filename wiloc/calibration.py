@@ -143,12 +143,11 @@ class RankLikelihood:
         """
         from wiloc.methods.filter_kernels import ratio_sum  # numba loads with the first frame
 
-        ones = np.ones(1)
         total = ratio_sum(self._sorted.t, self._sorted.counts, self.a)
         damped = np.flatnonzero(omega < 1.0) if damped is None else damped
         if damped.size:
             t = self.t(self._row[damped])
-            total += float(np.sum(np.exp(self.log_ratio(t, omega[damped])) - np.exp(self.log_ratio(t, ones))))
+            total += float(np.sum(np.exp(self.log_ratio(t, omega[damped])) - np.exp(self.log_ratio(t, np.ones(1)))))
         return float(np.log(total)) - np.log(self._row.size)
 
     def t(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
