@@ -187,9 +187,12 @@ describe_folder(Path(sys.argv[1]), get_descriptor("gist"), Cache(Path(sys.argv[2
 
 
 def test_short_work_stays_in_this_process_and_long_work_goes_to_workers(tmp_path: Path) -> None:
-    write_images(tmp_path / "route", 60)
-    short = describe_folder(tmp_path / "route", PidSpec(params={"side": 1}), Cache(tmp_path / "a"), jobs=2)
+    # 10 quick frames: 7 left after the 3 timed, which would need over 7 ms each (FORKED_START's
+    # 0.05 s) to be worth a worker; they take about 0.2 ms, a margin that load on the machine keeps
+    write_images(tmp_path / "few", 10)
+    short = describe_folder(tmp_path / "few", PidSpec(params={"side": 1}), Cache(tmp_path / "a"), jobs=2)
     assert set(short.entry.data[:, 0].astype(int).tolist()) == {os.getpid()}  # less work than starting workers
+    write_images(tmp_path / "route", 60)
     long = describe_folder(tmp_path / "route", PidSpec(params={"side": 1}, seconds=0.08), Cache(tmp_path / "b"),
                            jobs=2)
     pids = long.entry.data[:, 0].astype(int).tolist()

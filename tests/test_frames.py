@@ -7,9 +7,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from wiloc.errors import FrameError, WilocError
-from wiloc.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, natural_key, read_gray
+from wiloc.frames import (Fingerprint, fingerprint, jpeg_size, list_traversal, natural_key, natural_sorted,
+                          read_gray)
 
 
 def _write(path: Path, image: np.ndarray, ext: str | None = None) -> Path:
@@ -29,6 +32,23 @@ def test_natural_key_orders_numbers_by_value() -> None:
     assert sorted(names, key=natural_key) == [
         "img1.png", "img2.png", "img2b.png", "Img3.png", "img10.png"
     ]
+    # a name that is the start of another comes first, whatever the case of the rest
+    assert sorted(["frame10", "frame", "Frame1", "frame2"], key=natural_key) == ["frame", "Frame1", "frame2", "frame10"]
+
+
+_NAME = st.text(alphabet="aAb_.-é0123456789", min_size=1, max_size=8)
+
+
+@settings(max_examples=300, deadline=None)
+@given(names=st.lists(_NAME, max_size=12), template=_NAME, numbers=st.lists(st.integers(0, 10**5), max_size=12),
+       width=st.integers(1, 6))
+def test_natural_sorted_is_the_natural_keys_order(names: list[str], template: str, numbers: list[int],
+                                                  width: int) -> None:
+    # numbered names (the template with each digit run replaced by one zero-padded number) take
+    # the shortcut when their digit runs are equally long; any other mix takes natsort's keys
+    numbered = ["".join(f"{n:0{width}d}" if c.isdigit() else c for c in template) for n in numbers]
+    for listed in (names, numbered, numbered + names):
+        assert natural_sorted(listed) == sorted(listed, key=natural_key)
 
 
 def test_list_traversal_natural_order_and_ignored(tmp_path: Path) -> None:
@@ -50,7 +70,7 @@ def test_list_traversal_lists_names_and_makes_paths_in_natural_order(tmp_path: P
         (tmp_path / name).write_bytes(b"")
     trav = list_traversal(tmp_path)
     assert trav.names == sorted(names, key=natural_key)
-    assert trav.names[:4] == ["9.png", "10.png", "A.png", "b.png"]
+    assert trav.names[:5] == ["9.png", "10.png", "A.png", "ä1.png", "b.png"]  # ä as a with its accent
     assert trav.frames == tuple(tmp_path / name for name in trav.names)
     assert trav.frame_names == tuple(trav.names)
 

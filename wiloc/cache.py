@@ -38,7 +38,7 @@ import platformdirs
 
 from wiloc import __version__
 from wiloc.errors import CacheBusyError, WilocError
-from wiloc.frames import natural_key
+from wiloc.frames import natural_sorted
 from wiloc.reprs import short_repr
 
 FORMAT = "wiloc-descriptors"
@@ -156,7 +156,7 @@ class StoredEntry:
         if self.header.descriptor == EXTERNAL:
             return list(self.records.values())
         if names is None:
-            names = sorted(self.records, key=natural_key)
+            names = natural_sorted(self.records)
         return [self.records[name] for name in names]
 
     def entry(self, names: Sequence[str] | None = None) -> Entry:

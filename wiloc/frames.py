@@ -11,12 +11,15 @@ import hashlib
 import math
 import os
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
+from natsort import natsort_keygen, ns
 from numpy.typing import NDArray
 
 from wiloc.errors import FrameError, WilocError
@@ -37,14 +40,25 @@ _REDUCED_FLAGS = (
 )
 # JPEG start-of-frame markers: C0-CF except DHT (C4), JPG (C8) and DAC (CC).
 _SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
-_DIGITS = re.compile(r"(\d+)")
+_NATURAL = natsort_keygen(alg=ns.IGNORECASE)
+_DIGITS_AS_ZERO = str.maketrans("123456789", "000000000")
 
 
-def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
-    """Sort key that orders digit runs by value, so ``img2`` comes before ``img10``."""
-    key = [(0, int(part)) if part.isdigit() else (1, part.casefold()) for part in _DIGITS.split(name) if part]
-    key.append((1, name))  # tie-break: names equal but for case or leading zeros keep one order
-    return tuple(key)
+def natural_key(name: str) -> tuple[Any, str]:
+    """Sort key that orders digit runs by value, so ``img2`` comes before ``img10`` (natsort's,
+    ignoring case); names equal but for case or leading zeros keep one order by the name itself."""
+    return _NATURAL(name), name
+
+
+def natural_sorted(names: Iterable[str]) -> list[str]:
+    """``names`` in natural order (:func:`natural_key`). Numbered frames, names alike but for
+    digit runs of one length as cameras and datasets write them, are in natural order once
+    sorted as text: they skip natsort's keys (0.1 s per 35,000 names)."""
+    ordered = sorted(names)
+    pattern = ordered[0].translate(_DIGITS_AS_ZERO) if ordered else ""
+    if not all(name.translate(_DIGITS_AS_ZERO) == pattern for name in ordered):
+        ordered.sort(key=natural_key)
+    return ordered
 
 
 @dataclass(frozen=True)
@@ -87,10 +101,8 @@ def list_traversal(folder: Path) -> Traversal:
             (frames if is_frame else ignored).append(item.name)
     if not frames:
         raise WilocError(folder, f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))})")
-    frames.sort()  # a plain sort first (cheap) leaves the natural sort few comparisons to make
-    frames.sort(key=natural_key)
-    ignored.sort(key=natural_key)
-    return Traversal(folder=folder, frame_names=tuple(frames), ignored=tuple(folder / name for name in ignored))
+    return Traversal(folder=folder, frame_names=tuple(natural_sorted(frames)),
+                     ignored=tuple(folder / name for name in natural_sorted(ignored)))
 
 
 @dataclass(frozen=True)
