@@ -259,14 +259,18 @@ def test_example_pairs_need_image_folders(tmp_path: Path, cache_dir: Path) -> No
                                           "--pairs-plot", str(tmp_path / "p.png")]), 1, "need the image folders")
 
 
-def test_csv_says_which_files_it_replaced(results: Path, tmp_path: Path) -> None:
+def test_csv_and_figures_say_which_files_they_replaced(results: Path, tmp_path: Path) -> None:
     (tmp_path / "m-curves.csv").write_text("old\n")
-    result = runner.invoke(app, ["evaluate", str(results), "--csv", str(tmp_path / "m.csv"), "--json"])
+    (tmp_path / "pr.png").write_bytes(b"old")
+    result = runner.invoke(app, ["evaluate", str(results), "--csv", str(tmp_path / "m.csv"), "--json",
+                                 "--pr-plot", str(tmp_path / "pr.png"), "--calibration-plot", str(tmp_path / "c.png")])
     assert result.exit_code == 0, result.output
     report = json.loads(result.stdout)
-    assert report["warnings"] == [f"note: replaced the existing file {tmp_path / 'm-curves.csv'}"]
-    assert result.stderr.strip() == f"note replaced the existing file {tmp_path / 'm-curves.csv'}"
-    assert report["files"] == [str(tmp_path / "m.csv"), str(tmp_path / "m-curves.csv")]
+    replaced = [tmp_path / "pr.png", tmp_path / "m-curves.csv"]
+    assert report["warnings"] == [f"note: replaced the existing file {path}" for path in replaced]
+    assert result.stderr.strip().splitlines() == [f"note replaced the existing file {path}" for path in replaced]
+    assert report["files"] == [str(tmp_path / name) for name in ("pr.png", "c.png", "m.csv", "m-curves.csv")]
+    assert (tmp_path / "pr.png").read_bytes().startswith(b"\x89PNG")
 
 
 # ------------------------------------------------------------------------------ damaged cache

@@ -3,11 +3,13 @@ format is refused before drawing."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import BinaryIO
 
 import matplotlib.colors
 import matplotlib.image
 import numpy as np
 import pytest
+from matplotlib.figure import Figure
 
 from wiloc.metrics import pr_curve, precision_at_thresholds
 from wiloc.model import HistogramModel
@@ -42,6 +44,26 @@ def test_plot_pr_writes_png(tmp_path: Path, run: tuple[np.ndarray, np.ndarray]) 
     out = plot_pr(curves, tmp_path / "sub" / "pr.png")
     assert out == tmp_path / "sub" / "pr.png"
     read_png(out)
+
+
+def test_a_figure_is_written_whole_or_not_at_all(tmp_path: Path, run: tuple[np.ndarray, np.ndarray],
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    confidence, correct = run
+    curves = {"online": pr_curve(confidence, correct, 180)}
+    path = tmp_path / "pr.png"
+    path.write_bytes(b"the figure of an earlier run")
+
+    def full_disk(self: Figure, file: BinaryIO, **kwargs: object) -> None:
+        file.write(PNG_SIGNATURE)  # a start that looks like a figure, then the disk is full
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Figure, "savefig", full_disk)
+    with pytest.raises(WilocError, match="cannot write the figure .*No space left on device"):
+        plot_pr(curves, path)
+    assert path.read_bytes() == b"the figure of an earlier run"
+    assert [p.name for p in tmp_path.iterdir()] == ["pr.png"]  # no temporary file left either
+    monkeypatch.undo()
+    read_png(plot_pr(curves, path))  # the next run replaces it
 
 
 def _colour_columns(image: np.ndarray, colour: str) -> np.ndarray:

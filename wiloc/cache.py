@@ -37,6 +37,7 @@ import numpy as np
 import platformdirs
 
 from wiloc import __version__
+from wiloc.atomic import process_alive
 from wiloc.errors import CacheBusyError, WilocError
 from wiloc.frames import natural_sorted
 from wiloc.reprs import short_repr
@@ -242,16 +243,6 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # alive, owned by another user
-        pass
-    return True
-
-
 class Journal:
     """Append-only record of finished frames; one CRC-checked record per write, torn tails ignored."""
 
@@ -449,7 +440,7 @@ class Cache:
         removed = []
         for temp in self.root.rglob(f"*{TEMP_SUFFIX}"):
             pid_text = temp.name[: -len(TEMP_SUFFIX)].rsplit(".", 2)[-2]
-            if pid_text.isdigit() and not _pid_alive(int(pid_text)):
+            if pid_text.isdigit() and not process_alive(int(pid_text)):
                 temp.unlink(missing_ok=True)
                 removed.append(temp)
         return removed

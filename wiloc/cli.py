@@ -18,6 +18,7 @@ import typer
 from rich.table import Table
 
 from wiloc import __version__
+from wiloc.atomic import written_whole
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, out, refuse_unused
 from wiloc.cli_params import method_params, with_method_options
@@ -236,8 +237,9 @@ def vocabulary(
     cache: CacheOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
-    """Cluster the local features of training folders into a visual vocabulary, kept in the cache,
-    for the bow descriptor and FAB-MAP.
+    """Cluster the local features of training folders into a visual vocabulary for bow and FAB-MAP.
+
+    The vocabulary is kept in the cache.
 
     Example: wiloc vocabulary data/night_right --words 1000, then
     wiloc localize data/day_left --map data/day_right --descriptor bow --vocabulary KEY --method fabmap
@@ -373,9 +375,6 @@ def localize(
                                      query_names_file=names, ref_names_file=map_names, out=target,
                                      cache=store, jobs=jobs, progress=progress, scheduler=scheduler))
             repairs.append(store.repairs[known:])
-    if model_plot is not None:
-        from wiloc.plots import plot_model
-        plot_model(runs[0].decisions.model, model_plot, title=f"{runs[0].query.name} ({method})")
     shown = set()
     rows, notes = [], []
     for label, run, repaired in zip(short_names([r.query for r in runs]), runs, repairs):
@@ -394,6 +393,9 @@ def localize(
         rows.append({"query": label, "method": run.method, "frames": len(d), "decided": int(d.decided.sum()),
                      "median_confidence": float(sorted(conf)[len(conf) // 2]) if len(conf) else float("nan"),
                      "seconds": run.seconds, "results": run.path.name})
+    if model_plot is not None:
+        from wiloc.plots import plot_model
+        plot_model(runs[0].decisions.model, _replacing(notes[0], model_plot), title=f"{runs[0].query.name} ({method})")
     if as_json:
         print_json([{**row, "query": str(run.query.resolve()), "results": str(run.path.resolve()),
                      "skipped": [list(item) for item in run.skipped], "warnings": said}
@@ -551,12 +553,13 @@ def evaluate(
     written = []
     if pr_plot is not None:
         from wiloc.plots import plot_pr
-        written.append(plot_pr(dict(zip(api.run_names(evaluations), (e.curve for e in evaluations))), pr_plot,
+        written.append(plot_pr(dict(zip(api.run_names(evaluations), (e.curve for e in evaluations))),
+                               _replacing(notes, pr_plot),
                                title=f"Precision-recall: {api.run_subject(evaluations, source)}"))
     if calibration_plot is not None:
         from wiloc.plots import plot_reliability
-        written.append(plot_reliability(api.reliability_series(evaluations), calibration_plot))
-    written += _run_plots(evaluations, matrix_plot, pairs_plot, cache)
+        written.append(plot_reliability(api.reliability_series(evaluations), _replacing(notes, calibration_plot)))
+    written += _run_plots(evaluations, matrix_plot, pairs_plot, cache, notes)
     if csv_out is not None:
         written += _write_metrics_csv(csv_out, rows, evaluations, notes)
     if as_json:
@@ -574,7 +577,7 @@ def evaluate(
 
 
 def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pairs_plot: Path | None,
-               cache: Path | None) -> list[Path]:
+               cache: Path | None, notes: Notes) -> list[Path]:
     """Each run's difference matrix and example pairs; with several runs each file is named after
     its results file too (``matrix-day_left-sad-online.png``)."""
     if matrix_plot is None and pairs_plot is None:
@@ -591,11 +594,11 @@ def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pair
         descriptor = e.results.meta.get("descriptor", "")
         if matrix_plot is not None:
             picture = matrix_picture(e, store)
-            written.append(plot_matrix(picture, target(matrix_plot), title=(
+            written.append(plot_matrix(picture, _replacing(notes, target(matrix_plot)), title=(
                 f"{e.method} on {picture.query} against {picture.reference} ({descriptor}): differences, "
                 "decided matches and ground truth")))
         if pairs_plot is not None:
-            written.append(plot_pairs(example_pairs(e), target(pairs_plot), title=(
+            written.append(plot_pairs(example_pairs(e), _replacing(notes, target(pairs_plot)), title=(
                 f"{e.method} on {e.traversal} ({descriptor}): the most confident right and wrong matches")))
     return written
 
@@ -623,10 +626,18 @@ def _write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list
                                       "precision": e.curve.precision, "recall": e.curve.recall})
                         for e in evaluations])
     for target, frame in ((path, pd.DataFrame(rows)), (curves_path, curves)):
-        if target.exists():
-            notes.add("note", f"replaced the existing file {target}")
-        frame.to_csv(target, index=False)
+        with written_whole(_replacing(notes, target), "the metrics file") as fd, \
+                os.fdopen(fd, "w", encoding="utf-8", newline="") as file:
+            frame.to_csv(file, index=False)
     return [path, curves_path]
+
+
+def _replacing(notes: Notes, path: Path) -> Path:
+    """``path``, about to be written: an existing file there is said to be replaced, as
+    results files are."""
+    if path.exists():
+        notes.add("note", f"replaced the existing file {path}")
+    return path
 
 
 # ------------------------------------------------------------------------------------------- compare
@@ -664,7 +675,7 @@ def compare(
     source = _truth_source(gt, gt_map, tolerance, radius)
     comparison = api.compare(results, source, precisions=targets, global_thresholds=global_threshold, cuts=at)
     notes = _warn_about_truth(comparison.evaluations)
-    written = _compare_plots(comparison, source, threshold_plot, model_plot, pr_plot, calibration_plot)
+    written = _compare_plots(comparison, source, threshold_plot, model_plot, pr_plot, calibration_plot, notes)
     if as_json:
         calibration = [{"method": label, "traversal": traversal, **e.calibration.as_dict()} for label, traversal, e
                        in zip(comparison.labels, comparison.traversals, comparison.evaluations)]
@@ -683,13 +694,14 @@ def compare(
 
 
 def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshold_plot: Path | None,
-                   model_plot: Path | None, pr_plot: Path | None, calibration_plot: Path | None) -> list[Path]:
+                   model_plot: Path | None, pr_plot: Path | None, calibration_plot: Path | None,
+                   notes: Notes) -> list[Path]:
     from wiloc import api, plots
 
     subject = api.run_subject(comparison.evaluations, source)
     written = []
     if threshold_plot is not None:
-        written.append(plots.plot_threshold(api.threshold_series(comparison), threshold_plot,
+        written.append(plots.plot_threshold(api.threshold_series(comparison), _replacing(notes, threshold_plot),
                                             marks=api.threshold_marks(comparison),
                                             title=f"Precision against threshold: {subject}"))
     if model_plot is not None:
@@ -697,12 +709,14 @@ def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshol
                          key=lambda e: e.method != "online")
         if not learned:
             fail(f"{model_plot}: none of the results is an online or trained run with a model", EXIT_BAD_INPUT)
-        written.append(plots.plot_model(learned[0].results.model, model_plot,
+        written.append(plots.plot_model(learned[0].results.model, _replacing(notes, model_plot),
                                         title=f"Learned model: {learned[0].method}, {learned[0].traversal}"))
     if pr_plot is not None:
-        written.append(plots.plot_pr(api.pr_series(comparison), pr_plot, title=f"Precision-recall: {subject}"))
+        written.append(plots.plot_pr(api.pr_series(comparison), _replacing(notes, pr_plot),
+                                     title=f"Precision-recall: {subject}"))
     if calibration_plot is not None:
-        written.append(plots.plot_reliability(api.reliability_series(comparison.evaluations), calibration_plot))
+        written.append(plots.plot_reliability(api.reliability_series(comparison.evaluations),
+                                              _replacing(notes, calibration_plot)))
     return written
 
 

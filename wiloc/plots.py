@@ -9,6 +9,7 @@ no global figure state is kept and nothing is shown; the format follows the file
 from __future__ import annotations
 
 import math
+import os
 import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -19,6 +20,7 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from wiloc.atomic import written_whole
 from wiloc.errors import WilocError
 from wiloc.metrics import PRCurve
 from wiloc.model import HistogramModel
@@ -51,10 +53,14 @@ def _figure(ncols: int = 1, width: float = 6.0, nrows: int = 1, height: float = 
 
 
 def _save(fig: Figure, path: str | Path) -> Path:
+    """The figure written to ``path`` whole or not at all, in the format its suffix names."""
     out = Path(path)
     check_plot_path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
+    try:
+        with written_whole(out, "the figure") as fd, os.fdopen(fd, "wb") as file:
+            fig.savefig(file, format=out.suffix.lower().lstrip("."), dpi=120)
+    except (OSError, RuntimeError) as exc:  # a full disk; a format whose tool is missing (pgf: TeX)
+        raise WilocError(out, f"cannot write the figure ({exc})") from None
     return out
 
 

@@ -14,8 +14,6 @@ import io
 import json
 import math
 import os
-import tempfile
-from glob import escape as glob_escape
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,6 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from wiloc.atomic import written_whole
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decision, Decisions
 from wiloc.model import HistogramModel
@@ -108,50 +107,14 @@ def decisions_to_frame(decisions: Decisions, query_names: list[str], ref_names: 
 
 
 def _write_atomically(path: Path, header: dict[str, Any], write_table: Any, mode: int | None = None) -> None:
-    """Write the header lines and then ``write_table(file)`` to a temporary file renamed onto
-    ``path``, so a kill leaves the old file or the whole new one; temporary files that killed
-    writers left beside it are removed. The file gets ``mode``, else the usual new-file mode."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        _remove_orphans(path)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
-        os.chmod(tmp, mode if mode is not None else 0o666 & ~_umask())
-    except OSError as exc:
-        raise WilocError(path, f"cannot write the results file ({exc.strerror})") from None
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as out:
-            for key, value in header.items():
-                text = json.dumps(value) if key in JSON_KEYS else str(value)
-                out.write(f"# {key}: {text}\n")
-            write_table(out)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _umask() -> int:
-    current = os.umask(0)
-    os.umask(current)
-    return current
-
-
-def _remove_orphans(path: Path) -> None:
-    """Delete ``.NAME.<pid>.*.tmp`` files beside ``path`` whose writing process is gone."""
-    for temp in path.parent.glob(f".{glob_escape(path.name)}.*.tmp"):
-        pid = temp.name[len(path.name) + 2:].split(".", 1)[0]
-        if pid.isdigit() and not _alive(int(pid)):
-            temp.unlink(missing_ok=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        pass
-    return True
+    """Write the header lines and then ``write_table(file)``, whole or not at all
+    (``atomic.written_whole``). The file gets ``mode``, else the usual new-file mode."""
+    with written_whole(path, "the results file", mode) as fd, \
+            os.fdopen(fd, "w", encoding="utf-8", newline="") as out:
+        for key, value in header.items():
+            text = json.dumps(value) if key in JSON_KEYS else str(value)
+            out.write(f"# {key}: {text}\n")
+        write_table(out)
 
 
 def make_results(decisions: Decisions, *, query_names: list[str], ref_names: list[str],

@@ -1,0 +1,59 @@
+"""Files written whole or not at all: the new content goes to a temporary file beside the target,
+renamed onto it once complete, so a killed writer leaves the old file or the whole new one, never
+a part that looks complete. Results files, metrics tables and figures are written this way."""
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from glob import escape as glob_escape
+from pathlib import Path
+
+from wiloc.errors import WilocError
+
+
+@contextmanager
+def written_whole(path: Path, what: str, mode: int | None = None) -> Iterator[int]:
+    """An open file descriptor of a temporary file beside ``path`` (``.NAME.<pid>.*.tmp``) for
+    the block to write; renamed onto ``path`` when the block ends, removed when it raises.
+    Temporary files that killed writers left beside ``path`` are removed first. The file gets
+    ``mode``, else the usual new-file mode; ``what`` names the file in an error."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _remove_orphans(path)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
+        os.chmod(tmp, mode if mode is not None else 0o666 & ~_umask())
+    except OSError as exc:
+        raise WilocError(path, f"cannot write {what} ({exc.strerror})") from None
+    try:
+        yield fd
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _umask() -> int:
+    current = os.umask(0)
+    os.umask(current)
+    return current
+
+
+def _remove_orphans(path: Path) -> None:
+    """Delete ``.NAME.<pid>.*.tmp`` files beside ``path`` whose writing process is gone."""
+    for temp in path.parent.glob(f".{glob_escape(path.name)}.*.tmp"):
+        pid = temp.name[len(path.name) + 2:].split(".", 1)[0]
+        if pid.isdigit() and not process_alive(int(pid)):
+            temp.unlink(missing_ok=True)
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a temporary file's writer, by the pid in its name)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, owned by another user
+        pass
+    return True
