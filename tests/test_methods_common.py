@@ -17,7 +17,7 @@ from wiloc.candidates import RANKED, finite_minimum
 from wiloc.errors import ParameterError
 from wiloc.localizer import Localizer
 from wiloc.methods import registry
-from wiloc.methods.base import ArrayRows, Decision, Decisions, MapContext, Method, TrainingRows
+from wiloc.methods.base import NEEDS, ROWS, ArrayRows, Decision, Decisions, MapContext, Method, TrainingRows
 from wiloc.parameters import Parameters, declared, param
 
 
@@ -121,6 +121,8 @@ def _equal(a: Decisions, b: Decisions) -> None:
 def test_parameters_are_declared_with_help_and_validated(name: str) -> None:
     cls = registry.method_class(name)
     assert issubclass(cls.Params, Parameters) and cls.Params.__dataclass_params__.frozen
+    assert set(cls.needs) <= set(NEEDS), f"{name} needs what no run provides: {set(cls.needs) - set(NEEDS)}"
+    assert cls.rows and set(cls.rows) <= set(ROWS), f"{name} reads rows of an unknown kind: {cls.rows}"
     for d in declared(cls.Params):
         assert d.help, f"{name}.{d.name} has no help"
     with pytest.raises(ParameterError) as err:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import csv
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeAlias
 
 import cv2
 import numpy as np
@@ -43,7 +44,7 @@ RADIUS_M = 2.0
 METHODS = ("online", "threshold", "catgraph")
 DESCRIPTOR = "sad"
 
-Image = NDArray[np.uint8]
+Image: TypeAlias = NDArray[np.uint8]
 Progress = api.Progress
 
 

@@ -95,8 +95,8 @@ class MapContext:
 
     sequence: bool
     exclude_recent: int
-    n_map: int = 0
-    rows: str = "differences"  # what the rows hold: differences (low: alike) or log_ratio (high: alike)  # map frames (0 in sequence mode, where the candidates grow frame by frame)
+    n_map: int = 0  # map frames (0 in sequence mode, where the candidates grow frame by frame)
+    rows: str = "differences"  # what the rows hold: differences (low: alike) or log_ratio (high: alike)
     natural_max: float | None = None  # the descriptor's largest possible difference, if it has one
     arclength: NDArray[np.float64] | None = None  # map node positions along the route (odometry)
     map_self: Callable[[], RowBlocks] | None = None
