@@ -255,7 +255,9 @@ def test_posterior_mode_sums_only_nodes_near_particles_and_reads_out_as_a_pass_o
 
 @pytest.mark.parametrize("renormalise", [True, False])
 def test_weighing_is_the_numpy_expression_up_to_the_order_of_sums(renormalise: bool) -> None:
-    from wiloc.calibration import RankLikelihood, logsumexp
+    from scipy.special import logsumexp
+
+    from wiloc.calibration import RankLikelihood
     from wiloc.methods.filter_kernels import weigh
 
     rng = np.random.default_rng(8)

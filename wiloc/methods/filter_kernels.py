@@ -324,8 +324,8 @@ def ratio_sum(t: NDArray[np.float64], counts: NDArray[np.float64], a: float) -> 
 
 @njit(cache=True, nogil=True)
 def _logsumexp(x: NDArray[np.float64], use: NDArray[np.bool_], every: bool) -> float:
-    """``calibration.logsumexp`` of x (where ``use``, unless ``every``): the largest terms kept
-    out of the sum, log1p of the rest."""
+    """``scipy.special.logsumexp`` of x (where ``use``, unless ``every``), which compiled code
+    cannot call: the largest terms kept out of the sum, log1p of the rest."""
     top = -np.inf
     for p in range(x.size):
         if every or use[p]:
