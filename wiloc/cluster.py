@@ -12,30 +12,23 @@ from __future__ import annotations
 import atexit
 import os
 from collections import deque
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import CancelledError
-from collections.abc import Iterator, Sequence
-from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 from distributed import Client, Future, LocalCluster, as_completed
 from numpy.typing import NDArray
 
-from wiloc.cache import FrameRecord
-from wiloc.descriptors.registry import DescriptorSpec
 from wiloc.distances import DifferencesTo
 from wiloc.errors import WilocError
 
 LOCAL = "local"
-#: Frames per describe task: enough that a task's round trip costs little next to its images.
+#: Items per batch task (frames, for describe): enough that a task's round trip costs little next
+#: to its work.
 BATCH = 16
-_Task = tuple[Path, FrameRecord | None]
-
-
-def _describe_batch(spec: DescriptorSpec, tasks: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:
-    """On a worker: each frame's record, as a local worker process computes it."""
-    from wiloc.describing import describe_quietly
-
-    return describe_quietly(spec, tasks)
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 def _block(to: DifferencesTo, rows: NDArray) -> NDArray[np.float32]:
@@ -67,10 +60,12 @@ class Cluster:
         """Workers connected now (at least 1, for sizing how much work is sent ahead)."""
         return max(1, len(self.client.scheduler_info(n_workers=-1)["workers"]))
 
-    def describe(self, spec: DescriptorSpec, tasks: Sequence[_Task]) -> Iterator[tuple[FrameRecord, bool]]:
-        """Each task's (record, computed) as batches finish, in any order."""
-        batches = [list(tasks[i:i + BATCH]) for i in range(0, len(tasks), BATCH)]
-        futures = [self.client.submit(_describe_batch, spec, batch, pure=False) for batch in batches]
+    def in_batches(self, work: Callable[[list[T]], list[R]], items: Sequence[T]) -> Iterator[R]:
+        """``work`` (a module-level function, or a partial of one: the workers import it) over
+        batches of ``BATCH`` items on the workers; each item's result as its batch finishes, in
+        any order (describe: ``describing.describe_quietly`` over frame tasks)."""
+        batches = [list(items[i:i + BATCH]) for i in range(0, len(items), BATCH)]
+        futures = [self.client.submit(work, batch, pure=False) for batch in batches]
         try:
             for future in as_completed(futures):
                 yield from future.result()

@@ -197,7 +197,7 @@ def _on_cluster(cluster: Cluster, spec: DescriptorSpec,
     """Each run's tasks settled on the Dask cluster, one run after the other, tagged by run."""
     for tag, run in enumerate(runs):
         if run.tasks:
-            for record, fresh in cluster.describe(spec, run.tasks):
+            for record, fresh in cluster.in_batches(partial(describe_quietly, spec), run.tasks):
                 yield tag, record, fresh
 
 
