@@ -275,7 +275,7 @@ def test_order_ranks_a_block_of_rows_as_numpy_sorts_each(dtype: type) -> None:
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("n", [0, 1, 2, 3, 17, 100, 5000])
 def test_ranks_against_a_sorted_row_are_numpys_left_search(dtype: type, n: int) -> None:
-    from wiloc.methods.filter_kernels import table_at_ranks
+    from wiloc.rank_kernels import table_at_ranks
 
     rng = np.random.default_rng(n)
     ordered = np.sort(rng.integers(0, 50, n).astype(dtype))  # ties

@@ -85,7 +85,7 @@ class RankLikelihood:
         sort took 0.07 ms against float64's 0.18 ms and an argsort's 0.34 ms at 35,000 nodes)
         and its distinct ranks, computed for all rows in one compiled pass. Sorted float32 rows
         go to ``memory`` when given (a run's recycled float32 arrays)."""
-        from wiloc.methods.filter_kernels import distinct_ranks  # numba loads with the first frame
+        from wiloc.rank_kernels import distinct_ranks  # numba loads with the first frame
 
         narrow = rows.astype(np.float32, copy=False)
         if narrow is rows or np.array_equal(narrow, rows):
@@ -116,7 +116,7 @@ class RankLikelihood:
     def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
         """ln lambda at positions a ``frac`` of the way from node j to j + 1 (the difference
         interpolated there), each with its near-duplicate weight ``omega``."""
-        from wiloc.methods.filter_kernels import rank_log_ratio  # numba loads with the first frame
+        from wiloc.rank_kernels import rank_log_ratio  # numba loads with the first frame
 
         self._t, out = np.empty(j.size), np.empty(j.size)
         rank_log_ratio(self._row, self._sorted.values, self._table, j, frac, omega, self.a, self._t, out)
@@ -130,7 +130,7 @@ class RankLikelihood:
         every node had weight 1, corrected at the ``damped`` nodes (omega < 1, a stopped
         vehicle's few; found in ``omega`` unless given), each ranked by a search.
         """
-        from wiloc.methods.filter_kernels import ratio_sum  # numba loads with the first frame
+        from wiloc.rank_kernels import ratio_sum  # numba loads with the first frame
 
         total = ratio_sum(self._sorted.t, self._sorted.counts, self.a)
         damped = np.flatnonzero(omega < 1.0) if damped is None else damped
@@ -141,7 +141,7 @@ class RankLikelihood:
 
     def t(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
         """-ln u of each difference: its mid-rank p-value in the row."""
-        from wiloc.methods.filter_kernels import table_at_ranks  # numba loads with the first frame
+        from wiloc.rank_kernels import table_at_ranks  # numba loads with the first frame
 
         t = np.empty(d.size)
         table_at_ranks(self._sorted.values, self._table, d, t)

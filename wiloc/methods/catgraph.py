@@ -294,7 +294,8 @@ class CatGraph(Method):
         return [RowAhead(contrast[r], bool(finite[r]), ordered[r]) for r in range(rows.shape[0])]
 
     def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
-        from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
+        from wiloc import rank_kernels  # numba loads with the first frame, not the command line
+        from wiloc.methods import filter_kernels
 
         p, rng, nodes = self.params, self._rng, self._nodes
         n_nodes, first = nodes.size, self.frames == 0
@@ -328,7 +329,7 @@ class CatGraph(Method):
 
         j, a = _locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
         omega = np.empty(p.particles)
-        filter_kernels.interpolate(self._omega, j, a, omega)
+        rank_kernels.interpolate(self._omega, j, a, omega)
         log_w, w = np.empty(p.particles), np.empty(p.particles)  # the posterior, from the prior's weights
         log_map, squares = filter_kernels.weigh(  # log_map: the map's total mass against the unexplained hypothesis
             self._log_w, kept, n_reseed > 0 and bool(kept.any()), likelihood.at(j, a, omega),
