@@ -131,6 +131,24 @@ def test_a_replaced_file_keeps_its_mode_and_killed_writers_leave_nothing(tmp_pat
     assert not orphan.exists()
 
 
+def test_a_write_that_fails_leaves_the_old_file_and_says_so_in_one_line(tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    import pandas as pd
+
+    path, text = _written(tmp_path)
+
+    def full_disk(self: pd.DataFrame, out: object, **kwargs: object) -> None:
+        out.write("frame,match\na,x\n")  # type: ignore[attr-defined]  # a start, then the disk is full
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(pd.DataFrame, "to_csv", full_disk)
+    with pytest.raises(WilocError, match=r"cannot write the results file \(No space left on device\)"):
+        write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
+                                         meta={}))
+    assert path.read_text(encoding="utf-8") == text
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no temporary file left
+
+
 def _umask() -> int:
     import os
     current = os.umask(0)

@@ -18,7 +18,8 @@ def written_whole(path: Path, what: str, mode: int | None = None) -> Iterator[in
     """An open file descriptor of a temporary file beside ``path`` (``.NAME.<pid>.*.tmp``) for
     the block to write; renamed onto ``path`` when the block ends, removed when it raises.
     Temporary files that killed writers left beside ``path`` are removed first. The file gets
-    ``mode``, else the usual new-file mode; ``what`` names the file in an error."""
+    ``mode``, else the usual new-file mode; ``what`` names the file in the error that an OSError
+    (a full disk, a folder that refuses) becomes."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         _remove_orphans(path)
@@ -29,8 +30,10 @@ def written_whole(path: Path, what: str, mode: int | None = None) -> Iterator[in
     try:
         yield fd
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise WilocError(path, f"cannot write {what} ({exc.strerror or exc})") from None
         raise
 
 

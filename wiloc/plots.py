@@ -59,7 +59,7 @@ def _save(fig: Figure, path: str | Path) -> Path:
     try:
         with written_whole(out, "the figure") as fd, os.fdopen(fd, "wb") as file:
             fig.savefig(file, format=out.suffix.lower().lstrip("."), dpi=120)
-    except (OSError, RuntimeError) as exc:  # a full disk; a format whose tool is missing (pgf: TeX)
+    except RuntimeError as exc:  # a format whose tool is missing (pgf: TeX)
         raise WilocError(out, f"cannot write the figure ({exc})") from None
     return out
 
