@@ -9,17 +9,18 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from glob import escape as glob_escape
 from pathlib import Path
+from typing import IO, Any
 
 from wiloc.errors import WilocError
 
 
 @contextmanager
-def written_whole(path: Path, what: str, mode: int | None = None) -> Iterator[int]:
-    """An open file descriptor of a temporary file beside ``path`` (``.NAME.<pid>.*.tmp``) for
-    the block to write; renamed onto ``path`` when the block ends, removed when it raises.
-    Temporary files that killed writers left beside ``path`` are removed first. The file gets
-    ``mode``, else the usual new-file mode; ``what`` names the file in the error that an OSError
-    (a full disk, a folder that refuses) becomes."""
+def written_whole(path: Path, what: str, *, binary: bool = False, mode: int | None = None) -> Iterator[IO[Any]]:
+    """A temporary file beside ``path`` (``.NAME.<pid>.*.tmp``), open for the block to write
+    (text in UTF-8 with newlines as written, or ``binary``); renamed onto ``path`` when the block
+    ends, removed when it raises. Temporary files that killed writers left beside ``path`` are
+    removed first. The file gets ``mode``, else the usual new-file mode; ``what`` names the file
+    in the error that an OSError (a full disk, a folder that refuses) becomes."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         _remove_orphans(path)
@@ -28,7 +29,8 @@ def written_whole(path: Path, what: str, mode: int | None = None) -> Iterator[in
     except OSError as exc:
         raise WilocError(path, f"cannot write {what} ({exc.strerror})") from None
     try:
-        yield fd
+        with os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8", newline="") as file:
+            yield file
         os.replace(tmp, path)
     except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)

@@ -626,8 +626,7 @@ def _write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list
                                       "precision": e.curve.precision, "recall": e.curve.recall})
                         for e in evaluations])
     for target, frame in ((path, pd.DataFrame(rows)), (curves_path, curves)):
-        with written_whole(_replacing(notes, target), "the metrics file") as fd, \
-                os.fdopen(fd, "w", encoding="utf-8", newline="") as file:
+        with written_whole(_replacing(notes, target), "the metrics file") as file:
             frame.to_csv(file, index=False)
     return [path, curves_path]
 

@@ -9,7 +9,6 @@ no global figure state is kept and nothing is shown; the format follows the file
 from __future__ import annotations
 
 import math
-import os
 import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -57,7 +56,7 @@ def _save(fig: Figure, path: str | Path) -> Path:
     out = Path(path)
     check_plot_path(out)
     try:
-        with written_whole(out, "the figure") as fd, os.fdopen(fd, "wb") as file:
+        with written_whole(out, "the figure", binary=True) as file:
             fig.savefig(file, format=out.suffix.lower().lstrip("."), dpi=120)
     except RuntimeError as exc:  # a format whose tool is missing (pgf: TeX)
         raise WilocError(out, f"cannot write the figure ({exc})") from None

@@ -109,8 +109,7 @@ def decisions_to_frame(decisions: Decisions, query_names: list[str], ref_names: 
 def _write_atomically(path: Path, header: dict[str, Any], write_table: Any, mode: int | None = None) -> None:
     """Write the header lines and then ``write_table(file)``, whole or not at all
     (``atomic.written_whole``). The file gets ``mode``, else the usual new-file mode."""
-    with written_whole(path, "the results file", mode) as fd, \
-            os.fdopen(fd, "w", encoding="utf-8", newline="") as out:
+    with written_whole(path, "the results file", mode=mode) as out:
         for key, value in header.items():
             text = json.dumps(value) if key in JSON_KEYS else str(value)
             out.write(f"# {key}: {text}\n")
