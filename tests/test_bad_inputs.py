@@ -361,6 +361,31 @@ def test_ctrl_c_at_any_moment_is_one_line_and_exit_code_130(delay: float, route:
     assert not out.exists()
 
 
+def test_ctrl_c_that_a_library_swallows_still_stops_the_command(route: tuple[Path, Path], tmp_path: Path) -> None:
+    """Ctrl-C raised where Python cannot raise it (typer's pydantic, building its validators,
+    prints "Exception ignored" and goes on; here an object's __del__ as the command line starts)
+    stops the command before its work, as one line and exit code 130."""
+    ref, query = route
+    out = tmp_path / "run.csv"
+    code = ("import sys, wiloc.cli, wiloc.__main__ as entry\n"
+            "class Swallowing:\n"
+            "    def __del__(self):\n"
+            "        raise KeyboardInterrupt\n"
+            "parse_and_run = wiloc.cli.run\n"
+            "def run(args=None):\n"
+            "    Swallowing()\n"
+            "    return parse_and_run(args)\n"
+            "wiloc.cli.run = run\n"
+            "sys.exit(entry.main())\n")
+    result = subprocess.run([sys.executable, "-c", code, "localize", str(query), "--map", str(ref), "--method",
+                             "catgraph", "--particles", "1000000", "--jobs", "1", "--out", str(out)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 130, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: interrupted"), result.stderr
+    assert not out.exists()
+
+
 def test_ctrl_c_after_the_work_leaves_the_exit_code_alone(route: tuple[Path, Path], tmp_path: Path) -> None:
     """A Ctrl-C while the finished process exits (interpreter teardown) neither kills it nor
     prints anything: the command's own exit code stands."""
