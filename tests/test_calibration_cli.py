@@ -17,30 +17,32 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def _results(path: Path, query: str, reference: str, ref_names: list[str], method: str,
-             rows: list[tuple[str, str, float]]) -> Path:
-    """A results file in the documented format: (frame, match or "", confidence or NaN) per row."""
+             rows: list[tuple[str, str, float]], new_place: list[float] | None = None) -> Path:
+    """A results file in the documented format: (frame, match or "", confidence or NaN) per row,
+    and each frame's P(new place) (NaN: an empty cell) when given."""
     header = {"wiloc-results": "1", "method": method, "descriptor": "sad", "mode": "map", "query": query,
               "map": reference, "exclude_recent": "0", "frames": str(len(rows)),
               "reference_frames": json.dumps(ref_names)}
     lines = [f"# {key}: {value}" for key, value in header.items()]
-    lines.append("frame,match,difference,confidence,stage")
-    for frame, match, confidence in rows:
+    lines.append("frame,match,difference,confidence,stage" + (",new_place" if new_place else ""))
+    for k, (frame, match, confidence) in enumerate(rows):
         decided = bool(match) and not math.isnan(confidence)
+        extra = "" if not new_place else "," + ("" if math.isnan(new_place[k]) else str(new_place[k]))
         lines.append(f"{frame},{match},{0.5 if decided else ''},{confidence if decided else ''},"
-                     f"{'update' if decided else 'init'}")
+                     f"{'update' if decided else 'init'}{extra}")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
 
 
-def _gardens(folder: Path, method: str = "online") -> Path:
+def _gardens(folder: Path, method: str = "online", new_place: list[float] | None = None) -> Path:
     """Map day_right of 10 frames; query day_left: 5 right at 0.95, 4 wrong at 0.6, one undecided,
     and a frame of a new place (no true match) accepted at 0.7."""
     names = [f"img{i}.png" for i in range(10)]
     rows = ([(names[i], names[i], 0.95) for i in range(5)] + [(names[i], names[0], 0.6) for i in range(5, 9)]
             + [(names[9], "", math.nan), ("new.png", names[0], 0.7)])
     return _results(folder / f"day_left-{method}.csv", "/data/gardens/day_left", "/data/gardens/day_right",
-                    names, method, rows)
+                    names, method, rows, new_place)
 
 
 def _nordland(folder: Path, method: str = "online", dataset: str = "nordland") -> Path:
@@ -130,6 +132,35 @@ def test_compare_over_two_maps_prints_cut_tables_and_table2(tmp_path: Path) -> N
              text.index("fixed confidence cuts: winter"), text.index("Table II")]
     assert order == sorted(order)
     assert "0.950" in text[order[3]:]  # the global threshold
+
+
+def test_evaluate_and_compare_say_how_well_p_new_place_is_calibrated(tmp_path: Path) -> None:
+    # P(new place): 0 on the 5 right frames, 0.3 on the 4 wrong ones, none on the undecided
+    # frame, 0.8 on the frame of a new place (the only frame without a true match)
+    said = [0.0] * 5 + [0.3] * 4 + [math.nan, 0.8]
+    with_column, without = _gardens(tmp_path, "catgraph", said), _gardens(tmp_path, "online")
+    runs = _json(runner.invoke(app, ["evaluate", str(with_column), str(without), "--json"]))["runs"]
+    new_place = runs[0]["new_place"]
+    assert new_place["ece"] == pytest.approx((4 * 0.3 + 0.2) / 10)
+    assert new_place["brier"] == pytest.approx((4 * 0.09 + 0.04) / 10)
+    assert new_place["mean_confidence"] == pytest.approx(0.2) and new_place["share_correct"] == pytest.approx(0.1)
+    assert [(c["accepted"], c["precision"], c["recall"]) for c in new_place["cuts"]] == [
+        (1, 1.0, 1.0), (0, None, 0.0), (0, None, 0.0)]
+    assert runs[0]["ece"] == pytest.approx((4 * 0.6 + 0.7 + 5 * 0.05) / 10)  # the confidence's, as before
+    assert "new_place" not in runs[1]  # a run that does not say P(new place)
+
+    table = runner.invoke(app, ["evaluate", str(with_column), str(without)])
+    assert table.exit_code == 0, table.output
+    for text in ("P(new place): ECE", "0.140", "share without a true match", "P(new place) >= 0.5"):
+        assert text in table.stdout
+    wide = runner.invoke(app, ["evaluate", str(with_column), str(without)], env={"COLUMNS": "50"})
+    assert wide.exit_code == 0 and "P(new place) (ground truth" in wide.stdout
+
+    data = _json(runner.invoke(app, ["compare", str(with_column), str(without), "--json"]))
+    by_method = {row["method"]: row for row in data["calibration"]}
+    assert by_method["catgraph"]["new_place"]["ece"] == pytest.approx(0.14) and "new_place" not in by_method["online"]
+    text = runner.invoke(app, ["compare", str(with_column), str(without)]).stdout
+    assert "P(new place) (ground truth" in text and text.index("P(new place)") < text.index("Table II")
 
 
 def test_same_traversal_name_from_two_datasets_gets_distinct_labels(tmp_path: Path) -> None:

@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 
 from wiloc.groundtruth import Truth
 from wiloc.metrics import correct_matches, decided_confidence
-from wiloc.reliability import (brier_score, counts_at_cuts, expected_calibration_error, reliability_bins,
-                               summarize_calibration)
+from wiloc.reliability import (NEW_PLACE_KEYS, brier_score, counts_at_cuts, expected_calibration_error,
+                               reliability_bins, summarize_calibration, summarize_new_place)
 
 NAN = float("nan")
 
@@ -91,6 +91,21 @@ def test_accepted_frame_without_true_match_is_wrong_through_the_truth() -> None:
     assert calibration.cuts.precision.tolist() == [0.5]
     assert calibration.cuts.recall.tolist() == pytest.approx([1 / 3])
     assert calibration.share_correct == pytest.approx(1 / 3)
+
+
+def test_new_place_is_scored_against_the_frames_without_a_true_match() -> None:
+    p_new = [0.9, 0.1, NAN, 0.6, 0.2]
+    has_match = [False, True, False, True, True]  # frame 2, without a true match, says nothing
+    calibration = summarize_new_place(p_new, has_match, cuts=(0.5,))
+    assert calibration is not None
+    assert calibration.mean_confidence == pytest.approx(0.45) and calibration.share_correct == 0.25
+    assert calibration.brier == pytest.approx((0.01 + 0.01 + 0.36 + 0.04) / 4)
+    assert calibration.ece == pytest.approx((0.1 + 0.1 + 0.6 + 0.2) / 4)
+    # accepted at 0.5: frames 0 (new) and 3 (not); recall counts both frames without a match
+    assert calibration.cuts.accepted.tolist() == [2] and calibration.cuts.precision.tolist() == [0.5]
+    assert calibration.cuts.recall.tolist() == [0.5]
+    assert set(calibration.row(NEW_PLACE_KEYS)) == {NEW_PLACE_KEYS + key for key in calibration.row()}
+    assert summarize_new_place([NAN, NAN], [True, False]) is None
 
 
 def test_nothing_decided_gives_nan_not_an_error() -> None:

@@ -29,7 +29,8 @@ from wiloc.methods.base import Decisions, MapContext
 from wiloc.methods.registry import make_method
 from wiloc.metrics import (PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
                            precision_at_thresholds, summarize)
-from wiloc.reliability import DEFAULT_CUTS, Calibration, ReliabilityBins, summarize_calibration
+from wiloc.reliability import (DEFAULT_CUTS, NEW_PLACE_KEYS, Calibration, ReliabilityBins,
+                               summarize_calibration, summarize_new_place)
 from wiloc.follow import FolderWatch, Skipped, follow
 from wiloc.localizer import Localizer
 from wiloc.methods.base import Decision
@@ -293,7 +294,9 @@ def _query_steps(odometry: Path | None, names: list[str]) -> np.ndarray | None:
 @dataclass
 class Evaluation:
     """One run's results scored against ground truth; ``confidence`` is NaN for undecided frames.
-    ``path`` is the results file (None for a run evaluated in memory)."""
+    ``path`` is the results file (None for a run evaluated in memory). ``new_place`` is the
+    calibration of the run's P(new place) against the frames without a true match, for methods
+    that give one (None for the others)."""
 
     path: Path | None
     results: Results
@@ -302,6 +305,7 @@ class Evaluation:
     summary: Summary
     confidence: np.ndarray
     calibration: Calibration
+    new_place: Calibration | None = None
 
     @property
     def name(self) -> str:
@@ -320,13 +324,26 @@ class Evaluation:
     def curve(self) -> PRCurve:
         return self.summary.curve
 
+    def calibration_row(self) -> dict[str, float | int]:
+        """The calibration as a flat table row, then P(new place)'s under keys ``new_place_*``
+        (:meth:`Calibration.row`) for a run that gives it."""
+        extra = self.new_place.row(NEW_PLACE_KEYS) if self.new_place is not None else {}
+        return {**self.calibration.row(), **extra}
+
+    def calibration_dict(self) -> dict[str, Any]:
+        """The calibration for --json, with P(new place)'s under ``new_place`` for a run that
+        gives it (absent for the others)."""
+        extra = {"new_place": self.new_place.as_dict()} if self.new_place is not None else {}
+        return {**self.calibration.as_dict(), **extra}
+
 
 Run = Path | str | LocalizeRun | Results
 
 
 def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS) -> Evaluation:
     """Precision-recall metrics and calibration (with precision and recall at fixed confidence
-    ``cuts``) of one run against ground truth: a results file, or a run in memory."""
+    ``cuts``) of one run against ground truth, and of its P(new place) where the run gives one:
+    a results file, or a run in memory."""
     if isinstance(run, LocalizeRun):
         path, results = run.path, run.results
     elif isinstance(run, Results):
@@ -344,8 +361,10 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS)
     correct = correct_matches(match, loaded)
     confidence = decided_confidence(match, results.confidence)
     calibration = summarize_calibration(confidence, correct, summary.with_true_match, cuts)
+    p_new = results.new_place
+    new_place = None if p_new is None else summarize_new_place(p_new, loaded.has_match(), cuts)
     return Evaluation(path=path, results=results, truth=loaded, correct=correct, summary=summary,
-                      confidence=confidence, calibration=calibration)
+                      confidence=confidence, calibration=calibration, new_place=new_place)
 
 
 # ------------------------------------------------------------------------------------------ compare
@@ -359,7 +378,8 @@ class Comparison:
     descriptor when several are compared, and with the results file's name when one method holds
     the same traversal more than once (say, two parameter settings). ``traversals[i]`` names its
     query traversal (see :func:`traversal_labels`). ``cut_table`` has one row per run: ECE, Brier
-    score, mean confidence, share correct and precision@c, recall@c, accepted@c per cut c.
+    score, mean confidence, share correct and precision@c, recall@c, accepted@c per cut c, and
+    the same of P(new place) under ``new_place_*`` keys where a run gives it (NaN for the others).
     """
 
     evaluations: list[Evaluation]
@@ -420,7 +440,7 @@ def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[flo
                     rows2.append({"method": method, "precision": float(target), "threshold": threshold,
                                   "traversal": traversal, "recall": recall, "worst": i == worst})
     table2 = pd.DataFrame(rows2, columns=["method", "precision", "threshold", "traversal", "recall", "worst"])
-    cut_table = pd.DataFrame([{"method": label, "traversal": traversal, **e.calibration.row()}
+    cut_table = pd.DataFrame([{"method": label, "traversal": traversal, **e.calibration_row()}
                               for label, traversal, e in zip(labels, traversals, evaluations)])
     return Comparison(evaluations=evaluations, labels=labels, traversals=traversals, table1=table1,
                       table2=table2, cut_table=cut_table, ground_truth=truth.describe())

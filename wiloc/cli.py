@@ -22,8 +22,8 @@ from wiloc.atomic import written_whole
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, out, refuse_unused
 from wiloc.cli_params import method_params, with_method_options
-from wiloc.cli_views import (cell, cut_views, json_ready, metrics_views, print_json, progress_bar, table,
-                             table1_records, table1_view, table2_view)
+from wiloc.cli_views import (cell, cut_views, json_ready, metrics_views, new_place_view, print_json, progress_bar,
+                             table, table1_records, table1_view, table2_view)
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE, WilocError
 from wiloc.labels import short_names
 from wiloc.methods.registry import METHODS, method_class
@@ -549,7 +549,7 @@ def evaluate(
     names = short_names([e.path for e in evaluations])
     heads = [{"run": run, "results": name, "method": e.method, "traversal": e.traversal, **e.summary.as_dict()}
              for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
-    rows = [{**head, **e.calibration.row()} for head, e in zip(heads, evaluations)]
+    rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
     written = []
     if pr_plot is not None:
         from wiloc.plots import plot_pr
@@ -565,7 +565,7 @@ def evaluate(
     if as_json:
         print_json({"ground_truth": source.describe(), "files": [str(p) for p in written], "warnings": notes,
                     "runs": [{**head, "results": str(e.path), "ground_truth": source.describe(),
-                              **e.calibration.as_dict(), "warnings": e.truth.warnings,
+                              **e.calibration_dict(), "warnings": e.truth.warnings,
                               "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
                                         "thresholds": e.curve.thresholds.tolist()}}
                              for head, e in zip(heads, evaluations)]})
@@ -676,7 +676,7 @@ def compare(
     notes = _warn_about_truth(comparison.evaluations)
     written = _compare_plots(comparison, source, threshold_plot, model_plot, pr_plot, calibration_plot, notes)
     if as_json:
-        calibration = [{"method": label, "traversal": traversal, **e.calibration.as_dict()} for label, traversal, e
+        calibration = [{"method": label, "traversal": traversal, **e.calibration_dict()} for label, traversal, e
                        in zip(comparison.labels, comparison.traversals, comparison.evaluations)]
         print_json({"ground_truth": comparison.ground_truth,
                     "table1": table1_records(comparison), "calibration": calibration,
@@ -685,6 +685,9 @@ def compare(
         return
     out.print(table1_view(comparison))
     for view in cut_views(comparison, at):
+        out.print(view)
+    if (view := new_place_view(comparison.cut_table.to_dict(orient="records"), at, comparison.ground_truth,
+                               ["method", "traversal"])) is not None:
         out.print(view)
     if global_threshold:
         out.print(table2_view(comparison))

@@ -20,6 +20,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from wiloc.cli_core import err, out
+from wiloc.reliability import NEW_PLACE_KEYS
 
 if TYPE_CHECKING:
     from wiloc import api
@@ -40,6 +41,14 @@ RANKED_METRICS = ("recall_at_5", "recall_at_10")
 RECALL_AT_K_COLUMNS = {"recall_at_1": "R@1", "recall_at_5": "R@5", "recall_at_10": "R@10"}
 CALIBRATION_COLUMNS = {"ece": "ECE", "brier": "Brier", "mean_confidence": "mean\nconf.",
                        "share_correct": "share\ncorrect"}
+#: P(new place)'s calibration (``NEW_PLACE_KEYS`` + a calibration key), for runs that give it.
+NEW_PLACE_COLUMNS = {NEW_PLACE_KEYS + "ece": "ECE", NEW_PLACE_KEYS + "brier": "Brier",
+                     NEW_PLACE_KEYS + "mean_confidence": "mean\nP(new)", NEW_PLACE_KEYS + "share_correct": "share\nnew"}
+NEW_PLACE_LABELS = {NEW_PLACE_KEYS + "ece": "P(new place): ECE", NEW_PLACE_KEYS + "brier": "P(new place): Brier",
+                    NEW_PLACE_KEYS + "mean_confidence": "mean P(new place)",
+                    NEW_PLACE_KEYS + "share_correct": "share without a true match"}
+NEW_PLACE_CAPTION = ("P(new place) against the frames without a true match in the map; at a cut: P precision, "
+                     "R recall of those frames, n frames with P(new place) >= cut")
 #: Width one results file takes as a column of the metrics-down table.
 _RUN_WIDTH = 16
 
@@ -104,9 +113,25 @@ def table(title: str, rows: list[dict[str, Any]], columns: Sequence[str] | None 
     return view
 
 
-def at_cut(row: dict[str, Any], cut: float) -> str:
-    """Precision, recall and accepted frames at one confidence cut of a table row, one a line."""
-    return f"P {cell(row[f'precision@{cut:g}'])}\nR {cell(row[f'recall@{cut:g}'])}\nn {row[f'accepted@{cut:g}']}"
+def at_cut(row: dict[str, Any], cut: float, prefix: str = "") -> str:
+    """Precision, recall and accepted frames at one confidence cut of a table row (its keys after
+    ``prefix``), one a line."""
+    return (f"P {cell(row[f'{prefix}precision@{cut:g}'])}\nR {cell(row[f'{prefix}recall@{cut:g}'])}\n"
+            f"n {cell(row[f'{prefix}accepted@{cut:g}'], 0)}")
+
+
+def new_place_view(rows: list[dict[str, Any]], cuts: Sequence[float], ground_truth: str,
+                   heads: list[str]) -> Table | None:
+    """P(new place)'s calibration, one row per run that gives it (``heads`` name the run), with
+    precision and recall of "new place" at each cut; None when no run gives it."""
+    given = [row for row in rows if _says_new_place(row)]
+    if not given:
+        return None
+    cut_columns = {f"cut {cut:g}": cut for cut in cuts}
+    shown = [{**{h: row[h] for h in heads}, **{k: row[k] for k in NEW_PLACE_COLUMNS},
+              **{name: at_cut(row, cut, NEW_PLACE_KEYS) for name, cut in cut_columns.items()}} for row in given]
+    return table(f"P(new place) (ground truth: {ground_truth})", shown, [*heads, *NEW_PLACE_COLUMNS, *cut_columns],
+                 NEW_PLACE_COLUMNS, caption=NEW_PLACE_CAPTION)
 
 
 def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_truth: str) -> list[Table]:
@@ -127,6 +152,8 @@ def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_trut
     if set(RANKED_METRICS) & shown:
         views.append(table(f"Recall@K (ground truth: {ground_truth})", rows, ["run", *RECALL_AT_K_COLUMNS],
                            RECALL_AT_K_COLUMNS, caption="R@K: a true match among the K best map frames (-: not ranked)"))
+    if (view := new_place_view(rows, cuts, ground_truth, ["run"])) is not None:
+        views.append(view)
     return views
 
 
@@ -136,7 +163,10 @@ def _shown(rows: list[dict[str, Any]]) -> set[str]:
 
 
 def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str, keys: list[str]) -> Table:
-    view = Table(title=escape(title), caption=CUT_CAPTION)
+    new_place = any(_says_new_place(row) for row in rows)
+    view = Table(title=escape(title), caption=CUT_CAPTION + ("; P(new place) >= cut: P the share of those frames "
+                                                             "without a true match, R of the frames without one"
+                                                             if new_place else ""))
     view.add_column("")
     for row in rows:
         view.add_column(escape(f"{row['method']}\n{row['traversal']}"), justify="right", overflow="fold")
@@ -145,7 +175,18 @@ def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str,
         view.add_row(METRIC_LABELS[key], *[cell(row.get(key)) for row in rows])
     for cut in cuts:
         view.add_row(f"cut {cut:g}", *[at_cut(row, cut) for row in rows])
+    if new_place:
+        for key, label in NEW_PLACE_LABELS.items():
+            view.add_row(label, *[cell(row.get(key)) for row in rows])
+        for cut in cuts:
+            view.add_row(f"P(new place) >= {cut:g}",
+                         *[at_cut(row, cut, NEW_PLACE_KEYS) if _says_new_place(row) else "-" for row in rows])
     return view
+
+
+def _says_new_place(row: dict[str, Any]) -> bool:
+    """Whether a table row's run gives P(new place) (its calibration keys are there)."""
+    return not _missing(row.get(NEW_PLACE_KEYS + "ece"))
 
 
 def cut_views(comparison: api.Comparison, cuts: Sequence[float]) -> list[Table]:

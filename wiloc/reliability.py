@@ -1,8 +1,10 @@
 """How well confidences are calibrated: ECE, Brier score, reliability bins, fixed cuts (SPEC.md 8).
 
-A confidence promises a probability that the decided match is the same place. Over the decided
-frames (a match and a non-NaN confidence; NaN marks the others, as in wiloc.metrics), these
-measures compare the promise with the share of matches that are correct under the ground truth.
+A confidence promises a probability that the decided match is the same place (and P(new place),
+where a method gives it, that the frame has no true match in the map: ``summarize_new_place``).
+Over the decided frames (a match and a non-NaN confidence; NaN marks the others, as in
+wiloc.metrics), these measures compare the promise with the share of matches that are correct
+under the ground truth.
 Confidences outside [0, 1] (the threshold baseline's 1 - d / d_max falls below 0 beyond d_max)
 are clipped into [0, 1] for the bins, the means and the Brier score; the cuts compare the
 confidences as written, exactly as the precision-recall counting does. See docs/evaluation.md.
@@ -24,6 +26,9 @@ N_BINS = 10
 
 DEFAULT_CUTS = (0.5, 0.9, 0.99)
 """Confidence cuts at which precision and recall are reported: accept confidence >= cut."""
+
+NEW_PLACE_KEYS = "new_place_"
+"""What precedes P(new place)'s keys in a flat calibration row (``Calibration.row``)."""
 
 
 @short_repr
@@ -130,15 +135,16 @@ class Calibration:
     bins: ReliabilityBins = field(repr=False)
     cuts: CutCounts = field(repr=False)
 
-    def row(self) -> dict[str, float | int]:
-        """Flat: the scalars, then precision@c, recall@c and accepted@c per cut c (a table row)."""
+    def row(self, prefix: str = "") -> dict[str, float | int]:
+        """Flat: the scalars, then precision@c, recall@c and accepted@c per cut c (a table row),
+        each key after ``prefix``."""
         row: dict[str, float | int] = {"ece": self.ece, "brier": self.brier,
                                        "mean_confidence": self.mean_confidence,
                                        "share_correct": self.share_correct}
         for cut, precision, recall, accepted in self._cut_rows():
             row.update({f"precision@{cut:g}": precision, f"recall@{cut:g}": recall,
                         f"accepted@{cut:g}": accepted})
-        return row
+        return {prefix + key: value for key, value in row.items()}
 
     def as_dict(self) -> dict[str, Any]:
         """Nested, for --json: the scalars, ``cuts`` and ``reliability`` as lists of dicts."""
@@ -170,3 +176,16 @@ def summarize_calibration(confidence: ArrayLike, correct: ArrayLike, n_positive:
                        mean_confidence=float(conf.mean()) if conf.size else float("nan"),
                        share_correct=float(ok.mean()) if ok.size else float("nan"),
                        bins=bins, cuts=counts_at_cuts(confidence, correct, n_positive, cuts))
+
+
+def summarize_new_place(new_place: ArrayLike, has_match: ArrayLike,
+                        cuts: Sequence[float] = DEFAULT_CUTS) -> Calibration | None:
+    """The same measures for P(new place), whose promise is that the frame has no true match in
+    the map: ``share_correct`` is the share of such frames, a cut accepts "new place" when
+    P(new place) >= it and its recall counts the frames without a true match. Over the frames
+    with a P(new place) (not NaN); None when no frame has one."""
+    p_new = np.asarray(new_place, dtype=np.float64)
+    if not np.any(~np.isnan(p_new)):
+        return None
+    absent = ~np.asarray(has_match, dtype=np.bool_)
+    return summarize_calibration(p_new, absent, int(absent.sum()), cuts)

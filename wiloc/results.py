@@ -30,6 +30,7 @@ from wiloc.reprs import short_repr
 FORMAT_VERSION = "1"
 BASE_COLUMNS = ("frame", "match", "difference", "confidence", "stage")
 RANKING = "ranking"  # the column of each frame's best candidates (methods that rank; docs/formats.md)
+NEW_PLACE = "new_place"  # the column of each frame's P(new place) (catgraph, fabmap)
 TEXT_COLUMNS = ("frame", "match", "stage", RANKING)
 JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "sampling")
 
@@ -62,6 +63,14 @@ class Results:
     @property
     def confidence(self) -> np.ndarray:
         return self.frames["confidence"].to_numpy(dtype=np.float64)
+
+    @property
+    def new_place(self) -> np.ndarray | None:
+        """Each frame's probability that it shows a place absent from the map (NaN where not
+        given); None for a run without the column (methods that do not say it)."""
+        if NEW_PLACE not in self.frames.columns:
+            return None
+        return self.frames[NEW_PLACE].to_numpy(dtype=np.float64)
 
     @property
     def ranking(self) -> np.ndarray | None:

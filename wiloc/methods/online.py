@@ -123,7 +123,7 @@ class Online(Method):
     name = "online"
     Params = OnlineParams
     needs = frozenset({"map_self", "map_neighbours"})
-    columns = ("m_r",)
+    columns = ("m_r", "new_place")
     params: OnlineParams
 
     def query_problem(self, n_frames: int, sequence: bool, exclude_recent: int) -> str | None:

@@ -98,6 +98,7 @@ class Trained(Method):
     name = "trained"
     Params = TrainedParams
     needs = frozenset({"training"})
+    columns = ("new_place",)
     params: TrainedParams
 
     def prepare(self, context: MapContext) -> None:
