@@ -177,6 +177,18 @@ def test_same_traversal_name_from_two_datasets_gets_distinct_labels(tmp_path: Pa
         "online day_left", "online nordland/winter", "online other/winter"]
 
 
+def test_results_files_of_one_name_in_two_folders_get_distinct_labels(tmp_path: Path) -> None:
+    paths = [_gardens(tmp_path / "before"), _gardens(tmp_path / "after", new_place=[0.0] * 10 + [0.9])]
+    evaluations = [api.evaluate(p, api.TruthSource(kind="aligned")) for p in paths]
+    assert api.method_labels(evaluations) == ["online [before/day_left-online]", "online [after/day_left-online]"]
+    assert len(api.reliability_series(evaluations)) == 2
+    assert list(api.new_place_series(evaluations)) == ["online [after/day_left-online] day_left"]
+    plot = tmp_path / "reliability.png"
+    result = runner.invoke(app, ["evaluate", *map(str, paths), "--calibration-plot", str(plot)])
+    assert result.exit_code == 0, result.output
+    assert plot.read_bytes()[:8] == PNG_SIGNATURE
+
+
 def test_traversal_labels_keep_one_name_when_the_folder_is_the_same(tmp_path: Path) -> None:
     paths = [_gardens(tmp_path, "online"), _gardens(tmp_path, "threshold")]
     evaluations = [api.evaluate(p, api.TruthSource(kind="aligned")) for p in paths]

@@ -106,6 +106,21 @@ def test_plot_reliability_writes_png_with_legend_below_the_axes(tmp_path: Path,
         assert near[int(0.85 * height):].any()  # and in the legend, below the axes
 
 
+def test_plot_reliability_draws_p_new_place_beside_in_each_runs_colour(tmp_path: Path,
+                                                                     run: tuple[np.ndarray, np.ndarray]) -> None:
+    confidence, correct = run
+    series = {"online day_left": reliability_bins(confidence, correct),
+              "catgraph day_left": reliability_bins(confidence, correct)}
+    new_place = {"catgraph day_left": reliability_bins(1 - confidence, ~correct)}  # the second run's: C1
+    image = read_png(plot_reliability(series, tmp_path / "reliability.png", new_place=new_place))[..., :3]
+    height, width = image.shape[:2]
+    right = image[: int(0.6 * height), width // 2:]  # the P(new place) column's diagram
+    near = {colour: np.all(np.abs(right - matplotlib.colors.to_rgb(colour)) < 0.06, axis=-1).any()
+            for colour in ("#1f77b4", "#ff7f0e")}
+    assert near == {"#1f77b4": False, "#ff7f0e": True}
+    assert width > read_png(plot_reliability(series, tmp_path / "one.png")).shape[1]  # a second column
+
+
 def test_an_unknown_figure_suffix_is_refused_naming_the_file(tmp_path: Path) -> None:
     with pytest.raises(WilocError, match=r"pr\.pgn: '\.pgn' is not a figure format.*\.png"):
         check_plot_path(tmp_path / "pr.pgn")

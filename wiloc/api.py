@@ -375,8 +375,9 @@ class Comparison:
     """Methods x traversals side by side: the paper's Table I, Table II and the calibration table.
 
     ``labels[i]`` names the method of ``evaluations[i]`` in the tables: the method, with the
-    descriptor when several are compared, and with the results file's name when one method holds
-    the same traversal more than once (say, two parameter settings). ``traversals[i]`` names its
+    descriptor when several are compared, and with the results file's name (and as many of its
+    folders as tell two files of one name apart) when one method holds the same traversal more
+    than once (say, two parameter settings). ``traversals[i]`` names its
     query traversal (see :func:`traversal_labels`). ``cut_table`` has one row per run: ECE, Brier
     score, mean confidence, share correct and precision@c, recall@c, accepted@c per cut c, and
     the same of P(new place) under ``new_place_*`` keys where a run gives it (NaN for the others).
@@ -403,8 +404,9 @@ def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
     bases = [f"{e.method}/{e.results.meta.get('descriptor')}" if with_descriptor else e.method
              for e in evaluations]
     pairs = list(zip(bases, traversal_labels(evaluations)))
-    return [f"{pair[0]} [{Path(e.name).stem}]" if pairs.count(pair) > 1 else pair[0]
-            for pair, e in zip(pairs, evaluations)]
+    files = [str(Path(name).with_suffix("")) if e.path else name  # as many folders as tell the files apart
+             for name, e in zip(short_names([e.path or e.name for e in evaluations]), evaluations)]
+    return [f"{pair[0]} [{file}]" if pairs.count(pair) > 1 else pair[0] for pair, file in zip(pairs, files)]
 
 
 #: Table I's metrics per (method, traversal), as Summary names them; Recall@5 and @10 only for
@@ -484,3 +486,9 @@ def pr_series(comparison: Comparison) -> dict[str, PRCurve]:
 def reliability_series(evaluations: Sequence[Evaluation]) -> dict[str, ReliabilityBins]:
     """The reliability bins of each run, labelled as in the tables (for the reliability diagram)."""
     return {name: e.calibration.bins for name, e in zip(run_names(evaluations), evaluations)}
+
+
+def new_place_series(evaluations: Sequence[Evaluation]) -> dict[str, ReliabilityBins]:
+    """The reliability bins of P(new place) of each run that gives it, labelled as in the tables."""
+    return {name: e.new_place.bins for name, e in zip(run_names(evaluations), evaluations)
+            if e.new_place is not None}

@@ -558,7 +558,8 @@ def evaluate(
                                title=f"Precision-recall: {api.run_subject(evaluations, source)}"))
     if calibration_plot is not None:
         from wiloc.plots import plot_reliability
-        written.append(plot_reliability(api.reliability_series(evaluations), _replacing(notes, calibration_plot)))
+        written.append(plot_reliability(api.reliability_series(evaluations), _replacing(notes, calibration_plot),
+                                        new_place=api.new_place_series(evaluations)))
     written += _run_plots(evaluations, matrix_plot, pairs_plot, cache, notes)
     if csv_out is not None:
         written += _write_metrics_csv(csv_out, rows, evaluations, notes)
@@ -718,7 +719,8 @@ def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshol
                                      title=f"Precision-recall: {subject}"))
     if calibration_plot is not None:
         written.append(plots.plot_reliability(api.reliability_series(comparison.evaluations),
-                                              _replacing(notes, calibration_plot)))
+                                              _replacing(notes, calibration_plot),
+                                              new_place=api.new_place_series(comparison.evaluations)))
     return written
 
 

@@ -172,29 +172,45 @@ def plot_threshold(series: Mapping[str, tuple[np.ndarray, np.ndarray]], path: st
 
 
 def plot_reliability(series: Mapping[str, ReliabilityBins], path: str | Path,
-                     title: str = "Reliability: share correct against confidence") -> Path:
+                     title: str = "Reliability: share correct against confidence",
+                     new_place: Mapping[str, ReliabilityBins] | None = None) -> Path:
     """Reliability diagram: per confidence bin, the share of correct matches against the bin's
     mean confidence (on the diagonal when calibrated), one line per run; below, the decided frames
-    per bin (log scale), one bar per run. Colours repeat after ten runs, with another line style.
-    The legend sits outside the axes."""
-    fig, (ax, counts) = _figure(width=8.0, nrows=2, height=6.0, sharex=True, height_ratios=[3, 1])
+    per bin (log scale), one bar per run. With ``new_place`` (runs that give P(new place)), a
+    second column does the same for P(new place) against the share of frames without a true
+    match, each run in its colour of the first. Colours repeat after ten runs, with another line
+    style. The legend sits outside the axes."""
+    columns = 2 if new_place else 1
+    fig, axes = _figure(ncols=columns, width=8.0 if columns == 1 else 12.0, nrows=2, height=6.0, sharex="col",
+                        height_ratios=[3, 1])
+    colour = {name: k for k, name in enumerate(series)}
+    _reliability_panel(axes[0], axes[columns], series, colour, "confidence", "share correct")
+    if new_place:
+        _reliability_panel(axes[1], axes[3], new_place, colour, "P(new place)", "share without a true match")
+    _title(fig, title if not new_place else f"{title}; P(new place) against frames without a true match")
+    _legend_beside(fig, axes[0])
+    return _save(fig, path)
+
+
+def _reliability_panel(ax: Axes, counts: Axes, series: Mapping[str, ReliabilityBins], colour: Mapping[str, int],
+                       probability: str, share: str) -> None:
+    """One column of the reliability diagram: the diagonal and a line per run above, the frames
+    per bin below (a bar per run); run ``name`` in colour ``colour[name]``."""
     ax.plot([0, 1], [0, 1], color="0.5", linestyle="--", linewidth=1, label="calibrated")
-    for k, (name, bins) in enumerate(series.items()):
+    for slot, (name, bins) in enumerate(series.items()):
+        k = colour.get(name, slot)
         filled = bins.count > 0
         ax.plot(bins.mean_confidence[filled], bins.share_correct[filled], marker="o", markersize=4,
                 linewidth=1.5, color=f"C{k % 10}", linestyle=STYLES[k // 10 % len(STYLES)], label=name)
         width = np.diff(bins.edges) * 0.8 / max(len(series), 1)
-        counts.bar(bins.edges[:-1] + np.diff(bins.edges) * 0.1 + width * k, bins.count, width=width,
+        counts.bar(bins.edges[:-1] + np.diff(bins.edges) * 0.1 + width * slot, bins.count, width=width,
                    align="edge", color=f"C{k % 10}")
-    ax.set(xlim=(0, 1), ylim=(0, 1.02), ylabel="share correct")
-    _title(fig, title)
-    counts.set(xlabel="confidence", ylabel="frames")
+    ax.set(xlim=(0, 1), ylim=(0, 1.02), ylabel=share)
+    counts.set(xlabel=probability, ylabel="frames")
     counts.set_yscale("log")
     for axes in (ax, counts):
         axes.set_xticks(np.linspace(0, 1, 11))
         axes.grid(alpha=0.3)
-    _legend_beside(fig, ax)
-    return _save(fig, path)
 
 
 def plot_matrix(picture: MatrixPicture, path: str | Path, title: str = "Differences") -> Path:
