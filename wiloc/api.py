@@ -377,8 +377,8 @@ class Comparison:
     ``labels[i]`` names the method of ``evaluations[i]`` in the tables: the method, with the
     descriptor when several are compared, and with the results file's name (and as many of its
     folders as tell two files of one name apart) when one method holds the same traversal more
-    than once (say, two parameter settings). ``traversals[i]`` names its
-    query traversal (see :func:`traversal_labels`). ``cut_table`` has one row per run: ECE, Brier
+    than once (say, two parameter settings). ``traversals[i]`` names its query traversal (see
+    :func:`traversal_labels`). ``cut_table`` has one row per run: ECE, Brier
     score, mean confidence, share correct and precision@c, recall@c, accepted@c per cut c, and
     the same of P(new place) under ``new_place_*`` keys where a run gives it (NaN for the others).
     """

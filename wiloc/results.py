@@ -30,7 +30,7 @@ from wiloc.reprs import short_repr
 FORMAT_VERSION = "1"
 BASE_COLUMNS = ("frame", "match", "difference", "confidence", "stage")
 RANKING = "ranking"  # the column of each frame's best candidates (methods that rank; docs/formats.md)
-NEW_PLACE = "new_place"  # the column of each frame's P(new place) (catgraph, fabmap)
+NEW_PLACE = "new_place"  # the column of each frame's P(new place) (methods that say it: docs/formats.md)
 TEXT_COLUMNS = ("frame", "match", "stage", RANKING)
 JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "sampling")
 
