@@ -9,6 +9,7 @@ from wiloc.methods.base import Method
 from wiloc.methods.catgraph import CatGraph
 from wiloc.methods.fabmap import FabMapMethod
 from wiloc.methods.online import Online
+from wiloc.methods.seqslam import SeqSLAM
 from wiloc.methods.threshold import Threshold
 from wiloc.methods.trained import Trained
 
@@ -18,6 +19,7 @@ METHODS: dict[str, type[Method]] = {
     "trained": Trained,
     "catgraph": CatGraph,
     "fabmap": FabMapMethod,
+    "seqslam": SeqSLAM,
 }
 
 
