@@ -1,0 +1,438 @@
+"""Localization when the query does not retrace the map at the map's pace: R@1, AP and ECE per variant.
+
+    python benchmarks/bench_pace.py                                   # every traversal, variant, method
+    python benchmarks/bench_pace.py --traversals day_left/sad --variants same,pace-2 --methods catgraph
+    python benchmarks/bench_pace.py --param catgraph.speed_noise=0.05 --json pace.json
+    python benchmarks/bench_pace.py --traversals winter/sad --frames 600   # the first 600 Nordland frames
+
+Each traversal pairs a map folder with a query folder of the same route whose frame i is the
+map's frame i (aligned ground truth: Gardens Point walking, map ``day_right``; Nordland, map
+``summer``). Both folders are described once through wiloc's cache; every variant is then a
+re-sampling of frame indices, never a copy of an image:
+
+    same        the query retraces the map at its pace (query frame i, map every frame)
+    pace-1/3    map thinned to every 3rd frame, query every frame: the query at a third of the map's pace
+    pace-1/2    map thinned to every 2nd frame, query every frame
+    pace-2      query every 2nd frame (twice the map's pace)
+    pace-3      query every 3rd frame
+    reversed    the route walked backwards
+    stop        standing still: frame 60 held for 20 frames, and every 200 frames after it a stop of 10-20
+    u-turn      frames 0-119, then back from 119 to 40 (scaled to the route's length: 0.6 n and 0.2 n)
+    jump        frames 0-79, 150-199, then 80-149 (scaled likewise: 0.4 n and 0.75 n)
+    drift       map thinned to every 2nd frame; the query's step drifts smoothly between 1 and 4
+                frames (0.5x to 2x the map's pace), one slow-fast-slow cycle every 200 frames
+
+The ground truth of a query frame is the map node holding its original frame (for a thinned map,
+the nearest node), +-2 map nodes. The method runs on the difference rows of the re-sampled query
+to the re-sampled map, started on the re-sampled map (its size, its neighbours' differences, its
+differences to itself) exactly as ``wiloc localize`` starts it on a folder holding those frames,
+with the default recent window and no odometry. The measures are wiloc's own (``wiloc.metrics``,
+``wiloc.reliability``): R@1 (the decided match is right, over every query frame), AP (the PR
+curve's average precision), ECE of the confidence, the precision among frames with confidence
+>= 0.9 and their count, and the mean P(new place) of methods that give it.
+
+From an experiment script (``benchmarks`` on ``sys.path``)::
+
+    from bench_pace import load_traversal, variants, run_variant
+    trav = load_traversal("day_left/sad")            # data_root=None, frames=None, cache=None
+    for v in variants(trav.length):                  # Variant(name, map_frames, query_frames, truth)
+        row = run_variant(trav, v, "catgraph", {"speed_noise": 0.05})
+        print(v.name, row["r1"], row["ap"], row["ece"], row["precision@0.9"], row["accepted@0.9"],
+              row["new_place"])
+
+``run_variant(traversal, variant, method="catgraph", params=None, progress=None) -> dict`` returns
+the measures of one run as plain floats and ints (keys: traversal, variant, method, params,
+frames, map_nodes, r1, ap, ece, precision@0.9, accepted@0.9, new_place, seconds);
+``decide(traversal, variant, method, params)`` the run's ``Decisions`` and ``truth(variant, n_map)``
+its ground truth as a ``wiloc.groundtruth.Truth``. ``variants(n)`` builds the variants of a route
+of ``n`` frames (``names`` picks some); ``TRAVERSALS`` lists the traversals by name.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+from scipy import sparse
+
+from wiloc.cache import Cache
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.differences import ComputedDifferences, candidate_blocks
+from wiloc.distances import DifferencesTo, consecutive
+from wiloc.groundtruth import Truth
+from wiloc.methods.base import Decisions, MapContext
+from wiloc.methods.registry import METHODS, make_method
+from wiloc.metrics import correct_matches, decided_confidence, summarize
+from wiloc.reliability import summarize_calibration, summarize_new_place
+from wiloc.traversals import Describer
+
+REPO = Path(__file__).resolve().parents[1]
+TOLERANCE = 2  # map nodes either side of the true node that count as the same place
+CUT = 0.9  # the confidence above which precision is reported
+
+#: name -> (dataset folder, map folder, query folder, descriptor)
+TRAVERSALS: dict[str, tuple[str, str, str, str]] = {
+    "day_left/sad": ("gardens-point-walking", "day_right", "day_left", "sad"),
+    "day_left/gist": ("gardens-point-walking", "day_right", "day_left", "gist"),
+    "night_right/sad": ("gardens-point-walking", "day_right", "night_right", "sad"),
+    "night_right/gist": ("gardens-point-walking", "day_right", "night_right", "gist"),
+    "winter/sad": ("nordland-summer-winter-64x32", "summer", "winter", "sad"),
+}
+
+VARIANTS = ("same", "pace-1/3", "pace-1/2", "pace-2", "pace-3", "reversed", "stop", "u-turn", "jump", "drift")
+
+
+def default_data_root() -> Path:
+    """$WILOC_DATA, else the shared data folder beside the repository."""
+    return Path(os.environ.get("WILOC_DATA") or REPO.parent / "shared" / "data")
+
+
+# ------------------------------------------------------------------------------------------ variants
+
+@dataclass(frozen=True)
+class Variant:
+    """One re-sampling of a route of ``n`` frames (frame i of the query folder is frame i of the
+    map folder): the route frames the map keeps, in order; the route frame of each query frame
+    (repeats allowed); and each query frame's true map node (a position in ``map_frames``)."""
+
+    name: str
+    map_frames: NDArray[np.int64]
+    query_frames: NDArray[np.int64]
+    truth: NDArray[np.int64]
+
+
+def _variant(name: str, query: Sequence[int] | NDArray[np.integer], n: int, map_step: int = 1) -> Variant:
+    """A variant of query route frames against the map thinned to every ``map_step``-th frame;
+    the true node is the nearest kept frame (ties to the earlier one)."""
+    map_frames = np.arange(0, n, map_step, dtype=np.int64)
+    q = np.asarray(query, dtype=np.int64)
+    if q.size and (q.min() < 0 or q.max() >= n):
+        raise ValueError(f"{name}: query frames outside 0..{n - 1}")
+    nearest = np.minimum((2 * q + map_step - 1) // (2 * map_step), map_frames.size - 1)
+    return Variant(name, map_frames, q, nearest.astype(np.int64))
+
+
+def _stops(n: int) -> NDArray[np.int64]:
+    """The route with stops: frame 60 held for 20 frames, then every 200 frames one of 10-20."""
+    frames: list[int] = []
+    stops = {at: 20 - (7 * k) % 11 for k, at in enumerate(range(60, n, 200))}  # 20, 13, 17, 10, ...
+    for i in range(n):
+        frames.extend([i] * stops.get(i, 1))
+    return np.array(frames, dtype=np.int64)
+
+
+def _drift(n: int, period: float = 200.0) -> NDArray[np.int64]:
+    """Route frames of a query whose step drifts smoothly between 1 and 4 frames: 2.5 - 1.5 cos of
+    the distance travelled, one slow-fast-slow cycle every ``period`` frames."""
+    frames, x = [], 0.0
+    while round(x) < n:
+        frames.append(int(round(x)))
+        x += 2.5 - 1.5 * math.cos(2 * math.pi * x / period)
+    return np.array(frames, dtype=np.int64)
+
+
+def variants(n: int, names: Sequence[str] | None = None) -> list[Variant]:
+    """The variants of a route of ``n`` frames (all of :data:`VARIANTS`, or those ``names``), in order."""
+    if n < 10:
+        raise ValueError(f"a route of {n} frames is too short for the variants")
+    everything = np.arange(n)
+    turn, back_to = round(0.6 * n) - 1, round(0.2 * n)  # 119 and 40 of 200
+    cut, resume = round(0.4 * n), round(0.75 * n)  # 80 and 150 of 200
+    build: dict[str, Callable[[], Variant]] = {
+        "same": lambda: _variant("same", everything, n),
+        "pace-1/3": lambda: _variant("pace-1/3", everything, n, map_step=3),
+        "pace-1/2": lambda: _variant("pace-1/2", everything, n, map_step=2),
+        "pace-2": lambda: _variant("pace-2", everything[::2], n),
+        "pace-3": lambda: _variant("pace-3", everything[::3], n),
+        "reversed": lambda: _variant("reversed", everything[::-1], n),
+        "stop": lambda: _variant("stop", _stops(n), n),
+        "u-turn": lambda: _variant("u-turn", np.r_[0:turn + 1, turn:back_to - 1:-1], n),
+        "jump": lambda: _variant("jump", np.r_[0:cut, resume:n, cut:resume], n),
+        "drift": lambda: _variant("drift", _drift(n), n, map_step=2),
+    }
+    chosen = list(VARIANTS) if names is None else list(names)
+    unknown = [name for name in chosen if name not in build]
+    if unknown:
+        raise ValueError(f"unknown variant(s) {', '.join(unknown)} (choose from {', '.join(VARIANTS)})")
+    return [build[name]() for name in chosen]
+
+
+def truth(variant: Variant, tolerance: int = TOLERANCE) -> Truth:
+    """The variant's ground truth as wiloc scores it: query frame k matches map nodes within
+    +-``tolerance`` of its true node (the matrix form of ``wiloc.groundtruth``)."""
+    n_query, n_map = variant.truth.size, variant.map_frames.size
+    offsets = np.arange(-tolerance, tolerance + 1)
+    rows = np.repeat(np.arange(n_query), offsets.size)
+    cols = (variant.truth[:, None] + offsets[None, :]).ravel()
+    keep = (cols >= 0) & (cols < n_map)
+    matrix = sparse.coo_array((np.ones(int(keep.sum()), dtype=np.bool_), (rows[keep], cols[keep])),
+                              shape=(n_query, n_map)).tocsr()
+    # distinct names on each axis, so that a variant is never taken for a run against itself
+    return Truth(matrix, [f"q{k}:{f}" for k, f in enumerate(variant.query_frames)],
+                 [f"m{f}" for f in variant.map_frames])
+
+
+# ---------------------------------------------------------------------------------------- traversals
+
+@dataclass
+class Traversal:
+    """A map folder and a query folder of one route, described, in route order (row i of both is
+    the same place)."""
+
+    name: str
+    map_folder: Path
+    query_folder: Path
+    descriptor: str
+    map_data: NDArray
+    query_data: NDArray
+    metric: str
+    scale: float
+    natural_max: float | None
+
+    @property
+    def length(self) -> int:
+        return int(self.map_data.shape[0])
+
+
+def load_traversal(name: str, data_root: Path | None = None, frames: int | None = None,
+                   cache: Cache | None = None, progress: Callable[[str, int, int], None] | None = None) -> Traversal:
+    """Describe (or read from the cache) the map and query folders of traversal ``name``
+    (:data:`TRAVERSALS`), aligned by file name; ``frames`` keeps the first so many route frames."""
+    if name not in TRAVERSALS:
+        raise ValueError(f"unknown traversal {name!r} (choose from {', '.join(TRAVERSALS)})")
+    dataset, map_name, query_name, descriptor = TRAVERSALS[name]
+    root = Path(data_root or default_data_root()) / dataset
+    describer = Describer(descriptor, {}, cache or Cache(), progress=progress)
+    m, q = describer.entry(root / map_name), describer.entry(root / query_name)
+    at = {frame: i for i, frame in enumerate(q.names)}
+    common = [(i, at[frame]) for i, frame in enumerate(m.names) if frame in at]
+    if len(common) < len(m.names):
+        print(f"note: {name}: {len(m.names) - len(common)} map frames have no query frame of the same name "
+              "and are left out", file=sys.stderr)
+    map_rows, query_rows = (np.array(side, dtype=np.int64) for side in zip(*common))
+    if frames is not None:
+        map_rows, query_rows = map_rows[:frames], query_rows[:frames]
+    return Traversal(name=name, map_folder=root / map_name, query_folder=root / query_name, descriptor=descriptor,
+                     map_data=m.data[map_rows], query_data=q.data[query_rows], metric=m.metric, scale=m.scale,
+                     natural_max=m.natural_max)
+
+
+# ------------------------------------------------------------------------------------------------ runs
+
+def decide(traversal: Traversal, variant: Variant, method: str = "catgraph",
+           params: Mapping[str, Any] | None = None, exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
+           progress: Callable[[int, int], None] | None = None) -> Decisions:
+    """The method's decisions on the variant: started on the re-sampled map and stepped over the
+    re-sampled query's difference rows, as ``wiloc.api.localize`` runs a query folder against a
+    map folder holding those frames."""
+    algo = make_method(method, params)
+    algo.check_inputs(sequence=False, training=False)
+    map_data = np.ascontiguousarray(traversal.map_data[variant.map_frames])
+    query_data = np.ascontiguousarray(traversal.query_data[variant.query_frames])
+    to_map = DifferencesTo(map_data, traversal.metric, traversal.scale)
+    problem = algo.query_problem(query_data.shape[0], False, exclude_recent)
+    if problem is not None:
+        raise ValueError(f"{method} on {traversal.name} {variant.name}: {problem}")
+    context = MapContext(
+        sequence=False, exclude_recent=exclude_recent, n_map=map_data.shape[0], rows="differences",
+        natural_max=traversal.natural_max, map_self=lambda: ComputedDifferences(map_data, to_map),
+        neighbours=lambda: consecutive(map_data, traversal.metric, traversal.scale))
+    algo.start(context)
+    rows = candidate_blocks(ComputedDifferences(query_data, to_map), False, exclude_recent)
+    return algo.run(rows, query_data.shape[0], progress=progress)
+
+
+def score(decisions: Decisions, variant: Variant) -> dict[str, float | int]:
+    """wiloc's measures of a run's decisions against the variant's ground truth (as
+    ``wiloc.api.evaluate`` computes them)."""
+    known = truth(variant)
+    summary = summarize(decisions.match, decisions.confidence, known, decisions.ranking)
+    correct = correct_matches(decisions.match, known)
+    confidence = decided_confidence(decisions.match, decisions.confidence)
+    calibration = summarize_calibration(confidence, correct, summary.with_true_match, (CUT,)).row()
+    new_place = decisions.columns.get("new_place")
+    p_new = None if new_place is None else summarize_new_place(new_place, known.has_match(), (CUT,))
+    return {"frames": summary.frames, "map_nodes": int(variant.map_frames.size), "decided": summary.decided,
+            "r1": summary.recall_at_1, "ap": summary.auc, "ece": calibration["ece"],
+            f"precision@{CUT:g}": calibration[f"precision@{CUT:g}"],
+            f"accepted@{CUT:g}": calibration[f"accepted@{CUT:g}"],
+            "new_place": float("nan") if p_new is None else p_new.mean_confidence}
+
+
+def run_variant(traversal: Traversal, variant: Variant, method: str = "catgraph",
+                params: Mapping[str, Any] | None = None,
+                progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+    """One run's measures (see the module's docstring for the keys)."""
+    started = time.perf_counter()
+    decisions = decide(traversal, variant, method, params, progress=progress)
+    return {"traversal": traversal.name, "variant": variant.name, "method": method, "params": dict(params or {}),
+            **score(decisions, variant), "seconds": time.perf_counter() - started}
+
+
+# ------------------------------------------------------------------------------------------ command
+
+def parse_value(text: str) -> Any:
+    """A parameter value typed on the command line: none, true/false, an int, a float, or
+    comma-separated numbers (a tuple); anything else stays text."""
+    lowered = text.strip().lower()
+    if lowered in ("none", "null"):
+        return None
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    if "," in text:
+        try:
+            return tuple(float(part) for part in text.split(",") if part.strip())
+        except ValueError:
+            pass
+    return text
+
+
+def parse_params(items: Sequence[str], methods: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """``method.key=value`` items as {method: {key: value}}."""
+    params: dict[str, dict[str, Any]] = {m: {} for m in methods}
+    for item in items:
+        target, sep, value = item.partition("=")
+        method, dot, key = target.partition(".")
+        if not sep or not dot or not key:
+            raise SystemExit(f"--param {item!r}: give method.key=value (e.g. catgraph.particles=4000)")
+        params.setdefault(method, {})[key] = parse_value(value)
+    return params
+
+
+def _fmt(value: float | None, digits: int = 3) -> str:
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+
+
+def render(name: str, rows: list[dict[str, Any]], methods: Sequence[str]) -> Table:
+    """One traversal's table: a row per variant; per method R@1, R@1 / same pace, AP, ECE,
+    precision at confidence >= 0.9 (frames) and mean P(new place)."""
+    table = Table(title=f"{name}: map {rows[0]['map']}, ground truth +-{TOLERANCE} map nodes", title_justify="left")
+    table.add_column("variant")
+    table.add_column("frames / nodes", justify="right")
+    for method in methods:
+        for column in ("R@1", "/ same", "AP", "ECE", f"P@{CUT:g} (n)", "P(new)"):
+            table.add_column(f"{method}\n{column}" if column == "R@1" else column, justify="right")
+    by = {(r["variant"], r["method"]): r for r in rows}
+    for variant in dict.fromkeys(r["variant"] for r in rows):
+        first = next(r for r in rows if r["variant"] == variant)
+        cells = [variant, f"{first['frames']} / {first['map_nodes']}"]
+        for method in methods:
+            r = by.get((variant, method))
+            if r is None:
+                cells += ["-"] * 6
+                continue
+            same = by.get(("same", method))
+            relative = r["r1"] / same["r1"] if same and same["r1"] > 0 else float("nan")
+            cells += [_fmt(r["r1"]), _fmt(relative, 2), _fmt(r["ap"]), _fmt(r["ece"]),
+                      f"{_fmt(r[f'precision@{CUT:g}'])} ({r[f'accepted@{CUT:g}']})", _fmt(r["new_place"])]
+        table.add_row(*cells)
+    return table
+
+
+def _json_ready(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if hasattr(value, "item"):
+        value = value.item()
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("data", nargs="?", type=Path, default=default_data_root(),
+                        help="folder holding the datasets (default: $WILOC_DATA or ../shared/data)")
+    parser.add_argument("--traversals", default=",".join(TRAVERSALS), help="comma-separated (default: all): "
+                        + ", ".join(TRAVERSALS))
+    parser.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated (default: all): "
+                        + ", ".join(VARIANTS))
+    parser.add_argument("--methods", default="catgraph,seqslam", help="comma-separated (default: %(default)s)")
+    parser.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE",
+                        help="a method parameter, repeatable (e.g. catgraph.particles=4000)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of methods that take one (default: 0)")
+    parser.add_argument("--frames", type=int, default=None, help="keep only the first N route frames")
+    parser.add_argument("--json", type=Path, default=None, help="write every row to this file")
+    args = parser.parse_args(argv)
+    console, err = Console(), Console(stderr=True)
+    if not console.is_terminal:  # a file or a pipe: wide enough for every method's columns
+        console = Console(width=220)
+
+    methods = []
+    for method in (m.strip() for m in args.methods.split(",") if m.strip()):
+        if method in METHODS:
+            methods.append(method)
+        else:
+            err.print(f"note: method '{method}' is not registered in wiloc.methods.registry: skipped")
+    traversal_names = [t.strip() for t in args.traversals.split(",") if t.strip()]
+    variant_names = [v.strip() for v in args.variants.split(",") if v.strip()]
+    for t in traversal_names:
+        if t not in TRAVERSALS:
+            parser.error(f"unknown traversal {t!r} (choose from {', '.join(TRAVERSALS)})")
+    bad = [v for v in variant_names if v not in VARIANTS]
+    if bad:
+        parser.error(f"unknown variant(s) {', '.join(bad)} (choose from {', '.join(VARIANTS)})")
+    params = parse_params(args.param, methods)
+    for method in methods:
+        if any(f == "seed" for f in METHODS[method].Params.__dataclass_fields__):
+            params[method].setdefault("seed", args.seed)
+
+    rows: list[dict[str, Any]] = []
+    started = time.perf_counter()
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=err, transient=True) as bar:
+        runs = bar.add_task("runs", total=len(traversal_names) * len(variant_names) * len(methods))
+        for name in traversal_names:
+            describing: dict[str, Any] = {}
+
+            def described(label: str, done: int, total: int) -> None:
+                if label not in describing:
+                    describing[label] = bar.add_task(label, total=total)
+                bar.update(describing[label], completed=done, total=total)
+
+            traversal = load_traversal(name, args.data, args.frames, progress=described)
+            for task in describing.values():
+                bar.remove_task(task)
+            table_rows = []
+            for variant in variants(traversal.length, variant_names):
+                for method in methods:
+                    task = bar.add_task(f"{name} {variant.name} {method}", total=variant.query_frames.size)
+                    row = run_variant(traversal, variant, method, params[method],
+                                      progress=lambda done, total, task=task: bar.update(task, completed=done))
+                    bar.remove_task(task)
+                    row["map"] = traversal.map_folder.name
+                    table_rows.append(row)
+                    bar.advance(runs)
+            rows += table_rows
+            if table_rows:
+                console.print(render(name, table_rows, methods))
+    changed = {m: {k: v for k, v in p.items() if k != "seed"} for m, p in params.items()}
+    changed = {m: p for m, p in changed.items() if p}
+    console.print(f"{len(rows)} runs in {time.perf_counter() - started:.0f} s; seed {args.seed}, no odometry"
+                  + (f"; parameters {changed}" if changed else "; default parameters"))
+    if args.json is not None:
+        args.json.write_text(json.dumps(_json_ready(rows), indent=2) + "\n", encoding="utf-8")
+        console.print(f"wrote {args.json}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
