@@ -1,0 +1,137 @@
+"""benchmarks/bench_pace.py: the variants' frame indices and ground truth, and that a variant run
+on re-sampled descriptor rows decides as ``wiloc localize`` does on folders holding those frames."""
+from __future__ import annotations
+
+import importlib.util
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wiloc.descriptors.registry import get_descriptor
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_pace", REPO / "benchmarks" / "bench_pace.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["bench_pace"] = module  # dataclasses look their module up while the class is made
+    try:
+        spec.loader.exec_module(module)
+        yield module
+    finally:
+        sys.modules.pop("bench_pace", None)
+
+
+def by_name(bench, n: int) -> dict:
+    return {v.name: v for v in bench.variants(n)}
+
+
+def test_every_variant_is_built_in_order_and_within_the_route(bench) -> None:
+    made = bench.variants(200)
+    assert [v.name for v in made] == list(bench.VARIANTS)
+    for v in made:
+        assert v.query_frames.min() >= 0 and v.query_frames.max() < 200
+        assert np.all(np.diff(v.map_frames) > 0) and v.map_frames[0] == 0
+        assert v.truth.shape == v.query_frames.shape
+        assert v.truth.min() >= 0 and v.truth.max() < v.map_frames.size
+        # the true node is the kept map frame nearest the query's original frame
+        gap = np.abs(v.map_frames[v.truth] - v.query_frames)
+        nearest = np.abs(v.map_frames[None, :] - v.query_frames[:, None]).min(axis=1)
+        np.testing.assert_array_equal(gap, nearest)
+    assert [v.name for v in bench.variants(50, ["jump", "same"])] == ["jump", "same"]
+    with pytest.raises(ValueError, match="unknown variant"):
+        bench.variants(50, ["sideways"])
+
+
+def test_same_reversed_and_query_paces(bench) -> None:
+    n = 30
+    v = by_name(bench, n)
+    np.testing.assert_array_equal(v["same"].query_frames, np.arange(n))
+    np.testing.assert_array_equal(v["same"].truth, np.arange(n))
+    np.testing.assert_array_equal(v["reversed"].query_frames, n - 1 - np.arange(n))
+    np.testing.assert_array_equal(v["reversed"].truth, n - 1 - np.arange(n))  # frame k -> node n-1-k
+    np.testing.assert_array_equal(v["pace-2"].query_frames, np.arange(0, n, 2))
+    np.testing.assert_array_equal(v["pace-3"].truth, np.arange(0, n, 3))
+    for name in ("same", "reversed", "pace-2", "pace-3", "stop", "u-turn", "jump"):
+        np.testing.assert_array_equal(v[name].map_frames, np.arange(n))
+
+
+def test_thinned_maps_put_each_query_frame_on_its_nearest_node(bench) -> None:
+    v = by_name(bench, 10)
+    half = v["pace-1/2"]
+    np.testing.assert_array_equal(half.map_frames, [0, 2, 4, 6, 8])
+    np.testing.assert_array_equal(half.query_frames, np.arange(10))
+    np.testing.assert_array_equal(half.truth, [0, 0, 1, 1, 2, 2, 3, 3, 4, 4])  # ties go to the earlier node
+    third = v["pace-1/3"]
+    np.testing.assert_array_equal(third.map_frames, [0, 3, 6, 9])
+    np.testing.assert_array_equal(third.truth, [0, 0, 1, 1, 1, 2, 2, 2, 3, 3])
+
+
+def test_stop_u_turn_and_jump_on_the_issue_route_of_200_frames(bench) -> None:
+    v = by_name(bench, 200)
+    stop = v["stop"].query_frames
+    assert stop.size == 219 and np.count_nonzero(stop == 60) == 20
+    np.testing.assert_array_equal(np.unique(stop), np.arange(200))
+    np.testing.assert_array_equal(v["u-turn"].query_frames, np.r_[np.arange(120), np.arange(119, 39, -1)])
+    np.testing.assert_array_equal(v["u-turn"].truth, v["u-turn"].query_frames)
+    np.testing.assert_array_equal(v["jump"].query_frames, np.r_[0:80, 150:200, 80:150])
+    longer = by_name(bench, 1000)["stop"].query_frames  # a stop of 10-20 frames every 200 frames
+    held = [np.count_nonzero(longer == at) for at in (60, 260, 460, 660, 860)]
+    assert held[0] == 20 and all(10 <= h <= 20 for h in held)
+
+
+def test_drift_moves_between_half_and_twice_the_thinned_maps_pace(bench) -> None:
+    drift = by_name(bench, 400)["drift"]
+    np.testing.assert_array_equal(drift.map_frames, np.arange(0, 400, 2))
+    steps = np.diff(drift.query_frames)
+    assert steps.min() == 1 and steps.max() == 4  # 0.5 to 2 map nodes per frame
+    assert drift.query_frames[0] == 0 and drift.query_frames[-1] >= 396
+    np.testing.assert_array_equal(drift.query_frames, by_name(bench, 400)["drift"].query_frames)
+
+
+def test_truth_is_the_true_node_plus_minus_two(bench) -> None:
+    v = by_name(bench, 20)["reversed"]
+    known = bench.truth(v)
+    dense = known.matrix.toarray()
+    assert dense.shape == (20, 20) and known.has_match().all() and not known.sequence
+    np.testing.assert_array_equal(np.flatnonzero(dense[0]), [17, 18, 19])  # frame 0 is node 19
+    np.testing.assert_array_equal(np.flatnonzero(dense[10]), [7, 8, 9, 10, 11])
+
+
+def test_a_run_scores_with_wilocs_measures(bench) -> None:
+    rng = np.random.default_rng(0)
+    n = 60
+    places = rng.integers(0, 256, (n, 1152), dtype=np.uint8)
+    query = np.clip(places.astype(int) + rng.integers(-10, 11, places.shape), 0, 255).astype(np.uint8)
+    sad = get_descriptor("sad")
+    trav = bench.Traversal(name="synthetic", map_folder=Path("map"), query_folder=Path("query"), descriptor="sad",
+                           map_data=places, query_data=query, metric=sad.metric, scale=sad.scale,
+                           natural_max=sad.natural_max)
+    variant = by_name(bench, n)["reversed"]
+    row = bench.run_variant(trav, variant, "threshold")
+    assert row["r1"] == 1.0 and row["frames"] == n and row["map_nodes"] == n
+    assert {"ap", "ece", "precision@0.9", "accepted@0.9", "new_place", "seconds"} <= set(row)
+
+
+@pytest.mark.realdata
+def test_a_thinned_map_decides_as_localize_on_a_folder_of_those_frames(bench, data_root: Path, cache_dir: Path,
+                                                                      tmp_path: Path) -> None:
+    from wiloc import api
+
+    walk = data_root / "gardens-point-walking"
+    trav = bench.load_traversal("day_left/sad", data_root)
+    variant = by_name(bench, trav.length)["pace-1/2"]
+    thinned = tmp_path / "day_right"
+    thinned.mkdir()
+    frames = sorted(p.name for p in (walk / "day_right").glob("*.jpg"))
+    for i in variant.map_frames:
+        shutil.copyfile(walk / "day_right" / frames[i], thinned / frames[i])
+    run = api.localize(walk / "day_left", reference=thinned, descriptor="sad", method="catgraph")
+    ours = bench.decide(trav, variant, "catgraph")
+    np.testing.assert_array_equal(ours.match, run.decisions.match)
+    np.testing.assert_array_equal(ours.confidence, run.decisions.confidence)
