@@ -34,6 +34,8 @@ from numba.extending import intrinsic
 
 # The one list of metric names lives in the registry; re-exported here.
 from wiloc.descriptors.registry import METRICS
+from wiloc.errors import WilocError
+from wiloc.jitcache import SIMD_VARIABLE
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when numba first starts OpenMP (see above)
 
@@ -53,13 +55,28 @@ def _cpu_features() -> frozenset[str]:
     return frozenset(f[1:] for f in text.split(",") if f.startswith("+"))
 
 
+#: The kernels' instruction sets, widest first, with the CPU feature each needs.
+SIMD_PATHS = {"avx512": "avx512bw", "avx2": "avx2", "sse2": "sse2", "generic": ""}
+
+
 def simd_path() -> str:
-    """Name of the instruction set the kernels use on this CPU: avx512, avx2, sse2 or generic."""
+    """Name of the instruction set the kernels use: avx512, avx2, sse2 or generic.
+
+    The widest the CPU has, or the one ``$WILOC_SIMD`` names if that is narrower (never a wider
+    one: the CPU could not run it).
+    """
     features = _cpu_features()
-    for name, feature in (("avx512", "avx512bw"), ("avx2", "avx2"), ("sse2", "sse2")):
-        if feature in features:
-            return name
-    return "generic"
+    widest = next(name for name, feature in SIMD_PATHS.items() if not feature or feature in features)
+    forced = os.environ.get(SIMD_VARIABLE, "")
+    if not forced:
+        return widest
+    if forced not in SIMD_PATHS:
+        raise WilocError(SIMD_VARIABLE, f"unknown instruction set {forced!r}; expected one of {', '.join(SIMD_PATHS)}")
+    order = list(SIMD_PATHS)
+    return order[max(order.index(forced), order.index(widest))]
+
+
+simd_path()  # a bad $WILOC_SIMD is reported here, in one line, rather than from inside numba's compiler
 
 
 _VECTOR_BYTES = {"avx512": 64, "avx2": 32, "sse2": 16, "generic": 16}

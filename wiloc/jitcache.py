@@ -1,0 +1,42 @@
+"""Where numba keeps wiloc's compiled kernels: under wiloc's cache folder, never in the package.
+
+The kernels are compiled with ``cache=True``. By default numba writes them into ``__pycache__``
+beside the module's source, i.e. into the installed package; pip does not know those files, so
+uninstalling or re-installing (``pip install -e .`` over ``pip install .``) leaves a
+``site-packages/wiloc`` folder behind that then shadows the real package as an empty namespace
+package. Importing wiloc therefore points ``NUMBA_CACHE_DIR`` at ``<cache root>/numba`` (the cache
+root is ``$WILOC_CACHE``, else the per-user cache folder) unless the variable is already set.
+numba reads the variable when it compiles or loads a kernel, and wiloc imports numba only later,
+with the first kernel it needs. The variable is set in ``os.environ``, so subprocesses (Dask
+workers, ``--jobs``) share the same compiled kernels.
+
+numba keys its cache by CPU name and features, but not by the instruction set ``$WILOC_SIMD``
+makes wiloc's kernels use (wiloc.distances.simd_path): kernels compiled under it go into
+``<cache root>/numba-<value>`` instead, so that no run loads another path's code.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import platformdirs
+
+#: The environment variable numba reads for its cache folder.
+NUMBA_CACHE_VARIABLE = "NUMBA_CACHE_DIR"
+#: Environment variable naming a narrower instruction set for wiloc's kernels than the CPU's
+#: widest (wiloc.distances.simd_path, docs/kernels.md).
+SIMD_VARIABLE = "WILOC_SIMD"
+
+
+def cache_root() -> Path:
+    """wiloc's cache folder: ``$WILOC_CACHE``, else the per-user cache folder."""
+    env = os.environ.get("WILOC_CACHE")
+    return Path(env) if env else Path(platformdirs.user_cache_dir("wiloc"))
+
+
+def place_numba_cache() -> Path:
+    """Point numba's cache at ``<cache root>/numba`` (``numba-<$WILOC_SIMD>`` when that is set)
+    unless ``NUMBA_CACHE_DIR`` is set; return the folder."""
+    forced = os.environ.get(SIMD_VARIABLE, "")
+    folder = cache_root() / (f"numba-{forced}" if forced else "numba")
+    return Path(os.environ.setdefault(NUMBA_CACHE_VARIABLE, str(folder)))
