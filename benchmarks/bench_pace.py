@@ -31,7 +31,7 @@ with the default recent window and no odometry. The measures are wiloc's own (``
 curve's average precision), ECE of the confidence, the precision among frames with confidence
 >= 0.9 and their count, and the mean P(new place) of methods that give it.
 
-From an experiment script (``benchmarks`` on ``sys.path``)::
+From an experiment script (with ``benchmarks/`` on ``sys.path``, e.g. ``sys.path.insert(0, "benchmarks")``)::
 
     from bench_pace import load_traversal, variants, run_variant
     trav = load_traversal("day_left/sad")            # data_root=None, frames=None, cache=None
@@ -71,6 +71,7 @@ from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.differences import ComputedDifferences, candidate_blocks
 from wiloc.distances import DifferencesTo, consecutive
+from wiloc.errors import WilocError
 from wiloc.groundtruth import Truth
 from wiloc.methods.base import Decisions, MapContext
 from wiloc.methods.registry import METHODS, make_method
@@ -391,9 +392,20 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     if bad:
         parser.error(f"unknown variant(s) {', '.join(bad)} (choose from {', '.join(VARIANTS)})")
     params = parse_params(args.param, methods)
+    for method in [m for m in params if m not in methods]:
+        err.print(f"note: --param for method '{method}', which is not run: ignored")
+        del params[method]
     for method in methods:
-        if any(f == "seed" for f in METHODS[method].Params.__dataclass_fields__):
+        fields = METHODS[method].Params.__dataclass_fields__
+        for key, value in params[method].items():  # one number given for a list of them: a list of one
+            if key in fields and isinstance(fields[key].default, tuple) and isinstance(value, (int, float)):
+                params[method][key] = (float(value),)
+        if "seed" in fields:
             params[method].setdefault("seed", args.seed)
+        try:
+            make_method(method, params[method])  # a bad name or value stops here, before any run
+        except (WilocError, TypeError, ValueError) as exc:
+            parser.error(f"--param {method}: {exc}")
 
     rows: list[dict[str, Any]] = []
     started = time.perf_counter()

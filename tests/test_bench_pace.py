@@ -3,6 +3,7 @@ on re-sampled descriptor rows decides as ``wiloc localize`` does on folders hold
 from __future__ import annotations
 
 import importlib.util
+import json
 import shutil
 import sys
 from pathlib import Path
@@ -135,3 +136,19 @@ def test_a_thinned_map_decides_as_localize_on_a_folder_of_those_frames(bench, da
     ours = bench.decide(trav, variant, "catgraph")
     np.testing.assert_array_equal(ours.match, run.decisions.match)
     np.testing.assert_array_equal(ours.confidence, run.decisions.confidence)
+
+
+@pytest.mark.realdata
+def test_the_command_runs_the_chosen_runs_with_method_parameters(bench, data_root: Path, cache_dir: Path,
+                                                                 tmp_path: Path, capsys) -> None:
+    out = tmp_path / "rows.json"
+    rows = bench.main([str(data_root), "--traversals", "day_left/sad", "--variants", "same,pace-2",
+                       "--methods", "catgraph,no-such-method", "--param", "catgraph.particles=500",
+                       "--param", "catgraph.sequence_speeds=1", "--json", str(out)])
+    assert [(r["variant"], r["method"]) for r in rows] == [("same", "catgraph"), ("pace-2", "catgraph")]
+    assert rows[0]["params"] == {"particles": 500, "sequence_speeds": (1.0,), "seed": 0}
+    assert rows[0]["r1"] > 0.9 and rows[1]["frames"] == 100
+    assert "no-such-method" in capsys.readouterr().err
+    assert len(json.loads(out.read_text())) == 2
+    with pytest.raises(SystemExit):
+        bench.main([str(data_root), "--methods", "catgraph", "--param", "catgraph.particles=0"])
