@@ -42,9 +42,9 @@ From an experiment script (with ``benchmarks/`` on ``sys.path``, e.g. ``sys.path
 
 ``run_variant(traversal, variant, method="catgraph", params=None, progress=None) -> dict`` returns
 the measures of one run as plain floats and ints (keys: traversal, variant, method, params,
-frames, map_nodes, r1, ap, ece, precision@0.9, accepted@0.9, new_place, seconds);
-``decide(traversal, variant, method, params)`` the run's ``Decisions`` and ``truth(variant, n_map)``
-its ground truth as a ``wiloc.groundtruth.Truth``. ``variants(n)`` builds the variants of a route
+frames, map_nodes, decided, r1, ap, ece, precision@0.9, accepted@0.9, new_place, seconds);
+``decide(traversal, variant, method, params)`` the run's ``Decisions``, ``score(decisions, variant)``
+its measures and ``truth(variant, tolerance=2)`` its ground truth as a ``wiloc.groundtruth.Truth``. ``variants(n)`` builds the variants of a route
 of ``n`` frames (``names`` picks some); ``TRAVERSALS`` lists the traversals by name.
 """
 from __future__ import annotations
