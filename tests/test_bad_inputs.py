@@ -406,3 +406,53 @@ def test_usage_errors_are_one_line_from_the_console_script_too(args: list[str], 
                             timeout=120)
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr.splitlines() == [result.stderr.strip()] and result.stderr.startswith(message)
+
+
+# ------------------------------------------------------------- frames left out, each with a line
+
+BAD_NAME = os.fsdecode(b"Image\xff\xfe050.png")  # not UTF-8: held by Python as lone surrogates
+
+
+def _unusable_frames(folder: Path) -> list[str]:
+    """A name that is not UTF-8, a FIFO and a dangling symbolic link, each named as an image;
+    the lines that say they were left out."""
+    (folder / BAD_NAME).write_bytes((folder / "img0.png").read_bytes())
+    os.mkfifo(folder / "Image051.png")
+    (folder / "Image052.png").symlink_to(folder / "nowhere.png")
+    return [f"skipped {folder / 'Image051.png'}: not a regular file",
+            f"skipped {folder / 'Image052.png'}: broken symbolic link",
+            f"skipped {folder}/Image\\xff\\xfe050.png: file name is not valid UTF-8; rename the file to use it"]
+
+
+def test_image_names_that_cannot_be_frames_are_left_out_with_a_line(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    lines = _unusable_frames(ref)
+    result = runner.invoke(app, ["describe", str(ref), "--json"])
+    assert result.exit_code == 0, result.output
+    [row] = json.loads(result.stdout)
+    assert (row["frames"], row["failed"], row["shape"]) == (33, 3, "30x1152")
+    assert result.stderr.strip().splitlines() == lines
+    _unusable_frames(query)
+    out = tmp_path / "run.csv"
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert sum(line.startswith("skipped ") for line in result.stderr.splitlines()) == 6
+    assert runner.invoke(app, ["evaluate", str(out)]).exit_code == 0  # the results file reads back
+
+
+def test_follow_leaves_out_an_empty_file_and_a_fifo_with_a_line(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    live = tmp_path / "live"
+    live.mkdir()
+    (live / "img0.png").write_bytes((query / "img0.png").read_bytes())
+    (live / "Image091.jpg").write_bytes(b"")
+    os.mkfifo(live / "Image092.png")
+    (live / BAD_NAME).write_bytes((query / "img1.png").read_bytes())
+    out = tmp_path / "follow.csv"
+    result = runner.invoke(app, ["localize", str(live), "--map", str(ref), "--method", "threshold", "--follow",
+                                 "--idle", "0.5", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert sorted(result.stderr.strip().splitlines()) == [
+        f"skipped {live / 'Image091.jpg'}: empty file (0 bytes)", f"skipped {live / 'Image092.png'}: not a regular file",
+        f"skipped {live}/Image\\xff\\xfe050.png: file name is not valid UTF-8; rename the file to use it"]
+    assert runner.invoke(app, ["evaluate", str(out)]).exit_code == 0

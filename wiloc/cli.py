@@ -450,7 +450,7 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
                     print(f"{event.frame}\t{event.match_name or '-'}\t{cell(event.confidence)}\t"
                           f"{cell(event.new_place)}\t{event.stage}", flush=True)
             else:
-                notes.add("skipped", f"{event.path}: {event.reason}")
+                notes.add("skipped", str(event))
                 if as_json:  # the line on stderr, as every --json carries it
                     print(json.dumps({"warnings": notes[-1:]}), flush=True)
 

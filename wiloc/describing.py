@@ -268,7 +268,9 @@ class _Settling:
         if self.lock is not None:
             self.lock.close()
         ignored = [p.name for p in self.traversal.ignored] if self.traversal else []
-        self.report = _report(self.stored, entry, self.computed, since, ignored=ignored, repairs=self.repairs)
+        unusable = self.traversal.unusable if self.traversal else ()
+        self.report = _report(self.stored, entry, self.computed, since, ignored=ignored, unusable=unusable,
+                              repairs=self.repairs)
 
 
 def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampling | None = None,
@@ -398,14 +400,17 @@ def _journal(cache: Cache, runs: Sequence[_Settling], results: Iterator[tuple[in
 
 
 def _report(stored: StoredEntry, entry: Entry, computed: int, started: float, ignored: Sequence[str] = (),
-            repairs: Sequence[str] = (), video: bool = False) -> DescribeReport:
-    """The report of a run that settled every frame of `stored` and wrote (or reused) `entry`."""
+            unusable: Sequence[tuple[str, str]] = (), repairs: Sequence[str] = (),
+            video: bool = False) -> DescribeReport:
+    """The report of a run that settled every frame of `stored` and wrote (or reused) `entry`;
+    `unusable` image names that could not be frames (``Traversal.unusable``) count as failed."""
     records = stored.records.values()
-    failed = sorted(((r.name, r.reason) for r in records if r.row is None), key=lambda f: natural_key(f[0]))
+    bad = [(r.name, r.reason) for r in records if r.row is None]
+    failed = sorted([*bad, *unusable], key=lambda f: natural_key(f[0]))
     seconds = time.perf_counter() - started
     return DescribeReport(
         folder=stored.header.folder, descriptor=stored.header.descriptor, shape=entry.data.shape,
-        frames=len(records), computed=computed, reused=len(records) - computed - len(failed),
+        frames=len(records) + len(unusable), computed=computed, reused=len(records) - computed - len(bad),
         failed=failed, ignored=list(ignored),
         sizes=sorted({(r.width, r.height) for r in records if r.row is not None}),
         seconds=seconds, images_per_second=computed / seconds, entry=entry, repairs=list(repairs), video=video,

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from wiloc.errors import FrameError, WilocError
-from wiloc.frames import IMAGE_SUFFIXES, natural_key
+from wiloc.frames import IMAGE_SUFFIXES, natural_key, shown_name, unusable_reason
 from wiloc.localizer import Localizer
 from wiloc.methods.base import Decision
 
@@ -29,6 +29,10 @@ class Skipped:
     path: Path
     reason: str
 
+    def __str__(self) -> str:
+        """``PATH: REASON``, the path printable whatever bytes its name holds."""
+        return f"{shown_name(str(self.path))}: {self.reason}"
+
 
 class FolderWatch:
     """The complete image files of a folder not handed out yet, polled on demand."""
@@ -42,7 +46,8 @@ class FolderWatch:
 
     def _images(self) -> list[Path]:
         paths = [p for p in self.folder.iterdir()
-                 if not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES and p.name not in self._done]
+                 if not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES and p.name not in self._done
+                 and not p.is_dir()]
         return sorted(paths, key=lambda p: natural_key(p.name))
 
     def poll(self) -> list[Path]:
@@ -51,11 +56,11 @@ class FolderWatch:
         ready, seen = [], {}
         for path in self._images():
             try:
-                stat = path.stat()
+                stat = path.stat() if not path.is_symlink() or path.exists() else path.lstat()
             except FileNotFoundError:  # renamed or removed meanwhile
                 continue
             seen[path.name] = (stat.st_size, stat.st_mtime_ns)
-            if stat.st_size > 0 and self._seen.get(path.name) == seen[path.name]:
+            if self._seen.get(path.name) == seen[path.name]:
                 ready.append(path)
         self._seen = seen
         self._done.update(p.name for p in ready)
@@ -71,13 +76,18 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
            clock: Callable[[], float] = time.monotonic,
            sleep: Callable[[float], None] = time.sleep) -> Iterator[Decision | Skipped]:
     """Decide every frame the watch hands out, as it arrives, until ``idle`` seconds pass without
-    one (None: until interrupted). A stable file that cannot be decoded is retried for
-    :data:`SETTLE_SECONDS` (the run does not end meanwhile), then left out."""
+    one (None: until interrupted). A stable file that cannot be decoded (an empty one too) is
+    retried for :data:`SETTLE_SECONDS` (the run does not end meanwhile), then left out; one that
+    cannot be a frame at all (:func:`~wiloc.frames.unusable_reason`) is left out at once."""
     last = clock()
     failing: dict[str, float] = {}  # name -> when it first failed to decode
     while True:
         arrived = watch.poll()
         for path in arrived:
+            if (reason := unusable_reason(path)) is not None:
+                last = clock()
+                yield Skipped(path, reason)
+                continue
             try:
                 decision = localizer.observe(path)
             except FrameError as exc:

@@ -70,6 +70,7 @@ class Traversal:
     folder: Path
     frame_names: tuple[str, ...]
     ignored: tuple[Path, ...]
+    unusable: tuple[tuple[str, str], ...] = ()  # image names left out: (name as shown, why)
 
     @cached_property
     def frames(self) -> tuple[Path, ...]:
@@ -82,8 +83,28 @@ class Traversal:
         return list(self.frame_names)
 
 
+def shown_name(name: str) -> str:
+    """A file name as text that prints and encodes anywhere: bytes that are not UTF-8 (held by
+    Python as lone surrogates) written as ``\\xff``."""
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+def unusable_reason(item: os.DirEntry[str] | Path) -> str | None:
+    """Why a file named as an image cannot be a frame, or None when it can: a name that is not
+    UTF-8 (results files and the cache hold names as UTF-8 text), a broken symbolic link, or not
+    a regular file (a FIFO would block the reader)."""
+    if shown_name(item.name) != item.name:
+        return "file name is not valid UTF-8; rename the file to use it"
+    if item.is_file():
+        return None
+    if item.is_symlink() and not os.path.exists(item):
+        return "broken symbolic link"
+    return "not a regular file"
+
+
 def list_traversal(folder: Path) -> Traversal:
-    """List a traversal folder: image files in natural order; hidden and non-image files ignored."""
+    """List a traversal folder: image files in natural order; hidden and non-image files and
+    subfolders ignored, other image names that cannot be frames (:func:`unusable_reason`) listed with the reason."""
     folder = Path(folder)
     if not folder.exists():
         raise WilocError(folder, "folder does not exist")
@@ -91,18 +112,21 @@ def list_traversal(folder: Path) -> Traversal:
         raise WilocError(folder, "not a folder")
     frames: list[str] = []
     ignored: list[str] = []
+    unusable: list[tuple[str, str]] = []
     with os.scandir(folder) as entries:  # the entries know their type: no stat per file
         for item in entries:
-            is_frame = (
-                not item.name.startswith(".")
-                and os.path.splitext(item.name)[1].lower() in IMAGE_SUFFIXES
-                and item.is_file()
-            )
-            (frames if is_frame else ignored).append(item.name)
+            if item.name.startswith(".") or os.path.splitext(item.name)[1].lower() not in IMAGE_SUFFIXES \
+                    or item.is_dir():
+                ignored.append(shown_name(item.name))
+            elif (reason := unusable_reason(item)) is not None:
+                unusable.append((shown_name(item.name), reason))
+            else:
+                frames.append(item.name)
     if not frames:
         raise WilocError(folder, f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))})")
     return Traversal(folder=folder, frame_names=tuple(natural_sorted(frames)),
-                     ignored=tuple(folder / name for name in natural_sorted(ignored)))
+                     ignored=tuple(folder / name for name in natural_sorted(ignored)),
+                     unusable=tuple(sorted(unusable, key=lambda u: natural_key(u[0]))))
 
 
 @dataclass(frozen=True)
