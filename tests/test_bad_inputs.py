@@ -10,14 +10,17 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import struct
 import subprocess
 import sys
 import time
+import warnings
 import zlib
 from pathlib import Path
 
+import cv2
 import h5py
 import numpy as np
 import pytest
@@ -25,7 +28,11 @@ from test_cli import _places, _write_traversal
 from typer.testing import CliRunner
 
 from wiloc import cache as cache_module
+from wiloc.cache import Cache
 from wiloc.cli import app
+from wiloc.distances import DifferencesTo
+from wiloc.errors import ParameterError, WilocError
+from wiloc.localizer import Localizer
 
 runner = CliRunner()
 
@@ -456,3 +463,65 @@ def test_follow_leaves_out_an_empty_file_and_a_fifo_with_a_line(route: tuple[Pat
         f"skipped {live / 'Image091.jpg'}: empty file (0 bytes)", f"skipped {live / 'Image092.png'}: not a regular file",
         f"skipped {live}/Image\\xff\\xfe050.png: file name is not valid UTF-8; rename the file to use it"]
     assert runner.invoke(app, ["evaluate", str(out)]).exit_code == 0
+
+
+# ------------------------------------------------------------------ the Python API: wiloc errors
+
+@pytest.fixture
+def localizers(route: tuple[Path, Path], cache_dir: Path) -> dict[str, Localizer]:
+    ref, _ = route
+    return {descriptor: Localizer(ref, descriptor=descriptor, method="threshold", cache=Cache(cache_dir), jobs=1)
+            for descriptor in ("sad", "gist")}
+
+
+BAD_FRAMES = {
+    "empty image": ("sad", np.zeros((0, 0), np.uint8), "observe: an empty image (0 x 0 pixels)"),
+    "bool image": ("sad", np.zeros((8, 8), bool), "an image of bool values; give 8- or 16-bit integers or floats in [0, 1]"),
+    "float image out of range": ("sad", np.full((40, 60, 3), 2.0), "a float64 image must hold values in [0, 1]"),
+    "two channels": ("gist", np.zeros((8, 8, 2), np.uint8), "got shape (8, 8, 2)"),
+    "float row to sad": ("sad", np.full(1152, 0.5, np.float32), "a descriptor of float32 values; this map's rows are uint8"),
+    "nan row": ("gist", np.full(512, np.nan, np.float32), "the descriptor holds NaN or infinite values"),
+    "inf row": ("gist", np.full(512, np.inf, np.float32), "the descriptor holds NaN or infinite values"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_FRAMES)
+def test_observe_refuses_what_it_cannot_describe_with_a_wiloc_error(case: str, localizers: dict[str, Localizer]) -> None:
+    descriptor, frame, message = BAD_FRAMES[case]
+    loc = localizers[descriptor]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no numpy warning leaks either
+        with pytest.raises(WilocError, match=re.escape(message)):
+            loc.observe(frame)
+    assert loc.frames == 0
+
+
+def test_observe_takes_float_images_in_0_1_as_their_8_bit_values(localizers: dict[str, Localizer],
+                                                                 route: tuple[Path, Path]) -> None:
+    _, query = route
+    image = cv2.cvtColor(cv2.imread(str(query / "img4.png"), cv2.IMREAD_GRAYSCALE), cv2.COLOR_GRAY2BGR)
+    for loc in localizers.values():
+        as_bytes = loc.describe(image)
+        assert np.array_equal(loc.describe(image / 255.0), as_bytes)
+        assert np.array_equal(loc.describe((image.astype(np.uint16) * 257)), as_bytes)  # 16-bit, as a 16-bit file
+
+
+def test_a_float_row_against_uint8_rows_is_a_wiloc_error() -> None:
+    rows = np.zeros((3, 1152), np.uint8)
+    with pytest.raises(ParameterError, match="a: rows of float32 cannot be compared with uint8 reference rows"):
+        DifferencesTo(rows, "l1")(np.zeros((1, 1152), np.float32))
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("descriptor", ["sad", "gist", "brisk-gist"])
+def test_a_file_and_the_array_read_gives_are_the_map_s_descriptor(descriptor: str, data_root: Path,
+                                                                  tmp_path: Path) -> None:
+    """``observe(path)``, ``observe(loc.read(path))`` and the cache describe every Gardens Point
+    day_left frame alike (so they decide alike)."""
+    folder = data_root / "gardens-point-walking" / "day_left"
+    loc = Localizer(folder, descriptor=descriptor, method="threshold", cache=Cache(tmp_path / "cache"))
+    paths = [folder / name for name in loc.map_names]
+    assert len(paths) == 200
+    for path, cached in zip(paths, loc.describer.entry(folder).data):
+        assert np.array_equal(loc.describe(path), cached), path.name
+        assert np.array_equal(loc.describe(loc.read(path)), cached), path.name

@@ -34,7 +34,7 @@ from numba.extending import intrinsic
 
 # The one list of metric names lives in the registry; re-exported here.
 from wiloc.descriptors.registry import METRICS
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.jitcache import SIMD_VARIABLE
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when numba first starts OpenMP (see above)
@@ -354,7 +354,7 @@ class DifferencesTo:
         """The len(a) x len(b) float32 differences (into ``out`` when given: C-contiguous float32)."""
         a, _, _ = _check_pair(a, self._probe, self.metric)
         if self._dtype == np.uint8 and a.dtype != np.uint8:
-            raise ValueError(f"query rows of {a.dtype} cannot be compared with uint8 reference rows")
+            raise ParameterError("a", f"rows of {a.dtype} cannot be compared with uint8 reference rows; give uint8 rows")
         shape = (a.shape[0], self.shape[0])
         if out is None:
             out = np.empty(shape, dtype=np.float32)

@@ -195,7 +195,7 @@ def _reduction(full: tuple[int, int], min_size: tuple[int, int]) -> int:
     return 1
 
 
-def _to_uint8(image: NDArray, path: Path) -> NDArray[np.uint8]:
+def to_uint8(image: NDArray, path: Path | str) -> NDArray[np.uint8]:
     """8-bit single-channel image: 16-bit samples scaled by 255/65535, not truncated."""
     if image.dtype == np.uint8:
         return image
@@ -253,4 +253,4 @@ def read_gray(path: Path, min_size: tuple[int, int] | None = None) -> NDArray[np
         raise FrameError(path, "cannot decode image data")
     if image.ndim != 2:
         raise FrameError(path, f"unexpected image layout {image.shape}")
-    return _to_uint8(image, path)
+    return to_uint8(image, path)

@@ -27,7 +27,7 @@ from wiloc.differences import ComputedDifferences
 from wiloc.distances import DifferencesTo, consecutive, pairwise
 from wiloc.errors import WilocError
 from wiloc.fabmap.evidence import FabMapEvidence
-from wiloc.frames import read_gray
+from wiloc.frames import read_gray, to_uint8
 from wiloc.methods.base import Decision, MapContext, Method, TrainingRows
 from wiloc.methods.registry import make_method
 from wiloc.training import Training, training_rows
@@ -138,26 +138,43 @@ class Localizer:
         """The candidate frames' names: the map's, or in sequence mode the frames observed."""
         return self.names if self._map is None else self._map.names
 
+    def read(self, path: str | Path) -> NDArray[np.uint8]:
+        """The 8-bit gray image that an image file's descriptor is computed from, in the map's
+        cache as in :meth:`observe`: a JPEG decoded in reduced size where the descriptor allows
+        it, gray from the decoder. ``observe(loc.read(path))`` decides as ``observe(path)``."""
+        if self._spec is None:
+            raise WilocError(path, "a map of imported descriptors takes descriptors, not images")
+        return read_gray(Path(path), self._spec.min_size)
+
     def describe(self, frame: NDArray | str | Path) -> NDArray:
-        """The descriptor of an image file, a decoded image (gray, or BGR as OpenCV decodes) or a
-        descriptor given as it is."""
+        """The descriptor of an image file, a decoded image (:func:`gray_image`) or a descriptor
+        given as it is (:meth:`_descriptor`)."""
         if isinstance(frame, (str, Path)):
-            if self._spec is None:
-                raise WilocError(frame, "a map of imported descriptors takes descriptors, not images")
-            return np.asarray(self._spec.compute(read_gray(Path(frame), self._spec.min_size)), dtype=self._spec.dtype)
+            frame = self.read(frame)
         array = np.asarray(frame)
-        length = self._map.data.shape[1] if self._map is not None else self._spec.length
         if array.ndim == 1:
-            if array.size != length:
-                raise WilocError("observe", f"a descriptor of {array.size} values; this map's have {length}")
-            return array
+            return self._descriptor(array)
         if self._spec is None:
             raise WilocError("observe", "a map of imported descriptors takes descriptors, not images")
-        if array.ndim == 3 and array.shape[2] in (3, 4):
-            array = cv2.cvtColor(array, cv2.COLOR_BGR2GRAY if array.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-        if array.ndim != 2 or array.dtype != np.uint8:
-            raise WilocError("observe", f"an image must be 8-bit gray or BGR, got shape {array.shape} of {array.dtype}")
-        return np.asarray(self._spec.compute(array), dtype=self._spec.dtype)
+        return np.asarray(self._spec.compute(gray_image(array)), dtype=self._spec.dtype)
+
+    def _descriptor(self, row: NDArray) -> NDArray:
+        """A descriptor row given to :meth:`observe`, in the map's dtype: as long as the map's
+        rows, finite, and whole numbers in range for a map of integer rows (``sad``, ``brisk-gist``)."""
+        data = self._map.data if self._map is not None else self._seen
+        length, dtype = data.shape[1], data.dtype
+        if row.size != length:
+            raise WilocError("observe", f"a descriptor of {row.size} values; this map's have {length}")
+        if row.dtype.kind not in "biuf":
+            raise WilocError("observe", f"a descriptor of {row.dtype} values; give numbers")
+        if row.dtype.kind == "f" and not np.all(np.isfinite(row)):
+            raise WilocError("observe", "the descriptor holds NaN or infinite values")
+        if dtype.kind in "iu":
+            info = np.iinfo(dtype)
+            if row.dtype.kind == "f" or (row.size and (row.min() < info.min or row.max() > info.max)):
+                raise WilocError("observe", f"a descriptor of {row.dtype} values; this map's rows are {dtype} "
+                                            f"(integers in [{info.min}, {info.max}])")
+        return row.astype(dtype, copy=False)
 
     def row(self, descriptor: NDArray) -> NDArray[np.float64]:
         """The next frame's row: its differences to every map frame, or in sequence mode to every
@@ -278,6 +295,28 @@ class Localizer:
     def __repr__(self) -> str:
         where = "sequence mode" if self._map is None else f"map={self._map.folder!r}"
         return f"Localizer({where}, descriptor={self._describer.descriptor!r}, method={self.method!r}, frames={self.frames})"
+
+
+def gray_image(array: NDArray) -> NDArray[np.uint8]:
+    """An image array as the 8-bit gray image descriptors are computed from: gray (H x W, or
+    H x W x 1) or BGR/BGRA as OpenCV decodes, of 8- or 16-bit integers (16-bit scaled by
+    255/65535, as a 16-bit file is) or of floats in [0, 1] (scaled by 255 and rounded). Anything
+    else is a WilocError saying what was given."""
+    if array.ndim == 3 and array.shape[2] == 1:
+        array = array[:, :, 0]
+    if not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (3, 4))):
+        raise WilocError("observe", f"an image must be gray (H x W) or BGR/BGRA (H x W x 3 or 4), got shape {array.shape}")
+    if array.shape[0] == 0 or array.shape[1] == 0:
+        raise WilocError("observe", f"an empty image ({array.shape[0]} x {array.shape[1]} pixels)")
+    if array.dtype.kind == "f":
+        if not np.all((array >= 0) & (array <= 1)):
+            raise WilocError("observe", f"a {array.dtype} image must hold values in [0, 1] (NaN or values outside found)")
+        array = np.rint(array * 255).astype(np.uint8)
+    elif array.dtype not in (np.uint8, np.uint16):
+        raise WilocError("observe", f"an image of {array.dtype} values; give 8- or 16-bit integers or floats in [0, 1]")
+    if array.ndim == 3:
+        array = cv2.cvtColor(array, cv2.COLOR_BGR2GRAY if array.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    return to_uint8(array, "observe")
 
 
 ARRAY = "__array__"  # marks, in a saved state's JSON, a value stored as an array of the .npz
