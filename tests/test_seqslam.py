@@ -11,7 +11,7 @@ import pytest
 
 from wiloc.errors import ParameterError, UsageError, WilocError
 from wiloc.methods.base import ArrayRows, Decisions, MapContext, run_on_rows
-from wiloc.methods.seqslam import SeqSLAM, enhance, lowest_enhanced, trajectory_offsets
+from wiloc.methods.seqslam import SeqSLAM, _add_shifted, enhance, lowest_enhanced, trajectory_offsets
 
 N_MAP = 120
 
@@ -59,6 +59,14 @@ def test_offsets_take_the_nearest_frame_and_count_equal_trajectories_once() -> N
     offsets = trajectory_offsets(np.array([0.8, 0.9, 1.0, 1.1, 1.2]), 3)
     np.testing.assert_array_equal(offsets, [[0, 1, 2]])  # 0.8 x 2 = 1.6 and 1.2 x 2 = 2.4: frame 2 for all
     np.testing.assert_array_equal(trajectory_offsets(np.array([-1.0, 2.0]), 3), [[0, -1, -2], [0, 2, 4]])
+
+
+@pytest.mark.parametrize("shift, expected", [(0, [1, 2, 3, 4]), (2, [1, 1, 1, 2]), (-1, [2, 3, 4, 4]),
+                                             (10, [1, 1, 1, 1]), (-10, [4, 4, 4, 4])])
+def test_a_trajectory_leaving_the_map_stays_at_its_end(shift: int, expected: list[float]) -> None:
+    out = np.full(4, 10.0)
+    _add_shifted(out, np.array([1.0, 2.0, 3.0, 4.0]), shift)
+    np.testing.assert_array_equal(out, 10.0 + np.array(expected))
 
 
 def test_follows_a_query_at_the_maps_pace_where_single_frames_fail() -> None:
