@@ -525,3 +525,42 @@ def test_a_file_and_the_array_read_gives_are_the_map_s_descriptor(descriptor: st
     for path, cached in zip(paths, loc.describer.entry(folder).data):
         assert np.array_equal(loc.describe(path), cached), path.name
         assert np.array_equal(loc.describe(loc.read(path)), cached), path.name
+
+
+# ------------------------------------------------------------ results files edited out of range
+
+def _edited(results: Path, column: str, value: str, out: Path) -> Path:
+    """``results`` with the first row's ``column`` cell replaced by ``value``."""
+    lines = results.read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("frame,"))
+    row = lines[first + 1].split(",")
+    row[lines[first].split(",").index(column)] = value
+    out.write_text("\n".join(lines[:first + 1] + [",".join(row)] + lines[first + 2:]) + "\n")
+    return out
+
+
+@pytest.fixture
+def online_results(route: tuple[Path, Path], tmp_path: Path) -> Path:
+    ref, query = route
+    out = tmp_path / "online.csv"
+    assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--out", str(out), "--jobs", "1"]).exit_code == 0
+    return out
+
+
+@pytest.mark.parametrize("column, value, message", [
+    ("confidence", "7.5", "confidence 7.5 is not in [0, 1]"), ("confidence", "-3", "confidence -3 is not in [0, 1]"),
+    ("confidence", "inf", "confidence inf is not in [0, 1]"), ("new_place", "1.5", "new_place 1.5 is not in [0, 1]"),
+    ("new_place", "-inf", "new_place -inf is not in [0, 1]")])
+def test_probabilities_outside_0_1_are_refused(column: str, value: str, message: str, online_results: Path,
+                                               tmp_path: Path) -> None:
+    edited = _edited(online_results, column, value, tmp_path / "edited.csv")
+    line = next(i for i, text in enumerate(edited.read_text().splitlines()) if text.startswith("frame,")) + 2
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(edited)]), 1, f"{edited}: line {line}: {message}")
+
+
+def test_threshold_confidence_may_be_below_0_but_not_above_1(results: Path, tmp_path: Path) -> None:
+    assert runner.invoke(app, ["evaluate", str(_edited(results, "confidence", "-3", tmp_path / "low.csv"))]).exit_code == 0
+    for value in ("7.5", "-inf"):
+        edited = _edited(results, "confidence", value, tmp_path / "edited.csv")
+        ends_in_one_error(runner.invoke(app, ["evaluate", str(edited)]), 1,
+                          f"confidence {value} is not a finite number at most 1 (as threshold writes it)")

@@ -227,12 +227,31 @@ def read_results(path: Path) -> Results:
             i = int(np.flatnonzero(bad.to_numpy())[0])
             raise WilocError(path, f"line {first_line + i}: {column} '{frames[column].iloc[i]}' is not a number")
         frames[column] = numbers.astype(np.float64)
+    _check_probabilities(path, frames, str(meta.get("method", "")), first_line)
     if meta.get("model"):
         try:
             HistogramModel.from_dict(meta["model"])
         except (KeyError, TypeError, ValueError) as exc:
             raise WilocError(path, f"header 'model' is not a histogram model ({exc})") from None
     return Results(meta=meta, frames=frames, reference_frames=reference)
+
+
+def _check_probabilities(path: Path, frames: pd.DataFrame, method: str, first_line: int) -> None:
+    """A WilocError naming the file and line of a confidence or P(new place) that no run writes:
+    outside [0, 1], or for a method whose confidence goes below 0 (``threshold``) above 1 or
+    infinite. Empty cells (undecided frames) pass."""
+    from wiloc.methods.registry import METHODS
+
+    lowest = METHODS[method].lowest_confidence if method in METHODS else 0.0
+    for column, low in (("confidence", lowest), (NEW_PLACE, 0.0)):
+        if column not in frames.columns:
+            continue
+        values = frames[column].to_numpy()
+        bad = ~np.isnan(values) & ~((values >= low) & (values <= 1.0) & np.isfinite(values))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            span = "in [0, 1]" if low == 0.0 else f"a finite number at most 1 (as {method} writes it)"
+            raise WilocError(path, f"line {first_line + i}: {column} {values[i]:g} is not {span}")
 
 
 def _check_ranking(path: Path, frames: pd.DataFrame, reference: list[str], first_line: int) -> None:

@@ -212,6 +212,7 @@ class Method(ABC):
     rows: ClassVar[frozenset[str]] = frozenset({"differences"})  # the row kinds it reads (see ROWS)
     columns: ClassVar[tuple[str, ...]] = ()
     ranks: ClassVar[bool] = True  # the match is the row's best candidate, so the row ranks the map
+    lowest_confidence: ClassVar[float] = 0.0  # confidences lie in [lowest_confidence, 1] (results files are checked)
 
     def __init__(self, params: Parameters | Mapping[str, Any] | None = None, **values: Any) -> None:
         if isinstance(params, Parameters):

@@ -7,6 +7,7 @@ confidence >= 1 - t' is the same as accepting m <= t' * normaliser.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -48,6 +49,7 @@ class Threshold(Method):
 
     name = "threshold"
     Params = ThresholdParams
+    lowest_confidence = -math.inf  # 1 - m / normaliser falls below 0 beyond the normaliser
     params: ThresholdParams
 
     def prepare(self, context: MapContext) -> None:
