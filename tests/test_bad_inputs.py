@@ -199,7 +199,8 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
                               "matrix holds <U3 values; give numbers"),
         "ground truth shape": (["evaluate", str(results), "--gt", f"matrix:{tmp / 'shape-gt.npy'}"], "matrix is 3 x 3"),
         "pairs columns": (["evaluate", str(results), "--gt", f"pairs:{tmp / 'pairs.csv'}"], "missing column(s) query, reference"),
-        "positions file": (["evaluate", str(results), "--gt", f"positions:{tmp / 'none.csv'}", "--radius", "2"], "no such file"),
+        "positions file": (["evaluate", str(results), "--gt", f"positions:{tmp / 'none.csv'}", "--gt-map", str(tmp / "none.csv"),
+                            "--radius", "2"], "no such file"),
         "map of one frame": (["localize", str(ref), "--map", str(tmp / "single")], "it needs at least 2"),
         "odometry": (["localize", str(ref), "--map", str(ref), "--method", "catgraph", "--odometry", str(tmp / "odo.csv")],
                      "no odometry for 29 frame(s)"),
@@ -564,3 +565,24 @@ def test_threshold_confidence_may_be_below_0_but_not_above_1(results: Path, tmp_
         edited = _edited(results, "confidence", value, tmp_path / "edited.csv")
         ends_in_one_error(runner.invoke(app, ["evaluate", str(edited)]), 1,
                           f"confidence {value} is not a finite number at most 1 (as threshold writes it)")
+
+
+# ------------------------------------------------------------------ ground truth: say where
+
+def _positions_csv(path: Path, n: int = 30) -> Path:
+    path.write_text("name,x,y\n" + "".join(f"img{i}.png,{i},0\n" for i in range(n)))
+    return path
+
+
+@pytest.mark.parametrize("args, code, message", [
+    (["--gt", "positions:{tmp}/q.csv", "--radius", "2.5"], 2,
+     "--gt-map: a run against a map needs the map's positions file too"),
+    (["--gt", "positions:{tmp}/q.csv", "--gt-map", "{tmp}/q.csv", "--radius", "-1"], 2, "--radius: must be >= 0 metres, got -1.0"),
+    (["--gt", "positions:", "--radius", "1"], 2, "--gt: positions ground truth needs a file (positions:FILE)"),
+    (["--gt", "matrix:/dev/null"], 1, "/dev/null: not a regular file"),
+])
+def test_ground_truth_problems_name_the_option_or_file(args: list[str], code: int, message: str, results: Path,
+                                                       tmp_path: Path) -> None:
+    _positions_csv(tmp_path / "q.csv")
+    args = [a.format(tmp=tmp_path) for a in args]
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), *args]), code, message)

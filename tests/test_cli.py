@@ -253,7 +253,7 @@ def test_evaluate_positions_needs_a_radius(route: tuple[Path, Path], tmp_path: P
         (tmp_path / name).write_text("name,x,y\n" + "".join(f"img{i}.png,{i},0\n" for i in range(40)))
     result = runner.invoke(app, ["evaluate", str(out), "--gt", f"positions:{tmp_path / 'q.csv'}",
                                  "--gt-map", str(tmp_path / "r.csv")])
-    assert result.exit_code == 1 and "radius" in result.stderr
+    assert result.exit_code == 2 and "--radius: positions ground truth needs a radius" in result.stderr
     ok = _json(runner.invoke(app, ["evaluate", str(out), "--gt", f"positions:{tmp_path / 'q.csv'}",
                                    "--gt-map", str(tmp_path / "r.csv"), "--radius", "1.5", "--json"]))["runs"]
     assert ok[0]["with_true_match"] == 40

@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.reprs import short_repr
 
 EARTH_RADIUS_M = 6_371_008.8
@@ -146,11 +146,17 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
     return _truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 
+def _check_file(path: Path) -> None:
+    """A WilocError naming ``path`` unless it is a regular file: no such file, or not one (a
+    folder, a device such as /dev/null)."""
+    if not path.is_file():
+        raise WilocError(path, "not a regular file" if path.exists() else "no such file")
+
+
 def _read_csv(path: Path) -> pd.DataFrame:
     """A CSV as strings with stripped, lower-case column names; missing file -> WilocError."""
     path = Path(path)
-    if not path.is_file():
-        raise WilocError(path, "no such file")
+    _check_file(path)
     try:
         frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
@@ -232,7 +238,7 @@ def positions_truth(query_csv: Path, ref_csv: Path, radius: float, query_names: 
     Sequence mode: pass the same CSV twice.
     """
     if not radius >= 0:
-        raise WilocError(None, f"radius must be >= 0 metres, got {radius}")
+        raise ParameterError("radius", f"must be >= 0 metres, got {radius}")
     same_file = Path(query_csv).resolve() == Path(ref_csv).resolve()
     q_names, q_coords, q_geo = _read_positions(query_csv)
     r_names, r_coords, r_geo = (q_names, q_coords, q_geo) if same_file else _read_positions(ref_csv)
@@ -317,8 +323,7 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
     ``variable`` picks one array in a .mat file holding several.
     """
     path = Path(path)
-    if not path.is_file():
-        raise WilocError(path, "no such file")
+    _check_file(path)
     data = _read_matrix(path, variable)
     if data.dtype.kind not in "biuf":
         raise WilocError(path, f"matrix holds {data.dtype} values; give numbers or booleans (nonzero = same place)")
@@ -346,10 +351,10 @@ def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
     if kind not in KINDS:
         raise WilocError(None, f"unknown ground-truth kind {kind!r}; choose one of {', '.join(KINDS)}")
     if path is None:
-        raise WilocError(None, f"{kind} ground truth needs a file")
+        raise ParameterError("path", f"{kind} ground truth needs a file ({kind}:FILE)")
     if kind == "positions":
         if radius is None:
-            raise WilocError(path, "positions ground truth needs a radius in metres")
+            raise ParameterError("radius", "positions ground truth needs a radius in metres")
         return positions_truth(Path(path), Path(ref_path or path), radius, query_names, ref_names)
     if kind == "pairs":
         return pairs_truth(Path(path), query_names, ref_names)
@@ -402,6 +407,9 @@ class TruthSource:
         name = Path(query_folder).name
         path = Path(self.path.format(query=name)) if self.path else None
         ref_path = Path(self.ref_path.format(query=name)) if self.ref_path else None
+        if self.kind == "positions" and path is not None and ref_path is None and not sequence:
+            raise ParameterError("ref_path", "a run against a map needs the map's positions file too (the query's "
+                                             "positions do not place the map frames)")
         truth = load_truth(self.kind, path, query_names=query_names, ref_names=ref_names,
                            tolerance=self.tolerance, radius=self.radius, ref_path=ref_path,
                            by=self.by, variable=self.variable)
