@@ -586,3 +586,17 @@ def test_ground_truth_problems_name_the_option_or_file(args: list[str], code: in
     _positions_csv(tmp_path / "q.csv")
     args = [a.format(tmp=tmp_path) for a in args]
     ends_in_one_error(runner.invoke(app, ["evaluate", str(results), *args]), code, message)
+
+
+@pytest.mark.parametrize("twice", ["same", "relative"])
+def test_compare_refuses_a_results_file_given_twice(twice: str, results: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(results.parent)
+    again = str(results) if twice == "same" else results.name
+    ends_in_one_error(runner.invoke(app, ["compare", str(results), again]), 2,
+                      f"RESULTS...: {again} is given twice (as {results}); each run counts once")
+
+
+@pytest.mark.parametrize("target", ["150", "0", "-5", "nan"])
+def test_compare_refuses_a_precision_that_is_no_percentage(target: str, results: Path) -> None:
+    ends_in_one_error(runner.invoke(app, ["compare", str(results), "--precision", f"99,{target}"]), 2,
+                      f"--precision: {float(target):g} is not a percentage in (0, 100]")

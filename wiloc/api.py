@@ -21,7 +21,7 @@ from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent
 from wiloc.describing import DescribeReport, check_sampling, describe_sources, import_matrix
 from wiloc.differences import candidate_blocks, run_differences
 from wiloc.distances import consecutive
-from wiloc.errors import UsageError, WilocError
+from wiloc.errors import ParameterError, UsageError, WilocError
 from wiloc.groundtruth import Truth, TruthSource
 from wiloc.fabmap.evidence import FabMapEvidence, evidence_rows
 from wiloc.labels import short_names
@@ -419,7 +419,16 @@ def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[flo
             global_thresholds: bool = True, cuts: Sequence[float] = DEFAULT_CUTS) -> Comparison:
     """Table I (recall at 100/99/90 % precision per traversal and method), Table II and the
     calibration table with precision and recall at the fixed confidence ``cuts``, over results
-    files or runs in memory."""
+    files or runs in memory. A file given twice, or a precision outside (0, 100], is a
+    ParameterError: each run counts once in the tables."""
+    bad = [p for p in precisions if not 0.0 < float(p) <= 100.0]
+    if bad:
+        raise ParameterError("precisions", f"{bad[0]:g} is not a percentage in (0, 100]")
+    seen: dict[Path, Path] = {}
+    for run in runs:
+        path = run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results) else Path(run)
+        if path is not None and seen.setdefault(path.resolve(), path) is not path:
+            raise ParameterError("runs", f"{path} is given twice (as {seen[path.resolve()]}); each run counts once")
     evaluations = [evaluate(run, truth, cuts) for run in runs]
     labels = method_labels(evaluations)
     traversals = traversal_labels(evaluations)
