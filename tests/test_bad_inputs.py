@@ -8,6 +8,7 @@ console script runs in a subprocess.
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -100,6 +101,9 @@ USAGE = {
     "exclude recent": (["localize", "Q", "-R", "-1"], "--exclude-recent: must be an integer >= 0"),
     "radius with aligned": (["evaluate", "R", "--radius", "3"], "--radius: applies to positions ground truth only"),
     "gt map with aligned": (["evaluate", "R", "--gt-map", "m.csv"], "--gt-map: applies to positions ground truth only"),
+    "csv in a missing folder": (["evaluate", "R", "--csv", "nowhere/m.csv"], "--csv: the folder nowhere does not exist (create it first)"),
+    "plot in a missing folder": (["evaluate", "R", "--pr-plot", "no/where/pr.png"], "--pr-plot: the folder no/where does not exist"),
+    "out in a missing folder": (["localize", "Q", "-o", "nowhere/run.csv"], "--out: the folder nowhere does not exist"),
 }
 
 
@@ -600,3 +604,51 @@ def test_compare_refuses_a_results_file_given_twice(twice: str, results: Path, m
 def test_compare_refuses_a_precision_that_is_no_percentage(target: str, results: Path) -> None:
     ends_in_one_error(runner.invoke(app, ["compare", str(results), "--precision", f"99,{target}"]), 2,
                       f"--precision: {float(target):g} is not a percentage in (0, 100]")
+
+
+# ------------------------------------------------------------------------------ a full disk
+
+def _disk_full(*args: object) -> None:
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_a_full_disk_names_the_cache_file(route: tuple[Path, Path], cache_dir: Path,
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    ref, _ = route
+    monkeypatch.setattr(os, "fsync", _disk_full)
+    result = runner.invoke(app, ["describe", str(ref), "--jobs", "1"])
+    ends_in_one_error(result, 1, f"{cache_dir}/descriptors/", ".h5: cannot write the cache (No space left on device)")
+    assert not list((cache_dir / "descriptors").glob("*.h5*"))  # no half-written entry
+
+
+def test_a_full_disk_names_the_followed_results_file(route: tuple[Path, Path], tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    ref, query = route
+    out = tmp_path / "follow.csv"
+    write = os.write
+
+    def full_for_results(fd: int, data: bytes) -> int:
+        if os.readlink(f"/proc/self/fd/{fd}") == str(out):
+            _disk_full()
+        return write(fd, data)
+    monkeypatch.setattr(os, "write", full_for_results)
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold", "--follow",
+                                 "--idle", "0.5", "--out", str(out)])
+    ends_in_one_error(result, 1, f"{out}: cannot write the results file (No space left on device)")
+
+
+def test_a_localizer_state_that_cannot_be_written_is_a_wiloc_error(localizers: dict[str, Localizer], tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(os, "replace", _disk_full)
+    with pytest.raises(WilocError, match=re.escape(f"{tmp_path / 'state.npz'}: cannot write the localizer state")):
+        localizers["sad"].save(tmp_path / "state.npz")
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".state.npz")]
+
+
+def test_an_out_folder_is_created(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    result = runner.invoke(app, ["localize", str(query), str(ref), "--map", str(ref), "--method", "threshold",
+                                 "--out", str(tmp_path / "runs" / "today")])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (tmp_path / "runs" / "today").iterdir()) == ["query-sad-threshold.csv",
+                                                                              "ref-sad-threshold.csv"]

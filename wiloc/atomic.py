@@ -14,6 +14,12 @@ from typing import IO, Any
 from wiloc.errors import WilocError
 
 
+def write_error(path: Path, what: str, exc: OSError) -> WilocError:
+    """The one line an OSError writing ``path`` (a full disk, a folder that refuses) becomes:
+    ``PATH: cannot write WHAT (why)``; the OSError alone would not name the file."""
+    return WilocError(path, f"cannot write {what} ({exc.strerror or exc})")
+
+
 @contextmanager
 def written_whole(path: Path, what: str, *, binary: bool = False, mode: int | None = None) -> Iterator[IO[Any]]:
     """A temporary file beside ``path`` (``.NAME.<pid>.*.tmp``), open for the block to write
@@ -27,7 +33,7 @@ def written_whole(path: Path, what: str, *, binary: bool = False, mode: int | No
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
         os.chmod(tmp, mode if mode is not None else 0o666 & ~_umask())
     except OSError as exc:
-        raise WilocError(path, f"cannot write {what} ({exc.strerror})") from None
+        raise write_error(path, what, exc) from None
     try:
         with os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8", newline="") as file:
             yield file
@@ -35,7 +41,7 @@ def written_whole(path: Path, what: str, *, binary: bool = False, mode: int | No
     except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
         if isinstance(exc, OSError):
-            raise WilocError(path, f"cannot write {what} ({exc.strerror or exc})") from None
+            raise write_error(path, what, exc) from None
         raise
 
 

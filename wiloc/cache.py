@@ -37,7 +37,7 @@ import numpy as np
 import platformdirs
 
 from wiloc import __version__
-from wiloc.atomic import process_alive
+from wiloc.atomic import process_alive, write_error
 from wiloc.errors import CacheBusyError, WilocError
 from wiloc.frames import natural_sorted
 from wiloc.reprs import short_repr
@@ -270,7 +270,10 @@ class Journal:
 
     def _write(self, meta: bytes, row: bytes) -> None:
         payload = _JSON_LENGTH.pack(len(meta)) + meta + row
-        self._file.write(_RECORD.pack(_MAGIC, len(payload), zlib.crc32(payload)) + payload)
+        try:
+            self._file.write(_RECORD.pack(_MAGIC, len(payload), zlib.crc32(payload)) + payload)
+        except OSError as exc:
+            raise write_error(self.path, "the cache", exc) from None
 
     def close(self) -> None:
         """Close the file (records are already written)."""
@@ -413,20 +416,28 @@ class Cache:
 
     @contextmanager
     def atomic_h5(self, path: Path) -> Iterator[h5py.File]:
-        """Yield an HDF5 file open for writing on a temporary file beside `path`; rename it onto
-        `path` only when the block succeeds, so readers never see a half-written file."""
+        """Yield an HDF5 file open for writing, built in memory; when the block succeeds it is
+        written to a temporary file beside `path` and renamed onto it, so readers never see a
+        half-written file. HDF5 writing to disk itself fails badly on a full disk (errors while
+        freeing its objects, then a crash); Python's writes fail as a WilocError naming `path`."""
         path = Path(path)
         self._make_folder(path.parent)
         if not self._swept:
             self.clean_temp_files()
             self._swept = True
         temp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{TEMP_SUFFIX}")
+        with h5py.File(temp, "w", driver="core", backing_store=False) as f:
+            yield f
+            f.flush()
+            image = f.id.get_file_image()
         try:
-            with h5py.File(temp, "w") as f:
-                yield f
-            with open(temp, "rb+") as f:
-                os.fsync(f.fileno())
+            with open(temp, "xb") as out:
+                out.write(image)
+                out.flush()
+                os.fsync(out.fileno())
             os.replace(temp, path)
+        except OSError as exc:
+            raise write_error(path, "the cache", exc) from None
         finally:
             temp.unlink(missing_ok=True)
         directory = os.open(path.parent, os.O_RDONLY)

@@ -60,10 +60,19 @@ def main(version: bool = typer.Option(False, "--version", callback=_version, is_
     """wiloc: have I been here before, where, and how sure am I?"""
 
 
+def _output_file(value: Path | None) -> Path | None:
+    """An output file option (``--csv``, ``--out FILE.csv``, a plot), checked as the options are
+    read, before any work: its folder must exist (a typo is not made into new folders; folders
+    that ``--out`` names are created)."""
+    if value is not None and value.suffix and not value.is_dir() and not value.parent.is_dir():
+        raise typer.BadParameter(f"the folder {value.parent} does not exist (create it first)")
+    return value
+
+
 def _plot_file(value: Path | None) -> Path | None:
-    """A plot option's file, checked as the options are read, before any work: its suffix must
-    name a format the figures can be written in."""
-    if value is not None:
+    """A plot option's file, checked as the options are read, before any work: its folder must
+    exist, its suffix name a format the figures can be written in."""
+    if _output_file(value) is not None:
         from wiloc.plots import check_plot_path
         try:
             check_plot_path(value)
@@ -290,7 +299,7 @@ def localize(
     map_names: Optional[Path] = typer.Option(None, help="A .npy --map matrix: its frame names, one per line."),
     odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y).", rich_help_panel="catgraph inputs"),
     map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV.", rich_help_panel="catgraph inputs"),
-    out_path: Optional[Path] = typer.Option(None, "--out", "-o", show_default="QUERY-DESCRIPTOR-METHOD.csv here",
+    out_path: Optional[Path] = typer.Option(None, "--out", "-o", callback=_output_file, show_default="QUERY-DESCRIPTOR-METHOD.csv here",
                                             help="Results file (a folder with several queries)."),
     model_plot: Optional[Path] = typer.Option(None, callback=_plot_file, show_default="none: not drawn", help="online/trained: draw the learned histograms (the paper's Figure 1)."),
     cache: CacheOption = None,
@@ -532,7 +541,7 @@ def evaluate(
     pairs_plot: Optional[Path] = typer.Option(
         None, callback=_plot_file, show_default="none: not drawn", help="Show the most confident right and wrong matches as image pairs (image "
                                         "folders; with several results files: one FILE-RESULTS figure each)."),
-    csv_out: Optional[Path] = typer.Option(None, "--csv", show_default="none: not written", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
+    csv_out: Optional[Path] = typer.Option(None, "--csv", callback=_output_file, show_default="none: not written", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
     cache: CacheOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:

@@ -9,8 +9,6 @@ and never stored. ``save``/``load`` let a long run stop and resume with identica
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Mapping
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -21,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc import __version__
+from wiloc.atomic import written_whole
 from wiloc.cache import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
 from wiloc.differences import ComputedDifferences
@@ -240,20 +239,14 @@ class Localizer:
                 "method_state": self.method.state()}
 
     def save(self, path: str | Path) -> Path:
-        """Write :meth:`state` to ``path`` (an .npz file), atomically: a kill leaves the old file."""
+        """Write :meth:`state` to ``path`` (an .npz file), atomically: a kill leaves the old file.
+        Missing folders of ``path`` are created, as every file the library writes does; a write
+        that fails (a full disk) is a WilocError naming the file."""
         path = Path(path)
-        state = self.state()
         arrays: dict[str, NDArray] = {}
-        meta = _split(state, "", arrays)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as out:
-                np.savez(out, meta=np.array(json.dumps(meta)), **arrays)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        meta = _split(self.state(), "", arrays)
+        with written_whole(path, "the localizer state", binary=True) as out:
+            np.savez(out, meta=np.array(json.dumps(meta)), **arrays)
         return path
 
     @classmethod

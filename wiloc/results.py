@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from wiloc.atomic import written_whole
+from wiloc.atomic import write_error, written_whole
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decision, Decisions
 from wiloc.model import HistogramModel
@@ -202,7 +202,10 @@ class ResultsStream:
 
     def append(self, decision: Decision) -> None:
         """Add one decided frame's row; it reaches the OS before this returns."""
-        os.write(self._fd, self.line(decision).encode("utf-8"))
+        try:
+            os.write(self._fd, self.line(decision).encode("utf-8"))
+        except OSError as exc:
+            raise write_error(self.path, "the results file", exc) from None
 
     def close(self) -> None:
         os.close(self._fd)
