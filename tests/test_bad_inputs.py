@@ -652,3 +652,17 @@ def test_an_out_folder_is_created(route: tuple[Path, Path], tmp_path: Path) -> N
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in (tmp_path / "runs" / "today").iterdir()) == ["query-sad-threshold.csv",
                                                                               "ref-sad-threshold.csv"]
+
+
+def test_a_byte_order_mark_is_read_past_in_results_and_ground_truth(results: Path, tmp_path: Path) -> None:
+    marked = tmp_path / "marked.csv"
+    marked.write_bytes(b"\xef\xbb\xbf" + results.read_bytes())
+    pairs = tmp_path / "pairs.csv"
+    pairs.write_bytes(b"\xef\xbb\xbfquery,reference\n" + b"".join(b"img%d.png,img%d.png\n" % (i, i) for i in range(30)))
+    reports = []
+    for path in (results, marked):
+        result = runner.invoke(app, ["evaluate", str(path), "--gt", f"pairs:{pairs}", "--json"])
+        assert result.exit_code == 0, result.output
+        reports.append(json.loads(result.stdout)["runs"][0])
+    assert reports[1]["with_true_match"] == 30
+    assert {k: v for k, v in reports[0].items() if k != "results"} == {k: v for k, v in reports[1].items() if k != "results"}

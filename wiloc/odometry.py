@@ -72,7 +72,7 @@ def read_odometry(path: str | Path) -> Odometry:
     """Read a ``name,distance`` or ``name,x,y`` CSV; WilocError naming the line on any problem."""
     where = str(path)
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = [(n, row) for n, row in enumerate(csv.reader(fh), start=1)
                     if row and any(cell.strip() for cell in row)]
     except (OSError, UnicodeDecodeError, csv.Error) as exc:

@@ -300,7 +300,7 @@ def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame, int]:
     meta: dict[str, Any] = {}
     n_header = 0
     try:
-        with path.open(encoding="utf-8") as handle:
+        with path.open(encoding="utf-8-sig") as handle:  # a byte-order mark (an editor's) is skipped
             for line in handle:
                 if not line.startswith("# "):
                     break
@@ -317,7 +317,7 @@ def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame, int]:
     if meta.get("wiloc-results") != FORMAT_VERSION:
         raise WilocError(path, "not a wiloc results file (no '# wiloc-results: 1' header)")
     try:
-        frames = pd.read_csv(path, skiprows=n_header, dtype=str, keep_default_na=False)
+        frames = pd.read_csv(path, skiprows=n_header, dtype=str, keep_default_na=False, encoding="utf-8-sig")
     except (pd.errors.ParserError, ValueError) as exc:
         raise WilocError(path, f"unreadable table: {exc}") from None
     missing = [c for c in BASE_COLUMNS if c not in frames.columns]
