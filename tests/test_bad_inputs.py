@@ -185,6 +185,7 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
     (tmp / "single").mkdir()
     (tmp / "single" / "img0.png").write_bytes((ref / "img0.png").read_bytes())
     (tmp / "odo.csv").write_text("name,distance\nimg0.png,0\n")
+    np.save(tmp / "objects.npy", np.array([{"a": 1}], dtype=object))
     return {
         "missing folder": (["describe", str(tmp / "nope")], "folder does not exist"),
         "a text file": (["describe", str(tmp / "notes.txt")], "not a folder"),
@@ -209,13 +210,19 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
         "odometry": (["localize", str(ref), "--map", str(ref), "--method", "catgraph", "--odometry", str(tmp / "odo.csv")],
                      "no odometry for 29 frame(s)"),
         "no model to draw": (["compare", str(results), "--model-plot", str(tmp / "fig1.png")], "none of the results is an online"),
+        "an image as map": (["localize", str(ref), "--map", str(ref / "img0.png")],
+                            f"{ref / 'img0.png'}: an image file is not a traversal: give a folder of images, a video"),
+        "object array": (["describe", "--import", str(tmp / "objects.npy")],
+                         "not a readable .npy array (holds Python objects, not a plain numeric array)"),
+        "object array ground truth": (["evaluate", str(results), "--gt", f"matrix:{tmp / 'objects.npy'}"],
+                                      "cannot read matrix (holds Python objects, not a plain numeric array)"),
     }
 
 
 CASES = ("missing folder", "a text file", "no images", "only bad images", "h5 names not utf-8", "nan descriptors",
          "missing matrix", "unknown matrix format", "not a video", "missing results", "foreign csv", "text confidence",
          "text ground truth", "ground truth shape", "pairs columns", "positions file", "map of one frame", "odometry",
-         "no model to draw")
+         "no model to draw", "an image as map", "object array", "object array ground truth")
 
 
 @pytest.mark.parametrize("case", CASES)

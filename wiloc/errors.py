@@ -49,6 +49,15 @@ class ParameterError(UsageError):
         super().__init__(None, problem, parameter=parameter)
 
 
+def load_problem(exc: Exception) -> str:
+    """Why ``np.load(..., allow_pickle=False)`` failed, in the user's terms: numpy's refusal of
+    an object array (with its advice to load the file unsafely) is that the file is not a plain
+    numeric array; other reasons are numpy's own."""
+    if "allow_pickle" in str(exc):
+        return "holds Python objects, not a plain numeric array"
+    return str(exc)
+
+
 SWALLOWED_INTERRUPTS: list[BaseException] = []
 """Ctrl-C that a library swallowed where Python could not raise it (typer's pydantic, building
 its validators, reports it as "Exception ignored" and goes on). The console script records them

@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from wiloc.errors import ParameterError, WilocError
+from wiloc.errors import ParameterError, WilocError, load_problem
 from wiloc.reprs import short_repr
 
 EARTH_RADIUS_M = 6_371_008.8
@@ -310,7 +310,7 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
                                        f"{', '.join(sorted(arrays)) or 'none'}")
             return next(iter(arrays.values()))
     except (ValueError, OSError, NotImplementedError) as exc:
-        raise WilocError(path, f"cannot read matrix ({exc})") from exc
+        raise WilocError(path, f"cannot read matrix ({load_problem(exc)})") from exc
     raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv or .mat")
 
 

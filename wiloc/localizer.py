@@ -24,7 +24,7 @@ from wiloc.cache import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
 from wiloc.differences import ComputedDifferences
 from wiloc.distances import DifferencesTo, consecutive, pairwise
-from wiloc.errors import WilocError
+from wiloc.errors import WilocError, load_problem
 from wiloc.fabmap.evidence import FabMapEvidence
 from wiloc.frames import read_gray, to_uint8
 from wiloc.methods.base import Decision, MapContext, Method, TrainingRows
@@ -260,7 +260,7 @@ class Localizer:
             with np.load(path, allow_pickle=False) as data:
                 meta = _join(json.loads(str(data["meta"])), {key: data[key] for key in data.files if key != "meta"})
         except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
-            raise WilocError(path, f"not a saved localizer state ({exc})") from None
+            raise WilocError(path, f"not a saved localizer state ({load_problem(exc)})") from None
         if meta.get("format") != STATE_FORMAT or meta.get("version") != STATE_VERSION:
             raise WilocError(path, "not a saved localizer state of this wiloc version")
         if meta["map"] is None and meta["map_digest"] is not None and map is None:

@@ -14,6 +14,7 @@ from wiloc.cache import Cache, Entry, EntryHeader
 from wiloc.describing import describe_source, import_matrix
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import ParameterError, UsageError, WilocError
+from wiloc.frames import IMAGE_SUFFIXES
 from wiloc.video import Sampling, is_video
 
 if TYPE_CHECKING:
@@ -110,6 +111,9 @@ class Describer:
         an imported matrix file (``names``: its frame names, one per line, for .npy matrices)."""
         source = Path(source)
         if is_matrix_file(source):
+            if source.suffix.lower() in IMAGE_SUFFIXES:
+                raise WilocError(source, "an image file is not a traversal: give a folder of images, a video or a "
+                                         "descriptor matrix file (.npy, .csv, .h5)")
             if self.metric is None:
                 raise UsageError(source, "a descriptor matrix file needs a metric (l1, sqeuclidean, hamming, cosine)")
             return import_matrix(source, self.cache, names, self.metric).entry

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.descriptors.registry import METRICS
-from wiloc.errors import WilocError
+from wiloc.errors import WilocError, load_problem
 
 _NAME_HEADERS = frozenset({"name", "names", "frame", "frames", "file", "filename"})
 _HAMMING_HINT = "hamming descriptors must be uint8 (8 packed bits per byte)"
@@ -59,7 +59,7 @@ def _read_npy(path: Path) -> NDArray:
     try:
         return np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
-        raise WilocError(path, f"not a readable .npy array ({exc})") from exc
+        raise WilocError(path, f"not a readable .npy array ({load_problem(exc)})") from exc
 
 
 def _read_h5(path: Path) -> tuple[NDArray, list[str] | None]:
