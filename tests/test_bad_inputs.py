@@ -673,3 +673,27 @@ def test_a_byte_order_mark_is_read_past_in_results_and_ground_truth(results: Pat
         reports.append(json.loads(result.stdout)["runs"][0])
     assert reports[1]["with_true_match"] == 30
     assert {k: v for k, v in reports[0].items() if k != "results"} == {k: v for k, v in reports[1].items() if k != "results"}
+
+
+def _huge_jpeg(path: Path) -> Path:
+    """A small JPEG whose frame header says 65000 x 65000 pixels: over the limit even at the 1/8
+    decode a descriptor would use."""
+    data = bytearray(cv2.imencode(".jpg", np.full((64, 96), 128, np.uint8))[1].tobytes())
+    pos = 2
+    while data[pos + 1] not in (0xC0, 0xC1, 0xC2):  # to the start-of-frame segment
+        pos += 2 + int.from_bytes(data[pos + 2:pos + 4], "big")
+    data[pos + 5:pos + 9] = struct.pack(">HH", 65000, 65000)
+    path.write_bytes(bytes(data))
+    return path
+
+
+@pytest.mark.parametrize("descriptor", ["sad", "gist"])
+def test_a_jpeg_over_the_pixel_limit_is_skipped_even_when_decoded_reduced(descriptor: str, route: tuple[Path, Path]) -> None:
+    ref, _ = route
+    _huge_jpeg(ref / "img99.jpg")
+    result = runner.invoke(app, ["describe", str(ref), "--descriptor", descriptor, "--jobs", "1", "--json"])
+    assert result.exit_code == 0, result.output
+    [row] = json.loads(result.stdout)
+    assert (row["frames"], row["failed"], row["shape"].split("x")[0]) == (31, 1, "30")
+    assert row["warnings"] == [f"skipped: {ref / 'img99.jpg'}: image over OpenCV's size limit (2^30 pixels; "
+                               "the environment variable OPENCV_IO_MAX_IMAGE_PIXELS raises it)"]

@@ -204,6 +204,17 @@ def to_uint8(image: NDArray, path: Path | str) -> NDArray[np.uint8]:
     raise FrameError(path, f"unsupported sample type {image.dtype} (need 8- or 16-bit integers)")
 
 
+def _over_limit(path: Path) -> FrameError:
+    return FrameError(path, "image over OpenCV's size limit (2^30 pixels; the environment variable "
+                            "OPENCV_IO_MAX_IMAGE_PIXELS raises it)")
+
+
+def _max_pixels() -> int:
+    """OpenCV's decode limit in pixels: OPENCV_IO_MAX_IMAGE_PIXELS, else 2^30."""
+    value = os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS", "")
+    return int(value) if value.isdigit() else 1 << 30
+
+
 def decode(data: NDArray[np.uint8], flags: int, path: Path) -> NDArray | None:
     """``cv2.imdecode``, with OpenCV's own refusals (an image over its pixel limit, a broken
     header it asserts on) raised as FrameError naming the file; None when it cannot decode."""
@@ -211,8 +222,7 @@ def decode(data: NDArray[np.uint8], flags: int, path: Path) -> NDArray | None:
         return cv2.imdecode(data, flags)
     except cv2.error as exc:
         if "CV_IO_MAX_IMAGE_PIXELS" in str(exc):
-            raise FrameError(path, "image over OpenCV's size limit (2^30 pixels; the environment variable "
-                                   "OPENCV_IO_MAX_IMAGE_PIXELS raises it)") from None
+            raise _over_limit(path) from None
         raise FrameError(path, f"cannot decode image data ({exc.err or 'OpenCV refused it'})") from None
 
 
@@ -240,6 +250,8 @@ def read_gray(path: Path, min_size: tuple[int, int] | None = None) -> NDArray[np
         full = jpeg_size(data)
         if full is None:
             raise FrameError(path, "corrupt JPEG (no frame header)")
+        if full[0] * full[1] > _max_pixels():  # the reduced decode would pass OpenCV's own check
+            raise _over_limit(path)
         factor = _reduction(full, min_size)
     if factor > 1:
         image = decode(data, dict(_REDUCED_FLAGS)[factor], path)
