@@ -697,3 +697,28 @@ def test_a_jpeg_over_the_pixel_limit_is_skipped_even_when_decoded_reduced(descri
     assert (row["frames"], row["failed"], row["shape"].split("x")[0]) == (31, 1, "30")
     assert row["warnings"] == [f"skipped: {ref / 'img99.jpg'}: image over OpenCV's size limit (2^30 pixels; "
                                "the environment variable OPENCV_IO_MAX_IMAGE_PIXELS raises it)"]
+
+
+def test_a_run_whose_images_changed_cannot_be_drawn(route: tuple[Path, Path], results: Path, tmp_path: Path) -> None:
+    _, query = route
+    image = cv2.imread(str(query / "img3.png"), cv2.IMREAD_GRAYSCALE)
+    cv2.imwrite(str(query / "img3.png"), 255 - image)
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--matrix-plot", str(tmp_path / "m.png")]), 1,
+                      f"{results}: its query {query.resolve()} no longer gives the descriptors the run used")
+    assert not (tmp_path / "m.png").exists()
+
+
+def test_a_header_naming_another_folder_of_the_same_names_is_drawn_only_if_it_describes_alike(
+        route: tuple[Path, Path], results: Path, tmp_path: Path) -> None:
+    ref, _ = route
+    twin = tmp_path / "twin"
+    twin.mkdir()
+    for path in ref.iterdir():
+        (twin / path.name).write_bytes(path.read_bytes())
+    moved = tmp_path / "moved.csv"
+    moved.write_text(results.read_text().replace(f"# map: {ref.resolve()}\n", f"# map: {twin.resolve()}\n"))
+    assert runner.invoke(app, ["evaluate", str(moved), "--matrix-plot", str(tmp_path / "same.png")]).exit_code == 0
+    image = cv2.imread(str(twin / "img7.png"), cv2.IMREAD_GRAYSCALE)
+    cv2.imwrite(str(twin / "img7.png"), np.roll(image, 20, axis=1))
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(moved), "--matrix-plot", str(tmp_path / "m.png")]), 1,
+                      f"its map {twin.resolve()} no longer gives the descriptors the run used")

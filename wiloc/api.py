@@ -37,7 +37,8 @@ from wiloc.methods.base import Decision
 from wiloc.reprs import short_repr
 from wiloc.results import RANKING, Results, ResultsStream, make_results, read_results, write_results
 from wiloc.training import Training, training_rows
-from wiloc.traversals import Describer, Progress, descriptor_label, descriptor_spec, open_cluster, stage
+from wiloc.traversals import (Describer, Progress, descriptor_label, descriptor_spec, descriptors_digest, open_cluster,
+                              stage)
 from wiloc.video import Sampling, is_video
 from wiloc.workers import keeping_pools
 from wiloc.vocabulary import VocabularyParams
@@ -192,6 +193,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
                          odometry=_query_steps(odometry, q.names),
                          progress=stage(progress, f"{method} {query.name}"))
     meta = _run_meta(method, describer, query, q.metric, reference, R, training)
+    meta.update(query_digest=descriptors_digest(q.names, q.data),
+                map_digest="" if sequence else descriptors_digest(r.names, r.data))
     if videos:
         meta["sampling"] = asdict(sampling or Sampling())
     if kind == "log_ratio":  # FAB-MAP's training data: the vocabulary's images

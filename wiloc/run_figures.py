@@ -74,7 +74,7 @@ def _traversals(evaluation: Evaluation) -> tuple[Path, Path, bool]:
 
 def _entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]:
     """The query's and the map's descriptors, through the cache, checked against the file's frames."""
-    from wiloc.traversals import Describer
+    from wiloc.traversals import Describer, descriptors_digest
     from wiloc.video import Sampling
 
     meta = evaluation.results.meta
@@ -91,6 +91,12 @@ def _entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]:
     if q.names != results.frames["frame"].tolist() or (results.reference_frames and r.names != results.reference_frames):
         raise WilocError(evaluation.path, "its query and map no longer give the frames it lists (the folders "
                                           "changed, or the run named its frames with --names); cannot draw it")
+    for role, entry in (("query", q), ("map", r)):
+        recorded = meta.get(f"{role}_digest")  # files of batch runs record them
+        if recorded and recorded != descriptors_digest(entry.names, entry.data):
+            raise WilocError(evaluation.path, f"its {role} {entry.folder} no longer gives the descriptors the run "
+                                              "used (its images changed, or it is another folder of the same "
+                                              "names); cannot draw it")
     return q, r
 
 

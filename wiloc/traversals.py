@@ -41,8 +41,14 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
                                  f"'{spec.name}' rows have {spec.length} values")
     header = EntryHeader.create(source, spec.name, dict(spec.params), spec.metric, spec.scale, spec.natural_max,
                                 spec.dtype, spec.length)
-    digest = hashlib.sha256("\0".join(names).encode() + data.tobytes()).hexdigest()
-    return Entry(**asdict(header), names=list(names), data=data, digest=digest)
+    return Entry(**asdict(header), names=list(names), data=data, digest=descriptors_digest(names, data))
+
+
+def descriptors_digest(names: list[str], data: np.ndarray) -> str:
+    """A hash of frame names and descriptor rows, whatever folder they came from: what a results
+    header records of its traversals, so that a figure redrawn later sees whether the images
+    still give the descriptors the run used."""
+    return hashlib.sha256("\0".join(names).encode() + np.ascontiguousarray(data).tobytes()).hexdigest()
 
 
 def is_matrix_file(source: Path) -> bool:
