@@ -67,6 +67,7 @@ def test_missing_folder_is_one_line_error(tmp_path: Path, cache_dir: Path) -> No
 def test_localize_evaluate_compare(route: tuple[Path, Path], tmp_path: Path) -> None:
     ref, query = route
     runs = tmp_path / "runs"
+    runs.mkdir()  # an output file's folder must exist (test_bad_inputs: "out in a missing folder")
     for method in ("online", "threshold"):
         rows = _json(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", method,
                                          "--out", str(runs / f"query-{method}.csv"), "--json"]))
