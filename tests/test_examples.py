@@ -74,7 +74,32 @@ def test_quoted_tables_allow_last_digits_and_one_frame_but_not_more() -> None:
             assert_quotes(quoted, head + changed, "")
 
 
+def _protocol() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("protocol", REPO / "examples" / "protocol.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while the class is built
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def runs(data_root: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[dict, str]]:
+    """Each example's summary.json and printed output (one cache shared by both runs)."""
+    tmp = tmp_path_factory.mktemp("examples")
+    env = {**os.environ, "WILOC_CACHE": str(tmp / "cache"), "COLUMNS": "200"}
+    done = {}
+    for name in EXAMPLES:
+        out = tmp / name
+        proc = subprocess.run([sys.executable, str(REPO / "examples" / f"{name}.py"), str(data_root),
+                               "--out", str(out)], capture_output=True, text=True, env=env, check=False)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        done[name] = (json.loads((out / "summary.json").read_text(encoding="utf-8")), proc.stdout)
+    return done
+
+
 @pytest.mark.realdata
+@pytest.mark.slow  # each example script runs for minutes
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_example_covers_every_method_and_query(runs: dict[str, tuple[dict, str]], name: str) -> None:
     summary, stdout = runs[name]
@@ -89,6 +114,7 @@ def test_example_covers_every_method_and_query(runs: dict[str, tuple[dict, str]]
 
 
 @pytest.mark.realdata
+@pytest.mark.slow  # each example script runs for minutes
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_results_doc_quotes_the_examples(runs: dict[str, tuple[dict, str]], name: str) -> None:
     summary, stdout = runs[name]
@@ -111,6 +137,7 @@ def table1(data_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[d
 
 
 @pytest.mark.realdata
+@pytest.mark.slow  # each example script runs for minutes
 def test_table1_trains_vocabularies_on_the_other_query_and_the_doc_quotes_it(table1: tuple[dict, str]) -> None:
     summary, stdout = table1
     assert {q: v["trained_on"] for q, v in summary["vocabularies"].items()} == \
