@@ -29,9 +29,10 @@ SIMD_VARIABLE = "WILOC_SIMD"
 
 
 def cache_root() -> Path:
-    """wiloc's cache folder: ``$WILOC_CACHE``, else the per-user cache folder."""
+    """wiloc's cache folder: ``$WILOC_CACHE`` (made absolute: numba resolves its folder when it
+    compiles, perhaps after a change of directory), else the per-user cache folder."""
     env = os.environ.get("WILOC_CACHE")
-    return Path(env) if env else Path(platformdirs.user_cache_dir("wiloc"))
+    return Path(env).absolute() if env else Path(platformdirs.user_cache_dir("wiloc"))
 
 
 def place_numba_cache() -> Path:
