@@ -32,7 +32,7 @@ from wiloc import cache as cache_module
 from wiloc.cache import Cache
 from wiloc.cli import app
 from wiloc.distances import DifferencesTo
-from wiloc.errors import ParameterError, WilocError
+from wiloc.errors import FrameError, ParameterError, WilocError
 from wiloc.localizer import Localizer
 
 runner = CliRunner()
@@ -722,3 +722,16 @@ def test_a_header_naming_another_folder_of_the_same_names_is_drawn_only_if_it_de
     cv2.imwrite(str(twin / "img7.png"), np.roll(image, 20, axis=1))
     ends_in_one_error(runner.invoke(app, ["evaluate", str(moved), "--matrix-plot", str(tmp_path / "m.png")]), 1,
                       f"its map {twin.resolve()} no longer gives the descriptors the run used")
+
+
+def test_observe_refuses_a_file_that_cannot_be_a_frame(localizers: dict[str, Localizer], route: tuple[Path, Path],
+                                                       tmp_path: Path) -> None:
+    _, query = route
+    (tmp_path / BAD_NAME).write_bytes((query / "img0.png").read_bytes())
+    os.mkfifo(tmp_path / "fifo.png")
+    loc = localizers["sad"]
+    with pytest.raises(FrameError, match="file name is not valid UTF-8"):
+        loc.observe(tmp_path / BAD_NAME)
+    with pytest.raises(FrameError, match="fifo.png: not a regular file"):
+        loc.observe(tmp_path / "fifo.png")  # refused, not read (a FIFO would block)
+    assert loc.frames == 0

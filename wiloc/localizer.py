@@ -24,9 +24,9 @@ from wiloc.cache import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
 from wiloc.differences import ComputedDifferences
 from wiloc.distances import DifferencesTo, consecutive, pairwise
-from wiloc.errors import WilocError, load_problem
+from wiloc.errors import FrameError, WilocError, load_problem
 from wiloc.fabmap.evidence import FabMapEvidence
-from wiloc.frames import read_gray, to_uint8
+from wiloc.frames import read_gray, shown_name, to_uint8, unusable_reason
 from wiloc.methods.base import Decision, MapContext, Method, TrainingRows
 from wiloc.methods.registry import make_method
 from wiloc.training import Training, training_rows
@@ -143,6 +143,8 @@ class Localizer:
         it, gray from the decoder. ``observe(loc.read(path))`` decides as ``observe(path)``."""
         if self._spec is None:
             raise WilocError(path, "a map of imported descriptors takes descriptors, not images")
+        if (reason := unusable_reason(Path(path))) is not None and Path(path).exists():
+            raise FrameError(shown_name(str(path)), reason)
         return read_gray(Path(path), self._spec.min_size)
 
     def describe(self, frame: NDArray | str | Path) -> NDArray:
