@@ -1,0 +1,47 @@
+"""Where numba's compiled kernels go (wiloc/jitcache.py) and how ``WILOC_SIMD`` narrows the kernels'
+instruction set (wiloc.distances.simd_path), each in a fresh process: both are read at start."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from wiloc.distances import SIMD_PATHS, _cpu_features
+
+SIMD_AND_CACHE = ("NUMBA_CACHE_DIR", "WILOC_SIMD", "WILOC_CACHE")
+
+
+def _python(code: str, **env: str) -> subprocess.CompletedProcess[str]:
+    clean = {k: v for k, v in os.environ.items() if k not in SIMD_AND_CACHE}
+    return subprocess.run([sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True,
+                          timeout=120, check=False)
+
+
+def _numba_cache(**env: str) -> str:
+    return _python("import os, wiloc; print(os.environ['NUMBA_CACHE_DIR'])", **env).stdout.strip()
+
+
+def test_numba_caches_under_wiloc_s_cache_folder_unless_told_otherwise(tmp_path: Path) -> None:
+    assert _numba_cache(WILOC_CACHE=str(tmp_path)) == str(tmp_path / "numba")
+    assert _numba_cache(WILOC_CACHE=str(tmp_path), WILOC_SIMD="sse2") == str(tmp_path / "numba-sse2")
+    assert _numba_cache(WILOC_CACHE=str(tmp_path), NUMBA_CACHE_DIR=str(tmp_path / "mine")) == str(tmp_path / "mine")
+
+
+def test_wiloc_simd_narrows_the_path_but_never_widens_it() -> None:
+    widest = next(name for name, feature in SIMD_PATHS.items() if not feature or feature in _cpu_features())
+    order = list(SIMD_PATHS)
+    for forced in order:
+        got = _python("from wiloc.distances import simd_path; print(simd_path())", WILOC_SIMD=forced)
+        assert got.stdout.strip() == order[max(order.index(forced), order.index(widest))], got.stderr[-1000:]
+
+
+@pytest.mark.parametrize("value", ["avx3", "AVX2"])
+def test_an_unknown_instruction_set_is_one_line_naming_the_variable(value: str, tmp_path: Path) -> None:
+    got = _python(f"import sys; from wiloc.cli import app; sys.argv[1:] = ['describe', {str(tmp_path)!r}]; "
+                  "sys.exit(app(prog_name='wiloc'))", WILOC_SIMD=value, WILOC_CACHE=str(tmp_path))
+    assert got.returncode != 0
+    assert got.stderr.strip() == f"error: WILOC_SIMD: unknown instruction set {value!r}; expected one of " \
+                                 f"{', '.join(SIMD_PATHS)}"
