@@ -184,12 +184,15 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
     (tmp / "text-confidence.csv").write_text("\n".join(lines[:confidence] + [",".join(row)] + lines[confidence + 1:]) + "\n")
     (tmp / "single").mkdir()
     (tmp / "single" / "img0.png").write_bytes((ref / "img0.png").read_bytes())
+    (tmp / "links").mkdir()
+    (tmp / "links" / "a.png").symlink_to(tmp / "gone.png")
     (tmp / "odo.csv").write_text("name,distance\nimg0.png,0\n")
     np.save(tmp / "objects.npy", np.array([{"a": 1}], dtype=object))
     return {
         "missing folder": (["describe", str(tmp / "nope")], "folder does not exist"),
         "a text file": (["describe", str(tmp / "notes.txt")], "not a folder"),
         "no images": (["describe", str(tmp / "empty")], "no image files"),
+        "only broken links": (["describe", str(tmp / "links")], "no usable image files (a.png: broken symbolic link)"),
         "only bad images": (["describe", str(tmp / "bad-only"), "--jobs", "1"], "no image could be described"),
         "h5 names not utf-8": (["describe", "--import", str(_h5_with_names(tmp / "n.h5", [b"a", b"\xff\xfe"]))],
                                "entry 2: b'\\xff\\xfe' is not UTF-8 text"),
@@ -219,7 +222,7 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
     }
 
 
-CASES = ("missing folder", "a text file", "no images", "only bad images", "h5 names not utf-8", "nan descriptors",
+CASES = ("missing folder", "a text file", "no images", "only broken links", "only bad images", "h5 names not utf-8", "nan descriptors",
          "missing matrix", "unknown matrix format", "not a video", "missing results", "foreign csv", "text confidence",
          "text ground truth", "ground truth shape", "pairs columns", "positions file", "map of one frame", "odometry",
          "no model to draw", "an image as map", "object array", "object array ground truth")

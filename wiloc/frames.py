@@ -122,6 +122,10 @@ def list_traversal(folder: Path) -> Traversal:
                 unusable.append((shown_name(item.name), reason))
             else:
                 frames.append(item.name)
+    if unusable and not frames:
+        name, reason = unusable[0]
+        raise WilocError(folder, f"no usable image files ({name}: {reason}"
+                                 f"{f'; {len(unusable) - 1} more' if len(unusable) > 1 else ''})")
     if not frames:
         raise WilocError(folder, f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))})")
     return Traversal(folder=folder, frame_names=tuple(natural_sorted(frames)),
