@@ -738,3 +738,14 @@ def test_observe_refuses_a_file_that_cannot_be_a_frame(localizers: dict[str, Loc
     with pytest.raises(FrameError, match="fifo.png: not a regular file"):
         loc.observe(tmp_path / "fifo.png")  # refused, not read (a FIFO would block)
     assert loc.frames == 0
+
+
+def test_training_ground_truth_problems_name_the_training_options(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    positions = _positions_csv(tmp_path / "q.csv")
+    args = ["localize", str(query), "--map", str(ref), "--method", "trained", "--train-query", str(query),
+            "--train-map", str(ref), "--train-gt", f"positions:{positions}", "--out", str(tmp_path / "o.csv")]
+    ends_in_one_error(runner.invoke(app, [*args, "--train-radius", "2"]), 2, "--train-gt-map: a run against a map needs")
+    ends_in_one_error(runner.invoke(app, [*args, "--train-gt-map", str(positions), "--train-radius", "-2"]), 2,
+                      "--train-radius: must be >= 0 metres, got -2.0")
+    assert not (tmp_path / "o.csv").exists()

@@ -25,7 +25,8 @@ from wiloc.parameters import Declared, declared
 #: Library parameter names whose flag is not simply ``--`` + the name with dashes.
 FLAGS = {"reference": "--map", "training": "--train-query", "query_names_file": "--names",
          "ref_names_file": "--map-names", "out": "--out", "sampling": "--every/--fps/--start/--stop",
-         "path": "--gt", "ref_path": "--gt-map", "precisions": "--precision", "runs": "RESULTS..."}
+         "path": "--gt", "ref_path": "--gt-map", "train_path": "--train-gt", "train_ref_path": "--train-gt-map",
+         "precisions": "--precision", "runs": "RESULTS..."}
 
 _TYPES = {"int": int, "float": float, "str": str, "bool": bool, "floats": str}
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from wiloc.candidates import check_exclude_recent
 from wiloc.differences import candidate_rows, differences
+from wiloc.errors import ParameterError
 from wiloc.groundtruth import TruthSource
 from wiloc.methods.base import TrainingRows
 from wiloc.traversals import Describer
@@ -25,5 +26,8 @@ def training_rows(training: Training, describer: Describer, exclude_recent: int)
     block at a time as they are consumed (once): never all in memory."""
     R = check_exclude_recent(exclude_recent)
     tq, tr = describer.entry(Path(training.query)), describer.entry(Path(training.reference))
-    truth = training.truth.load(tq.names, tr.names, str(training.query), False, R)
+    try:
+        truth = training.truth.load(tq.names, tr.names, str(training.query), False, R)
+    except ParameterError as exc:  # named as the training pair's: train_radius, train_ref_path
+        raise ParameterError(f"train_{exc.parameter}", exc.problem) from None
     return TrainingRows(rows=candidate_rows(differences(tq, tr, describer.runner), False, R), labels=truth.matrix)
