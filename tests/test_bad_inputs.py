@@ -631,6 +631,15 @@ def test_a_full_disk_names_the_cache_file(route: tuple[Path, Path], cache_dir: P
     assert not list((cache_dir / "descriptors").glob("*.h5*"))  # no half-written entry
 
 
+def test_a_full_disk_names_the_lock_file_and_leaves_none(route: tuple[Path, Path], cache_dir: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    ref, _ = route
+    monkeypatch.setattr(os, "pwrite", _disk_full)
+    result = runner.invoke(app, ["describe", str(ref), "--jobs", "1"])
+    ends_in_one_error(result, 1, f"{cache_dir}/descriptors/", ".h5.lock: cannot write the cache (No space left on device)")
+    assert not list((cache_dir / "descriptors").glob("*.lock"))
+
+
 def test_a_full_disk_names_the_followed_results_file(route: tuple[Path, Path], tmp_path: Path,
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     ref, query = route

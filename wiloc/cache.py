@@ -348,7 +348,11 @@ def _lock_file(path: Path, deadline: float, busy: Callable[[str], Exception]) ->
                     time.sleep(_LOCK_POLL)
             if _same_file(fd, path):
                 os.ftruncate(fd, 0)
-                os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+                try:
+                    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+                except OSError as exc:  # a full disk: the lock is given up as if it was let go
+                    path.unlink(missing_ok=True)
+                    raise write_error(path, "the cache", exc) from None
                 return fd
         except BaseException:
             os.close(fd)
