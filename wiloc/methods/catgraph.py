@@ -1,12 +1,14 @@
 """Whole-image CAT-Graph: a particle filter along the reference trajectory (paper III.C, eqs 7-10).
 
 The reference traversal is a trajectory: node j sits at arc length s_j. M particles live at
-continuous positions on it, optionally each with its own speed ratio (``speed_noise`` > 0).
-Per query frame: move the particles, re-seed a few at the best nodes of a causal sequence score
-(a leaky sum of contrast-normalised differences along straight trajectories), weight each by the
-likelihood ratio of the difference interpolated at its position (eq. 8), weigh the hypothesis that
-the map does not explain the frame (a new place or a blind spot: eq. 10's role), normalise, read
-out the mode of the particle density and resample when the effective sample size drops.
+continuous positions on it, each moving at its own pace (map nodes per query frame: the map's
+pace at the start, or the pace of the sequence trajectory it was re-seeded on; drifting too when
+``speed_noise`` > 0). Per query frame: move the particles, re-seed a few at the best nodes of a
+causal sequence score (a leaky sum of contrast-normalised differences along straight trajectories
+at several paces), weight each by the likelihood ratio of the difference interpolated at its
+position (eq. 8), weigh the hypothesis that the map does not explain the frame (a new place or a
+blind spot: eq. 10's role), normalise, read out the mode of the particle density and resample when
+the effective sample size drops.
 
 The observation model and the unexplained state are the ones of ``wiloc.calibration``: a
 difference is scored by its rank within its own row (Beta(a, 1) at the same place, uniform
@@ -144,8 +146,10 @@ class CatGraphParams(Parameters):
     reseed_top: int = param(1, "Nodes of best sequence score that re-seeded particles go to.", low=1)
     sequence_rate: float = param(0.1, "Rate of the leaky sequence score (about 1 / frames remembered).",
                                  low=0.0, high=1.0, low_open=True)
-    sequence_speeds: tuple[float, ...] = param((0.5, 1.0, 1.5, 2.0), "Speed ratios of the sequence score.",
-                                               low=0.0)
+    sequence_speeds: tuple[float, ...] = param((0.5, 2 / 3, 1.0, 1.5, 2.0),
+                                               "Paces (map nodes per query frame) of the sequence score; half the "
+                                               "re-seeded particles move at the pace that scored best at their node.",
+                                               low=0.0, low_open=True)
     contrast_window: int = param(10, "Half window (nodes) of the sequence score's contrast normalisation.",
                                  low=1)
     mode_window: int = param(2, "Half window (nodes) around the decided node whose posterior mass is "
@@ -191,10 +195,11 @@ class CatGraph(Method):
     the mean node spacing. Re-seeding uses a causal sequence score per node: for each speed ratio
     in ``sequence_speeds`` an exponentially weighted (rate ``sequence_rate``) sum of contrast-
     normalised differences (+-``contrast_window`` nodes) along the trajectory ending there; the
-    lowest over speeds counts. Each decision is the node at the density mode (the largest weight
-    mass within +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its
-    difference, the confidence (that mass times 1 - P(new place)) and P(new place). The same seed
-    gives identical decisions.
+    lowest over speeds counts; half the re-seeded particles move at the map's pace, half at the
+    speed whose trajectory scored best at their node. Each decision is the node at the density
+    mode (the largest weight mass within +-``mode_window`` nodes; among tied nodes the one holding
+    most weight itself), its difference, the confidence (that mass times 1 - P(new place)) and
+    P(new place). The same seed gives identical decisions.
     """
 
     name = "catgraph"
@@ -228,7 +233,8 @@ class CatGraph(Method):
         self._speed = (self._rng.uniform(p.speed_range[0], p.speed_range[1], p.particles) if p.speed_noise > 0
                        else np.ones(p.particles))
         self._log_w = np.full(p.particles, -np.log(p.particles))
-        self._sequence = np.zeros((len(p.sequence_speeds), n_nodes))
+        self._paces = np.asarray(p.sequence_speeds, dtype=np.float64)
+        self._sequence = np.zeros((self._paces.size, n_nodes))
         self._spare: NDArray[np.float64] | None = None  # memory for the next sequence score
         self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
         self._marks = np.zeros(n_nodes, dtype=np.int64)  # the read-out's scratch: the frame that last summed a node
@@ -316,7 +322,7 @@ class CatGraph(Method):
         if not first:  # motion model: s += v u_k + noise
             if p.speed_noise > 0:
                 speed = np.clip(speed + rng.normal(0.0, p.speed_noise, p.particles), *p.speed_range)
-            sd = np.hypot(p.step_noise * u, p.noise_floor * self._spacing)
+            sd = np.hypot(p.step_noise * u * speed, p.noise_floor * self._spacing)
             pos = np.clip(pos + speed * u + rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
         n_reseed = int(round(p.reseed * p.particles))
         kept = np.ones(p.particles, dtype=bool)
@@ -324,8 +330,12 @@ class CatGraph(Method):
             weakest = np.argpartition(self._log_w, n_reseed - 1)[:n_reseed]
             kept[weakest] = False
             best = _lowest(score, p.reseed_top)
-            pos[weakest] = nodes[best[np.arange(n_reseed) % best.size]]
-            speed[weakest] = speed[rng.integers(0, p.particles, n_reseed)]
+            best = best[np.arange(n_reseed) % best.size]
+            pos[weakest] = nodes[best]
+            # half at the map's pace, half at the pace whose trajectory scored best at their node
+            speed[weakest] = 1.0
+            if not first:
+                speed[weakest[1::2]] = self._paces[np.argmin(self._sequence[:, best[1::2]], axis=0)]
 
         j, a = _locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
         omega = np.empty(p.particles)
@@ -393,6 +403,7 @@ class CatGraph(Method):
         self._pos = np.asarray(state["pos"], dtype=np.float64).copy()
         self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
+        self._paces = np.asarray(p.sequence_speeds, dtype=np.float64)
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
         self._spare = None
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
