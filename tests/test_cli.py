@@ -220,7 +220,7 @@ def test_help_groups_method_options_with_their_defaults() -> None:
     for panel in ("online options", "catgraph options", "threshold options", "trained options"):
         assert panel in text
     catgraph = text[text.index("catgraph options"):]
-    assert "--particles" in catgraph and "2000" in catgraph and "0.5,1,1.5,2" in catgraph
+    assert "--particles" in catgraph and "2000" in catgraph and "0.5,0.666667,1,1.5,2" in catgraph
 
 
 def test_map_too_short_for_exclude_recent(route: tuple[Path, Path]) -> None:
