@@ -7,7 +7,8 @@ the derivation and the measurements behind every default.
   its mid-rank p-value within that row, u = (#{j: d_kj < d} + 1/2) / N, t = -ln u. At the same
   place u follows Beta(a, 1), elsewhere Uniform(0, 1), so the likelihood ratio is
   lambda = a u^(a - 1): proper (its mean over ordinary places is exactly 1), monotone in d, with
-  no smoothing, floor or cap. ``a`` is learned by EM from the filter's own posterior (the run
+  no smoothing, floor or cap. FAB-MAP's evidence rows are ranked negated (-log-ratio as the
+  difference): their scale, hundreds of nats, no longer reaches the posterior. ``a`` is learned by EM from the filter's own posterior (the run
   labels its own samples, as the paper's Appendix does), starting from ``a0`` with weight ``n0``.
 - ``novelty_weights``: map frames that nearly repeat their neighbours (a stopped vehicle) are not
   independent evidence; at node j the model uses a_j = 1 - omega_j (1 - a).
@@ -163,41 +164,6 @@ class RankLikelihood:
 
     def load(self, state: dict[str, Any]) -> None:
         self.s0, self.s1 = float(state["s0"]), float(state["s1"])
-
-
-class GivenEvidence:
-    """The observation model of a filter over rows that already hold log-likelihood ratios
-    (FAB-MAP's log p(Z | L_j) - log p(Z | new place), ``wiloc.fabmap.evidence``): interpolated
-    linearly between nodes; nothing to learn, no near-duplicate damping."""
-
-    a = None
-
-    def __init__(self) -> None:
-        self._row = np.empty(0)
-
-    def order(self, rows: NDArray[np.floating], memory: RecycledArrays | None = None) -> list[None]:
-        """Nothing to rank."""
-        return [None] * rows.shape[0]
-
-    def use_row(self, row: NDArray[np.float64], ordered: None = None) -> None:
-        self._row = row
-
-    def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
-        return (1.0 - frac) * self._row[j] + frac * self._row[j + 1]
-
-    def mean(self, omega: NDArray[np.float64], damped: NDArray[np.intp] | None = None) -> float:
-        from scipy.special import logsumexp  # scipy loads on first use, not with the command line
-
-        return float(logsumexp(self._row)) - np.log(self._row.size)
-
-    def learn(self, weight: NDArray[np.float64], in_map: float) -> None:
-        pass
-
-    def state(self) -> dict[str, Any]:
-        return {}
-
-    def load(self, state: dict[str, Any]) -> None:
-        pass
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,8 @@ The observation model and the unexplained state are the ones of ``wiloc.calibrat
 difference is scored by its rank within its own row (Beta(a, 1) at the same place, uniform
 elsewhere, a learned online by EM), so the posterior is a probability: the confidence is the
 posterior mass within +-``mode_window`` nodes of the decided node, times 1 - P(new place).
+FAB-MAP's evidence rows (``log_ratio``, high = alike) are ranked the same way, negated: only
+their order counts, never their scale (FAB-MAP's log-ratios span hundreds of nats).
 docs/catgraph.md gives the formulation in full and docs/calibration.md the measurements behind
 every default.
 """
@@ -26,7 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.calibration import GivenEvidence, RankLikelihood, SortedRow, Unexplained, novelty_weights
+from wiloc.calibration import RankLikelihood, SortedRow, Unexplained, novelty_weights
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -123,7 +125,7 @@ class RowAhead:
 
     contrast: NDArray[np.float64]  # the sequence score's contrast-normalised row, low = alike
     finite: bool  # whether every value of the row is finite
-    ordered: SortedRow | None  # what the rank model ranks against (None for given evidence)
+    ordered: SortedRow  # what the rank model ranks against
 
 
 @dataclass(frozen=True)
@@ -248,12 +250,16 @@ class CatGraph(Method):
         self._ahead_memory = RecycledArrays(np.float64)  # the rows' contrast
         self._sorted_memory = RecycledArrays(np.float32)  # their sorted values
 
-    def _observation_model(self) -> RankLikelihood | GivenEvidence:
-        """Ranks within difference rows (whole images), or FAB-MAP's given log-likelihood ratios."""
+    def _observation_model(self) -> RankLikelihood:
+        """Ranks within each row: of the differences (whole images), or of FAB-MAP's negated
+        log-likelihood ratios (``bow``), whose scale is then of no account."""
         p = self.params
-        if self.context is not None and self.context.rows == "log_ratio":
-            return GivenEvidence()
         return RankLikelihood(p.a0, p.n0, p.a_min)
+
+    @property
+    def _sign(self) -> float:
+        """What turns a row into differences (low = alike): -1 for FAB-MAP's evidence rows."""
+        return -1.0 if self.context is not None and self.context.rows == "log_ratio" else 1.0
 
     def _shift_lookup(self, u: float) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]:
         """:func:`_shifted_reads` for step u and their :func:`_read_runs`: the same for every
@@ -293,10 +299,10 @@ class CatGraph(Method):
 
         if rows.shape[1] != self._nodes.size:
             return [None] * rows.shape[0]
-        evidence = self.context is not None and self.context.rows == "log_ratio"
+        sign = self._sign
         contrast, finite = self._ahead_memory.take(rows.shape), np.empty(rows.shape[0], dtype=np.bool_)
-        filter_kernels.contrast_rows(rows, self.params.contrast_window, -1.0 if evidence else 1.0, contrast, finite)
-        ordered = self._likelihood.order(rows, self._sorted_memory)
+        filter_kernels.contrast_rows(rows, self.params.contrast_window, sign, contrast, finite)
+        ordered = self._likelihood.order(rows if sign > 0 else -rows, self._sorted_memory)
         return [RowAhead(contrast[r], bool(finite[r]), ordered[r]) for r in range(rows.shape[0])]
 
     def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
@@ -314,7 +320,7 @@ class CatGraph(Method):
         if not first:
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
-        likelihood.use_row(row, pre.ordered)
+        likelihood.use_row(row if self._sign > 0 else -row, pre.ordered)  # ranked as differences
         log_mean_ratio = likelihood.mean(self._omega, self._damped)
         prior = unexplained.transition(first)
 
@@ -358,7 +364,7 @@ class CatGraph(Method):
             pos, speed = pos[idx], speed[idx]
             log_w = np.full(p.particles, -np.log(p.particles))
         self._pos, self._speed, self._log_w = pos, speed, log_w
-        return Decision(match=mode, difference=float(row[mode]), confidence=float(mass * (1.0 - p_new)),
+        return Decision(match=mode, difference=float(self._sign * row[mode]), confidence=float(mass * (1.0 - p_new)),
                         stage="track", new_place=p_new)
 
     def probability_near(self, node: int) -> float:
