@@ -49,13 +49,15 @@ def test_tracks_query_at_other_speed_than_map_with_odometry(speed: float) -> Non
     assert _hits(dec.match[20:], truth[20:]).mean() >= 0.9
 
 
-@pytest.mark.parametrize("speed", [0.5, 2 / 3, 1.5, 2.0])
+@pytest.mark.parametrize("speed", [0.5, 2 / 3, 1.5, 2.0, -1.0, -1.5])
 def test_without_odometry_re_seeded_particles_carry_the_pace_of_their_sequence(speed: float) -> None:
     # Re-seeded particles move at the pace whose sequence trajectory scored best at their node, so
-    # the default follows a query at another pace than the map's; with a sequence score of the
-    # map's pace alone every particle moves at that pace and the track is lost.
+    # the default follows a query at another pace than the map's, or driving the route the other
+    # way; with a sequence score of the map's pace alone every particle moves at that pace and
+    # the track is lost.
     rng = np.random.default_rng(1)
-    truth = 10.0 + speed * np.arange(int(270 / speed))
+    start = 10.0 if speed > 0 else N_REF - 10.0
+    truth = start + speed * np.arange(int(270 / abs(speed)))
     rows, ref = _rows(truth, N_REF, rng), _ref_self(rng)
     assert _hits(localize_catgraph(iter(rows), ref, truth.size).match[20:], truth[20:]).mean() >= 0.9
     one_pace = localize_catgraph(iter(rows), ref, truth.size, sequence_speeds=(1.0,))
@@ -160,6 +162,7 @@ def test_output_shape_model_and_params() -> None:
     ({"departure_prior": (0.0, 1.0)}, "departure_prior"),
     ({"sequence_rate": 0.0}, "sequence_rate"),
     ({"sequence_speeds": ()}, "sequence_speeds"),
+    ({"sequence_speeds": (1.0, 0.0)}, "sequence_speeds"),
     ({"speed_range": (2.0, 1.0)}, "speed_range"),
     ({"contrast_window": 0}, "contrast_window"),
     ({"seed": -1}, "seed"),
@@ -222,13 +225,16 @@ def test_sequence_score_step_is_the_numpy_expression_value_for_value(even: bool)
 
     rng = np.random.default_rng(3)
     nodes = np.arange(700.0) if even else np.cumsum(rng.random(700) * (rng.random(700) < 0.9))
-    score, contrast = rng.normal(size=(4, 700)), rng.normal(size=700)
-    at, a = _shifted_reads(nodes, np.array([0.5, 1.0, 1.5, 2.0]) * 0.8)
+    speeds = np.array([0.5, 1.0, -1.0, 1.5, 2.0, -2.0])  # forward and backward paces, interleaved
+    score, contrast = rng.normal(size=(speeds.size, 700)), rng.normal(size=700)
+    at, a = _shifted_reads(nodes, speeds * 0.8)
     prev = score.ravel()
     want = (1.0 - 0.1) * ((1.0 - a) * prev[at] + a * prev[at + 1]).reshape(score.shape) + 0.1 * contrast
-    out, lowest = np.empty_like(score), np.empty(700)
-    advance(score, at, a, _read_runs(at, a, 700), contrast, 0.1, out, lowest)
-    assert np.array_equal(out, want) and np.array_equal(lowest, want.min(axis=0))
+    out, lowest = np.empty_like(score), np.empty((2, 700))
+    advance(score, at, a, _read_runs(at, a, 700), contrast, 0.1, (speeds < 0).astype(np.intp), out, lowest)
+    assert np.array_equal(out, want)
+    assert np.array_equal(lowest[0], want[speeds > 0].min(axis=0))
+    assert np.array_equal(lowest[1], want[speeds < 0].min(axis=0))
 
 
 @pytest.mark.parametrize(("n_nodes", "half"), [(500, 2), (500, 0), (3, 2), (40, 5)])

@@ -139,8 +139,8 @@ class CatGraphParams(Parameters):
     step_noise: float = param(0.15, "Motion noise, a fraction of each step.", low=0.0)
     noise_floor: float = param(0.0, "Motion noise floor, a fraction of the mean node spacing.", low=0.0)
     speed_noise: float = param(0.0, "Per-particle speed noise per frame (0: no velocity state).", low=0.0)
-    speed_range: tuple[float, float] = param((0.0, 3.0), "Range of the particles' speed ratios (low, high).",
-                                             low=0.0)
+    speed_range: tuple[float, float] = param((-3.0, 3.0), "Range of the particles' paces when they drift "
+                                                          "(low, high).")
     resample_ess: float = param(0.5, "Resample when the effective sample size falls below this share.",
                                 low=0.0, high=1.0)
     reseed: float = param(0.01, "Share of particles re-seeded each frame at the best sequence score.",
@@ -148,10 +148,13 @@ class CatGraphParams(Parameters):
     reseed_top: int = param(1, "Nodes of best sequence score that re-seeded particles go to.", low=1)
     sequence_rate: float = param(0.1, "Rate of the leaky sequence score (about 1 / frames remembered).",
                                  low=0.0, high=1.0, low_open=True)
-    sequence_speeds: tuple[float, ...] = param((0.5, 2 / 3, 1.0, 1.5, 2.0),
-                                               "Paces (map nodes per query frame) of the sequence score; half the "
-                                               "re-seeded particles move at the pace that scored best at their node.",
-                                               low=0.0, low_open=True)
+    sequence_speeds: tuple[float, ...] = param((0.5, 2 / 3, 1.0, 1.5, 2.0, -0.5, -2 / 3, -1.0, -1.5, -2.0),
+                                               "Paces (map nodes per query frame; negative: the route driven the "
+                                               "other way) of the sequence score; re-seeded particles move at the "
+                                               "pace that scored best at their node (half of the forward ones at "
+                                               "the map's pace).")
+    reseed_backward: float = param(0.1, "Share of re-seeded particles that go to the best backward trajectory "
+                                         "(when sequence_speeds has negative paces).", low=0.0, high=1.0)
     contrast_window: int = param(10, "Half window (nodes) of the sequence score's contrast normalisation.",
                                  low=1)
     mode_window: int = param(2, "Half window (nodes) around the decided node whose posterior mass is "
@@ -183,6 +186,8 @@ class CatGraphParams(Parameters):
         if self.stretch_close > self.stretch_open:
             raise ParameterError("stretch_close", f"must not exceed stretch_open ({self.stretch_open}), "
                                                   f"got {self.stretch_close}")
+        if 0.0 in self.sequence_speeds:
+            raise ParameterError("sequence_speeds", f"every pace must be non-zero, got {self.sequence_speeds!r}")
         if min(self.departure_prior) <= 0:
             raise ParameterError("departure_prior", f"both counts must be > 0, got {self.departure_prior!r}")
 
@@ -197,8 +202,10 @@ class CatGraph(Method):
     the mean node spacing. Re-seeding uses a causal sequence score per node: for each speed ratio
     in ``sequence_speeds`` an exponentially weighted (rate ``sequence_rate``) sum of contrast-
     normalised differences (+-``contrast_window`` nodes) along the trajectory ending there; the
-    lowest over speeds counts; half the re-seeded particles move at the map's pace, half at the
-    speed whose trajectory scored best at their node. Each decision is the node at the density
+    lowest over the forward speeds counts, and apart from it the lowest over the backward ones
+    (negative speeds: the route driven the other way), where a share ``reseed_backward`` of the
+    re-seeded particles go; each moves at the speed whose trajectory scored best at its node (half
+    of the forward ones at the map's pace). Each decision is the node at the density
     mode (the largest weight mass within +-``mode_window`` nodes; among tied nodes the one holding
     most weight itself), its difference, the confidence (that mass times 1 - P(new place)) and
     P(new place). The same seed gives identical decisions.
@@ -232,11 +239,11 @@ class CatGraph(Method):
         # its share of particles, so look-alike places start with equal mass
         self._pos = self._nodes[0] + (np.arange(p.particles) + self._rng.uniform()) / p.particles * (
             self._nodes[-1] - self._nodes[0])
-        self._speed = (self._rng.uniform(p.speed_range[0], p.speed_range[1], p.particles) if p.speed_noise > 0
-                       else np.ones(p.particles))
+        self._speed = np.ones(p.particles)  # every particle at the map's pace
         self._log_w = np.full(p.particles, -np.log(p.particles))
         self._paces = np.asarray(p.sequence_speeds, dtype=np.float64)
         self._sequence = np.zeros((self._paces.size, n_nodes))
+        self._group_lowest = np.empty((2, n_nodes))  # the sequence score's lowest over forward, backward paces
         self._spare: NDArray[np.float64] | None = None  # memory for the next sequence score
         self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
         self._marks = np.zeros(n_nodes, dtype=np.int64)  # the read-out's scratch: the frame that last summed a node
@@ -278,16 +285,18 @@ class CatGraph(Method):
     def _advance(self, sequence: NDArray[np.float64], contrast: NDArray[np.float64], u: float,
                  first: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The sequence score after a frame of this contrast and step u (a new array: the leaky
-        sum along each speed's trajectory, causal, O(speeds x nodes)), and its lowest over speeds
-        per node, which re-seeding ranks nodes by."""
+        sum along each speed's trajectory, causal, O(speeds x nodes)), and its lowest over the
+        forward and over the backward speeds per node (2 x nodes), which re-seeding ranks nodes by."""
         from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
 
+        lowest = self._group_lowest
         if first:
-            return np.broadcast_to(contrast, sequence.shape).copy(), contrast
+            lowest[:] = contrast
+            return np.broadcast_to(contrast, sequence.shape).copy(), lowest
         spare = self._spare  # the score before last: its memory takes the new one (fresh pages cost faults)
         after = spare if spare is not None and spare.shape == sequence.shape else np.empty_like(sequence)
-        lowest = np.empty(contrast.size)
-        filter_kernels.advance(sequence, *self._shift_lookup(u), contrast, self.params.sequence_rate, after, lowest)
+        filter_kernels.advance(sequence, *self._shift_lookup(u), contrast, self.params.sequence_rate,
+                               (self._paces < 0).astype(np.intp), after, lowest)
         self._spare = sequence
         return after, lowest
 
@@ -316,7 +325,7 @@ class CatGraph(Method):
             raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
         contrast = pre.contrast
         u = self._travelled(odometry)
-        self._sequence, score = self._advance(self._sequence, contrast, u, first)
+        self._sequence, lowest = self._advance(self._sequence, contrast, u, first)
         if not first:
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
@@ -328,20 +337,14 @@ class CatGraph(Method):
         if not first:  # motion model: s += v u_k + noise
             if p.speed_noise > 0:
                 speed = np.clip(speed + rng.normal(0.0, p.speed_noise, p.particles), *p.speed_range)
-            sd = np.hypot(p.step_noise * u * speed, p.noise_floor * self._spacing)
+            sd = np.hypot(p.step_noise * u * np.abs(speed), p.noise_floor * self._spacing)
             pos = np.clip(pos + speed * u + rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
         n_reseed = int(round(p.reseed * p.particles))
         kept = np.ones(p.particles, dtype=bool)
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
             weakest = np.argpartition(self._log_w, n_reseed - 1)[:n_reseed]
             kept[weakest] = False
-            best = _lowest(score, p.reseed_top)
-            best = best[np.arange(n_reseed) % best.size]
-            pos[weakest] = nodes[best]
-            # half at the map's pace, half at the pace whose trajectory scored best at their node
-            speed[weakest] = 1.0
-            if not first:
-                speed[weakest[1::2]] = self._paces[np.argmin(self._sequence[:, best[1::2]], axis=0)]
+            self._reseed(weakest, lowest, pos, speed, first)
 
         j, a = _locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
         omega = np.empty(p.particles)
@@ -366,6 +369,30 @@ class CatGraph(Method):
         self._pos, self._speed, self._log_w = pos, speed, log_w
         return Decision(match=mode, difference=float(self._sign * row[mode]), confidence=float(mass * (1.0 - p_new)),
                         stage="track", new_place=p_new)
+
+    def _reseed(self, weakest: NDArray[np.intp], lowest: NDArray[np.float64], pos: NDArray[np.float64],
+                speed: NDArray[np.float64], first: bool) -> None:
+        """Move the ``weakest`` particles to the ``reseed_top`` nodes of lowest sequence score: a
+        share ``reseed_backward`` (when the score has backward paces) to the best backward
+        trajectories' nodes at their pace, the rest to the best forward ones, half of those at the
+        map's pace and half at the pace that scored best there. On the first frame every pace
+        scores alike: all go to the best nodes at the map's pace."""
+        p, backward = self.params, self._paces < 0
+        n_back = 0 if first or not backward.any() else (
+            weakest.size if backward.all() else int(round(p.reseed_backward * weakest.size)))
+        for group, chosen in ((0, weakest[n_back:]), (1, weakest[:n_back])):
+            if chosen.size == 0:
+                continue
+            best = _lowest(lowest[group], p.reseed_top)
+            best = best[np.arange(chosen.size) % best.size]
+            pos[chosen] = self._nodes[best]
+            speed[chosen] = 1.0
+            if first:
+                continue
+            paces = self._paces[backward if group else ~backward]
+            rows = self._sequence[backward if group else ~backward]
+            alike = slice(None) if group else slice(1, None, 2)  # forward: every other one keeps the map's pace
+            speed[chosen[alike]] = paces[np.argmin(rows[:, best[alike]], axis=0)]
 
     def probability_near(self, node: int) -> float:
         """After a step: the probability that the frame shows the place of ``node`` (within
@@ -411,6 +438,7 @@ class CatGraph(Method):
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
         self._paces = np.asarray(p.sequence_speeds, dtype=np.float64)
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
+        self._group_lowest = np.empty((2, self._sequence.shape[1]))
         self._spare = None
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
         self._marks = np.zeros(self._own.size, dtype=np.int64)

@@ -53,9 +53,9 @@ def contrast_normalise(row: NDArray[np.float64], half_window: int, sign: float,
 
 @njit(cache=True, nogil=True)
 def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.float64], runs: NDArray[np.intp],
-            contrast: NDArray[np.float64], rate: float, out: NDArray[np.float64],
+            contrast: NDArray[np.float64], rate: float, group: NDArray[np.intp], out: NDArray[np.float64],
             lowest: NDArray[np.float64]) -> None:
-    """The leaky sequence score one frame on, and its minimum over speeds per node.
+    """The leaky sequence score one frame on, and its minimum over each group's speeds per node.
 
     ``out`` (speeds x nodes) = ``score`` read where ``catgraph._shifted_reads`` says (flat
     positions ``at``, fractions ``a``), linearly interpolated (the score ending at node j
@@ -64,12 +64,14 @@ def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.floa
     ``(1 - rate) * ((1 - a) * prev[at] + a * prev[at + 1]) + rate * contrast``, value for value.
     ``runs`` (``catgraph._read_runs``: first, end) are long stretches that read consecutive
     positions at one fraction, as evenly spaced nodes give: there the loop vectorises.
-    ``lowest[j]`` = ``out[:, j].min()``, the score that re-seeding ranks nodes by, taken in the
-    same pass (speed by speed, as the rows are written).
+    ``lowest[g, j]`` = ``out[group == g, j].min()`` (speed s belongs to group ``group[s]``; the
+    forward and the backward paces), the scores that re-seeding ranks nodes by, taken in the
+    same pass (speed by speed, as the rows are written); a group without speeds is left as it is.
     """
     prev, flat = score.ravel(), out.ravel()
     n = contrast.size
     keep = 1.0 - rate
+    opened = np.zeros(lowest.shape[0], dtype=np.bool_)  # whether a group's lowest holds a row yet
     k = 0
     for r in range(runs.shape[0] + 1):
         end = runs[r, 0] if r < runs.shape[0] else flat.size
@@ -77,21 +79,25 @@ def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.floa
         for k in range(k, end):  # uneven reads: one position at a time
             value = keep * ((1.0 - a[k]) * prev[at[k]] + a[k] * prev[at[k] + 1]) + rate * contrast[j]
             flat[k] = value
-            lowest[j] = value if k < n else min(lowest[j], value)
+            g = group[k // n]
+            if j == 0 and not opened[g]:
+                opened[g] = True
+                lowest[g, :] = np.inf
+            lowest[g, j] = min(lowest[g, j], value)
             j = j + 1 if j + 1 < n else 0
         if r == runs.shape[0]:
             break
         k, end = runs[r, 0], runs[r, 1]
         length, first, f = end - k, at[k], a[k]
+        g = group[k // n]
+        if not opened[g]:  # a run starts a row: when it is its group's first, the row sets the minimum
+            opened[g] = True
+            lowest[g, :] = np.inf
         here, before, after = flat[k:end], prev[first:first + length], prev[first + 1:first + 1 + length]
-        now, low = contrast[k % n:k % n + length], lowest[k % n:k % n + length]
-        if k < n:  # the first speed's row
-            for i in range(length):  # plain indices into views: the loop vectorises
-                here[i] = low[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
-        else:
-            for i in range(length):
-                here[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
-                low[i] = min(low[i], here[i])
+        now, low = contrast[k % n:k % n + length], lowest[g, k % n:k % n + length]
+        for i in range(length):  # plain indices into views: the loop vectorises
+            here[i] = keep * ((1.0 - f) * before[i] + f * after[i]) + rate * now[i]
+            low[i] = min(low[i], here[i])
         k = end
 
 
