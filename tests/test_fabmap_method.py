@@ -127,3 +127,71 @@ def test_the_command_line_builds_a_vocabulary_and_runs_fabmap(setup, tmp_path: P
     missing = runner.invoke(app, ["localize", str(route.query), "--map", str(route.reference), "--descriptor",
                                   "bow", "--vocabulary", "nope", "--cache", str(cache.root)])
     assert missing.exit_code == 1 and "--vocabulary: 'nope' is neither a vocabulary file" in missing.stderr
+
+
+def _evidence(rng: np.random.Generator, frames: int = 80, n_map: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    """FAB-MAP-like evidence rows in hundreds of nats, highest around the true place (query frame
+    k at map place k + 20) among look-alikes, and the true places."""
+    truth = np.arange(frames) + 20
+    offset = truth[:, None] - np.arange(n_map)[None, :]
+    return 200.0 * (rng.standard_normal((frames, n_map)) + 2.5 * np.exp(-0.5 * (offset / 1.5) ** 2)), truth
+
+
+def test_catgraph_ranks_fabmap_evidence_so_its_scale_does_not_count() -> None:
+    from wiloc.methods.base import MapContext
+    from wiloc.methods.registry import make_method
+    rows, truth = _evidence(np.random.default_rng(5))
+    steps = np.ones(rows.shape[1] - 1)
+    runs = []
+    for scale in (1.0, 100.0):  # hundreds of nats, then tens of thousands
+        method = make_method("catgraph", {"particles": 500})
+        method.start(MapContext(sequence=False, exclude_recent=0, n_map=rows.shape[1], rows="log_ratio",
+                                neighbours=lambda: steps))
+        runs.append([method.step(scale * row) for row in rows])
+    one, hundred = runs
+    assert [d.match for d in one] == [d.match for d in hundred]
+    np.testing.assert_allclose([d.confidence for d in one], [d.confidence for d in hundred], rtol=1e-9)
+    np.testing.assert_allclose([100 * d.difference for d in one], [d.difference for d in hundred], rtol=1e-12)
+    confidence = np.array([d.confidence for d in one])
+    right = np.abs(np.array([d.match for d in one]) - truth) <= 2
+    assert not np.any(confidence[~right] >= 0.99)  # a probability, not FAB-MAP's certainty
+    assert abs(confidence.mean() - right.mean()) <= 0.1
+
+
+def test_fabmap_and_catgraph_write_minus_the_evidence_as_the_difference(setup) -> None:
+    route, cache, bow = setup
+    runs = {method: api.localize(route.query, reference=route.reference, descriptor="bow", descriptor_params=bow,
+                                 method=method, cache=cache).decisions for method in ("fabmap", "catgraph")}
+    fabmap, catgraph = runs["fabmap"], runs["catgraph"]
+    same = fabmap.match == catgraph.match  # fabmap is right on a third of the frames here
+    assert same.sum() >= 5
+    np.testing.assert_array_equal(fabmap.difference[same], catgraph.difference[same])
+    assert np.median(fabmap.difference) < 0 and np.median(catgraph.difference) < 0  # -r: low = alike
+
+
+def test_a_vocabulary_of_images_too_small_for_local_features_is_warned_of(setup, tmp_path: Path) -> None:
+    route, cache, good = setup
+    tiny = tmp_path / "tiny"
+    tiny.mkdir()
+    rng = np.random.default_rng(1)
+    for k in range(30):  # 64 x 32 thumbnails: a handful of SIFT features each
+        image = np.full((32, 64), 128, np.uint8)
+        for _ in range(6):
+            cv2.circle(image, (int(rng.integers(0, 64)), int(rng.integers(0, 32))), int(rng.integers(2, 6)),
+                       int(rng.integers(0, 256)), -1)
+        cv2.imwrite(str(tiny / f"t{k:03d}.png"), image)
+    runner = CliRunner()
+    built = runner.invoke(app, ["vocabulary", str(tiny), "--words", "16", "--cache", str(cache.root), "--json"])
+    assert built.exit_code == 0, built.output
+    report = json.loads(built.stdout)
+    [warning] = report["warnings"]
+    assert warning.startswith(f"warning: vocabulary {report['key']}: its 30 training images give a median of ")
+    assert warning in built.stderr.replace("warning ", "warning: ", 1)
+    done = runner.invoke(app, ["localize", str(route.query), "--map", str(route.reference), "--descriptor", "bow",
+                               "--vocabulary", report["key"], "--method", "fabmap", "--cache", str(cache.root),
+                               "--out", str(tmp_path / "r.csv"), "--json"])
+    assert done.exit_code == 0, done.output
+    assert json.loads(done.stdout)[0]["warnings"] == [warning]
+    run = api.localize(route.query, reference=route.reference, descriptor="bow", descriptor_params=good,
+                       method="fabmap", cache=cache)
+    assert run.warnings == []  # 320 x 240 images: plenty of words

@@ -19,6 +19,7 @@ from wiloc import __version__
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent
 from wiloc.describing import DescribeReport, check_sampling, describe_sources, import_matrix
+from wiloc.descriptors.bow import load_vocabulary
 from wiloc.differences import candidate_blocks, run_differences
 from wiloc.distances import consecutive
 from wiloc.errors import ParameterError, UsageError, WilocError
@@ -118,6 +119,7 @@ class LocalizeRun:
     seconds: float
     skipped: list[tuple[str, str]] = field(default_factory=list)  # (image path, why it was left out)
     replaced: bool = False  # the results file existed before and was replaced
+    warnings: list[str] = field(default_factory=list)  # what makes the results doubtful (a sparse vocabulary)
 
     def __repr__(self) -> str:
         written = f", path={str(self.path)!r}" if self.path else ""
@@ -199,11 +201,16 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
         meta["sampling"] = asdict(sampling or Sampling())
     if kind == "log_ratio":  # FAB-MAP's training data: the vocabulary's images
         meta.update(rows="fabmap", fabmap_training=evidence.training_folders)
+    sparse = None  # a vocabulary of too few words per image makes every bow result doubtful
+    if describer.descriptor == "bow":
+        spec = describer.spec
+        sparse = load_vocabulary(spec.params["file"], spec.params["vocabulary"]).too_few_words()
     results = make_results(decisions, query_names=q.names, ref_names=r.names, meta=meta)
     replaced = write_results(Path(out), results) if out is not None else False
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
                        decisions=decisions, results=results, path=None if out is None else Path(out),
-                       seconds=time.perf_counter() - started, skipped=describer.skipped, replaced=replaced)
+                       seconds=time.perf_counter() - started, skipped=describer.skipped, replaced=replaced,
+                       warnings=[] if sparse is None else [sparse])
 
 
 def _run_meta(method: str, describer: Describer, query: Path, metric: str, reference: Path | None,

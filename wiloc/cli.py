@@ -263,6 +263,9 @@ def vocabulary(
     notes = Notes()
     for path, reason in report.failed:
         notes.add("skipped", f"{path}: {reason}")
+    sparse = report.vocabulary.too_few_words()
+    if sparse is not None:
+        notes.add("warning", sparse)
     row = {"key": report.vocabulary.key, "words": report.vocabulary.n_words,
            "training_frames": len(report.vocabulary.training_frames), "built": report.built,
            "seconds": report.seconds, "file": str(report.path)}
@@ -396,6 +399,10 @@ def localize(
             shown.add((path, reason))
         if run.replaced:
             said.add("note", f"replaced the existing results file {run.path}")
+        for line in run.warnings:
+            if ("warning", line) not in shown:
+                said.add("warning", line)
+            shown.add(("warning", line))
         notes.append(said)
         d = run.decisions
         conf = d.confidence[d.decided]

@@ -29,6 +29,12 @@ from wiloc.parameters import Parameters, param
 
 FORMAT = "wiloc-vocabulary"
 FORMAT_VERSION = 1
+#: A vocabulary whose training images give a median under FEW_WORDS distinct words per image, or
+#: more than a share NO_WORDS of images without any, is too sparse for FAB-MAP: Gardens Point at
+#: 640 px gives 340 (none empty), Nordland's 64 x 32 thumbnails 10 (5 % empty), and the bounds
+#: sit between (docs/fabmap.md).
+FEW_WORDS = 50
+NO_WORDS = 0.01
 
 
 @dataclass(frozen=True)
@@ -87,6 +93,19 @@ class Vocabulary:
         """Word presence ``(K,)`` of one 8-bit grayscale image."""
         p = self.params
         return self.occurrences(extract_features(gray, p.feature, p.max_features, p.max_side))
+
+    def too_few_words(self) -> str | None:
+        """Why this vocabulary's training images are too small for local features (a median
+        under ``FEW_WORDS`` words per image, or more than ``NO_WORDS`` of them without any), or
+        None. FAB-MAP's tree and new-place samples come from these images, so everything
+        localised with such a vocabulary degenerates (docs/fabmap.md)."""
+        words = self.training_occurrences.sum(axis=1)
+        median, empty = float(np.median(words)), int(np.count_nonzero(words == 0))
+        if median >= FEW_WORDS and empty <= NO_WORDS * words.size:
+            return None
+        return (f"vocabulary {self.key}: its {words.size} training images give a median of {median:g} words each "
+                f"and {empty} give none (usable: {FEW_WORDS} or more, at most {NO_WORDS:.0%} without any): "
+                "images too small for local features, so FAB-MAP's evidence and bag-of-words matching degenerate")
 
 
 def word_presence(features: NDArray, centres: NDArray) -> NDArray[np.bool_]:
