@@ -4,7 +4,7 @@ For a frame's word presence Z the row holds, per candidate place j, the log-like
 r_j = log p(Z | L_j) - log p(Z | new place): how much better place j explains the frame than an
 unseen place does (the denominator is FAB-MAP's new-place likelihood, from sampled training
 images). Methods that take such rows (``rows`` holding ``"log_ratio"``: the single-frame
-``fabmap`` method, and CAT-Graph, whose particles are then weighted by FAB-MAP's likelihood: the
+``fabmap`` method, and CAT-Graph, which ranks -r_j within the row as it ranks differences: the
 local-feature CAT-Graph of the paper's Table I) read them as they read difference rows, with
 -inf where a frame is no candidate. The Chow-Liu tree and the new-place samples are learned from
 the vocabulary's training images, a traversal other than the tested pair.
