@@ -49,7 +49,7 @@ def test_tracks_query_at_other_speed_than_map_with_odometry(speed: float) -> Non
     assert _hits(dec.match[20:], truth[20:]).mean() >= 0.9
 
 
-@pytest.mark.parametrize("speed", [0.5, 2 / 3, 1.5, 2.0, -1.0, -1.5])
+@pytest.mark.parametrize("speed", [1 / 3, 0.5, 2 / 3, 1.5, 2.0, -1.0, -1.5])
 def test_without_odometry_re_seeded_particles_carry_the_pace_of_their_sequence(speed: float) -> None:
     # Re-seeded particles move at the pace whose sequence trajectory scored best at their node, so
     # the default follows a query at another pace than the map's, or driving the route the other
@@ -163,6 +163,7 @@ def test_output_shape_model_and_params() -> None:
     ({"sequence_rate": 0.0}, "sequence_rate"),
     ({"sequence_speeds": ()}, "sequence_speeds"),
     ({"sequence_speeds": (1.0, 0.0)}, "sequence_speeds"),
+    ({"sequence_speeds": (0.25, -0.25), "rank_pace_min": 0.5}, "rank_pace_min"),
     ({"speed_range": (2.0, 1.0)}, "speed_range"),
     ({"contrast_window": 0}, "contrast_window"),
     ({"seed": -1}, "seed"),

@@ -148,11 +148,14 @@ class CatGraphParams(Parameters):
     reseed_top: int = param(1, "Nodes of best sequence score that re-seeded particles go to.", low=1)
     sequence_rate: float = param(0.1, "Rate of the leaky sequence score (about 1 / frames remembered).",
                                  low=0.0, high=1.0, low_open=True)
-    sequence_speeds: tuple[float, ...] = param((0.5, 2 / 3, 1.0, 1.5, 2.0, -0.5, -2 / 3, -1.0, -1.5, -2.0),
+    sequence_speeds: tuple[float, ...] = param((1 / 3, 0.5, 2 / 3, 1.0, 1.5, 2.0, -0.5, -2 / 3, -1.0, -1.5, -2.0),
                                                "Paces (map nodes per query frame; negative: the route driven the "
                                                "other way) of the sequence score; re-seeded particles move at the "
                                                "pace that scored best at their node (half of the forward ones at "
                                                "the map's pace).")
+    rank_pace_min: float = param(0.5, "Paces slower than this (in magnitude) give re-seeded particles their "
+                                      "pace but do not choose their nodes: a slow trajectory's sum favours map "
+                                      "frames that resemble many query frames.", low=0.0)
     reseed_backward: float = param(0.1, "Share of re-seeded particles that go to the best backward trajectory "
                                          "(when sequence_speeds has negative paces).", low=0.0, high=1.0)
     contrast_window: int = param(10, "Half window (nodes) of the sequence score's contrast normalisation.",
@@ -188,6 +191,9 @@ class CatGraphParams(Parameters):
                                                   f"got {self.stretch_close}")
         if 0.0 in self.sequence_speeds:
             raise ParameterError("sequence_speeds", f"every pace must be non-zero, got {self.sequence_speeds!r}")
+        if not any(abs(v) >= self.rank_pace_min for v in self.sequence_speeds):
+            raise ParameterError("rank_pace_min", f"must leave a pace of sequence_speeds to rank nodes, got "
+                                                  f"{self.rank_pace_min} for {self.sequence_speeds!r}")
         if min(self.departure_prior) <= 0:
             raise ParameterError("departure_prior", f"both counts must be > 0, got {self.departure_prior!r}")
 
@@ -204,8 +210,8 @@ class CatGraph(Method):
     normalised differences (+-``contrast_window`` nodes) along the trajectory ending there; the
     lowest over the forward speeds counts, and apart from it the lowest over the backward ones
     (negative speeds: the route driven the other way), where a share ``reseed_backward`` of the
-    re-seeded particles go; each moves at the speed whose trajectory scored best at its node (half
-    of the forward ones at the map's pace). Each decision is the node at the density
+    re-seeded particles go (speeds slower than ``rank_pace_min`` rank no node); each moves at the
+    speed whose trajectory scored best at its node (half of the forward ones at the map's pace). Each decision is the node at the density
     mode (the largest weight mass within +-``mode_window`` nodes; among tied nodes the one holding
     most weight itself), its difference, the confidence (that mass times 1 - P(new place)) and
     P(new place). The same seed gives identical decisions.
@@ -241,9 +247,8 @@ class CatGraph(Method):
             self._nodes[-1] - self._nodes[0])
         self._speed = np.ones(p.particles)  # every particle at the map's pace
         self._log_w = np.full(p.particles, -np.log(p.particles))
-        self._paces = np.asarray(p.sequence_speeds, dtype=np.float64)
+        self._set_paces()
         self._sequence = np.zeros((self._paces.size, n_nodes))
-        self._group_lowest = np.empty((2, n_nodes))  # the sequence score's lowest over forward, backward paces
         self._spare: NDArray[np.float64] | None = None  # memory for the next sequence score
         self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
         self._marks = np.zeros(n_nodes, dtype=np.int64)  # the read-out's scratch: the frame that last summed a node
@@ -251,6 +256,14 @@ class CatGraph(Method):
         self._odometry = False  # whether any step came with odometry
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
         self._recycle()
+
+    def _set_paces(self) -> None:
+        """The sequence score's paces and the group of each: 0 forward and 1 backward (ranking
+        nodes for re-seeding), 2 slower than ``rank_pace_min`` (giving only a pace)."""
+        p = self.params
+        self._paces = np.asarray(p.sequence_speeds, dtype=np.float64)
+        self._groups = np.where(np.abs(self._paces) < p.rank_pace_min, 2, (self._paces < 0).astype(np.intp))
+        self._group_lowest = np.empty((3, self._nodes.size))  # the score's lowest per group and node
 
     def _recycle(self) -> None:
         """Memory for what :meth:`ahead` computes, used again once its rows are stepped."""
@@ -285,8 +298,8 @@ class CatGraph(Method):
     def _advance(self, sequence: NDArray[np.float64], contrast: NDArray[np.float64], u: float,
                  first: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The sequence score after a frame of this contrast and step u (a new array: the leaky
-        sum along each speed's trajectory, causal, O(speeds x nodes)), and its lowest over the
-        forward and over the backward speeds per node (2 x nodes), which re-seeding ranks nodes by."""
+        sum along each speed's trajectory, causal, O(speeds x nodes)), and its lowest per group of
+        speeds (:meth:`_set_paces`) and node, which re-seeding ranks nodes by."""
         from wiloc.methods import filter_kernels  # numba loads with the first frame, not the command line
 
         lowest = self._group_lowest
@@ -296,7 +309,7 @@ class CatGraph(Method):
         spare = self._spare  # the score before last: its memory takes the new one (fresh pages cost faults)
         after = spare if spare is not None and spare.shape == sequence.shape else np.empty_like(sequence)
         filter_kernels.advance(sequence, *self._shift_lookup(u), contrast, self.params.sequence_rate,
-                               (self._paces < 0).astype(np.intp), after, lowest)
+                               self._groups, after, lowest)
         self._spare = sequence
         return after, lowest
 
@@ -373,13 +386,14 @@ class CatGraph(Method):
     def _reseed(self, weakest: NDArray[np.intp], lowest: NDArray[np.float64], pos: NDArray[np.float64],
                 speed: NDArray[np.float64], first: bool) -> None:
         """Move the ``weakest`` particles to the ``reseed_top`` nodes of lowest sequence score: a
-        share ``reseed_backward`` (when the score has backward paces) to the best backward
-        trajectories' nodes at their pace, the rest to the best forward ones, half of those at the
-        map's pace and half at the pace that scored best there. On the first frame every pace
-        scores alike: all go to the best nodes at the map's pace."""
-        p, backward = self.params, self._paces < 0
-        n_back = 0 if first or not backward.any() else (
-            weakest.size if backward.all() else int(round(p.reseed_backward * weakest.size)))
+        share ``reseed_backward`` (when backward paces rank nodes) to the best backward
+        trajectories' nodes at the backward pace that scored best there, the rest to the best
+        forward ones, half of those at the map's pace and half at the forward pace that scored best
+        there. On the first frame every pace scores alike: all go forward at the map's pace."""
+        p, groups = self.params, self._groups
+        forward, backward = bool(np.any(groups == 0)), bool(np.any(groups == 1))
+        n_back = 0 if first or not backward else (
+            weakest.size if not forward else int(round(p.reseed_backward * weakest.size)))
         for group, chosen in ((0, weakest[n_back:]), (1, weakest[:n_back])):
             if chosen.size == 0:
                 continue
@@ -389,10 +403,9 @@ class CatGraph(Method):
             speed[chosen] = 1.0
             if first:
                 continue
-            paces = self._paces[backward if group else ~backward]
-            rows = self._sequence[backward if group else ~backward]
+            way = self._paces < 0 if group else self._paces > 0
             alike = slice(None) if group else slice(1, None, 2)  # forward: every other one keeps the map's pace
-            speed[chosen[alike]] = paces[np.argmin(rows[:, best[alike]], axis=0)]
+            speed[chosen[alike]] = self._paces[way][np.argmin(self._sequence[way][:, best[alike]], axis=0)]
 
     def probability_near(self, node: int) -> float:
         """After a step: the probability that the frame shows the place of ``node`` (within
@@ -436,9 +449,8 @@ class CatGraph(Method):
         self._pos = np.asarray(state["pos"], dtype=np.float64).copy()
         self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
-        self._paces = np.asarray(p.sequence_speeds, dtype=np.float64)
+        self._set_paces()
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
-        self._group_lowest = np.empty((2, self._sequence.shape[1]))
         self._spare = None
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
         self._marks = np.zeros(self._own.size, dtype=np.int64)
