@@ -195,3 +195,20 @@ def test_a_vocabulary_of_images_too_small_for_local_features_is_warned_of(setup,
     run = api.localize(route.query, reference=route.reference, descriptor="bow", descriptor_params=good,
                        method="fabmap", cache=cache)
     assert run.warnings == []  # 320 x 240 images: plenty of words
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_catgraph_on_fabmap_evidence_is_calibrated_on_gardens_point(data_root: Path, tmp_path: Path) -> None:
+    """The acceptance of a probability: vocabulary from night_right, day_left against day_right."""
+    gp = data_root / "gardens-point-walking"
+    cache = Cache(tmp_path / "cache")
+    report = api.vocabulary([gp / "night_right"], cache=cache)
+    assert report.vocabulary.too_few_words() is None
+    run = api.localize(gp / "day_left", reference=gp / "day_right", descriptor="bow",
+                       descriptor_params={"file": str(report.path)}, method="catgraph", cache=cache)
+    assert run.warnings == []
+    e = api.evaluate(run, TruthSource(tolerance=2))
+    assert e.calibration.ece <= 0.10
+    assert not np.any(e.confidence[~e.correct] >= 0.99)  # measured: ECE 0.017, 191 frames at 0.99+, none wrong
+    assert e.summary.as_dict()["recall_at_1"] >= 0.95
