@@ -34,7 +34,7 @@ from wiloc.traversals import Describer, is_matrix_file
 from wiloc.video import Sampling
 
 STATE_FORMAT = "wiloc-localizer-state"
-STATE_VERSION = 1
+STATE_VERSION = 2  # 2: catgraph ranks FAB-MAP evidence (its likelihood state), particles carry any pace
 
 
 class Localizer:
