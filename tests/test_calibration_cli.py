@@ -98,6 +98,7 @@ def test_bad_cuts_are_one_line_usage_errors(tmp_path: Path, cuts: str) -> None:
 
 def test_calibration_plot_is_written(tmp_path: Path) -> None:
     plot = tmp_path / "plots" / "reliability.png"
+    plot.parent.mkdir()  # an output file's folder must exist (docs/guide.md)
     result = runner.invoke(app, ["evaluate", str(_gardens(tmp_path)), str(_nordland(tmp_path)),
                                  "--calibration-plot", str(plot)])
     assert result.exit_code == 0, result.output
