@@ -622,22 +622,16 @@ def _disk_full(*args: object) -> None:
     raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
 
-def test_a_full_disk_names_the_cache_file(route: tuple[Path, Path], cache_dir: Path,
-                                          monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize(("call", "suffix", "left"), [("fsync", ".h5", "*.h5*"), ("pwrite", ".h5.lock", "*.lock")])
+def test_a_full_disk_names_the_cache_file_and_leaves_none(route: tuple[Path, Path], cache_dir: Path,
+                                                          monkeypatch: pytest.MonkeyPatch, call: str, suffix: str,
+                                                          left: str) -> None:
+    # fsync fails while a cache entry is written, pwrite while its lock is taken
     ref, _ = route
-    monkeypatch.setattr(os, "fsync", _disk_full)
+    monkeypatch.setattr(os, call, _disk_full)
     result = runner.invoke(app, ["describe", str(ref), "--jobs", "1"])
-    ends_in_one_error(result, 1, f"{cache_dir}/descriptors/", ".h5: cannot write the cache (No space left on device)")
-    assert not list((cache_dir / "descriptors").glob("*.h5*"))  # no half-written entry
-
-
-def test_a_full_disk_names_the_lock_file_and_leaves_none(route: tuple[Path, Path], cache_dir: Path,
-                                                        monkeypatch: pytest.MonkeyPatch) -> None:
-    ref, _ = route
-    monkeypatch.setattr(os, "pwrite", _disk_full)
-    result = runner.invoke(app, ["describe", str(ref), "--jobs", "1"])
-    ends_in_one_error(result, 1, f"{cache_dir}/descriptors/", ".h5.lock: cannot write the cache (No space left on device)")
-    assert not list((cache_dir / "descriptors").glob("*.lock"))
+    ends_in_one_error(result, 1, f"{cache_dir}/descriptors/", f"{suffix}: cannot write the cache (No space left on device)")
+    assert not list((cache_dir / "descriptors").glob(left))  # no half-written entry, no lock left
 
 
 def test_a_full_disk_names_the_followed_results_file(route: tuple[Path, Path], tmp_path: Path,
