@@ -62,7 +62,7 @@ def test_help_pages_name_arguments_show_every_default_and_no_type_placeholders()
                 if not option.is_flag:
                     assert "[default:" in rows[flag], (name, rows[flag])
     localize = runner.invoke(app, ["localize", "--help"], env={"COLUMNS": "200"}).stdout
-    for default in ("[default: (all cores)]", "[default: 2000]", "[default: 0,3]", "[default: 100]",
+    for default in ("[default: (all cores)]", "[default: 2000]", "[default: -3,3]", "[default: 100]",
                     "[default: (QUERY-DESCRIPTOR-METHOD.csv here)]", "[default: (the share of same-place samples)]"):
         assert default in localize
     assert "(online:" not in localize  # one default shown once, not per method
