@@ -294,3 +294,13 @@ def test_weighing_is_the_numpy_expression_up_to_the_order_of_sums(renormalise: b
     np.testing.assert_allclose(out, expected - log_map, rtol=1e-12)
     np.testing.assert_allclose(w, np.exp(expected - log_map), rtol=1e-12)
     assert w.sum() == pytest.approx(1.0) and squares == pytest.approx(np.sum(w * w), rel=1e-12)
+
+
+def test_smallest_takes_ties_in_index_order_as_a_stable_sort_does() -> None:
+    from wiloc.methods.catgraph import _smallest
+
+    rng = np.random.default_rng(4)
+    values = rng.integers(0, 5, 300).astype(np.float64)  # many ties
+    for k in (1, 7, 60, 299, 300, 400):
+        want = np.sort(np.argsort(values, kind="stable")[:k])
+        assert np.array_equal(np.sort(_smallest(values, k)), want)

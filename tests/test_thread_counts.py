@@ -58,8 +58,6 @@ def test_one_thread_and_two_decide_alike(route: demo.DemoRoute, method: str, tmp
 
 @pytest.mark.slow
 @pytest.mark.skipif(not _NUMPY_AVX512, reason="numpy has no AVX-512 loops to turn off on this CPU")
-@pytest.mark.xfail(strict=True, reason="np.argpartition keeps other elements among ties with numpy's AVX-512 "
-                                       "selection; catgraph.py picks its nodes so (issue 25)")
 @pytest.mark.parametrize("method", ["catgraph", "online"])
 def test_numpy_s_avx512_loops_on_and_off_decide_alike(route: demo.DemoRoute, method: str, tmp_path: Path) -> None:
     clean = {"NPY_DISABLE_CPU_FEATURES": ""}
