@@ -296,7 +296,7 @@ def test_weighing_is_the_numpy_expression_up_to_the_order_of_sums(renormalise: b
     assert w.sum() == pytest.approx(1.0) and squares == pytest.approx(np.sum(w * w), rel=1e-12)
 
 
-def test_smallest_takes_ties_in_index_order_as_a_stable_sort_does() -> None:
+def test_smallest_takes_ties_in_index_order_or_drawn_by_the_generator() -> None:
     from wiloc.methods.catgraph import _smallest
 
     rng = np.random.default_rng(4)
@@ -304,3 +304,7 @@ def test_smallest_takes_ties_in_index_order_as_a_stable_sort_does() -> None:
     for k in (1, 7, 60, 299, 300, 400):
         want = np.sort(np.argsort(values, kind="stable")[:k])
         assert np.array_equal(np.sort(_smallest(values, k)), want)
+        drawn = _smallest(values, k, np.random.default_rng(5))  # ties drawn: the same values, other indices
+        assert drawn.size == min(k, values.size) == np.unique(drawn).size
+        assert np.array_equal(np.sort(values[drawn]), np.sort(values[want]))
+        assert np.array_equal(drawn, _smallest(values, k, np.random.default_rng(5)))

@@ -87,15 +87,19 @@ def _shifted_reads(nodes: NDArray[np.float64],
     return np.arange(shifts.size).repeat(nodes.size) * nodes.size + j, a
 
 
-def _smallest(values: NDArray[np.float64], k: int) -> NDArray[np.intp]:
-    """Indices of the ``k`` smallest values, ties taken in index order. ``np.argpartition``'s
-    choice among ties depends on the SIMD loops numpy runs on the CPU at hand, so the same input
-    would re-seed other particles or nodes on another machine."""
+def _smallest(values: NDArray[np.float64], k: int, rng: np.random.Generator | None = None) -> NDArray[np.intp]:
+    """Indices of the ``k`` smallest values; among ties at the k-th value, a uniform draw from
+    ``rng`` (else the first in index order). ``np.argpartition``'s choice among ties depends on
+    the SIMD loops numpy runs on the CPU at hand, so the same input would re-seed other particles
+    or nodes on another machine; and equal weights (after resampling) are all equally weak."""
     if k >= values.size:
         return np.arange(values.size)
     kth = np.partition(values, k - 1)[k - 1]
     below = np.flatnonzero(values < kth)
-    return np.concatenate((below, np.flatnonzero(values == kth)[:k - below.size]))
+    ties = np.flatnonzero(values == kth)
+    need = k - below.size
+    chosen = ties[:need] if rng is None or need == ties.size else rng.choice(ties, need, replace=False)
+    return np.concatenate((below, chosen))
 
 
 def _lowest(score: NDArray[np.float64], top: int) -> NDArray[np.intp]:
@@ -362,7 +366,7 @@ class CatGraph(Method):
         n_reseed = int(round(p.reseed * p.particles))
         kept = np.ones(p.particles, dtype=bool)
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
-            weakest = _smallest(self._log_w, n_reseed)
+            weakest = _smallest(self._log_w, n_reseed, rng)
             kept[weakest] = False
             self._reseed(weakest, lowest, pos, speed, first)
 
