@@ -222,10 +222,11 @@ class CatGraph(Method):
     lowest over the forward speeds counts, and apart from it the lowest over the backward ones
     (negative speeds: the route driven the other way), where a share ``reseed_backward`` of the
     re-seeded particles go (speeds slower than ``rank_pace_min`` rank no node); each moves at the
-    speed whose trajectory scored best at its node (half of the forward ones at the map's pace). Each decision is the node at the density
-    mode (the largest weight mass within +-``mode_window`` nodes; among tied nodes the one holding
-    most weight itself), its difference, the confidence (that mass times 1 - P(new place)) and
-    P(new place). The same seed gives identical decisions.
+    speed whose trajectory scored best at its node (half of the forward ones at the map's pace).
+    Each decision is the node at the density mode (the largest weight mass within
+    +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
+    the confidence (that mass times 1 - P(new place)) and P(new place). The same seed gives
+    identical decisions, on any CPU.
     """
 
     name = "catgraph"
