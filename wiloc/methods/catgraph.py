@@ -417,7 +417,8 @@ class CatGraph(Method):
                 continue
             way = self._paces < 0 if group else self._paces > 0
             alike = slice(None) if group else slice(1, None, 2)  # forward: every other one keeps the map's pace
-            speed[chosen[alike]] = self._paces[way][np.argmin(self._sequence[way][:, best[alike]], axis=0)]
+            scores = self._sequence[:, best[alike]][way]  # the chosen nodes' columns only, not every node
+            speed[chosen[alike]] = self._paces[way][np.argmin(scores, axis=0)]
 
     def probability_near(self, node: int) -> float:
         """After a step: the probability that the frame shows the place of ``node`` (within
