@@ -408,6 +408,25 @@ def test_ctrl_c_that_a_library_swallows_still_stops_the_command(route: tuple[Pat
     assert not out.exists()
 
 
+def test_ctrl_c_during_an_import_waits_for_the_import_then_stops_the_command(tmp_path: Path) -> None:
+    """Ctrl-C that arrives while a module is being imported is held until the import is done
+    (raised inside the import system it can leave a module lock held, so that a later import
+    waits forever, or be dropped in its callbacks), then stops the command: one line, 130."""
+    (tmp_path / "interrupted_module.py").write_text("import signal\nsignal.raise_signal(signal.SIGINT)\nLOADED = True\n")
+    code = ("import sys, time, wiloc.cli, wiloc.__main__ as entry\n"
+            "def run(args=None):\n"
+            "    import interrupted_module\n"
+            "    print('imported', interrupted_module.LOADED, flush=True)\n"
+            "    time.sleep(30)\n"
+            "    print('not interrupted', flush=True)\n"
+            "    return 0\n"
+            "wiloc.cli.run = run\n"
+            "sys.exit(entry.main())\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                            env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    assert (result.returncode, result.stdout, result.stderr) == (130, "imported True\n", "error: interrupted\n")
+
+
 def test_ctrl_c_after_the_work_leaves_the_exit_code_alone(route: tuple[Path, Path], tmp_path: Path) -> None:
     """A Ctrl-C while the finished process exits (interpreter teardown) neither kills it nor
     prints anything: the command's own exit code stands."""

@@ -1,34 +1,75 @@
 """The `wiloc` command (and ``python -m wiloc``).
 
-A small module on purpose: Ctrl-C while the command line is still loading (numpy, OpenCV: the
-first second) ends as any interrupt does, one line and exit code 130, not a traceback from
-inside an import. An interrupt that a library swallows (typer's pydantic, building its
-validators, reports it as "Exception ignored" and goes on) is raised again as the command
-starts. Once the command is done, Ctrl-C no longer kills the process mid-exit: it ends with the
-command's own exit code.
+Ctrl-C ends any command as one line and exit code 130, never a traceback, never a hang and never
+silently. Python raises it wherever the main thread happens to be, which is unsafe in one place:
+inside the import system (numpy, OpenCV and numba load for the first second, and the work imports
+more as it goes). There an interrupt can end between a module lock's acquire and its release, so
+that the next import of that module, in any thread, waits forever; or inside the import system's
+own callback, where Python drops it and the command runs on to exit code 0. The command's handler
+therefore holds Ctrl-C while the main thread imports and delivers it again as soon as the import
+is done. An interrupt that a library swallows elsewhere (typer's pydantic, building its
+validators, reports it as "Exception ignored" and goes on) is delivered again too. Once the
+command is done, Ctrl-C no longer kills the process mid-exit: it ends with the command's own exit
+code.
 """
 from __future__ import annotations
 
+import _thread
 import signal
 import sys
+import threading
+from types import FrameType
 from typing import Any
 
-from wiloc.errors import EXIT_INTERRUPTED, SWALLOWED_INTERRUPTS, interrupted
+# nothing of wiloc's own before main() has installed its Ctrl-C handler: the console script
+# imports this module first
+
+#: How long a Ctrl-C that arrived during an import waits before it is delivered again (seconds).
+RETRY_SECONDS = 0.02
 
 
-def _keep_swallowed_interrupt(unraisable: Any) -> None:
-    """``sys.unraisablehook``: Ctrl-C that was swallowed where Python could not raise it is kept,
-    silently, for the command to raise before its work starts; anything else is reported as
-    Python reports it."""
+def _importing(frame: FrameType | None) -> bool:
+    """Whether the main thread, at ``frame``, is inside the import system."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _deliver_later() -> None:
+    """Deliver Ctrl-C to the main thread again in :data:`RETRY_SECONDS`."""
+    timer = threading.Timer(RETRY_SECONDS, _thread.interrupt_main, (signal.SIGINT,))
+    timer.daemon = True
+    timer.start()
+
+
+def _on_ctrl_c(signum: int, frame: FrameType | None) -> None:
+    """The SIGINT handler: KeyboardInterrupt, held back while the main thread imports."""
+    if _importing(frame):
+        _deliver_later()
+        return
+    raise KeyboardInterrupt
+
+
+def _deliver_swallowed_interrupt(unraisable: Any) -> None:
+    """``sys.unraisablehook``: Ctrl-C swallowed where Python could not raise it is delivered
+    again (from another thread: raised in this hook, it would be swallowed once more); anything
+    else is reported as Python reports it."""
+    from wiloc.errors import interrupted
+
     if interrupted(unraisable.exc_value):
-        SWALLOWED_INTERRUPTS.append(unraisable.exc_value)
+        _deliver_later()
     else:
         sys.__unraisablehook__(unraisable)
 
 
 def main() -> int:
     """Run the command line; its exit code."""
-    sys.unraisablehook = _keep_swallowed_interrupt
+    signal.signal(signal.SIGINT, _on_ctrl_c)  # first: everything after it may import
+    sys.unraisablehook = _deliver_swallowed_interrupt
+    from wiloc.errors import EXIT_INTERRUPTED, interrupted
+
     try:
         from wiloc.cli import run
         code = run()

@@ -26,8 +26,7 @@ from typer._click.globals import get_current_context
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from wiloc.cli_params import flag, given
-from wiloc.errors import (EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError, interrupted,
-                          raise_swallowed_interrupt)
+from wiloc.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError, interrupted
 
 out = Console()
 err = Console(stderr=True)
@@ -73,7 +72,6 @@ def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
-            raise_swallowed_interrupt()
             return func(*args, **kwargs)
         except WilocError as exc:
             fail(f"{flag(exc.parameter)}: {exc.problem}" if exc.parameter else str(exc), exc.exit_code)

@@ -58,20 +58,6 @@ def load_problem(exc: Exception) -> str:
     return str(exc)
 
 
-SWALLOWED_INTERRUPTS: list[BaseException] = []
-"""Ctrl-C that a library swallowed where Python could not raise it (typer's pydantic, building
-its validators, reports it as "Exception ignored" and goes on). The console script records them
-(``wiloc.__main__``), and a command raises them before its work starts
-(:func:`raise_swallowed_interrupt`): process-wide, as the signal is."""
-
-
-def raise_swallowed_interrupt() -> None:
-    """Raise Ctrl-C again if one was swallowed (:data:`SWALLOWED_INTERRUPTS`)."""
-    if SWALLOWED_INTERRUPTS:
-        SWALLOWED_INTERRUPTS.clear()
-        raise KeyboardInterrupt
-
-
 def interrupted(exc: BaseException | None) -> bool:
     """Whether ``exc`` is Ctrl-C or was raised while handling it (a library that turns an
     interrupted import or call into an error of its own)."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import closing
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -363,15 +364,18 @@ class Method(ABC):
         them). A helper thread reads them ``AHEAD_ROWS`` at a time, with what the method
         computes of them :meth:`ahead`, while this thread steps the rows before."""
         steps: list[Decision] = []
-        for chunk, computed in computed_ahead(self._chunks_ahead(rows)):
-            if len(steps) + chunk.shape[0] > n_frames:
-                raise WilocError(self.name, f"more difference rows than n_frames={n_frames}")
-            for i, row in enumerate(chunk):
-                k = len(steps)
-                steps.append(self.step(row, None if odometry is None else float(odometry[k]),
-                                       None if computed is None else computed[i]))
-                if progress is not None:
-                    progress(k + 1, n_frames)
+        # closed as the loop ends, however it ends: the helper threads stop before this returns
+        # or raises (Ctrl-C), never running on into the interpreter's exit
+        with closing(computed_ahead(self._chunks_ahead(rows))) as chunks:
+            for chunk, computed in chunks:
+                if len(steps) + chunk.shape[0] > n_frames:
+                    raise WilocError(self.name, f"more difference rows than n_frames={n_frames}")
+                for i, row in enumerate(chunk):
+                    k = len(steps)
+                    steps.append(self.step(row, None if odometry is None else float(odometry[k]),
+                                           None if computed is None else computed[i]))
+                    if progress is not None:
+                        progress(k + 1, n_frames)
         if len(steps) != n_frames:
             raise WilocError(self.name, f"got {len(steps)} difference rows, expected n_frames={n_frames}")
         return Decisions.collect(steps, self.columns, ranked=self.ranks, model=self.model, params=self.header())
