@@ -365,7 +365,7 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS)
     sequence = results.meta.get("mode") == "sequence"
     ref_names = results.reference_frames or query_names
     loaded = truth.load(query_names, ref_names, str(results.meta.get("query", "")), sequence,
-                        int(results.meta.get("exclude_recent", 0) or 0))
+                        int(results.meta.get("exclude_recent", 0) or 0), str(results.meta.get("map") or ""))
     match = results.match_index
     summary = summarize(match, results.confidence, loaded, results.ranking)
     correct = correct_matches(match, loaded)

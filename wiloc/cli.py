@@ -473,27 +473,29 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
 
 # ------------------------------------------------------------------------------------------ evaluate
 
-FORMS = "aligned, positions:Q.csv, pairs:P.csv, matrix:M.npy"
+FORMS = "aligned, positions:Q.csv, pairs:P.csv, matrix:M.npy, vprbench:G.npy, utm-names, exif"
 
 
 def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | None,
                   prefix: str = "") -> api.TruthSource:
-    """`--gt` is a form name (aligned) or KIND:PATH (positions:q.csv, pairs:p.csv, matrix:m.npy),
-    or a path whose suffix tells the form. Options of another form are refused (``prefix``:
+    """`--gt` is a form name without a file (aligned, utm-names, exif) or KIND:PATH (positions:q.csv,
+    pairs:p.csv, matrix:m.npy, vprbench:g.npy), or a path whose suffix tells the form. Options of another form are refused (``prefix``:
     the options' name prefix, ``train_`` for the trained method's)."""
     from wiloc import api
 
     flag = f"--{prefix.replace('_', '-')}gt"
     kind, sep, path = gt.partition(":")
     if not sep:
-        if gt != "aligned" and not Path(gt).is_file() and "{query}" not in gt:
+        if gt not in NAMED_FORMS and not Path(gt).is_file() and "{query}" not in gt:
             fail(f"{flag}: '{gt}' is neither a ground-truth form nor a file (forms: {FORMS})", EXIT_USAGE)
-        kind, path = ("aligned", "") if gt == "aligned" else (_guess_kind(gt), gt)
-    if kind not in ("aligned", "positions", "pairs", "matrix"):
+        kind, path = (gt, "") if gt in NAMED_FORMS else (_guess_kind(gt), gt)
+    if kind not in ("aligned", "positions", "pairs", "matrix", "vprbench", "utm-names", "exif"):
         fail(f"{flag}: unknown ground-truth form '{kind}' in '{gt}' (forms: {FORMS})", EXIT_USAGE)
     refuse_unused({f"{prefix}tolerance": (kind == "aligned", "--gt aligned (pairs files carry their own)"),
                    f"{prefix}gt_map": (kind == "positions", "positions ground truth"),
-                   f"{prefix}radius": (kind == "positions", "positions ground truth")})
+                   f"{prefix}radius": (kind in ("positions", "utm-names", "exif"), "positions, utm-names and exif ground truth")})
+    if kind in NAMED_FORMS and path:
+        fail(f"{flag}: '{kind}' reads the traversals themselves and takes no file ('{gt}')", EXIT_USAGE)
     variable = None
     if kind == "matrix" and ".mat:" in path:
         path, variable = path.rsplit(":", 1)
@@ -501,17 +503,23 @@ def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | N
                            variable=variable)
 
 
+NAMED_FORMS = ("aligned", "utm-names", "exif")  # forms without a file
+
+
 def _guess_kind(path: str) -> str:
+    if Path(path).name.lower() == "ground_truth_new.npy":
+        return "vprbench"
     return "matrix" if Path(path).suffix.lower() in (".npy", ".mat") else "pairs"
 
 
 GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames), 'positions:Q.csv' (with "
-           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat' ('matrix:M.mat:NAME' picks one array of a .mat). '{query}' in a path is "
-           "replaced by the query folder's name.")
+           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat' ('matrix:M.mat:NAME' picks one array of a .mat), 'vprbench:ground_truth_new.npy' (VPR-Bench), "
+           "'utm-names' (@UTM_east@UTM_north@ file names) or 'exif' (the images' GPS EXIF), these two within --radius "
+           "metres (default 25). '{query}' in a path is replaced by the query folder's name.")
 GtOption = Annotated[str, typer.Option("--gt", help=GT_HELP)]
 GtMapOption = Annotated[Optional[str], typer.Option("--gt-map", help="positions: the reference's positions CSV.")]
 ToleranceOption = Annotated[int, typer.Option("--tolerance", "-T", min=0, help="aligned: same place within +-T frames (published evaluations use 2).")]
-RadiusOption = Annotated[Optional[float], typer.Option("--radius", help="positions: same place within this many metres.")]
+RadiusOption = Annotated[Optional[float], typer.Option("--radius", help="positions, utm-names, exif: same place within this many metres (utm-names, exif: default 25).")]
 CutsOption = Annotated[str, typer.Option("--cuts", help="Confidence cuts for precision and recall at a fixed "
                                                         "cut, comma-separated, each in [0, 1].")]
 PrPlotOption = Annotated[Optional[Path], typer.Option(callback=_plot_file, show_default="none: not drawn", help="Draw the precision-recall curves.")]
