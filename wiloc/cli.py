@@ -128,9 +128,12 @@ def describe(
     descriptor: DescriptorOption = "sad",
     crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
-    import_file: Optional[Path] = typer.Option(None, "--import", help="External N x D matrix (.npy, .csv, .h5)."),
+    import_file: Optional[Path] = typer.Option(None, "--import", help="External descriptors: an N x D matrix (.npy, .csv, .h5), hloc's global-feats-*.h5, or a folder of per-image .npy files (with --out)."),
     names: Optional[Path] = typer.Option(None, help="With --import .npy: text file of frame names, one a line."),
-    metric: str = typer.Option("l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
+    metric: Optional[str] = typer.Option(None, show_default="the file's recorded metric, else l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
+    import_out: Optional[Path] = typer.Option(None, "--out", "-o", callback=_output_file, show_default="none: only the cache",
+                                              help="With --import: write the descriptors to FILE.h5 with their names and metric, so that localize and evaluate take FILE.h5 alone."),
+    prefix: str = typer.Option("", show_default="none: every frame", help="With --import --out: keep only the frames whose names begin with this (hloc's db/ or query/), dropping it from the names."),
     every: EveryOption = 1,
     fps: FpsOption = None,
     start: StartOption = "0",
@@ -155,6 +158,7 @@ def describe(
                    "crop": (descriptor == "sad" and not importing, "--descriptor sad"),
                    "vocabulary": (descriptor == "bow" and not importing, "--descriptor bow"),
                    "metric": (importing, "--import"), "names": (importing, "--import"),
+                   "import_out": (importing, "--import"), "prefix": (import_out is not None, "--import with --out"),
                    "jobs": (not importing, "image folders"),
                    **{name: (not importing, "video files") for name in SAMPLING}})
     store = Cache(cache)
@@ -166,7 +170,8 @@ def describe(
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
     with progress_bar(not as_json) as progress:
         if importing:
-            reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store)]
+            reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store, out=import_out,
+                                              prefix=prefix)]
         else:  # one call: the folders' frames form one stream over the workers
             reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
                                    cache=store, jobs=jobs, progress=progress, sampling=sampling, scheduler=scheduler)
@@ -289,7 +294,7 @@ def localize(
     descriptor: DescriptorOption = "sad",
     crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
-    metric: Optional[str] = typer.Option(None, help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
+    metric: Optional[str] = typer.Option(None, show_default="the file's recorded metric", help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
     method: str = typer.Option("online", help=" | ".join(METHODS)),
     exclude_recent: int = typer.Option(DEFAULT_EXCLUDE_RECENT, "--exclude-recent", "-R", help="Recent frames excluded as candidates (sequence mode) and around each map frame when learning from the map."),
     train_query: Optional[Path] = typer.Option(None, help="trained: labelled training query traversal.", rich_help_panel="trained inputs"),
