@@ -113,22 +113,23 @@ def _evaluation(run: Path, gt: list[str]) -> dict:
     return {k: v for k, v in record.items() if k not in ("ground_truth", "warnings")}
 
 
-FORMS = {"utm-names": (["--gt", "utm-names", "--radius", "25"], "utm"),
-         "utm-names, default radius": (["--gt", "utm-names"], "utm"),
-         "exif": (["--gt", "exif", "--radius", "25"], "gps"),
-         "vprbench": (["--gt", "vprbench:{root}/ground_truth_new.npy"], "utm")}
+#: each form's command-line arguments, the pairs CSV it equals, and the same as a TruthSource
+FORMS = {"utm-names": (["--gt", "utm-names", "--radius", "25"], "utm", ("utm-names", None)),
+         "utm-names, default radius": (["--gt", "utm-names"], "utm", ("utm-names", None)),
+         "exif": (["--gt", "exif", "--radius", "25"], "gps", ("exif", None)),
+         "vprbench": (["--gt", "vprbench:{gt_file}"], "utm", ("vprbench", "{gt_file}")),
+         "vprbench, the file alone": (["--gt", "{gt_file}"], "utm", ("vprbench", "{gt_file}"))}
 
 
 @pytest.mark.parametrize("form", FORMS)
 def test_each_form_evaluates_as_the_equivalent_pairs_csv(form: str, vpr_route: dict) -> None:
-    gt, kind = FORMS[form]
-    pairs, run = vpr_route["pairs"][kind], vpr_route["run"]
-    _write_vprbench(vpr_route["root"] / "ground_truth_new.npy", pairs, run)
-    gt = [arg.format(root=vpr_route["root"]) for arg in gt]
+    args, pairs_kind, (kind, path) = FORMS[form]
+    pairs, run = vpr_route["pairs"][pairs_kind], vpr_route["run"]
+    gt_file = _write_vprbench(vpr_route["root"] / "ground_truth_new.npy", pairs, run)
     expected = _evaluation(run, ["--gt", f"pairs:{pairs}"])
     assert expected["with_true_match"] > 0
-    assert _evaluation(run, gt) == expected
-    source = api.TruthSource(kind=gt[1].split(":")[0], path=gt[1].partition(":")[2] or None, radius=25.0)
+    assert _evaluation(run, [arg.format(gt_file=gt_file) for arg in args]) == expected
+    source = api.TruthSource(kind=kind, path=path and path.format(gt_file=gt_file), radius=25.0)
     truth, reference = api.evaluate(run, source).truth, api.evaluate(run, api.TruthSource("pairs", str(pairs))).truth
     assert (truth.matrix != reference.matrix).nnz == 0 and truth.matrix.nnz == reference.matrix.nnz
 
@@ -169,6 +170,9 @@ def _bad_vprbench(tmp: Path, kind: str) -> Path:
     if kind == "numeric":
         np.save(path, np.eye(3))
         return path
+    if kind in ("flat", "pickled dict"):
+        np.save(path, np.array([1, 2, 3], dtype=object) if kind == "flat" else {"query": [0], "refs": [[1]]})
+        return path
     rows[0], rows[1] = ([0, [1]], [1, {"a": 2}]) if kind == "dict" else \
         ([0, [1]], [1, pathlib.PurePosixPath("x")]) if kind == "foreign object" else ([0, [1]], [1, [9999]])
     np.save(path, rows)
@@ -180,6 +184,8 @@ def _bad_vprbench(tmp: Path, kind: str) -> Path:
     ("dict", "row 2 is not [query index, [reference indices]]"),
     ("foreign object", "it names pathlib"),
     ("out of range", "row 2: reference index 9999, but the reference traversal has 24 frames"),
+    ("flat", "row 1 is not [query index, [reference indices]]"),
+    ("pickled dict", "holds a 0-d object array, not VPR-Bench's rows"),
 ])
 def test_bad_vprbench_files_are_one_line(kind: str, message: str, vpr_route: dict) -> None:
     path = _bad_vprbench(vpr_route["root"], kind)

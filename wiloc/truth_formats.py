@@ -88,10 +88,12 @@ def read_vprbench(path: Path) -> list[tuple[int, NDArray[np.int64]]]:
     except (ValueError, OSError, EOFError, pickle.UnpicklingError) as exc:
         raise WilocError(path, f"not {_VPRBENCH} ({exc})") from exc
     if array.ndim not in (1, 2) or (array.ndim == 2 and array.shape[1] != 2):
-        raise WilocError(path, f"holds a {' x '.join(map(str, array.shape))} object array, not {_VPRBENCH}")
+        shape = " x ".join(map(str, array.shape)) or "0-d"
+        raise WilocError(path, f"holds a {shape} object array, not {_VPRBENCH}")
     rows = []
     for i, row in enumerate(array):
-        query = _whole_number(row[0]) if len(row) == 2 else None
+        pair = isinstance(row, (list, tuple, np.ndarray)) and len(row) == 2
+        query = _whole_number(row[0]) if pair else None
         refs = _references(row[1]) if query is not None else None
         if refs is None:
             raise WilocError(path, f"row {i + 1} is not [query index, [reference indices]] ({_VPRBENCH})")
