@@ -99,7 +99,7 @@ USAGE = {
     "too many bins": (["localize", "Q", "--bins", "100000000"], "--bins: must lie in"),
     "option of another method": (["localize", "Q", "--particles", "5"], "--particles: method 'online' takes no such option"),
     "exclude recent": (["localize", "Q", "-R", "-1"], "--exclude-recent: must be an integer >= 0"),
-    "radius with aligned": (["evaluate", "R", "--radius", "3"], "--radius: applies to positions ground truth only"),
+    "radius with aligned": (["evaluate", "R", "--radius", "3"], "--radius: applies to positions, utm-names and exif ground truth only"),
     "gt map with aligned": (["evaluate", "R", "--gt-map", "m.csv"], "--gt-map: applies to positions ground truth only"),
     "csv in a missing folder": (["evaluate", "R", "--csv", "nowhere/m.csv"], "--csv: the folder nowhere does not exist (create it first)"),
     "plot in a missing folder": (["evaluate", "R", "--pr-plot", "no/where/pr.png"], "--pr-plot: the folder no/where does not exist"),

@@ -18,7 +18,8 @@ import pandas as pd
 from wiloc import __version__
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent
-from wiloc.describing import DescribeReport, check_sampling, describe_sources, import_matrix
+from wiloc.describing import DescribeReport, check_sampling, describe_sources, import_matrix, import_to_file
+from wiloc.descriptors.external import recorded_metric
 from wiloc.descriptors.bow import load_vocabulary
 from wiloc.differences import candidate_blocks, run_differences
 from wiloc.distances import consecutive
@@ -77,10 +78,23 @@ def describe(folders: Sequence[Path], descriptor: str = "sad", *,
                             cluster=cluster)
 
 
-def import_descriptors(path: Path, *, metric: str, names: Path | None = None,
-                       cache: Cache | None = None) -> DescribeReport:
-    """Bring an external N x D descriptor matrix (NetVLAD, ...) into the cache."""
-    return import_matrix(Path(path), cache or Cache(), names, metric)
+def import_descriptors(path: Path, *, metric: str | None = None, names: Path | None = None,
+                       cache: Cache | None = None, out: Path | None = None, prefix: str = "") -> DescribeReport:
+    """Bring external descriptors (NetVLAD, ...) into the cache: an N x D matrix file, hloc's
+    ``global-feats-*.h5``, or (with ``out``) a folder of per-image ``.npy`` vectors. With ``out``
+    they are written first to that wiloc descriptor file, which records names and metric, so that
+    ``localize OUT.h5 --map MAP.h5`` needs neither again; ``prefix`` keeps the frames whose names
+    begin with it (hloc's ``db/``, ``query/``). ``metric``: default the file's recorded one, else l1."""
+    source = Path(path)
+    metric = metric or recorded_metric(source) or "l1"
+    if out is not None:
+        return import_to_file(source, Path(out), cache or Cache(), names, metric, prefix)
+    if source.is_dir():
+        raise ParameterError("out", f"{source}: a folder of .npy files is imported into a descriptor file; "
+                                    "give one to write (FILE.h5)")
+    if prefix:
+        raise ParameterError("prefix", "keeps part of a file written to a descriptor file; give that file too")
+    return import_matrix(source, cache or Cache(), names, metric)
 
 
 def vocabulary(folders: Sequence[Path], params: Mapping[str, Any] | None = None, *, cache: Cache | None = None,
@@ -365,7 +379,7 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS)
     sequence = results.meta.get("mode") == "sequence"
     ref_names = results.reference_frames or query_names
     loaded = truth.load(query_names, ref_names, str(results.meta.get("query", "")), sequence,
-                        int(results.meta.get("exclude_recent", 0) or 0))
+                        int(results.meta.get("exclude_recent", 0) or 0), str(results.meta.get("map") or ""))
     match = results.match_index
     summary = summarize(match, results.confidence, loaded, results.ranking)
     correct = correct_matches(match, loaded)

@@ -128,9 +128,12 @@ def describe(
     descriptor: DescriptorOption = "sad",
     crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
-    import_file: Optional[Path] = typer.Option(None, "--import", help="External N x D matrix (.npy, .csv, .h5)."),
+    import_file: Optional[Path] = typer.Option(None, "--import", help="External descriptors: an N x D matrix (.npy, .csv, .h5), hloc's global-feats-*.h5, or a folder of per-image .npy files (with --out)."),
     names: Optional[Path] = typer.Option(None, help="With --import .npy: text file of frame names, one a line."),
-    metric: str = typer.Option("l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
+    metric: Optional[str] = typer.Option(None, show_default="the file's recorded metric, else l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
+    import_out: Optional[Path] = typer.Option(None, "--out", "-o", callback=_output_file, show_default="none: only the cache",
+                                              help="With --import: write the descriptors to FILE.h5 with their names and metric, so that localize and evaluate take FILE.h5 alone."),
+    prefix: str = typer.Option("", show_default="none: every frame", help="With --import --out: keep only the frames whose names begin with this (hloc's db/ or query/), dropping it from the names."),
     every: EveryOption = 1,
     fps: FpsOption = None,
     start: StartOption = "0",
@@ -155,6 +158,7 @@ def describe(
                    "crop": (descriptor == "sad" and not importing, "--descriptor sad"),
                    "vocabulary": (descriptor == "bow" and not importing, "--descriptor bow"),
                    "metric": (importing, "--import"), "names": (importing, "--import"),
+                   "import_out": (importing, "--import"), "prefix": (import_out is not None, "--import with --out"),
                    "jobs": (not importing, "image folders"),
                    **{name: (not importing, "video files") for name in SAMPLING}})
     store = Cache(cache)
@@ -166,7 +170,8 @@ def describe(
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
     with progress_bar(not as_json) as progress:
         if importing:
-            reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store)]
+            reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store, out=import_out,
+                                              prefix=prefix)]
         else:  # one call: the folders' frames form one stream over the workers
             reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
                                    cache=store, jobs=jobs, progress=progress, sampling=sampling, scheduler=scheduler)
@@ -289,7 +294,7 @@ def localize(
     descriptor: DescriptorOption = "sad",
     crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
-    metric: Optional[str] = typer.Option(None, help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
+    metric: Optional[str] = typer.Option(None, show_default="the file's recorded metric", help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
     method: str = typer.Option("online", help=" | ".join(METHODS)),
     exclude_recent: int = typer.Option(DEFAULT_EXCLUDE_RECENT, "--exclude-recent", "-R", help="Recent frames excluded as candidates (sequence mode) and around each map frame when learning from the map."),
     train_query: Optional[Path] = typer.Option(None, help="trained: labelled training query traversal.", rich_help_panel="trained inputs"),
@@ -473,27 +478,29 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
 
 # ------------------------------------------------------------------------------------------ evaluate
 
-FORMS = "aligned, positions:Q.csv, pairs:P.csv, matrix:M.npy"
+FORMS = "aligned, positions:Q.csv, pairs:P.csv, matrix:M.npy, vprbench:G.npy, utm-names, exif"
 
 
 def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | None,
                   prefix: str = "") -> api.TruthSource:
-    """`--gt` is a form name (aligned) or KIND:PATH (positions:q.csv, pairs:p.csv, matrix:m.npy),
-    or a path whose suffix tells the form. Options of another form are refused (``prefix``:
+    """`--gt` is a form name without a file (aligned, utm-names, exif) or KIND:PATH (positions:q.csv,
+    pairs:p.csv, matrix:m.npy, vprbench:g.npy), or a path whose suffix tells the form. Options of another form are refused (``prefix``:
     the options' name prefix, ``train_`` for the trained method's)."""
     from wiloc import api
 
     flag = f"--{prefix.replace('_', '-')}gt"
     kind, sep, path = gt.partition(":")
     if not sep:
-        if gt != "aligned" and not Path(gt).is_file() and "{query}" not in gt:
+        if gt not in NAMED_FORMS and not Path(gt).is_file() and "{query}" not in gt:
             fail(f"{flag}: '{gt}' is neither a ground-truth form nor a file (forms: {FORMS})", EXIT_USAGE)
-        kind, path = ("aligned", "") if gt == "aligned" else (_guess_kind(gt), gt)
-    if kind not in ("aligned", "positions", "pairs", "matrix"):
+        kind, path = (gt, "") if gt in NAMED_FORMS else (_guess_kind(gt), gt)
+    if kind not in ("aligned", "positions", "pairs", "matrix", "vprbench", "utm-names", "exif"):
         fail(f"{flag}: unknown ground-truth form '{kind}' in '{gt}' (forms: {FORMS})", EXIT_USAGE)
     refuse_unused({f"{prefix}tolerance": (kind == "aligned", "--gt aligned (pairs files carry their own)"),
                    f"{prefix}gt_map": (kind == "positions", "positions ground truth"),
-                   f"{prefix}radius": (kind == "positions", "positions ground truth")})
+                   f"{prefix}radius": (kind in ("positions", "utm-names", "exif"), "positions, utm-names and exif ground truth")})
+    if kind in NAMED_FORMS and path:
+        fail(f"{flag}: '{kind}' reads the traversals themselves and takes no file ('{gt}')", EXIT_USAGE)
     variable = None
     if kind == "matrix" and ".mat:" in path:
         path, variable = path.rsplit(":", 1)
@@ -501,17 +508,23 @@ def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | N
                            variable=variable)
 
 
+NAMED_FORMS = ("aligned", "utm-names", "exif")  # forms without a file
+
+
 def _guess_kind(path: str) -> str:
+    if Path(path).name.lower() == "ground_truth_new.npy":
+        return "vprbench"
     return "matrix" if Path(path).suffix.lower() in (".npy", ".mat") else "pairs"
 
 
 GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames), 'positions:Q.csv' (with "
-           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat' ('matrix:M.mat:NAME' picks one array of a .mat). '{query}' in a path is "
-           "replaced by the query folder's name.")
+           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat' ('matrix:M.mat:NAME' picks one array of a .mat), 'vprbench:ground_truth_new.npy' (VPR-Bench), "
+           "'utm-names' (@UTM_east@UTM_north@ file names) or 'exif' (the images' GPS EXIF), these two within --radius "
+           "metres (default 25). '{query}' in a path is replaced by the query folder's name.")
 GtOption = Annotated[str, typer.Option("--gt", help=GT_HELP)]
 GtMapOption = Annotated[Optional[str], typer.Option("--gt-map", help="positions: the reference's positions CSV.")]
 ToleranceOption = Annotated[int, typer.Option("--tolerance", "-T", min=0, help="aligned: same place within +-T frames (published evaluations use 2).")]
-RadiusOption = Annotated[Optional[float], typer.Option("--radius", help="positions: same place within this many metres.")]
+RadiusOption = Annotated[Optional[float], typer.Option("--radius", help="positions, utm-names, exif: same place within this many metres (utm-names, exif: default 25).")]
 CutsOption = Annotated[str, typer.Option("--cuts", help="Confidence cuts for precision and recall at a fixed "
                                                         "cut, comma-separated, each in [0, 1].")]
 PrPlotOption = Annotated[Optional[Path], typer.Option(callback=_plot_file, show_default="none: not drawn", help="Draw the precision-recall curves.")]

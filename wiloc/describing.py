@@ -34,7 +34,7 @@ from wiloc.cache import (
     StoredEntry,
     entry_key,
 )
-from wiloc.descriptors.external import read_external
+from wiloc.descriptors.external import read_external, write_matrix
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
 from wiloc.frames import Fingerprint, Traversal, fingerprint, jpeg_size, list_traversal, natural_key, read_gray
@@ -350,6 +350,22 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
         computed=n if fresh else 0, reused=0 if fresh else n, failed=[], ignored=[], sizes=[],
         seconds=seconds, images_per_second=(n if fresh else 0) / seconds, entry=entry, repairs=repairs,
     )
+
+
+def import_to_file(source: Path, out: Path, cache: Cache, names_path: Path | None, metric: str,
+                   prefix: str = "") -> DescribeReport:
+    """Write external descriptors (any :func:`read_external` source: a matrix file, hloc's
+    global-feats-*.h5, a folder of per-image .npy vectors; ``prefix`` keeps one part of it) to a
+    wiloc descriptor file ``out`` that records names and metric, and import that into the cache:
+    later commands name ``out`` alone."""
+    out = Path(out)
+    if out.suffix.lower() not in (".h5", ".hdf5"):
+        raise ParameterError("out", f"{out}: a descriptor file is HDF5; name it FILE.h5")
+    if out.resolve() == Path(source).resolve():
+        raise ParameterError("out", f"{out} is the file being imported; name another")
+    names, matrix = read_external(Path(source), names_path, metric, prefix)
+    write_matrix(out, names, matrix, metric)
+    return import_matrix(out, cache, None, metric)
 
 
 def _header(source: str, spec: DescriptorSpec, params: dict) -> EntryHeader:

@@ -1,4 +1,5 @@
-"""Ground truth: the four forms of SPEC.md section 7, read into one boolean truth matrix.
+"""Ground truth: the four forms of SPEC.md section 7 (and, through :mod:`wiloc.truth_formats`, the
+forms VPR datasets ship), read into one boolean truth matrix.
 
 Every reader returns a :class:`Truth` over the frame names it is given (queries x references).
 Frames are matched to ground-truth rows by file name; the matrix form, which carries no names, is
@@ -26,7 +27,9 @@ from wiloc.reprs import short_repr
 EARTH_RADIUS_M = 6_371_008.8
 """Mean Earth radius (IUGG) used for lat/lon distances on a sphere."""
 
-KINDS = ("aligned", "positions", "pairs", "matrix")
+KINDS = ("aligned", "positions", "pairs", "matrix", "vprbench", "utm-names", "exif")
+FOLDER_KINDS = ("utm-names", "exif")
+"""Forms read from the traversals themselves (their file names, their images' EXIF): no file."""
 
 
 @short_repr
@@ -191,7 +194,18 @@ def _no_duplicates(path: Path, frame: pd.DataFrame, columns: Sequence[str]) -> N
                                f"(first: {', '.join(first)})")
 
 
-def _read_positions(path: Path) -> tuple[pd.Index, NDArray[np.float64], bool]:
+@dataclass(frozen=True)
+class Positions:
+    """Where frames were taken: ``names`` and their ``coords``, metres (x, y) or degrees
+    (lat, lon) when ``geographic``; ``source`` names where they came from in messages."""
+
+    source: Path | str
+    names: pd.Index
+    coords: NDArray[np.float64]
+    geographic: bool
+
+
+def _read_positions(path: Path) -> Positions:
     """Names, coordinates and whether they are lat/lon (else metric x,y) from a positions CSV."""
     frame = _read_csv(path)
     _require_columns(path, frame, ["name"])
@@ -206,7 +220,7 @@ def _read_positions(path: Path) -> tuple[pd.Index, NDArray[np.float64], bool]:
     coords = _numeric(path, frame, columns)
     if geographic and (np.any(np.abs(coords[:, 0]) > 90) or np.any(np.abs(coords[:, 1]) > 360)):
         raise WilocError(path, "lat must lie in [-90, 90] and lon in [-360, 360] degrees")
-    return _index(frame["name"]), coords, geographic
+    return Positions(path, _index(frame["name"]), coords, geographic)
 
 
 def _unit_vectors(latlon_deg: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -215,18 +229,46 @@ def _unit_vectors(latlon_deg: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
 
 
-def _frames_with_positions(path: Path, names: pd.Index, coords: NDArray[np.float64],
-                           frames: Sequence[str], role: str) -> tuple[NDArray[np.int64], NDArray[np.float64], list[str]]:
+def _frames_with_positions(positions: Positions, frames: Sequence[str],
+                           role: str) -> tuple[NDArray[np.int64], NDArray[np.float64], list[str]]:
     """Frame indices that have a position, their coordinates, and warnings about partial matches."""
+    where, names = positions.source, positions.names
     at = names.get_indexer(_index(frames))
     found = at >= 0
     if not found.any():
-        raise WilocError(path, f"no name matches any of the {len(frames)} {role} frames")
-    warnings = _unmatched(path, int((~found).sum()), len(frames),
+        raise WilocError(where, f"no name matches any of the {len(frames)} {role} frames")
+    warnings = _unmatched(where, int((~found).sum()), len(frames),
                           f"{role} frames have no ground-truth row (never a true match)")
     unused = len(names) - int(np.unique(at[found]).size)
-    warnings += _unmatched(path, unused, len(names), f"ground-truth rows name no {role} frame")
-    return np.flatnonzero(found).astype(np.int64), coords[at[found]], warnings
+    warnings += _unmatched(where, unused, len(names), f"ground-truth rows name no {role} frame")
+    return np.flatnonzero(found).astype(np.int64), positions.coords[at[found]], warnings
+
+
+def _check_radius(radius: float) -> float:
+    if not radius >= 0:
+        raise ParameterError("radius", f"must be >= 0 metres, got {radius}")
+    return float(radius)
+
+
+def truth_within(query: Positions, ref: Positions, radius: float, query_names: Sequence[str],
+                 ref_names: Sequence[str]) -> Truth:
+    """Frames within ``radius`` metres of each other are the same place: Euclidean on x,y, the
+    great-circle distance on lat,lon (a sphere of the mean Earth radius, found as the chord
+    between unit vectors). Every positions-based form (CSV files, @UTM names, EXIF GPS) ends
+    here. Passing the same ``Positions`` twice is sequence mode."""
+    reach = _check_radius(radius)
+    if query.geographic != ref.geographic:
+        raise WilocError(ref.source, f"uses {'lat/lon' if ref.geographic else 'x/y'} but {query.source} uses "
+                                     f"{'lat/lon' if query.geographic else 'x/y'}")
+    q_idx, q_pts, warnings = _frames_with_positions(query, query_names, "query")
+    r_idx, r_pts, r_warn = _frames_with_positions(ref, ref_names, "reference")
+    if not (ref is query and list(query_names) == list(ref_names)):
+        warnings += r_warn
+    if query.geographic:
+        q_pts, r_pts = _unit_vectors(q_pts), _unit_vectors(r_pts)
+        reach = 2.0 * np.sin(min(reach / EARTH_RADIUS_M, np.pi) / 2.0)
+    near = cKDTree(q_pts).sparse_distance_matrix(cKDTree(r_pts), reach, output_type="ndarray")
+    return _truth_from_pairs(q_idx[near["i"]], r_idx[near["j"]], query_names, ref_names, warnings)
 
 
 def positions_truth(query_csv: Path, ref_csv: Path, radius: float, query_names: Sequence[str],
@@ -234,28 +276,13 @@ def positions_truth(query_csv: Path, ref_csv: Path, radius: float, query_names: 
     """Positions form: frames within ``radius`` metres of each other are the same place.
 
     CSV columns ``name,x,y`` (metres, Euclidean) or ``name,lat,lon`` (degrees; great-circle
-    distance on a sphere of the mean Earth radius, found as the chord between unit vectors).
-    Sequence mode: pass the same CSV twice.
+    distance, see :func:`truth_within`). Sequence mode: pass the same CSV twice.
     """
-    if not radius >= 0:
-        raise ParameterError("radius", f"must be >= 0 metres, got {radius}")
+    _check_radius(radius)
+    query = _read_positions(query_csv)
     same_file = Path(query_csv).resolve() == Path(ref_csv).resolve()
-    q_names, q_coords, q_geo = _read_positions(query_csv)
-    r_names, r_coords, r_geo = (q_names, q_coords, q_geo) if same_file else _read_positions(ref_csv)
-    if q_geo != r_geo:
-        raise WilocError(ref_csv, f"uses {'lat/lon' if r_geo else 'x/y'} but {query_csv} uses "
-                                  f"{'lat/lon' if q_geo else 'x/y'}")
-    q_idx, q_pts, warnings = _frames_with_positions(query_csv, q_names, q_coords, query_names, "query")
-    r_idx, r_pts, r_warn = _frames_with_positions(ref_csv, r_names, r_coords, ref_names, "reference")
-    if not (same_file and list(query_names) == list(ref_names)):
-        warnings += r_warn
-    if q_geo:
-        q_pts, r_pts = _unit_vectors(q_pts), _unit_vectors(r_pts)
-        reach = 2.0 * np.sin(min(radius / EARTH_RADIUS_M, np.pi) / 2.0)
-    else:
-        reach = float(radius)
-    near = cKDTree(q_pts).sparse_distance_matrix(cKDTree(r_pts), reach, output_type="ndarray")
-    return _truth_from_pairs(q_idx[near["i"]], r_idx[near["j"]], query_names, ref_names, warnings)
+    ref = query if same_file else _read_positions(ref_csv)
+    return truth_within(query, ref, radius, query_names, ref_names)
 
 
 def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str]) -> Truth:
@@ -310,7 +337,8 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
                                        f"{', '.join(sorted(arrays)) or 'none'}")
             return next(iter(arrays.values()))
     except (ValueError, OSError, NotImplementedError) as exc:
-        raise WilocError(path, f"cannot read matrix ({load_problem(exc)})") from exc
+        hint = "; VPR-Bench's ground_truth_new.npy is --gt vprbench:FILE" if "allow_pickle" in str(exc) else ""
+        raise WilocError(path, f"cannot read matrix ({load_problem(exc)}){hint}") from exc
     raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv or .mat")
 
 
@@ -340,16 +368,27 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
 def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
                ref_names: Sequence[str], tolerance: int = 0, radius: float | None = None,
                ref_path: Path | None = None, by: Literal["name", "index"] = "name",
-               variable: str | None = None) -> Truth:
-    """Read ground truth of the given kind (aligned, positions, pairs, matrix) for the CLI.
+               variable: str | None = None, query_folder: Path | None = None,
+               ref_folder: Path | None = None) -> Truth:
+    """Read ground truth of the given kind (``KINDS``) for the CLI.
 
-    ``path`` is unused for ``aligned``; for ``positions`` it is the query CSV and ``ref_path`` the
-    reference CSV (default: the same file, sequence mode).
+    ``path`` is unused for ``aligned``, ``utm-names`` and ``exif``; for ``positions`` it is the
+    query CSV and ``ref_path`` the reference CSV (default: the same file, sequence mode).
+    ``utm-names`` and ``exif`` read the traversals: ``query_folder`` and ``ref_folder`` (None:
+    sequence mode), within ``radius`` metres (default 25).
     """
     if kind == "aligned":
         return aligned_truth(query_names, ref_names, tolerance, by=by)
     if kind not in KINDS:
         raise WilocError(None, f"unknown ground-truth kind {kind!r}; choose one of {', '.join(KINDS)}")
+    if kind in FOLDER_KINDS:
+        from wiloc.truth_formats import DEFAULT_RADIUS_M, exif_truth, utm_names_truth
+
+        if query_folder is None:
+            raise ParameterError("query_folder", f"{kind} ground truth needs the query traversal's folder")
+        read = utm_names_truth if kind == "utm-names" else exif_truth
+        return read(Path(query_folder), None if ref_folder is None else Path(ref_folder),
+                    DEFAULT_RADIUS_M if radius is None else radius, query_names, ref_names)
     if path is None:
         raise ParameterError("path", f"{kind} ground truth needs a file ({kind}:FILE)")
     if kind == "positions":
@@ -358,6 +397,10 @@ def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
         return positions_truth(Path(path), Path(ref_path or path), radius, query_names, ref_names)
     if kind == "pairs":
         return pairs_truth(Path(path), query_names, ref_names)
+    if kind == "vprbench":
+        from wiloc.truth_formats import vprbench_truth
+
+        return vprbench_truth(Path(path), query_names, ref_names)
     return matrix_truth(Path(path), query_names, ref_names, variable=variable)
 
 
@@ -399,11 +442,17 @@ class TruthSource:
             return f"aligned by {self.by}, +-{self.tolerance} frames"
         if self.kind == "positions":
             return f"positions within {self.radius:g} m ({self.path})"
+        if self.kind in FOLDER_KINDS:
+            from wiloc.truth_formats import DEFAULT_RADIUS_M
+
+            radius = DEFAULT_RADIUS_M if self.radius is None else self.radius
+            return f"{'@UTM file names' if self.kind == 'utm-names' else 'EXIF GPS'} within {radius:g} m"
         return f"{self.kind} {self.path}"
 
     def load(self, query_names: list[str], ref_names: list[str], query_folder: str,
-             sequence: bool, exclude_recent: int) -> Truth:
-        """The truth matrix over these frames (sequence mode: earlier frames outside +-R only)."""
+             sequence: bool, exclude_recent: int, ref_folder: str = "") -> Truth:
+        """The truth matrix over these frames (sequence mode: earlier frames outside +-R only);
+        ``ref_folder`` is the reference traversal, for the forms that read it."""
         name = Path(query_folder).name
         path = Path(self.path.format(query=name)) if self.path else None
         ref_path = Path(self.ref_path.format(query=name)) if self.ref_path else None
@@ -412,5 +461,6 @@ class TruthSource:
                                              "positions do not place the map frames)")
         truth = load_truth(self.kind, path, query_names=query_names, ref_names=ref_names,
                            tolerance=self.tolerance, radius=self.radius, ref_path=ref_path,
-                           by=self.by, variable=self.variable)
+                           by=self.by, variable=self.variable, query_folder=Path(query_folder) if query_folder else None,
+                           ref_folder=None if sequence or not ref_folder else Path(ref_folder))
         return restrict_sequence(truth, exclude_recent) if sequence else truth

@@ -27,7 +27,7 @@ def training_rows(training: Training, describer: Describer, exclude_recent: int)
     R = check_exclude_recent(exclude_recent)
     tq, tr = describer.entry(Path(training.query)), describer.entry(Path(training.reference))
     try:
-        truth = training.truth.load(tq.names, tr.names, str(training.query), False, R)
+        truth = training.truth.load(tq.names, tr.names, str(training.query), False, R, str(training.reference))
     except ParameterError as exc:  # named as the training pair's: train_radius, train_ref_path
         raise ParameterError(f"train_{exc.parameter}", exc.problem) from None
     return TrainingRows(rows=candidate_rows(differences(tq, tr, describer.runner), False, R), labels=truth.matrix)

@@ -12,6 +12,7 @@ import numpy as np
 
 from wiloc.cache import Cache, Entry, EntryHeader
 from wiloc.describing import describe_source, import_matrix
+from wiloc.descriptors.external import recorded_metric
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import ParameterError, UsageError, WilocError
 from wiloc.frames import IMAGE_SUFFIXES
@@ -58,8 +59,10 @@ def is_matrix_file(source: Path) -> bool:
 
 def descriptor_label(source: Path, descriptor: str, metric: str | None) -> str:
     """The descriptor of a traversal as results name it: ``sad``, or ``external:cosine`` for an
-    imported matrix file."""
-    return f"external:{metric}" if is_matrix_file(source) else descriptor
+    imported matrix file (``metric`` None: the one the file records)."""
+    if not is_matrix_file(source):
+        return descriptor
+    return f"external:{metric or recorded_metric(source)}"
 
 
 def stage(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
@@ -120,9 +123,11 @@ class Describer:
             if source.suffix.lower() in IMAGE_SUFFIXES:
                 raise WilocError(source, "an image file is not a traversal: give a folder of images, a video or a "
                                          "descriptor matrix file (.npy, .csv, .h5)")
-            if self.metric is None:
-                raise UsageError(source, "a descriptor matrix file needs a metric (l1, sqeuclidean, hamming, cosine)")
-            return import_matrix(source, self.cache, names, self.metric).entry
+            metric = self.metric or recorded_metric(source)
+            if metric is None:
+                raise UsageError(source, "a descriptor matrix file needs a metric (l1, sqeuclidean, hamming, cosine), "
+                                         "or a file written by `wiloc describe --import ... --out FILE.h5`, which records it")
+            return import_matrix(source, self.cache, names, metric).entry
         report = describe_source(source, self.spec, self.cache, jobs=self.jobs, sampling=self.sampling,
                                  progress=stage(self.progress, f"describe {source.name}"), cluster=self.cluster)
         self.skipped.extend((str(source / name), reason) for name, reason in report.failed)

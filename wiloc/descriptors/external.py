@@ -1,13 +1,21 @@
-"""Reading a descriptor matrix the user brings: N frames x D values, with frame names and a metric.
+"""Reading a descriptor matrix the user brings: N frames x D values, with frame names and a metric;
+and writing one in wiloc's own HDF5 layout, which records names and metric once.
 
-Formats (chosen by suffix):
+Formats (chosen by suffix; a folder is one ``.npy`` vector per image):
 
 - ``.npy``: the N x D matrix; names from ``names_path`` (one per line, or the first column of a
   ``.csv``; a first cell ``name``/``frame``/``file`` is a header) or generated ``frame000000``...
 - ``.csv``: one row per frame, first column the frame name, the rest numbers; an optional header
   row (recognised when none of its value cells is a number).
 - ``.h5`` / ``.hdf5``: dataset ``descriptors`` (N x D) and, optionally, dataset ``names``
-  (N strings); ``names_path`` overrides it.
+  (N strings) and attribute ``metric`` (what :func:`write_matrix` writes); ``names_path``
+  overrides the names. Or hloc's ``global-feats-*.h5``: one group per image name (names with
+  ``/`` are nested groups), each holding a dataset ``global_descriptor``.
+- a folder: one ``.npy`` vector per image, in any subfolder; the frame name is the file's path
+  inside the folder without ``.npy`` (``db/img001.jpg.npy`` is ``db/img001.jpg``).
+
+hloc files and folders are in natural order of names, as image folders are; the other formats
+keep their row order.
 
 Hamming matrices must be uint8 (8 packed bits per byte; CSV cells integers 0..255); other
 metrics give float32 (float64 input stays float64). Every problem raises ``WilocError`` naming
@@ -16,13 +24,19 @@ the file.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.atomic import written_whole
 from wiloc.descriptors.registry import METRICS
 from wiloc.errors import WilocError, load_problem
+from wiloc.frames import natural_sorted
 
+METRIC_ATTRIBUTE = "metric"
+"""The attribute of a wiloc descriptor file that records its metric."""
+HLOC_DATASET = "global_descriptor"
 _NAME_HEADERS = frozenset({"name", "names", "frame", "frames", "file", "filename"})
 _HAMMING_HINT = "hamming descriptors must be uint8 (8 packed bits per byte)"
 
@@ -67,7 +81,10 @@ def _read_h5(path: Path) -> tuple[NDArray, list[str] | None]:
 
     try:
         with h5py.File(path, "r") as handle:
-            if "descriptors" not in handle or not isinstance(handle["descriptors"], h5py.Dataset):
+            if "descriptors" not in handle:
+                names, rows = _hloc_rows(path, handle)
+                return _stacked(rows, path, [f"'{name}/{HLOC_DATASET}'" for name in names]), names
+            if not isinstance(handle["descriptors"], h5py.Dataset):
                 raise WilocError(path, "no dataset 'descriptors' (N x D)")
             matrix = handle["descriptors"][()]
             names = None
@@ -76,6 +93,90 @@ def _read_h5(path: Path) -> tuple[NDArray, list[str] | None]:
     except OSError as exc:
         raise WilocError(path, f"not a readable HDF5 file ({exc})") from exc
     return matrix, names
+
+
+def _hloc_rows(path: Path, handle: Any) -> tuple[list[str], list[NDArray]]:
+    """hloc's layout: the group path of every ``global_descriptor`` dataset is an image name."""
+    import h5py
+
+    found: dict[str, NDArray] = {}
+
+    def visit(name: str, item: Any) -> None:
+        if isinstance(item, h5py.Dataset) and name.rsplit("/", 1)[-1] == HLOC_DATASET:
+            found[item.parent.name.strip("/")] = item[()]
+
+    handle.visititems(visit)
+    if not found:
+        raise WilocError(path, f"neither a dataset 'descriptors' (N x D) nor hloc's groups holding "
+                               f"'{HLOC_DATASET}' (global-feats-*.h5)")
+    names = natural_sorted(found)
+    return names, [found[name] for name in names]
+
+
+def _stacked(rows: list[NDArray], source: Path, labels: list[str]) -> NDArray:
+    """One vector per frame stacked into N x D; a row that is no vector, or of another length than
+    the first, is an error naming ``source`` and the row's label (its dataset or file)."""
+    vectors = [np.asarray(row) for row in rows]
+    for label, vector in zip(labels, vectors):
+        if sum(n > 1 for n in vector.shape) > 1:
+            raise WilocError(source, f"{label} holds a {' x '.join(map(str, vector.shape))} array, "
+                                     "not one descriptor vector")
+    vectors = [vector.reshape(-1) for vector in vectors]
+    length = vectors[0].size
+    bad = next((i for i, vector in enumerate(vectors) if vector.size != length), None)
+    if bad is not None:
+        raise WilocError(source, f"{labels[bad]} holds {vectors[bad].size} values, but {labels[0]} holds "
+                                 f"{length}: every frame needs a descriptor of the same length")
+    return np.stack(vectors)
+
+
+def _read_npy_folder(folder: Path) -> tuple[NDArray, list[str]]:
+    """One ``.npy`` vector per image, named by its path inside ``folder`` without ``.npy``."""
+    files = {path.relative_to(folder).as_posix()[:-len(".npy")]: path
+             for path in folder.rglob("*.npy") if path.is_file()}
+    if not files:
+        raise WilocError(folder, "no .npy files (one descriptor vector per image)")
+    names = natural_sorted(files)
+    rows = [_read_npy(files[name]) for name in names]
+    return _stacked(rows, folder, [f"{name}.npy" for name in names]), names
+
+
+def recorded_metric(path: Path) -> str | None:
+    """The metric a wiloc descriptor file records (:func:`write_matrix`), None for any other
+    file; a recorded metric wiloc does not know is an error naming the file."""
+    path = Path(path)
+    if path.suffix.lower() not in (".h5", ".hdf5") or not path.is_file():
+        return None
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as handle:
+            metric = handle.attrs.get(METRIC_ATTRIBUTE)
+    except OSError as exc:
+        raise WilocError(path, f"not a readable HDF5 file ({exc})") from exc
+    if metric is None:
+        return None
+    metric = metric.decode("utf-8", "replace") if isinstance(metric, bytes) else str(metric)
+    if metric not in METRICS:
+        raise WilocError(path, f"records the metric {metric!r}, which is none of {', '.join(METRICS)}")
+    return metric
+
+
+def write_matrix(path: Path, names: list[str], matrix: NDArray, metric: str) -> Path:
+    """Write descriptors in wiloc's layout (datasets ``descriptors`` and ``names``, attribute
+    ``metric``), whole or not at all, so that later commands read names and metric from it."""
+    import io
+
+    import h5py
+
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w") as handle:
+        handle.create_dataset("descriptors", data=matrix)
+        handle.create_dataset("names", data=names, dtype=h5py.string_dtype())
+        handle.attrs[METRIC_ATTRIBUTE] = metric
+    with written_whole(Path(path), "the descriptor file", binary=True) as file:
+        file.write(buffer.getbuffer())
+    return Path(path)
 
 
 def _text(path: Path, i: int, name: object) -> str:
@@ -140,17 +241,23 @@ def _checked_matrix(path: Path, matrix: NDArray, metric: str, from_text: bool) -
 
 
 def read_external(
-    path: Path, names_path: Path | None = None, metric: str = "l1"
+    path: Path, names_path: Path | None = None, metric: str = "l1", prefix: str = ""
 ) -> tuple[list[str], NDArray]:
-    """Read a user's descriptor matrix and its frame names; check them against the metric."""
+    """Read a user's descriptor matrix (or folder of per-image ``.npy`` vectors) and its frame
+    names; check them against the metric. ``prefix``: keep only the frames whose names begin with
+    it, and drop it from their names (hloc keeps a dataset's queries and database in one file)."""
     path = Path(path)
     if metric not in METRICS:
         raise WilocError(path, f"unknown metric {metric!r}; choose one of {', '.join(METRICS)}")
-    if not path.is_file():
+    if not path.is_file() and not path.is_dir():
         raise WilocError(path, "file does not exist")
     suffix = path.suffix.lower()
     names: list[str] | None = None
-    if suffix == ".npy":
+    if path.is_dir():
+        if names_path is not None:
+            raise WilocError(names_path, "a folder of .npy files names its frames by its file names")
+        matrix, names = _read_npy_folder(path)
+    elif suffix == ".npy":
         matrix = _read_npy(path)
     elif suffix in (".h5", ".hdf5"):
         matrix, names = _read_h5(path)
@@ -168,6 +275,11 @@ def read_external(
     where = path if names_path is None else Path(names_path)
     if len(names) != matrix.shape[0]:
         raise WilocError(where, f"{len(names)} frame names for {matrix.shape[0]} descriptor rows")
+    if prefix:
+        keep = [i for i, name in enumerate(names) if name.startswith(prefix)]
+        if not keep:
+            raise WilocError(where, f"no frame name begins with {prefix!r} (the first is {names[0]!r})")
+        names, matrix = [names[i][len(prefix):] for i in keep], matrix[keep]
     seen: set[str] = set()
     for name in names:
         if name in seen:

@@ -1,0 +1,131 @@
+"""`wiloc describe --import ... --out FILE.h5`: hloc's global-feats-*.h5 and folders of per-image
+.npy vectors become wiloc descriptor files that record names and metric, so that localize takes
+them without --names and --metric; bad sources are one line and a non-zero exit code."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from test_bad_inputs import ends_in_one_error
+from typer.testing import CliRunner
+
+from wiloc.cli import app
+from wiloc.descriptors.external import read_external, recorded_metric
+from wiloc.results import read_results
+
+runner = CliRunner()
+N, D = 12, 32
+
+
+def _descriptors(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Map descriptors and query descriptors of the same places (a little noise apart)."""
+    rng = np.random.default_rng(seed)
+    ref = rng.normal(size=(N, D)).astype(np.float32)
+    return ref, ref + rng.normal(scale=0.05, size=ref.shape).astype(np.float32)
+
+
+def _hloc_file(path: Path, groups: dict[str, np.ndarray]) -> Path:
+    """A global-feats file as hloc's extract_features writes it: one group per image name (a name
+    with '/' is nested groups), dataset global_descriptor in float16 (hloc's as_half)."""
+    with h5py.File(path, "w") as handle:
+        for name, vector in groups.items():
+            group = handle.create_group(name)
+            group.create_dataset("global_descriptor", data=vector.astype(np.float16))
+            group.create_dataset("image_size", data=np.array([640, 480]))
+    return path
+
+
+def _invoke(*args: str | Path) -> None:
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+
+
+def _localized(query: Path, ref: Path, out: Path) -> list[tuple[str, str]]:
+    """Each query frame and its match, from a localize run given the two files alone."""
+    _invoke("localize", query, "--map", ref, "--method", "threshold", "--out", out)
+    results = read_results(out)
+    assert results.meta["metric"] == "cosine"
+    return list(zip(results.frames["frame"], results.frames["match"]))
+
+
+def test_an_hloc_file_imports_in_two_parts_and_localizes(tmp_path: Path, cache_dir: Path) -> None:
+    ref, query = _descriptors()
+    feats = _hloc_file(tmp_path / "global-feats-netvlad.h5",
+                       {**{f"db/img{i}.jpg": v for i, v in enumerate(ref)},
+                        **{f"query/night/img{i}.jpg": v for i, v in enumerate(query)}})
+    _invoke("describe", "--import", feats, "--prefix", "db/", "--metric", "cosine", "--out", tmp_path / "map.h5")
+    _invoke("describe", "--import", feats, "--prefix", "query/", "--metric", "cosine", "--out", tmp_path / "query.h5")
+    assert recorded_metric(tmp_path / "map.h5") == "cosine"
+    pairs = _localized(tmp_path / "query.h5", tmp_path / "map.h5", tmp_path / "run.csv")
+    assert pairs == [(f"night/img{i}.jpg", f"img{i}.jpg") for i in range(N)]  # natural order, names with '/'
+
+
+def test_a_folder_of_npy_files_imports_and_localizes(tmp_path: Path, cache_dir: Path) -> None:
+    ref, query = _descriptors(1)
+    for folder, rows in (("database", ref), ("queries", query)):
+        for i, vector in enumerate(rows):
+            path = tmp_path / folder / f"part{i % 2}" / f"img{i}.jpg.npy"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            np.save(path, vector)
+        _invoke("describe", "--import", tmp_path / folder, "--metric", "cosine", "--out", tmp_path / f"{folder}.h5")
+    pairs = _localized(tmp_path / "queries.h5", tmp_path / "database.h5", tmp_path / "run.csv")
+    assert sorted(pairs) == sorted((f"part{i % 2}/img{i}.jpg",) * 2 for i in range(N))
+    names, matrix = read_external(tmp_path / "queries.h5", None, "cosine")
+    assert np.array_equal(matrix[names.index("part1/img3.jpg")], query[3])
+
+
+def test_the_recorded_metric_names_the_results_and_an_explicit_one_wins(tmp_path: Path, cache_dir: Path) -> None:
+    ref, _ = _descriptors()
+    feats = _hloc_file(tmp_path / "feats.h5", {f"img{i}.jpg": v for i, v in enumerate(ref)})
+    _invoke("describe", "--import", feats, "--metric", "sqeuclidean", "--out", tmp_path / "seq.h5")
+    result = runner.invoke(app, ["localize", str(tmp_path / "seq.h5"), "--method", "threshold", "-R", "1"])
+    assert result.exit_code == 0, result.output
+    assert read_results(Path("seq-external-sqeuclidean-threshold.csv")).meta["metric"] == "sqeuclidean"
+    _invoke("localize", tmp_path / "seq.h5", "--metric", "l1", "--method", "threshold", "-R", "1", "--out", tmp_path / "l1.csv")
+    assert read_results(tmp_path / "l1.csv").meta["metric"] == "l1"
+
+
+@pytest.fixture(autouse=True)
+def _in_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)  # results files without --out land here
+
+
+def _bad_sources(tmp: Path) -> dict[str, tuple[list[str], int, str]]:
+    ragged = _hloc_file(tmp / "ragged.h5", {"a.jpg": np.ones(8), "b/c.jpg": np.ones(9)})
+    folder = tmp / "npys"
+    (folder / "sub").mkdir(parents=True)
+    np.save(folder / "a.jpg.npy", np.ones(8, np.float32))
+    np.save(folder / "sub" / "b.jpg.npy", np.ones(9, np.float32))
+    neither = tmp / "neither.h5"
+    with h5py.File(neither, "w") as handle:
+        handle["something"] = np.ones(3)
+    hloc = _hloc_file(tmp / "ok.h5", {"db/a.jpg": np.ones(4)})
+    return {
+        "hloc rows of two lengths": (["--import", str(ragged), "--out", str(tmp / "x.h5")], 1,
+                                     "'b/c.jpg/global_descriptor' holds 9 values, but 'a.jpg/global_descriptor' holds 8"),
+        "npy files of two lengths": (["--import", str(folder), "--out", str(tmp / "x.h5")], 1,
+                                     "sub/b.jpg.npy holds 9 values, but a.jpg.npy holds 8"),
+        "neither layout": (["--import", str(neither)], 1, "neither a dataset 'descriptors' (N x D) nor hloc's groups"),
+        "prefix matching nothing": (["--import", str(hloc), "--prefix", "query/", "--out", str(tmp / "x.h5")], 1,
+                                    "no frame name begins with 'query/'"),
+        "folder without --out": (["--import", str(folder)], 2, "--out: "),
+        "prefix without --out": (["--import", str(hloc), "--prefix", "db/"], 2, "--prefix: applies to --import with --out only"),
+        "out onto the source": (["--import", str(hloc), "--out", str(hloc)], 2, "is the file being imported"),
+        "out not h5": (["--import", str(hloc), "--out", str(tmp / "x.csv")], 2, "a descriptor file is HDF5"),
+    }
+
+
+@pytest.mark.parametrize("case", ["hloc rows of two lengths", "npy files of two lengths", "neither layout",
+                                  "prefix matching nothing", "folder without --out", "prefix without --out",
+                                  "out onto the source", "out not h5"])
+def test_bad_sources_are_one_line(case: str, tmp_path: Path, cache_dir: Path) -> None:
+    args, code, message = _bad_sources(tmp_path)[case]
+    ends_in_one_error(runner.invoke(app, ["describe", *args]), code, message)
+    assert not (tmp_path / "x.h5").exists()  # nothing half-written
+
+
+def test_a_matrix_file_without_a_recorded_metric_still_needs_one(tmp_path: Path, cache_dir: Path) -> None:
+    feats = _hloc_file(tmp_path / "feats.h5", {f"img{i}.jpg": v for i, v in enumerate(_descriptors()[0])})
+    ends_in_one_error(runner.invoke(app, ["localize", str(feats)]), 2, "needs a metric", "--out FILE.h5")

@@ -1,0 +1,235 @@
+"""Ground truth as VPR datasets ship it (wiloc/truth_formats.py): VPR-Bench's ground_truth_new.npy,
+@UTM_east@UTM_north@ file names and EXIF GPS each give the same evaluation as the pairs CSV that
+lists the same true matches; bad files of each kind are one line and exit code 1."""
+from __future__ import annotations
+
+import json
+import pathlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from PIL import Image
+from PIL.TiffImagePlugin import IFDRational
+from test_bad_inputs import ends_in_one_error
+from test_cli import _places
+from typer.testing import CliRunner
+
+from wiloc import api
+from wiloc.cli import app
+from wiloc.errors import WilocError
+from wiloc.groundtruth import EARTH_RADIUS_M, load_truth
+from wiloc.results import read_results
+from wiloc.truth_formats import read_vprbench
+
+runner = CliRunner()
+N = 24
+SPACING = 12.0  # metres between places: within 25 m lie the places +-2 along the route
+
+
+def _rational_seconds(degrees: float) -> tuple[IFDRational, IFDRational, IFDRational]:
+    """Degrees as EXIF writes them: whole degrees, whole minutes, seconds to 1e-4."""
+    whole = int(degrees)
+    minutes = int((degrees - whole) * 60)
+    seconds = round(((degrees - whole) * 60 - minutes) * 60 * 10_000)
+    return IFDRational(whole, 1), IFDRational(minutes, 1), IFDRational(seconds, 10_000)
+
+
+def _as_degrees(parts: tuple[IFDRational, ...]) -> float:
+    return sum(float(p) / 60.0 ** k for k, p in enumerate(parts))
+
+
+def _write_images(folder: Path, scenes: list[np.ndarray], gain: float, seed: int) -> pd.DataFrame:
+    """JPEGs in VPR-methods-evaluation's layout: @UTM_east@UTM_north@zone@letter@lat@lon@...@.jpg,
+    with the GPS position in their EXIF (jittered by a few metres per traversal); returns each
+    image's name, UTM and lat/lon as written."""
+    rng = np.random.default_rng(seed)
+    folder.mkdir(parents=True)
+    rows = []
+    for i, scene in enumerate(scenes):
+        east, north = np.round([500_000.0 + SPACING * i + rng.normal(0, 3), 4_100_000.0 + rng.normal(0, 3)], 2)
+        lat_parts = _rational_seconds(51.5 + (SPACING * i + rng.normal(0, 3)) / 111_195.0)
+        lon_parts = _rational_seconds(0.1 + rng.normal(0, 3) / 69_000.0)
+        lat, lon = _as_degrees(lat_parts), -_as_degrees(lon_parts)
+        name = f"@{east:.2f}@{north:.2f}@30@U@{lat:.6f}@{lon:.6f}@pano{i}@@@@@@@.jpg"
+        image = np.clip(scene * gain + rng.normal(0, 6, scene.shape), 0, 255).astype(np.uint8)
+        exif = Image.Exif()
+        exif[0x8825] = {1: "N", 2: lat_parts, 3: "W", 4: lon_parts}
+        Image.fromarray(image).save(folder / name, exif=exif, quality=95)
+        rows.append({"name": name, "east": east, "north": north, "lat": lat, "lon": lon})
+    return pd.DataFrame(rows)
+
+
+def _great_circle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Haversine distances in metres between (lat, lon) degree rows of a and b."""
+    lat1, lon1 = np.radians(a[:, :1]), np.radians(a[:, 1:])
+    lat2, lon2 = np.radians(b[:, 0]), np.radians(b[:, 1])
+    h = np.sin((lat2 - lat1) / 2) ** 2 + np.cos(lat1) * np.cos(lat2) * np.sin((lon2 - lon1) / 2) ** 2
+    return 2 * EARTH_RADIUS_M * np.arcsin(np.sqrt(h))
+
+
+@pytest.fixture
+def vpr_route(tmp_path: Path, cache_dir: Path) -> dict:
+    """database/ and queries/ over the same places, a threshold run of one against the other, and
+    the pairs CSVs that list the same place by UTM and by lat/lon within 25 m (brute force)."""
+    scenes = _places(N)
+    ref = _write_images(tmp_path / "database", scenes, 1.0, 1)
+    query = _write_images(tmp_path / "queries", scenes, 0.7, 2)
+    run = tmp_path / "run.csv"
+    result = runner.invoke(app, ["localize", str(tmp_path / "queries"), "--map", str(tmp_path / "database"),
+                                 "--method", "threshold", "--out", str(run), "--jobs", "1"])
+    assert result.exit_code == 0, result.output
+    metres = {"utm": np.hypot(query["east"].to_numpy()[:, None] - ref["east"].to_numpy(),
+                              query["north"].to_numpy()[:, None] - ref["north"].to_numpy()),
+              "gps": _great_circle(query[["lat", "lon"]].to_numpy(), ref[["lat", "lon"]].to_numpy())}
+    pairs = {}
+    for kind, distances in metres.items():
+        q, r = np.nonzero(distances <= 25.0)
+        assert 0 < q.size < N * N / 4  # a band around the route, not everything
+        pairs[kind] = tmp_path / f"pairs-{kind}.csv"
+        pd.DataFrame({"query": query["name"].to_numpy()[q], "reference": ref["name"].to_numpy()[r]}).to_csv(
+            pairs[kind], index=False)
+    return {"root": tmp_path, "run": run, "pairs": pairs, "query": query, "ref": ref}
+
+
+def _write_vprbench(path: Path, pairs_csv: Path, run: Path) -> Path:
+    """VPR-Bench's ground_truth_new.npy for the pairs: [query index, [reference indices]] per
+    query frame, indices in the traversals' natural order (the run's frame order)."""
+    results = read_results(run)
+    queries, refs = results.frames["frame"].tolist(), list(results.reference_frames)
+    pairs = pd.read_csv(pairs_csv)
+    rows = np.empty((len(queries), 2), dtype=object)
+    for i, name in enumerate(queries):
+        rows[i] = [i, [refs.index(r) for r in pairs.loc[pairs["query"] == name, "reference"]]]
+    np.save(path, rows)
+    return path
+
+
+def _evaluation(run: Path, gt: list[str]) -> dict:
+    result = runner.invoke(app, ["evaluate", str(run), *gt, "--json"])
+    assert result.exit_code == 0, result.output
+    (record,) = json.loads(result.stdout)["runs"]
+    return {k: v for k, v in record.items() if k not in ("ground_truth", "warnings")}
+
+
+#: each form's command-line arguments, the pairs CSV it equals, and the same as a TruthSource
+FORMS = {"utm-names": (["--gt", "utm-names", "--radius", "25"], "utm", ("utm-names", None)),
+         "utm-names, default radius": (["--gt", "utm-names"], "utm", ("utm-names", None)),
+         "exif": (["--gt", "exif", "--radius", "25"], "gps", ("exif", None)),
+         "vprbench": (["--gt", "vprbench:{gt_file}"], "utm", ("vprbench", "{gt_file}")),
+         "vprbench, the file alone": (["--gt", "{gt_file}"], "utm", ("vprbench", "{gt_file}"))}
+
+
+@pytest.mark.parametrize("form", FORMS)
+def test_each_form_evaluates_as_the_equivalent_pairs_csv(form: str, vpr_route: dict) -> None:
+    args, pairs_kind, (kind, path) = FORMS[form]
+    pairs, run = vpr_route["pairs"][pairs_kind], vpr_route["run"]
+    gt_file = _write_vprbench(vpr_route["root"] / "ground_truth_new.npy", pairs, run)
+    expected = _evaluation(run, ["--gt", f"pairs:{pairs}"])
+    assert expected["with_true_match"] > 0
+    assert _evaluation(run, [arg.format(gt_file=gt_file) for arg in args]) == expected
+    source = api.TruthSource(kind=kind, path=path and path.format(gt_file=gt_file), radius=25.0)
+    truth, reference = api.evaluate(run, source).truth, api.evaluate(run, api.TruthSource("pairs", str(pairs))).truth
+    assert (truth.matrix != reference.matrix).nnz == 0 and truth.matrix.nnz == reference.matrix.nnz
+
+
+def test_utm_names_in_sequence_mode_match_a_positions_csv(vpr_route: dict, tmp_path: Path) -> None:
+    run = tmp_path / "seq.csv"
+    assert runner.invoke(app, ["localize", str(tmp_path / "queries"), "--method", "threshold", "--out", str(run),
+                               "--jobs", "1", "-R", "1"]).exit_code == 0
+    positions = tmp_path / "positions.csv"
+    vpr_route["query"].rename(columns={"east": "x", "north": "y"})[["name", "x", "y"]].to_csv(positions, index=False)
+    expected = _evaluation(run, ["--gt", f"positions:{positions}", "--radius", "25"])
+    assert _evaluation(run, ["--gt", "utm-names", "--radius", "25"]) == expected
+
+
+def test_a_smaller_radius_marks_fewer_places(vpr_route: dict) -> None:
+    names = vpr_route["query"]["name"].tolist(), vpr_route["ref"]["name"].tolist()
+    folders = {"query_folder": vpr_route["root"] / "queries", "ref_folder": vpr_route["root"] / "database"}
+    wide = load_truth("utm-names", None, query_names=names[0], ref_names=names[1], **folders)
+    narrow = load_truth("utm-names", None, query_names=names[0], ref_names=names[1], radius=5.0, **folders)
+    assert 0 < narrow.matrix.nnz < wide.matrix.nnz
+
+
+def test_vprbench_rows_may_hold_lists_arrays_or_one_index(tmp_path: Path) -> None:
+    rows = np.empty((3, 2), dtype=object)
+    rows[0], rows[1], rows[2] = [0, [1, 2]], [np.int64(1), np.array([3], dtype=np.int64)], [2, 0]
+    np.save(tmp_path / "gt.npy", rows)
+    got = [(q, r.tolist()) for q, r in read_vprbench(tmp_path / "gt.npy")]
+    assert got == [(0, [1, 2]), (1, [3]), (2, [0])]
+
+
+class Smuggled:
+    """An object a pickle may name but that is no part of a numpy array."""
+
+
+def _bad_vprbench(tmp: Path, kind: str) -> Path:
+    path = tmp / f"{kind}.npy"
+    rows = np.empty((2, 2), dtype=object)
+    if kind == "numeric":
+        np.save(path, np.eye(3))
+        return path
+    if kind in ("flat", "pickled dict"):
+        np.save(path, np.array([1, 2, 3], dtype=object) if kind == "flat" else {"query": [0], "refs": [[1]]})
+        return path
+    rows[0], rows[1] = ([0, [1]], [1, {"a": 2}]) if kind == "dict" else \
+        ([0, [1]], [1, pathlib.PurePosixPath("x")]) if kind == "foreign object" else ([0, [1]], [1, [9999]])
+    np.save(path, rows)
+    return path
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("numeric", "holds a plain 3 x 3 array of float64, not VPR-Bench's rows"),
+    ("dict", "row 2 is not [query index, [reference indices]]"),
+    ("foreign object", "it names pathlib"),
+    ("out of range", "row 2: reference index 9999, but the reference traversal has 24 frames"),
+    ("flat", "row 1 is not [query index, [reference indices]]"),
+    ("pickled dict", "holds a 0-d object array, not VPR-Bench's rows"),
+])
+def test_bad_vprbench_files_are_one_line(kind: str, message: str, vpr_route: dict) -> None:
+    path = _bad_vprbench(vpr_route["root"], kind)
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(vpr_route["run"]), "--gt", f"vprbench:{path}"]), 1,
+                      str(path), message)
+
+
+def test_a_foreign_pickle_is_never_run(tmp_path: Path) -> None:
+    rows = np.empty((1, 2), dtype=object)
+    rows[0] = [0, Smuggled()]
+    np.save(tmp_path / "gt.npy", rows)
+    with pytest.raises(WilocError, match="it names test_truth_formats.Smuggled"):
+        read_vprbench(tmp_path / "gt.npy")
+
+
+def test_a_name_without_utm_fields_is_one_line(vpr_route: dict) -> None:
+    ref = vpr_route["root"] / "database"
+    first = ref / vpr_route["ref"]["name"][3]
+    first.rename(ref / "img3.jpg")
+    run = vpr_route["root"] / "renamed.csv"
+    assert runner.invoke(app, ["localize", str(vpr_route["root"] / "queries"), "--map", str(ref), "--method",
+                               "threshold", "--out", str(run), "--jobs", "1"]).exit_code == 0
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(run), "--gt", "utm-names"]), 1,
+                      f"{ref.resolve() / 'img3.jpg'}: not a name of the form @UTM_east@UTM_north@")
+
+
+def test_names_of_two_utm_zones_are_one_line(vpr_route: dict) -> None:
+    ref = vpr_route["root"] / "database"
+    name = vpr_route["ref"]["name"][5]
+    (ref / name).rename(ref / name.replace("@30@U@", "@31@U@"))
+    run = vpr_route["root"] / "zones.csv"
+    assert runner.invoke(app, ["localize", str(vpr_route["root"] / "queries"), "--map", str(ref), "--method",
+                               "threshold", "--out", str(run), "--jobs", "1"]).exit_code == 0
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(run), "--gt", "utm-names"]), 1, "UTM zone")
+
+
+def test_an_image_without_gps_exif_is_one_line(vpr_route: dict) -> None:
+    query = vpr_route["root"] / "queries"
+    name = vpr_route["query"]["name"][7]
+    Image.open(query / name).save(query / name)  # written again without its EXIF
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(vpr_route["run"]), "--gt", "exif"]), 1,
+                      f"{query.resolve() / name}: no GPS position in its EXIF (1 of {N} images")
+
+
+def test_forms_without_a_file_refuse_one(vpr_route: dict) -> None:
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(vpr_route["run"]), "--gt", "exif:gps.csv"]), 2,
+                      "--gt: 'exif' reads the traversals themselves and takes no file")
