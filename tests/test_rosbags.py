@@ -122,6 +122,11 @@ def test_frames_are_named_by_stamp_and_described_like_the_images(kind: str, tmp_
     assert report.notes == [f"{bag}: reading its only image topic /camera/image_raw"]
     expected = np.stack([spec.compute(image) for image in images])
     np.testing.assert_array_equal(report.entry.data, expected)
+    if kind != "ros1":  # a ROS 2 bag's storage file alone is a bag too
+        storage = next(p for p in bag.iterdir() if p.suffix in (".mcap", ".db3"))
+        alone = describe_bag(storage, spec, Cache(tmp_path / "cache"))
+        assert is_bag(storage) and alone.entry.names == report.entry.names
+        np.testing.assert_array_equal(alone.entry.data, expected)
 
 
 def test_sampling_by_index_and_by_stamp(tmp_path: Path) -> None:

@@ -3,7 +3,7 @@ topic (and the travelled distance of an odometry topic) with the ``rosbags`` lib
 needs no ROS installation (the optional extra ``wiloc[rosbags]``).
 
 A ROS 1 bag is a ``.bag`` file; a ROS 2 bag is a folder holding ``metadata.yaml`` and its sqlite3
-(``.db3``) or MCAP storage. A frame is named by its message's header stamp, ``t<seconds>.<nine
+(``.db3``) or MCAP storage, or one such storage file on its own. A frame is named by its message's header stamp, ``t<seconds>.<nine
 digits of nanoseconds>`` (``t1700000000.123456789``), so names sort in time order; see
 docs/formats.md for the naming and sampling rules.
 """
@@ -37,14 +37,17 @@ ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
     "bgra8": (4, np.dtype(np.uint8), cv2.COLOR_BGRA2GRAY),
 }
 INSTALL = 'reading ROS bags needs the rosbags package: pip install "wiloc[rosbags]"'
+#: File name endings of bags: ROS 1, and the ROS 2 storage files rosbags reads on their own.
+BAG_SUFFIXES = frozenset({".bag", ".mcap", ".db3"})
 
 
 def is_bag(path: Path) -> bool:
-    """Whether `path` names a ROS bag: a ``.bag`` file, or a folder holding ``metadata.yaml``."""
+    """Whether `path` names a ROS bag: a ``.bag``, ``.mcap`` or ``.db3`` file, or a folder holding
+    ``metadata.yaml``."""
     path = Path(path)
     if path.is_dir():
         return (path / "metadata.yaml").is_file()
-    return path.suffix.lower() == ".bag"
+    return path.suffix.lower() in BAG_SUFFIXES
 
 
 def frame_name(stamp_ns: int, repeat: int = 0) -> str:
