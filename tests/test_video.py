@@ -297,7 +297,7 @@ def test_api_describe_and_describer_take_videos(tmp_path: Path) -> None:
     assert Describer("sad", cache=cache).entry(video).names == names(range(20))
     folder = tmp_path / "frames"
     folder.mkdir()
-    with pytest.raises(ParameterError, match="^sampling: applies to video files only"):
+    with pytest.raises(ParameterError, match="^sampling: applies to video files and ROS bags only"):
         api.describe([video, folder], "sad", cache=cache, sampling=Sampling(fps=2))
     assert is_video(video) and not is_video(folder) and not is_video(tmp_path / "x.npy")
 
@@ -316,7 +316,7 @@ def test_cli_describe_samples_videos(tmp_path: Path, cache_dir: Path) -> None:
     folder.mkdir()
     mixed = CliRunner().invoke(app, ["describe", str(video), str(folder), "--every", "2"])
     assert mixed.exit_code == 2
-    assert f"--every/--fps/--start/--stop: applies to video files only; {folder} is not one" in mixed.output
+    assert f"--every/--fps/--start/--stop: applies to video files and ROS bags only; {folder} is neither" in mixed.output
 
 
 @pytest.mark.realdata

@@ -18,7 +18,8 @@ import pandas as pd
 from wiloc import __version__
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent
-from wiloc.describing import DescribeReport, check_sampling, describe_sources, import_matrix, import_to_file
+from wiloc.describing import (DescribeReport, check_sampling, check_topic, describe_sources, import_matrix,
+                              import_to_file, is_stream)
 from wiloc.descriptors.external import recorded_metric
 from wiloc.descriptors.bow import load_vocabulary
 from wiloc.differences import candidate_blocks, run_differences
@@ -41,7 +42,9 @@ from wiloc.results import RANKING, Results, ResultsStream, make_results, read_re
 from wiloc.training import Training, training_rows
 from wiloc.traversals import (Describer, Progress, descriptor_label, descriptor_spec, descriptors_digest, open_cluster,
                               stage)
-from wiloc.video import Sampling, is_video
+from wiloc.bags import Bag, is_bag
+from wiloc.odometry import steps
+from wiloc.video import Sampling
 from wiloc.workers import keeping_pools
 from wiloc.vocabulary import VocabularyParams
 from wiloc.vocabulary_build import VocabularyReport, build_vocabulary, vocabulary_path
@@ -61,21 +64,24 @@ def shared_workers() -> AbstractContextManager[None]:
 def describe(folders: Sequence[Path], descriptor: str = "sad", *,
              descriptor_params: Mapping[str, Any] | None = None, cache: Cache | None = None,
              jobs: int | None = None, progress: Progress | None = None,
-             sampling: Sampling | None = None, scheduler: str | None = None) -> list[DescribeReport]:
+             sampling: Sampling | None = None, scheduler: str | None = None,
+             topic: str | None = None) -> list[DescribeReport]:
     """Compute (or reuse from the cache) one descriptor per image of each folder, or per frame
-    of each video file that ``sampling`` picks (default: every frame). ``jobs`` worker processes
-    describe folders, or the workers of the Dask ``scheduler`` (an address, or ``local``: a local
-    cluster of ``jobs`` workers); videos are decoded and described in this process. The folders'
-    frames form one stream over the workers (``wiloc.describing.describe_folders``). Reports come
+    of each video file or ROS bag (of its image ``topic``; None: its only one) that ``sampling``
+    picks (default: every frame). ``jobs`` worker processes describe folders, or the workers of
+    the Dask ``scheduler`` (an address, or ``local``: a local cluster of ``jobs`` workers); videos
+    and bags are decoded and described in this process. The folders' frames form one stream over
+    the workers (``wiloc.describing.describe_folders``). Reports come
     in the order of ``folders``."""
     spec = descriptor_spec(descriptor, descriptor_params)
     cache = cache or Cache()
     for folder in folders:
         check_sampling(Path(folder), sampling)
+    check_topic([Path(folder) for folder in folders], topic)
     cluster = open_cluster(scheduler, jobs)
     return describe_sources([Path(folder) for folder in folders], spec, cache, jobs=jobs, sampling=sampling,
                             progress=[stage(progress, f"describe {Path(folder).name}") for folder in folders],
-                            cluster=cluster)
+                            cluster=cluster, topic=topic)
 
 
 def import_descriptors(path: Path, *, metric: str | None = None, names: Path | None = None,
@@ -134,6 +140,7 @@ class LocalizeRun:
     skipped: list[tuple[str, str]] = field(default_factory=list)  # (image path, why it was left out)
     replaced: bool = False  # the results file existed before and was replaced
     warnings: list[str] = field(default_factory=list)  # what makes the results doubtful (a sparse vocabulary)
+    notes: list[str] = field(default_factory=list)  # worth saying: which topic of a bag was read
 
     def __repr__(self) -> str:
         written = f", path={str(self.path)!r}" if self.path else ""
@@ -156,7 +163,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
              query_names_file: Path | None = None, ref_names_file: Path | None = None,
              out: Path | None = None, cache: Cache | None = None, jobs: int | None = None,
              sampling: Sampling | None = None, progress: Progress | None = None,
-             scheduler: str | None = None) -> LocalizeRun:
+             scheduler: str | None = None, topic: str | None = None,
+             odometry_topic: str | None = None) -> LocalizeRun:
     """Localize every frame of ``query`` (against ``reference``, or within itself) and write results.
 
     ``query`` and ``reference`` are image folders, or descriptor matrix files (with ``metric`` and,
@@ -165,7 +173,9 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     the query's difference rows, read from the cache block by block. ``odometry`` and
     ``map_odometry`` are odometry CSVs (for methods that take them); ``training`` is the labelled
     pair of the ``trained`` comparator. ``sampling`` picks the frames of video files (query, map
-    and training traversals alike; default: every frame). The results are written to ``out`` when
+    and training traversals alike; default: every frame), and ``topic`` the image topic of ROS
+    bags (None: each one's only one); ``odometry_topic`` names their ``nav_msgs/msg/Odometry``
+    topic, read as the odometry of each bag (query or map). The results are written to ``out`` when
     given (else kept in memory only: ``wiloc.api.evaluate`` takes the run itself). ``scheduler``
     (a Dask scheduler's address, or ``local``) describes and computes the differences on its workers.
     """
@@ -173,12 +183,15 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     algo = make_method(method, method_params)
     R = check_exclude_recent(exclude_recent)
     sequence = reference is None
-    algo.check_inputs(sequence=sequence, training=training is not None, odometry=odometry is not None,
-                      map_odometry=map_odometry is not None)
-    videos = [Path(source) for source in (query, reference) if source is not None and is_video(Path(source))]
-    check_sampling(videos[0] if videos else Path(query), sampling)
+    bags = _odometry_bags(query, reference, odometry_topic, odometry, map_odometry)
+    algo.check_inputs(sequence=sequence, training=training is not None, odometry=odometry is not None or bags[0],
+                      map_odometry=map_odometry is not None or bags[1])
+    streams = [Path(source) for source in (query, reference) if source is not None and is_stream(Path(source))]
+    check_sampling(streams[0] if streams else Path(query), sampling)
+    pair = (training.query, training.reference) if training else ()
+    check_topic([Path(source) for source in (query, reference, *pair) if source is not None], topic)
     describer = Describer(descriptor, dict(descriptor_params or {}), cache or Cache(), metric=metric, jobs=jobs,
-                          progress=progress, sampling=sampling, cluster=open_cluster(scheduler, jobs))
+                          progress=progress, sampling=sampling, cluster=open_cluster(scheduler, jobs), topic=topic)
     query = Path(query)
     q = describer.entry(query, query_names_file)
     r = q if sequence else describer.entry(Path(reference), ref_names_file)
@@ -201,18 +214,24 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
         rows = candidate_blocks(source.rows, sequence, R)
     context = MapContext(
         sequence=sequence, exclude_recent=R, n_map=0 if sequence else len(r.names), rows=kind,
-        natural_max=r.natural_max, arclength=_map_arclength(map_odometry, r.names), map_self=source.map_self,
+        natural_max=r.natural_max, map_self=source.map_self,
+        arclength=_bag_arclength(reference, odometry_topic, r.names) if bags[1] else _map_arclength(map_odometry, r.names),
         map_summary=source.map_summary, neighbours=None if sequence else lambda: consecutive(r.data, r.metric, r.scale),
         training=(lambda: training_rows(training, describer, R)) if training else None)
     algo.start(context)
     decisions = algo.run(rows, len(q.names),
-                         odometry=_query_steps(odometry, q.names),
+                         odometry=steps(_bag_arclength(query, odometry_topic, q.names)) if bags[0]
+                         else _query_steps(odometry, q.names),
                          progress=stage(progress, f"{method} {query.name}"))
     meta = _run_meta(method, describer, query, q.metric, reference, R, training)
     meta.update(query_digest=descriptors_digest(q.names, q.data),
                 map_digest="" if sequence else descriptors_digest(r.names, r.data))
-    if videos:
+    if streams:
         meta["sampling"] = asdict(sampling or Sampling())
+    if topic is not None:
+        meta["topic"] = topic
+    if odometry_topic is not None:
+        meta["odometry_topic"] = odometry_topic
     if kind == "log_ratio":  # FAB-MAP's training data: the vocabulary's images
         meta.update(rows="fabmap", fabmap_training=evidence.training_folders)
     sparse = None  # a vocabulary of too few words per image makes every bow result doubtful
@@ -224,7 +243,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
                        decisions=decisions, results=results, path=None if out is None else Path(out),
                        seconds=time.perf_counter() - started, skipped=describer.skipped, replaced=replaced,
-                       warnings=[] if sparse is None else [sparse])
+                       warnings=[] if sparse is None else [sparse], notes=describer.notes)
 
 
 def _run_meta(method: str, describer: Describer, query: Path, metric: str, reference: Path | None,
@@ -304,6 +323,28 @@ def _map_arclength(map_odometry: Path | None, names: list[str]) -> np.ndarray | 
     """The map's arc length per frame from its odometry CSV, when given."""
     from wiloc.odometry import read_odometry
     return read_odometry(map_odometry).arclength(names) if map_odometry else None
+
+
+def _odometry_bags(query: Path, reference: Path | None, odometry_topic: str | None, odometry: Path | None,
+                   map_odometry: Path | None) -> tuple[bool, bool]:
+    """Whether the query's and the map's odometry come from their bags' ``odometry_topic``:
+    for those that are ROS bags, when it is given. A UsageError when no traversal is a bag, or
+    when a bag's odometry is also given as a CSV."""
+    if odometry_topic is None:
+        return False, False
+    from_bag = tuple(source is not None and is_bag(Path(source)) for source in (query, reference))
+    if not any(from_bag):
+        raise ParameterError("odometry_topic", "applies to ROS bags only; neither the query nor the map is one")
+    for used, csv, parameter in zip(from_bag, (odometry, map_odometry), ("odometry", "map_odometry")):
+        if used and csv is not None:
+            raise ParameterError(parameter, "give the odometry of a ROS bag once: as its CSV or by odometry_topic")
+    return from_bag
+
+
+def _bag_arclength(bag: Path, topic: str, names: list[str]) -> np.ndarray:
+    """The distance travelled along a bag's odometry topic up to each frame of ``names``."""
+    with Bag(Path(bag)) as opened:
+        return opened.arclength(topic, names)
 
 
 def _query_steps(odometry: Path | None, names: list[str]) -> np.ndarray | None:

@@ -103,14 +103,18 @@ CacheOption = Annotated[Optional[Path], typer.Option(envvar="WILOC_CACHE", show_
                                                      help="Cache folder.")]
 JobsOption = Annotated[Optional[int], typer.Option("--jobs", "-j", show_default="all cores",
                                                    help="Worker processes for describing image folders.")]
-EveryOption = Annotated[int, typer.Option(help="Videos: every K-th frame of the cut.", rich_help_panel="video files")]
+STREAMS = "video files and ROS bags"
+EveryOption = Annotated[int, typer.Option(help="Videos, bags: every K-th frame of the cut.", rich_help_panel=STREAMS)]
 FpsOption = Annotated[Optional[float], typer.Option(
-    show_default="every frame, as --every", rich_help_panel="video files",
-    help="Videos: about F frames per second (by timestamp), instead of --every.")]
-StartOption = Annotated[str, typer.Option(help="Videos: first frame, an index (120) or seconds (12.5s).",
-                                          rich_help_panel="video files")]
-StopOption = Annotated[Optional[str], typer.Option(help="Videos: end of the cut (excluded), an index or seconds.",
-                                                   show_default="the end", rich_help_panel="video files")]
+    show_default="every frame, as --every", rich_help_panel=STREAMS,
+    help="Videos, bags: about F frames per second (by timestamp), instead of --every.")]
+StartOption = Annotated[str, typer.Option(help="Videos, bags: first frame, an index (120) or seconds (12.5s).",
+                                          rich_help_panel=STREAMS)]
+StopOption = Annotated[Optional[str], typer.Option(help="Videos, bags: end of the cut (excluded), an index or seconds.",
+                                                   show_default="the end", rich_help_panel=STREAMS)]
+TopicOption = Annotated[Optional[str], typer.Option(
+    show_default="the bag's only image topic", rich_help_panel=STREAMS,
+    help="ROS bags: the image topic (sensor_msgs Image or CompressedImage), such as /camera/image_raw.")]
 SchedulerOption = Annotated[Optional[str], typer.Option(
     envvar="WILOC_SCHEDULER", show_default="none: this machine",
     help="Dask scheduler address (tcp://host:8786), or 'local' for a local cluster of --jobs workers; "
@@ -124,7 +128,7 @@ SAMPLING = ("every", "fps", "start", "stop")
 @handles_errors
 def describe(
     folders: list[Path] = typer.Argument(None, metavar="FOLDER...", show_default=False,
-                                         help="Image folders or video files (one traversal each)."),
+                                         help="Image folders, video files or ROS bags (one traversal each)."),
     descriptor: DescriptorOption = "sad",
     crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
@@ -138,13 +142,14 @@ def describe(
     fps: FpsOption = None,
     start: StartOption = "0",
     stop: StopOption = None,
+    topic: TopicOption = None,
     list_cache: bool = typer.Option(False, "--list", help="Show what the cache holds."),
     cache: CacheOption = None,
     jobs: JobsOption = None,
     scheduler: SchedulerOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
-    """Compute whole-image descriptors of image folders or video files into the HDF5 cache.
+    """Compute whole-image descriptors of image folders, video files or ROS bags into the HDF5 cache.
 
     Example: wiloc describe data/gardens-point-walking/day_right --descriptor gist
     """
@@ -160,13 +165,13 @@ def describe(
                    "metric": (importing, "--import"), "names": (importing, "--import"),
                    "import_out": (importing, "--import"), "prefix": (import_out is not None, "--import with --out"),
                    "jobs": (not importing, "image folders"),
-                   **{name: (not importing, "video files") for name in SAMPLING}})
+                   **{name: (not importing, STREAMS) for name in (*SAMPLING, "topic")}})
     store = Cache(cache)
     if list_cache:
         _list_cache(store, as_json)
         return
     if not importing and not folders:
-        fail("FOLDER...: give image folders, video files, --import FILE or --list", EXIT_USAGE)
+        fail("FOLDER...: give image folders, video files, ROS bags, --import FILE or --list", EXIT_USAGE)
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
     with progress_bar(not as_json) as progress:
         if importing:
@@ -174,11 +179,12 @@ def describe(
                                               prefix=prefix)]
         else:  # one call: the folders' frames form one stream over the workers
             reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
-                                   cache=store, jobs=jobs, progress=progress, sampling=sampling, scheduler=scheduler)
+                                   cache=store, jobs=jobs, progress=progress, sampling=sampling, scheduler=scheduler,
+                                   topic=topic)
     rows, notes = [], []
     for label, r in zip(short_names([r.folder for r in reports]), reports):
         said = Notes()
-        for line in r.repairs:
+        for line in (*r.repairs, *r.notes):
             said.add("note", line)
         for name, reason in r.failed if not r.video else ():
             said.add("skipped", f"{Path(r.folder) / name}: {reason}")
@@ -221,15 +227,15 @@ def _list_cache(store: Any, as_json: bool) -> None:
 
 def _params_text(descriptor: str, params: dict[str, Any]) -> str:
     """An entry's parameters as a table shows them: those that differ from the descriptor's
-    defaults, a video's sampling, an import's metric; never the content digests."""
+    defaults, a video's or bag's sampling and topic, an import's metric; never the content digests."""
     from wiloc.descriptors.registry import DESCRIPTOR_NAMES, get_descriptor
 
     defaults = get_descriptor(descriptor).params if descriptor in DESCRIPTOR_NAMES else {}
     parts = []
     for key, value in sorted(params.items()):
         if key == "sampling":
-            parts += [f"{k}={v}" for k, v in value.items() if v is not None and (k, v) not in (("every", 1), ("start", "0"))]
-        elif value is not None and key not in ("video", "file_digest", "names_digest") and defaults.get(key) != value:
+            parts += [f"{k}={v}" for k, v in value.items() if v is not None and (k, v) not in (("every", 1), ("start", 0), ("start", "0"))]
+        elif value is not None and key not in ("video", "bag", "file_digest", "names_digest") and defaults.get(key) != value:
             if key == "file" and "vocabulary" in params:
                 continue  # a bow entry's vocabulary file: its key says which
             parts.append(f"{key}={Path(value).name if key == 'names' else value}")
@@ -306,6 +312,7 @@ def localize(
     names: Optional[Path] = typer.Option(None, help="A .npy QUERY matrix: its frame names, one per line."),
     map_names: Optional[Path] = typer.Option(None, help="A .npy --map matrix: its frame names, one per line."),
     odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y).", rich_help_panel="catgraph inputs"),
+    odometry_topic: Optional[str] = typer.Option(None, help="catgraph: the nav_msgs Odometry topic of the ROS bags (query and map).", rich_help_panel="catgraph inputs"),
     map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV.", rich_help_panel="catgraph inputs"),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", callback=_output_file, show_default="QUERY-DESCRIPTOR-METHOD.csv here",
                                             help="Results file (a folder with several queries)."),
@@ -318,6 +325,7 @@ def localize(
     fps: FpsOption = None,
     start: StartOption = "0",
     stop: StopOption = None,
+    topic: TopicOption = None,
     follow: bool = typer.Option(False, "--follow", help="Decide the frames already in the QUERY folder, then each new one as it arrives; rerun to resume.", rich_help_panel="live"),
     idle: Optional[float] = typer.Option(None, min=0.0, show_default="run until Ctrl-C", help="With --follow: stop after this many seconds without a new frame.", rich_help_panel="live"),
     method_options: Optional[dict[str, Any]] = None,
@@ -353,7 +361,8 @@ def localize(
                                 _truth_source(train_gt, train_gt_map, train_tolerance, train_radius, prefix="train_"))
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
     if follow:
-        given = [flag for flag, value in (("--odometry", odometry), ("--names", names), ("--map-names", map_names),
+        given = [flag for flag, value in (("--odometry", odometry), ("--odometry-topic", odometry_topic),
+                                          ("--topic", topic), ("--names", names), ("--map-names", map_names),
                                           ("--metric", metric), ("--model-plot", model_plot)) if value is not None]
         given += ["video sampling"] * (sampling != api.Sampling())
         if len(queries) != 1 or given:
@@ -390,14 +399,16 @@ def localize(
                                      exclude_recent=exclude_recent, training=training,
                                      odometry=odometry, map_odometry=map_odometry,
                                      query_names_file=names, ref_names_file=map_names, out=target,
-                                     cache=store, jobs=jobs, progress=progress, scheduler=scheduler))
+                                     cache=store, jobs=jobs, progress=progress, scheduler=scheduler,
+                                     topic=topic, odometry_topic=odometry_topic))
             repairs.append(store.repairs[known:])
     shown = set()
     rows, notes = [], []
     for label, run, repaired in zip(short_names([r.query for r in runs]), runs, repairs):
         said = Notes()
-        for line in repaired:
+        for line in (*repaired, *(line for line in run.notes if ("note", line) not in shown)):
             said.add("note", line)
+            shown.add(("note", line))
         for path, reason in run.skipped:
             if (path, reason) not in shown:
                 said.add("skipped", f"{path}: {reason}")

@@ -1,4 +1,4 @@
-"""Traversal (folder or video) -> descriptor matrix through the cache.
+"""Traversal (folder, video or ROS bag) -> descriptor matrix through the cache.
 
 A folder's unchanged frames are reused (same size and mtime, or else the same content digest);
 only new or changed frames are computed, in worker processes. A video's frames are decoded in
@@ -14,7 +14,7 @@ import statistics
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Generator, Iterator, Sequence
+from collections.abc import Callable, Container, Generator, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from functools import partial
@@ -39,10 +39,12 @@ from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
 from wiloc.frames import Fingerprint, Traversal, fingerprint, jpeg_size, list_traversal, natural_key, read_gray
 from wiloc.reprs import short_repr
+from wiloc.bags import Bag, bag_fingerprint, is_bag
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
 from wiloc.workers import WorkerError, borrowed_pool, can_fork, kept_pool
 
 if TYPE_CHECKING:
+    from wiloc.bags import BagFrame
     from wiloc.cluster import Cluster
 
 Progress = Callable[[int, int], None]
@@ -95,39 +97,53 @@ class DescribeReport:
     entry: Entry
     repairs: list[str] = field(default_factory=list)  # damage found in the cache entry (Cache.repairs)
     video: bool = False
+    notes: list[str] = field(default_factory=list)  # worth saying: which topic of a bag was read
 
 
 def describe_source(source: Path, spec: DescriptorSpec, cache: Cache, *, jobs: int | None = None,
                     sampling: Sampling | None = None, progress: Progress | None = None,
-                    cluster: Cluster | None = None) -> DescribeReport:
-    """Describe a traversal: a video file (recognised by its suffix) with `sampling`, else a
-    folder of images with `jobs` worker processes, or on `cluster`'s workers."""
+                    cluster: Cluster | None = None, topic: str | None = None) -> DescribeReport:
+    """Describe a traversal: a video file (recognised by its suffix) with `sampling`, a ROS bag's
+    image `topic` with `sampling`, else a folder of images with `jobs` worker processes, or on
+    `cluster`'s workers."""
     return describe_sources([source], spec, cache, jobs=jobs, sampling=sampling, progress=[progress],
-                            cluster=cluster)[0]
+                            cluster=cluster, topic=topic)[0]
 
 
 def describe_sources(sources: Sequence[Path], spec: DescriptorSpec, cache: Cache, *, jobs: int | None = None,
                      sampling: Sampling | None = None, progress: Sequence[Progress | None] | None = None,
-                     cluster: Cluster | None = None) -> list[DescribeReport]:
+                     cluster: Cluster | None = None, topic: str | None = None) -> list[DescribeReport]:
     """:func:`describe_source` for each of several traversals (``progress``: one callback each),
     the reports in their order: the image folders together (:func:`describe_folders`), then
-    each video file."""
+    each video file and ROS bag (``topic``: the bags' image topic; None: each one's only one)."""
     sources = [Path(source) for source in sources]
     callbacks = list(progress) if progress is not None else [None] * len(sources)
     for source in sources:
         check_sampling(source, sampling)
-    folders = [(source, callback) for source, callback in zip(sources, callbacks) if not is_video(source)]
+    folders = [(source, callback) for source, callback in zip(sources, callbacks) if not is_stream(source)]
     described = iter(describe_folders([f for f, _ in folders], spec, cache, jobs, [c for _, c in folders], cluster)
                      if folders else [])
-    return [describe_video(source, spec, cache, sampling, callback) if is_video(source) else next(described)
+    return [describe_video(source, spec, cache, sampling, callback) if is_video(source)
+            else describe_bag(source, spec, cache, sampling, topic, callback) if is_bag(source) else next(described)
             for source, callback in zip(sources, callbacks)]
+
+
+def is_stream(source: Path) -> bool:
+    """Whether a traversal is read in order as one stream, sampled: a video file or a ROS bag."""
+    return is_video(source) or is_bag(source)
 
 
 def check_sampling(source: Path, sampling: Sampling | None) -> None:
     """ParameterError when a sampling other than every frame is given for a folder: it applies to
-    video files only."""
-    if sampling is not None and sampling != Sampling() and not is_video(source):
-        raise ParameterError("sampling", f"applies to video files only; {source} is not one")
+    video files and ROS bags only."""
+    if sampling is not None and sampling != Sampling() and not is_stream(source):
+        raise ParameterError("sampling", f"applies to video files and ROS bags only; {source} is neither")
+
+
+def check_topic(sources: Sequence[Path], topic: str | None) -> None:
+    """ParameterError when an image topic is given but no traversal is a ROS bag."""
+    if topic is not None and not any(is_bag(Path(source)) for source in sources):
+        raise ParameterError("topic", "applies to ROS bags only; no traversal given is one")
 
 
 def describe_folder(folder: Path, spec: DescriptorSpec, cache: Cache, jobs: int | None = None,
@@ -291,25 +307,63 @@ def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sam
     with _opencv_quiet(), Video(path) as video:
         video_print = video_fingerprint(path)
         params = {**spec.params, "video": video_print.digest, "sampling": asdict(sampling)}
-        header = _header(str(path.resolve()), spec, params)
-        with _locked_entry(cache, header) as (stored, repairs):
-            computed = 0
-            if stored.complete:
-                entry = stored.entry()
-            else:
-                run = _Settling(header, progress, stored=stored)
-                run.total, run.done = sampling.estimate(video.frame_count, video.rate), len(stored.records)
-                if progress is not None:
-                    progress(run.done, max(run.done, run.total or 0))
-                frames = video.frames(sampling, skip=stored.records)
-                _journal(cache, [run], ((0, *_describe_frame(spec, video_print, frame)) for frame in frames))
-                computed = run.computed
-                if not stored.records:
-                    cut = f"start {sampling.start}" + ("" if sampling.stop is None else f", stop {sampling.stop}")
-                    length = "" if video.frame_count is None else f" (it has {video.frame_count} frames)"
-                    raise WilocError(path, f"the cut ({cut}) holds no frame of this video{length}")
-                entry = cache.write_entry(stored, complete=True)
+        cut = f"start {sampling.start}" + ("" if sampling.stop is None else f", stop {sampling.stop}")
+        length = "" if video.frame_count is None else f" (it has {video.frame_count} frames)"
+        stored, entry, computed, repairs = _describe_stream(
+            cache, _header(str(path.resolve()), spec, params), sampling.estimate(video.frame_count, video.rate),
+            lambda skip: (_describe_frame(spec, video_print, frame) for frame in video.frames(sampling, skip=skip)),
+            WilocError(path, f"the cut ({cut}) holds no frame of this video{length}"), progress)
     return _report(stored, entry, computed, start, repairs=repairs, video=True)
+
+
+def describe_bag(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampling | None = None,
+                 topic: str | None = None, progress: Progress | None = None) -> DescribeReport:
+    """Describe the images of a ROS bag's `topic` (None: its only image topic) that `sampling`
+    picks (default: all), reusing the cache, as :func:`describe_video` does a video's frames.
+
+    The entry is keyed by the bag's path and fingerprint, the topic, the descriptor and the
+    sampling. A frame whose image cannot be decoded is recorded as failed and left out; the
+    report's ``notes`` say which topic was read when the bag chose it. Raises WilocError for a
+    bag that cannot be read or has no such image topic, before anything is written, or when the
+    sampling picks no frame.
+    """
+    start = time.perf_counter()
+    sampling = sampling or Sampling()
+    path = Path(path)
+    with _opencv_quiet(), Bag(path) as bag:
+        bag.choose(topic)
+        bag_print = bag_fingerprint(path)
+        params = {**spec.params, "bag": bag_print.digest, "topic": bag.topic, "sampling": asdict(sampling)}
+        cut = f"start {sampling.start}" + ("" if sampling.stop is None else f", stop {sampling.stop}")
+        stored, entry, computed, repairs = _describe_stream(
+            cache, _header(str(path.resolve()), spec, params), sampling.estimate(bag.count, bag.rate),
+            lambda skip: (_describe_frame(spec, bag_print, frame)
+                          for frame in bag.frames(sampling, spec.min_size, skip=skip)),
+            WilocError(path, f"the cut ({cut}) holds no image of topic {bag.topic} (it has {bag.count})"), progress)
+    report = _report(stored, entry, computed, start, repairs=repairs)
+    return replace(report, notes=[bag.note] if bag.note else [])
+
+
+def _describe_stream(cache: Cache, header: EntryHeader, total: int | None,
+                     described: Callable[[Container[str]], Iterator[tuple[FrameRecord, bool]]],
+                     empty: WilocError, progress: Progress | None
+                     ) -> tuple[StoredEntry, Entry, int, list[str]]:
+    """A stream's entry (a video's or a bag's frames, read in order in this process): reused
+    when complete, else the frames ``described(skip)`` yields journaled as they come (those of
+    a killed run's journal, named in ``skip``, are passed over) and the entry written; ``empty``
+    raised when no frame came. Returns the stored frames, the entry, how many were computed and
+    the repairs reading the entry called for. ``total`` estimates the frames (for progress)."""
+    with _locked_entry(cache, header) as (stored, repairs):
+        if stored.complete:
+            return stored, stored.entry(), 0, repairs
+        run = _Settling(header, progress, stored=stored)
+        run.total, run.done = total, len(stored.records)
+        if progress is not None:
+            progress(run.done, max(run.done, run.total or 0))
+        _journal(cache, [run], ((0, *record) for record in described(stored.records)))
+        if not stored.records:
+            raise empty
+        return stored, cache.write_entry(stored, complete=True), run.computed, repairs
 
 
 def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str) -> DescribeReport:
@@ -641,9 +695,9 @@ def _describe_one(spec: DescriptorSpec, task: _Task) -> tuple[FrameRecord, bool]
     return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, row, "", width, height), True
 
 
-def _describe_frame(spec: DescriptorSpec, video: Fingerprint, frame: VideoFrame) -> tuple[FrameRecord, bool]:
-    """One video frame's record, with the video's fingerprint and the frame's timestamp, and
-    whether its descriptor was computed (False for the frame where decoding stopped)."""
+def _describe_frame(spec: DescriptorSpec, video: Fingerprint, frame: VideoFrame | BagFrame) -> tuple[FrameRecord, bool]:
+    """One video (or bag) frame's record, with the file's fingerprint and the frame's timestamp,
+    and whether its descriptor was computed (False for a frame without pixels)."""
     if frame.gray is None:
         return FrameRecord(frame.name, video.size, video.mtime_ns, video.digest, None, frame.problem), False
     row = np.asarray(spec.compute(frame.gray), dtype=spec.dtype)

@@ -244,6 +244,14 @@ def read_gray(path: Path, min_size: tuple[int, int] | None = None) -> NDArray[np
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise FrameError(path, f"cannot read file ({exc.strerror or exc})") from exc
+    return decode_gray(data, path, min_size)
+
+
+def decode_gray(data: NDArray[np.uint8], path: Path | str,
+                min_size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
+    """:func:`read_gray` of an encoded image already in memory (a ROS bag's compressed frame):
+    the same decode, so a JPEG gives the same pixels from a file or from a bag; ``path`` names
+    the image in errors."""
     if data.size == 0:
         raise FrameError(path, "empty file (0 bytes)")
     is_jpeg = data.size >= 2 and data[0] == 0xFF and data[1] == 0xD8

@@ -83,7 +83,8 @@ def _entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]:
     sampling = meta.get("sampling")
     describer = Describer("sad" if external else label, dict(meta.get("descriptor_params") or {}), cache,
                           metric=label.split(":", 1)[1] if external else None,
-                          sampling=Sampling(**sampling) if isinstance(sampling, dict) else None)
+                          sampling=Sampling(**sampling) if isinstance(sampling, dict) else None,
+                          topic=meta.get("topic"))
     query, reference, sequence = _traversals(evaluation)
     q = describer.entry(query)
     r = q if sequence else describer.entry(reference)

@@ -1,5 +1,5 @@
-"""Traversals as descriptor matrices: an image folder or a video file described through the
-cache, a user's descriptor matrix file imported into it, or descriptors held in memory."""
+"""Traversals as descriptor matrices: an image folder, a video file or a ROS bag described
+through the cache, a user's descriptor matrix file imported into it, or descriptors held in memory."""
 from __future__ import annotations
 
 import hashlib
@@ -16,6 +16,7 @@ from wiloc.descriptors.external import recorded_metric
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import ParameterError, UsageError, WilocError
 from wiloc.frames import IMAGE_SUFFIXES
+from wiloc.bags import is_bag
 from wiloc.video import Sampling, is_video
 
 if TYPE_CHECKING:
@@ -53,8 +54,8 @@ def descriptors_digest(names: list[str], data: np.ndarray) -> str:
 
 
 def is_matrix_file(source: Path) -> bool:
-    """Whether a traversal is a user's descriptor matrix file (not a folder, not a video)."""
-    return Path(source).is_file() and not is_video(Path(source))
+    """Whether a traversal is a user's descriptor matrix file (not a folder, video or ROS bag)."""
+    return Path(source).is_file() and not is_video(Path(source)) and not is_bag(Path(source))
 
 
 def descriptor_label(source: Path, descriptor: str, metric: str | None) -> str:
@@ -88,9 +89,10 @@ def open_cluster(scheduler: str | None, workers: int | None = None) -> Cluster |
 class Describer:
     """How traversals become descriptor matrices: one descriptor with its parameters, through one
     cache. ``metric`` is the difference of imported matrix files; ``sampling`` picks the frames of
-    video files (default: all); ``cluster`` (``wiloc.cluster``) describes folders and computes
-    differences on Dask workers; ``skipped`` collects the frames that could not be described, as
-    (image path, why)."""
+    video files and ROS bags (default: all), ``topic`` the bags' image topic (None: each one's
+    only one); ``cluster`` (``wiloc.cluster``) describes folders and computes differences on Dask
+    workers; ``skipped`` collects the frames that could not be described, as (image path, why),
+    ``notes`` what is worth saying (which topic of a bag was read)."""
 
     descriptor: str = "sad"
     params: Mapping[str, Any] = field(default_factory=dict)
@@ -101,6 +103,8 @@ class Describer:
     skipped: list[tuple[str, str]] = field(default_factory=list)
     sampling: Sampling | None = None
     cluster: Cluster | None = None  # a Dask cluster that describes folders and computes differences
+    topic: str | None = None
+    notes: list[str] = field(default_factory=list)
 
     @property
     def runner(self) -> BlockRunner | None:
@@ -116,7 +120,7 @@ class Describer:
         return descriptor_label(source, self.descriptor, self.metric)
 
     def entry(self, source: Path, names: Path | None = None) -> Entry:
-        """The descriptors of a folder or of a video's sampled frames (computed on demand), or of
+        """The descriptors of a folder or of a video's or bag's sampled frames (computed on demand), or of
         an imported matrix file (``names``: its frame names, one per line, for .npy matrices)."""
         source = Path(source)
         if is_matrix_file(source):
@@ -129,8 +133,10 @@ class Describer:
                                          "or a file written by `wiloc describe --import ... --out FILE.h5`, which records it")
             return import_matrix(source, self.cache, names, metric).entry
         report = describe_source(source, self.spec, self.cache, jobs=self.jobs, sampling=self.sampling,
-                                 progress=stage(self.progress, f"describe {source.name}"), cluster=self.cluster)
+                                 progress=stage(self.progress, f"describe {source.name}"), cluster=self.cluster,
+                                 topic=self.topic)
         self.skipped.extend((str(source / name), reason) for name, reason in report.failed)
+        self.notes.extend(note for note in report.notes if note not in self.notes)
         entry = report.entry
         if len(entry.names) == 0:
             raise WilocError(source, "no usable frames (every image failed to load)")
