@@ -104,3 +104,14 @@ def test_an_installed_plugin_is_listed_and_described(tmp_path: Path) -> None:
         _pip("uninstall", "-y", "-q", DIST)
     gone = _wiloc("describe", str(route), "--descriptor", "tiny", env=env)
     assert gone.returncode == 2 and "unknown descriptor 'tiny'" in gone.stderr
+
+
+def test_list_descriptors_takes_no_folder(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+
+    result = CliRunner().invoke(app, ["describe", str(tmp_path), "--list-descriptors"])
+    assert result.exit_code == 2
+    assert result.stderr.strip() == ("error: --list-descriptors: shows the descriptors there are; give it no FOLDER, "
+                                     "--import or --list")
