@@ -32,6 +32,7 @@ class FakeSpec:
     scale: float = 1.0
     min_size: tuple[int, int] | None = None
     natural_max: float | None = 255.0
+    colour: bool = False  # computed from gray images, one by one, as DescriptorSpec's gray ones
 
     @property
     def length(self) -> int:

@@ -20,7 +20,7 @@ from rich.table import Table
 from wiloc import __version__
 from wiloc.atomic import written_whole
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
-from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, out, refuse_unused
+from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, note, out, refuse_unused
 from wiloc.cli_params import method_params, with_method_options
 from wiloc.cli_views import (cell, cut_views, json_ready, metrics_views, new_place_view, print_json, progress_bar,
                              table, table1_records, table1_view, table2_view)
@@ -81,28 +81,58 @@ def _plot_file(value: Path | None) -> Path | None:
     return value
 
 
-def _descriptor_params(descriptor: str, crop: str, vocabulary: str | None, cache: Path | None) -> dict[str, str]:
+def _descriptor_params(descriptor: str, crop: str, vocabulary: str | None, cache: Path | None,
+                       model: Path | None = None, preprocess: list[str] | None = None) -> dict[str, str]:
     """The descriptor parameters the command line sets: `sad` takes --crop, `bow` needs its
-    --vocabulary."""
+    --vocabulary, `onnx` its --model (and --preprocess KEY=VALUE). A descriptor that is not
+    built in comes from a plugin: plugins that failed to load are warned of."""
     if descriptor == "bow":
         if vocabulary is None:
             fail("--vocabulary: --descriptor bow needs one (a file, or a key from `wiloc vocabulary`)", EXIT_USAGE)
         from wiloc import api
         from wiloc.cache import Cache
         return {"file": str(api.vocabulary_file(vocabulary, Cache(cache)))}
+    if descriptor == "onnx":
+        if model is None:
+            fail("--model: --descriptor onnx needs one (an .onnx model file)", EXIT_USAGE)
+        return {"model": str(model), **_preprocess_options(preprocess or [])}
+    if descriptor not in BUILT_IN_DESCRIPTORS:
+        from wiloc.descriptors.registry import plugin_problems
+        for problem in plugin_problems():
+            note("warning", problem)
     return {"crop": crop} if descriptor == "sad" else {}
 
 
+def _preprocess_options(items: list[str]) -> dict[str, str]:
+    """`--preprocess KEY=VALUE` options as {key: value text}, keys those of the model metadata."""
+    from wiloc.descriptors.learned import KEYS
+
+    options = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key.strip() not in KEYS:
+            fail(f"--preprocess: '{item}': give KEY=VALUE, KEY one of {', '.join(KEYS)}", EXIT_USAGE)
+        options[key.strip()] = value.strip()
+    return options
+
+
+BUILT_IN_DESCRIPTORS = ("sad", "gist", "brisk-gist", "bow", "onnx")
 DescriptorOption = Annotated[str, typer.Option(
     "--descriptor", "-d", help="sad | gist | brisk-gist | bow (with --vocabulary; fabmap and catgraph then read "
-                               "FAB-MAP's evidence)")]
+                               "FAB-MAP's evidence) | onnx (with --model) | a plugin's (describe --list-descriptors)")]
 CropOption = Annotated[str, typer.Option(help="sad only: none | top-half")]
+ModelOption = Annotated[Optional[Path], typer.Option(
+    "--model", help="onnx: the network, an .onnx file (docs/descriptors.md, Learned descriptors).")]
+PreprocessOption = Annotated[Optional[list[str]], typer.Option(
+    "--preprocess", metavar="KEY=VALUE", show_default="the model's metadata",
+    help="onnx: input_size=224x224, resize=stretch|crop, mean=R,G,B, std=R,G,B, colour=rgb|bgr, "
+         "normalise=true|false; repeat for several.")]
 VocabularyOption = Annotated[Optional[str], typer.Option(
     help="bow: the vocabulary (its file, or its key in the cache) from `wiloc vocabulary`.")]
 CacheOption = Annotated[Optional[Path], typer.Option(envvar="WILOC_CACHE", show_default="the per-user cache folder",
                                                      help="Cache folder.")]
 JobsOption = Annotated[Optional[int], typer.Option("--jobs", "-j", show_default="all cores",
-                                                   help="Worker processes for describing image folders.")]
+                                                   help="Worker processes for describing image folders (onnx: threads).")]
 STREAMS = "video files and ROS bags"
 EveryOption = Annotated[int, typer.Option(help="Videos, bags: every K-th frame of the cut.", rich_help_panel=STREAMS)]
 FpsOption = Annotated[Optional[float], typer.Option(
@@ -132,6 +162,8 @@ def describe(
     descriptor: DescriptorOption = "sad",
     crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
+    model: ModelOption = None,
+    preprocess: PreprocessOption = None,
     import_file: Optional[Path] = typer.Option(None, "--import", help="External descriptors: an N x D matrix (.npy, .csv, .h5), hloc's global-feats-*.h5, or a folder of per-image .npy files (with --out)."),
     names: Optional[Path] = typer.Option(None, help="With --import .npy: text file of frame names, one a line."),
     metric: Optional[str] = typer.Option(None, show_default="the file's recorded metric, else l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
@@ -144,6 +176,8 @@ def describe(
     stop: StopOption = None,
     topic: TopicOption = None,
     list_cache: bool = typer.Option(False, "--list", help="Show what the cache holds."),
+    list_descriptors: bool = typer.Option(False, "--list-descriptors",
+                                          help="Show the descriptors there are: built in, or from installed plugins."),
     cache: CacheOption = None,
     jobs: JobsOption = None,
     scheduler: SchedulerOption = None,
@@ -159,9 +193,17 @@ def describe(
     importing = import_file is not None
     if list_cache and (folders or importing):
         fail("--list: shows what the cache holds; give it no FOLDER and no --import", EXIT_USAGE)
+    if list_descriptors:
+        if folders or importing or list_cache:
+            fail("--list-descriptors: shows the descriptors there are; give it no FOLDER, --import or --list",
+                 EXIT_USAGE)
+        _list_descriptors(as_json)
+        return
     refuse_unused({"descriptor": (not importing, "image folders and video files"),
                    "crop": (descriptor == "sad" and not importing, "--descriptor sad"),
                    "vocabulary": (descriptor == "bow" and not importing, "--descriptor bow"),
+                   "model": (descriptor == "onnx" and not importing, "--descriptor onnx"),
+                   "preprocess": (descriptor == "onnx" and not importing, "--descriptor onnx"),
                    "metric": (importing, "--import"), "names": (importing, "--import"),
                    "import_out": (importing, "--import"), "prefix": (import_out is not None, "--import with --out"),
                    "jobs": (not importing, "image folders"),
@@ -178,7 +220,9 @@ def describe(
             reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store, out=import_out,
                                               prefix=prefix)]
         else:  # one call: the folders' frames form one stream over the workers
-            reports = api.describe(folders, descriptor, descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
+            reports = api.describe(folders, descriptor,
+                                   descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache, model,
+                                                                        preprocess),
                                    cache=store, jobs=jobs, progress=progress, sampling=sampling, scheduler=scheduler,
                                    topic=topic)
     rows, notes = [], []
@@ -225,6 +269,24 @@ def _list_cache(store: Any, as_json: bool) -> None:
                     caption="params: those that differ from the descriptor's defaults"))
 
 
+def _list_descriptors(as_json: bool) -> None:
+    """`describe --list-descriptors`: each descriptor, where it comes from, its metric and length;
+    a plugin that failed to load is a warning line (and in --json, a warning)."""
+    from wiloc.descriptors.registry import available_descriptors, plugin_problems
+
+    notes = Notes()
+    for problem in plugin_problems():
+        notes.add("warning", problem)
+    infos = available_descriptors()
+    if as_json:
+        print_json({"descriptors": [asdict(info) for info in infos], "warnings": notes})
+        return
+    rows = [{"descriptor": info.name, "from": info.source, "metric": info.metric or f"by {info.depends}",
+             "length": info.length if info.length is not None else f"by {info.depends}"} for info in infos]
+    out.print(table("descriptors", rows, caption="plugins: packages registering the entry-point group "
+                                                 "wiloc.descriptors (docs/descriptors.md)"))
+
+
 def _params_text(descriptor: str, params: dict[str, Any]) -> str:
     """An entry's parameters as a table shows them: those that differ from the descriptor's
     defaults, a video's or bag's sampling and topic, an import's metric; never the content digests."""
@@ -235,10 +297,11 @@ def _params_text(descriptor: str, params: dict[str, Any]) -> str:
     for key, value in sorted(params.items()):
         if key == "sampling":
             parts += [f"{k}={v}" for k, v in value.items() if v is not None and (k, v) not in (("every", 1), ("start", 0), ("start", "0"))]
-        elif value is not None and key not in ("video", "bag", "file_digest", "names_digest") and defaults.get(key) != value:
+        elif value is not None and key not in ("video", "bag", "file_digest", "names_digest", "model_digest") \
+                and defaults.get(key) != value:
             if key == "file" and "vocabulary" in params:
                 continue  # a bow entry's vocabulary file: its key says which
-            parts.append(f"{key}={Path(value).name if key == 'names' else value}")
+            parts.append(f"{key}={Path(value).name if key in ('names', 'model') else value}")
     return ", ".join(parts) or "defaults"
 
 
@@ -300,6 +363,8 @@ def localize(
     descriptor: DescriptorOption = "sad",
     crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
+    model: ModelOption = None,
+    preprocess: PreprocessOption = None,
     metric: Optional[str] = typer.Option(None, show_default="the file's recorded metric", help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
     method: str = typer.Option("online", help=" | ".join(METHODS)),
     exclude_recent: int = typer.Option(DEFAULT_EXCLUDE_RECENT, "--exclude-recent", "-R", help="Recent frames excluded as candidates (sequence mode) and around each map frame when learning from the map."),
@@ -346,6 +411,8 @@ def localize(
     refuse_unused({"descriptor": (not all(matrices), "image folders and video files"),
                    "crop": (descriptor == "sad" and not all(matrices), "--descriptor sad"),
                    "vocabulary": (descriptor == "bow" and not all(matrices), "--descriptor bow"),
+                   "model": (descriptor == "onnx" and not all(matrices), "--descriptor onnx"),
+                   "preprocess": (descriptor == "onnx" and not all(matrices), "--descriptor onnx"),
                    "metric": (any(matrices), "descriptor matrix files (.npy, .csv, .h5)"),
                    "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
                    "map_names": (reference is not None and is_matrix_file(reference),
@@ -369,7 +436,8 @@ def localize(
             fail(f"--follow takes one query folder{' and not ' + ', '.join(given) if given else ''}", EXIT_USAGE)
         _follow(queries[0], api.follow_folder(
             queries[0], reference=reference, descriptor=descriptor,
-            descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache), method=method, method_params=params,
+            descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache, model, preprocess),
+            method=method, method_params=params,
             exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
             out=out_path / api.results_name(queries[0], method, descriptor) if out_path is not None and out_path.is_dir() else out_path,
             cache=Cache(cache), jobs=jobs, idle=idle), as_json)
@@ -394,7 +462,8 @@ def localize(
         for query, target in zip(queries, targets):
             known = len(store.repairs)
             runs.append(api.localize(query, reference=reference, descriptor=descriptor, sampling=sampling,
-                                     descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache),
+                                     descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache,
+                                                                          model, preprocess),
                                      metric=metric, method=method, method_params=params,
                                      exclude_recent=exclude_recent, training=training,
                                      odometry=odometry, map_odometry=map_odometry,

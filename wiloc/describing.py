@@ -8,6 +8,7 @@ out, never invented.
 """
 from __future__ import annotations
 
+import itertools
 import os
 import queue
 import statistics
@@ -15,6 +16,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Container, Generator, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from functools import partial
@@ -37,7 +39,8 @@ from wiloc.cache import (
 from wiloc.descriptors.external import read_external, write_matrix
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
-from wiloc.frames import Fingerprint, Traversal, fingerprint, jpeg_size, list_traversal, natural_key, read_gray
+from wiloc.frames import (Fingerprint, Traversal, fingerprint, jpeg_size, list_traversal, natural_key, read_colour,
+                          read_gray)
 from wiloc.reprs import short_repr
 from wiloc.bags import Bag, bag_fingerprint, is_bag
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
@@ -72,6 +75,9 @@ KEPT_START = WorkerStart(seconds=0.0, frames=1)
 #: promptly (gist: 1). Batches shrink below it as a folder's frames run out (`_batches`).
 CHUNK_SECONDS = 0.008
 MAX_CHUNK = 16
+#: Frames of a colour descriptor (a network's) decoded and described together: a few network
+#: batches (wiloc.descriptors.learned.BATCH), journaled as each set is in.
+COLOUR_BATCH = 64
 _Task = tuple[Path, FrameRecord | None]
 #: In a worker process: a descriptor open on /dev/null, where its image decoders' stderr goes.
 _devnull: int | None = None
@@ -311,7 +317,7 @@ def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sam
         length = "" if video.frame_count is None else f" (it has {video.frame_count} frames)"
         stored, entry, computed, repairs = _describe_stream(
             cache, _header(str(path.resolve()), spec, params), sampling.estimate(video.frame_count, video.rate),
-            lambda skip: (_describe_frame(spec, video_print, frame) for frame in video.frames(sampling, skip=skip)),
+            lambda skip: _describe_frames(spec, video_print, video.frames(sampling, skip=skip, colour=spec.colour)),
             WilocError(path, f"the cut ({cut}) holds no frame of this video{length}"), progress)
     return _report(stored, entry, computed, start, repairs=repairs, video=True)
 
@@ -330,6 +336,9 @@ def describe_bag(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampl
     start = time.perf_counter()
     sampling = sampling or Sampling()
     path = Path(path)
+    if spec.colour:
+        raise WilocError(path, f"'{spec.name}' descriptors take colour images, and a bag's images are read as gray "
+                               "here: describe a folder or video of them instead")
     with _opencv_quiet(), Bag(path) as bag:
         bag.choose(topic)
         bag_print = bag_fingerprint(path)
@@ -337,8 +346,7 @@ def describe_bag(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampl
         cut = f"start {sampling.start}" + ("" if sampling.stop is None else f", stop {sampling.stop}")
         stored, entry, computed, repairs = _describe_stream(
             cache, _header(str(path.resolve()), spec, params), sampling.estimate(bag.count, bag.rate),
-            lambda skip: (_describe_frame(spec, bag_print, frame)
-                          for frame in bag.frames(sampling, spec.min_size, skip=skip)),
+            lambda skip: _describe_frames(spec, bag_print, bag.frames(sampling, spec.min_size, skip=skip)),
             WilocError(path, f"the cut ({cut}) holds no image of topic {bag.topic} (it has {bag.count})"), progress)
     report = _report(stored, entry, computed, start, repairs=repairs)
     return replace(report, notes=[bag.note] if bag.note else [])
@@ -522,6 +530,9 @@ def _compute(spec: DescriptorSpec, tasks: Sequence[tuple[int, _Task]],
     processes. This process computes first; once the frames left would take it longer than
     starting workers (`WorkerStart`, by the median time of its frames after the first), `jobs` - 1
     workers start and take frames from the same queue while this process goes on computing."""
+    if spec.colour:
+        yield from _compute_colour(spec, tasks, jobs)
+        return
     pending = deque(tasks)
     timed: list[float] = []
     with _opencv_quiet():
@@ -628,8 +639,11 @@ def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
 
 
 def describe_quietly(spec: DescriptorSpec, tasks: Sequence[_Task]) -> list[tuple[FrameRecord, bool]]:
-    """Each task's (record, computed), OpenCV's own warnings off meanwhile (a Dask worker's batch)."""
+    """Each task's (record, computed), OpenCV's own warnings off meanwhile (a Dask worker's batch;
+    a colour descriptor's as one batch on the worker's cores)."""
     with _opencv_quiet():
+        if spec.colour:
+            return _describe_colour(spec, tasks, _check_jobs(None))
         return [_describe_one(spec, task) for task in tasks]
 
 
@@ -657,23 +671,31 @@ def _opencv_quiet() -> Iterator[None]:
         cv2.utils.logging.setLogLevel(previous)
 
 
-def _read_gray(path: Path, min_size: tuple[int, int] | None) -> np.ndarray:
-    """`read_gray` with file descriptor 2 on /dev/null meanwhile: libjpeg prints "Corrupt JPEG
-    data: ..." there itself. Always in a worker, which runs no other thread, so nothing else is
-    lost; in the caller's process only when stderr is no terminal: on a terminal other threads
-    of the caller (a progress display) write there, so it is left alone."""
+@contextmanager
+def _decoders_quiet() -> Iterator[None]:
+    """File descriptor 2 on /dev/null meanwhile: libjpeg prints "Corrupt JPEG data: ..." there
+    itself. Always in a worker, which runs no other thread, so nothing else is lost; in the
+    caller's process only when stderr is no terminal: on a terminal other threads of the caller
+    (a progress display) write there, so it is left alone."""
     global _devnull
     if _devnull is None:
         if os.isatty(2):
-            return read_gray(path, min_size)
+            yield
+            return
         _devnull = os.open(os.devnull, os.O_WRONLY)
     saved = os.dup(2)
     os.dup2(_devnull, 2)
     try:
-        return read_gray(path, min_size)
+        yield
     finally:
         os.dup2(saved, 2)
         os.close(saved)
+
+
+def _read_gray(path: Path, min_size: tuple[int, int] | None) -> np.ndarray:
+    """`read_gray`, the decoders quiet (:func:`_decoders_quiet`)."""
+    with _decoders_quiet():
+        return read_gray(path, min_size)
 
 
 def _describe_one(spec: DescriptorSpec, task: _Task) -> tuple[FrameRecord, bool]:
@@ -695,15 +717,73 @@ def _describe_one(spec: DescriptorSpec, task: _Task) -> tuple[FrameRecord, bool]
     return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, row, "", width, height), True
 
 
-def _describe_frame(spec: DescriptorSpec, video: Fingerprint, frame: VideoFrame | BagFrame) -> tuple[FrameRecord, bool]:
+def _describe_frames(spec: DescriptorSpec, video: Fingerprint,
+                     frames: Iterator[VideoFrame | BagFrame]) -> Iterator[tuple[FrameRecord, bool]]:
+    """Each video (or bag) frame's record and whether it was computed, as it is decoded; a colour
+    descriptor's frames COLOUR_BATCH at a time, described together."""
+    if not spec.colour:
+        for frame in frames:
+            yield _describe_frame(spec, video, frame)
+        return
+    while batch := list(itertools.islice(frames, COLOUR_BATCH)):
+        decoded = [frame.gray for frame in batch if frame.gray is not None]
+        rows = iter(spec.compute_batch(decoded) if decoded else ())
+        for frame in batch:
+            yield _describe_frame(spec, video, frame, None if frame.gray is None else next(rows))
+
+
+def _describe_frame(spec: DescriptorSpec, video: Fingerprint, frame: VideoFrame | BagFrame,
+                    row: np.ndarray | None = None) -> tuple[FrameRecord, bool]:
     """One video (or bag) frame's record, with the file's fingerprint and the frame's timestamp,
-    and whether its descriptor was computed (False for a frame without pixels)."""
+    and whether its descriptor was computed (False for a frame without pixels); `row`: its
+    descriptor when already computed (in a batch)."""
     if frame.gray is None:
         return FrameRecord(frame.name, video.size, video.mtime_ns, video.digest, None, frame.problem), False
-    row = np.asarray(spec.compute(frame.gray), dtype=spec.dtype)
-    height, width = frame.gray.shape
+    row = np.asarray(spec.compute(frame.gray) if row is None else row, dtype=spec.dtype)
+    height, width = frame.gray.shape[:2]
     return FrameRecord(frame.name, video.size, video.mtime_ns, video.digest, row, "", width, height,
                        frame.timestamp_ms), True
+
+
+def _describe_colour(spec: DescriptorSpec, tasks: Sequence[_Task], threads: int) -> list[tuple[FrameRecord, bool]]:
+    """:func:`_describe_one` for a colour descriptor's tasks, as one batch: the images decoded
+    in colour on ``threads`` threads (OpenCV's decoders let go of the GIL), then described
+    together (``DescriptorSpec.compute_batch``, the network's runtime on ``threads`` threads)."""
+    def settle(task: _Task) -> tuple[FrameRecord, bool] | tuple[Fingerprint, np.ndarray]:
+        path, old = task
+        try:
+            fp = fingerprint(path)
+        except OSError as exc:
+            return FrameRecord(path.name, -1, -1, "", None, f"cannot read file ({exc.strerror or exc})"), False
+        if old is not None and old.digest == fp.digest:
+            return replace(old, size=fp.size, mtime_ns=fp.mtime_ns), False
+        try:
+            return fp, read_colour(path)
+        except FrameError as exc:
+            return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, None, exc.problem), False
+
+    with _decoders_quiet(), ThreadPoolExecutor(max(1, threads), thread_name_prefix="wiloc-decode") as pool:
+        settled = list(pool.map(settle, tasks))
+    decoded = [i for i, item in enumerate(settled) if isinstance(item[0], Fingerprint)]
+    rows = spec.compute_batch([settled[i][1] for i in decoded], threads) if decoded else []
+    for i, row in zip(decoded, rows):
+        (path, _), (fp, image) = tasks[i], settled[i]
+        height, width = image.shape[:2]
+        settled[i] = FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, np.asarray(row, dtype=spec.dtype), "",
+                                 width, height), True
+    return settled
+
+
+def _compute_colour(spec: DescriptorSpec, tasks: Sequence[tuple[int, _Task]],
+                    jobs: int) -> Iterator[tuple[int, FrameRecord, bool]]:
+    """A colour descriptor's tagged tasks settled in this process, COLOUR_BATCH frames at a
+    time, each batch decoded and described on `jobs` threads: a network's runtime shares out
+    the cores itself, and worker processes would each load the model and compete for them."""
+    with _opencv_quiet():
+        for start in range(0, len(tasks), COLOUR_BATCH):
+            batch = tasks[start:start + COLOUR_BATCH]
+            for (tag, _), result in zip(batch, _describe_colour(spec, [task for _, task in batch], jobs)):
+                yield (tag, *result)
 
 
 def _full_size(path: Path, gray: np.ndarray) -> tuple[int, int]:

@@ -230,6 +230,36 @@ def decode(data: NDArray[np.uint8], flags: int, path: Path) -> NDArray | None:
         raise FrameError(path, f"cannot decode image data ({exc.err or 'OpenCV refused it'})") from None
 
 
+def _file_bytes(path: Path) -> NDArray[np.uint8]:
+    """An image file's bytes, read with numpy; FrameError for an unreadable file."""
+    try:
+        return np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise FrameError(path, f"cannot read file ({exc.strerror or exc})") from exc
+
+
+def _checked(data: NDArray[np.uint8], path: Path | str) -> NDArray[np.uint8]:
+    """``data``, an encoded image; FrameError naming ``path`` when it is empty or a truncated JPEG."""
+    if data.size == 0:
+        raise FrameError(path, "empty file (0 bytes)")
+    if data.size >= 2 and data[0] == 0xFF and data[1] == 0xD8 and not _has_eoi(data):
+        raise FrameError(path, "truncated JPEG (no end-of-image marker)")
+    return data
+
+
+def read_colour(path: Path) -> NDArray[np.uint8]:
+    """Decode an image in full as 8-bit BGR (H x W x 3), as OpenCV orders colour: gray images
+    repeated over three channels, alpha dropped, 16-bit samples scaled as :func:`to_uint8` does.
+    For descriptors that take colour (learned networks); the same FrameErrors as :func:`read_gray`."""
+    path = Path(path)
+    image = decode(_checked(_file_bytes(path), path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH, path)
+    if image is None or image.size == 0:
+        raise FrameError(path, "cannot decode image data")
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise FrameError(path, f"unexpected image layout {image.shape}")
+    return to_uint8(image, path)
+
+
 def read_gray(path: Path, min_size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
     """Decode an image as 8-bit grayscale (H x W).
 
@@ -240,11 +270,7 @@ def read_gray(path: Path, min_size: tuple[int, int] | None = None) -> NDArray[np
     or undecodable files.
     """
     path = Path(path)
-    try:
-        data = np.fromfile(path, dtype=np.uint8)
-    except OSError as exc:
-        raise FrameError(path, f"cannot read file ({exc.strerror or exc})") from exc
-    return decode_gray(data, path, min_size)
+    return decode_gray(_file_bytes(path), path, min_size)
 
 
 def decode_gray(data: NDArray[np.uint8], path: Path | str,
@@ -252,11 +278,8 @@ def decode_gray(data: NDArray[np.uint8], path: Path | str,
     """:func:`read_gray` of an encoded image already in memory (a ROS bag's compressed frame):
     the same decode, so a JPEG gives the same pixels from a file or from a bag; ``path`` names
     the image in errors."""
-    if data.size == 0:
-        raise FrameError(path, "empty file (0 bytes)")
+    data = _checked(data, path)
     is_jpeg = data.size >= 2 and data[0] == 0xFF and data[1] == 0xD8
-    if is_jpeg and not _has_eoi(data):
-        raise FrameError(path, "truncated JPEG (no end-of-image marker)")
     factor = 1
     if is_jpeg and min_size is not None:
         full = jpeg_size(data)

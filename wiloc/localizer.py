@@ -26,7 +26,7 @@ from wiloc.differences import ComputedDifferences
 from wiloc.distances import DifferencesTo, consecutive, pairwise
 from wiloc.errors import FrameError, WilocError, load_problem
 from wiloc.fabmap.evidence import FabMapEvidence
-from wiloc.frames import read_gray, shown_name, to_uint8, unusable_reason
+from wiloc.frames import read_colour, read_gray, shown_name, to_uint8, unusable_reason
 from wiloc.methods.base import Decision, MapContext, Method, TrainingRows
 from wiloc.methods.registry import make_method
 from wiloc.training import Training, training_rows
@@ -140,12 +140,13 @@ class Localizer:
     def read(self, path: str | Path) -> NDArray[np.uint8]:
         """The 8-bit gray image that an image file's descriptor is computed from, in the map's
         cache as in :meth:`observe`: a JPEG decoded in reduced size where the descriptor allows
-        it, gray from the decoder. ``observe(loc.read(path))`` decides as ``observe(path)``."""
+        it, gray from the decoder (for a colour descriptor, ``onnx``: BGR, in full).
+        ``observe(loc.read(path))`` decides as ``observe(path)``."""
         if self._spec is None:
             raise WilocError(path, "a map of imported descriptors takes descriptors, not images")
         if (reason := unusable_reason(Path(path))) is not None and Path(path).exists():
             raise FrameError(shown_name(str(path)), reason)
-        return read_gray(Path(path), self._spec.min_size)
+        return read_colour(Path(path)) if self._spec.colour else read_gray(Path(path), self._spec.min_size)
 
     def describe(self, frame: NDArray | str | Path) -> NDArray:
         """The descriptor of an image file, a decoded image (:func:`gray_image`) or a descriptor
@@ -157,7 +158,8 @@ class Localizer:
             return self._descriptor(array)
         if self._spec is None:
             raise WilocError("observe", "a map of imported descriptors takes descriptors, not images")
-        return np.asarray(self._spec.compute(gray_image(array)), dtype=self._spec.dtype)
+        image = colour_image(array) if self._spec.colour else gray_image(array)
+        return np.asarray(self._spec.compute(image), dtype=self._spec.dtype)
 
     def _descriptor(self, row: NDArray) -> NDArray:
         """A descriptor row given to :meth:`observe`, in the map's dtype: as long as the map's
@@ -297,6 +299,26 @@ def gray_image(array: NDArray) -> NDArray[np.uint8]:
     H x W x 1) or BGR/BGRA as OpenCV decodes, of 8- or 16-bit integers (16-bit scaled by
     255/65535, as a 16-bit file is) or of floats in [0, 1] (scaled by 255 and rounded). Anything
     else is a WilocError saying what was given."""
+    array = _image_samples(array)
+    if array.ndim == 3:
+        array = cv2.cvtColor(array, cv2.COLOR_BGR2GRAY if array.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    return to_uint8(array, "observe")
+
+
+def colour_image(array: NDArray) -> NDArray[np.uint8]:
+    """An image array as the 8-bit BGR image colour descriptors (``onnx``) are computed from:
+    the arrays :func:`gray_image` takes, gray repeated over three channels, alpha dropped."""
+    array = _image_samples(array)
+    if array.ndim == 2:
+        array = cv2.cvtColor(array, cv2.COLOR_GRAY2BGR)
+    elif array.shape[2] == 4:
+        array = cv2.cvtColor(array, cv2.COLOR_BGRA2BGR)
+    return to_uint8(array, "observe")
+
+
+def _image_samples(array: NDArray) -> NDArray:
+    """An image array checked (gray, BGR or BGRA; not empty; 8- or 16-bit integers, or floats in
+    [0, 1], which become 8-bit), a single channel's last axis dropped."""
     if array.ndim == 3 and array.shape[2] == 1:
         array = array[:, :, 0]
     if not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (3, 4))):
@@ -309,9 +331,7 @@ def gray_image(array: NDArray) -> NDArray[np.uint8]:
         array = np.rint(array * 255).astype(np.uint8)
     elif array.dtype not in (np.uint8, np.uint16):
         raise WilocError("observe", f"an image of {array.dtype} values; give 8- or 16-bit integers or floats in [0, 1]")
-    if array.ndim == 3:
-        array = cv2.cvtColor(array, cv2.COLOR_BGR2GRAY if array.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-    return to_uint8(array, "observe")
+    return array
 
 
 ARRAY = "__array__"  # marks, in a saved state's JSON, a value stored as an array of the .npz

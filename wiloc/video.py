@@ -181,8 +181,9 @@ class Sampling:
 
 @dataclass(frozen=True)
 class VideoFrame:
-    """One picked frame: its index, decoder timestamp (ms) and grayscale pixels, or, for the frame
-    where decoding stopped early, no pixels and the `problem`."""
+    """One picked frame: its index, decoder timestamp (ms) and grayscale pixels (BGR ones when
+    the frames were asked for in colour), or, for the frame where decoding stopped early, no
+    pixels and the `problem`."""
 
     index: int
     timestamp_ms: float | None
@@ -229,10 +230,12 @@ class Video:
         """Release the decoder."""
         self._capture.release()
 
-    def frames(self, sampling: Sampling, skip: Container[str] = frozenset()) -> Iterator[VideoFrame]:
-        """The frames `sampling` picks, decoded to grayscale, in order; names in `skip` are passed
-        over undecoded (grabbed only). When decoding stops before the container's frame count,
-        the last item is the frame where it stopped, without pixels, and says so."""
+    def frames(self, sampling: Sampling, skip: Container[str] = frozenset(),
+               colour: bool = False) -> Iterator[VideoFrame]:
+        """The frames `sampling` picks, decoded to grayscale (to BGR with `colour`), in order;
+        names in `skip` are passed over undecoded (grabbed only). When decoding stops before the
+        container's frame count, the last item is the frame where it stopped, without pixels,
+        and says so."""
         for index, timestamp in sampling.pick(self._grab_all()):
             if frame_name(index) in skip:
                 continue
@@ -240,7 +243,7 @@ class Video:
             if not ok or image is None:
                 yield self._stopped(index)
                 return
-            yield VideoFrame(index, timestamp, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
+            yield VideoFrame(index, timestamp, image if colour else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
         if self._ended is not None and sampling.before_stop(*self._ended):
             yield self._stopped(self._ended[0])
 

@@ -1,0 +1,342 @@
+"""The ``onnx`` descriptor: small networks built here with the onnx package's helpers, run through
+``wiloc describe``, ``localize`` and ``Localizer``, checked against the same arithmetic in numpy."""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+onnx = pytest.importorskip("onnx")
+pytest.importorskip("onnxruntime")
+from onnx import TensorProto, helper, numpy_helper  # noqa: E402
+
+from wiloc import Localizer  # noqa: E402
+from wiloc.cache import Cache  # noqa: E402
+from wiloc.cli import app  # noqa: E402
+from wiloc.descriptors.registry import get_descriptor  # noqa: E402
+from wiloc.describing import describe_folder, describe_video  # noqa: E402
+
+runner = CliRunner()
+SIDE = 32  # the test network's input: 3 x 32 x 32
+MEAN, STD = (0.5, 0.4, 0.3), (0.2, 0.25, 0.3)
+
+
+def conv_model(path: Path, *, seed: int = 0, metadata: dict[str, str] | None = None,
+               input_shape: list | None = None, output_shape: list | None = None, flatten: bool = True) -> dict:
+    """A 3x3 convolution (8 filters), ReLU, global average pool and flatten: N x 3 x 32 x 32 in,
+    N x 8 out; its weights, for the numpy reference."""
+    rng = np.random.default_rng(seed)
+    weights = rng.normal(size=(8, 3, 3, 3)).astype(np.float32)
+    bias = rng.normal(size=8).astype(np.float32)
+    nodes = [helper.make_node("Conv", ["image", "W", "B"], ["conv"], pads=[1, 1, 1, 1]),
+             helper.make_node("Relu", ["conv"], ["relu"]),
+             helper.make_node("GlobalAveragePool", ["relu"], ["pooled" if flatten else "vector"])]
+    if flatten:
+        nodes.append(helper.make_node("Flatten", ["pooled"], ["vector"]))
+    _save(path, nodes, [numpy_helper.from_array(weights, "W"), numpy_helper.from_array(bias, "B")],
+          input_shape or ["N", 3, SIDE, SIDE], output_shape or ["N", 8], metadata)
+    return {"weights": weights, "bias": bias}
+
+
+def _save(path: Path, nodes: list, initializers: list, input_shape: list, output_shape: list,
+          metadata: dict[str, str] | None) -> None:
+    graph = helper.make_graph(nodes, "test", [helper.make_tensor_value_info("image", TensorProto.FLOAT, input_shape)],
+                              [helper.make_tensor_value_info("vector", TensorProto.FLOAT, output_shape)], initializers)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8  # readable by every onnxruntime since 1.16
+    helper.set_model_props(model, metadata if metadata is not None else
+                           {"wiloc.mean": ",".join(map(str, MEAN)), "wiloc.std": ",".join(map(str, STD)),
+                            "wiloc.colour": "rgb"})
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+
+
+def reference(images: list[np.ndarray], weights: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """The conv model's descriptors in numpy: RGB / 255, (x - mean) / std, 3x3 convolution with
+    zero padding, ReLU, mean over the image, L2-normalised."""
+    rows = []
+    for bgr in images:
+        x = (bgr[:, :, ::-1].astype(np.float64) / 255 - np.array(MEAN)) / np.array(STD)
+        padded = np.pad(x, ((1, 1), (1, 1), (0, 0)))
+        windows = np.lib.stride_tricks.sliding_window_view(padded, (3, 3), axis=(0, 1))  # H x W x C x 3 x 3
+        conv = np.einsum("hwcij,fcij->hwf", windows, weights.astype(np.float64)) + bias
+        row = np.maximum(conv, 0).mean(axis=(0, 1))
+        rows.append(row / np.linalg.norm(row))
+    return np.array(rows)
+
+
+def colour_images(folder: Path, count: int, seed: int = 0, side: int = SIDE) -> list[np.ndarray]:
+    """``count`` random colour PNGs of side x side pixels, as written."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    images = []
+    for i in range(count):
+        image = rng.integers(0, 256, (side, side, 3), dtype=np.uint8)
+        cv2.imwrite(str(folder / f"frame{i:03d}.png"), image)
+        images.append(image)
+    return images
+
+
+def _ok(result) -> object:
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout)
+
+
+def test_describe_matches_numpy_reference(tmp_path: Path, cache_dir: Path) -> None:
+    model = tmp_path / "m.onnx"
+    weights = conv_model(model)
+    images = colour_images(tmp_path / "route", 40)
+    [report] = _ok(runner.invoke(app, ["describe", str(tmp_path / "route"), "--descriptor", "onnx",
+                                       "--model", str(model), "--json"]))
+    assert report["descriptor"] == "onnx" and report["computed"] == 40 and report["shape"] == "40x8"
+    spec = get_descriptor("onnx", model=model)
+    assert spec.metric == "cosine" and spec.length == 8
+    assert spec.params["mean"] == list(MEAN) and spec.params["input_size"] == [SIDE, SIDE]
+    stored = describe_folder(tmp_path / "route", spec, Cache(cache_dir))
+    assert stored.computed == 0 and stored.reused == 40  # the command's entry, read back
+    np.testing.assert_allclose(stored.entry.data, reference(images, **weights), atol=1e-5)
+    # the same frames one at a time, as the Localizer describes them
+    loc = Localizer(tmp_path / "route", descriptor="onnx", descriptor_params={"model": str(model)},
+                    method="threshold", cache=Cache(cache_dir))
+    np.testing.assert_allclose(loc.describe(tmp_path / "route" / "frame007.png"), stored.entry.data[7], atol=1e-6)
+    np.testing.assert_allclose(loc.describe(images[7]), stored.entry.data[7], atol=1e-6)
+    assert loc.observe(images[7]).match_name == "frame007.png"
+
+
+def test_options_override_metadata_and_change_the_cache_key(tmp_path: Path, cache_dir: Path) -> None:
+    model = tmp_path / "m.onnx"
+    weights = conv_model(model, metadata={})  # no metadata: defaults, input size from the model
+    images = colour_images(tmp_path / "route", 4)
+    plain = get_descriptor("onnx", model=model)
+    assert plain.params["mean"] == [0.0] * 3 and plain.params["colour"] == "rgb" and plain.params["normalise"]
+    given = get_descriptor("onnx", model=model, mean="0.5,0.4,0.3", std=list(STD), colour="rgb")
+    assert given.key != plain.key
+    row = describe_folder(tmp_path / "route", given, Cache(cache_dir), jobs=1).entry.data
+    np.testing.assert_allclose(row, reference(images, **weights), atol=1e-5)
+    bgr = get_descriptor("onnx", model=model, colour="bgr", normalise="false")
+    assert bgr.key != plain.key and not bgr.params["normalise"]
+    # a changed model file is another descriptor: its digest is in the key
+    conv_model(model, seed=1, metadata={})
+    assert get_descriptor("onnx", model=model).key != plain.key
+
+
+def test_resize_and_crop(tmp_path: Path) -> None:
+    """Larger images are resized (area) to the input, or scaled to cover it and cut at the centre."""
+    model = tmp_path / "m.onnx"
+    weights = conv_model(model)
+    wide = np.random.default_rng(3).integers(0, 256, (64, 128, 3), dtype=np.uint8)
+    stretch = get_descriptor("onnx", model=model)
+    expected = reference([cv2.resize(wide, (SIDE, SIDE), interpolation=cv2.INTER_AREA)], **weights)[0]
+    np.testing.assert_allclose(stretch.compute(wide), expected, atol=1e-5)
+    crop = get_descriptor("onnx", model=model, resize="crop")
+    centre = cv2.resize(wide, (64, SIDE), interpolation=cv2.INTER_AREA)[:, 16:48]
+    np.testing.assert_allclose(crop.compute(wide), reference([centre], **weights)[0], atol=1e-5)
+
+
+def test_fixed_batch_model_and_dynamic_output_length(tmp_path: Path) -> None:
+    """A model exported without a dynamic batch axis (N = 1) is run one image at a time; an
+    output whose width is not fixed is measured by running the model."""
+    model = tmp_path / "m.onnx"
+    weights = conv_model(model, input_shape=[1, 3, SIDE, SIDE], output_shape=[1, "D"])
+    images = colour_images(tmp_path / "route", 5)
+    spec = get_descriptor("onnx", model=model)
+    assert spec.length == 8
+    np.testing.assert_allclose(spec.compute_batch(images), reference(images, **weights), atol=1e-5)
+
+
+def test_video_frames_are_described_in_colour(tmp_path: Path) -> None:
+    """A video's frames go to the network in colour, as OpenCV decodes them."""
+    model = tmp_path / "m.onnx"
+    conv_model(model)
+    video = tmp_path / "v.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (SIDE, SIDE))
+    for image in colour_images(tmp_path / "frames", 6):
+        writer.write(image)
+    writer.release()
+    capture = cv2.VideoCapture(str(video))
+    decoded = [frame for ok, frame in iter(capture.read, (False, None)) if ok]
+    capture.release()
+    spec = get_descriptor("onnx", model=model)
+    report = describe_video(video, spec, Cache(tmp_path / "cache"))
+    assert report.entry.names == [f"{i:06d}" for i in range(6)]
+    np.testing.assert_allclose(report.entry.data, spec.compute_batch(decoded), atol=1e-6)
+
+
+_KILLED_RUN = """
+import sys, time
+from pathlib import Path
+import wiloc.describing
+from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
+from wiloc.cache import Cache
+wiloc.describing.COLOUR_BATCH = 2
+batch = DescriptorSpec.compute_batch
+def slow(self, images, threads=0):
+    time.sleep(0.2)
+    return batch(self, images, threads)
+DescriptorSpec.compute_batch = slow
+wiloc.describing.describe_folder(Path(sys.argv[1]), get_descriptor("onnx", model=sys.argv[3]), Cache(Path(sys.argv[2])))
+"""
+
+
+def test_killed_describe_resumes(tmp_path: Path) -> None:
+    """A run killed (SIGKILL) after some frames keeps them; the next run computes only the rest,
+    and the entry equals a run that was never interrupted."""
+    from test_describing import interrupt_after_six_frames
+
+    model = tmp_path / "m.onnx"
+    conv_model(model)
+    folder, count = tmp_path / "route", 30
+    colour_images(folder, count)
+    cache = Cache(tmp_path / "cache")
+    run = interrupt_after_six_frames([_KILLED_RUN, str(folder), str(cache.root), str(model)], cache, signal.SIGKILL)
+    assert run.returncode == -signal.SIGKILL
+    [info] = cache.list_entries()
+    assert not info.complete and 6 <= info.frames < count
+    spec = get_descriptor("onnx", model=model)
+    resumed = describe_folder(folder, spec, cache)
+    assert (resumed.computed, resumed.reused) == (count - info.frames, info.frames)
+    clean = describe_folder(folder, spec, Cache(tmp_path / "clean"))
+    assert resumed.entry.names == clean.entry.names
+    np.testing.assert_allclose(resumed.entry.data, clean.entry.data, atol=1e-6)
+
+
+def _route(folder: Path, scenes: list[np.ndarray], shift: int, seed: int) -> Path:
+    """A traversal of colour frames of the given scenes, each shifted sideways and noisier."""
+    rng = np.random.default_rng(seed)
+    folder.mkdir(parents=True)
+    for i, scene in enumerate(scenes):
+        image = np.roll(scene, shift, axis=1) + rng.normal(0, 6, scene.shape)
+        cv2.imwrite(str(folder / f"img{i}.png"), np.clip(image, 0, 255).astype(np.uint8))
+    return folder
+
+
+def test_localize_catgraph_end_to_end(tmp_path: Path, cache_dir: Path) -> None:
+    rng = np.random.default_rng(0)
+    scenes = [cv2.resize(rng.uniform(0, 255, (6, 8, 3)).astype(np.float32), (96, 64), interpolation=cv2.INTER_CUBIC)
+              for _ in range(40)]
+    ref, query = _route(tmp_path / "ref", scenes, 0, 1), _route(tmp_path / "query", scenes, 3, 2)
+    model = tmp_path / "m.onnx"
+    conv_model(model, metadata={"wiloc.input_size": "96x64"}, input_shape=["N", 3, "H", "W"])
+    out = tmp_path / "run.csv"
+    [row] = _ok(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--descriptor", "onnx",
+                                    "--model", str(model), "--method", "catgraph", "--out", str(out), "--json"]))
+    assert row["frames"] == 40 and row["method"] == "catgraph"
+    metrics = _ok(runner.invoke(app, ["evaluate", str(out), "--json"]))["runs"][0]
+    assert metrics["frames"] == 40 and metrics["recall_at_1"] > 0.5
+
+
+@pytest.mark.realdata
+def test_gardens_point_catgraph_with_an_onnx_descriptor(tmp_path: Path, cache_dir: Path, data_root: Path) -> None:
+    """A network that is nothing but a zero-mean gray thumbnail (a correlation descriptor, as
+    the classic tiny-image baseline), on day_left against day_right: it runs end to end and
+    recalls well above chance (chance R@1 with +-2 frames: 5 / 200)."""
+    model = tmp_path / "thumb.onnx"
+    thumbnail_model(model)
+    root = data_root / "gardens-point-walking"
+    out = tmp_path / "gp.csv"
+    [row] = _ok(runner.invoke(app, ["localize", str(root / "day_left"), "--map", str(root / "day_right"),
+                                    "--descriptor", "onnx", "--model", str(model), "--method", "catgraph",
+                                    "--out", str(out), "--json"]))
+    assert row["frames"] == 200
+    metrics = _ok(runner.invoke(app, ["evaluate", str(out), "--gt", "aligned", "--tolerance", "2", "--json"]))
+    assert metrics["runs"][0]["recall_at_1"] > 0.25
+
+
+def thumbnail_model(path: Path) -> None:
+    """N x 3 x 32 x 64 -> N x 2048: channel mean (gray), minus the image's mean, flattened."""
+    nodes = [helper.make_node("ReduceMean", ["image"], ["gray"], axes=[1], keepdims=1),
+             helper.make_node("ReduceMean", ["gray"], ["level"], axes=[1, 2, 3], keepdims=1),
+             helper.make_node("Sub", ["gray", "level"], ["centred"]),
+             helper.make_node("Flatten", ["centred"], ["vector"])]
+    _save(path, nodes, [], ["N", 3, 32, 64], ["N", 2048], {"wiloc.colour": "bgr"})
+
+
+# ----------------------------------------------------------------------------------------- bad inputs
+
+def _error(args: list[str]) -> tuple[int, str]:
+    result = runner.invoke(app, args)
+    assert "Traceback" not in result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    return result.exit_code, lines[0]
+
+
+@pytest.fixture
+def one_frame(tmp_path: Path, cache_dir: Path) -> Path:
+    colour_images(tmp_path / "route", 1)
+    return tmp_path / "route"
+
+
+def test_missing_model_file(one_frame: Path, tmp_path: Path) -> None:
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(tmp_path / "no.onnx")])
+    assert code == 1 and line == f"error: {tmp_path / 'no.onnx'}: model file does not exist"
+
+
+def test_model_missing_for_onnx(one_frame: Path) -> None:
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx"])
+    assert code == 2 and "--model" in line
+
+
+def test_model_for_another_descriptor(one_frame: Path, tmp_path: Path) -> None:
+    code, line = _error(["describe", str(one_frame), "--model", str(tmp_path / "m.onnx")])
+    assert code == 2 and line == "error: --model: applies to --descriptor onnx only"
+
+
+def test_not_an_onnx_file(one_frame: Path, tmp_path: Path) -> None:
+    bad = tmp_path / "m.onnx"
+    bad.write_text("this is not a network\n")
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(bad)])
+    assert code == 1 and line.startswith(f"error: {bad}: not an ONNX model onnxruntime can run")
+
+
+def test_wrong_input_rank(one_frame: Path, tmp_path: Path) -> None:
+    model = tmp_path / "m.onnx"
+    nodes = [helper.make_node("Identity", ["image"], ["vector"])]
+    _save(model, nodes, [], ["N", 3 * SIDE * SIDE], ["N", 3 * SIDE * SIDE], {})
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model)])
+    assert code == 1
+    assert line == (f"error: {model}: input 'image' has rank 2 (N x 3072); need a 4-D image batch (N x 3 x H x W)")
+
+
+def test_output_not_a_vector(one_frame: Path, tmp_path: Path) -> None:
+    model = tmp_path / "m.onnx"
+    conv_model(model, output_shape=["N", 8, 1, 1], flatten=False)
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model)])
+    assert code == 1
+    assert line == f"error: {model}: output 'vector' has shape N x 8 x 1 x 1; need one vector per image (N x D)"
+
+
+def test_bad_preprocessing_values(one_frame: Path, tmp_path: Path) -> None:
+    model = tmp_path / "m.onnx"
+    conv_model(model, metadata={"wiloc.std": "0,1,1"})
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model)])
+    assert code == 2 and "metadata wiloc.std must be 3 positive numbers" in line
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model),
+                         "--preprocess", "std=1", "--preprocess", "colour=hsv"])
+    assert code == 2 and "onnx colour must be one of rgb, bgr; got 'hsv'" in line
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model),
+                         "--preprocess", "gamma=2"])
+    assert code == 2 and line.startswith("error: --preprocess: 'gamma=2': give KEY=VALUE")
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model),
+                         "--preprocess", "std=1", "--preprocess", "input_size=64x64"])
+    assert code == 2 and "does not fit the model's fixed input of 32x32" in line
+
+
+def test_onnxruntime_missing(one_frame: Path, tmp_path: Path) -> None:
+    """Without onnxruntime, the descriptor says how to install it (a fresh interpreter in which
+    importing onnxruntime fails)."""
+    model = tmp_path / "m.onnx"
+    conv_model(model)
+    code = ("import sys; sys.modules['onnxruntime'] = None\n"
+            "from wiloc.__main__ import main; sys.exit(main())")
+    result = subprocess.run([sys.executable, "-c", code, "describe", str(one_frame), "--descriptor", "onnx",
+                             "--model", str(model)], capture_output=True, text=True)
+    assert result.returncode == 1
+    assert result.stderr.strip() == 'error: onnx: needs onnxruntime, an optional dependency: pip install "wiloc[onnx]"'

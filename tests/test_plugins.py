@@ -1,0 +1,117 @@
+"""Descriptor plugins: a package installed into this environment registers descriptors under the
+entry-point group ``wiloc.descriptors``; ``describe --list-descriptors`` shows where each comes
+from, ``describe --descriptor NAME`` computes it, and a plugin that fails to load is one warning."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from wiloc.cache import Cache
+
+DIST, VERSION = "wiloc-test-tiny-plugin", "0.3.1"
+MODULE = "wiloc_test_tiny_plugin"
+
+PYPROJECT = f"""
+[build-system]
+requires = ["setuptools>=68"]
+build-backend = "setuptools.build_meta"
+
+[project]
+name = "{DIST}"
+version = "{VERSION}"
+
+[project.entry-points."wiloc.descriptors"]
+tiny = "{MODULE}:TINY"
+broken = "{MODULE}_missing:THING"
+
+[tool.setuptools]
+py-modules = ["{MODULE}"]
+"""
+
+SOURCE = '''
+"""A 4 x 4 area-resized thumbnail: the smallest descriptor a plugin can register."""
+import cv2
+import numpy as np
+
+from wiloc.descriptors import DescriptorPlugin
+
+
+def tiny(gray, side=4):
+    return cv2.resize(gray, (side, side), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()
+
+
+TINY = DescriptorPlugin(compute=tiny, metric="l1", length=16, params={"side": 4})
+'''
+
+
+def _wiloc(*args: str, env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "wiloc", *args], capture_output=True, text=True, env=env,
+                          timeout=300)
+
+
+def _pip(*args: str) -> None:
+    env = {**os.environ, "PIP_NO_INDEX": "1", "PIP_DISABLE_PIP_VERSION_CHECK": "1"}
+    subprocess.run([sys.executable, "-m", "pip", *args], check=True, env=env, timeout=300, capture_output=True)
+
+
+def test_an_installed_plugin_is_listed_and_described(tmp_path: Path) -> None:
+    package = tmp_path / "plugin"
+    package.mkdir()
+    (package / "pyproject.toml").write_text(PYPROJECT)
+    (package / f"{MODULE}.py").write_text(SOURCE)
+    route = tmp_path / "route"
+    route.mkdir()
+    rng = np.random.default_rng(0)
+    images = [rng.integers(0, 256, (24, 32), dtype=np.uint8) for _ in range(5)]
+    for i, image in enumerate(images):
+        cv2.imwrite(str(route / f"f{i}.png"), image)
+    env = {**os.environ, "WILOC_CACHE": str(tmp_path / "cache")}
+    _pip("install", "--no-build-isolation", "--no-deps", "-q", str(package))
+    try:
+        listed = _wiloc("describe", "--list-descriptors", "--json", env=env)
+        assert listed.returncode == 0, listed.stderr
+        shown = json.loads(listed.stdout)
+        rows = {row["name"]: row for row in shown["descriptors"]}
+        assert rows["tiny"] == {"name": "tiny", "source": f"{DIST} {VERSION}", "metric": "l1", "length": 16,
+                                "depends": ""}
+        assert rows["sad"]["source"] == "built-in" and rows["onnx"]["source"] == "built-in"
+        assert "broken" not in rows
+        [warning] = shown["warnings"]
+        assert warning.startswith(f"warning: descriptor plugin 'broken' ({DIST} {VERSION}) failed to load: "
+                                  "ModuleNotFoundError")
+        table = _wiloc("describe", "--list-descriptors", env={**env, "COLUMNS": "200"})
+        assert table.returncode == 0 and f"{DIST} {VERSION}" in table.stdout and "tiny" in table.stdout
+        assert len(table.stderr.strip().splitlines()) == 1 and "'broken'" in table.stderr
+
+        described = _wiloc("describe", str(route), "--descriptor", "tiny", "--json", env=env)
+        assert described.returncode == 0, described.stderr
+        [report] = json.loads(described.stdout)
+        assert report["descriptor"] == "tiny" and report["shape"] == "5x16" and report["computed"] == 5
+        assert len(described.stderr.strip().splitlines()) == 1 and "'broken'" in described.stderr
+        [info] = Cache(tmp_path / "cache").list_entries()
+        assert info.params == {"side": 4, "plugin": f"{DIST} {VERSION}"}  # a new release computes afresh
+        entry = Cache(tmp_path / "cache").read_entry(info.key)
+        expected = [cv2.resize(image, (4, 4), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()
+                    for image in images]
+        np.testing.assert_array_equal(entry.data, np.array(expected))
+    finally:
+        _pip("uninstall", "-y", "-q", DIST)
+    gone = _wiloc("describe", str(route), "--descriptor", "tiny", env=env)
+    assert gone.returncode == 2 and "unknown descriptor 'tiny'" in gone.stderr
+
+
+def test_list_descriptors_takes_no_folder(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+
+    result = CliRunner().invoke(app, ["describe", str(tmp_path), "--list-descriptors"])
+    assert result.exit_code == 2
+    assert result.stderr.strip() == ("error: --list-descriptors: shows the descriptors there are; give it no FOLDER, "
+                                     "--import or --list")
