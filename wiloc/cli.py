@@ -740,6 +740,52 @@ def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshol
     return written
 
 
+# -------------------------------------------------------------------------------------------- report
+
+def _html_file(value: Path) -> Path:
+    """The report's file: its folder must exist, its name end in .html."""
+    _output_file(value)
+    if value.suffix.lower() not in (".html", ".htm"):
+        raise typer.BadParameter(f"'{value}': the report is an HTML page; end the name in .html")
+    return value
+
+
+@app.command(cls=Command)
+@handles_errors
+def report(
+    results: list[Path] = typer.Argument(..., metavar="RESULTS...", help="Results files: several methods x query traversals."),
+    out_file: Path = typer.Option(..., "--out", "-o", callback=_html_file, help="The HTML page to write."),
+    gt: GtOption = "aligned",
+    gt_map: GtMapOption = None,
+    tolerance: ToleranceOption = 2,
+    radius: RadiusOption = None,
+    cuts: CutsOption = CUTS_TEXT,
+    thumb_width: int = typer.Option(160, min=40, max=640, help="Width in pixels of the frame browser's images."),
+    cache: CacheOption = None,
+) -> None:
+    """One self-contained HTML page of a comparison: tables, figures, per run a timeline and the
+    difference matrix, and a frame browser. It needs no network; images are embedded as thumbnails.
+
+    Example: wiloc report runs/day_left-sad-online.csv runs/day_left-sad-catgraph.csv --gt aligned -o report.html
+    """
+    from wiloc import api
+    from wiloc.cache import Cache
+    from wiloc.report import write_report
+
+    at = _parse_cuts(cuts)
+    source = _truth_source(gt, gt_map, tolerance, radius)
+    comparison = api.compare(results, source, cuts=at)
+    notes = _warn_about_truth(comparison.evaluations)
+    with progress_bar(True) as progress:
+        written = write_report(comparison, _replacing(notes, out_file), cache=Cache(cache), thumb_width=thumb_width,
+                               title=f"wiloc report: {api.run_subject(comparison.evaluations, source)}",
+                               progress=progress)
+    for note in written.notes:
+        notes.add("note", note)
+    out.print(f"wrote {written.path} ({written.size / 1e6:.1f} MB, {written.images} images "
+              f"{written.thumb_width} px wide)")
+
+
 # ---------------------------------------------------------------------------------------------- demo
 
 @app.command(cls=Command)
