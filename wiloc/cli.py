@@ -759,7 +759,8 @@ def _html_file(value: Path) -> Path:
 @handles_errors
 def report(
     results: list[Path] = typer.Argument(..., metavar="RESULTS...", help="Results files: several methods x query traversals."),
-    out_file: Path = typer.Option(..., "--out", "-o", callback=_html_file, help="The HTML page to write."),
+    out_file: Path = typer.Option(Path("report.html"), "--out", "-o", callback=_html_file,
+                                  help="The HTML page to write."),
     gt: GtOption = "aligned",
     gt_map: GtMapOption = None,
     tolerance: ToleranceOption = 2,

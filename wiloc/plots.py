@@ -333,7 +333,8 @@ def timeline_figure(timeline: Timeline, title: str = "Timeline") -> Figure:
     for mask, colour, label in ((decided & timeline.correct, CORRECT, "right"),
                                 (decided & ~timeline.correct, WRONG, "wrong")):
         rows = np.flatnonzero(mask)
-        top.scatter(rows, timeline.match[rows], s=6, c=colour, linewidths=0, label=f"decided match, {label} ({rows.size})")
+        top.scatter(rows, timeline.match[rows], s=6, c=colour, linewidths=0,
+                    label=f"decided match, {label} ({rows.size})")
         bottom.scatter(rows, np.clip(timeline.confidence[rows], 0.0, 1.0), s=6, c=colour, linewidths=0)
     bottom.plot(np.arange(n), np.clip(timeline.confidence, 0.0, 1.0), color="0.6", linewidth=0.6, label="confidence")
     if timeline.new_place is not None:

@@ -105,7 +105,8 @@ def wilson_interval(successes: ArrayLike, count: ArrayLike,
         centre = (share + z * z / (2.0 * n)) / denominator
         half = z * np.sqrt(share * (1.0 - share) / n + z * z / (4.0 * n * n)) / denominator
     empty = n <= 0
-    return np.where(empty, np.nan, np.clip(centre - half, 0.0, 1.0)), np.where(empty, np.nan, np.clip(centre + half, 0.0, 1.0))
+    low = np.where(empty, np.nan, np.clip(centre - half, 0.0, 1.0))
+    return low, np.where(empty, np.nan, np.clip(centre + half, 0.0, 1.0))
 
 
 def expected_calibration_error(confidence: ArrayLike, correct: ArrayLike, bins: int = N_BINS) -> float:

@@ -25,6 +25,7 @@ import numpy as np
 from wiloc import __version__
 from wiloc.atomic import written_whole
 from wiloc.errors import WilocError
+from wiloc.traversals import stage
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -62,19 +63,22 @@ class Report:
     notes: list[str] = field(default_factory=list)
 
 
-def write_report(comparison: Comparison, path: Path, *, cache: Cache, title: str = "",
+def write_report(comparison: Comparison, path: Path, *, cache: Cache, title: str = "wiloc report",
                  thumb_width: int = THUMB_WIDTH, progress: Progress | None = None) -> Report:
     """Build the page of ``comparison`` and write it to ``path`` whole (or not at all). ``cache``
     gives back the runs' descriptors for the difference matrices."""
+    from wiloc.api import run_names
+
     notes: list[str] = []
-    images = Thumbnails(thumb_width)
-    runs = [_browser_run(name, e, images, notes) for name, e in zip(_run_names(comparison), comparison.evaluations)]
+    images = Thumbnails()
+    names = run_names(comparison.evaluations)
+    runs = [_browser_run(name, e, images, notes) for name, e in zip(names, comparison.evaluations)]
     for width in _halvings(thumb_width):
-        data = images.encode(width, _stage(progress, "thumbnails"))
+        data = images.encode(width, stage(progress, "thumbnails"))
         if sum(map(len, data)) <= THUMB_BUDGET:
             break
-    figures = _figures(comparison, cache, notes, _stage(progress, "figures"))
-    page = _page(comparison, title or f"wiloc report: {_subject(comparison)}", figures, runs, data, notes)
+    figures = _figures(comparison, names, cache, notes, stage(progress, "figures"))
+    page = _page(comparison, title, figures, runs, data, notes)
     with written_whole(Path(path), "the report") as file:
         file.write(page)
     return Report(path=Path(path), size=len(page.encode("utf-8")), thumb_width=width, images=len(images.paths),
@@ -89,28 +93,12 @@ def _halvings(width: int) -> list[int]:
     return widths
 
 
-def _stage(progress: Progress | None, label: str) -> Callable[[int, int], None]:
-    return (lambda done, total: progress(label, done, total)) if progress else (lambda done, total: None)
-
-
-def _run_names(comparison: Comparison) -> list[str]:
-    return [f"{label} {traversal}" for label, traversal in zip(comparison.labels, comparison.traversals)]
-
-
-def _subject(comparison: Comparison) -> str:
-    datasets = dict.fromkeys(Path(str(e.results.meta.get("query", ""))).parent.name or "?"
-                             for e in comparison.evaluations)
-    descriptors = dict.fromkeys(str(e.results.meta.get("descriptor", "?")) for e in comparison.evaluations)
-    return f"{' + '.join(datasets)}, {' + '.join(descriptors)}, {comparison.ground_truth}"
-
-
 # ------------------------------------------------------------------------------------------- images
 
 class Thumbnails:
     """The image files the page shows, each once, as JPEG data URIs of one width."""
 
-    def __init__(self, width: int) -> None:
-        self.width = width
+    def __init__(self) -> None:
         self.paths: list[Path] = []
         self._index: dict[Path, int] = {}
 
@@ -121,13 +109,14 @@ class Thumbnails:
             self.paths.append(path)
         return self._index[path]
 
-    def encode(self, width: int, progress: Callable[[int, int], None]) -> list[str]:
+    def encode(self, width: int, progress: Callable[[int, int], None] | None = None) -> list[str]:
         """Every image as a data URI of a JPEG ``width`` pixels wide (an empty string for an image
         that cannot be read: the browser then shows its name only)."""
         uris = []
         for done, path in enumerate(self.paths, 1):
             uris.append(thumbnail_uri(path, width))
-            progress(done, len(self.paths))
+            if progress:
+                progress(done, len(self.paths))
         return uris
 
 
@@ -202,23 +191,26 @@ def _png_uri(fig: Figure) -> str:
     return "data:image/png;base64," + base64.b64encode(figure_bytes(fig, "png", dpi=90)).decode("ascii")
 
 
-def _figures(comparison: Comparison, cache: Cache, notes: list[str], progress: Callable[[int, int], None]) -> Figures:
+def _figures(comparison: Comparison, names: list[str], cache: Cache, notes: list[str],
+             progress: Callable[[int, int], None] | None) -> Figures:
+    """The comparison's figures, then each run's timeline and difference matrix (a matrix that
+    cannot be rebuilt is noted instead)."""
     from wiloc import api, plots
     from wiloc.run_figures import matrix_picture, run_timeline
 
     evaluations = comparison.evaluations
-    total = 3 + 2 * len(evaluations)
     figures = Figures(
         pr=_png_uri(plots.pr_figure(api.pr_series(comparison), title="Precision-recall")),
-        threshold=_png_uri(plots.threshold_figure(api.threshold_series(comparison), marks=api.threshold_marks(comparison),
+        threshold=_png_uri(plots.threshold_figure(api.threshold_series(comparison),
+                                                  marks=api.threshold_marks(comparison),
                                                   title="Precision against threshold (Figure 5)")),
         reliability=_png_uri(plots.reliability_figure(api.reliability_series(evaluations),
                                                       new_place=api.new_place_series(evaluations))),
         timelines=[], matrices=[])
-    progress(3, total)
-    for name, e in zip(_run_names(comparison), evaluations):
+    for done, (name, e) in enumerate(zip(names, evaluations)):
+        if progress:
+            progress(done, len(evaluations))
         figures.timelines.append(_png_uri(plots.timeline_figure(run_timeline(e), title=f"{name}: frame by frame")))
-        progress(3 + 2 * len(figures.timelines) - 1, total)
         try:
             picture = matrix_picture(e, cache)
             figures.matrices.append(_png_uri(plots.matrix_figure(picture, title=(
@@ -226,7 +218,8 @@ def _figures(comparison: Comparison, cache: Cache, notes: list[str], progress: C
         except WilocError as exc:
             notes.append(f"{name}: no difference matrix, {exc.problem}")
             figures.matrices.append("")
-        progress(3 + 2 * len(figures.matrices), total)
+    if progress:
+        progress(len(evaluations), len(evaluations))
     return figures
 
 
