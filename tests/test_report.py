@@ -72,6 +72,17 @@ def test_report_is_one_self_contained_page(runs: list[Path], tmp_path: Path) -> 
     assert "</script" not in page.split('id="report-data">', 1)[1].split("</script>", 1)[0]
 
 
+def test_p_new_place_is_drawn_only_for_runs_with_a_frame_without_a_true_match(runs: list[Path],
+                                                                               tmp_path: Path) -> None:
+    leaving = api.compare(runs, api.TruthSource(kind="aligned")).evaluations  # 5 frames past the map's end
+    assert [name.split()[0] for name in api.new_place_series(leaving)] == ["online", "catgraph"]
+    every = np.zeros((45, 40), dtype=bool)
+    every[np.arange(45), np.minimum(np.arange(45), 39)] = True  # every frame has a true place
+    np.save(tmp_path / "every.npy", every)
+    inside = api.compare(runs, api.TruthSource(kind="matrix", path=str(tmp_path / "every.npy"))).evaluations
+    assert all(e.new_place is not None for e in inside) and api.new_place_series(inside) == {}
+
+
 def test_a_report_over_an_existing_file_says_so_and_bad_names_are_refused(runs: list[Path], tmp_path: Path) -> None:
     out = tmp_path / "report.html"
     out.write_text("an older report")
