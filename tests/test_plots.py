@@ -145,7 +145,6 @@ def test_one_encoding_colour_is_the_method_line_style_the_traversal(run: tuple[n
         drawn = {line.get_label(): (line.get_color(), line.get_linestyle()) for line in fig.axes[0].lines}
         assert drawn == {"online day_left": ("C0", "-"), "catgraph day_left": ("C1", "-"),
                          "online night_right": ("C0", "--"), "catgraph night_right": ("C1", "--")}
-    assert run_styles(["a x"], {"a x": ("b", "y")}) == {"a x": ("C0", "-")}
     assert run_styles(["online [runs/a] day_left", "online [runs/b] day_left"]) == {
         "online [runs/a] day_left": ("C0", "-"), "online [runs/b] day_left": ("C1", "-")}
 

@@ -78,15 +78,15 @@ def figure_bytes(fig: Figure, format: str = "png", dpi: int = 100) -> bytes:
     return buffer.getvalue()
 
 
-def run_styles(names: Sequence[str], runs: Mapping[str, tuple[str, str]] | None = None) -> dict[str, tuple[str, str]]:
-    """(colour, line style) per run name: one colour per method and one line style per query
-    traversal, in order of first appearance. ``runs`` maps a name to its (method, traversal);
-    a name it lacks splits at its last space ("online day_left")."""
+def run_styles(names: Sequence[str]) -> dict[str, tuple[str, str]]:
+    """(colour, line style) per run name "method traversal" (``api.run_names``, split at its last
+    space): one colour per method and one line style per query traversal, in order of first
+    appearance."""
     colours: dict[str, str] = {}
     styles: dict[str, str] = {}
     drawn = {}
     for name in names:
-        method, traversal = (runs or {}).get(name) or _method_traversal(name)
+        method, traversal = _method_traversal(name)
         drawn[name] = (colours.setdefault(method, f"C{len(colours) % 10}"),
                        styles.setdefault(traversal, STYLES[len(styles) % len(STYLES)]))
     return drawn
@@ -122,13 +122,12 @@ def _span(values: Sequence[float], low: float, high: float, step: float = 0.1) -
     return (start, high) if stop - start < step else (start, stop)
 
 
-def pr_figure(curves: Mapping[str, PRCurve], title: str = "Precision-recall",
-              runs: Mapping[str, tuple[str, str]] | None = None) -> Figure:
+def pr_figure(curves: Mapping[str, PRCurve], title: str = "Precision-recall") -> Figure:
     """Precision against recall, one line per run (colour = method, line style = traversal: see
     :func:`run_styles`); the curves start at (recall 0, precision 1). The axes span what the
     curves reach (to the next tenth), the legend sits beside them."""
     fig, (ax,) = _figure(width=8.0)
-    styles = run_styles(list(curves), runs)
+    styles = run_styles(list(curves))
     for name, curve in curves.items():
         recall = np.concatenate([[0.0], curve.recall])
         precision = np.concatenate([[1.0], curve.precision])
@@ -144,11 +143,10 @@ def pr_figure(curves: Mapping[str, PRCurve], title: str = "Precision-recall",
     return fig
 
 
-def plot_pr(curves: Mapping[str, PRCurve], path: str | Path, title: str = "Precision-recall",
-            runs: Mapping[str, tuple[str, str]] | None = None) -> Path:
+def plot_pr(curves: Mapping[str, PRCurve], path: str | Path, title: str = "Precision-recall") -> Path:
     """:func:`pr_figure` written to ``path``."""
     check_plot_path(path)
-    return _save(pr_figure(curves, title, runs), path)
+    return _save(pr_figure(curves, title), path)
 
 
 def plot_model(model: HistogramModel, path: str | Path, title: str = "Learned probability model") -> Path:
@@ -180,8 +178,7 @@ def plot_model(model: HistogramModel, path: str | Path, title: str = "Learned pr
 
 def threshold_figure(series: Mapping[str, tuple[np.ndarray, np.ndarray]],
                      title: str = "Precision against threshold",
-                     marks: Mapping[str, Sequence[tuple[float, float]]] | None = None,
-                     runs: Mapping[str, tuple[str, str]] | None = None) -> Figure:
+                     marks: Mapping[str, Sequence[tuple[float, float]]] | None = None) -> Figure:
     """Figure 5: precision against normalised threshold, one line per method and traversal.
 
     ``series`` maps a run name to (thresholds, precision); colour = method, line style =
@@ -190,8 +187,8 @@ def threshold_figure(series: Mapping[str, tuple[np.ndarray, np.ndarray]],
     %, threshold), drawn as vertical dotted lines in the method's colour.
     """
     fig, (ax,) = _figure(width=8.0)
-    styles = run_styles(list(series), runs)
-    colours = {(runs or {}).get(name, _method_traversal(name))[0]: styles[name][0] for name in series}
+    styles = run_styles(list(series))
+    colours = {_method_traversal(name)[0]: styles[name][0] for name in series}
     for name, (thresholds, precision) in series.items():
         colour, style = styles[name]
         x = np.asarray(thresholds, dtype=np.float64)
@@ -217,17 +214,15 @@ def threshold_figure(series: Mapping[str, tuple[np.ndarray, np.ndarray]],
 
 def plot_threshold(series: Mapping[str, tuple[np.ndarray, np.ndarray]], path: str | Path,
                    title: str = "Precision against threshold",
-                   marks: Mapping[str, Sequence[tuple[float, float]]] | None = None,
-                   runs: Mapping[str, tuple[str, str]] | None = None) -> Path:
+                   marks: Mapping[str, Sequence[tuple[float, float]]] | None = None) -> Path:
     """:func:`threshold_figure` written to ``path``."""
     check_plot_path(path)
-    return _save(threshold_figure(series, title, marks, runs), path)
+    return _save(threshold_figure(series, title, marks), path)
 
 
 def reliability_figure(series: Mapping[str, ReliabilityBins],
                        title: str = "Reliability: share correct against confidence",
-                       new_place: Mapping[str, ReliabilityBins] | None = None,
-                       runs: Mapping[str, tuple[str, str]] | None = None) -> Figure:
+                       new_place: Mapping[str, ReliabilityBins] | None = None) -> Figure:
     """Reliability as small multiples, one panel per run: per confidence bin, the share of correct
     matches against the bin's mean confidence (on the diagonal when calibrated) with its 95 %
     Wilson interval, and under each bin its count of decided frames. With ``new_place`` (the runs
@@ -241,7 +236,7 @@ def reliability_figure(series: Mapping[str, ReliabilityBins],
     nrows = math.ceil(max(len(panels), 1) / ncols)
     fig, axes = _figure(ncols=ncols, nrows=nrows, width=3.8 * ncols + 0.4, height=3.4 * nrows + 0.7,
                         sharex=True, sharey=True)
-    styles = run_styles(list(series), runs)
+    styles = run_styles(list(series))
     for ax, (name, bins, probability, share) in zip(axes, panels):
         colour = styles.get(name.removesuffix(": P(new place)"), ("C0", "-"))[0]
         _reliability_panel(ax, bins, colour)
@@ -259,11 +254,10 @@ def reliability_figure(series: Mapping[str, ReliabilityBins],
 
 def plot_reliability(series: Mapping[str, ReliabilityBins], path: str | Path,
                      title: str = "Reliability: share correct against confidence",
-                     new_place: Mapping[str, ReliabilityBins] | None = None,
-                     runs: Mapping[str, tuple[str, str]] | None = None) -> Path:
+                     new_place: Mapping[str, ReliabilityBins] | None = None) -> Path:
     """:func:`reliability_figure` written to ``path``."""
     check_plot_path(path)
-    return _save(reliability_figure(series, title, new_place, runs), path)
+    return _save(reliability_figure(series, title, new_place), path)
 
 
 def _reliability_panel(ax: Axes, bins: ReliabilityBins, colour: str) -> None:
