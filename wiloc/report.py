@@ -121,7 +121,8 @@ class Thumbnails:
 
 
 def thumbnail_uri(path: Path, width: int, quality: int = 75) -> str:
-    """An image file as a data URI of a JPEG ``width`` pixels wide ("" when it cannot be read)."""
+    """An image file as a data URI of a JPEG ``width`` pixels wide, or as wide as it is when it is
+    narrower ("" when it cannot be read)."""
     import cv2
 
     from wiloc.run_figures import read_rgb
@@ -130,6 +131,7 @@ def thumbnail_uri(path: Path, width: int, quality: int = 75) -> str:
         image = read_rgb(path)
     except WilocError:
         return ""
+    width = min(width, image.shape[1])
     height = max(1, round(image.shape[0] * width / image.shape[1]))
     small = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
     if small.ndim == 3:
