@@ -61,7 +61,8 @@ def test_report_is_one_self_contained_page(runs: list[Path], tmp_path: Path) -> 
         assert f'id="{element}"' in page
     for value in ("wrong", "confident-wrong", "leaving"):
         assert f'value="{value}"' in page
-    assert page.count('src="data:image/png;base64,') == 3 + 2 * 2  # PR, Figure 5, reliability; per run 2
+    assert page.count('src="data:image/png;base64,') == 3 + 2  # PR, Figure 5, reliability; per run a timeline
+    assert page.count('src="data:image/jpeg;base64,') == 2  # per run the difference matrix
     data = _data(page)
     assert [run["name"].split()[0] for run in data["runs"]] == ["online", "catgraph"]
     online = data["runs"][0]

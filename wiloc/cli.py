@@ -794,7 +794,7 @@ def report(
                     "thumb_width": written.thumb_width, "warnings": notes})
         return
     out.print(f"wrote {written.path} ({written.size / 1e6:.1f} MB, {written.images} images "
-              f"{written.thumb_width} px wide)")
+              f"at most {written.thumb_width} px wide)")
 
 
 # ---------------------------------------------------------------------------------------------- demo

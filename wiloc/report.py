@@ -2,10 +2,11 @@
 precision-recall, threshold and reliability figures, per run a timeline and the difference matrix
 with its decisions, and a frame browser (query, decided match and true place side by side).
 
-The page needs no network: figures are embedded PNGs, images small JPEG thumbnails (data URIs),
-styles and the browser's script inline (``wiloc/report_page.html``, ``report.css``,
-``report.js``). A run whose image folders are gone still gets its tables and figures; its
-browser shows names without pictures, and the page says why.
+The page needs no network: figures are embedded PNGs (the difference matrices JPEGs), images
+small JPEG thumbnails (data URIs), styles and the browser's script inline
+(``wiloc/report_page.html``, ``report.css``, ``report.js``). A run whose image folders are gone
+still gets its tables and figures; its browser shows names without pictures, and the page says
+why.
 """
 from __future__ import annotations
 
@@ -188,9 +189,10 @@ class Figures:
     matrices: list[str]  # "" where a matrix could not be drawn (the notes say why)
 
 
-def _png_uri(fig: Figure) -> str:
+def _figure_uri(fig: Figure, format: str = "png") -> str:
+    """The figure as a data URI: a PNG (lines and text stay sharp), or a JPEG for heat maps."""
     from wiloc.plots import figure_bytes
-    return "data:image/png;base64," + base64.b64encode(figure_bytes(fig, "png", dpi=90)).decode("ascii")
+    return f"data:image/{format};base64," + base64.b64encode(figure_bytes(fig, format, dpi=90)).decode("ascii")
 
 
 def _figures(comparison: Comparison, names: list[str], cache: Cache, notes: list[str],
@@ -202,21 +204,21 @@ def _figures(comparison: Comparison, names: list[str], cache: Cache, notes: list
 
     evaluations = comparison.evaluations
     figures = Figures(
-        pr=_png_uri(plots.pr_figure(api.pr_series(comparison), title="Precision-recall")),
-        threshold=_png_uri(plots.threshold_figure(api.threshold_series(comparison),
+        pr=_figure_uri(plots.pr_figure(api.pr_series(comparison), title="Precision-recall")),
+        threshold=_figure_uri(plots.threshold_figure(api.threshold_series(comparison),
                                                   marks=api.threshold_marks(comparison),
                                                   title="Precision against threshold (Figure 5)")),
-        reliability=_png_uri(plots.reliability_figure(api.reliability_series(evaluations),
+        reliability=_figure_uri(plots.reliability_figure(api.reliability_series(evaluations),
                                                       new_place=api.new_place_series(evaluations))),
         timelines=[], matrices=[])
     for done, (name, e) in enumerate(zip(names, evaluations)):
         if progress:
             progress(done, len(evaluations))
-        figures.timelines.append(_png_uri(plots.timeline_figure(run_timeline(e), title=f"{name}: frame by frame")))
+        figures.timelines.append(_figure_uri(plots.timeline_figure(run_timeline(e), title=f"{name}: frame by frame")))
         try:
             picture = matrix_picture(e, cache)
-            figures.matrices.append(_png_uri(plots.matrix_figure(picture, title=(
-                f"{name}: differences, decided matches and ground truth"))))
+            title = f"{name}: differences, decided matches and ground truth"
+            figures.matrices.append(_figure_uri(plots.matrix_figure(picture, title=title), "jpeg"))
         except WilocError as exc:
             notes.append(f"{name}: no difference matrix, {exc.problem}")
             figures.matrices.append("")
