@@ -102,6 +102,19 @@ def test_a_report_over_an_existing_file_says_so_and_bad_names_are_refused(runs: 
     assert not (tmp_path / "r.html").exists()
 
 
+def test_thumbnails_past_the_budget_are_made_again_narrower(runs: list[Path], tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    from wiloc import report
+    from wiloc.cache import Cache
+
+    comparison = api.compare(runs[:1], api.TruthSource(kind="aligned"))
+    wide = report.write_report(comparison, tmp_path / "wide.html", cache=Cache(), thumb_width=96)
+    monkeypatch.setattr(report, "THUMB_BUDGET", 1)  # no width fits: the narrowest tried, 48 pixels
+    narrow = report.write_report(comparison, tmp_path / "narrow.html", cache=Cache(), thumb_width=96)
+    assert (wide.thumb_width, narrow.thumb_width) == (96, 48) and narrow.size < wide.size
+    assert narrow.size == (tmp_path / "narrow.html").stat().st_size
+
+
 def test_a_run_whose_images_are_gone_still_gets_its_page(runs: list[Path], tmp_path: Path) -> None:
     shutil.rmtree(tmp_path / "route" / "query")
     page = _report(runs[:1], tmp_path / "report.html").read_text(encoding="utf-8")
