@@ -77,7 +77,7 @@ USAGE = {
     "missing results": (["evaluate"], "RESULTS...: missing"),
     "not a number": (["localize", "Q", "--particles", "abc"], "--particles: input should be a valid integer"),
     "unknown option": (["localize", "Q", "--partcles", "3"], "--partcles: no such option of wiloc localize"),
-    "unknown command": (["frob"], "frob: no such command (describe, vocabulary, localize, evaluate, compare, demo)"),
+    "unknown command": (["frob"], "frob: no such command (describe, vocabulary, localize, evaluate, compare, report, demo)"),
     "option without value": (["localize", "Q", "--out"], "--out: needs a value"),
     "flag with value": (["describe", "F", "--json=3"], "--json: takes no value"),
     "negative tolerance": (["evaluate", "R", "--tolerance", "-1"], "--tolerance: input should be greater"),

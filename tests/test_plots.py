@@ -14,9 +14,10 @@ from matplotlib.figure import Figure
 from wiloc.metrics import pr_curve, precision_at_thresholds
 from wiloc.model import HistogramModel
 from wiloc.errors import WilocError
-from wiloc.plots import check_plot_path, plot_matrix, plot_model, plot_pairs, plot_pr, plot_reliability, plot_threshold
-from wiloc.reliability import reliability_bins
-from wiloc.run_figures import ImagePair, MatrixPicture
+from wiloc.plots import (check_plot_path, plot_matrix, plot_model, plot_pairs, plot_pr, plot_reliability,
+                         plot_threshold, pr_figure, reliability_figure, run_styles, threshold_figure, timeline_figure)
+from wiloc.reliability import reliability_bins, wilson_interval
+from wiloc.run_figures import ImagePair, MatrixPicture, Timeline
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -93,32 +94,75 @@ def test_plot_threshold_writes_png(tmp_path: Path, run: tuple[np.ndarray, np.nda
     read_png(plot_threshold(series, tmp_path / "fig5.png"))
 
 
-def test_plot_reliability_writes_png_with_legend_below_the_axes(tmp_path: Path,
-                                                               run: tuple[np.ndarray, np.ndarray]) -> None:
+def _visible(fig: Figure) -> list:
+    return [ax for ax in fig.axes if ax.axison]
+
+
+def test_reliability_is_one_panel_per_run_with_counts_under_the_bins_and_intervals(
+        tmp_path: Path, run: tuple[np.ndarray, np.ndarray]) -> None:
     confidence, correct = run
     series = {"online day_left": reliability_bins(confidence, correct),
-              "threshold day_left": reliability_bins(np.full(10, 0.5), np.ones(10, dtype=bool))}
+              "threshold day_left": reliability_bins(np.full(10, 0.55), np.ones(10, dtype=bool))}
+    fig = reliability_figure(series)
+    panels = _visible(fig)
+    assert len(panels) == 2
+    for ax, bins in zip(panels, series.values()):
+        assert [text.get_text() for text in ax.texts] == [str(n) for n in bins.count]  # a count under each bin
+        points, _, (bars,) = ax.containers[0].lines  # the line, its caps, its interval bars
+        filled = bins.count > 0
+        assert np.allclose(points.get_xdata(), bins.mean_confidence[filled])
+        low, high = wilson_interval(bins.share_correct[filled] * bins.count[filled], bins.count[filled])
+        segments = bars.get_segments()
+        assert np.allclose([seg[:, 1].min() for seg in segments], low)
+        assert np.allclose([seg[:, 1].max() for seg in segments], high)
+    assert points.get_color() == "C1"  # the second method's colour
     image = read_png(plot_reliability(series, tmp_path / "sub" / "reliability.png"))[..., :3]
-    height, width = image.shape[:2]
-    for colour in ("#1f77b4", "#ff7f0e"):  # matplotlib's C0 and C1, one per run
-        near = np.all(np.abs(image - matplotlib.colors.to_rgb(colour)) < 0.06, axis=-1)
-        assert near[: int(0.6 * height)].any()  # drawn in the data
-        assert near[int(0.85 * height):].any()  # and in the legend, below the axes
+    width = image.shape[1]
+    for colour, half in (("#1f77b4", slice(0, width // 2)), ("#ff7f0e", slice(width // 2, width))):
+        near = np.all(np.abs(image[:, half] - matplotlib.colors.to_rgb(colour)) < 0.06, axis=-1)
+        assert near.any()  # each run in its own panel, in its method's colour
 
 
-def test_plot_reliability_draws_p_new_place_beside_in_each_runs_colour(tmp_path: Path,
-                                                                     run: tuple[np.ndarray, np.ndarray]) -> None:
+def test_a_p_new_place_panel_only_for_the_runs_given_it(run: tuple[np.ndarray, np.ndarray]) -> None:
     confidence, correct = run
     series = {"online day_left": reliability_bins(confidence, correct),
               "catgraph day_left": reliability_bins(confidence, correct)}
-    new_place = {"catgraph day_left": reliability_bins(1 - confidence, ~correct)}  # the second run's: C1
-    image = read_png(plot_reliability(series, tmp_path / "reliability.png", new_place=new_place))[..., :3]
-    height, width = image.shape[:2]
-    right = image[: int(0.6 * height), width // 2:]  # the P(new place) column's diagram
-    near = {colour: np.all(np.abs(right - matplotlib.colors.to_rgb(colour)) < 0.06, axis=-1).any()
-            for colour in ("#1f77b4", "#ff7f0e")}
-    assert near == {"#1f77b4": False, "#ff7f0e": True}
-    assert width > read_png(plot_reliability(series, tmp_path / "one.png")).shape[1]  # a second column
+    assert len(_visible(reliability_figure(series, new_place={}))) == 2
+    fig = reliability_figure(series, new_place={"catgraph day_left": reliability_bins(1 - confidence, ~correct)})
+    panels = _visible(fig)
+    assert len(panels) == 3 and panels[2].get_title() == "catgraph day_left: P(new place)"
+    assert panels[2].get_xlabel() == "P(new place)"
+    assert panels[2].containers[0].lines[0].get_color() == "C1"  # catgraph's colour
+
+
+def test_one_encoding_colour_is_the_method_line_style_the_traversal(run: tuple[np.ndarray, np.ndarray]) -> None:
+    confidence, correct = run
+    names = ["online day_left", "catgraph day_left", "online night_right", "catgraph night_right"]
+    curves = {name: pr_curve(confidence, correct, 180) for name in names}
+    grid = np.linspace(0, 1, 11)
+    series = {name: (grid, precision_at_thresholds(confidence, correct, grid)) for name in names}
+    for fig in (pr_figure(curves), threshold_figure(series)):
+        drawn = {line.get_label(): (line.get_color(), line.get_linestyle()) for line in fig.axes[0].lines}
+        assert drawn == {"online day_left": ("C0", "-"), "catgraph day_left": ("C1", "-"),
+                         "online night_right": ("C0", "--"), "catgraph night_right": ("C1", "--")}
+    assert run_styles(["online [runs/a] day_left", "online [runs/b] day_left"]) == {
+        "online [runs/a] day_left": ("C0", "-"), "online [runs/b] day_left": ("C1", "-")}
+
+
+def test_timeline_marks_right_and_wrong_and_shades_frames_without_a_true_match(tmp_path: Path) -> None:
+    n = 30
+    match = np.arange(n)
+    match[20:] = 3
+    has_match = np.arange(n) < 25
+    timeline = Timeline(match=match, correct=(match == np.arange(n)) & has_match,
+                        confidence=np.linspace(0, 1, n), new_place=np.where(has_match, 0.1, 0.9),
+                        has_match=has_match, truth_rows=np.arange(25), truth_cols=np.arange(25))
+    fig = timeline_figure(timeline)
+    labels = [text.get_text() for text in fig.legends[0].get_texts()]
+    assert "decided match, right (20)" in labels and "decided match, wrong (10)" in labels
+    assert "P(new place)" in labels and "no true match in the map" in labels
+    assert len(fig.axes[0].patches) == 1  # one shaded span: frames 25-29
+    assert "n=30" in repr(timeline) or "ndarray(30)" in repr(timeline)
 
 
 def test_an_unknown_figure_suffix_is_refused_naming_the_file(tmp_path: Path) -> None:

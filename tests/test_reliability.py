@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from wiloc.groundtruth import Truth
 from wiloc.metrics import correct_matches, decided_confidence
 from wiloc.reliability import (NEW_PLACE_KEYS, brier_score, counts_at_cuts, expected_calibration_error,
-                               reliability_bins, summarize_calibration, summarize_new_place)
+                               reliability_bins, summarize_calibration, summarize_new_place, wilson_interval)
 
 NAN = float("nan")
 
@@ -190,3 +190,16 @@ def test_ece_bounds_the_overall_gap_and_brier_stays_in_unit_interval(frames: lis
     assert calibration.ece >= abs(calibration.mean_confidence - calibration.share_correct) - 1e-12
     assert 0.0 <= calibration.brier <= 1.0 and 0.0 <= calibration.ece <= 1.0
     assert calibration.bins.count.sum() == len(frames)
+
+
+def test_wilson_interval_matches_scipy_and_stays_in_the_unit_interval() -> None:
+    from scipy.stats import binomtest
+
+    successes, counts = np.array([0, 3, 10, 7, 0]), np.array([10, 10, 10, 1000, 0])
+    low, high = wilson_interval(successes, counts)
+    for k, n, lo, hi in zip(successes[:4], counts[:4], low, high):
+        expected = binomtest(int(k), int(n)).proportion_ci(method="wilson")
+        assert (lo, hi) == pytest.approx((expected.low, expected.high), abs=1e-9)
+    assert low[0] == pytest.approx(0.0) and high[0] > 0.1  # not empty at a share of 0
+    assert high[2] == pytest.approx(1.0) and low[2] < 0.9  # nor at 1
+    assert np.isnan(low[4]) and np.isnan(high[4])  # an empty bin has none

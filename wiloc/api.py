@@ -563,6 +563,7 @@ def reliability_series(evaluations: Sequence[Evaluation]) -> dict[str, Reliabili
 
 
 def new_place_series(evaluations: Sequence[Evaluation]) -> dict[str, ReliabilityBins]:
-    """The reliability bins of P(new place) of each run that gives it, labelled as in the tables."""
+    """The reliability bins of P(new place) of each run that gives it and has a frame without a
+    true match (else there is nothing for P(new place) to find), labelled as in the tables."""
     return {name: e.new_place.bins for name, e in zip(run_names(evaluations), evaluations)
-            if e.new_place is not None}
+            if e.new_place is not None and not e.truth.has_match().all()}

@@ -641,6 +641,8 @@ def evaluate(
     pairs_plot: Optional[Path] = typer.Option(
         None, callback=_plot_file, show_default="none: not drawn", help="Show the most confident right and wrong matches as image pairs (image "
                                         "folders; with several results files: one FILE-RESULTS figure each)."),
+    pairs: int = typer.Option(3, "--pairs", min=1, help="With --pairs-plot: show N right and N wrong matches."),
+    wrong_only: bool = typer.Option(False, "--wrong-only", help="With --pairs-plot: show the wrong matches only."),
     csv_out: Optional[Path] = typer.Option(None, "--csv", callback=_output_file, show_default="none: not written", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
     cache: CacheOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
@@ -651,6 +653,7 @@ def evaluate(
     """
     from wiloc import api
 
+    refuse_unused({"pairs": (pairs_plot is not None, "--pairs-plot"), "wrong_only": (pairs_plot is not None, "--pairs-plot")})
     at = _parse_cuts(cuts)
     source = _truth_source(gt, gt_map, tolerance, radius)
     evaluations = [api.evaluate(path, source, at) for path in results]
@@ -669,7 +672,7 @@ def evaluate(
         from wiloc.plots import plot_reliability
         written.append(plot_reliability(api.reliability_series(evaluations), _replacing(notes, calibration_plot),
                                         new_place=api.new_place_series(evaluations)))
-    written += _run_plots(evaluations, matrix_plot, pairs_plot, cache, notes)
+    written += _run_plots(evaluations, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only)
     if csv_out is not None:
         written += _write_metrics_csv(csv_out, rows, evaluations, notes)
     if as_json:
@@ -687,9 +690,10 @@ def evaluate(
 
 
 def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pairs_plot: Path | None,
-               cache: Path | None, notes: Notes) -> list[Path]:
-    """Each run's difference matrix and example pairs; with several runs each file is named after
-    its results file too (``matrix-day_left-sad-online.png``)."""
+               cache: Path | None, notes: Notes, pairs: int = 3, wrong_only: bool = False) -> list[Path]:
+    """Each run's difference matrix and example pairs (``pairs`` right and wrong ones, or wrong
+    ones only); with several runs each file is named after its results file too
+    (``matrix-day_left-sad-online.png``)."""
     if matrix_plot is None and pairs_plot is None:
         return []
     from wiloc.cache import Cache
@@ -708,8 +712,9 @@ def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pair
                 f"{e.method} on {picture.query} against {picture.reference} ({descriptor}): differences, "
                 "decided matches and ground truth")))
         if pairs_plot is not None:
-            written.append(plot_pairs(example_pairs(e), _replacing(notes, target(pairs_plot)), title=(
-                f"{e.method} on {e.traversal} ({descriptor}): the most confident right and wrong matches")))
+            shown = "wrong matches" if wrong_only else "right and wrong matches"
+            written.append(plot_pairs(example_pairs(e, pairs, wrong_only), _replacing(notes, target(pairs_plot)),
+                                      title=f"{e.method} on {e.traversal} ({descriptor}): the most confident {shown}"))
     return written
 
 
@@ -831,6 +836,58 @@ def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshol
                                               _replacing(notes, calibration_plot),
                                               new_place=api.new_place_series(comparison.evaluations)))
     return written
+
+
+# -------------------------------------------------------------------------------------------- report
+
+def _html_file(value: Path) -> Path:
+    """The report's file: its folder must exist, its name end in .html."""
+    _output_file(value)
+    if value.suffix.lower() not in (".html", ".htm"):
+        raise typer.BadParameter(f"'{value}': the report is an HTML page; end the name in .html")
+    return value
+
+
+@app.command(cls=Command)
+@handles_errors
+def report(
+    results: list[Path] = typer.Argument(..., metavar="RESULTS...", help="Results files: several methods x query traversals."),
+    out_file: Path = typer.Option(Path("report.html"), "--out", "-o", callback=_html_file,
+                                  help="The HTML page to write."),
+    gt: GtOption = "aligned",
+    gt_map: GtMapOption = None,
+    tolerance: ToleranceOption = 2,
+    radius: RadiusOption = None,
+    cuts: CutsOption = CUTS_TEXT,
+    thumb_width: int = typer.Option(160, min=40, max=640, help="Width in pixels of the frame browser's images."),
+    cache: CacheOption = None,
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a line."),
+) -> None:
+    """One self-contained HTML page of a comparison: tables, figures, per run a timeline and the
+    difference matrix, and a frame browser. It needs no network; images are embedded as thumbnails.
+
+    Example: wiloc report runs/day_left-sad-online.csv runs/day_left-sad-catgraph.csv --gt aligned -o report.html
+    """
+    from wiloc import api
+    from wiloc.cache import Cache
+    from wiloc.report import write_report
+
+    at = _parse_cuts(cuts)
+    source = _truth_source(gt, gt_map, tolerance, radius)
+    comparison = api.compare(results, source, cuts=at)
+    notes = _warn_about_truth(comparison.evaluations)
+    with progress_bar(not as_json) as progress:
+        written = write_report(comparison, _replacing(notes, out_file), cache=Cache(cache), thumb_width=thumb_width,
+                               title=f"wiloc report: {api.run_subject(comparison.evaluations, source)}",
+                               progress=progress)
+    for note in written.notes:
+        notes.add("note", note)
+    if as_json:
+        print_json({"files": [str(written.path)], "size": written.size, "images": written.images,
+                    "thumb_width": written.thumb_width, "warnings": notes})
+        return
+    out.print(f"wrote {written.path} ({written.size / 1e6:.1f} MB, {written.images} images "
+              f"at most {written.thumb_width} px wide)")
 
 
 # ---------------------------------------------------------------------------------------------- demo

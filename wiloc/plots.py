@@ -1,6 +1,10 @@
 """Figures written to files: PR curves, the learned histograms (Figure 1), precision against
 threshold (Figure 5), the reliability diagram, the difference matrix with the decided matches
-and the ground truth, and example image pairs.
+and the ground truth, a run's timeline of confidences, and example image pairs.
+
+Runs are drawn in one encoding everywhere: colour = method, line style = query traversal
+(:func:`run_styles`). Each ``plot_*`` writes the figure its ``*_figure`` twin builds (the HTML
+report embeds those figures instead, :func:`figure_bytes`).
 
 Figures are built on ``matplotlib.figure.Figure`` with the Agg canvas, never through pyplot, so
 no global figure state is kept and nothing is shown; the format follows the file suffix, which
@@ -8,6 +12,7 @@ no global figure state is kept and nothing is shown; the format follows the file
 """
 from __future__ import annotations
 
+import io
 import math
 import textwrap
 from collections.abc import Mapping, Sequence
@@ -15,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -23,13 +29,15 @@ from wiloc.atomic import written_whole
 from wiloc.errors import WilocError
 from wiloc.metrics import PRCurve
 from wiloc.model import HistogramModel
-from wiloc.reliability import ReliabilityBins
+from wiloc.reliability import ReliabilityBins, wilson_interval
 
 if TYPE_CHECKING:
-    from wiloc.run_figures import ImagePair, MatrixPicture
+    from wiloc.run_figures import ImagePair, MatrixPicture, Timeline
 
 STYLES = ("-", "--", ":", "-.")
-"""Line styles telling apart lines of one colour."""
+"""Line styles telling apart the traversals of one method."""
+NEW_PLACE = "#9467bd"
+"""P(new place)'s colour in a run's timeline."""
 FORMATS = tuple(sorted(FigureCanvasAgg.get_supported_filetypes()))
 """File suffixes (without the dot) the figures can be written as."""
 CORRECT, WRONG, TRUTH = "#2ca02c", "#d62728", "white"
@@ -63,6 +71,34 @@ def _save(fig: Figure, path: str | Path) -> Path:
     return out
 
 
+def figure_bytes(fig: Figure, format: str = "png", dpi: int = 100) -> bytes:
+    """The figure as the bytes of a file of ``format`` (png, jpeg, svg, ...), for embedding; a
+    JPEG at quality 85 (a heat map is many times smaller so than as PNG)."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format=format, dpi=dpi, **({"pil_kwargs": {"quality": 85}} if format == "jpeg" else {}))
+    return buffer.getvalue()
+
+
+def run_styles(names: Sequence[str]) -> dict[str, tuple[str, str]]:
+    """(colour, line style) per run name "method traversal" (``api.run_names``, split at its last
+    space): one colour per method and one line style per query traversal, in order of first
+    appearance."""
+    colours: dict[str, str] = {}
+    styles: dict[str, str] = {}
+    drawn = {}
+    for name in names:
+        method, traversal = _method_traversal(name)
+        drawn[name] = (colours.setdefault(method, f"C{len(colours) % 10}"),
+                       styles.setdefault(traversal, STYLES[len(styles) % len(STYLES)]))
+    return drawn
+
+
+def _method_traversal(name: str) -> tuple[str, str]:
+    """A run name "method traversal" split at its last space (a name without one is a method)."""
+    method, _, traversal = name.rpartition(" ")
+    return (method, traversal) if method else (traversal, "")
+
+
 def _title(fig: Figure, title: str) -> None:
     """The figure's title above everything (legends included), wrapped to the figure's width."""
     width = int(fig.get_figwidth() * 11)
@@ -87,14 +123,17 @@ def _span(values: Sequence[float], low: float, high: float, step: float = 0.1) -
     return (start, high) if stop - start < step else (start, stop)
 
 
-def plot_pr(curves: Mapping[str, PRCurve], path: str | Path, title: str = "Precision-recall") -> Path:
-    """Precision against recall, one line per run; the curves start at (recall 0, precision 1).
-    The axes span what the curves reach (to the next tenth), the legend sits beside them."""
+def pr_figure(curves: Mapping[str, PRCurve], title: str = "Precision-recall") -> Figure:
+    """Precision against recall, one line per run (colour = method, line style = traversal: see
+    :func:`run_styles`); the curves start at (recall 0, precision 1). The axes span what the
+    curves reach (to the next tenth), the legend sits beside them."""
     fig, (ax,) = _figure(width=8.0)
-    for k, (name, curve) in enumerate(curves.items()):
+    styles = run_styles(list(curves))
+    for name, curve in curves.items():
         recall = np.concatenate([[0.0], curve.recall])
         precision = np.concatenate([[1.0], curve.precision])
-        ax.plot(recall, precision, label=name, linewidth=1.5, color=f"C{k % 10}", linestyle=STYLES[k // 10 % 4])
+        colour, style = styles[name]
+        ax.plot(recall, precision, label=name, linewidth=1.5, color=colour, linestyle=style)
     recalls = [float(c.recall.max()) for c in curves.values() if c.recall.size]
     precisions = [float(c.precision.min()) for c in curves.values() if c.precision.size]
     ax.set(xlim=(0.0, _span(recalls, 0.0, 1.0)[1]), ylim=(_span(precisions, 0.0, 1.0)[0], 1.02),
@@ -102,7 +141,13 @@ def plot_pr(curves: Mapping[str, PRCurve], path: str | Path, title: str = "Preci
     _title(fig, title)
     ax.grid(alpha=0.3)
     _legend_beside(fig, ax)
-    return _save(fig, path)
+    return fig
+
+
+def plot_pr(curves: Mapping[str, PRCurve], path: str | Path, title: str = "Precision-recall") -> Path:
+    """:func:`pr_figure` written to ``path``."""
+    check_plot_path(path)
+    return _save(pr_figure(curves, title), path)
 
 
 def plot_model(model: HistogramModel, path: str | Path, title: str = "Learned probability model") -> Path:
@@ -132,88 +177,109 @@ def plot_model(model: HistogramModel, path: str | Path, title: str = "Learned pr
     return _save(fig, path)
 
 
-def plot_threshold(series: Mapping[str, tuple[np.ndarray, np.ndarray]], path: str | Path,
-                   title: str = "Precision against threshold",
-                   marks: Mapping[str, Sequence[tuple[float, float]]] | None = None) -> Path:
+def threshold_figure(series: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                     title: str = "Precision against threshold",
+                     marks: Mapping[str, Sequence[tuple[float, float]]] | None = None) -> Figure:
     """Figure 5: precision against normalised threshold, one line per method and traversal.
 
-    ``series`` maps a label "method traversal" to (thresholds, precision); lines whose labels
-    share the first word (the method) share a colour, as the paper's red and blue, and traversals
-    differ by line style. NaN precision (nothing accepted) leaves a gap. ``marks`` maps a method
-    to Table II's global thresholds, (target precision in %, threshold), drawn as vertical lines
-    in the method's colour.
+    ``series`` maps a run name to (thresholds, precision); colour = method, line style =
+    traversal (:func:`run_styles`), as the paper's red and blue. NaN precision (nothing accepted)
+    leaves a gap. ``marks`` maps a method to Table II's global thresholds, (target precision in
+    %, threshold), drawn as vertical dotted lines in the method's colour.
     """
     fig, (ax,) = _figure(width=8.0)
-    colours: dict[str, str] = {}
-    lines_of: dict[str, int] = {}
+    styles = run_styles(list(series))
+    colours = {_method_traversal(name)[0]: styles[name][0] for name in series}
     for name, (thresholds, precision) in series.items():
-        method = (name.split(maxsplit=1) or [""])[0]
-        colour = colours.setdefault(method, f"C{len(colours) % 10}")
-        style = STYLES[lines_of.get(method, 0) % len(STYLES)]
-        lines_of[method] = lines_of.get(method, 0) + 1
+        colour, style = styles[name]
         x = np.asarray(thresholds, dtype=np.float64)
         order = np.argsort(x)
         ax.plot(x[order], np.asarray(precision, dtype=np.float64)[order], label=name, color=colour,
                 linestyle=style, linewidth=1.5)
     for method, points in (marks or {}).items():
+        colour = colours.setdefault(method, f"C{len(colours) % 10}")
         by_threshold: dict[float, list[float]] = {}
         for target, threshold in points:
             if math.isfinite(threshold):
                 by_threshold.setdefault(threshold, []).append(target)
         for threshold, targets in by_threshold.items():
-            ax.axvline(threshold, color=colours.get(method, "0.3"), linestyle=":", linewidth=1.2,
+            ax.axvline(threshold, color=colour, linestyle=":", linewidth=1.2,
                        label=f"{method}: Table II threshold {threshold:.3f} "
                              f"({', '.join(f'{t:g} %' for t in targets)} precision)")
     ax.set(xlim=(0, 1), xlabel="normalised threshold", ylabel="precision")
     _title(fig, title)
     ax.grid(alpha=0.3)
     _legend_beside(fig, ax)
-    return _save(fig, path)
+    return fig
+
+
+def plot_threshold(series: Mapping[str, tuple[np.ndarray, np.ndarray]], path: str | Path,
+                   title: str = "Precision against threshold",
+                   marks: Mapping[str, Sequence[tuple[float, float]]] | None = None) -> Path:
+    """:func:`threshold_figure` written to ``path``."""
+    check_plot_path(path)
+    return _save(threshold_figure(series, title, marks), path)
+
+
+def reliability_figure(series: Mapping[str, ReliabilityBins],
+                       title: str = "Reliability: share correct against confidence",
+                       new_place: Mapping[str, ReliabilityBins] | None = None) -> Figure:
+    """Reliability as small multiples, one panel per run: per confidence bin, the share of correct
+    matches against the bin's mean confidence (on the diagonal when calibrated) with its 95 %
+    Wilson interval, and under each bin its count of decided frames. With ``new_place`` (the runs
+    whose P(new place) can be judged: some frame has no true match), one more panel per such run
+    does the same for P(new place) against the share of frames without a true match. Panels are
+    in the run's colour (colour = method, :func:`run_styles`)."""
+    panels = [(name, bins, "confidence", "share correct") for name, bins in series.items()]
+    panels += [(f"{name}: P(new place)", bins, "P(new place)", "share without a true match")
+               for name, bins in (new_place or {}).items()]
+    ncols = min(3, max(len(panels), 1))
+    nrows = math.ceil(max(len(panels), 1) / ncols)
+    fig, axes = _figure(ncols=ncols, nrows=nrows, width=3.8 * ncols + 0.4, height=3.4 * nrows + 0.7,
+                        sharex=True, sharey=True)
+    styles = run_styles(list(series))
+    for ax, (name, bins, probability, share) in zip(axes, panels):
+        colour = styles.get(name.removesuffix(": P(new place)"), ("C0", "-"))[0]
+        _reliability_panel(ax, bins, colour)
+        ax.set_title("\n".join(textwrap.wrap(name, 40)), fontsize="small")
+        ax.set(xlabel=probability, ylabel=share)
+        ax.label_outer()
+    for ax in axes[len(panels):]:
+        ax.set_axis_off()
+    if not panels:
+        axes[0].text(0.5, 0.5, "no run to show", ha="center", va="center")
+    _title(fig, f"{title}; 95 % Wilson intervals, decided frames per bin along the bottom"
+           + ("; P(new place) against the frames without a true match" if new_place else ""))
+    return fig
 
 
 def plot_reliability(series: Mapping[str, ReliabilityBins], path: str | Path,
                      title: str = "Reliability: share correct against confidence",
                      new_place: Mapping[str, ReliabilityBins] | None = None) -> Path:
-    """Reliability diagram: per confidence bin, the share of correct matches against the bin's
-    mean confidence (on the diagonal when calibrated), one line per run; below, the decided frames
-    per bin (log scale), one bar per run. With ``new_place`` (runs that give P(new place)), a
-    second column does the same for P(new place) against the share of frames without a true
-    match, each run in its colour of the first. Colours repeat after ten runs, with another line
-    style. The legend sits outside the axes."""
-    columns = 2 if new_place else 1
-    fig, axes = _figure(ncols=columns, width=8.0 if columns == 1 else 12.0, nrows=2, height=6.0, sharex="col",
-                        height_ratios=[3, 1])
-    colour = {name: k for k, name in enumerate(series)}
-    _reliability_panel(axes[0], axes[columns], series, colour, "confidence", "share correct")
-    if new_place:
-        _reliability_panel(axes[1], axes[3], new_place, colour, "P(new place)", "share without a true match")
-    _title(fig, title if not new_place else f"{title}; P(new place) against frames without a true match")
-    _legend_beside(fig, axes[0])
-    return _save(fig, path)
+    """:func:`reliability_figure` written to ``path``."""
+    check_plot_path(path)
+    return _save(reliability_figure(series, title, new_place), path)
 
 
-def _reliability_panel(ax: Axes, counts: Axes, series: Mapping[str, ReliabilityBins], colour: Mapping[str, int],
-                       probability: str, share: str) -> None:
-    """One column of the reliability diagram: the diagonal and a line per run above, the frames
-    per bin below (a bar per run); run ``name`` in colour ``colour[name]``."""
-    ax.plot([0, 1], [0, 1], color="0.5", linestyle="--", linewidth=1, label="calibrated")
-    for slot, (name, bins) in enumerate(series.items()):
-        k = colour.get(name, slot)
-        filled = bins.count > 0
-        ax.plot(bins.mean_confidence[filled], bins.share_correct[filled], marker="o", markersize=4,
-                linewidth=1.5, color=f"C{k % 10}", linestyle=STYLES[k // 10 % len(STYLES)], label=name)
-        width = np.diff(bins.edges) * 0.8 / max(len(series), 1)
-        counts.bar(bins.edges[:-1] + np.diff(bins.edges) * 0.1 + width * slot, bins.count, width=width,
-                   align="edge", color=f"C{k % 10}")
-    ax.set(xlim=(0, 1), ylim=(0, 1.02), ylabel=share)
-    counts.set(xlabel=probability, ylabel="frames")
-    counts.set_yscale("log")
-    for axes in (ax, counts):
-        axes.set_xticks(np.linspace(0, 1, 11))
-        axes.grid(alpha=0.3)
+def _reliability_panel(ax: Axes, bins: ReliabilityBins, colour: str) -> None:
+    """One run's reliability panel: the diagonal, the filled bins' share against mean confidence
+    with Wilson intervals, and each bin's count written at the bottom under the bin."""
+    ax.plot([0, 1], [0, 1], color="0.5", linestyle="--", linewidth=1)
+    filled = bins.count > 0
+    low, high = wilson_interval(np.rint(bins.share_correct[filled] * bins.count[filled]), bins.count[filled])
+    x, y = bins.mean_confidence[filled], bins.share_correct[filled]
+    ax.errorbar(x, y, yerr=np.clip(np.vstack([y - low, high - y]), 0.0, None), color=colour, marker="o", markersize=4,
+                linewidth=0.8, capsize=2, elinewidth=1)
+    centres = (bins.edges[:-1] + bins.edges[1:]) / 2
+    for centre, count in zip(centres, bins.count):
+        ax.text(centre, 0.015, f"{int(count)}", ha="center", va="bottom", fontsize=6,
+                color="0.2" if count else "0.6", transform=ax.get_xaxis_transform())
+    ax.set(xlim=(0, 1), ylim=(-0.08, 1.05))
+    ax.set_xticks(bins.edges[::2])
+    ax.grid(alpha=0.3)
 
 
-def plot_matrix(picture: MatrixPicture, path: str | Path, title: str = "Differences") -> Path:
+def matrix_figure(picture: MatrixPicture, title: str = "Differences") -> Figure:
     """The query x reference difference matrix as a heat map (darker: more alike; blank: never a
     candidate), the ground truth's same-place pairs as a light band, and each decided match as a
     dot: green when right, red when wrong, larger when more confident."""
@@ -241,7 +307,53 @@ def plot_matrix(picture: MatrixPicture, path: str | Path, title: str = "Differen
     for handle in legend.legend_handles:  # legend markers of a readable size, whatever the dots' size
         handle.set_alpha(1.0)
         handle.set_sizes([30.0])
-    return _save(fig, path)
+    return fig
+
+
+def plot_matrix(picture: MatrixPicture, path: str | Path, title: str = "Differences") -> Path:
+    """:func:`matrix_figure` written to ``path``."""
+    check_plot_path(path)
+    return _save(matrix_figure(picture, title), path)
+
+
+def timeline_figure(timeline: Timeline, title: str = "Timeline") -> Figure:
+    """A run frame by frame: above, the map frame each query frame was matched to (green right,
+    red wrong) over the ground truth's true places (light grey); below, the confidence of each
+    decided match (green right, red wrong) and P(new place) where the run gives it. Frames without
+    a true match in the map are shaded in both."""
+    n = timeline.match.size
+    fig, (top, bottom) = _figure(nrows=2, width=10.0, height=5.0, sharex=True, height_ratios=[3, 2])
+    top.scatter(timeline.truth_rows, timeline.truth_cols, s=6, c="0.8", linewidths=0, label="ground truth: true place")
+    decided = timeline.match >= 0
+    for mask, colour, label in ((decided & timeline.correct, CORRECT, "right"),
+                                (decided & ~timeline.correct, WRONG, "wrong")):
+        rows = np.flatnonzero(mask)
+        top.scatter(rows, timeline.match[rows], s=6, c=colour, linewidths=0,
+                    label=f"decided match, {label} ({rows.size})")
+        bottom.scatter(rows, np.clip(timeline.confidence[rows], 0.0, 1.0), s=6, c=colour, linewidths=0)
+    bottom.plot(np.arange(n), np.clip(timeline.confidence, 0.0, 1.0), color="0.6", linewidth=0.6, label="confidence")
+    if timeline.new_place is not None:
+        bottom.plot(np.arange(n), timeline.new_place, color=NEW_PLACE, linewidth=1.0, label="P(new place)")
+    for start, stop in _runs_of(~timeline.has_match):
+        for ax in (top, bottom):
+            ax.axvspan(start - 0.5, stop - 0.5, color="0.5", alpha=0.15, linewidth=0)
+    if (~timeline.has_match).any():
+        bottom.fill_between([], [], color="0.5", alpha=0.15, label="no true match in the map")
+    top.set(ylabel="map frame", xlim=(-0.5, n - 0.5))
+    bottom.set(xlabel="query frame", ylabel="confidence", ylim=(-0.03, 1.03))
+    for ax in (top, bottom):
+        ax.grid(alpha=0.3)
+    handles = [h for ax in (top, bottom) for h in ax.get_legend_handles_labels()[0]]
+    labels = [label for ax in (top, bottom) for label in ax.get_legend_handles_labels()[1]]
+    fig.legend(handles, labels, loc="outside lower center", ncols=3, fontsize="small", markerscale=2)
+    _title(fig, title)
+    return fig
+
+
+def _runs_of(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """(start, stop) of each run of consecutive True entries."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
 
 
 def plot_pairs(pairs: Sequence[ImagePair], path: str | Path, title: str = "Example matches") -> Path:

@@ -92,6 +92,23 @@ def reliability_bins(confidence: ArrayLike, correct: ArrayLike, bins: int = N_BI
     return ReliabilityBins(edges=edges, count=count, mean_confidence=mean, share_correct=share)
 
 
+def wilson_interval(successes: ArrayLike, count: ArrayLike,
+                    z: float = 1.959963984540054) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The Wilson score interval (95 % by default) of a share ``successes / count``, per entry:
+    unlike the normal approximation it stays within [0, 1] and is not empty at a share of 0 or 1,
+    which sparse reliability bins often have. NaN where ``count`` is 0."""
+    k = np.asarray(successes, dtype=np.float64)
+    n = np.asarray(count, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = k / n
+        denominator = 1.0 + z * z / n
+        centre = (share + z * z / (2.0 * n)) / denominator
+        half = z * np.sqrt(share * (1.0 - share) / n + z * z / (4.0 * n * n)) / denominator
+    empty = n <= 0
+    low = np.where(empty, np.nan, np.clip(centre - half, 0.0, 1.0))
+    return low, np.where(empty, np.nan, np.clip(centre + half, 0.0, 1.0))
+
+
 def expected_calibration_error(confidence: ArrayLike, correct: ArrayLike, bins: int = N_BINS) -> float:
     """ECE over the decided frames in ``bins`` equal-width bins (NaN when none is decided)."""
     return reliability_bins(confidence, correct, bins).ece

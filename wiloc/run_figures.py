@@ -1,6 +1,7 @@
 """What one localization run looked like, rebuilt from its results file for a figure: the
-difference matrix reduced to a picture with the decided matches and the ground truth, and example
-matched image pairs (the most confident right and wrong ones).
+difference matrix reduced to a picture with the decided matches and the ground truth, the run's
+timeline (matches, confidences and P(new place) frame by frame), and example matched image pairs
+(the most confident right and wrong ones).
 
 The descriptors come back through the cache from what the results header names (the query and
 map traversals, the descriptor and its parameters, a video's sampling), so nothing is described
@@ -62,6 +63,45 @@ class ImagePair:
     query_image: NDArray[np.uint8]
     match_image: NDArray[np.uint8]
     truth_image: NDArray[np.uint8] | None
+
+
+@short_repr
+@dataclass(frozen=True)
+class Timeline:
+    """A run frame by frame: each query frame's match (-1: undecided), whether it is right, its
+    confidence (NaN: undecided) and P(new place) (None: the run gives none), whether the frame has
+    a true match in the map, and the ground truth's true (query, map) pairs."""
+
+    match: NDArray[np.int64]
+    correct: NDArray[np.bool_]
+    confidence: NDArray[np.float64]
+    new_place: NDArray[np.float64] | None
+    has_match: NDArray[np.bool_]
+    truth_rows: NDArray[np.int64]
+    truth_cols: NDArray[np.int64]
+
+
+def run_timeline(evaluation: Evaluation) -> Timeline:
+    """The run's timeline, from its results and ground truth (no images, no descriptors)."""
+    coo = evaluation.truth.matrix.tocoo()
+    new_place = evaluation.results.new_place
+    return Timeline(match=evaluation.results.match_index, correct=evaluation.correct,
+                    confidence=evaluation.confidence,
+                    new_place=None if new_place is None else np.asarray(new_place, dtype=np.float64),
+                    has_match=np.asarray(evaluation.truth.has_match(), dtype=np.bool_),
+                    truth_rows=coo.row.astype(np.int64), truth_cols=coo.col.astype(np.int64))
+
+
+def true_places(evaluation: Evaluation) -> NDArray[np.int64]:
+    """Per query frame, the map frame shown as its true place: the middle of its true frames
+    (-1 for a frame without a true match)."""
+    truth = evaluation.truth.matrix.tocsr()
+    place = np.full(truth.shape[0], -1, dtype=np.int64)
+    for k in range(truth.shape[0]):
+        true = np.sort(truth.indices[truth.indptr[k]:truth.indptr[k + 1]])
+        if true.size:
+            place[k] = true[true.size // 2]
+    return place
 
 
 def _traversals(evaluation: Evaluation) -> tuple[Path, Path, bool]:
@@ -135,7 +175,7 @@ def matrix_picture(evaluation: Evaluation, cache: Cache, max_side: int = MAX_SID
                          descriptor=str(evaluation.results.meta.get("descriptor", "")))
 
 
-def _read_rgb(path: Path) -> NDArray[np.uint8]:
+def read_rgb(path: Path) -> NDArray[np.uint8]:
     """An image file in colour (RGB), else as read_gray reads it (which names a bad file)."""
     import cv2
 
@@ -147,9 +187,10 @@ def _read_rgb(path: Path) -> NDArray[np.uint8]:
     return cv2.cvtColor(colour, cv2.COLOR_BGR2RGB)
 
 
-def example_pairs(evaluation: Evaluation, count: int = 3) -> list[ImagePair]:
-    """Up to ``count`` most confident right matches, then up to ``count`` most confident wrong
-    ones, with their images read from the folders the results header names."""
+def example_pairs(evaluation: Evaluation, count: int = 3, wrong_only: bool = False) -> list[ImagePair]:
+    """Up to ``count`` most confident right matches (none with ``wrong_only``), then up to
+    ``count`` most confident wrong ones, with their images read from the folders the results
+    header names."""
     query, reference, _ = _traversals(evaluation)
     for folder in dict.fromkeys((query, reference)):
         if not folder.is_dir():
@@ -160,15 +201,15 @@ def example_pairs(evaluation: Evaluation, count: int = 3) -> list[ImagePair]:
     match, confidence, correct = results.match_index, evaluation.confidence, evaluation.correct
     decided = np.flatnonzero((match >= 0) & np.isfinite(confidence))
     by_confidence = decided[np.argsort(-confidence[decided], kind="stable")]
-    chosen = [*[k for k in by_confidence if correct[k]][:count], *[k for k in by_confidence if not correct[k]][:count]]
-    truth = evaluation.truth.matrix
+    right = [] if wrong_only else [k for k in by_confidence if correct[k]][:count]
+    chosen = [*right, *[k for k in by_confidence if not correct[k]][:count]]
+    place = true_places(evaluation)
     pairs = []
     for k in chosen:
-        true = truth.indices[truth.indptr[k]:truth.indptr[k + 1]]
-        truth_name = ref_names[int(np.sort(true)[true.size // 2])] if not correct[k] and true.size else None
+        truth_name = ref_names[place[k]] if not correct[k] and place[k] >= 0 else None
         pairs.append(ImagePair(
             query_name=names[k], match_name=ref_names[match[k]], truth_name=truth_name,
             confidence=float(confidence[k]), correct=bool(correct[k]),
-            query_image=_read_rgb(query / names[k]), match_image=_read_rgb(reference / ref_names[match[k]]),
-            truth_image=_read_rgb(reference / truth_name) if truth_name else None))
+            query_image=read_rgb(query / names[k]), match_image=read_rgb(reference / ref_names[match[k]]),
+            truth_image=read_rgb(reference / truth_name) if truth_name else None))
     return pairs
