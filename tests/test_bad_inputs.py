@@ -255,9 +255,10 @@ def test_an_image_over_the_pixel_limit_is_skipped_like_any_bad_frame(route: tupl
     for jobs in ("1", "2"):
         result = runner.invoke(app, ["describe", str(ref), "--jobs", jobs, "--json"])
         assert result.exit_code == 0, result.output
-        [row] = json.loads(result.stdout)
+        report = json.loads(result.stdout)
+        [row] = report["results"]
         assert (row["frames"], row["failed"]) == (31, 1)
-        assert row["warnings"] == [f"skipped: {ref / 'img99.png'}: image over OpenCV's size limit (2^30 pixels; "
+        assert report["warnings"] == [f"skipped: {ref / 'img99.png'}: image over OpenCV's size limit (2^30 pixels; "
                                    "the environment variable OPENCV_IO_MAX_IMAGE_PIXELS raises it)"]
         assert result.stderr.strip().startswith("skipped ") and "Traceback" not in result.output
 
@@ -319,7 +320,7 @@ def test_damaged_descriptors_are_described_again_with_a_note(route: tuple[Path, 
     result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
                                  "--out", str(again), "--jobs", "1", "--json"])
     assert result.exit_code == 0, result.output
-    assert "failed their checksum (the file is damaged); described again" in json.loads(result.stdout)[0]["warnings"][0]
+    assert "failed their checksum (the file is damaged); described again" in json.loads(result.stdout)["warnings"][0]
     assert again.read_text().split("frame,")[1] == results.read_text().split("frame,")[1]  # the same decisions
 
 
@@ -451,8 +452,8 @@ def test_image_names_that_cannot_be_frames_are_left_out_with_a_line(route: tuple
     lines = _unusable_frames(ref)
     result = runner.invoke(app, ["describe", str(ref), "--json"])
     assert result.exit_code == 0, result.output
-    [row] = json.loads(result.stdout)
-    assert (row["frames"], row["failed"], row["shape"]) == (33, 3, "30x1152")
+    [row] = json.loads(result.stdout)["results"]
+    assert (row["frames"], row["failed"], row["shape"]) == (33, 3, [30, 1152])
     assert result.stderr.strip().splitlines() == lines
     _unusable_frames(query)
     out = tmp_path / "run.csv"
@@ -699,9 +700,10 @@ def test_a_jpeg_over_the_pixel_limit_is_skipped_even_when_decoded_reduced(descri
     _huge_jpeg(ref / "img99.jpg")
     result = runner.invoke(app, ["describe", str(ref), "--descriptor", descriptor, "--jobs", "1", "--json"])
     assert result.exit_code == 0, result.output
-    [row] = json.loads(result.stdout)
-    assert (row["frames"], row["failed"], row["shape"].split("x")[0]) == (31, 1, "30")
-    assert row["warnings"] == [f"skipped: {ref / 'img99.jpg'}: image over OpenCV's size limit (2^30 pixels; "
+    report = json.loads(result.stdout)
+    [row] = report["results"]
+    assert (row["frames"], row["failed"], row["shape"][0]) == (31, 1, 30)
+    assert report["warnings"] == [f"skipped: {ref / 'img99.jpg'}: image over OpenCV's size limit (2^30 pixels; "
                                "the environment variable OPENCV_IO_MAX_IMAGE_PIXELS raises it)"]
 
 

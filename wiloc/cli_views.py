@@ -19,6 +19,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from wiloc.candidates import RANKED
 from wiloc.cli_core import err, out
 from wiloc.reliability import NEW_PLACE_KEYS
 
@@ -29,16 +30,12 @@ CUT_CAPTION = "at a cut: P precision, R recall, n frames accepted (decided, conf
 METRIC_LABELS = {"recall_at_100": "recall at 100 % precision", "recall_at_99": "recall at 99 % precision",
                  "recall_at_90": "recall at 90 % precision", "auc": "area under PR curve", "max_f1": "max F1",
                  "max_f1_threshold": "threshold at max F1", "recall_at_1": "R@1 (best match right)",
-                 "recall_at_5": "R@5 (a true match in the 5 best)", "recall_at_10": "R@10 (a true match in the 10 best)",
                  "frames": "frames", "decided": "decided frames", "with_true_match": "frames with a true match",
                  "ece": "ECE", "brier": "Brier score", "mean_confidence": "mean confidence",
                  "share_correct": "share correct"}
 #: Columns of the runs-down metrics table (one row per results file), with short headers.
 RUN_COLUMNS = {"recall_at_100": "R\n@100%P", "recall_at_99": "R\n@99%P", "recall_at_90": "R\n@90%P",
                "auc": "AUC", "max_f1": "max\nF1", "recall_at_1": "R@1", "decided": "deci-\nded"}
-#: Metrics only runs whose results rank the map have (Recall@K): shown when one of the runs has them.
-RANKED_METRICS = ("recall_at_5", "recall_at_10")
-RECALL_AT_K_COLUMNS = {"recall_at_1": "R@1", "recall_at_5": "R@5", "recall_at_10": "R@10"}
 CALIBRATION_COLUMNS = {"ece": "ECE", "brier": "Brier", "mean_confidence": "mean\nconf.",
                        "share_correct": "share\ncorrect"}
 #: P(new place)'s calibration (``NEW_PLACE_KEYS`` + a calibration key), for runs that give it.
@@ -85,6 +82,15 @@ def json_ready(value: Any) -> Any:
 
 def print_json(data: Any) -> None:
     out.print_json(json.dumps(json_ready(data)))
+
+
+def print_command_json(command: str, items: str, rows: list[dict[str, Any]], warnings: Sequence[str],
+                       **extra: Any) -> None:
+    """A command's --json, one shape for all (``wiloc/schema/output.schema.json``, docs/formats.md):
+    ``command``, its ``results`` (what it made: descriptors, vocabularies) or ``runs`` (localization
+    runs, each with its ``method``, ``descriptor`` and ``traversal``), every line it printed on
+    stderr as ``warnings``, then the command's own keys."""
+    print_json({"command": command, items: rows, "warnings": list(warnings), **extra})
 
 
 def cell(value: Any, digits: int = 3) -> str:
@@ -134,14 +140,31 @@ def new_place_view(rows: list[dict[str, Any]], cuts: Sequence[float], ground_tru
                  NEW_PLACE_COLUMNS, caption=NEW_PLACE_CAPTION)
 
 
+def recall_at_keys(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """The Recall@N keys (``recall_at_N``, N > 1: runs whose results rank the map) that some row
+    has a value for, by N; not the recall at a precision (``recall_at_100``, N above any ranking)."""
+    found = {key for row in rows for key, value in row.items() if key.startswith("recall_at_")
+             and key.removeprefix("recall_at_").isdigit() and 1 < int(key.removeprefix("recall_at_")) <= RANKED
+             and not _missing(value)}
+    return sorted(found, key=lambda key: int(key.removeprefix("recall_at_")))
+
+
+def recall_at_label(key: str) -> str:
+    """A Recall@N key's row label in the metrics-down table."""
+    n = key.removeprefix("recall_at_")
+    return f"R@{n} (a true match in the {n} best)"
+
+
 def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_truth: str) -> list[Table]:
     """`wiloc evaluate`'s tables: metrics down and one column per results file while the runs fit
     the console; else one row per results file (its name whole), in two tables, and a third for
     Recall@K when a run has it."""
     title = f"evaluate (ground truth: {ground_truth})"
-    shown = _shown(rows)
+    ranked = recall_at_keys(rows)
     if 28 + _RUN_WIDTH * len(rows) <= out.width:
-        return [_metrics_down(rows, cuts, title, [key for key in METRIC_LABELS if key in shown])]
+        keys = list(METRIC_LABELS)
+        return [_metrics_down(rows, cuts, title, [*keys[:keys.index("recall_at_1") + 1], *ranked,
+                                                  *keys[keys.index("recall_at_1") + 1:]])]
     cut_columns = {f"cut {cut:g}": cut for cut in cuts}
     calibration = [{"run": row["run"], **{k: row[k] for k in CALIBRATION_COLUMNS},
                     **{name: at_cut(row, cut) for name, cut in cut_columns.items()}} for row in rows]
@@ -149,17 +172,13 @@ def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_trut
                    caption="R@x%P: recall at x % precision; R@1: best match right"),
              table(f"calibration and fixed confidence cuts (ground truth: {ground_truth})", calibration,
                    ["run", *CALIBRATION_COLUMNS, *cut_columns], CALIBRATION_COLUMNS, caption=CUT_CAPTION)]
-    if set(RANKED_METRICS) & shown:
-        views.append(table(f"Recall@K (ground truth: {ground_truth})", rows, ["run", *RECALL_AT_K_COLUMNS],
-                           RECALL_AT_K_COLUMNS, caption="R@K: a true match among the K best map frames (-: not ranked)"))
+    if ranked:
+        columns = {key: f"R@{key.removeprefix('recall_at_')}" for key in ["recall_at_1", *ranked]}
+        views.append(table(f"Recall@N (ground truth: {ground_truth})", rows, ["run", *columns], columns,
+                           caption="R@N: a true match among the N best map frames (-: not ranked)"))
     if (view := new_place_view(rows, cuts, ground_truth, ["run"])) is not None:
         views.append(view)
     return views
-
-
-def _shown(rows: list[dict[str, Any]]) -> set[str]:
-    """The metric keys to show: all but Recall@K when no run has it (a run without it shows "-")."""
-    return {key for key in METRIC_LABELS if key not in RANKED_METRICS or any(key in row for row in rows)}
 
 
 def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str, keys: list[str]) -> Table:
@@ -172,7 +191,7 @@ def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str,
         view.add_column(escape(f"{row['method']}\n{row['traversal']}"), justify="right", overflow="fold")
     view.add_row("results", *[cell(row["results"]) for row in rows])
     for key in keys:
-        view.add_row(METRIC_LABELS[key], *[cell(row.get(key)) for row in rows])
+        view.add_row(METRIC_LABELS.get(key) or recall_at_label(key), *[cell(row.get(key)) for row in rows])
     for cut in cuts:
         view.add_row(f"cut {cut:g}", *[at_cut(row, cut) for row in rows])
     if new_place:
@@ -211,8 +230,8 @@ def table1_view(comparison: api.Comparison) -> Table:
     """Table I: recall at 100/99/90 % precision, one row per traversal, columns per method."""
     t1 = comparison.table1
     methods = list(dict.fromkeys(t1["method"]))
-    ranked = [key for key in RANKED_METRICS if key in t1 and t1[key].notna().any()]
-    recall_at = ", R@1/5/10" if ranked else ", R@1"
+    ranked = recall_at_keys(t1.to_dict(orient="records"))
+    recall_at = f", R@{'/'.join(key.removeprefix('recall_at_') for key in ['recall_at_1', *ranked])}"
     view = Table(title=escape(f"Table I: recall at 100 / 99 / 90 % precision (plus AUC{recall_at}); "
                               f"{comparison.ground_truth}"))
     view.add_column("traversal", overflow="fold")
@@ -234,10 +253,18 @@ def table1_view(comparison: api.Comparison) -> Table:
     return view
 
 
-def table1_records(comparison: api.Comparison) -> list[dict[str, Any]]:
-    """Table I for --json: one object per run, without the Recall@K keys of runs that have none."""
-    return [{key: value for key, value in row.items() if not (key in RANKED_METRICS and _missing(value))}
-            for row in comparison.table1.to_dict(orient="records")]
+def run_records(comparison: api.Comparison) -> list[dict[str, Any]]:
+    """A comparison's runs for --json: per run its method, descriptor and traversal, its label in
+    the tables (``label``: the method, with the descriptor or file where needed to tell runs
+    apart), its results file, Table I's metrics (without the Recall@N keys of runs that have
+    none) and its calibration."""
+    rows = comparison.table1.to_dict(orient="records")
+    ranked = set(recall_at_keys(rows))
+    return [{"method": e.method, "descriptor": e.results.meta.get("descriptor"), "traversal": row["traversal"],
+             "label": row["method"], "results": None if e.path is None else str(e.path),
+             **{key: value for key, value in row.items() if key not in ("method", "traversal")
+                and not (key in ranked and _missing(value))}, **e.calibration_dict()}
+            for row, e in zip(rows, comparison.evaluations)]
 
 
 def _missing(value: Any) -> bool:
