@@ -1,10 +1,11 @@
 """How the command line shows results: rich tables that stay readable at 80 columns, JSON with one
 key scheme, and the progress bar.
 
-Tables never cut a cell short: text wraps within its column (``overflow="fold"``), so the part
-that tells rows apart (a folder's name, a results file) is always whole. Paths are shown by
-their own name, or as many trailing parts as keep two of the same name apart
-(:func:`wiloc.labels.short_names`); ``--json`` carries the full paths. JSON keys are snake_case
+Tables never cut a cell short nor break a word: names wrap within their column at separators
+only (``catgraph/`` then ``sad``: :class:`wiloc.wrapping.Words`), and a table too wide for the
+console drops its vertical rules and edges (:func:`fit`). Paths are shown by their own name, or as
+many trailing parts as keep two of the same name apart (:func:`wiloc.labels.short_names`);
+``--json`` carries the full paths. JSON keys are snake_case
 (``recall_at_100``, ``images_per_second``); docs/formats.md lists them per command.
 """
 from __future__ import annotations
@@ -15,13 +16,16 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
+from rich import box
 from rich.markup import escape
+from rich.measure import Measurement
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from wiloc.candidates import RANKED
 from wiloc.cli_core import err, out
 from wiloc.reliability import NEW_PLACE_KEYS
+from wiloc.wrapping import Words
 
 if TYPE_CHECKING:
     from wiloc import api
@@ -103,27 +107,67 @@ def cell(value: Any, digits: int = 3) -> str:
     return "-" if value is None else escape(str(value))
 
 
+def name(value: Any) -> Words | str:
+    """A table cell of text (a name, a label): wrapped at separators, never inside a word."""
+    return "-" if value is None else Words(str(value))
+
+
+def fit(view: Table) -> Table:
+    """``view`` with column widths that keep every word whole when it can. Rich's own sharing of
+    a narrow console narrows columns below their widest word; instead, in the first of the
+    table's own style, no vertical rules nor edges, then one space between columns that lets
+    every line fit whole, or else every word: each column at least as wide as its widest word
+    (the minimum measure of its cells and header: :class:`Words`, numbers, ``P 1.000`` lines) and
+    the room left shared out in proportion to what each would take more."""
+    ranges = [[Measurement.get(out, out.options, item) for item in (column.header, *column.cells)]
+              for column in view.columns]
+    lows = [max(r.minimum for r in column) for column in ranges]
+    highs = [max(r.maximum for r in column) for column in ranges]
+    styles = [(view.box, view.show_edge, view.pad_edge, view.padding),
+              *((box.SIMPLE_HEAD, False, False, padding) for padding in ((0, 1), (0, 0)))]
+
+    def frame() -> int:  # rules, edges and padding around the columns' text
+        _, right, _, left = view.padding
+        return view._extra_width + (left + right) * len(view.columns) - (0 if view.pad_edge else left + right)
+
+    def fits(need: list[int]) -> bool:
+        for view.box, view.show_edge, view.pad_edge, view.padding in styles:
+            if sum(need) + frame() <= out.width:
+                return True
+        return False
+
+    if fits(highs) or not fits(lows):
+        return view
+    room = out.width - frame() - sum(lows)
+    more = [high - low for low, high in zip(lows, highs)]
+    for column, low, m in zip(view.columns, lows, more):
+        column.width = low + room * m // max(sum(more), 1)
+    return view
+
+
 def table(title: str, rows: list[dict[str, Any]], columns: Sequence[str] | None = None,
           labels: dict[str, str] | None = None, caption: str | None = None,
           digits: dict[str, int] | None = None) -> Table:
     """A rich table of ``rows`` (dicts), ``columns`` in order, headed by ``labels`` where given,
-    numbers with 3 decimals unless ``digits`` says otherwise. Text wraps rather than being cut."""
+    numbers with 3 decimals unless ``digits`` says otherwise. Text wraps at separators, never
+    inside a word; ready-made cells (:func:`at_cut`'s) are shown as they are."""
     columns = list(columns or (rows[0] if rows else []))
     view = Table(title=escape(title), caption=caption)
     for column in columns:
-        text = not rows or isinstance(rows[0].get(column), str)
-        view.add_column((labels or {}).get(column, column), justify="left" if text else "right",
-                        overflow="fold", no_wrap=not text)
+        first = rows[0].get(column) if rows else ""
+        view.add_column(Words((labels or {}).get(column, column)),
+                        justify="left" if isinstance(first, (str, Words)) else "right")
     for row in rows:
-        view.add_row(*[cell(row.get(c), (digits or {}).get(c, 3)) for c in columns])
-    return view
+        view.add_row(*[row[c] if isinstance(row.get(c), Words) else name(row[c]) if isinstance(row.get(c), str)
+                       else cell(row.get(c), (digits or {}).get(c, 3)) for c in columns])
+    return fit(view)
 
 
-def at_cut(row: dict[str, Any], cut: float, prefix: str = "") -> str:
+def at_cut(row: dict[str, Any], cut: float, prefix: str = "") -> Words:
     """Precision, recall and accepted frames at one confidence cut of a table row (its keys after
-    ``prefix``), one a line."""
-    return (f"P {cell(row[f'{prefix}precision@{cut:g}'])}\nR {cell(row[f'{prefix}recall@{cut:g}'])}\n"
-            f"n {cell(row[f'{prefix}accepted@{cut:g}'], 0)}")
+    ``prefix``), one a line, each line whole."""
+    return Words(f"P {cell(row[f'{prefix}precision@{cut:g}'])}\nR {cell(row[f'{prefix}recall@{cut:g}'])}\n"
+                 f"n {cell(row[f'{prefix}accepted@{cut:g}'], 0)}", whole_lines=True)
 
 
 def new_place_view(rows: list[dict[str, Any]], cuts: Sequence[float], ground_truth: str,
@@ -188,8 +232,8 @@ def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str,
                                                              if new_place else ""))
     view.add_column("")
     for row in rows:
-        view.add_column(escape(f"{row['method']}\n{row['traversal']}"), justify="right", overflow="fold")
-    view.add_row("results", *[cell(row["results"]) for row in rows])
+        view.add_column(Words(f"{row['method']}\n{row['traversal']}"), justify="right")
+    view.add_row("results", *[name(row["results"]) for row in rows])
     for key in keys:
         view.add_row(METRIC_LABELS.get(key) or recall_at_label(key), *[cell(row.get(key)) for row in rows])
     for cut in cuts:
@@ -200,7 +244,7 @@ def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str,
         for cut in cuts:
             view.add_row(f"P(new place) >= {cut:g}",
                          *[at_cut(row, cut, NEW_PLACE_KEYS) if _says_new_place(row) else "-" for row in rows])
-    return view
+    return fit(view)
 
 
 def _says_new_place(row: dict[str, Any]) -> bool:
@@ -214,43 +258,60 @@ def cut_views(comparison: api.Comparison, cuts: Sequence[float]) -> list[Table]:
     for traversal, group in comparison.cut_table.groupby("traversal", sort=False):
         view = Table(title=cell(f"Calibration and fixed confidence cuts: {traversal} ({comparison.ground_truth})"),
                      caption=CUT_CAPTION, pad_edge=False)
-        view.add_column("method", overflow="fold")
+        view.add_column("method")
         for column in CALIBRATION_COLUMNS.values():
             view.add_column(column, justify="right")
         for cut in cuts:
             view.add_column(f"cut\n{cut:g}")
         for row in group.to_dict(orient="records"):
-            view.add_row(cell(row["method"]), *[cell(row[key]) for key in CALIBRATION_COLUMNS],
+            view.add_row(name(row["method"]), *[cell(row[key]) for key in CALIBRATION_COLUMNS],
                          *[at_cut(row, cut) for cut in cuts])
-        tables.append(view)
+        tables.append(fit(view))
     return tables
 
 
+#: Table I's columns when it lists one run a row, with short headers (the caption says them).
+TABLE1_COLUMNS = {"recall_at_100": "R\n@100%P", "recall_at_99": "R\n@99%P", "recall_at_90": "R\n@90%P", "auc": "AUC"}
+
+
 def table1_view(comparison: api.Comparison) -> Table:
-    """Table I: recall at 100/99/90 % precision, one row per traversal, columns per method."""
-    t1 = comparison.table1
-    methods = list(dict.fromkeys(t1["method"]))
-    ranked = recall_at_keys(t1.to_dict(orient="records"))
-    recall_at = f", R@{'/'.join(key.removeprefix('recall_at_') for key in ['recall_at_1', *ranked])}"
-    view = Table(title=escape(f"Table I: recall at 100 / 99 / 90 % precision (plus AUC{recall_at}); "
-                              f"{comparison.ground_truth}"))
-    view.add_column("traversal", overflow="fold")
-    for m in methods:
-        view.add_column(cell(m), justify="right", overflow="fold")
-    for traversal in dict.fromkeys(t1["traversal"]):
-        cells = []
+    """Table I: recall at 100/99/90 % precision, AUC and Recall@N; as the paper has it (one row
+    per traversal, a column per method) when that fits the console with every line whole, else
+    one row per run, a column per metric."""
+    rows = comparison.table1.to_dict(orient="records")
+    ranked = ["recall_at_1", *recall_at_keys(rows)]
+    recall_at = f"R@{'/'.join(key.removeprefix('recall_at_') for key in ranked)}"
+    title = escape(f"Table I: recall at 100 / 99 / 90 % precision (plus AUC, {recall_at}); {comparison.ground_truth}")
+    methods, traversals = list(dict.fromkeys(t1["method"] for t1 in rows)), list(dict.fromkeys(r["traversal"] for r in rows))
+    cells = {(r["traversal"], r["method"]): _table1_cell(r, ranked) for r in rows}
+    widths = [max(len(line) for key, text in cells.items() if key[1] == m for line in text.split("\n")) for m in methods]
+    if max(map(len, traversals)) + sum(max(w, len(m)) + 3 for w, m in zip(widths, methods)) + 4 <= out.width:
+        view = Table(title=title)
+        view.add_column("traversal")
         for m in methods:
-            sel = t1[(t1["traversal"] == traversal) & (t1["method"] == m)]
-            if sel.empty:
-                cells.append("")
-                continue
-            r = sel.iloc[0]
-            at = ["recall_at_1", *(key for key in ranked if not math.isnan(r[key]))]
-            cells.append(f"{r['recall_at_100']:.1%} / {r['recall_at_99']:.1%} / {r['recall_at_90']:.1%}\n"
-                         f"AUC {r['auc']:.3f}\nR@{'/'.join(key.removeprefix('recall_at_') for key in at)} "
-                         f"{' / '.join(f'{r[key]:.3f}' for key in at)}")
-        view.add_row(cell(traversal), *cells)
+            view.add_column(Words(m), justify="right")
+        for traversal in traversals:
+            view.add_row(name(traversal), *[Words(cells[traversal, m], whole_lines=True) if (traversal, m) in cells
+                                            else "" for m in methods])
+        return view
+    shown = [{"traversal": r["traversal"], "method": r["method"],
+              **{key: f"{r[key]:.1%}" for key in ("recall_at_100", "recall_at_99", "recall_at_90")},
+              **{key: None if _missing(r.get(key)) else float(r[key]) for key in ("auc", *ranked)}} for r in rows]
+    labels = {**TABLE1_COLUMNS, **{key: f"R@{key.removeprefix('recall_at_')}" for key in ranked}}
+    view = table(title, shown, ["traversal", "method", *labels], labels,
+                 caption="R@x%P: recall at x % precision; R@N: a true match among the N best (-: not ranked)")
+    for column in view.columns[2:5]:
+        column.justify = "right"
     return view
+
+
+def _table1_cell(r: dict[str, Any], ranked: list[str]) -> str:
+    """One run's cell of Table I as the paper lays it out: recall at 100 / 99 / 90 % precision,
+    AUC, and the Recall@N it has."""
+    at = [key for key in ranked if not _missing(r.get(key))]
+    return (f"{r['recall_at_100']:.1%} / {r['recall_at_99']:.1%} / {r['recall_at_90']:.1%}\n"
+            f"AUC {r['auc']:.3f}\nR@{'/'.join(key.removeprefix('recall_at_') for key in at)} "
+            f"{' / '.join(f'{r[key]:.3f}' for key in at)}")
 
 
 def run_records(comparison: api.Comparison) -> list[dict[str, Any]]:
@@ -278,9 +339,9 @@ def table2_view(comparison: api.Comparison) -> Table:
     view = Table(title=escape(f"Table II: one global threshold per method (worst traversal marked *); "
                               f"{comparison.ground_truth}"))
     for column in ("method", "precision", "threshold", *traversals):
-        view.add_column(cell(column), justify="left" if column == "method" else "right", overflow="fold")
+        view.add_column(Words(column), justify="left" if column == "method" else "right")
     for (method, target), group in t2.groupby(["method", "precision"], sort=False):
         cells = {row.traversal: f"{row.recall:.1%}{' *' if row.worst else ''}" for row in group.itertuples()}
         threshold = group["threshold"].iloc[0]
-        view.add_row(cell(method), f"{target:g}%", cell(float(threshold)), *[cells.get(t, "") for t in traversals])
-    return view
+        view.add_row(name(method), f"{target:g}%", cell(float(threshold)), *[cells.get(t, "") for t in traversals])
+    return fit(view)
