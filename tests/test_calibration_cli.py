@@ -154,7 +154,7 @@ def test_evaluate_and_compare_say_how_well_p_new_place_is_calibrated(tmp_path: P
     assert table.exit_code == 0, table.output
     for text in ("P(new place): ECE", "0.140", "share without a true match", "P(new place) >= 0.5"):
         assert text in table.stdout
-    wide = runner.invoke(app, ["evaluate", str(with_column), str(without)], env={"COLUMNS": "50"})
+    wide = runner.invoke(app, ["evaluate", str(with_column), str(without)], env={"COLUMNS": "40"})  # runs down
     assert wide.exit_code == 0 and "P(new place) (ground truth" in wide.stdout
 
     data = _json(runner.invoke(app, ["compare", str(with_column), str(without), "--json"]))

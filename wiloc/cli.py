@@ -20,10 +20,10 @@ from rich.table import Table
 from wiloc import __version__
 from wiloc.atomic import written_whole
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, RANKED
-from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, out, refuse_unused
+from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, note, out, refuse_unused
 from wiloc.cli_params import method_params, with_method_options
-from wiloc.cli_views import (cell, cut_views, json_ready, metrics_views, new_place_view, print_command_json,
-                             progress_bar, run_records, table, table1_view, table2_view)
+from wiloc.cli_views import (cell, comparison_records, cut_views, json_ready, metrics_views, new_place_view,
+                             print_command_json, progress_bar, run_records, table, table1_view, table2_view)
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE, WilocError
 from wiloc.labels import short_names
 from wiloc.methods.registry import METHODS, method_class
@@ -697,6 +697,10 @@ def compare(
     model_plot: Optional[Path] = typer.Option(None, callback=_plot_file, show_default="none: not drawn", help="Learned histograms of the first online run (Figure 1)."),
     pr_plot: PrPlotOption = None,
     calibration_plot: CalibrationPlotOption = None,
+    csv_out: Optional[Path] = typer.Option(None, "--csv", callback=_output_file, show_default="none: not written",
+                                           help="Write each run's metrics as CSV, and the curves to FILE-curves.csv beside it."),
+    markdown: bool = typer.Option(False, "--markdown", help="Print the tables as Markdown instead."),
+    latex: bool = typer.Option(False, "--latex", help="Print the tables as LaTeX (booktabs) instead."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
     """Methods and traversals side by side: the paper's Table I, calibration at fixed cuts, Table II.
@@ -706,6 +710,9 @@ def compare(
     from wiloc import api
 
     refuse_unused({"precision": (global_threshold, "Table II (--global-threshold)")})
+    shown = [flag for flag, given in (("--markdown", markdown), ("--latex", latex), ("--json", as_json)) if given]
+    if len(shown) > 1:
+        fail(f"{shown[1]}: give one of --markdown, --latex and --json", EXIT_USAGE)
     try:
         targets = [float(p) for p in precision.split(",") if p.strip()]
     except ValueError:
@@ -717,6 +724,21 @@ def compare(
                              recall_at=ranks)
     notes = _warn_about_truth(comparison.evaluations)
     written = _compare_plots(comparison, source, threshold_plot, model_plot, pr_plot, calibration_plot, notes)
+    records = comparison_records(comparison)
+    if csv_out is not None:
+        (_, table1, _, _), (_, calibration, _, _) = records[:2]
+        runs = [{"results": str(e.path), "descriptor": e.results.meta.get("descriptor"), **a, **b}
+                for e, a, b in zip(comparison.evaluations, table1, calibration)]
+        written += _write_metrics_csv(csv_out, runs, comparison.evaluations, notes)
+    if markdown or latex:
+        from wiloc.text_tables import latex as as_latex
+        from wiloc.text_tables import markdown as as_markdown
+        for title, rows, columns, labels in records[:None if global_threshold else 2]:
+            print(as_latex(rows, columns, labels, title) if latex else f"**{title}**\n\n{as_markdown(rows, columns, labels)}",
+                  end="\n\n")
+        for path in written:
+            note("wrote", str(path))  # stdout holds the tables alone
+        return
     if as_json:
         print_command_json("compare", "runs", run_records(comparison), notes, ground_truth=comparison.ground_truth,
                            table2=comparison.table2.to_dict(orient="records"), files=[str(p) for p in written])

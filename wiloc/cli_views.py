@@ -50,8 +50,6 @@ NEW_PLACE_LABELS = {NEW_PLACE_KEYS + "ece": "P(new place): ECE", NEW_PLACE_KEYS 
                     NEW_PLACE_KEYS + "share_correct": "share without a true match"}
 NEW_PLACE_CAPTION = ("P(new place) against the frames without a true match in the map; at a cut: P precision, "
                      "R recall of those frames, n frames with P(new place) >= cut")
-#: Width one results file takes as a column of the metrics-down table.
-_RUN_WIDTH = 16
 
 
 @contextmanager
@@ -112,33 +110,53 @@ def name(value: Any) -> Words | str:
     return "-" if value is None else Words(str(value))
 
 
-def fit(view: Table) -> Table:
-    """``view`` with column widths that keep every word whole when it can. Rich's own sharing of
-    a narrow console narrows columns below their widest word; instead, in the first of the
-    table's own style, no vertical rules nor edges, then one space between columns that lets
-    every line fit whole, or else every word: each column at least as wide as its widest word
-    (the minimum measure of its cells and header: :class:`Words`, numbers, ``P 1.000`` lines) and
-    the room left shared out in proportion to what each would take more."""
+#: A table's styles from roomy to compact: as made, then no vertical rules nor edges, then one
+#: space between columns (box, show_edge, pad_edge, padding; None: the table's own).
+_COMPACT = (None, (box.SIMPLE_HEAD, False, False, (0, 1)), (box.SIMPLE_HEAD, False, False, (0, 0)))
+
+
+def _column_widths(view: Table) -> tuple[list[int], list[int]]:
+    """Each column's narrowest width that keeps every word whole and its width with every line
+    whole: the minimum and maximum measures of its cells and header (:class:`Words`, numbers,
+    ``P 1.000`` lines)."""
     ranges = [[Measurement.get(out, out.options, item) for item in (column.header, *column.cells)]
               for column in view.columns]
-    lows = [max(r.minimum for r in column) for column in ranges]
-    highs = [max(r.maximum for r in column) for column in ranges]
-    styles = [(view.box, view.show_edge, view.pad_edge, view.padding),
-              *((box.SIMPLE_HEAD, False, False, padding) for padding in ((0, 1), (0, 0)))]
+    return [max(r.minimum for r in column) for column in ranges], [max(r.maximum for r in column) for column in ranges]
 
-    def frame() -> int:  # rules, edges and padding around the columns' text
+
+def _styled_to_fit(view: Table, widths: list[int]) -> bool:
+    """Give ``view`` the first style of :data:`_COMPACT` in which columns of ``widths`` fit the
+    console (the most compact when none does); whether one does."""
+    own = (view.box, view.show_edge, view.pad_edge, view.padding)
+    for style in _COMPACT:
+        view.box, view.show_edge, view.pad_edge, view.padding = style or own
         _, right, _, left = view.padding
-        return view._extra_width + (left + right) * len(view.columns) - (0 if view.pad_edge else left + right)
+        frame = view._extra_width + (left + right) * len(view.columns) - (0 if view.pad_edge else left + right)
+        if sum(widths) + frame <= out.width:
+            return True
+    return False
 
-    def fits(need: list[int]) -> bool:
-        for view.box, view.show_edge, view.pad_edge, view.padding in styles:
-            if sum(need) + frame() <= out.width:
-                return True
-        return False
 
-    if fits(highs) or not fits(lows):
+def words_fit(view: Table) -> bool:
+    """Whether ``view`` fits the console without breaking a word (in some style of :data:`_COMPACT`)."""
+    own = (view.box, view.show_edge, view.pad_edge, view.padding)
+    fits = _styled_to_fit(view, _column_widths(view)[0])
+    view.box, view.show_edge, view.pad_edge, view.padding = own
+    return fits
+
+
+def fit(view: Table) -> Table:
+    """``view`` with column widths that keep every word whole when it can. Rich's own sharing of
+    a narrow console narrows columns below their widest word; instead, in the first style of
+    :data:`_COMPACT` that lets every line fit whole, or else every word: each column at least as
+    wide as its widest word and the room left shared out in proportion to what each would take
+    more."""
+    lows, highs = _column_widths(view)
+    if _styled_to_fit(view, highs) or not _styled_to_fit(view, lows):
         return view
-    room = out.width - frame() - sum(lows)
+    _, right, _, left = view.padding
+    frame = view._extra_width + (left + right) * len(view.columns) - (0 if view.pad_edge else left + right)
+    room = out.width - frame - sum(lows)
     more = [high - low for low, high in zip(lows, highs)]
     for column, low, m in zip(view.columns, lows, more):
         column.width = low + room * m // max(sum(more), 1)
@@ -201,14 +219,15 @@ def recall_at_label(key: str) -> str:
 
 def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_truth: str) -> list[Table]:
     """`wiloc evaluate`'s tables: metrics down and one column per results file while the runs fit
-    the console; else one row per results file (its name whole), in two tables, and a third for
-    Recall@K when a run has it."""
+    the console with every metric's label on one line; else one row per results file, in two
+    tables, and a third for Recall@N when a run has it."""
     title = f"evaluate (ground truth: {ground_truth})"
     ranked = recall_at_keys(rows)
-    if 28 + _RUN_WIDTH * len(rows) <= out.width:
-        keys = list(METRIC_LABELS)
-        return [_metrics_down(rows, cuts, title, [*keys[:keys.index("recall_at_1") + 1], *ranked,
-                                                  *keys[keys.index("recall_at_1") + 1:]])]
+    keys = list(METRIC_LABELS)
+    down = _metrics_down(rows, cuts, title, [*keys[:keys.index("recall_at_1") + 1], *ranked,
+                                             *keys[keys.index("recall_at_1") + 1:]])
+    if words_fit(down):
+        return [fit(down)]
     cut_columns = {f"cut {cut:g}": cut for cut in cuts}
     calibration = [{"run": row["run"], **{k: row[k] for k in CALIBRATION_COLUMNS},
                     **{name: at_cut(row, cut) for name, cut in cut_columns.items()}} for row in rows]
@@ -233,18 +252,19 @@ def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str,
     view.add_column("")
     for row in rows:
         view.add_column(Words(f"{row['method']}\n{row['traversal']}"), justify="right")
-    view.add_row("results", *[name(row["results"]) for row in rows])
+    view.add_row(Words("results", whole_lines=True), *[name(row["results"]) for row in rows])
     for key in keys:
-        view.add_row(METRIC_LABELS.get(key) or recall_at_label(key), *[cell(row.get(key)) for row in rows])
+        view.add_row(Words(METRIC_LABELS.get(key) or recall_at_label(key), whole_lines=True),
+                     *[cell(row.get(key)) for row in rows])
     for cut in cuts:
         view.add_row(f"cut {cut:g}", *[at_cut(row, cut) for row in rows])
     if new_place:
         for key, label in NEW_PLACE_LABELS.items():
-            view.add_row(label, *[cell(row.get(key)) for row in rows])
+            view.add_row(Words(label, whole_lines=True), *[cell(row.get(key)) for row in rows])
         for cut in cuts:
-            view.add_row(f"P(new place) >= {cut:g}",
+            view.add_row(Words(f"P(new place) >= {cut:g}", whole_lines=True),
                          *[at_cut(row, cut, NEW_PLACE_KEYS) if _says_new_place(row) else "-" for row in rows])
-    return fit(view)
+    return view
 
 
 def _says_new_place(row: dict[str, Any]) -> bool:
@@ -345,3 +365,20 @@ def table2_view(comparison: api.Comparison) -> Table:
         threshold = group["threshold"].iloc[0]
         view.add_row(name(method), f"{target:g}%", cell(float(threshold)), *[cells.get(t, "") for t in traversals])
     return fit(view)
+
+
+def comparison_records(comparison: api.Comparison) -> list[tuple[str, list[dict[str, Any]], list[str], dict[str, str]]]:
+    """`compare`'s tables as plain records for CSV, Markdown and LaTeX: (title, rows, columns,
+    one-line headers) of Table I (one row per run), the calibration and Table II."""
+    table1 = comparison.table1.to_dict(orient="records")
+    ranked = ["recall_at_1", *recall_at_keys(table1)]
+    heads = {"recall_at_100": "R@100%P", "recall_at_99": "R@99%P", "recall_at_90": "R@90%P", "auc": "AUC",
+             **{key: f"R@{key.removeprefix('recall_at_')}" for key in ranked}}
+    calibration = {"ece": "ECE", "brier": "Brier", "mean_confidence": "mean conf.", "share_correct": "share correct"}
+    cuts = comparison.cut_table.to_dict(orient="records")
+    return [(f"Table I: recall at 100 / 99 / 90 % precision, AUC and Recall@N; {comparison.ground_truth}",
+             table1, ["traversal", "method", *heads], heads),
+            (f"Calibration; {comparison.ground_truth}", cuts, ["traversal", "method", *calibration], calibration),
+            (f"Table II: one global threshold per method (worst traversal marked); {comparison.ground_truth}",
+             [{**row, "precision": f"{row['precision']:g}%"} for row in comparison.table2.to_dict(orient="records")],
+             ["method", "precision", "threshold", "traversal", "recall", "worst"], {})]
