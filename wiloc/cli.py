@@ -432,9 +432,13 @@ def localize(
         out.print(f"wrote {model_plot}")
 
 
+FOLLOW_COLUMNS = ("frame", "match", "confidence", "P(new place)", "stage")
+
+
 def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
-    """Render a followed run: a live table on a terminal, else one line (or JSON line) per frame;
-    a frame left out is a note on stderr (with --json also a line ``{"warnings": [...]}``)."""
+    """Render a followed run: a live table on a terminal, else a header line and one line (or
+    JSON line) per frame, and when ``--idle`` ends the run a last line saying so; a frame left out
+    is a note on stderr (with --json also a line ``{"warnings": [...]}``)."""
     from collections import deque
 
     from rich.live import Live
@@ -449,13 +453,15 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
         rate = decided / max(time.perf_counter() - started, 1e-9)
         live_table = Table(title=cell(f"following {query} -> {run.path}"),
                            caption=f"{run.resumed + decided} frames ({run.resumed} resumed), {rate:.1f} frames/s; Ctrl-C stops")
-        for column in ("frame", "match", "confidence", "P(new place)", "stage"):
+        for column in FOLLOW_COLUMNS:
             live_table.add_column(column, justify="left" if column in ("frame", "match", "stage") else "right")
         for d in latest:
             live_table.add_row(cell(d.frame), cell(d.match_name), cell(d.confidence), cell(d.new_place), d.stage)
         return live_table
 
     live = Live(view(), console=out, auto_refresh=False) if out.is_terminal and not as_json else None
+    if live is None and not as_json:
+        print("\t".join(FOLLOW_COLUMNS), flush=True)
     with live if live is not None else contextlib.nullcontext():
         for event in run:
             if isinstance(event, Decision):
@@ -474,6 +480,9 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
                 notes.add("skipped", str(event))
                 if as_json:  # the line on stderr, as every --json carries it
                     print(json.dumps({"warnings": notes[-1:]}), flush=True)
+    if live is None and not as_json and run.idle is not None:
+        print(f"# ended: no new frame for {run.idle:g} s; {decided} frames decided ({run.resumed} resumed before), "
+              f"{len(notes)} left out; results in {run.path}", flush=True)
 
 
 # ------------------------------------------------------------------------------------------ evaluate
@@ -574,7 +583,7 @@ def evaluate(
 ) -> None:
     """Precision-recall and calibration of results files against ground truth.
 
-    Example: wiloc evaluate day_left-online.csv --gt aligned --tolerance 2 --pr-plot pr.png --cuts 0.9,0.99
+    Example: wiloc evaluate day_left-sad-online.csv --gt aligned --tolerance 2 --pr-plot pr.png --cuts 0.9,0.99
     """
     from wiloc import api
 
