@@ -302,10 +302,10 @@ def table1_view(comparison: api.Comparison) -> Table:
     ranked = ["recall_at_1", *recall_at_keys(rows)]
     recall_at = f"R@{'/'.join(key.removeprefix('recall_at_') for key in ranked)}"
     title = escape(f"Table I: recall at 100 / 99 / 90 % precision (plus AUC, {recall_at}); {comparison.ground_truth}")
-    methods, traversals = list(dict.fromkeys(t1["method"] for t1 in rows)), list(dict.fromkeys(r["traversal"] for r in rows))
+    methods, traversals = list(dict.fromkeys(r["method"] for r in rows)), list(dict.fromkeys(r["traversal"] for r in rows))
     cells = {(r["traversal"], r["method"]): _table1_cell(r, ranked) for r in rows}
     widths = [max(len(line) for key, text in cells.items() if key[1] == m for line in text.split("\n")) for m in methods]
-    if max(map(len, traversals)) + sum(max(w, len(m)) + 3 for w, m in zip(widths, methods)) + 4 <= out.width:
+    if max(len("traversal"), *map(len, traversals)) + sum(max(w, len(m)) + 3 for w, m in zip(widths, methods)) + 4 <= out.width:
         view = Table(title=title)
         view.add_column("traversal")
         for m in methods:
@@ -320,7 +320,7 @@ def table1_view(comparison: api.Comparison) -> Table:
     labels = {**TABLE1_COLUMNS, **{key: f"R@{key.removeprefix('recall_at_')}" for key in ranked}}
     view = table(title, shown, ["traversal", "method", *labels], labels,
                  caption="R@x%P: recall at x % precision; R@N: a true match among the N best (-: not ranked)")
-    for column in view.columns[2:5]:
+    for column in view.columns[2:5]:  # percentages: text, but numbers to the eye
         column.justify = "right"
     return view
 
