@@ -29,6 +29,7 @@ from wiloc.errors import WilocError
 
 REPO = Path(__file__).resolve().parents[1]
 METHODS = ("online", "threshold", "trained", "catgraph")
+RECALL_AT = (1, 5, 10, 20)  # Recall@N as place recognition papers report it
 console = Console()
 err = Console(stderr=True)
 
@@ -84,7 +85,7 @@ def run_experiment(experiment: Experiment, out: Path) -> dict[str, Any]:
                         training=experiment.training(query) if method == "trained" else None,
                         out=out / "results" / f"{query.name}-{descriptor}-{method}.csv", progress=progress)
                     paths.append(run.path)
-    comparison = api.compare(paths, aligned(experiment.tolerance))
+    comparison = api.compare(paths, aligned(experiment.tolerance), recall_at=RECALL_AT)
     online = next(e for e in comparison.evaluations if e.method == "online")
     files = [plots.plot_threshold(api.threshold_series(comparison), out / "threshold.png",
                                   title=f"{experiment.name}: precision against threshold"),
@@ -141,14 +142,14 @@ def _percent(value: float | None) -> str:
 
 def render_markdown(summary: dict[str, Any]) -> str:
     """Table I and Table II of a summary as the markdown pasted in docs/results.md."""
-    lines = ["| method | traversal | recall @100 % | @99 % | @90 % | AUC | R@1 | R@5 | R@10 | frames |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| method | traversal | recall @100 % | @99 % | @90 % | AUC | R@1 | R@5 | R@10 | R@20 | frames |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for row in summary["table1"]:
         auc = "-" if row["auc"] is None else f"{row['auc']:.3f}"
         lines.append(f"| {row['method']} | {row['traversal']} | {_percent(row['recall_at_100'])} | "
                      f"{_percent(row['recall_at_99'])} | {_percent(row['recall_at_90'])} | {auc} | "
                      f"{_percent(row['recall_at_1'])} | {_percent(row.get('recall_at_5'))} | "
-                     f"{_percent(row.get('recall_at_10'))} | {row['frames']} |")
+                     f"{_percent(row.get('recall_at_10'))} | {_percent(row.get('recall_at_20'))} | {row['frames']} |")
     lines += ["", "| method | precision | global threshold | traversal | recall | worst |",
               "|---|---:|---:|---|---:|:---:|"]
     for row in summary["table2"]:

@@ -86,6 +86,10 @@ USAGE = {
     "unknown method": (["localize", "Q", "--method", "nope"], "--method: unknown method 'nope'"),
     "bad precision": (["compare", "R", "--precision", "abc"], "--precision: 'abc'"),
     "bad cuts": (["evaluate", "R", "--cuts", "1.5"], "--cuts: '1.5'"),
+    "recall at 0": (["evaluate", "R", "--recall-at", "0,5"], "--recall-at: '0,5': give whole numbers from 1 to 20"),
+    "recall beyond the ranking": (["compare", "R", "--recall-at", "50"], "--recall-at: '50'"),
+    "markdown and latex": (["compare", "R", "--markdown", "--latex"], "--latex: give one of --markdown, --latex and --json"),
+    "compare csv in a missing folder": (["compare", "R", "--csv", "nowhere/m.csv"], "--csv: the folder nowhere does not exist"),
     "misspelt form": (["evaluate", "R", "--gt", "alined"], "--gt: 'alined' is neither a ground-truth form"),
     "unknown form": (["evaluate", "R", "--gt", "foo:bar.csv"], "--gt: unknown ground-truth form 'foo'"),
     "plot suffix": (["evaluate", "R", "--pr-plot", "pr.pgn"], "--pr-plot: '.pgn' is not a figure format"),
@@ -255,9 +259,10 @@ def test_an_image_over_the_pixel_limit_is_skipped_like_any_bad_frame(route: tupl
     for jobs in ("1", "2"):
         result = runner.invoke(app, ["describe", str(ref), "--jobs", jobs, "--json"])
         assert result.exit_code == 0, result.output
-        [row] = json.loads(result.stdout)
+        report = json.loads(result.stdout)
+        [row] = report["results"]
         assert (row["frames"], row["failed"]) == (31, 1)
-        assert row["warnings"] == [f"skipped: {ref / 'img99.png'}: image over OpenCV's size limit (2^30 pixels; "
+        assert report["warnings"] == [f"skipped: {ref / 'img99.png'}: image over OpenCV's size limit (2^30 pixels; "
                                    "the environment variable OPENCV_IO_MAX_IMAGE_PIXELS raises it)"]
         assert result.stderr.strip().startswith("skipped ") and "Traceback" not in result.output
 
@@ -319,7 +324,7 @@ def test_damaged_descriptors_are_described_again_with_a_note(route: tuple[Path, 
     result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
                                  "--out", str(again), "--jobs", "1", "--json"])
     assert result.exit_code == 0, result.output
-    assert "failed their checksum (the file is damaged); described again" in json.loads(result.stdout)[0]["warnings"][0]
+    assert "failed their checksum (the file is damaged); described again" in json.loads(result.stdout)["warnings"][0]
     assert again.read_text().split("frame,")[1] == results.read_text().split("frame,")[1]  # the same decisions
 
 
@@ -470,8 +475,8 @@ def test_image_names_that_cannot_be_frames_are_left_out_with_a_line(route: tuple
     lines = _unusable_frames(ref)
     result = runner.invoke(app, ["describe", str(ref), "--json"])
     assert result.exit_code == 0, result.output
-    [row] = json.loads(result.stdout)
-    assert (row["frames"], row["failed"], row["shape"]) == (33, 3, "30x1152")
+    [row] = json.loads(result.stdout)["results"]
+    assert (row["frames"], row["failed"], row["shape"]) == (33, 3, [30, 1152])
     assert result.stderr.strip().splitlines() == lines
     _unusable_frames(query)
     out = tmp_path / "run.csv"
@@ -718,9 +723,10 @@ def test_a_jpeg_over_the_pixel_limit_is_skipped_even_when_decoded_reduced(descri
     _huge_jpeg(ref / "img99.jpg")
     result = runner.invoke(app, ["describe", str(ref), "--descriptor", descriptor, "--jobs", "1", "--json"])
     assert result.exit_code == 0, result.output
-    [row] = json.loads(result.stdout)
-    assert (row["frames"], row["failed"], row["shape"].split("x")[0]) == (31, 1, "30")
-    assert row["warnings"] == [f"skipped: {ref / 'img99.jpg'}: image over OpenCV's size limit (2^30 pixels; "
+    report = json.loads(result.stdout)
+    [row] = report["results"]
+    assert (row["frames"], row["failed"], row["shape"][0]) == (31, 1, 30)
+    assert report["warnings"] == [f"skipped: {ref / 'img99.jpg'}: image over OpenCV's size limit (2^30 pixels; "
                                "the environment variable OPENCV_IO_MAX_IMAGE_PIXELS raises it)"]
 
 

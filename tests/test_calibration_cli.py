@@ -119,7 +119,7 @@ def test_compare_over_two_maps_prints_cut_tables_and_table2(tmp_path: Path) -> N
     assert {row["threshold"] for row in table2} == {0.95}
     assert {row["traversal"]: (row["recall"], row["worst"]) for row in table2} == {
         "day_left": (0.5, False), "winter": (0.3, True)}
-    calibration = {(row["method"], row["traversal"]): row for row in data["calibration"]}
+    calibration = {(row["method"], row["traversal"]): row for row in data["runs"]}
     assert set(calibration) == {(m, t) for m in ("online", "threshold") for t in ("day_left", "winter")}
     winter = calibration[("online", "winter")]
     assert winter["cuts"][1] == {"cut": 0.9, "precision": pytest.approx(6 / 20), "recall": pytest.approx(6 / 20),
@@ -154,11 +154,11 @@ def test_evaluate_and_compare_say_how_well_p_new_place_is_calibrated(tmp_path: P
     assert table.exit_code == 0, table.output
     for text in ("P(new place): ECE", "0.140", "share without a true match", "P(new place) >= 0.5"):
         assert text in table.stdout
-    wide = runner.invoke(app, ["evaluate", str(with_column), str(without)], env={"COLUMNS": "50"})
+    wide = runner.invoke(app, ["evaluate", str(with_column), str(without)], env={"COLUMNS": "40"})  # runs down
     assert wide.exit_code == 0 and "P(new place) (ground truth" in wide.stdout
 
     data = _json(runner.invoke(app, ["compare", str(with_column), str(without), "--json"]))
-    by_method = {row["method"]: row for row in data["calibration"]}
+    by_method = {row["method"]: row for row in data["runs"]}
     assert by_method["catgraph"]["new_place"]["ece"] == pytest.approx(0.14) and "new_place" not in by_method["online"]
     text = runner.invoke(app, ["compare", str(with_column), str(without)]).stdout
     assert "P(new place) (ground truth" in text and text.index("P(new place)") < text.index("Table II")

@@ -7,7 +7,7 @@ import pytest
 from wiloc.errors import WilocError
 from wiloc.methods import base
 from wiloc.methods.base import ArrayRows, Decisions, run_on_rows
-from wiloc.methods.catgraph import CatGraph, contrast_normalise
+from wiloc.methods.catgraph import CatGraph, contrast_normalise, posterior_ranking
 
 N_REF = 300
 TOL = 2
@@ -308,3 +308,10 @@ def test_smallest_takes_ties_in_index_order_or_drawn_by_the_generator() -> None:
         assert drawn.size == min(k, values.size) == np.unique(drawn).size
         assert np.array_equal(np.sort(values[drawn]), np.sort(values[want]))
         assert np.array_equal(drawn, _smallest(values, k, np.random.default_rng(5)))
+
+
+def test_the_posterior_ranks_the_mode_first_then_the_nodes_of_most_weight() -> None:
+    own = np.array([0.0, 0.1, 0.3, 0.1, 0.0, 0.25, 0.25])
+    assert posterior_ranking(own, 5).tolist() == [5, 2, 6, 1, 3]  # equal weights in order of position
+    assert posterior_ranking(own, 5, k=3).tolist() == [5, 2, 6]
+    assert posterior_ranking(np.zeros(4), 2).tolist() == [2]  # nodes without weight are no candidates

@@ -48,9 +48,9 @@ def _json(result) -> object:
 
 def test_describe_reports_and_reuses_cache(route: tuple[Path, Path]) -> None:
     ref, _ = route
-    first = _json(runner.invoke(app, ["describe", str(ref), "--json", "--jobs", "1"]))
-    assert first[0]["frames"] == 40 and first[0]["computed"] == 40 and first[0]["shape"] == "40x1152"
-    second = _json(runner.invoke(app, ["describe", str(ref), "--json", "--jobs", "1"]))
+    first = _json(runner.invoke(app, ["describe", str(ref), "--json", "--jobs", "1"]))["results"]
+    assert first[0]["frames"] == 40 and first[0]["computed"] == 40 and first[0]["shape"] == [40, 1152]
+    second = _json(runner.invoke(app, ["describe", str(ref), "--json", "--jobs", "1"]))["results"]
     assert second[0]["computed"] == 0 and second[0]["reused"] == 40
     table = runner.invoke(app, ["describe", str(ref), "--jobs", "1"])
     assert table.exit_code == 0 and "reused" in table.stdout
@@ -70,8 +70,9 @@ def test_localize_evaluate_compare(route: tuple[Path, Path], tmp_path: Path) -> 
     runs.mkdir()  # an output file's folder must exist (test_bad_inputs: "out in a missing folder")
     for method in ("online", "threshold"):
         rows = _json(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", method,
-                                         "--out", str(runs / f"query-{method}.csv"), "--json"]))
+                                         "--out", str(runs / f"query-{method}.csv"), "--json"]))["runs"]
         assert rows[0]["frames"] == 40 and rows[0]["decided"] == 40
+        assert (rows[0]["method"], rows[0]["descriptor"], rows[0]["traversal"]) == (method, "sad", "query")
     metrics = _json(runner.invoke(app, ["evaluate", str(runs / "query-online.csv"), "--gt", "aligned",
                                         "--json"]))["runs"]
     assert metrics[0]["frames"] == 40 and 0.0 <= metrics[0]["recall_at_100"] <= 1.0
@@ -79,7 +80,7 @@ def test_localize_evaluate_compare(route: tuple[Path, Path], tmp_path: Path) -> 
     fig5 = tmp_path / "fig5.png"
     table = _json(runner.invoke(app, ["compare", str(runs / "query-online.csv"), str(runs / "query-threshold.csv"),
                                       "--gt", "aligned", "--threshold-plot", str(fig5), "--json"]))
-    assert {row["method"] for row in table["table1"]} == {"online", "threshold"}
+    assert {row["method"] for row in table["runs"]} == {"online", "threshold"}
     assert {row["precision"] for row in table["table2"]} == {100.0, 99.0}
     assert fig5.stat().st_size > 0
 
@@ -127,7 +128,7 @@ def test_catgraph_with_odometry_is_reproducible(route: tuple[Path, Path], tmp_pa
                                          "--odometry", str(tmp_path / "query.csv"),
                                          "--map-odometry", str(tmp_path / "ref.csv"), "--seed", "3",
                                          "--particles", "500", "--reseed", "0.02", "--step-noise", "0.4",
-                                         "--out", str(out), "--json"]))
+                                         "--out", str(out), "--json"]))["runs"]
         assert rows[0]["frames"] == 40
         outs.append(out.read_text())
     assert outs[0] == outs[1]
@@ -146,7 +147,7 @@ def test_odometry_missing_a_frame_is_reported(route: tuple[Path, Path], tmp_path
 def test_describe_list_shows_entries(route: tuple[Path, Path]) -> None:
     ref, query = route
     assert runner.invoke(app, ["describe", str(ref), str(query), "--jobs", "1"]).exit_code == 0
-    entries = _json(runner.invoke(app, ["describe", "--list", "--json"]))
+    entries = _json(runner.invoke(app, ["describe", "--list", "--json"]))["results"]
     assert sorted(Path(e["folder"]).name for e in entries) == ["query", "ref"]
     assert all(e["frames"] == 40 and e["complete"] for e in entries)
     table = runner.invoke(app, ["describe", "--list"])

@@ -6,9 +6,11 @@ import json
 import re
 import subprocess
 import sys
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import jsonschema
 import numpy as np
 import pytest
 from test_cli import _places, _write_traversal
@@ -130,10 +132,10 @@ def test_json_keys_are_snake_case_and_carry_the_warnings(tmp_path: Path, cache_d
     for output in outputs:
         assert all(re.fullmatch(r"[a-z][a-z0-9_]*", key) for key in _keys(output)), sorted(_keys(output))
     describe, _, _, replaced, evaluate, _ = outputs
-    assert describe[0]["warnings"] == [f"skipped: {query / 'img3.png'}: empty file (0 bytes)"]
-    assert describe[0]["folder"] == str(query.resolve())  # full paths in JSON, names in tables
-    assert replaced[0]["warnings"][-1] == f"note: replaced the existing results file {out}"
-    assert set(evaluate) == {"ground_truth", "runs", "files", "warnings"}
+    assert describe["warnings"] == [f"skipped: {query / 'img3.png'}: empty file (0 bytes)"]
+    assert describe["results"][0]["folder"] == str(query.resolve())  # full paths in JSON, names in tables
+    assert replaced["warnings"][-1] == f"note: replaced the existing results file {out}"
+    assert set(evaluate) == {"command", "ground_truth", "runs", "files", "warnings"}
 
 
 def test_reports_have_short_reprs(tmp_path: Path, cache_dir: Path) -> None:
@@ -181,6 +183,23 @@ def _json_warnings(documents: list[Any]) -> list[str]:
     return [line for item in objects for line in item.get("warnings", [])]
 
 
+#: The JSON Schema of every command's --json, as the package ships it.
+OUTPUT_SCHEMA = jsonschema.Draft202012Validator(
+    json.loads((resources.files("wiloc") / "schema" / "output.schema.json").read_text(encoding="utf-8")))
+
+
+def test_the_output_schema_is_a_valid_schema_that_refuses_the_old_shapes() -> None:
+    jsonschema.Draft202012Validator.check_schema(OUTPUT_SCHEMA.schema)
+    run = {"method": "online", "descriptor": "sad", "traversal": "day_left", "results": "/r.csv"}
+    OUTPUT_SCHEMA.validate({"command": "localize", "runs": [run], "warnings": []})
+    for old in ([run], {"command": "localize", "runs": [{**run, "method": "online/sad", "descriptor": 3}], "warnings": []},
+                {"command": "describe", "results": [{"folder": "/f", "descriptor": "sad", "frames": 6, "shape": "6x1152",
+                                                     "computed": 6, "reused": 0, "failed": 0, "images_per_second": 1.0,
+                                                     "failed_frames": [], "ignored": []}], "warnings": []},
+                {"command": "evaluate", "runs": [run], "warnings": [], "ground_truth": "aligned", "files": []}):
+        assert not OUTPUT_SCHEMA.is_valid(old), old
+
+
 def test_every_json_output_carries_the_lines_printed_on_stderr(tmp_path: Path, cache_dir: Path) -> None:
     ref, query = _route(tmp_path)
     (query / "img3.png").write_bytes(b"")  # a bad frame: skipped with a note
@@ -203,6 +222,8 @@ def test_every_json_output_carries_the_lines_printed_on_stderr(tmp_path: Path, c
                               "--follow", "--idle", "3"],
         "evaluate": ["evaluate", str(out), "--gt", f"pairs:{pairs}", "--csv", str(csv)],
         "compare": ["compare", str(out), "--gt", f"pairs:{pairs}"],
+        "report": ["report", str(out), "--gt", f"pairs:{pairs}", "-o", str(tmp_path / "report.html")],
+        "describe --list-descriptors": ["describe", "--list-descriptors"],
         "demo": ["demo", "--out", str(tmp_path / "demo")],
     }
     said = {}
@@ -213,9 +234,12 @@ def test_every_json_output_carries_the_lines_printed_on_stderr(tmp_path: Path, c
             else [json.loads(result.stdout)]
         on_stderr = [line.replace(" ", ": ", 1) for line in result.stderr.splitlines()]
         assert _json_warnings(documents) == on_stderr, name
+        if "--follow" not in args:  # one document in the one shape (a followed run: one object per frame)
+            OUTPUT_SCHEMA.validate(documents[0])
+            assert documents[0]["command"] == args[0], name
         said[name] = on_stderr
     assert said["describe"] == [f"skipped: {query / 'img3.png'}: empty file (0 bytes)"]
-    assert said["vocabulary"] and said["localize"] and said["evaluate"] and said["compare"]
+    assert said["vocabulary"] and said["localize"] and said["evaluate"] and said["compare"] and said["report"]
     assert said["localize again"][-1] == f"note: replaced the existing results file {out}"
     assert [line.split(":")[0] for line in said["localize --follow"]] == ["skipped"]
     assert f"note: replaced the existing file {csv}" in said["evaluate"]

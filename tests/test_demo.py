@@ -98,7 +98,7 @@ def test_demo_reports_online_worst_recall_at_global_threshold(demo_runs: tuple[P
 
 def test_demo_methods_differ_and_recall_is_not_trivial(demo_runs: tuple[Path, dict, str]) -> None:
     _, report, _ = demo_runs
-    table1 = pd.DataFrame(report["table1"])
+    table1 = pd.DataFrame(report["runs"])
     assert set(table1["method"]) == set(demo.METHODS)
     assert table1["recall_at_100"].min() < 1.0
     by_method = table1.groupby("method")["auc"].mean()

@@ -115,8 +115,8 @@ def test_the_command_line_builds_a_vocabulary_and_runs_fabmap(setup, tmp_path: P
     built = runner.invoke(app, ["vocabulary", str(route.training), "--feature", "orb", "--words", "128",
                                 "--max-features", "200", "--iterations", "8", "--cache", str(cache.root), "--json"])
     assert built.exit_code == 0, built.output
-    key = json.loads(built.stdout)["key"]
-    assert json.loads(built.stdout)["built"] is False  # the fixture built the same one
+    key = json.loads(built.stdout)["results"][0]["key"]
+    assert json.loads(built.stdout)["results"][0]["built"] is False  # the fixture built the same one
     out = tmp_path / "r.csv"
     done = runner.invoke(app, ["localize", str(route.query), "--map", str(route.reference), "--descriptor", "bow",
                                "--vocabulary", key, "--method", "fabmap", "--cache", str(cache.root), "--out", str(out)])
@@ -185,13 +185,13 @@ def test_a_vocabulary_of_images_too_small_for_local_features_is_warned_of(setup,
     assert built.exit_code == 0, built.output
     report = json.loads(built.stdout)
     [warning] = report["warnings"]
-    assert warning.startswith(f"warning: vocabulary {report['key']}: its 30 training images give a median of ")
+    assert warning.startswith(f"warning: vocabulary {report['results'][0]['key']}: its 30 training images give a median of ")
     assert warning in built.stderr.replace("warning ", "warning: ", 1)
     done = runner.invoke(app, ["localize", str(route.query), "--map", str(route.reference), "--descriptor", "bow",
-                               "--vocabulary", report["key"], "--method", "fabmap", "--cache", str(cache.root),
+                               "--vocabulary", report["results"][0]["key"], "--method", "fabmap", "--cache", str(cache.root),
                                "--out", str(tmp_path / "r.csv"), "--json"])
     assert done.exit_code == 0, done.output
-    assert json.loads(done.stdout)[0]["warnings"] == [warning]
+    assert json.loads(done.stdout)["warnings"] == [warning]
     run = api.localize(route.query, reference=route.reference, descriptor="bow", descriptor_params=good,
                        method="fabmap", cache=cache)
     assert run.warnings == []  # 320 x 240 images: plenty of words

@@ -100,7 +100,10 @@ def _killed_and_resumed(query: Path, reference: Path, method: str, tmp_path: Pat
     resumed = _follower(live, reference, out, method, idle=2)
     stdout, stderr = resumed.communicate(timeout=300)
     assert resumed.returncode == 0, stderr
-    assert len(stdout.splitlines()) == n - halfway  # one plain line per frame decided after the resume
+    header, *lines, end = stdout.splitlines()  # the header, one plain line per frame decided after the resume
+    assert header == "frame\tmatch\tconfidence\tP(new place)\tstage" and len(lines) == n - halfway
+    assert end == (f"# ended: no new frame for 2 s; {n - halfway} frames decided ({halfway} resumed before), "
+                   f"0 left out; results in {out}")
     expected, got = _rows(batch.path), _rows(out)
     assert got.columns.tolist() == expected.columns.tolist()
     pd.testing.assert_frame_equal(got, expected)

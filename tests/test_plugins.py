@@ -77,7 +77,7 @@ def test_an_installed_plugin_is_listed_and_described(tmp_path: Path) -> None:
         listed = _wiloc("describe", "--list-descriptors", "--json", env=env)
         assert listed.returncode == 0, listed.stderr
         shown = json.loads(listed.stdout)
-        rows = {row["name"]: row for row in shown["descriptors"]}
+        rows = {row["name"]: row for row in shown["results"]}
         assert rows["tiny"] == {"name": "tiny", "source": f"{DIST} {VERSION}", "metric": "l1", "length": 16,
                                 "depends": ""}
         assert rows["sad"]["source"] == "built-in" and rows["onnx"]["source"] == "built-in"

@@ -99,7 +99,9 @@ def test_recall_at_1_from_the_ranking_is_the_r_at_1_of_the_matches() -> None:
     truth, ranking = _truth(), _ranking()
     summary = summarize(ranking[:, 0], np.full(len(QUERY), 0.5), truth, ranking)
     assert summary.recall_at_1 == recall_at_k(ranking, truth, 1)
-    assert (summary.recall_at_5, summary.recall_at_10) == (2 / 4, 3 / 4)
+    assert summary.recall_at_n == {5: 2 / 4, 10: 3 / 4}
+    # a ranking of 10 candidates (files of older versions) tells no Recall@20; N = 1 is R@1 of the matches
+    assert summarize(ranking[:, 0], np.full(len(QUERY), 0.5), truth, ranking, (1, 2, 20)).recall_at_n == {2: 1 / 4}
     without = summarize(ranking[:, 0], np.full(len(QUERY), 0.5), truth)
     assert "recall_at_5" not in without.as_dict() and "recall_at_10" not in without.as_dict()
 
@@ -123,7 +125,7 @@ def test_the_ranking_goes_through_the_results_file_and_evaluate_reads_it(tmp_pat
     np.testing.assert_array_equal(back.ranking, _decisions().ranking)
     from_file, in_memory = api.evaluate(path, TruthSource()), api.evaluate(results, TruthSource())
     assert from_file.summary.as_dict() == in_memory.summary.as_dict()
-    assert (from_file.summary.recall_at_5, from_file.summary.recall_at_10) == (2 / 4, 3 / 4)
+    assert from_file.summary.recall_at_n == {5: 2 / 4, 10: 3 / 4}
 
 
 def test_a_results_file_without_the_column_reports_no_recall_at_k(tmp_path: Path) -> None:
@@ -134,7 +136,7 @@ def test_a_results_file_without_the_column_reports_no_recall_at_k(tmp_path: Path
     old = read_results(path)
     assert old.ranking is None and "ranking" not in old.frames.columns
     summary = api.evaluate(path, TruthSource()).summary
-    assert summary.recall_at_5 is None and "recall_at_10" not in summary.as_dict()
+    assert summary.recall_at_n == {} and "recall_at_10" not in summary.as_dict()
     assert summary.recall_at_1 == 1 / 4  # R@1 stands without the ranking
 
 
@@ -153,24 +155,31 @@ def runs(tmp_path: Path, cache_dir: Path) -> dict[str, Path]:
     return paths
 
 
-def test_evaluate_and_compare_report_recall_at_k_for_ranking_runs_only(runs: dict[str, Path]) -> None:
+def test_evaluate_and_compare_report_recall_at_n_for_every_ranking_run(runs: dict[str, Path], tmp_path: Path) -> None:
     online, catgraph = runs["online"], runs["catgraph"]
-    assert read_results(online).ranking.shape == (24, RANKED) and read_results(catgraph).ranking is None
+    assert read_results(online).ranking.shape == (24, RANKED)
+    ranked = read_results(catgraph)
+    np.testing.assert_array_equal(ranked.ranking[:, 0], ranked.match_index)  # the posterior's mode first
     report = json.loads(runner.invoke(app, ["evaluate", str(online), str(catgraph), "--json"]).stdout)
     by_method = {run["method"]: run for run in report["runs"]}
-    assert by_method["online"]["recall_at_1"] <= by_method["online"]["recall_at_5"] <= by_method["online"]["recall_at_10"]
-    assert "recall_at_5" not in by_method["catgraph"] and "recall_at_10" not in by_method["catgraph"]
-    expected = api.evaluate(online, TruthSource()).summary
-    assert by_method["online"]["recall_at_10"] == pytest.approx(expected.recall_at_10)
-    table1 = {row["method"]: row for row in
-              json.loads(runner.invoke(app, ["compare", str(online), str(catgraph), "--json"]).stdout)["table1"]}
-    assert table1["online"]["recall_at_5"] == pytest.approx(expected.recall_at_5)
-    assert "recall_at_5" not in table1["catgraph"]
+    for method in ("online", "catgraph"):
+        run = by_method[method]
+        assert run["recall_at_1"] <= run["recall_at_5"] <= run["recall_at_10"] and "recall_at_20" not in run
+    expected = api.evaluate(online, TruthSource()).summary.as_dict()
+    assert by_method["online"]["recall_at_10"] == pytest.approx(expected["recall_at_10"])
+    args = ["compare", str(online), str(catgraph), "--recall-at", "1,5,10,20"]
+    table1 = {row["method"]: row for row in json.loads(runner.invoke(app, [*args, "--json"]).stdout)["runs"]}
+    assert table1["online"]["recall_at_5"] == pytest.approx(expected["recall_at_5"])
+    assert table1["catgraph"]["recall_at_10"] <= table1["catgraph"]["recall_at_20"]
     text = runner.invoke(app, ["evaluate", str(online), str(catgraph)], env={"COLUMNS": "120"}).stdout
     assert "R@5 (a true match in the 5 best)" in text and "R@10 (a true match in the 10 best)" in text
-    alone = runner.invoke(app, ["evaluate", str(catgraph)], env={"COLUMNS": "120"}).stdout
-    assert "R@1 (best match right)" in alone and "R@5" not in alone and "R@10" not in alone
-    assert "R@1/5/10" in runner.invoke(app, ["compare", str(online), str(catgraph)], env={"COLUMNS": "120"}).stdout
+    assert "R@1/5/10/20" in runner.invoke(app, args, env={"COLUMNS": "120"}).stdout
+
+
+@pytest.mark.parametrize("text", ["0", "21", "5,x", ""])
+def test_recall_at_outside_the_ranking_is_a_usage_error(runs: dict[str, Path], text: str) -> None:
+    result = runner.invoke(app, ["evaluate", str(runs["online"]), "--recall-at", text])
+    assert result.exit_code == 2 and "--recall-at" in result.output
 
 
 @pytest.mark.realdata
@@ -180,6 +189,7 @@ def test_recall_at_k_on_gardens_point(data_root: Path, cache_dir: Path) -> None:
     evaluation = api.evaluate(run, TruthSource())
     s = evaluation.summary
     assert run.results.ranking is not None and run.results.ranking.shape[1] == RANKED
-    assert 0.0 < s.recall_at_1 <= s.recall_at_5 <= s.recall_at_10 <= 1.0
+    ranked = s.as_dict()
+    assert 0.0 < s.recall_at_1 <= ranked["recall_at_5"] <= ranked["recall_at_10"] <= 1.0
     assert recall_at_k(run.results.ranking, evaluation.truth, 1) == s.recall_at_1
     np.testing.assert_array_equal(run.results.ranking[:, 0], run.results.match_index)

@@ -90,7 +90,9 @@ def test_a_report_over_an_existing_file_says_so_and_bad_names_are_refused(runs: 
     result = runner.invoke(app, ["report", *map(str, runs), "-o", str(out), "--json"])
     assert result.exit_code == 0 and "replaced the existing file" in result.stderr
     said = json.loads(result.stdout)
-    assert said["files"] == [str(out)] and said["size"] == out.stat().st_size and said["images"] == 85
+    [page] = said["results"]
+    assert said["command"] == "report" and page["file"] == str(out) and page["size"] == out.stat().st_size
+    assert page["images"] == 85
     assert any("replaced the existing file" in line for line in said["warnings"])
     for bad, exit_code, says in ((tmp_path / "report.txt", 2, "end the name in .html"),
                                  (tmp_path / "missing" / "report.html", 2, "does not exist")):

@@ -233,7 +233,7 @@ def test_cli_reports_a_cut_video_as_one_error_line(tmp_path: Path) -> None:
     assert run.stderr.splitlines() == [
         f"error: {cut.resolve()}: cannot decode frame {frame_name(good)} of 50 (the file is cut or damaged "
         f"there); the last good frame is {frame_name(good - 1)}, and the frames up to it are kept"]
-    [row] = json.loads(run.stdout)
+    [row] = json.loads(run.stdout)["results"]
     assert (row["frames"], row["computed"], row["failed"]) == (good + 1, good, 1)
     [info] = Cache(tmp_path / "cache").list_entries()
     assert info.complete and info.frames == good
@@ -306,7 +306,7 @@ def test_cli_describe_samples_videos(tmp_path: Path, cache_dir: Path) -> None:
     video = write_video(tmp_path / "route.avi", 30)
     result = CliRunner().invoke(app, ["describe", str(video), "--start", "1s", "--every", "5", "--json"])
     assert result.exit_code == 0, result.output
-    [row] = json.loads(result.stdout)
+    [row] = json.loads(result.stdout)["results"]
     assert (row["frames"], row["computed"], row["failed"]) == (4, 4, 0)
     bad = CliRunner().invoke(app, ["describe", str(video), "--fps", "0"])
     assert bad.exit_code == 2 and "--fps" in bad.output

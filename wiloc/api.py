@@ -30,7 +30,7 @@ from wiloc.fabmap.evidence import FabMapEvidence, evidence_rows
 from wiloc.labels import short_names
 from wiloc.methods.base import Decisions, MapContext
 from wiloc.methods.registry import make_method
-from wiloc.metrics import (PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
+from wiloc.metrics import (RANKED_KS, PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
                            precision_at_thresholds, summarize)
 from wiloc.reliability import (DEFAULT_CUTS, NEW_PLACE_KEYS, Calibration, ReliabilityBins,
                                summarize_calibration, summarize_new_place)
@@ -405,10 +405,12 @@ class Evaluation:
 Run = Path | str | LocalizeRun | Results
 
 
-def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS) -> Evaluation:
+def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS,
+             recall_at: Sequence[int] = RANKED_KS) -> Evaluation:
     """Precision-recall metrics and calibration (with precision and recall at fixed confidence
     ``cuts``) of one run against ground truth, and of its P(new place) where the run gives one:
-    a results file, or a run in memory."""
+    a results file, or a run in memory. Recall@N for each N of ``recall_at`` when the run ranks
+    the map."""
     if isinstance(run, LocalizeRun):
         path, results = run.path, run.results
     elif isinstance(run, Results):
@@ -422,7 +424,7 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS)
     loaded = truth.load(query_names, ref_names, str(results.meta.get("query", "")), sequence,
                         int(results.meta.get("exclude_recent", 0) or 0), str(results.meta.get("map") or ""))
     match = results.match_index
-    summary = summarize(match, results.confidence, loaded, results.ranking)
+    summary = summarize(match, results.confidence, loaded, results.ranking, recall_at)
     correct = correct_matches(match, loaded)
     confidence = decided_confidence(match, results.confidence)
     calibration = summarize_calibration(confidence, correct, summary.with_true_match, cuts)
@@ -474,14 +476,14 @@ def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
     return [f"{pair[0]} [{file}]" if pairs.count(pair) > 1 else pair[0] for pair, file in zip(pairs, files)]
 
 
-#: Table I's metrics per (method, traversal), as Summary names them; Recall@5 and @10 only for
-#: runs whose results rank the map (``Summary.as_dict`` leaves them out for the others).
-TABLE1_KEYS = ("recall_at_100", "recall_at_99", "recall_at_90", "auc", "recall_at_1", "recall_at_5",
-               "recall_at_10", "frames")
+#: Table I's metrics per (method, traversal), as Summary names them, followed by Recall@N
+#: (``recall_at_N``) for runs whose results rank the map (``Summary.as_dict`` leaves it out for the others).
+TABLE1_KEYS = ("recall_at_100", "recall_at_99", "recall_at_90", "auc", "recall_at_1", "frames")
 
 
 def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
-            global_thresholds: bool = True, cuts: Sequence[float] = DEFAULT_CUTS) -> Comparison:
+            global_thresholds: bool = True, cuts: Sequence[float] = DEFAULT_CUTS,
+            recall_at: Sequence[int] = RANKED_KS) -> Comparison:
     """Table I (recall at 100/99/90 % precision per traversal and method), Table II and the
     calibration table with precision and recall at the fixed confidence ``cuts``, over results
     files or runs in memory. A file given twice, or a precision outside (0, 100], is a
@@ -494,13 +496,14 @@ def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[flo
         path = run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results) else Path(run)
         if path is not None and seen.setdefault(path.resolve(), path) is not path:
             raise ParameterError("runs", f"{path} is given twice (as {seen[path.resolve()]}); each run counts once")
-    evaluations = [evaluate(run, truth, cuts) for run in runs]
+    evaluations = [evaluate(run, truth, cuts, recall_at) for run in runs]
     labels = method_labels(evaluations)
     traversals = traversal_labels(evaluations)
     rows = []
     for label, traversal, e in zip(labels, traversals, evaluations):
         s = e.summary.as_dict()
-        rows.append({"method": label, "traversal": traversal, **{key: s[key] for key in TABLE1_KEYS if key in s}})
+        ranked = {key: value for key, value in s.items() if key.startswith("recall_at_") and key not in TABLE1_KEYS}
+        rows.append({"method": label, "traversal": traversal, **{key: s[key] for key in TABLE1_KEYS}, **ranked})
     table1 = pd.DataFrame(rows)
     rows2 = []
     if global_thresholds:

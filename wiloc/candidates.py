@@ -39,9 +39,9 @@ def finite_minimum(row: NDArray[np.float64]) -> tuple[int, float]:
     return (z, m) if np.isfinite(m) else (-1, float("nan"))
 
 
-RANKED = 10
-"""K of the ranking a single-frame method's results keep per query frame: its K best candidates,
-enough for Recall@1, @5 and @10 (docs/evaluation.md)."""
+RANKED = 20
+"""K of the ranking a method's results keep per query frame: its K best candidates, enough for
+Recall@1, @5, @10 and @20 as place recognition papers report them (docs/evaluation.md)."""
 
 
 def best_candidates(row: NDArray[np.float64], k: int = RANKED, *, descending: bool = False) -> NDArray[np.int64]:

@@ -19,14 +19,15 @@ from rich.table import Table
 
 from wiloc import __version__
 from wiloc.atomic import written_whole
-from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, RANKED
 from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, note, out, refuse_unused
 from wiloc.cli_params import method_params, with_method_options
-from wiloc.cli_views import (cell, cut_views, json_ready, metrics_views, new_place_view, print_json, progress_bar,
-                             table, table1_records, table1_view, table2_view)
+from wiloc.cli_views import (cell, comparison_records, cut_views, json_ready, metrics_views, new_place_view,
+                             print_command_json, progress_bar, run_records, table, table1_view, table2_view)
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE, WilocError
 from wiloc.labels import short_names
 from wiloc.methods.registry import METHODS, method_class
+from wiloc.metrics import RANKED_KS
 from wiloc.reliability import DEFAULT_CUTS
 
 if TYPE_CHECKING:
@@ -236,13 +237,15 @@ def describe(
             said.add("note", f"{r.folder}: images of {len(r.sizes)} different sizes")
         notes.append(said)
         rows.append({"folder": label, "descriptor": r.descriptor, "frames": r.frames,
-                     "shape": "x".join(map(str, r.shape)), "computed": r.computed, "reused": r.reused,
+                     "shape": list(r.shape), "computed": r.computed, "reused": r.reused,
                      "failed": len(r.failed), "images_per_second": r.images_per_second if r.computed else None})
     if as_json:
-        print_json([{**row, "folder": r.folder, "failed_frames": [list(f) for f in r.failed],
-                     "ignored": list(r.ignored), "warnings": said} for row, r, said in zip(rows, reports, notes)])
+        print_command_json("describe", "results", [{**row, "folder": r.folder, "failed_frames": [list(f) for f in r.failed],
+                                                    "ignored": list(r.ignored)} for row, r in zip(rows, reports)],
+                           [line for said in notes for line in said])
     else:
-        out.print(table("describe", rows, labels={"images_per_second": "images/s"}, digits={"images_per_second": 1}))
+        out.print(table("describe", [{**row, "shape": "x".join(map(str, row["shape"]))} for row in rows],
+                        labels={"images_per_second": "images/s"}, digits={"images_per_second": 1}))
     # A video that stops decoding early is an error, after its good frames went into the cache.
     problems = [f"{r.folder}: {reason}" for r in reports if r.video for _, reason in r.failed]
     problems += [f"{r.folder}: no image could be described (see the lines above)"
@@ -257,7 +260,7 @@ def _list_cache(store: Any, as_json: bool) -> None:
     """`describe --list`: one row per cache entry, told apart by folder, descriptor and parameters."""
     infos = store.list_entries()
     if as_json:
-        print_json([asdict(info) for info in infos])
+        print_command_json("describe", "results", [asdict(info) for info in infos], [])
         return
     rows = [{"folder": label, "descriptor": info.descriptor, "params": _params_text(info.descriptor, info.params),
              "frames": info.frames, "complete": info.complete, "MB": info.size / 1e6,
@@ -279,7 +282,7 @@ def _list_descriptors(as_json: bool) -> None:
         notes.add("warning", problem)
     infos = available_descriptors()
     if as_json:
-        print_json({"descriptors": [asdict(info) for info in infos], "warnings": notes})
+        print_command_json("describe", "results", [asdict(info) for info in infos], notes)
         return
     rows = [{"descriptor": info.name, "from": info.source, "metric": info.metric or f"by {info.depends}",
              "length": info.length if info.length is not None else f"by {info.depends}"} for info in infos]
@@ -344,7 +347,7 @@ def vocabulary(
            "training_frames": len(report.vocabulary.training_frames), "built": report.built,
            "seconds": report.seconds, "file": str(report.path)}
     if as_json:
-        print_json({**row, "failed": [list(item) for item in report.failed], "warnings": notes})
+        print_command_json("vocabulary", "results", [{**row, "failed": [list(item) for item in report.failed]}], notes)
         return
     out.print(table("vocabulary", [{**row, "file": report.path.name}], labels={"training_frames": "training\nframes"},
                     digits={"seconds": 1}, caption=f"in {report.path.parent}"))
@@ -498,9 +501,11 @@ def localize(
         from wiloc.plots import plot_model
         plot_model(runs[0].decisions.model, _replacing(notes[0], model_plot), title=f"{runs[0].query.name} ({method})")
     if as_json:
-        print_json([{**row, "query": str(run.query.resolve()), "results": str(run.path.resolve()),
-                     "skipped": [list(item) for item in run.skipped], "warnings": said}
-                    for row, run, said in zip(rows, runs, notes)])
+        print_command_json("localize", "runs", [
+            {**row, "descriptor": run.results.meta.get("descriptor"), "traversal": row["query"],
+             "query": str(run.query.resolve()), "results": str(run.path.resolve()),
+             "skipped": [list(item) for item in run.skipped]} for row, run in zip(rows, runs)],
+            [line for said in notes for line in said])
         return
     for row in rows:
         row["decided"] = f"{row['decided']}/{row.pop('frames')}"
@@ -512,9 +517,13 @@ def localize(
         out.print(f"wrote {model_plot}")
 
 
+FOLLOW_COLUMNS = ("frame", "match", "confidence", "P(new place)", "stage")
+
+
 def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
-    """Render a followed run: a live table on a terminal, else one line (or JSON line) per frame;
-    a frame left out is a note on stderr (with --json also a line ``{"warnings": [...]}``)."""
+    """Render a followed run: a live table on a terminal, else a header line and one line (or
+    JSON line) per frame, and when ``--idle`` ends the run a last line saying so; a frame left out
+    is a note on stderr (with --json also a line ``{"warnings": [...]}``)."""
     from collections import deque
 
     from rich.live import Live
@@ -529,13 +538,15 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
         rate = decided / max(time.perf_counter() - started, 1e-9)
         live_table = Table(title=cell(f"following {query} -> {run.path}"),
                            caption=f"{run.resumed + decided} frames ({run.resumed} resumed), {rate:.1f} frames/s; Ctrl-C stops")
-        for column in ("frame", "match", "confidence", "P(new place)", "stage"):
+        for column in FOLLOW_COLUMNS:
             live_table.add_column(column, justify="left" if column in ("frame", "match", "stage") else "right")
         for d in latest:
             live_table.add_row(cell(d.frame), cell(d.match_name), cell(d.confidence), cell(d.new_place), d.stage)
         return live_table
 
     live = Live(view(), console=out, auto_refresh=False) if out.is_terminal and not as_json else None
+    if live is None and not as_json:
+        print("\t".join(FOLLOW_COLUMNS), flush=True)
     with live if live is not None else contextlib.nullcontext():
         for event in run:
             if isinstance(event, Decision):
@@ -554,6 +565,9 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
                 notes.add("skipped", str(event))
                 if as_json:  # the line on stderr, as every --json carries it
                     print(json.dumps({"warnings": notes[-1:]}), flush=True)
+    if live is None and not as_json and run.idle is not None:
+        print(f"# ended: no new frame for {run.idle:g} s; {decided} frames decided ({run.resumed} resumed before), "
+              f"{len(notes)} left out; results in {run.path}", flush=True)
 
 
 # ------------------------------------------------------------------------------------------ evaluate
@@ -611,6 +625,20 @@ PrPlotOption = Annotated[Optional[Path], typer.Option(callback=_plot_file, show_
 CalibrationPlotOption = Annotated[Optional[Path], typer.Option(
     "--calibration-plot", callback=_plot_file, show_default="none: not drawn", help="Draw the reliability diagram (share correct against confidence).")]
 CUTS_TEXT = ",".join(f"{cut:g}" for cut in DEFAULT_CUTS)
+RecallAtOption = Annotated[str, typer.Option(
+    "--recall-at", help=f"N of Recall@N (a true match among the N best-ranked map frames; runs that rank the map), "
+                        f"comma-separated, each 1 to {RANKED}, such as 1,5,10,20.")]
+RECALL_AT_TEXT = ",".join(map(str, RANKED_KS))
+
+
+def _parse_recall_at(text: str) -> list[int]:
+    """`--recall-at 1,5,10,20`: whole numbers from 1 to the ranking's length; anything else is a
+    usage error."""
+    parts = [part.strip() for part in text.split(",") if part.strip()]
+    if not parts or not all(part.isdigit() and 1 <= int(part) <= RANKED for part in parts):
+        fail(f"--recall-at: '{text}': give whole numbers from 1 to {RANKED} (results keep the {RANKED} best "
+             "candidates), comma-separated, such as 1,5,10,20", EXIT_USAGE)
+    return sorted({int(part) for part in parts})
 
 
 def _parse_cuts(text: str) -> list[float]:
@@ -635,6 +663,7 @@ def evaluate(
     pr_plot: PrPlotOption = None,
     calibration_plot: CalibrationPlotOption = None,
     cuts: CutsOption = CUTS_TEXT,
+    recall_at: RecallAtOption = RECALL_AT_TEXT,
     matrix_plot: Optional[Path] = typer.Option(
         None, callback=_plot_file, show_default="none: not drawn", help="Draw the difference matrix with the decided matches and the ground truth "
                                         "(with several results files: one FILE-RESULTS figure each)."),
@@ -649,17 +678,19 @@ def evaluate(
 ) -> None:
     """Precision-recall and calibration of results files against ground truth.
 
-    Example: wiloc evaluate day_left-online.csv --gt aligned --tolerance 2 --pr-plot pr.png --cuts 0.9,0.99
+    Example: wiloc evaluate day_left-sad-online.csv --gt aligned --tolerance 2 --pr-plot pr.png --cuts 0.9,0.99
     """
     from wiloc import api
 
     refuse_unused({"pairs": (pairs_plot is not None, "--pairs-plot"), "wrong_only": (pairs_plot is not None, "--pairs-plot")})
     at = _parse_cuts(cuts)
+    ranks = _parse_recall_at(recall_at)
     source = _truth_source(gt, gt_map, tolerance, radius)
-    evaluations = [api.evaluate(path, source, at) for path in results]
+    evaluations = [api.evaluate(path, source, at, ranks) for path in results]
     notes = _warn_about_truth(evaluations)
     names = short_names([e.path for e in evaluations])
-    heads = [{"run": run, "results": name, "method": e.method, "traversal": e.traversal, **e.summary.as_dict()}
+    heads = [{"run": run, "results": name, "method": e.method, "descriptor": e.results.meta.get("descriptor"),
+              "traversal": e.traversal, **e.summary.as_dict()}
              for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
     rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
     written = []
@@ -676,12 +707,12 @@ def evaluate(
     if csv_out is not None:
         written += _write_metrics_csv(csv_out, rows, evaluations, notes)
     if as_json:
-        print_json({"ground_truth": source.describe(), "files": [str(p) for p in written], "warnings": notes,
-                    "runs": [{**head, "results": str(e.path), "ground_truth": source.describe(),
-                              **e.calibration_dict(), "warnings": e.truth.warnings,
-                              "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
-                                        "thresholds": e.curve.thresholds.tolist()}}
-                             for head, e in zip(heads, evaluations)]})
+        print_command_json("evaluate", "runs", [
+            {**head, "results": str(e.path), "ground_truth": source.describe(), **e.calibration_dict(),
+             "truth_warnings": e.truth.warnings,
+             "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
+                       "thresholds": e.curve.thresholds.tolist()}} for head, e in zip(heads, evaluations)],
+            notes, ground_truth=source.describe(), files=[str(p) for p in written])
         return
     for view in metrics_views(rows, at, source.describe()):
         out.print(view)
@@ -768,10 +799,15 @@ def compare(
                                           help="Table II: one threshold per method for all traversals."),
     precision: str = typer.Option("100,99", help="Table II target precisions in percent, comma-separated."),
     cuts: CutsOption = CUTS_TEXT,
+    recall_at: RecallAtOption = RECALL_AT_TEXT,
     threshold_plot: Optional[Path] = typer.Option(None, callback=_plot_file, show_default="none: not drawn", help="Precision against normalised threshold (the paper's Figure 5)."),
     model_plot: Optional[Path] = typer.Option(None, callback=_plot_file, show_default="none: not drawn", help="Learned histograms of the first online run (Figure 1)."),
     pr_plot: PrPlotOption = None,
     calibration_plot: CalibrationPlotOption = None,
+    csv_out: Optional[Path] = typer.Option(None, "--csv", callback=_output_file, show_default="none: not written",
+                                           help="Write each run's metrics as CSV, and the curves to FILE-curves.csv beside it."),
+    markdown: bool = typer.Option(False, "--markdown", help="Print the tables as Markdown instead."),
+    latex: bool = typer.Option(False, "--latex", help="Print the tables as LaTeX (booktabs) instead."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
     """Methods and traversals side by side: the paper's Table I, calibration at fixed cuts, Table II.
@@ -781,22 +817,38 @@ def compare(
     from wiloc import api
 
     refuse_unused({"precision": (global_threshold, "Table II (--global-threshold)")})
+    shown = [flag for flag, given in (("--markdown", markdown), ("--latex", latex), ("--json", as_json)) if given]
+    if len(shown) > 1:
+        fail(f"{shown[1]}: give one of --markdown, --latex and --json", EXIT_USAGE)
     try:
         targets = [float(p) for p in precision.split(",") if p.strip()]
     except ValueError:
         fail(f"--precision: '{precision}': give percentages such as 100,99.5", EXIT_USAGE)
     at = _parse_cuts(cuts)
+    ranks = _parse_recall_at(recall_at)
     source = _truth_source(gt, gt_map, tolerance, radius)
-    comparison = api.compare(results, source, precisions=targets, global_thresholds=global_threshold, cuts=at)
+    comparison = api.compare(results, source, precisions=targets, global_thresholds=global_threshold, cuts=at,
+                             recall_at=ranks)
     notes = _warn_about_truth(comparison.evaluations)
     written = _compare_plots(comparison, source, threshold_plot, model_plot, pr_plot, calibration_plot, notes)
+    records = comparison_records(comparison)
+    if csv_out is not None:
+        (_, table1, _, _), (_, calibration, _, _) = records[:2]
+        runs = [{"results": str(e.path), "descriptor": e.results.meta.get("descriptor"), **a, **b}
+                for e, a, b in zip(comparison.evaluations, table1, calibration)]
+        written += _write_metrics_csv(csv_out, runs, comparison.evaluations, notes)
+    if markdown or latex:
+        from wiloc.text_tables import latex as as_latex
+        from wiloc.text_tables import markdown as as_markdown
+        for title, rows, columns, labels in records[:None if global_threshold else 2]:
+            print(as_latex(rows, columns, labels, title) if latex else f"**{title}**\n\n{as_markdown(rows, columns, labels)}",
+                  end="\n\n")
+        for path in written:
+            note("wrote", str(path))  # stdout holds the tables alone
+        return
     if as_json:
-        calibration = [{"method": label, "traversal": traversal, **e.calibration_dict()} for label, traversal, e
-                       in zip(comparison.labels, comparison.traversals, comparison.evaluations)]
-        print_json({"ground_truth": comparison.ground_truth,
-                    "table1": table1_records(comparison), "calibration": calibration,
-                    "table2": comparison.table2.to_dict(orient="records"), "files": [str(p) for p in written],
-                    "warnings": notes})
+        print_command_json("compare", "runs", run_records(comparison), notes, ground_truth=comparison.ground_truth,
+                           table2=comparison.table2.to_dict(orient="records"), files=[str(p) for p in written])
         return
     out.print(table1_view(comparison))
     for view in cut_views(comparison, at):
@@ -883,8 +935,9 @@ def report(
     for note in written.notes:
         notes.add("note", note)
     if as_json:
-        print_json({"files": [str(written.path)], "size": written.size, "images": written.images,
-                    "thumb_width": written.thumb_width, "warnings": notes})
+        print_command_json("report", "results", [{"file": str(written.path), "size": written.size,
+                                                  "images": written.images, "thumb_width": written.thumb_width}],
+                           notes)
         return
     out.print(f"wrote {written.path} ({written.size / 1e6:.1f} MB, {written.images} images "
               f"at most {written.thumb_width} px wide)")
@@ -906,9 +959,9 @@ def demo(
     with progress_bar(not as_json) as progress:
         report = run_demo(out_dir, progress=progress)
     if as_json:
-        print_json({"table1": table1_records(report.comparison),
-                    "table2": report.comparison.table2.to_dict(orient="records"),
-                    "out": str(out_dir), "files": [str(p) for p in report.files]})
+        print_command_json("demo", "runs", run_records(report.comparison), [],
+                           table2=report.comparison.table2.to_dict(orient="records"), out=str(out_dir),
+                           files=[str(p) for p in report.files])
         return
     out.print(table1_view(report.comparison))
     out.print(table2_view(report.comparison))

@@ -1,10 +1,11 @@
 """How the command line shows results: rich tables that stay readable at 80 columns, JSON with one
 key scheme, and the progress bar.
 
-Tables never cut a cell short: text wraps within its column (``overflow="fold"``), so the part
-that tells rows apart (a folder's name, a results file) is always whole. Paths are shown by
-their own name, or as many trailing parts as keep two of the same name apart
-(:func:`wiloc.labels.short_names`); ``--json`` carries the full paths. JSON keys are snake_case
+Tables never cut a cell short nor break a word: names wrap within their column at separators
+only (``catgraph/`` then ``sad``: :class:`wiloc.wrapping.Words`), and a table too wide for the
+console drops its vertical rules and edges (:func:`fit`). Paths are shown by their own name, or as
+many trailing parts as keep two of the same name apart (:func:`wiloc.labels.short_names`);
+``--json`` carries the full paths. JSON keys are snake_case
 (``recall_at_100``, ``images_per_second``); docs/formats.md lists them per command.
 """
 from __future__ import annotations
@@ -15,12 +16,16 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
+from rich import box
 from rich.markup import escape
+from rich.measure import Measurement
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from wiloc.candidates import RANKED
 from wiloc.cli_core import err, out
 from wiloc.reliability import NEW_PLACE_KEYS
+from wiloc.wrapping import Words
 
 if TYPE_CHECKING:
     from wiloc import api
@@ -29,16 +34,12 @@ CUT_CAPTION = "at a cut: P precision, R recall, n frames accepted (decided, conf
 METRIC_LABELS = {"recall_at_100": "recall at 100 % precision", "recall_at_99": "recall at 99 % precision",
                  "recall_at_90": "recall at 90 % precision", "auc": "area under PR curve", "max_f1": "max F1",
                  "max_f1_threshold": "threshold at max F1", "recall_at_1": "R@1 (best match right)",
-                 "recall_at_5": "R@5 (a true match in the 5 best)", "recall_at_10": "R@10 (a true match in the 10 best)",
                  "frames": "frames", "decided": "decided frames", "with_true_match": "frames with a true match",
                  "ece": "ECE", "brier": "Brier score", "mean_confidence": "mean confidence",
                  "share_correct": "share correct"}
 #: Columns of the runs-down metrics table (one row per results file), with short headers.
 RUN_COLUMNS = {"recall_at_100": "R\n@100%P", "recall_at_99": "R\n@99%P", "recall_at_90": "R\n@90%P",
                "auc": "AUC", "max_f1": "max\nF1", "recall_at_1": "R@1", "decided": "deci-\nded"}
-#: Metrics only runs whose results rank the map have (Recall@K): shown when one of the runs has them.
-RANKED_METRICS = ("recall_at_5", "recall_at_10")
-RECALL_AT_K_COLUMNS = {"recall_at_1": "R@1", "recall_at_5": "R@5", "recall_at_10": "R@10"}
 CALIBRATION_COLUMNS = {"ece": "ECE", "brier": "Brier", "mean_confidence": "mean\nconf.",
                        "share_correct": "share\ncorrect"}
 #: P(new place)'s calibration (``NEW_PLACE_KEYS`` + a calibration key), for runs that give it.
@@ -49,8 +50,6 @@ NEW_PLACE_LABELS = {NEW_PLACE_KEYS + "ece": "P(new place): ECE", NEW_PLACE_KEYS 
                     NEW_PLACE_KEYS + "share_correct": "share without a true match"}
 NEW_PLACE_CAPTION = ("P(new place) against the frames without a true match in the map; at a cut: P precision, "
                      "R recall of those frames, n frames with P(new place) >= cut")
-#: Width one results file takes as a column of the metrics-down table.
-_RUN_WIDTH = 16
 
 
 @contextmanager
@@ -87,6 +86,15 @@ def print_json(data: Any) -> None:
     out.print_json(json.dumps(json_ready(data)))
 
 
+def print_command_json(command: str, items: str, rows: list[dict[str, Any]], warnings: Sequence[str],
+                       **extra: Any) -> None:
+    """A command's --json, one shape for all (``wiloc/schema/output.schema.json``, docs/formats.md):
+    ``command``, its ``results`` (what it made: descriptors, vocabularies) or ``runs`` (localization
+    runs, each with its ``method``, ``descriptor`` and ``traversal``), every line it printed on
+    stderr as ``warnings``, then the command's own keys."""
+    print_json({"command": command, items: rows, "warnings": list(warnings), **extra})
+
+
 def cell(value: Any, digits: int = 3) -> str:
     """A table cell: ``digits`` decimals, "-" for NaN or None, "yes" or nothing for a flag; text
     is shown as it is (a label such as ``online [run-b]`` is no markup)."""
@@ -97,27 +105,87 @@ def cell(value: Any, digits: int = 3) -> str:
     return "-" if value is None else escape(str(value))
 
 
+def name(value: Any) -> Words | str:
+    """A table cell of text (a name, a label): wrapped at separators, never inside a word."""
+    return "-" if value is None else Words(str(value))
+
+
+#: A table's styles from roomy to compact: as made, then no vertical rules nor edges, then one
+#: space between columns (box, show_edge, pad_edge, padding; None: the table's own).
+_COMPACT = (None, (box.SIMPLE_HEAD, False, False, (0, 1)), (box.SIMPLE_HEAD, False, False, (0, 0)))
+
+
+def _column_widths(view: Table) -> tuple[list[int], list[int]]:
+    """Each column's narrowest width that keeps every word whole and its width with every line
+    whole: the minimum and maximum measures of its cells and header (:class:`Words`, numbers,
+    ``P 1.000`` lines)."""
+    ranges = [[Measurement.get(out, out.options, item) for item in (column.header, *column.cells)]
+              for column in view.columns]
+    return [max(r.minimum for r in column) for column in ranges], [max(r.maximum for r in column) for column in ranges]
+
+
+def _styled_to_fit(view: Table, widths: list[int]) -> bool:
+    """Give ``view`` the first style of :data:`_COMPACT` in which columns of ``widths`` fit the
+    console (the most compact when none does); whether one does."""
+    own = (view.box, view.show_edge, view.pad_edge, view.padding)
+    for style in _COMPACT:
+        view.box, view.show_edge, view.pad_edge, view.padding = style or own
+        _, right, _, left = view.padding
+        frame = view._extra_width + (left + right) * len(view.columns) - (0 if view.pad_edge else left + right)
+        if sum(widths) + frame <= out.width:
+            return True
+    return False
+
+
+def words_fit(view: Table) -> bool:
+    """Whether ``view`` fits the console without breaking a word (in some style of :data:`_COMPACT`)."""
+    own = (view.box, view.show_edge, view.pad_edge, view.padding)
+    fits = _styled_to_fit(view, _column_widths(view)[0])
+    view.box, view.show_edge, view.pad_edge, view.padding = own
+    return fits
+
+
+def fit(view: Table) -> Table:
+    """``view`` with column widths that keep every word whole when it can. Rich's own sharing of
+    a narrow console narrows columns below their widest word; instead, in the first style of
+    :data:`_COMPACT` that lets every line fit whole, or else every word: each column at least as
+    wide as its widest word and the room left shared out in proportion to what each would take
+    more."""
+    lows, highs = _column_widths(view)
+    if _styled_to_fit(view, highs) or not _styled_to_fit(view, lows):
+        return view
+    _, right, _, left = view.padding
+    frame = view._extra_width + (left + right) * len(view.columns) - (0 if view.pad_edge else left + right)
+    room = out.width - frame - sum(lows)
+    more = [high - low for low, high in zip(lows, highs)]
+    for column, low, m in zip(view.columns, lows, more):
+        column.width = low + room * m // max(sum(more), 1)
+    return view
+
+
 def table(title: str, rows: list[dict[str, Any]], columns: Sequence[str] | None = None,
           labels: dict[str, str] | None = None, caption: str | None = None,
           digits: dict[str, int] | None = None) -> Table:
     """A rich table of ``rows`` (dicts), ``columns`` in order, headed by ``labels`` where given,
-    numbers with 3 decimals unless ``digits`` says otherwise. Text wraps rather than being cut."""
+    numbers with 3 decimals unless ``digits`` says otherwise. Text wraps at separators, never
+    inside a word; ready-made cells (:func:`at_cut`'s) are shown as they are."""
     columns = list(columns or (rows[0] if rows else []))
     view = Table(title=escape(title), caption=caption)
     for column in columns:
-        text = not rows or isinstance(rows[0].get(column), str)
-        view.add_column((labels or {}).get(column, column), justify="left" if text else "right",
-                        overflow="fold", no_wrap=not text)
+        first = rows[0].get(column) if rows else ""
+        view.add_column(Words((labels or {}).get(column, column)),
+                        justify="left" if isinstance(first, (str, Words)) else "right")
     for row in rows:
-        view.add_row(*[cell(row.get(c), (digits or {}).get(c, 3)) for c in columns])
-    return view
+        view.add_row(*[row[c] if isinstance(row.get(c), Words) else name(row[c]) if isinstance(row.get(c), str)
+                       else cell(row.get(c), (digits or {}).get(c, 3)) for c in columns])
+    return fit(view)
 
 
-def at_cut(row: dict[str, Any], cut: float, prefix: str = "") -> str:
+def at_cut(row: dict[str, Any], cut: float, prefix: str = "") -> Words:
     """Precision, recall and accepted frames at one confidence cut of a table row (its keys after
-    ``prefix``), one a line."""
-    return (f"P {cell(row[f'{prefix}precision@{cut:g}'])}\nR {cell(row[f'{prefix}recall@{cut:g}'])}\n"
-            f"n {cell(row[f'{prefix}accepted@{cut:g}'], 0)}")
+    ``prefix``), one a line, each line whole."""
+    return Words(f"P {cell(row[f'{prefix}precision@{cut:g}'])}\nR {cell(row[f'{prefix}recall@{cut:g}'])}\n"
+                 f"n {cell(row[f'{prefix}accepted@{cut:g}'], 0)}", whole_lines=True)
 
 
 def new_place_view(rows: list[dict[str, Any]], cuts: Sequence[float], ground_truth: str,
@@ -134,14 +202,32 @@ def new_place_view(rows: list[dict[str, Any]], cuts: Sequence[float], ground_tru
                  NEW_PLACE_COLUMNS, caption=NEW_PLACE_CAPTION)
 
 
+def recall_at_keys(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """The Recall@N keys (``recall_at_N``, N > 1: runs whose results rank the map) that some row
+    has a value for, by N; not the recall at a precision (``recall_at_100``, N above any ranking)."""
+    found = {key for row in rows for key, value in row.items() if key.startswith("recall_at_")
+             and key.removeprefix("recall_at_").isdigit() and 1 < int(key.removeprefix("recall_at_")) <= RANKED
+             and not _missing(value)}
+    return sorted(found, key=lambda key: int(key.removeprefix("recall_at_")))
+
+
+def recall_at_label(key: str) -> str:
+    """A Recall@N key's row label in the metrics-down table."""
+    n = key.removeprefix("recall_at_")
+    return f"R@{n} (a true match in the {n} best)"
+
+
 def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_truth: str) -> list[Table]:
     """`wiloc evaluate`'s tables: metrics down and one column per results file while the runs fit
-    the console; else one row per results file (its name whole), in two tables, and a third for
-    Recall@K when a run has it."""
+    the console with every metric's label on one line; else one row per results file, in two
+    tables, and a third for Recall@N when a run has it."""
     title = f"evaluate (ground truth: {ground_truth})"
-    shown = _shown(rows)
-    if 28 + _RUN_WIDTH * len(rows) <= out.width:
-        return [_metrics_down(rows, cuts, title, [key for key in METRIC_LABELS if key in shown])]
+    ranked = recall_at_keys(rows)
+    keys = list(METRIC_LABELS)
+    down = _metrics_down(rows, cuts, title, [*keys[:keys.index("recall_at_1") + 1], *ranked,
+                                             *keys[keys.index("recall_at_1") + 1:]])
+    if words_fit(down):
+        return [fit(down)]
     cut_columns = {f"cut {cut:g}": cut for cut in cuts}
     calibration = [{"run": row["run"], **{k: row[k] for k in CALIBRATION_COLUMNS},
                     **{name: at_cut(row, cut) for name, cut in cut_columns.items()}} for row in rows]
@@ -149,17 +235,13 @@ def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_trut
                    caption="R@x%P: recall at x % precision; R@1: best match right"),
              table(f"calibration and fixed confidence cuts (ground truth: {ground_truth})", calibration,
                    ["run", *CALIBRATION_COLUMNS, *cut_columns], CALIBRATION_COLUMNS, caption=CUT_CAPTION)]
-    if set(RANKED_METRICS) & shown:
-        views.append(table(f"Recall@K (ground truth: {ground_truth})", rows, ["run", *RECALL_AT_K_COLUMNS],
-                           RECALL_AT_K_COLUMNS, caption="R@K: a true match among the K best map frames (-: not ranked)"))
+    if ranked:
+        columns = {key: f"R@{key.removeprefix('recall_at_')}" for key in ["recall_at_1", *ranked]}
+        views.append(table(f"Recall@N (ground truth: {ground_truth})", rows, ["run", *columns], columns,
+                           caption="R@N: a true match among the N best map frames (-: not ranked)"))
     if (view := new_place_view(rows, cuts, ground_truth, ["run"])) is not None:
         views.append(view)
     return views
-
-
-def _shown(rows: list[dict[str, Any]]) -> set[str]:
-    """The metric keys to show: all but Recall@K when no run has it (a run without it shows "-")."""
-    return {key for key in METRIC_LABELS if key not in RANKED_METRICS or any(key in row for row in rows)}
 
 
 def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str, keys: list[str]) -> Table:
@@ -169,17 +251,18 @@ def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str,
                                                              if new_place else ""))
     view.add_column("")
     for row in rows:
-        view.add_column(escape(f"{row['method']}\n{row['traversal']}"), justify="right", overflow="fold")
-    view.add_row("results", *[cell(row["results"]) for row in rows])
+        view.add_column(Words(f"{row['method']}\n{row['traversal']}"), justify="right")
+    view.add_row(Words("results", whole_lines=True), *[name(row["results"]) for row in rows])
     for key in keys:
-        view.add_row(METRIC_LABELS[key], *[cell(row.get(key)) for row in rows])
+        view.add_row(Words(METRIC_LABELS.get(key) or recall_at_label(key), whole_lines=True),
+                     *[cell(row.get(key)) for row in rows])
     for cut in cuts:
         view.add_row(f"cut {cut:g}", *[at_cut(row, cut) for row in rows])
     if new_place:
         for key, label in NEW_PLACE_LABELS.items():
-            view.add_row(label, *[cell(row.get(key)) for row in rows])
+            view.add_row(Words(label, whole_lines=True), *[cell(row.get(key)) for row in rows])
         for cut in cuts:
-            view.add_row(f"P(new place) >= {cut:g}",
+            view.add_row(Words(f"P(new place) >= {cut:g}", whole_lines=True),
                          *[at_cut(row, cut, NEW_PLACE_KEYS) if _says_new_place(row) else "-" for row in rows])
     return view
 
@@ -195,49 +278,74 @@ def cut_views(comparison: api.Comparison, cuts: Sequence[float]) -> list[Table]:
     for traversal, group in comparison.cut_table.groupby("traversal", sort=False):
         view = Table(title=cell(f"Calibration and fixed confidence cuts: {traversal} ({comparison.ground_truth})"),
                      caption=CUT_CAPTION, pad_edge=False)
-        view.add_column("method", overflow="fold")
+        view.add_column("method")
         for column in CALIBRATION_COLUMNS.values():
             view.add_column(column, justify="right")
         for cut in cuts:
             view.add_column(f"cut\n{cut:g}")
         for row in group.to_dict(orient="records"):
-            view.add_row(cell(row["method"]), *[cell(row[key]) for key in CALIBRATION_COLUMNS],
+            view.add_row(name(row["method"]), *[cell(row[key]) for key in CALIBRATION_COLUMNS],
                          *[at_cut(row, cut) for cut in cuts])
-        tables.append(view)
+        tables.append(fit(view))
     return tables
 
 
+#: Table I's columns when it lists one run a row, with short headers (the caption says them).
+TABLE1_COLUMNS = {"recall_at_100": "R\n@100%P", "recall_at_99": "R\n@99%P", "recall_at_90": "R\n@90%P", "auc": "AUC"}
+
+
 def table1_view(comparison: api.Comparison) -> Table:
-    """Table I: recall at 100/99/90 % precision, one row per traversal, columns per method."""
-    t1 = comparison.table1
-    methods = list(dict.fromkeys(t1["method"]))
-    ranked = [key for key in RANKED_METRICS if key in t1 and t1[key].notna().any()]
-    recall_at = ", R@1/5/10" if ranked else ", R@1"
-    view = Table(title=escape(f"Table I: recall at 100 / 99 / 90 % precision (plus AUC{recall_at}); "
-                              f"{comparison.ground_truth}"))
-    view.add_column("traversal", overflow="fold")
-    for m in methods:
-        view.add_column(cell(m), justify="right", overflow="fold")
-    for traversal in dict.fromkeys(t1["traversal"]):
-        cells = []
+    """Table I: recall at 100/99/90 % precision, AUC and Recall@N; as the paper has it (one row
+    per traversal, a column per method) when that fits the console with every line whole, else
+    one row per run, a column per metric."""
+    rows = comparison.table1.to_dict(orient="records")
+    ranked = ["recall_at_1", *recall_at_keys(rows)]
+    recall_at = f"R@{'/'.join(key.removeprefix('recall_at_') for key in ranked)}"
+    title = escape(f"Table I: recall at 100 / 99 / 90 % precision (plus AUC, {recall_at}); {comparison.ground_truth}")
+    methods, traversals = list(dict.fromkeys(r["method"] for r in rows)), list(dict.fromkeys(r["traversal"] for r in rows))
+    cells = {(r["traversal"], r["method"]): _table1_cell(r, ranked) for r in rows}
+    widths = [max(len(line) for key, text in cells.items() if key[1] == m for line in text.split("\n")) for m in methods]
+    if max(len("traversal"), *map(len, traversals)) + sum(max(w, len(m)) + 3 for w, m in zip(widths, methods)) + 4 <= out.width:
+        view = Table(title=title)
+        view.add_column("traversal")
         for m in methods:
-            sel = t1[(t1["traversal"] == traversal) & (t1["method"] == m)]
-            if sel.empty:
-                cells.append("")
-                continue
-            r = sel.iloc[0]
-            at = ["recall_at_1", *(key for key in ranked if not math.isnan(r[key]))]
-            cells.append(f"{r['recall_at_100']:.1%} / {r['recall_at_99']:.1%} / {r['recall_at_90']:.1%}\n"
-                         f"AUC {r['auc']:.3f}\nR@{'/'.join(key.removeprefix('recall_at_') for key in at)} "
-                         f"{' / '.join(f'{r[key]:.3f}' for key in at)}")
-        view.add_row(cell(traversal), *cells)
+            view.add_column(Words(m), justify="right")
+        for traversal in traversals:
+            view.add_row(name(traversal), *[Words(cells[traversal, m], whole_lines=True) if (traversal, m) in cells
+                                            else "" for m in methods])
+        return view
+    shown = [{"traversal": r["traversal"], "method": r["method"],
+              **{key: f"{r[key]:.1%}" for key in ("recall_at_100", "recall_at_99", "recall_at_90")},
+              **{key: None if _missing(r.get(key)) else float(r[key]) for key in ("auc", *ranked)}} for r in rows]
+    labels = {**TABLE1_COLUMNS, **{key: f"R@{key.removeprefix('recall_at_')}" for key in ranked}}
+    view = table(title, shown, ["traversal", "method", *labels], labels,
+                 caption="R@x%P: recall at x % precision; R@N: a true match among the N best (-: not ranked)")
+    for column in view.columns[2:5]:  # percentages: text, but numbers to the eye
+        column.justify = "right"
     return view
 
 
-def table1_records(comparison: api.Comparison) -> list[dict[str, Any]]:
-    """Table I for --json: one object per run, without the Recall@K keys of runs that have none."""
-    return [{key: value for key, value in row.items() if not (key in RANKED_METRICS and _missing(value))}
-            for row in comparison.table1.to_dict(orient="records")]
+def _table1_cell(r: dict[str, Any], ranked: list[str]) -> str:
+    """One run's cell of Table I as the paper lays it out: recall at 100 / 99 / 90 % precision,
+    AUC, and the Recall@N it has."""
+    at = [key for key in ranked if not _missing(r.get(key))]
+    return (f"{r['recall_at_100']:.1%} / {r['recall_at_99']:.1%} / {r['recall_at_90']:.1%}\n"
+            f"AUC {r['auc']:.3f}\nR@{'/'.join(key.removeprefix('recall_at_') for key in at)} "
+            f"{' / '.join(f'{r[key]:.3f}' for key in at)}")
+
+
+def run_records(comparison: api.Comparison) -> list[dict[str, Any]]:
+    """A comparison's runs for --json: per run its method, descriptor and traversal, its label in
+    the tables (``label``: the method, with the descriptor or file where needed to tell runs
+    apart), its results file, Table I's metrics (without the Recall@N keys of runs that have
+    none) and its calibration."""
+    rows = comparison.table1.to_dict(orient="records")
+    ranked = set(recall_at_keys(rows))
+    return [{"method": e.method, "descriptor": e.results.meta.get("descriptor"), "traversal": row["traversal"],
+             "label": row["method"], "results": None if e.path is None else str(e.path),
+             **{key: value for key, value in row.items() if key not in ("method", "traversal")
+                and not (key in ranked and _missing(value))}, **e.calibration_dict()}
+            for row, e in zip(rows, comparison.evaluations)]
 
 
 def _missing(value: Any) -> bool:
@@ -251,9 +359,26 @@ def table2_view(comparison: api.Comparison) -> Table:
     view = Table(title=escape(f"Table II: one global threshold per method (worst traversal marked *); "
                               f"{comparison.ground_truth}"))
     for column in ("method", "precision", "threshold", *traversals):
-        view.add_column(cell(column), justify="left" if column == "method" else "right", overflow="fold")
+        view.add_column(Words(column), justify="left" if column == "method" else "right")
     for (method, target), group in t2.groupby(["method", "precision"], sort=False):
         cells = {row.traversal: f"{row.recall:.1%}{' *' if row.worst else ''}" for row in group.itertuples()}
         threshold = group["threshold"].iloc[0]
-        view.add_row(cell(method), f"{target:g}%", cell(float(threshold)), *[cells.get(t, "") for t in traversals])
-    return view
+        view.add_row(name(method), f"{target:g}%", cell(float(threshold)), *[cells.get(t, "") for t in traversals])
+    return fit(view)
+
+
+def comparison_records(comparison: api.Comparison) -> list[tuple[str, list[dict[str, Any]], list[str], dict[str, str]]]:
+    """`compare`'s tables as plain records for CSV, Markdown and LaTeX: (title, rows, columns,
+    one-line headers) of Table I (one row per run), the calibration and Table II."""
+    table1 = comparison.table1.to_dict(orient="records")
+    ranked = ["recall_at_1", *recall_at_keys(table1)]
+    heads = {"recall_at_100": "R@100%P", "recall_at_99": "R@99%P", "recall_at_90": "R@90%P", "auc": "AUC",
+             **{key: f"R@{key.removeprefix('recall_at_')}" for key in ranked}}
+    calibration = {"ece": "ECE", "brier": "Brier", "mean_confidence": "mean conf.", "share_correct": "share correct"}
+    cuts = comparison.cut_table.to_dict(orient="records")
+    return [(f"Table I: recall at 100 / 99 / 90 % precision, AUC and Recall@N; {comparison.ground_truth}",
+             table1, ["traversal", "method", *heads], heads),
+            (f"Calibration; {comparison.ground_truth}", cuts, ["traversal", "method", *calibration], calibration),
+            (f"Table II: one global threshold per method (worst traversal marked); {comparison.ground_truth}",
+             [{**row, "precision": f"{row['precision']:g}%"} for row in comparison.table2.to_dict(orient="records")],
+             ["method", "precision", "threshold", "traversal", "recall", "worst"], {})]

@@ -23,8 +23,9 @@ if TYPE_CHECKING:
 PRECISION_LEVELS = (1.0, 0.99, 0.90)
 """The precisions at which recall is reported (the paper's Table I)."""
 
-RANKED_KS = (5, 10)
-"""The K of Recall@K reported beside R@1 for runs whose results rank the map (docs/evaluation.md)."""
+RANKED_KS = (1, 5, 10)
+"""The N of Recall@N reported by default (``--recall-at``) for runs whose results rank the map
+(docs/evaluation.md); R@1 is reported for every run, from its decided match."""
 
 PRECISION_RTOL = 1e-9
 """Relative slack when testing precision >= target: a target given in percent is rounded
@@ -191,14 +192,13 @@ class Summary:
     max_f1_threshold: float
     recall_at_1: float
     curve: PRCurve = field(repr=False)
-    recall_at_5: float | None = None  # Recall@K: runs whose results rank the map only
-    recall_at_10: float | None = None
+    recall_at_n: dict[int, float] = field(default_factory=dict)  # Recall@N (N > 1): runs that rank the map only
 
     def as_dict(self) -> dict[str, float | int]:
-        """The counts and metrics as a flat dict (no curve; no Recall@K a run cannot tell), e.g.
-        for --json or a table row."""
-        return {name: getattr(self, name) for name in self.__dataclass_fields__
-                if name != "curve" and getattr(self, name) is not None}
+        """The counts and metrics as a flat dict, Recall@N as ``recall_at_N`` (no curve; no
+        Recall@N a run cannot tell), e.g. for --json or a table row."""
+        flat = {name: getattr(self, name) for name in self.__dataclass_fields__ if name not in ("curve", "recall_at_n")}
+        return {**flat, **{f"recall_at_{n}": value for n, value in sorted(self.recall_at_n.items())}}
 
 
 def correct_matches(match: ArrayLike, truth: Truth) -> NDArray[np.bool_]:
@@ -214,9 +214,12 @@ def decided_confidence(match: ArrayLike, confidence: ArrayLike) -> NDArray[np.fl
     return np.where(np.asarray(match, dtype=np.int64) >= 0, np.asarray(confidence, dtype=np.float64), np.nan)
 
 
-def summarize(match: ArrayLike, confidence: ArrayLike, truth: Truth, ranking: ArrayLike | None = None) -> Summary:
+def summarize(match: ArrayLike, confidence: ArrayLike, truth: Truth, ranking: ArrayLike | None = None,
+              recall_at: Sequence[int] = RANKED_KS) -> Summary:
     """All reported metrics of one run: recall at 100/99/90 % precision, AUC, max F1, R@1, counts,
-    and with each frame's ``ranking`` (best candidates first) Recall@5 and @10.
+    and with each frame's ``ranking`` (best candidates first) Recall@N for each N > 1 of
+    ``recall_at`` that the ranking is long enough to tell (a results file keeps
+    ``wiloc.candidates.RANKED`` candidates per frame; older files 10).
 
     ``match`` and ``confidence`` are per query frame in the order of ``truth.query_names``; a
     frame is decided when its match is >= 0 and its confidence is not NaN.
@@ -232,5 +235,6 @@ def summarize(match: ArrayLike, confidence: ArrayLike, truth: Truth, ranking: Ar
                    with_true_match=int(has_match.sum()), recall_at_100=r100, recall_at_99=r99,
                    recall_at_90=r90, auc=average_precision(curve), max_f1=f1,
                    max_f1_threshold=f1_threshold, recall_at_1=recall_at_1(correct, has_match),
-                   curve=curve, **({} if ranking is None else
-                                   {f"recall_at_{k}": recall_at_k(ranking, truth, k) for k in RANKED_KS}))
+                   curve=curve, recall_at_n={} if ranking is None else {
+                       n: recall_at_k(ranking, truth, n) for n in sorted(set(recall_at))
+                       if 1 < n <= np.asarray(ranking).shape[1]})

@@ -116,8 +116,9 @@ class Decision:
     method has none); ``stage`` what the method did (``init``, ``update``, ``track``, ``none``);
     ``extra`` method-specific values (``m_r`` of the online model). ``frame`` and ``match_name``
     carry frame names where the caller knows them (``Localizer``). ``ranking`` holds the
-    positions of the row's best candidates, best first (the match first), for methods that rank
-    (:attr:`Method.ranks`), when the frame has a match.
+    positions of the best candidates, best first (the match first), for methods that rank
+    (:attr:`Method.ranks`), when the frame has a match: the row's best, unless the method ranks
+    the map its own way (CAT-Graph: by its posterior).
     """
 
     match: int
@@ -202,9 +203,10 @@ class Method(ABC):
     Subclasses set ``name``, ``Params`` (a :class:`Parameters` dataclass), ``needs`` (a subset of
     :data:`NEEDS`), ``rows`` (the row kinds of :data:`ROWS` it reads) and ``columns`` (the
     per-frame extras written to results files), and implement
-    :meth:`prepare`, :meth:`decide`, :meth:`save_state` and :meth:`load_state`. A method whose
-    match is its row's best candidate ``ranks``: each decision then carries the row's best
-    candidates (Recall@K); a method deciding otherwise (a filter over the route) sets it False.
+    :meth:`prepare`, :meth:`decide`, :meth:`save_state` and :meth:`load_state`. A method that
+    ``ranks`` writes each decision's best candidates (Recall@N): those :meth:`decide` gives in
+    ``Decision.ranking``, else the row's best (a method whose match is the row's best
+    candidate); a method that cannot rank the map (SeqSLAM's trajectory end) sets it False.
     """
 
     name: ClassVar[str]
@@ -212,7 +214,7 @@ class Method(ABC):
     needs: ClassVar[frozenset[str]] = frozenset()
     rows: ClassVar[frozenset[str]] = frozenset({"differences"})  # the row kinds it reads (see ROWS)
     columns: ClassVar[tuple[str, ...]] = ()
-    ranks: ClassVar[bool] = True  # the match is the row's best candidate, so the row ranks the map
+    ranks: ClassVar[bool] = True  # decisions carry a ranking of the map (by default the row's best candidates)
     lowest_confidence: ClassVar[float] = 0.0  # confidences lie in [lowest_confidence, 1] (results files are checked)
 
     def __init__(self, params: Parameters | Mapping[str, Any] | None = None, **values: Any) -> None:

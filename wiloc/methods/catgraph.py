@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.calibration import RankLikelihood, SortedRow, Unexplained, novelty_weights
+from wiloc.candidates import RANKED
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
@@ -119,6 +120,16 @@ def _read_runs(at: NDArray[np.intp], a: NDArray[np.float64], n_nodes: int,
     end = np.append(first[1:], at.size)
     long = end - first >= shortest
     return np.column_stack((first[long], end[long])).astype(np.intp)
+
+
+def posterior_ranking(own: NDArray[np.float64], mode: int, k: int = RANKED) -> NDArray[np.int64]:
+    """The filter's ranking of the map for Recall@N: the decided ``mode`` first, then the nodes
+    holding most particle weight themselves (``own``), equal weights in order of position.
+    Nodes without weight are no candidates, so the ranking may be shorter than ``k``."""
+    held = np.flatnonzero(own > 0.0)
+    held = held[held != mode]
+    order = held[np.argsort(-own[held], kind="stable")][:k - 1]
+    return np.concatenate([np.array([mode], dtype=np.int64), order.astype(np.int64)])
 
 
 def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.intp]:
@@ -234,7 +245,7 @@ class CatGraph(Method):
     needs = frozenset({"map", "map_neighbours", "odometry"})
     rows = frozenset({"differences", "log_ratio"})
     columns = ("new_place",)
-    ranks = False  # the match is the filter's mode, not the row's best
+    ranks = True  # by the posterior: the mode, then the nodes of most particle weight (posterior_ranking)
     params: CatGraphParams
 
     def prepare(self, context: MapContext) -> None:
@@ -393,7 +404,7 @@ class CatGraph(Method):
             log_w = np.full(p.particles, -np.log(p.particles))
         self._pos, self._speed, self._log_w = pos, speed, log_w
         return Decision(match=mode, difference=float(self._sign * row[mode]), confidence=float(mass * (1.0 - p_new)),
-                        stage="track", new_place=p_new)
+                        stage="track", new_place=p_new, ranking=tuple(posterior_ranking(self._own, mode).tolist()))
 
     def _reseed(self, weakest: NDArray[np.intp], lowest: NDArray[np.float64], pos: NDArray[np.float64],
                 speed: NDArray[np.float64], first: bool) -> None:
