@@ -362,3 +362,31 @@ def test_nordland_videos_localize_as_the_folders_do(data_root: Path, tmp_path: P
                       (on_video.decisions.difference, on_folder.decisions.difference)]:
         np.testing.assert_array_equal(got, want)
     assert on_video.results.meta["descriptor"] == "sad" and on_video.results.meta["sampling"]["every"] == 1
+
+
+def test_a_video_against_a_folder_of_its_frames_samples_the_video_and_aligns_by_position(tmp_path: Path) -> None:
+    """Sampling options apply to the video side (the folder map takes every frame); the results
+    file keeps the video's suffix in its name, apart from a folder run of the same name; aligned
+    ground truth matches the video's frames (named by index) with the folder's by position."""
+    video = write_video(tmp_path / "route.mkv", 30, fourcc="FFV1")
+    folder = tmp_path / "route"
+    folder.mkdir()
+    for i, gray in enumerate(decoded_gray(video)):
+        cv2.imwrite(str(folder / f"Image{i:03d}.png"), gray)
+    cache, out = tmp_path / "cache", tmp_path / "runs"
+    run = _cli("localize", str(video), "--map", str(folder), "--method", "catgraph", "--out", str(out), cache=cache)
+    assert run.returncode == 0, run.stderr
+    written = out / "route-mkv-sad-catgraph.csv"
+    assert written.is_file() and api.results_name(folder, "catgraph", "sad") == "route-sad-catgraph.csv"
+    by_name = _cli("evaluate", str(written), "--gt", "aligned", cache=cache)
+    assert by_name.returncode == 1 and "aligned:index" in by_name.stderr
+    by_index = _cli("evaluate", str(written), "--gt", "aligned:index", "--json", cache=cache)
+    assert by_index.returncode == 0, by_index.stderr
+    [row] = json.loads(by_index.stdout)["runs"]
+    assert row["frames"] == 30 and row["recall_at_1"] >= 0.9
+    sampled = _cli("localize", str(video), "--map", str(folder), "--every", "2", "--out", str(tmp_path / "every2.csv"),
+                   "--json", cache=cache)
+    assert sampled.returncode == 0, sampled.stderr
+    assert json.loads(sampled.stdout)["runs"][0]["frames"] == 15
+    refused = _cli("localize", str(folder), "--map", str(folder), "--every", "2", cache=cache)
+    assert refused.returncode == 2 and "applies to video files and ROS bags only" in refused.stderr

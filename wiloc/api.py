@@ -75,8 +75,7 @@ def describe(folders: Sequence[Path], descriptor: str = "sad", *,
     in the order of ``folders``."""
     spec = descriptor_spec(descriptor, descriptor_params)
     cache = cache or Cache()
-    for folder in folders:
-        check_sampling(Path(folder), sampling)
+    check_sampling([Path(folder) for folder in folders], sampling)
     check_topic([Path(folder) for folder in folders], topic)
     cluster = open_cluster(scheduler, jobs)
     return describe_sources([Path(folder) for folder in folders], spec, cache, jobs=jobs, sampling=sampling,
@@ -149,10 +148,14 @@ class LocalizeRun:
 
 
 def results_name(query: Path, method: str, descriptor: str, metric: str | None = None) -> str:
-    """The default results file name of one query traversal (folder or matrix file, whose
-    ``metric`` then names it), descriptor and method: ``day_left-sad-online.csv``."""
+    """The default results file name of one query traversal (folder, matrix file, whose
+    ``metric`` then names it, video file or ROS bag), descriptor and method:
+    ``day_left-sad-online.csv``; a video's or bag file's suffix stays in its name
+    (``day_left-mp4-sad-online.csv``), so that its run and a folder's of the same name never share a file."""
     label = descriptor_label(query, descriptor, metric).replace(":", "-")
-    return f"{query.stem if query.is_file() else query.name}-{label}-{method}.csv"
+    name = query.name if not query.is_file() else \
+        f"{query.stem}-{query.suffix.lstrip('.').lower()}" if is_stream(query) else query.stem
+    return f"{name}-{label}-{method}.csv"
 
 
 def localize(query: Path, *, reference: Path | None = None, descriptor: str = "sad",
@@ -186,8 +189,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     bags = _odometry_bags(query, reference, odometry_topic, odometry, map_odometry)
     algo.check_inputs(sequence=sequence, training=training is not None, odometry=odometry is not None or bags[0],
                       map_odometry=map_odometry is not None or bags[1])
-    streams = [Path(source) for source in (query, reference) if source is not None and is_stream(Path(source))]
-    check_sampling(streams[0] if streams else Path(query), sampling)
+    check_sampling([Path(source) for source in (query, reference) if source is not None], sampling)
     pair = (training.query, training.reference) if training else ()
     check_topic([Path(source) for source in (query, reference, *pair) if source is not None], topic)
     describer = Describer(descriptor, dict(descriptor_params or {}), cache or Cache(), metric=metric, jobs=jobs,
@@ -226,7 +228,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     meta = _run_meta(method, describer, query, q.metric, reference, R, training)
     meta.update(query_digest=descriptors_digest(q.names, q.data),
                 map_digest="" if sequence else descriptors_digest(r.names, r.data))
-    if streams:
+    if any(is_stream(Path(source)) for source in (query, reference) if source is not None):
         meta["sampling"] = asdict(sampling or Sampling())
     if topic is not None:
         meta["topic"] = topic

@@ -572,7 +572,7 @@ def _follow(query: Path, run: api.FollowRun, as_json: bool) -> None:
 
 # ------------------------------------------------------------------------------------------ evaluate
 
-FORMS = "aligned, positions:Q.csv, pairs:P.csv, matrix:M.npy, vprbench:G.npy, utm-names, exif"
+FORMS = "aligned, aligned:index, positions:Q.csv, pairs:P.csv, matrix:M.npy, vprbench:G.npy, utm-names, exif"
 
 
 def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | None,
@@ -593,13 +593,16 @@ def _truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | N
     refuse_unused({f"{prefix}tolerance": (kind == "aligned", "--gt aligned (pairs files carry their own)"),
                    f"{prefix}gt_map": (kind == "positions", "positions ground truth"),
                    f"{prefix}radius": (kind in ("positions", "utm-names", "exif"), "positions, utm-names and exif ground truth")})
+    by = "name"
+    if kind == "aligned" and path in ("name", "index"):  # aligned:index, by position
+        by, path = path, ""
     if kind in NAMED_FORMS and path:
         fail(f"{flag}: '{kind}' reads the traversals themselves and takes no file ('{gt}')", EXIT_USAGE)
     variable = None
     if kind == "matrix" and ".mat:" in path:
         path, variable = path.rsplit(":", 1)
     return api.TruthSource(kind=kind, path=path or None, ref_path=gt_ref, tolerance=tolerance, radius=radius,
-                           variable=variable)
+                           variable=variable, by=by)
 
 
 NAMED_FORMS = ("aligned", "utm-names", "exif")  # forms without a file
@@ -611,7 +614,8 @@ def _guess_kind(path: str) -> str:
     return "matrix" if Path(path).suffix.lower() in (".npy", ".mat") else "pairs"
 
 
-GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames), 'positions:Q.csv' (with "
+GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames; 'aligned:index': same position, "
+           "as for a video against a folder of its frames), 'positions:Q.csv' (with "
            "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat' ('matrix:M.mat:NAME' picks one array of a .mat), 'vprbench:ground_truth_new.npy' (VPR-Bench), "
            "'utm-names' (@UTM_east@UTM_north@ file names) or 'exif' (the images' GPS EXIF), these two within --radius "
            "metres (default 25). '{query}' in a path is replaced by the query folder's name.")

@@ -121,11 +121,10 @@ def describe_sources(sources: Sequence[Path], spec: DescriptorSpec, cache: Cache
                      cluster: Cluster | None = None, topic: str | None = None) -> list[DescribeReport]:
     """:func:`describe_source` for each of several traversals (``progress``: one callback each),
     the reports in their order: the image folders together (:func:`describe_folders`), then
-    each video file and ROS bag (``topic``: the bags' image topic; None: each one's only one)."""
+    each video file and ROS bag (``topic``: the bags' image topic; None: each one's only one),
+    which alone ``sampling`` picks frames of (see :func:`check_sampling`)."""
     sources = [Path(source) for source in sources]
     callbacks = list(progress) if progress is not None else [None] * len(sources)
-    for source in sources:
-        check_sampling(source, sampling)
     folders = [(source, callback) for source, callback in zip(sources, callbacks) if not is_stream(source)]
     described = iter(describe_folders([f for f, _ in folders], spec, cache, jobs, [c for _, c in folders], cluster)
                      if folders else [])
@@ -139,11 +138,11 @@ def is_stream(source: Path) -> bool:
     return is_video(source) or is_bag(source)
 
 
-def check_sampling(source: Path, sampling: Sampling | None) -> None:
-    """ParameterError when a sampling other than every frame is given for a folder: it applies to
-    video files and ROS bags only."""
-    if sampling is not None and sampling != Sampling() and not is_stream(source):
-        raise ParameterError("sampling", f"applies to video files and ROS bags only; {source} is neither")
+def check_sampling(sources: Sequence[Path], sampling: Sampling | None) -> None:
+    """ParameterError when a sampling other than every frame is given and none of ``sources`` is
+    a video file or ROS bag: it applies to those only (image folders beside them take every frame)."""
+    if sampling is not None and sampling != Sampling() and not any(is_stream(Path(s)) for s in sources):
+        raise ParameterError("sampling", f"applies to video files and ROS bags only; {sources[0]} is neither")
 
 
 def check_topic(sources: Sequence[Path], topic: str | None) -> None:
@@ -698,9 +697,11 @@ def _read_gray(path: Path, min_size: tuple[int, int] | None) -> np.ndarray:
         return read_gray(path, min_size)
 
 
-def _describe_one(spec: DescriptorSpec, task: _Task) -> tuple[FrameRecord, bool]:
-    """One frame's record and whether its descriptor was computed (False: reused or failed).
-    A frame whose content digest matches its stored record keeps that record's row or failure."""
+def _settle(task: _Task, read: Callable[[Path], np.ndarray]
+            ) -> tuple[FrameRecord, bool] | tuple[Fingerprint, np.ndarray]:
+    """A frame's task up to its descriptor: a finished (record, False) when the stored record
+    still holds (its content digest matches) or the file cannot be read or decoded, else its
+    fingerprint and the image ``read`` decoded."""
     path, old = task
     try:
         fp = fingerprint(path)
@@ -709,9 +710,18 @@ def _describe_one(spec: DescriptorSpec, task: _Task) -> tuple[FrameRecord, bool]
     if old is not None and old.digest == fp.digest:
         return replace(old, size=fp.size, mtime_ns=fp.mtime_ns), False
     try:
-        gray = _read_gray(path, spec.min_size)
+        return fp, read(path)
     except FrameError as exc:
         return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, None, exc.problem), False
+
+
+def _describe_one(spec: DescriptorSpec, task: _Task) -> tuple[FrameRecord, bool]:
+    """One frame's record and whether its descriptor was computed (False: reused or failed).
+    A frame whose content digest matches its stored record keeps that record's row or failure."""
+    settled = _settle(task, lambda path: _read_gray(path, spec.min_size))
+    if not isinstance(settled[0], Fingerprint):
+        return settled  # type: ignore[return-value]
+    (path, _), (fp, gray) = task, settled
     row = np.asarray(spec.compute(gray), dtype=spec.dtype)
     width, height = _full_size(path, gray)
     return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, row, "", width, height), True
@@ -749,21 +759,8 @@ def _describe_colour(spec: DescriptorSpec, tasks: Sequence[_Task], threads: int)
     """:func:`_describe_one` for a colour descriptor's tasks, as one batch: the images decoded
     in colour on ``threads`` threads (OpenCV's decoders let go of the GIL), then described
     together (``DescriptorSpec.compute_batch``, the network's runtime on ``threads`` threads)."""
-    def settle(task: _Task) -> tuple[FrameRecord, bool] | tuple[Fingerprint, np.ndarray]:
-        path, old = task
-        try:
-            fp = fingerprint(path)
-        except OSError as exc:
-            return FrameRecord(path.name, -1, -1, "", None, f"cannot read file ({exc.strerror or exc})"), False
-        if old is not None and old.digest == fp.digest:
-            return replace(old, size=fp.size, mtime_ns=fp.mtime_ns), False
-        try:
-            return fp, read_colour(path)
-        except FrameError as exc:
-            return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, None, exc.problem), False
-
     with _decoders_quiet(), ThreadPoolExecutor(max(1, threads), thread_name_prefix="wiloc-decode") as pool:
-        settled = list(pool.map(settle, tasks))
+        settled = list(pool.map(lambda task: _settle(task, read_colour), tasks))
     decoded = [i for i, item in enumerate(settled) if isinstance(item[0], Fingerprint)]
     rows = spec.compute_batch([settled[i][1] for i in decoded], threads) if decoded else []
     for i, row in zip(decoded, rows):

@@ -142,7 +142,8 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
     found = centres >= 0
     if not found.any():
         raise WilocError(where, f"none of the {n_query} query frames has a reference frame "
-                                f"{'of the same name' if by == 'name' else 'at its position'}")
+                                + ("of the same name (to align by position, as a video's frames with a folder's: "
+                                   "aligned:index)" if by == "name" else "at its position"))
     warnings = _unmatched(where, int((~found).sum()), n_query,
                           "query frames have no reference frame to align with")
     rows, cols = _band(np.flatnonzero(found).astype(np.int64), centres[found], tol, len(ref_names))
