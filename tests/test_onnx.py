@@ -94,8 +94,8 @@ def test_describe_matches_numpy_reference(tmp_path: Path, cache_dir: Path) -> No
     weights = conv_model(model)
     images = colour_images(tmp_path / "route", 40)
     [report] = _ok(runner.invoke(app, ["describe", str(tmp_path / "route"), "--descriptor", "onnx",
-                                       "--model", str(model), "--json"]))
-    assert report["descriptor"] == "onnx" and report["computed"] == 40 and report["shape"] == "40x8"
+                                       "--model", str(model), "--json"]))["results"]
+    assert report["descriptor"] == "onnx" and report["computed"] == 40 and report["shape"] == [40, 8]
     spec = get_descriptor("onnx", model=model)
     assert spec.metric == "cosine" and spec.length == 8
     assert spec.params["mean"] == list(MEAN) and spec.params["input_size"] == [SIDE, SIDE]
@@ -226,8 +226,8 @@ def test_localize_catgraph_end_to_end(tmp_path: Path, cache_dir: Path) -> None:
     conv_model(model, metadata={"wiloc.input_size": "96x64"}, input_shape=["N", 3, "H", "W"])
     out = tmp_path / "run.csv"
     [row] = _ok(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--descriptor", "onnx",
-                                    "--model", str(model), "--method", "catgraph", "--out", str(out), "--json"]))
-    assert row["frames"] == 40 and row["method"] == "catgraph"
+                                    "--model", str(model), "--method", "catgraph", "--out", str(out), "--json"]))["runs"]
+    assert row["frames"] == 40 and row["method"] == "catgraph" and row["descriptor"] == "onnx"
     metrics = _ok(runner.invoke(app, ["evaluate", str(out), "--json"]))["runs"][0]
     assert metrics["frames"] == 40 and metrics["recall_at_1"] > 0.5
 
@@ -243,7 +243,7 @@ def test_gardens_point_catgraph_with_an_onnx_descriptor(tmp_path: Path, cache_di
     out = tmp_path / "gp.csv"
     [row] = _ok(runner.invoke(app, ["localize", str(root / "day_left"), "--map", str(root / "day_right"),
                                     "--descriptor", "onnx", "--model", str(model), "--method", "catgraph",
-                                    "--out", str(out), "--json"]))
+                                    "--out", str(out), "--json"]))["runs"]
     assert row["frames"] == 200
     metrics = _ok(runner.invoke(app, ["evaluate", str(out), "--gt", "aligned", "--tolerance", "2", "--json"]))
     assert metrics["runs"][0]["recall_at_1"] > 0.25

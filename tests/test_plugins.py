@@ -91,8 +91,8 @@ def test_an_installed_plugin_is_listed_and_described(tmp_path: Path) -> None:
 
         described = _wiloc("describe", str(route), "--descriptor", "tiny", "--json", env=env)
         assert described.returncode == 0, described.stderr
-        [report] = json.loads(described.stdout)
-        assert report["descriptor"] == "tiny" and report["shape"] == "5x16" and report["computed"] == 5
+        [report] = json.loads(described.stdout)["results"]
+        assert report["descriptor"] == "tiny" and report["shape"] == [5, 16] and report["computed"] == 5
         assert len(described.stderr.strip().splitlines()) == 1 and "'broken'" in described.stderr
         [info] = Cache(tmp_path / "cache").list_entries()
         assert info.params == {"side": 4, "plugin": f"{DIST} {VERSION}"}  # a new release computes afresh
