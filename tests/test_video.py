@@ -298,7 +298,11 @@ def test_api_describe_and_describer_take_videos(tmp_path: Path) -> None:
     folder = tmp_path / "frames"
     folder.mkdir()
     with pytest.raises(ParameterError, match="^sampling: applies to video files and ROS bags only"):
-        api.describe([video, folder], "sad", cache=cache, sampling=Sampling(fps=2))
+        api.describe([folder], "sad", cache=cache, sampling=Sampling(fps=2))  # no video: nothing to sample
+    for i, gray in enumerate(decoded_gray(video)[:3]):
+        cv2.imwrite(str(folder / f"Image{i:03d}.png"), gray)
+    on_video, on_folder = api.describe([video, folder], "sad", cache=cache, sampling=Sampling(every=5))
+    assert on_video.entry.names == names([0, 5, 10, 15]) and on_folder.entry.names == [f"Image{i:03d}.png" for i in range(3)]
     assert is_video(video) and not is_video(folder) and not is_video(tmp_path / "x.npy")
 
 
@@ -314,9 +318,9 @@ def test_cli_describe_samples_videos(tmp_path: Path, cache_dir: Path) -> None:
     assert none.exit_code == 1 and "the cut (start 40) holds no frame of this video (it has 30 frames)" in none.output
     folder = tmp_path / "frames"
     folder.mkdir()
-    mixed = CliRunner().invoke(app, ["describe", str(video), str(folder), "--every", "2"])
-    assert mixed.exit_code == 2
-    assert f"--every/--fps/--start/--stop: applies to video files and ROS bags only; {folder} is neither" in mixed.output
+    alone = CliRunner().invoke(app, ["describe", str(folder), "--every", "2"])
+    assert alone.exit_code == 2
+    assert f"--every/--fps/--start/--stop: applies to video files and ROS bags only; {folder} is neither" in alone.output
 
 
 @pytest.mark.realdata
