@@ -312,12 +312,11 @@ def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sam
     with _opencv_quiet(), Video(path) as video:
         video_print = video_fingerprint(path)
         params = {**spec.params, "video": video_print.digest, "sampling": asdict(sampling)}
-        cut = f"start {sampling.start}" + ("" if sampling.stop is None else f", stop {sampling.stop}")
         length = "" if video.frame_count is None else f" (it has {video.frame_count} frames)"
         stored, entry, computed, repairs = _describe_stream(
             cache, _header(str(path.resolve()), spec, params), sampling.estimate(video.frame_count, video.rate),
             lambda skip: _describe_frames(spec, video_print, video.frames(sampling, skip=skip, colour=spec.colour)),
-            WilocError(path, f"the cut ({cut}) holds no frame of this video{length}"), progress)
+            WilocError(path, f"the cut ({sampling.cut}) holds no frame of this video{length}"), progress)
     return _report(stored, entry, computed, start, repairs=repairs, video=True)
 
 
@@ -342,11 +341,10 @@ def describe_bag(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampl
         bag.choose(topic)
         bag_print = bag_fingerprint(path)
         params = {**spec.params, "bag": bag_print.digest, "topic": bag.topic, "sampling": asdict(sampling)}
-        cut = f"start {sampling.start}" + ("" if sampling.stop is None else f", stop {sampling.stop}")
         stored, entry, computed, repairs = _describe_stream(
             cache, _header(str(path.resolve()), spec, params), sampling.estimate(bag.count, bag.rate),
             lambda skip: _describe_frames(spec, bag_print, bag.frames(sampling, spec.min_size, skip=skip)),
-            WilocError(path, f"the cut ({cut}) holds no image of topic {bag.topic} (it has {bag.count})"), progress)
+            WilocError(path, f"the cut ({sampling.cut}) holds no image of topic {bag.topic} (it has {bag.count})"), progress)
     report = _report(stored, entry, computed, start, repairs=repairs)
     return replace(report, notes=[bag.note] if bag.note else [])
 

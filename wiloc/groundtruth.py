@@ -71,7 +71,7 @@ class Truth:
         return valid & np.isin(q * n_ref + np.where(valid, r, 0), keys)
 
 
-def _truth_from_pairs(rows: NDArray[np.int64], cols: NDArray[np.int64], query_names: Sequence[str],
+def truth_from_pairs(rows: NDArray[np.int64], cols: NDArray[np.int64], query_names: Sequence[str],
                       ref_names: Sequence[str], warnings: list[str]) -> Truth:
     """A Truth with True at each (row, col); duplicates collapse, columns off the end are dropped."""
     n_ref = len(ref_names)
@@ -103,13 +103,13 @@ MAX_TRUE_PAIRS = 50_000_000
 """The most (query, reference) pairs a ground truth may mark true: 1.2 GB as index pairs."""
 
 
-def _index(names: Sequence[str]) -> pd.Index:
+def name_index(names: Sequence[str]) -> pd.Index:
     return pd.Index(list(names), dtype=object)
 
 
 def _lookup(wanted: ArrayLike, names: Sequence[str]) -> NDArray[np.int64]:
     """Position of each wanted name among ``names``, -1 where it is not a frame."""
-    return _index(names).get_indexer(np.asarray(wanted, dtype=object)).astype(np.int64)
+    return name_index(names).get_indexer(np.asarray(wanted, dtype=object)).astype(np.int64)
 
 
 def _check_tolerance(tolerance: int) -> int:
@@ -118,7 +118,7 @@ def _check_tolerance(tolerance: int) -> int:
     return int(tolerance)
 
 
-def _unmatched(where: Path | str, count: int, total: int, what: str) -> list[str]:
+def unmatched(where: Path | str, count: int, total: int, what: str) -> list[str]:
     """A warning line when some of ``total`` items found no counterpart (none when all did)."""
     return [f"{where}: {count} of {total} {what}"] if count else []
 
@@ -144,10 +144,10 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
         raise WilocError(where, f"none of the {n_query} query frames has a reference frame "
                                 + ("of the same name (to align by position, as a video's frames with a folder's: "
                                    "aligned:index)" if by == "name" else "at its position"))
-    warnings = _unmatched(where, int((~found).sum()), n_query,
+    warnings = unmatched(where, int((~found).sum()), n_query,
                           "query frames have no reference frame to align with")
     rows, cols = _band(np.flatnonzero(found).astype(np.int64), centres[found], tol, len(ref_names))
-    return _truth_from_pairs(rows, cols, query_names, ref_names, warnings)
+    return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 
 def _check_file(path: Path) -> None:
@@ -221,7 +221,7 @@ def _read_positions(path: Path) -> Positions:
     coords = _numeric(path, frame, columns)
     if geographic and (np.any(np.abs(coords[:, 0]) > 90) or np.any(np.abs(coords[:, 1]) > 360)):
         raise WilocError(path, "lat must lie in [-90, 90] and lon in [-360, 360] degrees")
-    return Positions(path, _index(frame["name"]), coords, geographic)
+    return Positions(path, name_index(frame["name"]), coords, geographic)
 
 
 def _unit_vectors(latlon_deg: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -234,14 +234,14 @@ def _frames_with_positions(positions: Positions, frames: Sequence[str],
                            role: str) -> tuple[NDArray[np.int64], NDArray[np.float64], list[str]]:
     """Frame indices that have a position, their coordinates, and warnings about partial matches."""
     where, names = positions.source, positions.names
-    at = names.get_indexer(_index(frames))
+    at = names.get_indexer(name_index(frames))
     found = at >= 0
     if not found.any():
         raise WilocError(where, f"no name matches any of the {len(frames)} {role} frames")
-    warnings = _unmatched(where, int((~found).sum()), len(frames),
+    warnings = unmatched(where, int((~found).sum()), len(frames),
                           f"{role} frames have no ground-truth row (never a true match)")
     unused = len(names) - int(np.unique(at[found]).size)
-    warnings += _unmatched(where, unused, len(names), f"ground-truth rows name no {role} frame")
+    warnings += unmatched(where, unused, len(names), f"ground-truth rows name no {role} frame")
     return np.flatnonzero(found).astype(np.int64), positions.coords[at[found]], warnings
 
 
@@ -269,7 +269,7 @@ def truth_within(query: Positions, ref: Positions, radius: float, query_names: S
         q_pts, r_pts = _unit_vectors(q_pts), _unit_vectors(r_pts)
         reach = 2.0 * np.sin(min(reach / EARTH_RADIUS_M, np.pi) / 2.0)
     near = cKDTree(q_pts).sparse_distance_matrix(cKDTree(r_pts), reach, output_type="ndarray")
-    return _truth_from_pairs(q_idx[near["i"]], r_idx[near["j"]], query_names, ref_names, warnings)
+    return truth_from_pairs(q_idx[near["i"]], r_idx[near["j"]], query_names, ref_names, warnings)
 
 
 def positions_truth(query_csv: Path, ref_csv: Path, radius: float, query_names: Sequence[str],
@@ -309,11 +309,11 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     if not usable.any():
         raise WilocError(path, f"none of the {len(frame)} rows names a known query frame and a "
                                "known reference frame")
-    warnings = _unmatched(path, int((q < 0).sum()), len(frame), "rows name no query frame (skipped)")
-    warnings += _unmatched(path, int((r < 0).sum()), len(frame),
+    warnings = unmatched(path, int((q < 0).sum()), len(frame), "rows name no query frame (skipped)")
+    warnings += unmatched(path, int((r < 0).sum()), len(frame),
                            "rows name no reference frame (skipped)")
     rows, cols = _band(q[usable], r[usable], tolerance[usable], len(ref_names))
-    return _truth_from_pairs(rows, cols, query_names, ref_names, warnings)
+    return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 
 def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | sparse.sparray:
@@ -417,7 +417,7 @@ def restrict_sequence(truth: Truth, exclude_recent: int) -> Truth:
         raise WilocError(None, f"exclude-recent must be a whole number >= 0, got {exclude_recent}")
     coo = truth.matrix.tocoo()
     keep = coo.col.astype(np.int64) < coo.row.astype(np.int64) - int(exclude_recent)
-    return _truth_from_pairs(coo.row[keep].astype(np.int64), coo.col[keep].astype(np.int64),
+    return truth_from_pairs(coo.row[keep].astype(np.int64), coo.col[keep].astype(np.int64),
                              truth.query_names, truth.ref_names, list(truth.warnings))
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import WilocError
-from wiloc.groundtruth import Positions, Truth, _index, _truth_from_pairs, _unmatched, truth_within
+from wiloc.groundtruth import Positions, Truth, name_index, truth_from_pairs, truth_within, unmatched
 
 DEFAULT_RADIUS_M = 25.0
 """Same place within 25 m: the threshold of VPR-methods-evaluation and of the benchmarks it follows
@@ -119,8 +119,8 @@ def vprbench_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[s
     queries = np.repeat(np.array([q for q, _ in rows], dtype=np.int64), [refs.size for _, refs in rows])
     refs = np.concatenate([refs for _, refs in rows])
     without = n_query - len({q for q, _ in rows})
-    warnings = _unmatched(path, without, n_query, "query frames have no row (never a true match)")
-    return _truth_from_pairs(queries, refs, query_names, ref_names, warnings)
+    warnings = unmatched(path, without, n_query, "query frames have no row (never a true match)")
+    return truth_from_pairs(queries, refs, query_names, ref_names, warnings)
 
 
 # ------------------------------------------------------------------------------------ @UTM names
@@ -144,7 +144,7 @@ def utm_positions(folder: Path, names: Sequence[str]) -> tuple[Positions, dict[s
                                                   "(the datasets of VPR-methods-evaluation), so it gives no position")
         if len(fields) > 3 and fields[3]:
             zones.setdefault(fields[3], Path(folder) / name)
-    return Positions(f"{folder} (@UTM names)", _index(names), coords, geographic=False), zones
+    return Positions(f"{folder} (@UTM names)", name_index(names), coords, geographic=False), zones
 
 
 def utm_names_truth(query_folder: Path, ref_folder: Path | None, radius: float, query_names: Sequence[str],
@@ -204,7 +204,7 @@ def exif_positions(folder: Path, names: Sequence[str]) -> Positions:
     if missing:
         raise WilocError(folder / missing[0], f"no GPS position in its EXIF ({len(missing)} of {len(names)} "
                                               f"images in {folder} have none)")
-    return Positions(f"{folder} (EXIF GPS)", _index(names), np.array(found, dtype=np.float64).reshape(-1, 2),
+    return Positions(f"{folder} (EXIF GPS)", name_index(names), np.array(found, dtype=np.float64).reshape(-1, 2),
                      geographic=True)
 
 

@@ -168,6 +168,11 @@ class Sampling:
         """Whether a frame lies before the end of the cut (so that it would be picked or passed)."""
         return self.stop is None or not _reached(self.stop, index, timestamp_ms)
 
+    @property
+    def cut(self) -> str:
+        """The cut in words, for messages: ``start 120, stop 12.5s``."""
+        return f"start {self.start}" + ("" if self.stop is None else f", stop {self.stop}")
+
     def estimate(self, frame_count: int | None, rate: float) -> int | None:
         """About how many frames `pick` keeps of a video with `frame_count` frames at `rate`
         frames per second (for progress); None when the container does not say."""
