@@ -165,8 +165,10 @@ BEFORE = {("day_left", "sad"): (0.974, 0.975), ("day_left", "gist"): (0.940, 0.9
 
 # the share of the recall at 99 % precision that the cut 0.99 keeps: 0.8, except where the evidence
 # limits it (docs/calibration.md, "What does not hold yet"), and there what holds, a little below
-# the measured share (seed 0; 0.48 on night_right/sad on seeds 0-4, 0.72-0.82 on day_left/gist)
-KEPT_AT_099 = {("night_right", "sad"): 0.45, ("day_left", "gist"): 0.7}
+# the measured share (seed 0; 0.48 on night_right/sad on seeds 0-4, 0.72-0.82 on day_left/gist).
+# night_right/sad keeps 0.44 since catgraph starts with a prior over paces: four right frames early
+# in the run (25, 29-31), where its evidence is the weakest, stay at 0.96-0.98 instead of 0.99
+KEPT_AT_099 = {("night_right", "sad"): 0.4, ("day_left", "gist"): 0.7}
 
 
 @pytest.fixture(scope="module")

@@ -1,9 +1,9 @@
 """Whole-image CAT-Graph: a particle filter along the reference trajectory (paper III.C, eqs 7-10).
 
 The reference traversal is a trajectory: node j sits at arc length s_j. M particles live at
-continuous positions on it, each moving at its own pace (map nodes per query frame: the map's
-pace at the start, or the pace of the sequence trajectory it was re-seeded on; drifting too when
-``speed_noise`` > 0). Per query frame: move the particles, re-seed a few at the best nodes of a
+continuous positions on it, each moving at its own pace (map nodes per query frame: one drawn
+from a prior over paces at the start, the map's pace the likeliest, or the pace of the sequence
+trajectory it was re-seeded on; drifting too when ``speed_noise`` > 0). Per query frame: move the particles, re-seed a few at the best nodes of a
 causal sequence score (a leaky sum of contrast-normalised differences along straight trajectories
 at several paces), weight each by the likelihood ratio of the difference interpolated at its
 position (eq. 8), weigh the hypothesis that the map does not explain the frame (a new place or a
@@ -35,6 +35,7 @@ from wiloc.methods.base import Decision, MapContext, Method
 from wiloc.parameters import Parameters, param
 from wiloc.recycled import RecycledArrays
 
+START_DEALT = 0.5  # share of particles that start at the paces other than the map's (_start_paces)
 MODE_TIE = 1e-12  # window masses (shares of a unit total) this close to the largest count as tied
 TINY = 1e-300  # the smallest prior mass a hypothesis keeps, so that its log is finite
 
@@ -170,14 +171,21 @@ class CatGraphParams(Parameters):
     reseed_top: int = param(1, "Nodes of best sequence score that re-seeded particles go to.", low=1)
     sequence_rate: float = param(0.1, "Rate of the leaky sequence score (about 1 / frames remembered).",
                                  low=0.0, high=1.0, low_open=True)
-    sequence_speeds: tuple[float, ...] = param((1 / 3, 0.5, 2 / 3, 1.0, 1.5, 2.0, -0.5, -2 / 3, -1.0, -1.5, -2.0),
+    sequence_speeds: tuple[float, ...] = param((1 / 3, 0.5, 2 / 3, 1.0, 1.5, 2.0, 3.0, -0.5, -2 / 3, -1.0, -1.5, -2.0),
                                                "Paces (map nodes per query frame; negative: the route driven the "
                                                "other way) of the sequence score; re-seeded particles move at the "
                                                "pace that scored best at their node (half of the forward ones at "
                                                "the map's pace).")
+    start_paces: float = param(0.3, "Prior probability that the query does not move at the map's pace at its "
+                                    "start (shared evenly by the other paces of sequence_speeds).",
+                               low=0.0, high=1.0, high_open=True)
     rank_pace_min: float = param(0.5, "Paces slower than this (in magnitude) give re-seeded particles their "
                                       "pace but do not choose their nodes: a slow trajectory's sum favours map "
                                       "frames that resemble many query frames.", low=0.0)
+    fast_pace: float = param(2.0, "Paces faster than this rank nodes apart from the others (their sum over few "
+                                  "query frames spans many nodes, so it finds look-alikes more often).", low=0.0)
+    reseed_fast: float = param(0.02, "Share of re-seeded particles that go to the best trajectory faster than "
+                                     "fast_pace (when sequence_speeds has such paces).", low=0.0, high=1.0)
     reseed_backward: float = param(0.1, "Share of re-seeded particles that go to the best backward trajectory "
                                          "(when sequence_speeds has negative paces).", low=0.0, high=1.0)
     contrast_window: int = param(10, "Half window (nodes) of the sequence score's contrast normalisation.",
@@ -231,9 +239,11 @@ class CatGraph(Method):
     in ``sequence_speeds`` an exponentially weighted (rate ``sequence_rate``) sum of contrast-
     normalised differences (+-``contrast_window`` nodes) along the trajectory ending there; the
     lowest over the forward speeds counts, and apart from it the lowest over the backward ones
-    (negative speeds: the route driven the other way), where a share ``reseed_backward`` of the
-    re-seeded particles go (speeds slower than ``rank_pace_min`` rank no node); each moves at the
-    speed whose trajectory scored best at its node (half of the forward ones at the map's pace).
+    (negative speeds: the route driven the other way) and over those faster than ``fast_pace``,
+    where shares ``reseed_backward`` and ``reseed_fast`` of the re-seeded particles go (speeds
+    slower than ``rank_pace_min`` rank no node); each moves at the speed whose trajectory scored
+    best at its node (half of the forward ones at the map's pace). The particles start at paces
+    drawn from a prior (``start_paces``: the other paces' share of the mass).
     Each decision is the node at the density mode (the largest weight mass within
     +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
     the confidence (that mass times 1 - P(new place)) and P(new place). The same seed gives
@@ -268,8 +278,8 @@ class CatGraph(Method):
         # its share of particles, so look-alike places start with equal mass
         self._pos = self._nodes[0] + (np.arange(p.particles) + self._rng.uniform()) / p.particles * (
             self._nodes[-1] - self._nodes[0])
-        self._speed = np.ones(p.particles)  # every particle at the map's pace
-        self._log_w = np.full(p.particles, -np.log(p.particles))
+        self._speed, self._log_w = self._start_paces()
+
         self._set_paces()
         self._sequence = np.zeros((self._paces.size, n_nodes))
         self._spare: NDArray[np.float64] | None = None  # memory for the next sequence score
@@ -280,13 +290,39 @@ class CatGraph(Method):
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
         self._recycle()
 
+    def _start_paces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Each particle's pace and log weight before any frame. The query's pace is not known at
+        the start: half of the particles (``START_DEALT``) cycle through the paces of
+        ``sequence_speeds`` other than the map's, the rest move at the map's pace, and the weights
+        give the other paces together the prior probability ``start_paces``. A particle at every
+        pace from the first frame lets a query at another pace be followed from its start, where
+        re-seeded particles (given the jump's prior mass) take tens of frames to outweigh a cloud
+        that lags or runs ahead; the weights keep the map's pace the likelier one, so weak
+        evidence at the start does not hand the track to a lagging pace. The particles start
+        evenly spaced and the paces are dealt in a fixed pattern along them: every stretch of the
+        map starts with the same mix, as it starts with the same mass."""
+        p = self.params
+        speed, log_w = np.ones(p.particles), np.full(p.particles, -np.log(p.particles))
+        others = np.asarray([v for v in p.sequence_speeds if v != 1.0], dtype=np.float64)
+        i = np.arange(p.particles)
+        dealt = np.floor((i + 1) * START_DEALT) > np.floor(i * START_DEALT)
+        n_dealt = int(dealt.sum())
+        if others.size == 0 or n_dealt in (0, p.particles):
+            return speed, log_w
+        speed[dealt] = others[np.arange(n_dealt) % others.size]
+        log_w[dealt] = np.log(max(p.start_paces / n_dealt, TINY))
+        log_w[~dealt] = np.log((1.0 - p.start_paces) / (p.particles - n_dealt))
+        return speed, log_w
+
     def _set_paces(self) -> None:
-        """The sequence score's paces and the group of each: 0 forward and 1 backward (ranking
-        nodes for re-seeding), 2 slower than ``rank_pace_min`` (giving only a pace)."""
+        """The sequence score's paces and the group of each: 0 forward, 1 backward and 3 faster
+        than ``fast_pace`` (each ranking nodes for re-seeding apart), 2 slower than
+        ``rank_pace_min`` (giving only a pace)."""
         p = self.params
         self._paces = np.asarray(p.sequence_speeds, dtype=np.float64)
-        self._groups = np.where(np.abs(self._paces) < p.rank_pace_min, 2, (self._paces < 0).astype(np.intp))
-        self._group_lowest = np.empty((3, self._nodes.size))  # the score's lowest per group and node
+        self._groups = np.select([np.abs(self._paces) < p.rank_pace_min, self._paces > p.fast_pace, self._paces < 0],
+                                 [2, 3, 1], 0).astype(np.intp)
+        self._group_lowest = np.empty((4, self._nodes.size))  # the score's lowest per group and node
 
     def _recycle(self) -> None:
         """Memory for what :meth:`ahead` computes, used again once its rows are stepped."""
@@ -409,27 +445,44 @@ class CatGraph(Method):
     def _reseed(self, weakest: NDArray[np.intp], lowest: NDArray[np.float64], pos: NDArray[np.float64],
                 speed: NDArray[np.float64], first: bool) -> None:
         """Move the ``weakest`` particles to the ``reseed_top`` nodes of lowest sequence score: a
-        share ``reseed_backward`` (when backward paces rank nodes) to the best backward
-        trajectories' nodes at the backward pace that scored best there, the rest to the best
-        forward ones, half of those at the map's pace and half at the forward pace that scored best
-        there. On the first frame every pace scores alike: all go forward at the map's pace."""
+        share ``reseed_backward`` to the best backward trajectories' nodes and a share
+        ``reseed_fast`` to the best trajectories faster than ``fast_pace``, each at the pace of its
+        group that scored best there; the rest to the best forward ones, half of those at the
+        map's pace and half at the forward pace that scored best there. On the first frame every
+        pace scores alike: all go forward at the map's pace."""
         p, groups = self.params, self._groups
-        forward, backward = bool(np.any(groups == 0)), bool(np.any(groups == 1))
-        n_back = 0 if first or not backward else (
-            weakest.size if not forward else int(round(p.reseed_backward * weakest.size)))
-        for group, chosen in ((0, weakest[n_back:]), (1, weakest[:n_back])):
-            if chosen.size == 0:
-                continue
+        start = 0
+        for group, count in self._reseed_counts(weakest.size, first):
+            chosen = weakest[start:start + count]
+            start += count
             best = _lowest(lowest[group], p.reseed_top)
             best = best[np.arange(chosen.size) % best.size]
             pos[chosen] = self._nodes[best]
             speed[chosen] = 1.0
             if first:
                 continue
-            way = self._paces < 0 if group else self._paces > 0
+            way = (groups == 3) if group == 3 else (  # slow paces give a pace too
+                (self._paces < 0 if group == 1 else self._paces > 0) & (groups != 3))
             alike = slice(None) if group else slice(1, None, 2)  # forward: every other one keeps the map's pace
             scores = self._sequence[:, best[alike]][way]  # the chosen nodes' columns only, not every node
             speed[chosen[alike]] = self._paces[way][np.argmin(scores, axis=0)]
+
+    def _reseed_counts(self, n: int, first: bool) -> list[tuple[int, int]]:
+        """How many of ``n`` re-seeded particles go to each group of paces that ranks nodes
+        (:meth:`_set_paces`): the backward and fast groups their shares, the forward group the
+        rest; a group without paces none (its share goes to the forward group, or when that has
+        none either, to the first group that has paces). The first frame: all forward."""
+        p = self.params
+        present = [g for g in (0, 1, 3) if np.any(self._groups == g)]
+        if first and 0 in present:
+            return [(0, n)]
+        shares = {1: p.reseed_backward, 3: p.reseed_fast}
+        counts = {g: int(np.floor(shares[g] * n + (self._rng.random() if g == 3 else 0.5))) for g in present
+                  if g in shares}
+        rest = n - sum(counts.values())
+        main = 0 if 0 in present else present[0]
+        counts[main] = counts.get(main, 0) + rest
+        return [(g, counts[g]) for g in present if counts.get(g, 0) > 0]
 
     def probability_near(self, node: int) -> float:
         """After a step: the probability that the frame shows the place of ``node`` (within
