@@ -25,7 +25,7 @@ import cv2
 import h5py
 import numpy as np
 import pytest
-from test_cli import _places, _write_traversal
+from helpers import ends_in_one_error, places, write_traversal
 from typer.testing import CliRunner
 
 from wiloc import cache as cache_module
@@ -41,9 +41,9 @@ runner = CliRunner()
 @pytest.fixture
 def route(tmp_path: Path, cache_dir: Path) -> tuple[Path, Path]:
     """A reference and a query over the same 30 places (img0.png ... img29.png)."""
-    scenes = _places(30)
-    return (_write_traversal(tmp_path / "ref", scenes, 1.0, 1),
-            _write_traversal(tmp_path / "query", scenes, 0.7, 2))
+    scenes = places(30)
+    return (write_traversal(tmp_path / "ref", scenes, 1.0, 1),
+            write_traversal(tmp_path / "query", scenes, 0.7, 2))
 
 
 @pytest.fixture
@@ -54,20 +54,6 @@ def results(route: tuple[Path, Path], tmp_path: Path) -> Path:
     assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
                                "--out", str(out), "--jobs", "1"]).exit_code == 0
     return out
-
-
-NOTES = ("skipped ", "note ", "warning ")
-
-
-def ends_in_one_error(result, code: int, *fragments: str) -> None:
-    """Exit ``code``, one stderr line ``error: ...`` holding each fragment and coming last (the
-    lines before it, if any, are notes on frames left out), no traceback."""
-    assert result.exit_code == code, (result.exit_code, result.output)
-    *notes, last = result.stderr.strip().splitlines() or [""]
-    assert last.startswith("error: ") and all(line.startswith(NOTES) for line in notes), result.stderr
-    assert "Traceback" not in result.output
-    for fragment in fragments:
-        assert fragment in last, (fragment, last)
 
 
 # ------------------------------------------------------------------------------- 2: usage errors
