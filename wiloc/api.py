@@ -316,8 +316,8 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
         decision = localizer.observe(query / name)
         if stream.line(decision) != line:
             stream.close()
-            raise WilocError(path, f"frame '{name}' decided again differs from its row: the map, the frames or "
-                                   "the settings changed; give another --out to start anew")
+            raise WilocError(None, f"{path}: frame '{name}' decided again differs from its row: the map, the "
+                                   "frames or the settings changed; give another file to start anew", parameter="out")
     return FollowRun(query=query, localizer=localizer, stream=stream, idle=idle, poll=poll, resumed=len(names))
 
 
