@@ -208,7 +208,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     kind = algo.row_kind(describer.descriptor)
     source = run_differences(q, r, describer.cache, R, describer.runner, progress=stage(progress, "map differences"))
     if kind == "log_ratio":  # FAB-MAP's evidence from bag-of-words descriptors
-        evidence = FabMapEvidence.of(describer.spec)
+        evidence = FabMapEvidence.of(describer.spec, algo.params)
         if not sequence:
             evidence.add_places(r.data)
         rows = evidence_rows(evidence, q.data, sequence, R)
