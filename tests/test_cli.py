@@ -205,6 +205,19 @@ def test_help_groups_method_options_with_their_defaults() -> None:
     assert "--particles" in catgraph and "2000" in catgraph and "0.5,0.666667,1,1.5,2" in catgraph
 
 
+def test_an_option_methods_describe_differently_shows_each_description() -> None:
+    from wiloc.cli_params import method_options
+    from wiloc.methods.registry import METHODS
+    from wiloc.parameters import declared
+
+    seed = method_options()["seed"]
+    assert len(seed.by_method) > 1
+    for method in seed.by_method:
+        [own] = [d.help for d in declared(METHODS[method].Params) if d.name == "seed"]
+        assert f"{method}: {own}" in seed.help()
+    assert method_options()["bins"].help().startswith("Histogram bins.")  # the same words: said once
+
+
 def test_map_too_short_for_exclude_recent(route: tuple[Path, Path]) -> None:
     ref, query = route
     result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "-R", "39"])
