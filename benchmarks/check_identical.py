@@ -12,9 +12,10 @@ environment) with an empty cache (``--cache``, as ``WILOC_CACHE``) of its own:
 - ``wiloc evaluate`` and ``wiloc compare`` of each dataset's results files, as tables and ``--json``.
 
 Datasets (``$WILOC_DATA``, else ``../shared/data`` beside the repository): Gardens Point Walking
-(``gp``: map day_right, query day_left; vocabulary and training query night_right) and Nordland
-(``nordland``: map summer, query winter; the first ``--frames`` frames of each, the next
-``--frames`` for the vocabulary and the training pair, as folders of symbolic links).
+(``gp``: map day_right, query day_left; vocabulary and training pair night_right against
+day_right) and Nordland (``nordland``: map summer, query winter, the first ``--frames`` frames of
+each; the next ``--frames`` of each for the vocabulary (winter) and the training pair; folders of
+symbolic links).
 
 Both commits run in the same folder (``<tmp>/run``, moved aside once a commit is done), so paths
 in outputs match. Compared: each command's exit code, stdout and stderr; every results file; the
@@ -28,7 +29,8 @@ differs; exits 1 on any difference, 0 when every output is identical.
     .venv/bin/python benchmarks/check_identical.py --methods fabmap --datasets gp
     .venv/bin/python benchmarks/check_identical.py --base main~1 --head main --descriptors sad,gist
 
-A quick check (``--methods online --descriptors sad --datasets gp``) takes about a minute.
+A quick check (``--methods online --descriptors sad --datasets gp``) took 42 s on a 2-core machine;
+every method and descriptor on Gardens Point 9 to 12 minutes, on 300 Nordland frames 4.
 """
 from __future__ import annotations
 
@@ -69,12 +71,13 @@ console = Console(width=shutil.get_terminal_size((160, 24)).columns)
 
 @dataclass(frozen=True)
 class Dataset:
-    """One test pair and the traversals it learns from."""
+    """One test pair and the pair it learns from (the vocabulary: the training query)."""
 
     name: str
     query: Path
     reference: Path
     train_query: Path
+    train_reference: Path
 
 
 def data_root() -> Path:
@@ -89,7 +92,7 @@ def datasets(names: list[str], root: Path, scratch: Path, frames: int) -> list[D
     for name in names:
         if name == "gp":
             gp = root / "gardens-point-walking"
-            chosen.append(Dataset("gp", gp / "day_left", gp / "day_right", gp / "night_right"))
+            chosen.append(Dataset("gp", gp / "day_left", gp / "day_right", gp / "night_right", gp / "day_right"))
         elif name == "nordland":
             nordland = root / "nordland-summer-winter-64x32"
             cut = {}
@@ -101,7 +104,7 @@ def datasets(names: list[str], root: Path, scratch: Path, frames: int) -> list[D
                     for image in chunk:
                         (folder / image.name).symlink_to(image)
                     cut[f"{season}{part}"] = folder
-            chosen.append(Dataset("nordland", cut["winter"], cut["summer"], cut["winter_train"]))
+            chosen.append(Dataset("nordland", cut["winter"], cut["summer"], cut["winter_train"], cut["summer_train"]))
         else:
             sys.exit(f"error: --datasets: unknown dataset '{name}' (choose from {', '.join(DATASETS)})")
     return chosen
@@ -170,7 +173,7 @@ def run_commit(code: Path, work: Path, sets: list[Dataset], methods: list[str], 
                 if method in BOW_ONLY and descriptor != "bow":
                     continue
                 if method == "trained":
-                    extra_method = ["--train-query", str(data.train_query), "--train-map", str(data.reference),
+                    extra_method = ["--train-query", str(data.train_query), "--train-map", str(data.train_reference),
                                     "--train-gt", "aligned"]
                 else:
                     extra_method = []
