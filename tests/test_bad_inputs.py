@@ -8,6 +8,7 @@ console script runs in a subprocess.
 """
 from __future__ import annotations
 
+import ast
 import errno
 import json
 import os
@@ -25,7 +26,7 @@ import cv2
 import h5py
 import numpy as np
 import pytest
-from test_cli import _places, _write_traversal
+from helpers import ends_in_one_error, places, write_traversal
 from typer.testing import CliRunner
 
 from wiloc import cache as cache_module
@@ -41,9 +42,9 @@ runner = CliRunner()
 @pytest.fixture
 def route(tmp_path: Path, cache_dir: Path) -> tuple[Path, Path]:
     """A reference and a query over the same 30 places (img0.png ... img29.png)."""
-    scenes = _places(30)
-    return (_write_traversal(tmp_path / "ref", scenes, 1.0, 1),
-            _write_traversal(tmp_path / "query", scenes, 0.7, 2))
+    scenes = places(30)
+    return (write_traversal(tmp_path / "ref", scenes, 1.0, 1),
+            write_traversal(tmp_path / "query", scenes, 0.7, 2))
 
 
 @pytest.fixture
@@ -54,20 +55,6 @@ def results(route: tuple[Path, Path], tmp_path: Path) -> Path:
     assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
                                "--out", str(out), "--jobs", "1"]).exit_code == 0
     return out
-
-
-NOTES = ("skipped ", "note ", "warning ")
-
-
-def ends_in_one_error(result, code: int, *fragments: str) -> None:
-    """Exit ``code``, one stderr line ``error: ...`` holding each fragment and coming last (the
-    lines before it, if any, are notes on frames left out), no traceback."""
-    assert result.exit_code == code, (result.exit_code, result.output)
-    *notes, last = result.stderr.strip().splitlines() or [""]
-    assert last.startswith("error: ") and all(line.startswith(NOTES) for line in notes), result.stderr
-    assert "Traceback" not in result.output
-    for fragment in fragments:
-        assert fragment in last, (fragment, last)
 
 
 # ------------------------------------------------------------------------------- 2: usage errors
@@ -505,6 +492,40 @@ def test_follow_leaves_out_an_empty_file_and_a_fifo_with_a_line(route: tuple[Pat
 
 
 # ------------------------------------------------------------------ the Python API: wiloc errors
+
+FLAG = re.compile(r"(?<![\w-])--[a-z]")
+
+
+def _raised_texts(module: Path) -> list[tuple[int, str]]:
+    """(line, text) of every string written inside a ``raise`` statement of ``module``."""
+    texts = []
+    for node in ast.walk(ast.parse(module.read_text())):
+        if isinstance(node, ast.Raise) and node.exc is not None:
+            texts += [(c.lineno, c.value) for c in ast.walk(node.exc)
+                      if isinstance(c, ast.Constant) and isinstance(c.value, str)]
+    return texts
+
+
+def test_library_errors_name_parameters_not_flags() -> None:
+    """Only the command line knows its flags: a library error names the parameter
+    (``WilocError(..., parameter=...)``), which the command line shows as its flag."""
+    package = Path(__file__).resolve().parents[1] / "wiloc"
+    found = [f"{path.relative_to(package)}:{line}: {text!r}" for path in sorted(package.rglob("*.py"))
+             if not path.name.startswith("cli") for line, text in _raised_texts(path) if FLAG.search(text)]
+    assert not found, found
+
+
+def test_a_library_error_names_the_parameter_and_the_command_line_its_flag(route: tuple[Path, Path],
+                                                                           cache_dir: Path) -> None:
+    from wiloc.describing import describe_folder
+    from wiloc.descriptors.registry import get_descriptor
+
+    ref, _ = route
+    with pytest.raises(ParameterError) as caught:
+        describe_folder(ref, get_descriptor("sad"), Cache(cache_dir), jobs=0)
+    assert caught.value.parameter == "jobs" and str(caught.value) == "jobs: must be at least 1, got 0"
+    ends_in_one_error(runner.invoke(app, ["describe", str(ref), "--jobs", "0"]), 2, "--jobs: must be at least 1, got 0")
+
 
 @pytest.fixture
 def localizers(route: tuple[Path, Path], cache_dir: Path) -> dict[str, Localizer]:

@@ -10,7 +10,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from test_describing import FakeSpec, write_images
+from helpers import FakeSpec, write_images
 
 from wiloc import api
 from wiloc.cache import Cache

@@ -4,9 +4,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
+from helpers import places, write_traversal
 from typer.testing import CliRunner
 
 from wiloc.cli import app
@@ -14,31 +14,12 @@ from wiloc.cli import app
 runner = CliRunner()
 
 
-def _places(n: int, seed: int = 0) -> list[np.ndarray]:
-    """Distinct smooth random 96x64 scenes, one per place."""
-    rng = np.random.default_rng(seed)
-    scenes = []
-    for _ in range(n):
-        small = rng.uniform(0, 255, size=(8, 12)).astype(np.float32)
-        scenes.append(cv2.resize(small, (96, 64), interpolation=cv2.INTER_CUBIC))
-    return scenes
-
-
-def _write_traversal(folder: Path, scenes: list[np.ndarray], gain: float, seed: int) -> Path:
-    rng = np.random.default_rng(seed)
-    folder.mkdir(parents=True)
-    for i, scene in enumerate(scenes):
-        image = np.clip(scene * gain + rng.normal(0, 6, scene.shape), 0, 255).astype(np.uint8)
-        cv2.imwrite(str(folder / f"img{i}.png"), image)
-    return folder
-
-
 @pytest.fixture
 def route(tmp_path: Path, cache_dir: Path) -> tuple[Path, Path]:
     """A reference and a darker, noisier query over the same 40 places."""
-    scenes = _places(40)
-    return (_write_traversal(tmp_path / "ref", scenes, 1.0, 1),
-            _write_traversal(tmp_path / "query", scenes, 0.7, 2))
+    scenes = places(40)
+    return (write_traversal(tmp_path / "ref", scenes, 1.0, 1),
+            write_traversal(tmp_path / "query", scenes, 0.7, 2))
 
 
 def _json(result) -> object:
@@ -222,6 +203,19 @@ def test_help_groups_method_options_with_their_defaults() -> None:
         assert panel in text
     catgraph = text[text.index("catgraph options"):]
     assert "--particles" in catgraph and "2000" in catgraph and "0.5,0.666667,1,1.5,2" in catgraph
+
+
+def test_an_option_methods_describe_differently_shows_each_description() -> None:
+    from wiloc.cli_params import method_options
+    from wiloc.methods.registry import METHODS
+    from wiloc.parameters import declared
+
+    seed = method_options()["seed"]
+    assert len(seed.by_method) > 1
+    for method in seed.by_method:
+        [own] = [d.help for d in declared(METHODS[method].Params) if d.name == "seed"]
+        assert f"{method}: {own}" in seed.help()
+    assert method_options()["bins"].help().startswith("Histogram bins.")  # the same words: said once
 
 
 def test_map_too_short_for_exclude_recent(route: tuple[Path, Path]) -> None:

@@ -13,7 +13,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 import pytest
-from test_cli import _places, _write_traversal
+from helpers import places, write_traversal
 import typer
 from typer.core import TyperArgument, TyperOption
 from typer.testing import CliRunner
@@ -26,8 +26,8 @@ NARROW = {"COLUMNS": "80"}
 
 
 def _route(tmp_path: Path, n: int = 24) -> tuple[Path, Path]:
-    scenes = _places(n)
-    return (_write_traversal(tmp_path / "ref", scenes, 1.0, 1), _write_traversal(tmp_path / "query", scenes, 0.7, 2))
+    scenes = places(n)
+    return (write_traversal(tmp_path / "ref", scenes, 1.0, 1), write_traversal(tmp_path / "query", scenes, 0.7, 2))
 
 
 def _option_rows(text: str) -> dict[str, str]:
@@ -79,9 +79,9 @@ def test_the_command_line_loads_without_the_heavy_libraries() -> None:
 
 
 def test_cache_list_tells_entries_apart_at_80_columns(tmp_path: Path, cache_dir: Path) -> None:
-    scenes = _places(6)
+    scenes = places(6)
     for parent in ("nordland", "gardens"):
-        folder = _write_traversal(tmp_path / parent / "winter", scenes, 1.0, 1)
+        folder = write_traversal(tmp_path / parent / "winter", scenes, 1.0, 1)
         assert runner.invoke(app, ["describe", str(folder), "--jobs", "1"]).exit_code == 0
     assert runner.invoke(app, ["describe", str(folder), "--crop", "top-half", "--jobs", "1"]).exit_code == 0
     text = runner.invoke(app, ["describe", "--list"], env=NARROW).stdout

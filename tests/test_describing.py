@@ -6,41 +6,19 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import cv2
 import h5py
 import numpy as np
 import pytest
+from helpers import FakeSpec, interrupt_after_six_frames, write_images
 
 from wiloc.cache import Cache, EntryHeader
 from wiloc.errors import WilocError
 from wiloc.frames import read_gray
 from wiloc.describing import describe_folder, import_matrix
-
-
-@dataclass(frozen=True)
-class FakeSpec:
-    """A cheap stand-in for a DescriptorSpec: the image area-resized to side x side."""
-
-    params: dict[str, Any] = field(default_factory=lambda: {"side": 4})
-    name: str = "fake"
-    metric: str = "l1"
-    dtype: np.dtype = np.dtype(np.float32)
-    scale: float = 1.0
-    min_size: tuple[int, int] | None = None
-    natural_max: float | None = 255.0
-    colour: bool = False  # computed from gray images, one by one, as DescriptorSpec's gray ones
-
-    @property
-    def length(self) -> int:
-        return self.params["side"] ** 2
-
-    def compute(self, gray: np.ndarray) -> np.ndarray:
-        side = self.params["side"]
-        return cv2.resize(gray, (side, side), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()
 
 
 @dataclass(frozen=True)
@@ -63,19 +41,6 @@ class SlowSpec(FakeSpec):
     def compute(self, gray: np.ndarray) -> np.ndarray:
         time.sleep(self.seconds)
         return super().compute(gray)
-
-
-def write_images(folder: Path, count: int, seed: int = 0, size: tuple[int, int] = (64, 48)) -> list[str]:
-    """`count` smooth random images, alternating PNG and JPEG, named img0 .. img{count-1}."""
-    folder.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(seed)
-    names = []
-    for i in range(count):
-        image = cv2.GaussianBlur(rng.integers(0, 256, (size[1], size[0]), dtype=np.uint8), (5, 5), 0)
-        name = f"img{i}.{'png' if i % 2 else 'jpg'}"
-        assert cv2.imwrite(str(folder / name), image)
-        names.append(name)
-    return names
 
 
 def expected_rows(folder: Path, names: list[str], spec: FakeSpec) -> np.ndarray:
@@ -254,21 +219,6 @@ def test_missing_folder_and_bad_jobs_are_user_errors(tmp_path: Path) -> None:
         describe_folder(tmp_path / "route", FakeSpec(), cache, jobs=0)
 
 
-
-
-def interrupt_after_six_frames(args: list[str], cache: Cache, sig: signal.Signals) -> subprocess.Popen:
-    """Run ``python -c args...`` (a describe into ``cache``), send ``sig`` once the cache holds 6
-    described frames, and return the ended process."""
-    run = subprocess.Popen([sys.executable, "-c", *args], stderr=subprocess.PIPE)
-    finished = 0
-    deadline = time.monotonic() + 120
-    while finished < 6 and run.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.05)
-        finished = sum(info.frames for info in cache.list_entries())
-    assert run.poll() is None, "describe ended before it could be interrupted"
-    run.send_signal(sig)
-    run.wait(timeout=60)
-    return run
 
 
 @pytest.mark.parametrize(("sig", "jobs"), [(signal.SIGKILL, 1), (signal.SIGINT, 2)])

@@ -11,23 +11,13 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from helpers import make_entry
 
 from wiloc.cache import Cache, Entry
 from wiloc.differences import MapSummary, candidate_rows, differences, map_summary, prefetched_blocks, summarize
 from wiloc.distances import pairwise
 from wiloc.errors import WilocError
 from wiloc.methods.base import ArrayRows
-
-
-def make_entry(key: str, rows: int, seed: int, metric: str = "l1", scale: float = 0.5, length: int = 48) -> Entry:
-    """A small uint8 entry whose digest follows its content, as the cache's digests do."""
-    data = np.random.default_rng(seed).integers(0, 256, (rows, length), dtype=np.uint8)
-    return Entry(
-        key=key, folder=f"/routes/{key}", descriptor="sad", params={}, metric=metric, scale=scale,
-        natural_max=None, dtype=data.dtype.str, length=length,
-        names=[f"{key}{i:04d}.png" for i in range(rows)], data=data,
-        digest=f"{key}-{seed}-{rows}-{length}",
-    )
 
 
 class Counter:
@@ -201,7 +191,7 @@ def test_incompatible_entries_name_both_folders(ref_change: dict, problem: str) 
 _KILLED_WRITER = """
 import os, signal, sys
 sys.path.insert(0, {tests!r})
-from test_differences import make_entry
+from helpers import make_entry
 from wiloc.cache import Cache
 from wiloc.differences import map_summary
 

@@ -197,6 +197,22 @@ def test_zero_false_positive_makes_a_seen_word_certain() -> None:
 
 # ----------------------------------------------------------------------------- posterior
 
+def test_the_fabmap_method_decides_by_the_model_s_posterior(tiny: tuple) -> None:
+    from wiloc.methods.fabmap import FabMapMethod
+
+    tree, train = tiny
+    method = FabMapMethod(new_place_prior=0.6, posterior_smoothing=0.9, window=0)
+    fabmap = FabMap(tree, method.params, training=train)
+    for z in train[:6]:
+        fabmap.add_place(z)
+    for z in train[10:14]:
+        places, new = fabmap.posterior(z)
+        rows, new_row = fabmap.frame_log_likelihoods(z)
+        decision = method.decide(rows - new_row, None)
+        assert decision.match == int(np.argmax(places))
+        assert (decision.confidence, decision.new_place) == pytest.approx((places.max(), new), rel=1e-12)
+
+
 def test_posterior_is_normalised_over_places_and_new_place(tiny: tuple) -> None:
     tree, train = tiny
     params = FabMapParams(posterior_smoothing=1.0, new_place_prior=0.5)

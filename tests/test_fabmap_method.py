@@ -129,6 +129,28 @@ def test_the_command_line_builds_a_vocabulary_and_runs_fabmap(setup, tmp_path: P
     assert missing.exit_code == 1 and "--vocabulary: 'nope' is neither a vocabulary file" in missing.stderr
 
 
+def test_fabmap_s_own_parameters_reach_its_model_from_the_api_and_the_command_line(setup, tmp_path: Path) -> None:
+    route, cache, bow = setup
+    runs = {name: api.localize(route.query, reference=route.reference, descriptor="bow", descriptor_params=bow,
+                               method="fabmap", method_params={"new_place": name}, cache=cache,
+                               out=tmp_path / f"{name}.csv") for name in ("sampled", "mean-field")}
+    assert runs["mean-field"].results.meta["params"]["new_place"] == "mean-field"
+    new_place = {name: run.decisions.columns["new_place"] for name, run in runs.items()}
+    assert not np.allclose(new_place["sampled"], new_place["mean-field"])  # the model's new place changed
+    loc = Localizer(route.reference, descriptor="bow", descriptor_params=bow, method="fabmap", new_place="mean-field",
+                    cache=cache)
+    first = loc.observe(sorted(route.query.iterdir())[0])
+    assert f"{first.new_place:.9g}" == f"{new_place['mean-field'][0]:.9g}"
+    runner = CliRunner()
+    args = ["localize", str(route.query), "--map", str(route.reference), "--descriptor", "bow", "--vocabulary",
+            bow["file"], "--cache", str(cache.root), "--new-place", "mean-field"]
+    done = runner.invoke(app, [*args, "--method", "fabmap", "--out", str(tmp_path / "cli.csv")])
+    assert done.exit_code == 0, done.output
+    assert _rows(tmp_path / "cli.csv")["new_place"].tolist() == _rows(runs["mean-field"].path)["new_place"].tolist()
+    refused = runner.invoke(app, [*args, "--method", "catgraph"])
+    assert refused.exit_code == 2 and "--new-place: method 'catgraph' takes no such option" in refused.stderr
+
+
 def _evidence(rng: np.random.Generator, frames: int = 80, n_map: int = 120) -> tuple[np.ndarray, np.ndarray]:
     """FAB-MAP-like evidence rows in hundreds of nats, highest around the true place (query frame
     k at map place k + 20) among look-alikes, and the true places."""

@@ -8,7 +8,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from test_bad_inputs import ends_in_one_error
+from helpers import ends_in_one_error
 from typer.testing import CliRunner
 
 from wiloc.cli import app
@@ -128,4 +128,4 @@ def test_bad_sources_are_one_line(case: str, tmp_path: Path, cache_dir: Path) ->
 
 def test_a_matrix_file_without_a_recorded_metric_still_needs_one(tmp_path: Path, cache_dir: Path) -> None:
     feats = _hloc_file(tmp_path / "feats.h5", {f"img{i}.jpg": v for i, v in enumerate(_descriptors()[0])})
-    ends_in_one_error(runner.invoke(app, ["localize", str(feats)]), 2, "needs a metric", "--out FILE.h5")
+    ends_in_one_error(runner.invoke(app, ["localize", str(feats)]), 2, "--metric: ", "needs a metric", "imported descriptors")

@@ -188,7 +188,7 @@ wiloc.describing.describe_folder(Path(sys.argv[1]), get_descriptor("onnx", model
 def test_killed_describe_resumes(tmp_path: Path) -> None:
     """A run killed (SIGKILL) after some frames keeps them; the next run computes only the rest,
     and the entry equals a run that was never interrupted."""
-    from test_describing import interrupt_after_six_frames
+    from helpers import interrupt_after_six_frames
 
     model = tmp_path / "m.onnx"
     conv_model(model)

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from test_cli import _places, _write_traversal
+from helpers import places, write_traversal
 from wiloc import api
 from wiloc.run_figures import example_pairs
 
@@ -16,9 +16,9 @@ runner = CliRunner()
 @pytest.fixture
 def run(tmp_path: Path, cache_dir: Path) -> Path:
     """Online results on a route whose query runs 5 places past the map's end (so some are wrong)."""
-    scenes = _places(45)
-    ref = _write_traversal(tmp_path / "ref", scenes[:40], 1.0, 1)
-    query = _write_traversal(tmp_path / "query", scenes, 0.7, 2)
+    scenes = places(45)
+    ref = write_traversal(tmp_path / "ref", scenes[:40], 1.0, 1)
+    query = write_traversal(tmp_path / "query", scenes, 0.7, 2)
     return api.localize(query, reference=ref, method="online", out=tmp_path / "query-sad-online.csv", jobs=1).path
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_cli import _places, _write_traversal
+from helpers import places, write_traversal
 from typer.testing import CliRunner
 
 from wiloc import api
@@ -143,9 +143,9 @@ def test_a_results_file_without_the_column_reports_no_recall_at_k(tmp_path: Path
 @pytest.fixture
 def runs(tmp_path: Path, cache_dir: Path) -> dict[str, Path]:
     """An online and a catgraph run of a query against its map (24 places)."""
-    scenes = _places(24)
-    ref = _write_traversal(tmp_path / "ref", scenes, 1.0, 1)
-    query = _write_traversal(tmp_path / "query", scenes, 0.7, 2)
+    scenes = places(24)
+    ref = write_traversal(tmp_path / "ref", scenes, 1.0, 1)
+    query = write_traversal(tmp_path / "query", scenes, 0.7, 2)
     paths = {}
     for method in ("online", "catgraph"):
         paths[method] = tmp_path / f"{method}.csv"

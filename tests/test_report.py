@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from test_cli import _places, _write_traversal
+from helpers import places, write_traversal
 from wiloc import api
 from wiloc.cli import app
 
@@ -28,9 +28,9 @@ needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not in
 @pytest.fixture
 def runs(tmp_path: Path, cache_dir: Path) -> list[Path]:
     """Two methods' results on a generated route whose query runs 5 places past the map's end."""
-    scenes = _places(45)
-    ref = _write_traversal(tmp_path / "route" / "ref", scenes[:40], 1.0, 1)
-    query = _write_traversal(tmp_path / "route" / "query", scenes, 0.7, 2)
+    scenes = places(45)
+    ref = write_traversal(tmp_path / "route" / "ref", scenes[:40], 1.0, 1)
+    query = write_traversal(tmp_path / "route" / "query", scenes, 0.7, 2)
     files = []
     for method in ("online", "catgraph"):
         run = api.localize(query, reference=ref, method=method, out=tmp_path / f"query-sad-{method}.csv", jobs=1)

@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from test_bad_inputs import ends_in_one_error
+from helpers import ends_in_one_error
 from typer.testing import CliRunner
 
 from wiloc import api

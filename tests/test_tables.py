@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 import pytest
-from test_cli import _places, _write_traversal
+from helpers import places, write_traversal
 from typer.testing import CliRunner
 
 from wiloc.cli import app
@@ -61,9 +61,9 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
     tmp = tmp_path_factory.mktemp("tables")
     data, out = tmp / "gardens-point-walking", tmp / "runs"
     out.mkdir()
-    scenes = _places(24)
+    scenes = places(24)
     for name, gain, seed in (("day_right", 1.0, 1), ("day_left", 0.8, 2), ("night_right", 0.6, 3)):
-        _write_traversal(data / name, scenes, gain, seed)
+        write_traversal(data / name, scenes, gain, seed)
     env = {"WILOC_CACHE": str(tmp / "cache")}
     for method in ("online", "threshold", "catgraph"):
         result = runner.invoke(app, ["localize", str(data / "day_left"), str(data / "night_right"), "--map",

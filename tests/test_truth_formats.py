@@ -12,8 +12,7 @@ import pandas as pd
 import pytest
 from PIL import Image
 from PIL.TiffImagePlugin import IFDRational
-from test_bad_inputs import ends_in_one_error
-from test_cli import _places
+from helpers import ends_in_one_error, places
 from typer.testing import CliRunner
 
 from wiloc import api
@@ -73,7 +72,7 @@ def _great_circle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def vpr_route(tmp_path: Path, cache_dir: Path) -> dict:
     """database/ and queries/ over the same places, a threshold run of one against the other, and
     the pairs CSVs that list the same place by UTM and by lat/lon within 25 m (brute force)."""
-    scenes = _places(N)
+    scenes = places(N)
     ref = _write_images(tmp_path / "database", scenes, 1.0, 1)
     query = _write_images(tmp_path / "queries", scenes, 0.7, 2)
     run = tmp_path / "run.csv"

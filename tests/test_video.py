@@ -12,7 +12,7 @@ import cv2
 import h5py
 import numpy as np
 import pytest
-from test_describing import FakeSpec, interrupt_after_six_frames
+from helpers import FakeSpec, interrupt_after_six_frames
 from typer.testing import CliRunner
 
 from wiloc import api
@@ -71,7 +71,7 @@ def test_frames_are_named_by_index_with_timestamps(tmp_path: Path) -> None:
 
 
 def test_folders_keep_nan_timestamps(tmp_path: Path) -> None:
-    from test_describing import write_images
+    from helpers import write_images
 
     write_images(tmp_path / "route", 3)
     report = describe_folder(tmp_path / "route", FakeSpec(), Cache(tmp_path / "cache"), jobs=1)

@@ -208,7 +208,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     kind = algo.row_kind(describer.descriptor)
     source = run_differences(q, r, describer.cache, R, describer.runner, progress=stage(progress, "map differences"))
     if kind == "log_ratio":  # FAB-MAP's evidence from bag-of-words descriptors
-        evidence = FabMapEvidence.of(describer.spec)
+        evidence = FabMapEvidence.of(describer.spec, algo.params)
         if not sequence:
             evidence.add_places(r.data)
         rows = evidence_rows(evidence, q.data, sequence, R)
@@ -316,8 +316,8 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
         decision = localizer.observe(query / name)
         if stream.line(decision) != line:
             stream.close()
-            raise WilocError(path, f"frame '{name}' decided again differs from its row: the map, the frames or "
-                                   "the settings changed; give another --out to start anew")
+            raise WilocError(None, f"{path}: frame '{name}' decided again differs from its row: the map, the "
+                                   "frames or the settings changed; give another file to start anew", parameter="out")
     return FollowRun(query=query, localizer=localizer, stream=stream, idle=idle, poll=poll, resumed=len(names))
 
 

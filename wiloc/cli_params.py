@@ -74,8 +74,11 @@ class MethodOption:
         return "; ".join(f"{m}: {'none' if d.default is None else d.default}" for m, d in self.by_method.items())
 
     def help(self) -> str:
+        """The parameter's help, or each method's (``online: ... fabmap: ...``) when they differ."""
         d = self.first
-        parts = [_said_default(d.help)[0] if self.shared else d.help]
+        texts = {m: _said_default(t.help)[0] if self.shared else t.help for m, t in self.by_method.items()}
+        same = len(set(texts.values())) == 1
+        parts = [texts[next(iter(texts))] if same else " ".join(f"{m}: {text}" for m, text in texts.items())]
         if d.range_text:
             parts.append(f"({d.range_text})")
         if d.kind == "floats":

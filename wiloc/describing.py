@@ -38,7 +38,7 @@ from wiloc.cache import (
 )
 from wiloc.descriptors.external import read_external, write_matrix
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
-from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
+from wiloc.errors import FrameError, ParameterError, WilocError
 from wiloc.frames import (Fingerprint, Traversal, fingerprint, jpeg_size, list_traversal, natural_key, read_colour,
                           read_gray)
 from wiloc.reprs import short_repr
@@ -497,7 +497,7 @@ def _check_jobs(jobs: int | None) -> int:
     if jobs is None:
         return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     if jobs < 1:
-        raise UsageError("--jobs", f"must be at least 1, got {jobs}")
+        raise ParameterError("jobs", f"must be at least 1, got {jobs}")
     return jobs
 
 

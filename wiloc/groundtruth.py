@@ -338,7 +338,7 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
                                        f"{', '.join(sorted(arrays)) or 'none'}")
             return next(iter(arrays.values()))
     except (ValueError, OSError, NotImplementedError) as exc:
-        hint = "; VPR-Bench's ground_truth_new.npy is --gt vprbench:FILE" if "allow_pickle" in str(exc) else ""
+        hint = "; VPR-Bench's ground_truth_new.npy is the vprbench form" if "allow_pickle" in str(exc) else ""
         raise WilocError(path, f"cannot read matrix ({load_problem(exc)}){hint}") from exc
     raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv or .mat")
 

@@ -80,7 +80,7 @@ class Localizer:
         self._spec = None if self._map_path is not None and is_matrix_file(self._map_path) else self._describer.spec
         self.names: list[str] = []  # the frames observed, in order
         self._kind = self.method.row_kind(descriptor)
-        self._evidence = FabMapEvidence.of(self._describer.spec) if self._kind == "log_ratio" else None
+        self._evidence = FabMapEvidence.of(self._describer.spec, self.method.params) if self._kind == "log_ratio" else None
         if map is None:
             self._map: Entry | None = None
             self._seen = np.empty((0, self._spec.length), dtype=self._spec.dtype)

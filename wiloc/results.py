@@ -178,7 +178,8 @@ class ResultsStream:
             found, self.rows, _ = _read_table(self.path)
             expected = {k: json.loads(json.dumps(v)) if k in JSON_KEYS else str(v) for k, v in self.header.items()}
             if {k: v for k, v in found.items() if k != "wiloc"} != {k: v for k, v in expected.items() if k != "wiloc"}:
-                raise WilocError(self.path, "holds a run with other settings; give another --out to start anew")
+                raise WilocError(None, f"{self.path} holds a run with other settings; give another file to start anew",
+                                 parameter="out")
         else:
             _write_atomically(self.path, self.header, lambda out: out.write(",".join(self.columns) + "\n"))
         self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)

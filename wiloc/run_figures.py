@@ -131,7 +131,7 @@ def _entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]:
     results = evaluation.results
     if q.names != results.frames["frame"].tolist() or (results.reference_frames and r.names != results.reference_frames):
         raise WilocError(evaluation.path, "its query and map no longer give the frames it lists (the folders "
-                                          "changed, or the run named its frames with --names); cannot draw it")
+                                          "changed, or the run took its frame names from a file); cannot draw it")
     for role, entry in (("query", q), ("map", r)):
         recorded = meta.get(f"{role}_digest")  # files of batch runs record them
         if recorded and recorded != descriptors_digest(entry.names, entry.data):

@@ -14,7 +14,7 @@ from wiloc.cache import Cache, Entry, EntryHeader
 from wiloc.describing import describe_source, import_matrix
 from wiloc.descriptors.external import recorded_metric
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
-from wiloc.errors import ParameterError, UsageError, WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.frames import IMAGE_SUFFIXES
 from wiloc.bags import is_bag
 from wiloc.video import Sampling, is_video
@@ -81,7 +81,7 @@ def open_cluster(scheduler: str | None, workers: int | None = None) -> Cluster |
     try:
         from wiloc.cluster import connect
     except ImportError:
-        raise UsageError("--scheduler", "needs Dask: pip install 'wiloc[dask]'") from None
+        raise ParameterError("scheduler", "needs Dask: pip install 'wiloc[dask]'") from None
     return connect(scheduler, workers)
 
 
@@ -129,8 +129,9 @@ class Describer:
                                          "descriptor matrix file (.npy, .csv, .h5)")
             metric = self.metric or recorded_metric(source)
             if metric is None:
-                raise UsageError(source, "a descriptor matrix file needs a metric (l1, sqeuclidean, hamming, cosine), "
-                                         "or a file written by `wiloc describe --import ... --out FILE.h5`, which records it")
+                raise ParameterError("metric", f"{source}: a descriptor matrix file needs a metric (l1, sqeuclidean, "
+                                               "hamming, cosine), or an .h5 file of imported descriptors, which "
+                                               "records it")
             return import_matrix(source, self.cache, names, metric).entry
         report = describe_source(source, self.spec, self.cache, jobs=self.jobs, sampling=self.sampling,
                                  progress=stage(self.progress, f"describe {source.name}"), cluster=self.cluster,

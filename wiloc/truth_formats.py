@@ -51,7 +51,7 @@ def _load_object_npy(path: Path, file: BinaryIO) -> NDArray[np.object_]:
     shape, _, dtype = read_header(file)
     if not dtype.hasobject:
         raise WilocError(path, f"holds a plain {' x '.join(map(str, shape))} array of {dtype}, not {_VPRBENCH} "
-                               "(a queries x references matrix is --gt matrix:FILE)")
+                               "(a queries x references matrix is the matrix form)")
     array = _ArraysOnly(file).load()
     if not isinstance(array, np.ndarray):
         raise WilocError(path, f"holds a pickled {type(array).__name__}, not {_VPRBENCH}")

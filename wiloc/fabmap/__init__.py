@@ -5,14 +5,23 @@
 - `FabMap` (model.py): place models, observation likelihoods, new-place likelihood, posterior.
 - `FabMapParams` (params.py): every parameter, its default and its validation.
 
-docs/fabmap.md describes the model, every parameter and its source.
+docs/fabmap.md describes the model, every parameter and its source. The names load on first use
+(scipy with them), so the command line, whose ``fabmap`` method declares `FabMapParams`, starts
+without scipy.
 """
 from __future__ import annotations
 
-from wiloc.fabmap.chow_liu import ChowLiuTree, mutual_information
-from wiloc.fabmap.detector import Detector
-from wiloc.fabmap.model import FabMap
-from wiloc.fabmap.params import NEW_PLACE_METHODS, FabMapParams
+import importlib
+from typing import Any
+
+_MODULES = {"ChowLiuTree": "chow_liu", "mutual_information": "chow_liu", "Detector": "detector",
+            "FabMap": "model", "NEW_PLACE_METHODS": "params", "FabMapParams": "params"}
 
 __all__ = ["NEW_PLACE_METHODS", "ChowLiuTree", "Detector", "FabMap", "FabMapParams",
            "mutual_information"]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _MODULES:
+        raise AttributeError(f"module 'wiloc.fabmap' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"wiloc.fabmap.{_MODULES[name]}"), name)

@@ -23,6 +23,7 @@ from wiloc.descriptors.registry import DescriptorSpec
 from wiloc.fabmap.chow_liu import ChowLiuTree
 from wiloc.fabmap.model import FabMap
 from wiloc.fabmap.params import FabMapParams
+from wiloc.parameters import Parameters
 from wiloc.vocabulary import Vocabulary, unpack_words
 
 
@@ -36,9 +37,11 @@ class FabMapEvidence:
         self.model = FabMap(ChowLiuTree.fit(occurrences), params, training=occurrences)
 
     @classmethod
-    def of(cls, spec: DescriptorSpec, params: FabMapParams | None = None) -> FabMapEvidence:
-        """The model of a ``bow`` descriptor's vocabulary."""
-        return cls(load_vocabulary(spec.params["file"], spec.params["vocabulary"]), params)
+    def of(cls, spec: DescriptorSpec, params: Parameters | None = None) -> FabMapEvidence:
+        """The model of a ``bow`` descriptor's vocabulary, with a method's parameters when they
+        are FAB-MAP's (the ``fabmap`` method's), else FAB-MAP's defaults."""
+        return cls(load_vocabulary(spec.params["file"], spec.params["vocabulary"]),
+                   params if isinstance(params, FabMapParams) else None)
 
     @property
     def training_folders(self) -> list[str]:

@@ -22,7 +22,8 @@ their own.
 
 New place: ``sampled`` averages p(Z | L_u) over place models L_u made from training images (each
 seen once); ``mean-field`` uses one average place with p(e_q = 1) = p(z_q = 1). Posterior over the
-map places and the new place from their priors, then smoothed (see `FabMapParams`).
+map places and the new place from their priors, then smoothed (`posterior`, shared with the
+``fabmap`` method; parameters in `FabMapParams`).
 """
 from __future__ import annotations
 
@@ -34,6 +35,30 @@ from wiloc.errors import ParameterError
 from wiloc.fabmap.chow_liu import ChowLiuTree
 from wiloc.fabmap.detector import Detector
 from wiloc.fabmap.params import FabMapParams
+
+
+def posterior(log_ratio: NDArray[np.float64], params: FabMapParams,
+              log_prior: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], float]:
+    """(p(L_j | Z) per place, p(new place | Z)) from the evidence row r_j = log p(Z | L_j) -
+    log p(Z | new place): FAB-MAP's posterior, the one the model and the ``fabmap`` method share.
+
+    The candidate places (finite r_j; -inf: no candidate, posterior 0) share the prior
+    ``1 - new_place_prior`` by ``log_prior`` (log weights summing to 1 over them; default equal
+    shares), the new place has ``new_place_prior``. The normalised posterior is smoothed,
+    p <- sigma p + (1 - sigma) / (candidates + 1) with sigma ``posterior_smoothing``, so no
+    hypothesis is certain.
+    """
+    candidates = np.isfinite(log_ratio)
+    n = int(candidates.sum())
+    if n == 0:
+        return np.zeros(len(log_ratio)), 1.0
+    weights = -np.log(n) if log_prior is None else log_prior
+    log_joint = np.where(candidates, log_ratio + np.log1p(-params.new_place_prior) + weights, -np.inf)
+    log_new = np.log(params.new_place_prior)
+    total = float(np.logaddexp(logsumexp(log_joint), log_new))
+    sigma = params.posterior_smoothing
+    places = np.where(candidates, sigma * np.exp(log_joint - total) + (1.0 - sigma) / (n + 1), 0.0)
+    return places, sigma * float(np.exp(log_new - total)) + (1.0 - sigma) / (n + 1)
 
 
 class _Places:
@@ -180,27 +205,19 @@ class FabMap:
         """(p(L_j | Z) over the map places ``(places,)``, p(new place | Z)).
 
         ``prior``: relative prior weights of the map places (uniform when None), which share
-        ``1 - new_place_prior``; the new place has ``new_place_prior``. The normalised
-        posterior is smoothed: p <- sigma p + (1 - sigma) / (places + 1).
+        ``1 - new_place_prior``; the new place has ``new_place_prior`` (see :func:`posterior`).
         """
         n = self.n_places
-        if prior is None:
-            weights = np.full(n, 1.0 / n) if n else np.zeros(0)
-        else:
+        log_prior = None
+        if prior is not None:
             weights = np.asarray(prior, dtype=np.float64)
             if weights.shape != (n,) or np.any(weights < 0) or not np.isfinite(weights).all() \
                     or (n and weights.sum() <= 0):
                 raise ValueError(f"prior must be {n} finite non-negative weights, not all 0")
-            weights = weights / weights.sum() if n else weights
-        p_new = self.params.new_place_prior
-        with np.errstate(divide="ignore"):
-            log_prior = np.append(np.log(weights) + np.log1p(-p_new), np.log(p_new))
+            with np.errstate(divide="ignore"):
+                log_prior = np.log(weights / weights.sum()) if n else weights
         rows, new = self.frame_log_likelihoods(z)
-        log_joint = log_prior + np.append(rows, new)
-        post = np.exp(log_joint - logsumexp(log_joint))
-        sigma = self.params.posterior_smoothing
-        post = sigma * post + (1.0 - sigma) / (n + 1)
-        return post[:n], float(post[n])
+        return posterior(rows - new, self.params, log_prior)
 
     def _check_one(self, z: ArrayLike) -> NDArray[np.bool_]:
         """One observation as ``(K,)`` bool."""

@@ -21,24 +21,24 @@ class FabMapParams(Parameters):
     """Everything FAB-MAP 1.0 needs besides its Chow-Liu tree and training data."""
 
     false_positive: float = param(
-        0.0, "detector model p(z=1 | e=0): a word seen where its scene element is not",
+        0.0, "Detector model p(z=1 | e=0): a word seen where its scene element is not.",
         low=0.0, high=1.0, high_open=True)
     false_negative: float = param(
-        0.61, "detector model p(z=0 | e=1): a scene element whose word is missed",
+        0.61, "Detector model p(z=0 | e=1): a scene element whose word is missed.",
         low=0.0, high=1.0, low_open=True, high_open=True)
     new_place: Literal["sampled", "mean-field"] = param(
         "sampled", "p(Z | new place): mean likelihood of place models made from training images "
-                   "(sampled), or one average place (mean-field)")
+                   "(sampled), or one average place (mean-field).")
     samples: int = param(
-        3000, "at most this many training images make the sampled new place (all when fewer)",
+        3000, "At most this many training images make the sampled new place (all when fewer).",
         low=1)
     new_place_prior: float = param(
-        0.9, "prior probability that an observation comes from a place not in the map",
+        0.9, "Prior probability that a frame comes from a place not in the map.",
         low=0.0, high=1.0, low_open=True, high_open=True)
     posterior_smoothing: float = param(
-        0.99, "sigma in p <- sigma p + (1 - sigma) / (places + 1), so no hypothesis is certain",
+        0.99, "sigma in p <- sigma p + (1 - sigma) / (places + 1), so no hypothesis is certain.",
         low=0.0, high=1.0, low_open=True)
-    seed: int = param(0, "seeds the choice of the sampled training images", low=0)
+    seed: int = param(0, "Seeds the choice of the sampled training images.", low=0)
 
     def check(self) -> None:
         if self.false_positive >= 1.0 - self.false_negative:

@@ -1,4 +1,6 @@
-"""Method names -> method classes. Adding a method is one module and one line here."""
+"""Method names -> method classes. Adding a method is one module and one line here; a method
+from outside the package is put into `METHODS` before `wiloc.cli` loads, since the command line
+makes its options from the registry then (docs/architecture.md, Adding a method)."""
 from __future__ import annotations
 
 from collections.abc import Mapping
