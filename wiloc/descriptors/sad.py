@@ -116,11 +116,12 @@ class SadParams(Parameters):
 
     owner = "sad"
     crop: Literal["none", "top-half"] = param(
-        "none", "Crop before resizing: none, or top-half (the upper half of the image, as in the paper's run).")
+        "none", "Crop before resizing: top-half keeps the upper half of the image (the paper's run).")
     patch: int = param(8, "Side in pixels of the blocks of the 48 x 24 thumbnail normalised to zero mean and "
-                          f"unit std; one of {', '.join(map(str, PATCHES))}.", low=PATCHES[0], high=PATCHES[-1])
+                          "unit std; it must divide 24.", low=PATCHES[0], high=PATCHES[-1])
     storage: Literal["uint8", "float32", "seqslam"] = param(
-        "uint8", "Stored form: uint8 (128 + 32 z, compared with SIMD), float32 (z) or seqslam (OpenSeqSLAM's 127 + z).")
+        "uint8", "Stored form of the z values: 128 + 32 z in bytes (compared with SIMD), z itself, or "
+                 "OpenSeqSLAM's 127 + z.")
 
     def check(self) -> None:
         if self.patch not in PATCHES:
