@@ -82,7 +82,7 @@ class Bow(Descriptor):
                          min_size=decode_size(vocabulary.max_side), natural_max=float(n_words))
 
     @classmethod
-    def compute(cls, image: NDArray[np.uint8], params: Any) -> NDArray:
+    def compute(cls, image: NDArray[np.uint8], params: Mapping[str, Any]) -> NDArray:
         return compute_bow(image, **params)
 
     @classmethod

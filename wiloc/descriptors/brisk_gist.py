@@ -13,6 +13,7 @@ declarations without loading it.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
@@ -97,5 +98,5 @@ class BriskGist(Descriptor):
                          natural_max=float(LENGTH * 8))
 
     @classmethod
-    def compute(cls, image: NDArray[np.uint8], params: Any) -> NDArray:
+    def compute(cls, image: NDArray[np.uint8], params: Mapping[str, Any]) -> NDArray:
         return compute_brisk_gist(image, **params)

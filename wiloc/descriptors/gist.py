@@ -15,6 +15,7 @@ declarations without loading it.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from functools import lru_cache
 from typing import Any
 
@@ -226,5 +227,5 @@ class Gist(Descriptor):
                          natural_max=None)
 
     @classmethod
-    def compute(cls, image: NDArray[np.uint8], params: Any) -> NDArray:
+    def compute(cls, image: NDArray[np.uint8], params: Mapping[str, Any]) -> NDArray:
         return compute_gist(image)

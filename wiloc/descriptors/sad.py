@@ -17,6 +17,7 @@ declarations without loading it.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -145,5 +146,5 @@ class Sad(Descriptor):
                          natural_max=natural_max(storage))
 
     @classmethod
-    def compute(cls, image: NDArray[np.uint8], params: Any) -> NDArray:
+    def compute(cls, image: NDArray[np.uint8], params: Mapping[str, Any]) -> NDArray:
         return compute_sad(image, **params)
