@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.parameters import Parameters, declared
+from wiloc.parameters import Declared, Parameters, declared
 
 METRICS = ("l1", "sqeuclidean", "hamming", "cosine")
 BUILT_IN = "built-in"
@@ -76,7 +76,8 @@ class Descriptor:
     Adding one is a module with a subclass and one line in ``wiloc.descriptors.registry``. A
     subclass sets the class attributes and implements :meth:`spec` (from its complete parameters:
     dtype, length, scale, smallest decode size, natural maximum) and :meth:`compute` (or
-    :meth:`compute_batch` for ``colour`` descriptors).
+    :meth:`compute_batch` for ``colour`` descriptors); one whose parameters name a file it reads
+    (``bow``, ``onnx``) overrides :meth:`make` instead of :meth:`spec`.
     """
 
     name: ClassVar[str] = ""
@@ -89,7 +90,7 @@ class Descriptor:
     derived: ClassVar[tuple[str, ...]] = ()  # parameters read from its files (given, they must agree)
 
     @classmethod
-    def options(cls) -> list[Any]:
+    def options(cls) -> list[Declared]:
         """The declared parameters one sets (``derived`` ones left out), in field order."""
         return [d for d in declared(cls.Params) if d.name not in cls.derived]
 
