@@ -17,6 +17,7 @@ from wiloc.descriptors import (
     registry,
     sad,
 )
+from wiloc.errors import ParameterError
 from wiloc.frames import read_gray
 
 
@@ -42,8 +43,12 @@ def test_unknown_names_and_params_list_the_choices() -> None:
         get_descriptor("surf")
     with pytest.raises(ValueError, match="crop, patch, storage"):
         get_descriptor("sad", size=3)
-    with pytest.raises(ValueError, match="'none', 'top-half'"):
+    with pytest.raises(ParameterError, match="crop: must be one of none, top-half, got 'bottom'"):
         get_descriptor("sad", crop="bottom")
+    with pytest.raises(ParameterError, match=r"patch: must divide .* \(one of 2, 3, 4, 6, 8, 12, 24\)"):
+        get_descriptor("sad", patch=5)
+    with pytest.raises(ParameterError, match=r"keypoint_size: must lie in \[4, 96\]"):
+        get_descriptor("brisk-gist", keypoint_size=2)
     with pytest.raises(ValueError, match="uint8"):
         get_descriptor("external", metric="hamming", length=8, dtype="float32")
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from wiloc.cache import Cache
 
@@ -38,6 +39,7 @@ SOURCE = '''
 """A 4 x 4 area-resized thumbnail: the smallest descriptor a plugin can register."""
 import cv2
 import numpy as np
+import pytest
 
 from wiloc.descriptors import DescriptorPlugin
 
@@ -115,3 +117,32 @@ def test_list_descriptors_takes_no_folder(tmp_path: Path) -> None:
     assert result.exit_code == 2
     assert result.stderr.strip() == ("error: --list-descriptors: shows the descriptors there are; give it no FOLDER, "
                                      "--import or --list")
+
+
+def _halves(gray: np.ndarray, side: int = 2) -> np.ndarray:
+    return cv2.resize(gray, (side, side), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()
+
+
+def test_a_loaded_plugin_joins_the_one_registry(monkeypatch: pytest.MonkeyPatch) -> None:
+    """In process: a plugin's entry point becomes a registered class like the built-in ones."""
+    from wiloc.descriptors import DescriptorPlugin, registry
+
+    class Point:
+        name, value, dist = "halves", "halves_module:HALVES", None
+
+        def load(self) -> DescriptorPlugin:
+            return DescriptorPlugin(compute=_halves, metric="l1", length=4, params={"side": 2})
+
+    monkeypatch.setattr(registry, "entry_points", lambda group: [Point()])
+    monkeypatch.setattr(registry, "DESCRIPTORS", dict(registry.DESCRIPTORS))
+    registry._plugins.cache_clear()
+    try:
+        spec = registry.get_descriptor("halves")
+        cls = registry.DESCRIPTORS["halves"]
+        assert (cls.name, cls.source, cls.metric) == ("halves", Point.value, "l1")
+        assert spec.params == {"side": 2, "plugin": Point.value}
+        image = np.arange(64, dtype=np.uint8).reshape(8, 8)
+        np.testing.assert_array_equal(spec.compute(image), _halves(image))
+        assert [info.name for info in registry.available_descriptors()][-1] == "halves"
+    finally:
+        registry._plugins.cache_clear()  # the next use reads the installed plugins again

@@ -21,7 +21,6 @@ from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent
 from wiloc.describing import (DescribeReport, check_sampling, check_topic, describe_sources, import_matrix,
                               import_to_file, is_stream)
 from wiloc.descriptors.external import recorded_metric
-from wiloc.descriptors.bow import load_vocabulary
 from wiloc.differences import candidate_blocks, run_differences
 from wiloc.distances import consecutive
 from wiloc.errors import ParameterError, UsageError, WilocError
@@ -40,8 +39,8 @@ from wiloc.methods.base import Decision
 from wiloc.reprs import short_repr
 from wiloc.results import RANKING, Results, ResultsStream, make_results, read_results, write_results
 from wiloc.training import Training, training_rows
-from wiloc.traversals import (Describer, Progress, descriptor_label, descriptor_spec, descriptors_digest, open_cluster,
-                              stage)
+from wiloc.traversals import (Describer, Progress, descriptor_label, descriptor_spec, descriptors_digest,
+                              is_matrix_file, open_cluster, stage)
 from wiloc.bags import Bag, is_bag
 from wiloc.odometry import steps
 from wiloc.video import Sampling
@@ -236,16 +235,14 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
         meta["odometry_topic"] = odometry_topic
     if kind == "log_ratio":  # FAB-MAP's training data: the vocabulary's images
         meta.update(rows="fabmap", fabmap_training=evidence.training_folders)
-    sparse = None  # a vocabulary of too few words per image makes every bow result doubtful
-    if describer.descriptor == "bow":
-        spec = describer.spec
-        sparse = load_vocabulary(spec.params["file"], spec.params["vocabulary"]).too_few_words()
+    # what holds for every result of a described query's descriptor (bow: too few words per image)
+    doubts = [] if is_matrix_file(query) else describer.spec.kind.doubts(describer.spec.params)
     results = make_results(decisions, query_names=q.names, ref_names=r.names, meta=meta)
     replaced = write_results(Path(out), results) if out is not None else False
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
                        decisions=decisions, results=results, path=None if out is None else Path(out),
                        seconds=time.perf_counter() - started, skipped=describer.skipped, replaced=replaced,
-                       warnings=[] if sparse is None else [sparse], notes=describer.notes)
+                       warnings=doubts, notes=describer.notes)
 
 
 def _run_meta(method: str, describer: Describer, query: Path, metric: str, reference: Path | None,

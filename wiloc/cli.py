@@ -21,7 +21,8 @@ from wiloc import __version__
 from wiloc.atomic import written_whole
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, RANKED
 from wiloc.cli_core import Command, CommandLine, Notes, error, fail, handles_errors, note, out, refuse_unused
-from wiloc.cli_params import method_params, with_method_options
+from wiloc.cli_params import (descriptor_params, descriptor_takers, descriptor_uses, method_params,
+                              with_descriptor_options, with_method_options)
 from wiloc.cli_views import (cell, comparison_records, cut_views, json_ready, metrics_views, new_place_view,
                              print_command_json, progress_bar, run_records, table, table1_view, table2_view)
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE, WilocError
@@ -82,26 +83,30 @@ def _plot_file(value: Path | None) -> Path | None:
     return value
 
 
-def _descriptor_params(descriptor: str, crop: str, vocabulary: str | None, cache: Path | None,
-                       model: Path | None = None, preprocess: list[str] | None = None) -> dict[str, str]:
-    """The descriptor parameters the command line sets: `sad` takes --crop, `bow` needs its
-    --vocabulary, `onnx` its --model (and --preprocess KEY=VALUE). A descriptor that is not
-    built in comes from a plugin: plugins that failed to load are warned of."""
-    if descriptor == "bow":
-        if vocabulary is None:
-            fail("--vocabulary: --descriptor bow needs one (a file, or a key from `wiloc vocabulary`)", EXIT_USAGE)
-        from wiloc import api
-        from wiloc.cache import Cache
-        return {"file": str(api.vocabulary_file(vocabulary, Cache(cache)))}
-    if descriptor == "onnx":
-        if model is None:
-            fail("--model: --descriptor onnx needs one (an .onnx model file)", EXIT_USAGE)
-        return {"model": str(model), **_preprocess_options(preprocess or [])}
-    if descriptor not in BUILT_IN_DESCRIPTORS:
-        from wiloc.descriptors.registry import plugin_problems
+def _descriptor_params(descriptor: str, options: dict[str, Any] | None, vocabulary: str | None, cache: Path | None,
+                       model: Path | None = None, preprocess: list[str] | None = None) -> dict[str, Any]:
+    """The descriptor parameters the command line sets: its options typed (and those always
+    passed), a vocabulary ``file`` from --vocabulary (needed by a descriptor taking one), a
+    ``model`` from --model (likewise) with --preprocess KEY=VALUE. A descriptor that is not built
+    in comes from a plugin: plugins that failed to load are warned of."""
+    from wiloc.descriptors.registry import BUILT_IN, DESCRIPTORS, plugin_problems
+
+    if descriptor not in DESCRIPTORS or DESCRIPTORS[descriptor].source != BUILT_IN:
         for problem in plugin_problems():
             note("warning", problem)
-    return {"crop": crop} if descriptor == "sad" else {}
+    params = descriptor_params(descriptor, options or {})
+    if descriptor in descriptor_takers("file"):
+        if vocabulary is None:
+            fail(f"--vocabulary: --descriptor {descriptor} needs one (a file, or a key from `wiloc vocabulary`)",
+                 EXIT_USAGE)
+        from wiloc import api
+        from wiloc.cache import Cache
+        params["file"] = str(api.vocabulary_file(vocabulary, Cache(cache)))
+    if descriptor in descriptor_takers("model"):
+        if model is None:
+            fail(f"--model: --descriptor {descriptor} needs one (an .onnx model file)", EXIT_USAGE)
+        params.update({"model": str(model), **_preprocess_options(preprocess or [])})
+    return params
 
 
 def _preprocess_options(items: list[str]) -> dict[str, str]:
@@ -117,11 +122,9 @@ def _preprocess_options(items: list[str]) -> dict[str, str]:
     return options
 
 
-BUILT_IN_DESCRIPTORS = ("sad", "gist", "brisk-gist", "bow", "onnx")
 DescriptorOption = Annotated[str, typer.Option(
     "--descriptor", "-d", help="sad | gist | brisk-gist | bow (with --vocabulary; fabmap and catgraph then read "
                                "FAB-MAP's evidence) | onnx (with --model) | a plugin's (describe --list-descriptors)")]
-CropOption = Annotated[str, typer.Option(help="sad only: none | top-half")]
 ModelOption = Annotated[Optional[Path], typer.Option(
     "--model", help="onnx: the network, an .onnx file (docs/descriptors.md, Learned descriptors).")]
 PreprocessOption = Annotated[Optional[list[str]], typer.Option(
@@ -157,11 +160,11 @@ SAMPLING = ("every", "fps", "start", "stop")
 
 @app.command(cls=Command)
 @handles_errors
+@with_descriptor_options
 def describe(
     folders: list[Path] = typer.Argument(None, metavar="FOLDER...", show_default=False,
                                          help="Image folders, video files or ROS bags (one traversal each)."),
     descriptor: DescriptorOption = "sad",
-    crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
     model: ModelOption = None,
     preprocess: PreprocessOption = None,
@@ -183,6 +186,7 @@ def describe(
     jobs: JobsOption = None,
     scheduler: SchedulerOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+    descriptor_options: Optional[dict[str, Any]] = None,
 ) -> None:
     """Compute whole-image descriptors of image folders, video files or ROS bags into the HDF5 cache.
 
@@ -201,10 +205,7 @@ def describe(
         _list_descriptors(as_json)
         return
     refuse_unused({"descriptor": (not importing, "image folders and video files"),
-                   "crop": (descriptor == "sad" and not importing, "--descriptor sad"),
-                   "vocabulary": (descriptor == "bow" and not importing, "--descriptor bow"),
-                   "model": (descriptor == "onnx" and not importing, "--descriptor onnx"),
-                   "preprocess": (descriptor == "onnx" and not importing, "--descriptor onnx"),
+                   **descriptor_uses(descriptor, described=not importing),
                    "metric": (importing, "--import"), "names": (importing, "--import"),
                    "import_out": (importing, "--import"), "prefix": (import_out is not None, "--import with --out"),
                    "jobs": (not importing, "image folders"),
@@ -222,8 +223,8 @@ def describe(
                                               prefix=prefix)]
         else:  # one call: the folders' frames form one stream over the workers
             reports = api.describe(folders, descriptor,
-                                   descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache, model,
-                                                                        preprocess),
+                                   descriptor_params=_descriptor_params(descriptor, descriptor_options, vocabulary, cache,
+                                                                        model, preprocess),
                                    cache=store, jobs=jobs, progress=progress, sampling=sampling, scheduler=scheduler,
                                    topic=topic)
     rows, notes = [], []
@@ -358,13 +359,13 @@ def vocabulary(
 @app.command(cls=Command)
 @handles_errors
 @with_method_options
+@with_descriptor_options
 def localize(
     queries: list[Path] = typer.Argument(..., metavar="QUERY...",
                                          help="Query traversal folder(s) (or descriptor matrix files)."),
     reference: Optional[Path] = typer.Option(None, "--map", "-m", show_default="none: sequence mode",
                                              help="Reference traversal; omit for sequence mode (loop closure)."),
     descriptor: DescriptorOption = "sad",
-    crop: CropOption = "none",
     vocabulary: VocabularyOption = None,
     model: ModelOption = None,
     preprocess: PreprocessOption = None,
@@ -397,6 +398,7 @@ def localize(
     follow: bool = typer.Option(False, "--follow", help="Decide the frames already in the QUERY folder, then each new one as it arrives; rerun to resume.", rich_help_panel="live"),
     idle: Optional[float] = typer.Option(None, min=0.0, show_default="run until Ctrl-C", help="With --follow: stop after this many seconds without a new frame.", rich_help_panel="live"),
     method_options: Optional[dict[str, Any]] = None,
+    descriptor_options: Optional[dict[str, Any]] = None,
 ) -> None:
     """Decide, frame by frame, where each query frame was seen before and how sure that is.
 
@@ -412,10 +414,7 @@ def localize(
     params = method_params(method, method_options or {})
     matrices = [is_matrix_file(Path(p)) for p in (*queries, reference, train_query, train_map) if p is not None]
     refuse_unused({"descriptor": (not all(matrices), "image folders and video files"),
-                   "crop": (descriptor == "sad" and not all(matrices), "--descriptor sad"),
-                   "vocabulary": (descriptor == "bow" and not all(matrices), "--descriptor bow"),
-                   "model": (descriptor == "onnx" and not all(matrices), "--descriptor onnx"),
-                   "preprocess": (descriptor == "onnx" and not all(matrices), "--descriptor onnx"),
+                   **descriptor_uses(descriptor, described=not all(matrices)),
                    "metric": (any(matrices), "descriptor matrix files (.npy, .csv, .h5)"),
                    "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
                    "map_names": (reference is not None and is_matrix_file(reference),
@@ -439,7 +438,7 @@ def localize(
             fail(f"--follow takes one query folder{' and not ' + ', '.join(given) if given else ''}", EXIT_USAGE)
         _follow(queries[0], api.follow_folder(
             queries[0], reference=reference, descriptor=descriptor,
-            descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache, model, preprocess),
+            descriptor_params=_descriptor_params(descriptor, descriptor_options, vocabulary, cache, model, preprocess),
             method=method, method_params=params,
             exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
             out=out_path / api.results_name(queries[0], method, descriptor) if out_path is not None and out_path.is_dir() else out_path,
@@ -465,8 +464,8 @@ def localize(
         for query, target in zip(queries, targets):
             known = len(store.repairs)
             runs.append(api.localize(query, reference=reference, descriptor=descriptor, sampling=sampling,
-                                     descriptor_params=_descriptor_params(descriptor, crop, vocabulary, cache,
-                                                                          model, preprocess),
+                                     descriptor_params=_descriptor_params(descriptor, descriptor_options, vocabulary,
+                                                                          cache, model, preprocess),
                                      metric=metric, method=method, method_params=params,
                                      exclude_recent=exclude_recent, training=training,
                                      odometry=odometry, map_odometry=map_odometry,

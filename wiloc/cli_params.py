@@ -1,10 +1,13 @@
-"""Command-line options made from the methods' declared parameters, and flags for library names.
+"""Command-line options made from the declared parameters of methods and descriptors, and flags
+for library names.
 
 Every parameter of every registered method becomes one ``--flag`` of ``wiloc localize``, shown in
 the help panel of the method(s) that take it, with its default and valid range. A flag given for a
-method that does not take it is a usage error naming the method. Library errors name parameters
-(``particles``, ``map_odometry``); :func:`flag` turns those into the flags a user typed.
-:func:`given` tells an option typed on the command line from its default.
+method that does not take it is a usage error naming the method. Every parameter of every
+registered descriptor becomes one ``--flag`` of ``wiloc describe`` and ``wiloc localize`` the
+same way, except those the command line takes in a form of its own (:data:`OWN_FORMS`). Library
+errors name parameters (``particles``, ``map_odometry``); :func:`flag` turns those into the flags
+a user typed. :func:`given` tells an option typed on the command line from its default.
 """
 from __future__ import annotations
 
@@ -18,6 +21,8 @@ import typer
 from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 
+from wiloc.descriptors.learned import KEYS as PREPROCESSING
+from wiloc.descriptors.registry import DESCRIPTORS
 from wiloc.errors import UsageError
 from wiloc.methods.registry import METHODS
 from wiloc.parameters import Declared, declared
@@ -27,6 +32,14 @@ FLAGS = {"reference": "--map", "training": "--train-query", "query_names_file": 
          "ref_names_file": "--map-names", "out": "--out", "sampling": "--every/--fps/--start/--stop",
          "path": "--gt", "ref_path": "--gt-map", "train_path": "--train-gt", "train_ref_path": "--train-gt-map",
          "precisions": "--precision", "runs": "RESULTS..."}
+
+#: Descriptor parameters the command line takes in a form of its own, not a flag each: a vocabulary
+#: ``file`` as ``--vocabulary`` (a file, or a key in the cache), a network's ``model`` as ``--model``
+#: and its preprocessing as ``--preprocess KEY=VALUE``.
+OWN_FORMS = {"file": "vocabulary", "model": "model", **{key: "preprocess" for key in PREPROCESSING}}
+#: Descriptor options the command line passes even when not typed (with their default), as it
+#: always has: results files name them.
+ALWAYS_PASSED = ("crop",)
 
 _TYPES = {"int": int, "float": float, "str": str, "bool": bool, "floats": str}
 
@@ -44,20 +57,20 @@ def given(parameter: str) -> bool:
 
 
 @dataclass(frozen=True)
-class MethodOption:
-    """One command-line option: a parameter name and the methods that declare it."""
+class DeclaredOption:
+    """One command-line option: a parameter name and the methods (or descriptors) that declare it."""
 
     name: str
-    by_method: dict[str, Declared]
+    by_owner: dict[str, Declared]
 
     @property
     def first(self) -> Declared:
-        return next(iter(self.by_method.values()))
+        return next(iter(self.by_owner.values()))
 
     @property
     def shared(self) -> bool:
         """Whether every method taking the option has the same default."""
-        return len({d.default for d in self.by_method.values()}) == 1
+        return len({d.default for d in self.by_owner.values()}) == 1
 
     def default(self) -> Any:
         """The option's default as it takes it (a list of numbers as text); None when the methods
@@ -71,7 +84,7 @@ class MethodOption:
         differ."""
         if self.shared:
             return _said_default(self.first.help)[1] or True
-        return "; ".join(f"{m}: {'none' if d.default is None else d.default}" for m, d in self.by_method.items())
+        return "; ".join(f"{m}: {'none' if d.default is None else d.default}" for m, d in self.by_owner.items())
 
     def help(self) -> str:
         """The parameter's help, or each method's (``online: ... fabmap: ...``) when they differ."""
@@ -103,30 +116,53 @@ def _said_default(help: str) -> tuple[str, str | None]:
 
 
 @functools.cache
-def method_options() -> dict[str, MethodOption]:
+def method_options() -> dict[str, DeclaredOption]:
     """Every declared parameter of every registered method, once, in registry order."""
+    return _options({method: declared(cls.Params) for method, cls in METHODS.items()})
+
+
+@functools.cache
+def descriptor_options() -> dict[str, DeclaredOption]:
+    """Every declared parameter of every registered descriptor that one sets by a flag of its
+    own (not :data:`OWN_FORMS`), once, in registry order."""
+    return _options({name: [d for d in cls.options() if d.name not in OWN_FORMS] for name, cls in DESCRIPTORS.items()})
+
+
+def _options(by_owner: Mapping[str, list[Declared]]) -> dict[str, DeclaredOption]:
     options: dict[str, dict[str, Declared]] = {}
-    for method, cls in METHODS.items():
-        for d in declared(cls.Params):
-            options.setdefault(d.name, {})[method] = d
-    return {name: MethodOption(name, by_method) for name, by_method in options.items()}
+    for owner, parameters in by_owner.items():
+        for d in parameters:
+            options.setdefault(d.name, {})[owner] = d
+    return {name: DeclaredOption(name, owners) for name, owners in options.items()}
 
 
-def _panel(option: MethodOption) -> str:
-    methods = list(option.by_method)
-    return f"{methods[0]} options" if len(methods) == 1 else "options of " + ", ".join(methods)
+def _panel(option: DeclaredOption) -> str:
+    owners = list(option.by_owner)
+    return f"{owners[0]} options" if len(owners) == 1 else "options of " + ", ".join(owners)
 
 
 def with_method_options(command: Callable[..., Any]) -> Callable[..., Any]:
     """``command`` with one keyword option per method parameter, collected into its
     ``method_options`` argument as {name: value} for the options typed on the command line."""
+    return _with_options(command, method_options(), "method_options")
+
+
+def with_descriptor_options(command: Callable[..., Any]) -> Callable[..., Any]:
+    """``command`` with one keyword option per descriptor parameter (:func:`descriptor_options`),
+    collected into its ``descriptor_options`` argument as {name: value} for the options typed on
+    the command line."""
+    return _with_options(command, descriptor_options(), "descriptor_options")
+
+
+def _with_options(command: Callable[..., Any], options: dict[str, DeclaredOption],
+                  argument: str) -> Callable[..., Any]:
     signature = inspect.signature(command, eval_str=True)
-    static = [p for p in signature.parameters.values() if p.name != "method_options"]
+    static = [p for p in signature.parameters.values() if p.name != argument]
     taken = {p.name for p in static}
     generated = []
-    for name, option in method_options().items():
+    for name, option in options.items():
         if name in taken:
-            raise RuntimeError(f"method parameter '{name}' clashes with an option of {command.__name__}")
+            raise RuntimeError(f"declared parameter '{name}' clashes with an option of {command.__name__}")
         generated.append(inspect.Parameter(
             name, inspect.Parameter.KEYWORD_ONLY, annotation=Optional[_TYPES[option.first.kind]],
             default=typer.Option(option.default(), flag(name), help=option.help(),
@@ -134,8 +170,8 @@ def with_method_options(command: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        values = {name: kwargs.pop(name) for name in method_options() if name in kwargs}
-        return command(*args, method_options={k: v for k, v in values.items() if given(k)}, **kwargs)
+        values = {name: kwargs.pop(name) for name in options if name in kwargs}
+        return command(*args, **{argument: {k: v for k, v in values.items() if given(k)}}, **kwargs)
 
     wrapper.__signature__ = signature.replace(parameters=[*static, *generated])  # type: ignore[attr-defined]
     return wrapper
@@ -148,8 +184,38 @@ def method_params(method: str, given: Mapping[str, Any]) -> dict[str, Any]:
     params = {}
     for name, value in given.items():
         option = options[name]
-        if method not in option.by_method:
-            takers = ", ".join(option.by_method)
+        if method not in option.by_owner:
+            takers = ", ".join(option.by_owner)
             raise UsageError(flag(name), f"method '{method}' takes no such option (it is an option of {takers})")
         params[name] = option.parse(value)
+    return params
+
+
+def descriptor_takers(*parameters: str) -> list[str]:
+    """The registered descriptors that take any of ``parameters``."""
+    return [name for name, cls in DESCRIPTORS.items() if any(d.name in parameters for d in cls.options())]
+
+
+def descriptor_uses(descriptor: str, described: bool) -> dict[str, tuple[bool, str]]:
+    """For ``refuse_unused``: each descriptor option (generated, or of its own form), whether
+    ``descriptor`` takes it when traversals are ``described`` (not imported), and which
+    descriptors do."""
+    parameters = {name: [name] for name in descriptor_options()}
+    for parameter, option in OWN_FORMS.items():
+        parameters.setdefault(option, []).append(parameter)
+    uses = {}
+    for option, names in parameters.items():
+        takers = descriptor_takers(*names)
+        uses[option] = (described and descriptor in takers, "--descriptor " + " or ".join(takers))
+    return uses
+
+
+def descriptor_params(descriptor: str, given: Mapping[str, Any]) -> dict[str, Any]:
+    """The parameters for ``descriptor`` from its generated options typed (``given``, each one it
+    takes: :func:`descriptor_uses` refused the others), and those of :data:`ALWAYS_PASSED` it
+    takes, with their default when not typed."""
+    cls = DESCRIPTORS.get(descriptor)
+    takes = {d.name: d for d in cls.options()} if cls is not None else {}
+    params = {name: takes[name].default for name in ALWAYS_PASSED if name in takes}
+    params.update({name: descriptor_options()[name].parse(value) for name, value in given.items()})
     return params

@@ -118,11 +118,9 @@ def _entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]:
     from wiloc.video import Sampling
 
     meta = evaluation.results.meta
-    label = str(meta.get("descriptor", "sad"))
-    external = label.startswith("external:")
+    descriptor, _, metric = str(meta.get("descriptor", "sad")).partition(":")  # external:METRIC, an imported matrix
     sampling = meta.get("sampling")
-    describer = Describer("sad" if external else label, dict(meta.get("descriptor_params") or {}), cache,
-                          metric=label.split(":", 1)[1] if external else None,
+    describer = Describer(descriptor, dict(meta.get("descriptor_params") or {}), cache, metric=metric or None,
                           sampling=Sampling(**sampling) if isinstance(sampling, dict) else None,
                           topic=meta.get("topic"))
     query, reference, sequence = _traversals(evaluation)

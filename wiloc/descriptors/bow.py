@@ -4,23 +4,33 @@ Local features (SIFT or ORB, as the vocabulary was trained), each assigned to it
 the descriptor is the K-bit word-presence vector, packed 8 words per byte (uint8, the last byte
 zero-padded), compared by Hamming distance like any packed-bit descriptor. Its parameters are the
 vocabulary's key (what it is) and its file (where it is), so cache entries of different
-vocabularies never mix. A worker process reads the vocabulary once and keeps it.
+vocabularies never mix. A worker process reads the vocabulary once and keeps it. The vocabulary
+module (h5py, OpenCV) is imported where it is used: the command line reads the declarations.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.descriptors.base import Descriptor, DescriptorSpec, check_names
 from wiloc.errors import WilocError
-from wiloc.vocabulary import Vocabulary, pack_words, read_vocabulary
+from wiloc.parameters import Parameters, declared, param
+
+if TYPE_CHECKING:
+    from wiloc.vocabulary import Vocabulary
 
 
 @lru_cache(maxsize=2)
 def load_vocabulary(file: str, key: str) -> Vocabulary:
     """The vocabulary in `file`, read once per process; WilocError unless its key is `key`."""
+    from wiloc.vocabulary import read_vocabulary
+
     vocabulary = read_vocabulary(Path(file))
     if vocabulary.key != key:
         raise WilocError(file, f"holds vocabulary {vocabulary.key}, expected {key}")
@@ -30,4 +40,53 @@ def load_vocabulary(file: str, key: str) -> Vocabulary:
 def compute_bow(gray: NDArray[np.uint8], vocabulary: str, file: str) -> NDArray[np.uint8]:
     """Packed word presence ``(ceil(K / 8),)`` of a grayscale image over the vocabulary `vocabulary`
     (its key) stored in `file`."""
+    from wiloc.vocabulary import pack_words
+
     return pack_words(load_vocabulary(file, vocabulary).bag_of_words(gray))
+
+
+@dataclass(frozen=True)
+class BowParams(Parameters):
+    """The ``bow`` descriptor's parameters."""
+
+    owner = "bow"
+    file: str = param(None, "The vocabulary, an .h5 file from `wiloc vocabulary`.")
+    vocabulary: str | None = param(None, "The vocabulary's key; default: read from its file (given, it must match).")
+
+
+class Bow(Descriptor):
+    """Visual word presence compared by the Hamming distance; what FAB-MAP reads as evidence."""
+
+    name = "bow"
+    Params = BowParams
+    metric = "hamming"
+    depends = "its vocabulary"
+    words = True
+    derived = ("vocabulary",)
+
+    @classmethod
+    def make(cls, given: Mapping[str, Any]) -> DescriptorSpec:
+        """``file`` required; ``vocabulary``, its key, is read from the file (given, it must match)."""
+        from wiloc.features import decode_size
+        from wiloc.vocabulary import read_vocabulary_header
+
+        check_names(cls.name, given, [d.name for d in declared(cls.Params)])
+        if not isinstance(given.get("file"), (str, Path)):
+            raise ValueError(f"bow needs file=<vocabulary .h5 file>; got {given.get('file')!r}")
+        file = Path(given["file"]).expanduser().resolve()
+        key, vocabulary, n_words = read_vocabulary_header(file)
+        if given.get("vocabulary") not in (None, key):
+            raise ValueError(f"bow vocabulary {given['vocabulary']!r} does not match {file} (key {key})")
+        params = cls.Params(file=str(file), vocabulary=key).as_dict()
+        return cls._spec(params, dtype=np.dtype(np.uint8), length=(n_words + 7) // 8, scale=1.0,
+                         min_size=decode_size(vocabulary.max_side), natural_max=float(n_words))
+
+    @classmethod
+    def compute(cls, image: NDArray[np.uint8], params: Mapping[str, Any]) -> NDArray:
+        return compute_bow(image, **params)
+
+    @classmethod
+    def doubts(cls, params: Mapping[str, Any]) -> list[str]:
+        """A vocabulary of too few words per image makes every result doubtful."""
+        sparse = load_vocabulary(params["file"], params["vocabulary"]).too_few_words()
+        return [] if sparse is None else [sparse]

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.atomic import written_whole
-from wiloc.descriptors.registry import METRICS
+from wiloc.descriptors.base import METRICS
 from wiloc.errors import WilocError, load_problem
 from wiloc.frames import natural_sorted
 

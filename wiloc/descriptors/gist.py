@@ -9,14 +9,20 @@ on a 4 x 4 grid of 64 x 64 blocks.
 
 Output order is LMgist's: index = (scale * 8 + orientation) * 16 + column * 4 + row, scale 0 the
 finest, orientation j at angle pi j / 8, blocks in column-major (MATLAB) order.
+
+OpenCV is imported where it is used: the command line builds its options from this module's
+declarations without loading it.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from functools import lru_cache
+from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from wiloc.descriptors.base import Descriptor, DescriptorSpec
 
 IMAGE_SIZE = 256
 SCALES = 4
@@ -29,6 +35,9 @@ BOUNDARY = 32
 #: Gabor transfer values below this (of a peak of 1) are left out of the products: the
 #: descriptors move by less than 1e-6 relative.
 BAND_FLOOR = 1e-7
+#: Smallest decode (w, h) that keeps the result: the resize target times this factor
+#: (docs/descriptors.md, "Reduced decode").
+DECODE_FACTOR = 1
 
 
 def resize_crop(gray: NDArray[np.uint8], size: int = IMAGE_SIZE) -> NDArray[np.float32]:
@@ -37,6 +46,8 @@ def resize_crop(gray: NDArray[np.uint8], size: int = IMAGE_SIZE) -> NDArray[np.f
     Area interpolation when shrinking (anti-aliased, like MATLAB's imresize), bilinear when
     enlarging.
     """
+    import cv2
+
     h, w = gray.shape
     factor = max(size / h, size / w)
     new_w, new_h = max(round(w * factor), size), max(round(h * factor), size)
@@ -122,6 +133,8 @@ def _lowpass(image: NDArray[np.float32], lowpass: NDArray[np.float32]) -> NDArra
     """Circular convolution with a real, even transfer function given in CCS layout
     (``real(ifft2(fft2(x) .* gf))``): OpenCV's real DFTs, 0.35 ms per filter on 266 x 266 against
     scipy.fft's 0.45-0.55."""
+    import cv2
+
     spectrum = cv2.dft(image)
     return cv2.idft(cv2.multiply(spectrum, lowpass), flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
 
@@ -132,6 +145,8 @@ def prefilter(image: NDArray[np.floating]) -> NDArray[np.float32]:
     Single precision, as LMgist (which converts the image to ``single`` first). MATLAB's
     symmetric padding repeats the edge sample: OpenCV's ``BORDER_REFLECT``.
     """
+    import cv2
+
     w = PREFILTER_PAD
     rows, cols = image.shape
     logged = np.log(image.astype(np.float32) + np.float32(1.0))
@@ -158,6 +173,8 @@ def gist_of_prefiltered(image: NDArray[np.floating]) -> NDArray[np.float32]:
     OpenCV's complex output costs 0.55 ms against 0.17. The inverse DFT is left unscaled and the
     pooled sums are divided by the number of samples instead.
     """
+    import cv2
+
     b = BOUNDARY
     rows, cols = image.shape
     if rows % GRID or cols % GRID:
@@ -195,3 +212,20 @@ def compute_gist(gray: NDArray[np.uint8]) -> NDArray[np.float32]:
     if top > 0:
         image = image * np.float32(255.0 / top)
     return gist_of_prefiltered(prefilter(image))
+
+
+class Gist(Descriptor):
+    """LabelMe's GIST compared by the squared Euclidean distance; no parameters."""
+
+    name = "gist"
+    metric = "sqeuclidean"
+
+    @classmethod
+    def spec(cls, params: dict[str, Any]) -> DescriptorSpec:
+        side = IMAGE_SIZE * DECODE_FACTOR
+        return cls._spec(params, dtype=np.dtype(np.float32), length=LENGTH, scale=1.0, min_size=(side, side),
+                         natural_max=None)
+
+    @classmethod
+    def compute(cls, image: NDArray[np.uint8], params: Mapping[str, Any]) -> NDArray:
+        return compute_gist(image)

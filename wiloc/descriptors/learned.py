@@ -12,7 +12,8 @@ image, N x D. How an image becomes its input is read from the model's metadata
 4. the network's output rows, L2-normalised when ``normalise`` (a zero row stays zero).
 
 onnxruntime is an optional dependency (``pip install "wiloc[onnx]"``), imported only here, only
-when an ``onnx`` descriptor is made. docs/descriptors.md, "Learned descriptors (ONNX)".
+when an ``onnx`` descriptor is made; OpenCV where it is used (the command line reads the
+declarations). docs/descriptors.md, "Learned descriptors (ONNX)".
 """
 from __future__ import annotations
 
@@ -23,13 +24,14 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.descriptors.base import Descriptor, DescriptorSpec, check_names, scale_and_max
 from wiloc.errors import WilocError
+from wiloc.parameters import Parameters, declared, param
 
 #: The model metadata keys read (``wiloc.`` + a parameter name), in the order the docs list them.
 PREFIX = "wiloc."
@@ -222,6 +224,8 @@ def vector_length(network: Network, params: Mapping[str, Any]) -> int:
 def preprocess(image: NDArray[np.uint8], input_size: Sequence[int], resize: str, mean: Sequence[float],
                std: Sequence[float], colour: str) -> NDArray[np.float32]:
     """One 8-bit BGR image (H x W x 3) as the network's input, 3 x h x w float32."""
+    import cv2
+
     w, h = input_size
     if colour == "rgb":
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
@@ -240,6 +244,8 @@ def preprocess(image: NDArray[np.uint8], input_size: Sequence[int], resize: str,
 
 def _resized(image: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint8]:
     """``image`` at ``size`` (w, h): area interpolation shrinking, bilinear enlarging, as it is."""
+    import cv2
+
     if (image.shape[1], image.shape[0]) == size:
         return image
     shrinking = size[0] * size[1] < image.shape[0] * image.shape[1]
@@ -282,3 +288,59 @@ def compute_onnx(images: Sequence[NDArray[np.uint8]], *, model: str, model_diges
         norms = np.linalg.norm(out.astype(np.float64), axis=1, keepdims=True)
         out = (out / np.where(norms > 0, norms, 1.0)).astype(np.float32)
     return out
+
+
+@dataclass(frozen=True)
+class OnnxParams(Parameters):
+    """The ``onnx`` descriptor's parameters: the model, and how an image becomes its input (each
+    read from the model's metadata where not given)."""
+
+    owner = "onnx"
+    model: str = param(None, "The network, an .onnx file.")
+    model_digest: str | None = param(None, "The model file's content digest; default: read from the file "
+                                           "(given, it must match).")
+    input_size: tuple[float, float] | None = param(None, "Input width and height; default: the model's metadata, "
+                                                         "else its fixed input size.", low=1)
+    resize: Literal["stretch", "crop"] | None = param(None, "stretch to the input size, or crop: cover it and cut "
+                                                            "out the centre; default: the model's metadata, else stretch.")
+    mean: tuple[float, float, float] | None = param(None, "Per channel, subtracted from samples / 255; default: the "
+                                                          "model's metadata, else 0.")
+    std: tuple[float, float, float] | None = param(None, "Per channel, dividing the samples after the mean; "
+                                                         "default: the model's metadata, else 1.", low=0, low_open=True)
+    colour: Literal["rgb", "bgr"] | None = param(None, "The network's channel order; default: the model's metadata, "
+                                                       "else rgb.")
+    normalise: bool | None = param(None, "L2-normalise the output vectors; default: the model's metadata, else true.")
+
+
+class Onnx(Descriptor):
+    """A network's vectors of colour images, compared by the cosine distance."""
+
+    name = "onnx"
+    Params = OnnxParams
+    metric = "cosine"
+    depends = "its model"
+    colour = True
+    derived = ("model_digest",)
+
+    @classmethod
+    def make(cls, given: Mapping[str, Any]) -> DescriptorSpec:
+        """``model`` required; preprocessing parameters as text or values (``preprocessing``);
+        ``model_digest`` read from the file (given, it must match)."""
+        check_names(cls.name, given, [d.name for d in declared(cls.Params)])
+        if not isinstance(given.get("model"), (str, Path)):
+            raise ValueError(f"onnx needs model=<an .onnx model file>; got {given.get('model')!r}")
+        network = open_network(given["model"])
+        if given.get("model_digest") not in (None, network.digest):
+            raise ValueError(f"onnx model_digest {given['model_digest']!r} does not match {network.path} "
+                             f"(its content changed: {network.digest})")
+        params = {"model": network.path, "model_digest": network.digest, **preprocessing(network, given)}
+        cls.Params(**{k: tuple(v) if isinstance(v, list) else v for k, v in params.items()})
+        length = vector_length(network, params)
+        scale, natural_max = scale_and_max("cosine", length)
+        return cls._spec(params, dtype=np.dtype(np.float32), length=length, scale=scale, min_size=None,
+                         natural_max=natural_max)
+
+    @classmethod
+    def compute_batch(cls, images: Sequence[NDArray[np.uint8]], params: Mapping[str, Any],
+                      threads: int) -> NDArray:
+        return compute_onnx(images, threads=threads, **params)

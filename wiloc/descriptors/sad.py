@@ -11,12 +11,22 @@ that is numerically flat becomes 0. Stored forms (``storage``):
 - ``seqslam``: OpenSeqSLAM's ``127 + round(z)`` bytes, scale ``1 / 1152``.
 
 docs/descriptors.md records the recall measurements behind the default.
+
+OpenCV is imported where it is used: the command line builds its options from this module's
+declarations without loading it.
 """
 from __future__ import annotations
 
-import cv2
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
 import numpy as np
 from numpy.typing import NDArray
+
+from wiloc.descriptors.base import Descriptor, DescriptorSpec
+from wiloc.errors import ParameterError
+from wiloc.parameters import Parameters, param
 
 WIDTH, HEIGHT = 48, 24
 LENGTH = WIDTH * HEIGHT
@@ -26,6 +36,9 @@ PATCHES = tuple(p for p in range(2, HEIGHT + 1) if WIDTH % p == 0 and HEIGHT % p
 QUANT_OFFSET, QUANT_STEP = 128.0, 32.0
 SEQSLAM_OFFSET = 127.0
 _FLAT_STD = 1e-3  # gray levels; float32 resize rounding of a flat area stays far below it
+#: Smallest decode (w, h) that keeps the result: the thumbnail times this factor, measured on
+#: Gardens Point (docs/descriptors.md, "Reduced decode").
+DECODE_FACTOR = 6
 
 
 def crop_image(gray: NDArray[np.uint8], crop: str) -> NDArray[np.uint8]:
@@ -48,6 +61,8 @@ def patch_normalise(image: NDArray[np.floating], patch: int) -> NDArray[np.float
 
 def sad_z(gray: NDArray[np.uint8], crop: str = "none", patch: int = 8) -> NDArray[np.float32]:
     """The patch-normalised 24 x 48 thumbnail (float z values) of a grayscale image."""
+    import cv2
+
     image = crop_image(gray, crop).astype(np.float32)
     small = cv2.resize(image, (WIDTH, HEIGHT), interpolation=cv2.INTER_AREA)
     return patch_normalise(small, patch)
@@ -94,3 +109,42 @@ def natural_max(storage: str) -> float:
     shrinks differences.
     """
     return {"float32": 2.0, "uint8": 2.0 + 1.0 / QUANT_STEP, "seqslam": 3.0}[storage]
+
+
+@dataclass(frozen=True)
+class SadParams(Parameters):
+    """The ``sad`` descriptor's parameters."""
+
+    owner = "sad"
+    crop: Literal["none", "top-half"] = param(
+        "none", "Crop before resizing: top-half keeps the upper half of the image (the paper's run).")
+    patch: int = param(8, "Side in pixels of the blocks of the 48 x 24 thumbnail normalised to zero mean and "
+                          "unit std; it must divide 24.", low=PATCHES[0], high=PATCHES[-1])
+    storage: Literal["uint8", "float32", "seqslam"] = param(
+        "uint8", "Stored form of the z values: 128 + 32 z in bytes (compared with SIMD), z itself, or "
+                 "OpenSeqSLAM's 127 + z.")
+
+    def check(self) -> None:
+        if self.patch not in PATCHES:
+            raise ParameterError("patch", f"must divide the thumbnail's sides {WIDTH} and {HEIGHT} "
+                                          f"(one of {', '.join(map(str, PATCHES))}), got {self.patch!r}")
+
+
+class Sad(Descriptor):
+    """Patch-normalised thumbnails compared by the mean absolute difference."""
+
+    name = "sad"
+    Params = SadParams
+    metric = "l1"
+
+    @classmethod
+    def spec(cls, params: dict[str, Any]) -> DescriptorSpec:
+        rows = 2 if params["crop"] == "top-half" else 1
+        storage = params["storage"]
+        return cls._spec(params, dtype=np.dtype(np.float32 if storage == "float32" else np.uint8), length=LENGTH,
+                         scale=scale(storage), min_size=(WIDTH * DECODE_FACTOR, HEIGHT * rows * DECODE_FACTOR),
+                         natural_max=natural_max(storage))
+
+    @classmethod
+    def compute(cls, image: NDArray[np.uint8], params: Mapping[str, Any]) -> NDArray:
+        return compute_sad(image, **params)

@@ -249,9 +249,11 @@ class Method(ABC):
 
     def row_kind(self, descriptor: str) -> str:
         """What this method's rows hold with this descriptor: FAB-MAP's evidence (``log_ratio``)
-        for bag-of-words (``bow``) when it reads that, else differences; a UsageError for a
-        method that reads evidence only."""
-        if descriptor == "bow" and "log_ratio" in self.rows:
+        for visual word presence (a descriptor whose class says ``words``, as ``bow``) when it
+        reads that, else differences; a UsageError for a method that reads evidence only."""
+        from wiloc.descriptors.registry import descriptor_class
+
+        if descriptor_class(descriptor).words and "log_ratio" in self.rows:
             return "log_ratio"
         if "differences" not in self.rows:
             raise UsageError(None, f"method '{self.name}' reads FAB-MAP's evidence: give descriptor 'bow' "

@@ -1,0 +1,166 @@
+"""What every descriptor is: a class naming it, declaring its parameters (a frozen
+:class:`~wiloc.parameters.Parameters` dataclass) and saying how it is stored, compared and computed;
+and :class:`DescriptorSpec`, one descriptor with fixed parameters, as the pipeline carries it.
+
+A spec holds only data (name, parameters, storage facts) and looks its class up by name when it
+computes, so it pickles cheaply into worker processes. Its ``params`` hold every parameter
+(defaults filled in), so equal descriptors give equal cache keys. This module, and every
+descriptor's declarations, load without OpenCV: the command line builds its options from them.
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.parameters import Declared, Parameters, declared
+
+METRICS = ("l1", "sqeuclidean", "hamming", "cosine")
+BUILT_IN = "built-in"
+
+
+@dataclass(frozen=True)
+class DescriptorSpec:
+    """Everything the pipeline needs to know about one descriptor with fixed parameters."""
+
+    name: str
+    params: Mapping[str, Any]
+    metric: str
+    dtype: np.dtype
+    length: int
+    scale: float
+    min_size: tuple[int, int] | None
+    natural_max: float | None
+    colour: bool = False  # computed from 8-bit BGR images (H x W x 3), in batches: ``compute_batch``
+
+    @property
+    def key(self) -> str:
+        """Canonical JSON of name and parameters: the descriptor part of a cache key."""
+        return json.dumps({"name": self.name, "params": dict(self.params)}, sort_keys=True)
+
+    @property
+    def kind(self) -> type[Descriptor]:
+        """The registered class of this descriptor."""
+        from wiloc.descriptors.registry import descriptor_class
+
+        return descriptor_class(self.name)
+
+    def compute(self, image: NDArray[np.uint8]) -> NDArray:
+        """Descriptor of one 8-bit image, flat, ``(length,)`` of ``dtype``: grayscale (H x W), or
+        BGR (H x W x 3) for a ``colour`` descriptor."""
+        if self.colour:
+            return self.compute_batch([image])[0]
+        return self.kind.compute(image, self.params)
+
+    def compute_batch(self, images: Sequence[NDArray[np.uint8]], threads: int = 0) -> NDArray:
+        """Descriptors of several images, one row each: a ``colour`` descriptor's network runs
+        them in batches on ``threads`` threads (0: its runtime's default); the others are
+        computed one by one."""
+        if self.colour:
+            return self.kind.compute_batch(images, self.params, threads)
+        return np.stack([self.compute(image) for image in images])
+
+
+@dataclass(frozen=True)
+class NoParams(Parameters):
+    """The parameters of a descriptor that has none."""
+
+
+class Descriptor:
+    """A descriptor: its name, its declared ``Params`` and how it is stored and computed.
+
+    Adding one is a module with a subclass and one line in ``wiloc.descriptors.registry``. A
+    subclass sets the class attributes and implements :meth:`spec` (from its complete parameters:
+    dtype, length, scale, smallest decode size, natural maximum) and :meth:`compute` (or
+    :meth:`compute_batch` for ``colour`` descriptors); one whose parameters name a file it reads
+    (``bow``, ``onnx``) overrides :meth:`make` instead of :meth:`spec`.
+    """
+
+    name: ClassVar[str] = ""
+    Params: ClassVar[type[Parameters]] = NoParams
+    metric: ClassVar[str | None] = None  # None: it depends (``depends`` says on what)
+    depends: ClassVar[str] = ""  # what its metric and length depend on ("" when fixed by its parameters)
+    source: ClassVar[str] = BUILT_IN  # or a plugin's "distribution version"
+    colour: ClassVar[bool] = False  # computed from colour images, in batches
+    words: ClassVar[bool] = False  # visual word presence: methods reading FAB-MAP's evidence take it
+    derived: ClassVar[tuple[str, ...]] = ()  # parameters read from its files (given, they must agree)
+
+    @classmethod
+    def options(cls) -> list[Declared]:
+        """The declared parameters one sets (``derived`` ones left out), in field order."""
+        return [d for d in declared(cls.Params) if d.name not in cls.derived]
+
+    @classmethod
+    def complete(cls, given: Mapping[str, Any]) -> dict[str, Any]:
+        """Every parameter, checked against the declarations, as JSON-ready values (what the
+        cache key holds): a ParameterError naming the first one that cannot work."""
+        check_names(cls.name, given, [d.name for d in declared(cls.Params)])
+        values = cls.Params(**given).as_dict()
+        for d in declared(cls.Params):  # an int given for a float parameter is stored as the float
+            if d.kind == "float" and values[d.name] is not None:
+                values[d.name] = float(values[d.name])
+        return values
+
+    @classmethod
+    def make(cls, given: Mapping[str, Any]) -> DescriptorSpec:
+        """The spec of this descriptor with the ``given`` parameters (defaults for the rest)."""
+        return cls.spec(cls.complete(given))
+
+    @classmethod
+    def spec(cls, params: dict[str, Any]) -> DescriptorSpec:
+        """The spec for complete, checked parameters."""
+        raise NotImplementedError
+
+    @classmethod
+    def compute(cls, image: NDArray[np.uint8], params: Mapping[str, Any]) -> NDArray:
+        """The descriptor of one 8-bit grayscale image (H x W), flat."""
+        raise TypeError(f"'{cls.name}' descriptors are imported, not computed")
+
+    @classmethod
+    def compute_batch(cls, images: Sequence[NDArray[np.uint8]], params: Mapping[str, Any],
+                      threads: int) -> NDArray:
+        """The descriptors of several 8-bit BGR images (``colour`` descriptors), one row each."""
+        raise NotImplementedError
+
+    @classmethod
+    def doubts(cls, params: Mapping[str, Any]) -> list[str]:
+        """Warnings that hold for every result of this descriptor with these parameters."""
+        return []
+
+    @classmethod
+    def _spec(cls, params: dict[str, Any], **storage: Any) -> DescriptorSpec:
+        """A spec of this class's name, metric and colour, with the storage facts given."""
+        return DescriptorSpec(name=cls.name, params=params, metric=storage.pop("metric", cls.metric),
+                              colour=cls.colour, **storage)
+
+
+def check_names(name: str, given: Mapping[str, Any], valid: Sequence[str]) -> None:
+    """A ValueError listing the valid parameters when ``given`` names another."""
+    unknown = sorted(set(given) - set(valid))
+    if unknown:
+        raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for '{name}'; valid: {', '.join(valid) or 'none'}")
+
+
+def scale_and_max(metric: str, length: int) -> tuple[float, float | None]:
+    """Scale and natural maximum of a descriptor of `length` values compared by `metric`, where
+    nothing else is known of it (an imported matrix, a network's vectors, a plugin's)."""
+    scales = {"l1": 1.0 / length, "sqeuclidean": 1.0, "hamming": 1.0, "cosine": 1.0}
+    maxima = {"l1": None, "sqeuclidean": None, "hamming": 8.0 * length, "cosine": 2.0}
+    return scales[metric], maxima[metric]
+
+
+def checked_storage(what: str, metric: Any, length: Any, dtype: Any) -> tuple[str, int, np.dtype]:
+    """A descriptor's metric, length and dtype, checked: a metric of METRICS, a positive length,
+    packed bits (uint8) for hamming and floats for the others."""
+    if metric not in METRICS:
+        raise ValueError(f"{what} metric must be one of {', '.join(map(repr, METRICS))}; got {metric!r}")
+    if isinstance(length, bool) or not isinstance(length, int) or length < 1:
+        raise ValueError(f"{what} length must be a positive integer; got {length!r}")
+    dtype = np.dtype(dtype)
+    if (metric == "hamming") != (dtype == np.uint8):
+        raise ValueError("hamming descriptors are packed bits (uint8); other metrics need floats")
+    return metric, length, dtype
