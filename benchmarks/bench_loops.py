@@ -1,0 +1,265 @@
+"""Loop closure within one traversal (sequence mode): how well the confidence is calibrated.
+
+    python benchmarks/bench_loops.py                                  # every loop, online and threshold
+    python benchmarks/bench_loops.py --loops dr+dl,out-back-on --descriptors sad,gist
+    python benchmarks/bench_loops.py --param online.init=50 --json loops.json
+
+Each *loop* is one traversal in sequence mode (``wiloc localize QUERY`` without ``--map``: every
+frame is compared with the frames before it, the latest ``exclude_recent`` left out), put
+together from described folders by re-sampling frame indices, never by copying an image. Frame i
+of every folder of a dataset is place i (Gardens Point walking: day_right, day_left,
+night_right, 200 frames; Nordland: summer, winter):
+
+    dr+dl        GP day_right 0-199, then day_left 0-199: a first pass of new places, then a revisit
+    dr+nr        GP day_right 0-199, then night_right 0-199
+    s+w          Nordland summer 0-999, then winter 0-999
+    out-back-on  GP day_right 0-119 (out), day_left 40-119 (round a loop over part of it again),
+                 then day_right 120-199 (on to new ground)
+    u-turn-on    GP day_right 80-199 (out), day_left 199 down to 120 (back over part of it, walked
+                 the other way), then day_right 79 down to 0 (on, past the start, to new ground)
+
+Ground truth: frame k's true matches are the candidate frames (before k - exclude_recent) whose
+place is within +-2 of its own; a frame with none is a *first visit*, and any match accepted
+there is wrong. The measures are wiloc's own (``wiloc.metrics``, ``wiloc.reliability``): recall at
+100 % precision, AP, R@1 over revisits, ECE over all decided frames, precision (and frames) at
+confidence >= 0.9 and >= 0.99, and the mean P(new place) over first visits and over revisits
+after their first 5 frames (a revisit is a run of consecutive frames with a true match).
+
+From an experiment script (with ``benchmarks/`` on ``sys.path``)::
+
+    from bench_loops import LOOPS, load_loop, run_loop
+    loop = load_loop("dr+dl", "sad")
+    print(run_loop(loop, "online", {"init": 50}))
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from rich.console import Console
+from rich.table import Table
+from scipy import sparse
+
+from wiloc.cache import Cache
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.differences import ComputedDifferences, candidate_blocks
+from wiloc.distances import DifferencesTo
+from wiloc.groundtruth import Truth
+from wiloc.methods.base import Decisions, MapContext
+from wiloc.methods.registry import METHODS, make_method
+from wiloc.metrics import correct_matches, decided_confidence, summarize
+from wiloc.reliability import summarize_calibration
+from wiloc.traversals import Describer
+
+REPO = Path(__file__).resolve().parents[1]
+TOLERANCE = 2  # places either side that count as the same place
+CUTS = (0.9, 0.99)
+SETTLE = 5  # revisit frames left out at the start of each revisit when averaging P(new place)
+GP, NORDLAND = "gardens-point-walking", "nordland-summer-winter-64x32"
+
+#: name -> (dataset, [(folder, first frame, last frame)]): a segment runs backwards when last < first
+LOOPS: dict[str, tuple[str, list[tuple[str, int, int]]]] = {
+    "dr+dl": (GP, [("day_right", 0, 199), ("day_left", 0, 199)]),
+    "dr+nr": (GP, [("day_right", 0, 199), ("night_right", 0, 199)]),
+    "s+w": (NORDLAND, [("summer", 0, 999), ("winter", 0, 999)]),
+    "out-back-on": (GP, [("day_right", 0, 119), ("day_left", 40, 119), ("day_right", 120, 199)]),
+    "u-turn-on": (GP, [("day_right", 80, 199), ("day_left", 199, 120), ("day_right", 79, 0)]),
+}
+
+
+def default_data_root() -> Path:
+    """$WILOC_DATA, else the shared data folder beside the repository."""
+    return Path(os.environ.get("WILOC_DATA") or REPO.parent / "shared" / "data")
+
+
+@dataclass
+class Loop:
+    """One sequence-mode traversal: its descriptors in order and each frame's place."""
+
+    name: str
+    descriptor: str
+    data: NDArray
+    places: NDArray[np.int64]
+    labels: list[str]
+    metric: str
+    scale: float
+    natural_max: float | None
+
+
+def load_loop(name: str, descriptor: str = "sad", data_root: Path | None = None,
+              cache: Cache | None = None) -> Loop:
+    """Describe (or read from the cache) the folders of loop ``name`` and re-sample their frames."""
+    if name not in LOOPS:
+        raise ValueError(f"unknown loop {name!r} (choose from {', '.join(LOOPS)})")
+    dataset, segments = LOOPS[name]
+    root = Path(data_root or default_data_root()) / dataset
+    describer = Describer(descriptor, {}, cache or Cache())
+    parts, places, labels = [], [], []
+    entry = None
+    for folder, first, last in segments:
+        entry = describer.entry(root / folder)
+        frames = np.arange(first, last + 1) if last >= first else np.arange(first, last - 1, -1)
+        if frames.max() >= len(entry.names):
+            raise ValueError(f"{name}: {folder} has {len(entry.names)} frames, the loop needs frame {frames.max()}")
+        parts.append(entry.data[frames])
+        places.append(frames)
+        labels += [f"{folder}/{entry.names[f]}" for f in frames]
+    assert entry is not None
+    return Loop(name, descriptor, np.ascontiguousarray(np.concatenate(parts)), np.concatenate(places).astype(np.int64),
+                labels, entry.metric, entry.scale, entry.natural_max)
+
+
+def truth(loop: Loop, exclude_recent: int = DEFAULT_EXCLUDE_RECENT, tolerance: int = TOLERANCE) -> Truth:
+    """Frame k matches the candidate frames j < k - exclude_recent within +-``tolerance`` places."""
+    k, j = np.meshgrid(np.arange(loop.places.size), np.arange(loop.places.size), indexing="ij")
+    same = (np.abs(loop.places[k] - loop.places[j]) <= tolerance) & (j < k - exclude_recent)
+    names = [f"{i}:{label}" for i, label in enumerate(loop.labels)]
+    return Truth(sparse.csr_array(same), names, names)
+
+
+def decide(loop: Loop, method: str, params: Mapping[str, Any] | None = None,
+           exclude_recent: int = DEFAULT_EXCLUDE_RECENT) -> Decisions:
+    """The method's decisions in sequence mode, started and fed as ``wiloc.api.localize`` does
+    for a folder holding the loop's frames without ``--map``."""
+    algo = make_method(method, params)
+    algo.check_inputs(sequence=True, training=False)
+    problem = algo.query_problem(loop.places.size, True, exclude_recent)
+    if problem is not None:
+        raise ValueError(f"{method} on {loop.name}: {problem}")
+    to_self = DifferencesTo(loop.data, loop.metric, loop.scale)
+    algo.start(MapContext(sequence=True, exclude_recent=exclude_recent, natural_max=loop.natural_max,
+                          map_self=lambda: ComputedDifferences(loop.data, to_self)))
+    rows = candidate_blocks(ComputedDifferences(loop.data, to_self), True, exclude_recent)
+    return algo.run(rows, loop.places.size)
+
+
+def settled_revisits(has_match: NDArray[np.bool_], settle: int = SETTLE) -> NDArray[np.bool_]:
+    """Revisit frames (with a true match) after the first ``settle`` frames of their run."""
+    out = np.zeros_like(has_match)
+    run = 0
+    for k, revisit in enumerate(has_match):
+        run = run + 1 if revisit else 0
+        out[k] = run > settle
+    return out
+
+
+def score(decisions: Decisions, loop: Loop, exclude_recent: int = DEFAULT_EXCLUDE_RECENT) -> dict[str, Any]:
+    """wiloc's measures of the decisions against the loop's ground truth."""
+    known = truth(loop, exclude_recent)
+    summary = summarize(decisions.match, decisions.confidence, known)
+    correct = correct_matches(decisions.match, known)
+    confidence = decided_confidence(decisions.match, decisions.confidence)
+    calibration = summarize_calibration(confidence, correct, summary.with_true_match, CUTS).row()
+    has_match = known.has_match()
+    new_place = np.asarray(decisions.columns.get("new_place", np.full(has_match.size, np.nan)), dtype=np.float64)
+    first, revisit = ~has_match & ~np.isnan(new_place), settled_revisits(has_match) & ~np.isnan(new_place)
+    return {"frames": summary.frames, "decided": summary.decided, "revisits": summary.with_true_match,
+            "r100": summary.recall_at_100, "ap": summary.auc, "r1": summary.recall_at_1, "ece": calibration["ece"],
+            **{f"{key}@{cut:g}": calibration[f"{key}@{cut:g}"] for cut in CUTS for key in ("precision", "accepted")},
+            "new_first": float(new_place[first].mean()) if first.any() else float("nan"),
+            "new_revisit": float(new_place[revisit].mean()) if revisit.any() else float("nan")}
+
+
+def run_loop(loop: Loop, method: str, params: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """One run's measures, with the loop, method and seconds taken."""
+    started = time.perf_counter()
+    decisions = decide(loop, method, params)
+    return {"loop": loop.name, "descriptor": loop.descriptor, "method": method, "params": dict(params or {}),
+            **score(decisions, loop), "seconds": time.perf_counter() - started}
+
+
+def _fmt(value: float | None, digits: int = 3) -> str:
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+
+
+def render(rows: list[dict[str, Any]]) -> Table:
+    """A row per loop, descriptor and method."""
+    table = Table(title=f"sequence mode, ground truth +-{TOLERANCE} places, exclude_recent "
+                        f"{DEFAULT_EXCLUDE_RECENT}", title_justify="left")
+    for column in ("loop", "descr.", "method", "frames / revisits", "R@100P", "AP", "R@1 rev.", "ECE",
+                   *(f"P@{cut:g} (n)" for cut in CUTS), "P(new) first", "P(new) revisit"):
+        table.add_column(column, justify="left" if column in ("loop", "descr.", "method") else "right")
+    for r in rows:
+        table.add_row(r["loop"], r["descriptor"], r["method"], f"{r['frames']} / {r['revisits']}", _fmt(r["r100"]),
+                      _fmt(r["ap"]), _fmt(r["r1"]), _fmt(r["ece"]),
+                      *(f"{_fmt(r[f'precision@{cut:g}'])} ({r[f'accepted@{cut:g}']})" for cut in CUTS),
+                      _fmt(r["new_first"]), _fmt(r["new_revisit"]))
+    return table
+
+
+def _json_ready(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if hasattr(value, "item"):
+        value = value.item()
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def _param(item: str) -> tuple[str, str, Any]:
+    """``method.key=value`` as (method, key, value): none, an int, a float, else text."""
+    target, sep, text = item.partition("=")
+    method, dot, key = target.partition(".")
+    if not sep or not dot or not key:
+        raise SystemExit(f"--param {item!r}: give method.key=value (e.g. online.init=50)")
+    value: Any = None if text.strip().lower() in ("none", "null") else text
+    for kind in (int, float):
+        try:
+            value = kind(text)
+            break
+        except ValueError:
+            pass
+    return method, key, value
+
+
+def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("data", nargs="?", type=Path, default=default_data_root(),
+                        help="folder holding the datasets (default: $WILOC_DATA or ../shared/data)")
+    parser.add_argument("--loops", default=",".join(LOOPS), help="comma-separated (default: all): " + ", ".join(LOOPS))
+    parser.add_argument("--descriptors", default="sad", help="comma-separated (default: %(default)s)")
+    parser.add_argument("--methods", default="online,threshold", help="comma-separated (default: %(default)s)")
+    parser.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE",
+                        help="a method parameter, repeatable (e.g. online.init=50)")
+    parser.add_argument("--json", type=Path, default=None, help="write every row to this file")
+    args = parser.parse_args(argv)
+    console = Console() if Console().is_terminal else Console(width=200)
+    loops = [name.strip() for name in args.loops.split(",") if name.strip()]
+    methods = [name.strip() for name in args.methods.split(",") if name.strip()]
+    for name in loops:
+        if name not in LOOPS:
+            parser.error(f"unknown loop {name!r} (choose from {', '.join(LOOPS)})")
+    for name in methods:
+        if name not in METHODS:
+            parser.error(f"unknown method {name!r}")
+    params: dict[str, dict[str, Any]] = {m: {} for m in methods}
+    for item in args.param:
+        method, key, value = _param(item)
+        if method not in params:
+            parser.error(f"--param {item!r}: method {method!r} is not run")
+        params[method][key] = value
+    rows = []
+    for descriptor in (d.strip() for d in args.descriptors.split(",") if d.strip()):
+        for name in loops:
+            loop = load_loop(name, descriptor, args.data)
+            rows += [run_loop(loop, method, params[method]) for method in methods]
+    console.print(render(rows))
+    if args.json is not None:
+        args.json.write_text(json.dumps(_json_ready(rows), indent=2) + "\n", encoding="utf-8")
+        console.print(f"wrote {args.json}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
