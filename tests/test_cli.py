@@ -211,8 +211,8 @@ def test_an_option_methods_describe_differently_shows_each_description() -> None
     from wiloc.parameters import declared
 
     seed = method_options()["seed"]
-    assert len(seed.by_method) > 1
-    for method in seed.by_method:
+    assert len(seed.by_owner) > 1
+    for method in seed.by_owner:
         [own] = [d.help for d in declared(METHODS[method].Params) if d.name == "seed"]
         assert f"{method}: {own}" in seed.help()
     assert method_options()["bins"].help().startswith("Histogram bins.")  # the same words: said once

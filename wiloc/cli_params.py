@@ -87,9 +87,9 @@ class DeclaredOption:
         return "; ".join(f"{m}: {'none' if d.default is None else d.default}" for m, d in self.by_owner.items())
 
     def help(self) -> str:
-        """The parameter's help, or each method's (``online: ... fabmap: ...``) when they differ."""
+        """The parameter's help, or each owner's (``online: ... fabmap: ...``) when they differ."""
         d = self.first
-        texts = {m: _said_default(t.help)[0] if self.shared else t.help for m, t in self.by_method.items()}
+        texts = {m: _said_default(t.help)[0] if self.shared else t.help for m, t in self.by_owner.items()}
         same = len(set(texts.values())) == 1
         parts = [texts[next(iter(texts))] if same else " ".join(f"{m}: {text}" for m, text in texts.items())]
         if d.range_text:

@@ -44,10 +44,10 @@ class OnlineParams(Parameters):
     track_frames: int = param(3, "Sequence mode: how many previous frames' matches a best match may "
                                  "continue (a right match among wrong ones still continues the track).",
                               low=1)
-    enter: float = param(0.01, "Sequence mode: prior probability per frame that a revisit starts.",
-                         low=0.0, high=1.0, low_open=True, high_open=True)
-    leave: float = param(0.01, "Sequence mode: prior probability per frame that a revisit ends.",
-                         low=0.0, high=1.0, low_open=True, high_open=True)
+    revisit_start: float = param(0.01, "Sequence mode: prior probability per frame that a revisit starts.",
+                                 low=0.0, high=1.0, low_open=True, high_open=True)
+    revisit_end: float = param(0.01, "Sequence mode: prior probability per frame that a revisit ends.",
+                                 low=0.0, high=1.0, low_open=True, high_open=True)
     right_prior: tuple[float, float] = param(
         (1.0, 1.0), "Sequence mode: Beta prior (right, wrong) of the share of a revisit's frames whose "
                     "best match is right.", low=0.0, low_open=True)
@@ -142,7 +142,7 @@ class RevisitChain:
     """
 
     def __init__(self, params: OnlineParams, exclude_recent: int) -> None:
-        self.enter, self.leave = params.enter, params.leave
+        self.enter, self.leave = params.revisit_start, params.revisit_end
         self.right = np.asarray(params.right_prior, dtype=np.float64).copy()  # (right, wrong) revisit frames
         self.window, self.span = params.pace_window, max(exclude_recent, 1)
         self.relation = np.ones((2, 4))  # counts of the relation given a (right, wrong) match
