@@ -33,10 +33,6 @@ From an experiment script (with ``benchmarks/`` on ``sys.path``)::
 """
 from __future__ import annotations
 
-import argparse
-import json
-import math
-import os
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -60,7 +56,8 @@ from wiloc.metrics import correct_matches, decided_confidence, summarize
 from wiloc.reliability import summarize_calibration
 from wiloc.traversals import Describer
 
-REPO = Path(__file__).resolve().parents[1]
+from bench_common import default_data_root, fmt, parse_params, parser as benchmark_parser, write_json
+
 TOLERANCE = 2  # places either side that count as the same place
 CUTS = (0.9, 0.99)
 SETTLE = 5  # revisit frames left out at the start of each revisit when averaging P(new place)
@@ -74,11 +71,6 @@ LOOPS: dict[str, tuple[str, list[tuple[str, int, int]]]] = {
     "out-back-on": (GP, [("day_right", 0, 119), ("day_left", 40, 119), ("day_right", 120, 199)]),
     "u-turn-on": (GP, [("day_right", 80, 199), ("day_left", 199, 120), ("day_right", 79, 0)]),
 }
-
-
-def default_data_root() -> Path:
-    """$WILOC_DATA, else the shared data folder beside the repository."""
-    return Path(os.environ.get("WILOC_DATA") or REPO.parent / "shared" / "data")
 
 
 @dataclass
@@ -177,10 +169,6 @@ def run_loop(loop: Loop, method: str, params: Mapping[str, Any] | None = None) -
             **score(decisions, loop), "seconds": time.perf_counter() - started}
 
 
-def _fmt(value: float | None, digits: int = 3) -> str:
-    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
-
-
 def render(rows: list[dict[str, Any]]) -> Table:
     """A row per loop, descriptor and method."""
     table = Table(title=f"sequence mode, ground truth +-{TOLERANCE} places, exclude_recent "
@@ -189,50 +177,17 @@ def render(rows: list[dict[str, Any]]) -> Table:
                    *(f"P@{cut:g} (n)" for cut in CUTS), "P(new) first", "P(new) revisit"):
         table.add_column(column, justify="left" if column in ("loop", "descr.", "method") else "right")
     for r in rows:
-        table.add_row(r["loop"], r["descriptor"], r["method"], f"{r['frames']} / {r['revisits']}", _fmt(r["r100"]),
-                      _fmt(r["ap"]), _fmt(r["r1"]), _fmt(r["ece"]),
-                      *(f"{_fmt(r[f'precision@{cut:g}'])} ({r[f'accepted@{cut:g}']})" for cut in CUTS),
-                      _fmt(r["new_first"]), _fmt(r["new_revisit"]))
+        table.add_row(r["loop"], r["descriptor"], r["method"], f"{r['frames']} / {r['revisits']}", fmt(r["r100"]),
+                      fmt(r["ap"]), fmt(r["r1"]), fmt(r["ece"]),
+                      *(f"{fmt(r[f'precision@{cut:g}'])} ({r[f'accepted@{cut:g}']})" for cut in CUTS),
+                      fmt(r["new_first"]), fmt(r["new_revisit"]))
     return table
 
 
-def _json_ready(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    if hasattr(value, "item"):
-        value = value.item()
-    return None if isinstance(value, float) and not math.isfinite(value) else value
-
-
-def _param(item: str) -> tuple[str, str, Any]:
-    """``method.key=value`` as (method, key, value): none, an int, a float, else text."""
-    target, sep, text = item.partition("=")
-    method, dot, key = target.partition(".")
-    if not sep or not dot or not key:
-        raise SystemExit(f"--param {item!r}: give method.key=value (e.g. online.init=50)")
-    value: Any = None if text.strip().lower() in ("none", "null") else text
-    for kind in (int, float):
-        try:
-            value = kind(text)
-            break
-        except ValueError:
-            pass
-    return method, key, value
-
-
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("data", nargs="?", type=Path, default=default_data_root(),
-                        help="folder holding the datasets (default: $WILOC_DATA or ../shared/data)")
+    parser = benchmark_parser(__doc__, "online,threshold", "online.init=50")
     parser.add_argument("--loops", default=",".join(LOOPS), help="comma-separated (default: all): " + ", ".join(LOOPS))
     parser.add_argument("--descriptors", default="sad", help="comma-separated (default: %(default)s)")
-    parser.add_argument("--methods", default="online,threshold", help="comma-separated (default: %(default)s)")
-    parser.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE",
-                        help="a method parameter, repeatable (e.g. online.init=50)")
-    parser.add_argument("--json", type=Path, default=None, help="write every row to this file")
     args = parser.parse_args(argv)
     console = Console() if Console().is_terminal else Console(width=200)
     loops = [name.strip() for name in args.loops.split(",") if name.strip()]
@@ -243,21 +198,14 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     for name in methods:
         if name not in METHODS:
             parser.error(f"unknown method {name!r}")
-    params: dict[str, dict[str, Any]] = {m: {} for m in methods}
-    for item in args.param:
-        method, key, value = _param(item)
-        if method not in params:
-            parser.error(f"--param {item!r}: method {method!r} is not run")
-        params[method][key] = value
+    params = parse_params(args.param, methods)
     rows = []
     for descriptor in (d.strip() for d in args.descriptors.split(",") if d.strip()):
         for name in loops:
             loop = load_loop(name, descriptor, args.data)
             rows += [run_loop(loop, method, params[method]) for method in methods]
     console.print(render(rows))
-    if args.json is not None:
-        args.json.write_text(json.dumps(_json_ready(rows), indent=2) + "\n", encoding="utf-8")
-        console.print(f"wrote {args.json}")
+    write_json(args.json, rows, console)
     return rows
 
 

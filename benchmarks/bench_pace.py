@@ -49,10 +49,7 @@ of ``n`` frames (``names`` picks some); ``TRAVERSALS`` lists the traversals by n
 """
 from __future__ import annotations
 
-import argparse
-import json
 import math
-import os
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -79,7 +76,8 @@ from wiloc.metrics import correct_matches, decided_confidence, summarize
 from wiloc.reliability import summarize_calibration, summarize_new_place
 from wiloc.traversals import Describer
 
-REPO = Path(__file__).resolve().parents[1]
+from bench_common import default_data_root, fmt, parse_params, parser as benchmark_parser, write_json
+
 TOLERANCE = 2  # map nodes either side of the true node that count as the same place
 CUT = 0.9  # the confidence above which precision is reported
 
@@ -93,11 +91,6 @@ TRAVERSALS: dict[str, tuple[str, str, str, str]] = {
 }
 
 VARIANTS = ("same", "pace-1/3", "pace-1/2", "pace-2", "pace-3", "reversed", "stop", "u-turn", "jump", "drift")
-
-
-def default_data_root() -> Path:
-    """$WILOC_DATA, else the shared data folder beside the repository."""
-    return Path(os.environ.get("WILOC_DATA") or REPO.parent / "shared" / "data")
 
 
 # ------------------------------------------------------------------------------------------ variants
@@ -284,42 +277,6 @@ def run_variant(traversal: Traversal, variant: Variant, method: str = "catgraph"
 
 # ------------------------------------------------------------------------------------------ command
 
-def parse_value(text: str) -> Any:
-    """A parameter value typed on the command line: none, true/false, an int, a float, or
-    comma-separated numbers (a tuple); anything else stays text."""
-    lowered = text.strip().lower()
-    if lowered in ("none", "null"):
-        return None
-    if lowered in ("true", "false"):
-        return lowered == "true"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    if "," in text:
-        try:
-            return tuple(float(part) for part in text.split(",") if part.strip())
-        except ValueError:
-            pass
-    return text
-
-
-def parse_params(items: Sequence[str], methods: Sequence[str]) -> dict[str, dict[str, Any]]:
-    """``method.key=value`` items as {method: {key: value}}."""
-    params: dict[str, dict[str, Any]] = {m: {} for m in methods}
-    for item in items:
-        target, sep, value = item.partition("=")
-        method, dot, key = target.partition(".")
-        if not sep or not dot or not key:
-            raise SystemExit(f"--param {item!r}: give method.key=value (e.g. catgraph.particles=4000)")
-        params.setdefault(method, {})[key] = parse_value(value)
-    return params
-
-
-def _fmt(value: float | None, digits: int = 3) -> str:
-    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
-
 
 def render(name: str, rows: list[dict[str, Any]], methods: Sequence[str]) -> Table:
     """One traversal's table: a row per variant; per method R@1, R@1 / same pace, AP, ECE,
@@ -341,37 +298,20 @@ def render(name: str, rows: list[dict[str, Any]], methods: Sequence[str]) -> Tab
                 continue
             same = by.get(("same", method))
             relative = r["r1"] / same["r1"] if same and same["r1"] > 0 else float("nan")
-            cells += [_fmt(r["r1"]), _fmt(relative, 2), _fmt(r["ap"]), _fmt(r["ece"]),
-                      f"{_fmt(r[f'precision@{CUT:g}'])} ({r[f'accepted@{CUT:g}']})", _fmt(r["new_place"])]
+            cells += [fmt(r["r1"]), fmt(relative, 2), fmt(r["ap"]), fmt(r["ece"]),
+                      f"{fmt(r[f'precision@{CUT:g}'])} ({r[f'accepted@{CUT:g}']})", fmt(r["new_place"])]
         table.add_row(*cells)
     return table
 
 
-def _json_ready(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    if hasattr(value, "item"):
-        value = value.item()
-    return None if isinstance(value, float) and not math.isfinite(value) else value
-
-
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("data", nargs="?", type=Path, default=default_data_root(),
-                        help="folder holding the datasets (default: $WILOC_DATA or ../shared/data)")
+    parser = benchmark_parser(__doc__, "catgraph,seqslam", "catgraph.particles=4000")
     parser.add_argument("--traversals", default=",".join(TRAVERSALS), help="comma-separated (default: all): "
                         + ", ".join(TRAVERSALS))
     parser.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated (default: all): "
                         + ", ".join(VARIANTS))
-    parser.add_argument("--methods", default="catgraph,seqslam", help="comma-separated (default: %(default)s)")
-    parser.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE",
-                        help="a method parameter, repeatable (e.g. catgraph.particles=4000)")
     parser.add_argument("--seed", type=int, default=0, help="seed of methods that take one (default: 0)")
     parser.add_argument("--frames", type=int, default=None, help="keep only the first N route frames")
-    parser.add_argument("--json", type=Path, default=None, help="write every row to this file")
     args = parser.parse_args(argv)
     console, err = Console(), Console(stderr=True)
     if not console.is_terminal:  # a file or a pipe: wide enough for every method's columns
@@ -440,9 +380,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     changed = {m: p for m, p in changed.items() if p}
     console.print(f"{len(rows)} runs in {time.perf_counter() - started:.0f} s; seed {args.seed}, no odometry"
                   + (f"; parameters {changed}" if changed else "; default parameters"))
-    if args.json is not None:
-        args.json.write_text(json.dumps(_json_ready(rows), indent=2) + "\n", encoding="utf-8")
-        console.print(f"wrote {args.json}")
+    write_json(args.json, rows, console)
     return rows
 
 

@@ -5,18 +5,43 @@ Test files import them from here (``from helpers import ...``), never from one a
 """
 from __future__ import annotations
 
+import contextlib
+import importlib.util
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import cv2
 import numpy as np
 
 from wiloc.cache import Cache, Entry
+
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+@contextlib.contextmanager
+def benchmark_module(name: str) -> Iterator[ModuleType]:
+    """``benchmarks/NAME.py`` imported as a module, with its folder on ``sys.path`` meanwhile (as
+    when it runs as a script: it imports ``bench_common`` beside it)."""
+    folder = str(BENCHMARKS)
+    sys.path.insert(0, folder)
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up while the class is made
+    try:
+        spec.loader.exec_module(module)
+        yield module
+    finally:
+        sys.modules.pop(name, None)
+        sys.modules.pop("bench_common", None)
+        sys.path.remove(folder)
 
 
 def places(n: int, seed: int = 0) -> list[np.ndarray]:

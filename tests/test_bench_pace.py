@@ -2,30 +2,22 @@
 on re-sampled descriptor rows decides as ``wiloc localize`` does on folders holding those frames."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from helpers import benchmark_module
 from wiloc.descriptors.registry import get_descriptor
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_pace", REPO / "benchmarks" / "bench_pace.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_pace"] = module  # dataclasses look their module up while the class is made
-    try:
-        spec.loader.exec_module(module)
+    with benchmark_module("bench_pace") as module:
         yield module
-    finally:
-        sys.modules.pop("bench_pace", None)
 
 
 def by_name(bench, n: int) -> dict:

@@ -294,18 +294,9 @@ def test_loop_closure_on_gardens_point_claims_no_first_visit(data_root) -> None:
     """GP day_right then day_left as one traversal (benchmarks/bench_loops.py, loop dr+dl): no
     frame at confidence >= 0.99 is wrong, first visits are called new places, and the confidence
     is calibrated far better than P(L | m) was (ECE 0.203)."""
-    import importlib.util
-    import sys
-    from pathlib import Path
+    from helpers import benchmark_module
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_loops.py"
-    spec = importlib.util.spec_from_file_location("bench_loops", path)
-    bench = importlib.util.module_from_spec(spec)
-    sys.modules["bench_loops"] = bench  # dataclasses look their module up while the class is made
-    try:
-        spec.loader.exec_module(bench)
+    with benchmark_module("bench_loops") as bench:
         row = bench.run_loop(bench.load_loop("dr+dl", "sad", data_root), "online")
-    finally:
-        sys.modules.pop("bench_loops", None)
     assert row["accepted@0.99"] == 0 or row["precision@0.99"] >= 0.99
     assert row["new_first"] >= 0.85 and row["ece"] <= 0.1

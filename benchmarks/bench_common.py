@@ -1,0 +1,91 @@
+"""What the benchmarks that run methods on re-sampled real traversals share (``bench_pace``,
+``bench_loops``): where the data is, ``--param method.key=value`` options, and printing."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def default_data_root() -> Path:
+    """$WILOC_DATA, else the shared data folder beside the repository."""
+    return Path(os.environ.get("WILOC_DATA") or REPO.parent / "shared" / "data")
+
+
+def parser(doc: str, methods: str, example: str) -> argparse.ArgumentParser:
+    """The options every such benchmark takes: the data folder, ``--methods`` (default
+    ``methods``), ``--param`` (``example``: one for the help) and ``--json``; the script adds its own."""
+    made = argparse.ArgumentParser(description=doc.split("\n\n")[0],
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+    made.add_argument("data", nargs="?", type=Path, default=default_data_root(),
+                      help="folder holding the datasets (default: $WILOC_DATA or ../shared/data)")
+    made.add_argument("--methods", default=methods, help="comma-separated (default: %(default)s)")
+    made.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE",
+                      help=f"a method parameter, repeatable (e.g. {example})")
+    made.add_argument("--json", type=Path, default=None, help="write every row to this file")
+    return made
+
+
+def parse_value(text: str) -> Any:
+    """A parameter value typed on the command line: none, true/false, an int, a float, or
+    comma-separated numbers (a tuple); anything else stays text."""
+    lowered = text.strip().lower()
+    if lowered in ("none", "null"):
+        return None
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    if "," in text:
+        try:
+            return tuple(float(part) for part in text.split(",") if part.strip())
+        except ValueError:
+            pass
+    return text
+
+
+def parse_params(items: Sequence[str], methods: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """``method.key=value`` items as {method: {key: value}}, one entry per method run; an item for
+    a method not run is refused."""
+    params: dict[str, dict[str, Any]] = {m: {} for m in methods}
+    for item in items:
+        target, sep, value = item.partition("=")
+        method, dot, key = target.partition(".")
+        if not sep or not dot or not key:
+            raise SystemExit(f"--param {item!r}: give method.key=value (e.g. catgraph.particles=4000)")
+        if method not in params:
+            raise SystemExit(f"--param {item!r}: method {method!r} is not run")
+        params[method][key] = parse_value(value)
+    return params
+
+
+def fmt(value: float | None, digits: int = 3) -> str:
+    """A measure as printed: ``digits`` decimals, "-" for none or NaN."""
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+
+
+def json_ready(value: Any) -> Any:
+    """``value`` with numpy scalars as Python numbers and non-finite floats as None, for --json."""
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if hasattr(value, "item"):
+        value = value.item()
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def write_json(path: Path | None, rows: list[dict[str, Any]], console: Any) -> None:
+    """``--json``: every row to ``path`` (when given), and a line saying so."""
+    if path is not None:
+        path.write_text(json.dumps(json_ready(rows), indent=2) + "\n", encoding="utf-8")
+        console.print(f"wrote {path}")
