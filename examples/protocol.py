@@ -24,7 +24,7 @@ from rich.console import Console
 
 from wiloc import api, plots, run_figures
 from wiloc.cache import Cache
-from wiloc.cli_views import progress_bar, table1_view, table2_view
+from wiloc.cli.views import progress_bar, table1_view, table2_view
 from wiloc.errors import WilocError
 
 REPO = Path(__file__).resolve().parents[1]

@@ -23,7 +23,7 @@ from protocol import _finite, _percent, aligned, console, err, parse_args, requi
 from rich.table import Table
 
 from wiloc import api, plots
-from wiloc.cli_views import table1_view
+from wiloc.cli.views import table1_view
 from wiloc.errors import WilocError
 
 TOLERANCE = 2

@@ -93,3 +93,22 @@ def test_a_method_registered_before_the_command_line_loads_runs_from_it(tmp_path
     assert "options of fabmap, ratio" in shown  # --window, which fabmap declares too
     refused = wiloc("localize", str(query), "--map", str(ref), "--method", "ratio", "--particles", "5")
     assert refused.returncode == 2 and "--particles: method 'ratio' takes no such option" in refused.stderr
+
+
+def _wiloc_imports(path: Path) -> set[str]:
+    """Every wiloc module ``path`` imports, when it loads or inside a function."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("wiloc"):
+            found |= {node.module} if node.module != "wiloc" else {f"wiloc.{a.name}" for a in node.names}
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("wiloc")}
+    return found - {"wiloc.__version__"}
+
+
+def test_the_command_line_modules_stay_small() -> None:
+    """Each module of the command line: at most 500 lines, at most 12 wiloc modules imported."""
+    sizes = {path.name: (len(path.read_text().splitlines()), len(_wiloc_imports(path)))
+             for path in (REPO / "wiloc" / "cli").glob("*.py")}
+    assert len(sizes) > 10
+    assert {name: size for name, size in sizes.items() if size[0] > 500 or size[1] > 12} == {}

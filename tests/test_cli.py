@@ -206,7 +206,7 @@ def test_help_groups_method_options_with_their_defaults() -> None:
 
 
 def test_an_option_methods_describe_differently_shows_each_description() -> None:
-    from wiloc.cli_params import method_options
+    from wiloc.cli.params import method_options
     from wiloc.methods.registry import METHODS
     from wiloc.parameters import declared
 

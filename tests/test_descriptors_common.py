@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 from wiloc import api
 from wiloc.cache import Cache
 from wiloc.cli import app
-from wiloc.cli_params import OWN_FORMS, descriptor_options, flag
+from wiloc.cli.params import OWN_FORMS, descriptor_options, flag
 from wiloc.descriptors import registry
 from wiloc.descriptors.base import METRICS, Descriptor, DescriptorSpec
 from wiloc.localizer import Localizer

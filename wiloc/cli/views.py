@@ -23,7 +23,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from wiloc.candidates import RANKED
-from wiloc.cli_core import err, out
+from wiloc.cli.core import err, out
 from wiloc.reliability import NEW_PLACE_KEYS
 from wiloc.wrapping import Words
 

@@ -25,7 +25,7 @@ from typer._click import exceptions as problems
 from typer._click.globals import get_current_context
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
-from wiloc.cli_params import flag, given
+from wiloc.cli.params import flag, given
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError, interrupted
 
 out = Console()

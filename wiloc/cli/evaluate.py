@@ -1,0 +1,115 @@
+"""`wiloc evaluate`: precision-recall and calibration of results files against ground truth, one
+row per run, with its figures (curves, reliability diagram, difference matrix, image pairs)."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Optional
+
+import typer
+
+from wiloc.cli.core import Notes, handles_errors, out, refuse_unused
+from wiloc.cli.options import CacheOption, CalibrationPlotOption, PrPlotOption, output_file, plot_file, replacing
+from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, parse_cuts, parse_recall_at,
+                               warn_about_truth, write_metrics_csv)
+from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
+from wiloc.cli.views import metrics_views, print_command_json
+from wiloc.labels import short_names
+
+if TYPE_CHECKING:
+    from wiloc import api
+
+
+@handles_errors
+def evaluate(
+    results: list[Path] = typer.Argument(..., metavar="RESULTS...", help="Results files written by `wiloc localize`."),
+    gt: GtOption = "aligned",
+    gt_map: GtMapOption = None,
+    tolerance: ToleranceOption = 2,
+    radius: RadiusOption = None,
+    pr_plot: PrPlotOption = None,
+    calibration_plot: CalibrationPlotOption = None,
+    cuts: CutsOption = CUTS_TEXT,
+    recall_at: RecallAtOption = RECALL_AT_TEXT,
+    matrix_plot: Optional[Path] = typer.Option(
+        None, callback=plot_file, show_default="none: not drawn", help="Draw the difference matrix with the decided matches and the ground truth "
+                                        "(with several results files: one FILE-RESULTS figure each)."),
+    pairs_plot: Optional[Path] = typer.Option(
+        None, callback=plot_file, show_default="none: not drawn", help="Show the most confident right and wrong matches as image pairs (image "
+                                        "folders; with several results files: one FILE-RESULTS figure each)."),
+    pairs: int = typer.Option(3, "--pairs", min=1, help="With --pairs-plot: show N right and N wrong matches."),
+    wrong_only: bool = typer.Option(False, "--wrong-only", help="With --pairs-plot: show the wrong matches only."),
+    csv_out: Optional[Path] = typer.Option(None, "--csv", callback=output_file, show_default="none: not written", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
+    cache: CacheOption = None,
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+) -> None:
+    """Precision-recall and calibration of results files against ground truth.
+
+    Example: wiloc evaluate day_left-sad-online.csv --gt aligned --tolerance 2 --pr-plot pr.png --cuts 0.9,0.99
+    """
+    from wiloc import api
+
+    refuse_unused({"pairs": (pairs_plot is not None, "--pairs-plot"), "wrong_only": (pairs_plot is not None, "--pairs-plot")})
+    at = parse_cuts(cuts)
+    ranks = parse_recall_at(recall_at)
+    source = truth_source(gt, gt_map, tolerance, radius)
+    evaluations = [api.evaluate(path, source, at, ranks) for path in results]
+    notes = warn_about_truth(evaluations)
+    names = short_names([e.path for e in evaluations])
+    heads = [{"run": run, "results": name, "method": e.method, "descriptor": e.results.meta.get("descriptor"),
+              "traversal": e.traversal, **e.summary.as_dict()}
+             for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
+    rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
+    written = []
+    if pr_plot is not None:
+        from wiloc.plots import plot_pr
+        written.append(plot_pr(dict(zip(api.run_names(evaluations), (e.curve for e in evaluations))),
+                               replacing(notes, pr_plot),
+                               title=f"Precision-recall: {api.run_subject(evaluations, source)}"))
+    if calibration_plot is not None:
+        from wiloc.plots import plot_reliability
+        written.append(plot_reliability(api.reliability_series(evaluations), replacing(notes, calibration_plot),
+                                        new_place=api.new_place_series(evaluations)))
+    written += _run_plots(evaluations, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only)
+    if csv_out is not None:
+        written += write_metrics_csv(csv_out, rows, evaluations, notes)
+    if as_json:
+        print_command_json("evaluate", "runs", [
+            {**head, "results": str(e.path), "ground_truth": source.describe(), **e.calibration_dict(),
+             "truth_warnings": e.truth.warnings,
+             "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
+                       "thresholds": e.curve.thresholds.tolist()}} for head, e in zip(heads, evaluations)],
+            notes, ground_truth=source.describe(), files=[str(p) for p in written])
+        return
+    for view in metrics_views(rows, at, source.describe()):
+        out.print(view)
+    for path in written:
+        out.print(f"wrote {path}")
+
+
+def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pairs_plot: Path | None,
+               cache: Path | None, notes: Notes, pairs: int = 3, wrong_only: bool = False) -> list[Path]:
+    """Each run's difference matrix and example pairs (``pairs`` right and wrong ones, or wrong
+    ones only); with several runs each file is named after its results file too
+    (``matrix-day_left-sad-online.png``)."""
+    if matrix_plot is None and pairs_plot is None:
+        return []
+    from wiloc.cache import Cache
+    from wiloc.plots import plot_matrix, plot_pairs
+    from wiloc.run_figures import example_pairs, matrix_picture
+
+    store = Cache(cache)
+    written = []
+    for e in evaluations:
+        def target(path: Path) -> Path:
+            return path.with_name(f"{path.stem}-{Path(e.name).stem}{path.suffix}") if len(evaluations) > 1 else path
+        descriptor = e.results.meta.get("descriptor", "")
+        if matrix_plot is not None:
+            picture = matrix_picture(e, store)
+            written.append(plot_matrix(picture, replacing(notes, target(matrix_plot)), title=(
+                f"{e.method} on {picture.query} against {picture.reference} ({descriptor}): differences, "
+                "decided matches and ground truth")))
+        if pairs_plot is not None:
+            shown = "wrong matches" if wrong_only else "right and wrong matches"
+            written.append(plot_pairs(example_pairs(e, pairs, wrong_only), replacing(notes, target(pairs_plot)),
+                                      title=f"{e.method} on {e.traversal} ({descriptor}): the most confident {shown}"))
+    return written

@@ -1,0 +1,139 @@
+"""`wiloc localize`: parse the run's inputs and options, localize each query (or follow a folder
+as it fills) through wiloc.api, and render one row per run."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.cli.core import fail, handles_errors, refuse_unused
+from wiloc.cli.localize_views import show_followed, show_runs
+from wiloc.cli.options import (CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption, ModelOption,
+                               PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
+                               VocabularyOption, descriptor_params_given, output_file, plot_file)
+from wiloc.cli.params import descriptor_uses, method_params, with_descriptor_options, with_method_options
+from wiloc.cli.truth import truth_source
+from wiloc.cli.views import progress_bar
+from wiloc.errors import EXIT_USAGE
+from wiloc.methods.registry import METHODS, method_class
+
+
+@handles_errors
+@with_method_options
+@with_descriptor_options
+def localize(
+    queries: list[Path] = typer.Argument(..., metavar="QUERY...",
+                                         help="Query traversal folder(s) (or descriptor matrix files)."),
+    reference: Optional[Path] = typer.Option(None, "--map", "-m", show_default="none: sequence mode",
+                                             help="Reference traversal; omit for sequence mode (loop closure)."),
+    descriptor: DescriptorOption = "sad",
+    vocabulary: VocabularyOption = None,
+    model: ModelOption = None,
+    preprocess: PreprocessOption = None,
+    metric: Optional[str] = typer.Option(None, show_default="the file's recorded metric", help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
+    method: str = typer.Option("online", help=" | ".join(METHODS)),
+    exclude_recent: int = typer.Option(DEFAULT_EXCLUDE_RECENT, "--exclude-recent", "-R", help="Recent frames excluded as candidates (sequence mode) and around each map frame when learning from the map."),
+    train_query: Optional[Path] = typer.Option(None, help="trained: labelled training query traversal.", rich_help_panel="trained inputs"),
+    train_map: Optional[Path] = typer.Option(None, help="trained: its reference traversal.", rich_help_panel="trained inputs"),
+    train_gt: Optional[str] = typer.Option(None, help="trained: ground truth, as --gt of `wiloc evaluate`.", rich_help_panel="trained inputs"),
+    train_gt_map: Optional[str] = typer.Option(None, help="trained: the training map's positions CSV (positions form).", rich_help_panel="trained inputs"),
+    train_tolerance: int = typer.Option(2, help="trained: +-frames for aligned ground truth.", rich_help_panel="trained inputs"),
+    train_radius: Optional[float] = typer.Option(None, help="trained: metres, for positions ground truth.", rich_help_panel="trained inputs"),
+    names: Optional[Path] = typer.Option(None, help="A .npy QUERY matrix: its frame names, one per line."),
+    map_names: Optional[Path] = typer.Option(None, help="A .npy --map matrix: its frame names, one per line."),
+    odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y).", rich_help_panel="catgraph inputs"),
+    odometry_topic: Optional[str] = typer.Option(None, help="catgraph: the nav_msgs Odometry topic of the ROS bags (query and map).", rich_help_panel="catgraph inputs"),
+    map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV.", rich_help_panel="catgraph inputs"),
+    out_path: Optional[Path] = typer.Option(None, "--out", "-o", callback=output_file, show_default="QUERY-DESCRIPTOR-METHOD.csv here",
+                                            help="Results file (a folder with several queries)."),
+    model_plot: Optional[Path] = typer.Option(None, callback=plot_file, show_default="none: not drawn", help="online/trained: draw the learned histograms (the paper's Figure 1)."),
+    cache: CacheOption = None,
+    jobs: JobsOption = None,
+    scheduler: SchedulerOption = None,
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables (with --follow: one JSON line per frame)."),
+    every: EveryOption = 1,
+    fps: FpsOption = None,
+    start: StartOption = "0",
+    stop: StopOption = None,
+    topic: TopicOption = None,
+    follow: bool = typer.Option(False, "--follow", help="Decide the frames already in the QUERY folder, then each new one as it arrives; rerun to resume.", rich_help_panel="live"),
+    idle: Optional[float] = typer.Option(None, min=0.0, show_default="run until Ctrl-C", help="With --follow: stop after this many seconds without a new frame.", rich_help_panel="live"),
+    method_options: Optional[dict[str, Any]] = None,
+    descriptor_options: Optional[dict[str, Any]] = None,
+) -> None:
+    """Decide, frame by frame, where each query frame was seen before and how sure that is.
+
+    Example: wiloc localize data/day_left data/night_right --map data/day_right --method online
+
+    Live: wiloc localize camera/ --map data/day_right --method catgraph --follow --idle 30
+    """
+    from wiloc import api
+    from wiloc.cache import Cache
+    from wiloc.traversals import is_matrix_file
+
+    method_class(method)
+    params = method_params(method, method_options or {})
+    matrices = [is_matrix_file(Path(p)) for p in (*queries, reference, train_query, train_map) if p is not None]
+    refuse_unused({"descriptor": (not all(matrices), "image folders and video files"),
+                   **descriptor_uses(descriptor, described=not all(matrices)),
+                   "metric": (any(matrices), "descriptor matrix files (.npy, .csv, .h5)"),
+                   "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
+                   "map_names": (reference is not None and is_matrix_file(reference),
+                                 "a descriptor matrix file as --map")})
+    train_inputs = (train_query, train_map, train_gt)
+    refuse_unused({name: (any(train_inputs), "a training pair (--train-query, --train-map, --train-gt)")
+                   for name in ("train_gt_map", "train_tolerance", "train_radius")})
+    training = None
+    if any(train_inputs):
+        if not all(train_inputs):
+            fail("--train-query, --train-map and --train-gt go together", EXIT_USAGE)
+        training = api.Training(train_query, train_map,
+                                truth_source(train_gt, train_gt_map, train_tolerance, train_radius, prefix="train_"))
+    sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
+    if follow:
+        given = [flag for flag, value in (("--odometry", odometry), ("--odometry-topic", odometry_topic),
+                                          ("--topic", topic), ("--names", names), ("--map-names", map_names),
+                                          ("--metric", metric), ("--model-plot", model_plot)) if value is not None]
+        given += ["video sampling"] * (sampling != api.Sampling())
+        if len(queries) != 1 or given:
+            fail(f"--follow takes one query folder{' and not ' + ', '.join(given) if given else ''}", EXIT_USAGE)
+        show_followed(queries[0], api.follow_folder(
+            queries[0], reference=reference, descriptor=descriptor,
+            descriptor_params=descriptor_params_given(descriptor, descriptor_options, vocabulary, cache, model, preprocess),
+            method=method, method_params=params,
+            exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
+            out=out_path / api.results_name(queries[0], method, descriptor) if out_path is not None and out_path.is_dir() else out_path,
+            cache=Cache(cache), jobs=jobs, idle=idle), as_json)
+        return
+    if idle is not None:
+        fail("--idle goes with --follow", EXIT_USAGE)
+    out_folder = out_path is not None and (out_path.is_dir() or not out_path.suffix)
+    if len(queries) > 1 and out_path is not None and not out_folder:
+        fail(f"{out_path}: with several queries --out names a folder", EXIT_USAGE)
+    if model_plot is not None and method not in ("online", "trained"):
+        fail(f"{model_plot}: method '{method}' learns no histogram model to draw", EXIT_USAGE)
+    if out_path is not None and not out_folder:
+        targets = [out_path]
+    else:
+        targets = [(out_path or Path.cwd()) / api.results_name(q, method, descriptor, metric) for q in queries]
+    clash = next((t for t in targets if targets.count(t) > 1), None)
+    if clash is not None:
+        fail(f"{clash}: two queries would write the same results file; give each its own --out", EXIT_USAGE)
+    store = Cache(cache)
+    runs, repairs = [], []
+    with progress_bar(not as_json) as progress:
+        for query, target in zip(queries, targets):
+            known = len(store.repairs)
+            runs.append(api.localize(query, reference=reference, descriptor=descriptor, sampling=sampling,
+                                     descriptor_params=descriptor_params_given(descriptor, descriptor_options, vocabulary,
+                                                                              cache, model, preprocess),
+                                     metric=metric, method=method, method_params=params,
+                                     exclude_recent=exclude_recent, training=training,
+                                     odometry=odometry, map_odometry=map_odometry,
+                                     query_names_file=names, ref_names_file=map_names, out=target,
+                                     cache=store, jobs=jobs, progress=progress, scheduler=scheduler,
+                                     topic=topic, odometry_topic=odometry_topic))
+            repairs.append(store.repairs[known:])
+    show_runs(runs, repairs, method, model_plot, as_json)

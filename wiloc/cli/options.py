@@ -1,0 +1,118 @@
+"""Options several commands share: their types and help, the checks of output files made as the
+options are read (before any work), and the descriptor parameters the flags set."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+
+from wiloc.cli.core import Notes, fail, note
+from wiloc.cli.params import descriptor_params, descriptor_takers
+from wiloc.errors import EXIT_USAGE, WilocError
+
+
+def output_file(value: Path | None) -> Path | None:
+    """An output file option (``--csv``, ``--out FILE.csv``, a plot), checked as the options are
+    read, before any work: its folder must exist (a typo is not made into new folders; folders
+    that ``--out`` names are created)."""
+    if value is not None and value.suffix and not value.is_dir() and not value.parent.is_dir():
+        raise typer.BadParameter(f"the folder {value.parent} does not exist (create it first)")
+    return value
+
+
+def plot_file(value: Path | None) -> Path | None:
+    """A plot option's file, checked as the options are read, before any work: its folder must
+    exist, its suffix name a format the figures can be written in."""
+    if output_file(value) is not None:
+        from wiloc.plots import check_plot_path
+        try:
+            check_plot_path(value)
+        except WilocError as exc:
+            raise typer.BadParameter(exc.problem) from None
+    return value
+
+
+def replacing(notes: Notes, path: Path) -> Path:
+    """``path``, about to be written: an existing file there is said to be replaced, as
+    results files are."""
+    if path.exists():
+        notes.add("note", f"replaced the existing file {path}")
+    return path
+
+
+def descriptor_params_given(descriptor: str, options: dict[str, Any] | None, vocabulary: str | None,
+                            cache: Path | None, model: Path | None = None,
+                            preprocess: list[str] | None = None) -> dict[str, Any]:
+    """The descriptor parameters the command line sets: its options typed (and those always
+    passed), a vocabulary ``file`` from --vocabulary (needed by a descriptor taking one), a
+    ``model`` from --model (likewise) with --preprocess KEY=VALUE. A descriptor that is not built
+    in comes from a plugin: plugins that failed to load are warned of."""
+    from wiloc.descriptors.registry import BUILT_IN, DESCRIPTORS, plugin_problems
+
+    if descriptor not in DESCRIPTORS or DESCRIPTORS[descriptor].source != BUILT_IN:
+        for problem in plugin_problems():
+            note("warning", problem)
+    params = descriptor_params(descriptor, options or {})
+    if descriptor in descriptor_takers("file"):
+        if vocabulary is None:
+            fail(f"--vocabulary: --descriptor {descriptor} needs one (a file, or a key from `wiloc vocabulary`)",
+                 EXIT_USAGE)
+        from wiloc import api
+        from wiloc.cache import Cache
+        params["file"] = str(api.vocabulary_file(vocabulary, Cache(cache)))
+    if descriptor in descriptor_takers("model"):
+        if model is None:
+            fail(f"--model: --descriptor {descriptor} needs one (an .onnx model file)", EXIT_USAGE)
+        params.update({"model": str(model), **_preprocess_options(preprocess or [])})
+    return params
+
+
+def _preprocess_options(items: list[str]) -> dict[str, str]:
+    """`--preprocess KEY=VALUE` options as {key: value text}, keys those of the model metadata."""
+    from wiloc.descriptors.learned import KEYS
+
+    options = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key.strip() not in KEYS:
+            fail(f"--preprocess: '{item}': give KEY=VALUE, KEY one of {', '.join(KEYS)}", EXIT_USAGE)
+        options[key.strip()] = value.strip()
+    return options
+
+
+DescriptorOption = Annotated[str, typer.Option(
+    "--descriptor", "-d", help="sad | gist | brisk-gist | bow (with --vocabulary; fabmap and catgraph then read "
+                               "FAB-MAP's evidence) | onnx (with --model) | a plugin's (describe --list-descriptors)")]
+ModelOption = Annotated[Optional[Path], typer.Option(
+    "--model", help="onnx: the network, an .onnx file (docs/descriptors.md, Learned descriptors).")]
+PreprocessOption = Annotated[Optional[list[str]], typer.Option(
+    "--preprocess", metavar="KEY=VALUE", show_default="the model's metadata",
+    help="onnx: input_size=224x224, resize=stretch|crop, mean=R,G,B, std=R,G,B, colour=rgb|bgr, "
+         "normalise=true|false; repeat for several.")]
+VocabularyOption = Annotated[Optional[str], typer.Option(
+    help="bow: the vocabulary (its file, or its key in the cache) from `wiloc vocabulary`.")]
+CacheOption = Annotated[Optional[Path], typer.Option(envvar="WILOC_CACHE", show_default="the per-user cache folder",
+                                                     help="Cache folder.")]
+JobsOption = Annotated[Optional[int], typer.Option("--jobs", "-j", show_default="all cores",
+                                                   help="Worker processes for describing image folders (onnx: threads).")]
+STREAMS = "video files and ROS bags"
+EveryOption = Annotated[int, typer.Option(help="Videos, bags: every K-th frame of the cut.", rich_help_panel=STREAMS)]
+FpsOption = Annotated[Optional[float], typer.Option(
+    show_default="every frame, as --every", rich_help_panel=STREAMS,
+    help="Videos, bags: about F frames per second (by timestamp), instead of --every.")]
+StartOption = Annotated[str, typer.Option(help="Videos, bags: first frame, an index (120) or seconds (12.5s).",
+                                          rich_help_panel=STREAMS)]
+StopOption = Annotated[Optional[str], typer.Option(help="Videos, bags: end of the cut (excluded), an index or seconds.",
+                                                   show_default="the end", rich_help_panel=STREAMS)]
+TopicOption = Annotated[Optional[str], typer.Option(
+    show_default="the bag's only image topic", rich_help_panel=STREAMS,
+    help="ROS bags: the image topic (sensor_msgs Image or CompressedImage), such as /camera/image_raw.")]
+SchedulerOption = Annotated[Optional[str], typer.Option(
+    envvar="WILOC_SCHEDULER", show_default="none: this machine",
+    help="Dask scheduler address (tcp://host:8786), or 'local' for a local cluster of --jobs workers; "
+         "needs the optional dask extra (docs/scaling.md).")]
+SAMPLING = ("every", "fps", "start", "stop")
+PrPlotOption = Annotated[Optional[Path], typer.Option(callback=plot_file, show_default="none: not drawn", help="Draw the precision-recall curves.")]
+CalibrationPlotOption = Annotated[Optional[Path], typer.Option(
+    "--calibration-plot", callback=plot_file, show_default="none: not drawn", help="Draw the reliability diagram (share correct against confidence).")]

@@ -1,0 +1,76 @@
+"""What evaluate, compare and report share: confidence cuts and Recall@N as options, warnings
+about ground truth that leaves nothing to recall, and the metrics CSV."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from wiloc.atomic import written_whole
+from wiloc.candidates import RANKED
+from wiloc.cli.core import Notes, fail
+from wiloc.cli.options import replacing
+from wiloc.errors import EXIT_USAGE
+from wiloc.metrics import RANKED_KS
+from wiloc.reliability import DEFAULT_CUTS
+
+if TYPE_CHECKING:
+    from wiloc import api
+
+CutsOption = Annotated[str, typer.Option("--cuts", help="Confidence cuts for precision and recall at a fixed "
+                                                        "cut, comma-separated, each in [0, 1].")]
+CUTS_TEXT = ",".join(f"{cut:g}" for cut in DEFAULT_CUTS)
+RecallAtOption = Annotated[str, typer.Option(
+    "--recall-at", help=f"N of Recall@N (a true match among the N best-ranked map frames; runs that rank the map), "
+                        f"comma-separated, each 1 to {RANKED}, such as 1,5,10,20.")]
+RECALL_AT_TEXT = ",".join(map(str, RANKED_KS))
+
+
+def parse_recall_at(text: str) -> list[int]:
+    """`--recall-at 1,5,10,20`: whole numbers from 1 to the ranking's length; anything else is a
+    usage error."""
+    parts = [part.strip() for part in text.split(",") if part.strip()]
+    if not parts or not all(part.isdigit() and 1 <= int(part) <= RANKED for part in parts):
+        fail(f"--recall-at: '{text}': give whole numbers from 1 to {RANKED} (results keep the {RANKED} best "
+             "candidates), comma-separated, such as 1,5,10,20", EXIT_USAGE)
+    return sorted({int(part) for part in parts})
+
+
+def parse_cuts(text: str) -> list[float]:
+    """`--cuts 0.5,0.9,0.99`: numbers in [0, 1]; anything else is a usage error."""
+    try:
+        cuts = [float(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        cuts = []
+    if not cuts or not all(0.0 <= cut <= 1.0 for cut in cuts):
+        fail(f"--cuts: '{text}': give confidences in [0, 1], comma-separated, such as {CUTS_TEXT}", EXIT_USAGE)
+    return cuts
+
+
+def warn_about_truth(evaluations: list[api.Evaluation]) -> Notes:
+    """Name-matching warnings, and runs whose ground truth leaves nothing to recall."""
+    notes = Notes()
+    for e in evaluations:
+        for warning in e.truth.warnings:
+            notes.add("warning", f"{e.path}: {warning}")
+        if not e.truth.has_match().any():
+            notes.add("warning", f"{e.path}: no frame has a true match under this ground truth, so every "
+                                 "recall is 0 (check --gt, --tolerance, --radius)")
+    return notes
+
+
+def write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list[api.Evaluation],
+                      notes: Notes) -> list[Path]:
+    """The metrics to ``path`` and the curves to ``<stem>-curves.csv`` beside it; a file replaced
+    is said so. Returns both paths."""
+    import pandas as pd
+
+    curves_path = path.with_name(path.stem + "-curves.csv")
+    curves = pd.concat([pd.DataFrame({"results": str(e.path), "threshold": e.curve.thresholds,
+                                      "precision": e.curve.precision, "recall": e.curve.recall})
+                        for e in evaluations])
+    for target, frame in ((path, pd.DataFrame(rows)), (curves_path, curves)):
+        with written_whole(replacing(notes, target), "the metrics file") as file:
+            frame.to_csv(file, index=False)
+    return [path, curves_path]

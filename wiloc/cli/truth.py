@@ -1,0 +1,66 @@
+"""The `--gt` grammar: a ground-truth form and its file as the command line names them, made into
+the library's :class:`wiloc.groundtruth.TruthSource`; options that another form would use are
+refused."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Optional
+
+import typer
+
+from wiloc.cli.core import fail, refuse_unused
+from wiloc.errors import EXIT_USAGE
+
+if TYPE_CHECKING:
+    from wiloc import api
+
+NAMED_FORMS = ("aligned", "utm-names", "exif")  # forms without a file
+FORMS = "aligned, aligned:index, positions:Q.csv, pairs:P.csv, matrix:M.npy, vprbench:G.npy, utm-names, exif"
+
+
+def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | None,
+                 prefix: str = "") -> api.TruthSource:
+    """`--gt` is a form name without a file (aligned, utm-names, exif) or KIND:PATH (positions:q.csv,
+    pairs:p.csv, matrix:m.npy, vprbench:g.npy), or a path whose suffix tells the form. Options of another form are refused (``prefix``:
+    the options' name prefix, ``train_`` for the trained method's)."""
+    from wiloc import api
+
+    flag = f"--{prefix.replace('_', '-')}gt"
+    kind, sep, path = gt.partition(":")
+    if not sep:
+        if gt not in NAMED_FORMS and not Path(gt).is_file() and "{query}" not in gt:
+            fail(f"{flag}: '{gt}' is neither a ground-truth form nor a file (forms: {FORMS})", EXIT_USAGE)
+        kind, path = (gt, "") if gt in NAMED_FORMS else (_guess_kind(gt), gt)
+    if kind not in ("aligned", "positions", "pairs", "matrix", "vprbench", "utm-names", "exif"):
+        fail(f"{flag}: unknown ground-truth form '{kind}' in '{gt}' (forms: {FORMS})", EXIT_USAGE)
+    refuse_unused({f"{prefix}tolerance": (kind == "aligned", "--gt aligned (pairs files carry their own)"),
+                   f"{prefix}gt_map": (kind == "positions", "positions ground truth"),
+                   f"{prefix}radius": (kind in ("positions", "utm-names", "exif"), "positions, utm-names and exif ground truth")})
+    by = "name"
+    if kind == "aligned" and path in ("name", "index"):  # aligned:index, by position
+        by, path = path, ""
+    if kind in NAMED_FORMS and path:
+        fail(f"{flag}: '{kind}' reads the traversals themselves and takes no file ('{gt}')", EXIT_USAGE)
+    variable = None
+    if kind == "matrix" and ".mat:" in path:
+        path, variable = path.rsplit(":", 1)
+    return api.TruthSource(kind=kind, path=path or None, ref_path=gt_ref, tolerance=tolerance, radius=radius,
+                           variable=variable, by=by)
+
+
+
+def _guess_kind(path: str) -> str:
+    if Path(path).name.lower() == "ground_truth_new.npy":
+        return "vprbench"
+    return "matrix" if Path(path).suffix.lower() in (".npy", ".mat") else "pairs"
+
+
+GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames; 'aligned:index': same position, "
+           "as for a video against a folder of its frames), 'positions:Q.csv' (with "
+           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat' ('matrix:M.mat:NAME' picks one array of a .mat), 'vprbench:ground_truth_new.npy' (VPR-Bench), "
+           "'utm-names' (@UTM_east@UTM_north@ file names) or 'exif' (the images' GPS EXIF), these two within --radius "
+           "metres (default 25). '{query}' in a path is replaced by the query folder's name.")
+GtOption = Annotated[str, typer.Option("--gt", help=GT_HELP)]
+GtMapOption = Annotated[Optional[str], typer.Option("--gt-map", help="positions: the reference's positions CSV.")]
+ToleranceOption = Annotated[int, typer.Option("--tolerance", "-T", min=0, help="aligned: same place within +-T frames (published evaluations use 2).")]
+RadiusOption = Annotated[Optional[float], typer.Option("--radius", help="positions, utm-names, exif: same place within this many metres (utm-names, exif: default 25).")]

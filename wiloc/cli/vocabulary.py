@@ -1,0 +1,53 @@
+"""`wiloc vocabulary`: the local features of training folders clustered into visual words, kept
+in the cache for bow and FAB-MAP."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from wiloc.cli.core import Notes, handles_errors, out
+from wiloc.cli.options import CacheOption
+from wiloc.cli.views import print_command_json, progress_bar, table
+
+
+@handles_errors
+def vocabulary(
+    folders: list[Path] = typer.Argument(..., metavar="FOLDER...", help="Training image folders (never the pair you will test on)."),
+    feature: str = typer.Option("sift", help="Local feature: sift (k-means) or orb (k-majority)."),
+    words: int = typer.Option(1000, help="K, the number of visual words."),
+    max_features: int = typer.Option(500, help="Local features kept per image, strongest first."),
+    max_side: int = typer.Option(640, help="Images are shrunk so their longer side is at most this many pixels."),
+    iterations: int = typer.Option(25, help="At most this many clustering rounds."),
+    seed: int = typer.Option(0, help="Seeds the initial centres."),
+    cache: CacheOption = None,
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+) -> None:
+    """Cluster the local features of training folders into a visual vocabulary for bow and FAB-MAP.
+
+    The vocabulary is kept in the cache.
+
+    Example: wiloc vocabulary data/night_right --words 1000, then
+    wiloc localize data/day_left --map data/day_right --descriptor bow --vocabulary KEY --method fabmap
+    """
+    from wiloc import api
+    from wiloc.cache import Cache
+
+    params = {"feature": feature, "words": words, "max_features": max_features, "max_side": max_side,
+              "iterations": iterations, "seed": seed}
+    with progress_bar(not as_json) as progress:
+        report = api.vocabulary(folders, params, cache=Cache(cache), progress=progress)
+    notes = Notes()
+    for path, reason in report.failed:
+        notes.add("skipped", f"{path}: {reason}")
+    sparse = report.vocabulary.too_few_words()
+    if sparse is not None:
+        notes.add("warning", sparse)
+    row = {"key": report.vocabulary.key, "words": report.vocabulary.n_words,
+           "training_frames": len(report.vocabulary.training_frames), "built": report.built,
+           "seconds": report.seconds, "file": str(report.path)}
+    if as_json:
+        print_command_json("vocabulary", "results", [{**row, "failed": [list(item) for item in report.failed]}], notes)
+        return
+    out.print(table("vocabulary", [{**row, "file": report.path.name}], labels={"training_frames": "training\nframes"},
+                    digits={"seconds": 1}, caption=f"in {report.path.parent}"))
