@@ -7,7 +7,8 @@ import pytest
 from wiloc.errors import WilocError
 from wiloc.methods import base
 from wiloc.methods.base import ArrayRows, Decisions, run_on_rows
-from wiloc.methods.catgraph import CatGraph, contrast_normalise, posterior_ranking
+from wiloc.methods.catgraph import CatGraph
+from wiloc.methods.trajectory import contrast_normalise, posterior_ranking
 
 N_REF = 300
 TOL = 2
@@ -221,18 +222,18 @@ def test_mode_on_a_map_shorter_than_the_mode_window(node: int) -> None:
 
 @pytest.mark.parametrize("even", [True, False])
 def test_sequence_score_step_is_the_numpy_expression_value_for_value(even: bool) -> None:
-    from wiloc.methods.catgraph import _read_runs, _shifted_reads
+    from wiloc.methods.trajectory import read_runs, shifted_reads
     from wiloc.methods.filter_kernels import advance
 
     rng = np.random.default_rng(3)
     nodes = np.arange(700.0) if even else np.cumsum(rng.random(700) * (rng.random(700) < 0.9))
     speeds = np.array([0.5, 1.0, -1.0, 1.5, 2.0, -2.0])  # forward and backward paces, interleaved
     score, contrast = rng.normal(size=(speeds.size, 700)), rng.normal(size=700)
-    at, a = _shifted_reads(nodes, speeds * 0.8)
+    at, a = shifted_reads(nodes, speeds * 0.8)
     prev = score.ravel()
     want = (1.0 - 0.1) * ((1.0 - a) * prev[at] + a * prev[at + 1]).reshape(score.shape) + 0.1 * contrast
     out, lowest = np.empty_like(score), np.empty((2, 700))
-    advance(score, at, a, _read_runs(at, a, 700), contrast, 0.1, (speeds < 0).astype(np.intp), out, lowest)
+    advance(score, at, a, read_runs(at, a, 700), contrast, 0.1, (speeds < 0).astype(np.intp), out, lowest)
     assert np.array_equal(out, want)
     assert np.array_equal(lowest[0], want[speeds > 0].min(axis=0))
     assert np.array_equal(lowest[1], want[speeds < 0].min(axis=0))
@@ -297,17 +298,17 @@ def test_weighing_is_the_numpy_expression_up_to_the_order_of_sums(renormalise: b
 
 
 def test_smallest_takes_ties_in_index_order_or_drawn_by_the_generator() -> None:
-    from wiloc.methods.catgraph import _smallest
+    from wiloc.methods.trajectory import smallest
 
     rng = np.random.default_rng(4)
     values = rng.integers(0, 5, 300).astype(np.float64)  # many ties
     for k in (1, 7, 60, 299, 300, 400):
         want = np.sort(np.argsort(values, kind="stable")[:k])
-        assert np.array_equal(np.sort(_smallest(values, k)), want)
-        drawn = _smallest(values, k, np.random.default_rng(5))  # ties drawn: the same values, other indices
+        assert np.array_equal(np.sort(smallest(values, k)), want)
+        drawn = smallest(values, k, np.random.default_rng(5))  # ties drawn: the same values, other indices
         assert drawn.size == min(k, values.size) == np.unique(drawn).size
         assert np.array_equal(np.sort(values[drawn]), np.sort(values[want]))
-        assert np.array_equal(drawn, _smallest(values, k, np.random.default_rng(5)))
+        assert np.array_equal(drawn, smallest(values, k, np.random.default_rng(5)))
 
 
 def test_the_posterior_ranks_the_mode_first_then_the_nodes_of_most_weight() -> None:

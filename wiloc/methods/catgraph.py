@@ -29,117 +29,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.calibration import RankLikelihood, SortedRow, Unexplained, novelty_weights
-from wiloc.candidates import RANKED
 from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import Decision, MapContext, Method
+from wiloc.methods.trajectory import (locate, lowest_nodes, node_positions, posterior_ranking, read_runs,
+                                      shifted_reads, smallest, systematic)
 from wiloc.parameters import Parameters, param
 from wiloc.recycled import RecycledArrays
 
 START_DEALT = 0.5  # share of particles that start at the paces other than the map's (_start_paces)
 MODE_TIE = 1e-12  # window masses (shares of a unit total) this close to the largest count as tied
 TINY = 1e-300  # the smallest prior mass a hypothesis keeps, so that its log is finite
-
-
-def _arclength(ref_arclength: NDArray[np.float64] | None, n_nodes: int) -> NDArray[np.float64]:
-    """Node positions: the given arc lengths (non-decreasing), else the frame index."""
-    if ref_arclength is None:
-        return np.arange(n_nodes, dtype=np.float64)
-    s = np.asarray(ref_arclength, dtype=np.float64)
-    if s.shape != (n_nodes,):
-        raise WilocError(None, f"gives {s.size} positions for {n_nodes} map frames", parameter="map_odometry")
-    if not np.all(np.isfinite(s)) or np.any(np.diff(s) < 0):
-        raise WilocError(None, "the map's distances along its route must be finite and non-decreasing",
-                         parameter="map_odometry")
-    if not s[-1] > s[0]:
-        raise WilocError(None, "the map's route has zero length (the odometry never moves)",
-                         parameter="map_odometry")
-    return s
-
-
-def _locate(nodes: NDArray[np.float64], pos: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-    """For each particle: the node j just before it and its fraction a of the way to node j + 1
-    (``filter_kernels.locate``)."""
-    from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
-
-    j, a = np.empty(pos.size, dtype=np.intp), np.empty(pos.size)
-    filter_kernels.locate(nodes, pos, j, a)
-    return j, a
-
-
-def contrast_normalise(row: NDArray[np.float64], half_window: int) -> NDArray[np.float64]:
-    """Each difference minus the mean of its +-``half_window`` neighbouring nodes, over their std.
-
-    Removes what a whole stretch of the map shares (a tunnel, snow, a dark scene all look alike
-    to every query frame), so a node stands out only by being lower than its neighbours
-    (SeqSLAM's local contrast enhancement, on one row: causal). A flat stretch (std within
-    rounding of 0) gives 0. One compiled pass (``filter_kernels.contrast_normalise``).
-    """
-    from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
-
-    out = np.empty(row.size)
-    filter_kernels.contrast_normalise(np.asarray(row, dtype=np.float64), half_window, 1.0, out)
-    return out
-
-
-def _shifted_reads(nodes: NDArray[np.float64],
-                   shifts: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-    """Where each row v of a (speeds x nodes) score is read at s_j - shifts[v], clamped to the
-    trajectory: flat indices of the node before and the fraction of the way to the next."""
-    j, a = _locate(nodes, (nodes[None, :] - shifts[:, None]).ravel())
-    return np.arange(shifts.size).repeat(nodes.size) * nodes.size + j, a
-
-
-def _smallest(values: NDArray[np.float64], k: int, rng: np.random.Generator | None = None) -> NDArray[np.intp]:
-    """Indices of the ``k`` smallest values; among ties at the k-th value, a uniform draw from
-    ``rng`` (else the first in index order). ``np.argpartition``'s choice among ties depends on
-    the SIMD loops numpy runs on the CPU at hand, so the same input would re-seed other particles
-    or nodes on another machine; and equal weights (after resampling) are all equally weak."""
-    if k >= values.size:
-        return np.arange(values.size)
-    kth = np.partition(values, k - 1)[k - 1]
-    below = np.flatnonzero(values < kth)
-    ties = np.flatnonzero(values == kth)
-    need = k - below.size
-    chosen = ties[:need] if rng is None or need == ties.size else rng.choice(ties, need, replace=False)
-    return np.concatenate((below, chosen))
-
-
-def _lowest(score: NDArray[np.float64], top: int) -> NDArray[np.intp]:
-    """The ``top`` nodes of lowest score (ties in node order); for one node the argmin (its first
-    occurrence), found 10x faster."""
-    return np.array([int(np.argmin(score))]) if top == 1 else _smallest(score, top)
-
-
-def _read_runs(at: NDArray[np.intp], a: NDArray[np.float64], n_nodes: int,
-               shortest: int = 16) -> NDArray[np.intp]:
-    """The stretches of :func:`_shifted_reads` (rows: first, end) at least ``shortest`` long
-    that stay within one speed's row and read consecutive positions at one fraction: nearly
-    everything on evenly spaced nodes, little on uneven ones (``filter_kernels.advance``)."""
-    k = np.arange(at.size)
-    new = (k % n_nodes == 0) | np.concatenate(([True], (at[1:] != at[:-1] + 1) | (a[1:] != a[:-1])))
-    first = np.flatnonzero(new)
-    end = np.append(first[1:], at.size)
-    long = end - first >= shortest
-    return np.column_stack((first[long], end[long])).astype(np.intp)
-
-
-def posterior_ranking(own: NDArray[np.float64], mode: int, k: int = RANKED) -> NDArray[np.int64]:
-    """The filter's ranking of the map for Recall@N: the decided ``mode`` first, then the nodes
-    holding most particle weight themselves (``own``), equal weights in order of position.
-    Nodes without weight are no candidates, so the ranking may be shorter than ``k``."""
-    held = np.flatnonzero(own > 0.0)
-    held = held[held != mode]
-    order = held[np.argsort(-own[held], kind="stable")][:k - 1]
-    return np.concatenate([np.array([mode], dtype=np.int64), order.astype(np.int64)])
-
-
-def _systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.intp]:
-    """Indices drawn by systematic resampling (one uniform offset, M evenly spaced pointers)."""
-    m = weights.size
-    cum = np.cumsum(weights)
-    cum[-1] = 1.0
-    pointers = (rng.random() + np.arange(m)) / m
-    return np.searchsorted(cum, pointers, side="left")
 
 
 @dataclass(frozen=True)
@@ -266,7 +165,7 @@ class CatGraph(Method):
         n_nodes = neighbours.size + 1
         if n_nodes < 2:
             raise WilocError("catgraph", f"the map needs at least 2 frames, got {n_nodes}")
-        self._nodes = _arclength(context.arclength, n_nodes)
+        self._nodes = node_positions(context.arclength, n_nodes)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
         self._omega = novelty_weights(neighbours, p.near_duplicate)
         self._damped = np.flatnonzero(self._omega < 1.0)  # near duplicates
@@ -341,12 +240,12 @@ class CatGraph(Method):
         return -1.0 if self.context is not None and self.context.rows == "log_ratio" else 1.0
 
     def _shift_lookup(self, u: float) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]:
-        """:func:`_shifted_reads` for step u and their :func:`_read_runs`: the same for every
+        """:func:`shifted_reads` for step u and their :func:`read_runs`: the same for every
         frame of equal step (always, without odometry), so they are computed once per distinct step."""
         if self._shifted is None or self._shifted[0] != u:
             shifts = np.asarray(self.params.sequence_speeds, dtype=np.float64) * u
-            at, a = _shifted_reads(self._nodes, shifts)
-            self._shifted = (u, (at, a, _read_runs(at, a, self._nodes.size)))
+            at, a = shifted_reads(self._nodes, shifts)
+            self._shifted = (u, (at, a, read_runs(at, a, self._nodes.size)))
         return self._shifted[1]
 
     @property
@@ -414,11 +313,11 @@ class CatGraph(Method):
         n_reseed = int(round(p.reseed * p.particles))
         kept = np.ones(p.particles, dtype=bool)
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
-            weakest = _smallest(self._log_w, n_reseed, rng)
+            weakest = smallest(self._log_w, n_reseed, rng)
             kept[weakest] = False
             self._reseed(weakest, lowest, pos, speed, first)
 
-        j, a = _locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
+        j, a = locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
         omega = np.empty(p.particles)
         rank_kernels.interpolate(self._omega, j, a, omega)
         log_w, w = np.empty(p.particles), np.empty(p.particles)  # the posterior, from the prior's weights
@@ -435,7 +334,7 @@ class CatGraph(Method):
         likelihood.learn(w * omega, 1.0 - unexplained.u)
 
         if 1.0 / squares < p.resample_ess * p.particles:
-            idx = _systematic(w, rng)
+            idx = systematic(w, rng)
             pos, speed = pos[idx], speed[idx]
             log_w = np.full(p.particles, -np.log(p.particles))
         self._pos, self._speed, self._log_w = pos, speed, log_w
@@ -455,7 +354,7 @@ class CatGraph(Method):
         for group, count in self._reseed_counts(weakest.size, first):
             chosen = weakest[start:start + count]
             start += count
-            best = _lowest(lowest[group], p.reseed_top)
+            best = lowest_nodes(lowest[group], p.reseed_top)
             best = best[np.arange(chosen.size) % best.size]
             pos[chosen] = self._nodes[best]
             speed[chosen] = 1.0

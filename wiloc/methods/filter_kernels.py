@@ -57,12 +57,12 @@ def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.floa
             lowest: NDArray[np.float64]) -> None:
     """The leaky sequence score one frame on, and its minimum over each group's speeds per node.
 
-    ``out`` (speeds x nodes) = ``score`` read where ``catgraph._shifted_reads`` says (flat
+    ``out`` (speeds x nodes) = ``score`` read where ``trajectory.shifted_reads`` says (flat
     positions ``at``, fractions ``a``), linearly interpolated (the score ending at node j
     continues the one that ended a step back), times 1 - rate, plus rate times this frame's
     ``contrast``: the numpy expression
     ``(1 - rate) * ((1 - a) * prev[at] + a * prev[at + 1]) + rate * contrast``, value for value.
-    ``runs`` (``catgraph._read_runs``: first, end) are long stretches that read consecutive
+    ``runs`` (``trajectory.read_runs``: first, end) are long stretches that read consecutive
     positions at one fraction, as evenly spaced nodes give: there the loop vectorises.
     ``lowest[g, j]`` = ``out[group == g, j].min()`` (speed s belongs to group ``group[s]``; the
     forward and the backward paces), the scores that re-seeding ranks nodes by, taken in the
