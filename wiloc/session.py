@@ -86,15 +86,16 @@ class RunSession:
         self.evidence = FabMapEvidence.of(self.describer.spec, self.method.params) if self.kind == "log_ratio" \
             else None
         self._count = 0  # sequence mode: the frames added as candidates so far
-        if self.map is None:
+        candidates = self.map if self.map is not None else self.query  # a batch run's sequence mode: its query's
+        if candidates is None:  # a streaming run's sequence mode: the frames it is given
             spec = self.describer.spec
             self._seen = np.empty((0, spec.length), dtype=spec.dtype)
             self.metric, self.scale, self.natural_max = spec.metric, spec.scale, spec.natural_max
         else:
-            self._seen = self.map.data[:0]
-            self.metric, self.scale, self.natural_max = self.map.metric, self.map.scale, self.map.natural_max
-            if self.evidence is not None:
-                self.evidence.add_places(self.map.data)
+            self._seen = candidates.data[:0]
+            self.metric, self.scale, self.natural_max = candidates.metric, candidates.scale, candidates.natural_max
+        if self.map is not None and self.evidence is not None:
+            self.evidence.add_places(self.map.data)
 
     @cached_property
     def _to_map(self) -> DifferencesTo:
@@ -119,13 +120,10 @@ class RunSession:
         sequence mode the query's, and their summary); a streaming run computes the map's."""
         training = self._training_rows if self.training is not None else None
         if self.map is None:
-            if differences is None:
-                return MapContext(sequence=True, exclude_recent=self.exclude_recent, natural_max=self.natural_max,
-                                  rows=self.kind, training=training)
             return MapContext(sequence=True, exclude_recent=self.exclude_recent, rows=self.kind,
-                              natural_max=self.query.natural_max, arclength=self.map_arclength(),
-                              map_self=differences.map_self,
-                              map_summary=differences.map_summary, training=training)
+                              natural_max=self.natural_max, arclength=self.map_arclength(),
+                              map_self=None if differences is None else differences.map_self,
+                              map_summary=None if differences is None else differences.map_summary, training=training)
         data, metric, scale = self.map.data, self.metric, self.scale
         return MapContext(
             sequence=False, exclude_recent=self.exclude_recent, n_map=len(self.map.names), rows=self.kind,
