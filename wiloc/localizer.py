@@ -1,8 +1,9 @@
 """The streaming localizer: one frame in (an image, an image file or a descriptor), a decision out.
 
-``Localizer`` describes each frame, computes its differences to the map (or, in sequence mode, to
-every earlier frame outside the recent window: the map grows as frames arrive) and steps the
-chosen method. Per-frame cost is bounded by the map's size: no N x N matrix is built; the map's
+``Localizer`` describes each frame, takes its row from its run session (``wiloc.session``, shared
+with the batch ``wiloc.api.localize``): its differences to the map (or, in sequence mode, to every
+earlier frame outside the recent window: the map grows as frames arrive), and steps the chosen
+method. Per-frame cost is bounded by the map's size: no N x N matrix is built; the map's
 differences to itself, which some methods learn from when started, are computed block by block
 and never stored. ``save``/``load`` let a long run stop and resume with identical decisions.
 """
@@ -21,15 +22,12 @@ from numpy.typing import NDArray
 from wiloc import __version__
 from wiloc.atomic import written_whole
 from wiloc.cache import Cache, Entry
-from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
-from wiloc.differences import ComputedDifferences
-from wiloc.distances import DifferencesTo, consecutive, pairwise
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.errors import FrameError, WilocError, load_problem
-from wiloc.fabmap.evidence import FabMapEvidence
 from wiloc.frames import read_colour, read_gray, shown_name, to_uint8, unusable_reason
-from wiloc.methods.base import Decision, MapContext, Method, TrainingRows
-from wiloc.methods.registry import make_method
-from wiloc.training import Training, training_rows
+from wiloc.methods.base import Decision, Method, TrainingRows
+from wiloc.session import RunSession
+from wiloc.training import Training
 from wiloc.traversals import Describer, is_matrix_file
 from wiloc.video import Sampling
 
@@ -58,84 +56,37 @@ class Localizer:
                  training: Training | TrainingRows | None = None, map_odometry: str | Path | None = None,
                  map_names: str | Path | None = None, sampling: Sampling | None = None, cache: Cache | None = None,
                  jobs: int | None = None, **params: Any) -> None:
-        self._setup(map, descriptor, descriptor_params, metric, method, exclude_recent, training,
-                    map_odometry, map_names, sampling, cache, jobs, params)
-        self.method.check_inputs(sequence=self.sequence, training=training is not None,
-                                 map_odometry=map_odometry is not None)
-        self.method.start(self._context())
+        self._setup(RunSession(map, method=method, method_params=params, descriptor=descriptor,
+                               descriptor_params=descriptor_params, metric=metric, exclude_recent=exclude_recent,
+                               training=training, map_odometry=None if map_odometry is None else Path(map_odometry),
+                               map_names=None if map_names is None else Path(map_names), sampling=sampling,
+                               cache=cache, jobs=jobs))
+        self.method.start(self._session.context())
 
-    def _setup(self, map: str | Path | Entry | None, descriptor: str, descriptor_params: Mapping[str, Any] | None,
-               metric: str | None, method: str, exclude_recent: int, training: Training | TrainingRows | None,
-               map_odometry: str | Path | None, map_names: str | Path | None, sampling: Sampling | None,
-               cache: Cache | None, jobs: int | None, params: Mapping[str, Any]) -> None:
+    def _setup(self, session: RunSession) -> None:
         """Everything but the method's start: shared by a new localizer and a loaded one."""
-        self.method: Method = make_method(method, params)
-        self.exclude_recent = check_exclude_recent(exclude_recent)
-        self.sequence = map is None
-        self._describer = Describer(descriptor, dict(descriptor_params or {}), cache or Cache(), metric=metric,
-                                    jobs=jobs, sampling=sampling)
-        self._training = training
-        self._map_path = None if map is None or isinstance(map, Entry) else Path(map)
-        self._map_odometry = None if map_odometry is None else Path(map_odometry)
-        self._spec = None if self._map_path is not None and is_matrix_file(self._map_path) else self._describer.spec
+        self._session = session
+        self.method: Method = session.method
+        self.exclude_recent = session.exclude_recent
+        self.sequence = session.sequence
         self.names: list[str] = []  # the frames observed, in order
-        self._kind = self.method.row_kind(descriptor)
-        self._evidence = FabMapEvidence.of(self._describer.spec, self.method.params) if self._kind == "log_ratio" else None
-        if map is None:
-            self._map: Entry | None = None
-            self._seen = np.empty((0, self._spec.length), dtype=self._spec.dtype)
-            self._metric, self._scale = self._spec.metric, self._spec.scale
-            self._natural_max = self._spec.natural_max
-            return
-        self._map = map if isinstance(map, Entry) else \
-            self._describer.entry(self._map_path, None if map_names is None else Path(map_names))
-        n_map, R = len(self._map.names), self.exclude_recent
-        if n_map < 2:
-            raise WilocError(self._map.folder, f"the map has {n_map} frame(s); it needs at least 2")
-        if "map_self" in self.method.needs and n_map <= R + 1:
-            raise WilocError(self._map.folder, f"the map has {n_map} frames: with exclude_recent={R} no two map "
-                                             "frames are far enough apart to learn different-place differences")
-        self._metric, self._scale, self._natural_max = self._map.metric, self._map.scale, self._map.natural_max
-        self._seen = self._map.data[:0]  # sequence mode's growing candidates; none against a map
-        self._to_map = DifferencesTo(self._map.data, self._metric, self._scale)
-        if self._evidence is not None:
-            self._evidence.add_places(self._map.data)
-
-    def _context(self) -> MapContext:
-        """What the method is started on: the map, read lazily and never stored whole."""
-        R = self.exclude_recent
-        if self._map is None:
-            return MapContext(sequence=True, exclude_recent=R, natural_max=self._natural_max, rows=self._kind)
-        arclength = None
-        if self._map_odometry is not None:
-            from wiloc.odometry import read_odometry
-            arclength = read_odometry(self._map_odometry).arclength(self._map.names)
-        return MapContext(
-            sequence=False, exclude_recent=R, n_map=len(self._map.names), natural_max=self._natural_max, rows=self._kind,
-            arclength=arclength, map_self=lambda: ComputedDifferences(self._map.data, self._to_map),
-            neighbours=lambda: consecutive(self._map.data, self._metric, self._scale),
-            training=self._training_rows if self._training is not None else None)
-
-    def _training_rows(self) -> TrainingRows:
-        """The labelled pair of ``trained``: given as rows, or computed from its traversals."""
-        if isinstance(self._training, TrainingRows):
-            return self._training
-        return training_rows(self._training, self._describer, self.exclude_recent)
+        path = session.map_path
+        self._spec = None if path is not None and is_matrix_file(path) else session.describer.spec
 
     @property
     def describer(self) -> Describer:
         """How frames are described: the descriptor, its parameters and the cache."""
-        return self._describer
+        return self._session.describer
 
     @property
     def metric(self) -> str:
         """The difference the frames are compared with."""
-        return self._metric
+        return self._session.metric
 
     @property
     def map_names(self) -> list[str]:
         """The candidate frames' names: the map's, or in sequence mode the frames observed."""
-        return self.names if self._map is None else self._map.names
+        return self.names if self._session.map is None else self._session.map.names
 
     def read(self, path: str | Path) -> NDArray[np.uint8]:
         """The 8-bit gray image that an image file's descriptor is computed from, in the map's
@@ -164,7 +115,7 @@ class Localizer:
     def _descriptor(self, row: NDArray) -> NDArray:
         """A descriptor row given to :meth:`observe`, in the map's dtype: as long as the map's
         rows, finite, and whole numbers in range for a map of integer rows (``sad``, ``brisk-gist``)."""
-        data = self._map.data if self._map is not None else self._seen
+        data = self._session.candidates_data
         length, dtype = data.shape[1], data.dtype
         if row.size != length:
             raise WilocError("observe", f"a descriptor of {row.size} values; this map's have {length}")
@@ -180,24 +131,9 @@ class Localizer:
         return row.astype(dtype, copy=False)
 
     def row(self, descriptor: NDArray) -> NDArray[np.float64]:
-        """The next frame's row: its differences to every map frame, or in sequence mode to every
-        observed frame (inf within the recent window); FAB-MAP's evidence for methods reading it
-        (-inf for no candidate)."""
-        row_desc = np.asarray(descriptor)[None, :]
-        k = len(self.names)
-        far = max(0, k - self.exclude_recent)
-        if self._evidence is not None:
-            if self._map is not None:
-                return self._evidence.row(descriptor)
-            row = np.full(k, -np.inf)
-            row[:far] = self._evidence.row(descriptor)[:far]
-            return row
-        if self._map is not None:
-            return self._to_map(row_desc)[0].astype(np.float64)
-        row = np.full(k, np.inf)
-        if far:
-            row[:far] = pairwise(row_desc, self._seen[:far], self._metric, self._scale)[0]
-        return mask_recent(row, k, self.exclude_recent)
+        """The next frame's row (:meth:`RunSession.row`): its differences to every map frame, or
+        in sequence mode to every observed frame; FAB-MAP's evidence for methods reading it."""
+        return self._session.row(descriptor)
 
     def observe(self, frame: NDArray | str | Path, name: str | None = None,
                 odometry: float | None = None) -> Decision:
@@ -209,37 +145,26 @@ class Localizer:
         if name is None:
             name = Path(frame).name if isinstance(frame, (str, Path)) else f"{k:06d}"
         decision = self.method.step(self.row(descriptor), odometry)
-        if self._map is None:
-            self._grow(descriptor)
-            if self._evidence is not None:
-                self._evidence.add_places(descriptor)
+        self._session.add(descriptor)
         self.names.append(name)
         candidates = self.map_names
         match_name = candidates[decision.match] if decision.match >= 0 else ""
         return replace(decision, frame=name, match_name=match_name)
 
-    def _grow(self, descriptor: NDArray) -> None:
-        """Sequence mode: keep the frame's descriptor as a candidate for later frames."""
-        k = len(self.names)
-        if k == self._seen.shape[0]:
-            grown = np.empty((max(16, 2 * k), self._seen.shape[1]), dtype=self._seen.dtype)
-            grown[:k] = self._seen
-            self._seen = grown
-        self._seen[k] = descriptor
-
     # -------------------------------------------------------------------------------- save / load
 
     def state(self) -> dict[str, Any]:
         """Everything needed to continue: the setup, the frames observed and the method's state."""
+        session, describer = self._session, self._session.describer
         return {"format": STATE_FORMAT, "version": STATE_VERSION, "wiloc": __version__,
-                "map": None if self._map_path is None else str(self._map_path.resolve()),
-                "map_digest": None if self._map is None else self._map.digest,
-                "map_odometry": None if self._map_odometry is None else str(self._map_odometry.resolve()),
-                "descriptor": self._describer.descriptor, "descriptor_params": dict(self._describer.params),
-                "metric": self._describer.metric, "method": self.method.name,
-                "sampling": None if self._describer.sampling is None else asdict(self._describer.sampling),
+                "map": None if session.map_path is None else str(session.map_path.resolve()),
+                "map_digest": None if session.map is None else session.map.digest,
+                "map_odometry": None if session.map_odometry is None else str(session.map_odometry.resolve()),
+                "descriptor": describer.descriptor, "descriptor_params": dict(describer.params),
+                "metric": describer.metric, "method": self.method.name,
+                "sampling": None if describer.sampling is None else asdict(describer.sampling),
                 "params": self.method.params.as_dict(), "exclude_recent": self.exclude_recent,
-                "names": list(self.names), "seen": self._seen[:len(self.names)],
+                "names": list(self.names), "seen": session.seen,
                 "method_state": self.method.state()}
 
     def save(self, path: str | Path) -> Path:
@@ -269,19 +194,22 @@ class Localizer:
             raise WilocError(path, "not a saved localizer state of this wiloc version")
         if meta["map"] is None and meta["map_digest"] is not None and map is None:
             raise WilocError(path, "was saved with a map held in memory: give it again (map=...)")
+        saved_map = map if map is not None else None if meta["map"] is None else Path(meta["map"])
+        session = RunSession(saved_map, method=meta["method"],
+                             method_params={k: tuple(v) if isinstance(v, list) else v for k, v in meta["params"].items()},
+                             descriptor=meta["descriptor"], descriptor_params=meta["descriptor_params"],
+                             metric=meta["metric"], exclude_recent=meta["exclude_recent"],
+                             map_odometry=None if meta["map_odometry"] is None else Path(meta["map_odometry"]),
+                             sampling=None if meta["sampling"] is None else Sampling(**meta["sampling"]),
+                             cache=cache, jobs=jobs, restoring=True)
+        if session.map is not None and session.map.digest != meta["map_digest"]:
+            raise WilocError(session.map.folder, f"the map changed since {path} was saved")
         loc = cls.__new__(cls)
-        loc._setup(map if map is not None else meta["map"], meta["descriptor"], meta["descriptor_params"], meta["metric"], meta["method"],
-                   meta["exclude_recent"], None, meta["map_odometry"], None,
-                   None if meta["sampling"] is None else Sampling(**meta["sampling"]), cache, jobs,
-                   {k: tuple(v) if isinstance(v, list) else v for k, v in meta["params"].items()})
-        if loc._map is not None and loc._map.digest != meta["map_digest"]:
-            raise WilocError(loc._map.folder, f"the map changed since {path} was saved")
+        loc._setup(session)
         loc.names = list(meta["names"])
-        if loc._map is None:
-            loc._seen = np.asarray(meta["seen"]).astype(loc._seen.dtype, copy=True)
-            if loc._evidence is not None and len(loc._seen):
-                loc._evidence.add_places(loc._seen)
-        loc.method.restore(loc._context(), meta["method_state"])
+        if session.map is None:
+            session.resume(meta["seen"])
+        loc.method.restore(session.context(), meta["method_state"])
         return loc
 
     @property
@@ -290,8 +218,8 @@ class Localizer:
         return len(self.names)
 
     def __repr__(self) -> str:
-        where = "sequence mode" if self._map is None else f"map={self._map.folder!r}"
-        return f"Localizer({where}, descriptor={self._describer.descriptor!r}, method={self.method!r}, frames={self.frames})"
+        where = "sequence mode" if self._session.map is None else f"map={self._session.map.folder!r}"
+        return f"Localizer({where}, descriptor={self.describer.descriptor!r}, method={self.method!r}, frames={self.frames})"
 
 
 def gray_image(array: NDArray) -> NDArray[np.uint8]:

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.errors import WilocError
+from wiloc.bags import Bag, is_bag
+from wiloc.errors import ParameterError, WilocError
 
 
 @dataclass(frozen=True)
@@ -103,3 +104,29 @@ def read_odometry(path: str | Path) -> Odometry:
     if twice:
         raise WilocError(where, f"frame {twice[0]!r} appears more than once")
     return Odometry(names=tuple(names), values=values, path=where)
+
+
+def bag_odometry(query: Path | None, reference: Path | None, topic: str | None, odometry: Path | None,
+                 map_odometry: Path | None) -> tuple[bool, bool]:
+    """Whether the query's and the map's odometry come from their ROS bags' ``topic``: for those
+    that are bags, when it is given. A ParameterError when no traversal is a bag, or when a bag's
+    odometry is also given as a CSV."""
+    if topic is None:
+        return False, False
+    from_bag = (query is not None and is_bag(Path(query)), reference is not None and is_bag(Path(reference)))
+    if not any(from_bag):
+        raise ParameterError("odometry_topic", "applies to ROS bags only; neither the query nor the map is one")
+    for used, given, parameter in zip(from_bag, (odometry, map_odometry), ("odometry", "map_odometry")):
+        if used and given is not None:
+            raise ParameterError(parameter, "give the odometry of a ROS bag once: as its CSV or by odometry_topic")
+    return from_bag
+
+
+def traversal_arclength(names: list[str], csv_path: Path | None = None, bag: Path | None = None,
+                        topic: str | None = None) -> NDArray[np.float64] | None:
+    """A traversal's arc length at each frame of ``names``: along its ROS ``bag``'s odometry
+    ``topic`` when both are given, else from its odometry CSV when given, else None."""
+    if bag is not None and topic is not None:
+        with Bag(Path(bag)) as opened:
+            return opened.arclength(topic, names)
+    return read_odometry(csv_path).arclength(names) if csv_path is not None else None

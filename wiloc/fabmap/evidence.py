@@ -11,13 +11,11 @@ the vocabulary's training images, a traversal other than the tested pair.
 """
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.candidates import check_exclude_recent
 from wiloc.descriptors.bow import load_vocabulary
 from wiloc.descriptors.registry import DescriptorSpec
 from wiloc.fabmap.chow_liu import ChowLiuTree
@@ -62,20 +60,3 @@ class FabMapEvidence:
         rows, new = self.model.frame_log_likelihoods(self.words(packed))
         return rows - new
 
-
-def evidence_rows(evidence: FabMapEvidence, query: NDArray[np.uint8], sequence: bool,
-                  exclude_recent: int) -> Iterator[NDArray[np.float64]]:
-    """The query's evidence rows, one per frame. Map mode: over the places already added (the
-    map). Sequence mode: over the earlier frames, each added as a place once decided; frames
-    i >= k - R are no candidates (-inf)."""
-    R = check_exclude_recent(exclude_recent)
-    for k, packed in enumerate(query):
-        if not sequence:
-            yield evidence.row(packed)
-            continue
-        row = np.full(k, -np.inf)
-        far = max(0, k - R)
-        if far:
-            row[:far] = evidence.row(packed)[:far]
-        yield row
-        evidence.add_places(packed)
