@@ -815,3 +815,77 @@ def test_training_ground_truth_problems_name_the_training_options(route: tuple[P
     ends_in_one_error(runner.invoke(app, [*args, "--train-gt-map", str(positions), "--train-radius", "-2"]), 2,
                       "--train-radius: must be >= 0 metres, got -2.0")
     assert not (tmp_path / "o.csv").exists()
+
+
+# Frames, folders and the Python API
+
+def test_a_folder_whose_path_is_not_utf8_is_one_line_and_writes_nothing(route: tuple[Path, Path],
+                                                                       tmp_path: Path) -> None:
+    """The cache and results files record folders by their path as UTF-8 text: a folder whose
+    name holds other bytes is refused, shown with those bytes escaped, as map, query or followed."""
+    ref, query = route
+    bad = tmp_path / os.fsdecode(b"r\xffef")
+    bad.mkdir()
+    for path in ref.iterdir():
+        (bad / path.name).write_bytes(path.read_bytes())
+    shown = f"{tmp_path}/r\\xffef"
+    out = tmp_path / "run.csv"
+    ends_in_one_error(runner.invoke(app, ["describe", str(bad)]), 1, f"{shown}: path is not valid UTF-8")
+    for args in ([str(query), "--map", str(bad)], [str(bad), "--map", str(ref)], [str(bad)],
+                 [str(bad), "--map", str(ref), "--follow", "--idle", "0.5"]):
+        ends_in_one_error(runner.invoke(app, ["localize", *args, "--method", "threshold", "--out", str(out)]), 1,
+                          f"{shown}: path is not valid UTF-8")
+        assert not out.exists()
+    ends_in_one_error(runner.invoke(app, ["describe", str(bad / "missing")]), 1, f"{shown}/missing: folder does not exist")
+
+
+def test_an_image_far_longer_than_wide_is_left_out_with_a_line(route: tuple[Path, Path],
+                                                               localizers: dict[str, Localizer]) -> None:
+    """gist covers a 256 x 256 square and crops it: a strip of 2 x 600 pixels would be scaled to
+    76,800 x 256 (a 1 x 100000 one to 26 GB), so an image with one side over 256 times the other
+    is no frame, in a folder as through ``observe``."""
+    ref, _ = route
+    assert cv2.imwrite(str(ref / "img99.png"), np.full((2, 600), 90, np.uint8))
+    result = runner.invoke(app, ["describe", str(ref), "--descriptor", "gist", "--jobs", "1", "--json"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    [row] = report["results"]
+    assert (row["frames"], row["failed"], row["shape"]) == (31, 1, [30, 512])
+    assert report["warnings"] == [f"skipped: {ref / 'img99.png'}: image of 600 x 2 pixels: one side is over 256 "
+                                  "times the other"]
+    for loc in localizers.values():
+        with pytest.raises(FrameError, match="observe: image of 1 x 300 pixels: one side is over 256 times"):
+            loc.observe(np.zeros((300, 1), np.uint8))
+        assert loc.observe(np.zeros((1, 256), np.uint8)).frame == "000000"  # 256 times is still a frame
+
+
+def test_a_float64_row_beyond_float32_is_refused_not_made_infinite(localizers: dict[str, Localizer]) -> None:
+    loc = localizers["gist"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's overflow warning does not leak either
+        with pytest.raises(WilocError, match="observe: the descriptor holds values beyond the range of this map's "
+                                             "float32 rows"):
+            loc.observe(np.full(512, 1e39))
+    assert loc.frames == 0
+    assert loc.observe(np.full(512, 1e30)).frame == "000000"  # large, within float32: a descriptor
+
+
+def test_a_video_or_demo_folder_whose_path_is_not_utf8_is_one_line_not_a_crash(tmp_path: Path,
+                                                                                cache_dir: Path) -> None:
+    """OpenCV crashes (a segmentation fault) opening or writing a path that is not UTF-8: such a
+    path is refused before OpenCV sees it. In a subprocess, so that a crash fails only this test."""
+    plain = tmp_path / "drive.avi"
+    writer = cv2.VideoWriter(str(plain), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
+    for k in range(5):
+        writer.write(np.full((48, 64, 3), 40 * k, np.uint8))
+    writer.release()
+    video = os.fsencode(tmp_path) + b"/drive\xff.avi"
+    os.rename(plain, video)
+    demo = os.fsencode(tmp_path) + b"/demo\xff"
+    for args, shown in ((["describe", video], f"{tmp_path}/drive\\xff.avi"), (["demo", "--out", demo], f"{tmp_path}/demo\\xff")):
+        result = subprocess.run([_console_script(), *args], capture_output=True, timeout=120)
+        stderr = result.stderr.decode()
+        assert result.returncode == 1 and stderr.count("\n") == 1, (result.returncode, stderr)
+        assert stderr.startswith(f"error: {shown}") and "path is not valid UTF-8" in stderr
+    assert not os.path.exists(demo)
+

@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from wiloc import api
 from wiloc.cache import Cache
+from wiloc.frames import text_path
 from wiloc.reprs import short_repr
 
 SEED = 2014
@@ -257,6 +258,7 @@ DRIVES = (
 
 def make_demo_route(root: Path, seed: int = SEED, progress: Progress | None = None) -> DemoRoute:
     """Draw the street and write every traversal (image folder) and its positions CSV under ``root``."""
+    text_path(root)  # OpenCV crashes writing to a path that is not UTF-8
     rng = np.random.default_rng(seed)
     map_len = STEP_PX * (REF_FRAMES - 1)
     detour_len = 0.2 * map_len

@@ -40,7 +40,7 @@ from wiloc.descriptors.external import read_external, write_matrix
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import FrameError, ParameterError, WilocError
 from wiloc.frames import (Fingerprint, Traversal, fingerprint, jpeg_size, list_traversal, natural_key, read_colour,
-                          read_gray)
+                          read_gray, text_path)
 from wiloc.reprs import short_repr
 from wiloc.bags import Bag, bag_fingerprint, is_bag
 from wiloc.video import Sampling, Video, VideoFrame, is_video, video_fingerprint
@@ -183,7 +183,7 @@ def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache
     keys = []
     for folder, callback in zip(folders, callbacks):
         traversal = list_traversal(folder)
-        header = _header(str(Path(folder).resolve()), spec, spec.params)
+        header = _header(Path(folder), spec, spec.params)
         runs.setdefault(header.key, _Settling(header, callback, traversal))
         keys.append(header.key)
     settling = list(runs.values())
@@ -314,7 +314,7 @@ def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sam
         params = {**spec.params, "video": video_print.digest, "sampling": asdict(sampling)}
         length = "" if video.frame_count is None else f" (it has {video.frame_count} frames)"
         stored, entry, computed, repairs = _describe_stream(
-            cache, _header(str(path.resolve()), spec, params), sampling.estimate(video.frame_count, video.rate),
+            cache, _header(path, spec, params), sampling.estimate(video.frame_count, video.rate),
             lambda skip: _describe_frames(spec, video_print, video.frames(sampling, skip=skip, colour=spec.colour)),
             WilocError(path, f"the cut ({sampling.cut}) holds no frame of this video{length}"), progress)
     return _report(stored, entry, computed, start, repairs=repairs, video=True)
@@ -342,7 +342,7 @@ def describe_bag(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampl
         bag_print = bag_fingerprint(path)
         params = {**spec.params, "bag": bag_print.digest, "topic": bag.topic, "sampling": asdict(sampling)}
         stored, entry, computed, repairs = _describe_stream(
-            cache, _header(str(path.resolve()), spec, params), sampling.estimate(bag.count, bag.rate),
+            cache, _header(path, spec, params), sampling.estimate(bag.count, bag.rate),
             lambda skip: _describe_frames(spec, bag_print, bag.frames(sampling, spec.min_size, skip=skip)),
             WilocError(path, f"the cut ({sampling.cut}) holds no image of topic {bag.topic} (it has {bag.count})"), progress)
     report = _report(stored, entry, computed, start, repairs=repairs)
@@ -382,6 +382,7 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
     for source in sources:
         if not source.is_file():
             raise WilocError(source, "file does not exist")
+        text_path(source)
     prints = [fingerprint(source) for source in sources]
     params = {"metric": metric, "file_digest": prints[0].digest,
               "names": str(sources[1]) if names_path is not None else None,
@@ -427,9 +428,9 @@ def import_to_file(source: Path, out: Path, cache: Cache, names_path: Path | Non
     return import_matrix(out, cache, None, metric)
 
 
-def _header(source: str, spec: DescriptorSpec, params: dict) -> EntryHeader:
+def _header(source: Path, spec: DescriptorSpec, params: dict) -> EntryHeader:
     """The header of `source`'s entry for `spec`, keyed by `params`."""
-    return EntryHeader.create(source, spec.name, params, spec.metric, spec.scale, spec.natural_max,
+    return EntryHeader.create(text_path(source), spec.name, params, spec.metric, spec.scale, spec.natural_max,
                               spec.dtype, spec.length)
 
 

@@ -10,20 +10,27 @@ EXIT_BUSY = 3
 EXIT_INTERRUPTED = 130
 
 
+def shown_name(name: str) -> str:
+    """A file name as text that prints and encodes anywhere: bytes that are not UTF-8 (held by
+    Python as lone surrogates) written as ``\\xff``."""
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 class WilocError(Exception):
     """A problem with the user's input: printed as one line naming the file, never a traceback.
 
     ``parameter`` names the library parameter the problem came through (``where`` is then that
-    name), so that a front end can name its own spelling of it (the CLI: its flag).
+    name), so that a front end can name its own spelling of it (the CLI: its flag). File names
+    that are not UTF-8 are shown as :func:`shown_name` writes them, so the line prints anywhere.
     """
 
     exit_code = EXIT_BAD_INPUT
 
     def __init__(self, where: str | Path | None, problem: str, *, parameter: str | None = None) -> None:
-        self.where = parameter if parameter is not None else None if where is None else str(where)
-        self.problem = problem
+        self.where = parameter if parameter is not None else None if where is None else shown_name(str(where))
+        self.problem = shown_name(problem)
         self.parameter = parameter
-        super().__init__(f"{self.where}: {problem}" if self.where else problem)
+        super().__init__(f"{self.where}: {self.problem}" if self.where else self.problem)
 
 
 class FrameError(WilocError):

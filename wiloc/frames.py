@@ -22,7 +22,7 @@ import numpy as np
 from natsort import natsort_keygen, ns
 from numpy.typing import NDArray
 
-from wiloc.errors import FrameError, WilocError
+from wiloc.errors import FrameError, WilocError, shown_name
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset(
     {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
@@ -40,6 +40,10 @@ _REDUCED_FLAGS = (
 )
 # JPEG start-of-frame markers: C0-CF except DHT (C4), JPG (C8) and DAC (CC).
 _SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+#: Largest ratio of an image's long side to its short one. Descriptors that cover a square and
+#: crop it (gist, an onnx network's ``crop``) scale the long side by as much: a 1 x 100000 strip
+#: would take 26 GB; at this ratio gist's intermediate image is 64 MB.
+MAX_ASPECT = 256
 _NATURAL = natsort_keygen(alg=ns.IGNORECASE)
 _DIGITS_AS_ZERO = str.maketrans("123456789", "000000000")
 
@@ -83,10 +87,14 @@ class Traversal:
         return list(self.frame_names)
 
 
-def shown_name(name: str) -> str:
-    """A file name as text that prints and encodes anywhere: bytes that are not UTF-8 (held by
-    Python as lone surrogates) written as ``\\xff``."""
-    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+def text_path(path: Path) -> str:
+    """``path`` resolved, as the text the cache and results files record it by; a WilocError
+    naming it when it is not valid UTF-8 (a folder or file name in it holds other bytes)."""
+    resolved = str(Path(path).resolve())
+    if shown_name(resolved) != resolved:
+        raise WilocError(path, "path is not valid UTF-8 (the cache and results files record paths as "
+                               "UTF-8 text); rename it to use it")
+    return resolved
 
 
 def unusable_reason(item: os.DirEntry[str] | Path) -> str | None:
@@ -208,6 +216,15 @@ def to_uint8(image: NDArray, path: Path | str) -> NDArray[np.uint8]:
     raise FrameError(path, f"unsupported sample type {image.dtype} (need 8- or 16-bit integers)")
 
 
+def check_aspect(image: NDArray, where: Path | str) -> NDArray:
+    """``image`` (H x W, or H x W x C), or a FrameError naming ``where`` when one side is over
+    :data:`MAX_ASPECT` times the other: no descriptor can describe it in bounded memory."""
+    height, width = image.shape[:2]
+    if max(height, width) > MAX_ASPECT * min(height, width):
+        raise FrameError(where, f"image of {width} x {height} pixels: one side is over {MAX_ASPECT} times the other")
+    return image
+
+
 def _over_limit(path: Path) -> FrameError:
     return FrameError(path, "image over OpenCV's size limit (2^30 pixels; the environment variable "
                             "OPENCV_IO_MAX_IMAGE_PIXELS raises it)")
@@ -257,7 +274,7 @@ def read_colour(path: Path) -> NDArray[np.uint8]:
         raise FrameError(path, "cannot decode image data")
     if image.ndim != 3 or image.shape[2] != 3:
         raise FrameError(path, f"unexpected image layout {image.shape}")
-    return to_uint8(image, path)
+    return to_uint8(check_aspect(image, path), path)
 
 
 def read_gray(path: Path, min_size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
@@ -300,4 +317,4 @@ def decode_gray(data: NDArray[np.uint8], path: Path | str,
         raise FrameError(path, "cannot decode image data")
     if image.ndim != 2:
         raise FrameError(path, f"unexpected image layout {image.shape}")
-    return to_uint8(image, path)
+    return to_uint8(check_aspect(image, path), path)

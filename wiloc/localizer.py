@@ -24,7 +24,7 @@ from wiloc.atomic import written_whole
 from wiloc.cache import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.errors import FrameError, WilocError, load_problem
-from wiloc.frames import read_colour, read_gray, shown_name, to_uint8, unusable_reason
+from wiloc.frames import check_aspect, read_colour, read_gray, to_uint8, unusable_reason
 from wiloc.methods.base import Decision, Method, TrainingRows
 from wiloc.session import RunSession
 from wiloc.training import Training
@@ -96,7 +96,7 @@ class Localizer:
         if self._spec is None:
             raise WilocError(path, "a map of imported descriptors takes descriptors, not images")
         if (reason := unusable_reason(Path(path))) is not None and Path(path).exists():
-            raise FrameError(shown_name(str(path)), reason)
+            raise FrameError(path, reason)
         return read_colour(Path(path)) if self._spec.colour else read_gray(Path(path), self._spec.min_size)
 
     def describe(self, frame: NDArray | str | Path) -> NDArray:
@@ -128,7 +128,11 @@ class Localizer:
             if row.dtype.kind == "f" or (row.size and (row.min() < info.min or row.max() > info.max)):
                 raise WilocError("observe", f"a descriptor of {row.dtype} values; this map's rows are {dtype} "
                                             f"(integers in [{info.min}, {info.max}])")
-        return row.astype(dtype, copy=False)
+        with np.errstate(over="ignore"):  # a float64 value beyond float32's range: refused below
+            row = row.astype(dtype, copy=False)
+        if dtype.kind == "f" and not np.all(np.isfinite(row)):
+            raise WilocError("observe", f"the descriptor holds values beyond the range of this map's {dtype} rows")
+        return row
 
     def row(self, descriptor: NDArray) -> NDArray[np.float64]:
         """The next frame's row (:meth:`RunSession.row`): its differences to every map frame, or
@@ -253,6 +257,7 @@ def _image_samples(array: NDArray) -> NDArray:
         raise WilocError("observe", f"an image must be gray (H x W) or BGR/BGRA (H x W x 3 or 4), got shape {array.shape}")
     if array.shape[0] == 0 or array.shape[1] == 0:
         raise WilocError("observe", f"an empty image ({array.shape[0]} x {array.shape[1]} pixels)")
+    check_aspect(array, "observe")
     if array.dtype.kind == "f":
         if not np.all((array >= 0) & (array <= 1)):
             raise WilocError("observe", f"a {array.dtype} image must hold values in [0, 1] (NaN or values outside found)")

@@ -26,6 +26,7 @@ from wiloc.differences import ComputedDifferences, RunDifferences, candidate_blo
 from wiloc.distances import DifferencesTo, consecutive, pairwise
 from wiloc.errors import WilocError
 from wiloc.fabmap.evidence import FabMapEvidence
+from wiloc.frames import text_path
 from wiloc.methods.base import MapContext, Method, TrainingRows
 from wiloc.methods.registry import make_method
 from wiloc.odometry import bag_odometry, steps, traversal_arclength
@@ -245,8 +246,8 @@ def run_meta(method: str, describer: Describer, query: Path, metric: str, refere
              exclude_recent: int, training: Training | None) -> dict[str, Any]:
     """What a results header says about a run besides the method's parameters."""
     meta = {"method": method, "descriptor": describer.label(query), "descriptor_params": dict(describer.params),
-            "metric": metric, "mode": "sequence" if reference is None else "map", "query": str(Path(query).resolve()),
-            "map": str(Path(reference).resolve()) if reference else "", "exclude_recent": exclude_recent,
+            "metric": metric, "mode": "sequence" if reference is None else "map", "query": text_path(query),
+            "map": text_path(reference) if reference else "", "exclude_recent": exclude_recent,
             "wiloc": __version__}
     if training:
         meta.update(train_query=str(training.query), train_map=str(training.reference))

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.frames import Fingerprint
+from wiloc.frames import Fingerprint, text_path
 
 #: File name endings taken for videos (then verified by opening the file): the usual containers
 #: of cameras, dashcams and datasets that OpenCV's bundled FFmpeg demuxes.
@@ -211,6 +211,7 @@ class Video:
         self.path = Path(path)
         if not self.path.is_file():
             raise WilocError(self.path, "file does not exist")
+        text_path(self.path)  # OpenCV crashes on a path that is not UTF-8
         self._capture = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
         if not self._capture.isOpened():
             raise WilocError(self.path, "not a video wiloc can read (no video stream found; an MP4 or "
