@@ -889,3 +889,27 @@ def test_a_video_or_demo_folder_whose_path_is_not_utf8_is_one_line_not_a_crash(t
         assert stderr.startswith(f"error: {shown}") and "path is not valid UTF-8" in stderr
     assert not os.path.exists(demo)
 
+
+def test_follow_names_a_file_still_being_written_when_the_run_ends(route: tuple[Path, Path], tmp_path: Path,
+                                                                   localizers: dict[str, Localizer]) -> None:
+    """A file that grows at every look (after it was caught once, empty) is never handed out
+    again; the run ends all the same, and names it as left out, not passed over in silence."""
+    from wiloc.follow import FolderWatch, Skipped, follow
+
+    _, query = route
+    (tmp_path / "img0.png").write_bytes((query / "img0.png").read_bytes())
+    growing = tmp_path / "Image091.jpg"
+    growing.write_bytes(b"")
+    now = [0.0]
+
+    def sleep(seconds: float) -> None:
+        now[0] += seconds
+        assert now[0] < 60, "the run never ends"
+        with growing.open("ab") as out:
+            out.write(b"\xff")
+
+    events = list(follow(localizers["sad"], FolderWatch(tmp_path), idle=1.0, poll=0.25, clock=lambda: now[0],
+                         sleep=sleep))
+    assert [e.frame for e in events if not isinstance(e, Skipped)] == ["img0.png"]
+    assert [str(e) for e in events if isinstance(e, Skipped)] == [
+        f"{growing}: still being written when the run ended (not decided; a run resuming this one decides it)"]

@@ -66,6 +66,10 @@ class FolderWatch:
         self._done.update(p.name for p in ready)
         return ready
 
+    def unsettled(self) -> list[Path]:
+        """The image files not handed out (still changing, or just arrived), in natural order."""
+        return self._images()
+
     def retry(self, path: Path) -> None:
         """Hand ``path`` out again once it is stable (it could not be read yet)."""
         self._done.discard(path.name)
@@ -77,8 +81,10 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
            sleep: Callable[[float], None] = time.sleep) -> Iterator[Decision | Skipped]:
     """Decide every frame the watch hands out, as it arrives, until ``idle`` seconds pass without
     one (None: until interrupted). A stable file that cannot be decoded (an empty one too) is
-    retried for :data:`SETTLE_SECONDS` (the run does not end meanwhile), then left out; one that
-    cannot be a frame at all (:func:`~wiloc.frames.unusable_reason`) is left out at once."""
+    retried for :data:`SETTLE_SECONDS` (the run does not end meanwhile, nor for ``idle`` seconds
+    after), then left out; one that cannot be a frame at all (:func:`~wiloc.frames.unusable_reason`)
+    is left out at once. A file still changing when the run ends on ``idle`` (one that failed to
+    decode too, then kept changing) is left out with a line, so that every file is named."""
     last = clock()
     failing: dict[str, float] = {}  # name -> when it first failed to decode
     while True:
@@ -102,7 +108,11 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
             failing.pop(path.name, None)
             last = clock()
             yield decision
-        if idle is not None and not failing and clock() - last >= idle:
+        if idle is not None and clock() - last >= idle \
+                and all(clock() - first >= SETTLE_SECONDS + idle + 2 * poll for first in failing.values()):
+            for path in watch.unsettled():
+                yield Skipped(path, "still being written when the run ended (not decided; a run resuming "
+                                    "this one decides it)")
             return
         if not arrived or failing:
             sleep(poll)
