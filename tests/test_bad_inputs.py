@@ -913,3 +913,18 @@ def test_follow_names_a_file_still_being_written_when_the_run_ends(route: tuple[
     assert [e.frame for e in events if not isinstance(e, Skipped)] == ["img0.png"]
     assert [str(e) for e in events if isinstance(e, Skipped)] == [
         f"{growing}: still being written when the run ended (not decided; a run resuming this one decides it)"]
+
+
+def test_observe_takes_a_path_given_as_bytes(localizers: dict[str, Localizer], route: tuple[Path, Path],
+                                             tmp_path: Path) -> None:
+    """``os.fsencode`` gives a path as bytes, the one spelling of a name that is not UTF-8: it
+    is a file, described as its text path is (not an array of one byte string)."""
+    _, query = route
+    loc = localizers["sad"]
+    assert np.array_equal(loc.describe(os.fsencode(query / "img3.png")), loc.describe(query / "img3.png"))
+    assert loc.observe(os.fsencode(query / "img3.png")).frame == "img3.png"
+    bad = os.fsencode(tmp_path) + b"/Image\xff.png"
+    Path(os.fsdecode(bad)).write_bytes((query / "img3.png").read_bytes())
+    with pytest.raises(FrameError, match=re.escape(f"{tmp_path}/Image\\xff.png: file name is not valid UTF-8")):
+        loc.observe(bad)
+    assert loc.frames == 1

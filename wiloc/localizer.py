@@ -10,6 +10,7 @@ and never stored. ``save``/``load`` let a long run stop and resume with identica
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Mapping
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -99,11 +100,11 @@ class Localizer:
             raise FrameError(path, reason)
         return read_colour(Path(path)) if self._spec.colour else read_gray(Path(path), self._spec.min_size)
 
-    def describe(self, frame: NDArray | str | Path) -> NDArray:
-        """The descriptor of an image file, a decoded image (:func:`gray_image`) or a descriptor
-        given as it is (:meth:`_descriptor`)."""
-        if isinstance(frame, (str, Path)):
-            frame = self.read(frame)
+    def describe(self, frame: NDArray | str | bytes | os.PathLike) -> NDArray:
+        """The descriptor of an image file (any path, bytes too), a decoded image
+        (:func:`gray_image`) or a descriptor given as it is (:meth:`_descriptor`)."""
+        if (path := _file(frame)) is not None:
+            frame = self.read(path)
         array = np.asarray(frame)
         if array.ndim == 1:
             return self._descriptor(array)
@@ -139,7 +140,7 @@ class Localizer:
         in sequence mode to every observed frame; FAB-MAP's evidence for methods reading it."""
         return self._session.row(descriptor)
 
-    def observe(self, frame: NDArray | str | Path, name: str | None = None,
+    def observe(self, frame: NDArray | str | bytes | os.PathLike, name: str | None = None,
                 odometry: float | None = None) -> Decision:
         """Decide one frame: describe it, compare it, step the method. ``name`` defaults to the
         file's name, else the frame's index (zero-padded); ``odometry`` is the distance travelled
@@ -147,7 +148,7 @@ class Localizer:
         descriptor = self.describe(frame)
         k = len(self.names)
         if name is None:
-            name = Path(frame).name if isinstance(frame, (str, Path)) else f"{k:06d}"
+            name = path.name if (path := _file(frame)) is not None else f"{k:06d}"
         decision = self.method.step(self.row(descriptor), odometry)
         self._session.add(descriptor)
         self.names.append(name)
@@ -224,6 +225,12 @@ class Localizer:
     def __repr__(self) -> str:
         where = "sequence mode" if self._session.map is None else f"map={self._session.map.folder!r}"
         return f"Localizer({where}, descriptor={self.describer.descriptor!r}, method={self.method!r}, frames={self.frames})"
+
+
+def _file(frame: object) -> Path | None:
+    """``frame`` as a file's path when it is one (text, bytes as ``os.fsencode`` gives for a
+    name that is not UTF-8, or a path object), else None."""
+    return Path(os.fsdecode(frame)) if isinstance(frame, (str, bytes, os.PathLike)) else None
 
 
 def gray_image(array: NDArray) -> NDArray[np.uint8]:
