@@ -928,3 +928,15 @@ def test_observe_takes_a_path_given_as_bytes(localizers: dict[str, Localizer], r
     with pytest.raises(FrameError, match=re.escape(f"{tmp_path}/Image\\xff.png: file name is not valid UTF-8")):
         loc.observe(bad)
     assert loc.frames == 1
+
+
+@pytest.mark.parametrize("query", ["missing", "img0.png"])
+def test_follow_of_no_folder_is_one_line_and_writes_no_results_file(query: str, route: tuple[Path, Path],
+                                                                    tmp_path: Path) -> None:
+    ref, _ = route
+    given = ref / query
+    out = tmp_path / "follow.csv"
+    result = runner.invoke(app, ["localize", str(given), "--map", str(ref), "--method", "threshold", "--follow",
+                                 "--idle", "0.5", "--out", str(out)])
+    ends_in_one_error(result, 1, f"{given}: {'folder does not exist' if query == 'missing' else 'not a folder'}")
+    assert not out.exists()  # a later run on the right folder starts anew, not "other settings"

@@ -34,13 +34,19 @@ class Skipped:
         return f"{shown_name(str(self.path))}: {self.reason}"
 
 
+def followed_folder(folder: Path) -> Path:
+    """``folder`` as a Path; a WilocError naming it when it is no folder that can be followed."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise WilocError(folder, "folder does not exist" if not folder.exists() else "not a folder")
+    return folder
+
+
 class FolderWatch:
     """The complete image files of a folder not handed out yet, polled on demand."""
 
     def __init__(self, folder: Path, done: Iterable[str] = ()) -> None:
-        self.folder = Path(folder)
-        if not self.folder.is_dir():
-            raise WilocError(self.folder, "folder does not exist" if not self.folder.exists() else "not a folder")
+        self.folder = followed_folder(folder)
         self._done = set(done)
         self._seen: dict[str, tuple[int, int]] = {}  # name -> (size, mtime_ns) at the last poll
 

@@ -11,7 +11,7 @@ from typing import Any
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.errors import WilocError
-from wiloc.follow import FolderWatch, Skipped, follow
+from wiloc.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localizer import Localizer
 from wiloc.methods.base import Decision
 from wiloc.results import RANKING, ResultsStream
@@ -58,8 +58,9 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
                   poll: float = 0.1) -> FollowRun:
     """Follow a folder that is still being filled: each frame decided as it arrives, its row
     appended to the results file at once (see :class:`FollowRun`). Ends after ``idle`` seconds
-    without a new frame (None: when interrupted)."""
-    query = Path(query)
+    without a new frame (None: when interrupted). A query that is no folder is refused before
+    the map is described or the results file written."""
+    query = followed_folder(query)
     localizer = Localizer(reference, descriptor=descriptor, descriptor_params=descriptor_params, method=method,
                           exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
                           cache=cache, jobs=jobs, **dict(method_params or {}))
