@@ -940,3 +940,25 @@ def test_follow_of_no_folder_is_one_line_and_writes_no_results_file(query: str, 
                                  "--idle", "0.5", "--out", str(out)])
     ends_in_one_error(result, 1, f"{given}: {'folder does not exist' if query == 'missing' else 'not a folder'}")
     assert not out.exists()  # a later run on the right folder starts anew, not "other settings"
+
+
+@pytest.mark.parametrize("content", ["empty", "npy", "png", "cut"])
+def test_loading_a_file_that_is_no_saved_state_is_a_wiloc_error(content: str, localizers: dict[str, Localizer],
+                                                                route: tuple[Path, Path], tmp_path: Path) -> None:
+    """An empty file ended in EOFError, an .npy array in TypeError, an image was said to hold
+    Python objects: each is one WilocError naming the file."""
+    _, query = route
+    path = tmp_path / "state.npz"
+    if content == "npy":
+        with path.open("wb") as out:
+            np.save(out, np.zeros(3))
+    elif content == "png":
+        path.write_bytes((query / "img0.png").read_bytes())
+    elif content == "cut":
+        loc = localizers["sad"]
+        loc.observe(query / "img0.png")
+        path.write_bytes(loc.save(tmp_path / "whole.npz").read_bytes()[:300])
+    else:
+        path.write_bytes(b"")
+    with pytest.raises(WilocError, match=re.escape(f"{path}: not a saved localizer state (not an .npz file)")):
+        Localizer.load(path)

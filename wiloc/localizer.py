@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from collections.abc import Mapping
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -190,10 +191,12 @@ class Localizer:
         ones the saved localizer would have made. The map must be unchanged; a map that was held
         in memory is given again as ``map``."""
         path = Path(path)
+        if path.is_file() and not zipfile.is_zipfile(path):  # np.load would take it for .npy or pickle
+            raise WilocError(path, "not a saved localizer state (not an .npz file)")
         try:
             with np.load(path, allow_pickle=False) as data:
                 meta = _join(json.loads(str(data["meta"])), {key: data[key] for key in data.files if key != "meta"})
-        except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
             raise WilocError(path, f"not a saved localizer state ({load_problem(exc)})") from None
         if meta.get("format") != STATE_FORMAT or meta.get("version") != STATE_VERSION:
             raise WilocError(path, "not a saved localizer state of this wiloc version")
