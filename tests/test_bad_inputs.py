@@ -962,3 +962,15 @@ def test_loading_a_file_that_is_no_saved_state_is_a_wiloc_error(content: str, lo
         path.write_bytes(b"")
     with pytest.raises(WilocError, match=re.escape(f"{path}: not a saved localizer state (not an .npz file)")):
         Localizer.load(path)
+
+
+def test_describe_of_one_folder_not_in_a_list_describes_that_folder(route: tuple[Path, Path], cache_dir: Path) -> None:
+    """``api.describe("ref/")`` took the name's characters for folders ("/: no image files");
+    a Path alone was a TypeError. One folder given alone is described as a list of it."""
+    from wiloc import api
+
+    ref, _ = route
+    [listed] = api.describe([ref], cache=Cache(cache_dir), jobs=1)
+    for alone in (str(ref), ref):
+        [report] = api.describe(alone, cache=Cache(cache_dir), jobs=1)
+        assert report.shape == listed.shape == (30, 1152) and report.folder == listed.folder

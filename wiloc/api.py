@@ -8,6 +8,7 @@ building vocabularies ``wiloc.inputs``'s: their public names are importable from
 """
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -42,7 +43,7 @@ __all__ = ["TABLE1_KEYS", "Comparison", "Evaluation", "FollowRun", "LocalizeRun"
 
 # ----------------------------------------------------------------------------------------- describe
 
-def describe(folders: Sequence[Path], descriptor: str = "sad", *,
+def describe(folders: Sequence[str | Path] | str | Path, descriptor: str = "sad", *,
              descriptor_params: Mapping[str, Any] | None = None, cache: Cache | None = None,
              jobs: int | None = None, progress: Progress | None = None,
              sampling: Sampling | None = None, scheduler: str | None = None,
@@ -52,15 +53,17 @@ def describe(folders: Sequence[Path], descriptor: str = "sad", *,
     picks (default: every frame). ``jobs`` worker processes describe folders, or the workers of
     the Dask ``scheduler`` (an address, or ``local``: a local cluster of ``jobs`` workers); videos
     and bags are decoded and described in this process. The folders' frames form one stream over
-    the workers (``wiloc.describing.describe_folders``). Reports come
-    in the order of ``folders``."""
+    the workers (``wiloc.describing.describe_folders``). Reports come in the order of
+    ``folders``; one folder given alone (not in a list) is described as ``[folder]``, never as
+    the characters of its name."""
     spec = descriptor_spec(descriptor, descriptor_params)
     cache = cache or Cache()
-    check_sampling([Path(folder) for folder in folders], sampling)
-    check_topic([Path(folder) for folder in folders], topic)
+    paths = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(folder) for folder in folders]
+    check_sampling(paths, sampling)
+    check_topic(paths, topic)
     cluster = open_cluster(scheduler, jobs)
-    return describe_sources([Path(folder) for folder in folders], spec, cache, jobs=jobs, sampling=sampling,
-                            progress=[stage(progress, f"describe {Path(folder).name}") for folder in folders],
+    return describe_sources(paths, spec, cache, jobs=jobs, sampling=sampling,
+                            progress=[stage(progress, f"describe {path.name}") for path in paths],
                             cluster=cluster, topic=topic)
 
 
