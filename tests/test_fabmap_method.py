@@ -191,17 +191,22 @@ def test_fabmap_and_catgraph_write_minus_the_evidence_as_the_difference(setup) -
     assert np.median(fabmap.difference) < 0 and np.median(catgraph.difference) < 0  # -r: low = alike
 
 
-def test_a_vocabulary_of_images_too_small_for_local_features_is_warned_of(setup, tmp_path: Path) -> None:
-    route, cache, good = setup
-    tiny = tmp_path / "tiny"
-    tiny.mkdir()
+def _thumbnails(folder: Path, frames: int) -> Path:
+    """64 x 32 images of a few discs each: a handful of local features per image, some none."""
+    folder.mkdir()
     rng = np.random.default_rng(1)
-    for k in range(30):  # 64 x 32 thumbnails: a handful of SIFT features each
+    for k in range(frames):
         image = np.full((32, 64), 128, np.uint8)
         for _ in range(6):
             cv2.circle(image, (int(rng.integers(0, 64)), int(rng.integers(0, 32))), int(rng.integers(2, 6)),
                        int(rng.integers(0, 256)), -1)
-        cv2.imwrite(str(tiny / f"t{k:03d}.png"), image)
+        cv2.imwrite(str(folder / f"t{k:03d}.png"), image)
+    return folder
+
+
+def test_a_vocabulary_of_images_too_small_for_local_features_is_warned_of(setup, tmp_path: Path) -> None:
+    route, cache, good = setup
+    tiny = _thumbnails(tmp_path / "tiny", 30)
     runner = CliRunner()
     built = runner.invoke(app, ["vocabulary", str(tiny), "--words", "16", "--cache", str(cache.root), "--json"])
     assert built.exit_code == 0, built.output
@@ -217,6 +222,25 @@ def test_a_vocabulary_of_images_too_small_for_local_features_is_warned_of(setup,
     run = api.localize(route.query, reference=route.reference, descriptor="bow", descriptor_params=good,
                        method="fabmap", cache=cache)
     assert run.warnings == []  # 320 x 240 images: plenty of words
+
+
+def test_a_query_or_map_of_images_too_small_for_local_features_is_warned_of(setup, tmp_path: Path) -> None:
+    """A vocabulary that passes, a query (then a map) of thumbnails: one line on stderr naming it."""
+    route, cache, good = setup
+    tiny = _thumbnails(tmp_path / "tiny", 30)
+    done = CliRunner().invoke(app, ["localize", str(tiny), "--map", str(route.reference), "--descriptor", "bow",
+                                    "--vocabulary", good["file"], "--method", "fabmap", "--cache", str(cache.root),
+                                    "--out", str(tmp_path / "r.csv"), "--json"])
+    assert done.exit_code == 0, done.output
+    [warning] = json.loads(done.stdout)["warnings"]
+    assert warning.startswith(f"warning: query {tiny.resolve()}: its 30 images give a median of ")
+    assert warning.endswith("so their bag-of-words matching and FAB-MAP's evidence degenerate")
+    said = [line for line in done.stderr.splitlines() if line.startswith("warning")]
+    assert said == [warning.replace("warning: ", "warning ", 1)]
+    run = api.localize(route.query, reference=tiny, descriptor="bow", descriptor_params=good, method="catgraph",
+                       method_params={"particles": 200}, cache=cache)
+    [warning] = run.warnings
+    assert warning.startswith(f"map {tiny.resolve()}: its 30 images give a median of ")
 
 
 @pytest.mark.realdata
