@@ -256,5 +256,5 @@ def test_catgraph_on_fabmap_evidence_is_calibrated_on_gardens_point(data_root: P
     assert run.warnings == []
     e = api.evaluate(run, TruthSource(tolerance=2))
     assert e.calibration.ece <= 0.10
-    assert not np.any(e.confidence[~e.correct] >= 0.99)  # measured: ECE 0.017, 191 frames at 0.99+, none wrong
+    assert not np.any(e.confidence[~e.correct] >= 0.99)  # measured: ECE 0.032, 181 frames at 0.99+, none wrong
     assert e.summary.as_dict()["recall_at_1"] >= 0.95
