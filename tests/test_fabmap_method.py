@@ -258,3 +258,23 @@ def test_catgraph_on_fabmap_evidence_is_calibrated_on_gardens_point(data_root: P
     assert e.calibration.ece <= 0.10
     assert not np.any(e.confidence[~e.correct] >= 0.99)  # measured: ECE 0.032, 181 frames at 0.99+, none wrong
     assert e.summary.as_dict()["recall_at_1"] >= 0.95
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_catgraph_with_a_vocabulary_of_thumbnails_is_warned_of_and_stays_a_probability(data_root: Path,
+                                                                                       tmp_path: Path) -> None:
+    """A vocabulary of Nordland's 64 x 32 thumbnails (FAB-MAP's log-ratios of hundreds of nats):
+    warned of where it is built and where it is used; catgraph's confidence still a probability."""
+    gp = data_root / "gardens-point-walking"
+    cache = Cache(tmp_path / "cache")
+    report = api.vocabulary([data_root / "nordland-summer-winter-64x32" / "summer"], cache=cache)
+    sparse = report.vocabulary.too_few_words()
+    assert sparse is not None
+    run = api.localize(gp / "day_left", reference=gp / "day_right", descriptor="bow",
+                       descriptor_params={"file": str(report.path)}, method="catgraph", cache=cache)
+    assert run.warnings == [sparse]
+    e = api.evaluate(run, TruthSource(tolerance=2))
+    assert e.calibration.ece <= 0.10
+    assert not np.any(e.confidence[~e.correct] >= 0.99)  # measured: ECE 0.041, 129 frames at 0.99+, none wrong
+    assert e.summary.as_dict()["recall_at_1"] >= 0.8
