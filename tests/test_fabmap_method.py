@@ -225,7 +225,8 @@ def test_a_vocabulary_of_images_too_small_for_local_features_is_warned_of(setup,
 
 
 def test_a_query_or_map_of_images_too_small_for_local_features_is_warned_of(setup, tmp_path: Path) -> None:
-    """A vocabulary that passes, a query (then a map) of thumbnails: one line on stderr naming it."""
+    """A vocabulary that passes, a query (then a map, then a map followed) of thumbnails: one line
+    on stderr naming it."""
     route, cache, good = setup
     tiny = _thumbnails(tmp_path / "tiny", 30)
     done = CliRunner().invoke(app, ["localize", str(tiny), "--map", str(route.reference), "--descriptor", "bow",
@@ -241,6 +242,14 @@ def test_a_query_or_map_of_images_too_small_for_local_features_is_warned_of(setu
                        method_params={"particles": 200}, cache=cache)
     [warning] = run.warnings
     assert warning.startswith(f"map {tiny.resolve()}: its 30 images give a median of ")
+    followed = CliRunner().invoke(app, ["localize", str(route.query), "--map", str(tiny), "--descriptor", "bow",
+                                        "--vocabulary", good["file"], "--method", "fabmap", "--cache", str(cache.root),
+                                        "--out", str(tmp_path / "f.csv"), "--follow", "--idle", "0.5", "--json"])
+    assert followed.exit_code == 0, followed.output
+    lines = followed.stdout.splitlines()
+    assert json.loads(lines[0]) == {"warnings": [f"warning: {warning}"]}  # said before the first frame
+    assert len(lines) == 1 + 60
+    assert followed.stderr.count(warning) == 1
 
 
 @pytest.mark.realdata
