@@ -137,8 +137,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
         meta["odometry_topic"] = odometry_topic
     if session.evidence is not None:  # FAB-MAP's training data: the vocabulary's images
         meta.update(rows="fabmap", fabmap_training=session.evidence.training_folders)
-    # what holds for every result of a described query's descriptor (bow: too few words per image)
-    doubts = [] if is_matrix_file(query) else describer.spec.kind.doubts(describer.spec.params)
+    # what holds for every result of a described query (bow: too few words per image)
+    doubts = [] if is_matrix_file(query) else session.doubts()
     results = make_results(decisions, query_names=q.names, ref_names=r.names, meta=meta)
     replaced = write_results(Path(out), results) if out is not None else False
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
