@@ -150,17 +150,19 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
     return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 
-def _check_file(path: Path) -> None:
-    """A WilocError naming ``path`` unless it is a regular file: no such file, or not one (a
-    folder, a device such as /dev/null)."""
+def check_file(path: Path) -> None:
+    """A WilocError naming ``path`` unless it is a regular file that holds something: no such
+    file, not one (a folder, a device such as /dev/null), or an empty one."""
     if not path.is_file():
         raise WilocError(path, "not a regular file" if path.exists() else "no such file")
+    if path.stat().st_size == 0:
+        raise WilocError(path, "the file is empty (0 bytes)")
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
     """A CSV as strings with stripped, lower-case column names; missing file -> WilocError."""
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     try:
         frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
@@ -323,7 +325,7 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
         if suffix == ".npy":
             return np.load(path, allow_pickle=False)
         if suffix == ".csv":
-            return np.loadtxt(path, delimiter=",", dtype=np.float64, ndmin=2)
+            return np.loadtxt(path, delimiter=",", dtype=np.float64, ndmin=2, encoding="utf-8-sig")
         if suffix == ".mat":
             arrays = {k: v for k, v in scipy.io.loadmat(path).items()
                       if not k.startswith("__") and getattr(v, "ndim", 0) == 2
@@ -337,8 +339,8 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
                 raise WilocError(path, f"holds {len(arrays)} 2-D arrays, name one of: "
                                        f"{', '.join(sorted(arrays)) or 'none'}")
             return next(iter(arrays.values()))
-    except (ValueError, OSError, NotImplementedError) as exc:
-        hint = "; VPR-Bench's ground_truth_new.npy is the vprbench form" if "allow_pickle" in str(exc) else ""
+    except (ValueError, OSError, NotImplementedError, EOFError, IndexError, scipy.io.matlab.MatReadError) as exc:
+        hint = "; VPR-Bench's ground_truth_new.npy is the vprbench form" if str(exc).startswith("Object arrays") else ""
         raise WilocError(path, f"cannot read matrix ({load_problem(exc)}){hint}") from exc
     raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv or .mat")
 
@@ -352,7 +354,7 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
     ``variable`` picks one array in a .mat file holding several.
     """
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     data = _read_matrix(path, variable)
     if data.dtype.kind not in "biuf":
         raise WilocError(path, f"matrix holds {data.dtype} values; give numbers or booleans (nonzero = same place)")
