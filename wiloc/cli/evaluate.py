@@ -90,12 +90,13 @@ def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pair
                cache: Path | None, notes: Notes, pairs: int = 3, wrong_only: bool = False) -> list[Path]:
     """Each run's difference matrix and example pairs (``pairs`` right and wrong ones, or wrong
     ones only); with several runs each file is named after its results file too
-    (``matrix-day_left-sad-online.png``)."""
+    (``matrix-day_left-sad-online.png``). A run that recorded no digest of its images (so that
+    they cannot be checked as the run's) is said so."""
     if matrix_plot is None and pairs_plot is None:
         return []
     from wiloc.cache import Cache
     from wiloc.plots import plot_matrix, plot_pairs
-    from wiloc.run_figures import example_pairs, matrix_picture
+    from wiloc.run_figures import example_pairs, matrix_picture, unchecked_folders
 
     store = Cache(cache)
     written = []
@@ -103,6 +104,8 @@ def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pair
         def target(path: Path) -> Path:
             return path.with_name(f"{path.stem}-{Path(e.name).stem}{path.suffix}") if len(evaluations) > 1 else path
         descriptor = e.results.meta.get("descriptor", "")
+        for line in unchecked_folders(e):
+            notes.add("warning", line)
         if matrix_plot is not None:
             picture = matrix_picture(e, store)
             written.append(plot_matrix(picture, replacing(notes, target(matrix_plot)), title=(
@@ -110,6 +113,7 @@ def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pair
                 "decided matches and ground truth")))
         if pairs_plot is not None:
             shown = "wrong matches" if wrong_only else "right and wrong matches"
-            written.append(plot_pairs(example_pairs(e, pairs, wrong_only), replacing(notes, target(pairs_plot)),
+            examples = example_pairs(e, pairs, wrong_only, cache=store)
+            written.append(plot_pairs(examples, replacing(notes, target(pairs_plot)),
                                       title=f"{e.method} on {e.traversal} ({descriptor}): the most confident {shown}"))
     return written
