@@ -933,3 +933,14 @@ def test_figures_of_a_run_that_recorded_no_digest_say_it_is_unchecked(route: tup
         result = runner.invoke(app, ["evaluate", str(run), "--matrix-plot", str(tmp_path / "m.png"), "--json"])
         assert result.exit_code == 0, result.output
         assert [w for w in json.loads(result.stdout)["warnings"] if "digest" in w] == lines
+
+
+def test_a_ground_truth_matrix_of_differences_is_refused(results: Path, tmp_path: Path) -> None:
+    mask = np.eye(30)
+    np.save(tmp_path / "mask.npy", mask)
+    assert runner.invoke(app, ["evaluate", str(results), "--gt", f"matrix:{tmp_path / 'mask.npy'}"]).exit_code == 0
+    distances = np.abs(np.subtract.outer(np.arange(30.0), np.arange(30.0))) / 4
+    np.save(tmp_path / "distances.npy", distances)
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--gt", f"matrix:{tmp_path / 'distances.npy'}"]), 1,
+                      f"{tmp_path / 'distances.npy'}: matrix holds 0.25 at row 1, column 2: ground truth is a "
+                      "same-place mask of 0 and 1")

@@ -347,7 +347,8 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
 
 def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str],
                  variable: str | None = None) -> Truth:
-    """Matrix form: queries x references, nonzero = same place (e.g. the FAB-MAP masks).
+    """Matrix form: queries x references, 1 = same place, 0 = not (e.g. the FAB-MAP masks); any
+    other value is refused (a matrix of differences would make nearly every pair the same place).
 
     The matrix carries no names: row i is the i-th query frame and column j the j-th reference
     frame in the traversals' natural order, so its shape must match both exactly.
@@ -357,14 +358,20 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
     check_file(path)
     data = _read_matrix(path, variable)
     if data.dtype.kind not in "biuf":
-        raise WilocError(path, f"matrix holds {data.dtype} values; give numbers or booleans (nonzero = same place)")
+        raise WilocError(path, f"matrix holds {data.dtype} values; give numbers (1 = same place, 0 = not) or booleans")
     expected = (len(query_names), len(ref_names))
     if data.ndim != 2 or data.shape != expected:
         raise WilocError(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "
                                f"{expected[0]} x {expected[1]} (query x reference frames)")
     matrix = sparse.csr_array(data)
-    if not np.isfinite(matrix.data.astype(np.float64, copy=False)).all():
+    values = matrix.data.astype(np.float64, copy=False)
+    if not np.isfinite(values).all():
         raise WilocError(path, "matrix holds NaN or infinite values")
+    if not np.isin(values, (0.0, 1.0)).all():  # a matrix of distances would make nearly every pair true
+        k = int(np.flatnonzero(~np.isin(values, (0.0, 1.0)))[0])
+        row = int(np.searchsorted(matrix.indptr, k, side="right") - 1)
+        raise WilocError(path, f"matrix holds {values[k]:g} at row {row + 1}, column {matrix.indices[k] + 1}: "
+                               "ground truth is a same-place mask of 0 and 1, not differences or distances")
     return Truth(matrix, list(query_names), list(ref_names), [])
 
 
