@@ -944,3 +944,14 @@ def test_a_ground_truth_matrix_of_differences_is_refused(results: Path, tmp_path
     ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--gt", f"matrix:{tmp_path / 'distances.npy'}"]), 1,
                       f"{tmp_path / 'distances.npy'}: matrix holds 0.25 at row 1, column 2: ground truth is a "
                       "same-place mask of 0 and 1")
+
+
+def test_a_match_without_a_confidence_or_a_confidence_without_a_match_is_refused(online_results: Path,
+                                                                                 tmp_path: Path) -> None:
+    line = next(i for i, text in enumerate(online_results.read_text().splitlines()) if text.startswith("frame,")) + 2
+    no_confidence = _edited(online_results, "confidence", "", tmp_path / "no-confidence.csv")
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(no_confidence)]), 1,
+                      f"{no_confidence}: line {line}: match 'img0.png' has no confidence (a run writes both or neither)")
+    no_match = _edited(_edited(online_results, "match", "", tmp_path / "a.csv"), "ranking", "", tmp_path / "no-match.csv")
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(no_match)]), 1, f"{no_match}: line {line}: confidence ",
+                      "without a match (a run writes both or neither)")

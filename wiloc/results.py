@@ -232,6 +232,7 @@ def read_results(path: Path) -> Results:
             raise WilocError(path, f"line {first_line + i}: {column} '{frames[column].iloc[i]}' is not a number")
         frames[column] = numbers.astype(np.float64)
     _check_probabilities(path, frames, str(meta.get("method", "")), first_line)
+    _check_decided(path, frames, first_line)
     if meta.get("model"):
         try:
             HistogramModel.from_dict(meta["model"])
@@ -256,6 +257,20 @@ def _check_probabilities(path: Path, frames: pd.DataFrame, method: str, first_li
             i = int(np.flatnonzero(bad)[0])
             span = "in [0, 1]" if low == 0.0 else f"a finite number at most 1 (as {method} writes it)"
             raise WilocError(path, f"line {first_line + i}: {column} {values[i]:g} is not {span}")
+
+
+def _check_decided(path: Path, frames: pd.DataFrame, first_line: int) -> None:
+    """A WilocError naming the file and line of a match without a confidence or a confidence
+    without a match: a run writes both (a decided frame) or neither, and the metrics would count
+    such a frame as decided in one table and not in another."""
+    matched = (frames["match"] != "").to_numpy()
+    confident = ~np.isnan(frames["confidence"].to_numpy())
+    odd = np.flatnonzero(matched != confident)
+    if odd.size:
+        i = int(odd[0])
+        problem = (f"match '{frames['match'].iloc[i]}' has no confidence" if matched[i]
+                   else f"confidence {frames['confidence'].iloc[i]:g} without a match")
+        raise WilocError(path, f"line {first_line + i}: {problem} (a run writes both or neither)")
 
 
 def _check_ranking(path: Path, frames: pd.DataFrame, reference: list[str], first_line: int) -> None:
