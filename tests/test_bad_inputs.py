@@ -955,3 +955,15 @@ def test_a_match_without_a_confidence_or_a_confidence_without_a_match_is_refused
     no_match = _edited(_edited(online_results, "match", "", tmp_path / "a.csv"), "ranking", "", tmp_path / "no-match.csv")
     ends_in_one_error(runner.invoke(app, ["evaluate", str(no_match)]), 1, f"{no_match}: line {line}: confidence ",
                       "without a match (a run writes both or neither)")
+
+
+@pytest.mark.parametrize("name", ["notes.txt", "frames.npz", "README"])
+def test_a_file_that_is_no_traversal_says_so_not_that_it_needs_a_metric(name: str, route: tuple[Path, Path],
+                                                                        tmp_path: Path) -> None:
+    _, query = route
+    (tmp_path / name).write_text("not frames\n")
+    kind = f"a {Path(name).suffix} file" if Path(name).suffix else "a file without a suffix"
+    ends_in_one_error(runner.invoke(app, ["localize", str(query), "--map", str(tmp_path / name), "--out",
+                                          str(tmp_path / "o.csv")]), 1,
+                      f"{tmp_path / name}: {kind} is not a traversal: give a folder of images, a video or a "
+                      "descriptor matrix file (.npy, .csv, .h5)")
