@@ -967,3 +967,16 @@ def test_a_file_that_is_no_traversal_says_so_not_that_it_needs_a_metric(name: st
                                           str(tmp_path / "o.csv")]), 1,
                       f"{tmp_path / name}: {kind} is not a traversal: give a folder of images, a video or a "
                       "descriptor matrix file (.npy, .csv, .h5)")
+
+
+def test_a_refused_figure_leaves_no_other_output_behind(route: tuple[Path, Path], results: Path,
+                                                        tmp_path: Path) -> None:
+    ref, _ = route
+    moved = _twin_map(ref, results, tmp_path)
+    outputs = ["--pr-plot", str(tmp_path / "pr.png"), "--calibration-plot", str(tmp_path / "c.png"),
+               "--csv", str(tmp_path / "m.csv")]
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), str(moved), *outputs,
+                                          "--pairs-plot", str(tmp_path / "p.png")]), 1, "no longer gives the descriptors")
+    ends_in_one_error(runner.invoke(app, ["compare", str(results), "--threshold-plot", str(tmp_path / "t.png"),
+                                          "--model-plot", str(tmp_path / "model.png")]), 1, "none of the results")
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == [] and not (tmp_path / "m.csv").exists()
