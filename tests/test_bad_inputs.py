@@ -980,3 +980,15 @@ def test_a_refused_figure_leaves_no_other_output_behind(route: tuple[Path, Path]
     ends_in_one_error(runner.invoke(app, ["compare", str(results), "--threshold-plot", str(tmp_path / "t.png"),
                                           "--model-plot", str(tmp_path / "model.png")]), 1, "none of the results")
     assert sorted(p.name for p in tmp_path.glob("*.png")) == [] and not (tmp_path / "m.csv").exists()
+
+
+def test_a_followed_results_file_cut_short_in_its_last_row_is_refused(results: Path, tmp_path: Path) -> None:
+    lines = [line for line in results.read_text().splitlines(keepends=True) if not line.startswith("# frames:")]
+    first = next(i for i, line in enumerate(lines) if not line.startswith("# "))
+    followed = tmp_path / "followed.csv"
+    followed.write_text("".join(lines[:first] + ["# follow: True\n"] + lines[first:]))
+    assert runner.invoke(app, ["evaluate", str(followed)]).exit_code == 0
+    torn = tmp_path / "torn.csv"
+    torn.write_bytes(followed.read_bytes()[:-4])
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(torn)]), 1,
+                      f"{torn}: its last row is cut short (no line end)")

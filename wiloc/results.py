@@ -308,6 +308,13 @@ def _reference_frames(path: Path, meta: dict[str, Any], frames: pd.DataFrame) ->
     raise WilocError(path, "no 'reference_frames' header: the map frames the matches name are unknown")
 
 
+def _torn(path: Path) -> bool:
+    """Whether the file's last line has no line end (a row cut short while it was written)."""
+    with path.open("rb") as handle:
+        handle.seek(-1, os.SEEK_END)
+        return handle.read(1) != b"\n"
+
+
 def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame, int]:
     """A results file's header, its table (every cell as text) and the line number of the
     table's first row."""
@@ -332,6 +339,9 @@ def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame, int]:
         raise WilocError(path, "not a wiloc results file (not UTF-8 text)") from None
     if meta.get("wiloc-results") != FORMAT_VERSION:
         raise WilocError(path, "not a wiloc results file (no '# wiloc-results: 1' header)")
+    if meta.get("follow") == "True" and _torn(path):
+        raise WilocError(path, "its last row is cut short (no line end): the followed run stopped while writing "
+                               "it, or is writing it now; read the file again, or resume the run, which cuts it off")
     try:
         frames = pd.read_csv(path, skiprows=n_header, dtype=str, keep_default_na=False, encoding="utf-8-sig")
     except (pd.errors.ParserError, ValueError) as exc:
