@@ -992,3 +992,10 @@ def test_a_followed_results_file_cut_short_in_its_last_row_is_refused(results: P
     torn.write_bytes(followed.read_bytes()[:-4])
     ends_in_one_error(runner.invoke(app, ["evaluate", str(torn)]), 1,
                       f"{torn}: its last row is cut short (no line end)")
+
+
+def test_a_map_frame_named_twice_in_the_header_is_refused(results: Path, tmp_path: Path) -> None:
+    edited = tmp_path / "twice.csv"
+    edited.write_text(results.read_text().replace('"img1.png"', '"img0.png"', 1))
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(edited)]), 1,
+                      f"{edited}: header 'reference_frames' names 'img0.png' twice")

@@ -302,6 +302,9 @@ def _reference_frames(path: Path, meta: dict[str, Any], frames: pd.DataFrame) ->
     if "exclude_recent" in meta and not str(meta["exclude_recent"]).isdigit():
         raise WilocError(path, f"header 'exclude_recent' must be a whole number >= 0, got {meta['exclude_recent']!r}")
     if reference:
+        twice = pd.Index(reference)[pd.Index(reference).duplicated()]
+        if len(twice):  # a match by that name would be a place at either position
+            raise WilocError(path, f"header 'reference_frames' names '{twice[0]}' twice")
         return list(reference)
     if meta.get("mode") == "sequence":
         return frames["frame"].tolist()
