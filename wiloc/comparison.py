@@ -160,8 +160,10 @@ def check_once(paths: Sequence[Path | None]) -> None:
     for path in paths:
         if path is None:
             continue
-        if seen.setdefault(path.resolve(), path) is not path:
-            raise ParameterError("runs", f"{path} is given twice (as {seen[path.resolve()]}); each run counts once")
+        first = seen.setdefault(path.resolve(), path)
+        if first is not path:
+            spelling = "" if str(first) == str(path) else f" (as {first})"
+            raise ParameterError("runs", f"{path} is given twice{spelling}; each run counts once")
         if path.is_file():
             text = path.read_bytes().removeprefix(b"\xef\xbb\xbf")  # a byte-order mark is read past
             first = contents.setdefault(hashlib.sha256(text).hexdigest(), path)
