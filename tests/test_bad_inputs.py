@@ -1000,3 +1000,21 @@ def test_a_map_frame_named_twice_in_the_header_is_refused(results: Path, tmp_pat
     edited.write_text(results.read_text().replace('"img1.png"', '"img0.png"', 1))
     ends_in_one_error(runner.invoke(app, ["evaluate", str(edited)]), 1,
                       f"{edited}: header 'reference_frames' names 'img0.png' twice")
+
+
+def test_a_ground_truth_path_is_read_as_given_but_for_query(route: tuple[Path, Path], results: Path,
+                                                            tmp_path: Path) -> None:
+    ref, query = route
+    braces = _positions_csv(tmp_path / "q{1}.csv")
+    result = runner.invoke(app, ["evaluate", str(results), "--gt", f"positions:{braces}", "--gt-map", str(braces),
+                                 "--radius", "0.5", "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["runs"][0]["with_true_match"] == 30
+    template = str(tmp_path / "{query}-positions.csv")
+    missing = str(tmp_path / f"{query.name}-positions.csv")
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--gt", f"pairs:{template}"]), 1,
+                      f"--gt: {missing} ({template} for query {query.name}): no such file")
+    ends_in_one_error(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "trained",
+                                          "--train-query", str(query), "--train-map", str(ref),
+                                          "--train-gt", f"pairs:{template}", "--out", str(tmp_path / "o.csv")]), 1,
+                      f"--train-gt: {missing} ({template} for query {query.name}): no such file")

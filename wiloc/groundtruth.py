@@ -464,8 +464,8 @@ class TruthSource:
         """The truth matrix over these frames (sequence mode: earlier frames outside +-R only);
         ``ref_folder`` is the reference traversal, for the forms that read it."""
         name = Path(query_folder).name
-        path = Path(self.path.format(query=name)) if self.path else None
-        ref_path = Path(self.ref_path.format(query=name)) if self.ref_path else None
+        path = _for_query(self.path, name, "path")
+        ref_path = _for_query(self.ref_path, name, "ref_path")
         if self.kind == "positions" and path is not None and ref_path is None and not sequence:
             raise ParameterError("ref_path", "a run against a map needs the map's positions file too (the query's "
                                              "positions do not place the map frames)")
@@ -474,3 +474,16 @@ class TruthSource:
                            by=self.by, variable=self.variable, query_folder=Path(query_folder) if query_folder else None,
                            ref_folder=None if sequence or not ref_folder else Path(ref_folder))
         return restrict_sequence(truth, exclude_recent) if sequence else truth
+
+
+def _for_query(template: str | None, name: str, parameter: str) -> Path | None:
+    """A ground-truth file path with ``{query}`` replaced by the query folder's name (other braces
+    are part of the name); a WilocError naming ``parameter`` and the template when the file it
+    gives does not exist."""
+    if not template:
+        return None
+    path = Path(template.replace("{query}", name))
+    if "{query}" in template and not path.exists():
+        raise WilocError(None, f"{path} ({template} for query {name}): no such file", parameter=parameter)
+    return path
+
