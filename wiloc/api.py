@@ -172,8 +172,8 @@ def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[flo
             recall_at: Sequence[int] = RANKED_KS) -> Comparison:
     """Table I (recall at 100/99/90 % precision per traversal and method), Table II and the
     calibration table with precision and recall at the fixed confidence ``cuts``, over results
-    files or runs in memory. A file given twice, or a precision outside (0, 100], is a
-    ParameterError: each run counts once in the tables."""
+    files or runs in memory. A file given twice (or a copy of one), no precision or one outside
+    (0, 100] is a ParameterError: each run counts once in the tables."""
     check_precisions(precisions)
     check_once([run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results) else Path(run)
                 for run in runs])
