@@ -668,8 +668,9 @@ def test_ground_truth_problems_name_the_option_or_file(args: list[str], code: in
 def test_compare_refuses_a_results_file_given_twice(twice: str, results: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(results.parent)
     again = str(results) if twice == "same" else results.name
+    spelling = "" if twice == "same" else f" (as {results})"
     ends_in_one_error(runner.invoke(app, ["compare", str(results), again]), 2,
-                      f"RESULTS...: {again} is given twice (as {results}); each run counts once")
+                      f"RESULTS...: {again} is given twice{spelling}; each run counts once")
 
 
 @pytest.mark.parametrize("target", ["150", "0", "-5", "nan"])
@@ -815,6 +816,208 @@ def test_training_ground_truth_problems_name_the_training_options(route: tuple[P
     ends_in_one_error(runner.invoke(app, [*args, "--train-gt-map", str(positions), "--train-radius", "-2"]), 2,
                       "--train-radius: must be >= 0 metres, got -2.0")
     assert not (tmp_path / "o.csv").exists()
+
+
+# Results, ground truth, evaluate and compare
+
+def _twin_map(ref: Path, results: Path, tmp_path: Path) -> Path:
+    """``results`` with its ``# map:`` header moved to a copy of ``ref`` whose img7.png differs."""
+    twin = tmp_path / "twin"
+    twin.mkdir()
+    for path in ref.iterdir():
+        (twin / path.name).write_bytes(path.read_bytes())
+    image = cv2.imread(str(twin / "img7.png"), cv2.IMREAD_GRAYSCALE)
+    cv2.imwrite(str(twin / "img7.png"), np.roll(image, 20, axis=1))
+    moved = tmp_path / "moved.csv"
+    moved.write_text(results.read_text().replace(f"# map: {ref.resolve()}\n", f"# map: {twin.resolve()}\n"))
+    return moved
+
+
+@pytest.mark.parametrize("mark", [b"", b"\xef\xbb\xbf"])
+def test_compare_refuses_a_copy_of_a_results_file(mark: bytes, results: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "copy.csv"
+    copy.write_bytes(mark + results.read_bytes())
+    ends_in_one_error(runner.invoke(app, ["compare", str(results), str(copy)]), 2,
+                      f"RESULTS...: {copy} holds the same run as {results} (identical contents); each run counts once")
+
+
+@pytest.mark.parametrize("targets", ["", ",,"])
+def test_compare_refuses_no_target_precision(targets: str, results: Path) -> None:
+    ends_in_one_error(runner.invoke(app, ["compare", str(results), "--precision", targets]), 2,
+                      "--precision: no target precision")
+
+
+def _bad_truth_files(folder: Path) -> None:
+    for name in ("empty.npy", "empty.mat", "empty.csv"):
+        (folder / name).write_bytes(b"")
+    (folder / "text.npy").write_text("img0.png,img0.png\n")
+    (folder / "garbage.mat").write_bytes(b"MATLAB 5.0 MAT-file, cut short")
+
+
+@pytest.mark.parametrize("gt, message", [
+    ("matrix:{tmp}/empty.npy", "{tmp}/empty.npy: the file is empty (0 bytes)"),
+    ("matrix:{tmp}/empty.mat", "{tmp}/empty.mat: the file is empty (0 bytes)"),
+    ("matrix:{tmp}/empty.csv", "{tmp}/empty.csv: the file is empty (0 bytes)"),
+    ("pairs:{tmp}/empty.csv", "{tmp}/empty.csv: the file is empty (0 bytes)"),
+    ("vprbench:{tmp}/empty.npy", "{tmp}/empty.npy: the file is empty (0 bytes)"),
+    ("matrix:{tmp}/text.npy", "{tmp}/text.npy: cannot read matrix (no NumPy array header: not an .npy array"),
+    ("matrix:{tmp}/garbage.mat", "{tmp}/garbage.mat: cannot read matrix"),
+])
+def test_empty_and_unreadable_ground_truth_files_are_one_line(gt: str, message: str, results: Path,
+                                                              tmp_path: Path) -> None:
+    _bad_truth_files(tmp_path)
+    result = runner.invoke(app, ["evaluate", str(results), "--gt", gt.format(tmp=tmp_path)])
+    ends_in_one_error(result, 1, message.format(tmp=tmp_path))
+    assert "allow_pickle" not in result.stderr and "unsafely" not in result.stderr
+
+
+def test_a_matrix_csv_with_a_byte_order_mark_is_read(results: Path, tmp_path: Path) -> None:
+    text = "".join(",".join("1" if i == j else "0" for j in range(30)) + "\n" for i in range(30)).encode()
+    reports = []
+    for name, mark in (("plain.csv", b""), ("marked.csv", b"\xef\xbb\xbf")):
+        (tmp_path / name).write_bytes(mark + text)
+        result = runner.invoke(app, ["evaluate", str(results), "--gt", f"matrix:{tmp_path / name}", "--json"])
+        assert result.exit_code == 0, result.output
+        reports.append({k: v for k, v in json.loads(result.stdout)["runs"][0].items() if k != "ground_truth"})
+    assert reports[0]["with_true_match"] == reports[1]["with_true_match"] == 30
+    assert reports[0] == reports[1]
+
+
+@pytest.mark.parametrize("option", ["--csv", "--pr-plot"])
+def test_an_output_that_is_no_regular_file_is_refused_not_replaced(option: str, results: Path, tmp_path: Path) -> None:
+    fifo = tmp_path / "out.png"
+    os.mkfifo(fifo)
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), option, str(fifo)]), 2,
+                      f"{option}: {fifo}: it is not a regular file (a device, a pipe or a folder)")
+    assert fifo.is_fifo()
+
+
+def test_the_library_refuses_to_replace_what_is_no_regular_file(localizers: dict[str, Localizer],
+                                                                tmp_path: Path) -> None:
+    fifo = tmp_path / "state.npz"
+    os.mkfifo(fifo)
+    with pytest.raises(WilocError, match=re.escape(f"{fifo}: cannot write the localizer state: it is not a regular")):
+        localizers["sad"].save(fifo)
+    assert fifo.is_fifo()
+
+
+def test_example_pairs_refuse_another_folder_of_the_same_names(route: tuple[Path, Path], results: Path,
+                                                              tmp_path: Path) -> None:
+    ref, _ = route
+    moved = _twin_map(ref, results, tmp_path)
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(moved), "--pairs-plot", str(tmp_path / "p.png")]), 1,
+                      f"{moved}: its map {(tmp_path / 'twin').resolve()} no longer gives the descriptors the run used")
+    assert not (tmp_path / "p.png").exists()
+
+
+def test_the_report_shows_no_images_of_another_folder_of_the_same_names(route: tuple[Path, Path], results: Path,
+                                                                       tmp_path: Path) -> None:
+    ref, _ = route
+    moved = _twin_map(ref, results, tmp_path)
+    for run, images in ((results, True), (moved, False)):
+        result = runner.invoke(app, ["report", str(run), "-o", str(tmp_path / "r.html"), "--json"])
+        assert result.exit_code == 0, result.output
+        report = json.loads(result.stdout)
+        assert (report["results"][0]["images"] > 0) == images
+        assert any(f"no images in the frame browser, its map {(tmp_path / 'twin').resolve()}" in line
+                   for line in report["warnings"]) != images
+
+
+def test_figures_of_a_run_that_recorded_no_digest_say_it_is_unchecked(route: tuple[Path, Path], results: Path,
+                                                                      tmp_path: Path) -> None:
+    ref, query = route
+    older = tmp_path / "older.csv"
+    older.write_text("".join(line for line in results.read_text().splitlines(keepends=True)
+                             if not line.startswith(("# query_digest:", "# map_digest:"))))
+    for run, lines in ((results, []), (older, [f"warning: {older}: the run recorded no digest of its images, so figures "
+                                               f"show {query.resolve()} and {ref.resolve()} as they are now, unchecked"])):
+        result = runner.invoke(app, ["evaluate", str(run), "--matrix-plot", str(tmp_path / "m.png"), "--json"])
+        assert result.exit_code == 0, result.output
+        assert [w for w in json.loads(result.stdout)["warnings"] if "digest" in w] == lines
+
+
+def test_a_ground_truth_matrix_of_differences_is_refused(results: Path, tmp_path: Path) -> None:
+    mask = np.eye(30)
+    np.save(tmp_path / "mask.npy", mask)
+    assert runner.invoke(app, ["evaluate", str(results), "--gt", f"matrix:{tmp_path / 'mask.npy'}"]).exit_code == 0
+    distances = np.abs(np.subtract.outer(np.arange(30.0), np.arange(30.0))) / 4
+    np.save(tmp_path / "distances.npy", distances)
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--gt", f"matrix:{tmp_path / 'distances.npy'}"]), 1,
+                      f"{tmp_path / 'distances.npy'}: matrix holds 0.25 at row 1, column 2: ground truth is a "
+                      "same-place mask of 0 and 1")
+
+
+def test_a_match_without_a_confidence_or_a_confidence_without_a_match_is_refused(online_results: Path,
+                                                                                 tmp_path: Path) -> None:
+    line = next(i for i, text in enumerate(online_results.read_text().splitlines()) if text.startswith("frame,")) + 2
+    no_confidence = _edited(online_results, "confidence", "", tmp_path / "no-confidence.csv")
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(no_confidence)]), 1,
+                      f"{no_confidence}: line {line}: match 'img0.png' has no confidence (a run writes both or neither)")
+    no_match = _edited(_edited(online_results, "match", "", tmp_path / "a.csv"), "ranking", "", tmp_path / "no-match.csv")
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(no_match)]), 1, f"{no_match}: line {line}: confidence ",
+                      "without a match (a run writes both or neither)")
+
+
+@pytest.mark.parametrize("name", ["notes.txt", "frames.npz", "README"])
+def test_a_file_that_is_no_traversal_says_so_not_that_it_needs_a_metric(name: str, route: tuple[Path, Path],
+                                                                        tmp_path: Path) -> None:
+    _, query = route
+    (tmp_path / name).write_text("not frames\n")
+    kind = f"a {Path(name).suffix} file" if Path(name).suffix else "a file without a suffix"
+    ends_in_one_error(runner.invoke(app, ["localize", str(query), "--map", str(tmp_path / name), "--out",
+                                          str(tmp_path / "o.csv")]), 1,
+                      f"{tmp_path / name}: {kind} is not a traversal: give a folder of images, a video or a "
+                      "descriptor matrix file (.npy, .csv, .h5)")
+
+
+def test_a_refused_figure_leaves_no_other_output_behind(route: tuple[Path, Path], results: Path,
+                                                        tmp_path: Path) -> None:
+    ref, _ = route
+    moved = _twin_map(ref, results, tmp_path)
+    outputs = ["--pr-plot", str(tmp_path / "pr.png"), "--calibration-plot", str(tmp_path / "c.png"),
+               "--csv", str(tmp_path / "m.csv")]
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), str(moved), *outputs,
+                                          "--pairs-plot", str(tmp_path / "p.png")]), 1, "no longer gives the descriptors")
+    ends_in_one_error(runner.invoke(app, ["compare", str(results), "--threshold-plot", str(tmp_path / "t.png"),
+                                          "--model-plot", str(tmp_path / "model.png")]), 1, "none of the results")
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == [] and not (tmp_path / "m.csv").exists()
+
+
+def test_a_followed_results_file_cut_short_in_its_last_row_is_refused(results: Path, tmp_path: Path) -> None:
+    lines = [line for line in results.read_text().splitlines(keepends=True) if not line.startswith("# frames:")]
+    first = next(i for i, line in enumerate(lines) if not line.startswith("# "))
+    followed = tmp_path / "followed.csv"
+    followed.write_text("".join(lines[:first] + ["# follow: True\n"] + lines[first:]))
+    assert runner.invoke(app, ["evaluate", str(followed)]).exit_code == 0
+    torn = tmp_path / "torn.csv"
+    torn.write_bytes(followed.read_bytes()[:-4])
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(torn)]), 1,
+                      f"{torn}: its last row is cut short (no line end)")
+
+
+def test_a_map_frame_named_twice_in_the_header_is_refused(results: Path, tmp_path: Path) -> None:
+    edited = tmp_path / "twice.csv"
+    edited.write_text(results.read_text().replace('"img1.png"', '"img0.png"', 1))
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(edited)]), 1,
+                      f"{edited}: header 'reference_frames' names 'img0.png' twice")
+
+
+def test_a_ground_truth_path_is_read_as_given_but_for_query(route: tuple[Path, Path], results: Path,
+                                                            tmp_path: Path) -> None:
+    ref, query = route
+    braces = _positions_csv(tmp_path / "q{1}.csv")
+    result = runner.invoke(app, ["evaluate", str(results), "--gt", f"positions:{braces}", "--gt-map", str(braces),
+                                 "--radius", "0.5", "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["runs"][0]["with_true_match"] == 30
+    template = str(tmp_path / "{query}-positions.csv")
+    missing = str(tmp_path / f"{query.name}-positions.csv")
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--gt", f"pairs:{template}"]), 1,
+                      f"--gt: {missing} ({template} for query {query.name}): no such file")
+    ends_in_one_error(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "trained",
+                                          "--train-query", str(query), "--train-map", str(ref),
+                                          "--train-gt", f"pairs:{template}", "--out", str(tmp_path / "o.csv")]), 1,
+                      f"--train-gt: {missing} ({template} for query {query.name}): no such file")
 
 
 # Frames, folders and the Python API

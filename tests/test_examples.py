@@ -135,14 +135,39 @@ def test_results_doc_quotes_the_examples(runs: dict[str, tuple[dict, str]], name
 
 
 @pytest.fixture(scope="module")
-def table1(data_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
-    """examples/table1.py's summary.json and printed output, on a private cache."""
-    tmp = tmp_path_factory.mktemp("table1")
-    env = {**os.environ, "WILOC_CACHE": str(tmp / "cache"), "COLUMNS": "200"}
-    proc = subprocess.run([sys.executable, str(REPO / "examples" / "table1.py"), str(data_root), "--out",
+def local_features_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A cache private to the examples that train vocabularies (the same ones: each Gardens Point
+    query's, on the other query), so that the second reuses the first's."""
+    return tmp_path_factory.mktemp("vocabularies") / "cache"
+
+
+def _run_example(name: str, data_root: Path, tmp_path_factory: pytest.TempPathFactory,
+                 cache: Path) -> tuple[dict, str]:
+    """examples/NAME.py's summary.json and printed output, on ``cache``."""
+    tmp = tmp_path_factory.mktemp(name)
+    env = {**os.environ, "WILOC_CACHE": str(cache), "COLUMNS": "200"}
+    proc = subprocess.run([sys.executable, str(REPO / "examples" / f"{name}.py"), str(data_root), "--out",
                            str(tmp / "out")], capture_output=True, text=True, env=env, check=False)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return json.loads((tmp / "out" / "summary.json").read_text(encoding="utf-8")), proc.stdout
+
+
+def _example(name: str) -> ModuleType:
+    """examples/NAME.py as a module (its ``render`` makes the table docs/results.md quotes)."""
+    spec = importlib.util.spec_from_file_location(name, REPO / "examples" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    sys.path.insert(0, str(REPO / "examples"))
+    try:
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(REPO / "examples"))
+    return module
+
+
+@pytest.fixture(scope="module")
+def table1(data_root: Path, tmp_path_factory: pytest.TempPathFactory, local_features_cache: Path) -> tuple[dict, str]:
+    return _run_example("table1", data_root, tmp_path_factory, local_features_cache)
 
 
 @pytest.mark.realdata
@@ -152,18 +177,29 @@ def test_table1_trains_vocabularies_on_the_other_query_and_the_doc_quotes_it(tab
     assert {q: v["trained_on"] for q, v in summary["vocabularies"].items()} == \
         {"day_left": "night_right", "night_right": "day_left"}
     assert len(summary["table"]) == 10 and all(row["ms_per_frame"] > 0 for row in summary["table"])
-    spec = importlib.util.spec_from_file_location("table1", REPO / "examples" / "table1.py")
-    assert spec is not None and spec.loader is not None
-    sys.path.insert(0, str(REPO / "examples"))
-    try:
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(REPO / "examples"))
-    tables = module.render(summary)
+    tables = _example("table1").render(summary)
     assert tables in stdout
     quoted = _protocol().block_in((REPO / "docs" / "results.md").read_text(encoding="utf-8"), "table1")
     # OpenCV's SIFT runs CPU-specific code: the local-feature rows differ between x86-64 machines
     # (docs/results.md gives both measurements); the whole-image rows must match
     assert_quotes(quoted, tables, "run examples/table1.py --update-docs",
                   cpu_dependent=("FAB-MAP", "CAT-Graph local features"))
+
+
+@pytest.mark.realdata
+@pytest.mark.slow  # the example runs for minutes
+def test_loop_closure_runs_each_method_on_each_loop_and_the_doc_quotes_it(
+        data_root: Path, tmp_path_factory: pytest.TempPathFactory, local_features_cache: Path) -> None:
+    summary, stdout = _run_example("loop_closure", data_root, tmp_path_factory, local_features_cache)
+    module = _example("loop_closure")
+    assert {(row["label"], row["loop"]) for row in summary["table"]} == \
+        {(label, loop) for label, _, _ in module.RUNS for loop in module.LOOPS}
+    for row in summary["table"]:
+        assert 0.0 <= row["recall@100"] <= row["recall@99"] <= 1.0
+        # the vocabulary is never trained on a traversal of the loop itself
+        assert row["vocabulary"] is None or row["vocabulary"] not in row["loop"].split("+")
+    tables = module.render(summary)
+    assert tables in stdout
+    quoted = _protocol().block_in((REPO / "docs" / "results.md").read_text(encoding="utf-8"), "loop_closure")
+    # FAB-MAP's local features run CPU-specific code (as in Table I): only its rows' text and shape must match
+    assert_quotes(quoted, tables, "run examples/loop_closure.py --update-docs", cpu_dependent=("FAB-MAP",))

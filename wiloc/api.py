@@ -140,8 +140,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
         meta["odometry_topic"] = odometry_topic
     if session.evidence is not None:  # FAB-MAP's training data: the vocabulary's images
         meta.update(rows="fabmap", fabmap_training=session.evidence.training_folders)
-    # what holds for every result of a described query's descriptor (bow: too few words per image)
-    doubts = [] if is_matrix_file(query) else describer.spec.kind.doubts(describer.spec.params)
+    # what holds for every result of a described query (bow: too few words per image)
+    doubts = [] if is_matrix_file(query) else session.doubts()
     results = make_results(decisions, query_names=q.names, ref_names=r.names, meta=meta)
     replaced = write_results(Path(out), results) if out is not None else False
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
@@ -175,8 +175,8 @@ def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[flo
             recall_at: Sequence[int] = RANKED_KS) -> Comparison:
     """Table I (recall at 100/99/90 % precision per traversal and method), Table II and the
     calibration table with precision and recall at the fixed confidence ``cuts``, over results
-    files or runs in memory. A file given twice, or a precision outside (0, 100], is a
-    ParameterError: each run counts once in the tables."""
+    files or runs in memory. A file given twice (or a copy of one), no precision or one outside
+    (0, 100] is a ParameterError: each run counts once in the tables."""
     check_precisions(precisions)
     check_once([run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results) else Path(run)
                 for run in runs])

@@ -14,6 +14,10 @@ from typing import IO, Any
 from wiloc.errors import WilocError
 
 
+#: Why an output path that exists but is no regular file (a device, a pipe, a folder) is refused.
+NOT_A_FILE = "it is not a regular file (a device, a pipe or a folder), which writing would replace"
+
+
 def write_error(path: Path, what: str, exc: OSError) -> WilocError:
     """The one line an OSError writing ``path`` (a full disk, a folder that refuses) becomes:
     ``PATH: cannot write WHAT (why)``; the OSError alone would not name the file."""
@@ -26,7 +30,10 @@ def written_whole(path: Path, what: str, *, binary: bool = False, mode: int | No
     (text in UTF-8 with newlines as written, or ``binary``); renamed onto ``path`` when the block
     ends, removed when it raises. Temporary files that killed writers left beside ``path`` are
     removed first. The file gets ``mode``, else the usual new-file mode; ``what`` names the file
-    in the error that an OSError (a full disk, a folder that refuses) becomes."""
+    in the error that an OSError (a full disk, a folder that refuses) becomes. Something other than
+    a regular file at ``path`` (a device such as /dev/full, a pipe) is refused, not replaced."""
+    if path.exists() and not path.is_file():
+        raise WilocError(path, f"cannot write {what}: {NOT_A_FILE}")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         _remove_orphans(path)

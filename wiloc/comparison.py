@@ -7,6 +7,7 @@ and call :func:`score` and :func:`comparison` (``DEFAULT_CUTS`` and ``RANKED_KS`
 """
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -141,19 +142,34 @@ TABLE1_KEYS = ("recall_at_100", "recall_at_99", "recall_at_90", "auc", "recall_a
 
 
 def check_precisions(precisions: Sequence[float]) -> None:
-    """Table II's target precisions are percentages in (0, 100]: a ParameterError names the first that is not."""
+    """Table II's target precisions are percentages in (0, 100], at least one: a ParameterError
+    names the first that is not."""
+    if not len(precisions):
+        raise ParameterError("precisions", "no target precision; give percentages such as 100,99")
     bad = [p for p in precisions if not 0.0 < float(p) <= 100.0]
     if bad:
         raise ParameterError("precisions", f"{bad[0]:g} is not a percentage in (0, 100]")
 
 
 def check_once(paths: Sequence[Path | None]) -> None:
-    """Each results file counts once in the tables: a ParameterError names a file given twice
-    (by any path to it). None stands for a run in memory."""
+    """Each run counts once in the tables: a ParameterError names a results file given twice (by
+    any path to it) or one identical to another (a copy: the same run). None stands for a run in
+    memory."""
     seen: dict[Path, Path] = {}
+    contents: dict[str, Path] = {}
     for path in paths:
-        if path is not None and seen.setdefault(path.resolve(), path) is not path:
-            raise ParameterError("runs", f"{path} is given twice (as {seen[path.resolve()]}); each run counts once")
+        if path is None:
+            continue
+        first = seen.setdefault(path.resolve(), path)
+        if first is not path:
+            spelling = "" if str(first) == str(path) else f" (as {first})"
+            raise ParameterError("runs", f"{path} is given twice{spelling}; each run counts once")
+        if path.is_file():
+            text = path.read_bytes().removeprefix(b"\xef\xbb\xbf")  # a byte-order mark is read past
+            first = contents.setdefault(hashlib.sha256(text).hexdigest(), path)
+            if first is not path:
+                raise ParameterError("runs", f"{path} holds the same run as {first} (identical contents); "
+                                             "each run counts once")
 
 
 def comparison(evaluations: Sequence[Evaluation], truth: TruthSource, *,

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc import api
+from wiloc.atomic import written_whole
 from wiloc.cache import Cache
 from wiloc.frames import text_path
 from wiloc.reprs import short_repr
@@ -238,8 +239,7 @@ def _path(rng: np.random.Generator, drive: Drive, map_len: float, detour_x0: flo
 
 def _write_positions(path: Path, names: list[str], xy: list[tuple[float, float]]) -> None:
     """A positions CSV ``name,x,y`` in metres."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="", encoding="utf-8") as out:
+    with written_whole(path, "the positions file") as out:
         writer = csv.writer(out)
         writer.writerow(["name", "x", "y"])
         writer.writerows([name, f"{x:.2f}", f"{y:.2f}"] for name, (x, y) in zip(names, xy))
@@ -319,7 +319,8 @@ def run_demo(out_dir: Path, progress: Progress | None = None) -> DemoReport:
     comparison = api.compare([run.path for run in runs], route.truth())
     files = [run.path for run in runs]
     for name, table in (("table1.csv", comparison.table1), ("table2.csv", comparison.table2)):
-        table.to_csv(out_dir / name, index=False)
+        with written_whole(out_dir / name, "the table") as out:
+            table.to_csv(out, index=False)
         files.append(out_dir / name)
     files.append(plots.plot_pr(api.pr_series(comparison),
                                out_dir / "pr.png", title="Demo route: precision-recall"))

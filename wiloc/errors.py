@@ -57,11 +57,16 @@ class ParameterError(UsageError):
 
 
 def load_problem(exc: Exception) -> str:
-    """Why ``np.load(..., allow_pickle=False)`` failed, in the user's terms: numpy's refusal of
-    an object array (with its advice to load the file unsafely) is that the file is not a plain
-    numeric array; other reasons are numpy's own."""
+    """Why ``np.load(..., allow_pickle=False)`` failed, in the user's terms, never numpy's advice
+    to load the file unsafely: an object array holds Python objects, not numbers; a file without
+    the .npy header (text, a pickle) is no .npy array; an empty one is empty; other reasons are
+    numpy's own."""
+    if isinstance(exc, EOFError):
+        return "the file is empty or cut short"
     if "allow_pickle" in str(exc):
-        return "holds Python objects, not a plain numeric array"
+        if str(exc).startswith("Object arrays"):
+            return "holds Python objects, not a plain numeric array"
+        return "no NumPy array header: not an .npy array (a pickle is not read)"
     return str(exc)
 
 

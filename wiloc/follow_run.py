@@ -4,7 +4,7 @@ wrote before is resumed (``wiloc.api.follow_folder``)."""
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ class FollowRun:
     idle: float | None
     poll: float
     resumed: int = 0
+    warnings: list[str] = field(default_factory=list)  # what makes the decisions doubtful (a sparse vocabulary)
 
     @property
     def path(self) -> Path:
@@ -78,4 +79,5 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
             stream.close()
             raise WilocError(None, f"{path}: frame '{name}' decided again differs from its row: the map, the "
                                    "frames or the settings changed; give another file to start anew", parameter="out")
-    return FollowRun(query=query, localizer=localizer, stream=stream, idle=idle, poll=poll, resumed=len(names))
+    return FollowRun(query=query, localizer=localizer, stream=stream, idle=idle, poll=poll, resumed=len(names),
+                     warnings=localizer.doubts)

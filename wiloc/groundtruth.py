@@ -150,17 +150,19 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
     return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 
-def _check_file(path: Path) -> None:
-    """A WilocError naming ``path`` unless it is a regular file: no such file, or not one (a
-    folder, a device such as /dev/null)."""
+def check_file(path: Path) -> None:
+    """A WilocError naming ``path`` unless it is a regular file that holds something: no such
+    file, not one (a folder, a device such as /dev/null), or an empty one."""
     if not path.is_file():
         raise WilocError(path, "not a regular file" if path.exists() else "no such file")
+    if path.stat().st_size == 0:
+        raise WilocError(path, "the file is empty (0 bytes)")
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
     """A CSV as strings with stripped, lower-case column names; missing file -> WilocError."""
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     try:
         frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
@@ -323,7 +325,7 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
         if suffix == ".npy":
             return np.load(path, allow_pickle=False)
         if suffix == ".csv":
-            return np.loadtxt(path, delimiter=",", dtype=np.float64, ndmin=2)
+            return np.loadtxt(path, delimiter=",", dtype=np.float64, ndmin=2, encoding="utf-8-sig")
         if suffix == ".mat":
             arrays = {k: v for k, v in scipy.io.loadmat(path).items()
                       if not k.startswith("__") and getattr(v, "ndim", 0) == 2
@@ -337,32 +339,39 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
                 raise WilocError(path, f"holds {len(arrays)} 2-D arrays, name one of: "
                                        f"{', '.join(sorted(arrays)) or 'none'}")
             return next(iter(arrays.values()))
-    except (ValueError, OSError, NotImplementedError) as exc:
-        hint = "; VPR-Bench's ground_truth_new.npy is the vprbench form" if "allow_pickle" in str(exc) else ""
+    except (ValueError, OSError, NotImplementedError, EOFError, IndexError, scipy.io.matlab.MatReadError) as exc:
+        hint = "; VPR-Bench's ground_truth_new.npy is the vprbench form" if str(exc).startswith("Object arrays") else ""
         raise WilocError(path, f"cannot read matrix ({load_problem(exc)}){hint}") from exc
     raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv or .mat")
 
 
 def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str],
                  variable: str | None = None) -> Truth:
-    """Matrix form: queries x references, nonzero = same place (e.g. the FAB-MAP masks).
+    """Matrix form: queries x references, 1 = same place, 0 = not (e.g. the FAB-MAP masks); any
+    other value is refused (a matrix of differences would make nearly every pair the same place).
 
     The matrix carries no names: row i is the i-th query frame and column j the j-th reference
     frame in the traversals' natural order, so its shape must match both exactly.
     ``variable`` picks one array in a .mat file holding several.
     """
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     data = _read_matrix(path, variable)
     if data.dtype.kind not in "biuf":
-        raise WilocError(path, f"matrix holds {data.dtype} values; give numbers or booleans (nonzero = same place)")
+        raise WilocError(path, f"matrix holds {data.dtype} values; give numbers (1 = same place, 0 = not) or booleans")
     expected = (len(query_names), len(ref_names))
     if data.ndim != 2 or data.shape != expected:
         raise WilocError(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "
                                f"{expected[0]} x {expected[1]} (query x reference frames)")
     matrix = sparse.csr_array(data)
-    if not np.isfinite(matrix.data.astype(np.float64, copy=False)).all():
+    values = matrix.data.astype(np.float64, copy=False)
+    if not np.isfinite(values).all():
         raise WilocError(path, "matrix holds NaN or infinite values")
+    if not np.isin(values, (0.0, 1.0)).all():  # a matrix of distances would make nearly every pair true
+        k = int(np.flatnonzero(~np.isin(values, (0.0, 1.0)))[0])
+        row = int(np.searchsorted(matrix.indptr, k, side="right") - 1)
+        raise WilocError(path, f"matrix holds {values[k]:g} at row {row + 1}, column {matrix.indices[k] + 1}: "
+                               "ground truth is a same-place mask of 0 and 1, not differences or distances")
     return Truth(matrix, list(query_names), list(ref_names), [])
 
 
@@ -455,8 +464,8 @@ class TruthSource:
         """The truth matrix over these frames (sequence mode: earlier frames outside +-R only);
         ``ref_folder`` is the reference traversal, for the forms that read it."""
         name = Path(query_folder).name
-        path = Path(self.path.format(query=name)) if self.path else None
-        ref_path = Path(self.ref_path.format(query=name)) if self.ref_path else None
+        path = _for_query(self.path, name, "path")
+        ref_path = _for_query(self.ref_path, name, "ref_path")
         if self.kind == "positions" and path is not None and ref_path is None and not sequence:
             raise ParameterError("ref_path", "a run against a map needs the map's positions file too (the query's "
                                              "positions do not place the map frames)")
@@ -465,3 +474,16 @@ class TruthSource:
                            by=self.by, variable=self.variable, query_folder=Path(query_folder) if query_folder else None,
                            ref_folder=None if sequence or not ref_folder else Path(ref_folder))
         return restrict_sequence(truth, exclude_recent) if sequence else truth
+
+
+def _for_query(template: str | None, name: str, parameter: str) -> Path | None:
+    """A ground-truth file path with ``{query}`` replaced by the query folder's name (other braces
+    are part of the name); a WilocError naming ``parameter`` and the template when the file it
+    gives does not exist."""
+    if not template:
+        return None
+    path = Path(template.replace("{query}", name))
+    if "{query}" in template and not path.exists():
+        raise WilocError(None, f"{path} ({template} for query {name}): no such file", parameter=parameter)
+    return path
+

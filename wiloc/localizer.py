@@ -76,6 +76,12 @@ class Localizer:
         self._spec = None if path is not None and is_matrix_file(path) else session.describer.spec
 
     @property
+    def doubts(self) -> list[str]:
+        """What makes every decision doubtful (``RunSession.doubts``: bow's sparse vocabulary, a
+        map whose images give too few words); none for a map of imported descriptors."""
+        return [] if self._spec is None else self._session.doubts()
+
+    @property
     def describer(self) -> Describer:
         """How frames are described: the descriptor, its parameters and the cache."""
         return self._session.describer

@@ -73,7 +73,7 @@ def write_report(comparison: Comparison, path: Path, *, cache: Cache, title: str
     notes: list[str] = []
     images = Thumbnails()
     names = run_names(comparison.evaluations)
-    runs = [_browser_run(name, e, images, notes) for name, e in zip(names, comparison.evaluations)]
+    runs = [_browser_run(name, e, images, notes, cache) for name, e in zip(names, comparison.evaluations)]
     for width in _halvings(thumb_width):
         data = images.encode(width, stage(progress, "thumbnails"))
         if sum(map(len, data)) <= THUMB_BUDGET:
@@ -141,10 +141,11 @@ def thumbnail_uri(path: Path, width: int, quality: int = 75) -> str:
     return "data:image/jpeg;base64," + base64.b64encode(encoded.tobytes()).decode("ascii") if ok else ""
 
 
-def _browser_run(name: str, e: Evaluation, images: Thumbnails, notes: list[str]) -> dict[str, Any]:
+def _browser_run(name: str, e: Evaluation, images: Thumbnails, notes: list[str], cache: Cache) -> dict[str, Any]:
     """One run for the frame browser: per query frame its name, match, true place, confidence,
-    P(new place), verdict and the indices of the three images (-1: none)."""
-    from wiloc.run_figures import true_places
+    P(new place), verdict and the indices of the three images (-1: none). Images that are no longer
+    the run's (``run_figures.checked_entries``) are not shown, and the page says why."""
+    from wiloc.run_figures import checked_entries, true_places, unchecked_folders
 
     meta = e.results.meta
     query = Path(str(meta.get("query", "")))
@@ -156,6 +157,13 @@ def _browser_run(name: str, e: Evaluation, images: Thumbnails, notes: list[str])
     if not shown:
         notes.append(f"{name}: no images in the frame browser, {query if not query.is_dir() else reference} "
                      "is not an image folder")
+    else:
+        try:
+            checked_entries(e, cache)
+            notes.extend(unchecked_folders(e))
+        except WilocError as exc:
+            notes.append(f"{name}: no images in the frame browser, {exc.problem}")
+            shown = False
 
     def image(folder: Path, index: int, frames: list[str]) -> int:
         return images.add(folder / frames[index]) if shown and index >= 0 else -1

@@ -232,6 +232,7 @@ def read_results(path: Path) -> Results:
             raise WilocError(path, f"line {first_line + i}: {column} '{frames[column].iloc[i]}' is not a number")
         frames[column] = numbers.astype(np.float64)
     _check_probabilities(path, frames, str(meta.get("method", "")), first_line)
+    _check_decided(path, frames, first_line)
     if meta.get("model"):
         try:
             HistogramModel.from_dict(meta["model"])
@@ -256,6 +257,20 @@ def _check_probabilities(path: Path, frames: pd.DataFrame, method: str, first_li
             i = int(np.flatnonzero(bad)[0])
             span = "in [0, 1]" if low == 0.0 else f"a finite number at most 1 (as {method} writes it)"
             raise WilocError(path, f"line {first_line + i}: {column} {values[i]:g} is not {span}")
+
+
+def _check_decided(path: Path, frames: pd.DataFrame, first_line: int) -> None:
+    """A WilocError naming the file and line of a match without a confidence or a confidence
+    without a match: a run writes both (a decided frame) or neither, and the metrics would count
+    such a frame as decided in one table and not in another."""
+    matched = (frames["match"] != "").to_numpy()
+    confident = ~np.isnan(frames["confidence"].to_numpy())
+    odd = np.flatnonzero(matched != confident)
+    if odd.size:
+        i = int(odd[0])
+        problem = (f"match '{frames['match'].iloc[i]}' has no confidence" if matched[i]
+                   else f"confidence {frames['confidence'].iloc[i]:g} without a match")
+        raise WilocError(path, f"line {first_line + i}: {problem} (a run writes both or neither)")
 
 
 def _check_ranking(path: Path, frames: pd.DataFrame, reference: list[str], first_line: int) -> None:
@@ -287,10 +302,20 @@ def _reference_frames(path: Path, meta: dict[str, Any], frames: pd.DataFrame) ->
     if "exclude_recent" in meta and not str(meta["exclude_recent"]).isdigit():
         raise WilocError(path, f"header 'exclude_recent' must be a whole number >= 0, got {meta['exclude_recent']!r}")
     if reference:
+        twice = pd.Index(reference)[pd.Index(reference).duplicated()]
+        if len(twice):  # a match by that name would be a place at either position
+            raise WilocError(path, f"header 'reference_frames' names '{twice[0]}' twice")
         return list(reference)
     if meta.get("mode") == "sequence":
         return frames["frame"].tolist()
     raise WilocError(path, "no 'reference_frames' header: the map frames the matches name are unknown")
+
+
+def _torn(path: Path) -> bool:
+    """Whether the file's last line has no line end (a row cut short while it was written)."""
+    with path.open("rb") as handle:
+        handle.seek(-1, os.SEEK_END)
+        return handle.read(1) != b"\n"
 
 
 def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame, int]:
@@ -317,6 +342,9 @@ def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame, int]:
         raise WilocError(path, "not a wiloc results file (not UTF-8 text)") from None
     if meta.get("wiloc-results") != FORMAT_VERSION:
         raise WilocError(path, "not a wiloc results file (no '# wiloc-results: 1' header)")
+    if meta.get("follow") == "True" and _torn(path):
+        raise WilocError(path, "its last row is cut short (no line end): the followed run stopped while writing "
+                               "it, or is writing it now; read the file again, or resume the run, which cuts it off")
     try:
         frames = pd.read_csv(path, skiprows=n_header, dtype=str, keep_default_na=False, encoding="utf-8-sig")
     except (pd.errors.ParserError, ValueError) as exc:

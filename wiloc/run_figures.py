@@ -112,8 +112,11 @@ def _traversals(evaluation: Evaluation) -> tuple[Path, Path, bool]:
     return query, query if sequence else Path(str(meta.get("map", ""))), sequence
 
 
-def _entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]:
-    """The query's and the map's descriptors, through the cache, checked against the file's frames."""
+def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]:
+    """The query's and the map's descriptors, through the cache, checked against the file's frames
+    and against the digests the run recorded of them: a WilocError naming the folder whose images
+    are no longer the run's (changed, or another folder of the same names), so that no figure
+    shows other images than the run's."""
     from wiloc.traversals import Describer, descriptors_digest
     from wiloc.video import Sampling
 
@@ -152,7 +155,7 @@ def matrix_picture(evaluation: Evaluation, cache: Cache, max_side: int = MAX_SID
     from wiloc.candidates import mask_recent
     from wiloc.differences import differences
 
-    q, r = _entries(evaluation, cache)
+    q, r = checked_entries(evaluation, cache)
     _, _, sequence = _traversals(evaluation)
     exclude = int(evaluation.results.meta.get("exclude_recent", 0) or 0)
     n_query, n_ref = len(q.names), len(r.names)
@@ -185,15 +188,33 @@ def read_rgb(path: Path) -> NDArray[np.uint8]:
     return cv2.cvtColor(colour, cv2.COLOR_BGR2RGB)
 
 
-def example_pairs(evaluation: Evaluation, count: int = 3, wrong_only: bool = False) -> list[ImagePair]:
+def unchecked_folders(evaluation: Evaluation) -> list[str]:
+    """A line naming the folders whose images the run recorded no digest of (a followed run's, a
+    file of an older version), none when it recorded them: a figure shows those folders as they
+    are now, which :func:`checked_entries` cannot tell from the run's."""
+    query, reference, sequence = _traversals(evaluation)
+    roles = (("query", query),) if sequence else (("query", query), ("map", reference))
+    folders = [str(folder) for role, folder in roles if f"{role}_digest" not in evaluation.results.meta]
+    if not folders:
+        return []
+    return [f"{evaluation.path or evaluation.name}: the run recorded no digest of its images, so figures show "
+            f"{' and '.join(folders)} as {'they are' if len(folders) > 1 else 'it is'} now, unchecked"]
+
+
+def example_pairs(evaluation: Evaluation, count: int = 3, wrong_only: bool = False, *,
+                  cache: Cache | None = None) -> list[ImagePair]:
     """Up to ``count`` most confident right matches (none with ``wrong_only``), then up to
     ``count`` most confident wrong ones, with their images read from the folders the results
-    header names."""
+    header names, once :func:`checked_entries` (through ``cache``, default the user's) finds
+    them the run's."""
+    from wiloc.cache import Cache
+
     query, reference, _ = _traversals(evaluation)
     for folder in dict.fromkeys((query, reference)):
         if not folder.is_dir():
             raise WilocError(evaluation.path, f"example images need the image folders the run named; {folder} "
                                               "is not a folder")
+    checked_entries(evaluation, cache if cache is not None else Cache())
     results = evaluation.results
     names, ref_names = results.frames["frame"].tolist(), results.reference_frames or results.frames["frame"].tolist()
     match, confidence, correct = results.match_index, evaluation.confidence, evaluation.correct

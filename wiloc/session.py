@@ -230,6 +230,15 @@ class RunSession:
         """The candidates' descriptors: the map's, or in sequence mode the frames added."""
         return self.map.data if self.map is not None else self._seen
 
+    def doubts(self) -> list[str]:
+        """What makes every result of this run doubtful, one line each: its descriptor's (bow: a
+        sparse vocabulary), then its query's (a batch run's) and its map's descriptors' (bow:
+        images that give too few words), each naming its folder."""
+        kind, params = self.describer.spec.kind, self.describer.spec.params
+        return kind.doubts(params) + [
+            f"{role} {entry.folder}: {line}" for role, entry in (("query", self.query), ("map", self.map))
+            if entry is not None for line in kind.traversal_doubts(entry.data, params)]
+
 
 def results_name(query: Path, method: str, descriptor: str, metric: str | None = None) -> str:
     """The default results file name of one query traversal (folder, matrix file, whose

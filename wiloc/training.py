@@ -6,7 +6,7 @@ from pathlib import Path
 
 from wiloc.candidates import check_exclude_recent
 from wiloc.differences import candidate_rows, differences
-from wiloc.errors import ParameterError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.groundtruth import TruthSource
 from wiloc.methods.base import TrainingRows
 from wiloc.traversals import Describer
@@ -28,6 +28,10 @@ def training_rows(training: Training, describer: Describer, exclude_recent: int)
     tq, tr = describer.entry(Path(training.query)), describer.entry(Path(training.reference))
     try:
         truth = training.truth.load(tq.names, tr.names, str(training.query), False, R, str(training.reference))
-    except ParameterError as exc:  # named as the training pair's: train_radius, train_ref_path
-        raise ParameterError(f"train_{exc.parameter}", exc.problem) from None
+    except WilocError as exc:  # a parameter named as the training pair's: train_radius, train_ref_path
+        if exc.parameter is None:
+            raise
+        renamed = f"train_{exc.parameter}"
+        raise (ParameterError(renamed, exc.problem) if isinstance(exc, ParameterError)
+               else WilocError(None, exc.problem, parameter=renamed)) from None
     return TrainingRows(rows=candidate_rows(differences(tq, tr, describer.runner), False, R), labels=truth.matrix)

@@ -53,6 +53,10 @@ def descriptors_digest(names: list[str], data: np.ndarray) -> str:
     return hashlib.sha256("\0".join(names).encode() + np.ascontiguousarray(data).tobytes()).hexdigest()
 
 
+#: The suffixes of descriptor matrix files a traversal may be (``descriptors.external`` reads them).
+MATRIX_SUFFIXES = frozenset({".npy", ".csv", ".h5", ".hdf5"})
+
+
 def is_matrix_file(source: Path) -> bool:
     """Whether a traversal is a user's descriptor matrix file (not a folder, video or ROS bag)."""
     return Path(source).is_file() and not is_video(Path(source)) and not is_bag(Path(source))
@@ -124,8 +128,11 @@ class Describer:
         an imported matrix file (``names``: its frame names, one per line, for .npy matrices)."""
         source = Path(source)
         if is_matrix_file(source):
-            if source.suffix.lower() in IMAGE_SUFFIXES:
-                raise WilocError(source, "an image file is not a traversal: give a folder of images, a video or a "
+            suffix = source.suffix.lower()
+            if suffix not in MATRIX_SUFFIXES:
+                kind = ("an image file" if suffix in IMAGE_SUFFIXES
+                        else f"a {suffix} file" if suffix else "a file without a suffix")
+                raise WilocError(source, f"{kind} is not a traversal: give a folder of images, a video or a "
                                          "descriptor matrix file (.npy, .csv, .h5)")
             metric = self.metric or recorded_metric(source)
             if metric is None:

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import WilocError
-from wiloc.groundtruth import Positions, Truth, name_index, truth_from_pairs, truth_within, unmatched
+from wiloc.groundtruth import Positions, Truth, check_file, name_index, truth_from_pairs, truth_within, unmatched
 
 DEFAULT_RADIUS_M = 25.0
 """Same place within 25 m: the threshold of VPR-methods-evaluation and of the benchmarks it follows
@@ -80,8 +80,7 @@ def _references(value: Any) -> NDArray[np.int64] | None:
 def read_vprbench(path: Path) -> list[tuple[int, NDArray[np.int64]]]:
     """The (query index, reference indices) rows of a VPR-Bench ``ground_truth_new.npy``."""
     path = Path(path)
-    if not path.is_file():
-        raise WilocError(path, "not a regular file" if path.exists() else "no such file")
+    check_file(path)
     try:
         with path.open("rb") as file:
             array = _load_object_npy(path, file)

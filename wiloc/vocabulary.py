@@ -29,10 +29,10 @@ from wiloc.parameters import Parameters, param
 
 FORMAT = "wiloc-vocabulary"
 FORMAT_VERSION = 1
-#: A vocabulary whose training images give a median under FEW_WORDS distinct words per image, or
-#: more than a share NO_WORDS of images without any, is too sparse for FAB-MAP: Gardens Point at
-#: 640 px gives 340 (none empty), Nordland's 64 x 32 thumbnails 10 (5 % empty), and the bounds
-#: sit between (docs/fabmap.md).
+#: Images that give a median under FEW_WORDS distinct words per image, or more than a share
+#: NO_WORDS of them without any, are too sparse for FAB-MAP (a vocabulary's training images, or a
+#: query's or map's): Gardens Point at 640 px gives 340 (none empty), Nordland's 64 x 32
+#: thumbnails 10 (5 % empty), and the bounds sit between (docs/fabmap.md).
 FEW_WORDS = 50
 NO_WORDS = 0.01
 
@@ -95,17 +95,28 @@ class Vocabulary:
         return self.occurrences(extract_features(gray, p.feature, p.max_features, p.max_side))
 
     def too_few_words(self) -> str | None:
-        """Why this vocabulary's training images are too small for local features (a median
-        under ``FEW_WORDS`` words per image, or more than ``NO_WORDS`` of them without any), or
-        None. FAB-MAP's tree and new-place samples come from these images, so everything
-        localised with such a vocabulary degenerates (docs/fabmap.md)."""
-        words = self.training_occurrences.sum(axis=1)
-        median, empty = float(np.median(words)), int(np.count_nonzero(words == 0))
-        if median >= FEW_WORDS and empty <= NO_WORDS * words.size:
+        """Why this vocabulary's training images are too small for local features
+        (:func:`word_shortage`), or None. FAB-MAP's tree and new-place samples come from these
+        images, so everything localised with such a vocabulary degenerates (docs/fabmap.md)."""
+        shortage = word_shortage(self.training_occurrences.sum(axis=1))
+        if shortage is None:
             return None
-        return (f"vocabulary {self.key}: its {words.size} training images give a median of {median:g} words each "
-                f"and {empty} give none (usable: {FEW_WORDS} or more, at most {NO_WORDS:.0%} without any): "
-                "images too small for local features, so FAB-MAP's evidence and bag-of-words matching degenerate")
+        return (f"vocabulary {self.key}: its {len(self.training_frames)} training images {shortage}: images too "
+                "small for local features, so FAB-MAP's evidence and bag-of-words matching degenerate")
+
+
+def word_shortage(words: NDArray[np.integer]) -> str | None:
+    """What makes images with these numbers of distinct words too sparse for FAB-MAP (a median
+    under ``FEW_WORDS`` words per image, or more than a share ``NO_WORDS`` of them without any),
+    said as "give a median of ...", or None when they are not (or there are none)."""
+    words = np.asarray(words)
+    if words.size == 0:
+        return None
+    median, empty = float(np.median(words)), int(np.count_nonzero(words == 0))
+    if median >= FEW_WORDS and empty <= NO_WORDS * words.size:
+        return None
+    return (f"give a median of {median:g} words each and {empty} give none (usable: {FEW_WORDS} or more, "
+            f"at most {NO_WORDS:.0%} without any)")
 
 
 def word_presence(features: NDArray, centres: NDArray) -> NDArray[np.bool_]:

@@ -100,16 +100,16 @@ def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshol
     from wiloc import api, plots
 
     subject = api.run_subject(comparison.evaluations, source)
+    learned = sorted((e for e in comparison.evaluations if e.method in ("online", "trained")),
+                     key=lambda e: e.method != "online")
+    if model_plot is not None and not learned:  # refused before any figure is written
+        fail(f"{model_plot}: none of the results is an online or trained run with a model", EXIT_BAD_INPUT)
     written = []
     if threshold_plot is not None:
         written.append(plots.plot_threshold(api.threshold_series(comparison), replacing(notes, threshold_plot),
                                             marks=api.threshold_marks(comparison),
                                             title=f"Precision against threshold: {subject}"))
     if model_plot is not None:
-        learned = sorted((e for e in comparison.evaluations if e.method in ("online", "trained")),
-                         key=lambda e: e.method != "online")
-        if not learned:
-            fail(f"{model_plot}: none of the results is an online or trained run with a model", EXIT_BAD_INPUT)
         written.append(plots.plot_model(learned[0].results.model, replacing(notes, model_plot),
                                         title=f"Learned model: {learned[0].method}, {learned[0].traversal}"))
     if pr_plot is not None:

@@ -2,8 +2,9 @@
 row per run, with its figures (curves, reliability diagram, difference matrix, image pairs)."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import typer
 
@@ -59,6 +60,7 @@ def evaluate(
               "traversal": e.traversal, **e.summary.as_dict()}
              for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
     rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
+    drawings = _run_plots(evaluations, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only)
     written = []
     if pr_plot is not None:
         from wiloc.plots import plot_pr
@@ -69,7 +71,7 @@ def evaluate(
         from wiloc.plots import plot_reliability
         written.append(plot_reliability(api.reliability_series(evaluations), replacing(notes, calibration_plot),
                                         new_place=api.new_place_series(evaluations)))
-    written += _run_plots(evaluations, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only)
+    written += [draw() for draw in drawings]
     if csv_out is not None:
         written += write_metrics_csv(csv_out, rows, evaluations, notes)
     if as_json:
@@ -87,29 +89,39 @@ def evaluate(
 
 
 def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pairs_plot: Path | None,
-               cache: Path | None, notes: Notes, pairs: int = 3, wrong_only: bool = False) -> list[Path]:
+               cache: Path | None, notes: Notes, pairs: int = 3, wrong_only: bool = False) -> list[Callable[[], Path]]:
     """Each run's difference matrix and example pairs (``pairs`` right and wrong ones, or wrong
-    ones only); with several runs each file is named after its results file too
-    (``matrix-day_left-sad-online.png``)."""
+    ones only), ready to be written: the pictures are made (and a run whose images are no longer
+    its own refused) before any file is written, so a refusal leaves no output behind. With several
+    runs each file is named after its results file too (``matrix-day_left-sad-online.png``). A run
+    that recorded no digest of its images (so that they cannot be checked as the run's) is said so."""
     if matrix_plot is None and pairs_plot is None:
         return []
     from wiloc.cache import Cache
     from wiloc.plots import plot_matrix, plot_pairs
-    from wiloc.run_figures import example_pairs, matrix_picture
+    from wiloc.run_figures import example_pairs, matrix_picture, unchecked_folders
 
     store = Cache(cache)
-    written = []
+    drawings: list[Callable[[], Path]] = []
     for e in evaluations:
         def target(path: Path) -> Path:
             return path.with_name(f"{path.stem}-{Path(e.name).stem}{path.suffix}") if len(evaluations) > 1 else path
         descriptor = e.results.meta.get("descriptor", "")
+        for line in unchecked_folders(e):
+            notes.add("warning", line)
         if matrix_plot is not None:
             picture = matrix_picture(e, store)
-            written.append(plot_matrix(picture, replacing(notes, target(matrix_plot)), title=(
-                f"{e.method} on {picture.query} against {picture.reference} ({descriptor}): differences, "
-                "decided matches and ground truth")))
+            title = (f"{e.method} on {picture.query} against {picture.reference} ({descriptor}): differences, "
+                     "decided matches and ground truth")
+            drawings.append(_drawing(plot_matrix, picture, target(matrix_plot), title, notes))
         if pairs_plot is not None:
             shown = "wrong matches" if wrong_only else "right and wrong matches"
-            written.append(plot_pairs(example_pairs(e, pairs, wrong_only), replacing(notes, target(pairs_plot)),
-                                      title=f"{e.method} on {e.traversal} ({descriptor}): the most confident {shown}"))
-    return written
+            title = f"{e.method} on {e.traversal} ({descriptor}): the most confident {shown}"
+            drawings.append(_drawing(plot_pairs, example_pairs(e, pairs, wrong_only, cache=store),
+                                     target(pairs_plot), title, notes))
+    return drawings
+
+
+def _drawing(plot: Callable[..., Path], data: Any, path: Path, title: str, notes: Notes) -> Callable[[], Path]:
+    """Writing one figure made already: ``plot(data, path, title=title)``, a file replaced said so."""
+    return lambda: plot(data, replacing(notes, path), title=title)

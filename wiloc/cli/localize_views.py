@@ -74,7 +74,8 @@ FOLLOW_COLUMNS = ("frame", "match", "confidence", "P(new place)", "stage")
 def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
     """Render a followed run: a live table on a terminal, else a header line and one line (or
     JSON line) per frame, and when ``--idle`` ends the run a last line saying so; a frame left out
-    is a note on stderr (with --json also a line ``{"warnings": [...]}``)."""
+    is a note on stderr (with --json also a line ``{"warnings": [...]}``), as is each of the run's
+    warnings before the first frame."""
     from collections import deque
 
     from rich.live import Live
@@ -83,7 +84,12 @@ def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
 
     started, decided = time.perf_counter(), 0
     latest: deque[Decision] = deque(maxlen=10)
-    notes = Notes()
+    notes = Notes()  # frames left out
+    warned = Notes()
+    for line in run.warnings:
+        warned.add("warning", line)
+    if as_json and warned:
+        print(json.dumps({"warnings": warned}), flush=True)
 
     def view() -> Table:
         rate = decided / max(time.perf_counter() - started, 1e-9)

@@ -7,6 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
+from wiloc.atomic import NOT_A_FILE
 from wiloc.cli.core import Notes, fail, note
 from wiloc.cli.params import descriptor_params, descriptor_takers
 from wiloc.errors import EXIT_USAGE, WilocError
@@ -15,9 +16,12 @@ from wiloc.errors import EXIT_USAGE, WilocError
 def output_file(value: Path | None) -> Path | None:
     """An output file option (``--csv``, ``--out FILE.csv``, a plot), checked as the options are
     read, before any work: its folder must exist (a typo is not made into new folders; folders
-    that ``--out`` names are created)."""
+    that ``--out`` names are created), and something there must be a regular file (a device or a
+    pipe would be replaced, not written to)."""
     if value is not None and value.suffix and not value.is_dir() and not value.parent.is_dir():
         raise typer.BadParameter(f"the folder {value.parent} does not exist (create it first)")
+    if value is not None and value.exists() and not value.is_dir() and not value.is_file():
+        raise typer.BadParameter(f"{value}: {NOT_A_FILE}")
     return value
 
 

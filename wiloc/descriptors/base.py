@@ -132,6 +132,12 @@ class Descriptor:
         return []
 
     @classmethod
+    def traversal_doubts(cls, data: NDArray, params: Mapping[str, Any]) -> list[str]:
+        """Warnings about one traversal's descriptors (``data``, a row per frame), each said of
+        the traversal ("its 200 images ..."): none by default."""
+        return []
+
+    @classmethod
     def _spec(cls, params: dict[str, Any], **storage: Any) -> DescriptorSpec:
         """A spec of this class's name, metric and colour, with the storage facts given."""
         return DescriptorSpec(name=cls.name, params=params, metric=storage.pop("metric", cls.metric),

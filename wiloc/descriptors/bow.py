@@ -90,3 +90,18 @@ class Bow(Descriptor):
         """A vocabulary of too few words per image makes every result doubtful."""
         sparse = load_vocabulary(params["file"], params["vocabulary"]).too_few_words()
         return [] if sparse is None else [sparse]
+
+    @classmethod
+    def traversal_doubts(cls, data: NDArray, params: Mapping[str, Any]) -> list[str]:
+        """Images that give too few words by the vocabulary's own rule
+        (``wiloc.vocabulary.word_shortage``): what is localised on them degenerates. Said only of
+        a vocabulary that passes that rule itself: a sparse one is warned of already (:meth:`doubts`),
+        and its images' few words may be its own doing (a vocabulary of 16 words)."""
+        from wiloc.vocabulary import word_shortage
+
+        if load_vocabulary(params["file"], params["vocabulary"]).too_few_words() is not None:
+            return []
+        shortage = word_shortage(np.unpackbits(np.asarray(data, dtype=np.uint8), axis=1).sum(axis=1))
+        return [] if shortage is None else [
+            f"its {len(data)} images {shortage}: too few local features (images too small, dark or blurred), "
+            "so their bag-of-words matching and FAB-MAP's evidence degenerate"]
