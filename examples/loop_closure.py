@@ -18,12 +18,11 @@ learned from too, is trained on the third traversal (``night_right`` for the day
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from protocol import _finite, _fraction, _percent, console, err, parse_args, require, update_docs
+from protocol import _finite, _fraction, _percent, console, require, run_table_script
 
 from wiloc import api, plots
 from wiloc.errors import WilocError
@@ -110,14 +109,7 @@ def render(summary: dict[str, Any]) -> str:
 
 
 def main() -> None:
-    args = parse_args("loop_closure", __doc__.splitlines()[0], descriptors=False)
-    try:
-        summary = run(args.data, args.out)
-        if args.update_docs:
-            update_docs(summary, args.out, markdown=render(summary), plots=("pr",))
-    except WilocError as exc:
-        err.print(f"error: {exc}", markup=False, highlight=False)
-        sys.exit(exc.exit_code)
+    run_table_script("loop_closure", __doc__.splitlines()[0], run, render)
 
 
 if __name__ == "__main__":

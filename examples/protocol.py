@@ -214,6 +214,21 @@ def main(build: Callable[[], tuple[Experiment, Path, bool]]) -> None:
         sys.exit(exc.exit_code)
 
 
+def run_table_script(name: str, description: str, run: Callable[[Path, Path], dict[str, Any]],
+                     render: Callable[[dict[str, Any]], str]) -> None:
+    """Run an example that prints one table and draws PR curves (``run(data, out)`` gives its
+    summary, ``render`` the table docs/results.md quotes): one error line and its exit code for
+    bad input, never a traceback."""
+    args = parse_args(name, description, descriptors=False)
+    try:
+        summary = run(args.data, args.out)
+        if args.update_docs:
+            update_docs(summary, args.out, markdown=render(summary), plots=("pr",))
+    except WilocError as exc:
+        err.print(f"error: {exc}", markup=False, highlight=False)
+        sys.exit(exc.exit_code)
+
+
 def require(folders: Sequence[Path]) -> None:
     """Stop with a clear message when a dataset folder is missing."""
     for folder in folders:

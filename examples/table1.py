@@ -13,18 +13,16 @@ FAB-MAP's evidence is computed per frame every run).
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from protocol import _finite, _percent, aligned, console, err, parse_args, require, update_docs
+from protocol import _finite, _percent, aligned, console, require, run_table_script
 
 from rich.table import Table
 
 from wiloc import api, plots
 from wiloc.cli.views import table1_view
-from wiloc.errors import WilocError
 
 TOLERANCE = 2
 #: (table label, descriptor, method): local features first, then whole images.
@@ -91,14 +89,7 @@ def render(summary: dict[str, Any]) -> str:
 
 
 def main() -> None:
-    args = parse_args("table1", __doc__.splitlines()[0], descriptors=False)
-    try:
-        summary = run(args.data, args.out)
-        if args.update_docs:
-            update_docs(summary, args.out, markdown=render(summary), plots=("pr",))
-    except WilocError as exc:
-        err.print(f"error: {exc}", markup=False, highlight=False)
-        sys.exit(exc.exit_code)
+    run_table_script("table1", __doc__.splitlines()[0], run, render)
 
 
 if __name__ == "__main__":
