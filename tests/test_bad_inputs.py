@@ -653,7 +653,13 @@ def _positions_csv(path: Path, n: int = 30) -> Path:
 @pytest.mark.parametrize("args, code, message", [
     (["--gt", "positions:{tmp}/q.csv", "--radius", "2.5"], 2,
      "--gt-map: a run against a map needs the map's positions file too"),
-    (["--gt", "positions:{tmp}/q.csv", "--gt-map", "{tmp}/q.csv", "--radius", "-1"], 2, "--radius: must be >= 0 metres, got -1.0"),
+    (["--gt", "positions:{tmp}/q.csv", "--gt-map", "{tmp}/q.csv", "--radius", "-1"], 2,
+     "--radius: must be a finite number >= 0 metres, got -1.0"),
+    # an infinite radius would make every pair of frames the same place
+    (["--gt", "positions:{tmp}/q.csv", "--gt-map", "{tmp}/q.csv", "--radius", "inf"], 2,
+     "--radius: must be a finite number >= 0 metres, got inf"),
+    (["--gt", "positions:{tmp}/q.csv", "--gt-map", "{tmp}/q.csv", "--radius", "nan"], 2,
+     "--radius: must be a finite number >= 0 metres, got nan"),
     (["--gt", "positions:", "--radius", "1"], 2, "--gt: positions ground truth needs a file (positions:FILE)"),
     (["--gt", "matrix:/dev/null"], 1, "/dev/null: not a regular file"),
 ])
@@ -814,7 +820,7 @@ def test_training_ground_truth_problems_name_the_training_options(route: tuple[P
             "--train-map", str(ref), "--train-gt", f"positions:{positions}", "--out", str(tmp_path / "o.csv")]
     ends_in_one_error(runner.invoke(app, [*args, "--train-radius", "2"]), 2, "--train-gt-map: a run against a map needs")
     ends_in_one_error(runner.invoke(app, [*args, "--train-gt-map", str(positions), "--train-radius", "-2"]), 2,
-                      "--train-radius: must be >= 0 metres, got -2.0")
+                      "--train-radius: must be a finite number >= 0 metres, got -2.0")
     assert not (tmp_path / "o.csv").exists()
 
 
@@ -1177,3 +1183,17 @@ def test_describe_of_one_folder_not_in_a_list_describes_that_folder(route: tuple
     for alone in (str(ref), ref):
         [report] = api.describe(alone, cache=Cache(cache_dir), jobs=1)
         assert report.shape == listed.shape == (30, 1152) and report.folder == listed.folder
+
+
+def test_vocabulary_of_one_folder_given_alone_is_that_folder(tmp_path: Path) -> None:
+    """``api.vocabulary("folder")``, like ``api.describe``, takes one folder given alone as that
+    folder, not as the characters of its name."""
+    from wiloc import api
+
+    folder = tmp_path / "fr"
+    folder.mkdir()
+    with pytest.raises(WilocError) as one:
+        api.vocabulary(str(folder), cache=Cache(tmp_path / "cache"))
+    with pytest.raises(WilocError) as listed:
+        api.vocabulary([folder], cache=Cache(tmp_path / "cache"))
+    assert str(one.value) == str(listed.value) and str(folder) in str(one.value)

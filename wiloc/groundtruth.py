@@ -248,8 +248,8 @@ def _frames_with_positions(positions: Positions, frames: Sequence[str],
 
 
 def _check_radius(radius: float) -> float:
-    if not radius >= 0:
-        raise ParameterError("radius", f"must be >= 0 metres, got {radius}")
+    if not 0 <= radius < np.inf:
+        raise ParameterError("radius", f"must be a finite number >= 0 metres, got {radius}")
     return float(radius)
 
 

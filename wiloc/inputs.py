@@ -3,6 +3,8 @@ vocabularies built or found, and worker processes shared by several describes (`
 offers these as its own functions)."""
 from __future__ import annotations
 
+import os
+
 from collections.abc import Mapping, Sequence
 from contextlib import AbstractContextManager
 from pathlib import Path
@@ -43,11 +45,13 @@ def import_descriptors(path: Path, *, metric: str | None = None, names: Path | N
     return import_matrix(source, cache or Cache(), names, metric)
 
 
-def vocabulary(folders: Sequence[Path], params: Mapping[str, Any] | None = None, *, cache: Cache | None = None,
-               progress: Progress | None = None) -> VocabularyReport:
-    """Build (or reuse from the cache) the visual vocabulary of the images in ``folders``: local
-    features clustered into words, for the ``bow`` descriptor and FAB-MAP (docs/fabmap.md)."""
-    return build_vocabulary([Path(f) for f in folders], cache or Cache(), VocabularyParams.create(params),
+def vocabulary(folders: Sequence[str | Path] | str | Path, params: Mapping[str, Any] | None = None, *,
+               cache: Cache | None = None, progress: Progress | None = None) -> VocabularyReport:
+    """Build (or reuse from the cache) the visual vocabulary of the images in ``folders`` (one
+    folder or several): local features clustered into words, for the ``bow`` descriptor and
+    FAB-MAP (docs/fabmap.md)."""
+    paths = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(f) for f in folders]
+    return build_vocabulary(paths, cache or Cache(), VocabularyParams.create(params),
                             progress=stage(progress, "vocabulary"))
 
 
