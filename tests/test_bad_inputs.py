@@ -1197,3 +1197,10 @@ def test_vocabulary_of_one_folder_given_alone_is_that_folder(tmp_path: Path) -> 
     with pytest.raises(WilocError) as listed:
         api.vocabulary([folder], cache=Cache(tmp_path / "cache"))
     assert str(one.value) == str(listed.value) and str(folder) in str(one.value)
+
+
+@pytest.mark.parametrize("empty", ["", b""])
+def test_observe_names_an_empty_path_as_empty(empty: str | bytes, localizers: dict[str, Localizer]) -> None:
+    """An empty path is not the current folder (what ``Path("")`` would make of it)."""
+    with pytest.raises(FrameError, match="the frame's path is empty"):
+        localizers["sad"].observe(empty)

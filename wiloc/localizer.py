@@ -239,7 +239,11 @@ class Localizer:
 def _file(frame: object) -> Path | None:
     """``frame`` as a file's path when it is one (text, bytes as ``os.fsencode`` gives for a
     name that is not UTF-8, or a path object), else None."""
-    return Path(os.fsdecode(frame)) if isinstance(frame, (str, bytes, os.PathLike)) else None
+    if not isinstance(frame, (str, bytes, os.PathLike)):
+        return None
+    if not os.fsdecode(frame):  # Path("") is the current folder: say what was given instead
+        raise FrameError("observe", "the frame's path is empty")
+    return Path(os.fsdecode(frame))
 
 
 def gray_image(array: NDArray) -> NDArray[np.uint8]:
