@@ -1204,3 +1204,14 @@ def test_observe_names_an_empty_path_as_empty(empty: str | bytes, localizers: di
     """An empty path is not the current folder (what ``Path("")`` would make of it)."""
     with pytest.raises(FrameError, match="the frame's path is empty"):
         localizers["sad"].observe(empty)
+
+
+@pytest.mark.parametrize("suffix", [".txt", ".csv"])
+def test_a_names_file_with_a_byte_order_mark_gives_the_names_without_it(suffix: str, tmp_path: Path) -> None:
+    """Editors on Windows start UTF-8 text with a byte-order mark; results files and ground truth
+    read it as such, and so do frame-name files."""
+    from wiloc.descriptors.external import read_names
+
+    path = tmp_path / f"names{suffix}"
+    path.write_bytes("\ufeffname\nimg0.png\nimg1.png\n".encode())
+    assert read_names(path) == ["img0.png", "img1.png"]

@@ -55,10 +55,10 @@ def read_names(path: Path) -> list[str]:
 
     try:
         if path.suffix.lower() == ".csv":
-            table = pd.read_csv(path, header=None, dtype=str, keep_default_na=False, usecols=[0])
+            table = pd.read_csv(path, header=None, dtype=str, keep_default_na=False, usecols=[0], encoding="utf-8-sig")
             lines = table.iloc[:, 0].tolist()
         else:
-            lines = path.read_text(encoding="utf-8").splitlines()
+            lines = path.read_text(encoding="utf-8-sig").splitlines()  # a byte-order mark is no part of a name
     except (OSError, UnicodeDecodeError, ValueError, pd.errors.ParserError) as exc:
         raise WilocError(path, f"cannot read frame names ({exc})") from exc
     names = [line.strip() for line in lines if line.strip()]
@@ -193,7 +193,7 @@ def _read_csv(path: Path) -> tuple[NDArray, list[str]]:
     import pandas as pd
 
     try:
-        table = pd.read_csv(path, header=None, dtype=str, keep_default_na=False)
+        table = pd.read_csv(path, header=None, dtype=str, keep_default_na=False, encoding="utf-8-sig")
     except (OSError, ValueError, pd.errors.ParserError) as exc:
         raise WilocError(path, f"not a readable CSV table ({exc})") from exc
     if table.shape[1] < 2:
