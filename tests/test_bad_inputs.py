@@ -1215,3 +1215,18 @@ def test_a_names_file_with_a_byte_order_mark_gives_the_names_without_it(suffix: 
     path = tmp_path / f"names{suffix}"
     path.write_bytes("\ufeffname\nimg0.png\nimg1.png\n".encode())
     assert read_names(path) == ["img0.png", "img1.png"]
+
+
+def test_sequence_mode_refuses_a_map_positions_file_other_than_the_query_s(tmp_path: Path) -> None:
+    """In sequence mode the traversal is its own map: another map positions file would place the
+    same frames twice, differently."""
+    from wiloc.groundtruth import TruthSource
+
+    names = [f"img{i}.png" for i in range(30)]
+    own, other = _positions_csv(tmp_path / "q.csv"), _positions_csv(tmp_path / "r.csv")
+    truth = TruthSource(kind="positions", path=str(own), ref_path=str(own), radius=10.0)
+    assert truth.load(names, names, str(tmp_path), sequence=True, exclude_recent=2).matrix.nnz > 0
+    with pytest.raises(ParameterError, match="sequence mode is its own map") as refused:
+        TruthSource(kind="positions", path=str(own), ref_path=str(other), radius=2.0).load(
+            names, names, str(tmp_path), sequence=True, exclude_recent=2)
+    assert refused.value.parameter == "ref_path"

@@ -469,6 +469,9 @@ class TruthSource:
         if self.kind == "positions" and path is not None and ref_path is None and not sequence:
             raise ParameterError("ref_path", "a run against a map needs the map's positions file too (the query's "
                                              "positions do not place the map frames)")
+        if sequence and ref_path is not None and path is not None and ref_path.resolve() != path.resolve():
+            raise ParameterError("ref_path", f"a run in sequence mode is its own map: {ref_path} is not its positions "
+                                             f"file {path} (give that file once)")
         truth = load_truth(self.kind, path, query_names=query_names, ref_names=ref_names,
                            tolerance=self.tolerance, radius=self.radius, ref_path=ref_path,
                            by=self.by, variable=self.variable, query_folder=Path(query_folder) if query_folder else None,
