@@ -124,15 +124,21 @@ def _column_widths(view: Table) -> tuple[list[int], list[int]]:
     return [max(r.minimum for r in column) for column in ranges], [max(r.maximum for r in column) for column in ranges]
 
 
+def _frame_width(view: Table) -> int:
+    """What a table takes besides its columns' content: its edges and the lines between columns
+    (when it has a box) and each column's padding (the outer padding only with ``pad_edge``)."""
+    _, right, _, left = view.padding
+    lines = (2 if view.show_edge else 0) + len(view.columns) - 1 if view.box else 0
+    return lines + (left + right) * len(view.columns) - (0 if view.pad_edge else left + right)
+
+
 def _styled_to_fit(view: Table, widths: list[int]) -> bool:
     """Give ``view`` the first style of :data:`_COMPACT` in which columns of ``widths`` fit the
     console (the most compact when none does); whether one does."""
     own = (view.box, view.show_edge, view.pad_edge, view.padding)
     for style in _COMPACT:
         view.box, view.show_edge, view.pad_edge, view.padding = style or own
-        _, right, _, left = view.padding
-        frame = view._extra_width + (left + right) * len(view.columns) - (0 if view.pad_edge else left + right)
-        if sum(widths) + frame <= out.width:
+        if sum(widths) + _frame_width(view) <= out.width:
             return True
     return False
 
@@ -154,9 +160,7 @@ def fit(view: Table) -> Table:
     lows, highs = _column_widths(view)
     if _styled_to_fit(view, highs) or not _styled_to_fit(view, lows):
         return view
-    _, right, _, left = view.padding
-    frame = view._extra_width + (left + right) * len(view.columns) - (0 if view.pad_edge else left + right)
-    room = out.width - frame - sum(lows)
+    room = out.width - _frame_width(view) - sum(lows)
     more = [high - low for low, high in zip(lows, highs)]
     for column, low, m in zip(view.columns, lows, more):
         column.width = low + room * m // max(sum(more), 1)
