@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
@@ -35,19 +35,13 @@ class DescriptorSpec:
     scale: float
     min_size: tuple[int, int] | None
     natural_max: float | None
+    kind: type[Descriptor] = field(compare=False, repr=False)  # the registered class that made it
     colour: bool = False  # computed from 8-bit BGR images (H x W x 3), in batches: ``compute_batch``
 
     @property
     def key(self) -> str:
         """Canonical JSON of name and parameters: the descriptor part of a cache key."""
         return json.dumps({"name": self.name, "params": dict(self.params)}, sort_keys=True)
-
-    @property
-    def kind(self) -> type[Descriptor]:
-        """The registered class of this descriptor."""
-        from wiloc.descriptors.registry import descriptor_class
-
-        return descriptor_class(self.name)
 
     def compute(self, image: NDArray[np.uint8]) -> NDArray:
         """Descriptor of one 8-bit image, flat, ``(length,)`` of ``dtype``: grayscale (H x W), or
@@ -141,7 +135,7 @@ class Descriptor:
     def _spec(cls, params: dict[str, Any], **storage: Any) -> DescriptorSpec:
         """A spec of this class's name, metric and colour, with the storage facts given."""
         return DescriptorSpec(name=cls.name, params=params, metric=storage.pop("metric", cls.metric),
-                              colour=cls.colour, **storage)
+                              kind=cls, colour=cls.colour, **storage)
 
 
 def check_names(name: str, given: Mapping[str, Any], valid: Sequence[str]) -> None:
