@@ -96,7 +96,7 @@ def peak_rss_mb() -> float:
 def child_localize(args: argparse.Namespace) -> dict[str, float]:
     """One localize run in this (child) process: wall, CPU, peak RSS."""
     from wiloc import api
-    from wiloc.groundtruth import TruthSource
+    from wiloc.truth_source import TruthSource
 
     root = Path(args.root)
     training = None

@@ -1220,7 +1220,7 @@ def test_a_names_file_with_a_byte_order_mark_gives_the_names_without_it(suffix: 
 def test_sequence_mode_refuses_a_map_positions_file_other_than_the_query_s(tmp_path: Path) -> None:
     """In sequence mode the traversal is its own map: another map positions file would place the
     same frames twice, differently."""
-    from wiloc.groundtruth import TruthSource
+    from wiloc.truth_source import TruthSource
 
     names = [f"img{i}.png" for i in range(30)]
     own, other = _positions_csv(tmp_path / "q.csv"), _positions_csv(tmp_path / "r.csv")

@@ -16,7 +16,7 @@ from wiloc import api
 from wiloc.cache import Cache
 from wiloc.cli import app
 from wiloc.errors import UsageError
-from wiloc.groundtruth import TruthSource
+from wiloc.truth_source import TruthSource
 from wiloc.localizer import Localizer
 
 SMALL = {"feature": "orb", "words": 128, "max_features": 200, "iterations": 8}

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from wiloc import api
 from wiloc.candidates import RANKED, best_candidates
 from wiloc.cli import app
-from wiloc.groundtruth import TruthSource
+from wiloc.truth_source import TruthSource
 from wiloc.methods.base import Decisions
 from wiloc.metrics import recall_at_k, summarize
 from wiloc.results import make_results, read_results, write_results

@@ -18,7 +18,8 @@ from typer.testing import CliRunner
 from wiloc import api
 from wiloc.cli import app
 from wiloc.errors import WilocError
-from wiloc.groundtruth import EARTH_RADIUS_M, load_truth
+from wiloc.groundtruth import EARTH_RADIUS_M
+from wiloc.truth_source import load_truth
 from wiloc.results import read_results
 from wiloc.truth_formats import read_vprbench
 

@@ -23,7 +23,7 @@ from wiloc.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, 
                               traversal_labels)
 from wiloc.describing import DescribeReport, check_sampling, check_topic, describe_sources, is_stream
 from wiloc.follow_run import FollowRun, follow_folder
-from wiloc.groundtruth import TruthSource
+from wiloc.truth_source import TruthSource
 from wiloc.inputs import import_descriptors, shared_workers, vocabulary, vocabulary_file
 from wiloc.results import Results, make_results, read_results, write_results
 from wiloc.session import RunSession, results_name, run_meta

@@ -17,7 +17,8 @@ import numpy as np
 import pandas as pd
 
 from wiloc.errors import ParameterError
-from wiloc.groundtruth import Truth, TruthSource
+from wiloc.groundtruth import Truth
+from wiloc.truth_source import TruthSource
 from wiloc.labels import short_names
 from wiloc.metrics import (RANKED_KS, PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
                            precision_at_thresholds, summarize)
