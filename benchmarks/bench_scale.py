@@ -46,7 +46,8 @@ import numpy as np
 
 from bench_describe import TRAVERSALS, data_root, plain_decode_rate
 from bench_localizer import SPEC, route
-from wiloc.cache import Cache, EntryHeader, FrameRecord, StoredEntry
+from wiloc.cache import Cache
+from wiloc.entries import EntryHeader, FrameRecord, StoredEntry
 
 METHODS = ("online", "threshold", "trained", "catgraph")
 KERNEL_BLOCKS = {"online": ("query", "map"), "threshold": ("query",), "trained": ("query", "train"),

@@ -12,7 +12,8 @@ import h5py
 import numpy as np
 import pytest
 
-from wiloc.cache import TEMP_SUFFIX, Cache, EntryHeader, FrameRecord, StoredEntry, checksum
+from wiloc.cache import TEMP_SUFFIX, Cache
+from wiloc.entries import EntryHeader, FrameRecord, StoredEntry, checksum
 
 
 def _header(folder: str = "/data/route", length: int = 4) -> EntryHeader:

@@ -15,10 +15,12 @@ import numpy as np
 import pytest
 from helpers import FakeSpec, interrupt_after_six_frames, write_images
 
-from wiloc.cache import Cache, EntryHeader
+from wiloc.cache import Cache
 from wiloc.errors import WilocError
 from wiloc.frames import read_gray
-from wiloc.describing import describe_folder, import_matrix
+from wiloc.describing import describe_folder
+from wiloc.entries import EntryHeader
+from wiloc.matrix_import import import_matrix
 
 
 @dataclass(frozen=True)

@@ -173,9 +173,10 @@ _KILLED_RUN = """
 import sys, time
 from pathlib import Path
 import wiloc.describing
+import wiloc.frame_describing
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.cache import Cache
-wiloc.describing.COLOUR_BATCH = 2
+wiloc.frame_describing.COLOUR_BATCH = 2
 batch = DescriptorSpec.compute_batch
 def slow(self, images, threads=0):
     time.sleep(0.2)

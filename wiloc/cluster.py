@@ -63,7 +63,7 @@ class Cluster:
     def in_batches(self, work: Callable[[list[T]], list[R]], items: Sequence[T]) -> Iterator[R]:
         """``work`` (a module-level function, or a partial of one: the workers import it) over
         batches of ``BATCH`` items on the workers; each item's result as its batch finishes, in
-        any order (describe: ``describing.describe_quietly`` over frame tasks)."""
+        any order (describe: ``frame_describing.describe_quietly`` over frame tasks)."""
         batches = [list(items[i:i + BATCH]) for i in range(0, len(items), BATCH)]
         futures = [self.client.submit(work, batch, pure=False) for batch in batches]
         try:

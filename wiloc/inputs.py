@@ -11,9 +11,10 @@ from pathlib import Path
 from typing import Any
 
 from wiloc.cache import Cache
-from wiloc.describing import DescribeReport, import_matrix, import_to_file
+from wiloc.describing import DescribeReport
 from wiloc.descriptors.external import recorded_metric
 from wiloc.errors import ParameterError, WilocError
+from wiloc.matrix_import import import_matrix, import_to_file
 from wiloc.traversals import Progress, stage
 from wiloc.vocabulary import VocabularyParams
 from wiloc.vocabulary_build import VocabularyReport, build_vocabulary, vocabulary_path

@@ -10,12 +10,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from wiloc.cache import Cache, Entry, EntryHeader
-from wiloc.describing import describe_source, import_matrix
+from wiloc.cache import Cache
+from wiloc.describing import describe_source
 from wiloc.descriptors.external import recorded_metric
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
+from wiloc.entries import Entry, EntryHeader
 from wiloc.errors import ParameterError, WilocError
 from wiloc.frames import IMAGE_SUFFIXES
+from wiloc.matrix_import import import_matrix
 from wiloc.bags import is_bag
 from wiloc.video import Sampling, is_video
 

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from wiloc.cache import Cache, EntryHeader, FrameRecord, Journal, scan_journal
+from wiloc.cache import Cache, Journal, scan_journal
+from wiloc.entries import EntryHeader, FrameRecord
 from wiloc.errors import FrameError, WilocError
 from wiloc.features import DTYPES, WIDTHS, decode_size, extract_features
 from wiloc.frames import Fingerprint, fingerprint, list_traversal, read_gray
