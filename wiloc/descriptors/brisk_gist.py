@@ -16,13 +16,16 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.descriptors.base import Descriptor, DescriptorSpec
 from wiloc.parameters import Parameters, param
+
+if TYPE_CHECKING:  # for annotations only: OpenCV loads where it is used
+    import cv2
 
 IMAGE_SIZE = 240
 TILES = 5
