@@ -228,7 +228,7 @@ def test_interrupted_describe_resumes(tmp_path: Path, sig: signal.Signals, jobs:
     from wiloc.descriptors.registry import get_descriptor
 
     folder = tmp_path / "route"
-    count = 32
+    count = 160  # enough work left after the sixth frame for the signal to land before the end, even on a busy machine
     write_images(folder, count)
     cache = Cache(tmp_path / "cache")
     run = interrupt_after_six_frames([_RUN, str(folder), str(cache.root), str(jobs)], cache, sig)
