@@ -28,7 +28,7 @@ from wiloc.inputs import import_descriptors, shared_workers, vocabulary, vocabul
 from wiloc.results import Results, make_results, read_results, write_results
 from wiloc.session import RunSession, results_name, run_meta
 from wiloc.training import Training
-from wiloc.traversals import Progress, descriptor_spec, descriptors_digest, is_matrix_file, open_cluster, stage
+from wiloc.traversals import Progress, descriptor_spec, descriptors_digest, open_cluster, stage
 from wiloc.video import Sampling
 
 if TYPE_CHECKING:
@@ -140,14 +140,12 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
         meta["odometry_topic"] = odometry_topic
     if session.evidence is not None:  # FAB-MAP's training data: the vocabulary's images
         meta.update(rows="fabmap", fabmap_training=session.evidence.training_folders)
-    # what holds for every result of a described query (bow: too few words per image)
-    doubts = [] if is_matrix_file(query) else session.doubts()
     results = make_results(decisions, query_names=q.names, ref_names=r.names, meta=meta)
     replaced = write_results(Path(out), results) if out is not None else False
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
                        decisions=decisions, results=results, path=None if out is None else Path(out),
                        seconds=time.perf_counter() - started, skipped=describer.skipped, replaced=replaced,
-                       warnings=doubts, notes=describer.notes)
+                       warnings=session.doubts(), notes=describer.notes)
 
 
 # ----------------------------------------------------------------------------------------- evaluate

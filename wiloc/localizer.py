@@ -79,7 +79,7 @@ class Localizer:
     def doubts(self) -> list[str]:
         """What makes every decision doubtful (``RunSession.doubts``: bow's sparse vocabulary, a
         map whose images give too few words); none for a map of imported descriptors."""
-        return [] if self._spec is None else self._session.doubts()
+        return self._session.doubts()
 
     @property
     def describer(self) -> Describer:

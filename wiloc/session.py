@@ -31,7 +31,7 @@ from wiloc.methods.base import MapContext, Method, TrainingRows
 from wiloc.methods.registry import make_method
 from wiloc.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.training import Training, training_rows
-from wiloc.traversals import Describer, Progress, descriptor_label, open_cluster, stage
+from wiloc.traversals import Describer, Progress, descriptor_label, is_matrix_file, open_cluster, stage
 
 if TYPE_CHECKING:
     from wiloc.video import Sampling
@@ -233,7 +233,10 @@ class RunSession:
     def doubts(self) -> list[str]:
         """What makes every result of this run doubtful, one line each: its descriptor's (bow: a
         sparse vocabulary), then its query's (a batch run's) and its map's descriptors' (bow:
-        images that give too few words), each naming its folder."""
+        images that give too few words), each naming its folder. None for a run on imported
+        descriptors (a query or map that is a descriptor matrix file): the descriptor did not make them."""
+        if any(path is not None and is_matrix_file(path) for path in (self.query_path, self.map_path)):
+            return []
         kind, params = self.describer.spec.kind, self.describer.spec.params
         return kind.doubts(params) + [
             f"{role} {entry.folder}: {line}" for role, entry in (("query", self.query), ("map", self.map))
