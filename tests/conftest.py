@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,15 @@ def _data_root() -> Path | None:
     env = os.environ.get("WILOC_DATA")
     root = Path(env) if env else REPO.parent / "shared" / "data"
     return root if root.is_dir() else None
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C reaches the processes the tests start. A suite started in the background by a
+    non-interactive shell inherits SIGINT ignored, and so would every process it starts (wiloc,
+    as Python, keeps an ignored SIGINT ignored): the tests that interrupt a run would see it
+    finish. A handler of this process's own is reset to the default in each child."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

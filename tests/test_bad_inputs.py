@@ -436,6 +436,24 @@ def test_ctrl_c_during_an_import_waits_for_the_import_then_stops_the_command(tmp
     assert (result.returncode, result.stdout, result.stderr) == (130, "imported True\n", "error: interrupted\n")
 
 
+def test_ctrl_c_ignored_when_the_command_starts_stays_ignored(tmp_path: Path) -> None:
+    """A command started with Ctrl-C ignored (in the background by a non-interactive shell) runs
+    on through one, as Python itself does."""
+    (tmp_path / "interrupted_module.py").write_text("import signal\nsignal.raise_signal(signal.SIGINT)\n")
+    code = ("import signal, sys, time, wiloc.cli, wiloc.__main__ as entry\n"
+            "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+            "def run(args=None):\n"
+            "    import interrupted_module\n"
+            "    time.sleep(1)\n"
+            "    print('not interrupted', flush=True)\n"
+            "    return 0\n"
+            "wiloc.cli.run = run\n"
+            "sys.exit(entry.main())\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                            env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    assert (result.returncode, result.stdout, result.stderr) == (0, "not interrupted\n", "")
+
+
 def test_ctrl_c_after_the_work_leaves_the_exit_code_alone(route: tuple[Path, Path], tmp_path: Path) -> None:
     """A Ctrl-C while the finished process exits (interpreter teardown) neither kills it nor
     prints anything: the command's own exit code stands."""

@@ -10,7 +10,8 @@ therefore holds Ctrl-C while the main thread imports and delivers it again as so
 is done. An interrupt that a library swallows elsewhere (typer's pydantic, building its
 validators, reports it as "Exception ignored" and goes on) is delivered again too. Once the
 command is done, Ctrl-C no longer kills the process mid-exit: it ends with the command's own exit
-code.
+code. A command started with Ctrl-C ignored (in the background by a non-interactive shell) keeps
+ignoring it, as Python itself does: the shell meant Ctrl-C for the foreground job alone.
 """
 from __future__ import annotations
 
@@ -66,7 +67,8 @@ def _deliver_swallowed_interrupt(unraisable: Any) -> None:
 
 def main() -> int:
     """Run the command line; its exit code."""
-    signal.signal(signal.SIGINT, _on_ctrl_c)  # first: everything after it may import
+    if signal.getsignal(signal.SIGINT) != signal.SIG_IGN:
+        signal.signal(signal.SIGINT, _on_ctrl_c)  # first: everything after it may import
     sys.unraisablehook = _deliver_swallowed_interrupt
     from wiloc.errors import EXIT_INTERRUPTED, interrupted
 
