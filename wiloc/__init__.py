@@ -9,10 +9,10 @@ from __future__ import annotations
 from typing import Any
 
 from wiloc.jitcache import place_numba_cache
+from wiloc.version import __version__
 
 place_numba_cache()  # before numba loads: compiled kernels go under wiloc's cache folder (wiloc/jitcache.py)
 
-__version__ = "0.1.0"
 __all__ = ["Localizer", "__version__", "compare", "describe", "evaluate", "localize"]
 
 

@@ -24,7 +24,7 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc import __version__
+from wiloc.version import __version__
 from wiloc.ahead import computed_ahead
 from wiloc.cache import Cache, Entry
 from wiloc.distances import DifferencesTo, band_extremes

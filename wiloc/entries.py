@@ -21,7 +21,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from wiloc import __version__
+from wiloc.version import __version__
 from wiloc.frames import natural_sorted
 from wiloc.reprs import short_repr
 

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc import __version__
+from wiloc.version import __version__
 from wiloc.atomic import written_whole
 from wiloc.cache import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from wiloc import __version__
+from wiloc.version import __version__
 from wiloc.atomic import written_whole
 from wiloc.errors import WilocError
 from wiloc.traversals import stage

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc import __version__
+from wiloc.version import __version__
 from wiloc.cache import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
 from wiloc.describing import check_sampling, check_topic, is_stream

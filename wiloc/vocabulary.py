@@ -21,7 +21,7 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc import __version__
+from wiloc.version import __version__
 from wiloc.clustering import assign, kmajority, kmeans
 from wiloc.errors import ParameterError, WilocError
 from wiloc.features import DTYPES, extract_features

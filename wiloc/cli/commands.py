@@ -6,7 +6,7 @@ import os
 
 import typer
 
-from wiloc import __version__
+from wiloc.version import __version__
 from wiloc.cli.compare import compare
 from wiloc.cli.core import Command, CommandLine, out
 from wiloc.cli.demo import demo
