@@ -25,7 +25,7 @@ from rich.console import Console
 from rich.table import Table
 
 from wiloc.descriptors.registry import get_descriptor
-from wiloc.differences import ComputedDifferences
+from wiloc.differences import ComputedDifferences, summarize
 from wiloc.distances import DifferencesTo, consecutive
 from wiloc.localizer import Localizer
 from wiloc.methods.base import MapContext, TrainingRows
@@ -83,7 +83,7 @@ def measure(method: str, n_map: int, frames: int, rng: np.random.Generator) -> d
     batch_method = make_method(method, params)
     steps = consecutive(map_data, SPEC.metric, SPEC.scale)
     context = MapContext(sequence=False, exclude_recent=10, n_map=n_map, natural_max=SPEC.natural_max,
-                         map_self=lambda: self_rows, neighbours=lambda: steps,
+                         map_summary=lambda: summarize(self_rows, 10), neighbours=lambda: steps,
                          training=(lambda: pair) if pair is not None else None)
     batch_method.start(context)
     wall, cpu, _ = timed(lambda: batch_method.run(iter(to_map(query).astype(np.float64)), frames))

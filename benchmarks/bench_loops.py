@@ -47,7 +47,7 @@ from scipy import sparse
 
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
-from wiloc.differences import ComputedDifferences, candidate_blocks
+from wiloc.differences import ComputedDifferences, candidate_blocks, summarize
 from wiloc.distances import DifferencesTo
 from wiloc.groundtruth import Truth
 from wiloc.methods.base import Decisions, MapContext
@@ -129,7 +129,7 @@ def decide(loop: Loop, method: str, params: Mapping[str, Any] | None = None,
         raise ValueError(f"{method} on {loop.name}: {problem}")
     to_self = DifferencesTo(loop.data, loop.metric, loop.scale)
     algo.start(MapContext(sequence=True, exclude_recent=exclude_recent, natural_max=loop.natural_max,
-                          map_self=lambda: ComputedDifferences(loop.data, to_self)))
+                          map_summary=lambda: summarize(ComputedDifferences(loop.data, to_self), exclude_recent)))
     rows = candidate_blocks(ComputedDifferences(loop.data, to_self), True, exclude_recent)
     return algo.run(rows, loop.places.size)
 

@@ -66,7 +66,7 @@ from scipy import sparse
 
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
-from wiloc.differences import ComputedDifferences, candidate_blocks
+from wiloc.differences import ComputedDifferences, candidate_blocks, summarize
 from wiloc.distances import DifferencesTo, consecutive
 from wiloc.errors import WilocError
 from wiloc.groundtruth import Truth
@@ -241,7 +241,7 @@ def decide(traversal: Traversal, variant: Variant, method: str = "catgraph",
         raise ValueError(f"{method} on {traversal.name} {variant.name}: {problem}")
     context = MapContext(
         sequence=False, exclude_recent=exclude_recent, n_map=map_data.shape[0], rows="differences",
-        natural_max=traversal.natural_max, map_self=lambda: ComputedDifferences(map_data, to_map),
+        natural_max=traversal.natural_max, map_summary=lambda: summarize(ComputedDifferences(map_data, to_map), exclude_recent),
         neighbours=lambda: consecutive(map_data, traversal.metric, traversal.scale))
     algo.start(context)
     rows = candidate_blocks(ComputedDifferences(query_data, to_map), False, exclude_recent)

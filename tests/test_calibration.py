@@ -8,7 +8,7 @@ from scipy import integrate
 from scipy.special import logsumexp
 
 from wiloc.calibration import RankLikelihood, Unexplained, novelty_weights
-from wiloc.methods.base import run_on_rows
+from wiloc.array_run import run_on_rows
 from wiloc.methods.catgraph import CatGraph
 from wiloc.reliability import reliability_bins
 

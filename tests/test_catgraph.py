@@ -6,7 +6,9 @@ import pytest
 
 from wiloc.errors import WilocError
 from wiloc.methods import base
-from wiloc.methods.base import ArrayRows, Decisions, run_on_rows
+from wiloc.array_run import run_on_rows
+from wiloc.methods.base import Decisions
+from wiloc.rows import ArrayRows
 from wiloc.methods.catgraph import CatGraph
 from wiloc.methods.trajectory import contrast_normalise, posterior_ranking
 

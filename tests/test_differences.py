@@ -14,10 +14,10 @@ import pytest
 from helpers import make_entry
 
 from wiloc.cache import Cache, Entry
-from wiloc.differences import MapSummary, candidate_rows, differences, map_summary, prefetched_blocks, summarize
+from wiloc.differences import candidate_rows, differences, map_summary, prefetched_blocks, summarize
 from wiloc.distances import pairwise
 from wiloc.errors import WilocError
-from wiloc.methods.base import ArrayRows
+from wiloc.rows import ArrayRows, MapSummary
 
 
 class Counter:

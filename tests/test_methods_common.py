@@ -17,7 +17,9 @@ from wiloc.candidates import RANKED, finite_minimum
 from wiloc.errors import ParameterError
 from wiloc.localizer import Localizer
 from wiloc.methods import registry
-from wiloc.methods.base import NEEDS, ROWS, ArrayRows, Decision, Decisions, MapContext, Method, TrainingRows
+from wiloc.differences import summarize
+from wiloc.methods.base import NEEDS, ROWS, Decision, Decisions, MapContext, Method, TrainingRows
+from wiloc.rows import ArrayRows
 from wiloc.parameters import Parameters, declared, param
 
 
@@ -82,7 +84,7 @@ def _context(method: Method, rng: np.random.Generator) -> MapContext:
     train = TrainingRows(list(_rows(np.arange(50, dtype=np.float64), n_map, rng)), labels)
     steps = np.diagonal(ref.array, 1).copy()
     return MapContext(sequence=False, exclude_recent=5, n_map=n_map, natural_max=2.0, rows=_kind(method),
-                      map_self=lambda: ref, neighbours=lambda: steps, training=lambda: train)
+                      map_summary=lambda: summarize(ref, 5), neighbours=lambda: steps, training=lambda: train)
 
 
 def _kind(method: Method) -> str:

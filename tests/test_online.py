@@ -8,7 +8,8 @@ import pytest
 from scipy import stats
 
 from wiloc.errors import WilocError
-from wiloc.methods.base import Decisions, run_on_rows
+from wiloc.array_run import run_on_rows
+from wiloc.methods.base import Decisions
 from wiloc.methods.online import Online, near_miss
 
 INF = np.inf

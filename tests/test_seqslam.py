@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from wiloc.errors import ParameterError, UsageError, WilocError
-from wiloc.methods.base import ArrayRows, Decisions, MapContext, run_on_rows
+from wiloc.array_run import run_on_rows
+from wiloc.methods.base import Decisions, MapContext
+from wiloc.rows import ArrayRows
 from wiloc.methods.seqslam import SeqSLAM, _add_shifted, enhance, lowest_enhanced, trajectory_offsets
 
 N_MAP = 120

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.methods.base import run_on_rows
+from wiloc.array_run import run_on_rows
 from wiloc.methods.threshold import Threshold
 
 

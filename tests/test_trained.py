@@ -7,7 +7,8 @@ import scipy.sparse
 from scipy import stats
 
 from wiloc.errors import WilocError
-from wiloc.methods.base import TrainingRows, run_on_rows
+from wiloc.array_run import run_on_rows
+from wiloc.methods.base import TrainingRows
 from wiloc.methods.trained import Trained, TrainedParams, train_model
 
 

@@ -18,18 +18,18 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
 
 import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.version import __version__
 from wiloc.ahead import computed_ahead
 from wiloc.cache import Cache, Entry
 from wiloc.distances import DifferencesTo, band_extremes
 from wiloc.errors import WilocError
 from wiloc.recycled import RecycledArrays
+from wiloc.rows import MapSummary, RowBlocks
+from wiloc.version import __version__
 
 Progress = Callable[[int, int], None]
 
@@ -41,15 +41,6 @@ EXACT_BLOCK_ROWS = 256
 so that any blocks give the same values: four of the kernel's 64-row panels. Blocks in flight
 are fresh memory at first, and its pages cost faults: at N = 35,000, zeroing four 1,024-row
 blocks took the kernel's threads about 0.9 CPU-s in a cold catgraph run (docs/scaling.md)."""
-
-
-class RowBlocks(Protocol):
-    """A matrix read block of rows by block of rows (e.g. :class:`ComputedDifferences`)."""
-
-    @property
-    def shape(self) -> tuple[int, int]: ...
-
-    def rows(self, start: int, stop: int) -> NDArray[np.floating]: ...
 
 
 #: Computes blocks of query rows against fixed references and yields them in order: the query
@@ -101,16 +92,6 @@ class ComputedDifferences:
         for _, block in self.blocks(block_rows):
             for row in block:
                 yield row.astype(np.float64)
-
-
-@dataclass(frozen=True)
-class MapSummary:
-    """What methods learn from a map's differences to itself: each frame's smallest difference
-    to the frames outside its +-R (inf where there is none) and the largest finite difference
-    (0 when there is none)."""
-
-    minima: NDArray[np.float64]
-    largest: float
 
 
 def _sweep(matrix: RowBlocks) -> Iterator[tuple[int, NDArray[np.floating]]]:
@@ -222,10 +203,9 @@ def candidate_rows(matrix: ComputedDifferences, sequence: bool, exclude_recent: 
 @dataclass(frozen=True)
 class RunDifferences:
     """Where a run's differences come from: its query rows (against the map, or in sequence mode
-    against the traversal itself), the map's differences to itself and their cached summary."""
+    against the traversal itself) and the cached summary of the map's differences to itself."""
 
     rows: ComputedDifferences
-    map_self: Callable[[], ComputedDifferences]
     map_summary: Callable[[], MapSummary]
 
 
@@ -234,5 +214,5 @@ def run_differences(query: Entry, ref: Entry, cache: Cache, exclude_recent: int,
     """The row-block readers of a run of ``query`` against ``ref`` (the same entry in sequence
     mode), computed as read; the map's summary is read from ``cache`` or computed into it on
     first use (``progress`` counts its map rows)."""
-    return RunDifferences(rows=differences(query, ref, runner), map_self=lambda: differences(ref, ref, runner),
+    return RunDifferences(rows=differences(query, ref, runner),
                           map_summary=lambda: map_summary(ref, cache, exclude_recent, runner, progress))

@@ -21,9 +21,9 @@ from typing import Any
 import h5py
 import numpy as np
 
-from wiloc.version import __version__
 from wiloc.frames import natural_sorted
 from wiloc.reprs import short_repr
+from wiloc.version import __version__
 
 FORMAT = "wiloc-descriptors"
 #: 2: every frame's CRC-32 in ``frames/crc32`` and ``failed/crc32``. Files of another version are

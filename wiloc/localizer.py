@@ -21,7 +21,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.version import __version__
 from wiloc.atomic import written_whole
 from wiloc.cache import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
@@ -31,6 +30,7 @@ from wiloc.methods.base import Decision, Method, TrainingRows
 from wiloc.session import RunSession
 from wiloc.training import Training
 from wiloc.traversals import Describer, is_matrix_file
+from wiloc.version import __version__
 from wiloc.video import Sampling
 
 STATE_FORMAT = "wiloc-localizer-state"

@@ -23,10 +23,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from wiloc.version import __version__
 from wiloc.atomic import written_whole
 from wiloc.errors import WilocError
 from wiloc.traversals import stage
+from wiloc.version import __version__
 
 if TYPE_CHECKING:
     import pandas as pd

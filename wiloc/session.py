@@ -18,11 +18,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.version import __version__
 from wiloc.cache import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
 from wiloc.describing import check_sampling, check_topic, is_stream
-from wiloc.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences
+from wiloc.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.distances import DifferencesTo, consecutive, pairwise
 from wiloc.errors import WilocError
 from wiloc.fabmap.evidence import FabMapEvidence
@@ -32,6 +31,7 @@ from wiloc.methods.registry import make_method
 from wiloc.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.training import Training, training_rows
 from wiloc.traversals import Describer, Progress, descriptor_label, is_matrix_file, open_cluster, stage
+from wiloc.version import __version__
 
 if TYPE_CHECKING:
     from wiloc.video import Sampling
@@ -117,21 +117,19 @@ class RunSession:
 
     def context(self, differences: RunDifferences | None = None) -> MapContext:
         """What the method is started on: the map, read lazily and never stored whole. A batch
-        run gives its ``differences`` (from the cache: the map's differences to itself, in
-        sequence mode the query's, and their summary); a streaming run computes the map's."""
+        run gives its ``differences`` (the summary of the map's differences to itself, in sequence
+        mode of the query's, from the cache); a streaming run sweeps the map's when asked."""
         training = self._training_rows if self.training is not None else None
         if self.map is None:
             return MapContext(sequence=True, exclude_recent=self.exclude_recent, rows=self.kind,
                               natural_max=self.natural_max, arclength=self.map_arclength(),
-                              map_self=None if differences is None else differences.map_self,
                               map_summary=None if differences is None else differences.map_summary, training=training)
-        data, metric, scale = self.map.data, self.metric, self.scale
+        data, metric, scale, R = self.map.data, self.metric, self.scale, self.exclude_recent
         return MapContext(
-            sequence=False, exclude_recent=self.exclude_recent, n_map=len(self.map.names), rows=self.kind,
+            sequence=False, exclude_recent=R, n_map=len(self.map.names), rows=self.kind,
             natural_max=self.natural_max, arclength=self.map_arclength(),
-            map_self=differences.map_self if differences is not None
-            else lambda: ComputedDifferences(data, self._to_map),
-            map_summary=None if differences is None else differences.map_summary,
+            map_summary=differences.map_summary if differences is not None
+            else lambda: summarize(ComputedDifferences(data, self._to_map), R),
             neighbours=lambda: consecutive(data, metric, scale), training=training)
 
     def map_arclength(self) -> NDArray[np.float64] | None:

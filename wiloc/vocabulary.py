@@ -21,11 +21,11 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.version import __version__
 from wiloc.clustering import assign, kmajority, kmeans
 from wiloc.errors import ParameterError, WilocError
 from wiloc.features import DTYPES, extract_features
 from wiloc.parameters import Parameters, param
+from wiloc.version import __version__
 
 FORMAT = "wiloc-vocabulary"
 FORMAT_VERSION = 1

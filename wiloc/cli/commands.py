@@ -6,7 +6,6 @@ import os
 
 import typer
 
-from wiloc.version import __version__
 from wiloc.cli.compare import compare
 from wiloc.cli.core import Command, CommandLine, out
 from wiloc.cli.demo import demo
@@ -15,6 +14,7 @@ from wiloc.cli.evaluate import evaluate
 from wiloc.cli.localize import localize
 from wiloc.cli.report import report
 from wiloc.cli.vocabulary import vocabulary
+from wiloc.version import __version__
 
 # FFmpeg inside OpenCV reads its log level once, when cv2 is loaded: keep its lines about damaged
 # videos ("[mpeg4 @ 0x...] header damaged") off the terminal, since wiloc reports them itself.

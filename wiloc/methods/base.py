@@ -27,7 +27,7 @@ from wiloc.parameters import Parameters
 from wiloc.reprs import short_repr
 
 if TYPE_CHECKING:
-    from wiloc.differences import MapSummary, RowBlocks
+    from wiloc.rows import MapSummary
 
 Progress = Callable[[int, int], None]
 
@@ -49,30 +49,11 @@ NEEDS = ("map", "map_self", "map_neighbours", "training", "odometry")
 ROWS = ("differences", "log_ratio")
 
 
-@dataclass(frozen=True)
-class ArrayRows:
-    """An in-memory matrix as a :class:`RowBlocks` reader."""
-
-    array: NDArray[np.floating]
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        rows, cols = np.shape(self.array)
-        return int(rows), int(cols)
-
-    def rows(self, start: int, stop: int) -> NDArray[np.floating]:
-        return np.asarray(self.array[start:stop])
-
-
 def self_summary(context: MapContext) -> MapSummary:
-    """The map's self-difference summary: the one given (cached), else swept from ``map_self``."""
-    if context.map_summary is not None:
-        return context.map_summary()
-    if context.map_self is None:
+    """The summary of the map's differences to itself that the method was started on."""
+    if context.map_summary is None:
         raise WilocError(None, "needs the map's differences to itself", parameter="reference")
-    from wiloc.differences import summarize  # the kernels load where a map is summarized, not with the command line
-
-    return summarize(context.map_self(), context.exclude_recent)
+    return context.map_summary()
 
 
 @dataclass(frozen=True)
@@ -88,10 +69,10 @@ class TrainingRows:
 class MapContext:
     """What a method is started on. Reading the map is lazy: a method reads only what it needs.
 
-    ``map_self`` gives the map's differences to itself (in sequence mode, when given, the run's own
-    matrix), read block of rows by block of rows; ``map_summary`` what methods learn from them
-    (each frame's minimum outside +-R, the largest), when a cache holds it; ``neighbours`` each map
-    frame's difference to the next; ``training`` the labelled pair of ``trained``.
+    ``map_summary`` gives what methods learn from the map's differences to itself (in sequence
+    mode, when given, from the run's own matrix): each frame's minimum outside +-R, the largest;
+    ``neighbours`` each map frame's difference to the next; ``training`` the labelled pair of
+    ``trained``.
     """
 
     sequence: bool
@@ -100,7 +81,6 @@ class MapContext:
     rows: str = "differences"  # what the rows hold: differences (low: alike) or log_ratio (high: alike)
     natural_max: float | None = None  # the descriptor's largest possible difference, if it has one
     arclength: NDArray[np.float64] | None = None  # map node positions along the route (odometry)
-    map_self: Callable[[], RowBlocks] | None = None
     map_summary: Callable[[], MapSummary] | None = None
     neighbours: Callable[[], NDArray[np.float64]] | None = None  # map frame j's difference to frame j + 1
     training: Callable[[], TrainingRows] | None = None
@@ -383,24 +363,3 @@ class Method(ABC):
         if len(steps) != n_frames:
             raise WilocError(self.name, f"got {len(steps)} difference rows, expected n_frames={n_frames}")
         return Decisions.collect(steps, self.columns, ranked=self.ranks, model=self.model, params=self.header())
-
-
-def run_on_rows(method: Method, rows: Iterable[NDArray[np.float64]], n_frames: int, *,
-                map_self: NDArray[np.floating] | RowBlocks | None = None, sequence: bool = False,
-                exclude_recent: int = 10, natural_max: float | None = None,
-                arclength: NDArray[np.float64] | None = None, odometry: NDArray[np.float64] | None = None,
-                training: TrainingRows | None = None, progress: Progress | None = None) -> Decisions:
-    """Start ``method`` on plain arrays and step it over ``rows``: the batch run without files.
-
-    ``map_self`` is the map's difference matrix to itself (an array or a row-block reader); the
-    map's steps (``MapContext.neighbours``) are read off its first off-diagonal.
-    """
-    self_rows = map_self if map_self is None or hasattr(map_self, "rows") else ArrayRows(np.asarray(map_self))
-    steps = None if self_rows is None else \
-        np.array([self_rows.rows(i, i + 1)[0, i + 1] for i in range(self_rows.shape[0] - 1)], dtype=np.float64)
-    method.start(MapContext(sequence=sequence, exclude_recent=exclude_recent,
-                            n_map=0 if self_rows is None else self_rows.shape[0], natural_max=natural_max,
-                            arclength=arclength, map_self=None if self_rows is None else lambda: self_rows,
-                            neighbours=None if steps is None else lambda: steps,
-                            training=None if training is None else lambda: training))
-    return method.run(rows, n_frames, odometry=odometry, progress=progress)

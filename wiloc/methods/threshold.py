@@ -33,7 +33,7 @@ class ThresholdParams(Parameters):
 
 def largest_difference(context: MapContext) -> float:
     """The largest finite difference of the map to itself (0 when it has none)."""
-    if context.map_self is None and context.map_summary is None:
+    if context.map_summary is None:
         raise ParameterError("normaliser", "needed: the descriptor has no largest possible difference "
                                            "and no map differences are at hand to take it from")
     return self_summary(context).largest
