@@ -793,6 +793,40 @@ def test_a_jpeg_over_the_pixel_limit_is_skipped_even_when_decoded_reduced(descri
                                "the environment variable OPENCV_IO_MAX_IMAGE_PIXELS raises it)"]
 
 
+def _cut_short_frames(folder: Path) -> list[str]:
+    """Three more frames of ``folder``, made from its img0.png: a JPEG cut to half its bytes and a
+    PNG cut short (decoders fill such images in, or refuse them), and a whole JPEG followed by
+    bytes after its end marker (as some cameras write); the lines that say the first two were left out."""
+    image = cv2.imread(str(folder / "img0.png"), cv2.IMREAD_GRAYSCALE)
+    jpeg, png = (cv2.imencode(suffix, image)[1].tobytes() for suffix in (".jpg", ".png"))
+    (folder / "img30.jpg").write_bytes(jpeg[: len(jpeg) // 2])
+    (folder / "img31.png").write_bytes(png[: len(png) - 20])
+    (folder / "img32.jpg").write_bytes(jpeg + b"\x00" * 512 + b"trailer")
+    return [f"skipped {folder / 'img30.jpg'}: truncated JPEG (no end-of-image marker)",
+            f"skipped {folder / 'img31.png'}: truncated PNG (no IEND chunk)"]
+
+
+def test_frames_cut_short_are_left_out_with_a_line(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    map_lines = _cut_short_frames(ref)
+    result = runner.invoke(app, ["describe", str(ref), "--json"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    [row] = report["results"]
+    assert (row["frames"], row["failed"], row["shape"][0]) == (33, 2, 31)
+    assert report["warnings"] == [line.replace("skipped ", "skipped: ", 1) for line in map_lines]
+    assert result.stderr.strip().splitlines() == map_lines
+    query_lines = _cut_short_frames(query)
+    out = tmp_path / "run.csv"
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert sorted(line for line in result.stderr.splitlines() if line.startswith("skipped ")) == sorted(map_lines + query_lines)
+    _, *rows = [line for line in out.read_text().splitlines() if not line.startswith("#")]  # the column names, the rows
+    frames = [row.split(",")[0] for row in rows]
+    assert "img32.jpg" in frames and not {"img30.jpg", "img31.png"} & set(frames) and len(frames) == 31
+    assert runner.invoke(app, ["evaluate", str(out)]).exit_code == 0  # the results file reads back
+
+
 def test_a_run_whose_images_changed_cannot_be_drawn(route: tuple[Path, Path], results: Path, tmp_path: Path) -> None:
     _, query = route
     image = cv2.imread(str(query / "img3.png"), cv2.IMREAD_GRAYSCALE)
@@ -829,6 +863,18 @@ def test_observe_refuses_a_file_that_cannot_be_a_frame(localizers: dict[str, Loc
     with pytest.raises(FrameError, match="fifo.png: not a regular file"):
         loc.observe(tmp_path / "fifo.png")  # refused, not read (a FIFO would block)
     assert loc.frames == 0
+
+
+def test_observe_refuses_a_frame_cut_short(localizers: dict[str, Localizer], route: tuple[Path, Path]) -> None:
+    _, query = route
+    _cut_short_frames(query)
+    loc = localizers["gist"]  # gist decodes a JPEG reduced: the cut is found all the same
+    for name, message in (("img30.jpg", "img30.jpg: truncated JPEG"), ("img31.png", "img31.png: truncated PNG")):
+        with pytest.raises(FrameError, match=message):
+            loc.observe(query / name)
+    assert loc.frames == 0
+    loc.observe(query / "img32.jpg")
+    assert loc.frames == 1
 
 
 def test_training_ground_truth_problems_name_the_training_options(route: tuple[Path, Path], tmp_path: Path) -> None:

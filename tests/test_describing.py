@@ -172,8 +172,10 @@ def test_describe_keeps_decoder_warnings_off_stderr(tmp_path: Path) -> None:
     folder = tmp_path / "route"
     names = write_images(folder, 4, size=(160, 120))
     png = (folder / names[1]).read_bytes()
-    (folder / "img4.png").write_bytes(png[: len(png) // 2])  # OpenCV: "[ WARN ...] incomplete"
-    (folder / "img6.png").write_bytes(png[: len(png) * 2 // 3])  # libpng: "libpng error: ..."
+    damaged = bytearray(png)
+    damaged[len(png) // 2] ^= 0xFF
+    (folder / "img4.png").write_bytes(bytes(damaged))  # libpng: "libpng error: IDAT: CRC error"
+    (folder / "img6.png").write_bytes(png[: len(png) * 2 // 3])  # cut: refused before decoding
     jpeg = (folder / names[0]).read_bytes()
     (folder / "img5.jpg").write_bytes(jpeg[: len(jpeg) // 2] + b"\xff\xd9")  # libjpeg: "Corrupt JPEG"
     code = (
@@ -188,7 +190,7 @@ def test_describe_keeps_decoder_warnings_off_stderr(tmp_path: Path) -> None:
         args = [sys.executable, "-c", code, str(folder), str(tmp_path / f"cache{jobs}"), str(jobs)]
         run = subprocess.run(args, capture_output=True, text=True, timeout=120, check=False)
         assert run.returncode == 0, run.stderr
-        assert run.stdout.split() == ["5", "2"]  # the cut PNGs fail; the patched JPEG decodes
+        assert run.stdout.split() == ["5", "2"]  # the damaged and the cut PNG fail; the patched JPEG decodes
         assert "WARN" not in run.stderr
         assert run.stderr == ""  # libpng's and libjpeg's own messages too: stderr is no terminal
 

@@ -80,6 +80,34 @@ def test_an_undecodable_frame_is_retried_then_left_out(route: demo.DemoRoute, tm
     assert now[0] >= SETTLE_SECONDS
 
 
+@pytest.mark.parametrize("name", ["frame001.jpg", "frame001.png"])
+def test_a_frame_whose_writer_pauses_halfway_is_waited_for(route: demo.DemoRoute, name: str, tmp_path: Path,
+                                                           cache_dir: Path) -> None:
+    """Half a file, unchanged over several polls, reads as cut short: it is retried, not left out,
+    and decided once the writer finishes it (within :data:`SETTLE_SECONDS`)."""
+    import cv2
+
+    frames = sorted(route.queries[0].iterdir())[:3]
+    for path in (frames[0], frames[2]):
+        (tmp_path / path.name).write_bytes(path.read_bytes())
+    whole = cv2.imencode(Path(name).suffix, cv2.imread(str(frames[1])))[1].tobytes()
+    (tmp_path / name).write_bytes(whole[: len(whole) // 2])
+    now = [0.0]
+
+    def sleep(seconds: float) -> None:
+        now[0] += seconds
+        if now[0] >= SETTLE_SECONDS / 2 and (tmp_path / name).stat().st_size < len(whole):
+            (tmp_path / name).write_bytes(whole)  # the writer goes on
+
+    decided = {}  # frame -> when it was decided
+    for event in follow(Localizer(route.reference, method="threshold"), FolderWatch(tmp_path), idle=1.0, poll=0.2,
+                        clock=lambda: now[0], sleep=sleep):
+        assert not isinstance(event, Skipped), event
+        decided[event.frame] = now[0]
+    assert sorted(decided) == sorted([frames[0].name, name, frames[2].name])
+    assert decided[name] > SETTLE_SECONDS / 2  # from the whole file, not from its first half
+
+
 def _killed_and_resumed(query: Path, reference: Path, method: str, tmp_path: Path) -> None:
     """Feed ``query`` into a folder, kill the follower halfway, resume: the batch rows."""
     batch = api.localize(query, reference=reference, method=method, out=tmp_path / "batch.csv")

@@ -179,6 +179,37 @@ def test_read_jpeg_with_trailer_after_eoi(tmp_path: Path, params: list[int]) -> 
             read_gray(cut)
 
 
+def test_fill_bytes_before_a_jpeg_marker_are_read_past(tmp_path: Path) -> None:
+    ok, buf = cv2.imencode(".jpg", _textured(32, 48))
+    assert ok
+    whole = buf.tobytes()
+    path = tmp_path / "filled.jpg"
+    path.write_bytes(whole[:-2] + b"\xff" * 5 + whole[-2:])  # FF fill bytes are allowed before any marker
+    assert np.array_equal(read_gray(path), cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE))
+    path.write_bytes(whole[:-2] + b"\xff" * 5)
+    with pytest.raises(FrameError, match="truncated JPEG"):
+        read_gray(path)
+
+
+@pytest.mark.parametrize("side", [16, 400])  # one IDAT chunk, and many (OpenCV writes them 8 KB each)
+def test_a_png_cut_short_is_refused_and_one_with_bytes_after_iend_read(tmp_path: Path, side: int) -> None:
+    ok, buf = cv2.imencode(".png", _textured(side, side))
+    assert ok
+    whole = buf.tobytes()
+    path = tmp_path / "frame.png"
+    for end in (len(whole) - 1, len(whole) - 12, len(whole) // 2, 40):
+        path.write_bytes(whole[:end])
+        with pytest.raises(FrameError, match="truncated PNG") as err:
+            read_gray(path)
+        assert err.value.where == str(path)
+    for end in (len(whole) - 12, len(whole) // 2, 40):  # zero padding does not hide a cut before IEND
+        path.write_bytes(whole[:end] + b"\x00" * 64)
+        with pytest.raises(FrameError, match="truncated PNG"):
+            read_gray(path)
+    path.write_bytes(whole + b"\x00" * 64 + b"IEND")  # what follows IEND is not looked at
+    assert np.array_equal(read_gray(path), cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE))
+
+
 def test_thumbnail_eoi_does_not_hide_a_cut_jpeg(tmp_path: Path) -> None:
     ok, thumb = cv2.imencode(".jpg", _textured(8, 8, 1))
     ok2, main = cv2.imencode(".jpg", _textured(64, 64, 2))

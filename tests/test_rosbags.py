@@ -279,7 +279,7 @@ def test_a_corrupt_compressed_frame_is_skipped(tmp_path: Path, cache_dir: Path) 
     writer.close()
     result = runner.invoke(app, ["describe", str(tmp_path / "run.bag"), "--json"])
     assert result.exit_code == 0, result.output
-    assert f"skipped {tmp_path / 'run.bag'}/{frame_name(stamps(3)[1])}: cannot decode" in result.stderr
+    assert f"skipped {tmp_path / 'run.bag'}/{frame_name(stamps(3)[1])}: truncated PNG (no IEND chunk)" in result.stderr
 
 
 def test_without_rosbags_the_extra_is_named(tmp_path: Path, cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -28,11 +28,16 @@ IMAGE_SUFFIXES: frozenset[str] = frozenset(
     {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 )
 
-# A JPEG marker: FF, optional FF fill bytes, then a code that is neither byte stuffing (00), a
-# restart marker (D0-D7, inside entropy-coded data) nor another fill byte.
-_MARKER = re.compile(rb"\xff\xff*([^\x00\xd0-\xd7\xff])")
+# A JPEG marker: FF, then a code that is neither byte stuffing (00), a restart marker (D0-D7,
+# inside entropy-coded data) nor a fill byte (FF: the marker starts at the last one). Without a
+# repeat for the fill bytes, the search over entropy-coded data runs a fifth faster.
+_MARKER = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")
 _EOI = 0xD9
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_IEND_CHUNK = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # length 0, type, CRC: the chunk a PNG ends with
 _STANDALONE = frozenset({0x01, 0xD8})  # TEM and SOI: markers without a length field
+_SOS = 0xDA
+_SEQUENTIAL_SOF = frozenset({0xC0, 0xC1})  # baseline and extended sequential (Huffman) frames
 _REDUCED_FLAGS = (
     (8, cv2.IMREAD_REDUCED_GRAYSCALE_8),
     (4, cv2.IMREAD_REDUCED_GRAYSCALE_4),
@@ -184,18 +189,46 @@ def _has_eoi(data: NDArray[np.uint8]) -> bool:
     Segments are skipped by their length (so an EXIF thumbnail's own EOI is never taken for the
     image's) and entropy-coded data up to its next marker; whatever follows the EOI (zero
     padding, the trailers some phones append) is not looked at. A cut file runs out first.
+    A sequential frame's scan of all its components is its only one, and entropy-coded data
+    holds no FF D9: such a file is whole when an FF D9 follows the scan's header anywhere,
+    which a search from the file's end finds without reading the scan (7 us instead of 40 on
+    a Gardens Point frame; progressive and other frames are walked through).
     """
-    raw = memoryview(data)
+    raw = data.tobytes()  # indexed and searched a few times faster than the array's memoryview
     pos = 2
+    components = 0  # of a sequential frame
     while (match := _MARKER.search(raw, pos)) is not None:
-        code = match.group(1)[0]
+        pos = match.end()
+        code = raw[pos - 1]
         if code == _EOI:
             return True
-        pos = match.end()
-        if code not in _STANDALONE:
-            if pos + 2 > len(raw):
-                return False
-            pos += int.from_bytes(raw[pos : pos + 2], "big")
+        if code in _STANDALONE:
+            continue
+        if pos + 3 > len(raw):
+            return False
+        length = raw[pos] << 8 | raw[pos + 1]
+        if code in _SEQUENTIAL_SOF and pos + 8 <= len(raw):
+            components = raw[pos + 7]
+        elif code == _SOS and components and raw[pos + 2] == components:
+            return raw.rfind(b"\xff\xd9") >= pos + length
+        pos += length
+    return False
+
+
+def _has_iend(data: NDArray[np.uint8]) -> bool:
+    """Whether a PNG's chunk chain reaches its IEND chunk, whole.
+
+    The chunks (length, type, data, CRC) are walked by their length, so that bytes appended
+    after IEND are not looked at. A cut file runs out first, whatever the decoder OpenCV was
+    built with makes of it. (:func:`_checked` takes a file ending on the IEND chunk, CRC
+    included, as whole without the walk: a cut lands there by a 2^-96 chance.)
+    """
+    pos = len(_PNG_SIGNATURE)
+    while pos + len(_IEND_CHUNK) <= data.size:
+        length_and_type = data[pos : pos + 8].tobytes()
+        if length_and_type[4:] == b"IEND":
+            return True
+        pos += len(_IEND_CHUNK) + int.from_bytes(length_and_type[:4], "big")
     return False
 
 
@@ -256,11 +289,16 @@ def _file_bytes(path: Path) -> NDArray[np.uint8]:
 
 
 def _checked(data: NDArray[np.uint8], path: Path | str) -> NDArray[np.uint8]:
-    """``data``, an encoded image; FrameError naming ``path`` when it is empty or a truncated JPEG."""
+    """``data``, an encoded image; FrameError naming ``path`` when it is empty, or a JPEG or PNG
+    cut short (OpenCV 4.8 and 4.10 decode a cut JPEG as a whole image, its missing part filled in)."""
     if data.size == 0:
         raise FrameError(path, "empty file (0 bytes)")
-    if data.size >= 2 and data[0] == 0xFF and data[1] == 0xD8 and not _has_eoi(data):
-        raise FrameError(path, "truncated JPEG (no end-of-image marker)")
+    head = data[: len(_PNG_SIGNATURE)].tobytes()
+    if head[:2] == b"\xff\xd8":
+        if not _has_eoi(data):
+            raise FrameError(path, "truncated JPEG (no end-of-image marker)")
+    elif head == _PNG_SIGNATURE and data[-len(_IEND_CHUNK):].tobytes() != _IEND_CHUNK and not _has_iend(data):
+        raise FrameError(path, "truncated PNG (no IEND chunk)")
     return data
 
 
