@@ -207,8 +207,8 @@ def test_an_example_descriptor_from_python(with_stripes: None, tmp_path: Path) -
     run = api.localize(query, reference=ref, descriptor="stripes", descriptor_params={"stripes": 4},
                        method="threshold", exclude_recent=0, cache=cache, jobs=1, out=tmp_path / "out.csv")
     assert list(run.results.frames["match"]) == [p.name for p in sorted(ref.iterdir())]  # the same images
-    meta = read_results(tmp_path / "out.csv").meta
-    assert (meta["descriptor"], meta["descriptor_params"]) == ("stripes", {"stripes": 4})
+    header = read_results(tmp_path / "out.csv").header
+    assert (header.descriptor, header.descriptor_params) == ("stripes", {"stripes": 4})
     localizer = Localizer(ref, descriptor="stripes", descriptor_params={"stripes": 4}, method="threshold",
                           exclude_recent=0, cache=cache, jobs=1)
     assert localizer.observe(query / "img007.png").match_name == "img007.png"

@@ -77,8 +77,8 @@ def test_bow_methods_read_fabmap_evidence_and_stream_as_they_batch(setup, method
     query = route.query
     run = api.localize(query, reference=route.reference, descriptor="bow", descriptor_params=bow, method=method,
                        out=tmp_path / "batch.csv", cache=cache)
-    assert run.results.meta["rows"] == "fabmap" and "new_place" in run.results.frames.columns
-    assert run.results.meta["fabmap_training"] == [str(route.training.resolve())]
+    assert run.results.header.rows == "fabmap" and "new_place" in run.results.frames.columns
+    assert run.results.header.fabmap_training == (str(route.training.resolve()),)
     evaluation = api.evaluate(run, TruthSource(tolerance=2))
     assert evaluation.summary.as_dict()["recall_at_1"] >= least  # chance: 5 / 60
     loc = Localizer(route.reference, descriptor="bow", descriptor_params=bow, method=method, cache=cache)
@@ -134,7 +134,7 @@ def test_fabmap_s_own_parameters_reach_its_model_from_the_api_and_the_command_li
     runs = {name: api.localize(route.query, reference=route.reference, descriptor="bow", descriptor_params=bow,
                                method="fabmap", method_params={"new_place": name}, cache=cache,
                                out=tmp_path / f"{name}.csv") for name in ("sampled", "mean-field")}
-    assert runs["mean-field"].results.meta["params"]["new_place"] == "mean-field"
+    assert runs["mean-field"].results.header.params["new_place"] == "mean-field"
     new_place = {name: run.decisions.columns["new_place"] for name, run in runs.items()}
     assert not np.allclose(new_place["sampled"], new_place["mean-field"])  # the model's new place changed
     loc = Localizer(route.reference, descriptor="bow", descriptor_params=bow, method="fabmap", new_place="mean-field",

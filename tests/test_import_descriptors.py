@@ -46,7 +46,7 @@ def _localized(query: Path, ref: Path, out: Path) -> list[tuple[str, str]]:
     """Each query frame and its match, from a localize run given the two files alone."""
     _invoke("localize", query, "--map", ref, "--method", "threshold", "--out", out)
     results = read_results(out)
-    assert results.meta["metric"] == "cosine"
+    assert results.header.metric == "cosine"
     return list(zip(results.frames["frame"], results.frames["match"]))
 
 
@@ -82,9 +82,9 @@ def test_the_recorded_metric_names_the_results_and_an_explicit_one_wins(tmp_path
     _invoke("describe", "--import", feats, "--metric", "sqeuclidean", "--out", tmp_path / "seq.h5")
     result = runner.invoke(app, ["localize", str(tmp_path / "seq.h5"), "--method", "threshold", "-R", "1"])
     assert result.exit_code == 0, result.output
-    assert read_results(Path("seq-external-sqeuclidean-threshold.csv")).meta["metric"] == "sqeuclidean"
+    assert read_results(Path("seq-external-sqeuclidean-threshold.csv")).header.metric == "sqeuclidean"
     _invoke("localize", tmp_path / "seq.h5", "--metric", "l1", "--method", "threshold", "-R", "1", "--out", tmp_path / "l1.csv")
-    assert read_results(tmp_path / "l1.csv").meta["metric"] == "l1"
+    assert read_results(tmp_path / "l1.csv").header.metric == "l1"
 
 
 @pytest.fixture(autouse=True)

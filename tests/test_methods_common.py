@@ -204,7 +204,7 @@ def test_the_example_method_runs_through_localize_and_the_localizer(tmp_path: Pa
     run = api.localize(route.queries[0], reference=route.reference, method="ratio", method_params={"window": 3},
                        out=tmp_path / "ratio.csv", cache=cache)
     assert run.results.frames.columns.tolist()[-2:] == ["second", "ranking"]  # a new method ranks by default
-    assert run.results.meta["params"]["window"] == 3
+    assert run.results.header.params["window"] == 3
     loc = Localizer(route.reference, method="ratio", window=3, cache=cache)
     first = loc.observe(sorted(route.queries[0].iterdir())[0])
     assert first.match_name == run.results.frames["match"].iloc[0]

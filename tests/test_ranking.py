@@ -17,6 +17,7 @@ from wiloc.truth_source import TruthSource
 from wiloc.methods.base import Decisions
 from wiloc.metrics import recall_at_k, summarize
 from wiloc.results import make_results, read_results, write_results
+from wiloc.results_header import ResultsHeader
 
 runner = CliRunner()
 REF = [f"f{i:02d}.png" for i in range(30)]
@@ -116,7 +117,7 @@ def _decisions() -> Decisions:
 
 
 def test_the_ranking_goes_through_the_results_file_and_evaluate_reads_it(tmp_path: Path) -> None:
-    results = make_results(_decisions(), query_names=QUERY, ref_names=REF, meta={"method": "online", "mode": "map"})
+    results = make_results(_decisions(), query_names=QUERY, ref_names=REF, header=ResultsHeader(method="online", mode="map"))
     path = tmp_path / "run.csv"
     write_results(path, results)
     assert "f10.png,f20.png,0.1,0.8,update,20 21 9 0 1 2 3 4 5 6" in path.read_text()
@@ -130,7 +131,7 @@ def test_the_ranking_goes_through_the_results_file_and_evaluate_reads_it(tmp_pat
 
 def test_a_results_file_without_the_column_reports_no_recall_at_k(tmp_path: Path) -> None:
     path = tmp_path / "old.csv"
-    write_results(path, make_results(_decisions(), query_names=QUERY, ref_names=REF, meta={"method": "online"}))
+    write_results(path, make_results(_decisions(), query_names=QUERY, ref_names=REF, header=ResultsHeader(method="online")))
     lines = path.read_text().splitlines()
     path.write_text("\n".join(l if l.startswith("# ") else l.rsplit(",", 1)[0] for l in lines) + "\n")
     old = read_results(path)

@@ -10,6 +10,7 @@ from wiloc.errors import WilocError
 from wiloc.methods.base import Decisions
 from wiloc.model import HistogramModel
 from wiloc.results import make_results, read_results, write_results
+from wiloc.results_header import ResultsHeader
 
 
 def _decisions() -> Decisions:
@@ -25,7 +26,7 @@ def _decisions() -> Decisions:
 def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
     write_results(path, make_results(_decisions(), query_names=["q,1.png", "q2.png", "q 3.png"],
-                                     ref_names=["r0.png", "r1.png", "r#2.png"], meta={"method": "online", "query": "/x"}))
+                                     ref_names=["r0.png", "r1.png", "r#2.png"], header=ResultsHeader(method="online", query="/x")))
     back = read_results(path)
     assert back.method == "online"
     assert back.frames["frame"].tolist() == ["q,1.png", "q2.png", "q 3.png"]
@@ -34,7 +35,7 @@ def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
     assert np.isnan(back.confidence[0]) and back.confidence[1] == pytest.approx(0.9)
     assert back.frames["m_r"].iloc[1] == pytest.approx(0.7)
     assert back.ranking.tolist() == [[-1, -1], [2, 1], [0, -1]]
-    assert back.meta["params"] == {"init": 1}
+    assert back.header.params == {"init": 1}
     assert back.model is not None and back.model.b.tolist() == [1.0, 1.0, 0.0, 0.0]
     assert not list(tmp_path.glob(".*tmp"))
 
@@ -42,10 +43,45 @@ def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
 def test_header_names_the_run(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
     write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
-                                     meta={"method": "threshold", "descriptor": "sad", "wiloc": "0.1.0"}))
+                                     header=ResultsHeader(method="threshold", descriptor="sad", wiloc="0.1.0")))
     head = path.read_text(encoding="utf-8").splitlines()[:4]
     assert head[0] == "# wiloc-results: 1"
     assert "# method: threshold" in head and "# descriptor: sad" in head
+
+
+def test_every_header_field_survives_a_write_and_a_read(tmp_path: Path) -> None:
+    header = ResultsHeader(method="online", descriptor="external:cosine", descriptor_params={"crop": [1, 2]},
+                           metric="cosine", mode="map", query="/q", map="/r", exclude_recent=7, wiloc="9.9",
+                           train_query="/tq", train_map="/tr", query_digest="ab", map_digest="cd",
+                           sampling={"every": 2, "fps": None, "start": "1.5s", "stop": None}, topic="/cam",
+                           odometry_topic="/odom", rows="fabmap", fabmap_training=("/t 1", "/t'2"),
+                           extra={"note": "kept as text"})
+    path = tmp_path / "run.csv"
+    written = make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], header=header)
+    write_results(path, written)
+    assert read_results(path).header == written.header
+    assert written.header.model is not None and written.header.frames == 3
+
+
+def test_an_older_file_without_newer_keys_reads_with_their_defaults(tmp_path: Path) -> None:
+    path, text = _written(tmp_path)
+    kept = [line for line in text.splitlines()
+            if not line.startswith(("# exclude_recent", "# descriptor", "# metric", "# wiloc:", "# model"))]
+    path.write_text("\n".join(kept) + "\n", encoding="utf-8")
+    header = read_results(path).header
+    assert (header.exclude_recent, header.descriptor, header.descriptor_params, header.metric, header.model) == \
+        (0, None, {}, "", None)
+    assert header.query_digest is None and header.sampling is None and not header.follow
+
+
+def test_a_header_key_this_version_does_not_know_is_kept_as_text(tmp_path: Path) -> None:
+    path, text = _written(tmp_path)
+    path.write_text(text.replace("# mode: map", "# mode: map\n# colour: {\"blue\": 1}"), encoding="utf-8")
+    header = read_results(path).header
+    assert header.extra == {"colour": '{"blue": 1}'} and header.mode == "map"
+    again = tmp_path / "again.csv"
+    write_results(again, read_results(path))
+    assert "# colour: {\"blue\": 1}\n" in again.read_text(encoding="utf-8")
 
 
 def test_not_a_results_file(tmp_path: Path) -> None:
@@ -57,7 +93,7 @@ def test_not_a_results_file(tmp_path: Path) -> None:
 
 def test_missing_column_and_duplicates(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
-    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], meta={}))
+    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], header=ResultsHeader()))
     text = path.read_text(encoding="utf-8")
     path.write_text(text.replace("confidence", "conf"), encoding="utf-8")
     with pytest.raises(WilocError, match="missing column"):
@@ -75,7 +111,7 @@ def test_missing_file() -> None:
 
 def test_cut_file_and_binary_file_are_refused(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
-    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], meta={}))
+    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], header=ResultsHeader()))
     text = path.read_text(encoding="utf-8")
     path.write_text(text[: text.rindex("\n", 0, len(text) - 1) + 1], encoding="utf-8")
     with pytest.raises(WilocError, match="holds 2 rows, its header says 3"):
@@ -88,7 +124,7 @@ def test_cut_file_and_binary_file_are_refused(tmp_path: Path) -> None:
 def _written(tmp_path: Path) -> tuple[Path, str]:
     path = tmp_path / "run.csv"
     write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
-                                     meta={"mode": "map", "exclude_recent": 10}))
+                                     header=ResultsHeader(mode="map", exclude_recent=10)))
     return path, path.read_text(encoding="utf-8")
 
 
@@ -100,6 +136,9 @@ def _written(tmp_path: Path) -> tuple[Path, str]:
     (lambda t: t.replace('# reference_frames: ["x", "y", "z"]', "# reference_frames: 3"),
      "'reference_frames' must be a list"),
     (lambda t: t.replace("# exclude_recent: 10", "# exclude_recent: ten"), "'exclude_recent' must be a whole number"),
+    (lambda t: t.replace("# frames: 3", "# frames: three"), "'frames' must be a whole number"),
+    (lambda t: t.replace('# params: {"init": 1}', "# params: [1]"), "header 'params' must be a JSON object"),
+    (lambda t: t.replace('["x", "y", "z"]', '["x", "y", "x"]'), "header 'reference_frames' names 'x' twice"),
     (lambda t: t.replace('"edges": [', '"edges": ["x", '), "header 'model' is not a histogram model"),
     (lambda t: t.replace(",2 1\n", ",2 one\n"), r"line \d+: ranking '2 one' is not positions separated by spaces"),
     (lambda t: t.replace(",2 1\n", ",2 7\n"), r"line \d+: ranking names position 7; the map has 3 frames"),
@@ -126,7 +165,7 @@ def test_a_replaced_file_keeps_its_mode_and_killed_writers_leave_nothing(tmp_pat
     orphan = tmp_path / f".run.csv.{dead}.abc123.tmp"
     orphan.write_text("half a file")
     assert write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
-                                            meta={}))
+                                            header=ResultsHeader()))
     assert path.stat().st_mode & 0o777 == 0o640
     assert not orphan.exists()
 
@@ -144,7 +183,7 @@ def test_a_write_that_fails_leaves_the_old_file_and_says_so_in_one_line(tmp_path
     monkeypatch.setattr(pd.DataFrame, "to_csv", full_disk)
     with pytest.raises(WilocError, match=r"cannot write the results file \(No space left on device\)"):
         write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
-                                         meta={}))
+                                         header=ResultsHeader()))
     assert path.read_text(encoding="utf-8") == text
     assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no temporary file left
 

@@ -198,7 +198,7 @@ def test_odometry_topic_gives_the_distance_between_frames(tmp_path: Path, cache_
     ref = write_bag(tmp_path / "ref", "ros1", scenes(10), odometry="/odom")
     every = api.Sampling(every=3)
     run = api.localize(bag, reference=ref, method="catgraph", odometry_topic="/odom", sampling=every)
-    assert run.results.meta["odometry_topic"] == "/odom" and len(run.decisions) == 4
+    assert run.results.header.odometry_topic == "/odom" and len(run.decisions) == 4
     csv = tmp_path / "odometry.csv"  # the same positions as an odometry CSV: the same decisions
     csv.write_text("".join(f"{name},{0.2 * (3 * k) ** 2},0\n" for k, name in enumerate(names)))
     given = api.localize(bag, reference=ref, method="catgraph", odometry=csv, map_odometry=csv, sampling=every)

@@ -4,6 +4,7 @@ LaTeX."""
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -72,8 +73,8 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
         assert result.exit_code == 0, result.output
     for query in ("day_left", "night_right"):
         results = read_results(out / f"{query}-sad-online.csv")
-        results.meta["descriptor"] = "brisk-gist"
-        write_results(out / f"{query}-brisk-gist-online.csv", results)
+        write_results(out / f"{query}-brisk-gist-online.csv",
+                      replace(results, header=replace(results.header, descriptor="brisk-gist")))
     names = [str(data / "day_right"), "catgraph/sad", "online/brisk-gist", "threshold/sad",
              *(path.name for path in out.glob("*.csv"))]
     return tmp, names

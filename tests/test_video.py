@@ -365,7 +365,7 @@ def test_nordland_videos_localize_as_the_folders_do(data_root: Path, tmp_path: P
                       (on_video.decisions.confidence, on_folder.decisions.confidence),
                       (on_video.decisions.difference, on_folder.decisions.difference)]:
         np.testing.assert_array_equal(got, want)
-    assert on_video.results.meta["descriptor"] == "sad" and on_video.results.meta["sampling"]["every"] == 1
+    assert on_video.results.header.descriptor == "sad" and on_video.results.header.sampling["every"] == 1
 
 
 def test_a_video_against_a_folder_of_its_frames_samples_the_video_and_aligns_by_position(tmp_path: Path) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -26,7 +26,7 @@ from wiloc.follow_run import FollowRun, follow_folder
 from wiloc.truth_source import TruthSource
 from wiloc.inputs import import_descriptors, shared_workers, vocabulary, vocabulary_file
 from wiloc.results import Results, make_results, read_results, write_results
-from wiloc.session import RunSession, results_name, run_meta
+from wiloc.session import RunSession, results_name, run_header
 from wiloc.training import Training
 from wiloc.traversals import Progress, descriptor_spec, descriptors_digest, open_cluster, stage
 from wiloc.video import Sampling
@@ -129,18 +129,15 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     rows = session.batch_rows()
     decisions = session.method.run(rows, len(q.names), odometry=session.query_steps(),
                                    progress=stage(progress, f"{method} {query.name}"))
-    meta = run_meta(method, describer, query, q.metric, reference, R, training)
-    meta.update(query_digest=descriptors_digest(q.names, q.data),
-                map_digest="" if session.sequence else descriptors_digest(r.names, r.data))
-    if any(is_stream(Path(source)) for source in (query, reference) if source is not None):
-        meta["sampling"] = asdict(sampling or Sampling())
-    if topic is not None:
-        meta["topic"] = topic
-    if odometry_topic is not None:
-        meta["odometry_topic"] = odometry_topic
-    if session.evidence is not None:  # FAB-MAP's training data: the vocabulary's images
-        meta.update(rows="fabmap", fabmap_training=session.evidence.training_folders)
-    results = make_results(decisions, query_names=q.names, ref_names=r.names, meta=meta)
+    streamed = any(is_stream(Path(source)) for source in (query, reference) if source is not None)
+    evidence = session.evidence  # FAB-MAP's training data: the vocabulary's images
+    header = replace(run_header(method, describer, query, q.metric, reference, R, training),
+                     query_digest=descriptors_digest(q.names, q.data),
+                     map_digest="" if session.sequence else descriptors_digest(r.names, r.data),
+                     sampling=asdict(sampling or Sampling()) if streamed else None, topic=topic,
+                     odometry_topic=odometry_topic, rows="fabmap" if evidence is not None else None,
+                     fabmap_training=tuple(evidence.training_folders) if evidence is not None else None)
+    results = make_results(decisions, query_names=q.names, ref_names=r.names, header=header)
     replaced = write_results(Path(out), results) if out is not None else False
     return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
                        decisions=decisions, results=results, path=None if out is None else Path(out),

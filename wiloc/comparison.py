@@ -48,11 +48,11 @@ class Evaluation:
     @property
     def name(self) -> str:
         """The results file's name, or for a run in memory its query traversal and method."""
-        return self.path.name if self.path else f"{Path(str(self.results.meta.get('query', ''))).name}-{self.method}"
+        return self.path.name if self.path else f"{Path(self.results.header.query).name}-{self.method}"
 
     @property
     def traversal(self) -> str:
-        return Path(str(self.results.meta.get("query") or self.name)).name
+        return Path(self.results.header.query or self.name).name
 
     @property
     def method(self) -> str:
@@ -82,10 +82,9 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
     ground truth, and of its P(new place) where the run gives one. Recall@N for each N of
     ``recall_at`` when the run ranks the map."""
     query_names = results.frames["frame"].tolist()
-    sequence = results.meta.get("mode") == "sequence"
+    header = results.header
     ref_names = results.reference_frames or query_names
-    loaded = truth.load(query_names, ref_names, str(results.meta.get("query", "")), sequence,
-                        int(results.meta.get("exclude_recent", 0) or 0), str(results.meta.get("map") or ""))
+    loaded = truth.load(query_names, ref_names, header.query, header.sequence, header.exclude_recent, header.map)
     match = results.match_index
     summary = summarize(match, results.confidence, loaded, results.ranking, recall_at)
     correct = correct_matches(match, loaded)
@@ -123,13 +122,13 @@ class Comparison:
 def traversal_labels(evaluations: Sequence[Evaluation]) -> list[str]:
     """Each run's query traversal: its folder name, or as many trailing parts of its path as keep
     apart traversals of one name from different folders (say, two datasets' ``winter``)."""
-    return short_names([str(e.results.meta.get("query") or e.name) for e in evaluations])
+    return short_names([e.results.header.query or e.name for e in evaluations])
 
 
 def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
     """One distinct table label per (method, traversal) run; see :class:`Comparison`."""
-    with_descriptor = len({e.results.meta.get("descriptor") for e in evaluations}) > 1
-    bases = [f"{e.method}/{e.results.meta.get('descriptor')}" if with_descriptor else e.method
+    with_descriptor = len({e.results.header.descriptor for e in evaluations}) > 1
+    bases = [f"{e.method}/{e.results.header.descriptor}" if with_descriptor else e.method
              for e in evaluations]
     pairs = list(zip(bases, traversal_labels(evaluations)))
     files = [str(Path(name).with_suffix("")) if e.path else name  # as many folders as tell the files apart
@@ -217,8 +216,9 @@ def run_subject(evaluations: Sequence[Evaluation], truth: TruthSource) -> str:
     """What a figure of these runs shows, for its title: the dataset (the query folders' parent
     folder), the descriptor and the ground truth with its tolerance, e.g.
     ``gardens-point-walking, sad, aligned by name, +-2 frames``."""
-    datasets = dict.fromkeys(Path(str(e.results.meta.get("query", ""))).parent.name or "?" for e in evaluations)
-    descriptors = dict.fromkeys(str(e.results.meta.get("descriptor", "?")) for e in evaluations)
+    datasets = dict.fromkeys(Path(e.results.header.query).parent.name or "?" for e in evaluations)
+    descriptors = dict.fromkeys("?" if e.results.header.descriptor is None else e.results.header.descriptor
+                                for e in evaluations)
     return f"{' + '.join(datasets)}, {' + '.join(descriptors)}, {truth.describe()}"
 
 

@@ -4,7 +4,7 @@ wrote before is resumed (``wiloc.api.follow_folder``)."""
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +15,7 @@ from wiloc.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localizer import Localizer
 from wiloc.methods.base import Decision
 from wiloc.results import RANKING, ResultsStream
-from wiloc.session import results_name, run_meta
+from wiloc.session import results_name, run_header
 from wiloc.training import Training
 
 
@@ -65,13 +65,13 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
     localizer = Localizer(reference, descriptor=descriptor, descriptor_params=descriptor_params, method=method,
                           exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
                           cache=cache, jobs=jobs, **dict(method_params or {}))
-    meta = {**run_meta(method, localizer.describer, query, localizer.metric, reference, localizer.exclude_recent,
-                       training),
-            "params": localizer.method.header(),
-            "reference_frames": [] if reference is None else localizer.map_names}
+    header = replace(run_header(method, localizer.describer, query, localizer.metric, reference,
+                                localizer.exclude_recent, training),
+                     params=localizer.method.header(),
+                     reference_frames=() if reference is None else tuple(localizer.map_names))
     path = Path(out) if out else Path.cwd() / results_name(query, method, descriptor)
     ranked = (RANKING,) if localizer.method.ranks else ()
-    stream = ResultsStream(path, meta, (*localizer.method.columns, *ranked), resume=True)
+    stream = ResultsStream(path, header, (*localizer.method.columns, *ranked), resume=True)
     names = stream.rows["frame"].tolist()
     for name, line in zip(names, stream.written_lines()):
         decision = localizer.observe(query / name)

@@ -145,11 +145,9 @@ def _browser_run(name: str, e: Evaluation, images: Thumbnails, notes: list[str],
     """One run for the frame browser: per query frame its name, match, true place, confidence,
     P(new place), verdict and the indices of the three images (-1: none). Images that are no longer
     the run's (``run_figures.checked_entries``) are not shown, and the page says why."""
-    from wiloc.run_figures import checked_entries, true_places, unchecked_folders
+    from wiloc.run_figures import checked_entries, run_traversals, true_places, unchecked_folders
 
-    meta = e.results.meta
-    query = Path(str(meta.get("query", "")))
-    reference = query if meta.get("mode") == "sequence" else Path(str(meta.get("map", "")))
+    query, reference, _ = run_traversals(e)
     names = e.results.frames["frame"].tolist()
     ref_names = e.results.reference_frames or names
     match, place = e.results.match_index, true_places(e)

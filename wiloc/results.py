@@ -1,20 +1,19 @@
 """Results files: one CSV per query traversal with a self-describing header.
 
 Layout (documented in docs/formats.md): header lines start with ``# `` and hold ``key: value``
-pairs (values of ``params``, ``model`` and ``reference_frames`` are JSON); the first is
-``# wiloc-results: 1``. Then a plain CSV table, one row per query frame. Batch files are written
-to a temporary name and renamed, so a killed run never leaves a file that looks complete. A
-followed run's file (``follow: true`` in its header, no ``frames`` count) grows a row per frame
-as it is decided: each row is one write, and a torn last row is cut off when the run resumes.
+pairs, read and written by ``wiloc.results_header``; the first is ``# wiloc-results: 1``. Then a
+plain CSV table, one row per query frame. Batch files are written to a temporary name and
+renamed, so a killed run never leaves a file that looks complete. A followed run's file
+(``follow: True`` in its header, no ``frames`` count) grows a row per frame as it is decided:
+each row is one write, and a torn last row is cut off when the run resumes.
 """
 from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,31 +25,30 @@ from wiloc.errors import WilocError
 from wiloc.methods.base import Decision, Decisions
 from wiloc.model import HistogramModel
 from wiloc.reprs import short_repr
+from wiloc.results_header import ResultsHeader, parse_header, read_header
 
-FORMAT_VERSION = "1"
 BASE_COLUMNS = ("frame", "match", "difference", "confidence", "stage")
 RANKING = "ranking"  # the column of each frame's best candidates (methods that rank; docs/formats.md)
 NEW_PLACE = "new_place"  # the column of each frame's P(new place) (methods that say it: docs/formats.md)
 TEXT_COLUMNS = ("frame", "match", "stage", RANKING)
-JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "sampling")
 
 
 @short_repr
 @dataclass
 class Results:
-    """One localization run: what was run (``meta``) and what it decided (``frames``)."""
+    """One localization run: what was run (``header``) and what it decided (``frames``)."""
 
-    meta: dict[str, Any]
+    header: ResultsHeader
     frames: pd.DataFrame
     reference_frames: list[str] = field(default_factory=list)
 
     @property
     def method(self) -> str:
-        return str(self.meta.get("method", ""))
+        return self.header.method
 
     @property
     def model(self) -> HistogramModel | None:
-        data = self.meta.get("model")
+        data = self.header.model
         return HistogramModel.from_dict(data) if data else None
 
     @property
@@ -115,24 +113,23 @@ def decisions_to_frame(decisions: Decisions, query_names: list[str], ref_names: 
     return pd.DataFrame(table)
 
 
-def _write_atomically(path: Path, header: dict[str, Any], write_table: Any, mode: int | None = None) -> None:
+def _write_atomically(path: Path, header: ResultsHeader, write_table: Any, mode: int | None = None) -> None:
     """Write the header lines and then ``write_table(file)``, whole or not at all
     (``atomic.written_whole``). The file gets ``mode``, else the usual new-file mode."""
     with written_whole(path, "the results file", mode=mode) as out:
-        for key, value in header.items():
-            text = json.dumps(value) if key in JSON_KEYS else str(value)
-            out.write(f"# {key}: {text}\n")
+        out.write(header.text())
         write_table(out)
 
 
 def make_results(decisions: Decisions, *, query_names: list[str], ref_names: list[str],
-                 meta: dict[str, Any]) -> Results:
-    """A run's results in memory, with the header a results file holds."""
+                 header: ResultsHeader) -> Results:
+    """A run's results in memory, with the header a results file holds: ``header`` (what was
+    run) completed with the row count, the method's parameters, its model and the map's frames."""
     frame = decisions_to_frame(decisions, query_names, ref_names)
-    header = {"wiloc-results": FORMAT_VERSION, **meta, "frames": len(frame), "params": decisions.params,
-              "model": decisions.model.to_dict() if decisions.model is not None else None,
-              "reference_frames": list(ref_names)}
-    return Results(meta=header, frames=frame, reference_frames=list(ref_names))
+    header = replace(header, frames=len(frame), params=decisions.params,
+                     model=decisions.model.to_dict() if decisions.model is not None else None,
+                     reference_frames=tuple(ref_names))
+    return Results(header=header, frames=frame, reference_frames=list(ref_names))
 
 
 def write_results(path: Path, results: Results) -> bool:
@@ -141,7 +138,7 @@ def write_results(path: Path, results: Results) -> bool:
     path = Path(path)
     replaced = path.exists()
     mode = path.stat().st_mode & 0o7777 if replaced else None
-    _write_atomically(path, results.meta,
+    _write_atomically(path, results.header,
                       lambda out: results.frames.to_csv(out, index=False, float_format="%.9g"), mode=mode)
     return replaced
 
@@ -162,22 +159,22 @@ def _csv_line(cells: list[Any]) -> str:
 class ResultsStream:
     """A followed run's results file, written row by row as frames are decided.
 
-    Opening it writes the header (``follow: true``, no ``frames`` count, no model) and the column
+    Opening it writes the header (``follow: True``, no ``frames`` count, no model) and the column
     line atomically, unless ``resume`` and the file exists: then a torn last row is cut off and
     :attr:`rows` holds the rows already written (as text), for the caller to replay and check.
     Each :meth:`append` is one write of one whole line, so the file never holds half a row.
     """
 
-    def __init__(self, path: Path, meta: dict[str, Any], columns: tuple[str, ...], *, resume: bool) -> None:
+    def __init__(self, path: Path, header: ResultsHeader, columns: tuple[str, ...], *, resume: bool) -> None:
         self.path = Path(path)
         self.columns = (*BASE_COLUMNS, *columns)
-        self.header = {"wiloc-results": FORMAT_VERSION, **meta, "follow": True}
+        self.header = replace(header, follow=True)
         self.rows = pd.DataFrame(columns=list(self.columns))
         if resume and self.path.exists():
             self._repair()
             found, self.rows, _ = _read_table(self.path)
-            expected = {k: json.loads(json.dumps(v)) if k in JSON_KEYS else str(v) for k, v in self.header.items()}
-            if {k: v for k, v in found.items() if k != "wiloc"} != {k: v for k, v in expected.items() if k != "wiloc"}:
+            expected = parse_header(self.header.text().splitlines(), self.path)  # as a file gives it back
+            if replace(found, wiloc="") != replace(expected, wiloc=""):  # another version may go on
                 raise WilocError(None, f"{self.path} holds a run with other settings; give another file to start anew",
                                  parameter="out")
         else:
@@ -216,8 +213,8 @@ def read_results(path: Path) -> Results:
     """Read a results file written by :func:`write_results` (or a followed run's); WilocError
     naming the file and line when it is not one or holds something no run writes."""
     path = Path(path)
-    meta, frames, first_line = _read_table(path)
-    reference = _reference_frames(path, meta, frames)
+    header, frames, first_line = _read_table(path)
+    reference = _reference_frames(path, header, frames)
     known = set(reference)
     for i, match in enumerate(frames["match"]):
         if match and match not in known:
@@ -231,14 +228,9 @@ def read_results(path: Path) -> Results:
             i = int(np.flatnonzero(bad.to_numpy())[0])
             raise WilocError(path, f"line {first_line + i}: {column} '{frames[column].iloc[i]}' is not a number")
         frames[column] = numbers.astype(np.float64)
-    _check_probabilities(path, frames, str(meta.get("method", "")), first_line)
+    _check_probabilities(path, frames, header.method, first_line)
     _check_decided(path, frames, first_line)
-    if meta.get("model"):
-        try:
-            HistogramModel.from_dict(meta["model"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise WilocError(path, f"header 'model' is not a histogram model ({exc})") from None
-    return Results(meta=meta, frames=frames, reference_frames=reference)
+    return Results(header=header, frames=frames, reference_frames=reference)
 
 
 def _check_probabilities(path: Path, frames: pd.DataFrame, method: str, first_line: int) -> None:
@@ -293,20 +285,12 @@ def _check_ranking(path: Path, frames: pd.DataFrame, reference: list[str], first
             raise WilocError(path, f"line {first_line + i}: {problem}")
 
 
-def _reference_frames(path: Path, meta: dict[str, Any], frames: pd.DataFrame) -> list[str]:
+def _reference_frames(path: Path, header: ResultsHeader, frames: pd.DataFrame) -> list[str]:
     """The frames matches may name: the header's ``reference_frames``; in sequence mode, when a
     followed run could not list them up front, the query frames themselves."""
-    reference = meta.get("reference_frames")
-    if reference is not None and (not isinstance(reference, list) or not all(isinstance(n, str) for n in reference)):
-        raise WilocError(path, "header 'reference_frames' must be a list of frame names")
-    if "exclude_recent" in meta and not str(meta["exclude_recent"]).isdigit():
-        raise WilocError(path, f"header 'exclude_recent' must be a whole number >= 0, got {meta['exclude_recent']!r}")
-    if reference:
-        twice = pd.Index(reference)[pd.Index(reference).duplicated()]
-        if len(twice):  # a match by that name would be a place at either position
-            raise WilocError(path, f"header 'reference_frames' names '{twice[0]}' twice")
-        return list(reference)
-    if meta.get("mode") == "sequence":
+    if header.reference_frames:
+        return list(header.reference_frames)
+    if header.sequence:
         return frames["frame"].tolist()
     raise WilocError(path, "no 'reference_frames' header: the map frames the matches name are unknown")
 
@@ -318,31 +302,11 @@ def _torn(path: Path) -> bool:
         return handle.read(1) != b"\n"
 
 
-def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame, int]:
+def _read_table(path: Path) -> tuple[ResultsHeader, pd.DataFrame, int]:
     """A results file's header, its table (every cell as text) and the line number of the
     table's first row."""
-    if not path.is_file():
-        raise WilocError(path, "results file does not exist")
-    meta: dict[str, Any] = {}
-    n_header = 0
-    try:
-        with path.open(encoding="utf-8-sig") as handle:  # a byte-order mark (an editor's) is skipped
-            for line in handle:
-                if not line.startswith("# "):
-                    break
-                key, sep, value = line[2:].rstrip("\n").partition(": ")
-                if not sep:
-                    raise WilocError(path, f"malformed header line {n_header + 1}")
-                try:
-                    meta[key] = json.loads(value) if key in JSON_KEYS else value
-                except json.JSONDecodeError as exc:
-                    raise WilocError(path, f"header '{key}' is not valid JSON ({exc.msg})") from None
-                n_header += 1
-    except UnicodeDecodeError:
-        raise WilocError(path, "not a wiloc results file (not UTF-8 text)") from None
-    if meta.get("wiloc-results") != FORMAT_VERSION:
-        raise WilocError(path, "not a wiloc results file (no '# wiloc-results: 1' header)")
-    if meta.get("follow") == "True" and _torn(path):
+    header, n_header = read_header(path)
+    if header.follow and _torn(path):
         raise WilocError(path, "its last row is cut short (no line end): the followed run stopped while writing "
                                "it, or is writing it now; read the file again, or resume the run, which cuts it off")
     try:
@@ -352,10 +316,10 @@ def _read_table(path: Path) -> tuple[dict[str, Any], pd.DataFrame, int]:
     missing = [c for c in BASE_COLUMNS if c not in frames.columns]
     if missing:
         raise WilocError(path, f"missing column(s): {', '.join(missing)}")
-    if "frames" in meta and str(len(frames)) != meta["frames"]:
-        raise WilocError(path, f"holds {len(frames)} rows, its header says {meta['frames']}: "
+    if header.frames is not None and len(frames) != header.frames:
+        raise WilocError(path, f"holds {len(frames)} rows, its header says {header.frames}: "
                                "the file is incomplete or was edited")
     if frames["frame"].duplicated().any():
         dup = frames["frame"][frames["frame"].duplicated()].iloc[0]
         raise WilocError(path, f"duplicate row for frame '{dup}'")
-    return meta, frames, n_header + 2
+    return header, frames, n_header + 2

@@ -104,12 +104,11 @@ def true_places(evaluation: Evaluation) -> NDArray[np.int64]:
     return place
 
 
-def _traversals(evaluation: Evaluation) -> tuple[Path, Path, bool]:
+def run_traversals(evaluation: Evaluation) -> tuple[Path, Path, bool]:
     """(query, reference, sequence mode) as the results header names them."""
-    meta = evaluation.results.meta
-    query = Path(str(meta.get("query", "")))
-    sequence = meta.get("mode") == "sequence"
-    return query, query if sequence else Path(str(meta.get("map", ""))), sequence
+    header = evaluation.results.header
+    query = Path(header.query)
+    return query, query if header.sequence else Path(header.map), header.sequence
 
 
 def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]:
@@ -120,13 +119,13 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
     from wiloc.traversals import Describer, descriptors_digest
     from wiloc.video import Sampling
 
-    meta = evaluation.results.meta
-    descriptor, _, metric = str(meta.get("descriptor", "sad")).partition(":")  # external:METRIC, an imported matrix
-    sampling = meta.get("sampling")
-    describer = Describer(descriptor, dict(meta.get("descriptor_params") or {}), cache, metric=metric or None,
-                          sampling=Sampling(**sampling) if isinstance(sampling, dict) else None,
-                          topic=meta.get("topic"))
-    query, reference, sequence = _traversals(evaluation)
+    header = evaluation.results.header
+    label = "sad" if header.descriptor is None else header.descriptor
+    descriptor, _, metric = label.partition(":")  # external:METRIC, an imported matrix
+    describer = Describer(descriptor, dict(header.descriptor_params), cache, metric=metric or None,
+                          sampling=None if header.sampling is None else Sampling(**header.sampling),
+                          topic=header.topic)
+    query, reference, sequence = run_traversals(evaluation)
     q = describer.entry(query)
     r = q if sequence else describer.entry(reference)
     results = evaluation.results
@@ -134,7 +133,7 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
         raise WilocError(evaluation.path, "its query and map no longer give the frames it lists (the folders "
                                           "changed, or the run took its frame names from a file); cannot draw it")
     for role, entry in (("query", q), ("map", r)):
-        recorded = meta.get(f"{role}_digest")  # files of batch runs record them
+        recorded = header.query_digest if role == "query" else header.map_digest  # batch runs record them
         if recorded and recorded != descriptors_digest(entry.names, entry.data):
             raise WilocError(evaluation.path, f"its {role} {entry.folder} no longer gives the descriptors the run "
                                               "used (its images changed, or it is another folder of the same "
@@ -156,8 +155,8 @@ def matrix_picture(evaluation: Evaluation, cache: Cache, max_side: int = MAX_SID
     from wiloc.differences import differences
 
     q, r = checked_entries(evaluation, cache)
-    _, _, sequence = _traversals(evaluation)
-    exclude = int(evaluation.results.meta.get("exclude_recent", 0) or 0)
+    _, _, sequence = run_traversals(evaluation)
+    exclude = evaluation.results.header.exclude_recent
     n_query, n_ref = len(q.names), len(r.names)
     fy, fx = math.ceil(n_query / max_side), math.ceil(n_ref / max_side)
     image = np.empty((math.ceil(n_query / fy), math.ceil(n_ref / fx)))
@@ -173,7 +172,7 @@ def matrix_picture(evaluation: Evaluation, cache: Cache, max_side: int = MAX_SID
                          truth_cols=coo.col.astype(np.int64), match=evaluation.results.match_index,
                          correct=evaluation.correct, confidence=evaluation.confidence,
                          query=Path(q.folder).name, reference=Path(r.folder).name,
-                         descriptor=str(evaluation.results.meta.get("descriptor", "")))
+                         descriptor=evaluation.results.header.descriptor or "")
 
 
 def read_rgb(path: Path) -> NDArray[np.uint8]:
@@ -192,9 +191,11 @@ def unchecked_folders(evaluation: Evaluation) -> list[str]:
     """A line naming the folders whose images the run recorded no digest of (a followed run's, a
     file of an older version), none when it recorded them: a figure shows those folders as they
     are now, which :func:`checked_entries` cannot tell from the run's."""
-    query, reference, sequence = _traversals(evaluation)
+    query, reference, sequence = run_traversals(evaluation)
     roles = (("query", query),) if sequence else (("query", query), ("map", reference))
-    folders = [str(folder) for role, folder in roles if f"{role}_digest" not in evaluation.results.meta]
+    header = evaluation.results.header
+    recorded = {"query": header.query_digest, "map": header.map_digest}
+    folders = [str(folder) for role, folder in roles if recorded[role] is None]
     if not folders:
         return []
     return [f"{evaluation.path or evaluation.name}: the run recorded no digest of its images, so figures show "
@@ -209,7 +210,7 @@ def example_pairs(evaluation: Evaluation, count: int = 3, wrong_only: bool = Fal
     them the run's."""
     from wiloc.cache import Cache
 
-    query, reference, _ = _traversals(evaluation)
+    query, reference, _ = run_traversals(evaluation)
     for folder in dict.fromkeys((query, reference)):
         if not folder.is_dir():
             raise WilocError(evaluation.path, f"example images need the image folders the run named; {folder} "

@@ -29,6 +29,7 @@ from wiloc.frames import text_path
 from wiloc.methods.base import MapContext, Method, TrainingRows
 from wiloc.methods.registry import make_method
 from wiloc.odometry import bag_odometry, steps, traversal_arclength
+from wiloc.results_header import ResultsHeader
 from wiloc.training import Training, training_rows
 from wiloc.traversals import Describer, Progress, descriptor_label, is_matrix_file, open_cluster, stage
 from wiloc.version import __version__
@@ -252,13 +253,11 @@ def results_name(query: Path, method: str, descriptor: str, metric: str | None =
     return f"{name}-{label}-{method}.csv"
 
 
-def run_meta(method: str, describer: Describer, query: Path, metric: str, reference: Path | None,
-             exclude_recent: int, training: Training | None) -> dict[str, Any]:
+def run_header(method: str, describer: Describer, query: Path, metric: str, reference: Path | None,
+               exclude_recent: int, training: Training | None) -> ResultsHeader:
     """What a results header says about a run besides the method's parameters."""
-    meta = {"method": method, "descriptor": describer.label(query), "descriptor_params": dict(describer.params),
-            "metric": metric, "mode": "sequence" if reference is None else "map", "query": text_path(query),
-            "map": text_path(reference) if reference else "", "exclude_recent": exclude_recent,
-            "wiloc": __version__}
-    if training:
-        meta.update(train_query=str(training.query), train_map=str(training.reference))
-    return meta
+    return ResultsHeader(method=method, descriptor=describer.label(query), descriptor_params=dict(describer.params),
+                         metric=metric, mode="sequence" if reference is None else "map", query=text_path(query),
+                         map=text_path(reference) if reference else "", exclude_recent=exclude_recent,
+                         wiloc=__version__, train_query=str(training.query) if training else None,
+                         train_map=str(training.reference) if training else None)

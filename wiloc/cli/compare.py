@@ -66,7 +66,7 @@ def compare(
     records = comparison_records(comparison)
     if csv_out is not None:
         (_, table1, _, _), (_, calibration, _, _) = records[:2]
-        runs = [{"results": str(e.path), "descriptor": e.results.meta.get("descriptor"), **a, **b}
+        runs = [{"results": str(e.path), "descriptor": e.results.header.descriptor, **a, **b}
                 for e, a, b in zip(comparison.evaluations, table1, calibration)]
         written += write_metrics_csv(csv_out, runs, comparison.evaluations, notes)
     if markdown or latex:

@@ -56,7 +56,7 @@ def evaluate(
     evaluations = [api.evaluate(path, source, at, ranks) for path in results]
     notes = warn_about_truth(evaluations)
     names = short_names([e.path for e in evaluations])
-    heads = [{"run": run, "results": name, "method": e.method, "descriptor": e.results.meta.get("descriptor"),
+    heads = [{"run": run, "results": name, "method": e.method, "descriptor": e.results.header.descriptor,
               "traversal": e.traversal, **e.summary.as_dict()}
              for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
     rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
@@ -106,7 +106,7 @@ def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pair
     for e in evaluations:
         def target(path: Path) -> Path:
             return path.with_name(f"{path.stem}-{Path(e.name).stem}{path.suffix}") if len(evaluations) > 1 else path
-        descriptor = e.results.meta.get("descriptor", "")
+        descriptor = e.results.header.descriptor or ""
         for line in unchecked_folders(e):
             notes.add("warning", line)
         if matrix_plot is not None:

@@ -53,7 +53,7 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
         plot_model(runs[0].decisions.model, replacing(notes[0], model_plot), title=f"{runs[0].query.name} ({method})")
     if as_json:
         print_command_json("localize", "runs", [
-            {**row, "descriptor": run.results.meta.get("descriptor"), "traversal": row["query"],
+            {**row, "descriptor": run.results.header.descriptor, "traversal": row["query"],
              "query": str(run.query.resolve()), "results": str(run.path.resolve()),
              "skipped": [list(item) for item in run.skipped]} for row, run in zip(rows, runs)],
             [line for said in notes for line in said])

@@ -345,7 +345,7 @@ def run_records(comparison: api.Comparison) -> list[dict[str, Any]]:
     none) and its calibration."""
     rows = comparison.table1.to_dict(orient="records")
     ranked = set(recall_at_keys(rows))
-    return [{"method": e.method, "descriptor": e.results.meta.get("descriptor"), "traversal": row["traversal"],
+    return [{"method": e.method, "descriptor": e.results.header.descriptor, "traversal": row["traversal"],
              "label": row["method"], "results": None if e.path is None else str(e.path),
              **{key: value for key, value in row.items() if key not in ("method", "traversal")
                 and not (key in ranked and _missing(value))}, **e.calibration_dict()}
