@@ -1,6 +1,7 @@
 """Results files: round trip, header, atomic write, bad files."""
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -9,8 +10,8 @@ import pytest
 from wiloc.errors import WilocError
 from wiloc.methods.base import Decisions
 from wiloc.model import HistogramModel
-from wiloc.results import make_results, read_results, write_results
-from wiloc.results_header import ResultsHeader
+from wiloc.results import Results, make_results, read_results, write_results
+from wiloc.results_header import ResultsHeader, parse_header
 
 
 def _decisions() -> Decisions:
@@ -23,10 +24,16 @@ def _decisions() -> Decisions:
                      ranking=np.array([[-1, -1], [2, 1], [0, -1]]))
 
 
+def _made(header: ResultsHeader = ResultsHeader()) -> Results:
+    """The run of :func:`_decisions` over query frames a, b, c and map frames x, y, z."""
+    return make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], header=header)
+
+
 def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
     write_results(path, make_results(_decisions(), query_names=["q,1.png", "q2.png", "q 3.png"],
-                                     ref_names=["r0.png", "r1.png", "r#2.png"], header=ResultsHeader(method="online", query="/x")))
+                                     ref_names=["r0.png", "r1.png", "r#2.png"],
+                                     header=ResultsHeader(method="online", query="/x")))
     back = read_results(path)
     assert back.method == "online"
     assert back.frames["frame"].tolist() == ["q,1.png", "q2.png", "q 3.png"]
@@ -42,8 +49,7 @@ def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
 
 def test_header_names_the_run(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
-    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
-                                     header=ResultsHeader(method="threshold", descriptor="sad", wiloc="0.1.0")))
+    write_results(path, _made(ResultsHeader(method="threshold", descriptor="sad", wiloc="0.1.0")))
     head = path.read_text(encoding="utf-8").splitlines()[:4]
     assert head[0] == "# wiloc-results: 1"
     assert "# method: threshold" in head and "# descriptor: sad" in head
@@ -57,10 +63,13 @@ def test_every_header_field_survives_a_write_and_a_read(tmp_path: Path) -> None:
                            odometry_topic="/odom", rows="fabmap", fabmap_training=("/t 1", "/t'2"),
                            extra={"note": "kept as text"})
     path = tmp_path / "run.csv"
-    written = make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], header=header)
+    written = _made(header)
     write_results(path, written)
     assert read_results(path).header == written.header
     assert written.header.model is not None and written.header.frames == 3
+    followed = replace(header, follow=True, params={"init": 1}, reference_frames=("x", "y"))  # no count, no model
+    assert parse_header(followed.text().splitlines(), None) == followed
+    assert "# follow: True" in followed.text() and "# model:" not in followed.text()
 
 
 def test_an_older_file_without_newer_keys_reads_with_their_defaults(tmp_path: Path) -> None:
@@ -93,7 +102,7 @@ def test_not_a_results_file(tmp_path: Path) -> None:
 
 def test_missing_column_and_duplicates(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
-    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], header=ResultsHeader()))
+    write_results(path, _made())
     text = path.read_text(encoding="utf-8")
     path.write_text(text.replace("confidence", "conf"), encoding="utf-8")
     with pytest.raises(WilocError, match="missing column"):
@@ -111,7 +120,7 @@ def test_missing_file() -> None:
 
 def test_cut_file_and_binary_file_are_refused(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
-    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], header=ResultsHeader()))
+    write_results(path, _made())
     text = path.read_text(encoding="utf-8")
     path.write_text(text[: text.rindex("\n", 0, len(text) - 1) + 1], encoding="utf-8")
     with pytest.raises(WilocError, match="holds 2 rows, its header says 3"):
@@ -123,8 +132,7 @@ def test_cut_file_and_binary_file_are_refused(tmp_path: Path) -> None:
 
 def _written(tmp_path: Path) -> tuple[Path, str]:
     path = tmp_path / "run.csv"
-    write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
-                                     header=ResultsHeader(mode="map", exclude_recent=10)))
+    write_results(path, _made(ResultsHeader(mode="map", exclude_recent=10)))
     return path, path.read_text(encoding="utf-8")
 
 
@@ -164,8 +172,7 @@ def test_a_replaced_file_keeps_its_mode_and_killed_writers_leave_nothing(tmp_pat
                           text=True, check=True).stdout.strip()
     orphan = tmp_path / f".run.csv.{dead}.abc123.tmp"
     orphan.write_text("half a file")
-    assert write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
-                                            header=ResultsHeader()))
+    assert write_results(path, _made())
     assert path.stat().st_mode & 0o777 == 0o640
     assert not orphan.exists()
 
@@ -182,8 +189,7 @@ def test_a_write_that_fails_leaves_the_old_file_and_says_so_in_one_line(tmp_path
 
     monkeypatch.setattr(pd.DataFrame, "to_csv", full_disk)
     with pytest.raises(WilocError, match=r"cannot write the results file \(No space left on device\)"):
-        write_results(path, make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
-                                         header=ResultsHeader()))
+        write_results(path, _made())
     assert path.read_text(encoding="utf-8") == text
     assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no temporary file left
 
