@@ -47,10 +47,11 @@ from scipy import sparse
 
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.decisions import Decisions
 from wiloc.differences import ComputedDifferences, candidate_blocks, summarize
 from wiloc.distances import DifferencesTo
 from wiloc.groundtruth import Truth
-from wiloc.methods.base import Decisions, MapContext
+from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
 from wiloc.metrics import correct_matches, decided_confidence, summarize
 from wiloc.reliability import summarize_calibration

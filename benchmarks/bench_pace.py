@@ -66,11 +66,12 @@ from scipy import sparse
 
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.decisions import Decisions
 from wiloc.differences import ComputedDifferences, candidate_blocks, summarize
 from wiloc.distances import DifferencesTo, consecutive
 from wiloc.errors import WilocError
 from wiloc.groundtruth import Truth
-from wiloc.methods.base import Decisions, MapContext
+from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
 from wiloc.metrics import correct_matches, decided_confidence, summarize
 from wiloc.reliability import summarize_calibration, summarize_new_place

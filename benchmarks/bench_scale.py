@@ -114,8 +114,8 @@ def child_localize(args: argparse.Namespace) -> dict[str, float]:
 
 def child_kernel(args: argparse.Namespace) -> dict[str, float]:
     """The SAD kernel alone over query x map, map x map and training x map: wall and CPU each."""
-    from wiloc.distances import pairwise, pairwise_blocks
     from wiloc.cache import Cache
+    from wiloc.distances import pairwise, pairwise_blocks
 
     cache = Cache(Path(args.root) / "cache")
     entries = {e.folder: cache.read_entry(e.key) for e in cache.list_entries()}

@@ -7,8 +7,8 @@ import pytest
 from scipy import integrate
 from scipy.special import logsumexp
 
-from wiloc.calibration import RankLikelihood, Unexplained, novelty_weights
 from wiloc.array_run import run_on_rows
+from wiloc.calibration import RankLikelihood, Unexplained, novelty_weights
 from wiloc.methods.catgraph import CatGraph
 from wiloc.reliability import reliability_bins
 

@@ -4,13 +4,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from wiloc.array_run import run_on_rows
+from wiloc.decisions import Decisions
 from wiloc.errors import WilocError
 from wiloc.methods import base
-from wiloc.array_run import run_on_rows
-from wiloc.methods.base import Decisions
-from wiloc.rows import ArrayRows
 from wiloc.methods.catgraph import CatGraph
 from wiloc.methods.trajectory import contrast_normalise, posterior_ranking
+from wiloc.rows import ArrayRows
 
 N_REF = 300
 TOL = 2
@@ -224,8 +224,8 @@ def test_mode_on_a_map_shorter_than_the_mode_window(node: int) -> None:
 
 @pytest.mark.parametrize("even", [True, False])
 def test_sequence_score_step_is_the_numpy_expression_value_for_value(even: bool) -> None:
-    from wiloc.methods.trajectory import read_runs, shifted_reads
     from wiloc.methods.filter_kernels import advance
+    from wiloc.methods.trajectory import read_runs, shifted_reads
 
     rng = np.random.default_rng(3)
     nodes = np.arange(700.0) if even else np.cumsum(rng.random(700) * (rng.random(700) < 0.9))

@@ -16,10 +16,10 @@ import pytest
 from helpers import FakeSpec, interrupt_after_six_frames, write_images
 
 from wiloc.cache import Cache
-from wiloc.errors import WilocError
-from wiloc.frames import read_gray
 from wiloc.describing import describe_folder
 from wiloc.entries import EntryHeader
+from wiloc.errors import WilocError
+from wiloc.frames import read_gray
 from wiloc.matrix_import import import_matrix
 
 

@@ -16,8 +16,8 @@ from wiloc import api
 from wiloc.cache import Cache
 from wiloc.cli import app
 from wiloc.errors import UsageError
-from wiloc.truth_source import TruthSource
 from wiloc.localizer import Localizer
+from wiloc.truth_source import TruthSource
 
 SMALL = {"feature": "orb", "words": 128, "max_features": 200, "iterations": 8}
 FRAMES, STEP, WIDTH = 60, 16, 320

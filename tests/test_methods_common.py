@@ -14,13 +14,14 @@ import pytest
 from wiloc import api, demo
 from wiloc.cache import Cache
 from wiloc.candidates import RANKED, finite_minimum
+from wiloc.decisions import Decision, Decisions
+from wiloc.differences import summarize
 from wiloc.errors import ParameterError
 from wiloc.localizer import Localizer
 from wiloc.methods import registry
-from wiloc.differences import summarize
-from wiloc.methods.base import NEEDS, ROWS, Decision, Decisions, MapContext, Method, TrainingRows
-from wiloc.rows import ArrayRows
+from wiloc.methods.base import NEEDS, ROWS, MapContext, Method, TrainingRows
 from wiloc.parameters import Parameters, declared, param
+from wiloc.rows import ArrayRows
 
 
 # --- the example of docs/architecture.md: one module (here inline) and one registry line ----------

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from wiloc.errors import WilocError
 from wiloc.array_run import run_on_rows
-from wiloc.methods.base import Decisions
+from wiloc.decisions import Decisions
+from wiloc.errors import WilocError
 from wiloc.methods.online import Online, near_miss
 
 INF = np.inf

@@ -20,8 +20,8 @@ from onnx import TensorProto, helper, numpy_helper  # noqa: E402
 from wiloc import Localizer  # noqa: E402
 from wiloc.cache import Cache  # noqa: E402
 from wiloc.cli import app  # noqa: E402
-from wiloc.descriptors.registry import get_descriptor  # noqa: E402
 from wiloc.describing import describe_folder, describe_video  # noqa: E402
+from wiloc.descriptors.registry import get_descriptor  # noqa: E402
 
 runner = CliRunner()
 SIDE = 32  # the test network's input: 3 x 32 x 32
@@ -174,8 +174,8 @@ import sys, time
 from pathlib import Path
 import wiloc.describing
 import wiloc.frame_describing
-from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.cache import Cache
+from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 wiloc.frame_describing.COLOUR_BATCH = 2
 batch = DescriptorSpec.compute_batch
 def slow(self, images, threads=0):

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
+from wiloc.errors import WilocError
 from wiloc.metrics import pr_curve, precision_at_thresholds
 from wiloc.model import HistogramModel
-from wiloc.errors import WilocError
 from wiloc.plots import (check_plot_path, plot_matrix, plot_model, plot_pairs, plot_pr, plot_reliability,
                          plot_threshold, pr_figure, reliability_figure, run_styles, threshold_figure, timeline_figure)
 from wiloc.reliability import reliability_bins, wilson_interval

@@ -13,11 +13,11 @@ from typer.testing import CliRunner
 from wiloc import api
 from wiloc.candidates import RANKED, best_candidates
 from wiloc.cli import app
-from wiloc.truth_source import TruthSource
-from wiloc.methods.base import Decisions
+from wiloc.decisions import Decisions
 from wiloc.metrics import recall_at_k, summarize
 from wiloc.results import make_results, read_results, write_results
 from wiloc.results_header import ResultsHeader
+from wiloc.truth_source import TruthSource
 
 runner = CliRunner()
 REF = [f"f{i:02d}.png" for i in range(30)]

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from wiloc.decisions import Decisions
 from wiloc.errors import WilocError
-from wiloc.methods.base import Decisions
 from wiloc.model import HistogramModel
 from wiloc.results import Results, make_results, read_results, write_results
 from wiloc.results_header import ResultsHeader, parse_header

@@ -21,9 +21,9 @@ import pytest
 
 from wiloc import api
 from wiloc.cache import Cache
+from wiloc.decisions import Decision, Decisions
 from wiloc.distances import DifferencesTo
 from wiloc.localizer import Localizer
-from wiloc.methods.base import Decision, Decisions
 from wiloc.methods.registry import METHODS
 from wiloc.traversals import Describer
 

@@ -19,9 +19,9 @@ from wiloc import api
 from wiloc.cli import app
 from wiloc.errors import WilocError
 from wiloc.groundtruth import EARTH_RADIUS_M
-from wiloc.truth_source import load_truth
 from wiloc.results import read_results
 from wiloc.truth_formats import read_vprbench
+from wiloc.truth_source import load_truth
 
 runner = CliRunner()
 N = 24

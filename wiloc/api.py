@@ -23,16 +23,17 @@ from wiloc.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, 
                               traversal_labels)
 from wiloc.describing import DescribeReport, check_sampling, check_topic, describe_sources, is_stream
 from wiloc.follow_run import FollowRun, follow_folder
-from wiloc.truth_source import TruthSource
 from wiloc.inputs import import_descriptors, shared_workers, vocabulary, vocabulary_file
+from wiloc.methods.registry import lowest_confidence
 from wiloc.results import Results, make_results, read_results, write_results
 from wiloc.session import RunSession, results_name, run_header
 from wiloc.training import Training
 from wiloc.traversals import Progress, descriptor_spec, descriptors_digest, open_cluster, stage
+from wiloc.truth_source import TruthSource
 from wiloc.video import Sampling
 
 if TYPE_CHECKING:
-    from wiloc.methods.base import Decisions
+    from wiloc.decisions import Decisions
 
 __all__ = ["TABLE1_KEYS", "Comparison", "Evaluation", "FollowRun", "LocalizeRun", "Sampling", "Training",
            "TruthSource", "compare", "describe", "evaluate", "follow_folder", "import_descriptors", "localize",
@@ -160,7 +161,7 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS,
         return score(run.path, run.results, truth, cuts, recall_at)
     if isinstance(run, Results):
         return score(None, run, truth, cuts, recall_at)
-    return score(Path(run), read_results(Path(run)), truth, cuts, recall_at)
+    return score(Path(run), read_results(Path(run), lowest_confidence), truth, cuts, recall_at)
 
 
 # ------------------------------------------------------------------------------------------ compare

@@ -7,8 +7,9 @@ from collections.abc import Iterable
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.decisions import Decisions
 from wiloc.differences import summarize
-from wiloc.methods.base import Decisions, MapContext, Method, Progress, TrainingRows
+from wiloc.methods.base import MapContext, Method, Progress, TrainingRows
 from wiloc.rows import ArrayRows, RowBlocks
 
 

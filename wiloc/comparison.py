@@ -18,8 +18,8 @@ import pandas as pd
 
 from wiloc.errors import ParameterError
 from wiloc.groundtruth import Truth
-from wiloc.truth_source import TruthSource
 from wiloc.labels import short_names
+from wiloc.truth_source import TruthSource
 from wiloc.metrics import (RANKED_KS, PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
                            precision_at_thresholds, summarize)
 from wiloc.reliability import (DEFAULT_CUTS, NEW_PLACE_KEYS, Calibration, ReliabilityBins,

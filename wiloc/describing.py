@@ -17,6 +17,7 @@ from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from wiloc.bags import Bag, bag_fingerprint, is_bag
 from wiloc.cache import Cache, Journal
 from wiloc.descriptors.registry import DescriptorSpec
 from wiloc.entries import Entry, EntryHeader, FrameRecord, StoredEntry
@@ -24,7 +25,6 @@ from wiloc.errors import ParameterError, WilocError
 from wiloc.frame_describing import Task, check_jobs, compute, describe_frames, describe_quietly, opencv_quiet
 from wiloc.frames import Traversal, list_traversal, natural_key, text_path
 from wiloc.reprs import short_repr
-from wiloc.bags import Bag, bag_fingerprint, is_bag
 from wiloc.video import Sampling, Video, is_video, video_fingerprint
 
 if TYPE_CHECKING:

@@ -12,10 +12,10 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from wiloc.decisions import Decision
 from wiloc.errors import FrameError, WilocError
 from wiloc.frames import IMAGE_SUFFIXES, natural_key, shown_name, unusable_reason
 from wiloc.localizer import Localizer
-from wiloc.methods.base import Decision
 
 #: Seconds a stable (unchanging) file may stay undecodable before it is left out as bad: a writer
 #: that is slow to finish a file gets this long.

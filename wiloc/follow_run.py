@@ -10,10 +10,10 @@ from typing import Any
 
 from wiloc.cache import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.decisions import Decision
 from wiloc.errors import WilocError
 from wiloc.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localizer import Localizer
-from wiloc.methods.base import Decision
 from wiloc.results import RANKING, ResultsStream
 from wiloc.session import results_name, run_header
 from wiloc.training import Training

@@ -24,9 +24,10 @@ from numpy.typing import NDArray
 from wiloc.atomic import written_whole
 from wiloc.cache import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.decisions import Decision
 from wiloc.errors import FrameError, WilocError, load_problem
 from wiloc.frames import check_aspect, read_colour, read_gray, to_uint8, unusable_reason
-from wiloc.methods.base import Decision, Method, TrainingRows
+from wiloc.methods.base import Method, TrainingRows
 from wiloc.session import RunSession
 from wiloc.training import Training
 from wiloc.traversals import Describer, is_matrix_file

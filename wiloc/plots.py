@@ -80,7 +80,7 @@ def figure_bytes(fig: Figure, format: str = "png", dpi: int = 100) -> bytes:
 
 
 def run_styles(names: Sequence[str]) -> dict[str, tuple[str, str]]:
-    """(colour, line style) per run name "method traversal" (``api.run_names``, split at its last
+    """(colour, line style) per run name "method traversal" (``comparison.run_names``, split at its last
     space): one colour per method and one line style per query traversal, in order of first
     appearance."""
     colours: dict[str, str] = {}

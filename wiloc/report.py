@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     import pandas as pd
     from matplotlib.figure import Figure
 
-    from wiloc.api import Comparison, Evaluation
+    from wiloc.comparison import Comparison, Evaluation
     from wiloc.cache import Cache
     from wiloc.traversals import Progress
 
@@ -68,7 +68,7 @@ def write_report(comparison: Comparison, path: Path, *, cache: Cache, title: str
                  thumb_width: int = THUMB_WIDTH, progress: Progress | None = None) -> Report:
     """Build the page of ``comparison`` and write it to ``path`` whole (or not at all). ``cache``
     gives back the runs' descriptors for the difference matrices."""
-    from wiloc.api import run_names
+    from wiloc.comparison import run_names
 
     notes: list[str] = []
     images = Thumbnails()
@@ -205,17 +205,17 @@ def _figures(comparison: Comparison, names: list[str], cache: Cache, notes: list
              progress: Callable[[int, int], None] | None) -> Figures:
     """The comparison's figures, then each run's timeline and difference matrix (a matrix that
     cannot be rebuilt is noted instead)."""
-    from wiloc import api, plots
+    from wiloc import plots
+    from wiloc.comparison import new_place_series, pr_series, reliability_series, threshold_marks, threshold_series
     from wiloc.run_figures import matrix_picture, run_timeline
 
     evaluations = comparison.evaluations
     figures = Figures(
-        pr=_figure_uri(plots.pr_figure(api.pr_series(comparison), title="Precision-recall")),
-        threshold=_figure_uri(plots.threshold_figure(api.threshold_series(comparison),
-                                                  marks=api.threshold_marks(comparison),
-                                                  title="Precision against threshold (Figure 5)")),
-        reliability=_figure_uri(plots.reliability_figure(api.reliability_series(evaluations),
-                                                      new_place=api.new_place_series(evaluations))),
+        pr=_figure_uri(plots.pr_figure(pr_series(comparison), title="Precision-recall")),
+        threshold=_figure_uri(plots.threshold_figure(threshold_series(comparison), marks=threshold_marks(comparison),
+                                                     title="Precision against threshold (Figure 5)")),
+        reliability=_figure_uri(plots.reliability_figure(reliability_series(evaluations),
+                                                         new_place=new_place_series(evaluations))),
         timelines=[], matrices=[])
     for done, (name, e) in enumerate(zip(names, evaluations)):
         if progress:

@@ -13,6 +13,7 @@ import csv
 import io
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -21,8 +22,8 @@ import numpy as np
 import pandas as pd
 
 from wiloc.atomic import write_error, written_whole
+from wiloc.decisions import Decision, Decisions
 from wiloc.errors import WilocError
-from wiloc.methods.base import Decision, Decisions
 from wiloc.model import HistogramModel
 from wiloc.reprs import short_repr
 from wiloc.results_header import ResultsHeader, parse_header, read_header
@@ -209,9 +210,11 @@ class ResultsStream:
         os.close(self._fd)
 
 
-def read_results(path: Path) -> Results:
+def read_results(path: Path, lowest_confidence: Callable[[str], float] | None = None) -> Results:
     """Read a results file written by :func:`write_results` (or a followed run's); WilocError
-    naming the file and line when it is not one or holds something no run writes."""
+    naming the file and line when it is not one or holds something no run writes.
+    ``lowest_confidence(method)`` is the lowest confidence the run's method writes
+    (``wiloc.methods.registry.lowest_confidence``); without it confidences lie in [0, 1]."""
     path = Path(path)
     header, frames, first_line = _read_table(path)
     reference = _reference_frames(path, header, frames)
@@ -228,18 +231,16 @@ def read_results(path: Path) -> Results:
             i = int(np.flatnonzero(bad.to_numpy())[0])
             raise WilocError(path, f"line {first_line + i}: {column} '{frames[column].iloc[i]}' is not a number")
         frames[column] = numbers.astype(np.float64)
-    _check_probabilities(path, frames, header.method, first_line)
+    lowest = lowest_confidence(header.method) if lowest_confidence is not None else 0.0
+    _check_probabilities(path, frames, header.method, lowest, first_line)
     _check_decided(path, frames, first_line)
     return Results(header=header, frames=frames, reference_frames=reference)
 
 
-def _check_probabilities(path: Path, frames: pd.DataFrame, method: str, first_line: int) -> None:
+def _check_probabilities(path: Path, frames: pd.DataFrame, method: str, lowest: float, first_line: int) -> None:
     """A WilocError naming the file and line of a confidence or P(new place) that no run writes:
-    outside [0, 1], or for a method whose confidence goes below 0 (``threshold``) above 1 or
-    infinite. Empty cells (undecided frames) pass."""
-    from wiloc.methods.registry import METHODS
-
-    lowest = METHODS[method].lowest_confidence if method in METHODS else 0.0
+    outside [0, 1], or for a method whose confidence goes below 0 to ``lowest`` (``threshold``)
+    above 1 or infinite. Empty cells (undecided frames) pass."""
     for column, low in (("confidence", lowest), (NEW_PLACE, 0.0)):
         if column not in frames.columns:
             continue

@@ -22,7 +22,7 @@ from wiloc.errors import WilocError
 from wiloc.reprs import short_repr
 
 if TYPE_CHECKING:
-    from wiloc.api import Evaluation
+    from wiloc.comparison import Evaluation
     from wiloc.cache import Cache, Entry
 
 #: The most pixels a side of the matrix picture gets; larger matrices are min-pooled to it.

@@ -7,9 +7,9 @@ from pathlib import Path
 from wiloc.candidates import check_exclude_recent
 from wiloc.differences import candidate_rows, differences
 from wiloc.errors import ParameterError, WilocError
-from wiloc.truth_source import TruthSource
 from wiloc.methods.base import TrainingRows
 from wiloc.traversals import Describer
+from wiloc.truth_source import TruthSource
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from wiloc.bags import is_bag
 from wiloc.cache import Cache
 from wiloc.describing import describe_source
 from wiloc.descriptors.external import recorded_metric
@@ -18,7 +19,6 @@ from wiloc.entries import Entry, EntryHeader
 from wiloc.errors import ParameterError, WilocError
 from wiloc.frames import IMAGE_SUFFIXES
 from wiloc.matrix_import import import_matrix
-from wiloc.bags import is_bag
 from wiloc.video import Sampling, is_video
 
 if TYPE_CHECKING:

@@ -80,7 +80,7 @@ def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
 
     from rich.live import Live
 
-    from wiloc.methods.base import Decision
+    from wiloc.decisions import Decision
 
     started, decided = time.perf_counter(), 0
     latest: deque[Decision] = deque(maxlen=10)

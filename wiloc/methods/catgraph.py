@@ -29,8 +29,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.calibration import RankLikelihood, SortedRow, Unexplained, novelty_weights
+from wiloc.decisions import Decision
 from wiloc.errors import ParameterError, WilocError
-from wiloc.methods.base import Decision, MapContext, Method
+from wiloc.methods.base import MapContext, Method
 from wiloc.methods.trajectory import (locate, lowest_nodes, node_positions, posterior_ranking, read_runs,
                                       shifted_reads, smallest, systematic)
 from wiloc.parameters import Parameters, param

@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.decisions import Decision
 from wiloc.fabmap.params import FabMapParams
-from wiloc.methods.base import Decision, MapContext, Method
+from wiloc.methods.base import MapContext, Method
 from wiloc.parameters import param
 
 

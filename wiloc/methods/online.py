@@ -19,8 +19,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.candidates import RANKED, finite_minimum
+from wiloc.decisions import Decision
 from wiloc.errors import WilocError
-from wiloc.methods.base import Decision, MapContext, Method, self_summary
+from wiloc.methods.base import MapContext, Method, self_summary
 from wiloc.methods.catgraph import CatGraph
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters, param

@@ -32,6 +32,12 @@ def method_class(name: str) -> type[Method]:
     return METHODS[name]
 
 
+def lowest_confidence(name: str) -> float:
+    """The lowest confidence the method registered under ``name`` writes (0 for a name that is
+    not registered): what results files of its runs are checked against."""
+    return METHODS[name].lowest_confidence if name in METHODS else 0.0
+
+
 def make_method(name: str, params: Mapping[str, Any] | None = None) -> Method:
     """A new method object of the registered ``name`` with ``params`` (defaults for the rest)."""
     return method_class(name)(params)

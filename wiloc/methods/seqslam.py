@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.decisions import Decision
 from wiloc.errors import ParameterError, WilocError
-from wiloc.methods.base import Decision, MapContext, Method
+from wiloc.methods.base import MapContext, Method
 from wiloc.parameters import Parameters, param
 
 MAX_VELOCITIES = 1000  # a v_min..v_max range finer than this is surely a typo (and slow)

@@ -16,8 +16,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.candidates import finite_minimum
+from wiloc.decisions import Decision
 from wiloc.errors import ParameterError
-from wiloc.methods.base import Decision, MapContext, Method, self_summary
+from wiloc.methods.base import MapContext, Method, self_summary
 from wiloc.parameters import Parameters, param
 
 

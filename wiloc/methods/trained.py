@@ -16,8 +16,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.candidates import finite_minimum
+from wiloc.decisions import Decision
 from wiloc.errors import WilocError
-from wiloc.methods.base import Decision, MapContext, Method
+from wiloc.methods.base import MapContext, Method
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters, param
 
