@@ -27,10 +27,10 @@ from pathlib import Path
 
 import cv2
 
-from wiloc.cache import Cache
-from wiloc.describing import describe_folders
+from wiloc.cache.store import Cache
+from wiloc.description.describing import describe_folders
 from wiloc.descriptors.registry import get_descriptor
-from wiloc.frames import list_traversal
+from wiloc.sources.frames import list_traversal
 
 TRAVERSALS = ("day_left", "day_right", "night_right")
 DESCRIPTORS = ("sad", "gist", "brisk-gist")

@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from wiloc.cache import Cache
-from wiloc.describing import describe_folder
+from wiloc.bow.fabmap import ChowLiuTree, FabMap
+from wiloc.bow.vocabulary import VocabularyParams, unpack_words
+from wiloc.cache.store import Cache
+from wiloc.description.describing import describe_folder
+from wiloc.description.vocabulary_build import build_vocabulary
 from wiloc.descriptors import get_descriptor
-from wiloc.fabmap import ChowLiuTree, FabMap
-from wiloc.vocabulary import VocabularyParams, unpack_words
-from wiloc.vocabulary_build import build_vocabulary
 
 RUNS = (("night_right", "day_right", "day_left"), ("day_left", "day_right", "night_right"))
 TOLERANCE = 2

@@ -19,7 +19,7 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
-from wiloc.distances import pairwise, pairwise_blocks, simd_path
+from wiloc.description.distances import pairwise, pairwise_blocks, simd_path
 
 
 def make_frames(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:

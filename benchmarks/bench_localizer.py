@@ -24,13 +24,13 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from wiloc.description.differences import ComputedDifferences, summarize
+from wiloc.description.distances import DifferencesTo, consecutive
+from wiloc.description.traversals import entry_from_array
 from wiloc.descriptors.registry import get_descriptor
-from wiloc.differences import ComputedDifferences, summarize
-from wiloc.distances import DifferencesTo, consecutive
-from wiloc.localizer import Localizer
+from wiloc.localization.localizer import Localizer
 from wiloc.methods.base import MapContext, TrainingRows
 from wiloc.methods.registry import METHODS, make_method
-from wiloc.traversals import entry_from_array
 
 SPEC = get_descriptor("sad")
 

@@ -20,7 +20,7 @@ night_right, 200 frames; Nordland: summer, winter):
 
 Ground truth: frame k's true matches are the candidate frames (before k - exclude_recent) whose
 place is within +-2 of its own; a frame with none is a *first visit*, and any match accepted
-there is wrong. The measures are wiloc's own (``wiloc.metrics``, ``wiloc.reliability``): recall at
+there is wrong. The measures are wiloc's own (``wiloc.evaluation.metrics``, ``wiloc.evaluation.reliability``): recall at
 100 % precision, AP, R@1 over revisits, ECE over all decided frames, precision (and frames) at
 confidence >= 0.9 and >= 0.99, and the mean P(new place) over first visits and over revisits
 after their first 5 frames (a revisit is a run of consecutive frames with a true match).
@@ -45,17 +45,17 @@ from rich.console import Console
 from rich.table import Table
 from scipy import sparse
 
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decisions
-from wiloc.differences import ComputedDifferences, candidate_blocks, summarize
-from wiloc.distances import DifferencesTo
-from wiloc.groundtruth import Truth
+from wiloc.description.differences import ComputedDifferences, candidate_blocks, summarize
+from wiloc.description.distances import DifferencesTo
+from wiloc.description.traversals import Describer
+from wiloc.evaluation.groundtruth import Truth
+from wiloc.evaluation.metrics import correct_matches, decided_confidence, summarize
+from wiloc.evaluation.reliability import summarize_calibration
 from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
-from wiloc.metrics import correct_matches, decided_confidence, summarize
-from wiloc.reliability import summarize_calibration
-from wiloc.traversals import Describer
 
 from bench_common import default_data_root, fmt, parse_params, parser as benchmark_parser, write_json
 

@@ -26,8 +26,8 @@ The ground truth of a query frame is the map node holding its original frame (fo
 the nearest node), +-2 map nodes. The method runs on the difference rows of the re-sampled query
 to the re-sampled map, started on the re-sampled map (its size, its neighbours' differences, its
 differences to itself) exactly as ``wiloc localize`` starts it on a folder holding those frames,
-with the default recent window and no odometry. The measures are wiloc's own (``wiloc.metrics``,
-``wiloc.reliability``): R@1 (the decided match is right, over every query frame), AP (the PR
+with the default recent window and no odometry. The measures are wiloc's own (``wiloc.evaluation.metrics``,
+``wiloc.evaluation.reliability``): R@1 (the decided match is right, over every query frame), AP (the PR
 curve's average precision), ECE of the confidence, the precision among frames with confidence
 >= 0.9 and their count, and the mean P(new place) of methods that give it.
 
@@ -44,7 +44,7 @@ From an experiment script (with ``benchmarks/`` on ``sys.path``, e.g. ``sys.path
 the measures of one run as plain floats and ints (keys: traversal, variant, method, params,
 frames, map_nodes, decided, r1, ap, ece, precision@0.9, accepted@0.9, new_place, seconds);
 ``decide(traversal, variant, method, params)`` the run's ``Decisions``, ``score(decisions, variant)``
-its measures and ``truth(variant, tolerance=2)`` its ground truth as a ``wiloc.groundtruth.Truth``. ``variants(n)`` builds the variants of a route
+its measures and ``truth(variant, tolerance=2)`` its ground truth as a ``wiloc.evaluation.groundtruth.Truth``. ``variants(n)`` builds the variants of a route
 of ``n`` frames (``names`` picks some); ``TRAVERSALS`` lists the traversals by name.
 """
 from __future__ import annotations
@@ -64,18 +64,18 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from scipy import sparse
 
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decisions
-from wiloc.differences import ComputedDifferences, candidate_blocks, summarize
-from wiloc.distances import DifferencesTo, consecutive
+from wiloc.description.differences import ComputedDifferences, candidate_blocks, summarize
+from wiloc.description.distances import DifferencesTo, consecutive
+from wiloc.description.traversals import Describer
 from wiloc.errors import WilocError
-from wiloc.groundtruth import Truth
+from wiloc.evaluation.groundtruth import Truth
+from wiloc.evaluation.metrics import correct_matches, decided_confidence, summarize
+from wiloc.evaluation.reliability import summarize_calibration, summarize_new_place
 from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
-from wiloc.metrics import correct_matches, decided_confidence, summarize
-from wiloc.reliability import summarize_calibration, summarize_new_place
-from wiloc.traversals import Describer
 
 from bench_common import default_data_root, fmt, parse_params, parser as benchmark_parser, write_json
 
@@ -166,7 +166,7 @@ def variants(n: int, names: Sequence[str] | None = None) -> list[Variant]:
 
 def truth(variant: Variant, tolerance: int = TOLERANCE) -> Truth:
     """The variant's ground truth as wiloc scores it: query frame k matches map nodes within
-    +-``tolerance`` of its true node (the matrix form of ``wiloc.groundtruth``)."""
+    +-``tolerance`` of its true node (the matrix form of ``wiloc.evaluation.groundtruth``)."""
     n_query, n_map = variant.truth.size, variant.map_frames.size
     offsets = np.arange(-tolerance, tolerance + 1)
     rows = np.repeat(np.arange(n_query), offsets.size)

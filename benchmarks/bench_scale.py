@@ -46,8 +46,8 @@ import numpy as np
 
 from bench_describe import TRAVERSALS, data_root, plain_decode_rate
 from bench_localizer import SPEC, route
-from wiloc.cache import Cache
-from wiloc.entries import EntryHeader, FrameRecord, StoredEntry
+from wiloc.cache.entries import EntryHeader, FrameRecord, StoredEntry
+from wiloc.cache.store import Cache
 
 METHODS = ("online", "threshold", "trained", "catgraph")
 KERNEL_BLOCKS = {"online": ("query", "map"), "threshold": ("query",), "trained": ("query", "train"),
@@ -97,7 +97,7 @@ def peak_rss_mb() -> float:
 def child_localize(args: argparse.Namespace) -> dict[str, float]:
     """One localize run in this (child) process: wall, CPU, peak RSS."""
     from wiloc import api
-    from wiloc.truth_source import TruthSource
+    from wiloc.evaluation.truth_source import TruthSource
 
     root = Path(args.root)
     training = None
@@ -114,8 +114,8 @@ def child_localize(args: argparse.Namespace) -> dict[str, float]:
 
 def child_kernel(args: argparse.Namespace) -> dict[str, float]:
     """The SAD kernel alone over query x map, map x map and training x map: wall and CPU each."""
-    from wiloc.cache import Cache
-    from wiloc.distances import pairwise, pairwise_blocks
+    from wiloc.cache.store import Cache
+    from wiloc.description.distances import pairwise, pairwise_blocks
 
     cache = Cache(Path(args.root) / "cache")
     entries = {e.folder: cache.read_entry(e.key) for e in cache.list_entries()}

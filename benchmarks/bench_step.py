@@ -23,8 +23,8 @@ import time
 import numpy as np
 
 from bench_localizer import SPEC, route
-from wiloc.differences import ComputedDifferences, summarize
-from wiloc.distances import DifferencesTo, consecutive
+from wiloc.description.differences import ComputedDifferences, summarize
+from wiloc.description.distances import DifferencesTo, consecutive
 from wiloc.methods.base import AHEAD_ROWS, MapContext
 from wiloc.methods.registry import make_method
 

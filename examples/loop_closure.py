@@ -24,8 +24,9 @@ from typing import Any
 import numpy as np
 from protocol import _finite, _fraction, _percent, console, require, run_table_script
 
-from wiloc import api, plots
+from wiloc import api
 from wiloc.errors import WilocError
+from wiloc.figures import plots
 
 RADIUS = 2  # frames: the positions are place indices
 ROUTE = 200  # frames of each Gardens Point walk

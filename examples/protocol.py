@@ -22,10 +22,11 @@ from typing import Any
 
 from rich.console import Console
 
-from wiloc import api, plots, run_figures
-from wiloc.cache import Cache
+from wiloc import api
+from wiloc.cache.store import Cache
 from wiloc.cli.views import progress_bar, table1_view, table2_view
 from wiloc.errors import WilocError
+from wiloc.figures import plots, run_figures
 
 REPO = Path(__file__).resolve().parents[1]
 METHODS = ("online", "threshold", "trained", "catgraph")

@@ -21,8 +21,9 @@ from protocol import _finite, _percent, aligned, console, require, run_table_scr
 
 from rich.table import Table
 
-from wiloc import api, plots
+from wiloc import api
 from wiloc.cli.views import table1_view
+from wiloc.figures import plots
 
 TOLERANCE = 2
 #: (table label, descriptor, method): local features first, then whole images.

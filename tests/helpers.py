@@ -20,7 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from wiloc.cache import Cache, Entry
+from wiloc.cache.store import Cache, Entry
 
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"

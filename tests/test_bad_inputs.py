@@ -29,12 +29,12 @@ import pytest
 from helpers import ends_in_one_error, places, write_traversal
 from typer.testing import CliRunner
 
-from wiloc import cache as cache_module
-from wiloc.cache import Cache
+from wiloc.cache import store as cache_module
+from wiloc.cache.store import Cache
 from wiloc.cli import app
-from wiloc.distances import DifferencesTo
+from wiloc.description.distances import DifferencesTo
 from wiloc.errors import FrameError, ParameterError, WilocError
-from wiloc.localizer import Localizer
+from wiloc.localization.localizer import Localizer
 
 runner = CliRunner()
 
@@ -334,7 +334,7 @@ def test_a_busy_entry_is_exit_code_3(route: tuple[Path, Path], cache_dir: Path,
     assert runner.invoke(app, ["describe", str(ref), "--jobs", "1"]).exit_code == 0
     entry = _entry_file(cache_dir, ref)
     holder = subprocess.Popen([sys.executable, "-c",
-                               "import sys, time; from pathlib import Path; from wiloc.cache import Cache\n"
+                               "import sys, time; from pathlib import Path; from wiloc.cache.store import Cache\n"
                                f"with Cache(Path({str(cache_dir)!r})).lock('descriptors/{entry.name}'):\n"
                                "    print('held', flush=True); time.sleep(30)\n"],
                               stdout=subprocess.PIPE, text=True)
@@ -552,7 +552,7 @@ def test_library_errors_name_parameters_not_flags() -> None:
 
 def test_a_library_error_names_the_parameter_and_the_command_line_its_flag(route: tuple[Path, Path],
                                                                            cache_dir: Path) -> None:
-    from wiloc.describing import describe_folder
+    from wiloc.description.describing import describe_folder
     from wiloc.descriptors.registry import get_descriptor
 
     ref, _ = route
@@ -1167,7 +1167,7 @@ def test_follow_names_a_file_still_being_written_when_the_run_ends(route: tuple[
                                                                    localizers: dict[str, Localizer]) -> None:
     """A file that grows at every look (after it was caught once, empty) is never handed out
     again; the run ends all the same, and names it as left out, not passed over in silence."""
-    from wiloc.follow import FolderWatch, Skipped, follow
+    from wiloc.localization.follow import FolderWatch, Skipped, follow
 
     _, query = route
     (tmp_path / "img0.png").write_bytes((query / "img0.png").read_bytes())
@@ -1284,7 +1284,7 @@ def test_a_names_file_with_a_byte_order_mark_gives_the_names_without_it(suffix: 
 def test_sequence_mode_refuses_a_map_positions_file_other_than_the_query_s(tmp_path: Path) -> None:
     """In sequence mode the traversal is its own map: another map positions file would place the
     same frames twice, differently."""
-    from wiloc.truth_source import TruthSource
+    from wiloc.evaluation.truth_source import TruthSource
 
     names = [f"img{i}.png" for i in range(30)]
     own, other = _positions_csv(tmp_path / "q.csv"), _positions_csv(tmp_path / "r.csv")

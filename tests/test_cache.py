@@ -12,8 +12,8 @@ import h5py
 import numpy as np
 import pytest
 
-from wiloc.cache import TEMP_SUFFIX, Cache
-from wiloc.entries import EntryHeader, FrameRecord, StoredEntry, checksum
+from wiloc.cache.entries import EntryHeader, FrameRecord, StoredEntry, checksum
+from wiloc.cache.store import TEMP_SUFFIX, Cache
 
 
 def _header(folder: str = "/data/route", length: int = 4) -> EntryHeader:
@@ -66,7 +66,7 @@ def test_construction_creates_nothing(tmp_path: Path) -> None:
 def test_lock_times_out_in_another_process_naming_the_holder(tmp_path: Path) -> None:
     cache = Cache(tmp_path / "c")
     code = (
-        "import sys; from pathlib import Path; from wiloc.cache import Cache\n"
+        "import sys; from pathlib import Path; from wiloc.cache.store import Cache\n"
         "from wiloc.errors import CacheBusyError\n"
         "try:\n"
         f"    with Cache(Path({str(cache.root)!r})).lock('descriptors/k.h5', timeout=0.2): pass\n"

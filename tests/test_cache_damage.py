@@ -13,9 +13,9 @@ import pytest
 from helpers import FakeSpec, write_images
 
 from wiloc import api
-from wiloc.cache import Cache
-from wiloc.describing import describe_folder
-from wiloc.differences import map_summary
+from wiloc.cache.store import Cache
+from wiloc.description.describing import describe_folder
+from wiloc.description.differences import map_summary
 from wiloc.errors import WilocError
 
 
@@ -111,7 +111,7 @@ def test_the_lock_excludes_other_processes_while_lock_files_come_and_go(tmp_path
     counter = tmp_path / "counter"
     counter.write_text("0")
     code = (
-        "import sys; from pathlib import Path; from wiloc.cache import Cache\n"
+        "import sys; from pathlib import Path; from wiloc.cache.store import Cache\n"
         f"cache, counter = Cache(Path({str(tmp_path / 'c')!r})), Path({str(counter)!r})\n"
         "for _ in range(40):\n"
         "    with cache.lock('descriptors/k.h5'):\n"

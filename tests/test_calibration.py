@@ -1,4 +1,4 @@
-"""The calibration mechanisms (wiloc.calibration) and the filter's confidence on data drawn from
+"""The calibration mechanisms (wiloc.methods.catgraph.observation) and the filter's confidence on data drawn from
 its own model, where the probability of being right is what the reliability check measures."""
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import pytest
 from scipy import integrate
 from scipy.special import logsumexp
 
-from wiloc.array_run import run_on_rows
-from wiloc.calibration import RankLikelihood, Unexplained, novelty_weights
-from wiloc.methods.catgraph import CatGraph
-from wiloc.reliability import reliability_bins
+from wiloc.evaluation.reliability import reliability_bins
+from wiloc.localization.array_run import run_on_rows
+from wiloc.methods.catgraph.filter import CatGraph
+from wiloc.methods.catgraph.observation import RankLikelihood, Unexplained, novelty_weights
 
 
 def test_rank_ratio_is_a_proper_likelihood_ratio_and_falls_with_the_difference() -> None:
@@ -174,7 +174,7 @@ KEPT_AT_099 = {("night_right", "sad"): 0.4, ("day_left", "gist"): 0.7}
 @pytest.fixture(scope="module")
 def runs(data_root, tmp_path_factory: pytest.TempPathFactory) -> dict:
     from wiloc import api
-    from wiloc.cache import Cache
+    from wiloc.cache.store import Cache
     cache = Cache(tmp_path_factory.mktemp("cache"))
     out = {}
     for dataset, query, reference, descriptor in TRAVERSALS:
@@ -213,7 +213,7 @@ def test_cut_099_keeps_most_of_the_recall_at_99_percent_precision(runs: dict, qu
 
 @pytest.mark.realdata
 def test_one_threshold_across_environments_keeps_each_traversals_recall(runs: dict) -> None:
-    from wiloc.metrics import global_threshold
+    from wiloc.evaluation.metrics import global_threshold
     evaluations = [runs[("catgraph", q, d)] for _, q, _, d in TRAVERSALS]
     _, recalls = global_threshold([(e.confidence, e.correct, e.summary.with_true_match) for e in evaluations], 0.99)
     for e, recall in zip(evaluations, recalls):
@@ -257,7 +257,7 @@ def test_ranks_from_one_sort_are_the_searched_ranks_with_ties() -> None:
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_order_ranks_a_block_of_rows_as_numpy_sorts_each(dtype: type) -> None:
-    from wiloc.calibration import rank_table
+    from wiloc.methods.catgraph.observation import rank_table
 
     rng = np.random.default_rng(5)
     rows = np.concatenate([rng.integers(0, 30, (6, 200)), rng.random((3, 200)) * 1e-3 + 1.0]).astype(dtype)
@@ -273,7 +273,7 @@ def test_order_ranks_a_block_of_rows_as_numpy_sorts_each(dtype: type) -> None:
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("n", [0, 1, 2, 3, 17, 100, 5000])
 def test_ranks_against_a_sorted_row_are_numpys_left_search(dtype: type, n: int) -> None:
-    from wiloc.rank_kernels import table_at_ranks
+    from wiloc.methods.catgraph.rank_kernels import table_at_ranks
 
     rng = np.random.default_rng(n)
     ordered = np.sort(rng.integers(0, 50, n).astype(dtype))  # ties

@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wiloc.array_run import run_on_rows
 from wiloc.decisions import Decisions
 from wiloc.errors import WilocError
+from wiloc.localization.array_run import run_on_rows
 from wiloc.methods import base
-from wiloc.methods.catgraph import CatGraph
+from wiloc.methods.catgraph.filter import CatGraph
 from wiloc.methods.trajectory import contrast_normalise, posterior_ranking
 from wiloc.rows import ArrayRows
 
@@ -224,7 +224,7 @@ def test_mode_on_a_map_shorter_than_the_mode_window(node: int) -> None:
 
 @pytest.mark.parametrize("even", [True, False])
 def test_sequence_score_step_is_the_numpy_expression_value_for_value(even: bool) -> None:
-    from wiloc.methods.filter_kernels import advance
+    from wiloc.methods.catgraph.filter_kernels import advance
     from wiloc.methods.trajectory import read_runs, shifted_reads
 
     rng = np.random.default_rng(3)
@@ -244,7 +244,7 @@ def test_sequence_score_step_is_the_numpy_expression_value_for_value(even: bool)
 @pytest.mark.parametrize(("n_nodes", "half"), [(500, 2), (500, 0), (3, 2), (40, 5)])
 def test_posterior_mode_sums_only_nodes_near_particles_and_reads_out_as_a_pass_over_every_node(
         n_nodes: int, half: int) -> None:
-    from wiloc.methods.filter_kernels import posterior_mode
+    from wiloc.methods.catgraph.filter_kernels import posterior_mode
 
     rng = np.random.default_rng(n_nodes + half)
     marks = np.zeros(n_nodes, dtype=np.int64)
@@ -268,8 +268,8 @@ def test_posterior_mode_sums_only_nodes_near_particles_and_reads_out_as_a_pass_o
 def test_weighing_is_the_numpy_expression_up_to_the_order_of_sums(renormalise: bool) -> None:
     from scipy.special import logsumexp
 
-    from wiloc.calibration import RankLikelihood
-    from wiloc.methods.filter_kernels import weigh
+    from wiloc.methods.catgraph.filter_kernels import weigh
+    from wiloc.methods.catgraph.observation import RankLikelihood
 
     rng = np.random.default_rng(8)
     row = np.round(rng.random(900) * 60).astype(np.float32).astype(np.float64)  # ties, float32 values

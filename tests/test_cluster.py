@@ -18,10 +18,10 @@ pytest.importorskip("distributed")
 from distributed import LocalCluster  # noqa: E402
 
 from wiloc import api  # noqa: E402
-from wiloc.cache import Cache  # noqa: E402
-from wiloc.cluster import connect, disconnect  # noqa: E402
-from wiloc.differences import ComputedDifferences  # noqa: E402
-from wiloc.distances import DifferencesTo  # noqa: E402
+from wiloc.cache.store import Cache  # noqa: E402
+from wiloc.description.cluster import connect, disconnect  # noqa: E402
+from wiloc.description.differences import ComputedDifferences  # noqa: E402
+from wiloc.description.distances import DifferencesTo  # noqa: E402
 
 TRAVERSALS = ("day_right", "day_left", "night_right")
 VOLATILE = {"created", "updated"}  # times of writing: the only attributes allowed to differ

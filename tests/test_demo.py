@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from wiloc import demo
 from wiloc.cli import app
-from wiloc.groundtruth import positions_truth
+from wiloc.evaluation.groundtruth import positions_truth
 
 PLOTS = ("pr.png", "threshold.png", "model.png")
 

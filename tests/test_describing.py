@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from helpers import FakeSpec, interrupt_after_six_frames, write_images
 
-from wiloc.cache import Cache
-from wiloc.describing import describe_folder
-from wiloc.entries import EntryHeader
+from wiloc.cache.entries import EntryHeader
+from wiloc.cache.store import Cache
+from wiloc.description.describing import describe_folder
+from wiloc.description.matrix_import import import_matrix
 from wiloc.errors import WilocError
-from wiloc.frames import read_gray
-from wiloc.matrix_import import import_matrix
+from wiloc.sources.frames import read_gray
 
 
 @dataclass(frozen=True)
@@ -147,8 +147,8 @@ def test_mixed_sizes_are_reported(tmp_path: Path) -> None:
 _RUN = """
 import sys
 from pathlib import Path
-from wiloc.cache import Cache
-from wiloc.describing import describe_folder
+from wiloc.cache.store import Cache
+from wiloc.description.describing import describe_folder
 from wiloc.descriptors.registry import get_descriptor
 describe_folder(Path(sys.argv[1]), get_descriptor("gist"), Cache(Path(sys.argv[2])), jobs=int(sys.argv[3]))
 """
@@ -179,8 +179,8 @@ def test_describe_keeps_decoder_warnings_off_stderr(tmp_path: Path) -> None:
     jpeg = (folder / names[0]).read_bytes()
     (folder / "img5.jpg").write_bytes(jpeg[: len(jpeg) // 2] + b"\xff\xd9")  # libjpeg: "Corrupt JPEG"
     code = (
-        "import sys, cv2; from pathlib import Path; from wiloc.cache import Cache\n"
-        "from wiloc.descriptors.registry import get_descriptor; from wiloc.describing import describe_folder\n"
+        "import sys, cv2; from pathlib import Path; from wiloc.cache.store import Cache\n"
+        "from wiloc.descriptors.registry import get_descriptor; from wiloc.description.describing import describe_folder\n"
         "level = cv2.utils.logging.getLogLevel()\n"
         "r = describe_folder(Path(sys.argv[1]), get_descriptor('sad'), Cache(Path(sys.argv[2])), jobs=int(sys.argv[3]))\n"
         "assert cv2.utils.logging.getLogLevel() == level\n"
@@ -306,7 +306,7 @@ def test_gardens_point_day_left_with_sad(data_root: Path, tmp_path: Path) -> Non
 
 
 def test_folders_described_in_one_block_share_their_workers(tmp_path: Path) -> None:
-    from wiloc.workers import keeping_pools
+    from wiloc.description.workers import keeping_pools
 
     for name in ("a", "b"):
         write_images(tmp_path / name, 24)
@@ -321,7 +321,7 @@ def test_folders_described_in_one_block_share_their_workers(tmp_path: Path) -> N
 def test_folders_described_in_one_stream_match_one_at_a_time(tmp_path: Path) -> None:
     """Folders whose frames share their names, described together with a worker: each frame's
     row goes to its own folder's entry, and a folder given twice is described once."""
-    from wiloc.describing import describe_folders
+    from wiloc.description.describing import describe_folders
 
     folders = [tmp_path / name for name in ("a", "b", "c")]
     for seed, folder in enumerate(folders):
@@ -345,7 +345,7 @@ def test_folders_described_in_one_stream_match_one_at_a_time(tmp_path: Path) -> 
 
 
 def test_a_bad_folder_among_several_stops_the_run_before_anything_is_written(tmp_path: Path) -> None:
-    from wiloc.describing import describe_folders
+    from wiloc.description.describing import describe_folders
 
     write_images(tmp_path / "good", 4)
     (tmp_path / "empty").mkdir()

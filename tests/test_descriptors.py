@@ -18,7 +18,7 @@ from wiloc.descriptors import (
     sad,
 )
 from wiloc.errors import ParameterError
-from wiloc.frames import read_gray
+from wiloc.sources.frames import read_gray
 
 
 def _textured(h: int, w: int, seed: int = 0, sigma: float = 2.0) -> np.ndarray:

@@ -18,14 +18,14 @@ from numpy.typing import NDArray
 from typer.testing import CliRunner
 
 from wiloc import api
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 from wiloc.cli import app
 from wiloc.cli.params import OWN_FORMS, descriptor_options, flag
 from wiloc.descriptors import registry
 from wiloc.descriptors.base import METRICS, Descriptor, DescriptorSpec
-from wiloc.localizer import Localizer
+from wiloc.evaluation.results import read_results
+from wiloc.localization.localizer import Localizer
 from wiloc.parameters import Parameters, declared, param
-from wiloc.results import read_results
 
 
 def _scene(seed: int, h: int = 96, w: int = 128) -> NDArray[np.uint8]:
@@ -50,8 +50,8 @@ def _folder(path: Path, seeds: range) -> Path:
 # --- parameters of the descriptors that need a file: one maker each ------------------------------
 
 def _bow(tmp: Path) -> dict[str, Any]:
-    from wiloc.vocabulary import VocabularyParams
-    from wiloc.vocabulary_build import build_vocabulary
+    from wiloc.bow.vocabulary import VocabularyParams
+    from wiloc.description.vocabulary_build import build_vocabulary
 
     small = VocabularyParams(words=16, max_features=60, max_side=320, iterations=10)
     report = build_vocabulary([_folder(tmp / "training", range(100, 104))], Cache(tmp / "vocabulary"), small)

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from helpers import make_entry
 
-from wiloc.cache import Cache, Entry
-from wiloc.differences import candidate_rows, differences, map_summary, prefetched_blocks, summarize
-from wiloc.distances import pairwise
+from wiloc.cache.store import Cache, Entry
+from wiloc.description.differences import candidate_rows, differences, map_summary, prefetched_blocks, summarize
+from wiloc.description.distances import pairwise
 from wiloc.errors import WilocError
 from wiloc.rows import ArrayRows, MapSummary
 
@@ -192,8 +192,8 @@ _KILLED_WRITER = """
 import os, signal, sys
 sys.path.insert(0, {tests!r})
 from helpers import make_entry
-from wiloc.cache import Cache
-from wiloc.differences import map_summary
+from wiloc.cache.store import Cache
+from wiloc.description.differences import map_summary
 
 def die(done, total):
     if done == total:

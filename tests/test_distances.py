@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from numba import njit
 
+from wiloc.description.distances import METRICS, _panel, consecutive, pairwise, pairwise_blocks, simd_path
 from wiloc.descriptors import registry
-from wiloc.distances import METRICS, _panel, consecutive, pairwise, pairwise_blocks, simd_path
 
 SAD_SCALE = 1.0 / (32 * 1152)  # 1152 values quantised as 128 + 32 z
 # (query rows, reference rows, values): odd lengths, single rows, empty sides, more rows than a
@@ -176,7 +176,7 @@ def test_sad_kernel_uses_psadbw() -> None:
 
 _PORTABILITY_SCRIPT = """
 import numpy as np
-from wiloc.distances import pairwise, simd_path
+from wiloc.description.distances import pairwise, simd_path
 rng = np.random.default_rng(3)
 a = rng.integers(0, 256, (9, 200), dtype=np.uint8)
 b = rng.integers(0, 256, (6, 200), dtype=np.uint8)
@@ -234,7 +234,7 @@ def test_consecutive_gives_the_kernel_s_difference_of_each_row_to_the_next(metri
 
 
 def test_idle_kernel_threads_sleep_unless_the_user_chose_otherwise() -> None:
-    probe = "import os, wiloc.distances; print(os.environ['OMP_WAIT_POLICY'])"
+    probe = "import os, wiloc.description.distances; print(os.environ['OMP_WAIT_POLICY'])"
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     default = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True)
     chosen = subprocess.run([sys.executable, "-c", probe], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},

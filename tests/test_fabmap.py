@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from wiloc.errors import ParameterError
-from wiloc.fabmap import (
+from wiloc.bow.fabmap import (
     NEW_PLACE_METHODS,
     ChowLiuTree,
     Detector,

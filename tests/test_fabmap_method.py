@@ -13,11 +13,11 @@ import pytest
 from typer.testing import CliRunner
 
 from wiloc import api
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 from wiloc.cli import app
 from wiloc.errors import UsageError
-from wiloc.localizer import Localizer
-from wiloc.truth_source import TruthSource
+from wiloc.evaluation.truth_source import TruthSource
+from wiloc.localization.localizer import Localizer
 
 SMALL = {"feature": "orb", "words": 128, "max_features": 200, "iterations": 8}
 FRAMES, STEP, WIDTH = 60, 16, 320

@@ -14,8 +14,8 @@ import pandas as pd
 import pytest
 
 from wiloc import api, demo
-from wiloc.follow import SETTLE_SECONDS, FolderWatch, Skipped, follow
-from wiloc.localizer import Localizer
+from wiloc.localization.follow import SETTLE_SECONDS, FolderWatch, Skipped, follow
+from wiloc.localization.localizer import Localizer
 
 CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
 

@@ -1,4 +1,4 @@
-"""Traversal listing, fingerprints and grayscale reading (wiloc/frames.py)."""
+"""Traversal listing, fingerprints and grayscale reading (wiloc/sources/frames.py)."""
 from __future__ import annotations
 
 import hashlib
@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from wiloc.errors import FrameError, WilocError
-from wiloc.frames import (Fingerprint, fingerprint, jpeg_size, list_traversal, natural_key, natural_sorted,
+from wiloc.sources.frames import (Fingerprint, fingerprint, jpeg_size, list_traversal, natural_key, natural_sorted,
                           read_gray)
 
 

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from wiloc.cli import app
 from wiloc.descriptors.external import read_external, recorded_metric
-from wiloc.results import read_results
+from wiloc.evaluation.results import read_results
 
 runner = CliRunner()
 N, D = 12, 32

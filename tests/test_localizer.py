@@ -14,9 +14,9 @@ import pytest
 
 import wiloc
 from wiloc import api, demo
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 from wiloc.errors import ParameterError, UsageError, WilocError
-from wiloc.localizer import Localizer
+from wiloc.localization.localizer import Localizer
 from wiloc.methods.registry import METHODS
 
 FIELDS = ("match_name", "difference", "confidence", "stage")
@@ -102,7 +102,7 @@ def test_streaming_equals_batch_in_sequence_mode(method: str, tmp_path: Path) ->
 _CONTINUE = """
 import json, sys
 from pathlib import Path
-from wiloc.localizer import Localizer
+from wiloc.localization.localizer import Localizer
 loc = Localizer.load(sys.argv[1])
 out = [loc.observe(Path(p)) for p in sys.argv[2:]]
 print(json.dumps([[d.frame, d.match_name, repr(d.confidence), repr(d.new_place), d.stage] for d in out]))

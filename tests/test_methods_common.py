@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from wiloc import api, demo
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 from wiloc.candidates import RANKED, finite_minimum
 from wiloc.decisions import Decision, Decisions
-from wiloc.differences import summarize
+from wiloc.description.differences import summarize
 from wiloc.errors import ParameterError
-from wiloc.localizer import Localizer
+from wiloc.localization.localizer import Localizer
 from wiloc.methods import registry
 from wiloc.methods.base import NEEDS, ROWS, MapContext, Method, TrainingRows
 from wiloc.parameters import Parameters, declared, param

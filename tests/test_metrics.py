@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wiloc.groundtruth import Truth
-from wiloc.metrics import (average_precision, global_threshold, max_f1, pr_curve,
+from wiloc.evaluation.groundtruth import Truth
+from wiloc.evaluation.metrics import (average_precision, global_threshold, max_f1, pr_curve,
                            precision_at_thresholds, recall_at_1, recall_at_precision, summarize)
 
 NAN = float("nan")

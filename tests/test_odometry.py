@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from wiloc.errors import WilocError
-from wiloc.odometry import read_odometry, steps
+from wiloc.localization.odometry import read_odometry, steps
 
 
 def _write(tmp_path: Path, text: str) -> Path:

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from wiloc.array_run import run_on_rows
 from wiloc.decisions import Decisions
 from wiloc.errors import WilocError
+from wiloc.localization.array_run import run_on_rows
 from wiloc.methods.online import Online, near_miss
 
 INF = np.inf

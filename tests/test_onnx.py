@@ -18,9 +18,9 @@ pytest.importorskip("onnxruntime")
 from onnx import TensorProto, helper, numpy_helper  # noqa: E402
 
 from wiloc import Localizer  # noqa: E402
-from wiloc.cache import Cache  # noqa: E402
+from wiloc.cache.store import Cache  # noqa: E402
 from wiloc.cli import app  # noqa: E402
-from wiloc.describing import describe_folder, describe_video  # noqa: E402
+from wiloc.description.describing import describe_folder, describe_video  # noqa: E402
 from wiloc.descriptors.registry import get_descriptor  # noqa: E402
 
 runner = CliRunner()
@@ -172,17 +172,17 @@ def test_video_frames_are_described_in_colour(tmp_path: Path) -> None:
 _KILLED_RUN = """
 import sys, time
 from pathlib import Path
-import wiloc.describing
-import wiloc.frame_describing
-from wiloc.cache import Cache
+import wiloc.description.describing
+import wiloc.description.frame_describing
+from wiloc.cache.store import Cache
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
-wiloc.frame_describing.COLOUR_BATCH = 2
+wiloc.description.frame_describing.COLOUR_BATCH = 2
 batch = DescriptorSpec.compute_batch
 def slow(self, images, threads=0):
     time.sleep(0.2)
     return batch(self, images, threads)
 DescriptorSpec.compute_batch = slow
-wiloc.describing.describe_folder(Path(sys.argv[1]), get_descriptor("onnx", model=sys.argv[3]), Cache(Path(sys.argv[2])))
+wiloc.description.describing.describe_folder(Path(sys.argv[1]), get_descriptor("onnx", model=sys.argv[3]), Cache(Path(sys.argv[2])))
 """
 
 

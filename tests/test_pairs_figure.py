@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 
 from helpers import places, write_traversal
 from wiloc import api
-from wiloc.run_figures import example_pairs
+from wiloc.figures.run_figures import example_pairs
 
 runner = CliRunner()
 

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 
 DIST, VERSION = "wiloc-test-tiny-plugin", "0.3.1"
 MODULE = "wiloc_test_tiny_plugin"

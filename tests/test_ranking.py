@@ -14,10 +14,10 @@ from wiloc import api
 from wiloc.candidates import RANKED, best_candidates
 from wiloc.cli import app
 from wiloc.decisions import Decisions
-from wiloc.metrics import recall_at_k, summarize
-from wiloc.results import make_results, read_results, write_results
-from wiloc.results_header import ResultsHeader
-from wiloc.truth_source import TruthSource
+from wiloc.evaluation.metrics import recall_at_k, summarize
+from wiloc.evaluation.results import make_results, read_results, write_results
+from wiloc.evaluation.results_header import ResultsHeader
+from wiloc.evaluation.truth_source import TruthSource
 
 runner = CliRunner()
 REF = [f"f{i:02d}.png" for i in range(30)]
@@ -52,8 +52,8 @@ def test_best_candidates_rank_ascending_ties_by_position_and_skip_non_candidates
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_the_compiled_pass_over_a_block_reads_each_row_as_the_numpy_functions_do(dtype: type, window: int) -> None:
     from wiloc.candidates import finite_minimum
+    from wiloc.methods.catgraph.row_kernels import best_of_rows
     from wiloc.methods.online import near_miss
-    from wiloc.methods.row_kernels import best_of_rows
 
     rng = np.random.default_rng(3)
     rows = rng.integers(0, 6, (400, 40)).astype(dtype)  # many ties

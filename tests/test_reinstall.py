@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 # A numba-cached kernel, compiled (and cached) by the installed package.
 KERNEL = """
 import numpy as np
-from wiloc.distances import pairwise
+from wiloc.description.distances import pairwise
 assert pairwise(np.zeros((1, 8), np.uint8), np.ones((1, 8), np.uint8), "l1")[0, 0] == 8
 """
 

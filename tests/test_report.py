@@ -106,8 +106,8 @@ def test_a_report_over_an_existing_file_says_so_and_bad_names_are_refused(runs: 
 
 def test_thumbnails_past_the_budget_are_made_again_narrower(runs: list[Path], tmp_path: Path,
                                                            monkeypatch: pytest.MonkeyPatch) -> None:
-    from wiloc import report
-    from wiloc.cache import Cache
+    from wiloc.cache.store import Cache
+    from wiloc.figures import report
 
     comparison = api.compare(runs[:1], api.TruthSource(kind="aligned"))
     wide = report.write_report(comparison, tmp_path / "wide.html", cache=Cache(), thumb_width=96)

@@ -9,9 +9,9 @@ import pytest
 
 from wiloc.decisions import Decisions
 from wiloc.errors import WilocError
+from wiloc.evaluation.results import Results, make_results, read_results, write_results
+from wiloc.evaluation.results_header import ResultsHeader, parse_header
 from wiloc.model import HistogramModel
-from wiloc.results import Results, make_results, read_results, write_results
-from wiloc.results_header import ResultsHeader, parse_header
 
 
 def _decisions() -> Decisions:

@@ -13,13 +13,13 @@ from helpers import ends_in_one_error
 from typer.testing import CliRunner
 
 from wiloc import api
-from wiloc.bags import Bag, frame_name, is_bag, stamp_of
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 from wiloc.cli import app
-from wiloc.describing import describe_bag
+from wiloc.description.describing import describe_bag
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.errors import WilocError
-from wiloc.frames import read_gray
+from wiloc.sources.bags import Bag, frame_name, is_bag, stamp_of
+from wiloc.sources.frames import read_gray
 
 pytest.importorskip("rosbags")
 from rosbags.rosbag1 import Writer as Writer1  # noqa: E402

@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 
 from wiloc import api
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 from wiloc.decisions import Decision, Decisions
-from wiloc.distances import DifferencesTo
-from wiloc.localizer import Localizer
+from wiloc.description.distances import DifferencesTo
+from wiloc.description.traversals import Describer
+from wiloc.localization.localizer import Localizer
 from wiloc.methods.registry import METHODS
-from wiloc.traversals import Describer
 
 CASES = [("night_right", "sad"), ("day_left", "gist"), ("night_right", "gist"), ("nordland", "sad")]
 DIFFERENCE_METHODS = sorted(m for m, cls in METHODS.items() if "differences" in cls.rows)  # fabmap: its own tests

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wiloc.array_run import run_on_rows
 from wiloc.decisions import Decisions
 from wiloc.errors import ParameterError, UsageError, WilocError
+from wiloc.localization.array_run import run_on_rows
 from wiloc.methods.base import MapContext
 from wiloc.methods.seqslam import SeqSLAM, _add_shifted, enhance, lowest_enhanced, trajectory_offsets
 from wiloc.rows import ArrayRows

@@ -1,5 +1,5 @@
 """Where numba's compiled kernels go (wiloc/jitcache.py) and how ``WILOC_SIMD`` narrows the kernels'
-instruction set (wiloc.distances.simd_path), each in a fresh process: both are read at start."""
+instruction set (wiloc.description.distances.simd_path), each in a fresh process: both are read at start."""
 from __future__ import annotations
 
 import os
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from wiloc.distances import SIMD_PATHS, _cpu_features
+from wiloc.description.distances import SIMD_PATHS, _cpu_features
 
 SIMD_AND_CACHE = ("NUMBA_CACHE_DIR", "WILOC_SIMD", "WILOC_CACHE")
 
@@ -34,7 +34,7 @@ def test_wiloc_simd_narrows_the_path_but_never_widens_it() -> None:
     widest = next(name for name, feature in SIMD_PATHS.items() if not feature or feature in _cpu_features())
     order = list(SIMD_PATHS)
     for forced in order:
-        got = _python("from wiloc.distances import simd_path; print(simd_path())", WILOC_SIMD=forced)
+        got = _python("from wiloc.description.distances import simd_path; print(simd_path())", WILOC_SIMD=forced)
         assert got.stdout.strip() == order[max(order.index(forced), order.index(widest))], got.stderr[-1000:]
 
 

@@ -12,7 +12,7 @@ from helpers import places, write_traversal
 from typer.testing import CliRunner
 
 from wiloc.cli import app
-from wiloc.results import read_results, write_results
+from wiloc.evaluation.results import read_results, write_results
 from wiloc.wrapping import widest_word, wrap
 
 runner = CliRunner()

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wiloc.array_run import run_on_rows
 from wiloc.errors import ParameterError, WilocError
+from wiloc.localization.array_run import run_on_rows
 from wiloc.methods.threshold import Threshold
 
 

@@ -6,8 +6,8 @@ import pytest
 import scipy.sparse
 from scipy import stats
 
-from wiloc.array_run import run_on_rows
 from wiloc.errors import WilocError
+from wiloc.localization.array_run import run_on_rows
 from wiloc.methods.base import TrainingRows
 from wiloc.methods.trained import Trained, TrainedParams, train_model
 

@@ -1,4 +1,4 @@
-"""Ground truth as VPR datasets ship it (wiloc/truth_formats.py): VPR-Bench's ground_truth_new.npy,
+"""Ground truth as VPR datasets ship it (wiloc/evaluation/truth_formats.py): VPR-Bench's ground_truth_new.npy,
 @UTM_east@UTM_north@ file names and EXIF GPS each give the same evaluation as the pairs CSV that
 lists the same true matches; bad files of each kind are one line and exit code 1."""
 from __future__ import annotations
@@ -18,10 +18,10 @@ from typer.testing import CliRunner
 from wiloc import api
 from wiloc.cli import app
 from wiloc.errors import WilocError
-from wiloc.groundtruth import EARTH_RADIUS_M
-from wiloc.results import read_results
-from wiloc.truth_formats import read_vprbench
-from wiloc.truth_source import load_truth
+from wiloc.evaluation.groundtruth import EARTH_RADIUS_M
+from wiloc.evaluation.results import read_results
+from wiloc.evaluation.truth_formats import read_vprbench
+from wiloc.evaluation.truth_source import load_truth
 
 runner = CliRunner()
 N = 24

@@ -16,13 +16,13 @@ from helpers import FakeSpec, interrupt_after_six_frames
 from typer.testing import CliRunner
 
 from wiloc import api
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 from wiloc.cli import app
-from wiloc.describing import describe_folder, describe_video
+from wiloc.description.describing import describe_folder, describe_video
+from wiloc.description.traversals import Describer
 from wiloc.errors import ParameterError, WilocError
-from wiloc.frames import list_traversal, read_gray
-from wiloc.traversals import Describer
-from wiloc.video import Sampling, frame_name, is_video, video_fingerprint
+from wiloc.sources.frames import list_traversal, read_gray
+from wiloc.sources.video import Sampling, frame_name, is_video, video_fingerprint
 
 
 def write_video(path: Path, count: int, *, fps: float = 10.0, size: tuple[int, int] = (64, 48),
@@ -169,10 +169,10 @@ def test_resume_passes_over_journaled_frames_undecoded(tmp_path: Path, monkeypat
 _RUN = """
 import sys
 from pathlib import Path
-from wiloc.cache import Cache
-from wiloc.describing import describe_video
+from wiloc.cache.store import Cache
+from wiloc.description.describing import describe_video
 from wiloc.descriptors.registry import get_descriptor
-from wiloc.video import Sampling
+from wiloc.sources.video import Sampling
 describe_video(Path(sys.argv[1]), get_descriptor("gist"), Cache(Path(sys.argv[2])), Sampling(every=2))
 """
 

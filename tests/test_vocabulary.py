@@ -15,19 +15,19 @@ import h5py
 import numpy as np
 import pytest
 
-from wiloc.cache import Cache
-from wiloc.clustering import assign, kmajority, kmeans
-from wiloc.describing import describe_folder
+from wiloc.bow.clustering import assign, kmajority, kmeans
+from wiloc.bow.features import extract_features, to_scale
+from wiloc.cache.store import Cache
+from wiloc.description.describing import describe_folder
 from wiloc.descriptors import get_descriptor
 from wiloc.errors import ParameterError, WilocError
-from wiloc.features import extract_features, to_scale
-from wiloc.vocabulary import (
+from wiloc.bow.vocabulary import (
     VocabularyParams,
     pack_words,
     read_vocabulary,
     unpack_words,
 )
-from wiloc.vocabulary_build import build_vocabulary, vocabulary_path
+from wiloc.description.vocabulary_build import build_vocabulary, vocabulary_path
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = VocabularyParams(words=16, max_features=60, max_side=320, iterations=10)
@@ -194,9 +194,9 @@ def test_an_incomplete_file_is_not_a_vocabulary(tmp_path: Path) -> None:
 _KILLED_BUILD = textwrap.dedent("""
     import sys, time
     from pathlib import Path
-    import wiloc.vocabulary_build as build
-    from wiloc.cache import Cache
-    from wiloc.vocabulary import VocabularyParams
+    import wiloc.description.vocabulary_build as build
+    from wiloc.bow.vocabulary import VocabularyParams
+    from wiloc.cache.store import Cache
 
     folder, marker, stage = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
     params = VocabularyParams(words=16, max_features=60, max_side=320, iterations=10)
@@ -238,7 +238,7 @@ def test_a_killed_build_leaves_no_complete_file_and_the_rerun_resumes(
     assert not [p for p in folder_files if p.suffix == ".h5"]  # no file that looks complete
     if stage == "writing":  # the file is built in memory and written once complete: nothing half-written
         assert not [p for p in folder_files if p.name.endswith(".wiloc-tmp")]
-    import wiloc.vocabulary_build as build
+    import wiloc.description.vocabulary_build as build
     extracted = []
     real = build._features
     monkeypatch.setattr(build, "_features", lambda *args: extracted.append(args[0]) or real(*args))

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
-from wiloc.workers import WorkerError, WorkerPool, borrowed_pool, can_fork, kept_pool, keeping_pools
+from wiloc.description.workers import WorkerError, WorkerPool, borrowed_pool, can_fork, kept_pool, keeping_pools
 
 TIMEOUT = 120  # seconds; a hang fails the test instead of the suite
 

@@ -2,7 +2,7 @@
 
 The four verbs are plain functions for notebooks and scripts: ``wiloc.describe``,
 ``wiloc.localize``, ``wiloc.evaluate``, ``wiloc.compare`` (see wiloc.api); ``wiloc.Localizer``
-decides frame by frame, for a robot, a camera loop or a notebook (see wiloc.localizer).
+decides frame by frame, for a robot, a camera loop or a notebook (see wiloc.localization.localizer).
 """
 from __future__ import annotations
 
@@ -22,6 +22,6 @@ def __getattr__(name: str) -> Any:
         from wiloc import api
         return getattr(api, name)
     if name == "Localizer":
-        from wiloc.localizer import Localizer
+        from wiloc.localization.localizer import Localizer
         return Localizer
     raise AttributeError(f"module 'wiloc' has no attribute {name!r}")

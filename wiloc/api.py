@@ -2,9 +2,9 @@
 
 The CLI and the demo call these; so can a notebook. Nothing here prints. Long steps report through
 ``progress(stage, done, total)``, where ``stage`` names the step ("describe day_left", ...).
-A run's setup is ``wiloc.session``'s (shared with ``wiloc.Localizer``); scoring and the tables are
-``wiloc.comparison``'s, following a folder ``wiloc.follow_run``'s, and importing descriptors and
-building vocabularies ``wiloc.inputs``'s: their public names are importable from here too.
+A run's setup is ``wiloc.localization.session``'s (shared with ``wiloc.Localizer``); scoring and the tables are
+``wiloc.evaluation.comparison``'s, following a folder ``wiloc.localization.follow_run``'s, and importing descriptors and
+building vocabularies ``wiloc.localization.inputs``'s: their public names are importable from here too.
 """
 from __future__ import annotations
 
@@ -15,22 +15,22 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from wiloc.cache import Cache
+from wiloc.cache.store import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
-from wiloc.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_once,
+from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_once,
                               check_precisions, comparison, method_labels, new_place_series, pr_series,
                               reliability_series, run_names, run_subject, score, threshold_marks, threshold_series,
                               traversal_labels)
-from wiloc.describing import DescribeReport, check_sampling, check_topic, describe_sources, is_stream
-from wiloc.follow_run import FollowRun, follow_folder
-from wiloc.inputs import import_descriptors, shared_workers, vocabulary, vocabulary_file
+from wiloc.description.describing import DescribeReport, check_sampling, check_topic, describe_sources, is_stream
+from wiloc.description.traversals import Progress, descriptor_spec, descriptors_digest, open_cluster, stage
+from wiloc.evaluation.results import Results, make_results, read_results, write_results
+from wiloc.evaluation.truth_source import TruthSource
+from wiloc.localization.follow_run import FollowRun, follow_folder
+from wiloc.localization.inputs import import_descriptors, shared_workers, vocabulary, vocabulary_file
+from wiloc.localization.session import RunSession, results_name, run_header
+from wiloc.localization.training import Training
 from wiloc.methods.registry import lowest_confidence
-from wiloc.results import Results, make_results, read_results, write_results
-from wiloc.session import RunSession, results_name, run_header
-from wiloc.training import Training
-from wiloc.traversals import Progress, descriptor_spec, descriptors_digest, open_cluster, stage
-from wiloc.truth_source import TruthSource
-from wiloc.video import Sampling
+from wiloc.sources.video import Sampling
 
 if TYPE_CHECKING:
     from wiloc.decisions import Decisions
@@ -54,7 +54,7 @@ def describe(folders: Sequence[str | Path] | str | Path, descriptor: str = "sad"
     picks (default: every frame). ``jobs`` worker processes describe folders, or the workers of
     the Dask ``scheduler`` (an address, or ``local``: a local cluster of ``jobs`` workers); videos
     and bags are decoded and described in this process. The folders' frames form one stream over
-    the workers (``wiloc.describing.describe_folders``). Reports come in the order of
+    the workers (``wiloc.description.describing.describe_folders``). Reports come in the order of
     ``folders``; one folder given alone (not in a list) is described as ``[folder]``, never as
     the characters of its name."""
     spec = descriptor_spec(descriptor, descriptor_params)
@@ -156,7 +156,7 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS,
     """Precision-recall metrics and calibration (with precision and recall at fixed confidence
     ``cuts``) of one run against ground truth, and of its P(new place) where the run gives one:
     a results file, or a run in memory. Recall@N for each N of ``recall_at`` when the run ranks
-    the map (``wiloc.comparison.score``)."""
+    the map (``wiloc.evaluation.comparison.score``)."""
     if isinstance(run, LocalizeRun):
         return score(run.path, run.results, truth, cuts, recall_at)
     if isinstance(run, Results):

@@ -31,9 +31,9 @@ from numpy.typing import NDArray
 
 from wiloc import api
 from wiloc.atomic import written_whole
-from wiloc.cache import Cache
-from wiloc.frames import text_path
+from wiloc.cache.store import Cache
 from wiloc.reprs import short_repr
+from wiloc.sources.frames import text_path
 
 SEED = 2014
 FRAME_W, FRAME_H = 160, 120
@@ -306,7 +306,7 @@ def run_demo(out_dir: Path, progress: Progress | None = None) -> DemoReport:
     (the paper's Figure 5) and ``model.png`` (Figure 1, the online model learned on the first
     query).
     """
-    from wiloc import plots
+    from wiloc.figures import plots
 
     out_dir = Path(out_dir)
     route = make_demo_route(out_dir / "route", progress=progress)

@@ -11,7 +11,7 @@ with the first kernel it needs. The variable is set in ``os.environ``, so subpro
 workers, ``--jobs``) share the same compiled kernels.
 
 numba keys its cache by CPU name and features, but not by the instruction set ``$WILOC_SIMD``
-makes wiloc's kernels use (wiloc.distances.simd_path): kernels compiled under it go into
+makes wiloc's kernels use (wiloc.description.distances.simd_path): kernels compiled under it go into
 ``<cache root>/numba-<value>`` instead, so that no run loads another path's code.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ import platformdirs
 #: The environment variable numba reads for its cache folder.
 NUMBA_CACHE_VARIABLE = "NUMBA_CACHE_DIR"
 #: Environment variable naming a narrower instruction set for wiloc's kernels than the CPU's
-#: widest (wiloc.distances.simd_path, docs/kernels.md).
+#: widest (wiloc.description.distances.simd_path, docs/kernels.md).
 SIMD_VARIABLE = "WILOC_SIMD"
 
 

@@ -1,7 +1,7 @@
 """Difference matrices as methods read them, and what methods learn from a map's matrix to itself.
 
 A matrix is read block of rows by block of rows (:class:`RowBlocks`: a computed one,
-``wiloc.differences.ComputedDifferences``, or an array, :class:`ArrayRows`); nothing N x N need
+``wiloc.description.differences.ComputedDifferences``, or an array, :class:`ArrayRows`); nothing N x N need
 be held. A map's differences to itself reach a method only as their :class:`MapSummary`.
 """
 from __future__ import annotations

@@ -97,7 +97,8 @@ def compare(
 def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshold_plot: Path | None,
                    model_plot: Path | None, pr_plot: Path | None, calibration_plot: Path | None,
                    notes: Notes) -> list[Path]:
-    from wiloc import api, plots
+    from wiloc import api
+    from wiloc.figures import plots
 
     subject = api.run_subject(comparison.evaluations, source)
     learned = sorted((e for e in comparison.evaluations if e.method in ("online", "trained")),

@@ -52,7 +52,7 @@ def describe(
     Example: wiloc describe data/gardens-point-walking/day_right --descriptor gist
     """
     from wiloc import api
-    from wiloc.cache import Cache
+    from wiloc.cache.store import Cache
 
     importing = import_file is not None
     if list_cache and (folders or importing):

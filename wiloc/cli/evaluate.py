@@ -63,12 +63,12 @@ def evaluate(
     drawings = _run_plots(evaluations, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only)
     written = []
     if pr_plot is not None:
-        from wiloc.plots import plot_pr
+        from wiloc.figures.plots import plot_pr
         written.append(plot_pr(dict(zip(api.run_names(evaluations), (e.curve for e in evaluations))),
                                replacing(notes, pr_plot),
                                title=f"Precision-recall: {api.run_subject(evaluations, source)}"))
     if calibration_plot is not None:
-        from wiloc.plots import plot_reliability
+        from wiloc.figures.plots import plot_reliability
         written.append(plot_reliability(api.reliability_series(evaluations), replacing(notes, calibration_plot),
                                         new_place=api.new_place_series(evaluations)))
     written += [draw() for draw in drawings]
@@ -97,9 +97,9 @@ def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pair
     that recorded no digest of its images (so that they cannot be checked as the run's) is said so."""
     if matrix_plot is None and pairs_plot is None:
         return []
-    from wiloc.cache import Cache
-    from wiloc.plots import plot_matrix, plot_pairs
-    from wiloc.run_figures import example_pairs, matrix_picture, unchecked_folders
+    from wiloc.cache.store import Cache
+    from wiloc.figures.plots import plot_matrix, plot_pairs
+    from wiloc.figures.run_figures import example_pairs, matrix_picture, unchecked_folders
 
     store = Cache(cache)
     drawings: list[Callable[[], Path]] = []

@@ -70,8 +70,8 @@ def localize(
     Live: wiloc localize camera/ --map data/day_right --method catgraph --follow --idle 30
     """
     from wiloc import api
-    from wiloc.cache import Cache
-    from wiloc.traversals import is_matrix_file
+    from wiloc.cache.store import Cache
+    from wiloc.description.traversals import is_matrix_file
 
     method_class(method)
     params = method_params(method, method_options or {})

@@ -49,7 +49,7 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
                      "median_confidence": float(sorted(conf)[len(conf) // 2]) if len(conf) else float("nan"),
                      "seconds": run.seconds, "results": run.path.name})
     if model_plot is not None:
-        from wiloc.plots import plot_model
+        from wiloc.figures.plots import plot_model
         plot_model(runs[0].decisions.model, replacing(notes[0], model_plot), title=f"{runs[0].query.name} ({method})")
     if as_json:
         print_command_json("localize", "runs", [

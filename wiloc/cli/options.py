@@ -29,7 +29,7 @@ def plot_file(value: Path | None) -> Path | None:
     """A plot option's file, checked as the options are read, before any work: its folder must
     exist, its suffix name a format the figures can be written in."""
     if output_file(value) is not None:
-        from wiloc.plots import check_plot_path
+        from wiloc.figures.plots import check_plot_path
         try:
             check_plot_path(value)
         except WilocError as exc:
@@ -63,7 +63,7 @@ def descriptor_params_given(descriptor: str, options: dict[str, Any] | None, voc
             fail(f"--vocabulary: --descriptor {descriptor} needs one (a file, or a key from `wiloc vocabulary`)",
                  EXIT_USAGE)
         from wiloc import api
-        from wiloc.cache import Cache
+        from wiloc.cache.store import Cache
         params["file"] = str(api.vocabulary_file(vocabulary, Cache(cache)))
     if descriptor in descriptor_takers("model"):
         if model is None:

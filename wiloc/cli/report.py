@@ -40,8 +40,8 @@ def report(
     Example: wiloc report runs/day_left-sad-online.csv runs/day_left-sad-catgraph.csv --gt aligned -o report.html
     """
     from wiloc import api
-    from wiloc.cache import Cache
-    from wiloc.report import write_report
+    from wiloc.cache.store import Cache
+    from wiloc.figures.report import write_report
 
     at = parse_cuts(cuts)
     source = truth_source(gt, gt_map, tolerance, radius)

@@ -12,8 +12,8 @@ from wiloc.candidates import RANKED
 from wiloc.cli.core import Notes, fail
 from wiloc.cli.options import replacing
 from wiloc.errors import EXIT_USAGE
-from wiloc.metrics import RANKED_KS
-from wiloc.reliability import DEFAULT_CUTS
+from wiloc.evaluation.metrics import RANKED_KS
+from wiloc.evaluation.reliability import DEFAULT_CUTS
 
 if TYPE_CHECKING:
     from wiloc import api

@@ -1,5 +1,5 @@
 """The `--gt` grammar: a ground-truth form and its file as the command line names them, made into
-the library's :class:`wiloc.truth_source.TruthSource`; options that another form would use are
+the library's :class:`wiloc.evaluation.truth_source.TruthSource`; options that another form would use are
 refused."""
 from __future__ import annotations
 

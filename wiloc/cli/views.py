@@ -24,7 +24,7 @@ from rich.table import Table
 
 from wiloc.candidates import RANKED
 from wiloc.cli.core import err, out
-from wiloc.reliability import NEW_PLACE_KEYS
+from wiloc.evaluation.reliability import NEW_PLACE_KEYS
 from wiloc.wrapping import Words
 
 if TYPE_CHECKING:

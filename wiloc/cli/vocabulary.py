@@ -31,7 +31,7 @@ def vocabulary(
     wiloc localize data/day_left --map data/day_right --descriptor bow --vocabulary KEY --method fabmap
     """
     from wiloc import api
-    from wiloc.cache import Cache
+    from wiloc.cache.store import Cache
 
     params = {"feature": feature, "words": words, "max_features": max_features, "max_side": max_side,
               "iterations": iterations, "seed": seed}

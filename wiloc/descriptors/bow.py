@@ -23,13 +23,13 @@ from wiloc.errors import WilocError
 from wiloc.parameters import Parameters, declared, param
 
 if TYPE_CHECKING:
-    from wiloc.vocabulary import Vocabulary
+    from wiloc.bow.vocabulary import Vocabulary
 
 
 @lru_cache(maxsize=2)
 def load_vocabulary(file: str, key: str) -> Vocabulary:
     """The vocabulary in `file`, read once per process; WilocError unless its key is `key`."""
-    from wiloc.vocabulary import read_vocabulary
+    from wiloc.bow.vocabulary import read_vocabulary
 
     vocabulary = read_vocabulary(Path(file))
     if vocabulary.key != key:
@@ -40,7 +40,7 @@ def load_vocabulary(file: str, key: str) -> Vocabulary:
 def compute_bow(gray: NDArray[np.uint8], vocabulary: str, file: str) -> NDArray[np.uint8]:
     """Packed word presence ``(ceil(K / 8),)`` of a grayscale image over the vocabulary `vocabulary`
     (its key) stored in `file`."""
-    from wiloc.vocabulary import pack_words
+    from wiloc.bow.vocabulary import pack_words
 
     return pack_words(load_vocabulary(file, vocabulary).bag_of_words(gray))
 
@@ -67,8 +67,8 @@ class Bow(Descriptor):
     @classmethod
     def make(cls, given: Mapping[str, Any]) -> DescriptorSpec:
         """``file`` required; ``vocabulary``, its key, is read from the file (given, it must match)."""
-        from wiloc.features import decode_size
-        from wiloc.vocabulary import read_vocabulary_header
+        from wiloc.bow.features import decode_size
+        from wiloc.bow.vocabulary import read_vocabulary_header
 
         check_names(cls.name, given, [d.name for d in declared(cls.Params)])
         if not isinstance(given.get("file"), (str, Path)):
@@ -94,10 +94,10 @@ class Bow(Descriptor):
     @classmethod
     def traversal_doubts(cls, data: NDArray, params: Mapping[str, Any]) -> list[str]:
         """Images that give too few words by the vocabulary's own rule
-        (``wiloc.vocabulary.word_shortage``): what is localised on them degenerates. Said only of
+        (``wiloc.bow.vocabulary.word_shortage``): what is localised on them degenerates. Said only of
         a vocabulary that passes that rule itself: a sparse one is warned of already (:meth:`doubts`),
         and its images' few words may be its own doing (a vocabulary of 16 words)."""
-        from wiloc.vocabulary import word_shortage
+        from wiloc.bow.vocabulary import word_shortage
 
         if load_vocabulary(params["file"], params["vocabulary"]).too_few_words() is not None:
             return []

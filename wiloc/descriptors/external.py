@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from wiloc.atomic import written_whole
 from wiloc.descriptors.base import METRICS
 from wiloc.errors import WilocError, load_problem
-from wiloc.frames import natural_sorted
+from wiloc.sources.frames import natural_sorted
 
 METRIC_ATTRIBUTE = "metric"
 """The attribute of a wiloc descriptor file that records its metric."""

@@ -4,7 +4,7 @@ A method is a :class:`Method` subclass with its parameters declared as one froze
 :class:`~wiloc.parameters.Parameters` dataclass. It is started on a map (:class:`MapContext`, or
 on nothing but the recent window in sequence mode) and then steps one query frame at a time: a
 difference row (and, for methods that take it, an odometry step) in, one :class:`Decision` out.
-Batch runs are that same step repeated (:meth:`Method.run`); ``wiloc.localizer.Localizer`` feeds
+Batch runs are that same step repeated (:meth:`Method.run`); ``wiloc.localization.localizer.Localizer`` feeds
 it frame by frame. Adding a method is one module with a subclass and one line in
 ``wiloc/methods/registry.py``.
 """
@@ -46,7 +46,7 @@ NEEDS = ("map", "map_self", "map_neighbours", "training", "odometry")
 
 #: What a query frame's row can hold: ``differences`` to each candidate (low: alike; inf: no
 #: candidate) or FAB-MAP's ``log_ratio`` log p(Z | L_j) - log p(Z | new place) (high: alike;
-#: -inf: no candidate), from bag-of-words descriptors (``wiloc.fabmap.evidence``).
+#: -inf: no candidate), from bag-of-words descriptors (``wiloc.methods.fabmap_evidence``).
 ROWS = ("differences", "log_ratio")
 
 

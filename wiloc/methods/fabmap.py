@@ -1,8 +1,8 @@
 """FAB-MAP 1.0 as a single-frame method: the posterior over the map's places and a new place.
 
-Reads FAB-MAP's evidence rows (``wiloc.fabmap.evidence``: r_j = log p(Z | L_j) - log p(Z | new
+Reads FAB-MAP's evidence rows (``wiloc.methods.fabmap_evidence``: r_j = log p(Z | L_j) - log p(Z | new
 place) from bag-of-words descriptors), computed with this method's FAB-MAP parameters (detector
-model, new-place model). Per frame, FAB-MAP's posterior (``wiloc.fabmap.model.posterior``): the
+model, new-place model). Per frame, FAB-MAP's posterior (``wiloc.bow.fabmap.model.posterior``): the
 places share the prior 1 - ``new_place_prior`` equally, the new place has ``new_place_prior``,
 and the normalised posterior is smoothed by ``posterior_smoothing``, so no hypothesis is
 certain. The decision is the most probable place; the confidence is the posterior mass within
@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.bow.fabmap.params import FabMapParams
 from wiloc.decisions import Decision
-from wiloc.fabmap.params import FabMapParams
 from wiloc.methods.base import MapContext, Method
 from wiloc.parameters import param
 
@@ -46,7 +46,7 @@ class FabMapMethod(Method):
         pass  # the evidence rows carry everything FAB-MAP learned from the map and its training
 
     def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
-        from wiloc.fabmap.model import posterior  # scipy loads on first use, not with the command line
+        from wiloc.bow.fabmap.model import posterior  # scipy loads on first use, not with the command line
 
         if not np.isfinite(row).any():
             return Decision(match=-1, difference=np.nan, confidence=np.nan, stage="none")

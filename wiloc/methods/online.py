@@ -22,7 +22,7 @@ from wiloc.candidates import RANKED, finite_minimum
 from wiloc.decisions import Decision
 from wiloc.errors import WilocError
 from wiloc.methods.base import MapContext, Method, self_summary
-from wiloc.methods.catgraph import CatGraph
+from wiloc.methods.catgraph.filter import CatGraph
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters, param
 
@@ -242,7 +242,7 @@ class Online(Method):
     In sequence mode the confidence is the revisit chain's probability that the frame revisits a
     place and z is right (:class:`RevisitChain`). In map mode it is the probability that z is the
     place (within +-2 nodes), given every frame so far: the posterior of a CAT-Graph filter run
-    alongside on the same rows (``wiloc.calibration``). The decision stays the single-frame best
+    alongside on the same rows (``wiloc.methods.catgraph.observation``). The decision stays the single-frame best
     match, and the histograms are learned in both modes (the paper's Figure 1).
     """
 
@@ -284,7 +284,7 @@ class Online(Method):
         """Map mode: each row's best match, its difference, near miss and ranking (one compiled
         pass over the rows) and what the map filter computes ahead; nothing in sequence mode,
         where the near miss depends on the matches of earlier frames."""
-        from wiloc.methods.row_kernels import best_of_rows  # numba loads with the first rows
+        from wiloc.methods.catgraph.row_kernels import best_of_rows  # numba loads with the first rows
 
         if self._filter is None:
             return None

@@ -8,7 +8,7 @@ from typing import Any
 
 from wiloc.errors import ParameterError
 from wiloc.methods.base import Method
-from wiloc.methods.catgraph import CatGraph
+from wiloc.methods.catgraph.filter import CatGraph
 from wiloc.methods.fabmap import FabMapMethod
 from wiloc.methods.online import Online
 from wiloc.methods.seqslam import SeqSLAM

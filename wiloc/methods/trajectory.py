@@ -1,5 +1,5 @@
 """The CAT-Graph filter's operations on plain arrays along the reference trajectory (used by
-``wiloc.methods.catgraph``): the nodes' positions and where particles sit between them, the
+``wiloc.methods.catgraph.filter``): the nodes' positions and where particles sit between them, the
 sequence score's contrast and shifted reads, choosing among ties the same on every CPU,
 systematic resampling, and the posterior's ranking of the map. docs/catgraph.md gives the filter
 they serve.
@@ -32,7 +32,7 @@ def node_positions(ref_arclength: NDArray[np.float64] | None, n_nodes: int) -> N
 def locate(nodes: NDArray[np.float64], pos: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
     """For each particle: the node j just before it and its fraction a of the way to node j + 1
     (``filter_kernels.locate``)."""
-    from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
+    from wiloc.methods.catgraph import filter_kernels  # numba loads on first use, not with the command line
 
     j, a = np.empty(pos.size, dtype=np.intp), np.empty(pos.size)
     filter_kernels.locate(nodes, pos, j, a)
@@ -47,7 +47,7 @@ def contrast_normalise(row: NDArray[np.float64], half_window: int) -> NDArray[np
     (SeqSLAM's local contrast enhancement, on one row: causal). A flat stretch (std within
     rounding of 0) gives 0. One compiled pass (``filter_kernels.contrast_normalise``).
     """
-    from wiloc.methods import filter_kernels  # numba loads on first use, not with the command line
+    from wiloc.methods.catgraph import filter_kernels  # numba loads on first use, not with the command line
 
     out = np.empty(row.size)
     filter_kernels.contrast_normalise(np.asarray(row, dtype=np.float64), half_window, 1.0, out)

@@ -1,0 +1,195 @@
+"""A visual vocabulary: K visual words clustered from training images' local features, the
+bag-of-words of an image over it, and its HDF5 file.
+
+An image's bag of words here is binary *word presence*, as FAB-MAP uses it: word q is present
+when at least one of the image's local features is nearest to word q. Stored and passed around
+packed, 8 words per byte (``np.packbits``, big-endian bit order, the last byte zero-padded),
+like every Hamming descriptor in wiloc; ``unpack_words`` gives the boolean vector back.
+
+Building a vocabulary from folders through the cache is ``wiloc.description.vocabulary_build``; this module
+holds only what a worker process computing bags of words needs. docs/fabmap.md describes both.
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import h5py
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.bow.clustering import assign, kmajority, kmeans
+from wiloc.bow.features import DTYPES, extract_features
+from wiloc.errors import ParameterError, WilocError
+from wiloc.parameters import Parameters, param
+from wiloc.version import __version__
+
+FORMAT = "wiloc-vocabulary"
+FORMAT_VERSION = 1
+#: Images that give a median under FEW_WORDS distinct words per image, or more than a share
+#: NO_WORDS of them without any, are too sparse for FAB-MAP (a vocabulary's training images, or a
+#: query's or map's): Gardens Point at 640 px gives 340 (none empty), Nordland's 64 x 32
+#: thumbnails 10 (5 % empty), and the bounds sit between (docs/fabmap.md).
+FEW_WORDS = 50
+NO_WORDS = 0.01
+
+
+@dataclass(frozen=True)
+class VocabularyParams(Parameters):
+    """How a vocabulary is made; every field takes part in its cache key."""
+
+    feature: Literal["sift", "orb"] = param("sift", "local feature: sift (k-means) or orb (k-majority)")
+    words: int = param(1000, "K, the number of visual words", low=2)
+    max_features: int = param(500, "local features kept per image, strongest first", low=1)
+    max_side: int = param(640, "images are shrunk so their longer side is at most this many pixels",
+                          low=16)
+    iterations: int = param(25, "at most this many clustering rounds (fewer once assignments stop "
+                                "changing)", low=1)
+    seed: int = param(0, "seeds the random choice of the initial centres", low=0)
+
+    def to_json(self) -> str:
+        """Canonical JSON of the values (numpy scalars as plain numbers)."""
+        return json.dumps(self.as_dict(), sort_keys=True, default=lambda v: v.item())
+
+
+def pack_words(present: NDArray[np.bool_]) -> NDArray[np.uint8]:
+    """Word-presence vector(s) ``(..., K)`` packed 8 words per byte ``(..., ceil(K / 8))``."""
+    return np.packbits(np.asarray(present, dtype=bool), axis=-1)
+
+
+def unpack_words(packed: NDArray[np.uint8], n_words: int) -> NDArray[np.bool_]:
+    """Packed bag(s) of words back to boolean presence ``(..., n_words)``."""
+    return np.unpackbits(np.asarray(packed, dtype=np.uint8), axis=-1, count=n_words).astype(bool)
+
+
+@dataclass(frozen=True)
+class Vocabulary:
+    """K visual words and the word presence of the images they were trained on.
+
+    ``centres`` is ``(K, 128)`` float32 for SIFT, ``(K, 32)`` uint8 (packed bits) for ORB.
+    ``training_frames`` names the training images (resolved paths) in the order of the rows of
+    ``training_occurrences`` ``(N, K)`` bool, which FAB-MAP's Chow-Liu tree and new-place
+    sampling are learned from.
+    """
+
+    key: str
+    params: VocabularyParams
+    centres: NDArray
+    training_frames: tuple[str, ...]
+    training_occurrences: NDArray[np.bool_]
+
+    @property
+    def n_words(self) -> int:
+        return int(self.centres.shape[0])
+
+    def occurrences(self, features: NDArray) -> NDArray[np.bool_]:
+        """Word presence ``(K,)`` of one image's local features (rows as `extract_features`)."""
+        return word_presence(features, self.centres)
+
+    def bag_of_words(self, gray: NDArray[np.uint8]) -> NDArray[np.bool_]:
+        """Word presence ``(K,)`` of one 8-bit grayscale image."""
+        p = self.params
+        return self.occurrences(extract_features(gray, p.feature, p.max_features, p.max_side))
+
+    def too_few_words(self) -> str | None:
+        """Why this vocabulary's training images are too small for local features
+        (:func:`word_shortage`), or None. FAB-MAP's tree and new-place samples come from these
+        images, so everything localised with such a vocabulary degenerates (docs/fabmap.md)."""
+        shortage = word_shortage(self.training_occurrences.sum(axis=1))
+        if shortage is None:
+            return None
+        return (f"vocabulary {self.key}: its {len(self.training_frames)} training images {shortage}: images too "
+                "small for local features, so FAB-MAP's evidence and bag-of-words matching degenerate")
+
+
+def word_shortage(words: NDArray[np.integer]) -> str | None:
+    """What makes images with these numbers of distinct words too sparse for FAB-MAP (a median
+    under ``FEW_WORDS`` words per image, or more than a share ``NO_WORDS`` of them without any),
+    said as "give a median of ...", or None when they are not (or there are none)."""
+    words = np.asarray(words)
+    if words.size == 0:
+        return None
+    median, empty = float(np.median(words)), int(np.count_nonzero(words == 0))
+    if median >= FEW_WORDS and empty <= NO_WORDS * words.size:
+        return None
+    return (f"give a median of {median:g} words each and {empty} give none (usable: {FEW_WORDS} or more, "
+            f"at most {NO_WORDS:.0%} without any)")
+
+
+def word_presence(features: NDArray, centres: NDArray) -> NDArray[np.bool_]:
+    """``(K,)`` bool: which of the ``K`` words (``centres``) is nearest to at least one feature."""
+    present = np.zeros(len(centres), dtype=bool)
+    if len(features):
+        present[assign(features, centres)] = True
+    return present
+
+
+def train_vocabulary(key: str, params: VocabularyParams, frames: Sequence[str],
+                     features: Sequence[NDArray], step: Callable[[int], None] | None = None) -> Vocabulary:
+    """Cluster the local features of the training images (``features[i]`` of ``frames[i]``)
+    into ``params.words`` words, then compute every training image's word presence.
+    ``step(i)`` is called after clustering round i."""
+    if len(features) != len(frames) or not frames:
+        raise ValueError(f"need one feature array per training frame, at least one; got "
+                         f"{len(features)} for {len(frames)} frames")
+    pooled = np.concatenate(features).astype(DTYPES[params.feature])
+    if len(pooled) < params.words:
+        raise ParameterError("words", f"{params.words} words need at least as many training features; "
+                                  f"the training images gave {len(pooled)}")
+    cluster = kmeans if params.feature == "sift" else kmajority
+    centres = cluster(pooled, params.words, params.iterations, params.seed, step)
+    occurrences = np.array([word_presence(f, centres) for f in features], dtype=bool)
+    return Vocabulary(key, params, centres, tuple(frames), occurrences)
+
+
+def write_vocabulary(f: h5py.File, vocabulary: Vocabulary, attrs: dict[str, object]) -> None:
+    """Write `vocabulary` into an open HDF5 file, with extra attributes (provenance)."""
+    f.attrs.update({
+        "format": FORMAT, "format_version": FORMAT_VERSION, "wiloc_version": __version__,
+        "key": vocabulary.key, "params": vocabulary.params.to_json(),
+        "n_words": vocabulary.n_words, **attrs,
+    })
+    f.create_dataset("centres", data=vocabulary.centres)
+    f.create_dataset("training/frames", data=list(vocabulary.training_frames), dtype=h5py.string_dtype())
+    f.create_dataset("training/words", data=pack_words(vocabulary.training_occurrences))
+    # Written last: a file without it is not a finished vocabulary.
+    f.attrs["complete"] = True
+
+
+def _open(path: Path) -> h5py.File:
+    try:
+        f = h5py.File(path, "r")
+    except FileNotFoundError:
+        raise WilocError(path, "no such vocabulary file") from None
+    except OSError as exc:
+        raise WilocError(path, f"unreadable vocabulary file ({exc})") from exc
+    if f.attrs.get("format") != FORMAT or not f.attrs.get("complete", False):
+        f.close()
+        raise WilocError(path, "not a complete wiloc vocabulary file")
+    return f
+
+
+def read_vocabulary_header(path: Path) -> tuple[str, VocabularyParams, int]:
+    """(key, params, number of words) of a vocabulary file, without reading its arrays."""
+    with _open(Path(path)) as f:
+        return str(f.attrs["key"]), VocabularyParams(**json.loads(f.attrs["params"])), int(f.attrs["n_words"])
+
+
+def read_vocabulary(path: Path) -> Vocabulary:
+    """The vocabulary stored in an HDF5 file written by `write_vocabulary`."""
+    path = Path(path)
+    with _open(path) as f:
+        try:
+            params = VocabularyParams(**json.loads(f.attrs["params"]))
+            n_words = int(f.attrs["n_words"])
+            return Vocabulary(
+                key=str(f.attrs["key"]), params=params,
+                centres=np.asarray(f["centres"][()], dtype=DTYPES[params.feature]),
+                training_frames=tuple(s.decode() for s in f["training/frames"][()]),
+                training_occurrences=unpack_words(f["training/words"][()], n_words),
+            )
+        except (KeyError, ValueError, TypeError) as exc:
+            raise WilocError(path, f"unreadable vocabulary file ({exc})") from exc

@@ -1,0 +1,1 @@
+"""The descriptor cache: its entries on disk, journals of runs in progress, locks."""

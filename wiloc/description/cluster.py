@@ -1,0 +1,139 @@
+"""Running describe batches and difference blocks on a Dask cluster (``wiloc[dask]``).
+
+Only imported when a scheduler is asked for (``--scheduler``, ``WILOC_SCHEDULER``): without one
+nothing imports dask. The cache stays the calling process's alone: workers get image paths (and
+the stored record of a frame, to reuse a row whose content is unchanged) or blocks of descriptor
+rows, and return records or arrays; the caller journals and writes, exactly as a local run does,
+so the entries are the same. A task whose worker dies is run again elsewhere by Dask.
+docs/scaling.md tells how to start a scheduler and workers.
+"""
+from __future__ import annotations
+
+import atexit
+import os
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import CancelledError
+from typing import TypeVar
+
+import numpy as np
+from distributed import Client, Future, LocalCluster, as_completed
+from numpy.typing import NDArray
+
+from wiloc.description.distances import DifferencesTo
+from wiloc.errors import WilocError
+
+LOCAL = "local"
+#: Items per batch task (frames, for describe): enough that a task's round trip costs little next
+#: to its work.
+BATCH = 16
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def _block(to: DifferencesTo, rows: NDArray) -> NDArray[np.float32]:
+    """On a worker: one block of differences."""
+    return to(rows)
+
+
+class Cluster:
+    """A connection to a Dask scheduler (or a local cluster of worker processes it started)."""
+
+    def __init__(self, scheduler: str, workers: int | None = None) -> None:
+        self.scheduler = scheduler
+        self._local: LocalCluster | None = None
+        try:
+            if scheduler == LOCAL:
+                count = workers or len(os.sched_getaffinity(0))
+                environ = dict(os.environ)
+                self._local = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
+                                           dashboard_address=":0")
+                _restore(environ)
+                self.client = Client(self._local)
+            else:
+                self.client = Client(scheduler)
+        except (OSError, TimeoutError) as exc:
+            raise WilocError(scheduler, f"cannot reach the Dask scheduler ({exc})") from None
+
+    @property
+    def workers(self) -> int:
+        """Workers connected now (at least 1, for sizing how much work is sent ahead)."""
+        return max(1, len(self.client.scheduler_info(n_workers=-1)["workers"]))
+
+    def in_batches(self, work: Callable[[list[T]], list[R]], items: Sequence[T]) -> Iterator[R]:
+        """``work`` (a module-level function, or a partial of one: the workers import it) over
+        batches of ``BATCH`` items on the workers; each item's result as its batch finishes, in
+        any order (describe: ``frame_describing.describe_quietly`` over frame tasks)."""
+        batches = [list(items[i:i + BATCH]) for i in range(0, len(items), BATCH)]
+        futures = [self.client.submit(work, batch, pure=False) for batch in batches]
+        try:
+            for future in as_completed(futures):
+                yield from future.result()
+        finally:
+            self.client.cancel(futures)
+
+    def blocks(self, data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
+        """A ``wiloc.description.differences.BlockRunner``: the blocks in order, a few per worker in flight;
+        the prepared references go to every worker once (again if a dying worker took the last
+        copy with it, and the blocks that needed it are sent again)."""
+        shared = self.client.scatter(to, broadcast=True)
+        ahead = 2 * self.workers
+        todo = deque(ranges)
+        pending: deque[tuple[tuple[int, int], Future]] = deque()
+
+        def fill() -> None:
+            while todo and len(pending) < ahead:
+                start, stop = todo.popleft()
+                pending.append(((start, stop), self.client.submit(_block, shared, data[start:stop], pure=False)))
+
+        try:
+            fill()
+            while pending:
+                span, future = pending[0]
+                try:
+                    block = future.result()
+                except CancelledError:  # lost dependencies: the references went with a worker
+                    todo.extendleft(reversed([s for s, _ in pending]))
+                    self.client.cancel([f for _, f in pending])
+                    pending.clear()
+                    shared = self.client.scatter(to, broadcast=True)
+                    fill()
+                    continue
+                pending.popleft()
+                fill()
+                yield block
+        finally:
+            self.client.cancel([f for _, f in pending] + [shared])
+
+    def close(self) -> None:
+        self.client.close()
+        if self._local is not None:
+            self._local.close()
+
+
+def _restore(environ: dict[str, str]) -> None:
+    """Put back this process's environment: starting workers sets variables for them here (one
+    BLAS thread, a hash seed) that later child processes of the caller must not inherit."""
+    os.environ.clear()
+    os.environ.update(environ)
+
+
+_open: dict[tuple[str, int | None], Cluster] = {}
+
+
+def connect(scheduler: str, workers: int | None = None) -> Cluster:
+    """The cluster at ``scheduler`` (an address such as ``tcp://host:8786``, or ``local``: a
+    local cluster of ``workers`` processes, default one per core), one per process, closed at
+    exit or by :func:`disconnect`."""
+    key = (scheduler, workers if scheduler == LOCAL else None)
+    if key not in _open:
+        _open[key] = Cluster(scheduler, workers)
+        atexit.register(disconnect, scheduler, workers)
+    return _open[key]
+
+
+def disconnect(scheduler: str, workers: int | None = None) -> None:
+    """Close the connection :func:`connect` made (and a local cluster it started), if open."""
+    cluster = _open.pop((scheduler, workers if scheduler == LOCAL else None), None)
+    if cluster is not None:
+        cluster.close()

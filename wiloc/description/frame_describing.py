@@ -1,0 +1,342 @@
+"""Each frame of a traversal -> its descriptor record: in this process, then also in worker
+processes once the frames left would take longer than starting them; a colour descriptor's frames
+decoded and described in batches; a video's or bag's frames as they are decoded. OpenCV's and the
+image decoders' own warnings are kept quiet: wiloc reports bad frames itself."""
+from __future__ import annotations
+
+import itertools
+import os
+import queue
+import statistics
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+from functools import partial
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from wiloc.cache.entries import FrameRecord
+from wiloc.description.workers import WorkerError, borrowed_pool, can_fork, kept_pool
+from wiloc.descriptors.registry import DescriptorSpec
+from wiloc.errors import FrameError, ParameterError, WilocError
+from wiloc.sources.frames import Fingerprint, fingerprint, jpeg_size, read_colour, read_gray
+
+if TYPE_CHECKING:
+    from wiloc.sources.bags import BagFrame
+    from wiloc.sources.video import VideoFrame
+
+
+@dataclass(frozen=True)
+class WorkerStart:
+    """What starting workers costs: `seconds` of work left above which this process hands frames
+    to them, judged after timing `frames` frames of its own (the first is left out: warm-up)."""
+
+    seconds: float
+    frames: int
+
+
+#: Fresh interpreters importing what describing needs: about 0.5 s for 2 (docs/formats.md).
+FRESH_START = WorkerStart(seconds=0.5, frames=8)
+#: Forked workers (wiloc.description.workers.can_fork): the first result comes back within 10 ms.
+FORKED_START = WorkerStart(seconds=0.05, frames=2)
+#: Workers kept running from the previous folder (wiloc.description.workers.keeping_pools): nothing to start;
+#: two frames timed here give the median that sizes their batches.
+KEPT_START = WorkerStart(seconds=0.0, frames=1)
+#: Seconds of work per batch sent to a worker (by this process's median frame time; at least one
+#: frame, at most MAX_CHUNK): enough that sending and answering cost little even for the fastest
+#: descriptor (sad: 4-6 frames), little enough that results stream back (and are journaled)
+#: promptly (gist: 1). Batches shrink below it as a folder's frames run out (`_batches`).
+CHUNK_SECONDS = 0.008
+MAX_CHUNK = 16
+#: Frames of a colour descriptor (a network's) decoded and described together: a few network
+#: batches (wiloc.descriptors.learned.BATCH), journaled as each set is in.
+COLOUR_BATCH = 64
+Task = tuple[Path, FrameRecord | None]
+#: In a worker process: a descriptor open on /dev/null, where its image decoders' stderr goes.
+_devnull: int | None = None
+
+
+
+def check_jobs(jobs: int | None) -> int:
+    """The worker count: the cores this process may use by default, else at least 1."""
+    if jobs is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if jobs < 1:
+        raise ParameterError("jobs", f"must be at least 1, got {jobs}")
+    return jobs
+
+
+
+def compute(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]],
+             jobs: int) -> Iterator[tuple[int, FrameRecord, bool]]:
+    """Settle each tagged task, yielding (tag, record, computed) as results arrive, over `jobs`
+    processes. This process computes first; once the frames left would take it longer than
+    starting workers (`WorkerStart`, by the median time of its frames after the first), `jobs` - 1
+    workers start and take frames from the same queue while this process goes on computing."""
+    if spec.colour:
+        yield from _compute_colour(spec, tasks, jobs)
+        return
+    pending = deque(tasks)
+    timed: list[float] = []
+    with opencv_quiet():
+        while pending and not _worth_workers(jobs, timed, len(pending)):
+            started = time.perf_counter()
+            tag, task = pending.popleft()
+            record = _describe_one(spec, task)
+            timed.append(time.perf_counter() - started)
+            yield (tag, *record)
+        if pending:
+            chunk = min(MAX_CHUNK, max(1, round(CHUNK_SECONDS / statistics.median(timed[1:]))))
+            with _opencv_threads(1):
+                yield from _compute_with_workers(spec, pending, jobs - 1, chunk)
+
+
+def _compute_with_workers(spec: DescriptorSpec, pending: deque[tuple[int, Task]], workers: int,
+                          chunk: int) -> Iterator[tuple[int, FrameRecord, bool]]:
+    """The pending tagged tasks settled by this process and `workers` worker processes together:
+    a helper thread feeds the workers batches from `pending` (`_batches`), two at a time each,
+    and queues their results; this process computes from the same deque and yields both."""
+    results: queue.Queue = queue.Queue()
+    # Forked from this process while it runs no other thread, else fresh interpreters; never the
+    # caller's main module (wiloc.description.workers says why not multiprocessing's start methods).
+    with borrowed_pool(workers, _init_worker) as pool:
+        def drive() -> None:
+            try:
+                for batch in pool.imap_unordered(partial(_describe_tagged, spec),
+                                                 _batches(pending, chunk, workers + 1), ahead=2):
+                    results.put(batch)
+                results.put(None)
+            except BaseException as exc:  # raised in this process by the loop below
+                results.put(exc)
+
+        driver = threading.Thread(target=drive, name="wiloc-workers", daemon=True)
+        driver.start()
+        try:
+            finished = False
+            while not finished:
+                item = _take(pending)
+                if item is not None:
+                    tag, task = item
+                    yield (tag, *_describe_one(spec, task))
+                while not finished and (item is None or not results.empty()):  # nothing left here: wait
+                    answer = results.get()
+                    if isinstance(answer, BaseException):
+                        raise answer
+                    finished = answer is None
+                    if not finished:
+                        yield from answer
+        except WorkerError as exc:
+            pool.kill()
+            paths = [path for batch in exc.items for _, (path, _) in batch]
+            folder = paths[0].parent if paths else None  # a batch may reach into the next folder
+            names = ", ".join(path.name if path.parent == folder else str(path) for path in paths)
+            raise WilocError(folder, f"{exc.problem} while describing {names}") from None
+        except BaseException:
+            pool.kill()  # an interrupted run keeps what was journaled; in-flight work is lost
+            raise
+        finally:
+            # The helper thread ends once every worker has answered or died. Only then may the
+            # pipes be closed: closing one the thread waits on (epoll) would leave it waiting forever.
+            driver.join()
+
+
+def _batches(pending: deque[tuple[int, Task]], chunk: int, processes: int) -> Iterator[list[tuple[int, Task]]]:
+    """Batches of tasks taken from `pending` as workers ask for them: `chunk` tasks, or fewer as
+    the deque empties (a quarter of each process's share of what is left, at least one), so
+    that at the end no process waits long for another's last batches."""
+    while batch := [task for _ in range(min(chunk, max(1, len(pending) // (4 * processes))))
+                    if (task := _take(pending)) is not None]:
+        yield batch
+
+
+def _take(pending: deque[tuple[int, Task]]) -> tuple[int, Task] | None:
+    """The next task, or None when there is none left (deques pop atomically across threads)."""
+    try:
+        return pending.popleft()
+    except IndexError:
+        return None
+
+
+@contextmanager
+def _opencv_threads(count: int) -> Iterator[None]:
+    """OpenCV's own thread count set to `count`, then restored: with several processes
+    computing, each one's internal threads only compete for the same cores."""
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(count)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(previous)
+
+
+def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
+    """Whether `left` frames, at the median of this process's frame times so far, would take
+    longer than starting `jobs` - 1 workers (KEPT_START, FORKED_START or FRESH_START)."""
+    if jobs > 1 and kept_pool(jobs - 1, _init_worker):
+        start = KEPT_START
+    else:
+        start = FORKED_START if can_fork() else FRESH_START
+    if jobs == 1 or len(timed) <= start.frames:
+        return False
+    return statistics.median(timed[1:]) * left > start.seconds  # not np.median: its first call costs 6 ms
+
+
+def describe_quietly(spec: DescriptorSpec, tasks: Sequence[Task]) -> list[tuple[FrameRecord, bool]]:
+    """Each task's (record, computed), OpenCV's own warnings off meanwhile (a Dask worker's batch;
+    a colour descriptor's as one batch on the worker's cores)."""
+    with opencv_quiet():
+        if spec.colour:
+            return _describe_colour(spec, tasks, check_jobs(None))
+        return [_describe_one(spec, task) for task in tasks]
+
+
+def _describe_tagged(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]]) -> list[tuple[int, FrameRecord, bool]]:
+    """A worker process's batch: each tagged task's (tag, record, computed)."""
+    return [(tag, *result) for (tag, _), result in zip(tasks, describe_quietly(spec, [task for _, task in tasks]))]
+
+
+def _init_worker() -> None:
+    """Workers keep OpenCV's and libjpeg's warnings to themselves: wiloc reports bad frames itself.
+    (They leave Ctrl-C to the parent, which stops them and keeps what was journaled.)"""
+    global _devnull
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    cv2.setNumThreads(1)  # the processes share out the cores already
+    _devnull = os.open(os.devnull, os.O_WRONLY)
+
+
+@contextmanager
+def opencv_quiet() -> Iterator[None]:
+    """OpenCV's own warnings ("PNG input buffer is incomplete") off, then the previous level."""
+    previous = cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(previous)
+
+
+@contextmanager
+def _decoders_quiet() -> Iterator[None]:
+    """File descriptor 2 on /dev/null meanwhile: libjpeg prints "Corrupt JPEG data: ..." there
+    itself. Always in a worker, which runs no other thread, so nothing else is lost; in the
+    caller's process only when stderr is no terminal: on a terminal other threads of the caller
+    (a progress display) write there, so it is left alone."""
+    global _devnull
+    if _devnull is None:
+        if os.isatty(2):
+            yield
+            return
+        _devnull = os.open(os.devnull, os.O_WRONLY)
+    saved = os.dup(2)
+    os.dup2(_devnull, 2)
+    try:
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _read_gray(path: Path, min_size: tuple[int, int] | None) -> np.ndarray:
+    """`read_gray`, the decoders quiet (:func:`_decoders_quiet`)."""
+    with _decoders_quiet():
+        return read_gray(path, min_size)
+
+
+def _settle(task: Task, read: Callable[[Path], np.ndarray]
+            ) -> tuple[FrameRecord, bool] | tuple[Fingerprint, np.ndarray]:
+    """A frame's task up to its descriptor: a finished (record, False) when the stored record
+    still holds (its content digest matches) or the file cannot be read or decoded, else its
+    fingerprint and the image ``read`` decoded."""
+    path, old = task
+    try:
+        fp = fingerprint(path)
+    except OSError as exc:
+        return FrameRecord(path.name, -1, -1, "", None, f"cannot read file ({exc.strerror or exc})"), False
+    if old is not None and old.digest == fp.digest:
+        return replace(old, size=fp.size, mtime_ns=fp.mtime_ns), False
+    try:
+        return fp, read(path)
+    except FrameError as exc:
+        return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, None, exc.problem), False
+
+
+def _describe_one(spec: DescriptorSpec, task: Task) -> tuple[FrameRecord, bool]:
+    """One frame's record and whether its descriptor was computed (False: reused or failed).
+    A frame whose content digest matches its stored record keeps that record's row or failure."""
+    settled = _settle(task, lambda path: _read_gray(path, spec.min_size))
+    if not isinstance(settled[0], Fingerprint):
+        return settled  # type: ignore[return-value]
+    (path, _), (fp, gray) = task, settled
+    row = np.asarray(spec.compute(gray), dtype=spec.dtype)
+    width, height = _full_size(path, gray)
+    return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, row, "", width, height), True
+
+
+def describe_frames(spec: DescriptorSpec, video: Fingerprint,
+                     frames: Iterator[VideoFrame | BagFrame]) -> Iterator[tuple[FrameRecord, bool]]:
+    """Each video (or bag) frame's record and whether it was computed, as it is decoded; a colour
+    descriptor's frames COLOUR_BATCH at a time, described together."""
+    if not spec.colour:
+        for frame in frames:
+            yield _describe_frame(spec, video, frame)
+        return
+    while batch := list(itertools.islice(frames, COLOUR_BATCH)):
+        decoded = [frame.gray for frame in batch if frame.gray is not None]
+        rows = iter(spec.compute_batch(decoded) if decoded else ())
+        for frame in batch:
+            yield _describe_frame(spec, video, frame, None if frame.gray is None else next(rows))
+
+
+def _describe_frame(spec: DescriptorSpec, video: Fingerprint, frame: VideoFrame | BagFrame,
+                    row: np.ndarray | None = None) -> tuple[FrameRecord, bool]:
+    """One video (or bag) frame's record, with the file's fingerprint and the frame's timestamp,
+    and whether its descriptor was computed (False for a frame without pixels); `row`: its
+    descriptor when already computed (in a batch)."""
+    if frame.gray is None:
+        return FrameRecord(frame.name, video.size, video.mtime_ns, video.digest, None, frame.problem), False
+    row = np.asarray(spec.compute(frame.gray) if row is None else row, dtype=spec.dtype)
+    height, width = frame.gray.shape[:2]
+    return FrameRecord(frame.name, video.size, video.mtime_ns, video.digest, row, "", width, height,
+                       frame.timestamp_ms), True
+
+
+def _describe_colour(spec: DescriptorSpec, tasks: Sequence[Task], threads: int) -> list[tuple[FrameRecord, bool]]:
+    """:func:`_describe_one` for a colour descriptor's tasks, as one batch: the images decoded
+    in colour on ``threads`` threads (OpenCV's decoders let go of the GIL), then described
+    together (``DescriptorSpec.compute_batch``, the network's runtime on ``threads`` threads)."""
+    with _decoders_quiet(), ThreadPoolExecutor(max(1, threads), thread_name_prefix="wiloc-decode") as pool:
+        settled = list(pool.map(lambda task: _settle(task, read_colour), tasks))
+    decoded = [i for i, item in enumerate(settled) if isinstance(item[0], Fingerprint)]
+    rows = spec.compute_batch([settled[i][1] for i in decoded], threads) if decoded else []
+    for i, row in zip(decoded, rows):
+        (path, _), (fp, image) = tasks[i], settled[i]
+        height, width = image.shape[:2]
+        settled[i] = FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, np.asarray(row, dtype=spec.dtype), "",
+                                 width, height), True
+    return settled
+
+
+def _compute_colour(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]],
+                    jobs: int) -> Iterator[tuple[int, FrameRecord, bool]]:
+    """A colour descriptor's tagged tasks settled in this process, COLOUR_BATCH frames at a
+    time, each batch decoded and described on `jobs` threads: a network's runtime shares out
+    the cores itself, and worker processes would each load the model and compete for them."""
+    with opencv_quiet():
+        for start in range(0, len(tasks), COLOUR_BATCH):
+            batch = tasks[start:start + COLOUR_BATCH]
+            for (tag, _), result in zip(batch, _describe_colour(spec, [task for _, task in batch], jobs)):
+                yield (tag, *result)
+
+
+def _full_size(path: Path, gray: np.ndarray) -> tuple[int, int]:
+    """(width, height) of the image file: a JPEG's header size (its decode may be reduced),
+    else the decoded size."""
+    head = np.fromfile(path, np.uint8, count=65536)
+    is_jpeg = head.size >= 2 and head[0] == 0xFF and head[1] == 0xD8
+    return (jpeg_size(head) if is_jpeg else None) or (gray.shape[1], gray.shape[0])

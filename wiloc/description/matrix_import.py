@@ -1,0 +1,72 @@
+"""A user's descriptor matrix -> an entry of the cache of its own (``wiloc describe --import``),
+or first -> a wiloc descriptor file that records names and metric."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from wiloc.cache.entries import EXTERNAL, EntryHeader, FrameRecord, StoredEntry, entry_key
+from wiloc.cache.store import Cache
+from wiloc.description.describing import DescribeReport, read_stored
+from wiloc.descriptors.external import read_external, write_matrix
+from wiloc.descriptors.registry import get_descriptor
+from wiloc.errors import ParameterError, WilocError
+from wiloc.sources.frames import fingerprint, text_path
+
+
+def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str) -> DescribeReport:
+    """Bring a user's N x D descriptor matrix into the cache as an entry of its own.
+
+    The entry is keyed by the file's resolved path, the metric and the content digests of the
+    matrix file and of the names file, so an edited file makes a new entry, never a silent mix.
+    """
+    start = time.perf_counter()
+    sources = [Path(p).resolve() for p in (path, names_path) if p is not None]
+    for source in sources:
+        if not source.is_file():
+            raise WilocError(source, "file does not exist")
+        text_path(source)
+    prints = [fingerprint(source) for source in sources]
+    params = {"metric": metric, "file_digest": prints[0].digest,
+              "names": str(sources[1]) if names_path is not None else None,
+              "names_digest": prints[1].digest if names_path is not None else None}
+    key = entry_key(str(sources[0]), EXTERNAL, params)
+    with cache.lock(cache.entry_name(key)):
+        stored, repairs = read_stored(cache, key)
+        fresh = stored is None or not stored.complete
+        if fresh:
+            names, matrix = read_external(sources[0], names_path, metric)
+            spec = get_descriptor(EXTERNAL, metric=metric, length=matrix.shape[1],
+                                  dtype=matrix.dtype.name)
+            header = EntryHeader.create(str(sources[0]), EXTERNAL, params, spec.metric,
+                                        spec.scale, spec.natural_max, spec.dtype, spec.length)
+            stored = StoredEntry(header, {
+                name: FrameRecord(name, prints[0].size, prints[0].mtime_ns, prints[0].digest, row)
+                for name, row in zip(names, matrix)})
+            entry = cache.write_entry(stored, complete=True)
+        else:
+            entry = stored.entry()
+    seconds = time.perf_counter() - start
+    n = len(entry.names)
+    return DescribeReport(
+        folder=str(sources[0]), descriptor=EXTERNAL, shape=entry.data.shape, frames=n,
+        computed=n if fresh else 0, reused=0 if fresh else n, failed=[], ignored=[], sizes=[],
+        seconds=seconds, images_per_second=(n if fresh else 0) / seconds, entry=entry, repairs=repairs,
+    )
+
+
+def import_to_file(source: Path, out: Path, cache: Cache, names_path: Path | None, metric: str,
+                   prefix: str = "") -> DescribeReport:
+    """Write external descriptors (any :func:`read_external` source: a matrix file, hloc's
+    global-feats-*.h5, a folder of per-image .npy vectors; ``prefix`` keeps one part of it) to a
+    wiloc descriptor file ``out`` that records names and metric, and import that into the cache:
+    later commands name ``out`` alone."""
+    out = Path(out)
+    if out.suffix.lower() not in (".h5", ".hdf5"):
+        raise ParameterError("out", f"{out}: a descriptor file is HDF5; name it FILE.h5")
+    if out.resolve() == Path(source).resolve():
+        raise ParameterError("out", f"{out} is the file being imported; name another")
+    names, matrix = read_external(Path(source), names_path, metric, prefix)
+    write_matrix(out, names, matrix, metric)
+    return import_matrix(out, cache, None, metric)
+

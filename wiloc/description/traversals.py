@@ -1,0 +1,156 @@
+"""Traversals as descriptor matrices: an image folder, a video file or a ROS bag described
+through the cache, a user's descriptor matrix file imported into it, or descriptors held in memory."""
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from wiloc.cache.entries import Entry, EntryHeader
+from wiloc.cache.store import Cache
+from wiloc.description.describing import describe_source
+from wiloc.description.matrix_import import import_matrix
+from wiloc.descriptors.external import recorded_metric
+from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
+from wiloc.errors import ParameterError, WilocError
+from wiloc.sources.bags import is_bag
+from wiloc.sources.frames import IMAGE_SUFFIXES
+from wiloc.sources.video import Sampling, is_video
+
+if TYPE_CHECKING:
+    from wiloc.description.cluster import Cluster
+    from wiloc.description.differences import BlockRunner
+
+Progress = Callable[[str, int, int], None]
+
+
+def descriptor_spec(descriptor: str, params: Mapping[str, Any] | None = None) -> DescriptorSpec:
+    """The descriptor's spec; an unknown name or parameter is an error naming ``descriptor``."""
+    try:
+        return get_descriptor(descriptor, **dict(params or {}))
+    except ValueError as exc:
+        raise ParameterError("descriptor", str(exc)) from None
+
+
+def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, source: str = "memory") -> Entry:
+    """Descriptors computed elsewhere (one row per frame, named) as an entry that is not cached:
+    a map held in memory. Its digest is a hash of names and values, so a change is seen."""
+    data = np.ascontiguousarray(data, dtype=spec.dtype)
+    if data.ndim != 2 or data.shape[1] != spec.length or data.shape[0] != len(names):
+        raise WilocError(source, f"descriptors of shape {data.shape} for {len(names)} names; "
+                                 f"'{spec.name}' rows have {spec.length} values")
+    header = EntryHeader.create(source, spec.name, dict(spec.params), spec.metric, spec.scale, spec.natural_max,
+                                spec.dtype, spec.length)
+    return Entry(**asdict(header), names=list(names), data=data, digest=descriptors_digest(names, data))
+
+
+def descriptors_digest(names: list[str], data: np.ndarray) -> str:
+    """A hash of frame names and descriptor rows, whatever folder they came from: what a results
+    header records of its traversals, so that a figure redrawn later sees whether the images
+    still give the descriptors the run used."""
+    return hashlib.sha256("\0".join(names).encode() + np.ascontiguousarray(data).tobytes()).hexdigest()
+
+
+#: The suffixes of descriptor matrix files a traversal may be (``descriptors.external`` reads them).
+MATRIX_SUFFIXES = frozenset({".npy", ".csv", ".h5", ".hdf5"})
+
+
+def is_matrix_file(source: Path) -> bool:
+    """Whether a traversal is a user's descriptor matrix file (not a folder, video or ROS bag)."""
+    return Path(source).is_file() and not is_video(Path(source)) and not is_bag(Path(source))
+
+
+def descriptor_label(source: Path, descriptor: str, metric: str | None) -> str:
+    """The descriptor of a traversal as results name it: ``sad``, or ``external:cosine`` for an
+    imported matrix file (``metric`` None: the one the file records)."""
+    if not is_matrix_file(source):
+        return descriptor
+    return f"external:{metric or recorded_metric(source)}"
+
+
+def stage(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
+    """A per-step ``progress(done, total)`` callback that tags the step's label."""
+    if progress is None:
+        return None
+    return lambda done, total: progress(label, done, total)
+
+
+def open_cluster(scheduler: str | None, workers: int | None = None) -> Cluster | None:
+    """The Dask cluster at ``scheduler`` (an address, or ``local`` with ``workers`` processes);
+    None without one. Dask is imported only here, only when asked for."""
+    if scheduler is None:
+        return None
+    try:
+        from wiloc.description.cluster import connect
+    except ImportError:
+        raise ParameterError("scheduler", "needs Dask: pip install 'wiloc[dask]'") from None
+    return connect(scheduler, workers)
+
+
+@dataclass
+class Describer:
+    """How traversals become descriptor matrices: one descriptor with its parameters, through one
+    cache. ``metric`` is the difference of imported matrix files; ``sampling`` picks the frames of
+    video files and ROS bags (default: all), ``topic`` the bags' image topic (None: each one's
+    only one); ``cluster`` (``wiloc.description.cluster``) describes folders and computes differences on Dask
+    workers; ``skipped`` collects the frames that could not be described, as (image path, why),
+    ``notes`` what is worth saying (which topic of a bag was read)."""
+
+    descriptor: str = "sad"
+    params: Mapping[str, Any] = field(default_factory=dict)
+    cache: Cache = field(default_factory=Cache)
+    metric: str | None = None
+    jobs: int | None = None
+    progress: Progress | None = None
+    skipped: list[tuple[str, str]] = field(default_factory=list)
+    sampling: Sampling | None = None
+    cluster: Cluster | None = None  # a Dask cluster that describes folders and computes differences
+    topic: str | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def runner(self) -> BlockRunner | None:
+        """How difference blocks are computed: on the cluster, else (None) in this process."""
+        return None if self.cluster is None else self.cluster.blocks
+
+    @property
+    def spec(self) -> DescriptorSpec:
+        return descriptor_spec(self.descriptor, self.params)
+
+    def label(self, source: Path) -> str:
+        """What results headers call the descriptor of ``source``."""
+        return descriptor_label(source, self.descriptor, self.metric)
+
+    def entry(self, source: Path, names: Path | None = None) -> Entry:
+        """The descriptors of a folder or of a video's or bag's sampled frames (computed on demand), or of
+        an imported matrix file (``names``: its frame names, one per line, for .npy matrices)."""
+        source = Path(source)
+        if is_matrix_file(source):
+            suffix = source.suffix.lower()
+            if suffix not in MATRIX_SUFFIXES:
+                kind = ("an image file" if suffix in IMAGE_SUFFIXES
+                        else f"a {suffix} file" if suffix else "a file without a suffix")
+                raise WilocError(source, f"{kind} is not a traversal: give a folder of images, a video or a "
+                                         "descriptor matrix file (.npy, .csv, .h5)")
+            metric = self.metric or recorded_metric(source)
+            if metric is None:
+                raise ParameterError("metric", f"{source}: a descriptor matrix file needs a metric (l1, sqeuclidean, "
+                                               "hamming, cosine), or an .h5 file of imported descriptors, which "
+                                               "records it")
+            return import_matrix(source, self.cache, names, metric).entry
+        report = describe_source(source, self.spec, self.cache, jobs=self.jobs, sampling=self.sampling,
+                                 progress=stage(self.progress, f"describe {source.name}"), cluster=self.cluster,
+                                 topic=self.topic)
+        self.skipped.extend((str(source / name), reason) for name, reason in report.failed)
+        self.notes.extend(note for note in report.notes if note not in self.notes)
+        entry = report.entry
+        if len(entry.names) == 0:
+            raise WilocError(source, "no usable frames (every image failed to load)")
+        if entry.data.dtype.kind == "f" and not np.all(np.isfinite(entry.data)):
+            bad = entry.names[int(np.flatnonzero(~np.all(np.isfinite(entry.data), axis=1))[0])]
+            raise WilocError(source, f"descriptor of frame '{bad}' holds NaN or infinite values")
+        return entry

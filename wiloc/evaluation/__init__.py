@@ -1,0 +1,1 @@
+"""Ground truth, metrics, calibration scores, results files and the comparison of runs."""

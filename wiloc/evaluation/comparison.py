@@ -1,0 +1,254 @@
+"""Runs scored and compared: one run's metrics against ground truth, and the tables of several
+side by side (the paper's Table I, Table II and the calibration table), with the series the
+figures plot (precision against threshold, precision-recall, reliability), labelled as the tables.
+
+``wiloc.api.evaluate`` and ``wiloc.api.compare`` read the runs (results files or runs in memory)
+and call :func:`score` and :func:`comparison` (``DEFAULT_CUTS`` and ``RANKED_KS`` are their defaults).
+"""
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from wiloc.errors import ParameterError
+from wiloc.evaluation.groundtruth import Truth
+from wiloc.evaluation.truth_source import TruthSource
+from wiloc.labels import short_names
+from wiloc.evaluation.metrics import (RANKED_KS, PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
+                           precision_at_thresholds, summarize)
+from wiloc.evaluation.reliability import (DEFAULT_CUTS, NEW_PLACE_KEYS, Calibration, ReliabilityBins,
+                               summarize_calibration, summarize_new_place)
+from wiloc.evaluation.results import Results
+from wiloc.reprs import short_repr
+
+
+@short_repr
+@dataclass
+class Evaluation:
+    """One run's results scored against ground truth; ``confidence`` is NaN for undecided frames.
+    ``path`` is the results file (None for a run evaluated in memory). ``new_place`` is the
+    calibration of the run's P(new place) against the frames without a true match, for methods
+    that give one (None for the others)."""
+
+    path: Path | None
+    results: Results
+    truth: Truth
+    correct: np.ndarray
+    summary: Summary
+    confidence: np.ndarray
+    calibration: Calibration
+    new_place: Calibration | None = None
+
+    @property
+    def name(self) -> str:
+        """The results file's name, or for a run in memory its query traversal and method."""
+        return self.path.name if self.path else f"{Path(self.results.header.query).name}-{self.method}"
+
+    @property
+    def traversal(self) -> str:
+        return Path(self.results.header.query or self.name).name
+
+    @property
+    def method(self) -> str:
+        return self.results.method
+
+    @property
+    def curve(self) -> PRCurve:
+        return self.summary.curve
+
+    def calibration_row(self) -> dict[str, float | int]:
+        """The calibration as a flat table row, then P(new place)'s under keys ``new_place_*``
+        (:meth:`Calibration.row`) for a run that gives it."""
+        extra = self.new_place.row(NEW_PLACE_KEYS) if self.new_place is not None else {}
+        return {**self.calibration.row(), **extra}
+
+    def calibration_dict(self) -> dict[str, Any]:
+        """The calibration for --json, with P(new place)'s under ``new_place`` for a run that
+        gives it (absent for the others)."""
+        extra = {"new_place": self.new_place.as_dict()} if self.new_place is not None else {}
+        return {**self.calibration.as_dict(), **extra}
+
+
+def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS,
+          recall_at: Sequence[int] = RANKED_KS) -> Evaluation:
+    """Precision-recall metrics and calibration (with precision and recall at fixed confidence
+    ``cuts``) of one run's ``results`` (read from ``path``, None for a run in memory) against
+    ground truth, and of its P(new place) where the run gives one. Recall@N for each N of
+    ``recall_at`` when the run ranks the map."""
+    query_names = results.frames["frame"].tolist()
+    header = results.header
+    ref_names = results.reference_frames or query_names
+    loaded = truth.load(query_names, ref_names, header.query, header.sequence, header.exclude_recent, header.map)
+    match = results.match_index
+    summary = summarize(match, results.confidence, loaded, results.ranking, recall_at)
+    correct = correct_matches(match, loaded)
+    confidence = decided_confidence(match, results.confidence)
+    calibration = summarize_calibration(confidence, correct, summary.with_true_match, cuts)
+    p_new = results.new_place
+    new_place = None if p_new is None else summarize_new_place(p_new, loaded.has_match(), cuts)
+    return Evaluation(path=path, results=results, truth=loaded, correct=correct, summary=summary,
+                      confidence=confidence, calibration=calibration, new_place=new_place)
+
+
+@short_repr
+@dataclass
+class Comparison:
+    """Methods x traversals side by side: the paper's Table I, Table II and the calibration table.
+
+    ``labels[i]`` names the method of ``evaluations[i]`` in the tables: the method, with the
+    descriptor when several are compared, and with the results file's name (and as many of its
+    folders as tell two files of one name apart) when one method holds the same traversal more
+    than once (say, two parameter settings). ``traversals[i]`` names its query traversal (see
+    :func:`traversal_labels`). ``cut_table`` has one row per run: ECE, Brier
+    score, mean confidence, share correct and precision@c, recall@c, accepted@c per cut c, and
+    the same of P(new place) under ``new_place_*`` keys where a run gives it (NaN for the others).
+    """
+
+    evaluations: list[Evaluation]
+    labels: list[str]
+    traversals: list[str]
+    table1: pd.DataFrame
+    table2: pd.DataFrame
+    cut_table: pd.DataFrame
+    ground_truth: str = ""  # the ground truth in words, e.g. "aligned by name, +-2 frames"
+
+
+def traversal_labels(evaluations: Sequence[Evaluation]) -> list[str]:
+    """Each run's query traversal: its folder name, or as many trailing parts of its path as keep
+    apart traversals of one name from different folders (say, two datasets' ``winter``)."""
+    return short_names([e.results.header.query or e.name for e in evaluations])
+
+
+def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
+    """One distinct table label per (method, traversal) run; see :class:`Comparison`."""
+    with_descriptor = len({e.results.header.descriptor for e in evaluations}) > 1
+    bases = [f"{e.method}/{e.results.header.descriptor}" if with_descriptor else e.method
+             for e in evaluations]
+    pairs = list(zip(bases, traversal_labels(evaluations)))
+    files = [str(Path(name).with_suffix("")) if e.path else name  # as many folders as tell the files apart
+             for name, e in zip(short_names([e.path or e.name for e in evaluations]), evaluations)]
+    return [f"{pair[0]} [{file}]" if pairs.count(pair) > 1 else pair[0] for pair, file in zip(pairs, files)]
+
+
+#: Table I's metrics per (method, traversal), as Summary names them, followed by Recall@N
+#: (``recall_at_N``) for runs whose results rank the map (``Summary.as_dict`` leaves it out for the others).
+TABLE1_KEYS = ("recall_at_100", "recall_at_99", "recall_at_90", "auc", "recall_at_1", "frames")
+
+
+def check_precisions(precisions: Sequence[float]) -> None:
+    """Table II's target precisions are percentages in (0, 100], at least one: a ParameterError
+    names the first that is not."""
+    if not len(precisions):
+        raise ParameterError("precisions", "no target precision; give percentages such as 100,99")
+    bad = [p for p in precisions if not 0.0 < float(p) <= 100.0]
+    if bad:
+        raise ParameterError("precisions", f"{bad[0]:g} is not a percentage in (0, 100]")
+
+
+def check_once(paths: Sequence[Path | None]) -> None:
+    """Each run counts once in the tables: a ParameterError names a results file given twice (by
+    any path to it) or one identical to another (a copy: the same run). None stands for a run in
+    memory."""
+    seen: dict[Path, Path] = {}
+    contents: dict[str, Path] = {}
+    for path in paths:
+        if path is None:
+            continue
+        first = seen.setdefault(path.resolve(), path)
+        if first is not path:
+            spelling = "" if str(first) == str(path) else f" (as {first})"
+            raise ParameterError("runs", f"{path} is given twice{spelling}; each run counts once")
+        if path.is_file():
+            text = path.read_bytes().removeprefix(b"\xef\xbb\xbf")  # a byte-order mark is read past
+            first = contents.setdefault(hashlib.sha256(text).hexdigest(), path)
+            if first is not path:
+                raise ParameterError("runs", f"{path} holds the same run as {first} (identical contents); "
+                                             "each run counts once")
+
+
+def comparison(evaluations: Sequence[Evaluation], truth: TruthSource, *,
+               precisions: Sequence[float] = (100.0, 99.0), global_thresholds: bool = True) -> Comparison:
+    """Table I (recall at 100/99/90 % precision per traversal and method), Table II (per method,
+    the one threshold reaching each of ``precisions`` over all its traversals, when
+    ``global_thresholds``) and the calibration table of scored runs."""
+    evaluations = list(evaluations)
+    labels = method_labels(evaluations)
+    traversals = traversal_labels(evaluations)
+    rows = []
+    for label, traversal, e in zip(labels, traversals, evaluations):
+        s = e.summary.as_dict()
+        ranked = {key: value for key, value in s.items() if key.startswith("recall_at_") and key not in TABLE1_KEYS}
+        rows.append({"method": label, "traversal": traversal, **{key: s[key] for key in TABLE1_KEYS}, **ranked})
+    table1 = pd.DataFrame(rows)
+    rows2 = []
+    if global_thresholds:
+        by_method: dict[str, list[tuple[str, Evaluation]]] = {}
+        for label, traversal, e in zip(labels, traversals, evaluations):
+            by_method.setdefault(label, []).append((traversal, e))
+        for method, group in by_method.items():
+            inputs = [(e.confidence, e.correct, e.summary.with_true_match) for _, e in group]
+            for target in precisions:
+                threshold, recalls = global_threshold(inputs, float(target) / 100.0)
+                worst = int(np.argmin(recalls)) if len(recalls) else -1
+                for i, ((traversal, _), recall) in enumerate(zip(group, recalls)):
+                    rows2.append({"method": method, "precision": float(target), "threshold": threshold,
+                                  "traversal": traversal, "recall": recall, "worst": i == worst})
+    table2 = pd.DataFrame(rows2, columns=["method", "precision", "threshold", "traversal", "recall", "worst"])
+    cut_table = pd.DataFrame([{"method": label, "traversal": traversal, **e.calibration_row()}
+                              for label, traversal, e in zip(labels, traversals, evaluations)])
+    return Comparison(evaluations=evaluations, labels=labels, traversals=traversals, table1=table1,
+                      table2=table2, cut_table=cut_table, ground_truth=truth.describe())
+
+
+def run_names(evaluations: Sequence[Evaluation]) -> list[str]:
+    """One distinct "method traversal" name per run, as the tables label it (for plot legends)."""
+    return [f"{label} {traversal}"
+            for label, traversal in zip(method_labels(evaluations), traversal_labels(evaluations))]
+
+
+def run_subject(evaluations: Sequence[Evaluation], truth: TruthSource) -> str:
+    """What a figure of these runs shows, for its title: the dataset (the query folders' parent
+    folder), the descriptor and the ground truth with its tolerance, e.g.
+    ``gardens-point-walking, sad, aligned by name, +-2 frames``."""
+    datasets = dict.fromkeys(Path(e.results.header.query).parent.name or "?" for e in evaluations)
+    descriptors = dict.fromkeys("?" if e.results.header.descriptor is None else e.results.header.descriptor
+                                for e in evaluations)
+    return f"{' + '.join(datasets)}, {' + '.join(descriptors)}, {truth.describe()}"
+
+
+def threshold_marks(comparison: Comparison) -> dict[str, list[tuple[float, float]]]:
+    """Table II's global threshold per method label: (target precision in %, threshold)."""
+    marks: dict[str, list[tuple[float, float]]] = {}
+    for (method, target), group in comparison.table2.groupby(["method", "precision"], sort=False):
+        marks.setdefault(str(method), []).append((float(target), float(group["threshold"].iloc[0])))
+    return marks
+
+
+def threshold_series(comparison: Comparison, points: int = 201) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Precision against normalised threshold per method and traversal (the paper's Figure 5)."""
+    grid = np.linspace(0.0, 1.0, points)
+    return {name: (grid, precision_at_thresholds(e.confidence, e.correct, grid))
+            for name, e in zip(run_names(comparison.evaluations), comparison.evaluations)}
+
+
+def pr_series(comparison: Comparison) -> dict[str, PRCurve]:
+    """The precision-recall curve of each method and traversal, labelled as in the tables."""
+    return {name: e.curve for name, e in zip(run_names(comparison.evaluations), comparison.evaluations)}
+
+
+def reliability_series(evaluations: Sequence[Evaluation]) -> dict[str, ReliabilityBins]:
+    """The reliability bins of each run, labelled as in the tables (for the reliability diagram)."""
+    return {name: e.calibration.bins for name, e in zip(run_names(evaluations), evaluations)}
+
+
+def new_place_series(evaluations: Sequence[Evaluation]) -> dict[str, ReliabilityBins]:
+    """The reliability bins of P(new place) of each run that gives it and has a frame without a
+    true match (else there is nothing for P(new place) to find), labelled as in the tables."""
+    return {name: e.new_place.bins for name, e in zip(run_names(evaluations), evaluations)
+            if e.new_place is not None and not e.truth.has_match().all()}

@@ -1,0 +1,392 @@
+"""Ground truth: the four forms of SPEC.md section 7, read into one boolean truth matrix (the
+forms VPR datasets ship are in :mod:`wiloc.evaluation.truth_formats`, the choice among all of them in
+:mod:`wiloc.evaluation.truth_source`).
+
+Every reader returns a :class:`Truth` over the frame names it is given (queries x references).
+Frames are matched to ground-truth rows by file name; the matrix form, which carries no names, is
+matched by position and its shape is checked. Names that match only in part are reported with
+counts in ``Truth.warnings``; no match at all is a :class:`~wiloc.errors.WilocError`.
+See docs/evaluation.md for the formats and examples.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pandas as pd
+import scipy.io
+from numpy.typing import ArrayLike, NDArray
+from scipy import sparse
+from scipy.spatial import cKDTree
+
+from wiloc.errors import ParameterError, WilocError, load_problem
+from wiloc.reprs import short_repr
+
+EARTH_RADIUS_M = 6_371_008.8
+"""Mean Earth radius (IUGG) used for lat/lon distances on a sphere."""
+
+KINDS = ("aligned", "positions", "pairs", "matrix", "vprbench", "utm-names", "exif")
+FOLDER_KINDS = ("utm-names", "exif")
+"""Forms read from the traversals themselves (their file names, their images' EXIF): no file."""
+
+
+@short_repr
+@dataclass
+class Truth:
+    """Which (query, reference) frame pairs are the same place, with the names of both axes."""
+
+    matrix: sparse.csr_array
+    query_names: list[str]
+    ref_names: list[str]
+    warnings: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.matrix = sparse.csr_array(self.matrix, dtype=np.bool_)
+        self.matrix.eliminate_zeros()
+        self.matrix.sum_duplicates()
+        shape = (len(self.query_names), len(self.ref_names))
+        if self.matrix.shape != shape:
+            raise ValueError(f"truth matrix is {self.matrix.shape}, names give {shape}")
+
+    @property
+    def sequence(self) -> bool:
+        """True when queries and references are the same frames (loop closure in one traversal)."""
+        return self.query_names == self.ref_names
+
+    def has_match(self) -> NDArray[np.bool_]:
+        """Per query frame: whether at least one reference frame is the same place."""
+        return np.diff(self.matrix.indptr) > 0
+
+    def is_true(self, query_idx: ArrayLike, ref_idx: ArrayLike) -> NDArray[np.bool_]:
+        """Whether each (query, reference) index pair is the same place; reference -1 gives False."""
+        q = np.asarray(query_idx, dtype=np.int64)
+        r = np.asarray(ref_idx, dtype=np.int64)
+        q, r = np.broadcast_arrays(q, r)
+        n_ref = np.int64(self.matrix.shape[1])
+        coo = self.matrix.tocoo()
+        keys = coo.row.astype(np.int64) * n_ref + coo.col.astype(np.int64)
+        valid = (r >= 0) & (r < n_ref)
+        return valid & np.isin(q * n_ref + np.where(valid, r, 0), keys)
+
+
+def truth_from_pairs(rows: NDArray[np.int64], cols: NDArray[np.int64], query_names: Sequence[str],
+                      ref_names: Sequence[str], warnings: list[str]) -> Truth:
+    """A Truth with True at each (row, col); duplicates collapse, columns off the end are dropped."""
+    n_ref = len(ref_names)
+    keep = (cols >= 0) & (cols < n_ref)
+    rows, cols = rows[keep], cols[keep]
+    matrix = sparse.coo_array((np.ones(rows.size, dtype=np.bool_), (rows, cols)),
+                              shape=(len(query_names), n_ref))
+    return Truth(matrix.tocsr(), list(query_names), list(ref_names), warnings)
+
+
+def _band(rows: NDArray[np.int64], centres: NDArray[np.int64], tolerance: ArrayLike,
+          n_ref: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Expand each (row, centre) into (row, centre - T .. centre + T) within the n_ref reference
+    frames; T may differ per row. A band marking more than MAX_TRUE_PAIRS pairs is refused
+    before anything is allocated."""
+    tol = np.broadcast_to(np.asarray(tolerance, dtype=np.int64), rows.shape)
+    first = np.clip(centres - tol, 0, n_ref)
+    width = np.clip(centres + tol + 1, 0, n_ref) - first
+    total = int(width.sum())
+    if total > MAX_TRUE_PAIRS:
+        raise WilocError(None, f"this tolerance makes {total:,} true pairs (at most {MAX_TRUE_PAIRS:,}): "
+                               "every frame would match most of the map", parameter="tolerance")
+    starts = np.cumsum(width) - width
+    offset = np.arange(total, dtype=np.int64) - np.repeat(starts, width)
+    return np.repeat(rows, width), np.repeat(first, width) + offset
+
+
+MAX_TRUE_PAIRS = 50_000_000
+"""The most (query, reference) pairs a ground truth may mark true: 1.2 GB as index pairs."""
+
+
+def name_index(names: Sequence[str]) -> pd.Index:
+    return pd.Index(list(names), dtype=object)
+
+
+def _lookup(wanted: ArrayLike, names: Sequence[str]) -> NDArray[np.int64]:
+    """Position of each wanted name among ``names``, -1 where it is not a frame."""
+    return name_index(names).get_indexer(np.asarray(wanted, dtype=object)).astype(np.int64)
+
+
+def _check_tolerance(tolerance: int) -> int:
+    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, np.integer)) or tolerance < 0:
+        raise WilocError(None, f"must be a whole number of frames >= 0, got {tolerance!r}", parameter="tolerance")
+    return int(tolerance)
+
+
+def unmatched(where: Path | str, count: int, total: int, what: str) -> list[str]:
+    """A warning line when some of ``total`` items found no counterpart (none when all did)."""
+    return [f"{where}: {count} of {total} {what}"] if count else []
+
+
+def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], tolerance: int,
+                  by: Literal["name", "index"] = "name") -> Truth:
+    """Aligned traversals: the same file name (or position) is the same place, +-T reference frames.
+
+    Used when traversals were recorded frame by frame along the same route (Gardens Point,
+    Nordland). ``tolerance`` counts frames in the reference's order.
+    """
+    tol = _check_tolerance(tolerance)
+    where = f"aligned ground truth (by {by})"
+    n_query = len(query_names)
+    if by == "name":
+        centres = _lookup(query_names, ref_names)
+    elif by == "index":
+        centres = np.where(np.arange(n_query) < len(ref_names), np.arange(n_query), -1)
+    else:
+        raise WilocError(None, f"aligned ground truth: by must be 'name' or 'index', got {by!r}")
+    found = centres >= 0
+    if not found.any():
+        raise WilocError(where, f"none of the {n_query} query frames has a reference frame "
+                                + ("of the same name (to align by position, as a video's frames with a folder's: "
+                                   "aligned:index)" if by == "name" else "at its position"))
+    warnings = unmatched(where, int((~found).sum()), n_query,
+                          "query frames have no reference frame to align with")
+    rows, cols = _band(np.flatnonzero(found).astype(np.int64), centres[found], tol, len(ref_names))
+    return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
+
+
+def check_file(path: Path) -> None:
+    """A WilocError naming ``path`` unless it is a regular file that holds something: no such
+    file, not one (a folder, a device such as /dev/null), or an empty one."""
+    if not path.is_file():
+        raise WilocError(path, "not a regular file" if path.exists() else "no such file")
+    if path.stat().st_size == 0:
+        raise WilocError(path, "the file is empty (0 bytes)")
+
+
+def _read_csv(path: Path) -> pd.DataFrame:
+    """A CSV as strings with stripped, lower-case column names; missing file -> WilocError."""
+    path = Path(path)
+    check_file(path)
+    try:
+        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise WilocError(path, f"not a readable CSV ({exc})") from exc
+    frame.columns = [str(c).strip().lower() for c in frame.columns]
+    return frame.apply(lambda col: col.str.strip())
+
+
+def _require_columns(path: Path, frame: pd.DataFrame, columns: Sequence[str]) -> None:
+    missing = [c for c in columns if c not in frame.columns]
+    if missing:
+        raise WilocError(path, f"missing column(s) {', '.join(missing)}; "
+                               f"found {', '.join(frame.columns) or 'none'}")
+
+
+def _numeric(path: Path, frame: pd.DataFrame, columns: Sequence[str]) -> NDArray[np.float64]:
+    """The named columns as float64; any empty, non-numeric or NaN cell -> WilocError."""
+    values = frame[list(columns)].apply(pd.to_numeric, errors="coerce").to_numpy(np.float64)
+    bad = ~np.isfinite(values).all(axis=1)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise WilocError(path, f"{int(bad.sum())} row(s) have a missing or non-numeric "
+                               f"{'/'.join(columns)} value (first: line {first + 2})")
+    return values
+
+
+def _no_duplicates(path: Path, frame: pd.DataFrame, columns: Sequence[str]) -> None:
+    dup = frame.duplicated(subset=list(columns))
+    if dup.any():
+        first = frame.loc[dup, list(columns)].iloc[0].tolist()
+        raise WilocError(path, f"{int(dup.sum())} duplicate row(s) of {'/'.join(columns)} "
+                               f"(first: {', '.join(first)})")
+
+
+@dataclass(frozen=True)
+class Positions:
+    """Where frames were taken: ``names`` and their ``coords``, metres (x, y) or degrees
+    (lat, lon) when ``geographic``; ``source`` names where they came from in messages."""
+
+    source: Path | str
+    names: pd.Index
+    coords: NDArray[np.float64]
+    geographic: bool
+
+
+def _read_positions(path: Path) -> Positions:
+    """Names, coordinates and whether they are lat/lon (else metric x,y) from a positions CSV."""
+    frame = _read_csv(path)
+    _require_columns(path, frame, ["name"])
+    if {"lat", "lon"} <= set(frame.columns):
+        geographic, columns = True, ["lat", "lon"]
+    elif {"x", "y"} <= set(frame.columns):
+        geographic, columns = False, ["x", "y"]
+    else:
+        raise WilocError(path, "positions need columns name,x,y (metres) or name,lat,lon (degrees); "
+                               f"found {', '.join(frame.columns)}")
+    _no_duplicates(path, frame, ["name"])
+    coords = _numeric(path, frame, columns)
+    if geographic and (np.any(np.abs(coords[:, 0]) > 90) or np.any(np.abs(coords[:, 1]) > 360)):
+        raise WilocError(path, "lat must lie in [-90, 90] and lon in [-360, 360] degrees")
+    return Positions(path, name_index(frame["name"]), coords, geographic)
+
+
+def _unit_vectors(latlon_deg: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Points on the unit sphere for (lat, lon) in degrees."""
+    lat, lon = np.radians(latlon_deg[:, 0]), np.radians(latlon_deg[:, 1])
+    return np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+
+
+def _frames_with_positions(positions: Positions, frames: Sequence[str],
+                           role: str) -> tuple[NDArray[np.int64], NDArray[np.float64], list[str]]:
+    """Frame indices that have a position, their coordinates, and warnings about partial matches."""
+    where, names = positions.source, positions.names
+    at = names.get_indexer(name_index(frames))
+    found = at >= 0
+    if not found.any():
+        raise WilocError(where, f"no name matches any of the {len(frames)} {role} frames")
+    warnings = unmatched(where, int((~found).sum()), len(frames),
+                          f"{role} frames have no ground-truth row (never a true match)")
+    unused = len(names) - int(np.unique(at[found]).size)
+    warnings += unmatched(where, unused, len(names), f"ground-truth rows name no {role} frame")
+    return np.flatnonzero(found).astype(np.int64), positions.coords[at[found]], warnings
+
+
+def _check_radius(radius: float) -> float:
+    if not 0 <= radius < np.inf:
+        raise ParameterError("radius", f"must be a finite number >= 0 metres, got {radius}")
+    return float(radius)
+
+
+def truth_within(query: Positions, ref: Positions, radius: float, query_names: Sequence[str],
+                 ref_names: Sequence[str]) -> Truth:
+    """Frames within ``radius`` metres of each other are the same place: Euclidean on x,y, the
+    great-circle distance on lat,lon (a sphere of the mean Earth radius, found as the chord
+    between unit vectors). Every positions-based form (CSV files, @UTM names, EXIF GPS) ends
+    here. Passing the same ``Positions`` twice is sequence mode."""
+    reach = _check_radius(radius)
+    if query.geographic != ref.geographic:
+        raise WilocError(ref.source, f"uses {'lat/lon' if ref.geographic else 'x/y'} but {query.source} uses "
+                                     f"{'lat/lon' if query.geographic else 'x/y'}")
+    q_idx, q_pts, warnings = _frames_with_positions(query, query_names, "query")
+    r_idx, r_pts, r_warn = _frames_with_positions(ref, ref_names, "reference")
+    if not (ref is query and list(query_names) == list(ref_names)):
+        warnings += r_warn
+    if query.geographic:
+        q_pts, r_pts = _unit_vectors(q_pts), _unit_vectors(r_pts)
+        reach = 2.0 * np.sin(min(reach / EARTH_RADIUS_M, np.pi) / 2.0)
+    near = cKDTree(q_pts).sparse_distance_matrix(cKDTree(r_pts), reach, output_type="ndarray")
+    return truth_from_pairs(q_idx[near["i"]], r_idx[near["j"]], query_names, ref_names, warnings)
+
+
+def positions_truth(query_csv: Path, ref_csv: Path, radius: float, query_names: Sequence[str],
+                    ref_names: Sequence[str]) -> Truth:
+    """Positions form: frames within ``radius`` metres of each other are the same place.
+
+    CSV columns ``name,x,y`` (metres, Euclidean) or ``name,lat,lon`` (degrees; great-circle
+    distance, see :func:`truth_within`). Sequence mode: pass the same CSV twice.
+    """
+    _check_radius(radius)
+    query = _read_positions(query_csv)
+    same_file = Path(query_csv).resolve() == Path(ref_csv).resolve()
+    ref = query if same_file else _read_positions(ref_csv)
+    return truth_within(query, ref, radius, query_names, ref_names)
+
+
+def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str]) -> Truth:
+    """Pairs form: CSV rows ``query,reference`` list every true match (optional ``tolerance``).
+
+    A ``tolerance`` column widens a row to +-T frames around the reference in the reference's
+    order. Query frames without a row have no true match.
+    """
+    path = Path(csv)
+    frame = _read_csv(path)
+    _require_columns(path, frame, ["query", "reference"])
+    _no_duplicates(path, frame, ["query", "reference"])
+    if "tolerance" in frame.columns:
+        tol = _numeric(path, frame, ["tolerance"])[:, 0]
+        if np.any(tol < 0) or np.any(tol != np.round(tol)):
+            raise WilocError(path, "tolerance must be a whole number of frames >= 0")
+        tolerance = tol.astype(np.int64)
+    else:
+        tolerance = np.zeros(len(frame), dtype=np.int64)
+    q = _lookup(frame["query"], query_names)
+    r = _lookup(frame["reference"], ref_names)
+    usable = (q >= 0) & (r >= 0)
+    if not usable.any():
+        raise WilocError(path, f"none of the {len(frame)} rows names a known query frame and a "
+                               "known reference frame")
+    warnings = unmatched(path, int((q < 0).sum()), len(frame), "rows name no query frame (skipped)")
+    warnings += unmatched(path, int((r < 0).sum()), len(frame),
+                           "rows name no reference frame (skipped)")
+    rows, cols = _band(q[usable], r[usable], tolerance[usable], len(ref_names))
+    return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
+
+
+def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | sparse.sparray:
+    """The 2-D array stored in a .npy, .csv or .mat file."""
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            return np.load(path, allow_pickle=False)
+        if suffix == ".csv":
+            return np.loadtxt(path, delimiter=",", dtype=np.float64, ndmin=2, encoding="utf-8-sig")
+        if suffix == ".mat":
+            arrays = {k: v for k, v in scipy.io.loadmat(path).items()
+                      if not k.startswith("__") and getattr(v, "ndim", 0) == 2
+                      and (np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_)}
+            if variable is not None:
+                if variable not in arrays:
+                    raise WilocError(path, f"no 2-D variable {variable!r}; choose one of "
+                                           f"{', '.join(sorted(arrays)) or 'none'}")
+                return arrays[variable]
+            if len(arrays) != 1:
+                raise WilocError(path, f"holds {len(arrays)} 2-D arrays, name one of: "
+                                       f"{', '.join(sorted(arrays)) or 'none'}")
+            return next(iter(arrays.values()))
+    except (ValueError, OSError, NotImplementedError, EOFError, IndexError, scipy.io.matlab.MatReadError) as exc:
+        hint = "; VPR-Bench's ground_truth_new.npy is the vprbench form" if str(exc).startswith("Object arrays") else ""
+        raise WilocError(path, f"cannot read matrix ({load_problem(exc)}){hint}") from exc
+    raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv or .mat")
+
+
+def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str],
+                 variable: str | None = None) -> Truth:
+    """Matrix form: queries x references, 1 = same place, 0 = not (e.g. the FAB-MAP masks); any
+    other value is refused (a matrix of differences would make nearly every pair the same place).
+
+    The matrix carries no names: row i is the i-th query frame and column j the j-th reference
+    frame in the traversals' natural order, so its shape must match both exactly.
+    ``variable`` picks one array in a .mat file holding several.
+    """
+    path = Path(path)
+    check_file(path)
+    data = _read_matrix(path, variable)
+    if data.dtype.kind not in "biuf":
+        raise WilocError(path, f"matrix holds {data.dtype} values; give numbers (1 = same place, 0 = not) or booleans")
+    expected = (len(query_names), len(ref_names))
+    if data.ndim != 2 or data.shape != expected:
+        raise WilocError(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "
+                               f"{expected[0]} x {expected[1]} (query x reference frames)")
+    matrix = sparse.csr_array(data)
+    values = matrix.data.astype(np.float64, copy=False)
+    if not np.isfinite(values).all():
+        raise WilocError(path, "matrix holds NaN or infinite values")
+    if not np.isin(values, (0.0, 1.0)).all():  # a matrix of distances would make nearly every pair true
+        k = int(np.flatnonzero(~np.isin(values, (0.0, 1.0)))[0])
+        row = int(np.searchsorted(matrix.indptr, k, side="right") - 1)
+        raise WilocError(path, f"matrix holds {values[k]:g} at row {row + 1}, column {matrix.indices[k] + 1}: "
+                               "ground truth is a same-place mask of 0 and 1, not differences or distances")
+    return Truth(matrix, list(query_names), list(ref_names), [])
+
+
+def restrict_sequence(truth: Truth, exclude_recent: int) -> Truth:
+    """Sequence mode: keep only true matches to earlier frames outside the recent window (i < k - R).
+
+    Frames k - R .. k are never candidates in sequence mode, so they cannot count as true matches
+    (nor make a frame count towards recall).
+    """
+    if not truth.sequence:
+        raise WilocError(None, "sequence restriction needs the same frames as queries and references")
+    if int(exclude_recent) != exclude_recent or exclude_recent < 0:
+        raise WilocError(None, f"exclude-recent must be a whole number >= 0, got {exclude_recent}")
+    coo = truth.matrix.tocoo()
+    keep = coo.col.astype(np.int64) < coo.row.astype(np.int64) - int(exclude_recent)
+    return truth_from_pairs(coo.row[keep].astype(np.int64), coo.col[keep].astype(np.int64),
+                             truth.query_names, truth.ref_names, list(truth.warnings))

@@ -1,0 +1,326 @@
+"""Results files: one CSV per query traversal with a self-describing header.
+
+Layout (documented in docs/formats.md): header lines start with ``# `` and hold ``key: value``
+pairs, read and written by ``wiloc.evaluation.results_header``; the first is ``# wiloc-results: 1``. Then a
+plain CSV table, one row per query frame. Batch files are written to a temporary name and
+renamed, so a killed run never leaves a file that looks complete. A followed run's file
+(``follow: True`` in its header, no ``frames`` count) grows a row per frame as it is decided:
+each row is one write, and a torn last row is cut off when the run resumes.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from wiloc.atomic import write_error, written_whole
+from wiloc.decisions import Decision, Decisions
+from wiloc.errors import WilocError
+from wiloc.evaluation.results_header import ResultsHeader, parse_header, read_header
+from wiloc.model import HistogramModel
+from wiloc.reprs import short_repr
+
+BASE_COLUMNS = ("frame", "match", "difference", "confidence", "stage")
+RANKING = "ranking"  # the column of each frame's best candidates (methods that rank; docs/formats.md)
+NEW_PLACE = "new_place"  # the column of each frame's P(new place) (methods that say it: docs/formats.md)
+TEXT_COLUMNS = ("frame", "match", "stage", RANKING)
+
+
+@short_repr
+@dataclass
+class Results:
+    """One localization run: what was run (``header``) and what it decided (``frames``)."""
+
+    header: ResultsHeader
+    frames: pd.DataFrame
+    reference_frames: list[str] = field(default_factory=list)
+
+    @property
+    def method(self) -> str:
+        return self.header.method
+
+    @property
+    def model(self) -> HistogramModel | None:
+        data = self.header.model
+        return HistogramModel.from_dict(data) if data else None
+
+    @property
+    def match_index(self) -> np.ndarray:
+        """Reference positions of the matched frames (-1 when undecided)."""
+        lookup = {name: i for i, name in enumerate(self.reference_frames)}
+        return np.array([lookup.get(m, -1) if isinstance(m, str) else -1
+                         for m in self.frames["match"]], dtype=np.int64)
+
+    @property
+    def confidence(self) -> np.ndarray:
+        return self.frames["confidence"].to_numpy(dtype=np.float64)
+
+    @property
+    def new_place(self) -> np.ndarray | None:
+        """Each frame's probability that it shows a place absent from the map (NaN where not
+        given); None for a run without the column (methods that do not say it)."""
+        if NEW_PLACE not in self.frames.columns:
+            return None
+        return self.frames[NEW_PLACE].to_numpy(dtype=np.float64)
+
+    @property
+    def ranking(self) -> np.ndarray | None:
+        """Each frame's best candidates as reference positions, best first, padded with -1
+        (frames x K); None for a run without the column (catgraph, files of older versions)."""
+        if RANKING not in self.frames.columns:
+            return None
+        return parse_ranking(self.frames[RANKING].tolist())
+
+
+def ranking_text(ranking: Any) -> str:
+    """A ranking as its results-file cell: positions separated by spaces, best first."""
+    return " ".join(str(int(i)) for i in ranking if i >= 0)
+
+
+def _positions(text: str) -> list[int] | None:
+    """A ranking cell's positions; None when it is not whole numbers separated by spaces."""
+    parts = str(text).split()
+    return [int(part) for part in parts] if all(part.isdigit() for part in parts) else None
+
+
+def parse_ranking(cells: list[str]) -> np.ndarray:
+    """The rankings of a results table's column (checked by :func:`read_results`): frames x the
+    longest, padded with -1."""
+    rows = [_positions(text) or [] for text in cells]
+    ranking = np.full((len(rows), max(map(len, rows), default=0)), -1, dtype=np.int64)
+    for out, row in zip(ranking, rows):
+        out[:len(row)] = row
+    return ranking
+
+
+def decisions_to_frame(decisions: Decisions, query_names: list[str], ref_names: list[str]) -> pd.DataFrame:
+    """The per-frame table of a run, with frame names instead of positions."""
+    matched = np.full(len(decisions), "", dtype=object)
+    decided = decisions.match >= 0
+    matched[decided] = np.asarray(ref_names, dtype=object)[decisions.match[decided]]
+    table = {"frame": list(query_names), "match": matched, "difference": decisions.difference,
+             "confidence": decisions.confidence, "stage": decisions.stage}
+    table.update(decisions.columns)
+    if decisions.ranking is not None:
+        table[RANKING] = [ranking_text(row) for row in decisions.ranking]
+    return pd.DataFrame(table)
+
+
+def _write_atomically(path: Path, header: ResultsHeader, write_table: Any, mode: int | None = None) -> None:
+    """Write the header lines and then ``write_table(file)``, whole or not at all
+    (``atomic.written_whole``). The file gets ``mode``, else the usual new-file mode."""
+    with written_whole(path, "the results file", mode=mode) as out:
+        out.write(header.text())
+        write_table(out)
+
+
+def make_results(decisions: Decisions, *, query_names: list[str], ref_names: list[str],
+                 header: ResultsHeader) -> Results:
+    """A run's results in memory, with the header a results file holds: ``header`` (what was
+    run) completed with the row count, the method's parameters, its model and the map's frames."""
+    frame = decisions_to_frame(decisions, query_names, ref_names)
+    header = replace(header, frames=len(frame), params=decisions.params,
+                     model=decisions.model.to_dict() if decisions.model is not None else None,
+                     reference_frames=tuple(ref_names))
+    return Results(header=header, frames=frame, reference_frames=list(ref_names))
+
+
+def write_results(path: Path, results: Results) -> bool:
+    """Write a results file atomically (keeping the mode of a file it replaces); True when it
+    replaced one."""
+    path = Path(path)
+    replaced = path.exists()
+    mode = path.stat().st_mode & 0o7777 if replaced else None
+    _write_atomically(path, results.header,
+                      lambda out: results.frames.to_csv(out, index=False, float_format="%.9g"), mode=mode)
+    return replaced
+
+
+def _cell(value: Any) -> Any:
+    """A value as the batch table writes it: floats with 9 significant digits, NaN empty."""
+    if isinstance(value, float):
+        return "" if math.isnan(value) else "%.9g" % value
+    return value
+
+
+def _csv_line(cells: list[Any]) -> str:
+    text = io.StringIO()
+    csv.writer(text, lineterminator="\n").writerow(cells)
+    return text.getvalue()
+
+
+class ResultsStream:
+    """A followed run's results file, written row by row as frames are decided.
+
+    Opening it writes the header (``follow: True``, no ``frames`` count, no model) and the column
+    line atomically, unless ``resume`` and the file exists: then a torn last row is cut off and
+    :attr:`rows` holds the rows already written (as text), for the caller to replay and check.
+    Each :meth:`append` is one write of one whole line, so the file never holds half a row.
+    """
+
+    def __init__(self, path: Path, header: ResultsHeader, columns: tuple[str, ...], *, resume: bool) -> None:
+        self.path = Path(path)
+        self.columns = (*BASE_COLUMNS, *columns)
+        self.header = replace(header, follow=True)
+        self.rows = pd.DataFrame(columns=list(self.columns))
+        if resume and self.path.exists():
+            self._repair()
+            found, self.rows, _ = _read_table(self.path)
+            expected = parse_header(self.header.text().splitlines(), self.path)  # as a file gives it back
+            if replace(found, wiloc="") != replace(expected, wiloc=""):  # another version may go on
+                raise WilocError(None, f"{self.path} holds a run with other settings; give another file to start anew",
+                                 parameter="out")
+        else:
+            _write_atomically(self.path, self.header, lambda out: out.write(",".join(self.columns) + "\n"))
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
+
+    def _repair(self) -> None:
+        """Cut a torn last line (a kill during its write) off the file."""
+        data = self.path.read_bytes()
+        if data and not data.endswith(b"\n"):
+            os.truncate(self.path, data.rfind(b"\n") + 1)
+
+    def line(self, decision: Decision) -> str:
+        """The CSV line of one decision, as the batch writer formats it."""
+        values = {"frame": decision.frame, "match": decision.match_name, "difference": decision.difference,
+                  "confidence": decision.confidence, "stage": decision.stage, "new_place": decision.new_place,
+                  RANKING: ranking_text(decision.ranking), **decision.extra}
+        return _csv_line([_cell(values[c]) for c in self.columns])
+
+    def written_lines(self) -> list[str]:
+        """The rows already in the file (when resumed), as :meth:`line` formats them."""
+        return [_csv_line(list(row)) for row in self.rows.itertuples(index=False)]
+
+    def append(self, decision: Decision) -> None:
+        """Add one decided frame's row; it reaches the OS before this returns."""
+        try:
+            os.write(self._fd, self.line(decision).encode("utf-8"))
+        except OSError as exc:
+            raise write_error(self.path, "the results file", exc) from None
+
+    def close(self) -> None:
+        os.close(self._fd)
+
+
+def read_results(path: Path, lowest_confidence: Callable[[str], float] | None = None) -> Results:
+    """Read a results file written by :func:`write_results` (or a followed run's); WilocError
+    naming the file and line when it is not one or holds something no run writes.
+    ``lowest_confidence(method)`` is the lowest confidence the run's method writes
+    (``wiloc.methods.registry.lowest_confidence``); without it confidences lie in [0, 1]."""
+    path = Path(path)
+    header, frames, first_line = _read_table(path)
+    reference = _reference_frames(path, header, frames)
+    known = set(reference)
+    for i, match in enumerate(frames["match"]):
+        if match and match not in known:
+            raise WilocError(path, f"line {first_line + i}: match '{match}' is not a frame of the map")
+    if RANKING in frames.columns:
+        _check_ranking(path, frames, reference, first_line)
+    for column in frames.columns.difference(TEXT_COLUMNS):
+        numbers = pd.to_numeric(frames[column].replace("", np.nan), errors="coerce")
+        bad = numbers.isna() & (frames[column] != "")
+        if bad.any():
+            i = int(np.flatnonzero(bad.to_numpy())[0])
+            raise WilocError(path, f"line {first_line + i}: {column} '{frames[column].iloc[i]}' is not a number")
+        frames[column] = numbers.astype(np.float64)
+    lowest = lowest_confidence(header.method) if lowest_confidence is not None else 0.0
+    _check_probabilities(path, frames, header.method, lowest, first_line)
+    _check_decided(path, frames, first_line)
+    return Results(header=header, frames=frames, reference_frames=reference)
+
+
+def _check_probabilities(path: Path, frames: pd.DataFrame, method: str, lowest: float, first_line: int) -> None:
+    """A WilocError naming the file and line of a confidence or P(new place) that no run writes:
+    outside [0, 1], or for a method whose confidence goes below 0 to ``lowest`` (``threshold``)
+    above 1 or infinite. Empty cells (undecided frames) pass."""
+    for column, low in (("confidence", lowest), (NEW_PLACE, 0.0)):
+        if column not in frames.columns:
+            continue
+        values = frames[column].to_numpy()
+        bad = ~np.isnan(values) & ~((values >= low) & (values <= 1.0) & np.isfinite(values))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            span = "in [0, 1]" if low == 0.0 else f"a finite number at most 1 (as {method} writes it)"
+            raise WilocError(path, f"line {first_line + i}: {column} {values[i]:g} is not {span}")
+
+
+def _check_decided(path: Path, frames: pd.DataFrame, first_line: int) -> None:
+    """A WilocError naming the file and line of a match without a confidence or a confidence
+    without a match: a run writes both (a decided frame) or neither, and the metrics would count
+    such a frame as decided in one table and not in another."""
+    matched = (frames["match"] != "").to_numpy()
+    confident = ~np.isnan(frames["confidence"].to_numpy())
+    odd = np.flatnonzero(matched != confident)
+    if odd.size:
+        i = int(odd[0])
+        problem = (f"match '{frames['match'].iloc[i]}' has no confidence" if matched[i]
+                   else f"confidence {frames['confidence'].iloc[i]:g} without a match")
+        raise WilocError(path, f"line {first_line + i}: {problem} (a run writes both or neither)")
+
+
+def _check_ranking(path: Path, frames: pd.DataFrame, reference: list[str], first_line: int) -> None:
+    """A WilocError naming the file and line of a ranking that no run writes: text that is no
+    positions, a position off the map, one twice, or a first that is not the match."""
+    lookup = {name: i for i, name in enumerate(reference)}
+    for i, (text, match) in enumerate(zip(frames[RANKING], frames["match"])):
+        positions = _positions(text)
+        ranked = np.asarray(positions or [], dtype=np.int64)
+        problem = None
+        if positions is None:
+            problem = f"ranking '{text}' is not positions separated by spaces"
+        elif ranked.size and ranked.max() >= len(reference):
+            problem = f"ranking names position {int(ranked.max())}; the map has {len(reference)} frames"
+        elif np.unique(ranked).size != ranked.size:
+            problem = "ranking names a frame twice"
+        elif (lookup.get(match, -1) if match else -1) != (int(ranked[0]) if ranked.size else -1):
+            problem = "ranking does not start with the match"
+        if problem:
+            raise WilocError(path, f"line {first_line + i}: {problem}")
+
+
+def _reference_frames(path: Path, header: ResultsHeader, frames: pd.DataFrame) -> list[str]:
+    """The frames matches may name: the header's ``reference_frames``; in sequence mode, when a
+    followed run could not list them up front, the query frames themselves."""
+    if header.reference_frames:
+        return list(header.reference_frames)
+    if header.sequence:
+        return frames["frame"].tolist()
+    raise WilocError(path, "no 'reference_frames' header: the map frames the matches name are unknown")
+
+
+def _torn(path: Path) -> bool:
+    """Whether the file's last line has no line end (a row cut short while it was written)."""
+    with path.open("rb") as handle:
+        handle.seek(-1, os.SEEK_END)
+        return handle.read(1) != b"\n"
+
+
+def _read_table(path: Path) -> tuple[ResultsHeader, pd.DataFrame, int]:
+    """A results file's header, its table (every cell as text) and the line number of the
+    table's first row."""
+    header, n_header = read_header(path)
+    if header.follow and _torn(path):
+        raise WilocError(path, "its last row is cut short (no line end): the followed run stopped while writing "
+                               "it, or is writing it now; read the file again, or resume the run, which cuts it off")
+    try:
+        frames = pd.read_csv(path, skiprows=n_header, dtype=str, keep_default_na=False, encoding="utf-8-sig")
+    except (pd.errors.ParserError, ValueError) as exc:
+        raise WilocError(path, f"unreadable table: {exc}") from None
+    missing = [c for c in BASE_COLUMNS if c not in frames.columns]
+    if missing:
+        raise WilocError(path, f"missing column(s): {', '.join(missing)}")
+    if header.frames is not None and len(frames) != header.frames:
+        raise WilocError(path, f"holds {len(frames)} rows, its header says {header.frames}: "
+                               "the file is incomplete or was edited")
+    if frames["frame"].duplicated().any():
+        dup = frames["frame"][frames["frame"].duplicated()].iloc[0]
+        raise WilocError(path, f"duplicate row for frame '{dup}'")
+    return header, frames, n_header + 2

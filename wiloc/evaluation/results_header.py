@@ -1,0 +1,183 @@
+"""The header of a results file, typed: what was run, read and written in this one place.
+
+A header is ``# key: value`` lines (docs/formats.md, "Results files"); the values of
+:data:`JSON_KEYS` are JSON, ``fabmap_training`` is a Python list of folder names, the rest text.
+Reading checks every value a run's later steps use, so a file no run writes is refused here,
+naming the key. A key this version does not know is kept as text (:attr:`ResultsHeader.extra`).
+"""
+from __future__ import annotations
+
+import ast
+import json
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from wiloc.errors import WilocError
+from wiloc.model import HistogramModel
+from wiloc.reprs import short_repr
+
+FORMAT_VERSION = "1"
+VERSION_KEY = "wiloc-results"
+JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "sampling")
+
+
+@short_repr
+@dataclass(frozen=True)
+class ResultsHeader:
+    """A results file's header. Fields left None are not written (a run that has no such thing:
+    no training pair, no video, a followed run's count and digests); the others always are, except
+    ``model``, which a followed run's file leaves out. Fields are written in this order."""
+
+    method: str = ""
+    descriptor: str | None = None  # None: the file does not say (files made by hand)
+    descriptor_params: dict[str, Any] = field(default_factory=dict)
+    metric: str = ""
+    mode: str = ""  # "map" or "sequence"
+    query: str = ""
+    map: str = ""  # "" in sequence mode
+    exclude_recent: int = 0
+    wiloc: str = ""  # the version that wrote the file
+    train_query: str | None = None
+    train_map: str | None = None
+    query_digest: str | None = None  # batch runs only (run_figures checks the images against them)
+    map_digest: str | None = None  # "" in sequence mode
+    sampling: dict[str, Any] | None = None  # a video's or bag's sampling (wiloc.sources.video.Sampling's fields)
+    topic: str | None = None
+    odometry_topic: str | None = None
+    rows: str | None = None  # "fabmap": the rows were FAB-MAP's evidence, not differences
+    fabmap_training: tuple[str, ...] | None = None
+    frames: int | None = None  # the row count; None in a followed run's file, which grows
+    params: dict[str, Any] = field(default_factory=dict)
+    model: dict[str, Any] | None = None  # HistogramModel.to_dict()
+    reference_frames: tuple[str, ...] = ()
+    follow: bool = False
+    extra: dict[str, str] = field(default_factory=dict)  # keys this version does not know, as read
+
+    @property
+    def sequence(self) -> bool:
+        """Whether the run matched the query against its own earlier frames."""
+        return self.mode == "sequence"
+
+    def text(self) -> str:
+        """The header as a results file holds it: one ``# key: value`` line each."""
+        return "".join(f"# {key}: {value}\n" for key, value in self._items())
+
+    def _items(self) -> Iterator[tuple[str, str]]:
+        """(key, text) of each line, the format's version first and unknown keys last."""
+        yield VERSION_KEY, FORMAT_VERSION
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "extra":
+                yield from value.items()
+            elif not self._written(f.name, value):
+                continue
+            elif f.name in JSON_KEYS:
+                yield f.name, json.dumps(value)
+            elif f.name == "fabmap_training":
+                yield f.name, str(list(value))
+            else:
+                yield f.name, str(value)
+
+    def _written(self, name: str, value: Any) -> bool:
+        """Whether the field has a line: ``model`` in every batch file (null: the method keeps
+        none), ``follow`` only when true, the others unless None."""
+        if name == "model":
+            return not self.follow
+        if name == "follow":
+            return bool(value)
+        return value is not None
+
+
+def read_header(path: Path) -> tuple[ResultsHeader, int]:
+    """A results file's header and its number of lines; WilocError naming the file when it is
+    no results file or its header holds a value no run writes."""
+    if not path.is_file():
+        raise WilocError(path, "results file does not exist")
+    lines = []
+    try:
+        with path.open(encoding="utf-8-sig") as handle:  # a byte-order mark (an editor's) is skipped
+            for line in handle:
+                if not line.startswith("# "):
+                    break
+                lines.append(line)
+    except UnicodeDecodeError:
+        raise WilocError(path, "not a wiloc results file (not UTF-8 text)") from None
+    return parse_header(lines, path), len(lines)
+
+
+def parse_header(lines: Iterable[str], path: Path | None) -> ResultsHeader:
+    """The header of ``# key: value`` lines (the last of a key given twice counts)."""
+    values: dict[str, Any] = {}
+    for n, line in enumerate(lines, 1):
+        key, sep, value = line[2:].rstrip("\n").partition(": ")
+        if not sep:
+            raise WilocError(path, f"malformed header line {n}")
+        try:
+            values[key] = json.loads(value) if key in JSON_KEYS else value
+        except json.JSONDecodeError as exc:
+            raise WilocError(path, f"header '{key}' is not valid JSON ({exc.msg})") from None
+    if values.pop(VERSION_KEY, None) != FORMAT_VERSION:
+        raise WilocError(path, "not a wiloc results file (no '# wiloc-results: 1' header)")
+    known = {f.name for f in fields(ResultsHeader)} - {"extra"}
+    typed = {key: _typed(path, key, value) for key, value in values.items() if key in known}
+    return ResultsHeader(**typed, extra={k: v for k, v in values.items() if k not in known})
+
+
+def _typed(path: Path | None, key: str, value: Any) -> Any:
+    """One header value as its field holds it; WilocError naming the key when no run writes it."""
+    if key in ("exclude_recent", "frames"):
+        if not (value.isascii() and value.isdigit()):
+            raise WilocError(path, f"header '{key}' must be a whole number >= 0, got {value!r}")
+        return int(value)
+    if key == "follow":
+        return value == "True"
+    if key == "reference_frames":
+        return _frame_names(path, value)
+    if key == "fabmap_training":
+        return _folders(path, value)
+    if key == "model":
+        return _model(path, value)
+    if key in JSON_KEYS:
+        if not isinstance(value, dict):
+            raise WilocError(path, f"header '{key}' must be a JSON object")
+        return value
+    return value
+
+
+def _frame_names(path: Path | None, value: Any) -> tuple[str, ...]:
+    """``reference_frames``: each name once (a match by a name given twice would be a place at
+    either position); null: none listed."""
+    if value is None:
+        return ()
+    if not isinstance(value, list) or not all(isinstance(name, str) for name in value):
+        raise WilocError(path, "header 'reference_frames' must be a list of frame names")
+    seen: set[str] = set()
+    for name in value:
+        if name in seen:
+            raise WilocError(path, f"header 'reference_frames' names '{name}' twice")
+        seen.add(name)
+    return tuple(value)
+
+
+def _folders(path: Path | None, value: str) -> tuple[str, ...]:
+    """``fabmap_training``, written as a Python list of folder names."""
+    try:
+        folders = ast.literal_eval(value)
+    except (ValueError, SyntaxError, RecursionError):
+        folders = None
+    if not isinstance(folders, list) or not all(isinstance(folder, str) for folder in folders):
+        raise WilocError(path, f"header 'fabmap_training' must be a list of folders, got {value!r}")
+    return tuple(folders)
+
+
+def _model(path: Path | None, value: Any) -> dict[str, Any] | None:
+    """``model``: a histogram model's dict, or None for null (and any empty value)."""
+    if not value:
+        return None
+    try:
+        HistogramModel.from_dict(value)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise WilocError(path, f"header 'model' is not a histogram model ({exc})") from None
+    return value

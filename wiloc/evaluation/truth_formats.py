@@ -1,0 +1,216 @@
+"""Ground truth as VPR datasets ship it, read into the same :class:`~wiloc.evaluation.groundtruth.Truth` as
+the pairs and positions forms: VPR-Bench's ``ground_truth_new.npy``, the ``@UTM_east@UTM_north@``
+file names of the datasets that VPR-methods-evaluation and VPR-datasets-downloader produce, and
+the GPS position in each photo's EXIF. See docs/evaluation.md."""
+from __future__ import annotations
+
+import pickle
+from collections.abc import Sequence
+from pathlib import Path, PurePosixPath
+from typing import Any, BinaryIO
+
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.errors import WilocError
+from wiloc.evaluation.groundtruth import Positions, Truth, check_file, name_index, truth_from_pairs, truth_within, unmatched
+
+DEFAULT_RADIUS_M = 25.0
+"""Same place within 25 m: the threshold of VPR-methods-evaluation and of the benchmarks it follows
+(Pitts30k, Tokyo 24/7, MSLS, SF-XL), used by ``utm-names`` and ``exif`` unless a radius is given."""
+
+# ------------------------------------------------------------------------------------- VPR-Bench
+
+#: What a pickled numpy object array may name: the array's and its elements' constructors (as
+#: numpy 1.x and 2.x spell their modules), nothing else.
+_NUMPY_GLOBALS: dict[str, Any] = {"_reconstruct": np.empty(0).__reduce__()[0], "ndarray": np.ndarray,
+                                  "dtype": np.dtype, "scalar": np.int64(0).__reduce__()[0]}
+_NUMPY_MODULES = frozenset({"numpy", "numpy.core.multiarray", "numpy._core.multiarray"})
+_VPRBENCH = "VPR-Bench's rows of [query index, [reference indices]]"
+
+
+class _ArraysOnly(pickle.Unpickler):
+    """An unpickler that builds numpy arrays, numbers and lists only.
+
+    VPR-Bench stores its ground truth as a numpy object array, which numpy saves as a pickle, and
+    ``np.load(allow_pickle=True)`` would run whatever code such a file names. Reading the pickle
+    here instead, with every global other than numpy's array constructors refused, gives the
+    rows VPR-Bench writes and turns anything else into an error rather than running it.
+    """
+
+    def find_class(self, module: str, name: str) -> Any:
+        if module in _NUMPY_MODULES and name in _NUMPY_GLOBALS:
+            return _NUMPY_GLOBALS[name]
+        raise pickle.UnpicklingError(f"it names {module}.{name}, which is no part of a numpy array")
+
+
+def _load_object_npy(path: Path, file: BinaryIO) -> NDArray[np.object_]:
+    """The object array of a ``.npy`` file, unpickled by :class:`_ArraysOnly`."""
+    version = np.lib.format.read_magic(file)
+    read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, _, dtype = read_header(file)
+    if not dtype.hasobject:
+        raise WilocError(path, f"holds a plain {' x '.join(map(str, shape))} array of {dtype}, not {_VPRBENCH} "
+                               "(a queries x references matrix is the matrix form)")
+    array = _ArraysOnly(file).load()
+    if not isinstance(array, np.ndarray):
+        raise WilocError(path, f"holds a pickled {type(array).__name__}, not {_VPRBENCH}")
+    return array
+
+
+def _whole_number(value: Any) -> int | None:
+    """An integer index (Python or numpy, or a 0-d integer array), else None."""
+    if isinstance(value, np.ndarray):
+        return int(value) if value.ndim == 0 and value.dtype.kind in "iu" else None
+    return int(value) if isinstance(value, (int, np.integer)) and not isinstance(value, bool) else None
+
+
+def _references(value: Any) -> NDArray[np.int64] | None:
+    """A row's reference indices (a list or array of integers, or one integer), else None."""
+    if (single := _whole_number(value)) is not None:
+        return np.array([single], dtype=np.int64)
+    if not isinstance(value, (list, tuple, np.ndarray)):
+        return None
+    if isinstance(value, np.ndarray) and value.dtype.kind in "iu" and value.ndim == 1:
+        return value.astype(np.int64)
+    items = [_whole_number(v) for v in value]
+    return None if any(i is None for i in items) else np.array(items, dtype=np.int64)
+
+
+def read_vprbench(path: Path) -> list[tuple[int, NDArray[np.int64]]]:
+    """The (query index, reference indices) rows of a VPR-Bench ``ground_truth_new.npy``."""
+    path = Path(path)
+    check_file(path)
+    try:
+        with path.open("rb") as file:
+            array = _load_object_npy(path, file)
+    except (ValueError, OSError, EOFError, pickle.UnpicklingError) as exc:
+        raise WilocError(path, f"not {_VPRBENCH} ({exc})") from exc
+    if array.ndim not in (1, 2) or (array.ndim == 2 and array.shape[1] != 2):
+        shape = " x ".join(map(str, array.shape)) or "0-d"
+        raise WilocError(path, f"holds a {shape} object array, not {_VPRBENCH}")
+    rows = []
+    for i, row in enumerate(array):
+        pair = isinstance(row, (list, tuple, np.ndarray)) and len(row) == 2
+        query = _whole_number(row[0]) if pair else None
+        refs = _references(row[1]) if query is not None else None
+        if refs is None:
+            raise WilocError(path, f"row {i + 1} is not [query index, [reference indices]] ({_VPRBENCH})")
+        rows.append((query, refs))
+    if not rows:
+        raise WilocError(path, "holds no rows")
+    return rows
+
+
+def vprbench_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str]) -> Truth:
+    """VPR-Bench form: row [q, [r1, r2, ...]] says query frame q is the same place as reference
+    frames r1, r2, ...; indices count frames in each traversal's natural order, as VPR-Bench's
+    numbered images (0.jpg, 1.jpg, ...) do."""
+    path = Path(path)
+    rows = read_vprbench(path)
+    n_query, n_ref = len(query_names), len(ref_names)
+    for i, (query, refs) in enumerate(rows):
+        if not 0 <= query < n_query:
+            raise WilocError(path, f"row {i + 1}: query index {query}, but the query traversal has {n_query} frames")
+        if refs.size and not (0 <= refs.min() and refs.max() < n_ref):
+            bad = int(refs[(refs < 0) | (refs >= n_ref)][0])
+            raise WilocError(path, f"row {i + 1}: reference index {bad}, but the reference traversal has {n_ref} frames")
+    queries = np.repeat(np.array([q for q, _ in rows], dtype=np.int64), [refs.size for _, refs in rows])
+    refs = np.concatenate([refs for _, refs in rows])
+    without = n_query - len({q for q, _ in rows})
+    warnings = unmatched(path, without, n_query, "query frames have no row (never a true match)")
+    return truth_from_pairs(queries, refs, query_names, ref_names, warnings)
+
+
+# ------------------------------------------------------------------------------------ @UTM names
+
+def utm_positions(folder: Path, names: Sequence[str]) -> tuple[Positions, dict[str, Path]]:
+    """Positions in metres from file names ``@UTM_east@UTM_north@UTM_zone_number@UTM_zone_letter@
+    latitude@longitude@...@.jpg`` (as VPR-methods-evaluation reads them: the two numbers after the
+    first ``@``), and the first file of each UTM zone number the names give. A name without the
+    two numbers is an error naming it."""
+    coords = np.empty((len(names), 2), dtype=np.float64)
+    zones: dict[str, Path] = {}
+    for i, name in enumerate(names):
+        fields = PurePosixPath(name).name.split("@")
+        try:
+            coords[i] = float(fields[1]), float(fields[2])
+            usable = bool(np.isfinite(coords[i]).all())
+        except (IndexError, ValueError):
+            usable = False
+        if not usable:
+            raise WilocError(Path(folder) / name, "not a name of the form @UTM_east@UTM_north@...@.jpg "
+                                                  "(the datasets of VPR-methods-evaluation), so it gives no position")
+        if len(fields) > 3 and fields[3]:
+            zones.setdefault(fields[3], Path(folder) / name)
+    return Positions(f"{folder} (@UTM names)", name_index(names), coords, geographic=False), zones
+
+
+def utm_names_truth(query_folder: Path, ref_folder: Path | None, radius: float, query_names: Sequence[str],
+                    ref_names: Sequence[str]) -> Truth:
+    """``utm-names`` form: frames whose @UTM names lie within ``radius`` metres are the same place
+    (``ref_folder`` None: sequence mode). Names of several UTM zones are an error: their
+    coordinates are not on one plane."""
+    query, zones = utm_positions(query_folder, query_names)
+    ref, ref_zones = (query, {}) if ref_folder is None else utm_positions(ref_folder, ref_names)
+    zones = {**ref_zones, **zones}
+    if len(zones) > 1:
+        (a, first), (b, second) = list(zones.items())[:2]
+        raise WilocError(second, f"in UTM zone {b}, but {first} is in zone {a}: their coordinates are not on one plane")
+    return truth_within(query, ref, radius, query_names, ref_names)
+
+
+# ------------------------------------------------------------------------------------- EXIF GPS
+
+_GPS_IFD = 0x8825  # EXIF tags: the GPS block; in it 1/2 latitude ref/value, 3/4 longitude ref/value
+
+
+def _degrees(value: Any, ref: Any, negative: str) -> float:
+    """EXIF degrees, minutes, seconds (rationals) and a hemisphere letter as signed degrees."""
+    parts = [float(v) for v in (value if isinstance(value, (tuple, list)) else (value,))]
+    degrees = sum(part / 60.0 ** k for k, part in enumerate(parts[:3]))
+    letter = ref.decode("ascii", "replace") if isinstance(ref, bytes) else str(ref or "")
+    return -degrees if letter.strip("\0 ").upper() == negative else degrees
+
+
+def gps_position(path: Path) -> tuple[float, float] | None:
+    """An image's (latitude, longitude) in degrees from its EXIF, None when it has none. Pillow
+    reads the EXIF block without decoding the pixels."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            gps = image.getexif().get_ifd(_GPS_IFD)
+    except (OSError, UnidentifiedImageError, SyntaxError, ValueError) as exc:
+        raise WilocError(path, f"cannot read its EXIF ({exc})") from exc
+    if 2 not in gps or 4 not in gps:
+        return None
+    try:
+        lat, lon = _degrees(gps[2], gps.get(1), "S"), _degrees(gps[4], gps.get(3), "W")
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    return (lat, lon) if np.isfinite([lat, lon]).all() and abs(lat) <= 90 and abs(lon) <= 180 else None
+
+
+def exif_positions(folder: Path, names: Sequence[str]) -> Positions:
+    """The GPS positions (lat, lon) of a folder's images; any image without one is an error naming
+    the first, with the count."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise WilocError(folder, "exif ground truth reads the images of an image folder, and this is not one")
+    found = [gps_position(folder / name) for name in names]
+    missing = [name for name, at in zip(names, found) if at is None]
+    if missing:
+        raise WilocError(folder / missing[0], f"no GPS position in its EXIF ({len(missing)} of {len(names)} "
+                                              f"images in {folder} have none)")
+    return Positions(f"{folder} (EXIF GPS)", name_index(names), np.array(found, dtype=np.float64).reshape(-1, 2),
+                     geographic=True)
+
+
+def exif_truth(query_folder: Path, ref_folder: Path | None, radius: float, query_names: Sequence[str],
+               ref_names: Sequence[str]) -> Truth:
+    """``exif`` form: frames whose EXIF GPS positions lie within ``radius`` metres (great-circle)
+    are the same place (``ref_folder`` None: sequence mode)."""
+    query = exif_positions(query_folder, query_names)
+    ref = query if ref_folder is None else exif_positions(ref_folder, ref_names)
+    return truth_within(query, ref, radius, query_names, ref_names)

@@ -1,0 +1,109 @@
+"""Which ground truth a run is scored against: a form of SPEC.md section 7 or one that VPR
+datasets ship, its files and tolerances (:class:`TruthSource`), read by :func:`load_truth` into
+one :class:`~wiloc.evaluation.groundtruth.Truth`."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from wiloc.errors import ParameterError, WilocError
+from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, Truth, aligned_truth, matrix_truth, pairs_truth, positions_truth,
+                               restrict_sequence)
+from wiloc.evaluation.truth_formats import DEFAULT_RADIUS_M, exif_truth, utm_names_truth, vprbench_truth
+
+
+def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
+               ref_names: Sequence[str], tolerance: int = 0, radius: float | None = None,
+               ref_path: Path | None = None, by: Literal["name", "index"] = "name",
+               variable: str | None = None, query_folder: Path | None = None,
+               ref_folder: Path | None = None) -> Truth:
+    """Read ground truth of the given kind (``KINDS``) for the CLI.
+
+    ``path`` is unused for ``aligned``, ``utm-names`` and ``exif``; for ``positions`` it is the
+    query CSV and ``ref_path`` the reference CSV (default: the same file, sequence mode).
+    ``utm-names`` and ``exif`` read the traversals: ``query_folder`` and ``ref_folder`` (None:
+    sequence mode), within ``radius`` metres (default 25).
+    """
+    if kind == "aligned":
+        return aligned_truth(query_names, ref_names, tolerance, by=by)
+    if kind not in KINDS:
+        raise WilocError(None, f"unknown ground-truth kind {kind!r}; choose one of {', '.join(KINDS)}")
+    if kind in FOLDER_KINDS:
+        if query_folder is None:
+            raise ParameterError("query_folder", f"{kind} ground truth needs the query traversal's folder")
+        read = utm_names_truth if kind == "utm-names" else exif_truth
+        return read(Path(query_folder), None if ref_folder is None else Path(ref_folder),
+                    DEFAULT_RADIUS_M if radius is None else radius, query_names, ref_names)
+    if path is None:
+        raise ParameterError("path", f"{kind} ground truth needs a file ({kind}:FILE)")
+    if kind == "positions":
+        if radius is None:
+            raise ParameterError("radius", "positions ground truth needs a radius in metres")
+        return positions_truth(Path(path), Path(ref_path or path), radius, query_names, ref_names)
+    if kind == "pairs":
+        return pairs_truth(Path(path), query_names, ref_names)
+    if kind == "vprbench":
+        return vprbench_truth(Path(path), query_names, ref_names)
+    return matrix_truth(Path(path), query_names, ref_names, variable=variable)
+
+
+@dataclass(frozen=True)
+class TruthSource:
+    """Which ground truth to use: a form (SPEC.md section 7) and its files and tolerances.
+
+    ``path`` and ``ref_path`` may contain ``{query}``, replaced by the query folder's name, so that
+    several query traversals can each find their own file.
+    """
+
+    kind: str = "aligned"
+    path: str | None = None
+    ref_path: str | None = None
+    tolerance: int = 2
+    radius: float | None = None
+    by: Literal["name", "index"] = "name"
+    variable: str | None = None  # matrix form, .mat files holding several arrays: which one
+
+    def describe(self) -> str:
+        """The ground truth in words, as tables print it: 'aligned, +-2 frames'."""
+        if self.kind == "aligned":
+            return f"aligned by {self.by}, +-{self.tolerance} frames"
+        if self.kind == "positions":
+            return f"positions within {self.radius:g} m ({self.path})"
+        if self.kind in FOLDER_KINDS:
+            radius = DEFAULT_RADIUS_M if self.radius is None else self.radius
+            return f"{'@UTM file names' if self.kind == 'utm-names' else 'EXIF GPS'} within {radius:g} m"
+        return f"{self.kind} {self.path}"
+
+    def load(self, query_names: list[str], ref_names: list[str], query_folder: str,
+             sequence: bool, exclude_recent: int, ref_folder: str = "") -> Truth:
+        """The truth matrix over these frames (sequence mode: earlier frames outside +-R only);
+        ``ref_folder`` is the reference traversal, for the forms that read it."""
+        name = Path(query_folder).name
+        path = _for_query(self.path, name, "path")
+        ref_path = _for_query(self.ref_path, name, "ref_path")
+        if self.kind == "positions" and path is not None and ref_path is None and not sequence:
+            raise ParameterError("ref_path", "a run against a map needs the map's positions file too (the query's "
+                                             "positions do not place the map frames)")
+        if sequence and ref_path is not None and path is not None and ref_path.resolve() != path.resolve():
+            raise ParameterError("ref_path", f"a run in sequence mode is its own map: {ref_path} is not its positions "
+                                             f"file {path} (give that file once)")
+        truth = load_truth(self.kind, path, query_names=query_names, ref_names=ref_names,
+                           tolerance=self.tolerance, radius=self.radius, ref_path=ref_path,
+                           by=self.by, variable=self.variable, query_folder=Path(query_folder) if query_folder else None,
+                           ref_folder=None if sequence or not ref_folder else Path(ref_folder))
+        return restrict_sequence(truth, exclude_recent) if sequence else truth
+
+
+def _for_query(template: str | None, name: str, parameter: str) -> Path | None:
+    """A ground-truth file path with ``{query}`` replaced by the query folder's name (other braces
+    are part of the name); a WilocError naming ``parameter`` and the template when the file it
+    gives does not exist."""
+    if not template:
+        return None
+    path = Path(template.replace("{query}", name))
+    if "{query}" in template and not path.exists():
+        raise WilocError(None, f"{path} ({template} for query {name}): no such file", parameter=parameter)
+    return path
+

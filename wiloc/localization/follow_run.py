@@ -1,0 +1,83 @@
+"""A query folder followed as a camera fills it: each frame decided as it arrives by a
+``Localizer``, its row appended to a results file at once; a results file the same settings
+wrote before is resumed (``wiloc.api.follow_folder``)."""
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from wiloc.cache.store import Cache
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.decisions import Decision
+from wiloc.errors import WilocError
+from wiloc.evaluation.results import RANKING, ResultsStream
+from wiloc.localization.follow import FolderWatch, Skipped, follow, followed_folder
+from wiloc.localization.localizer import Localizer
+from wiloc.localization.session import results_name, run_header
+from wiloc.localization.training import Training
+
+
+@dataclass
+class FollowRun:
+    """A followed query folder: iterate it for each decision (or frame left out) as frames arrive.
+
+    Opening it resumes a results file the same settings wrote before: the frames it lists are
+    decided again, in its order, and must give the same rows (so later decisions are the ones an
+    uninterrupted run makes); ``resumed`` counts them.
+    """
+
+    query: Path
+    localizer: Localizer
+    stream: ResultsStream
+    idle: float | None
+    poll: float
+    resumed: int = 0
+    warnings: list[str] = field(default_factory=list)  # what makes the decisions doubtful (a sparse vocabulary)
+
+    @property
+    def path(self) -> Path:
+        return self.stream.path
+
+    def __iter__(self) -> Iterator[Decision | Skipped]:
+        watch = FolderWatch(self.query, done=self.stream.rows["frame"].tolist())
+        try:
+            for event in follow(self.localizer, watch, idle=self.idle, poll=self.poll):
+                if isinstance(event, Decision):
+                    self.stream.append(event)
+                yield event
+        finally:
+            self.stream.close()
+
+
+def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str = "sad",
+                  descriptor_params: Mapping[str, Any] | None = None, method: str = "online",
+                  method_params: Mapping[str, Any] | None = None, exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
+                  training: Training | None = None, map_odometry: Path | None = None, out: Path | None = None,
+                  cache: Cache | None = None, jobs: int | None = None, idle: float | None = None,
+                  poll: float = 0.1) -> FollowRun:
+    """Follow a folder that is still being filled: each frame decided as it arrives, its row
+    appended to the results file at once (see :class:`FollowRun`). Ends after ``idle`` seconds
+    without a new frame (None: when interrupted). A query that is no folder is refused before
+    the map is described or the results file written."""
+    query = followed_folder(query)
+    localizer = Localizer(reference, descriptor=descriptor, descriptor_params=descriptor_params, method=method,
+                          exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
+                          cache=cache, jobs=jobs, **dict(method_params or {}))
+    header = replace(run_header(method, localizer.describer, query, localizer.metric, reference,
+                                localizer.exclude_recent, training),
+                     params=localizer.method.header(),
+                     reference_frames=() if reference is None else tuple(localizer.map_names))
+    path = Path(out) if out else Path.cwd() / results_name(query, method, descriptor)
+    ranked = (RANKING,) if localizer.method.ranks else ()
+    stream = ResultsStream(path, header, (*localizer.method.columns, *ranked), resume=True)
+    names = stream.rows["frame"].tolist()
+    for name, line in zip(names, stream.written_lines()):
+        decision = localizer.observe(query / name)
+        if stream.line(decision) != line:
+            stream.close()
+            raise WilocError(None, f"{path}: frame '{name}' decided again differs from its row: the map, the "
+                                   "frames or the settings changed; give another file to start anew", parameter="out")
+    return FollowRun(query=query, localizer=localizer, stream=stream, idle=idle, poll=poll, resumed=len(names),
+                     warnings=localizer.doubts)

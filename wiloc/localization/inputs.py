@@ -1,0 +1,68 @@
+"""A run's inputs prepared before describing: external descriptors imported, visual
+vocabularies built or found, and worker processes shared by several describes (``wiloc.api``
+offers these as its own functions)."""
+from __future__ import annotations
+
+import os
+
+from collections.abc import Mapping, Sequence
+from contextlib import AbstractContextManager
+from pathlib import Path
+from typing import Any
+
+from wiloc.bow.vocabulary import VocabularyParams
+from wiloc.cache.store import Cache
+from wiloc.description.describing import DescribeReport
+from wiloc.description.matrix_import import import_matrix, import_to_file
+from wiloc.description.traversals import Progress, stage
+from wiloc.description.vocabulary_build import VocabularyReport, build_vocabulary, vocabulary_path
+from wiloc.description.workers import keeping_pools
+from wiloc.descriptors.external import recorded_metric
+from wiloc.errors import ParameterError, WilocError
+
+
+def shared_workers() -> AbstractContextManager[None]:
+    """Within this block, the describes of several folders share their worker processes (started
+    once, stopped on leaving), as one ``wiloc describe`` call over several folders does."""
+    return keeping_pools()
+
+
+def import_descriptors(path: Path, *, metric: str | None = None, names: Path | None = None,
+                       cache: Cache | None = None, out: Path | None = None, prefix: str = "") -> DescribeReport:
+    """Bring external descriptors (NetVLAD, ...) into the cache: an N x D matrix file, hloc's
+    ``global-feats-*.h5``, or (with ``out``) a folder of per-image ``.npy`` vectors. With ``out``
+    they are written first to that wiloc descriptor file, which records names and metric, so that
+    ``localize OUT.h5 --map MAP.h5`` needs neither again; ``prefix`` keeps the frames whose names
+    begin with it (hloc's ``db/``, ``query/``). ``metric``: default the file's recorded one, else l1."""
+    source = Path(path)
+    metric = metric or recorded_metric(source) or "l1"
+    if out is not None:
+        return import_to_file(source, Path(out), cache or Cache(), names, metric, prefix)
+    if source.is_dir():
+        raise ParameterError("out", f"{source}: a folder of .npy files is imported into a descriptor file; "
+                                    "give one to write (FILE.h5)")
+    if prefix:
+        raise ParameterError("prefix", "keeps part of a file written to a descriptor file; give that file too")
+    return import_matrix(source, cache or Cache(), names, metric)
+
+
+def vocabulary(folders: Sequence[str | Path] | str | Path, params: Mapping[str, Any] | None = None, *,
+               cache: Cache | None = None, progress: Progress | None = None) -> VocabularyReport:
+    """Build (or reuse from the cache) the visual vocabulary of the images in ``folders`` (one
+    folder or several): local features clustered into words, for the ``bow`` descriptor and
+    FAB-MAP (docs/fabmap.md)."""
+    paths = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(f) for f in folders]
+    return build_vocabulary(paths, cache or Cache(), VocabularyParams.create(params),
+                            progress=stage(progress, "vocabulary"))
+
+
+def vocabulary_file(vocabulary: str | Path, cache: Cache | None = None) -> Path:
+    """A vocabulary's file: ``vocabulary`` is the file, or the key of a vocabulary in the cache."""
+    path = Path(vocabulary).expanduser()
+    if path.is_file():
+        return path
+    in_cache = vocabulary_path(cache or Cache(), str(vocabulary))
+    if str(vocabulary).isalnum() and in_cache.is_file():
+        return in_cache
+    raise WilocError(None, f"{str(vocabulary)!r} is neither a vocabulary file nor the key of one in the cache",
+                     parameter="vocabulary")

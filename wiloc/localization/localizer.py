@@ -1,0 +1,314 @@
+"""The streaming localizer: one frame in (an image, an image file or a descriptor), a decision out.
+
+``Localizer`` describes each frame, takes its row from its run session (``wiloc.localization.session``, shared
+with the batch ``wiloc.api.localize``): its differences to the map (or, in sequence mode, to every
+earlier frame outside the recent window: the map grows as frames arrive), and steps the chosen
+method. Per-frame cost is bounded by the map's size: no N x N matrix is built; the map's
+differences to itself, which some methods learn from when started, are computed block by block
+and never stored. ``save``/``load`` let a long run stop and resume with identical decisions.
+"""
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from collections.abc import Mapping
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.atomic import written_whole
+from wiloc.cache.store import Cache, Entry
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
+from wiloc.decisions import Decision
+from wiloc.description.traversals import Describer, is_matrix_file
+from wiloc.errors import FrameError, WilocError, load_problem
+from wiloc.localization.session import RunSession
+from wiloc.localization.training import Training
+from wiloc.methods.base import Method, TrainingRows
+from wiloc.sources.frames import check_aspect, read_colour, read_gray, to_uint8, unusable_reason
+from wiloc.sources.video import Sampling
+from wiloc.version import __version__
+
+STATE_FORMAT = "wiloc-localizer-state"
+STATE_VERSION = 2  # 2: catgraph ranks FAB-MAP evidence (its likelihood state), particles carry any pace
+
+
+class Localizer:
+    """Frame-by-frame localization against a map (or within the run itself, in sequence mode).
+
+    ``map`` is a traversal folder, a descriptor matrix file (with ``metric``) or an in-memory
+    ``Entry`` (``wiloc.description.traversals.entry_from_array``), None for sequence mode (loop closure within
+    the frames observed). ``method`` names a registered method and
+    ``params`` its parameters; ``training`` is the labelled pair of ``trained`` (traversals, or
+    their difference rows and truth as ``TrainingRows``); ``sampling`` the frames of a map video; ``map_odometry``
+    the map's odometry CSV for methods that take odometry.
+
+        loc = Localizer(map="day_right/", descriptor="sad", method="catgraph", seed=0)
+        for path in sorted(Path("day_left").glob("*.jpg")):
+            decision = loc.observe(path)
+    """
+
+    def __init__(self, map: str | Path | Entry | None = None, *, descriptor: str = "sad",
+                 descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
+                 method: str = "online", exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
+                 training: Training | TrainingRows | None = None, map_odometry: str | Path | None = None,
+                 map_names: str | Path | None = None, sampling: Sampling | None = None, cache: Cache | None = None,
+                 jobs: int | None = None, **params: Any) -> None:
+        self._setup(RunSession(map, method=method, method_params=params, descriptor=descriptor,
+                               descriptor_params=descriptor_params, metric=metric, exclude_recent=exclude_recent,
+                               training=training, map_odometry=None if map_odometry is None else Path(map_odometry),
+                               map_names=None if map_names is None else Path(map_names), sampling=sampling,
+                               cache=cache, jobs=jobs))
+        self.method.start(self._session.context())
+
+    def _setup(self, session: RunSession) -> None:
+        """Everything but the method's start: shared by a new localizer and a loaded one."""
+        self._session = session
+        self.method: Method = session.method
+        self.exclude_recent = session.exclude_recent
+        self.sequence = session.sequence
+        self.names: list[str] = []  # the frames observed, in order
+        path = session.map_path
+        self._spec = None if path is not None and is_matrix_file(path) else session.describer.spec
+
+    @property
+    def doubts(self) -> list[str]:
+        """What makes every decision doubtful (``RunSession.doubts``: bow's sparse vocabulary, a
+        map whose images give too few words); none for a map of imported descriptors."""
+        return self._session.doubts()
+
+    @property
+    def describer(self) -> Describer:
+        """How frames are described: the descriptor, its parameters and the cache."""
+        return self._session.describer
+
+    @property
+    def metric(self) -> str:
+        """The difference the frames are compared with."""
+        return self._session.metric
+
+    @property
+    def map_names(self) -> list[str]:
+        """The candidate frames' names: the map's, or in sequence mode the frames observed."""
+        return self.names if self._session.map is None else self._session.map.names
+
+    def read(self, path: str | Path) -> NDArray[np.uint8]:
+        """The 8-bit gray image that an image file's descriptor is computed from, in the map's
+        cache as in :meth:`observe`: a JPEG decoded in reduced size where the descriptor allows
+        it, gray from the decoder (for a colour descriptor, ``onnx``: BGR, in full).
+        ``observe(loc.read(path))`` decides as ``observe(path)``."""
+        if self._spec is None:
+            raise WilocError(path, "a map of imported descriptors takes descriptors, not images")
+        if (reason := unusable_reason(Path(path))) is not None and Path(path).exists():
+            raise FrameError(path, reason)
+        return read_colour(Path(path)) if self._spec.colour else read_gray(Path(path), self._spec.min_size)
+
+    def describe(self, frame: NDArray | str | bytes | os.PathLike) -> NDArray:
+        """The descriptor of an image file (any path, bytes too), a decoded image
+        (:func:`gray_image`) or a descriptor given as it is (:meth:`_descriptor`)."""
+        if (path := _file(frame)) is not None:
+            frame = self.read(path)
+        array = np.asarray(frame)
+        if array.ndim == 1:
+            return self._descriptor(array)
+        if self._spec is None:
+            raise WilocError("observe", "a map of imported descriptors takes descriptors, not images")
+        image = colour_image(array) if self._spec.colour else gray_image(array)
+        return np.asarray(self._spec.compute(image), dtype=self._spec.dtype)
+
+    def _descriptor(self, row: NDArray) -> NDArray:
+        """A descriptor row given to :meth:`observe`, in the map's dtype: as long as the map's
+        rows, finite, and whole numbers in range for a map of integer rows (``sad``, ``brisk-gist``)."""
+        data = self._session.candidates_data
+        length, dtype = data.shape[1], data.dtype
+        if row.size != length:
+            raise WilocError("observe", f"a descriptor of {row.size} values; this map's have {length}")
+        if row.dtype.kind not in "biuf":
+            raise WilocError("observe", f"a descriptor of {row.dtype} values; give numbers")
+        if row.dtype.kind == "f" and not np.all(np.isfinite(row)):
+            raise WilocError("observe", "the descriptor holds NaN or infinite values")
+        if dtype.kind in "iu":
+            info = np.iinfo(dtype)
+            if row.dtype.kind == "f" or (row.size and (row.min() < info.min or row.max() > info.max)):
+                raise WilocError("observe", f"a descriptor of {row.dtype} values; this map's rows are {dtype} "
+                                            f"(integers in [{info.min}, {info.max}])")
+        with np.errstate(over="ignore"):  # a float64 value beyond float32's range: refused below
+            row = row.astype(dtype, copy=False)
+        if dtype.kind == "f" and not np.all(np.isfinite(row)):
+            raise WilocError("observe", f"the descriptor holds values beyond the range of this map's {dtype} rows")
+        return row
+
+    def row(self, descriptor: NDArray) -> NDArray[np.float64]:
+        """The next frame's row (:meth:`RunSession.row`): its differences to every map frame, or
+        in sequence mode to every observed frame; FAB-MAP's evidence for methods reading it."""
+        return self._session.row(descriptor)
+
+    def observe(self, frame: NDArray | str | bytes | os.PathLike, name: str | None = None,
+                odometry: float | None = None) -> Decision:
+        """Decide one frame: describe it, compare it, step the method. ``name`` defaults to the
+        file's name, else the frame's index (zero-padded); ``odometry`` is the distance travelled
+        since the previous frame, for methods that take it."""
+        descriptor = self.describe(frame)
+        k = len(self.names)
+        if name is None:
+            name = path.name if (path := _file(frame)) is not None else f"{k:06d}"
+        decision = self.method.step(self.row(descriptor), odometry)
+        self._session.add(descriptor)
+        self.names.append(name)
+        candidates = self.map_names
+        match_name = candidates[decision.match] if decision.match >= 0 else ""
+        return replace(decision, frame=name, match_name=match_name)
+
+    # -------------------------------------------------------------------------------- save / load
+
+    def state(self) -> dict[str, Any]:
+        """Everything needed to continue: the setup, the frames observed and the method's state."""
+        session, describer = self._session, self._session.describer
+        return {"format": STATE_FORMAT, "version": STATE_VERSION, "wiloc": __version__,
+                "map": None if session.map_path is None else str(session.map_path.resolve()),
+                "map_digest": None if session.map is None else session.map.digest,
+                "map_odometry": None if session.map_odometry is None else str(session.map_odometry.resolve()),
+                "descriptor": describer.descriptor, "descriptor_params": dict(describer.params),
+                "metric": describer.metric, "method": self.method.name,
+                "sampling": None if describer.sampling is None else asdict(describer.sampling),
+                "params": self.method.params.as_dict(), "exclude_recent": self.exclude_recent,
+                "names": list(self.names), "seen": session.seen,
+                "method_state": self.method.state()}
+
+    def save(self, path: str | Path) -> Path:
+        """Write :meth:`state` to ``path`` (an .npz file), atomically: a kill leaves the old file.
+        Missing folders of ``path`` are created, as every file the library writes does; a write
+        that fails (a full disk) is a WilocError naming the file."""
+        path = Path(path)
+        arrays: dict[str, NDArray] = {}
+        meta = _split(self.state(), "", arrays)
+        with written_whole(path, "the localizer state", binary=True) as out:
+            np.savez(out, meta=np.array(json.dumps(meta)), **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, cache: Cache | None = None, jobs: int | None = None,
+             map: Entry | None = None) -> Localizer:
+        """A localizer continuing from a state written by :meth:`save`: its next decisions are the
+        ones the saved localizer would have made. The map must be unchanged; a map that was held
+        in memory is given again as ``map``."""
+        path = Path(path)
+        if path.is_file() and not zipfile.is_zipfile(path):  # np.load would take it for .npy or pickle
+            raise WilocError(path, "not a saved localizer state (not an .npz file)")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                meta = _join(json.loads(str(data["meta"])), {key: data[key] for key in data.files if key != "meta"})
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
+            raise WilocError(path, f"not a saved localizer state ({load_problem(exc)})") from None
+        if meta.get("format") != STATE_FORMAT or meta.get("version") != STATE_VERSION:
+            raise WilocError(path, "not a saved localizer state of this wiloc version")
+        if meta["map"] is None and meta["map_digest"] is not None and map is None:
+            raise WilocError(path, "was saved with a map held in memory: give it again (map=...)")
+        saved_map = map if map is not None else None if meta["map"] is None else Path(meta["map"])
+        session = RunSession(saved_map, method=meta["method"],
+                             method_params={k: tuple(v) if isinstance(v, list) else v for k, v in meta["params"].items()},
+                             descriptor=meta["descriptor"], descriptor_params=meta["descriptor_params"],
+                             metric=meta["metric"], exclude_recent=meta["exclude_recent"],
+                             map_odometry=None if meta["map_odometry"] is None else Path(meta["map_odometry"]),
+                             sampling=None if meta["sampling"] is None else Sampling(**meta["sampling"]),
+                             cache=cache, jobs=jobs, restoring=True)
+        if session.map is not None and session.map.digest != meta["map_digest"]:
+            raise WilocError(session.map.folder, f"the map changed since {path} was saved")
+        loc = cls.__new__(cls)
+        loc._setup(session)
+        loc.names = list(meta["names"])
+        if session.map is None:
+            session.resume(meta["seen"])
+        loc.method.restore(session.context(), meta["method_state"])
+        return loc
+
+    @property
+    def frames(self) -> int:
+        """Frames observed so far."""
+        return len(self.names)
+
+    def __repr__(self) -> str:
+        where = "sequence mode" if self._session.map is None else f"map={self._session.map.folder!r}"
+        return f"Localizer({where}, descriptor={self.describer.descriptor!r}, method={self.method!r}, frames={self.frames})"
+
+
+def _file(frame: object) -> Path | None:
+    """``frame`` as a file's path when it is one (text, bytes as ``os.fsencode`` gives for a
+    name that is not UTF-8, or a path object), else None."""
+    if not isinstance(frame, (str, bytes, os.PathLike)):
+        return None
+    if not os.fsdecode(frame):  # Path("") is the current folder: say what was given instead
+        raise FrameError("observe", "the frame's path is empty")
+    return Path(os.fsdecode(frame))
+
+
+def gray_image(array: NDArray) -> NDArray[np.uint8]:
+    """An image array as the 8-bit gray image descriptors are computed from: gray (H x W, or
+    H x W x 1) or BGR/BGRA as OpenCV decodes, of 8- or 16-bit integers (16-bit scaled by
+    255/65535, as a 16-bit file is) or of floats in [0, 1] (scaled by 255 and rounded). Anything
+    else is a WilocError saying what was given."""
+    array = _image_samples(array)
+    if array.ndim == 3:
+        array = cv2.cvtColor(array, cv2.COLOR_BGR2GRAY if array.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    return to_uint8(array, "observe")
+
+
+def colour_image(array: NDArray) -> NDArray[np.uint8]:
+    """An image array as the 8-bit BGR image colour descriptors (``onnx``) are computed from:
+    the arrays :func:`gray_image` takes, gray repeated over three channels, alpha dropped."""
+    array = _image_samples(array)
+    if array.ndim == 2:
+        array = cv2.cvtColor(array, cv2.COLOR_GRAY2BGR)
+    elif array.shape[2] == 4:
+        array = cv2.cvtColor(array, cv2.COLOR_BGRA2BGR)
+    return to_uint8(array, "observe")
+
+
+def _image_samples(array: NDArray) -> NDArray:
+    """An image array checked (gray, BGR or BGRA; not empty; 8- or 16-bit integers, or floats in
+    [0, 1], which become 8-bit), a single channel's last axis dropped."""
+    if array.ndim == 3 and array.shape[2] == 1:
+        array = array[:, :, 0]
+    if not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (3, 4))):
+        raise WilocError("observe", f"an image must be gray (H x W) or BGR/BGRA (H x W x 3 or 4), got shape {array.shape}")
+    if array.shape[0] == 0 or array.shape[1] == 0:
+        raise WilocError("observe", f"an empty image ({array.shape[0]} x {array.shape[1]} pixels)")
+    check_aspect(array, "observe")
+    if array.dtype.kind == "f":
+        if not np.all((array >= 0) & (array <= 1)):
+            raise WilocError("observe", f"a {array.dtype} image must hold values in [0, 1] (NaN or values outside found)")
+        array = np.rint(array * 255).astype(np.uint8)
+    elif array.dtype not in (np.uint8, np.uint16):
+        raise WilocError("observe", f"an image of {array.dtype} values; give 8- or 16-bit integers or floats in [0, 1]")
+    return array
+
+
+ARRAY = "__array__"  # marks, in a saved state's JSON, a value stored as an array of the .npz
+
+
+def _split(value: Any, key: str, arrays: dict[str, NDArray]) -> Any:
+    """``value`` as JSON, its numpy arrays moved into ``arrays`` under dotted keys."""
+    if isinstance(value, np.ndarray):
+        arrays[key] = value
+        return {ARRAY: key}
+    if isinstance(value, dict):
+        return {k: _split(v, f"{key}.{k}" if key else str(k), arrays) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_split(v, f"{key}.{i}", arrays) for i, v in enumerate(value)]
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _join(value: Any, arrays: dict[str, NDArray]) -> Any:
+    """The inverse of :func:`_split`."""
+    if isinstance(value, dict):
+        if set(value) == {ARRAY}:
+            return arrays[value[ARRAY]]
+        return {k: _join(v, arrays) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_join(v, arrays) for v in value]
+    return value

@@ -1,0 +1,132 @@
+"""Odometry CSVs: arc length travelled at each frame, for the CAT-Graph motion model.
+
+Two forms, one row per frame, an optional header row:
+- ``name,distance``: the distance travelled since the previous frame of the file (the first
+  row's value is ignored: nothing was travelled before the first frame);
+- ``name,x,y``: the position (metres); arc length is the summed step length in frame order.
+Frames are matched by file name. docs/catgraph.md describes how the filter uses them.
+"""
+from __future__ import annotations
+
+import csv
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.errors import ParameterError, WilocError
+from wiloc.sources.bags import Bag, is_bag
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """Per-frame values read from an odometry CSV, in file order."""
+
+    names: tuple[str, ...]
+    values: NDArray[np.float64]  # (n, 1) cumulative distance or (n, 2) positions
+    path: str
+
+    def arclength(self, names: Sequence[str] | None = None) -> NDArray[np.float64]:
+        """Arc length at each of ``names`` (default: the file's order), in that order.
+
+        Every name must appear in the file; names in the file but not asked for are ignored
+        (their distances still count: a frame left out of the traversal was still driven past).
+        Distances travelled must not be negative.
+        """
+        order = self.names if names is None else tuple(names)
+        index = {name: i for i, name in enumerate(self.names)}
+        missing = [name for name in order if name not in index]
+        if missing:
+            raise WilocError(self.path, f"no odometry for {len(missing)} frame(s), first {missing[0]!r}")
+        rows = [index[name] for name in order]
+        if self.values.shape[1] == 2:
+            vals = self.values[rows]
+            return np.r_[0.0, np.cumsum(np.hypot(*np.diff(vals, axis=0).T))] if len(rows) else np.zeros(0)
+        travelled = self.values[:, 0].copy()
+        negative = np.flatnonzero(travelled < 0)
+        if negative.size:
+            raise WilocError(self.path, f"negative distance at frame {self.names[negative[0]]!r}: "
+                                        "expected the distance travelled since the previous frame")
+        travelled[0] = 0.0
+        cumulative = np.cumsum(travelled)[rows]
+        return cumulative - cumulative[0] if len(rows) else cumulative
+
+
+def steps(arclength: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distance travelled since the previous frame (0 for the first): the filter's u_k."""
+    arc = np.asarray(arclength, dtype=np.float64)
+    return np.diff(arc, prepend=arc[:1])
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def read_odometry(path: str | Path) -> Odometry:
+    """Read a ``name,distance`` or ``name,x,y`` CSV; WilocError naming the line on any problem."""
+    where = str(path)
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            rows = [(n, row) for n, row in enumerate(csv.reader(fh), start=1)
+                    if row and any(cell.strip() for cell in row)]
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise WilocError(where, f"cannot read odometry: {exc}") from exc
+    if rows and not all(_is_number(cell) for cell in rows[0][1][1:]):
+        rows = rows[1:]  # header
+    if not rows:
+        raise WilocError(where, "no odometry rows")
+    width = len(rows[0][1])
+    if width not in (2, 3):
+        raise WilocError(where, f"line {rows[0][0]}: expected name,distance or name,x,y, "
+                                f"got {width} columns")
+    names: list[str] = []
+    values = np.empty((len(rows), width - 1), dtype=np.float64)
+    for i, (line, row) in enumerate(rows):
+        if len(row) != width:
+            raise WilocError(where, f"line {line}: expected {width} columns, got {len(row)}")
+        cells = [cell.strip() for cell in row]
+        if not cells[0]:
+            raise WilocError(where, f"line {line}: empty frame name")
+        if not all(_is_number(cell) for cell in cells[1:]):
+            raise WilocError(where, f"line {line}: not a number in {','.join(cells[1:])!r}")
+        values[i] = [float(cell) for cell in cells[1:]]
+        if not np.all(np.isfinite(values[i])):
+            raise WilocError(where, f"line {line}: non-finite value")
+        names.append(cells[0])
+    twice = [name for name, count in Counter(names).items() if count > 1]
+    if twice:
+        raise WilocError(where, f"frame {twice[0]!r} appears more than once")
+    return Odometry(names=tuple(names), values=values, path=where)
+
+
+def bag_odometry(query: Path | None, reference: Path | None, topic: str | None, odometry: Path | None,
+                 map_odometry: Path | None) -> tuple[bool, bool]:
+    """Whether the query's and the map's odometry come from their ROS bags' ``topic``: for those
+    that are bags, when it is given. A ParameterError when no traversal is a bag, or when a bag's
+    odometry is also given as a CSV."""
+    if topic is None:
+        return False, False
+    from_bag = (query is not None and is_bag(Path(query)), reference is not None and is_bag(Path(reference)))
+    if not any(from_bag):
+        raise ParameterError("odometry_topic", "applies to ROS bags only; neither the query nor the map is one")
+    for used, given, parameter in zip(from_bag, (odometry, map_odometry), ("odometry", "map_odometry")):
+        if used and given is not None:
+            raise ParameterError(parameter, "give the odometry of a ROS bag once: as its CSV or by odometry_topic")
+    return from_bag
+
+
+def traversal_arclength(names: list[str], csv_path: Path | None = None, bag: Path | None = None,
+                        topic: str | None = None) -> NDArray[np.float64] | None:
+    """A traversal's arc length at each frame of ``names``: along its ROS ``bag``'s odometry
+    ``topic`` when both are given, else from its odometry CSV when given, else None."""
+    if bag is not None and topic is not None:
+        with Bag(Path(bag)) as opened:
+            return opened.arclength(topic, names)
+    return read_odometry(csv_path).arclength(names) if csv_path is not None else None

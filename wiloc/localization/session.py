@@ -1,0 +1,263 @@
+"""One localization run's setup, shared by batch and streaming runs.
+
+``RunSession`` makes the method, checks its inputs, describes the query (a batch run's) and the
+map and checks their sizes, chooses the row kind (differences, or FAB-MAP's evidence), reads
+odometry and the training pair, and builds the ``MapContext`` the method starts on. It then
+gives the rows the method decides from: :meth:`RunSession.batch_rows`, the whole query's rows
+that ``wiloc.api.localize`` feeds ``method.run``, or :meth:`RunSession.row`, one frame's row that
+``wiloc.Localizer`` steps (and :meth:`RunSession.add` grows sequence mode's candidates with).
+A new method input or row kind is added here once, for both.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.cache.store import Cache, Entry
+from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
+from wiloc.description.describing import check_sampling, check_topic, is_stream
+from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
+from wiloc.description.distances import DifferencesTo, consecutive, pairwise
+from wiloc.description.traversals import Describer, Progress, descriptor_label, is_matrix_file, open_cluster, stage
+from wiloc.errors import WilocError
+from wiloc.evaluation.results_header import ResultsHeader
+from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
+from wiloc.localization.training import Training, training_rows
+from wiloc.methods.base import MapContext, Method, TrainingRows
+from wiloc.methods.fabmap_evidence import FabMapEvidence
+from wiloc.methods.registry import make_method
+from wiloc.sources.frames import text_path
+from wiloc.version import __version__
+
+if TYPE_CHECKING:
+    from wiloc.sources.video import Sampling
+
+
+class RunSession:
+    """A run against ``map`` (a traversal, a descriptor matrix file or an ``Entry`` in memory;
+    None: sequence mode, loop closure within the query's own frames).
+
+    A batch run gives its ``query`` (described first, then the map) with its odometry
+    (``odometry``: a CSV; ``odometry_topic``: the topic of the query's and the map's ROS bags);
+    a streaming run gives none and computes each frame's row with :meth:`row`. ``restoring``
+    leaves the method's inputs unchecked: a saved state is continued, which was checked when it
+    was started. ``progress``, ``scheduler`` and ``topic`` are the batch run's describing.
+    """
+
+    def __init__(self, map: Path | Entry | None, *, method: str, method_params: Mapping[str, Any] | None = None,
+                 descriptor: str = "sad", descriptor_params: Mapping[str, Any] | None = None,
+                 metric: str | None = None, exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
+                 training: Training | TrainingRows | None = None, map_odometry: Path | None = None,
+                 map_names: Path | None = None, query: Path | None = None, query_names: Path | None = None,
+                 odometry: Path | None = None, odometry_topic: str | None = None,
+                 sampling: Sampling | None = None, cache: Cache | None = None, jobs: int | None = None,
+                 progress: Progress | None = None, scheduler: str | None = None, topic: str | None = None,
+                 restoring: bool = False) -> None:
+        self.method: Method = make_method(method, method_params)
+        self.exclude_recent = R = check_exclude_recent(exclude_recent)
+        self.sequence = map is None
+        self.map_path = None if map is None or isinstance(map, Entry) else Path(map)
+        self.map_odometry = None if map_odometry is None else Path(map_odometry)
+        self.odometry = None if odometry is None else Path(odometry)
+        self.odometry_topic = odometry_topic
+        self.training = training
+        self.query_path = None if query is None else Path(query)
+        self._query_bag, self._map_bag = bag_odometry(query, self.map_path, odometry_topic, odometry, map_odometry)
+        if not restoring:
+            self.method.check_inputs(sequence=self.sequence, training=training is not None,
+                                     odometry=odometry is not None or self._query_bag,
+                                     map_odometry=map_odometry is not None or self._map_bag)
+        if query is not None:  # a batch run's sources: its query, map and training pair
+            check_sampling([Path(source) for source in (query, map) if source is not None], sampling)
+            pair = (training.query, training.reference) if isinstance(training, Training) else ()
+            check_topic([Path(source) for source in (query, map, *pair) if source is not None], topic)
+        self.describer = Describer(descriptor, dict(descriptor_params or {}), cache or Cache(), metric=metric,
+                                   jobs=jobs, progress=progress, sampling=sampling,
+                                   cluster=open_cluster(scheduler, jobs), topic=topic)
+        self.query: Entry | None = None if query is None else self.describer.entry(Path(query), query_names)
+        self.map: Entry | None = None
+        if map is not None:
+            self.map = map if isinstance(map, Entry) else self.describer.entry(self.map_path, map_names)
+            self._check_map(R)
+        self.kind = self.method.row_kind(self.describer.descriptor)
+        self.evidence = FabMapEvidence.of(self.describer.spec, self.method.params) if self.kind == "log_ratio" \
+            else None
+        self._count = 0  # sequence mode: the frames added as candidates so far
+        candidates = self.map if self.map is not None else self.query  # a batch run's sequence mode: its query's
+        if candidates is None:  # a streaming run's sequence mode: the frames it is given
+            spec = self.describer.spec
+            self._seen = np.empty((0, spec.length), dtype=spec.dtype)
+            self.metric, self.scale, self.natural_max = spec.metric, spec.scale, spec.natural_max
+        else:
+            self._seen = candidates.data[:0]
+            self.metric, self.scale, self.natural_max = candidates.metric, candidates.scale, candidates.natural_max
+        if self.map is not None and self.evidence is not None:
+            self.evidence.add_places(self.map.data)
+
+    @cached_property
+    def _to_map(self) -> DifferencesTo:
+        """The map prepared for frame-by-frame differences (a streaming run's; made on first use)."""
+        return DifferencesTo(self.map.data, self.metric, self.scale)
+
+    def _check_map(self, R: int) -> None:
+        """One place for the map's size checks: two frames at least, and for methods learning
+        from the map's differences to itself, two frames further apart than the recent window."""
+        n_map, where = len(self.map.names), self.map_path if self.map_path is not None else self.map.folder
+        if n_map < 2:
+            raise WilocError(where, f"the map has {n_map} frame(s); it needs at least 2")
+        if "map_self" in self.method.needs and n_map <= R + 1:
+            raise WilocError(where, f"the map has {n_map} frames: with exclude_recent={R} no two map "
+                                    "frames are far enough apart to learn different-place differences")
+
+    # ------------------------------------------------------------------------------------ context
+
+    def context(self, differences: RunDifferences | None = None) -> MapContext:
+        """What the method is started on: the map, read lazily and never stored whole. A batch
+        run gives its ``differences`` (the summary of the map's differences to itself, in sequence
+        mode of the query's, from the cache); a streaming run sweeps the map's when asked."""
+        training = self._training_rows if self.training is not None else None
+        if self.map is None:
+            return MapContext(sequence=True, exclude_recent=self.exclude_recent, rows=self.kind,
+                              natural_max=self.natural_max, arclength=self.map_arclength(),
+                              map_summary=None if differences is None else differences.map_summary, training=training)
+        data, metric, scale, R = self.map.data, self.metric, self.scale, self.exclude_recent
+        return MapContext(
+            sequence=False, exclude_recent=R, n_map=len(self.map.names), rows=self.kind,
+            natural_max=self.natural_max, arclength=self.map_arclength(),
+            map_summary=differences.map_summary if differences is not None
+            else lambda: summarize(ComputedDifferences(data, self._to_map), R),
+            neighbours=lambda: consecutive(data, metric, scale), training=training)
+
+    def map_arclength(self) -> NDArray[np.float64] | None:
+        """The map's arc length per frame (in a batch run's sequence mode, the query's), from its
+        odometry CSV or its bag's topic; None without either."""
+        candidates = self.map if self.map is not None else self.query
+        if candidates is None:
+            return None
+        return traversal_arclength(candidates.names, self.map_odometry, self.map_path if self._map_bag else None,
+                                   self.odometry_topic)
+
+    def query_steps(self) -> NDArray[np.float64] | None:
+        """A batch query's travelled distance per frame, from its odometry CSV or its bag's topic."""
+        query_bag = self.query_path if self._query_bag else None
+        arclength = traversal_arclength(self.query.names, self.odometry, query_bag, self.odometry_topic)
+        return None if arclength is None else steps(arclength)
+
+    def _training_rows(self) -> TrainingRows:
+        """The labelled pair of ``trained``: given as rows, or computed from its traversals."""
+        if isinstance(self.training, TrainingRows):
+            return self.training
+        return training_rows(self.training, self.describer, self.exclude_recent)
+
+    # --------------------------------------------------------------------------------------- rows
+
+    def batch_rows(self) -> Iterator[NDArray]:
+        """Check the batch query, start the method on its run's context and give the rows that
+        ``method.run`` decides: the query's difference rows read from the cache block by block,
+        or FAB-MAP's evidence rows frame by frame (:meth:`row`)."""
+        q = self.query
+        problem = self.method.query_problem(len(q.names), self.sequence, self.exclude_recent)
+        if problem is not None:
+            raise WilocError(self.query_path, problem)
+        source = run_differences(q, q if self.map is None else self.map, self.describer.cache, self.exclude_recent,
+                                 self.describer.runner, progress=stage(self.describer.progress, "map differences"))
+        self.method.start(self.context(source))
+        if self.evidence is None:
+            return candidate_blocks(source.rows, self.sequence, self.exclude_recent)
+        return self._evidence_rows(q.data)
+
+    def _evidence_rows(self, query: NDArray) -> Iterator[NDArray[np.float64]]:
+        """The batch query's evidence rows, each frame added as a candidate once decided."""
+        for packed in query:
+            yield self.row(packed)
+            self.add(packed)
+
+    def row(self, descriptor: NDArray) -> NDArray[np.float64]:
+        """The next frame's row: its differences to every map frame, or in sequence mode to every
+        frame added so far (inf within the recent window); FAB-MAP's evidence for methods reading
+        it (-inf for no candidate)."""
+        k = self._count
+        far = max(0, k - self.exclude_recent)
+        if self.evidence is not None:
+            if self.map is not None:
+                return self.evidence.row(descriptor)
+            row = np.full(k, -np.inf)
+            if far:
+                row[:far] = self.evidence.row(descriptor)[:far]
+            return row
+        if self.map is not None:
+            return self._to_map(np.asarray(descriptor)[None, :])[0].astype(np.float64)
+        row = np.full(k, np.inf)
+        if far:
+            row[:far] = pairwise(np.asarray(descriptor)[None, :], self._seen[:far], self.metric, self.scale)[0]
+        return mask_recent(row, k, self.exclude_recent)
+
+    def add(self, descriptor: NDArray) -> None:
+        """A decided frame joins the candidates of later frames (sequence mode; against a map,
+        the candidates are the map's)."""
+        if self.map is not None:
+            return
+        k = self._count
+        if k == self._seen.shape[0]:
+            grown = np.empty((max(16, 2 * k), self._seen.shape[1]), dtype=self._seen.dtype)
+            grown[:k] = self._seen
+            self._seen = grown
+        self._seen[k] = descriptor
+        self._count = k + 1
+        if self.evidence is not None:
+            self.evidence.add_places(descriptor)
+
+    def resume(self, seen: NDArray) -> None:
+        """Sequence mode: the candidates of a saved run, added again (as :meth:`add` did)."""
+        self._seen = np.asarray(seen).astype(self._seen.dtype, copy=True)
+        self._count = len(self._seen)
+        if self.evidence is not None and self._count:
+            self.evidence.add_places(self._seen)
+
+    @property
+    def seen(self) -> NDArray:
+        """The descriptors of the frames added as candidates (sequence mode), in order."""
+        return self._seen[:self._count]
+
+    @property
+    def candidates_data(self) -> NDArray:
+        """The candidates' descriptors: the map's, or in sequence mode the frames added."""
+        return self.map.data if self.map is not None else self._seen
+
+    def doubts(self) -> list[str]:
+        """What makes every result of this run doubtful, one line each: its descriptor's (bow: a
+        sparse vocabulary), then its query's (a batch run's) and its map's descriptors' (bow:
+        images that give too few words), each naming its folder. None for a run on imported
+        descriptors (a query or map that is a descriptor matrix file): the descriptor did not make them."""
+        if any(path is not None and is_matrix_file(path) for path in (self.query_path, self.map_path)):
+            return []
+        kind, params = self.describer.spec.kind, self.describer.spec.params
+        return kind.doubts(params) + [
+            f"{role} {entry.folder}: {line}" for role, entry in (("query", self.query), ("map", self.map))
+            if entry is not None for line in kind.traversal_doubts(entry.data, params)]
+
+
+def results_name(query: Path, method: str, descriptor: str, metric: str | None = None) -> str:
+    """The default results file name of one query traversal (folder, matrix file, whose
+    ``metric`` then names it, video file or ROS bag), descriptor and method:
+    ``day_left-sad-online.csv``; a video's or bag file's suffix stays in its name
+    (``day_left-mp4-sad-online.csv``), so that its run and a folder's of the same name never share a file."""
+    label = descriptor_label(query, descriptor, metric).replace(":", "-")
+    name = query.name if not query.is_file() else \
+        f"{query.stem}-{query.suffix.lstrip('.').lower()}" if is_stream(query) else query.stem
+    return f"{name}-{label}-{method}.csv"
+
+
+def run_header(method: str, describer: Describer, query: Path, metric: str, reference: Path | None,
+               exclude_recent: int, training: Training | None) -> ResultsHeader:
+    """What a results header says about a run besides the method's parameters."""
+    return ResultsHeader(method=method, descriptor=describer.label(query), descriptor_params=dict(describer.params),
+                         metric=metric, mode="sequence" if reference is None else "map", query=text_path(query),
+                         map=text_path(reference) if reference else "", exclude_recent=exclude_recent,
+                         wiloc=__version__, train_query=str(training.query) if training else None,
+                         train_map=str(training.reference) if training else None)

@@ -1,0 +1,1 @@
+"""CAT-Graph: the particle filter, its rank observation model and its kernels."""

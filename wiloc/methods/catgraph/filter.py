@@ -1,0 +1,444 @@
+"""Whole-image CAT-Graph: a particle filter along the reference trajectory (paper III.C, eqs 7-10).
+
+The reference traversal is a trajectory: node j sits at arc length s_j. M particles live at
+continuous positions on it, each moving at its own pace (map nodes per query frame: one drawn
+from a prior over paces at the start, the map's pace the likeliest, or the pace of the sequence
+trajectory it was re-seeded on; drifting too when ``speed_noise`` > 0). Per query frame: move the particles, re-seed a few at the best nodes of a
+causal sequence score (a leaky sum of contrast-normalised differences along straight trajectories
+at several paces), weight each by the likelihood ratio of the difference interpolated at its
+position (eq. 8), weigh the hypothesis that the map does not explain the frame (a new place or a
+blind spot: eq. 10's role), normalise, read out the mode of the particle density and resample when
+the effective sample size drops.
+
+The observation model and the unexplained state are the ones of ``wiloc.methods.catgraph.observation``: a
+difference is scored by its rank within its own row (Beta(a, 1) at the same place, uniform
+elsewhere, a learned online by EM), so the posterior is a probability: the confidence is the
+posterior mass within +-``mode_window`` nodes of the decided node, times 1 - P(new place).
+FAB-MAP's evidence rows (``log_ratio``, high = alike) are ranked the same way, negated: only
+their order counts, never their scale (FAB-MAP's log-ratios span hundreds of nats).
+docs/catgraph.md gives the formulation in full and docs/calibration.md the measurements behind
+every default.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.decisions import Decision
+from wiloc.errors import ParameterError, WilocError
+from wiloc.methods.base import MapContext, Method
+from wiloc.methods.catgraph.observation import RankLikelihood, SortedRow, Unexplained, novelty_weights
+from wiloc.methods.trajectory import (locate, lowest_nodes, node_positions, posterior_ranking, read_runs,
+                                      shifted_reads, smallest, systematic)
+from wiloc.parameters import Parameters, param
+from wiloc.recycled import RecycledArrays
+
+START_DEALT = 0.5  # share of particles that start at the paces other than the map's (_start_paces)
+MODE_TIE = 1e-12  # window masses (shares of a unit total) this close to the largest count as tied
+TINY = 1e-300  # the smallest prior mass a hypothesis keeps, so that its log is finite
+
+
+@dataclass(frozen=True)
+class RowAhead:
+    """What the filter computes from a row alone (:meth:`CatGraph.ahead`)."""
+
+    contrast: NDArray[np.float64]  # the sequence score's contrast-normalised row, low = alike
+    finite: bool  # whether every value of the row is finite
+    ordered: SortedRow  # what the rank model ranks against
+
+
+@dataclass(frozen=True)
+class CatGraphParams(Parameters):
+    """Parameters of the whole-image CAT-Graph filter (docs/catgraph.md, docs/calibration.md)."""
+
+    owner = "catgraph"
+    particles: int = param(2000, "Number of particles.", low=1, high=1_000_000)
+    seed: int | None = param(0, "Random seed: the same seed gives identical decisions (none: a fresh one).",
+                             low=0)
+    step_noise: float = param(0.15, "Motion noise, a fraction of each step.", low=0.0)
+    noise_floor: float = param(0.0, "Motion noise floor, a fraction of the mean node spacing.", low=0.0)
+    speed_noise: float = param(0.0, "Per-particle speed noise per frame (0: no velocity state).", low=0.0)
+    speed_range: tuple[float, float] = param((-3.0, 3.0), "Range of the particles' paces when they drift "
+                                                          "(low, high).")
+    resample_ess: float = param(0.5, "Resample when the effective sample size falls below this share.",
+                                low=0.0, high=1.0)
+    reseed: float = param(0.01, "Share of particles re-seeded each frame at the best sequence score.",
+                          low=0.0, high=1.0)
+    reseed_top: int = param(1, "Nodes of best sequence score that re-seeded particles go to.", low=1)
+    sequence_rate: float = param(0.1, "Rate of the leaky sequence score (about 1 / frames remembered).",
+                                 low=0.0, high=1.0, low_open=True)
+    sequence_speeds: tuple[float, ...] = param((1 / 3, 0.5, 2 / 3, 1.0, 1.5, 2.0, 3.0, -0.5, -2 / 3, -1.0, -1.5, -2.0),
+                                               "Paces (map nodes per query frame; negative: the route driven the "
+                                               "other way) of the sequence score; re-seeded particles move at the "
+                                               "pace that scored best at their node (half of the forward ones at "
+                                               "the map's pace).")
+    start_paces: float = param(0.3, "Prior probability that the query does not move at the map's pace at its "
+                                    "start (shared evenly by the other paces of sequence_speeds).",
+                               low=0.0, high=1.0, high_open=True)
+    rank_pace_min: float = param(0.5, "Paces slower than this (in magnitude) give re-seeded particles their "
+                                      "pace but do not choose their nodes: a slow trajectory's sum favours map "
+                                      "frames that resemble many query frames.", low=0.0)
+    fast_pace: float = param(2.0, "Paces faster than this rank nodes apart from the others (their sum over few "
+                                  "query frames spans many nodes, so it finds look-alikes more often).", low=0.0)
+    reseed_fast: float = param(0.02, "Share of re-seeded particles that go to the best trajectory faster than "
+                                     "fast_pace (when sequence_speeds has such paces).", low=0.0, high=1.0)
+    reseed_backward: float = param(0.1, "Share of re-seeded particles that go to the best backward trajectory "
+                                         "(when sequence_speeds has negative paces).", low=0.0, high=1.0)
+    contrast_window: int = param(10, "Half window (nodes) of the sequence score's contrast normalisation.",
+                                 low=1)
+    mode_window: int = param(2, "Half window (nodes) around the decided node whose posterior mass is "
+                                "the confidence: the ground truth's tolerance.", low=0)
+    a0: float = param(0.5, "Prior shape of the same-place rank model Beta(a, 1), before any frame.",
+                      low=0.0, high=1.0, low_open=True)
+    n0: float = param(10.0, "Weight of that prior, in frames.", low=0.0, low_open=True)
+    a_min: float = param(0.02, "Smallest shape the rank model may learn (the sharpest evidence).",
+                         low=0.0, high=1.0, low_open=True)
+    jump: float = param(0.001, "Prior probability per frame of jumping elsewhere on the map.", low=0.0, high=1.0)
+    leave: float = param(0.001, "Prior probability per frame of leaving the map (new place or blind spot).",
+                         low=0.0, high=1.0, high_open=True)
+    rejoin: float = param(0.001, "Prior probability per frame of rejoining the map once off it.",
+                          low=0.0, high=1.0, high_open=True)
+    unexplained0: float = param(0.5, "Probability that the map does not explain the first frame.",
+                                low=0.0, high=1.0, low_open=True, high_open=True)
+    departure_prior: tuple[float, float] = param((1.9, 0.1), "Beta prior (departures, blind spots) of the share "
+                                                             "of off-map stretches that leave the map.", low=0.0)
+    stretch_open: float = param(0.5, "An off-map stretch opens when P(unexplained) reaches this.",
+                                low=0.0, high=1.0)
+    stretch_close: float = param(0.1, "... and closes when it falls below this.", low=0.0, high=1.0)
+    near_duplicate: float = param(0.25, "Map frames closer to their neighbours than this share of the "
+                                        "median step count as less evidence (0: off).", low=0.0)
+
+    def check(self) -> None:
+        low, high = self.speed_range
+        if low > high:
+            raise ParameterError("speed_range", f"must be (low, high) with low <= high, got {self.speed_range!r}")
+        if self.stretch_close > self.stretch_open:
+            raise ParameterError("stretch_close", f"must not exceed stretch_open ({self.stretch_open}), "
+                                                  f"got {self.stretch_close}")
+        if 0.0 in self.sequence_speeds:
+            raise ParameterError("sequence_speeds", f"every pace must be non-zero, got {self.sequence_speeds!r}")
+        if not any(abs(v) >= self.rank_pace_min for v in self.sequence_speeds):
+            raise ParameterError("rank_pace_min", f"must leave a pace of sequence_speeds to rank nodes, got "
+                                                  f"{self.rank_pace_min} for {self.sequence_speeds!r}")
+        if min(self.departure_prior) <= 0:
+            raise ParameterError("departure_prior", f"both counts must be > 0, got {self.departure_prior!r}")
+
+
+class CatGraph(Method):
+    """Track the query along the reference trajectory with the whole-image CAT-Graph filter.
+
+    Started on a map: the differences of each map frame to the next (to damp near-duplicates)
+    and optionally its node positions (``MapContext.arclength``, from odometry; else the node
+    index). Each step takes the query frame's differences to every map node and optionally its
+    travelled distance since the previous frame (odometry, same units as the map's); without it,
+    the mean node spacing. Re-seeding uses a causal sequence score per node: for each speed ratio
+    in ``sequence_speeds`` an exponentially weighted (rate ``sequence_rate``) sum of contrast-
+    normalised differences (+-``contrast_window`` nodes) along the trajectory ending there; the
+    lowest over the forward speeds counts, and apart from it the lowest over the backward ones
+    (negative speeds: the route driven the other way) and over those faster than ``fast_pace``,
+    where shares ``reseed_backward`` and ``reseed_fast`` of the re-seeded particles go (speeds
+    slower than ``rank_pace_min`` rank no node); each moves at the speed whose trajectory scored
+    best at its node (half of the forward ones at the map's pace). The particles start at paces
+    drawn from a prior (``start_paces``: the other paces' share of the mass).
+    Each decision is the node at the density mode (the largest weight mass within
+    +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
+    the confidence (that mass times 1 - P(new place)) and P(new place). The same seed gives
+    identical decisions, on any CPU.
+    """
+
+    name = "catgraph"
+    Params = CatGraphParams
+    needs = frozenset({"map", "map_neighbours", "odometry"})
+    rows = frozenset({"differences", "log_ratio"})
+    columns = ("new_place",)
+    ranks = True  # by the posterior: the mode, then the nodes of most particle weight (posterior_ranking)
+    params: CatGraphParams
+
+    def prepare(self, context: MapContext) -> None:
+        p = self.params
+        if context.sequence or context.neighbours is None:
+            raise WilocError("catgraph", "needs a map (a reference trajectory)", parameter="reference")
+        neighbours = np.asarray(context.neighbours(), dtype=np.float64)
+        n_nodes = neighbours.size + 1
+        if n_nodes < 2:
+            raise WilocError("catgraph", f"the map needs at least 2 frames, got {n_nodes}")
+        self._nodes = node_positions(context.arclength, n_nodes)
+        self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
+        self._omega = novelty_weights(neighbours, p.near_duplicate)
+        self._damped = np.flatnonzero(self._omega < 1.0)  # near duplicates
+        self._likelihood = self._observation_model()
+        self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
+                                        p.stretch_open, p.stretch_close)
+        self._rng = np.random.default_rng(p.seed)
+        # evenly spaced from one random offset (stratified): every stretch of the map starts with
+        # its share of particles, so look-alike places start with equal mass
+        self._pos = self._nodes[0] + (np.arange(p.particles) + self._rng.uniform()) / p.particles * (
+            self._nodes[-1] - self._nodes[0])
+        self._speed, self._log_w = self._start_paces()
+
+        self._set_paces()
+        self._sequence = np.zeros((self._paces.size, n_nodes))
+        self._spare: NDArray[np.float64] | None = None  # memory for the next sequence score
+        self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
+        self._marks = np.zeros(n_nodes, dtype=np.int64)  # the read-out's scratch: the frame that last summed a node
+        self._odometer = 0.0  # distance travelled since the first frame, in the map's units
+        self._odometry = False  # whether any step came with odometry
+        self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
+        self._recycle()
+
+    def _start_paces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Each particle's pace and log weight before any frame. The query's pace is not known at
+        the start: half of the particles (``START_DEALT``) cycle through the paces of
+        ``sequence_speeds`` other than the map's, the rest move at the map's pace, and the weights
+        give the other paces together the prior probability ``start_paces``. A particle at every
+        pace from the first frame lets a query at another pace be followed from its start, where
+        re-seeded particles (given the jump's prior mass) take tens of frames to outweigh a cloud
+        that lags or runs ahead; the weights keep the map's pace the likelier one, so weak
+        evidence at the start does not hand the track to a lagging pace. The particles start
+        evenly spaced and the paces are dealt in a fixed pattern along them: every stretch of the
+        map starts with the same mix, as it starts with the same mass."""
+        p = self.params
+        speed, log_w = np.ones(p.particles), np.full(p.particles, -np.log(p.particles))
+        others = np.asarray([v for v in p.sequence_speeds if v != 1.0], dtype=np.float64)
+        i = np.arange(p.particles)
+        dealt = np.floor((i + 1) * START_DEALT) > np.floor(i * START_DEALT)
+        n_dealt = int(dealt.sum())
+        if others.size == 0 or n_dealt in (0, p.particles):
+            return speed, log_w
+        speed[dealt] = others[np.arange(n_dealt) % others.size]
+        log_w[dealt] = np.log(max(p.start_paces / n_dealt, TINY))
+        log_w[~dealt] = np.log((1.0 - p.start_paces) / (p.particles - n_dealt))
+        return speed, log_w
+
+    def _set_paces(self) -> None:
+        """The sequence score's paces and the group of each: 0 forward, 1 backward and 3 faster
+        than ``fast_pace`` (each ranking nodes for re-seeding apart), 2 slower than
+        ``rank_pace_min`` (giving only a pace)."""
+        p = self.params
+        self._paces = np.asarray(p.sequence_speeds, dtype=np.float64)
+        self._groups = np.select([np.abs(self._paces) < p.rank_pace_min, self._paces > p.fast_pace, self._paces < 0],
+                                 [2, 3, 1], 0).astype(np.intp)
+        self._group_lowest = np.empty((4, self._nodes.size))  # the score's lowest per group and node
+
+    def _recycle(self) -> None:
+        """Memory for what :meth:`ahead` computes, used again once its rows are stepped."""
+        self._ahead_memory = RecycledArrays(np.float64)  # the rows' contrast
+        self._sorted_memory = RecycledArrays(np.float32)  # their sorted values
+
+    def _observation_model(self) -> RankLikelihood:
+        """Ranks within each row: of the differences (whole images), or of FAB-MAP's negated
+        log-likelihood ratios (``bow``), whose scale is then of no account."""
+        p = self.params
+        return RankLikelihood(p.a0, p.n0, p.a_min)
+
+    @property
+    def _sign(self) -> float:
+        """What turns a row into differences (low = alike): -1 for FAB-MAP's evidence rows."""
+        return -1.0 if self.context is not None and self.context.rows == "log_ratio" else 1.0
+
+    def _shift_lookup(self, u: float) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]:
+        """:func:`shifted_reads` for step u and their :func:`read_runs`: the same for every
+        frame of equal step (always, without odometry), so they are computed once per distinct step."""
+        if self._shifted is None or self._shifted[0] != u:
+            shifts = np.asarray(self.params.sequence_speeds, dtype=np.float64) * u
+            at, a = shifted_reads(self._nodes, shifts)
+            self._shifted = (u, (at, a, read_runs(at, a, self._nodes.size)))
+        return self._shifted[1]
+
+    @property
+    def motion_sigma(self) -> float:
+        """The motion noise of a frame without odometry, in node spacings."""
+        return float(np.hypot(self.params.step_noise, self.params.noise_floor))
+
+    def _advance(self, sequence: NDArray[np.float64], contrast: NDArray[np.float64], u: float,
+                 first: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The sequence score after a frame of this contrast and step u (a new array: the leaky
+        sum along each speed's trajectory, causal, O(speeds x nodes)), and its lowest per group of
+        speeds (:meth:`_set_paces`) and node, which re-seeding ranks nodes by."""
+        from wiloc.methods.catgraph import filter_kernels  # numba loads with the first frame, not the command line
+
+        lowest = self._group_lowest
+        if first:
+            lowest[:] = contrast
+            return np.broadcast_to(contrast, sequence.shape).copy(), lowest
+        spare = self._spare  # the score before last: its memory takes the new one (fresh pages cost faults)
+        after = spare if spare is not None and spare.shape == sequence.shape else np.empty_like(sequence)
+        filter_kernels.advance(sequence, *self._shift_lookup(u), contrast, self.params.sequence_rate,
+                               self._groups, after, lowest)
+        self._spare = sequence
+        return after, lowest
+
+    def ahead(self, rows: NDArray[np.floating]) -> list[RowAhead | None]:
+        """Each row's contrast (low = alike), whether it is finite, and what the observation
+        model ranks against: computed for a block of rows in compiled passes (None for rows
+        that are not one value per map node)."""
+        from wiloc.methods.catgraph import filter_kernels  # numba loads with the first frame, not the command line
+
+        if rows.shape[1] != self._nodes.size:
+            return [None] * rows.shape[0]
+        sign = self._sign
+        contrast, finite = self._ahead_memory.take(rows.shape), np.empty(rows.shape[0], dtype=np.bool_)
+        filter_kernels.contrast_rows(rows, self.params.contrast_window, sign, contrast, finite)
+        ordered = self._likelihood.order(rows if sign > 0 else -rows, self._sorted_memory)
+        return [RowAhead(contrast[r], bool(finite[r]), ordered[r]) for r in range(rows.shape[0])]
+
+    def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
+        from wiloc.methods.catgraph import rank_kernels  # numba loads with the first frame, not the command line
+        from wiloc.methods.catgraph import filter_kernels
+
+        p, rng, nodes = self.params, self._rng, self._nodes
+        n_nodes, first = nodes.size, self.frames == 0
+        pre = self.row_ahead(row) if row.shape == (n_nodes,) else None
+        if pre is None or not pre.finite:
+            raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
+        contrast = pre.contrast
+        u = self._travelled(odometry)
+        self._sequence, lowest = self._advance(self._sequence, contrast, u, first)
+        if not first:
+            self._odometer += u
+        likelihood, unexplained = self._likelihood, self._unexplained
+        likelihood.use_row(row if self._sign > 0 else -row, pre.ordered)  # ranked as differences
+        log_mean_ratio = likelihood.mean(self._omega, self._damped)
+        prior = unexplained.transition(first)
+
+        pos, speed = self._pos, self._speed
+        if not first:  # motion model: s += v u_k + noise
+            if p.speed_noise > 0:
+                speed = np.clip(speed + rng.normal(0.0, p.speed_noise, p.particles), *p.speed_range)
+            sd = np.hypot(p.step_noise * u * np.abs(speed), p.noise_floor * self._spacing)
+            pos = np.clip(pos + speed * u + rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
+        n_reseed = int(round(p.reseed * p.particles))
+        kept = np.ones(p.particles, dtype=bool)
+        if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
+            weakest = smallest(self._log_w, n_reseed, rng)
+            kept[weakest] = False
+            self._reseed(weakest, lowest, pos, speed, first)
+
+        j, a = locate(nodes, pos)  # eq. 8: the observation interpolated between the nodes around
+        omega = np.empty(p.particles)
+        rank_kernels.interpolate(self._omega, j, a, omega)
+        log_w, w = np.empty(p.particles), np.empty(p.particles)  # the posterior, from the prior's weights
+        log_map, squares = filter_kernels.weigh(  # log_map: the map's total mass against the unexplained hypothesis
+            self._log_w, kept, n_reseed > 0 and bool(kept.any()), likelihood.at(j, a, omega),
+            float(np.log(max(prior.track, TINY))),
+            float(np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1))), log_w, w)
+        unexplained.update(log_map, prior.unexplained)
+
+        mode, mass = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, self._own, self._marks,
+                                                   self.frames + 1)
+        p_new = unexplained.new_place
+        unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
+        likelihood.learn(w * omega, 1.0 - unexplained.u)
+
+        if 1.0 / squares < p.resample_ess * p.particles:
+            idx = systematic(w, rng)
+            pos, speed = pos[idx], speed[idx]
+            log_w = np.full(p.particles, -np.log(p.particles))
+        self._pos, self._speed, self._log_w = pos, speed, log_w
+        return Decision(match=mode, difference=float(self._sign * row[mode]), confidence=float(mass * (1.0 - p_new)),
+                        stage="track", new_place=p_new, ranking=tuple(posterior_ranking(self._own, mode).tolist()))
+
+    def _reseed(self, weakest: NDArray[np.intp], lowest: NDArray[np.float64], pos: NDArray[np.float64],
+                speed: NDArray[np.float64], first: bool) -> None:
+        """Move the ``weakest`` particles to the ``reseed_top`` nodes of lowest sequence score: a
+        share ``reseed_backward`` to the best backward trajectories' nodes and a share
+        ``reseed_fast`` to the best trajectories faster than ``fast_pace``, each at the pace of its
+        group that scored best there; the rest to the best forward ones, half of those at the
+        map's pace and half at the forward pace that scored best there. On the first frame every
+        pace scores alike: all go forward at the map's pace."""
+        p, groups = self.params, self._groups
+        start = 0
+        for group, count in self._reseed_counts(weakest.size, first):
+            chosen = weakest[start:start + count]
+            start += count
+            best = lowest_nodes(lowest[group], p.reseed_top)
+            best = best[np.arange(chosen.size) % best.size]
+            pos[chosen] = self._nodes[best]
+            speed[chosen] = 1.0
+            if first:
+                continue
+            way = (groups == 3) if group == 3 else (  # slow paces give a pace too
+                (self._paces < 0 if group == 1 else self._paces > 0) & (groups != 3))
+            alike = slice(None) if group else slice(1, None, 2)  # forward: every other one keeps the map's pace
+            scores = self._sequence[:, best[alike]][way]  # the chosen nodes' columns only, not every node
+            speed[chosen[alike]] = self._paces[way][np.argmin(scores, axis=0)]
+
+    def _reseed_counts(self, n: int, first: bool) -> list[tuple[int, int]]:
+        """How many of ``n`` re-seeded particles go to each group of paces that ranks nodes
+        (:meth:`_set_paces`): the backward and fast groups their shares, the forward group the
+        rest; a group without paces none (its share goes to the forward group, or when that has
+        none either, to the first group that has paces). The first frame: all forward."""
+        p = self.params
+        present = [g for g in (0, 1, 3) if np.any(self._groups == g)]
+        if first and 0 in present:
+            return [(0, n)]
+        shares = {1: p.reseed_backward, 3: p.reseed_fast}
+        counts = {g: int(np.floor(shares[g] * n + (self._rng.random() if g == 3 else 0.5))) for g in present
+                  if g in shares}
+        rest = n - sum(counts.values())
+        main = 0 if 0 in present else present[0]
+        counts[main] = counts.get(main, 0) + rest
+        return [(g, counts[g]) for g in present if counts.get(g, 0) > 0]
+
+    def probability_near(self, node: int) -> float:
+        """After a step: the probability that the frame shows the place of ``node`` (within
+        +-mode_window nodes), the map explaining it."""
+        from wiloc.methods.catgraph import filter_kernels  # numba loads with the first frame, not the command line
+
+        mass = filter_kernels.window_sum(self._own, self.params.mode_window, node)
+        return float(mass * (1.0 - self._unexplained.new_place))
+
+    def _travelled(self, odometry: float | None) -> float:
+        """u_k: the query's odometry step, else the mean node spacing."""
+        if odometry is None:
+            return self._spacing
+        if self.context is None or self.context.arclength is None:
+            raise WilocError(None, "a query odometry needs the map's too (map_odometry), in the same units",
+                             parameter="odometry")
+        if not (np.isfinite(odometry) and odometry >= 0):
+            raise WilocError(None, f"query frame {self.frames}: the step must be finite and >= 0, got {odometry}",
+                             parameter="odometry")
+        self._odometry = True
+        return float(odometry)
+
+    def facts(self) -> dict[str, Any]:
+        return {"odometry": getattr(self, "_odometry", False),
+                "learned_a": self._likelihood.a if hasattr(self, "_likelihood") else None,
+                "departure_share": self._unexplained.q if hasattr(self, "_unexplained") else None}
+
+    def save_state(self) -> dict[str, Any]:
+        return {"nodes": self._nodes, "omega": self._omega, "pos": self._pos, "speed": self._speed,
+                "log_w": self._log_w, "sequence": self._sequence.copy(), "own": self._own.copy(),
+                "odometer": self._odometer,
+                "odometry": self._odometry, "likelihood": self._likelihood.state(),
+                "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state}
+
+    def load_state(self, state: Mapping[str, Any]) -> None:
+        p = self.params
+        self._nodes = np.asarray(state["nodes"], dtype=np.float64)
+        self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
+        self._omega = np.asarray(state["omega"], dtype=np.float64)
+        self._damped = np.flatnonzero(self._omega < 1.0)
+        self._pos = np.asarray(state["pos"], dtype=np.float64).copy()
+        self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
+        self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
+        self._set_paces()
+        self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
+        self._spare = None
+        self._own = np.asarray(state["own"], dtype=np.float64).copy()
+        self._marks = np.zeros(self._own.size, dtype=np.int64)
+        self._odometer = float(state["odometer"])
+        self._odometry = bool(state["odometry"])
+        self._likelihood = self._observation_model()
+        self._likelihood.load(state["likelihood"])
+        self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
+                                        p.stretch_open, p.stretch_close)
+        self._unexplained.load(state["unexplained"])
+        self._rng = np.random.default_rng()
+        self._rng.bit_generator.state = state["rng"]
+        self._shifted = None
+        self._recycle()

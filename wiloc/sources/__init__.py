@@ -1,0 +1,1 @@
+"""Where frames come from: image folders, video files and ROS bags, read as grayscale frames."""
