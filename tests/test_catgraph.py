@@ -9,7 +9,7 @@ from wiloc.errors import WilocError
 from wiloc.localization.array_run import run_on_rows
 from wiloc.methods import base
 from wiloc.methods.catgraph.filter import CatGraph
-from wiloc.methods.trajectory import contrast_normalise, posterior_ranking
+from wiloc.methods.catgraph.trajectory import contrast_normalise, posterior_ranking
 from wiloc.rows import ArrayRows
 
 N_REF = 300
@@ -225,7 +225,7 @@ def test_mode_on_a_map_shorter_than_the_mode_window(node: int) -> None:
 @pytest.mark.parametrize("even", [True, False])
 def test_sequence_score_step_is_the_numpy_expression_value_for_value(even: bool) -> None:
     from wiloc.methods.catgraph.filter_kernels import advance
-    from wiloc.methods.trajectory import read_runs, shifted_reads
+    from wiloc.methods.catgraph.trajectory import read_runs, shifted_reads
 
     rng = np.random.default_rng(3)
     nodes = np.arange(700.0) if even else np.cumsum(rng.random(700) * (rng.random(700) < 0.9))
@@ -300,7 +300,7 @@ def test_weighing_is_the_numpy_expression_up_to_the_order_of_sums(renormalise: b
 
 
 def test_smallest_takes_ties_in_index_order_or_drawn_by_the_generator() -> None:
-    from wiloc.methods.trajectory import smallest
+    from wiloc.methods.catgraph.trajectory import smallest
 
     rng = np.random.default_rng(4)
     values = rng.integers(0, 5, 300).astype(np.float64)  # many ties

@@ -52,8 +52,8 @@ def test_best_candidates_rank_ascending_ties_by_position_and_skip_non_candidates
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_the_compiled_pass_over_a_block_reads_each_row_as_the_numpy_functions_do(dtype: type, window: int) -> None:
     from wiloc.candidates import finite_minimum
-    from wiloc.methods.catgraph.row_kernels import best_of_rows
     from wiloc.methods.online import near_miss
+    from wiloc.methods.row_kernels import best_of_rows
 
     rng = np.random.default_rng(3)
     rows = rng.integers(0, 6, (400, 40)).astype(dtype)  # many ties

@@ -284,7 +284,7 @@ class Online(Method):
         """Map mode: each row's best match, its difference, near miss and ranking (one compiled
         pass over the rows) and what the map filter computes ahead; nothing in sequence mode,
         where the near miss depends on the matches of earlier frames."""
-        from wiloc.methods.catgraph.row_kernels import best_of_rows  # numba loads with the first rows
+        from wiloc.methods.row_kernels import best_of_rows  # numba loads with the first rows
 
         if self._filter is None:
             return None
