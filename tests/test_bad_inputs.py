@@ -20,6 +20,7 @@ import sys
 import time
 import warnings
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -417,41 +418,30 @@ def test_ctrl_c_that_a_library_swallows_still_stops_the_command(route: tuple[Pat
     assert not out.exists()
 
 
-def test_ctrl_c_during_an_import_waits_for_the_import_then_stops_the_command(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("ignored", "expected"), [(False, (130, "imported True\n", "error: interrupted\n")),
+                                                    (True, (0, "imported True\nnot interrupted\n", ""))],
+                         ids=["held", "ignored from the start"])
+def test_ctrl_c_during_an_import_waits_for_the_import_then_stops_the_command(
+        tmp_path: Path, ignored: bool, expected: tuple[int, str, str]) -> None:
     """Ctrl-C that arrives while a module is being imported is held until the import is done
     (raised inside the import system it can leave a module lock held, so that a later import
-    waits forever, or be dropped in its callbacks), then stops the command: one line, 130."""
+    waits forever, or be dropped in its callbacks), then stops the command: one line, 130. A
+    command started with Ctrl-C ignored (in the background by a non-interactive shell) runs on
+    through it, as Python itself does."""
     (tmp_path / "interrupted_module.py").write_text("import signal\nsignal.raise_signal(signal.SIGINT)\nLOADED = True\n")
-    code = ("import sys, time, wiloc.cli, wiloc.__main__ as entry\n"
-            "def run(args=None):\n"
+    code = ("import signal, sys, time, wiloc.cli, wiloc.__main__ as entry\n"
+            + ("signal.signal(signal.SIGINT, signal.SIG_IGN)\n" if ignored else "")
+            + "def run(args=None):\n"
             "    import interrupted_module\n"
             "    print('imported', interrupted_module.LOADED, flush=True)\n"
-            "    time.sleep(30)\n"
+            "    time.sleep(3)\n"
             "    print('not interrupted', flush=True)\n"
             "    return 0\n"
             "wiloc.cli.run = run\n"
             "sys.exit(entry.main())\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
                             env={**os.environ, "PYTHONPATH": str(tmp_path)})
-    assert (result.returncode, result.stdout, result.stderr) == (130, "imported True\n", "error: interrupted\n")
-
-
-def test_ctrl_c_ignored_when_the_command_starts_stays_ignored(tmp_path: Path) -> None:
-    """A command started with Ctrl-C ignored (in the background by a non-interactive shell) runs
-    on through one, as Python itself does."""
-    (tmp_path / "interrupted_module.py").write_text("import signal\nsignal.raise_signal(signal.SIGINT)\n")
-    code = ("import signal, sys, time, wiloc.cli, wiloc.__main__ as entry\n"
-            "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
-            "def run(args=None):\n"
-            "    import interrupted_module\n"
-            "    time.sleep(1)\n"
-            "    print('not interrupted', flush=True)\n"
-            "    return 0\n"
-            "wiloc.cli.run = run\n"
-            "sys.exit(entry.main())\n")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
-                            env={**os.environ, "PYTHONPATH": str(tmp_path)})
-    assert (result.returncode, result.stdout, result.stderr) == (0, "not interrupted\n", "")
+    assert (result.returncode, result.stdout, result.stderr) == expected
 
 
 def test_ctrl_c_after_the_work_leaves_the_exit_code_alone(route: tuple[Path, Path], tmp_path: Path) -> None:
@@ -492,19 +482,40 @@ def _unusable_frames(folder: Path) -> list[str]:
             f"skipped {folder}/Image\\xff\\xfe050.png: file name is not valid UTF-8; rename the file to use it"]
 
 
-def test_image_names_that_cannot_be_frames_are_left_out_with_a_line(route: tuple[Path, Path], tmp_path: Path) -> None:
+def _cut_short_frames(folder: Path) -> list[str]:
+    """Three more frames of ``folder``, made from its img0.png: a JPEG cut to half its bytes and a
+    PNG cut short (decoders fill such images in, or refuse them), and a whole JPEG followed by
+    bytes after its end marker (as some cameras write); the lines that say the first two were left out."""
+    image = cv2.imread(str(folder / "img0.png"), cv2.IMREAD_GRAYSCALE)
+    jpeg, png = (cv2.imencode(suffix, image)[1].tobytes() for suffix in (".jpg", ".png"))
+    (folder / "img30.jpg").write_bytes(jpeg[: len(jpeg) // 2])
+    (folder / "img31.png").write_bytes(png[: len(png) - 20])
+    (folder / "img32.jpg").write_bytes(jpeg + b"\x00" * 512 + b"trailer")
+    return [f"skipped {folder / 'img30.jpg'}: truncated JPEG (no end-of-image marker)",
+            f"skipped {folder / 'img31.png'}: truncated PNG (no IEND chunk)"]
+
+
+@pytest.mark.parametrize("unusable", [_unusable_frames, _cut_short_frames], ids=["not frames", "cut short"])
+def test_frames_that_cannot_be_read_are_left_out_with_a_line(route: tuple[Path, Path], tmp_path: Path,
+                                                              unusable: Callable[[Path], list[str]]) -> None:
+    """Names that cannot be frames (not UTF-8, a FIFO, a dangling link) and images cut short: each
+    left out with one line, at describe (and under --json) and at localize; the rest decided."""
     ref, query = route
-    lines = _unusable_frames(ref)
+    map_lines = unusable(ref)
     result = runner.invoke(app, ["describe", str(ref), "--json"])
     assert result.exit_code == 0, result.output
-    [row] = json.loads(result.stdout)["results"]
-    assert (row["frames"], row["failed"], row["shape"]) == (33, 3, [30, 1152])
-    assert result.stderr.strip().splitlines() == lines
-    _unusable_frames(query)
+    report = json.loads(result.stdout)
+    [row] = report["results"]
+    assert (row["frames"], row["failed"], row["shape"][0]) == (33, len(map_lines), 33 - len(map_lines))
+    assert result.stderr.strip().splitlines() == map_lines
+    assert len(report["warnings"]) == len(map_lines) and all(w.startswith("skipped: ") for w in report["warnings"])
+    query_lines = unusable(query)
     out = tmp_path / "run.csv"
     result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold", "--out", str(out)])
     assert result.exit_code == 0, result.output
-    assert sum(line.startswith("skipped ") for line in result.stderr.splitlines()) == 6
+    assert sorted(line for line in result.stderr.splitlines() if line.startswith("skipped ")) == sorted(map_lines + query_lines)
+    _, *rows = [line for line in out.read_text().splitlines() if not line.startswith("#")]  # the column names, the rows
+    assert len(rows) == 33 - len(query_lines)
     assert runner.invoke(app, ["evaluate", str(out)]).exit_code == 0  # the results file reads back
 
 
@@ -791,40 +802,6 @@ def test_a_jpeg_over_the_pixel_limit_is_skipped_even_when_decoded_reduced(descri
     assert (row["frames"], row["failed"], row["shape"][0]) == (31, 1, 30)
     assert report["warnings"] == [f"skipped: {ref / 'img99.jpg'}: image over OpenCV's size limit (2^30 pixels; "
                                "the environment variable OPENCV_IO_MAX_IMAGE_PIXELS raises it)"]
-
-
-def _cut_short_frames(folder: Path) -> list[str]:
-    """Three more frames of ``folder``, made from its img0.png: a JPEG cut to half its bytes and a
-    PNG cut short (decoders fill such images in, or refuse them), and a whole JPEG followed by
-    bytes after its end marker (as some cameras write); the lines that say the first two were left out."""
-    image = cv2.imread(str(folder / "img0.png"), cv2.IMREAD_GRAYSCALE)
-    jpeg, png = (cv2.imencode(suffix, image)[1].tobytes() for suffix in (".jpg", ".png"))
-    (folder / "img30.jpg").write_bytes(jpeg[: len(jpeg) // 2])
-    (folder / "img31.png").write_bytes(png[: len(png) - 20])
-    (folder / "img32.jpg").write_bytes(jpeg + b"\x00" * 512 + b"trailer")
-    return [f"skipped {folder / 'img30.jpg'}: truncated JPEG (no end-of-image marker)",
-            f"skipped {folder / 'img31.png'}: truncated PNG (no IEND chunk)"]
-
-
-def test_frames_cut_short_are_left_out_with_a_line(route: tuple[Path, Path], tmp_path: Path) -> None:
-    ref, query = route
-    map_lines = _cut_short_frames(ref)
-    result = runner.invoke(app, ["describe", str(ref), "--json"])
-    assert result.exit_code == 0, result.output
-    report = json.loads(result.stdout)
-    [row] = report["results"]
-    assert (row["frames"], row["failed"], row["shape"][0]) == (33, 2, 31)
-    assert report["warnings"] == [line.replace("skipped ", "skipped: ", 1) for line in map_lines]
-    assert result.stderr.strip().splitlines() == map_lines
-    query_lines = _cut_short_frames(query)
-    out = tmp_path / "run.csv"
-    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold", "--out", str(out)])
-    assert result.exit_code == 0, result.output
-    assert sorted(line for line in result.stderr.splitlines() if line.startswith("skipped ")) == sorted(map_lines + query_lines)
-    _, *rows = [line for line in out.read_text().splitlines() if not line.startswith("#")]  # the column names, the rows
-    frames = [row.split(",")[0] for row in rows]
-    assert "img32.jpg" in frames and not {"img30.jpg", "img31.png"} & set(frames) and len(frames) == 31
-    assert runner.invoke(app, ["evaluate", str(out)]).exit_code == 0  # the results file reads back
 
 
 def test_a_run_whose_images_changed_cannot_be_drawn(route: tuple[Path, Path], results: Path, tmp_path: Path) -> None:
