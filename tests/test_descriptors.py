@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from wiloc.descriptors import (
-    DESCRIPTOR_NAMES,
-    METRICS,
-    brisk_gist,
-    get_descriptor,
-    gist,
-    registry,
-    sad,
-)
+                               DESCRIPTOR_NAMES,
+                               METRICS,
+                               brisk_gist,
+                               get_descriptor,
+                               gist,
+                               registry,
+                               sad,
+                               )
 from wiloc.errors import ParameterError
 from wiloc.sources.frames import read_gray
 

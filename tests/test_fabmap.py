@@ -8,13 +8,13 @@ import pytest
 
 from wiloc.errors import ParameterError
 from wiloc.bow.fabmap import (
-    NEW_PLACE_METHODS,
-    ChowLiuTree,
-    Detector,
-    FabMap,
-    FabMapParams,
-    mutual_information,
-)
+                              NEW_PLACE_METHODS,
+                              ChowLiuTree,
+                              Detector,
+                              FabMap,
+                              FabMapParams,
+                              mutual_information,
+                              )
 from wiloc.parameters import declared
 
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from wiloc.errors import FrameError, WilocError
 from wiloc.sources.frames import (Fingerprint, fingerprint, jpeg_size, list_traversal, natural_key, natural_sorted,
-                          read_gray)
+                                  read_gray)
 
 
 def _write(path: Path, image: np.ndarray, ext: str | None = None) -> Path:

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from wiloc.evaluation.groundtruth import Truth
 from wiloc.evaluation.metrics import (average_precision, global_threshold, max_f1, pr_curve,
-                           precision_at_thresholds, recall_at_1, recall_at_precision, summarize)
+                                      precision_at_thresholds, recall_at_1, recall_at_precision, summarize)
 
 NAN = float("nan")
 

@@ -15,7 +15,7 @@ from wiloc.errors import WilocError
 from wiloc.evaluation.metrics import pr_curve, precision_at_thresholds
 from wiloc.model import HistogramModel
 from wiloc.figures.plots import (check_plot_path, plot_matrix, plot_model, plot_pairs, plot_pr, plot_reliability,
-                         plot_threshold, pr_figure, reliability_figure, run_styles, threshold_figure, timeline_figure)
+                                 plot_threshold, pr_figure, reliability_figure, run_styles, threshold_figure, timeline_figure)
 from wiloc.evaluation.reliability import reliability_bins, wilson_interval
 from wiloc.figures.run_figures import ImagePair, MatrixPicture, Timeline
 

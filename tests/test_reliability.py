@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from wiloc.evaluation.groundtruth import Truth
 from wiloc.evaluation.metrics import correct_matches, decided_confidence
 from wiloc.evaluation.reliability import (NEW_PLACE_KEYS, brier_score, counts_at_cuts, expected_calibration_error,
-                               reliability_bins, summarize_calibration, summarize_new_place, wilson_interval)
+                                          reliability_bins, summarize_calibration, summarize_new_place, wilson_interval)
 
 NAN = float("nan")
 

@@ -22,11 +22,11 @@ from wiloc.description.describing import describe_folder
 from wiloc.descriptors import get_descriptor
 from wiloc.errors import ParameterError, WilocError
 from wiloc.bow.vocabulary import (
-    VocabularyParams,
-    pack_words,
-    read_vocabulary,
-    unpack_words,
-)
+                                  VocabularyParams,
+                                  pack_words,
+                                  read_vocabulary,
+                                  unpack_words,
+                                  )
 from wiloc.description.vocabulary_build import build_vocabulary, vocabulary_path
 
 REPO = Path(__file__).resolve().parents[1]

@@ -18,18 +18,18 @@ from typing import TYPE_CHECKING, Any
 from wiloc.cache.store import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_once,
-                              check_precisions, comparison, method_labels, new_place_series, pr_series,
-                              reliability_series, run_names, run_subject, score, threshold_marks, threshold_series,
-                              traversal_labels)
+                                         check_precisions, comparison, method_labels, new_place_series, pr_series,
+                                         reliability_series, run_names, run_subject, score, threshold_marks, threshold_series,
+                                         traversal_labels)
 from wiloc.description.describing import DescribeReport, check_sampling, check_topic, describe_sources, is_stream
 from wiloc.description.traversals import Progress, descriptor_spec, descriptors_digest, open_cluster, stage
-from wiloc.evaluation.results import Results, make_results, read_results, write_results
+from wiloc.evaluation.results import Results, make_results, write_results
 from wiloc.evaluation.truth_source import TruthSource
 from wiloc.localization.follow_run import FollowRun, follow_folder
 from wiloc.localization.inputs import import_descriptors, shared_workers, vocabulary, vocabulary_file
-from wiloc.localization.session import RunSession, results_name, run_header
+from wiloc.localization.run_files import read_run, results_name, run_header
+from wiloc.localization.session import RunSession
 from wiloc.localization.training import Training
-from wiloc.methods.registry import lowest_confidence
 from wiloc.sources.video import Sampling
 
 if TYPE_CHECKING:
@@ -161,7 +161,7 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS,
         return score(run.path, run.results, truth, cuts, recall_at)
     if isinstance(run, Results):
         return score(None, run, truth, cuts, recall_at)
-    return score(Path(run), read_results(Path(run), lowest_confidence), truth, cuts, recall_at)
+    return score(Path(run), read_run(Path(run)), truth, cuts, recall_at)
 
 
 # ------------------------------------------------------------------------------------------ compare

@@ -30,13 +30,13 @@ from wiloc.errors import FrameError, WilocError
 from wiloc.reprs import short_repr
 from wiloc.sources.frames import Fingerprint, fingerprint, list_traversal, read_gray
 from wiloc.bow.vocabulary import (
-    FORMAT_VERSION,
-    Vocabulary,
-    VocabularyParams,
-    read_vocabulary,
-    train_vocabulary,
-    write_vocabulary,
-)
+                                  FORMAT_VERSION,
+                                  Vocabulary,
+                                  VocabularyParams,
+                                  read_vocabulary,
+                                  train_vocabulary,
+                                  write_vocabulary,
+                                  )
 
 VOCABULARIES = "vocabularies"
 Progress = Callable[[int, int], None]

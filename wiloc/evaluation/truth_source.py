@@ -10,7 +10,7 @@ from typing import Literal
 
 from wiloc.errors import ParameterError, WilocError
 from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, Truth, aligned_truth, matrix_truth, pairs_truth, positions_truth,
-                               restrict_sequence)
+                                          restrict_sequence)
 from wiloc.evaluation.truth_formats import DEFAULT_RADIUS_M, exif_truth, utm_names_truth, vprbench_truth
 
 

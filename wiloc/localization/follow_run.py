@@ -15,7 +15,7 @@ from wiloc.errors import WilocError
 from wiloc.evaluation.results import RANKING, ResultsStream
 from wiloc.localization.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localization.localizer import Localizer
-from wiloc.localization.session import results_name, run_header
+from wiloc.localization.run_files import results_name, run_header
 from wiloc.localization.training import Training
 
 

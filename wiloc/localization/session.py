@@ -20,19 +20,15 @@ from numpy.typing import NDArray
 
 from wiloc.cache.store import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
-from wiloc.description.describing import check_sampling, check_topic, is_stream
+from wiloc.description.describing import check_sampling, check_topic
 from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive, pairwise
-from wiloc.description.traversals import Describer, Progress, descriptor_label, is_matrix_file, open_cluster, stage
+from wiloc.description.traversals import Describer, Progress, is_matrix_file, open_cluster, stage
 from wiloc.errors import WilocError
-from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
 from wiloc.methods.base import MapContext, Method, TrainingRows
-from wiloc.methods.fabmap_evidence import FabMapEvidence
 from wiloc.methods.registry import make_method
-from wiloc.sources.frames import text_path
-from wiloc.version import __version__
 
 if TYPE_CHECKING:
     from wiloc.sources.video import Sampling
@@ -85,8 +81,7 @@ class RunSession:
             self.map = map if isinstance(map, Entry) else self.describer.entry(self.map_path, map_names)
             self._check_map(R)
         self.kind = self.method.row_kind(self.describer.descriptor)
-        self.evidence = FabMapEvidence.of(self.describer.spec, self.method.params) if self.kind == "log_ratio" \
-            else None
+        self.evidence = self.method.evidence(self.describer.spec) if self.kind == "log_ratio" else None
         self._count = 0  # sequence mode: the frames added as candidates so far
         candidates = self.map if self.map is not None else self.query  # a batch run's sequence mode: its query's
         if candidates is None:  # a streaming run's sequence mode: the frames it is given
@@ -240,24 +235,3 @@ class RunSession:
         return kind.doubts(params) + [
             f"{role} {entry.folder}: {line}" for role, entry in (("query", self.query), ("map", self.map))
             if entry is not None for line in kind.traversal_doubts(entry.data, params)]
-
-
-def results_name(query: Path, method: str, descriptor: str, metric: str | None = None) -> str:
-    """The default results file name of one query traversal (folder, matrix file, whose
-    ``metric`` then names it, video file or ROS bag), descriptor and method:
-    ``day_left-sad-online.csv``; a video's or bag file's suffix stays in its name
-    (``day_left-mp4-sad-online.csv``), so that its run and a folder's of the same name never share a file."""
-    label = descriptor_label(query, descriptor, metric).replace(":", "-")
-    name = query.name if not query.is_file() else \
-        f"{query.stem}-{query.suffix.lstrip('.').lower()}" if is_stream(query) else query.stem
-    return f"{name}-{label}-{method}.csv"
-
-
-def run_header(method: str, describer: Describer, query: Path, metric: str, reference: Path | None,
-               exclude_recent: int, training: Training | None) -> ResultsHeader:
-    """What a results header says about a run besides the method's parameters."""
-    return ResultsHeader(method=method, descriptor=describer.label(query), descriptor_params=dict(describer.params),
-                         metric=metric, mode="sequence" if reference is None else "map", query=text_path(query),
-                         map=text_path(reference) if reference else "", exclude_recent=exclude_recent,
-                         wiloc=__version__, train_query=str(training.query) if training else None,
-                         train_map=str(training.reference) if training else None)

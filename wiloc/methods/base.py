@@ -28,6 +28,8 @@ from wiloc.parameters import Parameters
 from wiloc.reprs import short_repr
 
 if TYPE_CHECKING:
+    from wiloc.descriptors.base import DescriptorSpec
+    from wiloc.methods.fabmap_evidence import FabMapEvidence
     from wiloc.rows import MapSummary
 
 Progress = Callable[[int, int], None]
@@ -149,6 +151,14 @@ class Method(ABC):
             raise UsageError(None, f"method '{self.name}' reads FAB-MAP's evidence: give descriptor 'bow' "
                                    "with a vocabulary", parameter="descriptor")
         return "differences"
+
+    def evidence(self, spec: DescriptorSpec) -> FabMapEvidence:
+        """What makes this method's rows where they hold FAB-MAP's evidence (:meth:`row_kind`
+        ``log_ratio``): the model of the vocabulary of ``spec``, with this method's parameters
+        when they are FAB-MAP's."""
+        from wiloc.methods.fabmap_evidence import FabMapEvidence  # scipy and the vocabulary load here
+
+        return FabMapEvidence.of(spec, self.params)
 
     def query_problem(self, n_frames: int, sequence: bool, exclude_recent: int) -> str | None:
         """Why a query of ``n_frames`` frames cannot be run (in sequence mode or against a map,

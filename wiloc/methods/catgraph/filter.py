@@ -33,7 +33,7 @@ from wiloc.errors import ParameterError, WilocError
 from wiloc.methods.base import MapContext, Method
 from wiloc.methods.catgraph.observation import RankLikelihood, SortedRow, Unexplained, novelty_weights
 from wiloc.methods.catgraph.trajectory import (locate, lowest_nodes, node_positions, posterior_ranking, read_runs,
-                                      shifted_reads, smallest, systematic)
+                                               shifted_reads, smallest, systematic)
 from wiloc.parameters import Parameters, param
 from wiloc.recycled import RecycledArrays
 
