@@ -58,6 +58,8 @@ MAX_CHUNK = 16
 #: Frames of a colour descriptor (a network's) decoded and described together: a few network
 #: batches (wiloc.descriptors.learned.BATCH), journaled as each set is in.
 COLOUR_BATCH = 64
+_OPENCV_ERRORS_ONLY = 2  # OpenCV's LOG_LEVEL_ERROR (the same number in every 4.x)
+
 Task = tuple[Path, FrameRecord | None]
 #: In a worker process: a descriptor open on /dev/null, where its image decoders' stderr goes.
 _devnull: int | None = None
@@ -206,7 +208,7 @@ def _init_worker() -> None:
     """Workers keep OpenCV's and libjpeg's warnings to themselves: wiloc reports bad frames itself.
     (They leave Ctrl-C to the parent, which stops them and keeps what was journaled.)"""
     global _devnull
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    _opencv_log_level(_OPENCV_ERRORS_ONLY)
     cv2.setNumThreads(1)  # the processes share out the cores already
     _devnull = os.open(os.devnull, os.O_WRONLY)
 
@@ -214,11 +216,18 @@ def _init_worker() -> None:
 @contextmanager
 def opencv_quiet() -> Iterator[None]:
     """OpenCV's own warnings ("PNG input buffer is incomplete") off, then the previous level."""
-    previous = cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    previous = _opencv_log_level(_OPENCV_ERRORS_ONLY)
     try:
         yield
     finally:
-        cv2.utils.logging.setLogLevel(previous)
+        _opencv_log_level(previous)
+
+
+def _opencv_log_level(level: int) -> int:
+    """Set OpenCV's log level and return the one before. The wheels moved the call: 4.8 to 4.11
+    have ``cv2.setLogLevel`` alone, later ones ``cv2.utils.logging.setLogLevel`` alone."""
+    logging = getattr(cv2.utils, "logging", None)
+    return (cv2.setLogLevel if logging is None else logging.setLogLevel)(level)
 
 
 @contextmanager
