@@ -15,15 +15,17 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
-from numpy._core import _multiarray_umath
 
 from wiloc import demo
 
 CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
 THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "NUMBA_NUM_THREADS", "OPENCV_FOR_THREADS_NUM")
-#: numpy's AVX-512 dispatch targets this CPU runs, by the names NPY_DISABLE_CPU_FEATURES takes.
+#: numpy's AVX-512 dispatch targets this CPU runs, by the names NPY_DISABLE_CPU_FEATURES takes
+#: (numpy's private core module: ``numpy._core`` from numpy 2, ``numpy.core`` before).
+_multiarray_umath = (np._core if hasattr(np, "_core") else np.core)._multiarray_umath
 _NUMPY_AVX512 = [f for f in _multiarray_umath.__cpu_dispatch__
                  if (f.startswith("AVX512") or f == "X86_V4") and _multiarray_umath.__cpu_features__.get(f)]
 
