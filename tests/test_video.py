@@ -324,9 +324,11 @@ def test_cli_describe_samples_videos(tmp_path: Path, cache_dir: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def nordland(data_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Path], Cache]:
+def nordland(data_root: Path, tmp_path_factory: pytest.TempPathFactory,
+             real_data_cache: Path) -> tuple[dict[str, Path], Cache]:
     """Each Nordland season written once as a lossless video of its 3576 frames, and the cache the
-    tests share (the second describes nothing the first did not: the same videos and folders)."""
+    tests share (the session's real-data one: the folders' descriptors and differences are in it
+    when other tests made them; the second test describes nothing the first did not)."""
     root = data_root / "nordland-summer-winter-64x32"
     tmp = tmp_path_factory.mktemp("nordland")
     videos = {}
@@ -336,7 +338,7 @@ def nordland(data_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple
         for path in list_traversal(root / season).frames:
             writer.write(cv2.cvtColor(read_gray(path), cv2.COLOR_GRAY2BGR))
         writer.release()
-    return videos, Cache(tmp / "cache")
+    return videos, Cache(real_data_cache)
 
 
 @pytest.mark.realdata
