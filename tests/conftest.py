@@ -1,11 +1,15 @@
-"""Shared fixtures: where the real datasets are, and small generated images."""
+"""Shared fixtures: where the real datasets are, a cache shared by the real-data tests, the demo route."""
 from __future__ import annotations
 
 import os
 import signal
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from wiloc import demo
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -41,6 +45,25 @@ def data_root() -> Path:
     if root is None:
         pytest.skip("real datasets not found: set WILOC_DATA")
     return root
+
+
+@pytest.fixture(scope="session")
+def demo_route(tmp_path_factory: pytest.TempPathFactory) -> demo.DemoRoute:
+    """wiloc's demo route (seconds to draw and write), made once a session: tests only read it."""
+    from wiloc import demo
+
+    return demo.make_demo_route(tmp_path_factory.mktemp("demo-route"))
+
+
+@pytest.fixture(scope="session")
+def real_data_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A cache folder shared by the real-data tests that compute the same things and check what
+    a run decides, not what it computes or reuses: each dataset folder's descriptors (Gardens
+    Point's gist alone takes seconds a walk), their difference matrices and the vocabularies are
+    made once a session, by whichever test needs them first. The example scripts share it too
+    (table1.py and loop_closure.py train the same Gardens Point vocabularies, minutes of SIFT
+    features and k-means; test_fabmap_method.py's day_left run uses table1.py's night_right one)."""
+    return tmp_path_factory.mktemp("real-data") / "cache"
 
 
 @pytest.fixture

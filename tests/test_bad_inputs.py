@@ -621,11 +621,11 @@ def test_a_float_row_against_uint8_rows_is_a_wiloc_error() -> None:
 @pytest.mark.realdata
 @pytest.mark.parametrize("descriptor", ["sad", "gist", "brisk-gist"])
 def test_a_file_and_the_array_read_gives_are_the_map_s_descriptor(descriptor: str, data_root: Path,
-                                                                  tmp_path: Path) -> None:
+                                                                  real_data_cache: Path) -> None:
     """``observe(path)``, ``observe(loc.read(path))`` and the cache describe every Gardens Point
     day_left frame alike (so they decide alike)."""
     folder = data_root / "gardens-point-walking" / "day_left"
-    loc = Localizer(folder, descriptor=descriptor, method="threshold", cache=Cache(tmp_path / "cache"))
+    loc = Localizer(folder, descriptor=descriptor, method="threshold", cache=Cache(real_data_cache))
     paths = [folder / name for name in loc.map_names]
     assert len(paths) == 200
     for path, cached in zip(paths, loc.describer.entry(folder).data):

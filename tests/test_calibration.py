@@ -172,10 +172,10 @@ KEPT_AT_099 = {("night_right", "sad"): 0.4, ("day_left", "gist"): 0.7}
 
 
 @pytest.fixture(scope="module")
-def runs(data_root, tmp_path_factory: pytest.TempPathFactory) -> dict:
+def runs(data_root, real_data_cache) -> dict:
     from wiloc import api
     from wiloc.cache.store import Cache
-    cache = Cache(tmp_path_factory.mktemp("cache"))
+    cache = Cache(real_data_cache)
     out = {}
     for dataset, query, reference, descriptor in TRAVERSALS:
         root = data_root / dataset

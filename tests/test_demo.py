@@ -15,45 +15,40 @@ from wiloc.evaluation.groundtruth import positions_truth
 PLOTS = ("pr.png", "threshold.png", "model.png")
 
 
-@pytest.fixture(scope="module")
-def route(tmp_path_factory: pytest.TempPathFactory) -> demo.DemoRoute:
-    return demo.make_demo_route(tmp_path_factory.mktemp("route"))
-
-
-def _truth(route: demo.DemoRoute, query: Path):
+def _truth(demo_route: demo.DemoRoute, query: Path):
     names = sorted(p.name for p in query.iterdir())
-    ref_names = sorted(p.name for p in route.reference.iterdir())
-    return positions_truth(route.positions / f"{query.name}.csv",
-                           route.positions / f"{route.reference.name}.csv", demo.RADIUS_M, names, ref_names)
+    ref_names = sorted(p.name for p in demo_route.reference.iterdir())
+    return positions_truth(demo_route.positions / f"{query.name}.csv",
+                           demo_route.positions / f"{demo_route.reference.name}.csv", demo.RADIUS_M, names, ref_names)
 
 
-def test_route_positions_name_every_frame(route: demo.DemoRoute) -> None:
-    for folder in (route.reference, *route.queries):
-        positions = pd.read_csv(route.positions / f"{folder.name}.csv")
+def test_route_positions_name_every_frame(demo_route: demo.DemoRoute) -> None:
+    for folder in (demo_route.reference, *demo_route.queries):
+        positions = pd.read_csv(demo_route.positions / f"{folder.name}.csv")
         assert sorted(positions["name"]) == sorted(p.name for p in folder.iterdir())
         assert list(positions.columns) == ["name", "x", "y"]
 
 
-def test_only_the_detour_leaves_the_map(route: demo.DemoRoute) -> None:
-    for query in route.queries:
-        truth = _truth(route, query)
+def test_only_the_detour_leaves_the_map(demo_route: demo.DemoRoute) -> None:
+    for query in demo_route.queries:
+        truth = _truth(demo_route, query)
         assert truth.warnings == []
         has_match = truth.has_match()
         if query.name == "detour":
             assert 0 < has_match.sum() < has_match.size
-            unmatched = pd.read_csv(route.positions / "detour.csv")["y"].to_numpy()[~has_match]
+            unmatched = pd.read_csv(demo_route.positions / "detour.csv")["y"].to_numpy()[~has_match]
             assert (unmatched == demo.DETOUR_Y_M).all()
         else:
             assert has_match.all()
 
 
-def test_route_is_reproducible(route: demo.DemoRoute, tmp_path: Path) -> None:
+def test_route_is_reproducible(demo_route: demo.DemoRoute, tmp_path: Path) -> None:
     again = demo.make_demo_route(tmp_path)
-    for folder in (route.reference, *route.queries):
+    for folder in (demo_route.reference, *demo_route.queries):
         first = sorted(folder.iterdir())
         assert [p.name for p in first] == sorted(p.name for p in (tmp_path / folder.name).iterdir())
         assert first[len(first) // 2].read_bytes() == (tmp_path / folder.name / first[len(first) // 2].name).read_bytes()
-    assert again.queries[0].name == route.queries[0].name
+    assert again.queries[0].name == demo_route.queries[0].name
 
 
 @pytest.fixture(scope="module")

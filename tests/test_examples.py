@@ -93,10 +93,11 @@ def _protocol() -> ModuleType:
 
 
 @pytest.fixture(scope="module")
-def runs(data_root: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[dict, str]]:
-    """Each example's summary.json and printed output (one cache shared by both runs)."""
+def runs(data_root: Path, tmp_path_factory: pytest.TempPathFactory,
+         real_data_cache: Path) -> dict[str, tuple[dict, str]]:
+    """Each example's summary.json and printed output (one cache shared by both runs and table1's)."""
     tmp = tmp_path_factory.mktemp("examples")
-    env = {**os.environ, "WILOC_CACHE": str(tmp / "cache"), "COLUMNS": "200"}
+    env = {**os.environ, "WILOC_CACHE": str(real_data_cache), "COLUMNS": "200"}
     done = {}
     for name in EXAMPLES:
         out = tmp / name
@@ -134,13 +135,6 @@ def test_results_doc_quotes_the_examples(runs: dict[str, tuple[dict, str]], name
     assert_quotes(quoted, tables, f"run examples/{name}.py --update-docs")
 
 
-@pytest.fixture(scope="module")
-def local_features_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A cache private to the examples that train vocabularies (the same ones: each Gardens Point
-    query's, on the other query), so that the second reuses the first's."""
-    return tmp_path_factory.mktemp("vocabularies") / "cache"
-
-
 def _run_example(name: str, data_root: Path, tmp_path_factory: pytest.TempPathFactory,
                  cache: Path) -> tuple[dict, str]:
     """examples/NAME.py's summary.json and printed output, on ``cache``."""
@@ -166,8 +160,8 @@ def _example(name: str) -> ModuleType:
 
 
 @pytest.fixture(scope="module")
-def table1(data_root: Path, tmp_path_factory: pytest.TempPathFactory, local_features_cache: Path) -> tuple[dict, str]:
-    return _run_example("table1", data_root, tmp_path_factory, local_features_cache)
+def table1(data_root: Path, tmp_path_factory: pytest.TempPathFactory, real_data_cache: Path) -> tuple[dict, str]:
+    return _run_example("table1", data_root, tmp_path_factory, real_data_cache)
 
 
 @pytest.mark.realdata
@@ -189,8 +183,8 @@ def test_table1_trains_vocabularies_on_the_other_query_and_the_doc_quotes_it(tab
 @pytest.mark.realdata
 @pytest.mark.slow  # the example runs for minutes
 def test_loop_closure_runs_each_method_on_each_loop_and_the_doc_quotes_it(
-        data_root: Path, tmp_path_factory: pytest.TempPathFactory, local_features_cache: Path) -> None:
-    summary, stdout = _run_example("loop_closure", data_root, tmp_path_factory, local_features_cache)
+        data_root: Path, tmp_path_factory: pytest.TempPathFactory, real_data_cache: Path) -> None:
+    summary, stdout = _run_example("loop_closure", data_root, tmp_path_factory, real_data_cache)
     module = _example("loop_closure")
     assert {(row["label"], row["loop"]) for row in summary["table"]} == \
         {(label, loop) for label, _, _ in module.RUNS for loop in module.LOOPS}

@@ -254,10 +254,12 @@ def test_a_query_or_map_of_images_too_small_for_local_features_is_warned_of(setu
 
 @pytest.mark.realdata
 @pytest.mark.slow
-def test_catgraph_on_fabmap_evidence_is_calibrated_on_gardens_point(data_root: Path, tmp_path: Path) -> None:
-    """The acceptance of a probability: vocabulary from night_right, day_left against day_right."""
+def test_catgraph_on_fabmap_evidence_is_calibrated_on_gardens_point(data_root: Path,
+                                                                    real_data_cache: Path) -> None:
+    """The acceptance of a probability: vocabulary from night_right, day_left against day_right
+    (the vocabulary and descriptors examples/table1.py makes too: the cache it shares with it)."""
     gp = data_root / "gardens-point-walking"
-    cache = Cache(tmp_path / "cache")
+    cache = Cache(real_data_cache)
     report = api.vocabulary([gp / "night_right"], cache=cache)
     assert report.vocabulary.too_few_words() is None
     run = api.localize(gp / "day_left", reference=gp / "day_right", descriptor="bow",

@@ -34,11 +34,6 @@ for path in sorted(src.iterdir(), key=lambda p: p.name):
 """
 
 
-@pytest.fixture(scope="module")
-def route(tmp_path_factory: pytest.TempPathFactory) -> demo.DemoRoute:
-    return demo.make_demo_route(tmp_path_factory.mktemp("route"))
-
-
 def _rows(path: Path) -> pd.DataFrame:
     return pd.read_csv(path, comment="#", dtype=str, keep_default_na=False)
 
@@ -65,14 +60,14 @@ def test_watch_hands_out_stable_files_in_natural_order(tmp_path: Path) -> None:
     assert watch.poll() == []
 
 
-def test_an_undecodable_frame_is_retried_then_left_out(route: demo.DemoRoute, tmp_path: Path,
+def test_an_undecodable_frame_is_retried_then_left_out(demo_route: demo.DemoRoute, tmp_path: Path,
                                                        cache_dir: Path) -> None:
-    good = sorted(route.queries[0].iterdir())[:3]
+    good = sorted(demo_route.queries[0].iterdir())[:3]
     for path in good:
         (tmp_path / path.name).write_bytes(path.read_bytes())
     (tmp_path / "frame001.jpg").write_bytes(good[1].read_bytes()[:500])  # truncated for good
     now = [0.0]
-    events = list(follow(Localizer(route.reference, method="threshold"), FolderWatch(tmp_path), idle=1.0, poll=0.5,
+    events = list(follow(Localizer(demo_route.reference, method="threshold"), FolderWatch(tmp_path), idle=1.0, poll=0.5,
                          clock=lambda: now[0], sleep=lambda s: now.__setitem__(0, now[0] + s)))
     skipped = [e for e in events if isinstance(e, Skipped)]
     assert [e.frame for e in events if not isinstance(e, Skipped)] == [good[0].name, good[2].name]
@@ -81,13 +76,13 @@ def test_an_undecodable_frame_is_retried_then_left_out(route: demo.DemoRoute, tm
 
 
 @pytest.mark.parametrize("name", ["frame001.jpg", "frame001.png"])
-def test_a_frame_whose_writer_pauses_halfway_is_waited_for(route: demo.DemoRoute, name: str, tmp_path: Path,
+def test_a_frame_whose_writer_pauses_halfway_is_waited_for(demo_route: demo.DemoRoute, name: str, tmp_path: Path,
                                                            cache_dir: Path) -> None:
     """Half a file, unchanged over several polls, reads as cut short: it is retried, not left out,
     and decided once the writer finishes it (within :data:`SETTLE_SECONDS`)."""
     import cv2
 
-    frames = sorted(route.queries[0].iterdir())[:3]
+    frames = sorted(demo_route.queries[0].iterdir())[:3]
     for path in (frames[0], frames[2]):
         (tmp_path / path.name).write_bytes(path.read_bytes())
     whole = cv2.imencode(Path(name).suffix, cv2.imread(str(frames[1])))[1].tobytes()
@@ -100,7 +95,7 @@ def test_a_frame_whose_writer_pauses_halfway_is_waited_for(route: demo.DemoRoute
             (tmp_path / name).write_bytes(whole)  # the writer goes on
 
     decided = {}  # frame -> when it was decided
-    for event in follow(Localizer(route.reference, method="threshold"), FolderWatch(tmp_path), idle=1.0, poll=0.2,
+    for event in follow(Localizer(demo_route.reference, method="threshold"), FolderWatch(tmp_path), idle=1.0, poll=0.2,
                         clock=lambda: now[0], sleep=sleep):
         assert not isinstance(event, Skipped), event
         decided[event.frame] = now[0]
@@ -139,8 +134,9 @@ def _killed_and_resumed(query: Path, reference: Path, method: str, tmp_path: Pat
 
 @pytest.mark.parametrize("method", ["online", "catgraph"])
 def test_a_filling_folder_gives_the_batch_rows_and_a_killed_follower_resumes(
-        route: demo.DemoRoute, method: str, tmp_path: Path, cache_dir: Path) -> None:
-    _killed_and_resumed(route.queries[2], route.reference, method, tmp_path)  # the detour: a stretch off the map
+        demo_route: demo.DemoRoute, method: str, tmp_path: Path, cache_dir: Path) -> None:
+    # the detour: a stretch off the map
+    _killed_and_resumed(demo_route.queries[2], demo_route.reference, method, tmp_path)
 
 
 @pytest.mark.realdata
@@ -151,21 +147,22 @@ def test_gardens_point_follower_killed_halfway_resumes_identically(data_root: Pa
     _killed_and_resumed(gp / "day_left", gp / "day_right", method, tmp_path)
 
 
-def test_follow_refuses_what_it_cannot_follow(route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
+def test_follow_refuses_what_it_cannot_follow(demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
     from typer.testing import CliRunner
 
     from wiloc.cli import app
     runner = CliRunner()
-    result = runner.invoke(app, ["localize", str(route.queries[0]), str(route.queries[1]), "--map",
-                                 str(route.reference), "--follow"])
+    result = runner.invoke(app, ["localize", str(demo_route.queries[0]), str(demo_route.queries[1]), "--map",
+                                 str(demo_route.reference), "--follow"])
     assert result.exit_code == 2 and "--follow takes one query folder" in result.stderr
-    result = runner.invoke(app, ["localize", str(route.queries[0]), "--map", str(route.reference), "--idle", "3"])
+    result = runner.invoke(app, ["localize", str(demo_route.queries[0]), "--map", str(demo_route.reference),
+                                 "--idle", "3"])
     assert result.exit_code == 2 and "--idle goes with --follow" in result.stderr
     out = tmp_path / "r.csv"
-    first = runner.invoke(app, ["localize", str(route.queries[0]), "--map", str(route.reference), "--follow",
+    first = runner.invoke(app, ["localize", str(demo_route.queries[0]), "--map", str(demo_route.reference), "--follow",
                                 "--idle", "0.5", "--out", str(out)])
     assert first.exit_code == 0, first.output
-    other = runner.invoke(app, ["localize", str(route.queries[0]), "--map", str(route.reference), "--follow",
+    other = runner.invoke(app, ["localize", str(demo_route.queries[0]), "--map", str(demo_route.reference), "--follow",
                                 "--idle", "0.5", "--out", str(out), "--method", "threshold"])
     assert other.exit_code == 1 and "holds a run with other settings" in other.stderr
 

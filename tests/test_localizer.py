@@ -22,11 +22,6 @@ from wiloc.methods.registry import METHODS
 FIELDS = ("match_name", "difference", "confidence", "stage")
 
 
-@pytest.fixture(scope="module")
-def route(tmp_path_factory: pytest.TempPathFactory) -> demo.DemoRoute:
-    return demo.make_demo_route(tmp_path_factory.mktemp("route"))
-
-
 def _batch_rows(path: Path) -> pd.DataFrame:
     return pd.read_csv(path, comment="#", dtype=str, keep_default_na=False)
 
@@ -46,21 +41,21 @@ def _assert_same(batch: pd.DataFrame, streamed: pd.DataFrame) -> None:
         assert batch[column].tolist() == streamed[column].tolist(), column
 
 
-def _training(route: demo.DemoRoute) -> api.Training:
-    return api.Training(route.queries[1], route.reference, route.truth())
+def _training(demo_route: demo.DemoRoute) -> api.Training:
+    return api.Training(demo_route.queries[1], demo_route.reference, demo_route.truth())
 
 
 DIFFERENCE_METHODS = sorted(m for m, cls in METHODS.items() if "differences" in cls.rows)  # fabmap: its own tests
 
 
 @pytest.mark.parametrize("method", DIFFERENCE_METHODS)
-def test_streaming_equals_batch_in_map_mode(route: demo.DemoRoute, method: str, tmp_path: Path) -> None:
+def test_streaming_equals_batch_in_map_mode(demo_route: demo.DemoRoute, method: str, tmp_path: Path) -> None:
     cache = Cache(tmp_path / "cache")
-    query = route.queries[0]
-    training = _training(route) if method == "trained" else None
-    run = api.localize(query, reference=route.reference, method=method, training=training,
+    query = demo_route.queries[0]
+    training = _training(demo_route) if method == "trained" else None
+    run = api.localize(query, reference=demo_route.reference, method=method, training=training,
                        out=tmp_path / "batch.csv", cache=cache)
-    loc = Localizer(route.reference, method=method, training=training, cache=cache)
+    loc = Localizer(demo_route.reference, method=method, training=training, cache=cache)
     streamed = _stream(loc, sorted(query.iterdir()))
     _assert_same(_batch_rows(run.path), streamed)
     assert loc.frames == len(streamed)
@@ -110,13 +105,13 @@ print(json.dumps([[d.frame, d.match_name, repr(d.confidence), repr(d.new_place),
 
 
 @pytest.mark.parametrize("method", ["online", "catgraph"])
-def test_save_load_in_a_new_process_continues_identically(route: demo.DemoRoute, method: str,
+def test_save_load_in_a_new_process_continues_identically(demo_route: demo.DemoRoute, method: str,
                                                           tmp_path: Path, cache_dir: Path) -> None:
-    frames = sorted(route.queries[0].iterdir())
-    whole = Localizer(route.reference, method=method, seed=5) if method == "catgraph" else \
-        Localizer(route.reference, method=method)
+    frames = sorted(demo_route.queries[0].iterdir())
+    whole = Localizer(demo_route.reference, method=method, seed=5) if method == "catgraph" else \
+        Localizer(demo_route.reference, method=method)
     expected = [whole.observe(f) for f in frames]
-    first = Localizer(route.reference, method=method, **({"seed": 5} if method == "catgraph" else {}))
+    first = Localizer(demo_route.reference, method=method, **({"seed": 5} if method == "catgraph" else {}))
     for f in frames[:100]:
         first.observe(f)
     first.save(tmp_path / "state.npz")
@@ -143,9 +138,9 @@ def test_sequence_mode_state_round_trips(tmp_path: Path) -> None:
     assert [again.observe(r, name=n) for r, n in zip(rows[80:], names[80:])] == expected[80:]
 
 
-def test_observe_takes_images_files_and_descriptors(route: demo.DemoRoute, cache_dir: Path) -> None:
-    loc = Localizer(route.reference, method="threshold")
-    path = sorted(route.queries[0].iterdir())[10]
+def test_observe_takes_images_files_and_descriptors(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
+    loc = Localizer(demo_route.reference, method="threshold")
+    path = sorted(demo_route.queries[0].iterdir())[10]
     by_file = loc.observe(path)
     gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     by_array = loc.observe(gray, name="gray")
@@ -159,29 +154,29 @@ def test_observe_takes_images_files_and_descriptors(route: demo.DemoRoute, cache
     assert wiloc.Localizer is Localizer
 
 
-def test_bad_setup_names_the_parameter(route: demo.DemoRoute, cache_dir: Path) -> None:
+def test_bad_setup_names_the_parameter(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
     with pytest.raises(UsageError) as err:
         Localizer(None, method="catgraph")
     assert err.value.parameter == "reference"
     with pytest.raises(ParameterError) as err:
-        Localizer(route.reference, method="online", bin=50)
+        Localizer(demo_route.reference, method="online", bin=50)
     assert err.value.parameter == "bin" and "not a parameter of method 'online'" in err.value.problem
     with pytest.raises(ParameterError) as err:
-        Localizer(route.reference, method="nope")
+        Localizer(demo_route.reference, method="nope")
     assert err.value.parameter == "method"
     with pytest.raises(UsageError) as err:
-        Localizer(route.reference, method="online", map_odometry=route.positions / "reference.csv")
+        Localizer(demo_route.reference, method="online", map_odometry=demo_route.positions / "reference.csv")
     assert err.value.parameter == "map_odometry"
     with pytest.raises(ParameterError, match="normaliser"):
         Localizer(None, descriptor="gist", method="threshold")
 
 
-def test_a_changed_map_is_refused_on_load(route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
+def test_a_changed_map_is_refused_on_load(demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
     import shutil
     map_copy = tmp_path / "map"
-    shutil.copytree(route.reference, map_copy)
+    shutil.copytree(demo_route.reference, map_copy)
     loc = Localizer(map_copy, method="threshold")
-    loc.observe(sorted(route.queries[0].iterdir())[0])
+    loc.observe(sorted(demo_route.queries[0].iterdir())[0])
     loc.save(tmp_path / "s.npz")
     victim = sorted(map_copy.iterdir())[3]
     cv2.imwrite(str(victim), 255 - cv2.imread(str(victim)))
@@ -195,11 +190,12 @@ def test_a_changed_map_is_refused_on_load(route: demo.DemoRoute, tmp_path: Path,
 @pytest.mark.realdata
 @pytest.mark.parametrize("method", DIFFERENCE_METHODS)
 def test_gardens_point_streamed_frame_by_frame_equals_batch(data_root: Path, method: str, tmp_path: Path,
-                                                             cache_dir: Path) -> None:
+                                                             real_data_cache: Path, cache_dir: Path) -> None:
     gp = data_root / "gardens-point-walking"
+    cache = Cache(real_data_cache)
     training = api.Training(gp / "night_right", gp / "day_right", api.TruthSource(tolerance=2)) \
         if method == "trained" else None
     run = api.localize(gp / "day_left", reference=gp / "day_right", method=method, training=training,
-                       out=tmp_path / "batch.csv")
-    loc = Localizer(gp / "day_right", method=method, training=training)
+                       out=tmp_path / "batch.csv", cache=cache)
+    loc = Localizer(gp / "day_right", method=method, training=training, cache=cache)
     _assert_same(_batch_rows(run.path), _stream(loc, sorted((gp / "day_left").glob("*.jpg"))))

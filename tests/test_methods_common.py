@@ -199,14 +199,14 @@ def test_state_restores_identical_later_decisions(name: str) -> None:
 
 
 @pytest.mark.usefixtures("with_ratio")
-def test_the_example_method_runs_through_localize_and_the_localizer(tmp_path: Path) -> None:
-    route = demo.make_demo_route(tmp_path / "route")
+def test_the_example_method_runs_through_localize_and_the_localizer(demo_route: demo.DemoRoute,
+                                                                    tmp_path: Path) -> None:
     cache = Cache(tmp_path / "cache")
-    run = api.localize(route.queries[0], reference=route.reference, method="ratio", method_params={"window": 3},
-                       out=tmp_path / "ratio.csv", cache=cache)
+    run = api.localize(demo_route.queries[0], reference=demo_route.reference, method="ratio",
+                       method_params={"window": 3}, out=tmp_path / "ratio.csv", cache=cache)
     assert run.results.frames.columns.tolist()[-2:] == ["second", "ranking"]  # a new method ranks by default
     assert run.results.header.params["window"] == 3
-    loc = Localizer(route.reference, method="ratio", window=3, cache=cache)
-    first = loc.observe(sorted(route.queries[0].iterdir())[0])
+    loc = Localizer(demo_route.reference, method="ratio", window=3, cache=cache)
+    first = loc.observe(sorted(demo_route.queries[0].iterdir())[0])
     assert first.match_name == run.results.frames["match"].iloc[0]
     assert f"{first.confidence:.9g}" == f"{run.decisions.confidence[0]:.9g}"

@@ -11,6 +11,7 @@ from helpers import places, write_traversal
 from typer.testing import CliRunner
 
 from wiloc import api
+from wiloc.cache.store import Cache
 from wiloc.candidates import RANKED, best_candidates
 from wiloc.cli import app
 from wiloc.decisions import Decisions
@@ -184,9 +185,10 @@ def test_recall_at_outside_the_ranking_is_a_usage_error(runs: dict[str, Path], t
 
 
 @pytest.mark.realdata
-def test_recall_at_k_on_gardens_point(data_root: Path, cache_dir: Path) -> None:
+def test_recall_at_k_on_gardens_point(data_root: Path, real_data_cache: Path, cache_dir: Path) -> None:
     folder = data_root / "gardens-point-walking"
-    run = api.localize(folder / "day_left", reference=folder / "day_right", descriptor="sad", method="online")
+    run = api.localize(folder / "day_left", reference=folder / "day_right", descriptor="sad", method="online",
+                       cache=Cache(real_data_cache))
     evaluation = api.evaluate(run, TruthSource())
     s = evaluation.summary
     assert run.results.ranking is not None and run.results.ranking.shape[1] == RANKED

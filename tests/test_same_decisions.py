@@ -34,8 +34,8 @@ pytestmark = pytest.mark.realdata
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory: pytest.TempPathFactory) -> Cache:
-    return Cache(tmp_path_factory.mktemp("cache"))
+def cache(real_data_cache: Path) -> Cache:
+    return Cache(real_data_cache)
 
 
 def _folders(data_root: Path, query: str) -> tuple[Path, Path, Path]:

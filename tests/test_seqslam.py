@@ -195,14 +195,16 @@ def test_run_on_rows_records_the_velocities_searched() -> None:
     ("gardens-point-walking", "day_left", "day_right", 0.33),
     ("nordland-summer-winter-64x32", "winter", "summer", 0.65),
 ])
-def test_recall_at_1_on_real_data(data_root: Path, cache_dir: Path, dataset: str, query: str, reference: str,
-                                  least: float) -> None:
+def test_recall_at_1_on_real_data(data_root: Path, real_data_cache: Path, cache_dir: Path, dataset: str, query: str,
+                                  reference: str, least: float) -> None:
     """SeqSLAM's defaults with ``sad``, tolerance +-2 aligned frames. Measured R@1: Gardens Point
     day_left 0.375 (single frames, ``threshold``: 0.420: the +-5-frame contrast enhancement is
     narrower than this walk's valleys), Nordland winter 0.707 (single frames: 0.115)."""
     from wiloc import api
+    from wiloc.cache.store import Cache
 
     root = data_root / dataset
-    run = api.localize(root / query, reference=root / reference, descriptor="sad", method="seqslam")
+    run = api.localize(root / query, reference=root / reference, descriptor="sad", method="seqslam",
+                       cache=Cache(real_data_cache))
     summary = api.evaluate(run, api.TruthSource(tolerance=2)).summary.as_dict()
     assert summary["recall_at_1"] >= least

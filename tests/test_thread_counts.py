@@ -30,30 +30,25 @@ _NUMPY_AVX512 = [f for f in _multiarray_umath.__cpu_dispatch__
                  if (f.startswith("AVX512") or f == "X86_V4") and _multiarray_umath.__cpu_features__.get(f)]
 
 
-@pytest.fixture(scope="module")
-def route(tmp_path_factory: pytest.TempPathFactory) -> demo.DemoRoute:
-    return demo.make_demo_route(tmp_path_factory.mktemp("route"))
-
-
-def _localize(route: demo.DemoRoute, method: str, jobs: int, run_env: dict[str, str], out: Path) -> pd.DataFrame:
+def _localize(demo_route: demo.DemoRoute, method: str, jobs: int, run_env: dict[str, str], out: Path) -> pd.DataFrame:
     """``wiloc localize`` of the demo route's first query (``sad``) in a subprocess with ``run_env``
     added to the environment, on its own cache beside ``out``."""
     env = {**os.environ, **run_env, "WILOC_CACHE": str(out.with_suffix(".cache"))}
-    args = ["localize", str(route.queries[0]), "--map", str(route.reference), "--method", method,
+    args = ["localize", str(demo_route.queries[0]), "--map", str(demo_route.reference), "--method", method,
             "--jobs", str(jobs), "--out", str(out)]
     proc = subprocess.run([sys.executable, "-c", CLI, *args], env=env, capture_output=True, text=True, timeout=600,
                           check=False)
     assert proc.returncode == 0, proc.stderr[-2000:]
     rows = pd.read_csv(out, comment="#", dtype=str, keep_default_na=False)
-    assert len(rows) == len(list(route.queries[0].iterdir()))
+    assert len(rows) == len(list(demo_route.queries[0].iterdir()))
     return rows
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("method", ["catgraph", "online"])
-def test_one_thread_and_two_decide_alike(route: demo.DemoRoute, method: str, tmp_path: Path) -> None:
+def test_one_thread_and_two_decide_alike(demo_route: demo.DemoRoute, method: str, tmp_path: Path) -> None:
     with ThreadPoolExecutor(2) as pool:
-        one, two = pool.map(lambda n: _localize(route, method, n, dict.fromkeys(THREAD_VARIABLES, str(n)),
+        one, two = pool.map(lambda n: _localize(demo_route, method, n, dict.fromkeys(THREAD_VARIABLES, str(n)),
                                                 tmp_path / f"{n}.csv"), (1, 2))
     pd.testing.assert_frame_equal(one, two)
 
@@ -61,10 +56,10 @@ def test_one_thread_and_two_decide_alike(route: demo.DemoRoute, method: str, tmp
 @pytest.mark.slow
 @pytest.mark.skipif(not _NUMPY_AVX512, reason="numpy has no AVX-512 loops to turn off on this CPU")
 @pytest.mark.parametrize("method", ["catgraph", "online"])
-def test_numpy_s_avx512_loops_on_and_off_decide_alike(route: demo.DemoRoute, method: str, tmp_path: Path) -> None:
+def test_numpy_s_avx512_loops_on_and_off_decide_alike(demo_route: demo.DemoRoute, method: str, tmp_path: Path) -> None:
     clean = {"NPY_DISABLE_CPU_FEATURES": ""}
     off = {"NPY_DISABLE_CPU_FEATURES": " ".join(_NUMPY_AVX512)}
     with ThreadPoolExecutor(2) as pool:
-        on_, off_ = pool.map(lambda e: _localize(route, method, 1, e[1], tmp_path / f"{e[0]}.csv"),
+        on_, off_ = pool.map(lambda e: _localize(demo_route, method, 1, e[1], tmp_path / f"{e[0]}.csv"),
                              (("on", clean), ("off", off)))
     pd.testing.assert_frame_equal(on_, off_)

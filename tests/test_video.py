@@ -323,22 +323,35 @@ def test_cli_describe_samples_videos(tmp_path: Path, cache_dir: Path) -> None:
     assert f"--every/--fps/--start/--stop: applies to video files and ROS bags only; {folder} is neither" in alone.output
 
 
+@pytest.fixture(scope="module")
+def nordland(data_root: Path, tmp_path_factory: pytest.TempPathFactory,
+             real_data_cache: Path) -> tuple[dict[str, Path], Cache]:
+    """Each Nordland season written once as a lossless video of its 3576 frames, and the cache the
+    tests share (the session's real-data one: the folders' descriptors and differences are in it
+    when other tests made them; the second test describes nothing the first did not)."""
+    root = data_root / "nordland-summer-winter-64x32"
+    tmp = tmp_path_factory.mktemp("nordland")
+    videos = {}
+    for season in ("summer", "winter"):
+        videos[season] = tmp / f"{season}.mkv"
+        writer = cv2.VideoWriter(str(videos[season]), cv2.VideoWriter_fourcc(*"FFV1"), 10.0, (64, 32))  # lossless
+        for path in list_traversal(root / season).frames:
+            writer.write(cv2.cvtColor(read_gray(path), cv2.COLOR_GRAY2BGR))
+        writer.release()
+    return videos, Cache(real_data_cache)
+
+
 @pytest.mark.realdata
 @pytest.mark.parametrize("season", ["summer", "winter"])
-def test_nordland_as_a_lossless_video_gives_the_folder_descriptors(data_root: Path, tmp_path: Path,
-                                                                  season: str) -> None:
+def test_nordland_as_a_lossless_video_gives_the_folder_descriptors(data_root: Path, season: str,
+                                                                  nordland: tuple[dict[str, Path], Cache]) -> None:
     from wiloc.descriptors.registry import get_descriptor
 
+    videos, cache = nordland
     folder = data_root / "nordland-summer-winter-64x32" / season
     frames = list_traversal(folder).frames
-    video = tmp_path / f"{season}.mkv"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 10.0, (64, 32))  # lossless
-    for path in frames:
-        writer.write(cv2.cvtColor(read_gray(path), cv2.COLOR_GRAY2BGR))
-    writer.release()
     spec = get_descriptor("sad")
-    cache = Cache(tmp_path / "cache")
-    from_video = describe_video(video, spec, cache)
+    from_video = describe_video(videos[season], spec, cache)
     from_folder = describe_folder(folder, spec, cache, jobs=1)
     assert from_video.failed == [] and from_video.entry.names == names(range(len(frames)))
     assert from_folder.entry.names == [p.name for p in frames]
@@ -347,18 +360,12 @@ def test_nordland_as_a_lossless_video_gives_the_folder_descriptors(data_root: Pa
 
 @pytest.mark.realdata
 @pytest.mark.parametrize("method", ["online", "catgraph"])
-def test_nordland_videos_localize_as_the_folders_do(data_root: Path, tmp_path: Path, method: str) -> None:
+def test_nordland_videos_localize_as_the_folders_do(data_root: Path, method: str,
+                                                    nordland: tuple[dict[str, Path], Cache]) -> None:
     from wiloc import api
 
     root = data_root / "nordland-summer-winter-64x32"
-    videos = {}
-    for season in ("summer", "winter"):
-        videos[season] = tmp_path / f"{season}.mkv"
-        writer = cv2.VideoWriter(str(videos[season]), cv2.VideoWriter_fourcc(*"FFV1"), 10.0, (64, 32))
-        for path in list_traversal(root / season).frames:
-            writer.write(cv2.cvtColor(read_gray(path), cv2.COLOR_GRAY2BGR))
-        writer.release()
-    cache = Cache(tmp_path / "cache")
+    videos, cache = nordland
     on_video = api.localize(videos["winter"], reference=videos["summer"], method=method, cache=cache)
     on_folder = api.localize(root / "winter", reference=root / "summer", method=method, cache=cache)
     for got, want in [(on_video.decisions.match, on_folder.decisions.match),
@@ -368,29 +375,31 @@ def test_nordland_videos_localize_as_the_folders_do(data_root: Path, tmp_path: P
     assert on_video.results.header.descriptor == "sad" and on_video.results.header.sampling["every"] == 1
 
 
-def test_a_video_against_a_folder_of_its_frames_samples_the_video_and_aligns_by_position(tmp_path: Path) -> None:
+def test_a_video_against_a_folder_of_its_frames_samples_the_video_and_aligns_by_position(tmp_path: Path,
+                                                                                       cache_dir: Path) -> None:
     """Sampling options apply to the video side (the folder map takes every frame); the results
     file keeps the video's suffix in its name, apart from a folder run of the same name; aligned
-    ground truth matches the video's frames (named by index) with the folder's by position."""
+    ground truth matches the video's frames (named by index) with the folder's by position. In
+    this process: the error lines are only searched, FFmpeg's log lines would not matter."""
     video = write_video(tmp_path / "route.mkv", 30, fourcc="FFV1")
     folder = tmp_path / "route"
     folder.mkdir()
     for i, gray in enumerate(decoded_gray(video)):
         cv2.imwrite(str(folder / f"Image{i:03d}.png"), gray)
-    cache, out = tmp_path / "cache", tmp_path / "runs"
-    run = _cli("localize", str(video), "--map", str(folder), "--method", "catgraph", "--out", str(out), cache=cache)
-    assert run.returncode == 0, run.stderr
+    runner, out = CliRunner(env={"COLUMNS": "200"}), tmp_path / "runs"
+    run = runner.invoke(app, ["localize", str(video), "--map", str(folder), "--method", "catgraph", "--out", str(out)])
+    assert run.exit_code == 0, run.output
     written = out / "route-mkv-sad-catgraph.csv"
     assert written.is_file() and api.results_name(folder, "catgraph", "sad") == "route-sad-catgraph.csv"
-    by_name = _cli("evaluate", str(written), "--gt", "aligned", cache=cache)
-    assert by_name.returncode == 1 and "aligned:index" in by_name.stderr
-    by_index = _cli("evaluate", str(written), "--gt", "aligned:index", "--json", cache=cache)
-    assert by_index.returncode == 0, by_index.stderr
+    by_name = runner.invoke(app, ["evaluate", str(written), "--gt", "aligned"])
+    assert by_name.exit_code == 1 and "aligned:index" in by_name.stderr
+    by_index = runner.invoke(app, ["evaluate", str(written), "--gt", "aligned:index", "--json"])
+    assert by_index.exit_code == 0, by_index.output
     [row] = json.loads(by_index.stdout)["runs"]
     assert row["frames"] == 30 and row["recall_at_1"] >= 0.9
-    sampled = _cli("localize", str(video), "--map", str(folder), "--every", "2", "--out", str(tmp_path / "every2.csv"),
-                   "--json", cache=cache)
-    assert sampled.returncode == 0, sampled.stderr
+    sampled = runner.invoke(app, ["localize", str(video), "--map", str(folder), "--every", "2",
+                                  "--out", str(tmp_path / "every2.csv"), "--json"])
+    assert sampled.exit_code == 0, sampled.output
     assert json.loads(sampled.stdout)["runs"][0]["frames"] == 15
-    refused = _cli("localize", str(folder), "--map", str(folder), "--every", "2", cache=cache)
-    assert refused.returncode == 2 and "applies to video files and ROS bags only" in refused.stderr
+    refused = runner.invoke(app, ["localize", str(folder), "--map", str(folder), "--every", "2"])
+    assert refused.exit_code == 2 and "applies to video files and ROS bags only" in refused.stderr
