@@ -24,19 +24,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from wiloc.bow.features import DTYPES, WIDTHS, decode_size, extract_features
+from wiloc.bow.vocabulary import (FORMAT_VERSION, Vocabulary, VocabularyParams, read_vocabulary, train_vocabulary,
+                                  write_vocabulary)
 from wiloc.cache.entries import EntryHeader, FrameRecord
 from wiloc.cache.store import Cache, Journal, scan_journal
 from wiloc.errors import FrameError, WilocError
 from wiloc.reprs import short_repr
 from wiloc.sources.frames import Fingerprint, fingerprint, list_traversal, read_gray
-from wiloc.bow.vocabulary import (
-                                  FORMAT_VERSION,
-                                  Vocabulary,
-                                  VocabularyParams,
-                                  read_vocabulary,
-                                  train_vocabulary,
-                                  write_vocabulary,
-                                  )
 
 VOCABULARIES = "vocabularies"
 Progress = Callable[[int, int], None]

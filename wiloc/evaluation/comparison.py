@@ -18,13 +18,13 @@ import pandas as pd
 
 from wiloc.errors import ParameterError
 from wiloc.evaluation.groundtruth import Truth
-from wiloc.evaluation.truth_source import TruthSource
-from wiloc.labels import short_names
 from wiloc.evaluation.metrics import (RANKED_KS, PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
                                       precision_at_thresholds, summarize)
 from wiloc.evaluation.reliability import (DEFAULT_CUTS, NEW_PLACE_KEYS, Calibration, ReliabilityBins,
                                           summarize_calibration, summarize_new_place)
 from wiloc.evaluation.results import Results
+from wiloc.evaluation.truth_source import TruthSource
+from wiloc.labels import short_names
 from wiloc.reprs import short_repr
 
 
