@@ -212,6 +212,16 @@ def test_cut_099_keeps_most_of_the_recall_at_99_percent_precision(runs: dict, qu
 
 
 @pytest.mark.realdata
+@pytest.mark.parametrize("query, descriptor", [(q, d) for _, q, _, d in TRAVERSALS])
+def test_the_first_frames_of_a_run_are_not_sure_of_a_wrong_place(runs: dict, query: str, descriptor: str) -> None:
+    """Before the filter has seen enough, its confidence says so: among the first 20 frames, those
+    at confidence 0.9 or more are right (Nordland's first 16 winter frames are one image repeated)."""
+    e = runs[("catgraph", query, descriptor)]
+    sure = e.confidence[:20] >= 0.9
+    assert e.correct[:20][sure].sum() >= 0.9 * sure.sum(), (e.confidence[:20], e.correct[:20])
+
+
+@pytest.mark.realdata
 def test_one_threshold_across_environments_keeps_each_traversals_recall(runs: dict) -> None:
     from wiloc.evaluation.metrics import global_threshold
     evaluations = [runs[("catgraph", q, d)] for _, q, _, d in TRAVERSALS]

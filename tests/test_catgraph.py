@@ -127,6 +127,37 @@ def test_detour_raises_new_place_and_relocalizes() -> None:
     assert np.median(dec.confidence[detour]) < np.median(dec.confidence[30:80])
 
 
+def test_an_image_repeated_exactly_is_evidence_once() -> None:
+    # A camera standing still on one place: 16 frames. Nearly repeated images (each with its own
+    # noise) are evidence each time, and the track becomes sure; the same image repeated exactly
+    # holds nothing the first did not, so nothing is learned from it and nothing grows surer.
+    rng = np.random.default_rng(5)
+    truth = np.r_[np.full(16, 100.0), np.arange(101.0, 200.0)]
+    nearly, ref = _rows(truth, N_REF, rng), _ref_self(rng)
+    exactly = nearly.copy()
+    exactly[1:16] = exactly[0]
+    standing = localize_catgraph(iter(nearly), ref, truth.size)
+    frozen = localize_catgraph(iter(exactly), ref, truth.size)
+    assert standing.confidence[15] >= 0.9 and standing.columns["new_place"][15] < standing.columns["new_place"][0]
+    np.testing.assert_array_equal(frozen.columns["new_place"][:16], frozen.columns["new_place"][0])
+    assert frozen.confidence[:16].max() < 0.6
+    assert _hits(frozen.match[40:], truth[40:]).mean() >= 0.9
+
+
+def test_a_stop_on_one_repeated_image_is_followed_whichever_it_was() -> None:
+    # An image repeated for 20 frames: the query stood still (a stop), or moved on while its
+    # camera repeated the image (a frozen video). Either way the track is right 10 frames after it.
+    rng = np.random.default_rng(6)
+    ref = _ref_self(rng)
+    moving = np.arange(20.0, 220.0)
+    stop = np.r_[np.arange(20.0, 80.0), np.full(20, 80.0), np.arange(81.0, 201.0)]
+    for truth in (stop, moving):
+        rows = _rows(truth, N_REF, rng)
+        rows[61:80] = rows[60]
+        after = slice(90, None)
+        assert _hits(localize_catgraph(iter(rows), ref, truth.size).match[after], truth[after]).mean() >= 0.9
+
+
 def test_same_seed_same_decisions_other_seed_differs() -> None:
     rng = np.random.default_rng(4)
     truth = np.arange(100.0)

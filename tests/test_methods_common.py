@@ -98,7 +98,11 @@ def _query_for(method: Method, rng: np.random.Generator) -> np.ndarray:
 
 
 def _query(rng: np.random.Generator) -> np.ndarray:
-    return _rows(np.linspace(5.0, 70.0, 40), 80, rng)
+    """40 frames along the map; frames 17-22 repeat frame 16's image exactly (a frozen camera), so
+    that a state saved at frame 20 is saved within a repeat."""
+    rows = _rows(np.linspace(5.0, 70.0, 40), 80, rng)
+    rows[17:23] = rows[16]
+    return rows
 
 
 def _method(name: str, **params: Any) -> Method:

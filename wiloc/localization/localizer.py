@@ -35,7 +35,7 @@ from wiloc.sources.video import Sampling
 from wiloc.version import __version__
 
 STATE_FORMAT = "wiloc-localizer-state"
-STATE_VERSION = 2  # 2: catgraph ranks FAB-MAP evidence (its likelihood state), particles carry any pace
+STATE_VERSION = 3  # 3: catgraph knows a repeated image (2: it ranks FAB-MAP evidence, particles carry any pace)
 
 
 class Localizer:

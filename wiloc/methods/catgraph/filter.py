@@ -111,6 +111,9 @@ class CatGraphParams(Parameters):
     stretch_close: float = param(0.1, "... and closes when it falls below this.", low=0.0, high=1.0)
     near_duplicate: float = param(0.25, "Map frames closer to their neighbours than this share of the "
                                         "median step count as less evidence (0: off).", low=0.0)
+    repeat_standing: float = param(0.5, "Prior probability that a query standing on one repeated image (the same "
+                                        "row again) stands still, against moving on while its camera repeats "
+                                        "an image.", low=0.0, high=1.0)
 
     def check(self) -> None:
         low, high = self.speed_range
@@ -188,6 +191,8 @@ class CatGraph(Method):
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
         self._odometry = False  # whether any step came with odometry
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
+        self._last: NDArray[np.floating] | None = None  # the last row, to know a repeated image
+        self._standing: NDArray[np.bool_] | None = None  # during a repeat: the particles that stand still
         self._recycle()
 
     def _start_paces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -295,6 +300,9 @@ class CatGraph(Method):
         pre = self.row_ahead(row) if row.shape == (n_nodes,) else None
         if pre is None or not pre.finite:
             raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
+        if not first and self._last is not None and np.array_equal(row, self._last):
+            return self._repeat(row, odometry)
+        self._last, self._standing = row.copy(), None
         contrast = pre.contrast
         u = self._travelled(odometry)
         self._sequence, lowest = self._advance(self._sequence, contrast, u, first)
@@ -309,8 +317,7 @@ class CatGraph(Method):
         if not first:  # motion model: s += v u_k + noise
             if p.speed_noise > 0:
                 speed = np.clip(speed + rng.normal(0.0, p.speed_noise, p.particles), *p.speed_range)
-            sd = np.hypot(p.step_noise * u * np.abs(speed), p.noise_floor * self._spacing)
-            pos = np.clip(pos + speed * u + rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
+            pos = self._moved(pos, speed, u)
         n_reseed = int(round(p.reseed * p.particles))
         kept = np.ones(p.particles, dtype=bool)
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
@@ -328,10 +335,8 @@ class CatGraph(Method):
             float(np.log(max(prior.jump, TINY)) + log_mean_ratio - np.log(max(n_reseed, 1))), log_w, w)
         unexplained.update(log_map, prior.unexplained)
 
-        mode, mass = filter_kernels.posterior_mode(j, a, w, p.mode_window, MODE_TIE, self._own, self._marks,
-                                                   self.frames + 1)
-        p_new = unexplained.new_place
-        unexplained.follow(self.frames, self._odometer, float(nodes[mode]), self._spacing, self.motion_sigma)
+        decision = self._read_out(row, j, a, w)
+        unexplained.follow(self.frames, self._odometer, float(nodes[decision.match]), self._spacing, self.motion_sigma)
         likelihood.learn(w * omega, 1.0 - unexplained.u)
 
         if 1.0 / squares < p.resample_ess * p.particles:
@@ -339,8 +344,40 @@ class CatGraph(Method):
             pos, speed = pos[idx], speed[idx]
             log_w = np.full(p.particles, -np.log(p.particles))
         self._pos, self._speed, self._log_w = pos, speed, log_w
+        return decision
+
+    def _moved(self, pos: NDArray[np.float64], speed: NDArray[np.float64], u: float) -> NDArray[np.float64]:
+        """The motion model: s += v u + noise (sd ``step_noise`` of the step, floored), kept on the map."""
+        p, nodes = self.params, self._nodes
+        sd = np.hypot(p.step_noise * u * np.abs(speed), p.noise_floor * self._spacing)
+        return np.clip(pos + speed * u + self._rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
+
+    def _read_out(self, row: NDArray[np.floating], j: NDArray[np.intp], a: NDArray[np.float64],
+                  w: NDArray[np.float64]) -> Decision:
+        """The decision: the node at the mode of the particle density (weights ``w`` at positions
+        ``j``, ``a``), the confidence its window's mass times 1 - P(new place)."""
+        from wiloc.methods.catgraph import filter_kernels  # numba loads with the first frame, not the command line
+
+        mode, mass = filter_kernels.posterior_mode(j, a, w, self.params.mode_window, MODE_TIE, self._own, self._marks,
+                                                   self.frames + 1)
+        p_new = self._unexplained.new_place
         return Decision(match=mode, difference=float(self._sign * row[mode]), confidence=float(mass * (1.0 - p_new)),
                         stage="track", new_place=p_new, ranking=tuple(posterior_ranking(self._own, mode).tolist()))
+
+    def _repeat(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
+        """A frame whose row repeats the last one exactly: an image repeated, which holds no
+        evidence the last one did not. The query stood still there, or moved on while its camera
+        repeated an image (a frozen video, frames duplicated to another rate): each particle, drawn
+        once per repeat, stands still with probability ``repeat_standing`` or moves on at its pace;
+        weights, the sequence score, the rank model and the unexplained hypothesis stay as they were."""
+        p = self.params
+        if self._standing is None:
+            self._standing = self._rng.random(p.particles) < p.repeat_standing
+        u = self._travelled(odometry)
+        self._odometer += u
+        self._pos = np.where(self._standing, self._pos, self._moved(self._pos, self._speed, u))
+        w = np.exp(self._log_w - self._log_w.max())
+        return self._read_out(row, *locate(self._nodes, self._pos), w / w.sum())
 
     def _reseed(self, weakest: NDArray[np.intp], lowest: NDArray[np.float64], pos: NDArray[np.float64],
                 speed: NDArray[np.float64], first: bool) -> None:
@@ -415,7 +452,9 @@ class CatGraph(Method):
                 "log_w": self._log_w, "sequence": self._sequence.copy(), "own": self._own.copy(),
                 "odometer": self._odometer,
                 "odometry": self._odometry, "likelihood": self._likelihood.state(),
-                "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state}
+                "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state,
+                "last": np.empty(0) if self._last is None else self._last.copy(),
+                "standing": np.empty(0, dtype=bool) if self._standing is None else self._standing.copy()}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
         p = self.params
@@ -441,4 +480,7 @@ class CatGraph(Method):
         self._rng = np.random.default_rng()
         self._rng.bit_generator.state = state["rng"]
         self._shifted = None
+        last, standing = np.asarray(state["last"]), np.asarray(state["standing"], dtype=bool)
+        self._last = last.copy() if last.size else None
+        self._standing = standing.copy() if standing.size else None
         self._recycle()
