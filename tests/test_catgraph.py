@@ -158,6 +158,19 @@ def test_a_stop_on_one_repeated_image_is_followed_whichever_it_was() -> None:
         assert _hits(localize_catgraph(iter(rows), ref, truth.size).match[after], truth[after]).mean() >= 0.9
 
 
+def test_with_odometry_a_repeated_image_moves_as_the_odometry_says() -> None:
+    # A camera frozen for 20 frames while the query drives on: the odometry says it moved, so
+    # every particle moves with it and the decisions follow the query through the frozen stretch,
+    # however likely standing still is without odometry.
+    rng = np.random.default_rng(7)
+    truth = np.arange(20.0, 220.0)
+    rows = _rows(truth, N_REF, rng)
+    rows[61:80] = rows[60]
+    dec = localize_catgraph(iter(rows), _ref_self(rng), truth.size, ref_arclength=np.arange(float(N_REF)),
+                            query_steps=np.r_[0.0, np.diff(truth)], repeat_standing=0.9)
+    assert _hits(dec.match[61:80], truth[61:80]).mean() >= 0.9
+
+
 def test_same_seed_same_decisions_other_seed_differs() -> None:
     rng = np.random.default_rng(4)
     truth = np.arange(100.0)

@@ -368,14 +368,16 @@ class CatGraph(Method):
         """A frame whose row repeats the last one exactly: an image repeated, which holds no
         evidence the last one did not. The query stood still there, or moved on while its camera
         repeated an image (a frozen video, frames duplicated to another rate): each particle, drawn
-        once per repeat, stands still with probability ``repeat_standing`` or moves on at its pace;
-        weights, the sequence score, the rank model and the unexplained hypothesis stay as they were."""
+        once per repeat, stands still with probability ``repeat_standing`` or moves on at its pace
+        (with odometry, which says which, every particle moves by it); weights, the sequence score,
+        the rank model and the unexplained hypothesis stay as they were."""
         p = self.params
-        if self._standing is None:
+        if odometry is None and self._standing is None:
             self._standing = self._rng.random(p.particles) < p.repeat_standing
         u = self._travelled(odometry)
         self._odometer += u
-        self._pos = np.where(self._standing, self._pos, self._moved(self._pos, self._speed, u))
+        moved = self._moved(self._pos, self._speed, u)
+        self._pos = moved if odometry is not None else np.where(self._standing, self._pos, moved)
         w = np.exp(self._log_w - self._log_w.max())
         return self._read_out(row, *locate(self._nodes, self._pos), w / w.sum())
 
