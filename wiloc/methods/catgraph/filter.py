@@ -300,7 +300,7 @@ class CatGraph(Method):
         pre = self.row_ahead(row) if row.shape == (n_nodes,) else None
         if pre is None or not pre.finite:
             raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
-        if not first and self._last is not None and np.array_equal(row, self._last):
+        if self._last is not None and np.array_equal(row, self._last):  # None before the first frame
             return self._repeat(row, odometry)
         self._last, self._standing = row.copy(), None
         contrast = pre.contrast
@@ -378,8 +378,7 @@ class CatGraph(Method):
         self._odometer += u
         moved = self._moved(self._pos, self._speed, u)
         self._pos = moved if odometry is not None else np.where(self._standing, self._pos, moved)
-        w = np.exp(self._log_w - self._log_w.max())
-        return self._read_out(row, *locate(self._nodes, self._pos), w / w.sum())
+        return self._read_out(row, *locate(self._nodes, self._pos), np.exp(self._log_w))  # log_w is normalised
 
     def _reseed(self, weakest: NDArray[np.intp], lowest: NDArray[np.float64], pos: NDArray[np.float64],
                 speed: NDArray[np.float64], first: bool) -> None:
