@@ -4,6 +4,7 @@
     python benchmarks/bench_pace.py --traversals day_left/sad --variants same,pace-2 --methods catgraph
     python benchmarks/bench_pace.py --param catgraph.speed_noise=0.05 --json pace.json
     python benchmarks/bench_pace.py --traversals winter/sad --frames 600   # the first 600 Nordland frames
+    python benchmarks/bench_pace.py --methods catgraph --seeds 0-4         # means over five seeds
 
 Each traversal pairs a map folder with a query folder of the same route whose frame i is the
 map's frame i (aligned ground truth: Gardens Point walking, map ``day_right``; Nordland, map
@@ -46,6 +47,10 @@ frames, map_nodes, decided, r1, ap, ece, precision@0.9, accepted@0.9, new_place,
 ``decide(traversal, variant, method, params)`` the run's ``Decisions``, ``score(decisions, variant)``
 its measures and ``truth(variant, tolerance=2)`` its ground truth as a ``wiloc.evaluation.groundtruth.Truth``. ``variants(n)`` builds the variants of a route
 of ``n`` frames (``names`` picks some); ``TRAVERSALS`` lists the traversals by name.
+
+Seed 0 is one draw of a random filter: ``--seeds`` runs each method that takes a seed once per
+seed, writes every run to ``--json`` (its seed in ``params``) and prints per traversal the means
+over the seeds, with R@1's lowest and highest in brackets (``over_seeds(rows)`` makes those rows).
 """
 from __future__ import annotations
 
@@ -276,6 +281,39 @@ def run_variant(traversal: Traversal, variant: Variant, method: str = "catgraph"
             **score(decisions, variant), "seconds": time.perf_counter() - started}
 
 
+def over_seeds(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """One row per (traversal, variant, method) of runs that differ only in their seed: each
+    measure's mean over the seeds (precision among the runs that accepted any frame), R@1's
+    lowest and highest (``r1_low``, ``r1_high``) and the seeds (``seeds``), in the order first seen."""
+    groups: dict[tuple[str, str, str], list[Mapping[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault((row["traversal"], row["variant"], row["method"]), []).append(row)
+    merged = []
+    for runs in groups.values():
+        row = dict(runs[0])
+        for key in ("r1", "ap", "ece", f"precision@{CUT:g}", f"accepted@{CUT:g}", "new_place", "seconds"):
+            values = np.array([np.nan if r[key] is None else r[key] for r in runs], dtype=np.float64)
+            row[key] = float(np.nanmean(values)) if np.isfinite(values).any() else float("nan")
+        row[f"accepted@{CUT:g}"] = round(row[f"accepted@{CUT:g}"])
+        row["r1_low"], row["r1_high"] = min(r["r1"] for r in runs), max(r["r1"] for r in runs)
+        row["seeds"] = [r["params"].get("seed") for r in runs]
+        merged.append(row)
+    return merged
+
+
+def seed_list(text: str) -> list[int]:
+    """``--seeds``: comma-separated seeds or ranges, "0-4" or "0,3,7-9"."""
+    seeds: list[int] = []
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        low, dash, high = part.partition("-")
+        if not (low.isdigit() and (not dash or high.isdigit())):
+            raise ValueError(f"--seeds {text!r}: give seeds or ranges of them, e.g. 0-4 or 0,3,7-9")
+        seeds += list(range(int(low), int(high or low) + 1))
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ValueError(f"--seeds {text!r}: give at least one seed, each once")
+    return seeds
+
+
 # ------------------------------------------------------------------------------------------ command
 
 
@@ -299,7 +337,8 @@ def render(name: str, rows: list[dict[str, Any]], methods: Sequence[str]) -> Tab
                 continue
             same = by.get(("same", method))
             relative = r["r1"] / same["r1"] if same and same["r1"] > 0 else float("nan")
-            cells += [fmt(r["r1"]), fmt(relative, 2), fmt(r["ap"]), fmt(r["ece"]),
+            spread = f" ({fmt(r['r1_low'])}-{fmt(r['r1_high'])})" if len(r.get("seeds", ())) > 1 else ""
+            cells += [fmt(r["r1"]) + spread, fmt(relative, 2), fmt(r["ap"]), fmt(r["ece"]),
                       f"{fmt(r[f'precision@{CUT:g}'])} ({r[f'accepted@{CUT:g}']})", fmt(r["new_place"])]
         table.add_row(*cells)
     return table
@@ -312,6 +351,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     parser.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated (default: all): "
                         + ", ".join(VARIANTS))
     parser.add_argument("--seed", type=int, default=0, help="seed of methods that take one (default: 0)")
+    parser.add_argument("--seeds", default=None, help="run methods that take a seed once per seed and print "
+                        "the means, e.g. 0-4 or 0,3,7-9 (instead of --seed)")
     parser.add_argument("--frames", type=int, default=None, help="keep only the first N route frames")
     args = parser.parse_args(argv)
     console, err = Console(), Console(stderr=True)
@@ -332,6 +373,10 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     bad = [v for v in variant_names if v not in VARIANTS]
     if bad:
         parser.error(f"unknown variant(s) {', '.join(bad)} (choose from {', '.join(VARIANTS)})")
+    try:
+        seeds = seed_list(args.seeds) if args.seeds is not None else [args.seed]
+    except ValueError as exc:
+        parser.error(str(exc))
     params = parse_params(args.param, methods)
     for method in [m for m in params if m not in methods]:
         err.print(f"note: --param for method '{method}', which is not run: ignored")
@@ -341,8 +386,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         for key, value in params[method].items():  # one number given for a list of them: a list of one
             if key in fields and isinstance(fields[key].default, tuple) and isinstance(value, (int, float)):
                 params[method][key] = (float(value),)
-        if "seed" in fields:
-            params[method].setdefault("seed", args.seed)
+        if "seed" in fields and "seed" in params[method]:
+            parser.error(f"--param {method}.seed: give seeds with --seed or --seeds")
         try:
             make_method(method, params[method])  # a bad name or value stops here, before any run
         except (WilocError, TypeError, ValueError) as exc:
@@ -352,7 +397,9 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     started = time.perf_counter()
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=err, transient=True) as bar:
-        runs = bar.add_task("runs", total=len(traversal_names) * len(variant_names) * len(methods))
+        runs_of = {m: [{**params[m], "seed": seed} for seed in seeds] if "seed" in METHODS[m].Params.__dataclass_fields__
+                   else [params[m]] for m in methods}  # a method without a seed runs once
+        runs = bar.add_task("runs", total=len(traversal_names) * len(variant_names) * sum(map(len, runs_of.values())))
         for name in traversal_names:
             describing: dict[str, Any] = {}
 
@@ -366,9 +413,9 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
                 bar.remove_task(task)
             table_rows = []
             for variant in variants(traversal.length, variant_names):
-                for method in methods:
+                for method, chosen in ((m, p) for m in methods for p in runs_of[m]):
                     task = bar.add_task(f"{name} {variant.name} {method}", total=variant.query_frames.size)
-                    row = run_variant(traversal, variant, method, params[method],
+                    row = run_variant(traversal, variant, method, chosen,
                                       progress=lambda done, total, task=task: bar.update(task, completed=done))
                     bar.remove_task(task)
                     row["map"] = traversal.map_folder.name
@@ -376,10 +423,10 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
                     bar.advance(runs)
             rows += table_rows
             if table_rows:
-                console.print(render(name, table_rows, methods))
-    changed = {m: {k: v for k, v in p.items() if k != "seed"} for m, p in params.items()}
-    changed = {m: p for m, p in changed.items() if p}
-    console.print(f"{len(rows)} runs in {time.perf_counter() - started:.0f} s; seed {args.seed}, no odometry"
+                console.print(render(name, over_seeds(table_rows) if len(seeds) > 1 else table_rows, methods))
+    changed = {m: p for m, p in params.items() if p}
+    said = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {args.seeds} (means; R@1's range in brackets)"
+    console.print(f"{len(rows)} runs in {time.perf_counter() - started:.0f} s; {said}, no odometry"
                   + (f"; parameters {changed}" if changed else "; default parameters"))
     write_json(args.json, rows, console)
     return rows

@@ -144,3 +144,37 @@ def test_the_command_runs_the_chosen_runs_with_method_parameters(bench, data_roo
     assert len(json.loads(out.read_text())) == 2
     with pytest.raises(SystemExit):
         bench.main([str(data_root), "--methods", "catgraph", "--param", "catgraph.particles=0"])
+
+
+def test_seeds_are_listed_once_each_and_runs_merge_into_their_means(bench) -> None:
+    assert bench.seed_list("0-2,5, 7-8") == [0, 1, 2, 5, 7, 8]
+    for bad in ("", "2-x", "0-2,1", "-1"):
+        with pytest.raises(ValueError, match="--seeds"):
+            bench.seed_list(bad)
+    run = {"traversal": "t", "variant": "same", "method": "catgraph", "ap": 0.5, "ece": 0.1, "new_place": None,
+           "seconds": 1.0}
+    rows = [{**run, "r1": 0.9, "precision@0.9": 1.0, "accepted@0.9": 10, "params": {"seed": 0}},
+            {**run, "r1": 0.6, "precision@0.9": None, "accepted@0.9": 0, "params": {"seed": 1}},
+            {**run, "variant": "pace-2", "r1": 0.3, "precision@0.9": 0.5, "accepted@0.9": 3, "params": {"seed": 0}}]
+    same, fast = bench.over_seeds(rows)
+    assert (same["variant"], same["seeds"], fast["seeds"]) == ("same", [0, 1], [0])
+    assert same["r1"] == pytest.approx(0.75) and (same["r1_low"], same["r1_high"]) == (0.6, 0.9)
+    assert same["precision@0.9"] == 1.0 and same["accepted@0.9"] == 5  # precision over runs that accepted any
+    assert np.isnan(same["new_place"]) and fast["r1"] == 0.3
+
+
+@pytest.mark.realdata
+def test_the_command_runs_each_seed_and_prints_their_means(bench, data_root: Path, cache_dir: Path,
+                                                           tmp_path: Path, capsys) -> None:
+    out = tmp_path / "rows.json"
+    rows = bench.main([str(data_root), "--traversals", "day_left/sad", "--variants", "pace-2",
+                       "--methods", "catgraph", "--param", "catgraph.particles=300", "--seeds", "0-1",
+                       "--json", str(out)])
+    assert [r["params"]["seed"] for r in rows] == [0, 1] and len(json.loads(out.read_text())) == 2
+    mean = bench.over_seeds(rows)[0]
+    assert mean["r1"] == pytest.approx((rows[0]["r1"] + rows[1]["r1"]) / 2)
+    printed = capsys.readouterr().out
+    assert f"{mean['r1']:.3f} ({min(r['r1'] for r in rows):.3f}-" in printed and "seeds 0-1 (means" in printed
+    for wrong in (["--seeds", "1-x"], ["--param", "catgraph.seed=3"]):
+        with pytest.raises(SystemExit):
+            bench.main([str(data_root), "--methods", "catgraph", *wrong])
