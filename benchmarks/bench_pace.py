@@ -350,7 +350,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
                         + ", ".join(TRAVERSALS))
     parser.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated (default: all): "
                         + ", ".join(VARIANTS))
-    parser.add_argument("--seed", type=int, default=0, help="seed of methods that take one (default: 0)")
+    parser.add_argument("--seed", type=int, default=None, help="seed of methods that take one (default: 0)")
     parser.add_argument("--seeds", default=None, help="run methods that take a seed once per seed and print "
                         "the means, e.g. 0-4 or 0,3,7-9 (instead of --seed)")
     parser.add_argument("--frames", type=int, default=None, help="keep only the first N route frames")
@@ -373,8 +373,10 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     bad = [v for v in variant_names if v not in VARIANTS]
     if bad:
         parser.error(f"unknown variant(s) {', '.join(bad)} (choose from {', '.join(VARIANTS)})")
+    if args.seed is not None and args.seeds is not None:
+        parser.error("give --seed or --seeds, not both")
     try:
-        seeds = seed_list(args.seeds) if args.seeds is not None else [args.seed]
+        seeds = seed_list(args.seeds) if args.seeds is not None else [args.seed or 0]
     except ValueError as exc:
         parser.error(str(exc))
     params = parse_params(args.param, methods)

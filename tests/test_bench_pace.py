@@ -175,6 +175,6 @@ def test_the_command_runs_each_seed_and_prints_their_means(bench, data_root: Pat
     assert mean["r1"] == pytest.approx((rows[0]["r1"] + rows[1]["r1"]) / 2)
     printed = capsys.readouterr().out
     assert f"{mean['r1']:.3f} ({min(r['r1'] for r in rows):.3f}-" in printed and "seeds 0-1 (means" in printed
-    for wrong in (["--seeds", "1-x"], ["--param", "catgraph.seed=3"]):
+    for wrong in (["--seeds", "1-x"], ["--param", "catgraph.seed=3"], ["--seed", "1", "--seeds", "2-3"]):
         with pytest.raises(SystemExit):
             bench.main([str(data_root), "--methods", "catgraph", *wrong])
