@@ -383,6 +383,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     for method in [m for m in params if m not in methods]:
         err.print(f"note: --param for method '{method}', which is not run: ignored")
         del params[method]
+    runs_of: dict[str, list[dict[str, Any]]] = {}  # each method's runs: one per seed, or one without a seed
     for method in methods:
         fields = METHODS[method].Params.__dataclass_fields__
         for key, value in params[method].items():  # one number given for a list of them: a list of one
@@ -394,13 +395,12 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
             make_method(method, params[method])  # a bad name or value stops here, before any run
         except (WilocError, TypeError, ValueError) as exc:
             parser.error(f"--param {method}: {exc}")
+        runs_of[method] = [{**params[method], "seed": seed} for seed in seeds] if "seed" in fields else [params[method]]
 
     rows: list[dict[str, Any]] = []
     started = time.perf_counter()
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=err, transient=True) as bar:
-        runs_of = {m: [{**params[m], "seed": seed} for seed in seeds] if "seed" in METHODS[m].Params.__dataclass_fields__
-                   else [params[m]] for m in methods}  # a method without a seed runs once
         runs = bar.add_task("runs", total=len(traversal_names) * len(variant_names) * sum(map(len, runs_of.values())))
         for name in traversal_names:
             describing: dict[str, Any] = {}
