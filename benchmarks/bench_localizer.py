@@ -2,6 +2,7 @@
 
     python benchmarks/bench_localizer.py                          # maps of 1,000, 10,000 and 35,000 frames
     python benchmarks/bench_localizer.py --sizes 1000 --frames 50 # quicker
+    python benchmarks/bench_localizer.py --sizes 35000 --methods catgraph --sequence
 
 For every map size and method, in one run: the median wall and CPU milliseconds per frame of
 ``observe`` given a descriptor (descriptor excluded: the difference row and the method's step) and
@@ -10,6 +11,13 @@ query (its difference rows computed as one block, then the method run over them)
 method (learning from the map's differences to itself) is timed once and reported apart. Frames
 are random ``sad`` descriptors (1152 uint8 values); the query follows the map at its own speed
 with noise, so the methods track as on real data.
+
+``--sequence`` adds, for the methods that run without a map, ``observe`` in sequence mode (loop
+closure within one traversal): a localizer without a map is given the map's frames as the first
+part of its traversal, then the query, which revisits them; the query's frames are timed as in
+map mode (descriptor excluded), when the traversal's earlier frames number as many as the map's.
+Growing the traversal to the map's size takes a while (every frame is compared with all before
+it: about two minutes for 35,000 frames).
 """
 from __future__ import annotations
 
@@ -65,8 +73,10 @@ def training(n_map: int, map_data: np.ndarray, rng: np.random.Generator) -> Trai
     return TrainingRows(list(rows), labels)
 
 
-def measure(method: str, n_map: int, frames: int, rng: np.random.Generator) -> dict[str, float]:
-    """Startup, observe (descriptor excluded / included) and batch per-frame times, in ms."""
+def measure(method: str, n_map: int, frames: int, rng: np.random.Generator,
+            sequence: bool = False) -> dict[str, float]:
+    """Startup, observe (descriptor excluded / included), batch and, with ``sequence``, sequence-mode
+    observe per-frame times, in ms."""
     map_data, query, _ = route(n_map, frames, rng)
     names = [f"m{i:06d}" for i in range(n_map)]
     params = {"seed": 0} if method == "catgraph" else {}
@@ -88,12 +98,24 @@ def measure(method: str, n_map: int, frames: int, rng: np.random.Generator) -> d
     batch_method.start(context)
     wall, cpu, _ = timed(lambda: batch_method.run(iter(to_map(query).astype(np.float64)), frames))
     ms = 1000.0
-    return {"startup_s": start_wall,
+    revisits = [timed(lambda q=q: seq.observe(q))[:2] for seq in [sequence_grown(method, params, map_data)]
+                for q in query] if sequence else [(np.nan, np.nan)]
+    return {"sequence_wall": ms * statistics.median(w for w, _ in revisits),
+            "sequence_cpu": ms * statistics.median(c for _, c in revisits),
+            "startup_s": start_wall,
             "excluded_wall": ms * statistics.median(w for w, _ in excluded),
             "excluded_cpu": ms * statistics.median(c for _, c in excluded),
             "included_wall": ms * statistics.median(w for w, _ in included),
             "included_cpu": ms * statistics.median(c for _, c in included),
             "batch_wall": ms * wall / frames, "batch_cpu": ms * cpu / frames}
+
+
+def sequence_grown(method: str, params: dict[str, Any], first_pass: np.ndarray) -> Localizer:
+    """A localizer in sequence mode that has observed ``first_pass`` (every frame new)."""
+    loc = Localizer(None, descriptor=SPEC.name, method=method, **params)
+    for frame in first_pass:
+        loc.observe(frame)
+    return loc
 
 
 def main() -> None:
@@ -102,20 +124,28 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=200, help="query frames timed per method and size")
     parser.add_argument("--methods", default=",".join(m for m, cls in METHODS.items() if "differences" in cls.rows),
                         help="methods, comma-separated (those reading difference rows)")
+    parser.add_argument("--sequence", action="store_true",
+                        help="also time observe in sequence mode, after a first pass as long as the map (slow)")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     table = Table(title="Localizer.observe: median ms per frame (wall / CPU); batch: ms per frame of one run")
-    for column in ("map frames", "method", "startup s", "descriptor excluded", "descriptor included",
-                   "batch", "observe / batch"):
+    columns = ["map frames", "method", "startup s", "descriptor excluded", "descriptor included", "batch",
+               "observe / batch"] + (["sequence mode", "sequence / map"] if args.sequence else [])
+    for column in columns:
         table.add_column(column, justify="right")
     for n_map in (int(s) for s in args.sizes.split(",")):
         for method in args.methods.split(","):
-            r = measure(method, n_map, args.frames, rng)
-            table.add_row(f"{n_map:,}", method, f"{r['startup_s']:.1f}",
-                          f"{r['excluded_wall']:.2f} / {r['excluded_cpu']:.2f}",
-                          f"{r['included_wall']:.2f} / {r['included_cpu']:.2f}",
-                          f"{r['batch_wall']:.2f} / {r['batch_cpu']:.2f}",
-                          f"{r['excluded_cpu'] / r['batch_cpu']:.2f}x" if r["batch_cpu"] > 0 else "-")
+            sequence = args.sequence and not {"map", "training"} & METHODS[method].needs
+            r = measure(method, n_map, args.frames, rng, sequence)
+            cells = [f"{n_map:,}", method, f"{r['startup_s']:.1f}",
+                     f"{r['excluded_wall']:.2f} / {r['excluded_cpu']:.2f}",
+                     f"{r['included_wall']:.2f} / {r['included_cpu']:.2f}",
+                     f"{r['batch_wall']:.2f} / {r['batch_cpu']:.2f}",
+                     f"{r['excluded_cpu'] / r['batch_cpu']:.2f}x" if r["batch_cpu"] > 0 else "-"]
+            if args.sequence:
+                cells += [f"{r['sequence_wall']:.2f} / {r['sequence_cpu']:.2f}",
+                          f"{r['sequence_cpu'] / r['excluded_cpu']:.2f}x"] if sequence else ["-", "-"]
+            table.add_row(*cells)
     Console().print(table)
 
 

@@ -1,6 +1,6 @@
 """Loop closure within one traversal (sequence mode): how well the confidence is calibrated.
 
-    python benchmarks/bench_loops.py                                  # every loop, online and threshold
+    python benchmarks/bench_loops.py                                  # every loop: online, threshold, catgraph
     python benchmarks/bench_loops.py --loops dr+dl,out-back-on --descriptors sad,gist
     python benchmarks/bench_loops.py --param online.init=50 --json loops.json
 
@@ -48,7 +48,8 @@ from scipy import sparse
 from wiloc.cache.store import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decisions
-from wiloc.description.differences import ComputedDifferences, candidate_blocks, summarize
+from wiloc.description.differences import ComputedDifferences, candidate_blocks
+from wiloc.description.differences import summarize as summarize_self
 from wiloc.description.distances import DifferencesTo
 from wiloc.description.traversals import Describer
 from wiloc.evaluation.groundtruth import Truth
@@ -130,7 +131,7 @@ def decide(loop: Loop, method: str, params: Mapping[str, Any] | None = None,
         raise ValueError(f"{method} on {loop.name}: {problem}")
     to_self = DifferencesTo(loop.data, loop.metric, loop.scale)
     algo.start(MapContext(sequence=True, exclude_recent=exclude_recent, natural_max=loop.natural_max,
-                          map_summary=lambda: summarize(ComputedDifferences(loop.data, to_self), exclude_recent)))
+                          map_summary=lambda: summarize_self(ComputedDifferences(loop.data, to_self), exclude_recent)))
     rows = candidate_blocks(ComputedDifferences(loop.data, to_self), True, exclude_recent)
     return algo.run(rows, loop.places.size)
 
@@ -186,7 +187,7 @@ def render(rows: list[dict[str, Any]]) -> Table:
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    parser = benchmark_parser(__doc__, "online,threshold", "online.init=50")
+    parser = benchmark_parser(__doc__, "online,threshold,catgraph", "online.init=50")
     parser.add_argument("--loops", default=",".join(LOOPS), help="comma-separated (default: all): " + ", ".join(LOOPS))
     parser.add_argument("--descriptors", default="sad", help="comma-separated (default: %(default)s)")
     args = parser.parse_args(argv)

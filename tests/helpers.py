@@ -54,6 +54,33 @@ def places(n: int, seed: int = 0) -> list[np.ndarray]:
     return scenes
 
 
+def loop_rows(rng: np.random.Generator, places: int, recent: int,
+              memory: float | None = None) -> tuple[list[np.ndarray], np.ndarray]:
+    """A first pass over ``places`` new places, then a revisit of all of them in order: each
+    place a random look, neighbouring places alike (a smooth route), each frame its place's look
+    plus noise. The looks drift as a random walk (the nearer two places, the more alike, at any
+    distance) or, with ``memory``, as an AR(1) walk of that coefficient (alike over a few
+    places, unrelated far apart). Returns sequence-mode rows (frame k against frames before
+    k - ``recent``) and each frame's place."""
+    steps = rng.normal(0.0, 1.0, (places, 64))
+    if memory is None:
+        walk = np.cumsum(steps, axis=0) * 0.3
+    else:
+        walk = steps.copy()
+        for i in range(1, places):
+            walk[i] = memory * walk[i - 1] + np.sqrt(1.0 - memory ** 2) * steps[i]
+    look = walk + rng.normal(0.0, 1.0, (places, 64))
+    route = np.r_[np.arange(places), np.arange(places)]
+    frames = look[route] + rng.normal(0.0, 0.35, (route.size, 64))
+    differences = np.abs(frames[:, None, :] - frames[None, :, :]).mean(axis=2)
+    rows = []
+    for k in range(route.size):
+        row = differences[k].copy()
+        row[max(0, k - recent):] = np.inf
+        rows.append(row)
+    return rows, route
+
+
 def write_traversal(folder: Path, scenes: list[np.ndarray], gain: float, seed: int) -> Path:
     """``scenes`` as ``folder/img{i}.png``, times ``gain`` plus noise seeded by ``seed``."""
     rng = np.random.default_rng(seed)

@@ -179,10 +179,14 @@ def test_bad_options_are_usage_errors(route: tuple[Path, Path], tmp_path: Path) 
                  ["localize", str(query), "--map", str(ref), "--method", "catgraph", "--particles", "0"],
                  ["localize", str(query), "--map", str(ref), "--method", "catgraph", "--sequence-speeds", "1,x"],
                  ["localize", str(query), "--map", str(ref), "--method", "online", "--odometry", str(ref)],
-                 ["localize", str(query), "--method", "catgraph"]):
+                 ["localize", str(query), "--method", "seqslam"]):
         result = runner.invoke(app, args)
         assert result.exit_code == 2, (args, result.output)
         assert "Traceback" not in result.output and len(result.stderr.strip().splitlines()) == 1
+    # catgraph runs without a map (sequence mode), on a traversal longer than its recent window and frontier
+    result = runner.invoke(app, ["localize", str(query), "--method", "catgraph"])
+    assert result.exit_code == 1 and "too few for sequence mode with frontier=60" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
 
 
 def test_options_of_other_methods_name_the_method_and_library_errors_name_flags(

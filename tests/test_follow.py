@@ -38,9 +38,10 @@ def _rows(path: Path) -> pd.DataFrame:
     return pd.read_csv(path, comment="#", dtype=str, keep_default_na=False)
 
 
-def _follower(folder: Path, ref: Path, out: Path, method: str, idle: float) -> subprocess.Popen:
-    args = ["localize", str(folder), "--map", str(ref), "--method", method, "--follow", "--idle", str(idle),
-            "--out", str(out)]
+def _follower(folder: Path, ref: Path | None, out: Path, method: str, idle: float) -> subprocess.Popen:
+    """``wiloc localize FOLDER --follow`` against ``ref`` (None: sequence mode) in a new process."""
+    args = ["localize", str(folder), *(["--map", str(ref)] if ref is not None else []), "--method", method,
+            "--follow", "--idle", str(idle), "--out", str(out)]
     return subprocess.Popen([sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
 
@@ -103,8 +104,9 @@ def test_a_frame_whose_writer_pauses_halfway_is_waited_for(demo_route: demo.Demo
     assert decided[name] > SETTLE_SECONDS / 2  # from the whole file, not from its first half
 
 
-def _killed_and_resumed(query: Path, reference: Path, method: str, tmp_path: Path) -> None:
-    """Feed ``query`` into a folder, kill the follower halfway, resume: the batch rows."""
+def _killed_and_resumed(query: Path, reference: Path | None, method: str, tmp_path: Path) -> None:
+    """Feed ``query`` into a folder, kill the follower halfway, resume: the batch rows (``reference``
+    None: sequence mode)."""
     batch = api.localize(query, reference=reference, method=method, out=tmp_path / "batch.csv")
     live = tmp_path / "live"
     live.mkdir()
@@ -145,6 +147,20 @@ def test_gardens_point_follower_killed_halfway_resumes_identically(data_root: Pa
                                                                    cache_dir: Path) -> None:
     gp = data_root / "gardens-point-walking"
     _killed_and_resumed(gp / "day_left", gp / "day_right", method, tmp_path)
+
+
+@pytest.mark.realdata
+def test_a_loop_followed_without_a_map_resumes_to_the_batch_rows(data_root: Path, tmp_path: Path,
+                                                                 cache_dir: Path) -> None:
+    """catgraph in sequence mode (loop closure within one traversal): GP day_right then day_left as
+    one traversal of 400 frames, followed live, killed halfway and resumed, decides as the batch."""
+    gp = data_root / "gardens-point-walking"
+    loop = tmp_path / "loop"
+    loop.mkdir()
+    walks = [sorted((gp / walk).glob("*.jpg")) for walk in ("day_right", "day_left")]
+    for k, image in enumerate(walks[0] + walks[1]):
+        (loop / f"f{k:04d}.jpg").symlink_to(image)
+    _killed_and_resumed(loop, None, "catgraph", tmp_path)
 
 
 def test_follow_refuses_what_it_cannot_follow(demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:

@@ -12,6 +12,8 @@ from wiloc.errors import WilocError
 from wiloc.localization.array_run import run_on_rows
 from wiloc.methods.online import Online, near_miss
 
+from helpers import loop_rows
+
 INF = np.inf
 
 
@@ -148,11 +150,11 @@ def test_default_prior_is_the_share_of_b_and_a_fixed_prior_is_kept() -> None:
     assert share.params["prior"] is None and share.model.prior_same() == pytest.approx(2 / 5)
     fixed = localize_online(queries, 2, sequence=False, init_rows=ref, bins=5, prior=0.5)
     assert fixed.model.prior_same() == 0.5
-    # in sequence mode the confidence is the revisit chain's: the first decided frame has only the
-    # prior chance that a revisit starts, so no claim without evidence of one
+    # in sequence mode the confidence is the filter's along the traversal: before its map (frames
+    # older than the recent window and the frontier) has 2 frames, nothing is a revisit
     rows = _seq([[], [0.8], [0.9, 0.7], [0.2, 0.6, 0.9]], 4)
     first = localize_online(rows, 4, sequence=True, init=2, bins=8)
-    assert first.confidence[3] < 0.1 and first.columns["new_place"][3] > 0.9
+    assert first.stage[3] == "update" and first.confidence[3] == 0.0 and first.columns["new_place"][3] == 1.0
 
 
 def test_map_mode_confidence_is_the_map_filters_probability_of_the_best_match() -> None:
@@ -240,30 +242,15 @@ def test_candidates_come_in_the_order_of_a_stable_sort_of_the_row() -> None:
         assert list(_increasing(row, first=int(rng.integers(1, 10)))) == expected
 
 
-def _loop_rows(rng: np.random.Generator, places: int, recent: int) -> tuple[list[np.ndarray], np.ndarray]:
-    """A first pass over ``places`` new places, then a revisit of all of them in order: each
-    place a random look, neighbouring places alike (a smooth route), each frame its place's look
-    plus noise. Returns sequence-mode rows (frame k against frames before k - ``recent``) and
-    each frame's place."""
-    look = np.cumsum(rng.normal(0.0, 1.0, (places, 64)), axis=0) * 0.3 + rng.normal(0.0, 1.0, (places, 64))
-    route = np.r_[np.arange(places), np.arange(places)]
-    frames = look[route] + rng.normal(0.0, 0.35, (route.size, 64))
-    differences = np.abs(frames[:, None, :] - frames[None, :, :]).mean(axis=2)
-    rows = []
-    for k in range(route.size):
-        row = differences[k].copy()
-        row[max(0, k - recent):] = INF
-        rows.append(row)
-    return rows, route
-
-
 def test_a_first_pass_is_new_and_its_revisit_is_recognised() -> None:
     """Sequence mode on a generated loop: the first pass holds no revisit, so it must not be
     claimed (confidence low, P(new place) high); along the revisit the best match is right and
-    the chain must say so once the revisit has run a few frames."""
+    the filter run alongside must say so once the revisit has run a few frames. The looks are
+    alike over a few places only (an AR(1) walk): looks that drift without bound are taken for a
+    revisit of the frames just before the frontier (docs/catgraph.md, "Sequence mode")."""
     rng = np.random.default_rng(11)
     places, recent = 150, 10
-    rows, route = _loop_rows(rng, places, recent)
+    rows, route = loop_rows(rng, places, recent, memory=0.9)
     n = route.size
     out = run_on_rows(Online(), rows, n, sequence=True, exclude_recent=recent)
     decided = out.decided
@@ -275,9 +262,9 @@ def test_a_first_pass_is_new_and_its_revisit_is_recognised() -> None:
     assert np.mean(out.confidence[revisit]) > 0.8 and np.mean(out.columns["new_place"][revisit]) < 0.1
 
 
-def test_the_chain_restores_to_identical_decisions() -> None:
+def test_sequence_mode_restores_to_identical_decisions() -> None:
     rng = np.random.default_rng(2)
-    rows, route = _loop_rows(rng, 80, 10)
+    rows, route = loop_rows(rng, 80, 10, memory=0.9)
     n = route.size
     whole = run_on_rows(Online(), rows, n, sequence=True, exclude_recent=10)
     first = Online()
@@ -294,10 +281,10 @@ def test_the_chain_restores_to_identical_decisions() -> None:
 def test_loop_closure_on_gardens_point_claims_no_first_visit(data_root) -> None:
     """GP day_right then day_left as one traversal (benchmarks/bench_loops.py, loop dr+dl): no
     frame at confidence >= 0.99 is wrong, first visits are called new places, and the confidence
-    is calibrated far better than P(L | m) was (ECE 0.203)."""
+    is calibrated (ECE 0.048 measured; P(L | m) gave 0.203, the revisit chain 0.069)."""
     from helpers import benchmark_module
 
     with benchmark_module("bench_loops") as bench:
         row = bench.run_loop(bench.load_loop("dr+dl", "sad", data_root), "online")
-    assert row["accepted@0.99"] == 0 or row["precision@0.99"] >= 0.99
-    assert row["new_first"] >= 0.85 and row["ece"] <= 0.1
+    assert row["accepted@0.99"] >= 20 and row["precision@0.99"] >= 0.99
+    assert row["new_first"] >= 0.95 and row["ece"] <= 0.06

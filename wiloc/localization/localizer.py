@@ -35,7 +35,7 @@ from wiloc.sources.video import Sampling
 from wiloc.version import __version__
 
 STATE_FORMAT = "wiloc-localizer-state"
-STATE_VERSION = 3  # 3: catgraph knows a repeated image (2: it ranks FAB-MAP evidence, particles carry any pace)
+STATE_VERSION = 4  # 4: sequence mode runs the catgraph filter (3: catgraph knows a repeated image; 2: it ranks FAB-MAP evidence)
 
 
 class Localizer:

@@ -5,9 +5,9 @@ that the run fills itself, without labels: during initialisation the minima go t
 different-place histogram ``c``; afterwards each frame's minimum goes to the same-place histogram
 ``b`` and its smallest difference to a frame that is *not* the same place as z (``m_r``) goes to
 ``c``. The Appendix's recursive test, repaired and made iterative, decides which frames are the
-same place as z. The confidence is calibrated by a filter run alongside: in map mode the map's
-CAT-Graph filter, in sequence mode the revisit chain (:class:`RevisitChain`). See
-docs/algorithm.md for every choice and the measurements behind the defaults.
+same place as z. The confidence is calibrated by a CAT-Graph filter run alongside on the same
+rows: along the map, or in sequence mode along the traversal itself. See docs/algorithm.md for
+every choice and the measurements behind the defaults.
 """
 from __future__ import annotations
 
@@ -40,24 +40,7 @@ class OnlineParams(Parameters):
                                       "share of same-place samples.", low=0.0, high=1.0, low_open=True,
                                 high_open=True)
     smoothing: float = param(0.1, "Pseudo-count added to every histogram bin.", low=0.0, low_open=True)
-    pace_window: int = param(3, "Sequence mode: a best match within +-J g frames of the match g frames "
-                                "before (0 < g <= track_frames) continues a track.", low=1)
-    track_frames: int = param(3, "Sequence mode: how many previous frames' matches a best match may "
-                                 "continue (a right match among wrong ones still continues the track).",
-                              low=1)
-    revisit_start: float = param(0.01, "Sequence mode: prior probability per frame that a revisit starts.",
-                                 low=0.0, high=1.0, low_open=True, high_open=True)
-    revisit_end: float = param(0.01, "Sequence mode: prior probability per frame that a revisit ends.",
-                                 low=0.0, high=1.0, low_open=True, high_open=True)
-    right_prior: tuple[float, float] = param(
-        (1.0, 1.0), "Sequence mode: Beta prior (right, wrong) of the share of a revisit's frames whose "
-                    "best match is right.", low=0.0, low_open=True)
-    track_prior: tuple[float, float, float] = param(
-        (8.0, 1.0, 1.0), "Sequence mode: Dirichlet prior (continues, holds, neither) of how a right "
-                         "match relates to the previous frames' matches.", low=0.0, low_open=True)
-    ratio_bins: int = param(10, "Sequence mode: bins of m / m_r, whose distributions given a right and "
-                                "a wrong match are learned.", low=1, high=1000)
-    seed: int | None = param(0, "Map mode: random seed of the map filter whose posterior calibrates the "
+    seed: int | None = param(0, "Random seed of the CAT-Graph filter whose posterior calibrates the "
                                 "confidence (none: a fresh one).", low=0)
 
 
@@ -111,111 +94,6 @@ def _increasing(row: NDArray[np.float64], first: int = 32) -> Iterator[int]:
         k *= 8
 
 
-RIGHT, WRONG, NEW = 0, 1, 2  # the chain's states: revisit, best match right / revisit, best match wrong / new place
-CONTINUES, HOLDS, NEITHER, RECENT = 0, 1, 2, 3  # how a best match relates to the previous frames'
-
-
-class RevisitChain:
-    """Sequence mode's filter: a hidden Markov chain over "revisit" and "new place", run forward
-    one frame at a time, whose revisit frames have a right best match with a learned share
-    (posterior over "revisit, right", "revisit, wrong", "new place").
-
-    Why: within one traversal the histograms alone cannot tell a first visit from a revisit (every
-    minimum is the smallest of many differences, and counting each one in ``b`` teaches the model
-    that first visits are revisits), while revisits come in runs along which the right matches
-    move with the traveller. Evidence per frame, learned without labels:
-
-    - the ratio m / m_r of the best match's difference to the near miss's: near 1 when both are
-      different places (the two smallest of many alike differences, whatever their number and
-      scale), smaller for a right match;
-    - how z relates to the previous frames' matches: it *continues* a track (0 < |z - z_(k-g)| <=
-      J g for some g <= G), *holds* (equals the previous match), neither, or is *recent* (among the
-      ``exclude_recent`` newest candidates: the stretch walked just before the frames left out,
-      whose look the traveller still carries and whose matches move with the traveller on a first
-      visit too). A right match is recent with the share of recent candidates (it may be any
-      earlier frame) and otherwise follows ``track_prior``;
-
-    A wrong match's distributions (ratio bins, relation) start flat and are filled by the
-    initialisation frames (new places by construction). A right match's ratio starts as the wrong
-    one's shape with the weight of one count per bin: no evidence until the run shows where right
-    matches' ratios lie. Then every frame is counted in both, weighted by its posterior of being
-    right or not.
-    """
-
-    def __init__(self, params: OnlineParams, exclude_recent: int) -> None:
-        self.enter, self.leave = params.revisit_start, params.revisit_end
-        self.right = np.asarray(params.right_prior, dtype=np.float64).copy()  # (right, wrong) revisit frames
-        self.window, self.span = params.pace_window, max(exclude_recent, 1)
-        self.relation = np.ones((2, 4))  # counts of the relation given a (right, wrong) match
-        self.relation[RIGHT, :3] = params.track_prior
-        self.relation[RIGHT, RECENT] = 0.0  # a right match's chance of being recent is the share of recent candidates
-        self.ratio = np.ones((2, params.ratio_bins))  # m / m_r's counts given a (right, wrong) match
-        self.started = False  # whether a frame past initialisation was seen
-        self.belief = np.array([0.0, 0.0, 1.0])
-        self.previous = np.full(params.track_frames, -1, dtype=np.int64)  # the last G matches, newest first
-
-    def _relation(self, z: int, newest: int) -> int:
-        """How z relates to the previous frames' matches (``newest``: the newest candidate)."""
-        if newest - z < self.span:
-            return RECENT
-        if z == self.previous[0]:
-            return HOLDS
-        gaps = np.arange(1, self.previous.size + 1)
-        steps = np.abs(z - self.previous)
-        return CONTINUES if np.any((self.previous >= 0) & (steps > 0) & (steps <= self.window * gaps)) else NEITHER
-
-    def _ratio_bin(self, m: float, m_r: float) -> int:
-        """The bin of m / m_r (the top bin when there is no near miss to compare with)."""
-        if not (np.isfinite(m_r) and m_r > 0):
-            return self.ratio.shape[1] - 1
-        return min(int(max(m / m_r, 0.0) * self.ratio.shape[1]), self.ratio.shape[1] - 1)
-
-    def _remember(self, z: int) -> None:
-        self.previous = np.roll(self.previous, 1)
-        self.previous[0] = z
-
-    def state(self) -> dict[str, Any]:
-        """What the chain has learned and believes, for saving a run."""
-        return {"right": self.right.copy(), "relation": self.relation.copy(), "ratio": self.ratio.copy(),
-                "started": self.started, "belief": self.belief.copy(), "previous": self.previous.copy()}
-
-    def restore(self, state: Mapping[str, Any]) -> None:
-        """Continue from :meth:`state`."""
-        self.right, self.relation, self.ratio, self.belief = (
-            np.array(state[key], dtype=np.float64) for key in ("right", "relation", "ratio", "belief"))
-        self.started, self.previous = bool(state["started"]), np.array(state["previous"], dtype=np.int64)
-
-    def learn_new(self, z: int, newest: int, m: float, m_r: float) -> None:
-        """An initialisation frame (a new place): count its evidence as a wrong match's."""
-        self.relation[WRONG, self._relation(z, newest)] += 1.0
-        self.ratio[WRONG, self._ratio_bin(m, m_r)] += 1.0
-        self._remember(z)
-
-    def step(self, z: int, newest: int, m: float, m_r: float) -> NDArray[np.float64]:
-        """The posterior over (right, wrong, new) after a frame whose best match z has the
-        difference m and the near miss m_r; learns from the frame."""
-        if not self.started:  # a right match's ratio: the wrong one's shape, one count per bin
-            self.ratio[RIGHT] = self.ratio[WRONG] / self.ratio[WRONG].sum() * self.ratio.shape[1]
-            self.started = True
-        relation, level = self._relation(z, newest), self._ratio_bin(m, m_r)
-        likely = self.ratio[:, level] / self.ratio.sum(axis=1)
-        shares = self.relation / self.relation.sum(axis=1, keepdims=True)
-        recent = min(self.span / (newest + 1), 1.0)  # a right match's chance of being recent
-        likely[RIGHT] *= recent if relation == RECENT else (1.0 - recent) * shares[RIGHT, relation]
-        likely[WRONG] *= shares[WRONG, relation]
-        share = self.right[RIGHT] / self.right.sum()  # of a revisit's frames whose best match is right
-        revisit = (1.0 - self.belief[NEW]) * (1.0 - self.leave) + self.belief[NEW] * self.enter
-        prior = np.array([revisit * share, revisit * (1.0 - share), 1.0 - revisit])
-        self.belief = prior * likely[[RIGHT, WRONG, WRONG]]
-        self.belief /= self.belief.sum()
-        right = self.belief[RIGHT]
-        self.right += self.belief[:NEW]
-        self.ratio[:, level] += (right, 1.0 - right)
-        self.relation[WRONG, relation] += 1.0 - right
-        self._remember(z)
-        return self.belief
-
-
 @dataclass(frozen=True)
 class OnlineAhead:
     """What the online model reads off a row alone in map mode (:meth:`Online.ahead`)."""
@@ -239,11 +117,11 @@ def map_minima(context: MapContext) -> NDArray[np.float64]:
 class Online(Method):
     """The online model: decide the best match z, then learn from the frame (SPEC.md section 4).
 
-    In sequence mode the confidence is the revisit chain's probability that the frame revisits a
-    place and z is right (:class:`RevisitChain`). In map mode it is the probability that z is the
-    place (within +-2 nodes), given every frame so far: the posterior of a CAT-Graph filter run
-    alongside on the same rows (``wiloc.methods.catgraph.observation``). The decision stays the single-frame best
-    match, and the histograms are learned in both modes (the paper's Figure 1).
+    The confidence is the probability that z is the place (within +-2 nodes), given every frame so
+    far: the posterior of a CAT-Graph filter run alongside on the same rows, along the map or in
+    sequence mode along the traversal itself (``wiloc.methods.catgraph``); P(new place) is the
+    filter's. The decision stays the single-frame best match, and the histograms are learned in
+    both modes (the paper's Figure 1).
     """
 
     name = "online"
@@ -262,15 +140,13 @@ class Online(Method):
         self._model: HistogramModel | None = None
         self._seen: list[float] = []
         self._match = np.empty(0, dtype=np.int64)  # sequence mode: recorded matches, for near_miss
-        self._filter: CatGraph | None = None
-        self._chain = RevisitChain(self.params, context.exclude_recent) if context.sequence else None
         if not context.sequence:
             self._seen = map_minima(context).tolist()
             if not self._seen:
                 raise WilocError("online", "the map's differences to itself hold no finite value")
             self._model = self._initial_model()
-            self._filter = CatGraph(seed=self.params.seed)
-            self._filter.start(context)
+        self._filter = CatGraph(seed=self.params.seed)
+        self._filter.start(context)
 
     def _initial_model(self) -> HistogramModel:
         """The model at the end of initialisation: range fixed from the minima seen, which fill c."""
@@ -286,7 +162,7 @@ class Online(Method):
         where the near miss depends on the matches of earlier frames."""
         from wiloc.methods.row_kernels import best_of_rows  # numba loads with the first rows
 
-        if self._filter is None:
+        if self.context is None or self.context.sequence:
             return None
         n = rows.shape[0]
         ranking, counts = np.empty((n, RANKED), dtype=np.int64), np.empty(n, dtype=np.intp)
@@ -301,28 +177,25 @@ class Online(Method):
     def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
         sequence = self.context is not None and self.context.sequence
         pre = None if sequence else self.row_ahead(row)
+        # in sequence mode the filter sees every frame (its map grows with the traversal)
+        tracked = self._filter.step(row) if sequence else None
         z, m = finite_minimum(row) if pre is None else (pre.match, pre.difference)
         decision = Decision(match=-1, difference=np.nan, confidence=np.nan, stage="none", extra={"m_r": np.nan})
         if z >= 0 and self._model is None:
             self._seen.append(m)
-            if self._chain is not None:
-                m_r = near_miss(row, z, self._match[:self.frames], self.params.same_place_window)
-                self._chain.learn_new(z, self._newest(), m, m_r)
             if len(self._seen) == self.params.init:
                 self._model = self._initial_model()
             decision = Decision(match=-1, difference=np.nan, confidence=np.nan, stage="init",
                                 extra={"m_r": np.nan})
         elif z >= 0:
             assert self._model is not None
-            if self._filter is not None:  # map mode: the filter's posterior
+            if tracked is None:
                 new_place = self._filter.step(row, ahead=None if pre is None else pre.filter).new_place
-                p = self._filter.probability_near(z)
-            else:
-                assert self._chain is not None
-                m_r = near_miss(row, z, self._match[:self.frames], self.params.same_place_window)
-                belief = self._chain.step(z, self._newest(), m, m_r)
-                p, new_place = float(belief[RIGHT]), float(belief[NEW])
+            else:  # before the traversal's map has 2 frames nothing is a revisit
+                new_place = tracked.new_place if tracked.decided else 1.0
+            p = self._filter.probability_near(z)
             if pre is None:
+                m_r = near_miss(row, z, self._match[:self.frames], self.params.same_place_window)
                 self._model.add_same(m)
                 if np.isfinite(m_r):
                     self._model.add_different(m_r)
@@ -334,11 +207,6 @@ class Online(Method):
         if sequence:
             self._record(decision.match)
         return decision
-
-    def _newest(self) -> int:
-        """Sequence mode: this frame's newest candidate (frames before k - exclude_recent)."""
-        assert self.context is not None
-        return self.frames - self.context.exclude_recent - 1
 
     def _record(self, match: int) -> None:
         """Record this frame's match (the array's capacity doubles, so appends are O(1))."""
@@ -358,20 +226,11 @@ class Online(Method):
 
     def save_state(self) -> dict[str, Any]:
         return {"seen": np.asarray(self._seen, dtype=np.float64), "match": self._match[:self.frames].copy(),
-                "filter": None if self._filter is None else self._filter.state(),
-                "chain": None if self._chain is None else self._chain.state(),
-                "model": None if self._model is None else self._model.to_dict()}
+                "filter": self._filter.state(), "model": None if self._model is None else self._model.to_dict()}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
         self._seen = np.asarray(state["seen"], dtype=np.float64).tolist()
         self._match = np.asarray(state["match"], dtype=np.int64).copy()
         self._model = None if state["model"] is None else HistogramModel.from_dict(state["model"])
-        self._chain = None
-        if state.get("chain") is not None:
-            assert self.context is not None
-            self._chain = RevisitChain(self.params, self.context.exclude_recent)
-            self._chain.restore(state["chain"])
-        self._filter = None
-        if state["filter"] is not None:
-            self._filter = CatGraph(seed=self.params.seed)
-            self._filter.restore(self.context, state["filter"])  # type: ignore[arg-type]
+        self._filter = CatGraph(seed=self.params.seed)
+        self._filter.restore(self.context, state["filter"])  # type: ignore[arg-type]

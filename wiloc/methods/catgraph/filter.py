@@ -10,6 +10,10 @@ position (eq. 8), weigh the hypothesis that the map does not explain the frame (
 blind spot: eq. 10's role), normalise, read out the mode of the particle density and resample when
 the effective sample size drops.
 
+Without a map (sequence mode: loop closure within one traversal) the map is the traversal's own
+frames older than ``exclude_recent`` + ``frontier``, one node more per frame, and P(new place) is
+the probability that it does not explain the frame.
+
 The observation model and the unexplained state are the ones of ``wiloc.methods.catgraph.observation``: a
 difference is scored by its rank within its own row (Beta(a, 1) at the same place, uniform
 elsewhere, a learned online by EM), so the posterior is a probability: the confidence is the
@@ -29,12 +33,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.decisions import Decision
-from wiloc.errors import ParameterError, WilocError
+from wiloc.errors import WilocError
 from wiloc.methods.base import MapContext, Method
 from wiloc.methods.catgraph.observation import RankLikelihood, SortedRow, Unexplained, novelty_weights
-from wiloc.methods.catgraph.trajectory import (locate, lowest_nodes, node_positions, posterior_ranking, read_runs,
-                                               shifted_reads, smallest, systematic)
-from wiloc.parameters import Parameters, param
+from wiloc.methods.catgraph.params import CatGraphParams
+from wiloc.methods.catgraph.trajectory import (even_shifted_reads, locate, lowest_nodes, node_positions,
+                                               posterior_ranking, read_runs, shifted_reads, smallest, systematic)
 from wiloc.recycled import RecycledArrays
 
 START_DEALT = 0.5  # share of particles that start at the paces other than the map's (_start_paces)
@@ -49,86 +53,6 @@ class RowAhead:
     contrast: NDArray[np.float64]  # the sequence score's contrast-normalised row, low = alike
     finite: bool  # whether every value of the row is finite
     ordered: SortedRow  # what the rank model ranks against
-
-
-@dataclass(frozen=True)
-class CatGraphParams(Parameters):
-    """Parameters of the whole-image CAT-Graph filter (docs/catgraph.md, docs/calibration.md)."""
-
-    owner = "catgraph"
-    particles: int = param(2000, "Number of particles.", low=1, high=1_000_000)
-    seed: int | None = param(0, "Random seed: the same seed gives identical decisions (none: a fresh one).",
-                             low=0)
-    step_noise: float = param(0.15, "Motion noise, a fraction of each step.", low=0.0)
-    noise_floor: float = param(0.0, "Motion noise floor, a fraction of the mean node spacing.", low=0.0)
-    speed_noise: float = param(0.0, "Per-particle speed noise per frame (0: no velocity state).", low=0.0)
-    speed_range: tuple[float, float] = param((-3.0, 3.0), "Range of the particles' paces when they drift "
-                                                          "(low, high).")
-    resample_ess: float = param(0.5, "Resample when the effective sample size falls below this share.",
-                                low=0.0, high=1.0)
-    reseed: float = param(0.01, "Share of particles re-seeded each frame at the best sequence score.",
-                          low=0.0, high=1.0)
-    reseed_top: int = param(1, "Nodes of best sequence score that re-seeded particles go to.", low=1)
-    sequence_rate: float = param(0.1, "Rate of the leaky sequence score (about 1 / frames remembered).",
-                                 low=0.0, high=1.0, low_open=True)
-    sequence_speeds: tuple[float, ...] = param((1 / 3, 0.5, 2 / 3, 1.0, 1.5, 2.0, 3.0, -0.5, -2 / 3, -1.0, -1.5, -2.0),
-                                               "Paces (map nodes per query frame; negative: the route driven the "
-                                               "other way) of the sequence score; re-seeded particles move at the "
-                                               "pace that scored best at their node (half of the forward ones at "
-                                               "the map's pace).")
-    start_paces: float = param(0.3, "Prior probability that the query does not move at the map's pace at its "
-                                    "start (shared evenly by the other paces of sequence_speeds).",
-                               low=0.0, high=1.0, high_open=True)
-    rank_pace_min: float = param(0.5, "Paces slower than this (in magnitude) give re-seeded particles their "
-                                      "pace but do not choose their nodes: a slow trajectory's sum favours map "
-                                      "frames that resemble many query frames.", low=0.0)
-    fast_pace: float = param(2.0, "Paces faster than this rank nodes apart from the others (their sum over few "
-                                  "query frames spans many nodes, so it finds look-alikes more often).", low=0.0)
-    reseed_fast: float = param(0.02, "Share of re-seeded particles that go to the best trajectory faster than "
-                                     "fast_pace (when sequence_speeds has such paces).", low=0.0, high=1.0)
-    reseed_backward: float = param(0.1, "Share of re-seeded particles that go to the best backward trajectory "
-                                         "(when sequence_speeds has negative paces).", low=0.0, high=1.0)
-    contrast_window: int = param(10, "Half window (nodes) of the sequence score's contrast normalisation.",
-                                 low=1)
-    mode_window: int = param(2, "Half window (nodes) around the decided node whose posterior mass is "
-                                "the confidence: the ground truth's tolerance.", low=0)
-    a0: float = param(0.5, "Prior shape of the same-place rank model Beta(a, 1), before any frame.",
-                      low=0.0, high=1.0, low_open=True)
-    n0: float = param(10.0, "Weight of that prior, in frames.", low=0.0, low_open=True)
-    a_min: float = param(0.02, "Smallest shape the rank model may learn (the sharpest evidence).",
-                         low=0.0, high=1.0, low_open=True)
-    jump: float = param(0.001, "Prior probability per frame of jumping elsewhere on the map.", low=0.0, high=1.0)
-    leave: float = param(0.001, "Prior probability per frame of leaving the map (new place or blind spot).",
-                         low=0.0, high=1.0, high_open=True)
-    rejoin: float = param(0.001, "Prior probability per frame of rejoining the map once off it.",
-                          low=0.0, high=1.0, high_open=True)
-    unexplained0: float = param(0.5, "Probability that the map does not explain the first frame.",
-                                low=0.0, high=1.0, low_open=True, high_open=True)
-    departure_prior: tuple[float, float] = param((1.9, 0.1), "Beta prior (departures, blind spots) of the share "
-                                                             "of off-map stretches that leave the map.", low=0.0)
-    stretch_open: float = param(0.5, "An off-map stretch opens when P(unexplained) reaches this.",
-                                low=0.0, high=1.0)
-    stretch_close: float = param(0.1, "... and closes when it falls below this.", low=0.0, high=1.0)
-    near_duplicate: float = param(0.25, "Map frames closer to their neighbours than this share of the "
-                                        "median step count as less evidence (0: off).", low=0.0)
-    repeat_standing: float = param(0.5, "Prior probability that a query standing on one repeated image (the same "
-                                        "row again) stands still, against moving on while its camera repeats "
-                                        "an image.", low=0.0, high=1.0)
-
-    def check(self) -> None:
-        low, high = self.speed_range
-        if low > high:
-            raise ParameterError("speed_range", f"must be (low, high) with low <= high, got {self.speed_range!r}")
-        if self.stretch_close > self.stretch_open:
-            raise ParameterError("stretch_close", f"must not exceed stretch_open ({self.stretch_open}), "
-                                                  f"got {self.stretch_close}")
-        if 0.0 in self.sequence_speeds:
-            raise ParameterError("sequence_speeds", f"every pace must be non-zero, got {self.sequence_speeds!r}")
-        if not any(abs(v) >= self.rank_pace_min for v in self.sequence_speeds):
-            raise ParameterError("rank_pace_min", f"must leave a pace of sequence_speeds to rank nodes, got "
-                                                  f"{self.rank_pace_min} for {self.sequence_speeds!r}")
-        if min(self.departure_prior) <= 0:
-            raise ParameterError("departure_prior", f"both counts must be > 0, got {self.departure_prior!r}")
 
 
 class CatGraph(Method):
@@ -150,31 +74,55 @@ class CatGraph(Method):
     Each decision is the node at the density mode (the largest weight mass within
     +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
     the confidence (that mass times 1 - P(new place)) and P(new place). The same seed gives
-    identical decisions, on any CPU.
+    identical decisions, on any CPU. Started in sequence mode (no map) the map grows with the
+    traversal (:meth:`_grow`) and a particle carried past its ends is re-seeded.
     """
 
     name = "catgraph"
     Params = CatGraphParams
-    needs = frozenset({"map", "map_neighbours", "odometry"})
+    needs = frozenset({"map_neighbours", "odometry"})
     rows = frozenset({"differences", "log_ratio"})
     columns = ("new_place",)
     ranks = True  # by the posterior: the mode, then the nodes of most particle weight (posterior_ranking)
     params: CatGraphParams
 
+    def query_problem(self, n_frames: int, sequence: bool, exclude_recent: int) -> str | None:
+        shortest = exclude_recent + self.params.frontier + 3  # a map of 2 frames, then a frame to decide
+        if sequence and n_frames < shortest:
+            return (f"has {n_frames} frames, too few for sequence mode with frontier={self.params.frontier} and "
+                    f"exclude_recent={exclude_recent} (at least {shortest})")
+        return None
+
     def prepare(self, context: MapContext) -> None:
-        p = self.params
-        if context.sequence or context.neighbours is None:
+        self._growing = context.sequence  # sequence mode: the map is the run's own older frames
+        self._filtered = 0  # frames the filter has stepped (in sequence mode, once it has 2 nodes)
+        self._odometry = False  # whether any step came with odometry
+        if context.sequence:
+            if context.arclength is not None:
+                raise WilocError("catgraph", "takes no odometry in sequence mode (the map grows by one frame "
+                                             "index per frame)", parameter="odometry")
+            self._nodes = np.empty(0)
+            return
+        if context.neighbours is None:
             raise WilocError("catgraph", "needs a map (a reference trajectory)", parameter="reference")
         neighbours = np.asarray(context.neighbours(), dtype=np.float64)
         n_nodes = neighbours.size + 1
         if n_nodes < 2:
             raise WilocError("catgraph", f"the map needs at least 2 frames, got {n_nodes}")
-        self._nodes = node_positions(context.arclength, n_nodes)
+        self._begin(node_positions(context.arclength, n_nodes), novelty_weights(neighbours, self.params.near_duplicate),
+                    self.params.unexplained0)
+
+    def _begin(self, nodes: NDArray[np.float64], omega: NDArray[np.float64], unexplained0: float) -> None:
+        """The filter before its first frame, on a map of these node positions and near-duplicate
+        weights, with this prior probability that the map does not explain the first frame."""
+        p = self.params
+        n_nodes = nodes.size
+        self._nodes = nodes
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
-        self._omega = novelty_weights(neighbours, p.near_duplicate)
+        self._omega = omega
         self._damped = np.flatnonzero(self._omega < 1.0)  # near duplicates
         self._likelihood = self._observation_model()
-        self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
+        self._unexplained = Unexplained(unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
                                         p.stretch_open, p.stretch_close)
         self._rng = np.random.default_rng(p.seed)
         # evenly spaced from one random offset (stratified): every stretch of the map starts with
@@ -189,11 +137,30 @@ class CatGraph(Method):
         self._own = np.zeros(n_nodes)  # the last frame's in-map posterior mass per node
         self._marks = np.zeros(n_nodes, dtype=np.int64)  # the read-out's scratch: the frame that last summed a node
         self._odometer = 0.0  # distance travelled since the first frame, in the map's units
-        self._odometry = False  # whether any step came with odometry
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
         self._last: NDArray[np.floating] | None = None  # the last row, to know a repeated image
         self._standing: NDArray[np.bool_] | None = None  # during a repeat: the particles that stand still
         self._recycle()
+
+    def _grow(self, n_nodes: int) -> None:
+        """Sequence mode: the map extended to its first ``n_nodes`` frames (the filter started on
+        the first two). A new node's sequence score starts at 0, a contrast-normalised row's mean;
+        the particles stay where they are."""
+        if self._nodes.size == 0:
+            self._begin(np.arange(n_nodes, dtype=np.float64), np.ones(n_nodes), 1.0 - self.params.rejoin)
+            return
+        old = self._nodes.size
+        if n_nodes == old:
+            return
+        self._nodes = np.arange(n_nodes, dtype=np.float64)
+        self._omega = np.ones(n_nodes)
+        sequence = np.zeros((self._paces.size, n_nodes))
+        sequence[:, :old] = self._sequence
+        self._sequence, self._spare = sequence, None
+        self._group_lowest = np.empty((4, n_nodes))
+        self._own = np.concatenate((self._own, np.zeros(n_nodes - old)))
+        self._marks = np.concatenate((self._marks, np.zeros(n_nodes - old, dtype=np.int64)))
+        self._shifted = None
 
     def _start_paces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Each particle's pace and log weight before any frame. The query's pace is not known at
@@ -250,8 +217,11 @@ class CatGraph(Method):
         frame of equal step (always, without odometry), so they are computed once per distinct step."""
         if self._shifted is None or self._shifted[0] != u:
             shifts = np.asarray(self.params.sequence_speeds, dtype=np.float64) * u
-            at, a = shifted_reads(self._nodes, shifts)
-            self._shifted = (u, (at, a, read_runs(at, a, self._nodes.size)))
+            if self._growing:  # the nodes 0, 1, ..., n - 1, one more each frame
+                self._shifted = (u, even_shifted_reads(self._nodes.size, shifts))
+            else:
+                at, a = shifted_reads(self._nodes, shifts)
+                self._shifted = (u, (at, a, read_runs(at, a, self._nodes.size)))
         return self._shifted[1]
 
     @property
@@ -281,10 +251,14 @@ class CatGraph(Method):
         """Each row's contrast (low = alike), whether it is finite, and what the observation
         model ranks against: computed for a block of rows in compiled passes (None for rows
         that are not one value per map node)."""
+        if self._growing or rows.shape[1] != self._nodes.size:  # sequence mode: the map grows as rows are decided
+            return [None] * rows.shape[0]
+        return self._ahead_rows(rows)
+
+    def _ahead_rows(self, rows: NDArray[np.floating]) -> list[RowAhead]:
+        """:meth:`ahead` of rows of one value per map node."""
         from wiloc.methods.catgraph import filter_kernels  # numba loads with the first frame, not the command line
 
-        if rows.shape[1] != self._nodes.size:
-            return [None] * rows.shape[0]
         sign = self._sign
         contrast, finite = self._ahead_memory.take(rows.shape), np.empty(rows.shape[0], dtype=np.bool_)
         filter_kernels.contrast_rows(rows, self.params.contrast_window, sign, contrast, finite)
@@ -295,11 +269,23 @@ class CatGraph(Method):
         from wiloc.methods.catgraph import rank_kernels  # numba loads with the first frame, not the command line
         from wiloc.methods.catgraph import filter_kernels
 
+        if self._growing:  # sequence mode: the map is the run's frames before the recent window and the frontier
+            if odometry is not None:
+                raise WilocError("catgraph", "takes no odometry in sequence mode", parameter="odometry")
+            n_map = self.frames - self.context.exclude_recent - self.params.frontier
+            if n_map < 2:
+                return Decision(match=-1, difference=float("nan"), confidence=float("nan"), stage="none")
+            self._grow(n_map)
+            row = row[:n_map]
+            pre = self._ahead_rows(row[None, :])[0]
         p, rng, nodes = self.params, self._rng, self._nodes
-        n_nodes, first = nodes.size, self.frames == 0
-        pre = self.row_ahead(row) if row.shape == (n_nodes,) else None
+        n_nodes = nodes.size
+        if not self._growing:
+            pre = self.row_ahead(row) if row.shape == (n_nodes,) else None
         if pre is None or not pre.finite:
             raise WilocError("catgraph", f"query frame {self.frames}: expected {n_nodes} finite values, one per map frame")
+        first = self._filtered == 0
+        self._filtered += 1
         if self._last is not None and np.array_equal(row, self._last):  # None before the first frame
             return self._repeat(row, odometry)
         self._last, self._standing = row.copy(), None
@@ -319,9 +305,15 @@ class CatGraph(Method):
                 speed = np.clip(speed + rng.normal(0.0, p.speed_noise, p.particles), *p.speed_range)
             pos = self._moved(pos, speed, u)
         n_reseed = int(round(p.reseed * p.particles))
+        weakness = self._log_w
+        if self._growing:  # sequence mode: a particle carried past either end of the map is re-seeded
+            outside = (pos < nodes[0]) | (pos > nodes[-1])
+            if outside.any():
+                weakness = np.where(outside, -np.inf, self._log_w)
+                n_reseed = max(n_reseed, int(outside.sum()))
         kept = np.ones(p.particles, dtype=bool)
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
-            weakest = smallest(self._log_w, n_reseed, rng)
+            weakest = smallest(weakness, n_reseed, rng)
             kept[weakest] = False
             self._reseed(weakest, lowest, pos, speed, first)
 
@@ -347,10 +339,12 @@ class CatGraph(Method):
         return decision
 
     def _moved(self, pos: NDArray[np.float64], speed: NDArray[np.float64], u: float) -> NDArray[np.float64]:
-        """The motion model: s += v u + noise (sd ``step_noise`` of the step, floored), kept on the map."""
+        """The motion model: s += v u + noise (sd ``step_noise`` of the step, floored), kept on the
+        map (in sequence mode a particle past its ends is re-seeded instead: :meth:`decide`)."""
         p, nodes = self.params, self._nodes
         sd = np.hypot(p.step_noise * u * np.abs(speed), p.noise_floor * self._spacing)
-        return np.clip(pos + speed * u + self._rng.normal(0.0, sd, p.particles), nodes[0], nodes[-1])
+        moved = pos + speed * u + self._rng.normal(0.0, sd, p.particles)
+        return moved if self._growing else np.clip(moved, nodes[0], nodes[-1])
 
     def _read_out(self, row: NDArray[np.floating], j: NDArray[np.intp], a: NDArray[np.float64],
                   w: NDArray[np.float64]) -> Decision:
@@ -360,7 +354,7 @@ class CatGraph(Method):
 
         mode, mass = filter_kernels.posterior_mode(j, a, w, self.params.mode_window, MODE_TIE, self._own, self._marks,
                                                    self.frames + 1)
-        p_new = self._unexplained.new_place
+        p_new = self._new_place
         return Decision(match=mode, difference=float(self._sign * row[mode]), confidence=float(mass * (1.0 - p_new)),
                         stage="track", new_place=p_new, ranking=tuple(posterior_ranking(self._own, mode).tolist()))
 
@@ -427,8 +421,16 @@ class CatGraph(Method):
         +-mode_window nodes), the map explaining it."""
         from wiloc.methods.catgraph import filter_kernels  # numba loads with the first frame, not the command line
 
+        if self._nodes.size == 0:  # sequence mode before the filter starts
+            return 0.0
         mass = filter_kernels.window_sum(self._own, self.params.mode_window, node)
-        return float(mass * (1.0 - self._unexplained.new_place))
+        return float(mass * (1.0 - self._new_place))
+
+    @property
+    def _new_place(self) -> float:
+        """P(new place): in sequence mode every frame the map does not explain (one traversal
+        has no blind spots), on a map the learned share of departures among them."""
+        return self._unexplained.u if self._growing else self._unexplained.new_place
 
     def _travelled(self, odometry: float | None) -> float:
         """u_k: the query's odometry step, else the mean node spacing."""
@@ -449,8 +451,10 @@ class CatGraph(Method):
                 "departure_share": self._unexplained.q if hasattr(self, "_unexplained") else None}
 
     def save_state(self) -> dict[str, Any]:
-        return {"nodes": self._nodes, "omega": self._omega, "pos": self._pos, "speed": self._speed,
-                "log_w": self._log_w, "sequence": self._sequence.copy(), "own": self._own.copy(),
+        if self._nodes.size == 0:  # sequence mode before the filter starts
+            return {"nodes": self._nodes, "filtered": 0}
+        return {"nodes": self._nodes, "filtered": self._filtered, "omega": self._omega, "pos": self._pos,
+                "speed": self._speed, "log_w": self._log_w, "sequence": self._sequence.copy(), "own": self._own.copy(),
                 "odometer": self._odometer,
                 "odometry": self._odometry, "likelihood": self._likelihood.state(),
                 "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state,
@@ -459,7 +463,12 @@ class CatGraph(Method):
 
     def load_state(self, state: Mapping[str, Any]) -> None:
         p = self.params
+        self._growing = self.context is not None and self.context.sequence
+        self._filtered = int(state["filtered"])
         self._nodes = np.asarray(state["nodes"], dtype=np.float64)
+        self._odometry = False
+        if self._nodes.size == 0:
+            return
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
         self._omega = np.asarray(state["omega"], dtype=np.float64)
         self._damped = np.flatnonzero(self._omega < 1.0)
@@ -476,7 +485,7 @@ class CatGraph(Method):
         self._likelihood = self._observation_model()
         self._likelihood.load(state["likelihood"])
         self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
-                                        p.stretch_open, p.stretch_close)
+                                        p.stretch_open, p.stretch_close)  # u0 is overwritten: any will do
         self._unexplained.load(state["unexplained"])
         self._rng = np.random.default_rng()
         self._rng.bit_generator.state = state["rng"]

@@ -83,17 +83,28 @@ def lowest_nodes(score: NDArray[np.float64], top: int) -> NDArray[np.intp]:
     return np.array([int(np.argmin(score))]) if top == 1 else smallest(score, top)
 
 
+def even_shifted_reads(n_nodes: int, shifts: NDArray[np.float64],
+                       shortest: int = 16) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]:
+    """:func:`shifted_reads` of the nodes 0, 1, ..., n_nodes - 1 and their :func:`read_runs`,
+    in one compiled pass (``filter_kernels.even_reads``)."""
+    from wiloc.methods.catgraph import filter_kernels  # numba loads on first use, not with the command line
+
+    at, a = np.empty(shifts.size * n_nodes, dtype=np.intp), np.empty(shifts.size * n_nodes)
+    out = np.empty((at.size // shortest + 1, 2), dtype=np.intp)
+    count = filter_kernels.even_reads(n_nodes, np.asarray(shifts, dtype=np.float64), at, a, shortest, out)
+    return at, a, out[:count]
+
+
 def read_runs(at: NDArray[np.intp], a: NDArray[np.float64], n_nodes: int,
                shortest: int = 16) -> NDArray[np.intp]:
     """The stretches of :func:`shifted_reads` (rows: first, end) at least ``shortest`` long
     that stay within one speed's row and read consecutive positions at one fraction: nearly
-    everything on evenly spaced nodes, little on uneven ones (``filter_kernels.advance``)."""
-    k = np.arange(at.size)
-    new = (k % n_nodes == 0) | np.concatenate(([True], (at[1:] != at[:-1] + 1) | (a[1:] != a[:-1])))
-    first = np.flatnonzero(new)
-    end = np.append(first[1:], at.size)
-    long = end - first >= shortest
-    return np.column_stack((first[long], end[long])).astype(np.intp)
+    everything on evenly spaced nodes, little on uneven ones (``filter_kernels.advance``; found
+    by ``filter_kernels.runs``)."""
+    from wiloc.methods.catgraph import filter_kernels  # numba loads on first use, not with the command line
+
+    out = np.empty((at.size // shortest + 1, 2), dtype=np.intp)
+    return out[:filter_kernels.runs(at, a, n_nodes, shortest, out)]
 
 
 def posterior_ranking(own: NDArray[np.float64], mode: int, k: int = RANKED) -> NDArray[np.int64]:
