@@ -18,6 +18,12 @@ night_right, 200 frames; Nordland: summer, winter):
     u-turn-on    GP day_right 80-199 (out), day_left 199 down to 120 (back over part of it, walked
                  the other way), then day_right 79 down to 0 (on, past the start, to new ground)
 
+``--loops held-out`` runs six more, put together the same way from the other traversals, for
+checking on loops not looked at what the five suggested: dl+dr, nr+dl (GP day_left then
+day_right, night_right then day_left), w+s (Nordland winter 0-999 then summer 0-999), s+w-later
+(summer then winter, frames 1000-1999), out-back-on-dl (day_left out and on, day_right round the
+loop) and u-turn-on-nr (night_right out and on, day_right back).
+
 Ground truth: frame k's true matches are the candidate frames (before k - exclude_recent) whose
 place is within +-2 of its own; a frame with none is a *first visit*, and any match accepted
 there is wrong. The measures are wiloc's own (``wiloc.evaluation.metrics``, ``wiloc.evaluation.reliability``): recall at
@@ -72,7 +78,16 @@ LOOPS: dict[str, tuple[str, list[tuple[str, int, int]]]] = {
     "s+w": (NORDLAND, [("summer", 0, 999), ("winter", 0, 999)]),
     "out-back-on": (GP, [("day_right", 0, 119), ("day_left", 40, 119), ("day_right", 120, 199)]),
     "u-turn-on": (GP, [("day_right", 80, 199), ("day_left", 199, 120), ("day_right", 79, 0)]),
+    # held out: put together the same way from other traversals, for checking what the loops above suggested
+    "dl+dr": (GP, [("day_left", 0, 199), ("day_right", 0, 199)]),
+    "nr+dl": (GP, [("night_right", 0, 199), ("day_left", 0, 199)]),
+    "w+s": (NORDLAND, [("winter", 0, 999), ("summer", 0, 999)]),
+    "s+w-later": (NORDLAND, [("summer", 1000, 1999), ("winter", 1000, 1999)]),
+    "out-back-on-dl": (GP, [("day_left", 0, 119), ("day_right", 40, 119), ("day_left", 120, 199)]),
+    "u-turn-on-nr": (GP, [("night_right", 80, 199), ("day_right", 199, 120), ("night_right", 79, 0)]),
 }
+HELD_OUT = ("dl+dr", "nr+dl", "w+s", "s+w-later", "out-back-on-dl", "u-turn-on-nr")
+DEFAULT_LOOPS = tuple(name for name in LOOPS if name not in HELD_OUT)
 
 
 @dataclass
@@ -188,11 +203,13 @@ def render(rows: list[dict[str, Any]]) -> Table:
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     parser = benchmark_parser(__doc__, "online,threshold,catgraph", "online.init=50")
-    parser.add_argument("--loops", default=",".join(LOOPS), help="comma-separated (default: all): " + ", ".join(LOOPS))
+    parser.add_argument("--loops", default=",".join(DEFAULT_LOOPS),
+                        help="comma-separated (default: %(default)s; 'held-out': " + ", ".join(HELD_OUT) + ")")
     parser.add_argument("--descriptors", default="sad", help="comma-separated (default: %(default)s)")
     args = parser.parse_args(argv)
     console = Console() if Console().is_terminal else Console(width=200)
-    loops = [name.strip() for name in args.loops.split(",") if name.strip()]
+    loops = [loop for name in args.loops.split(",") if name.strip()
+             for loop in (HELD_OUT if name.strip() == "held-out" else [name.strip()])]
     methods = [name.strip() for name in args.methods.split(",") if name.strip()]
     for name in loops:
         if name not in LOOPS:
