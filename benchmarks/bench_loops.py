@@ -16,7 +16,8 @@ night_right, 200 frames; Nordland: summer, winter):
     out-back-on  GP day_right 0-119 (out), day_left 40-119 (round a loop over part of it again),
                  then day_right 120-199 (on to new ground)
     u-turn-on    GP day_right 80-199 (out), day_left 199 down to 120 (back over part of it, walked
-                 the other way), then day_right 79 down to 0 (on, past the start, to new ground)
+                 the other way), then day_right 79 down to 0 (on, past the start, to new ground);
+                 re-sampled backwards, its frames still face the first pass's way
 
 ``--loops held-out`` runs six more, put together the same way from the other traversals, for
 checking on loops not looked at what the five suggested: dl+dr, nr+dl (GP day_left then
