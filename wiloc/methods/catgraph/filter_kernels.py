@@ -102,31 +102,17 @@ def advance(score: NDArray[np.float64], at: NDArray[np.intp], a: NDArray[np.floa
 
 
 @njit(cache=True, nogil=True)
-def even_reads(n: int, shifts: NDArray[np.float64], at: NDArray[np.intp], frac: NDArray[np.float64],
-               shortest: int, out: NDArray[np.intp]) -> int:
+def even_reads(n: int, shifts: NDArray[np.float64], at: NDArray[np.intp], frac: NDArray[np.float64]) -> None:
     """``trajectory.shifted_reads`` of the nodes 0, 1, ..., n - 1 (sequence mode's map, grown by
     one node per frame): what :func:`locate` finds at each position i - shift, value for value,
-    in one pass without its division or searches; with their :func:`runs` (written to ``out``,
-    how many returned), found in the same pass."""
-    count = 0
+    in one pass without its division or searches."""
     for v in range(shifts.size):
         base = v * n
-        first = base
         for i in range(n):
             x = i - shifts[v]
             k = min(max(int(x), 0), n - 2)
-            f = min(max(x - k, 0.0), 1.0)
-            here = base + i
-            if i > 0 and (base + k != at[here - 1] + 1 or f != frac[here - 1]):
-                if here - first >= shortest:
-                    out[count, 0], out[count, 1] = first, here
-                    count += 1
-                first = here
-            at[here], frac[here] = base + k, f
-        if base + n - first >= shortest:
-            out[count, 0], out[count, 1] = first, base + n
-            count += 1
-    return count
+            at[base + i] = base + k
+            frac[base + i] = min(max(x - k, 0.0), 1.0)
 
 
 @njit(cache=True, nogil=True)

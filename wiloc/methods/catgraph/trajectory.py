@@ -85,14 +85,13 @@ def lowest_nodes(score: NDArray[np.float64], top: int) -> NDArray[np.intp]:
 
 def even_shifted_reads(n_nodes: int, shifts: NDArray[np.float64],
                        shortest: int = 16) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]:
-    """:func:`shifted_reads` of the nodes 0, 1, ..., n_nodes - 1 and their :func:`read_runs`,
-    in one compiled pass (``filter_kernels.even_reads``)."""
+    """:func:`shifted_reads` of the nodes 0, 1, ..., n_nodes - 1 (``filter_kernels.even_reads``)
+    and their :func:`read_runs`."""
     from wiloc.methods.catgraph import filter_kernels  # numba loads on first use, not with the command line
 
     at, a = np.empty(shifts.size * n_nodes, dtype=np.intp), np.empty(shifts.size * n_nodes)
-    out = np.empty((at.size // shortest + 1, 2), dtype=np.intp)
-    count = filter_kernels.even_reads(n_nodes, np.asarray(shifts, dtype=np.float64), at, a, shortest, out)
-    return at, a, out[:count]
+    filter_kernels.even_reads(n_nodes, np.asarray(shifts, dtype=np.float64), at, a)
+    return at, a, read_runs(at, a, n_nodes, shortest)
 
 
 def read_runs(at: NDArray[np.intp], a: NDArray[np.float64], n_nodes: int,
