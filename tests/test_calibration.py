@@ -233,7 +233,8 @@ def test_one_threshold_across_environments_keeps_each_traversals_recall(runs: di
 @pytest.mark.realdata
 @pytest.mark.parametrize("query", ["day_left", "night_right"])
 def test_a_query_that_leaves_the_map_says_so(data_root, query: str, tmp_path, cache_dir) -> None:
-    """Map frames 60-99 left out: query frames 60-99 have no true match."""
+    """Map frames 60-99 left out: query frames 60-99 have no true match. P(new place) there is
+    averaged over seeds 0-3: on night_right one seed's mean moves by up to 0.05 either way."""
     import shutil
     from wiloc import api
     gp = data_root / "gardens-point-walking"
@@ -242,12 +243,15 @@ def test_a_query_that_leaves_the_map_says_so(data_root, query: str, tmp_path, ca
     for image in (gp / "day_right").glob("*.jpg"):
         if not 60 <= int(image.stem[-3:]) <= 99:
             shutil.copy(image, partial / image.name)
-    run = api.localize(gp / query, reference=partial, method="catgraph")
-    e = api.evaluate(run, api.TruthSource(tolerance=2))
-    assert _at(e, 0.9)[0] >= 0.9 and _at(e, 0.99)[0] >= 0.98
-    frames = run.results.frames
-    gone = frames["frame"].str[5:8].astype(int).between(60, 99).to_numpy()
-    assert frames["new_place"].to_numpy()[gone].mean() > 0.5
+    new_place = []
+    for seed in range(4):
+        run = api.localize(gp / query, reference=partial, method="catgraph", method_params={"seed": seed})
+        e = api.evaluate(run, api.TruthSource(tolerance=2))
+        assert _at(e, 0.9)[0] >= 0.9 and _at(e, 0.99)[0] >= 0.98, seed
+        frames = run.results.frames
+        gone = frames["frame"].str[5:8].astype(int).between(60, 99).to_numpy()
+        new_place.append(frames["new_place"].to_numpy()[gone].mean())
+    assert np.mean(new_place) > 0.5
 
 
 def test_ranks_from_one_sort_are_the_searched_ranks_with_ties() -> None:

@@ -130,6 +130,29 @@ def test_detour_raises_new_place_and_relocalizes() -> None:
     assert np.median(dec.confidence[detour]) < np.median(dec.confidence[30:80])
 
 
+def test_a_query_driving_on_past_the_end_of_the_map_is_off_it() -> None:
+    # The map's last 100 places, then 30 frames on past its end (ground the map does not hold). A
+    # particle carried past an end is re-seeded and its weight goes to the unexplained hypothesis:
+    # nothing there is claimed. Held at the end (before), particles stood on the last nodes and
+    # matches beyond the end reached confidence 0.72 (P(new place) 0.87 on average).
+    rng = np.random.default_rng(0)
+    truth = np.r_[np.arange(200.0, 300.0), np.full(30, np.nan)]
+    dec = localize_catgraph(iter(_rows(truth, N_REF, rng)), _ref_self(rng), truth.size)
+    beyond = slice(105, 130)
+    assert _hits(dec.match[20:100], truth[20:100]).mean() >= 0.9
+    assert dec.confidence[beyond].max() < 0.2
+    assert dec.columns["new_place"][beyond].mean() > 0.9
+
+
+def test_weight_carried_past_the_ends_moves_from_the_track_to_the_unexplained() -> None:
+    from wiloc.methods.catgraph.observation import Transition
+    prior = Transition(track=0.7, jump=0.1, unexplained=0.2)
+    moved = prior.beyond(0.25)
+    assert moved.track == pytest.approx(0.525) and moved.unexplained == pytest.approx(0.375)
+    assert moved.jump == 0.1 and moved.track + moved.jump + moved.unexplained == pytest.approx(1.0)
+    assert prior.beyond(0.0) == prior
+
+
 def test_an_image_repeated_exactly_is_evidence_once() -> None:
     # A camera standing still on one place: 16 frames. Nearly repeated images (each with its own
     # noise) are evidence each time, and the track becomes sure; the same image repeated exactly

@@ -75,7 +75,8 @@ class CatGraph(Method):
     +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
     the confidence (that mass times 1 - P(new place)) and P(new place). The same seed gives
     identical decisions, on any CPU. Started in sequence mode (no map) the map grows with the
-    traversal (:meth:`_grow`) and a particle carried past its ends is re-seeded.
+    traversal (:meth:`_grow`). A particle carried past either end of the map is re-seeded; on a
+    map its weight goes to the unexplained hypothesis (the query has left the mapped route).
     """
 
     name = "catgraph"
@@ -306,11 +307,12 @@ class CatGraph(Method):
             pos = self._moved(pos, speed, u)
         n_reseed = int(round(p.reseed * p.particles))
         weakness = self._log_w
-        if self._growing:  # sequence mode: a particle carried past either end of the map is re-seeded
-            outside = (pos < nodes[0]) | (pos > nodes[-1])
-            if outside.any():
-                weakness = np.where(outside, -np.inf, self._log_w)
-                n_reseed = max(n_reseed, int(outside.sum()))
+        outside = (pos < nodes[0]) | (pos > nodes[-1])  # carried past either end of the map: re-seeded
+        if outside.any():
+            weakness = np.where(outside, -np.inf, self._log_w)
+            n_reseed = max(n_reseed, int(outside.sum()))
+            if not self._growing:  # past a map's ends lies unmapped ground: their mass goes to U
+                prior = prior.beyond(float(np.exp(self._log_w[outside]).sum()))
         kept = np.ones(p.particles, dtype=bool)
         if n_reseed > 0:  # re-seed the weakest particles at the best sequence-score nodes
             weakest = smallest(weakness, n_reseed, rng)
@@ -339,12 +341,11 @@ class CatGraph(Method):
         return decision
 
     def _moved(self, pos: NDArray[np.float64], speed: NDArray[np.float64], u: float) -> NDArray[np.float64]:
-        """The motion model: s += v u + noise (sd ``step_noise`` of the step, floored), kept on the
-        map (in sequence mode a particle past its ends is re-seeded instead: :meth:`decide`)."""
-        p, nodes = self.params, self._nodes
+        """The motion model: s += v u + noise (sd ``step_noise`` of the step, floored); a particle
+        carried past either end of the map is re-seeded by :meth:`decide`."""
+        p = self.params
         sd = np.hypot(p.step_noise * u * np.abs(speed), p.noise_floor * self._spacing)
-        moved = pos + speed * u + self._rng.normal(0.0, sd, p.particles)
-        return moved if self._growing else np.clip(moved, nodes[0], nodes[-1])
+        return pos + speed * u + self._rng.normal(0.0, sd, p.particles)
 
     def _read_out(self, row: NDArray[np.floating], j: NDArray[np.intp], a: NDArray[np.float64],
                   w: NDArray[np.float64]) -> Decision:

@@ -174,6 +174,14 @@ class Transition:
     jump: float  # somewhere else on the map (carried by re-seeded particles)
     unexplained: float  # a new place or a blind spot
 
+    def beyond(self, share: float) -> Transition:
+        """The masses when a ``share`` of the track's particle weight was carried past the map's
+        ends: the query has left the mapped route there, a new place, so that share of the
+        track's mass goes to the unexplained hypothesis."""
+        share = min(max(share, 0.0), 1.0)
+        return Transition(track=self.track * (1.0 - share), jump=self.jump,
+                          unexplained=self.unexplained + self.track * share)
+
 
 class Unexplained:
     """The probability U that the map does not explain the current frame, and the learned share
