@@ -444,6 +444,35 @@ def test_ctrl_c_during_an_import_waits_for_the_import_then_stops_the_command(
     assert (result.returncode, result.stdout, result.stderr) == expected
 
 
+def test_ctrl_c_while_numba_compiles_waits_for_the_kernel_then_stops_the_command() -> None:
+    """Ctrl-C that arrives while numba compiles a kernel (seconds on its first call with a cold
+    cache) is held until the kernel is built (raised inside the compiler, it leaves the kernel
+    half-built and surfaces as numba's own error, or not at all), then stops the command: one
+    line, 130."""
+    code = ("import os, signal, sys, threading, time, numba, wiloc.cli, wiloc.__main__ as entry\n"
+            "main = threading.main_thread().ident\n"
+            "def in_numba():\n"
+            "    frame = sys._current_frames().get(main)\n"
+            "    while frame is not None and f'{os.sep}numba{os.sep}' not in frame.f_code.co_filename:\n"
+            "        frame = frame.f_back\n"
+            "    return frame is not None\n"
+            "def interrupt_the_compile():\n"
+            "    while not in_numba():\n"
+            "        time.sleep(0.0005)\n"
+            "    signal.pthread_kill(main, signal.SIGINT)\n"
+            "def run(args=None):\n"
+            "    kernel = numba.njit(lambda x: x + 1)\n"
+            "    threading.Thread(target=interrupt_the_compile, daemon=True).start()\n"
+            "    print('compiled', kernel(1), flush=True)\n"
+            "    time.sleep(3)\n"
+            "    print('not interrupted', flush=True)\n"
+            "    return 0\n"
+            "wiloc.cli.run = run\n"
+            "sys.exit(entry.main())\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert (result.returncode, result.stdout, result.stderr) == (130, "compiled 2\n", "error: interrupted\n")
+
+
 def test_ctrl_c_after_the_work_leaves_the_exit_code_alone(route: tuple[Path, Path], tmp_path: Path) -> None:
     """A Ctrl-C while the finished process exits (interpreter teardown) neither kills it nor
     prints anything: the command's own exit code stands."""

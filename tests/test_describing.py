@@ -196,6 +196,37 @@ def test_describe_keeps_decoder_warnings_off_stderr(tmp_path: Path) -> None:
         assert run.stderr == ""  # libpng's and libjpeg's own messages too: stderr is no terminal
 
 
+def test_ctrl_c_the_moment_decoders_are_quieted_leaves_stderr_where_it_was(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C raised just as descriptor 2 has been moved to /dev/null (the libjpeg messages'
+    silencer) puts it back: the command's "error: interrupted" must reach the user."""
+    from wiloc.description import frame_describing
+
+    image = tmp_path / write_images(tmp_path, 1)[0]
+    original = os.fstat(2)
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    dup2 = os.dup2
+
+    def interrupted_on_quieting(fd: int, fd2: int) -> int:
+        result = dup2(fd, fd2)
+        if fd == devnull:
+            raise KeyboardInterrupt
+        return result
+
+    monkeypatch.setattr(frame_describing, "_devnull", devnull)
+    monkeypatch.setattr(frame_describing.os, "dup2", interrupted_on_quieting)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            frame_describing._read_gray(image, None)
+        now = os.fstat(2)
+    finally:
+        dup2(saved, 2)  # for the tests after this one, whatever happened
+        os.close(saved)
+        os.close(devnull)
+    assert (now.st_dev, now.st_ino) == (original.st_dev, original.st_ino)
+
+
 def test_describe_in_another_process_reports_a_busy_entry(tmp_path: Path) -> None:
     from wiloc.descriptors.registry import get_descriptor
 

@@ -5,17 +5,21 @@ silently. Python raises it wherever the main thread happens to be, which is unsa
 inside the import system (numpy, OpenCV and numba load for the first second, and the work imports
 more as it goes). There an interrupt can end between a module lock's acquire and its release, so
 that the next import of that module, in any thread, waits forever; or inside the import system's
-own callback, where Python drops it and the command runs on to exit code 0. The command's handler
-therefore holds Ctrl-C while the main thread imports and delivers it again as soon as the import
-is done. An interrupt that a library swallows elsewhere (typer's pydantic, building its
-validators, reports it as "Exception ignored" and goes on) is delivered again too. Once the
-command is done, Ctrl-C no longer kills the process mid-exit: it ends with the command's own exit
-code. A command started with Ctrl-C ignored (in the background by a non-interactive shell) keeps
-ignoring it, as Python itself does: the shell meant Ctrl-C for the foreground job alone.
+own callback, where Python drops it and the command runs on to exit code 0. The same holds for
+numba's compiler (the kernels compile on their first call, for seconds when the cache is cold): an
+interrupt there leaves the kernel half-built, and numba reports that as an error of its own that no
+longer says it was Ctrl-C. The command's handler therefore holds Ctrl-C while the main thread
+imports or compiles and delivers it again as soon as that is done. An interrupt that a library
+swallows elsewhere (typer's pydantic, building its validators, reports it as "Exception ignored"
+and goes on) is delivered again too. Once the command is done, Ctrl-C no longer kills the process
+mid-exit: it ends with the command's own exit code. A command started with Ctrl-C ignored (in the
+background by a non-interactive shell) keeps ignoring it, as Python itself does: the shell meant
+Ctrl-C for the foreground job alone.
 """
 from __future__ import annotations
 
 import _thread
+import os
 import signal
 import sys
 import threading
@@ -25,14 +29,19 @@ from typing import Any
 # nothing of wiloc's own before main() has installed its Ctrl-C handler: the console script
 # imports this module first
 
-#: How long a Ctrl-C that arrived during an import waits before it is delivered again (seconds).
+#: How long a Ctrl-C that arrived during an import or a compile waits before it is delivered
+#: again (seconds).
 RETRY_SECONDS = 0.02
 
+#: The packages of numba's compiler, as they appear in a frame's file name.
+_COMPILER = (f"{os.sep}numba{os.sep}", f"{os.sep}llvmlite{os.sep}")
 
-def _importing(frame: FrameType | None) -> bool:
-    """Whether the main thread, at ``frame``, is inside the import system."""
+
+def _uninterruptible(frame: FrameType | None) -> bool:
+    """Whether the main thread, at ``frame``, is inside the import system or numba's compiler."""
     while frame is not None:
-        if frame.f_code.co_filename.startswith("<frozen importlib"):
+        name = frame.f_code.co_filename
+        if name.startswith("<frozen importlib") or any(package in name for package in _COMPILER):
             return True
         frame = frame.f_back
     return False
@@ -46,8 +55,9 @@ def _deliver_later() -> None:
 
 
 def _on_ctrl_c(signum: int, frame: FrameType | None) -> None:
-    """The SIGINT handler: KeyboardInterrupt, held back while the main thread imports."""
-    if _importing(frame):
+    """The SIGINT handler: KeyboardInterrupt, held back while the main thread imports or
+    compiles."""
+    if _uninterruptible(frame):
         _deliver_later()
         return
     raise KeyboardInterrupt

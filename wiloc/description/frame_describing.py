@@ -235,7 +235,9 @@ def _decoders_quiet() -> Iterator[None]:
     """File descriptor 2 on /dev/null meanwhile: libjpeg prints "Corrupt JPEG data: ..." there
     itself. Always in a worker, which runs no other thread, so nothing else is lost; in the
     caller's process only when stderr is no terminal: on a terminal other threads of the caller
-    (a progress display) write there, so it is left alone."""
+    (a progress display) write there, so it is left alone. Descriptor 2 is moved inside the
+    ``try``: a Ctrl-C raised the moment the move is done still puts it back (else the command's
+    own "error: interrupted" would go to /dev/null)."""
     global _devnull
     if _devnull is None:
         if os.isatty(2):
@@ -243,8 +245,8 @@ def _decoders_quiet() -> Iterator[None]:
             return
         _devnull = os.open(os.devnull, os.O_WRONLY)
     saved = os.dup(2)
-    os.dup2(_devnull, 2)
     try:
+        os.dup2(_devnull, 2)
         yield
     finally:
         os.dup2(saved, 2)
