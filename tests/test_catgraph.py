@@ -355,8 +355,7 @@ def test_weighing_is_the_numpy_expression_up_to_the_order_of_sums(renormalise: b
     # ln a: the kernel's log is the C library's, numpy's may be its own SIMD loop (numpy 1.24 on an
     # AVX-512 CPU differs in the last bit on a few values), so the ratios agree to rounding
     np.testing.assert_allclose(log_ratio, want, rtol=1e-15, atol=1e-15)
-    ones = np.ones(1)
-    total = np.dot(model._sorted.counts, np.exp(model.log_ratio(model._sorted.t, ones)))
+    total = np.sum(np.exp(model.log_ratio(model.t(row), np.ones(900))))
     assert model.mean(np.ones(900)) == pytest.approx(np.log(total) - np.log(900), rel=1e-12)
 
     log_w = np.log(rng.dirichlet(np.ones(500)))
@@ -449,13 +448,29 @@ def test_sequence_modes_reads_are_those_of_the_general_lookup_on_its_nodes(n: in
 def test_sequence_mode_closes_the_gardens_point_loop_with_probabilities(data_root, descriptor: str) -> None:
     """GP day_right then day_left as one traversal (benchmarks/bench_loops.py, loop dr+dl),
     without a map: the revisit is followed, every frame claimed at 0.99 is right, first visits
-    are called new places, and with sad the confidence is calibrated (ECE 0.019 measured)."""
+    are called new places, and the confidence is calibrated (ECE 0.025 and 0.040 measured)."""
     from helpers import benchmark_module
 
     with benchmark_module("bench_loops") as bench:
         row = bench.run_loop(bench.load_loop("dr+dl", descriptor, data_root), "catgraph")
     assert row["r1"] >= 0.9 and row["r100"] >= 0.7
     assert row["precision@0.99"] >= 0.99 and row["accepted@0.99"] >= 100
-    assert row["new_first"] >= 0.85 and row["new_revisit"] <= 0.1
+    assert row["new_first"] >= 0.85 and row["new_revisit"] <= 0.1 and row["ece"] <= 0.05
     if descriptor == "sad":
-        assert row["ece"] <= 0.05 and row["new_first"] >= 0.95
+        assert row["new_first"] >= 0.95
+
+
+@pytest.mark.realdata
+def test_a_first_pass_through_look_alike_country_is_new_ground(data_root) -> None:
+    """Nordland summer 0-999 then winter 0-999 as one traversal with gist (loop s+w): the first
+    pass is mostly forest and track that resemble earlier frames by chance. Read against each
+    node's chance resemblance, its frames are called new places (mean P(new place) 0.83, against
+    0.40 with every node alike; 0.52 on a simulated AVX2 CPU, where gist's last digits differ) and
+    the confidence is near calibrated (ECE 0.075 / 0.079, against 0.240 / 0.191)."""
+    from helpers import benchmark_module
+
+    with benchmark_module("bench_loops") as bench:
+        loop = bench.load_loop("s+w", "gist", data_root)
+        row, alike = bench.run_loop(loop, "catgraph"), bench.run_loop(loop, "catgraph", {"hub_weight": 0})
+    assert row["new_first"] >= 0.75 and row["ece"] <= 0.1
+    assert alike["new_first"] <= row["new_first"] - 0.2 and alike["ece"] >= row["ece"] + 0.08  # what it changes

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from wiloc.decisions import Decision
 from wiloc.errors import WilocError
 from wiloc.methods.base import MapContext, Method
-from wiloc.methods.catgraph.observation import RankLikelihood, SortedRow, Unexplained, novelty_weights
+from wiloc.methods.catgraph.observation import RankLikelihood, Unexplained, novelty_weights
 from wiloc.methods.catgraph.params import CatGraphParams
 from wiloc.methods.catgraph.trajectory import (even_shifted_reads, locate, lowest_nodes, node_positions,
                                                posterior_ranking, read_runs, shifted_reads, smallest, systematic)
@@ -52,7 +52,7 @@ class RowAhead:
 
     contrast: NDArray[np.float64]  # the sequence score's contrast-normalised row, low = alike
     finite: bool  # whether every value of the row is finite
-    ordered: SortedRow  # what the rank model ranks against
+    ordered: NDArray[np.floating]  # what the rank model ranks against: the row sorted
 
 
 class CatGraph(Method):
@@ -121,7 +121,6 @@ class CatGraph(Method):
         self._nodes = nodes
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
         self._omega = omega
-        self._damped = np.flatnonzero(self._omega < 1.0)  # near duplicates
         self._likelihood = self._observation_model()
         self._unexplained = Unexplained(unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
                                         p.stretch_open, p.stretch_close)
@@ -206,7 +205,7 @@ class CatGraph(Method):
         """Ranks within each row: of the differences (whole images), or of FAB-MAP's negated
         log-likelihood ratios (``bow``), whose scale is then of no account."""
         p = self.params
-        return RankLikelihood(p.a0, p.n0, p.a_min)
+        return RankLikelihood(p.a0, p.n0, p.a_min, p.hub_weight)
 
     @property
     def _sign(self) -> float:
@@ -297,7 +296,7 @@ class CatGraph(Method):
             self._odometer += u
         likelihood, unexplained = self._likelihood, self._unexplained
         likelihood.use_row(row if self._sign > 0 else -row, pre.ordered)  # ranked as differences
-        log_mean_ratio = likelihood.mean(self._omega, self._damped)
+        log_mean_ratio = likelihood.mean(self._omega)
         prior = unexplained.transition(first)
 
         pos, speed = self._pos, self._speed
@@ -472,7 +471,6 @@ class CatGraph(Method):
             return
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
         self._omega = np.asarray(state["omega"], dtype=np.float64)
-        self._damped = np.flatnonzero(self._omega < 1.0)
         self._pos = np.asarray(state["pos"], dtype=np.float64).copy()
         self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()

@@ -10,6 +10,9 @@ the derivation and the measurements behind every default.
   no smoothing, floor or cap. FAB-MAP's evidence rows are ranked negated (-log-ratio as the
   difference): their scale, hundreds of nats, no longer reaches the posterior. ``a`` is learned by EM from the filter's own posterior (the run
   labels its own samples, as the paper's Appendix does), starting from ``a0`` with weight ``n0``.
+  Each node's rank is read against its own chance resemblance (a node of a generic scene ranks
+  low in many rows): t is divided by the mean t the node has had in the run's rows (never
+  below 1), learned online as ``a`` is.
 - ``novelty_weights``: map frames that nearly repeat their neighbours (a stopped vehicle) are not
   independent evidence; at node j the model uses a_j = 1 - omega_j (1 - a).
 - ``Unexplained``: a two-state chain for "the frame is not explained by the map" (a new place or
@@ -43,70 +46,77 @@ def novelty_weights(neighbours: NDArray[np.float64], threshold: float) -> NDArra
     return np.clip(c / (threshold * median), 0.0, 1.0)
 
 
-@dataclass(frozen=True)
-class SortedRow:
-    """A row's values in increasing order (float32 when the row's values are float32 values),
-    and for each distinct value -ln u at its left rank (the number of values below it:
-    ``RankLikelihood``'s table there) and how many values share it."""
-
-    values: NDArray[np.floating]
-    t: NDArray[np.float64]
-    counts: NDArray[np.float64]
-
-
 def rank_table(n: int) -> NDArray[np.float64]:
     """-ln u of each left rank 0..n in rows of n values: u = (rank + 1/2) / n."""
     return -np.log((np.arange(n + 1) + 0.5) / n)
 
 
 class RankLikelihood:
-    """Beta(a, 1) against Uniform(0, 1) on a difference's rank within its own row; a by EM.
+    """Beta(a, 1) against Uniform(0, 1) on a difference's rank within its own row, each node's
+    rank read against how often that node resembles frames by chance; a by EM.
 
     The observation model of a filter over difference rows: :meth:`use_row` for each frame, then
     :meth:`at` the particles' positions and :meth:`mean` over the map, :meth:`learn` after the
     frame's posterior is known.
+
+    Chance resemblance (hubs): a map frame of a generic scene (a stretch of forest, a blank wall)
+    ranks low in many query rows whatever the place, so a low rank there is weaker evidence than
+    the uniform null assumes. Node j's t = -ln u is divided by its *chance scale* m_j, the mean
+    t it has had in the run's rows so far, with a prior of 1 worth ``hub_weight`` frames: under
+    the null t / m_j is again Exp(1), so the ratio stays proper. Every row counts for every
+    node, the few taken at its place too, so look-alike places keep equal evidence (rows taken
+    away from a node only would teach the place the posterior doubts that it resembles by chance,
+    and hand the track to its look-alike). m_j is never taken below 1: a node that rarely
+    resembles anything is not trusted more than a uniform rank (its tail is the least known).
     """
 
-    def __init__(self, a0: float, n0: float, a_min: float) -> None:
+    def __init__(self, a0: float, n0: float, a_min: float, hub_weight: float = 0.0) -> None:
         self.a_min = a_min
+        self.hub_weight = hub_weight
         self.s0, self.s1 = n0, n0 / a0  # EM sufficient statistics: weight and weighted sum of t
-        self._sorted = SortedRow(np.empty(0), np.empty(0), np.empty(0))  # the current row, sorted
+        self.chance_sum, self.chance_count = np.zeros(0), np.zeros(0)  # per node: weighted sum of t, weight
+        self._sorted = np.empty(0)  # the current row, sorted
         self._row = np.empty(0)
         self._table = np.empty(0)  # t of each left rank 0..N for rows of N values
-        self._t = np.empty(0)  # t at the particles of the current frame
+        self._nodes_t = np.empty(0)  # t of every node in the current row (unscaled)
+        self._scale = np.ones(0)  # each node's chance scale m_j for the current row
+        self._t = np.empty(0)  # t / m at the particles of the current frame
 
     @property
     def a(self) -> float:
         """The current shape: S0 / S1, kept in [a_min, 1] (1: no evidence at all)."""
         return min(1.0, max(self.a_min, self.s0 / self.s1))
 
-    def order(self, rows: NDArray[np.floating], memory: RecycledArrays | None = None) -> list[SortedRow]:
+    def order(self, rows: NDArray[np.floating], memory: RecycledArrays | None = None) -> NDArray[np.floating]:
         """What :meth:`use_row` ranks against, for each of a block of rows: the row sorted (as
         float32 when its values are float32 values, as the difference kernels give them: that
-        sort took 0.07 ms against float64's 0.18 ms and an argsort's 0.34 ms at 35,000 nodes)
-        and its distinct ranks, computed for all rows in one compiled pass. Sorted float32 rows
-        go to ``memory`` when given (a run's recycled float32 arrays)."""
-        from wiloc.methods.catgraph.rank_kernels import distinct_ranks  # numba loads with the first frame
-
+        sort took 0.07 ms against float64's 0.18 ms and an argsort's 0.34 ms at 35,000 nodes).
+        Sorted float32 rows go to ``memory`` when given (a run's recycled float32 arrays)."""
         narrow = rows.astype(np.float32, copy=False)
         if narrow is rows or np.array_equal(narrow, rows):
             ordered = np.empty(rows.shape, np.float32) if memory is None else memory.take(rows.shape)
             ordered[...] = narrow
             ordered.sort(axis=1)
-        else:
-            ordered = np.sort(rows, axis=1)
-        sizes = np.empty(rows.shape[0], dtype=np.intp)
-        t, counts = distinct_ranks(ordered, self._ranks_of(rows.shape[1]), sizes)
-        ends = np.cumsum(sizes).tolist()
-        return [SortedRow(ordered[r], t[end - size:end], counts[end - size:end])
-                for r, (size, end) in enumerate(zip(sizes.tolist(), ends))]
+            return ordered
+        return np.sort(rows, axis=1)
 
-    def use_row(self, row: NDArray[np.float64], ordered: SortedRow | None = None) -> None:
+    def use_row(self, row: NDArray[np.float64], ordered: NDArray[np.floating] | None = None) -> None:
         """Rank later differences against this query row (finite values), given its
-        :meth:`order` when that was computed ahead."""
+        :meth:`order` when that was computed ahead; every node's rank and chance scale."""
+        from wiloc.methods.catgraph.rank_kernels import chance_scale  # numba loads with the first frame
+
         self._row = row
         self._sorted = self.order(row[None, :])[0] if ordered is None else ordered
-        self._ranks_of(row.size)
+        n = row.size
+        self._nodes_t = self.t(row)
+        if self.chance_sum.size < n:  # sequence mode: the map grew
+            grown = n - self.chance_sum.size
+            self.chance_sum = np.concatenate((self.chance_sum, np.zeros(grown)))
+            self.chance_count = np.concatenate((self.chance_count, np.zeros(grown)))
+        if self._scale.size != n:
+            self._scale = np.ones(n)
+        if self.hub_weight > 0:
+            chance_scale(self.chance_sum, self.chance_count, self.hub_weight, self._scale)
 
     def _ranks_of(self, n: int) -> NDArray[np.float64]:
         """The table of -ln u for rows of n values (kept for the next row of that length)."""
@@ -115,37 +125,27 @@ class RankLikelihood:
         return self._table
 
     def at(self, j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
-        """ln lambda at positions a ``frac`` of the way from node j to j + 1 (the difference
-        interpolated there), each with its near-duplicate weight ``omega``."""
+        """ln lambda at positions a ``frac`` of the way from node j to j + 1 (the difference and
+        the chance scale interpolated there), each with its near-duplicate weight ``omega``."""
         from wiloc.methods.catgraph.rank_kernels import rank_log_ratio  # numba loads with the first frame
 
         self._t, out = np.empty(j.size), np.empty(j.size)
-        rank_log_ratio(self._row, self._sorted.values, self._table, j, frac, omega, self.a, self._t, out)
+        rank_log_ratio(self._row, self._sorted, self._ranks_of(self._row.size), self._scale, j, frac, omega, self.a,
+                       self._t, out)
         return out
 
-    def mean(self, omega: NDArray[np.float64], damped: NDArray[np.intp] | None = None) -> float:
-        """ln of the mean lambda over every map node: the evidence for "somewhere on the map".
-
-        A node of weight omega 1 has the ratio of its rank alone, so the sum needs no ranks per
-        node: lambda at each distinct rank of the row, weighted by how many nodes share it, as if
-        every node had weight 1, corrected at the ``damped`` nodes (omega < 1, a stopped
-        vehicle's few; found in ``omega`` unless given), each ranked by a search.
-        """
+    def mean(self, omega: NDArray[np.float64]) -> float:
+        """ln of the mean lambda over every map node: the evidence for "somewhere on the map"."""
         from wiloc.methods.catgraph.rank_kernels import ratio_sum  # numba loads with the first frame
 
-        total = ratio_sum(self._sorted.t, self._sorted.counts, self.a)
-        damped = np.flatnonzero(omega < 1.0) if damped is None else damped
-        if damped.size:
-            t = self.t(self._row[damped])
-            total += float(np.sum(np.exp(self.log_ratio(t, omega[damped])) - np.exp(self.log_ratio(t, np.ones(1)))))
-        return float(np.log(total)) - np.log(self._row.size)
+        return float(np.log(ratio_sum(self._nodes_t, self._scale, omega, self.a))) - np.log(self._row.size)
 
     def t(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
         """-ln u of each difference: its mid-rank p-value in the row."""
         from wiloc.methods.catgraph.rank_kernels import table_at_ranks  # numba loads with the first frame
 
         t = np.empty(d.size)
-        table_at_ranks(self._sorted.values, self._table, d, t)
+        table_at_ranks(self._sorted, self._ranks_of(self._row.size), d, t)
         return t
 
     def log_ratio(self, t: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -155,15 +155,22 @@ class RankLikelihood:
 
     def learn(self, weight: NDArray[np.float64], in_map: float) -> None:
         """EM step: the frame's posterior weights of the particles (times their near-duplicate
-        weight, and the probability that the map explains the frame) add to the statistics."""
+        weight, and the probability that the map explains the frame) add to the statistics of
+        a; every node's t to its chance statistics."""
         self.s0 += in_map * float(weight.sum())
         self.s1 += in_map * float(np.dot(weight, self._t))
+        n = self._nodes_t.size
+        self.chance_sum[:n] += self._nodes_t
+        self.chance_count[:n] += 1.0
 
     def state(self) -> dict[str, Any]:
-        return {"s0": self.s0, "s1": self.s1}
+        return {"s0": self.s0, "s1": self.s1, "chance_sum": self.chance_sum.copy(),
+                "chance_count": self.chance_count.copy()}
 
     def load(self, state: dict[str, Any]) -> None:
         self.s0, self.s1 = float(state["s0"]), float(state["s1"])
+        self.chance_sum = np.asarray(state["chance_sum"], dtype=np.float64).copy()
+        self.chance_count = np.asarray(state["chance_count"], dtype=np.float64).copy()
 
 
 @dataclass(frozen=True)

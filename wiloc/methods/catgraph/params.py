@@ -56,6 +56,9 @@ class CatGraphParams(Parameters):
     a0: float = param(0.5, "Prior shape of the same-place rank model Beta(a, 1), before any frame.",
                       low=0.0, high=1.0, low_open=True)
     n0: float = param(10.0, "Weight of that prior, in frames.", low=0.0, low_open=True)
+    hub_weight: float = param(100.0, "Weight, in frames, of the prior that a map frame resembles query frames "
+                                     "by chance no more than any other: each node's rank is read against the "
+                                     "ranks it has had in the run's frames (0: every node alike).", low=0.0)
     a_min: float = param(0.02, "Smallest shape the rank model may learn (the sharpest evidence).",
                          low=0.0, high=1.0, low_open=True)
     jump: float = param(0.001, "Prior probability per frame of jumping elsewhere on the map.", low=0.0, high=1.0)

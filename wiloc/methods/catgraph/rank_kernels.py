@@ -1,6 +1,6 @@
 """The rank likelihood's passes over a row, compiled (``wiloc.methods.catgraph.observation.RankLikelihood``,
-docs/calibration.md): each row's distinct ranks, the left rank of any difference in the sorted row,
-ln lambda at the particles and the mean ratio over every node.
+docs/calibration.md): the left rank of any difference in the sorted row, ln lambda at the
+particles and the mean ratio over every node.
 
 ``wiloc.methods.catgraph.observation`` imports this module with a filter's first frame, so the command line loads
 no numba. Each kernel's docstring says how its arithmetic relates to the plain numpy expression it
@@ -20,40 +20,6 @@ def interpolate(values: NDArray[np.float64], j: NDArray[np.intp], frac: NDArray[
     values[j + 1]`` (eq. 8's interpolated observation, or a near-duplicate weight)."""
     for p in range(j.size):
         out[p] = (1.0 - frac[p]) * values[j[p]] + frac[p] * values[j[p] + 1]
-
-
-@njit(cache=True, nogil=True)
-def distinct_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64],
-                   sizes: NDArray[np.intp]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """For every row of sorted values: ``sizes[r]``, its number of distinct values, and (row
-    after row in the two returned arrays) ``table`` at the left rank of each distinct value (its
-    first place) and how many values share it. NaN never equals itself, so each NaN is a value
-    of its own, as numpy's ``!=`` has it. The first places are collected without a branch (a
-    sorted row's runs of equal values end at unpredictable places): each place is written as
-    the next distinct value's first, and kept only when its value differs from the one before."""
-    rows, n = ordered.shape
-    for r in range(rows):
-        row = ordered[r]
-        k = 1 if n else 0
-        for i in range(1, n):
-            k += row[i] != row[i - 1]
-        sizes[r] = k
-    t, counts = np.empty(sizes.sum()), np.empty(sizes.sum())
-    left = np.empty(n + 1, dtype=np.intp)
-    at = 0
-    for r in range(rows if n else 0):
-        row = ordered[r]
-        k = 0
-        left[0] = 0
-        for i in range(1, n):
-            left[k + 1] = i
-            k += row[i] != row[i - 1]
-        left[k + 1] = n
-        for d in range(k + 1):
-            t[at + d] = table[left[d]]
-            counts[at + d] = left[d + 1] - left[d]
-        at += k + 1
-    return t, counts
 
 
 @njit(cache=True, nogil=True)
@@ -93,15 +59,18 @@ def table_at_ranks(ordered: NDArray[np.floating], table: NDArray[np.float64], ke
 
 @njit(cache=True, nogil=True)
 def rank_log_ratio(row: NDArray[np.float64], ordered: NDArray[np.floating], table: NDArray[np.float64],
-                   j: NDArray[np.intp], frac: NDArray[np.float64], omega: NDArray[np.float64], a: float,
-                   t: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+                   scale: NDArray[np.float64], j: NDArray[np.intp], frac: NDArray[np.float64],
+                   omega: NDArray[np.float64], a: float, t: NDArray[np.float64], out: NDArray[np.float64]) -> None:
     """``RankLikelihood.at`` in one call: the difference :func:`interpolate`\\ d at each particle,
-    ``t`` = -ln u of its rank (:func:`table_at_ranks`) and ``out`` = ln lambda = ln a_j +
-    (1 - a_j) t with a_j = 1 - omega (1 - a), value for value the numpy expressions' (ln a_j
-    taken once for the particles of weight 1, nearly all)."""
+    ``t`` = -ln u of its rank (:func:`table_at_ranks`) over the node's chance ``scale``
+    (interpolated likewise), and ``out`` = ln lambda = ln a_j + (1 - a_j) t with a_j = 1 - omega
+    (1 - a), value for value the numpy expressions' (ln a_j taken once for the particles of
+    weight 1, nearly all)."""
     d = np.empty(j.size)
     interpolate(row, j, frac, d)
     table_at_ranks(ordered, table, d, t)
+    for p in range(j.size):
+        t[p] /= (1.0 - frac[p]) * scale[j[p]] + frac[p] * scale[j[p] + 1]
     whole = 1.0 - 1.0 * (1.0 - a)
     log_whole = np.log(whole)
     for p in range(j.size):
@@ -113,12 +82,27 @@ def rank_log_ratio(row: NDArray[np.float64], ordered: NDArray[np.floating], tabl
 
 
 @njit(cache=True, nogil=True)
-def ratio_sum(t: NDArray[np.float64], counts: NDArray[np.float64], a: float) -> float:
-    """sum of counts x lambda(t) at weight 1: the rank likelihood's total over every map node
-    from the row's distinct ranks (``RankLikelihood.mean``), in one pass."""
+def ratio_sum(t: NDArray[np.float64], scale: NDArray[np.float64], omega: NDArray[np.float64], a: float) -> float:
+    """sum over every map node of lambda = exp(ln a_j + (1 - a_j) t_j / scale_j), a_j = 1 -
+    omega_j (1 - a): the rank likelihood's total over the map (``RankLikelihood.mean``), in one
+    pass."""
     whole = 1.0 - 1.0 * (1.0 - a)
     log_whole = np.log(whole)
     total = 0.0
     for i in range(t.size):
-        total += counts[i] * np.exp(log_whole + (1.0 - whole) * t[i])
+        if omega[i] == 1.0:
+            total += np.exp(log_whole + (1.0 - whole) * t[i] / scale[i])
+        else:
+            a_i = 1.0 - omega[i] * (1.0 - a)
+            total += np.exp(np.log(a_i) + (1.0 - a_i) * t[i] / scale[i])
     return total
+
+
+@njit(cache=True, nogil=True)
+def chance_scale(total: NDArray[np.float64], weight: NDArray[np.float64], prior: float,
+                 out: NDArray[np.float64]) -> None:
+    """Each node's chance scale (``RankLikelihood``): ``max(1, (prior + total) / (prior +
+    weight))``, the weighted mean of its t with a prior of 1 worth ``prior`` frames."""
+    for i in range(out.size):
+        out[i] = max(1.0, (prior + total[i]) / (prior + weight[i]))
+
