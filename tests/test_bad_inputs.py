@@ -418,6 +418,15 @@ def test_ctrl_c_that_a_library_swallows_still_stops_the_command(route: tuple[Pat
     assert not out.exists()
 
 
+def assert_stopped_once_printing(result: subprocess.CompletedProcess[str], line: str) -> None:
+    """The held Ctrl-C stopped the command (one line, 130) after the work it waited for, whose
+    result ``line`` prints: the line was begun (its values are computed before anything is
+    written), and it is whole unless the interrupt, delivered again every few milliseconds while
+    held, landed inside the print itself, as it can on a loaded machine."""
+    assert (result.returncode, result.stderr) == (130, "error: interrupted\n"), result.stderr
+    assert result.stdout and line.startswith(result.stdout), result.stdout
+
+
 @pytest.mark.parametrize(("ignored", "expected"), [(False, (130, "imported True\n", "error: interrupted\n")),
                                                     (True, (0, "imported True\nnot interrupted\n", ""))],
                          ids=["held", "ignored from the start"])
@@ -441,7 +450,10 @@ def test_ctrl_c_during_an_import_waits_for_the_import_then_stops_the_command(
             "sys.exit(entry.main())\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
                             env={**os.environ, "PYTHONPATH": str(tmp_path)})
-    assert (result.returncode, result.stdout, result.stderr) == expected
+    if ignored:
+        assert (result.returncode, result.stdout, result.stderr) == expected
+    else:
+        assert_stopped_once_printing(result, expected[1])
 
 
 def test_ctrl_c_while_numba_compiles_waits_for_the_kernel_then_stops_the_command() -> None:
@@ -470,7 +482,7 @@ def test_ctrl_c_while_numba_compiles_waits_for_the_kernel_then_stops_the_command
             "wiloc.cli.run = run\n"
             "sys.exit(entry.main())\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert (result.returncode, result.stdout, result.stderr) == (130, "compiled 2\n", "error: interrupted\n")
+    assert_stopped_once_printing(result, "compiled 2\n")
 
 
 def test_ctrl_c_after_the_work_leaves_the_exit_code_alone(route: tuple[Path, Path], tmp_path: Path) -> None:
