@@ -35,7 +35,9 @@ from wiloc.sources.video import Sampling
 from wiloc.version import __version__
 
 STATE_FORMAT = "wiloc-localizer-state"
-STATE_VERSION = 4  # 4: sequence mode runs the catgraph filter (3: catgraph knows a repeated image; 2: it ranks FAB-MAP evidence)
+#: 5: catgraph reads each node against its chance resemblance; 4: sequence mode runs the catgraph
+#: filter; 3: catgraph knows a repeated image; 2: it ranks FAB-MAP evidence
+STATE_VERSION = 5
 
 
 class Localizer:
