@@ -507,6 +507,36 @@ def test_usage_errors_are_one_line_from_the_console_script_too(args: list[str], 
     assert result.stderr.splitlines() == [result.stderr.strip()] and result.stderr.startswith(message)
 
 
+def _closed_output(command: list[str]) -> subprocess.CompletedProcess[str]:
+    """``command`` run with its stdout a pipe whose reader has already gone (`... | head`)."""
+    reader, writer = os.pipe()
+    os.close(reader)
+    try:
+        return subprocess.run(command, stdout=writer, stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(writer)
+
+
+@pytest.mark.parametrize("args", [["--help"], ["localize", "--help"], ["--version"], ["evaluate", "RESULTS"],
+                                  ["evaluate", "RESULTS", "--json"]])
+def test_a_reader_that_closes_the_output_ends_the_command_quietly(args: list[str], results: Path) -> None:
+    """`wiloc ... | head`: every print of the command meets the closed pipe."""
+    result = _closed_output([str(_console_script()), *[str(results) if a == "RESULTS" else a for a in args]])
+    assert (result.returncode, result.stderr) == (1, "")
+
+
+@pytest.mark.parametrize("output", ["print('x' * 100_000)", "print('x')"])
+def test_a_closed_output_met_outside_rich_ends_quietly_too(output: str) -> None:
+    """Where the pipe closes after rich's print and before the next one (`wiloc --help | head -1`:
+    click writes the rest), or only when the buffered end of the output is flushed."""
+    code = ("import sys, wiloc.cli, wiloc.__main__ as entry\n"
+            f"def run(args=None):\n    {output}\n    return 0\n"
+            "wiloc.cli.run = run\n"
+            "sys.exit(entry.main())\n")
+    result = _closed_output([sys.executable, "-c", code])
+    assert (result.returncode, result.stderr) == (1, "")
+
+
 # ------------------------------------------------------------- frames left out, each with a line
 
 BAD_NAME = os.fsdecode(b"Image\xff\xfe050.png")  # not UTF-8: held by Python as lone surrogates

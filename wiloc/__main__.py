@@ -15,6 +15,11 @@ and goes on) is delivered again too. Once the command is done, Ctrl-C no longer 
 mid-exit: it ends with the command's own exit code. A command started with Ctrl-C ignored (in the
 background by a non-interactive shell) keeps ignoring it, as Python itself does: the shell meant
 Ctrl-C for the foreground job alone.
+
+A reader of the output that stops reading (``wiloc localize --help | head -3``) ends the command
+quietly with exit code 1, as rich, which prints the tables, ends it when the pipe closes inside one
+of its prints: what was done stays done (the cache, a results file written whole), and nothing
+more is printed.
 """
 from __future__ import annotations
 
@@ -80,11 +85,16 @@ def main() -> int:
     if signal.getsignal(signal.SIGINT) != signal.SIG_IGN:
         signal.signal(signal.SIGINT, _on_ctrl_c)  # first: everything after it may import
     sys.unraisablehook = _deliver_swallowed_interrupt
-    from wiloc.errors import EXIT_INTERRUPTED, interrupted
+    from wiloc.errors import EXIT_CLOSED_OUTPUT, EXIT_INTERRUPTED, interrupted
 
     try:
         from wiloc.cli import run
         code = run()
+        sys.stdout.flush()  # here, not at exit, where a closed reader would be a traceback
+    except BrokenPipeError:
+        # the output's reader has gone: what is still buffered goes nowhere
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        code = EXIT_CLOSED_OUTPUT
     except BaseException as exc:
         if not interrupted(exc):
             raise

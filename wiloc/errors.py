@@ -8,6 +8,7 @@ EXIT_BAD_INPUT = 1
 EXIT_USAGE = 2
 EXIT_BUSY = 3
 EXIT_INTERRUPTED = 130
+EXIT_CLOSED_OUTPUT = 1  # the reader of stdout closed it (`| head`): rich's own code for it
 
 
 def shown_name(name: str) -> str:
