@@ -525,6 +525,17 @@ def test_a_reader_that_closes_the_output_ends_the_command_quietly(args: list[str
     assert (result.returncode, result.stderr) == (1, "")
 
 
+def test_a_command_started_with_stdout_closed_does_its_work(route: tuple[Path, Path], tmp_path: Path) -> None:
+    """`wiloc localize ... >&-`: nothing can be printed, the results file is written whole."""
+    ref, query = route
+    out = tmp_path / "run.csv"
+    result = subprocess.run([str(_console_script()), "localize", str(query), "--map", str(ref), "--method", "threshold",
+                             "--jobs", "1", "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, timeout=120, preexec_fn=lambda: os.close(1))
+    assert (result.returncode, result.stderr) == (0, "")
+    assert len(out.read_text().splitlines()) > 30
+
+
 @pytest.mark.parametrize("output", ["print('x' * 100_000)", "print('x')"])
 def test_a_closed_output_met_outside_rich_ends_quietly_too(output: str) -> None:
     """Where the pipe closes after rich's print and before the next one (`wiloc --help | head -1`:
@@ -1008,6 +1019,49 @@ def test_an_output_that_is_no_regular_file_is_refused_not_replaced(option: str, 
     ends_in_one_error(runner.invoke(app, ["evaluate", str(results), option, str(fifo)]), 2,
                       f"{option}: {fifo}: it is not a regular file (a device, a pipe or a folder)")
     assert fifo.is_fifo()
+
+
+def test_an_output_that_is_the_commands_own_stdout_is_refused(results: Path, tmp_path: Path) -> None:
+    """`--csv /dev/stdout > out.txt`: the link leads to the file the command prints to, which
+    replacing would lose (and, followed blindly, would replace /dev/stdout itself)."""
+    printed = tmp_path / "printed.txt"
+    with printed.open("w") as stdout:
+        result = subprocess.run([str(_console_script()), "evaluate", str(results), "--csv", "/dev/stdout"],
+                                stdout=stdout, stderr=subprocess.PIPE, text=True, timeout=120)
+    assert result.returncode == 2
+    assert result.stderr.strip() == ("error: --csv: /dev/stdout: it is this command's standard output, which writing "
+                                     "would replace (give a file of its own)")
+    assert Path("/dev/stdout").is_symlink() and printed.read_text() == ""
+
+
+def test_an_output_through_a_symbolic_link_replaces_its_target_and_keeps_the_link(results: Path,
+                                                                                   tmp_path: Path) -> None:
+    target = tmp_path / "run-2.csv"
+    target.write_text("old\n")
+    latest = tmp_path / "latest.csv"
+    latest.symlink_to(target.name)
+    assert runner.invoke(app, ["evaluate", str(results), "--csv", str(latest)]).exit_code == 0
+    assert latest.is_symlink() and os.readlink(latest) == target.name
+    assert target.read_text().startswith("run,results,method")
+
+
+def test_a_dash_is_no_output_file(results: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--csv", "-"]), 2,
+                      "--csv: -: wiloc writes files here, not standard output")
+    assert list(here.iterdir()) == []
+
+
+def test_an_output_name_as_long_as_the_file_system_takes_is_written(results: Path, tmp_path: Path) -> None:
+    """A name of 255 bytes, the longest most file systems take (its temporary file's name would
+    be longer: it is shortened, with a digest of the name)."""
+    (tmp_path / "figures").mkdir()
+    out = tmp_path / "figures" / ("q" * 251 + ".png")
+    result = runner.invoke(app, ["evaluate", str(results), "--pr-plot", str(out)])
+    assert result.exit_code == 0, result.output
+    assert [p.name for p in out.parent.iterdir()] == [out.name] and out.stat().st_size > 0
 
 
 def test_the_library_refuses_to_replace_what_is_no_regular_file(localizers: dict[str, Localizer],

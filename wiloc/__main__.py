@@ -90,7 +90,8 @@ def main() -> int:
     try:
         from wiloc.cli import run
         code = run()
-        sys.stdout.flush()  # here, not at exit, where a closed reader would be a traceback
+        if sys.stdout is not None:  # None: started with stdout closed (`>&-`)
+            sys.stdout.flush()  # here, not at exit, where a closed reader would be a traceback
     except BrokenPipeError:
         # the output's reader has gone: what is still buffered goes nowhere
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

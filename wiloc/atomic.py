@@ -3,6 +3,7 @@ renamed onto it once complete, so a killed writer leaves the old file or the who
 a part that looks complete. Results files, metrics tables and figures are written this way."""
 from __future__ import annotations
 
+import hashlib
 import os
 import tempfile
 from collections.abc import Iterator
@@ -17,6 +18,30 @@ from wiloc.errors import WilocError
 #: Why an output path that exists but is no regular file (a device, a pipe, a folder) is refused.
 NOT_A_FILE = "it is not a regular file (a device, a pipe or a folder), which writing would replace"
 
+#: The longest file name most file systems take (bytes); a temporary name is kept within it.
+NAME_MAX = 255
+
+
+def output_problem(path: Path) -> str | None:
+    """Why ``path`` cannot take an output file, or None: something there that is no regular file
+    (it would be replaced), or the file this process prints to (``--csv /dev/stdout`` with the
+    output redirected to a file: replacing it would lose what is printed)."""
+    if path.exists() and not path.is_file():
+        return NOT_A_FILE
+    for fd, stream in ((1, "standard output"), (2, "standard error")):
+        try:
+            if os.path.samestat(os.fstat(fd), path.stat()):
+                return f"it is this command's {stream}, which writing would replace (give a file of its own)"
+        except OSError:  # no such stream, or no such file
+            continue
+    return None
+
+
+def through_links(path: Path) -> Path:
+    """Where writing ``path`` lands: a symbolic link is written through (its target gets the new
+    file and the link stays, as a shell's ``>`` does), anything else is ``path`` itself."""
+    return Path(os.path.realpath(path)) if path.is_symlink() else path
+
 
 def write_error(path: Path, what: str, exc: OSError) -> WilocError:
     """The one line an OSError writing ``path`` (a full disk, a folder that refuses) becomes:
@@ -30,21 +55,25 @@ def written_whole(path: Path, what: str, *, binary: bool = False, mode: int | No
     (text in UTF-8 with newlines as written, or ``binary``); renamed onto ``path`` when the block
     ends, removed when it raises. Temporary files that killed writers left beside ``path`` are
     removed first. The file gets ``mode``, else the usual new-file mode; ``what`` names the file
-    in the error that an OSError (a full disk, a folder that refuses) becomes. Something other than
-    a regular file at ``path`` (a device such as /dev/full, a pipe) is refused, not replaced."""
-    if path.exists() and not path.is_file():
-        raise WilocError(path, f"cannot write {what}: {NOT_A_FILE}")
+    in the error that an OSError (a full disk, a folder that refuses) becomes. What
+    :func:`output_problem` names (a device such as /dev/full, a pipe, this process's own output)
+    is refused, not replaced; a symbolic link is written through (:func:`through_links`)."""
+    problem = output_problem(path)
+    if problem is not None:
+        raise WilocError(path, f"cannot write {what}: {problem}")
+    target = through_links(path)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        _remove_orphans(path)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        _remove_orphans(target)
+        fd, tmp = tempfile.mkstemp(prefix=f".{_temporary_stem(target.name)}.{os.getpid()}.", suffix=".tmp",
+                                   dir=target.parent)
         os.chmod(tmp, mode if mode is not None else 0o666 & ~_umask())
     except OSError as exc:
         raise write_error(path, what, exc) from None
     try:
         with os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8", newline="") as file:
             yield file
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
         if isinstance(exc, OSError):
@@ -58,10 +87,23 @@ def _umask() -> int:
     return current
 
 
+def _temporary_stem(name: str) -> str:
+    """What stands for file ``name`` in its temporary files' names: the name itself, or when the
+    temporary name would pass :data:`NAME_MAX` bytes (a pid, a random part and a suffix are added,
+    up to 24 bytes), its first bytes and a digest of the whole, so that a name the file system
+    takes is never refused for its temporary file's sake."""
+    raw = name.encode("utf-8", "surrogateescape")
+    if len(raw) <= NAME_MAX - 24:
+        return name
+    digest = hashlib.sha1(raw).hexdigest()[:12]
+    return raw[:NAME_MAX - 24 - 13].decode("utf-8", "ignore") + "~" + digest
+
+
 def _remove_orphans(path: Path) -> None:
     """Delete ``.NAME.<pid>.*.tmp`` files beside ``path`` whose writing process is gone."""
-    for temp in path.parent.glob(f".{glob_escape(path.name)}.*.tmp"):
-        pid = temp.name[len(path.name) + 2:].split(".", 1)[0]
+    stem = _temporary_stem(path.name)
+    for temp in path.parent.glob(f".{glob_escape(stem)}.*.tmp"):
+        pid = temp.name[len(stem) + 2:].split(".", 1)[0]
         if pid.isdigit() and not process_alive(int(pid)):
             temp.unlink(missing_ok=True)
 

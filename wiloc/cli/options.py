@@ -7,7 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from wiloc.atomic import NOT_A_FILE
+from wiloc.atomic import output_problem
 from wiloc.cli.core import Notes, fail, note
 from wiloc.cli.params import descriptor_params, descriptor_takers
 from wiloc.errors import EXIT_USAGE, WilocError
@@ -17,11 +17,17 @@ def output_file(value: Path | None) -> Path | None:
     """An output file option (``--csv``, ``--out FILE.csv``, a plot), checked as the options are
     read, before any work: its folder must exist (a typo is not made into new folders; folders
     that ``--out`` names are created), and something there must be a regular file (a device or a
-    pipe would be replaced, not written to)."""
-    if value is not None and value.suffix and not value.is_dir() and not value.parent.is_dir():
+    pipe would be replaced, not written to), and not the file the command prints to. ``-`` is
+    refused: it is no name for standard output here (``--json`` prints for scripts)."""
+    if value is None:
+        return None
+    if str(value) == "-":
+        raise typer.BadParameter("-: wiloc writes files here, not standard output (give a file name)")
+    if value.suffix and not value.is_dir() and not value.parent.is_dir():
         raise typer.BadParameter(f"the folder {value.parent} does not exist (create it first)")
-    if value is not None and value.exists() and not value.is_dir() and not value.is_file():
-        raise typer.BadParameter(f"{value}: {NOT_A_FILE}")
+    problem = None if value.is_dir() else output_problem(value)
+    if problem is not None:
+        raise typer.BadParameter(f"{value}: {problem}")
     return value
 
 
