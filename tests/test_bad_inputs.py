@@ -536,6 +536,17 @@ def test_a_command_started_with_stdout_closed_does_its_work(route: tuple[Path, P
     assert len(out.read_text().splitlines()) > 30
 
 
+def test_a_command_started_with_stderr_closed_does_its_work(tmp_path: Path, cache_dir: Path) -> None:
+    """`wiloc describe A B 2>&-`: the descriptor 2 that the command lacks is not taken by a file
+    it opens (a cache file), where libjpeg's own warnings would land, or closed under it."""
+    scenes = places(60)
+    folders = [write_traversal(tmp_path / name, scenes, gain, seed) for name, gain, seed in (("a", 1.0, 1), ("b", 0.7, 2))]
+    result = subprocess.run([str(_console_script()), "describe", *map(str, folders), "--jobs", "2", "--json"],
+                            stdout=subprocess.PIPE, text=True, timeout=300, preexec_fn=lambda: os.close(2))
+    assert result.returncode == 0
+    assert [entry["frames"] for entry in json.loads(result.stdout)["results"]] == [60, 60]
+
+
 @pytest.mark.parametrize("output", ["print('x' * 100_000)", "print('x')"])
 def test_a_closed_output_met_outside_rich_ends_quietly_too(output: str) -> None:
     """Where the pipe closes after rich's print and before the next one (`wiloc --help | head -1`:

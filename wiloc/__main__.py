@@ -80,8 +80,20 @@ def _deliver_swallowed_interrupt(unraisable: Any) -> None:
         sys.__unraisablehook__(unraisable)
 
 
+def _hold_standard_descriptors() -> None:
+    """Descriptors 0-2 that the command was started without (`2>&-`) are opened on /dev/null:
+    else the next file opened (a cache file, an image) would take the number, and what libraries
+    print to stderr themselves (libjpeg's warnings) would be written into it."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            os.open(os.devnull, os.O_RDWR)  # the lowest free descriptor: this one
+
+
 def main() -> int:
     """Run the command line; its exit code."""
+    _hold_standard_descriptors()
     if signal.getsignal(signal.SIGINT) != signal.SIG_IGN:
         signal.signal(signal.SIGINT, _on_ctrl_c)  # first: everything after it may import
     sys.unraisablehook = _deliver_swallowed_interrupt
