@@ -2,6 +2,7 @@
 a command line that starts without loading the heavy libraries."""
 from __future__ import annotations
 
+import collections
 import json
 import re
 import subprocess
@@ -20,6 +21,8 @@ from typer.testing import CliRunner
 
 from wiloc import api
 from wiloc.cli import app
+from wiloc.cli.core import out
+from wiloc.wrapping import Words
 
 runner = CliRunner()
 NARROW = {"COLUMNS": "80"}
@@ -106,6 +109,59 @@ def test_evaluate_with_seven_runs_stays_readable_at_80_columns(tmp_path: Path, c
     assert "…" not in result.stdout and max(map(len, result.stdout.splitlines())) <= 80
     for label in api.run_names([api.evaluate(p, api.TruthSource()) for p in paths]):
         assert all(word in result.stdout for word in label.split())
+
+
+def _shown_text(item: Any) -> str:
+    """What a printed table (or line) holds: title, caption, headers and cells, as text."""
+    from rich.table import Table
+    from rich.text import Text
+
+    if isinstance(item, Table):
+        parts = [item.title, item.caption, *(column.header for column in item.columns),
+                 *(cell for column in item.columns for cell in column.cells)]
+        return "".join(_shown_text(part) for part in parts if part is not None)
+    return str(item) if isinstance(item, Words) else Text.from_markup(str(item)).plain
+
+
+def _characters(text: str) -> collections.Counter[str]:
+    """``text``'s characters but spaces, line breaks and box-drawing rules: what wrapping moves."""
+    return collections.Counter(c for c in text if not c.isspace() and not "\u2500" <= c <= "\u257f")
+
+
+def test_narrow_tables_fold_cells_and_lose_no_character(tmp_path: Path, cache_dir: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """At 50, 40 and 20 columns every command's tables show every character of every cell, title
+    and caption (a cell too wide for its column folds onto more lines, none is cut or ends in
+    an ellipsis); at 50 the numbers and percentages stay whole on their line."""
+    ref, query = _route(tmp_path)
+    paths = [tmp_path / f"{method}.csv" for method in ("online", "catgraph")]
+    for path in paths:
+        assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", path.stem, "--out",
+                                   str(path), "--jobs", "1"]).exit_code == 0
+    printed: list[Any] = []
+    original = out.print
+
+    def recording(*items: Any, **options: Any) -> None:  # what each command hands rich, then printed
+        printed.extend(items)
+        original(*items, **options)
+    monkeypatch.setattr(out, "print", recording)
+    commands = [["describe", str(query), "--jobs", "1"], ["describe", "--list"], ["describe", "--list-descriptors"],
+                ["localize", str(query), "--map", str(ref), "--out", str(tmp_path / "again.csv")],
+                ["evaluate", *map(str, paths)], ["compare", *map(str, paths)]]
+    for columns in (50, 40, 20):
+        for args in commands:
+            printed.clear()
+            result = runner.invoke(app, args, env={"COLUMNS": str(columns)})
+            assert result.exit_code == 0, result.output
+            assert max(map(len, result.stdout.splitlines())) <= columns, result.stdout
+            assert _characters(result.stdout) == _characters("".join(map(_shown_text, printed))), \
+                f"{args[0]} at {columns} columns:\n{result.stdout}"
+            if columns == 50 and args[0] == "compare":
+                runs = json.loads(runner.invoke(app, [*args, "--json"]).stdout)["runs"]
+                numbers = {f"{run[key]:.1%}" for run in runs for key in ("recall_at_100", "recall_at_99",
+                                                                        "recall_at_90")}
+                numbers |= {f"{run[key]:.3f}" for run in runs for key in ("auc", "recall_at_1", "ece", "brier")}
+                assert numbers <= set(result.stdout.split()), result.stdout
 
 
 def _keys(value: Any, skip: frozenset[str] = frozenset({"params", "descriptor_params"})) -> set[str]:

@@ -4,7 +4,8 @@ a space), never inside a word (nor a number), so ``catgraph/sad`` in a narrow co
 
 Rich wraps cell text at spaces only and folds a longer word at any character; :class:`Words`
 tells rich's table the narrowest width that keeps every word whole (its measure) and wraps at the
-separators in the width the table gives it.
+separators in the width the table gives it. A column narrower than a word (a console too narrow
+for every word) folds that word onto more lines: no character is ever cut.
 """
 from __future__ import annotations
 
@@ -63,6 +64,8 @@ class Words:
         return Measurement(narrowest, longest).clamp(max_width=options.max_width)
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> Iterator[Text]:
-        lines = self.text.split("\n") if self.whole_lines else wrap(self.text, options.max_width)
-        for line in lines:  # justified as the column says
-            yield Text(line, no_wrap=True, overflow="fold", end="\n")
+        width = max(options.max_width, 1)
+        lines = self.text.split("\n") if self.whole_lines else wrap(self.text, width)
+        for line in lines:  # justified as the column says; a line wider than the column folds
+            for start in range(0, max(len(line), 1), width):
+                yield Text(line[start:start + width], no_wrap=True, overflow="fold", end="\n")

@@ -13,7 +13,7 @@ from rich.table import Table
 
 from wiloc.cli.core import Notes, out
 from wiloc.cli.options import replacing
-from wiloc.cli.views import cell, json_ready, print_command_json, table
+from wiloc.cli.views import cell, fit, json_ready, print_command_json, table
 from wiloc.labels import short_names
 
 if TYPE_CHECKING:
@@ -99,7 +99,7 @@ def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
             live_table.add_column(column, justify="left" if column in ("frame", "match", "stage") else "right")
         for d in latest:
             live_table.add_row(cell(d.frame), cell(d.match_name), cell(d.confidence), cell(d.new_place), d.stage)
-        return live_table
+        return fit(live_table)
 
     live = Live(view(), console=out, auto_refresh=False) if out.is_terminal and not as_json else None
     if live is None and not as_json:

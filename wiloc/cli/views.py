@@ -3,15 +3,17 @@ key scheme, and the progress bar.
 
 Tables never cut a cell short nor break a word: names wrap within their column at separators
 only (``catgraph/`` then ``sad``: :class:`wiloc.wrapping.Words`), and a table too wide for the
-console drops its vertical rules and edges (:func:`fit`). Paths are shown by their own name, or as
-many trailing parts as keep two of the same name apart (:func:`wiloc.labels.short_names`);
-``--json`` carries the full paths. JSON keys are snake_case
+console drops its vertical rules and edges (:func:`fit`); in one too narrow for every word,
+headers and names fold onto more lines first and numbers last, never losing a character. Paths
+are shown by their own name, or as many trailing parts as keep two of the same name apart
+(:func:`wiloc.labels.short_names`); ``--json`` carries the full paths. JSON keys are snake_case
 (``recall_at_100``, ``images_per_second``); docs/formats.md lists them per command.
 """
 from __future__ import annotations
 
 import json
 import math
+import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
@@ -83,7 +85,12 @@ def json_ready(value: Any) -> Any:
 
 
 def print_json(data: Any) -> None:
-    out.print_json(json.dumps(json_ready(data)))
+    """``data`` as JSON on stdout, indented: plain text whatever the terminal (no colour, even with
+    FORCE_COLOR set, and no wrapping: a script reads it), non-ASCII characters escaped where
+    stdout cannot encode them (PYTHONIOENCODING=ascii)."""
+    stream = sys.stdout
+    utf8 = (getattr(stream, "encoding", None) or "").lower().replace("-", "").replace("_", "") == "utf8"
+    stream.write(json.dumps(json_ready(data), indent=2, ensure_ascii=not utf8) + "\n")
 
 
 def print_command_json(command: str, items: str, rows: list[dict[str, Any]], warnings: Sequence[str],
@@ -151,14 +158,45 @@ def words_fit(view: Table) -> bool:
     return fits
 
 
+def _floors(view: Table) -> list[int]:
+    """How narrow each column may get before one of its values folds: a column of values
+    (numbers, whole lines: no cell that wraps as a name does, :func:`name`) as wide as its widest
+    cell, one of names one character; headers do not count (they fold first)."""
+    return [1 if any(isinstance(c, Words) and not c.whole_lines for c in column.cells)
+            else max([1, *(Measurement.get(out, out.options, c).minimum for c in column.cells)])
+            for column in view.columns]
+
+
+def _narrowed(widths: list[int], floors: list[int], room: int) -> list[int]:
+    """``widths`` narrowed a character at a time, the widest column first and none below its
+    floor, until they take ``room`` or each is at its floor."""
+    widths = list(widths)
+    while sum(widths) > room:
+        above = [i for i, (width, floor) in enumerate(zip(widths, floors)) if width > floor]
+        if not above:
+            break
+        widths[max(above, key=widths.__getitem__)] -= 1
+    return widths
+
+
 def fit(view: Table) -> Table:
-    """``view`` with column widths that keep every word whole when it can. Rich's own sharing of
-    a narrow console narrows columns below their widest word; instead, in the first style of
+    """``view`` with column widths that keep every word whole when it can, and every character
+    always: every table goes through here. Rich's own sharing of a narrow console narrows columns
+    below their widest word and cuts what does not fit; instead, in the first style of
     :data:`_COMPACT` that lets every line fit whole, or else every word: each column at least as
     wide as its widest word and the room left shared out in proportion to what each would take
-    more."""
+    more. When not even every word fits, in the most compact style headers and names narrow
+    before values (:func:`_floors`), then every column, each folding what does not fit."""
+    for column in view.columns:
+        column.overflow = "fold"  # a plain cell wider than its column: onto more lines, not cut
     lows, highs = _column_widths(view)
-    if _styled_to_fit(view, highs) or not _styled_to_fit(view, lows):
+    if _styled_to_fit(view, highs):
+        return view
+    if not _styled_to_fit(view, lows):
+        room = out.width - _frame_width(view)
+        widths = _narrowed(_narrowed(lows, _floors(view), room), [1] * len(lows), room)
+        for column, width in zip(view.columns, widths):
+            column.width = width
         return view
     room = out.width - _frame_width(view) - sum(lows)
     more = [high - low for low, high in zip(lows, highs)]
@@ -317,9 +355,10 @@ def table1_view(comparison: api.Comparison) -> Table:
         for traversal in traversals:
             view.add_row(name(traversal), *[Words(cells[traversal, m], whole_lines=True) if (traversal, m) in cells
                                             else "" for m in methods])
-        return view
-    shown = [{"traversal": r["traversal"], "method": r["method"],
-              **{key: f"{r[key]:.1%}" for key in ("recall_at_100", "recall_at_99", "recall_at_90")},
+        return fit(view)
+    shown = [{"traversal": r["traversal"], "method": r["method"],  # percentages: values, not names
+              **{key: Words(f"{r[key]:.1%}", whole_lines=True) for key in ("recall_at_100", "recall_at_99",
+                                                                           "recall_at_90")},
               **{key: None if _missing(r.get(key)) else float(r[key]) for key in ("auc", *ranked)}} for r in rows]
     labels = {**TABLE1_COLUMNS, **{key: f"R@{key.removeprefix('recall_at_')}" for key in ranked}}
     view = table(title, shown, ["traversal", "method", *labels], labels,
