@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import ast
 import errno
+import functools
 import json
 import os
 import re
+import shutil
 import signal
 import struct
 import subprocess
@@ -545,6 +547,32 @@ def test_a_command_started_with_stderr_closed_does_its_work(tmp_path: Path, cach
                             stdout=subprocess.PIPE, text=True, timeout=300, preexec_fn=lambda: os.close(2))
     assert result.returncode == 0
     assert [entry["frames"] for entry in json.loads(result.stdout)["results"]] == [60, 60]
+
+
+def test_json_is_plain_json_whatever_the_terminal_asks_for(results: Path) -> None:
+    """FORCE_COLOR (set by many CI systems) colours tables, never --json; a narrow terminal does
+    not wrap it."""
+    env = {**os.environ, "FORCE_COLOR": "1", "TTY_COMPATIBLE": "1", "COLUMNS": "20"}
+    result = subprocess.run([str(_console_script()), "evaluate", str(results), "--json"], capture_output=True,
+                            text=True, timeout=120, env=env)
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["runs"][0]["results"] == str(results)
+
+
+def test_what_the_output_cannot_encode_is_escaped(route: tuple[Path, Path], tmp_path: Path) -> None:
+    """PYTHONIOENCODING=ascii: a help text's "…" and a folder named zürich are printed escaped,
+    and --json escapes them as JSON does."""
+    ref, _ = route
+    folder = tmp_path / "zürich"
+    shutil.copytree(ref, folder)
+    env = {**os.environ, "PYTHONIOENCODING": "ascii"}
+    run = functools.partial(subprocess.run, capture_output=True, text=True, timeout=120, env=env)
+    help_text = run([str(_console_script()), "evaluate", "--help"])
+    assert help_text.returncode == 0 and "Usage" in help_text.stdout, help_text.stderr
+    table = run([str(_console_script()), "describe", str(folder)])
+    assert (table.returncode, table.stderr) == (0, "") and "z\\xfcrich" in table.stdout
+    described = run([str(_console_script()), "describe", str(folder), "--json"])
+    assert json.loads(described.stdout)["results"][0]["folder"] == str(folder)
 
 
 @pytest.mark.parametrize("output", ["print('x' * 100_000)", "print('x')"])

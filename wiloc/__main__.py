@@ -91,9 +91,19 @@ def _hold_standard_descriptors() -> None:
             os.open(os.devnull, os.O_RDWR)  # the lowest free descriptor: this one
 
 
+def _printable_everywhere() -> None:
+    """A character that stdout or stderr cannot encode (PYTHONIOENCODING=ascii, a help text's
+    "…", a folder named zürich) is printed as its escape (``\\xfc``), as file names that are not
+    UTF-8 are, rather than ending the command in a UnicodeEncodeError."""
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None and hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
+
+
 def main() -> int:
     """Run the command line; its exit code."""
     _hold_standard_descriptors()
+    _printable_everywhere()
     if signal.getsignal(signal.SIGINT) != signal.SIG_IGN:
         signal.signal(signal.SIGINT, _on_ctrl_c)  # first: everything after it may import
     sys.unraisablehook = _deliver_swallowed_interrupt
