@@ -527,6 +527,24 @@ def test_a_reader_that_closes_the_output_ends_the_command_quietly(args: list[str
     assert (result.returncode, result.stderr) == (1, "")
 
 
+@pytest.mark.parametrize("args", [["--help"], ["evaluate", "RESULTS"], ["evaluate", "RESULTS", "--json"]])
+def test_a_full_disk_under_stdout_is_one_line_naming_it(args: list[str], results: Path) -> None:
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full here")
+    with open("/dev/full", "w") as full:
+        result = subprocess.run([str(_console_script()), *[str(results) if a == "RESULTS" else a for a in args]],
+                                stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+    assert (result.returncode, result.stderr) == (1, "error: standard output: No space left on device\n")
+
+
+def test_follow_ends_quietly_when_the_reader_of_its_rows_has_gone(route: tuple[Path, Path], tmp_path: Path) -> None:
+    ref, query = route
+    out = tmp_path / "live.csv"
+    result = _closed_output([str(_console_script()), "localize", str(query), "--map", str(ref), "--method", "catgraph",
+                             "--follow", "--idle", "1", "--out", str(out)])
+    assert (result.returncode, result.stderr) == (1, "")
+
+
 def test_a_command_started_with_stdout_closed_does_its_work(route: tuple[Path, Path], tmp_path: Path) -> None:
     """`wiloc localize ... >&-`: nothing can be printed, the results file is written whole."""
     ref, query = route

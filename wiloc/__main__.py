@@ -100,14 +100,44 @@ def _printable_everywhere() -> None:
             stream.reconfigure(errors="backslashreplace")
 
 
+class _NamedOutput:
+    """sys.stdout, whose write errors name it: an OSError without a file name would be printed as
+    ``[Errno 28] No space left on device`` (``wiloc ... > /dev/full``), naming no place."""
+
+    NAME = "standard output"
+
+    def __init__(self, stream: Any) -> None:
+        self._stream = stream
+
+    def _named(self, exc: OSError) -> OSError:
+        return type(exc)(exc.errno, exc.strerror, self.NAME)
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except OSError as exc:
+            raise self._named(exc) from None
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except OSError as exc:
+            raise self._named(exc) from None
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
 def main() -> int:
     """Run the command line; its exit code."""
     _hold_standard_descriptors()
     _printable_everywhere()
+    if sys.stdout is not None:
+        sys.stdout = _NamedOutput(sys.stdout)
     if signal.getsignal(signal.SIGINT) != signal.SIG_IGN:
         signal.signal(signal.SIGINT, _on_ctrl_c)  # first: everything after it may import
     sys.unraisablehook = _deliver_swallowed_interrupt
-    from wiloc.errors import EXIT_CLOSED_OUTPUT, EXIT_INTERRUPTED, interrupted
+    from wiloc.errors import EXIT_BAD_INPUT, EXIT_CLOSED_OUTPUT, EXIT_INTERRUPTED, interrupted
 
     try:
         from wiloc.cli import run
@@ -118,6 +148,12 @@ def main() -> int:
         # the output's reader has gone: what is still buffered goes nowhere
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         code = EXIT_CLOSED_OUTPUT
+    except OSError as exc:
+        if exc.filename != _NamedOutput.NAME:
+            raise
+        sys.stderr.write(f"error: {exc.filename}: {exc.strerror}\n")  # its buffered end (a full disk)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        code = EXIT_BAD_INPUT
     except BaseException as exc:
         if not interrupted(exc):
             raise

@@ -75,6 +75,8 @@ def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             return func(*args, **kwargs)
         except WilocError as exc:
             fail(f"{flag(exc.parameter)}: {exc.problem}" if exc.parameter else str(exc), exc.exit_code)
+        except BrokenPipeError:
+            raise  # the output's reader has gone (`| head`): the command ends quietly (wiloc.__main__)
         except OSError as exc:
             fail(f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc), EXIT_BAD_INPUT)
         except BaseException as exc:
