@@ -3,6 +3,7 @@ and sequence mode, and a saved run continues identically in another process."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -207,3 +208,109 @@ def test_gardens_point_streamed_frame_by_frame_equals_batch(data_root: Path, met
                        out=tmp_path / "batch.csv", cache=cache)
     loc = Localizer(gp / "day_right", method=method, training=training, cache=cache)
     _assert_same(_batch_rows(run.path), _stream(loc, sorted((gp / "day_left").glob("*.jpg"))))
+
+
+# ------------------------------------------------------------- what the API is given, checked in one place
+
+TAKES = "give an image file's path, an image array or a descriptor row"
+
+
+@pytest.mark.parametrize("frame, what", [(None, "frame is None"), (5, "frame is of type int, not an array of numbers"),
+                                         ({}, "frame is of type dict, not an array of numbers"),
+                                         ([[0, 1], [2]], "frame is of type list, not an array of numbers")])
+def test_observe_says_what_it_got_that_is_no_frame(frame: object, what: str, demo_route: demo.DemoRoute,
+                                                   cache_dir: Path) -> None:
+    """``observe(None)`` said ``an image must be gray ... got shape ()``: it names what it got and
+    what it takes (a ragged nested list too, which numpy cannot make one array of)."""
+    loc = Localizer(demo_route.reference, method="threshold")
+    with pytest.raises(WilocError) as err:
+        loc.observe(frame)
+    assert str(err.value) == f"observe: {what}; {TAKES}"
+    assert loc.frames == 0
+
+
+def test_observe_takes_a_nested_list_of_8_bit_values(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
+    """A nested list of ints (as JSON gives) or tuples are read as the 8-bit image they spell, as an
+    integer array of another type whose values lie in [0, 255]; values outside are refused, never
+    wrapped or scaled."""
+    loc = Localizer(demo_route.reference, method="threshold")
+    gray = cv2.imread(str(sorted(demo_route.queries[0].iterdir())[10]), cv2.IMREAD_GRAYSCALE)
+    expected = loc.describe(gray)
+    for given in (gray.tolist(), tuple(map(tuple, gray.tolist())), gray.astype(np.int32),
+                  cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR).tolist()):
+        assert np.array_equal(loc.describe(given), expected)
+    assert loc.observe(gray.tolist(), name="listed").frame == "listed"
+    for value in (256, -1):
+        listed = gray.tolist()
+        listed[3][4] = value
+        low, high = min(map(min, listed)), max(map(max, listed))
+        with pytest.raises(WilocError, match=re.escape(f"observe: an image of int64 values in [{low}, {high}]; "
+                                                       "integers other than uint8 and uint16 "
+                                                       "are read as 8-bit values in [0, 255]")):
+            loc.observe(listed)
+    assert loc.frames == 1
+
+
+def test_evaluate_scores_one_run_and_compare_several(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                     cache_dir: Path) -> None:
+    """``api.evaluate(["x.csv"], ...)`` was a bare TypeError: it scores one run and says how to
+    score several; ``api.compare`` takes one run alone as ``[run]`` (not the characters of its
+    name), any iterable of runs once (a generator was used up by the check and compared nothing),
+    and refuses none at all."""
+    truth = demo_route.truth()
+    path = api.localize(demo_route.queries[0], reference=demo_route.reference, method="threshold",
+                        out=tmp_path / "run.csv").path
+    for wrong, problem in ([[path], "one run is scored at a time, got a list of 1: score each "
+                                    "([api.evaluate(run, truth) for run in runs]) or compare them (api.compare)"],
+                           [None, "a results file's path, a LocalizeRun or Results, got NoneType"]):
+        with pytest.raises(ParameterError) as err:
+            api.evaluate(wrong, truth)
+        assert err.value.parameter == "run" and err.value.problem == problem
+    assert api.evaluate(str(path), truth).summary.as_dict() == api.evaluate(path, truth).summary.as_dict()
+    listed = api.compare([path], truth).table1
+    for runs in (path, str(path), (p for p in [path])):
+        assert api.compare(runs, truth).table1.equals(listed)
+    for wrong, problem in ([[], "no runs given"],
+                           [None, "one run or several: results files' paths, LocalizeRun or Results, got NoneType"],
+                           [[path, None], "a results file's path, a LocalizeRun or Results, got NoneType"]):
+        with pytest.raises(ParameterError) as err:
+            api.compare(wrong, truth)
+        assert err.value.parameter == "runs" and err.value.problem == problem
+
+
+def test_a_map_that_is_no_traversal_names_the_map_parameter(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
+    """A list of folders or an array of descriptors as ``map`` was a bare TypeError: one map is one
+    traversal, and descriptors in memory are given as an ``Entry`` (``entry_from_array``)."""
+    for wrong, got in ([[demo_route.reference, demo_route.queries[0]], "got list"],
+                       [np.zeros((5, 1152), np.uint8), "got ndarray"]):
+        with pytest.raises(ParameterError) as err:
+            Localizer(wrong, method="online")
+        assert err.value.parameter == "map" and got in err.value.problem and "entry_from_array" in err.value.problem
+    from wiloc.description.traversals import entry_from_array
+    from wiloc.descriptors.registry import get_descriptor
+    rows = np.random.default_rng(0).integers(0, 256, (30, 1152)).astype(np.uint8)
+    loc = Localizer(entry_from_array(rows, [f"m{i}" for i in range(30)], get_descriptor("sad")), method="online")
+    assert loc.observe(rows[5]).match_name == "m5"
+
+
+def test_observe_takes_a_new_text_name_for_each_frame(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                       cache_dir: Path) -> None:
+    """Names are written into results, which hold one row per name (a file naming a frame twice
+    is refused when read): a name that is not text, empty, or an earlier frame's (given, or a
+    file's own name observed again) is refused before anything is decided, after a load too."""
+    loc = Localizer(demo_route.reference, method="threshold")
+    path = sorted(demo_route.queries[0].iterdir())[0]
+    for name, problem in ([5, "name must be text (str), got int 5"], ["", "name is empty"]):
+        with pytest.raises(WilocError) as err:
+            loc.observe(path, name=name)
+        assert str(err.value) == f"observe: {problem}"
+    assert loc.observe(path).frame == path.name
+    assert loc.observe(path, name="again").frame == "again"
+    loc.save(tmp_path / "s.npz")
+    for again in (Localizer.load(tmp_path / "s.npz"), loc):
+        for frame, name in ((path, None), (np.zeros(1152, np.uint8), "again")):
+            shown = name or path.name
+            with pytest.raises(WilocError, match=re.escape(f"observe: name '{shown}' is an earlier frame's")):
+                again.observe(frame, name=name)
+        assert again.frames == 2 and again.names == [path.name, "again"]
+    assert loc.observe(np.zeros(1152, np.uint8)).frame == "000002"

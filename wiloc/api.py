@@ -10,17 +10,17 @@ A batch run is ``wiloc.localization.batch``'s (its setup, ``wiloc.localization.s
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from wiloc.cache.store import Cache
 from wiloc.description.describing import DescribeReport, check_sampling, check_topic, describe_sources
 from wiloc.description.traversals import Progress, descriptor_spec, open_cluster, stage
-from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_once,
-                                         check_precisions, comparison, method_labels, new_place_series, pr_series,
-                                         reliability_series, run_names, run_subject, score, threshold_marks,
-                                         threshold_series, traversal_labels)
+from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, ParameterError,
+                                         check_once, check_precisions, comparison, method_labels, new_place_series,
+                                         pr_series, reliability_series, run_names, run_subject, score,
+                                         threshold_marks, threshold_series, traversal_labels)
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.truth_source import TruthSource
 from wiloc.localization.batch import LocalizeRun, localize
@@ -73,25 +73,50 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS,
     """Precision-recall metrics and calibration (with precision and recall at fixed confidence
     ``cuts``) of one run against ground truth, and of its P(new place) where the run gives one:
     a results file, or a run in memory. Recall@N for each N of ``recall_at`` when the run ranks
-    the map (``wiloc.evaluation.comparison.score``)."""
+    the map (``wiloc.evaluation.comparison.score``). Several runs are scored one by one, or side by
+    side with :func:`compare`: a list is a ParameterError naming ``run`` and saying so."""
     if isinstance(run, LocalizeRun):
         return score(run.path, run.results, truth, cuts, recall_at)
     if isinstance(run, Results):
         return score(None, run, truth, cuts, recall_at)
-    return score(Path(run), read_run(Path(run)), truth, cuts, recall_at)
+    path = _results_file(run, "run")
+    return score(path, read_run(path), truth, cuts, recall_at)
+
+
+def _results_file(run: object, parameter: str) -> Path:
+    """A run that is neither a ``LocalizeRun`` nor ``Results`` as its results file's path (text or a
+    path object); anything else is a ParameterError naming ``parameter`` (``run``, ``runs``)."""
+    if isinstance(run, (str, os.PathLike)):
+        return Path(run)
+    if parameter == "run" and isinstance(run, (list, tuple)):
+        raise ParameterError(parameter, f"one run is scored at a time, got a {type(run).__name__} of {len(run)}: "
+                                        "score each ([api.evaluate(run, truth) for run in runs]) or compare them "
+                                        "(api.compare)")
+    raise ParameterError(parameter, f"a results file's path, a LocalizeRun or Results, got {type(run).__name__}")
 
 
 # ------------------------------------------------------------------------------------------ compare
 
-def compare(runs: Sequence[Run], truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
+def compare(runs: Iterable[Run] | Run, truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
             global_thresholds: bool = True, cuts: Sequence[float] = DEFAULT_CUTS,
             recall_at: Sequence[int] = RANKED_KS) -> Comparison:
     """Table I (recall at 100/99/90 % precision per traversal and method), Table II and the
     calibration table with precision and recall at the fixed confidence ``cuts``, over results
-    files or runs in memory. A file given twice (or a copy of one), no precision or one outside
-    (0, 100] is a ParameterError: each run counts once in the tables."""
+    files or runs in memory. One run given alone (not in a list) is compared as ``[run]``, never
+    as the characters of its name; any iterable of runs is read once. No run, a file given twice
+    (or a copy of one), no precision or one outside (0, 100] is a ParameterError: each run counts
+    once in the tables."""
     check_precisions(precisions)
-    check_once([run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results) else Path(run)
-                for run in runs])
+    if isinstance(runs, (str, os.PathLike, LocalizeRun, Results)):
+        runs = [runs]
+    elif isinstance(runs, Iterable):
+        runs = list(runs)
+    else:
+        raise ParameterError("runs", "one run or several: results files' paths, LocalizeRun or Results, "
+                                     f"got {type(runs).__name__}")
+    if not runs:
+        raise ParameterError("runs", "no runs given")
+    check_once([run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results)
+                else _results_file(run, "runs") for run in runs])
     evaluations = [evaluate(run, truth, cuts, recall_at) for run in runs]
     return comparison(evaluations, truth, precisions=precisions, global_thresholds=global_thresholds)

@@ -26,7 +26,7 @@ from wiloc.cache.store import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decision
 from wiloc.description.traversals import Describer, is_matrix_file
-from wiloc.errors import FrameError, WilocError, load_problem
+from wiloc.errors import FrameError, ParameterError, WilocError, load_problem
 from wiloc.localization.session import RunSession
 from wiloc.localization.training import Training
 from wiloc.methods.base import Method, TrainingRows
@@ -43,9 +43,10 @@ STATE_VERSION = 5
 class Localizer:
     """Frame-by-frame localization against a map (or within the run itself, in sequence mode).
 
-    ``map`` is a traversal folder, a descriptor matrix file (with ``metric``) or an in-memory
-    ``Entry`` (``wiloc.description.traversals.entry_from_array``), None for sequence mode (loop closure within
-    the frames observed). ``method`` names a registered method and
+    ``map`` is one traversal (a folder, video or ROS bag), a descriptor matrix file (with ``metric``) or an
+    in-memory ``Entry`` (descriptors in an array: ``wiloc.description.traversals.entry_from_array``), None for
+    sequence mode (loop closure within the frames observed); anything else is a ParameterError naming
+    ``map``. ``method`` names a registered method and
     ``params`` its parameters; ``training`` is the labelled pair of ``trained`` (traversals, or
     their difference rows and truth as ``TrainingRows``); ``sampling`` the frames of a map video; ``map_odometry``
     the map's odometry CSV for methods that take odometry.
@@ -61,7 +62,7 @@ class Localizer:
                  training: Training | TrainingRows | None = None, map_odometry: str | Path | None = None,
                  map_names: str | Path | None = None, sampling: Sampling | None = None, cache: Cache | None = None,
                  jobs: int | None = None, **params: Any) -> None:
-        self._setup(RunSession(map, method=method, method_params=params, descriptor=descriptor,
+        self._setup(RunSession(_map(map), method=method, method_params=params, descriptor=descriptor,
                                descriptor_params=descriptor_params, metric=metric, exclude_recent=exclude_recent,
                                training=training, map_odometry=None if map_odometry is None else Path(map_odometry),
                                map_names=None if map_names is None else Path(map_names), sampling=sampling,
@@ -75,6 +76,7 @@ class Localizer:
         self.exclude_recent = session.exclude_recent
         self.sequence = session.sequence
         self.names: list[str] = []  # the frames observed, in order
+        self._named: set[str] = set()  # the same, looked up for each new name
         path = session.map_path
         self._spec = None if path is not None and is_matrix_file(path) else session.describer.spec
 
@@ -115,7 +117,7 @@ class Localizer:
         (:func:`gray_image`) or a descriptor given as it is (:meth:`_descriptor`)."""
         if (path := _file(frame)) is not None:
             frame = self.read(path)
-        array = np.asarray(frame)
+        array = _frame_array(frame)
         if array.ndim == 1:
             return self._descriptor(array)
         if self._spec is None:
@@ -152,19 +154,34 @@ class Localizer:
 
     def observe(self, frame: NDArray | str | bytes | os.PathLike, name: str | None = None,
                 odometry: float | None = None) -> Decision:
-        """Decide one frame: describe it, compare it, step the method. ``name`` defaults to the
-        file's name, else the frame's index (zero-padded); ``odometry`` is the distance travelled
-        since the previous frame, for methods that take it."""
+        """Decide one frame: describe it, compare it, step the method. ``frame`` is an image file's
+        path, an image array or a descriptor row (:meth:`describe`). ``name`` defaults to the file's
+        name, else the frame's index (zero-padded); ``odometry`` is the distance travelled since the
+        previous frame, for methods that take it."""
+        name = self._new_name(frame, name)
         descriptor = self.describe(frame)
-        k = len(self.names)
-        if name is None:
-            name = path.name if (path := _file(frame)) is not None else f"{k:06d}"
         decision = self.method.step(self.row(descriptor), odometry)
         self._session.add(descriptor)
         self.names.append(name)
+        self._named.add(name)
         candidates = self.map_names
         match_name = candidates[decision.match] if decision.match >= 0 else ""
         return replace(decision, frame=name, match_name=match_name)
+
+    def _new_name(self, frame: object, name: object) -> str:
+        """The next frame's name, checked before anything is decided: text, not empty, and no
+        earlier frame's, since results hold one row per name (a file naming a frame twice is
+        refused when read); a file observed again needs a ``name`` of its own."""
+        if name is None:
+            name = path.name if (path := _file(frame)) is not None else f"{len(self.names):06d}"
+        if not isinstance(name, str):
+            raise WilocError("observe", f"name must be text (str), got {type(name).__name__} {name!r}")
+        if not name:
+            raise WilocError("observe", "name is empty")
+        if name in self._named:
+            raise WilocError("observe", f"name '{name}' is an earlier frame's (frame {self.names.index(name)}); "
+                                        "each frame needs a name of its own (name=...)")
+        return str(name)
 
     # -------------------------------------------------------------------------------- save / load
 
@@ -224,6 +241,7 @@ class Localizer:
         loc = cls.__new__(cls)
         loc._setup(session)
         loc.names = list(meta["names"])
+        loc._named = set(loc.names)
         if session.map is None:
             session.resume(meta["seen"])
         loc.method.restore(session.context(), meta["method_state"])
@@ -249,11 +267,38 @@ def _file(frame: object) -> Path | None:
     return Path(os.fsdecode(frame))
 
 
+def _map(map: object) -> str | os.PathLike | Entry | None:
+    """``map`` checked before anything is described: one traversal's path, an ``Entry`` or None;
+    anything else (a list of folders, an array of descriptors) is a ParameterError naming it."""
+    if map is None or isinstance(map, (str, os.PathLike, Entry)):
+        return map
+    raise ParameterError("map", f"one traversal (a folder, video, ROS bag or descriptor matrix file), descriptors "
+                                "in memory as an Entry (wiloc.description.traversals.entry_from_array(rows, names, "
+                                f"spec)) or None for sequence mode, got {type(map).__name__}")
+
+
+def _frame_array(frame: object) -> NDArray:
+    """A frame that is no file as an array (an image or a descriptor row; a nested list or tuple
+    of numbers too, as numpy makes one of it); None, a scalar or what numpy cannot make one array
+    of numbers (a ragged list, a dict) is a WilocError saying what was given and what is taken."""
+    takes = "give an image file's path, an image array or a descriptor row"
+    if frame is None:
+        raise WilocError("observe", f"frame is None; {takes}")
+    try:
+        array = np.asarray(frame)
+    except (TypeError, ValueError):  # rows of different lengths
+        array = None
+    if array is None or array.ndim == 0 or array.dtype == object:
+        raise WilocError("observe", f"frame is of type {type(frame).__name__}, not an array of numbers; {takes}")
+    return array
+
+
 def gray_image(array: NDArray) -> NDArray[np.uint8]:
     """An image array as the 8-bit gray image descriptors are computed from: gray (H x W, or
     H x W x 1) or BGR/BGRA as OpenCV decodes, of 8- or 16-bit integers (16-bit scaled by
-    255/65535, as a 16-bit file is) or of floats in [0, 1] (scaled by 255 and rounded). Anything
-    else is a WilocError saying what was given."""
+    255/65535, as a 16-bit file is), of other integers in [0, 255] (a nested list's int64, read as
+    8-bit) or of floats in [0, 1] (scaled by 255 and rounded). Anything else is a WilocError saying
+    what was given."""
     array = _image_samples(array)
     if array.ndim == 3:
         array = cv2.cvtColor(array, cv2.COLOR_BGR2GRAY if array.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
@@ -272,8 +317,10 @@ def colour_image(array: NDArray) -> NDArray[np.uint8]:
 
 
 def _image_samples(array: NDArray) -> NDArray:
-    """An image array checked (gray, BGR or BGRA; not empty; 8- or 16-bit integers, or floats in
-    [0, 1], which become 8-bit), a single channel's last axis dropped."""
+    """An image array checked (gray, BGR or BGRA; not empty; 8- or 16-bit integers, other integers
+    in [0, 255] or floats in [0, 1], both of which become 8-bit), a single channel's last axis
+    dropped. Integers of another type are read as 8-bit values, as a nested list of Python ints
+    (JSON's) spells an 8-bit image: one outside [0, 255] is refused, never wrapped or scaled."""
     if array.ndim == 3 and array.shape[2] == 1:
         array = array[:, :, 0]
     if not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (3, 4))):
@@ -285,6 +332,13 @@ def _image_samples(array: NDArray) -> NDArray:
         if not np.all((array >= 0) & (array <= 1)):
             raise WilocError("observe", f"a {array.dtype} image must hold values in [0, 1] (NaN or values outside found)")
         array = np.rint(array * 255).astype(np.uint8)
+    elif array.dtype.kind in "iu" and array.dtype not in (np.uint8, np.uint16):
+        low, high = int(array.min()), int(array.max())
+        if low < 0 or high > 255:
+            raise WilocError("observe", f"an image of {array.dtype} values in [{low}, {high}]; integers other than "
+                                        "uint8 and uint16 are read as 8-bit values in [0, 255]: give 16-bit values "
+                                        "as a uint16 array")
+        array = array.astype(np.uint8)
     elif array.dtype not in (np.uint8, np.uint16):
         raise WilocError("observe", f"an image of {array.dtype} values; give 8- or 16-bit integers or floats in [0, 1]")
     return array
