@@ -296,8 +296,9 @@ def test_a_map_that_is_no_traversal_names_the_map_parameter(demo_route: demo.Dem
 def test_observe_takes_a_new_text_name_for_each_frame(demo_route: demo.DemoRoute, tmp_path: Path,
                                                        cache_dir: Path) -> None:
     """Names are written into results, which hold one row per name (a file naming a frame twice
-    is refused when read): a name that is not text, empty, or an earlier frame's (given, or a
-    file's own name observed again) is refused before anything is decided, after a load too."""
+    is refused when read): a name given that is not text, empty, or an earlier frame's is refused
+    before anything is decided, after a load too; a file observed again under its own name (a
+    camera writing latest.jpg each time) gets the frame's index after its stem."""
     loc = Localizer(demo_route.reference, method="threshold")
     path = sorted(demo_route.queries[0].iterdir())[0]
     for name, problem in ([5, "name must be text (str), got int 5"], ["", "name is empty"]):
@@ -308,9 +309,9 @@ def test_observe_takes_a_new_text_name_for_each_frame(demo_route: demo.DemoRoute
     assert loc.observe(path, name="again").frame == "again"
     loc.save(tmp_path / "s.npz")
     for again in (Localizer.load(tmp_path / "s.npz"), loc):
-        for frame, name in ((path, None), (np.zeros(1152, np.uint8), "again")):
-            shown = name or path.name
-            with pytest.raises(WilocError, match=re.escape(f"observe: name '{shown}' is an earlier frame's")):
+        for frame, name in ((path, path.name), (np.zeros(1152, np.uint8), "again")):
+            with pytest.raises(WilocError, match=re.escape(f"observe: name '{name}' is an earlier frame's")):
                 again.observe(frame, name=name)
         assert again.frames == 2 and again.names == [path.name, "again"]
     assert loc.observe(np.zeros(1152, np.uint8)).frame == "000002"
+    assert loc.observe(path).frame == f"{path.stem}-000003{path.suffix}"

@@ -171,9 +171,15 @@ class Localizer:
     def _new_name(self, frame: object, name: object) -> str:
         """The next frame's name, checked before anything is decided: text, not empty, and no
         earlier frame's, since results hold one row per name (a file naming a frame twice is
-        refused when read); a file observed again needs a ``name`` of its own."""
+        refused when read). Without a ``name``, a file's name, or the frame's index; a file whose
+        name an earlier frame has (a camera that writes latest.jpg again and again) gets the index
+        after its stem (``latest-000012.jpg``)."""
         if name is None:
-            name = path.name if (path := _file(frame)) is not None else f"{len(self.names):06d}"
+            k = len(self.names)
+            path = _file(frame)
+            name = f"{k:06d}" if path is None else path.name
+            if name in self._named:
+                name = f"{k:06d}" if path is None else f"{path.stem}-{k:06d}{path.suffix}"
         if not isinstance(name, str):
             raise WilocError("observe", f"name must be text (str), got {type(name).__name__} {name!r}")
         if not name:
