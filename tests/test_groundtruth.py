@@ -59,6 +59,22 @@ def test_aligned_by_index_pairs_positions() -> None:
     assert "2 of 10" in truth.warnings[0]
 
 
+def test_aligned_by_index_reads_a_sampled_videos_frames_by_their_index_in_the_video() -> None:
+    """A video sampled every 5th frame (``000000``, ``000005``, ...) against a folder of every
+    frame, either way round: frame 000005 is the folder's sixth frame, not its second; against a
+    sampled map a frame between two kept ones goes to the nearer (the lower on a tie), and one past
+    the last kept frame by more than half the step to none."""
+    video = [f"{i:06d}" for i in range(0, 20, 5)]
+    folder = [f"Image{i:03d}.jpg" for i in range(20)]
+    truth = aligned_truth(video, folder, tolerance=0, by="index")
+    assert [np.flatnonzero(row).tolist() for row in dense(truth)] == [[0], [5], [10], [15]]
+    assert truth.warnings == []
+    truth = aligned_truth(folder, video, tolerance=0, by="index")
+    assert [np.flatnonzero(row).tolist() for row in dense(truth)] == (
+        [[0]] * 3 + [[1]] * 5 + [[2]] * 5 + [[3]] * 5 + [[]] * 2)
+    assert "2 of 20" in truth.warnings[0]
+
+
 def test_aligned_without_any_common_name_is_fatal() -> None:
     with pytest.raises(WilocError, match="none of the 2 query frames"):
         aligned_truth(["a", "b"], REFS, tolerance=2)

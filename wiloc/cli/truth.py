@@ -37,7 +37,7 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
                    f"{prefix}gt_map": (kind == "positions", "positions ground truth"),
                    f"{prefix}radius": (kind in ("positions", "utm-names", "exif"), "positions, utm-names and exif ground truth")})
     by = "name"
-    if kind == "aligned" and path in ("name", "index"):  # aligned:index, by position
+    if kind == "aligned" and path in ("name", "index"):  # aligned:index, by index
         by, path = path, ""
     if kind in NAMED_FORMS and path:
         fail(f"{flag}: '{kind}' reads the traversals themselves and takes no file ('{gt}')", EXIT_USAGE)
@@ -55,8 +55,8 @@ def _guess_kind(path: str) -> str:
     return "matrix" if Path(path).suffix.lower() in (".npy", ".mat") else "pairs"
 
 
-GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames; 'aligned:index': same position, "
-           "as for a video against a folder of its frames), 'positions:Q.csv' (with "
+GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames; 'aligned:index': same index, "
+           "a video's frame by its index in the video, as for a video against a folder of its frames), 'positions:Q.csv' (with "
            "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat' ('matrix:M.mat:NAME' picks one array of a .mat), 'vprbench:ground_truth_new.npy' (VPR-Bench), "
            "'utm-names' (@UTM_east@UTM_north@ file names) or 'exif' (the images' GPS EXIF), these two within --radius "
            "metres (default 25). '{query}' in a path is replaced by the query folder's name.")

@@ -124,9 +124,32 @@ def unmatched(where: Path | str, count: int, total: int, what: str) -> list[str]
     return [f"{where}: {count} of {total} {what}"] if count else []
 
 
+def frame_indices(names: Sequence[str]) -> NDArray[np.int64]:
+    """Each frame's index in its traversal, as aligned ground truth by index reads it: the number
+    a video's frame names hold (``000005``: its index in the video, which sampling every n-th
+    frame or at a frame rate keeps), else the frame's position."""
+    if names and all(name.isascii() and name.isdigit() for name in names):
+        return np.array([int(name) for name in names], dtype=np.int64)
+    return np.arange(len(names), dtype=np.int64)
+
+
+def _nearest_index(query: NDArray[np.int64], ref: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The reference frame whose index is nearest each query index (the lower one on a tie): the
+    same frame when the reference holds it, the nearest one kept when the reference was sampled;
+    -1 beyond half the reference's usual step past either end."""
+    order = np.argsort(ref, kind="stable")
+    ordered = ref[order]
+    after = np.clip(np.searchsorted(ordered, query), 0, ordered.size - 1)
+    before = np.clip(after - 1, 0, ordered.size - 1)
+    pick = np.where(np.abs(ordered[after] - query) < np.abs(query - ordered[before]), after, before)
+    reach = float(np.median(np.diff(ordered))) / 2 if ordered.size > 1 else 0.0
+    return np.where((query >= ordered[0] - reach) & (query <= ordered[-1] + reach), order[pick], -1)
+
+
 def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], tolerance: int,
                   by: Literal["name", "index"] = "name") -> Truth:
-    """Aligned traversals: the same file name (or position) is the same place, +-T reference frames.
+    """Aligned traversals: the same file name (or index, :func:`frame_indices`) is the same
+    place, +-T reference frames.
 
     Used when traversals were recorded frame by frame along the same route (Gardens Point,
     Nordland). ``tolerance`` counts frames in the reference's order.
@@ -137,7 +160,8 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
     if by == "name":
         centres = _lookup(query_names, ref_names)
     elif by == "index":
-        centres = np.where(np.arange(n_query) < len(ref_names), np.arange(n_query), -1)
+        centres = (_nearest_index(frame_indices(query_names), frame_indices(ref_names)) if len(ref_names)
+                   else np.full(n_query, -1, dtype=np.int64))
     else:
         raise WilocError(None, f"aligned ground truth: by must be 'name' or 'index', got {by!r}")
     found = centres >= 0
