@@ -63,6 +63,18 @@ def test_list_traversal_natural_order_and_ignored(tmp_path: Path) -> None:
     assert {p.name for p in trav.ignored} == {"notes.txt", ".hidden.png", "sub.png"}
 
 
+def test_images_of_other_formats_are_named_as_left_out_and_jpeg_under_its_other_names_is_read(tmp_path: Path) -> None:
+    """A JPEG named .jfif or .jpe is a frame; a JPEG 2000 or GIF file is no frame, and is listed
+    with the reason (a line on stderr), not ignored unnoticed as a README is."""
+    for name in ("img1.jpg", "img2.jfif", "img3.JPE", "img4.jp2", "img5.gif", "README.txt"):
+        (tmp_path / name).write_bytes(b"")
+    trav = list_traversal(tmp_path)
+    assert trav.names == ["img1.jpg", "img2.jfif", "img3.JPE"]
+    assert [name for name, _ in trav.unusable] == ["img4.jp2", "img5.gif"]
+    assert all(reason.startswith("an image format that is no frame here") for _, reason in trav.unusable)
+    assert [p.name for p in trav.ignored] == ["README.txt"]
+
+
 def test_list_traversal_lists_names_and_makes_paths_in_natural_order(tmp_path: Path) -> None:
     names = ["img10.jpg", "img9.jpg", "IMG9.jpg", "img09.jpg", "img9a.jpg", "b.png", "A.png", "ä1.png",
              "x2y10.png", "x2y9.png", "x10y1.png", "10.png", "9.png", "z.JPEG"]

@@ -25,7 +25,15 @@ from numpy.typing import NDArray
 from wiloc.errors import FrameError, WilocError, shown_name
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset(
-    {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
+    {".jpg", ".jpeg", ".jpe", ".jfif", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pbm", ".pnm", ".webp"}
+)
+
+#: Suffixes of image formats that are no frames here (JPEG 2000, GIF, HEIF, AVIF, HDR, camera raw):
+#: a file with one is named as left out, since leaving it out unnoticed would shift every later
+#: frame's position (and ground truth by position with it).
+OTHER_IMAGE_SUFFIXES: frozenset[str] = frozenset(
+    {".jp2", ".j2k", ".jpf", ".jpx", ".gif", ".heic", ".heif", ".avif", ".exr", ".hdr", ".pic", ".sr", ".ras",
+     ".dng", ".cr2", ".nef", ".arw", ".raw"}
 )
 
 # A JPEG marker: FF, then a code that is neither byte stuffing (00), a restart marker (D0-D7,
@@ -117,7 +125,8 @@ def unusable_reason(item: os.DirEntry[str] | Path) -> str | None:
 
 def list_traversal(folder: Path) -> Traversal:
     """List a traversal folder: image files in natural order; hidden and non-image files and
-    subfolders ignored, other image names that cannot be frames (:func:`unusable_reason`) listed with the reason."""
+    subfolders (not searched) ignored, image names that cannot be frames (:func:`unusable_reason`,
+    :data:`OTHER_IMAGE_SUFFIXES`) listed with the reason."""
     folder = Path(folder)
     if not folder.exists():
         raise WilocError(folder, "folder does not exist")
@@ -128,8 +137,11 @@ def list_traversal(folder: Path) -> Traversal:
     unusable: list[tuple[str, str]] = []
     with os.scandir(folder) as entries:  # the entries know their type: no stat per file
         for item in entries:
-            if item.name.startswith(".") or os.path.splitext(item.name)[1].lower() not in IMAGE_SUFFIXES \
-                    or item.is_dir():
+            suffix = os.path.splitext(item.name)[1].lower()
+            if suffix in OTHER_IMAGE_SUFFIXES and not item.name.startswith(".") and not item.is_dir():
+                unusable.append((shown_name(item.name), f"an image format that is no frame here (frames are "
+                                                        f"{' '.join(sorted(IMAGE_SUFFIXES))}: convert it)"))
+            elif item.name.startswith(".") or suffix not in IMAGE_SUFFIXES or item.is_dir():
                 ignored.append(shown_name(item.name))
             elif (reason := unusable_reason(item)) is not None:
                 unusable.append((shown_name(item.name), reason))
