@@ -232,6 +232,23 @@ def test_localize_without_out_writes_nothing_and_evaluate_takes_the_run(tmp_path
     assert wiloc.compare([run, written], api.TruthSource()).table1["recall_at_1"].nunique() == 1
 
 
+def test_json_paths_are_absolute_when_relative_ones_were_given(tmp_path: Path, cache_dir: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/formats.md: in --json, paths are absolute (a script run elsewhere can find them)."""
+    ref, query = _route(tmp_path, 30)
+    monkeypatch.chdir(tmp_path)
+    runner = CliRunner()
+    assert runner.invoke(app, ["localize", query.name, "--map", ref.name, "--method", "threshold", "-o", "run.csv",
+                               "--jobs", "1"]).exit_code == 0
+    evaluated = json.loads(runner.invoke(app, ["evaluate", "run.csv", "--csv", "metrics.csv", "--json"]).stdout)
+    compared = json.loads(runner.invoke(app, ["compare", "run.csv", "--csv", "table.csv", "--json"]).stdout)
+    reported = json.loads(runner.invoke(app, ["report", "run.csv", "-o", "report.html", "--json"]).stdout)
+    paths = ([evaluated["runs"][0]["results"], compared["runs"][0]["results"], reported["results"][0]["file"]]
+             + evaluated["files"] + compared["files"])
+    assert paths[:3] == [str(tmp_path / "run.csv")] * 2 + [str(tmp_path / "report.html")]
+    assert all(Path(p).is_absolute() and Path(p).is_file() for p in paths) and len(paths) == 7
+
+
 def _json_warnings(documents: list[Any]) -> list[str]:
     """The ``warnings`` of a command's JSON documents: of each object, or of each object of a list
     (one per folder or query)."""

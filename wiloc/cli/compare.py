@@ -80,7 +80,7 @@ def compare(
         return
     if as_json:
         print_command_json("compare", "runs", run_records(comparison), notes, ground_truth=comparison.ground_truth,
-                           table2=comparison.table2.to_dict(orient="records"), files=[str(p) for p in written])
+                           table2=comparison.table2.to_dict(orient="records"), files=[str(p.resolve()) for p in written])
         return
     out.print(table1_view(comparison))
     for view in cut_views(comparison, at):

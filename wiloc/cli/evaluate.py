@@ -76,11 +76,11 @@ def evaluate(
         written += write_metrics_csv(csv_out, rows, evaluations, notes)
     if as_json:
         print_command_json("evaluate", "runs", [
-            {**head, "results": str(e.path), "ground_truth": source.describe(), **e.calibration_dict(),
+            {**head, "results": str(e.path.resolve()), "ground_truth": source.describe(), **e.calibration_dict(),
              "truth_warnings": e.truth.warnings,
              "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
                        "thresholds": e.curve.thresholds.tolist()}} for head, e in zip(heads, evaluations)],
-            notes, ground_truth=source.describe(), files=[str(p) for p in written])
+            notes, ground_truth=source.describe(), files=[str(p.resolve()) for p in written])
         return
     for view in metrics_views(rows, at, source.describe()):
         out.print(view)

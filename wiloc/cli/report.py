@@ -54,7 +54,7 @@ def report(
     for note in written.notes:
         notes.add("note", note)
     if as_json:
-        print_command_json("report", "results", [{"file": str(written.path), "size": written.size,
+        print_command_json("report", "results", [{"file": str(written.path.resolve()), "size": written.size,
                                                   "images": written.images, "thumb_width": written.thumb_width}],
                            notes)
         return

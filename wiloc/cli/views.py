@@ -385,7 +385,7 @@ def run_records(comparison: api.Comparison) -> list[dict[str, Any]]:
     rows = comparison.table1.to_dict(orient="records")
     ranked = set(recall_at_keys(rows))
     return [{"method": e.method, "descriptor": e.results.header.descriptor, "traversal": row["traversal"],
-             "label": row["method"], "results": None if e.path is None else str(e.path),
+             "label": row["method"], "results": None if e.path is None else str(e.path.resolve()),
              **{key: value for key, value in row.items() if key not in ("method", "traversal")
                 and not (key in ranked and _missing(value))}, **e.calibration_dict()}
             for row, e in zip(rows, comparison.evaluations)]
