@@ -159,6 +159,24 @@ def test_positions_bad_input_names_the_file(tmp_path: Path, rows: dict, problem:
     assert err.value.where == str(csv)
 
 
+@pytest.mark.parametrize("text, problem", [
+    ("a.jpg,0.0,0.0\nb.jpg,1.0,0.0\n",
+     "missing column(s) name: its first line is 'a.jpg,0.0,0.0'; the first line must be a header naming the "
+     "columns, such as 'name,x,y'"),
+    ("name;x;y\na.jpg;0;0\n", "missing column(s) name: its first line is 'name;x;y'; columns must be separated by "
+                               "commas"),
+    ("frame,x,y\na.jpg,0,0\n", "missing column(s) name: its first line is 'frame,x,y'"),
+])
+def test_a_csv_without_the_columns_shows_its_first_line_and_why(tmp_path: Path, text: str, problem: str) -> None:
+    """No header (a first line of data, which pandas would show lower-cased and de-duplicated as
+    'found a.jpg, 0.0, 0.0.1'), a European spreadsheet's semicolons, or another column name."""
+    csv = tmp_path / "bad.csv"
+    csv.write_text(text)
+    with pytest.raises(WilocError) as err:
+        positions_truth(csv, csv, 5.0, ["a.jpg", "b.jpg"], ["a.jpg", "b.jpg"])
+    assert err.value.problem == problem
+
+
 def test_positions_mixed_coordinate_kinds_are_rejected(tmp_path: Path) -> None:
     q = write_csv(tmp_path / "q.csv", {"name": ["a"], "x": [0.0], "y": [0.0]})
     r = write_csv(tmp_path / "r.csv", {"name": ["b"], "lat": [0.0], "lon": [0.0]})

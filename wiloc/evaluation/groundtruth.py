@@ -10,6 +10,7 @@ See docs/evaluation.md for the formats and examples.
 """
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -196,11 +197,32 @@ def _read_csv(path: Path) -> pd.DataFrame:
     return frame.apply(lambda col: col.str.strip())
 
 
-def _require_columns(path: Path, frame: pd.DataFrame, columns: Sequence[str]) -> None:
+def _require_columns(path: Path, frame: pd.DataFrame, columns: Sequence[str], header: str) -> None:
+    """A WilocError naming the columns missing from ``frame`` (read from ``path``), with the
+    file's first line as it is and, where that line shows why, what to change: another separator
+    than commas, or no header at all (a first line of data; ``header`` is one that would do)."""
     missing = [c for c in columns if c not in frame.columns]
-    if missing:
-        raise WilocError(path, f"missing column(s) {', '.join(missing)}; "
-                               f"found {', '.join(frame.columns) or 'none'}")
+    if not missing:
+        return
+    with Path(path).open(encoding="utf-8-sig", errors="replace") as handle:
+        first = handle.readline().strip()
+    fields = [field.strip().strip('"') for field in re.split(r"[,;\t]", first)]
+    if ("," not in first) and (";" in first or "\t" in first):
+        hint = "; columns must be separated by commas"
+    elif any(_is_number(field) or re.search(r"\.[A-Za-z]\w{1,4}$", field) for field in fields):
+        hint = f"; the first line must be a header naming the columns, such as '{header}'"
+    else:
+        hint = ""
+    shown = first if len(first) <= 80 else first[:77] + "..."
+    raise WilocError(path, f"missing column(s) {', '.join(missing)}: its first line is '{shown}'{hint}")
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _numeric(path: Path, frame: pd.DataFrame, columns: Sequence[str]) -> NDArray[np.float64]:
@@ -236,7 +258,7 @@ class Positions:
 def _read_positions(path: Path) -> Positions:
     """Names, coordinates and whether they are lat/lon (else metric x,y) from a positions CSV."""
     frame = _read_csv(path)
-    _require_columns(path, frame, ["name"])
+    _require_columns(path, frame, ["name"], "name,x,y")
     if {"lat", "lon"} <= set(frame.columns):
         geographic, columns = True, ["lat", "lon"]
     elif {"x", "y"} <= set(frame.columns):
@@ -321,7 +343,7 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     """
     path = Path(csv)
     frame = _read_csv(path)
-    _require_columns(path, frame, ["query", "reference"])
+    _require_columns(path, frame, ["query", "reference"], "query,reference")
     _no_duplicates(path, frame, ["query", "reference"])
     if "tolerance" in frame.columns:
         tol = _numeric(path, frame, ["tolerance"])[:, 0]
