@@ -129,9 +129,10 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
     q = describer.entry(query)
     r = q if sequence else describer.entry(reference)
     results = evaluation.results
-    if q.names != results.frames["frame"].tolist() or (results.reference_frames and r.names != results.reference_frames):
-        raise WilocError(evaluation.path, "its query and map no longer give the frames it lists (the folders "
-                                          "changed, or the run took its frame names from a file); cannot draw it")
+    for role, entry, listed in (("query", q, results.frames["frame"].tolist()), ("map", r, results.reference_frames)):
+        if listed and entry.names != listed:
+            raise WilocError(evaluation.path, f"its {role} {entry.folder} no longer gives the frames it lists "
+                                              f"({_changes(listed, entry.names)}); cannot draw it")
     for role, entry in (("query", q), ("map", r)):
         recorded = header.query_digest if role == "query" else header.map_digest  # batch runs record them
         if recorded and recorded != descriptors_digest(entry.names, entry.data):
@@ -139,6 +140,21 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
                                               "used (its images changed, or it is another folder of the same "
                                               "names); cannot draw it")
     return q, r
+
+
+def _changes(listed: list[str], names: list[str]) -> str:
+    """How a traversal's frames differ from those a results file lists, in a few words: the
+    frames gone and the new ones (the first three of each), or their order."""
+    have, had = set(names), set(listed)
+    gone, new = [n for n in listed if n not in have], [n for n in names if n not in had]
+    if not gone and not new:
+        return "the same frames in another order"
+    if len(gone) == len(listed):
+        return "none of its frames is there: another folder, or the run took its frame names from a file"
+
+    def some(items: list[str]) -> str:
+        return ", ".join(items[:3]) + (f" and {len(items) - 3} more" if len(items) > 3 else "")
+    return "; ".join(part for part in (gone and f"{some(gone)} gone", new and f"{some(new)} new") if part)
 
 
 def _pooled(rows: NDArray[np.float64], factor: int) -> NDArray[np.float64]:
