@@ -315,3 +315,27 @@ def test_observe_takes_a_new_text_name_for_each_frame(demo_route: demo.DemoRoute
         assert again.frames == 2 and again.names == [path.name, "again"]
     assert loc.observe(np.zeros(1152, np.uint8)).frame == "000002"
     assert loc.observe(path).frame == f"{path.stem}-000003{path.suffix}"
+
+
+@pytest.mark.parametrize("bad, problem", [(float("nan"), "finite and >= 0"), (-1.0, "finite and >= 0"),
+                                          ("1.0", "a number, got str"), (True, "a number, got bool")])
+def test_a_refused_odometry_leaves_the_run_as_it_was(demo_route: demo.DemoRoute, cache_dir: Path, bad: object,
+                                                     problem: str) -> None:
+    """A robot that retries a frame after its odometry was refused (a NaN from its wheel encoders)
+    gets the decisions of a run that never saw the refused call."""
+    def localizer() -> Localizer:
+        return Localizer(demo_route.reference, method="catgraph", seed=0,
+                         map_odometry=demo_route.positions / "reference.csv")
+    frames = sorted(demo_route.queries[0].iterdir())[:40]
+    clean, retried = localizer(), localizer()
+    expected = [clean.observe(frame, odometry=1.0) for frame in frames]
+    got = []
+    for k, frame in enumerate(frames):
+        if k == 20:
+            with pytest.raises(WilocError, match=problem) as err:
+                retried.observe(frame, odometry=bad)
+            assert err.value.parameter == "odometry"
+        got.append(retried.observe(frame, odometry=1.0))
+    assert [(d.match, d.confidence, d.new_place) for d in got] == [(d.match, d.confidence, d.new_place)
+                                                                  for d in expected]
+

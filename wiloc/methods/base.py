@@ -10,6 +10,7 @@ it frame by frame. Adding a method is one module with a subclass and one line in
 """
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import closing
@@ -179,8 +180,11 @@ class Method(ABC):
         its values as float64 either way, so the decisions are the same."""
         if self.context is None:
             raise RuntimeError(f"{self.name}: call start() before step()")
-        if odometry is not None and "odometry" not in self.needs:
-            raise WilocError(self.name, f"method '{self.name}' takes no odometry", parameter="odometry")
+        if odometry is not None:
+            if "odometry" not in self.needs:
+                raise WilocError(self.name, f"method '{self.name}' takes no odometry", parameter="odometry")
+            odometry = checked_step(odometry, self.frames)
+            self.check_odometry()
         row = np.asarray(row)
         row = row if row.dtype == np.float32 else row.astype(np.float64, copy=False)
         self._ahead = ahead
@@ -193,6 +197,10 @@ class Method(ABC):
             best = best_candidates(row, descending=self.context.rows == "log_ratio")
             decision = replace(decision, ranking=tuple(best.tolist()))
         return decision
+
+    def check_odometry(self) -> None:
+        """Raise a WilocError naming ``odometry`` when this run cannot take a frame's odometry (a
+        method that reads it checks its map here), before anything of the frame is decided."""
 
     @abstractmethod
     def prepare(self, context: MapContext) -> None:
@@ -283,3 +291,17 @@ class Method(ABC):
         if len(steps) != n_frames:
             raise WilocError(self.name, f"got {len(steps)} difference rows, expected n_frames={n_frames}")
         return Decisions.collect(steps, self.columns, ranked=self.ranks, model=self.model, params=self.header())
+
+
+def checked_step(odometry: object, frame: int) -> float:
+    """A query frame's odometry step (the distance travelled since the previous frame) as a float:
+    a real number, finite and >= 0; anything else (text, a list, True, NaN, a negative step) a
+    WilocError naming ``odometry``, raised before the method's state changes."""
+    if isinstance(odometry, bool) or not isinstance(odometry, (int, float, np.integer, np.floating)):
+        raise WilocError(None, f"query frame {frame}: the step must be a number, got {type(odometry).__name__} "
+                               f"{odometry!r}", parameter="odometry")
+    step = float(odometry)
+    if not (math.isfinite(step) and step >= 0):
+        raise WilocError(None, f"query frame {frame}: the step must be finite and >= 0, got {odometry}",
+                         parameter="odometry")
+    return step

@@ -270,8 +270,6 @@ class CatGraph(Method):
         from wiloc.methods.catgraph import filter_kernels
 
         if self._growing:  # sequence mode: the map is the run's frames before the recent window and the frontier
-            if odometry is not None:
-                raise WilocError("catgraph", "takes no odometry in sequence mode", parameter="odometry")
             n_map = self.frames - self.context.exclude_recent - self.params.frontier
             if n_map < 2:
                 return Decision(match=-1, difference=float("nan"), confidence=float("nan"), stage="none")
@@ -432,18 +430,22 @@ class CatGraph(Method):
         has no blind spots), on a map the learned share of departures among them."""
         return self._unexplained.u if self._growing else self._unexplained.new_place
 
-    def _travelled(self, odometry: float | None) -> float:
-        """u_k: the query's odometry step, else the mean node spacing."""
-        if odometry is None:
-            return self._spacing
+    def check_odometry(self) -> None:
+        """A query frame's odometry needs the map's positions in the same units; sequence mode,
+        whose map grows by one frame index per frame, takes none."""
+        if self._growing:
+            raise WilocError("catgraph", "takes no odometry in sequence mode", parameter="odometry")
         if self.context is None or self.context.arclength is None:
             raise WilocError(None, "a query odometry needs the map's too (map_odometry), in the same units",
                              parameter="odometry")
-        if not (np.isfinite(odometry) and odometry >= 0):
-            raise WilocError(None, f"query frame {self.frames}: the step must be finite and >= 0, got {odometry}",
-                             parameter="odometry")
+
+    def _travelled(self, odometry: float | None) -> float:
+        """u_k: the query's odometry step (checked by :meth:`Method.step`), else the mean node
+        spacing."""
+        if odometry is None:
+            return self._spacing
         self._odometry = True
-        return float(odometry)
+        return odometry
 
     def facts(self) -> dict[str, Any]:
         return {"odometry": getattr(self, "_odometry", False),
