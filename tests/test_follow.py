@@ -199,3 +199,72 @@ def test_gardens_point_fed_frame_by_frame_equals_batch(data_root: Path, method: 
     pd.testing.assert_frame_equal(_rows(tmp_path / "follow.csv"), _rows(batch.path))
     assert np.all(_rows(batch.path)["frame"].to_numpy() == sorted(p.name for p in live.iterdir()))
     assert os.environ.get("WILOC_CACHE") == str(cache_dir)
+
+
+@pytest.mark.parametrize("how", ["overwritten", "renamed onto"])
+def test_a_decided_file_written_again_is_said_once_not_decided_again(demo_route: demo.DemoRoute, how: str,
+                                                                      tmp_path: Path, cache_dir: Path) -> None:
+    """A camera writing one fixed name (``latest.jpg``) again and again: the first image is decided,
+    the rewrite is a warning, once, and not decided again (results hold one row per name)."""
+    from wiloc.localization.follow import REWRITTEN
+
+    frames = sorted(demo_route.queries[0].iterdir())[:3]
+    latest = tmp_path / "latest.jpg"
+    latest.write_bytes(frames[0].read_bytes())
+    now = [0.0]
+
+    def sleep(seconds: float) -> None:
+        now[0] += seconds
+        if 1.0 <= now[0] < 1.0 + seconds or 1.5 <= now[0] < 1.5 + seconds:  # the camera writes twice more
+            image = frames[1 if now[0] < 1.5 else 2].read_bytes()
+            if how == "overwritten":
+                latest.write_bytes(image)
+            else:
+                (tmp_path / ".latest.tmp").write_bytes(image)
+                os.replace(tmp_path / ".latest.tmp", latest)
+            os.utime(latest, ns=(int(now[0] * 1e9), int(now[0] * 1e9)))
+
+    events = list(follow(Localizer(demo_route.reference, method="threshold"), FolderWatch(tmp_path), idle=2.0,
+                         poll=0.2, clock=lambda: now[0], sleep=sleep))
+    assert [e.frame for e in events if not isinstance(e, Skipped)] == ["latest.jpg"]
+    warned = [e for e in events if isinstance(e, Skipped)]
+    assert [(e.path, e.reason, e.kind) for e in warned] == [(latest, REWRITTEN, "warning")]
+    assert str(warned[0]).startswith(f"{latest}: written again after it was decided")
+
+
+def test_a_decided_file_in_a_large_folder_written_again_is_noticed(tmp_path: Path) -> None:
+    """Each poll stats only a few of the files handed out, in turn: a rewrite is still noticed."""
+    from wiloc.localization.follow import CHECKS_PER_POLL
+
+    for k in range(3 * CHECKS_PER_POLL):
+        (tmp_path / f"f{k:04d}.png").write_bytes(b"x")
+    watch = FolderWatch(tmp_path)
+    watch.poll()
+    assert len(watch.poll()) == 3 * CHECKS_PER_POLL
+    with open(tmp_path / "f0100.png", "ab") as grow:
+        grow.write(b"more")
+    for _ in range(4):
+        assert watch.poll() == []
+    assert watch.rewritten == [tmp_path / "f0100.png"]
+
+
+def test_two_followers_of_one_results_file_one_ends_busy(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                         cache_dir: Path) -> None:
+    """Two runs started at once on the same --out: the second ends at once with exit 3 (busy), before
+    deciding anything; the file holds each frame once."""
+    live = tmp_path / "live"
+    live.mkdir()
+    frames = sorted(demo_route.queries[0].iterdir())[:6]
+    for path in frames:
+        (live / path.name).write_bytes(path.read_bytes())
+    out = tmp_path / "r.csv"
+    api.localize(live, reference=demo_route.reference, method="threshold", out=tmp_path / "warm.csv")  # the map described
+    runs = [_follower(live, demo_route.reference, out, "threshold", idle=3) for _ in range(2)]
+    ended = [run.communicate(timeout=120) for run in runs]
+    codes = [run.returncode for run in runs]
+    assert sorted(codes) == [0, 3], ended
+    busy = ended[codes.index(3)]
+    assert busy[0] == "" and busy[1].strip().splitlines() == [
+        f"error: {out}: in use by another wiloc run (pid {runs[codes.index(0)].pid})"]
+    assert _rows(out)["frame"].tolist() == [p.name for p in frames]
+    assert not (tmp_path / ".r.csv.lock").exists()

@@ -74,7 +74,7 @@ FOLLOW_COLUMNS = ("frame", "match", "confidence", "P(new place)", "stage")
 def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
     """Render a followed run: a live table on a terminal, else a header line and one line (or
     JSON line) per frame, and when ``--idle`` ends the run a last line saying so; a frame left out
-    is a note on stderr (with --json also a line ``{"warnings": [...]}``), as is each of the run's
+    (or a decided file written again: a warning) is a note on stderr (with --json also a line ``{"warnings": [...]}``), as is each of the run's
     warnings before the first frame."""
     from collections import deque
 
@@ -119,9 +119,9 @@ def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
                     print(f"{event.frame}\t{event.match_name or '-'}\t{cell(event.confidence)}\t"
                           f"{cell(event.new_place)}\t{event.stage}", flush=True)
             else:
-                notes.add("skipped", str(event))
+                notes.add(event.kind, str(event))
                 if as_json:  # the line on stderr, as every --json carries it
                     print(json.dumps({"warnings": notes[-1:]}), flush=True)
     if live is None and not as_json and run.idle is not None:
         print(f"# ended: no new frame for {run.idle:g} s; {decided} frames decided ({run.resumed} resumed before), "
-              f"{len(notes)} left out; results in {run.path}", flush=True)
+              f"{sum(n.startswith('skipped:') for n in notes)} left out; results in {run.path}", flush=True)

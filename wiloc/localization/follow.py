@@ -7,6 +7,7 @@ after ``idle`` seconds without a new frame. Nothing here prints or writes; the c
 """
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -21,13 +22,25 @@ from wiloc.sources.frames import IMAGE_SUFFIXES, natural_key, shown_name, unusab
 #: that is slow to finish a file gets this long.
 SETTLE_SECONDS = 2.0
 
+#: Files already handed out whose size and modification time one poll checks (in turn): a large
+#: folder costs no more per poll; a file overwritten in place is noticed within
+#: ``files / CHECKS_PER_POLL`` polls (one renamed onto a decided name at the next poll).
+CHECKS_PER_POLL = 64
+
+#: Why a file already decided and then written again (overwritten, or another file renamed onto
+#: its name) is not decided again.
+REWRITTEN = ("written again after it was decided; --follow decides each file name once (write each frame "
+             "under a new name, or use the Python API's Localizer.observe)")
+
 
 @dataclass(frozen=True)
 class Skipped:
-    """A frame left out: its file and why."""
+    """A frame left out: its file and why; ``kind`` is ``warning`` for a file already decided
+    that was written again (:data:`REWRITTEN`), said once."""
 
     path: Path
     reason: str
+    kind: str = "skipped"
 
     def __str__(self) -> str:
         """``PATH: REASON``, the path printable whatever bytes its name holds."""
@@ -49,17 +62,63 @@ class FolderWatch:
         self.folder = followed_folder(folder)
         self._done = set(done)
         self._seen: dict[str, tuple[int, int]] = {}  # name -> (size, mtime_ns) at the last poll
+        # handed-out name -> (inode, size, mtime_ns) when handed out (None: not seen yet, a resumed run's)
+        self._decided: dict[str, tuple[int, int, int] | None] = dict.fromkeys(self._done)
+        self._turn = 0  # where the next poll's stats of handed-out files begin
+        self.rewritten: list[Path] = []  # decided files found written again, each once (the caller empties it)
 
     def _images(self) -> list[Path]:
-        paths = [p for p in self.folder.iterdir()
-                 if not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES and p.name not in self._done
-                 and not p.is_dir()]
+        """The image files not handed out, in natural order. A handed-out one found written again
+        since (another inode under its name, or another size or modification time) goes to
+        :attr:`rewritten`; the inode comes with the listing, the stat costs a call, so each poll
+        stats at most :data:`CHECKS_PER_POLL` handed-out files, in turn."""
+        paths, decided = [], []
+        with os.scandir(self.folder) as entries:
+            for entry in entries:
+                name = entry.name
+                if name.startswith(".") or os.path.splitext(name)[1].lower() not in IMAGE_SUFFIXES:
+                    continue
+                if name in self._done:
+                    if name in self._decided:
+                        mark = self._decided[name]
+                        if mark is not None and not entry.is_symlink() and mark[0] != entry.inode():
+                            self._rewritten(entry)
+                        else:
+                            decided.append(entry)
+                    continue
+                try:
+                    if entry.is_dir():
+                        continue
+                except OSError:
+                    continue
+                paths.append(Path(entry.path))
+        if decided:
+            start = self._turn % len(decided)
+            for entry in (decided[start:] + decided[:start])[:CHECKS_PER_POLL]:
+                self._check_decided(entry)
+            self._turn = start + CHECKS_PER_POLL
         return sorted(paths, key=lambda p: natural_key(p.name))
+
+    def _rewritten(self, entry: os.DirEntry[str]) -> None:
+        del self._decided[entry.name]  # said once
+        self.rewritten.append(Path(entry.path))
+
+    def _check_decided(self, entry: os.DirEntry[str]) -> None:
+        try:
+            stat = entry.stat()
+        except OSError:  # removed meanwhile, or a dangling link
+            return
+        now = (stat.st_ino, stat.st_size, stat.st_mtime_ns)
+        before = self._decided[entry.name]
+        if before is None:
+            self._decided[entry.name] = now
+        elif before != now:
+            self._rewritten(entry)
 
     def poll(self) -> list[Path]:
         """Files whose size and modification time are unchanged since the previous poll, in
         natural order; they count as handed out (call :meth:`retry` for one to come again)."""
-        ready, seen = [], {}
+        ready, seen, marks = [], {}, {}
         for path in self._images():
             try:
                 stat = path.stat() if not path.is_symlink() or path.exists() else path.lstat()
@@ -68,8 +127,10 @@ class FolderWatch:
             seen[path.name] = (stat.st_size, stat.st_mtime_ns)
             if self._seen.get(path.name) == seen[path.name]:
                 ready.append(path)
+                marks[path.name] = (stat.st_ino, stat.st_size, stat.st_mtime_ns)
         self._seen = seen
-        self._done.update(p.name for p in ready)
+        self._done.update(marks)
+        self._decided.update(marks)
         return ready
 
     def unsettled(self) -> list[Path]:
@@ -79,6 +140,7 @@ class FolderWatch:
     def retry(self, path: Path) -> None:
         """Hand ``path`` out again once it is stable (it could not be read yet)."""
         self._done.discard(path.name)
+        self._decided.pop(path.name, None)
         self._seen.pop(path.name, None)
 
 
@@ -95,6 +157,9 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
     failing: dict[str, float] = {}  # name -> when it first failed to decode
     while True:
         arrived = watch.poll()
+        for path in watch.rewritten:
+            yield Skipped(path, REWRITTEN, kind="warning")
+        watch.rewritten.clear()
         for path in arrived:
             if (reason := unusable_reason(path)) is not None:
                 last = clock()

@@ -3,15 +3,18 @@
 wrote before is resumed (``wiloc.api.follow_folder``)."""
 from __future__ import annotations
 
+import os
+import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from wiloc.cache.store import Cache
+from wiloc.atomic import write_error
+from wiloc.cache.store import Cache, _lock_file
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decision
-from wiloc.errors import WilocError
+from wiloc.errors import CacheBusyError, WilocError
 from wiloc.evaluation.results import RANKING, ResultsStream
 from wiloc.localization.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localization.localizer import Localizer
@@ -35,6 +38,7 @@ class FollowRun:
     poll: float
     resumed: int = 0
     warnings: list[str] = field(default_factory=list)  # what makes the decisions doubtful (a sparse vocabulary)
+    lock: int | None = None  # the descriptor holding the results file's lock (:func:`lock_results`)
 
     @property
     def path(self) -> Path:
@@ -49,6 +53,40 @@ class FollowRun:
                 yield event
         finally:
             self.stream.close()
+            self.release()
+
+    def release(self) -> None:
+        """Let go of the results file's lock (iterating to the end does so)."""
+        if self.lock is not None:
+            unlock_results(self.path, self.lock)
+            self.lock = None
+
+
+def lock_results(path: Path) -> int:
+    """Hold an exclusive lock on the results file ``path`` (the lock file ``.NAME.lock`` beside
+    it, holding the holder's pid, as the cache's locks do), without waiting: a CacheBusyError
+    naming ``path`` when another run holds it, so that two runs never append to one file."""
+    lock = _lock_path(path)
+    try:
+        return _lock_file(lock, time.monotonic(),
+                          lambda pid: CacheBusyError(path, f"in use by another wiloc run (pid {pid})"))
+    except OSError as exc:
+        raise write_error(lock, "the results file's lock", exc) from None
+
+
+def _lock_path(path: Path) -> Path:
+    """The lock file of the results file ``path``: beside the file it names (a link resolved), so
+    that every spelling of one file shares one lock."""
+    real = Path(os.path.realpath(path))
+    return real.with_name(f".{real.name}.lock")
+
+
+def unlock_results(path: Path, fd: int) -> None:
+    """Let go of :func:`lock_results`' lock: its file removed while still held, then closed."""
+    try:
+        _lock_path(path).unlink(missing_ok=True)
+    finally:
+        os.close(fd)
 
 
 def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str = "sad",
@@ -60,8 +98,26 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
     """Follow a folder that is still being filled: each frame decided as it arrives, its row
     appended to the results file at once (see :class:`FollowRun`). Ends after ``idle`` seconds
     without a new frame (None: when interrupted). A query that is no folder is refused before
-    the map is described or the results file written."""
+    the map is described or the results file written; so is a results file another run holds
+    (CacheBusyError): the run holds it until iterated to its end (or :meth:`FollowRun.release`)."""
     query = followed_folder(query)
+    path = Path(out) if out else Path.cwd() / results_name(query, method, descriptor)
+    lock = lock_results(path)
+    try:
+        return _opened(query, path, lock, reference=reference, descriptor=descriptor,
+                       descriptor_params=descriptor_params, method=method, method_params=method_params,
+                       exclude_recent=exclude_recent, training=training, map_odometry=map_odometry, cache=cache,
+                       jobs=jobs, idle=idle, poll=poll)
+    except BaseException:
+        unlock_results(path, lock)
+        raise
+
+
+def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descriptor: str,
+            descriptor_params: Mapping[str, Any] | None, method: str, method_params: Mapping[str, Any] | None,
+            exclude_recent: int, training: Training | None, map_odometry: Path | None, cache: Cache | None,
+            jobs: int | None, idle: float | None, poll: float) -> FollowRun:
+    """:func:`follow_folder` once the results file ``path`` is locked (``lock``)."""
     localizer = Localizer(reference, descriptor=descriptor, descriptor_params=descriptor_params, method=method,
                           exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
                           cache=cache, jobs=jobs, **dict(method_params or {}))
@@ -69,7 +125,6 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
                                 localizer.exclude_recent, training),
                      params=localizer.method.header(),
                      reference_frames=() if reference is None else tuple(localizer.map_names))
-    path = Path(out) if out else Path.cwd() / results_name(query, method, descriptor)
     ranked = (RANKING,) if localizer.method.ranks else ()
     stream = ResultsStream(path, header, (*localizer.method.columns, *ranked), resume=True)
     names = stream.rows["frame"].tolist()
@@ -80,4 +135,4 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
             raise WilocError(None, f"{path}: frame '{name}' decided again differs from its row: the map, the "
                                    "frames or the settings changed; give another file to start anew", parameter="out")
     return FollowRun(query=query, localizer=localizer, stream=stream, idle=idle, poll=poll, resumed=len(names),
-                     warnings=localizer.doubts)
+                     warnings=localizer.doubts, lock=lock)
