@@ -156,7 +156,7 @@ def _same_file(fd: int, path: Path) -> bool:
     return (here.st_dev, here.st_ino) == (there.st_dev, there.st_ino)
 
 
-def _lock_file(path: Path, deadline: float, busy: Callable[[str], Exception]) -> int:
+def lock_file(path: Path, deadline: float, busy: Callable[[str], Exception]) -> int:
     """An exclusive ``flock`` on the lock file ``path``, created as needed; the holder's pid is
     written into it. Waits until the monotonic ``deadline``, then raises ``busy(holder pid)``.
     A holder removes the file as it lets go, so a waiter that locked a removed file tries again."""
@@ -232,7 +232,7 @@ class Cache:
             return
         self._make_folder(path.parent)
         deadline = time.monotonic() + (self.lock_timeout if timeout is None else timeout)
-        fd = _lock_file(path, deadline, lambda pid: CacheBusyError(target, f"in use by another wiloc process (pid {pid})"))
+        fd = lock_file(path, deadline, lambda pid: CacheBusyError(target, f"in use by another wiloc process (pid {pid})"))
         held[path] = [fd, 1]
         try:
             yield

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from wiloc.atomic import write_error
-from wiloc.cache.store import Cache, _lock_file
+from wiloc.cache.store import Cache, lock_file
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decision
 from wiloc.errors import CacheBusyError, WilocError
@@ -68,7 +68,7 @@ def lock_results(path: Path) -> int:
     naming ``path`` when another run holds it, so that two runs never append to one file."""
     lock = _lock_path(path)
     try:
-        return _lock_file(lock, time.monotonic(),
+        return lock_file(lock, time.monotonic(),
                           lambda pid: CacheBusyError(path, f"in use by another wiloc run (pid {pid})"))
     except OSError as exc:
         raise write_error(lock, "the results file's lock", exc) from None
