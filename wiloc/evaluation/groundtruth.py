@@ -209,20 +209,13 @@ def _require_columns(path: Path, frame: pd.DataFrame, columns: Sequence[str], he
     fields = [field.strip().strip('"') for field in re.split(r"[,;\t]", first)]
     if ("," not in first) and (";" in first or "\t" in first):
         hint = "; columns must be separated by commas"
-    elif any(_is_number(field) or re.search(r"\.[A-Za-z]\w{1,4}$", field) for field in fields):
+    elif any(pd.notna(pd.to_numeric(field, errors="coerce")) or re.search(r"\.[A-Za-z]\w{1,4}$", field)
+             for field in fields):
         hint = f"; the first line must be a header naming the columns, such as '{header}'"
     else:
         hint = ""
     shown = first if len(first) <= 80 else first[:77] + "..."
     raise WilocError(path, f"missing column(s) {', '.join(missing)}: its first line is '{shown}'{hint}")
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 def _numeric(path: Path, frame: pd.DataFrame, columns: Sequence[str]) -> NDArray[np.float64]:
