@@ -128,6 +128,12 @@ class _NamedOutput:
         return getattr(self._stream, name)
 
 
+def _discard_output() -> None:
+    """Standard output on /dev/null: what is still buffered for it, which can no longer be
+    written, goes nowhere at exit instead of failing again there."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
 def main() -> int:
     """Run the command line; its exit code."""
     _hold_standard_descriptors()
@@ -144,15 +150,14 @@ def main() -> int:
         code = run()
         if sys.stdout is not None:  # None: started with stdout closed (`>&-`)
             sys.stdout.flush()  # here, not at exit, where a closed reader would be a traceback
-    except BrokenPipeError:
-        # the output's reader has gone: what is still buffered goes nowhere
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except BrokenPipeError:  # the output's reader has gone
+        _discard_output()
         code = EXIT_CLOSED_OUTPUT
     except OSError as exc:
         if exc.filename != _NamedOutput.NAME:
             raise
         sys.stderr.write(f"error: {exc.filename}: {exc.strerror}\n")  # its buffered end (a full disk)
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        _discard_output()
         code = EXIT_BAD_INPUT
     except BaseException as exc:
         if not interrupted(exc):

@@ -74,8 +74,8 @@ FOLLOW_COLUMNS = ("frame", "match", "confidence", "P(new place)", "stage")
 def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
     """Render a followed run: a live table on a terminal, else a header line and one line (or
     JSON line) per frame, and when ``--idle`` ends the run a last line saying so; a frame left out
-    (or a decided file written again: a warning) is a note on stderr (with --json also a line ``{"warnings": [...]}``), as is each of the run's
-    warnings before the first frame."""
+    (or a decided file written again: a warning) is a note on stderr (with --json also a line
+    ``{"warnings": [...]}``), as is each of the run's warnings before the first frame."""
     from collections import deque
 
     from rich.live import Live

@@ -11,6 +11,7 @@ are shown by their own name, or as many trailing parts as keep two of the same n
 """
 from __future__ import annotations
 
+import codecs
 import json
 import math
 import sys
@@ -89,7 +90,7 @@ def print_json(data: Any) -> None:
     FORCE_COLOR set, and no wrapping: a script reads it), non-ASCII characters escaped where
     stdout cannot encode them (PYTHONIOENCODING=ascii)."""
     stream = sys.stdout
-    utf8 = (getattr(stream, "encoding", None) or "").lower().replace("-", "").replace("_", "") == "utf8"
+    utf8 = codecs.lookup(getattr(stream, "encoding", None) or "ascii").name == "utf-8"
     stream.write(json.dumps(json_ready(data), indent=2, ensure_ascii=not utf8) + "\n")
 
 

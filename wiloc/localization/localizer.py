@@ -178,8 +178,8 @@ class Localizer:
             k = len(self.names)
             path = _file(frame)
             name = f"{k:06d}" if path is None else path.name
-            if name in self._named:
-                name = f"{k:06d}" if path is None else f"{path.stem}-{k:06d}{path.suffix}"
+            if path is not None and name in self._named:
+                name = f"{path.stem}-{k:06d}{path.suffix}"
         if not isinstance(name, str):
             raise WilocError("observe", f"name must be text (str), got {type(name).__name__} {name!r}")
         if not name:
@@ -187,7 +187,7 @@ class Localizer:
         if name in self._named:
             raise WilocError("observe", f"name '{name}' is an earlier frame's (frame {self.names.index(name)}); "
                                         "each frame needs a name of its own (name=...)")
-        return str(name)
+        return name
 
     # -------------------------------------------------------------------------------- save / load
 

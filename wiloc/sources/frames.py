@@ -138,11 +138,12 @@ def list_traversal(folder: Path) -> Traversal:
     with os.scandir(folder) as entries:  # the entries know their type: no stat per file
         for item in entries:
             suffix = os.path.splitext(item.name)[1].lower()
-            if suffix in OTHER_IMAGE_SUFFIXES and not item.name.startswith(".") and not item.is_dir():
+            if (item.name.startswith(".") or (suffix not in IMAGE_SUFFIXES and suffix not in OTHER_IMAGE_SUFFIXES)
+                    or item.is_dir()):
+                ignored.append(shown_name(item.name))
+            elif suffix in OTHER_IMAGE_SUFFIXES:
                 unusable.append((shown_name(item.name), f"an image format that is no frame here (frames are "
                                                         f"{' '.join(sorted(IMAGE_SUFFIXES))}: convert it)"))
-            elif item.name.startswith(".") or suffix not in IMAGE_SUFFIXES or item.is_dir():
-                ignored.append(shown_name(item.name))
             elif (reason := unusable_reason(item)) is not None:
                 unusable.append((shown_name(item.name), reason))
             else:

@@ -435,7 +435,7 @@ class CatGraph(Method):
         whose map grows by one frame index per frame, takes none."""
         if self._growing:
             raise WilocError("catgraph", "takes no odometry in sequence mode", parameter="odometry")
-        if self.context is None or self.context.arclength is None:
+        if self.context.arclength is None:
             raise WilocError(None, "a query odometry needs the map's too (map_odometry), in the same units",
                              parameter="odometry")
 
