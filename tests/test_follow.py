@@ -248,6 +248,78 @@ def test_a_decided_file_in_a_large_folder_written_again_is_noticed(tmp_path: Pat
     assert watch.rewritten == [tmp_path / "f0100.png"]
 
 
+def _listings(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Counts the folder listings ``FolderWatch`` makes (one entry per ``os.scandir`` call)."""
+    import wiloc.localization.follow as follow_module
+
+    calls: list[str] = []
+    scandir = os.scandir
+
+    def counted(path):  # noqa: ANN001, ANN202 - os.scandir's own signature
+        calls.append(str(path))
+        return scandir(path)
+
+    monkeypatch.setattr(follow_module.os, "scandir", counted)
+    return calls
+
+
+def _set_folder_time(folder: Path, ns: int) -> None:
+    os.utime(folder, ns=(ns, ns))
+
+
+def test_an_idle_folder_is_not_listed_again_until_it_changes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A follower of a large folder waits cheaply: a folder whose time has not moved since a listing
+    made well after it is not listed again; a new file moves it and is handed out."""
+    listings = _listings(monkeypatch)
+    for k in range(5):
+        (tmp_path / f"f{k}.png").write_bytes(b"x")
+    _set_folder_time(tmp_path, time.time_ns() - 60 * 10**9)  # the camera wrote a minute ago
+    watch = FolderWatch(tmp_path)
+    watch.poll()
+    assert len(watch.poll()) == 5
+    before = len(listings)
+    for _ in range(10):
+        assert watch.poll() == []
+    assert len(listings) == before  # idle: no listing
+    (tmp_path / "f5.png").write_bytes(b"x")
+    watch.poll()
+    assert [p.name for p in watch.poll()] == ["f5.png"]
+    assert len(listings) > before
+
+
+def test_a_file_added_within_the_folders_clock_tick_is_found(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A file added without moving the folder's time (the same tick of a coarse clock) is still
+    found: at the next poll while the folder changed recently, after LISTING_SECONDS otherwise."""
+    from wiloc.localization.follow import LISTING_SECONDS
+
+    (tmp_path / "f0.png").write_bytes(b"x")
+    recent = time.time_ns() - 10**8
+    _set_folder_time(tmp_path, recent)
+    watch = FolderWatch(tmp_path)
+    watch.poll()
+    assert [p.name for p in watch.poll()] == ["f0.png"]
+    (tmp_path / "f1.png").write_bytes(b"x")
+    _set_folder_time(tmp_path, recent)  # the same tick: the folder's time unchanged
+    watch.poll()
+    assert [p.name for p in watch.poll()] == ["f1.png"]
+
+    now = [0.0]
+    old = time.time_ns() - 60 * 10**9
+    _set_folder_time(tmp_path, old)
+    watch = FolderWatch(tmp_path, done=["f0.png", "f1.png"], clock=lambda: now[0])
+    assert watch.poll() == []
+    listings = _listings(monkeypatch)
+    (tmp_path / "f2.png").write_bytes(b"x")
+    _set_folder_time(tmp_path, old)  # a file system whose folder time lags
+    now[0] = LISTING_SECONDS / 2
+    assert watch.poll() == [] and listings == []
+    now[0] = LISTING_SECONDS
+    watch.poll()
+    now[0] = LISTING_SECONDS + 0.2
+    assert [p.name for p in watch.poll()] == ["f2.png"]
+    assert len(listings) == 1
+
+
 def test_two_followers_of_one_results_file_one_ends_busy(demo_route: demo.DemoRoute, tmp_path: Path,
                                                          cache_dir: Path) -> None:
     """Two runs started at once on the same --out: the second ends at once with exit 3 (busy), before

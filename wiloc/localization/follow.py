@@ -27,6 +27,15 @@ SETTLE_SECONDS = 2.0
 #: ``files / CHECKS_PER_POLL`` polls (one renamed onto a decided name at the next poll).
 CHECKS_PER_POLL = 64
 
+#: A folder listed less than this long after its last change is listed again at the next poll: a
+#: file added in the same tick of the file system's clock (2 s on FAT) leaves the folder's time as
+#: it was.
+RACY_SECONDS = 2.0
+
+#: The longest time between two listings of the folder, for file systems whose folder times lag
+#: behind their entries (network file systems' attribute caches).
+LISTING_SECONDS = 5.0
+
 #: Why a file already decided and then written again (overwritten, or another file renamed onto
 #: its name) is not decided again.
 REWRITTEN = ("written again after it was decided; --follow decides each file name once (write each frame "
@@ -56,64 +65,101 @@ def followed_folder(folder: Path) -> Path:
 
 
 class FolderWatch:
-    """The complete image files of a folder not handed out yet, polled on demand."""
+    """The complete image files of a folder not handed out yet, polled on demand.
 
-    def __init__(self, folder: Path, done: Iterable[str] = ()) -> None:
+    A poll lists the folder only when it may have changed: when its modification time moved since
+    the last listing, when that time lies within :data:`RACY_SECONDS` of the listing (a file
+    added in the same tick of the file system's clock leaves it unchanged), or
+    :data:`LISTING_SECONDS` after the last listing (a file system whose folder times lag). An idle
+    poll of a folder of 35,000 decided frames then costs a few calls, not a pass over every name.
+    """
+
+    def __init__(self, folder: Path, done: Iterable[str] = (), *,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.folder = followed_folder(folder)
         self._done = set(done)
         self._seen: dict[str, tuple[int, int]] = {}  # name -> (size, mtime_ns) at the last poll
         # handed-out name -> (inode, size, mtime_ns) when handed out (None: not seen yet, a resumed run's)
         self._decided: dict[str, tuple[int, int, int] | None] = dict.fromkeys(self._done)
-        self._turn = 0  # where the next poll's stats of handed-out files begin
+        self._order = list(self._decided)  # handed-out names in turn for the checks (a name gone from _decided is passed over)
+        self._turn = 0  # where the next poll's checks of handed-out files begin
+        self._clock = clock
+        self._listed: tuple[int, int, float] | None = None  # folder's mtime_ns, wall ns and clock of the last listing
+        self._pending: list[str] = []  # image files not handed out at the last listing
         self.rewritten: list[Path] = []  # decided files found written again, each once (the caller empties it)
 
     def _images(self) -> list[Path]:
         """The image files not handed out, in natural order. A handed-out one found written again
         since (another inode under its name, or another size or modification time) goes to
-        :attr:`rewritten`; the inode comes with the listing, the stat costs a call, so each poll
-        stats at most :data:`CHECKS_PER_POLL` handed-out files, in turn."""
-        paths, decided = [], []
+        :attr:`rewritten`: the inode comes with a listing, a stat costs a call, so each poll stats
+        at most :data:`CHECKS_PER_POLL` handed-out files, in turn."""
+        if self._changed():
+            self._pending = self._listing()
+        self._check_decided()
+        return [self.folder / name for name in self._pending if name not in self._done]
+
+    def _changed(self) -> bool:
+        """Whether the folder may hold entries the last listing did not (see the class)."""
+        wall, now = time.time_ns(), self._clock()
+        try:
+            mtime = os.stat(self.folder).st_mtime_ns
+        except OSError:
+            mtime = -1
+        last, self._listed = self._listed, (mtime, wall, now)
+        if last is None or mtime != last[0] or last[1] - mtime < RACY_SECONDS * 1e9 \
+                or now - last[2] >= LISTING_SECONDS:
+            return True
+        self._listed = last
+        return False
+
+    def _listing(self) -> list[str]:
+        """The folder's image files not handed out, in natural order; handed-out names now on
+        another inode (a file renamed onto them) go to :attr:`rewritten`."""
+        names = []
         with os.scandir(self.folder) as entries:
             for entry in entries:
                 name = entry.name
-                if name.startswith(".") or os.path.splitext(name)[1].lower() not in IMAGE_SUFFIXES:
-                    continue
                 if name in self._done:
-                    if name in self._decided:
-                        mark = self._decided[name]
-                        if mark is not None and not entry.is_symlink() and mark[0] != entry.inode():
-                            self._rewritten(entry)
-                        else:
-                            decided.append(entry)
+                    mark = self._decided.get(name)
+                    if mark is not None and mark[0] != entry.inode() and not entry.is_symlink():
+                        self._rewritten(name)
+                    continue
+                if name.startswith(".") or os.path.splitext(name)[1].lower() not in IMAGE_SUFFIXES:
                     continue
                 try:
                     if entry.is_dir():
                         continue
                 except OSError:
                     continue
-                paths.append(Path(entry.path))
-        if decided:
-            start = self._turn % len(decided)
-            for entry in (decided[start:] + decided[:start])[:CHECKS_PER_POLL]:
-                self._check_decided(entry)
-            self._turn = start + CHECKS_PER_POLL
-        return sorted(paths, key=lambda p: natural_key(p.name))
+                names.append(name)
+        return sorted(names, key=natural_key)
 
-    def _rewritten(self, entry: os.DirEntry[str]) -> None:
-        del self._decided[entry.name]  # said once
-        self.rewritten.append(Path(entry.path))
+    def _rewritten(self, name: str) -> None:
+        del self._decided[name]  # said once
+        self.rewritten.append(self.folder / name)
 
-    def _check_decided(self, entry: os.DirEntry[str]) -> None:
-        try:
-            stat = entry.stat()
-        except OSError:  # removed meanwhile, or a dangling link
+    def _check_decided(self) -> None:
+        """Stat the next :data:`CHECKS_PER_POLL` handed-out files: one whose inode, size or
+        modification time changed since it was handed out was written again."""
+        if len(self._order) > 2 * len(self._decided) + CHECKS_PER_POLL:  # drop the names said rewritten
+            self._order = [name for name in self._order if name in self._decided]
+        if not self._order:
             return
-        now = (stat.st_ino, stat.st_size, stat.st_mtime_ns)
-        before = self._decided[entry.name]
-        if before is None:
-            self._decided[entry.name] = now
-        elif before != now:
-            self._rewritten(entry)
+        start = self._turn % len(self._order)
+        for name in (self._order[start:] + self._order[:start])[:CHECKS_PER_POLL]:
+            if name not in self._decided:
+                continue
+            try:
+                stat = os.stat(self.folder / name)
+            except OSError:  # removed meanwhile, or a dangling link
+                continue
+            now = (stat.st_ino, stat.st_size, stat.st_mtime_ns)
+            before = self._decided[name]
+            if before is None:
+                self._decided[name] = now
+            elif before != now:
+                self._rewritten(name)
+        self._turn = start + CHECKS_PER_POLL
 
     def poll(self) -> list[Path]:
         """Files whose size and modification time are unchanged since the previous poll, in
@@ -131,6 +177,7 @@ class FolderWatch:
         self._seen = seen
         self._done.update(marks)
         self._decided.update(marks)
+        self._order.extend(marks)
         return ready
 
     def unsettled(self) -> list[Path]:
@@ -142,6 +189,7 @@ class FolderWatch:
         self._done.discard(path.name)
         self._decided.pop(path.name, None)
         self._seen.pop(path.name, None)
+        self._listed = None  # list again: a listing since it was handed out left it out
 
 
 def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll: float = 0.2,
