@@ -3,6 +3,7 @@ estimator), plus the example method of docs/architecture.md added the documented
 from __future__ import annotations
 
 import copy
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -140,6 +141,26 @@ def test_parameters_are_declared_with_help_and_validated(name: str) -> None:
             with pytest.raises(ParameterError) as err:
                 cls(**{d.name: (d.low - 1,) * (d.length or 1) if d.kind == "floats" else d.low - 1})
             assert err.value.parameter == d.name
+
+
+def _as_numpy(value: Any) -> Any:
+    """A parameter's value as a numpy user holds it: a scalar of numpy's, a tuple as an array."""
+    return np.array(value) if isinstance(value, tuple) else np.array([value])[0]
+
+
+@pytest.mark.usefixtures("with_ratio")
+@pytest.mark.parametrize("name", ALL)
+def test_numpy_and_list_values_are_stored_as_plain_python(name: str) -> None:
+    """np.int64 from a sweep, an array or a list for a tuple: the same parameters as plain Python
+    values give (equal, same hash), and JSON-ready, as results headers and saved states write them."""
+    cls = registry.method_class(name)
+    plain = cls.Params()
+    given = {d.name: _as_numpy(d.default) for d in declared(cls.Params) if d.default is not None}
+    as_numpy = cls.Params(**given)
+    assert as_numpy == plain and hash(as_numpy) == hash(plain)
+    assert json.loads(json.dumps(as_numpy.as_dict())) == plain.as_dict()
+    tuples = {d.name: list(d.default) for d in declared(cls.Params) if d.kind == "floats" and d.default}
+    assert cls.Params(**tuples) == plain
 
 
 @pytest.mark.usefixtures("with_ratio")

@@ -1,8 +1,11 @@
 """Declared parameters: one frozen dataclass per method, each field with its help and valid range.
 
 A method's parameters are a subclass of :class:`Parameters` whose fields are made with
-:func:`param`. Values are stored as given and validated in one place (``__post_init__``): type,
-range or choices from the declaration, then the class's own cross-field rules (``check``). Every
+:func:`param`. Values are validated in one place (``__post_init__``): type, range or choices from
+the declaration, then the class's own cross-field rules (``check``); they are stored as given,
+save that a numpy scalar is stored as the Python number it holds and a list or 1-D array of
+numbers as a tuple, so that parameters compare, hash and write to JSON alike however they were
+given (``np.int64(500)`` from a sweep, ``[-2, 2]`` from a config file). Every
 error is a :class:`~wiloc.errors.ParameterError` naming the parameter. The CLI builds its options
 from the same declarations (:func:`declared`), so a parameter is described once.
 """
@@ -18,6 +21,7 @@ from typing import Any, ClassVar, Literal, TypeVar, get_args, get_origin
 import numpy as np
 
 from wiloc.errors import ParameterError
+from wiloc.reprs import brief
 
 P = TypeVar("P", bound="Parameters")
 
@@ -120,8 +124,9 @@ def _problem(value: Any, d: Declared) -> str | None:
             return f"must be one of {', '.join(d.choices)}, got {value!r}"
         return None if isinstance(value, str) else f"must be text, got {value!r}"
     if d.kind == "floats":
-        if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or not all(map(_is_number, value)):
-            return f"must be a list of numbers, got {value!r}"
+        if isinstance(value, (str, bytes)) or not isinstance(value, (Sequence, np.ndarray)) \
+                or (isinstance(value, np.ndarray) and value.ndim != 1) or not all(map(_is_number, value)):
+            return f"must be a list of numbers, got {brief(value)}"
         if d.length is not None and len(value) != d.length:
             return f"must hold {d.length} numbers, got {len(value)}"
         if len(value) == 0:
@@ -144,6 +149,16 @@ def _problem(value: Any, d: Declared) -> str | None:
     return None
 
 
+def _plain(value: Any) -> Any:
+    """A valid value as plain Python: numpy scalars as the numbers they hold, a sequence of
+    numbers (a list, a 1-D array) as a tuple of them."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return tuple(_plain(v) for v in value)
+    return value
+
+
 @dataclass(frozen=True)
 class Parameters:
     """Base of every method's parameters: validated on construction, errors name the parameter."""
@@ -155,6 +170,7 @@ class Parameters:
             problem = _problem(getattr(self, d.name), d)
             if problem is not None:
                 raise ParameterError(d.name, problem)
+            object.__setattr__(self, d.name, _plain(getattr(self, d.name)))  # frozen: set once, here
         self.check()
 
     def check(self) -> None:
