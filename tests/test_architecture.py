@@ -112,3 +112,16 @@ def test_every_module_stays_small() -> None:
              for path in (REPO / "wiloc").rglob("*.py")}
     assert len(sizes) > 80
     assert {name: size for name, size in sizes.items() if size[0] > 500 or size[1] > 12} == {}
+
+
+def test_error_types_are_imported_from_wiloc_errors() -> None:
+    """An error type has one home, wiloc.errors: a module importing one through another module
+    (which happens to import it too) depends on that module for nothing it defines."""
+    errors = {node.name for node in ast.parse((REPO / "wiloc" / "errors.py").read_text()).body
+              if isinstance(node, ast.ClassDef)}
+    elsewhere = sorted(f"{path.relative_to(REPO)}: {a.name} from {node.module}"
+                       for path in (REPO / "wiloc").rglob("*.py")
+                       for node in ast.walk(ast.parse(path.read_text()))
+                       if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("wiloc")
+                       and node.module != "wiloc.errors" for a in node.names if a.name in errors)
+    assert elsewhere == []

@@ -17,16 +17,16 @@ from typing import Any
 from wiloc.cache.store import Cache
 from wiloc.description.describing import DescribeReport, check_sampling, check_topic, describe_sources
 from wiloc.description.traversals import Progress, descriptor_spec, open_cluster, stage
-from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, ParameterError,
-                                         check_once, check_precisions, comparison, method_labels, new_place_series,
-                                         pr_series, reliability_series, run_names, run_subject, score,
-                                         threshold_marks, threshold_series, traversal_labels)
+from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_once,
+                                         check_precisions, comparison, method_labels, new_place_series, pr_series,
+                                         reliability_series, run_names, run_subject, score, threshold_marks,
+                                         threshold_series, traversal_labels)
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.truth_source import TruthSource
 from wiloc.localization.batch import LocalizeRun, localize
 from wiloc.localization.follow_run import FollowRun, follow_folder
 from wiloc.localization.inputs import import_descriptors, shared_workers, vocabulary, vocabulary_file
-from wiloc.localization.run_files import read_run, results_name
+from wiloc.localization.run_files import read_run, results_file, results_name, run_list
 from wiloc.localization.training import Training
 from wiloc.sources.video import Sampling
 
@@ -79,20 +79,8 @@ def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS,
         return score(run.path, run.results, truth, cuts, recall_at)
     if isinstance(run, Results):
         return score(None, run, truth, cuts, recall_at)
-    path = _results_file(run, "run")
+    path = results_file(run, "run")
     return score(path, read_run(path), truth, cuts, recall_at)
-
-
-def _results_file(run: object, parameter: str) -> Path:
-    """A run that is neither a ``LocalizeRun`` nor ``Results`` as its results file's path (text or a
-    path object); anything else is a ParameterError naming ``parameter`` (``run``, ``runs``)."""
-    if isinstance(run, (str, os.PathLike)):
-        return Path(run)
-    if parameter == "run" and isinstance(run, (list, tuple)):
-        raise ParameterError(parameter, f"one run is scored at a time, got a {type(run).__name__} of {len(run)}: "
-                                        "score each ([api.evaluate(run, truth) for run in runs]) or compare them "
-                                        "(api.compare)")
-    raise ParameterError(parameter, f"a results file's path, a LocalizeRun or Results, got {type(run).__name__}")
 
 
 # ------------------------------------------------------------------------------------------ compare
@@ -107,16 +95,8 @@ def compare(runs: Iterable[Run] | Run, truth: TruthSource, *, precisions: Sequen
     (or a copy of one), no precision or one outside (0, 100] is a ParameterError: each run counts
     once in the tables."""
     check_precisions(precisions)
-    if isinstance(runs, (str, os.PathLike, LocalizeRun, Results)):
-        runs = [runs]
-    elif isinstance(runs, Iterable):
-        runs = list(runs)
-    else:
-        raise ParameterError("runs", "one run or several: results files' paths, LocalizeRun or Results, "
-                                     f"got {type(runs).__name__}")
-    if not runs:
-        raise ParameterError("runs", "no runs given")
+    runs = run_list(runs, (LocalizeRun, Results))
     check_once([run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results)
-                else _results_file(run, "runs") for run in runs])
+                else results_file(run, "runs") for run in runs])
     evaluations = [evaluate(run, truth, cuts, recall_at) for run in runs]
     return comparison(evaluations, truth, precisions=precisions, global_thresholds=global_thresholds)

@@ -1,11 +1,15 @@
-"""A run's results file: its default name, what its header says about the run, and reading one
-back with the bounds its method's confidences keep."""
+"""A run's results file: its default name, what its header says about the run, reading one
+back with the bounds its method's confidences keep, and the runs the API's evaluate and compare
+are given, checked."""
 from __future__ import annotations
 
+import os
+from collections.abc import Iterable
 from pathlib import Path
 
 from wiloc.description.describing import is_stream
 from wiloc.description.traversals import Describer, descriptor_label
+from wiloc.errors import ParameterError
 from wiloc.evaluation.results import Results, read_results
 from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.localization.training import Training
@@ -39,3 +43,30 @@ def read_run(path: Path) -> Results:
     """The results file at ``path``, its confidences checked against the bounds of the method
     that wrote it (``threshold``'s go below 0)."""
     return read_results(path, lowest_confidence)
+
+
+def results_file(run: object, parameter: str) -> Path:
+    """A run that is neither a ``LocalizeRun`` nor ``Results`` as its results file's path (text or a
+    path object); anything else is a ParameterError naming ``parameter`` (``run``, ``runs``)."""
+    if isinstance(run, (str, os.PathLike)):
+        return Path(run)
+    if parameter == "run" and isinstance(run, (list, tuple)):
+        raise ParameterError(parameter, f"one run is scored at a time, got a {type(run).__name__} of {len(run)}: "
+                                        "score each ([api.evaluate(run, truth) for run in runs]) or compare them "
+                                        "(api.compare)")
+    raise ParameterError(parameter, f"a results file's path, a LocalizeRun or Results, got {type(run).__name__}")
+
+
+def run_list(runs: object, alone: tuple[type, ...]) -> list:
+    """The runs given to compare, as a list: one given alone (a path, or of a type in ``alone``) as
+    ``[run]``, never as the characters of its name; any iterable read once. None given, or what is
+    neither, is a ParameterError naming ``runs``."""
+    if isinstance(runs, (str, os.PathLike, *alone)):
+        return [runs]
+    if not isinstance(runs, Iterable):
+        raise ParameterError("runs", "one run or several: results files' paths, LocalizeRun or Results, "
+                                     f"got {type(runs).__name__}")
+    listed = list(runs)
+    if not listed:
+        raise ParameterError("runs", "no runs given")
+    return listed
