@@ -96,6 +96,24 @@ def test_bad_cuts_are_one_line_usage_errors(tmp_path: Path, cuts: str) -> None:
         assert "Traceback" not in result.output
 
 
+@pytest.mark.parametrize(("command", "option", "name", "folder"), [
+    ("evaluate", "--csv", "metrics.csv", "metrics.csv"), ("compare", "--csv", "metrics.csv", "metrics.csv"),
+    ("evaluate", "--csv", "metrics.csv", "metrics-curves.csv"), ("evaluate", "--pr-plot", "pr.png", "pr.png"),
+    ("compare", "--threshold-plot", "fig5.svg", "fig5.svg"), ("report", "-o", "report.html", "report.html")])
+def test_an_output_file_where_a_folder_is_is_refused_before_any_work(tmp_path: Path, command: str, option: str,
+                                                                     name: str, folder: str) -> None:
+    """A folder where the file (or the curves beside --csv) would go is a usage error before any
+    work, where it was found only when written: after the work, with a note that the folder was
+    replaced, and with the metrics written but not their curves."""
+    (tmp_path / folder).mkdir()
+    result = runner.invoke(app, [command, str(_gardens(tmp_path)), option, str(tmp_path / name)])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.strip().splitlines() == [result.stderr.strip()] and "Traceback" not in result.output
+    assert result.stderr.startswith(f"error: {option if option != '-o' else '--out'}: ") and folder in result.stderr
+    assert "replaced" not in result.stderr and (tmp_path / folder).is_dir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({folder, "day_left-online.csv"})
+
+
 def test_calibration_plot_is_written(tmp_path: Path) -> None:
     plot = tmp_path / "plots" / "reliability.png"
     plot.parent.mkdir()  # an output file's folder must exist (docs/guide.md)

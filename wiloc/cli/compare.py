@@ -8,9 +8,9 @@ from typing import TYPE_CHECKING, Optional
 import typer
 
 from wiloc.cli.core import Notes, fail, handles_errors, note, out, refuse_unused
-from wiloc.cli.options import CalibrationPlotOption, PrPlotOption, output_file, plot_file, replacing
-from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, parse_cuts, parse_recall_at,
-                               warn_about_truth, write_metrics_csv)
+from wiloc.cli.options import CalibrationPlotOption, PrPlotOption, plot_file, replacing
+from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, metrics_file, parse_cuts,
+                               parse_recall_at, warn_about_truth, write_metrics_csv)
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
 from wiloc.cli.views import (comparison_records, cut_views, new_place_view, print_command_json, run_records,
                              table1_view, table2_view)
@@ -36,7 +36,7 @@ def compare(
     model_plot: Optional[Path] = typer.Option(None, callback=plot_file, show_default="none: not drawn", help="Learned histograms of the first online run (Figure 1)."),
     pr_plot: PrPlotOption = None,
     calibration_plot: CalibrationPlotOption = None,
-    csv_out: Optional[Path] = typer.Option(None, "--csv", callback=output_file, show_default="none: not written",
+    csv_out: Optional[Path] = typer.Option(None, "--csv", callback=metrics_file, show_default="none: not written",
                                            help="Write each run's metrics as CSV, and the curves to FILE-curves.csv beside it."),
     markdown: bool = typer.Option(False, "--markdown", help="Print the tables as Markdown instead."),
     latex: bool = typer.Option(False, "--latex", help="Print the tables as LaTeX (booktabs) instead."),

@@ -9,9 +9,9 @@ from typing import TYPE_CHECKING, Any, Optional
 import typer
 
 from wiloc.cli.core import Notes, handles_errors, out, refuse_unused
-from wiloc.cli.options import CacheOption, CalibrationPlotOption, PrPlotOption, output_file, plot_file, replacing
-from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, parse_cuts, parse_recall_at,
-                               warn_about_truth, write_metrics_csv)
+from wiloc.cli.options import CacheOption, CalibrationPlotOption, PrPlotOption, plot_file, replacing
+from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, metrics_file, parse_cuts,
+                               parse_recall_at, warn_about_truth, write_metrics_csv)
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
 from wiloc.cli.views import metrics_views, print_command_json
 from wiloc.labels import short_names
@@ -39,7 +39,7 @@ def evaluate(
                                         "folders; with several results files: one FILE-RESULTS figure each)."),
     pairs: int = typer.Option(3, "--pairs", min=1, help="With --pairs-plot: show N right and N wrong matches."),
     wrong_only: bool = typer.Option(False, "--wrong-only", help="With --pairs-plot: show the wrong matches only."),
-    csv_out: Optional[Path] = typer.Option(None, "--csv", callback=output_file, show_default="none: not written", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
+    csv_out: Optional[Path] = typer.Option(None, "--csv", callback=metrics_file, show_default="none: not written", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
     cache: CacheOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:

@@ -7,7 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from wiloc.atomic import output_problem
+from wiloc.atomic import NOT_A_FILE, output_problem
 from wiloc.cli.core import Notes, fail, note
 from wiloc.cli.params import descriptor_params, descriptor_takers
 from wiloc.errors import EXIT_USAGE, WilocError
@@ -31,10 +31,19 @@ def output_file(value: Path | None) -> Path | None:
     return value
 
 
+def one_file(value: Path | None) -> Path | None:
+    """An output option that names one file (a table, a figure, a page): checked as
+    :func:`output_file`, and a folder there is refused too, before any work, since writing the
+    file would replace it."""
+    if output_file(value) is not None and value.is_dir():
+        raise typer.BadParameter(f"{value}: {NOT_A_FILE}")
+    return value
+
+
 def plot_file(value: Path | None) -> Path | None:
     """A plot option's file, checked as the options are read, before any work: its folder must
-    exist, its suffix name a format the figures can be written in."""
-    if output_file(value) is not None:
+    exist, nothing but a file be there, its suffix name a format the figures can be written in."""
+    if one_file(value) is not None:
         from wiloc.figures.plots import check_plot_path
         try:
             check_plot_path(value)

@@ -6,15 +6,15 @@ from pathlib import Path
 import typer
 
 from wiloc.cli.core import handles_errors, out
-from wiloc.cli.options import CacheOption, output_file, replacing
+from wiloc.cli.options import CacheOption, one_file, replacing
 from wiloc.cli.scoring import CUTS_TEXT, CutsOption, parse_cuts, warn_about_truth
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
 from wiloc.cli.views import print_command_json, progress_bar
 
 
 def _html_file(value: Path) -> Path:
-    """The report's file: its folder must exist, its name end in .html."""
-    output_file(value)
+    """The report's file: its folder must exist, nothing but a file be there, its name end in .html."""
+    one_file(value)
     if value.suffix.lower() not in (".html", ".htm"):
         raise typer.BadParameter(f"'{value}': the report is an HTML page; end the name in .html")
     return value

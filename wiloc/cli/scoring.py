@@ -7,10 +7,10 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from wiloc.atomic import written_whole
+from wiloc.atomic import output_problem, written_whole
 from wiloc.candidates import RANKED
 from wiloc.cli.core import Notes, fail
-from wiloc.cli.options import replacing
+from wiloc.cli.options import one_file, replacing
 from wiloc.errors import EXIT_USAGE
 from wiloc.evaluation.metrics import RANKED_KS
 from wiloc.evaluation.reliability import DEFAULT_CUTS
@@ -60,13 +60,26 @@ def warn_about_truth(evaluations: list[api.Evaluation]) -> Notes:
     return notes
 
 
+def curves_file(path: Path) -> Path:
+    """Where the curves go beside the metrics CSV ``path``: ``<stem>-curves.csv``."""
+    return path.with_name(path.stem + "-curves.csv")
+
+
+def metrics_file(value: Path | None) -> Path | None:
+    """``--csv FILE``, checked before any work: one file (:func:`one_file`), and nothing but a
+    file where its curves go beside it, so that neither is left written without the other."""
+    if one_file(value) is not None and (problem := output_problem(curves_file(value))) is not None:
+        raise typer.BadParameter(f"{curves_file(value)} (the curves beside it): {problem}")
+    return value
+
+
 def write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list[api.Evaluation],
                       notes: Notes) -> list[Path]:
     """The metrics to ``path`` and the curves to ``<stem>-curves.csv`` beside it; a file replaced
     is said so. Returns both paths."""
     import pandas as pd
 
-    curves_path = path.with_name(path.stem + "-curves.csv")
+    curves_path = curves_file(path)
     curves = pd.concat([pd.DataFrame({"results": str(e.path), "threshold": e.curve.thresholds,
                                       "precision": e.curve.precision, "recall": e.curve.recall})
                         for e in evaluations])
