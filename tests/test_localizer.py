@@ -339,3 +339,48 @@ def test_a_refused_odometry_leaves_the_run_as_it_was(demo_route: demo.DemoRoute,
     assert [(d.match, d.confidence, d.new_place) for d in got] == [(d.match, d.confidence, d.new_place)
                                                                   for d in expected]
 
+
+
+def _matrix_map(tmp_path: Path) -> tuple[np.ndarray, Path, Path]:
+    """A map of imported descriptors: a .npy matrix of 40 rows and its names file."""
+    rows = np.random.default_rng(7).random((40, 32)).astype(np.float32)
+    np.save(tmp_path / "map.npy", rows)
+    (tmp_path / "names.txt").write_text("".join(f"place{i:02d}.jpg\n" for i in range(40)))
+    return rows, tmp_path / "map.npy", tmp_path / "names.txt"
+
+
+def test_a_map_with_a_names_file_is_loaded_with_it(tmp_path: Path, cache_dir: Path) -> None:
+    """The state recorded the map but not its names file: a .npy map loaded with its frames
+    numbered instead of named, and was refused as changed since it was saved."""
+    rows, matrix, names = _matrix_map(tmp_path)
+    loc = Localizer(matrix, metric="l1", map_names=names, method="online", exclude_recent=2, init=5)
+    loc.observe(rows[3] + 0.01)
+    loc.save(tmp_path / "state.npz")
+    again = Localizer.load(tmp_path / "state.npz")
+    assert again.map_names == loc.map_names and again.observe(rows[4]).match_name == "place04.jpg"
+
+
+@pytest.mark.parametrize("in_memory", [False, True])
+def test_a_pickled_or_copied_localizer_continues_on_its_own(in_memory: bool, tmp_path: Path,
+                                                             cache_dir: Path) -> None:
+    """pickle (multiprocessing, joblib, a notebook's store) was an AttributeError about a local
+    lambda: a localizer pickles as it saves, and a copy (copy.copy too) continues with the
+    decisions of the original, which its steps leave alone."""
+    import copy
+    import pickle
+
+    from wiloc.description.traversals import entry_from_array
+    from wiloc.descriptors.registry import get_descriptor
+
+    rows, matrix, names = _matrix_map(tmp_path)
+    spec = get_descriptor("external", metric="l1", length=32)
+    map_ = entry_from_array(rows, names.read_text().split(), spec) if in_memory else matrix
+    loc = Localizer(map_, metric="l1", map_names=None if in_memory else names, method="catgraph", particles=200,
+                    seed=3)
+    query = rows[5:25] + np.random.default_rng(8).normal(0, 0.02, (20, 32)).astype(np.float32)
+    for row in query[:8]:
+        loc.observe(row)
+    copies = [pickle.loads(pickle.dumps(loc)), copy.copy(loc), copy.deepcopy(loc)]
+    expected = [repr(loc.observe(row)) for row in query[8:]]
+    for other in copies:
+        assert other.frames == 8 and [repr(other.observe(row)) for row in query[8:]] == expected

@@ -198,6 +198,7 @@ class Localizer:
                 "map": None if session.map_path is None else str(session.map_path.resolve()),
                 "map_digest": None if session.map is None else session.map.digest,
                 "map_odometry": None if session.map_odometry is None else str(session.map_odometry.resolve()),
+                "map_names": None if session.map_names is None else str(session.map_names.resolve()),
                 "descriptor": describer.descriptor, "descriptor_params": dict(describer.params),
                 "metric": describer.metric, "method": self.method.name,
                 "sampling": None if describer.sampling is None else asdict(describer.sampling),
@@ -232,18 +233,34 @@ class Localizer:
             raise WilocError(path, f"not a saved localizer state ({load_problem(exc)})") from None
         if meta.get("format") != STATE_FORMAT or meta.get("version") != STATE_VERSION:
             raise WilocError(path, "not a saved localizer state of this wiloc version")
+        return cls._continued(meta, path, cache, jobs, map)
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        """Pickled (and copied) as :meth:`save` writes it, the map held in memory and the cache
+        with it: the copy continues with the decisions this localizer would make, on its own."""
+        arrays: dict[str, NDArray] = {}
+        meta = json.dumps(_split(self.state(), "", arrays))
+        in_memory = self._session.map if self._session.map_path is None else None
+        return _unpickled, (meta, arrays, self.describer.cache, self.describer.jobs, in_memory)
+
+    @classmethod
+    def _continued(cls, meta: dict[str, Any], source: str | Path, cache: Cache | None, jobs: int | None,
+                   map: Entry | None) -> Localizer:
+        """A localizer continuing from a :meth:`state` read back (``source``: where from, for errors)."""
         if meta["map"] is None and meta["map_digest"] is not None and map is None:
-            raise WilocError(path, "was saved with a map held in memory: give it again (map=...)")
+            raise WilocError(source, "was saved with a map held in memory: give it again (map=...)")
         saved_map = map if map is not None else None if meta["map"] is None else Path(meta["map"])
+        map_names = meta.get("map_names")  # states saved before it was recorded: a map without a names file
         session = RunSession(saved_map, method=meta["method"],
                              method_params={k: tuple(v) if isinstance(v, list) else v for k, v in meta["params"].items()},
                              descriptor=meta["descriptor"], descriptor_params=meta["descriptor_params"],
                              metric=meta["metric"], exclude_recent=meta["exclude_recent"],
                              map_odometry=None if meta["map_odometry"] is None else Path(meta["map_odometry"]),
+                             map_names=None if map_names is None else Path(map_names),
                              sampling=None if meta["sampling"] is None else Sampling(**meta["sampling"]),
                              cache=cache, jobs=jobs, restoring=True)
         if session.map is not None and session.map.digest != meta["map_digest"]:
-            raise WilocError(session.map.folder, f"the map changed since {path} was saved")
+            raise WilocError(session.map.folder, f"the map changed since {source} was saved")
         loc = cls.__new__(cls)
         loc._setup(session)
         loc.names = list(meta["names"])
@@ -261,6 +278,11 @@ class Localizer:
     def __repr__(self) -> str:
         where = "sequence mode" if self._session.map is None else f"map={self._session.map.folder!r}"
         return f"Localizer({where}, descriptor={self.describer.descriptor!r}, method={self.method!r}, frames={self.frames})"
+
+
+def _unpickled(meta: str, arrays: dict[str, NDArray], cache: Cache, jobs: int | None, map: Entry | None) -> Localizer:
+    """The localizer :meth:`Localizer.__reduce__` pickled."""
+    return Localizer._continued(_join(json.loads(meta), arrays), "the pickled localizer", cache, jobs, map)
 
 
 def _file(frame: object) -> Path | None:

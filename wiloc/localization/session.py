@@ -59,6 +59,7 @@ class RunSession:
         self.sequence = map is None
         self.map_path = None if map is None or isinstance(map, Entry) else Path(map)
         self.map_odometry = None if map_odometry is None else Path(map_odometry)
+        self.map_names = None if map_names is None else Path(map_names)
         self.odometry = None if odometry is None else Path(odometry)
         self.odometry_topic = odometry_topic
         self.training = training
