@@ -16,7 +16,7 @@ import pytest
 import wiloc
 from wiloc import api, demo
 from wiloc.cache.store import Cache
-from wiloc.errors import ParameterError, UsageError, WilocError
+from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
 from wiloc.localization.localizer import Localizer
 from wiloc.methods.registry import METHODS
 
@@ -384,3 +384,27 @@ def test_a_pickled_or_copied_localizer_continues_on_its_own(in_memory: bool, tmp
     expected = [repr(loc.observe(row)) for row in query[8:]]
     for other in copies:
         assert other.frames == 8 and [repr(other.observe(row)) for row in query[8:]] == expected
+
+
+def test_observe_takes_one_descriptor_as_a_batch_of_one(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
+    """A 1 x D array (a network's output for one image, rows[k:k + 1]) of the map's length was taken
+    for an image one pixel high and refused for its aspect: it is the descriptor."""
+    frame = sorted(demo_route.queries[0].iterdir())[3]
+    as_row, as_batch = (Localizer(demo_route.reference, method="threshold") for _ in range(2))
+    descriptor = as_row.describe(frame)
+    assert repr(as_batch.observe(descriptor[None, :])) == repr(as_row.observe(descriptor))
+
+
+@pytest.mark.parametrize("frame, problem", [
+    ("a\0b.jpg", "the frame's path holds a NUL character; no file is named so"),
+    (b"\xff\xd8\xff\xe0\x00\x10JFIF\x00", "frame is the bytes of an encoded image, not a file's path: give its "
+                                          "file, or the image decoded (cv2.imdecode)"),
+    ("x" * 300 + ".jpg", "cannot read file (File name too long)")])
+def test_observe_refuses_what_no_file_is_named_in_one_line(frame: object, problem: str, demo_route: demo.DemoRoute,
+                                                           cache_dir: Path) -> None:
+    """A path holding NUL, an encoded image's bytes (a ROS CompressedImage's data) and a name too
+    long for the file system were a ValueError (embedded null byte) or an OSError."""
+    loc = Localizer(demo_route.reference, method="threshold")
+    with pytest.raises(FrameError) as err:
+        loc.observe(frame)
+    assert err.value.problem == problem and loc.frames == 0

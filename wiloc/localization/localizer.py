@@ -108,16 +108,24 @@ class Localizer:
         ``observe(loc.read(path))`` decides as ``observe(path)``."""
         if self._spec is None:
             raise WilocError(path, "a map of imported descriptors takes descriptors, not images")
-        if (reason := unusable_reason(Path(path))) is not None and Path(path).exists():
+        path = _file(path) or Path(path)  # an empty path, or one holding NUL, refused as observe refuses it
+        try:
+            reason = unusable_reason(path)
+        except OSError as exc:  # a name too long for the file system
+            raise FrameError(path, f"cannot read file ({exc.strerror or exc})") from None
+        if reason is not None and path.exists():
             raise FrameError(path, reason)
-        return read_colour(Path(path)) if self._spec.colour else read_gray(Path(path), self._spec.min_size)
+        return read_colour(path) if self._spec.colour else read_gray(path, self._spec.min_size)
 
     def describe(self, frame: NDArray | str | bytes | os.PathLike) -> NDArray:
         """The descriptor of an image file (any path, bytes too), a decoded image
-        (:func:`gray_image`) or a descriptor given as it is (:meth:`_descriptor`)."""
+        (:func:`gray_image`) or a descriptor given as it is (:meth:`_descriptor`): a row, or a
+        1 x D array of the map's length D."""
         if (path := _file(frame)) is not None:
             frame = self.read(path)
         array = _frame_array(frame)
+        if array.ndim == 2 and array.shape == (1, self._session.candidates_data.shape[1]):
+            array = array[0]  # one descriptor as a batch of one (a network's output, rows[k:k + 1])
         if array.ndim == 1:
             return self._descriptor(array)
         if self._spec is None:
@@ -292,6 +300,11 @@ def _file(frame: object) -> Path | None:
         return None
     if not os.fsdecode(frame):  # Path("") is the current folder: say what was given instead
         raise FrameError("observe", "the frame's path is empty")
+    if "\0" in os.fsdecode(frame):  # no file's name holds one; the system would refuse it as a ValueError
+        if isinstance(frame, bytes) and frame.startswith((b"\xff\xd8", b"\x89PNG")):
+            raise FrameError("observe", "frame is the bytes of an encoded image, not a file's path: give its file, "
+                                        "or the image decoded (cv2.imdecode)")
+        raise FrameError("observe", "the frame's path holds a NUL character; no file is named so")
     return Path(os.fsdecode(frame))
 
 
