@@ -114,6 +114,23 @@ def test_an_output_file_where_a_folder_is_is_refused_before_any_work(tmp_path: P
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted({folder, "day_left-online.csv"})
 
 
+@pytest.mark.parametrize("command", ["evaluate", "compare"])
+def test_metrics_csv_and_its_curves_name_each_run_alike(tmp_path: Path, command: str) -> None:
+    """--csv's metrics and the curves beside them join on ``results`` (the results file as given),
+    where evaluate's metrics named a run by its label's short name and the curves by its path."""
+    import pandas as pd
+
+    files = [str(_gardens(tmp_path / "a")), str(_nordland(tmp_path / "b"))]
+    result = runner.invoke(app, [command, *files, "--csv", str(tmp_path / "m.csv")])
+    assert result.exit_code == 0, result.output
+    metrics, curves = pd.read_csv(tmp_path / "m.csv"), pd.read_csv(tmp_path / "m-curves.csv")
+    assert metrics["results"].tolist() == files and set(curves["results"]) == set(files)
+    for run in metrics.itertuples():
+        curve = curves[curves["results"] == run.results]
+        gains = curve["recall"].diff().fillna(curve["recall"].iloc[0])
+        assert run.auc == pytest.approx(float((gains * curve["precision"]).sum()))
+
+
 def test_calibration_plot_is_written(tmp_path: Path) -> None:
     plot = tmp_path / "plots" / "reliability.png"
     plot.parent.mkdir()  # an output file's folder must exist (docs/guide.md)

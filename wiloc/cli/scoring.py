@@ -75,15 +75,17 @@ def metrics_file(value: Path | None) -> Path | None:
 
 def write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list[api.Evaluation],
                       notes: Notes) -> list[Path]:
-    """The metrics to ``path`` and the curves to ``<stem>-curves.csv`` beside it; a file replaced
+    """The metrics to ``path`` and the curves to ``<stem>-curves.csv`` beside it, both naming each
+    run by its results file as given (``results``, the column that joins them); a file replaced
     is said so. Returns both paths."""
     import pandas as pd
 
     curves_path = curves_file(path)
+    metrics = pd.DataFrame([{**row, "results": str(e.path)} for row, e in zip(rows, evaluations, strict=True)])
     curves = pd.concat([pd.DataFrame({"results": str(e.path), "threshold": e.curve.thresholds,
                                       "precision": e.curve.precision, "recall": e.curve.recall})
                         for e in evaluations])
-    for target, frame in ((path, pd.DataFrame(rows)), (curves_path, curves)):
+    for target, frame in ((path, metrics), (curves_path, curves)):
         with written_whole(replacing(notes, target), "the metrics file") as file:
             frame.to_csv(file, index=False)
     return [path, curves_path]
