@@ -408,3 +408,18 @@ def test_observe_refuses_what_no_file_is_named_in_one_line(frame: object, proble
     with pytest.raises(FrameError) as err:
         loc.observe(frame)
     assert err.value.problem == problem and loc.frames == 0
+
+
+def test_errors_pickle_with_their_fields() -> None:
+    """A WilocError raised in a worker process (describe's, a multiprocessing pool's) is pickled to
+    the process that re-raises it: unpickling called __init__ with the message alone, a TypeError."""
+    import pickle
+
+    from wiloc.errors import CacheBusyError
+
+    for error in (WilocError("day_left/x.jpg", "cannot read"), FrameError("x.jpg", "truncated JPEG"),
+                  ParameterError("particles", "must be >= 1"), CacheBusyError("cache", "in use")):
+        again = pickle.loads(pickle.dumps(error))
+        assert type(again) is type(error) and str(again) == str(error)
+        assert (again.where, again.problem, again.parameter, again.exit_code) == \
+               (error.where, error.problem, error.parameter, error.exit_code)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 1
@@ -32,6 +33,19 @@ class WilocError(Exception):
         self.problem = shown_name(problem)
         self.parameter = parameter
         super().__init__(f"{self.where}: {self.problem}" if self.where else self.problem)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled with its fields, as a worker process (or a multiprocessing pool) sends it to the
+        process that re-raises it: unpickled through ``__init__``'s arguments, it was a TypeError."""
+        return _unpickled, (type(self), self.args, self.__dict__)
+
+
+def _unpickled(cls: type[WilocError], args: tuple[Any, ...], fields: dict[str, Any]) -> WilocError:
+    """The error :meth:`WilocError.__reduce__` pickled."""
+    error = cls.__new__(cls)
+    Exception.__init__(error, *args)
+    error.__dict__.update(fields)
+    return error
 
 
 class FrameError(WilocError):
