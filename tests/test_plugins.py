@@ -146,3 +146,51 @@ def test_a_loaded_plugin_joins_the_one_registry(monkeypatch: pytest.MonkeyPatch)
         assert [info.name for info in registry.available_descriptors()][-1] == "halves"
     finally:
         registry._plugins.cache_clear()  # the next use reads the installed plugins again
+
+
+def _one_too_many(gray: np.ndarray, side: int = 2) -> np.ndarray:
+    return np.zeros(side * side + 1, np.float32)
+
+
+def _nan(gray: np.ndarray, side: int = 2) -> np.ndarray:
+    return np.full(side * side, np.nan, np.float32)
+
+
+@pytest.mark.parametrize("compute, problem", [
+    (_one_too_many, "computed an array of shape (5,); it declares 4 values per image, a flat row"),
+    (_nan, "computed NaN or infinite values")])
+def test_a_plugin_computing_other_rows_than_it_declares_is_named(compute, problem: str, tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """A row of another length was numpy's 'could not broadcast' from inside the describing, and
+    NaN rows were cached and compared: either is one error naming the plugin, from describe and
+    from the localizer, and no entry is cached."""
+    from wiloc import api
+    from wiloc.descriptors import DescriptorPlugin, registry
+    from wiloc.errors import WilocError
+    from wiloc.localization.localizer import Localizer
+
+    class Point:
+        name, value, dist = "odd", "odd_module:ODD", None
+
+        def load(self) -> DescriptorPlugin:
+            return DescriptorPlugin(compute=compute, metric="l1", length=4, params={"side": 2})
+
+    monkeypatch.setattr(registry, "entry_points", lambda group: [Point()])
+    monkeypatch.setattr(registry, "DESCRIPTORS", dict(registry.DESCRIPTORS))
+    registry._plugins.cache_clear()
+    route = tmp_path / "route"
+    route.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(route / f"f{i}.png"), np.full((24, 32), 40 * i, np.uint8))
+    try:
+        cache = Cache(tmp_path / "cache")
+        with pytest.raises(WilocError) as err:
+            api.describe(route, "odd", cache=cache, jobs=1)
+        assert str(err.value) == f"descriptor 'odd' ({Point.value}): {problem}"
+        assert cache.list_entries() == []
+        loc = Localizer(None, descriptor="odd", method="online", cache=cache)
+        with pytest.raises(WilocError) as err:
+            loc.observe(np.zeros((24, 32), np.uint8))
+        assert str(err.value) == f"descriptor 'odd' ({Point.value}): {problem}" and loc.frames == 0
+    finally:
+        registry._plugins.cache_clear()

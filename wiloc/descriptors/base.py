@@ -17,6 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.errors import WilocError
 from wiloc.parameters import Declared, Parameters, declared
 
 METRICS = ("l1", "sqeuclidean", "hamming", "cosine")
@@ -48,15 +49,29 @@ class DescriptorSpec:
         BGR (H x W x 3) for a ``colour`` descriptor."""
         if self.colour:
             return self.compute_batch([image])[0]
-        return self.kind.compute(image, self.params)
+        return self._checked(self.kind.compute(image, self.params), (self.length,))
 
     def compute_batch(self, images: Sequence[NDArray[np.uint8]], threads: int = 0) -> NDArray:
         """Descriptors of several images, one row each: a ``colour`` descriptor's network runs
         them in batches on ``threads`` threads (0: its runtime's default); the others are
         computed one by one."""
         if self.colour:
-            return self.kind.compute_batch(images, self.params, threads)
+            return self._checked(self.kind.compute_batch(images, self.params, threads), (len(images), self.length))
         return np.stack([self.compute(image) for image in images])
+
+    def _checked(self, computed: Any, shape: tuple[int, ...]) -> NDArray:
+        """What the descriptor's class computed, as ``dtype``: of the ``shape`` it declares and
+        finite, else a WilocError naming the descriptor (a plugin's row of another length was a
+        numpy broadcasting error, its NaN rows were cached and compared as they were)."""
+        where = f"descriptor '{self.name}'" + ("" if self.kind.source == BUILT_IN else f" ({self.kind.source})")
+        with np.errstate(over="ignore"):  # beyond float32's range: refused below
+            rows = np.asarray(computed, dtype=self.dtype)
+        if rows.shape != shape:
+            raise WilocError(where, f"computed an array of shape {rows.shape}; it declares {self.length} values "
+                                    f"per image, a flat row")
+        if rows.dtype.kind == "f" and not np.isfinite(rows).all():
+            raise WilocError(where, "computed NaN or infinite values")
+        return rows
 
 
 @dataclass(frozen=True)

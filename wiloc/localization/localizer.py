@@ -131,7 +131,7 @@ class Localizer:
         if self._spec is None:
             raise WilocError("observe", "a map of imported descriptors takes descriptors, not images")
         image = colour_image(array) if self._spec.colour else gray_image(array)
-        return np.asarray(self._spec.compute(image), dtype=self._spec.dtype)
+        return self._spec.compute(image)
 
     def _descriptor(self, row: NDArray) -> NDArray:
         """A descriptor row given to :meth:`observe`, in the map's dtype: as long as the map's
