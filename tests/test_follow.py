@@ -340,3 +340,28 @@ def test_two_followers_of_one_results_file_one_ends_busy(demo_route: demo.DemoRo
         f"error: {out}: in use by another wiloc run (pid {runs[codes.index(0)].pid})"]
     assert _rows(out)["frame"].tolist() == [p.name for p in frames]
     assert not (tmp_path / ".r.csv.lock").exists()
+
+
+def test_a_batch_run_leaves_a_followed_results_file_alone(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                          cache_dir: Path) -> None:
+    """A batch run given the --out a follower appends to ends busy (exit 3) rather than replacing the
+    file under it (the follower's later rows would go to the replaced file, lost); once the
+    follower has ended, the batch run writes it."""
+    live = tmp_path / "live"
+    live.mkdir()
+    for path in sorted(demo_route.queries[0].iterdir())[:4]:
+        (live / path.name).write_bytes(path.read_bytes())
+    out = tmp_path / "r.csv"
+    run = api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.0)
+    try:
+        batch = subprocess.run([sys.executable, "-c", CLI, "localize", str(live), "--map", str(demo_route.reference),
+                                "--method", "threshold", "--out", str(out)], capture_output=True, text=True,
+                               timeout=300)
+    finally:
+        run.release()
+    assert (batch.returncode, batch.stderr.strip().splitlines()[-1:]) == (
+        3, [f"error: {out}: in use by another wiloc run (pid {os.getpid()})"])
+    assert not out.exists() or _rows(out).empty  # the follower's file, not the batch run's
+    api.localize(live, reference=demo_route.reference, method="threshold", out=out)
+    assert len(_rows(out)) == 4
+    assert not (tmp_path / ".r.csv.lock").exists()

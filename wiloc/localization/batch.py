@@ -14,7 +14,7 @@ from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.description.describing import is_stream
 from wiloc.description.traversals import Progress, descriptors_digest, stage
 from wiloc.evaluation.results import Results, make_results, write_results
-from wiloc.localization.run_files import run_header
+from wiloc.localization.run_files import results_lock, run_header
 from wiloc.localization.session import RunSession
 from wiloc.localization.training import Training
 from wiloc.sources.video import Sampling
@@ -72,28 +72,29 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     """
     started = time.perf_counter()
     query = Path(query)
-    session = RunSession(reference, method=method, method_params=method_params, descriptor=descriptor,
-                         descriptor_params=descriptor_params, metric=metric, exclude_recent=exclude_recent,
-                         training=training, map_odometry=map_odometry, map_names=ref_names_file, query=query,
-                         query_names=query_names_file, odometry=odometry, odometry_topic=odometry_topic,
-                         sampling=sampling, cache=cache, jobs=jobs, progress=progress, scheduler=scheduler,
-                         topic=topic)
-    describer, q, R = session.describer, session.query, session.exclude_recent
-    r = q if session.map is None else session.map
-    rows = session.batch_rows()
-    decisions = session.method.run(rows, len(q.names), odometry=session.query_steps(),
-                                   progress=stage(progress, f"{method} {query.name}"))
-    streamed = any(is_stream(Path(source)) for source in (query, reference) if source is not None)
-    evidence = session.evidence  # FAB-MAP's training data: the vocabulary's images
-    header = replace(run_header(method, describer, query, q.metric, reference, R, training),
-                     query_digest=descriptors_digest(q.names, q.data),
-                     map_digest="" if session.sequence else descriptors_digest(r.names, r.data),
-                     sampling=asdict(sampling or Sampling()) if streamed else None, topic=topic,
-                     odometry_topic=odometry_topic, rows="fabmap" if evidence is not None else None,
-                     fabmap_training=tuple(evidence.training_folders) if evidence is not None else None)
-    results = make_results(decisions, query_names=q.names, ref_names=r.names, header=header)
-    replaced = write_results(Path(out), results) if out is not None else False
-    return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
-                       decisions=decisions, results=results, path=None if out is None else Path(out),
-                       seconds=time.perf_counter() - started, skipped=describer.skipped, replaced=replaced,
-                       warnings=session.doubts(), notes=describer.notes)
+    with results_lock(None if out is None else Path(out)):  # a follower of the same file would append to a replaced one
+        session = RunSession(reference, method=method, method_params=method_params, descriptor=descriptor,
+                             descriptor_params=descriptor_params, metric=metric, exclude_recent=exclude_recent,
+                             training=training, map_odometry=map_odometry, map_names=ref_names_file, query=query,
+                             query_names=query_names_file, odometry=odometry, odometry_topic=odometry_topic,
+                             sampling=sampling, cache=cache, jobs=jobs, progress=progress, scheduler=scheduler,
+                             topic=topic)
+        describer, q, R = session.describer, session.query, session.exclude_recent
+        r = q if session.map is None else session.map
+        rows = session.batch_rows()
+        decisions = session.method.run(rows, len(q.names), odometry=session.query_steps(),
+                                       progress=stage(progress, f"{method} {query.name}"))
+        streamed = any(is_stream(Path(source)) for source in (query, reference) if source is not None)
+        evidence = session.evidence  # FAB-MAP's training data: the vocabulary's images
+        header = replace(run_header(method, describer, query, q.metric, reference, R, training),
+                         query_digest=descriptors_digest(q.names, q.data),
+                         map_digest="" if session.sequence else descriptors_digest(r.names, r.data),
+                         sampling=asdict(sampling or Sampling()) if streamed else None, topic=topic,
+                         odometry_topic=odometry_topic, rows="fabmap" if evidence is not None else None,
+                         fabmap_training=tuple(evidence.training_folders) if evidence is not None else None)
+        results = make_results(decisions, query_names=q.names, ref_names=r.names, header=header)
+        replaced = write_results(Path(out), results) if out is not None else False
+        return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,
+                           decisions=decisions, results=results, path=None if out is None else Path(out),
+                           seconds=time.perf_counter() - started, skipped=describer.skipped, replaced=replaced,
+                           warnings=session.doubts(), notes=describer.notes)

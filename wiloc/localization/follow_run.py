@@ -3,22 +3,19 @@
 wrote before is resumed (``wiloc.api.follow_folder``)."""
 from __future__ import annotations
 
-import os
-import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from wiloc.atomic import write_error
-from wiloc.cache.store import Cache, lock_file
+from wiloc.cache.store import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decision
-from wiloc.errors import CacheBusyError, WilocError
+from wiloc.errors import WilocError
 from wiloc.evaluation.results import RANKING, ResultsStream
 from wiloc.localization.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localization.localizer import Localizer
-from wiloc.localization.run_files import results_name, run_header
+from wiloc.localization.run_files import lock_results, results_name, run_header, unlock_results
 from wiloc.localization.training import Training
 
 
@@ -60,33 +57,6 @@ class FollowRun:
         if self.lock is not None:
             unlock_results(self.path, self.lock)
             self.lock = None
-
-
-def lock_results(path: Path) -> int:
-    """Hold an exclusive lock on the results file ``path`` (the lock file ``.NAME.lock`` beside
-    it, holding the holder's pid, as the cache's locks do), without waiting: a CacheBusyError
-    naming ``path`` when another run holds it, so that two runs never append to one file."""
-    lock = _lock_path(path)
-    try:
-        return lock_file(lock, time.monotonic(),
-                          lambda pid: CacheBusyError(path, f"in use by another wiloc run (pid {pid})"))
-    except OSError as exc:
-        raise write_error(lock, "the results file's lock", exc) from None
-
-
-def _lock_path(path: Path) -> Path:
-    """The lock file of the results file ``path``: beside the file it names (a link resolved), so
-    that every spelling of one file shares one lock."""
-    real = Path(os.path.realpath(path))
-    return real.with_name(f".{real.name}.lock")
-
-
-def unlock_results(path: Path, fd: int) -> None:
-    """Let go of :func:`lock_results`' lock: its file removed while still held, then closed."""
-    try:
-        _lock_path(path).unlink(missing_ok=True)
-    finally:
-        os.close(fd)
 
 
 def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str = "sad",

@@ -4,12 +4,16 @@ are given, checked."""
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
+import time
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
+from wiloc.atomic import write_error
+from wiloc.cache.store import lock_file
 from wiloc.description.describing import is_stream
 from wiloc.description.traversals import Describer, descriptor_label
-from wiloc.errors import ParameterError
+from wiloc.errors import CacheBusyError, ParameterError
 from wiloc.evaluation.results import Results, read_results
 from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.localization.training import Training
@@ -70,3 +74,45 @@ def run_list(runs: object, alone: tuple[type, ...]) -> list:
     if not listed:
         raise ParameterError("runs", "no runs given")
     return listed
+
+
+def lock_results(path: Path) -> int:
+    """Hold an exclusive lock on the results file ``path`` (the lock file ``.NAME.lock`` beside
+    it, holding the holder's pid, as the cache's locks do), without waiting: a CacheBusyError
+    naming ``path`` when another run holds it, so that two runs never append to one file."""
+    lock = _lock_path(path)
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)  # as the results file's own writing does
+        return lock_file(lock, time.monotonic(),
+                          lambda pid: CacheBusyError(path, f"in use by another wiloc run (pid {pid})"))
+    except OSError as exc:
+        raise write_error(lock, "the results file's lock", exc) from None
+
+
+def _lock_path(path: Path) -> Path:
+    """The lock file of the results file ``path``: beside the file it names (a link resolved), so
+    that every spelling of one file shares one lock."""
+    real = Path(os.path.realpath(path))
+    return real.with_name(f".{real.name}.lock")
+
+
+def unlock_results(path: Path, fd: int) -> None:
+    """Let go of :func:`lock_results`' lock: its file removed while still held, then closed."""
+    try:
+        _lock_path(path).unlink(missing_ok=True)
+    finally:
+        os.close(fd)
+
+
+@contextmanager
+def results_lock(path: Path | None) -> Iterator[None]:
+    """:func:`lock_results` held while the block runs (nothing when ``path`` is None): a batch run
+    writing ``path`` and a followed run appending to it never overlap."""
+    if path is None:
+        yield
+        return
+    lock = lock_results(path)
+    try:
+        yield
+    finally:
+        unlock_results(path, lock)
