@@ -84,6 +84,27 @@ def test_p_new_place_is_drawn_only_for_runs_with_a_frame_without_a_true_match(ru
     assert all(e.new_place is not None for e in inside) and api.new_place_series(inside) == {}
 
 
+def test_the_report_shows_p_new_place_calibration_as_evaluate_gives_it(runs: list[Path], tmp_path: Path) -> None:
+    """The page scores every probability it shows: P(new place), drawn in its timelines and
+    browser, gets its table (ECE, Brier, mean, share without a true match, cuts) with evaluate's
+    numbers; a page of runs that say none notes so."""
+    page = _report(runs, tmp_path / "report.html").read_text(encoding="utf-8")
+    section = page.split("<h3>P(new place)", 1)[1].split("<h3>", 1)[0]
+    rows = re.findall(r"<tr><td>(.*?)</td></tr>", section)
+    evaluated = json.loads(runner.invoke(app, ["evaluate", *map(str, runs), "--gt", "aligned", "--json"]).stdout)["runs"]
+    assert len(rows) == len(evaluated) == 2
+    for row, run in zip(rows, evaluated):
+        cells = row.split("</td><td>")
+        new = run["new_place"]
+        assert cells[:2] == [run["method"], run["traversal"]]
+        assert cells[2:6] == [f"{new[key]:.3f}" for key in ("ece", "brier", "mean_confidence", "share_correct")]
+        assert cells[8] == str(new["cuts"][0]["accepted"])  # precision, recall, accepted at 0.5
+    route = tmp_path / "route"
+    plain = api.localize(route / "query", reference=route / "ref", method="threshold",
+                         out=tmp_path / "query-sad-threshold.csv", jobs=1).path
+    assert "no run says P(new place)" in _report([plain], tmp_path / "plain.html").read_text(encoding="utf-8")
+
+
 def test_a_report_over_an_existing_file_says_so_and_bad_names_are_refused(runs: list[Path], tmp_path: Path) -> None:
     out = tmp_path / "report.html"
     out.write_text("an older report")

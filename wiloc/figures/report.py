@@ -26,6 +26,7 @@ import numpy as np
 from wiloc.atomic import written_whole
 from wiloc.description.traversals import stage
 from wiloc.errors import WilocError
+from wiloc.evaluation.reliability import NEW_PLACE_KEYS
 from wiloc.version import __version__
 
 if TYPE_CHECKING:
@@ -48,6 +49,9 @@ TABLE1_COLUMNS = {"method": "method", "traversal": "traversal", "recall_at_100":
                   "recall_at_10": "R@10", "frames": "frames"}
 CALIBRATION_COLUMNS = {"method": "method", "traversal": "traversal", "ece": "ECE", "brier": "Brier",
                        "mean_confidence": "mean conf.", "share_correct": "share correct"}
+NEW_PLACE_COLUMNS = {"method": "method", "traversal": "traversal", "new_place_ece": "ECE", "new_place_brier": "Brier",
+                     "new_place_mean_confidence": "mean P(new place)",
+                     "new_place_share_correct": "share without a true match"}
 TABLE2_COLUMNS = {"method": "method", "precision": "target precision %", "threshold": "threshold",
                   "traversal": "traversal", "recall": "recall", "worst": "worst"}
 
@@ -260,14 +264,26 @@ def _cell(value: Any, percent: bool) -> str:
     return str(value)
 
 
-def _cut_columns(comparison: Comparison) -> dict[str, str]:
-    """The calibration table's columns: the scalars, then precision / recall / accepted per cut."""
-    columns = dict(CALIBRATION_COLUMNS)
+def _cut_columns(comparison: Comparison, scalars: Mapping[str, str], prefix: str = "") -> dict[str, str]:
+    """A calibration table's columns: its ``scalars``, then precision / recall / accepted per cut
+    (the confidence's, or with ``prefix`` "new_place_" P(new place)'s)."""
+    columns = dict(scalars)
     for key in comparison.cut_table.columns:
-        if "@" in key and not key.startswith("new_place_"):
-            measure, cut = key.split("@")
+        if "@" in key and key.startswith(prefix) and (prefix or not key.startswith(NEW_PLACE_KEYS)):
+            measure, cut = key.removeprefix(prefix).split("@")
             columns[key] = f"{measure} @{cut}"
     return columns
+
+
+def _new_place_table(comparison: Comparison) -> str:
+    """P(new place)'s calibration and cuts, one row per run that says it (as ``wiloc compare``
+    prints them), or a note that no run does."""
+    table = comparison.cut_table
+    given = table[table[f"{NEW_PLACE_KEYS}ece"].notna()] if f"{NEW_PLACE_KEYS}ece" in table else table.iloc[:0]
+    if given.empty:
+        return '<p class="note">no run says P(new place)</p>'
+    columns = _cut_columns(comparison, NEW_PLACE_COLUMNS, NEW_PLACE_KEYS)
+    return _table(given, columns, general=[key for key in columns if key.startswith(f"{NEW_PLACE_KEYS}accepted@")])
 
 
 def _page(comparison: Comparison, title: str, figures: Figures, runs: list[dict[str, Any]], images: list[str],
@@ -294,7 +310,8 @@ def _page(comparison: Comparison, title: str, figures: Figures, runs: list[dict[
         "notes": "".join(f"<li>{html.escape(note)}</li>" for note in notes),
         "notes_hidden": "" if notes else " hidden",
         "table1": _table(comparison.table1, TABLE1_COLUMNS, [k for k in TABLE1_COLUMNS if k.startswith("recall_at")]),
-        "calibration": _table(comparison.cut_table, _cut_columns(comparison)),
+        "calibration": _table(comparison.cut_table, _cut_columns(comparison, CALIBRATION_COLUMNS)),
+        "new_place": _new_place_table(comparison),
         "table2": _table(comparison.table2, TABLE2_COLUMNS, ["recall"], ["precision"]) if len(comparison.table2) else
         '<p class="note">not computed</p>',
         "pr": figures.pr, "threshold": figures.threshold, "reliability": figures.reliability,
