@@ -1,9 +1,10 @@
 """Which frames a query frame is compared with, and its best match among them.
 
 A *difference row* holds query frame k's differences to its candidate frames, float64, ``np.inf``
-where a frame is no candidate. In map mode every reference frame is a candidate. In sequence mode
-(loop closure in one traversal) the candidates are the earlier frames i < k - R: the recent window
-R (``exclude_recent``) keeps trivially similar neighbours out.
+where a frame is no candidate: the paper's d_ki = d(Z_k, Z_i) over i. In map mode every reference
+frame (the map: the paper's base dataset) is a candidate. In sequence mode (loop closure in one
+traversal) the candidates are the earlier frames i < k - R: the recent window R
+(``exclude_recent``) keeps trivially similar neighbours out.
 """
 from __future__ import annotations
 

@@ -4,6 +4,11 @@ Two histograms over the same bins of the difference d: ``b`` counts same-place s
 (d and L), ``c`` counts different-place samples (d and not L). Values outside the bin range are
 clamped into the edge bins. Empty bins never give 0/0: every bin gets an additive pseudo-count
 ``smoothing`` before normalising (see docs/algorithm.md for the choice).
+
+In the paper's terms: ``b`` and ``c`` are the frequency-based P(d and L) and P(d and not L) of
+Figure 1 (the Appendix's bins b_m and c_m), each over s bins as eq. 4 bins P(d); a bin's share
+is P(d | L) or P(d | not L) (eq. 5), P(d) is their marginal (eq. 6) and :meth:`HistogramModel.posterior`
+is P(L | d) by Bayes' rule (eq. 2).
 """
 from __future__ import annotations
 

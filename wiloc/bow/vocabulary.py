@@ -1,5 +1,5 @@
-"""A visual vocabulary: K visual words clustered from training images' local features, the
-bag-of-words of an image over it, and its HDF5 file.
+"""A visual vocabulary (FAB-MAP's codebook): K visual words clustered from training images'
+local features, the bag-of-words of an image over it, and its HDF5 file.
 
 An image's bag of words here is binary *word presence*, as FAB-MAP uses it: word q is present
 when at least one of the image's local features is nearest to word q. Stored and passed around

@@ -124,9 +124,9 @@ def _span(values: Sequence[float], low: float, high: float, step: float = 0.1) -
 
 
 def pr_figure(curves: Mapping[str, PRCurve], title: str = "Precision-recall") -> Figure:
-    """Precision against recall, one line per run (colour = method, line style = traversal: see
-    :func:`run_styles`); the curves start at (recall 0, precision 1). The axes span what the
-    curves reach (to the next tenth), the legend sits beside them."""
+    """Precision against recall (the paper's Figure 4), one line per run (colour = method, line
+    style = traversal: see :func:`run_styles`); the curves start at (recall 0, precision 1). The
+    axes span what the curves reach (to the next tenth), the legend sits beside them."""
     fig, (ax,) = _figure(width=8.0)
     styles = run_styles(list(curves))
     for name, curve in curves.items():

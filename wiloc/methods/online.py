@@ -8,6 +8,14 @@ different-place histogram ``c``; afterwards each frame's minimum goes to the sam
 same place as z. The confidence is calibrated by a CAT-Graph filter run alongside on the same
 rows: along the map, or in sequence mode along the traversal itself. See docs/algorithm.md for
 every choice and the measurements behind the defaults.
+
+The Appendix's pseudo-code by name: ``mainFunction`` is :meth:`Online.decide` ((m, z) =
+min(d_k)); ``initialize`` is the initialization stage (the first ``init`` frames, the Appendix's
+startFrame; in map mode the map's own minima, :func:`map_minima`), each adding d_min of eq. 11 to
+c; ``calcProb`` then ``updateProb`` are the update stage: the confidence first (here the filter's
+posterior, not eq. 2's P(L | m): docs/algorithm.md), then m into b, m_r ("the second-smallest
+difference value that does not come from the same location", III.D) into c, and match(k) := z.
+``recursiveUpdate`` is :func:`near_miss`; the Appendix's ``match`` array is ``Online._match``.
 """
 from __future__ import annotations
 
@@ -48,12 +56,12 @@ def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
               window: int) -> float:
     """m_r: the smallest difference in ``row`` to a frame that is not the same place as ``z``.
 
-    The Appendix's recursive test, repaired and iterative. The same-place set M starts as z and
-    the frames within +-``window`` of z (all skipped). Candidates are visited once in increasing
-    difference; a candidate z_r joins M when ``match[z_r]`` is in M or ``match[min(M)] == z_r``
-    (``match`` holds -1 for frames never decided, which never passes the test; ``None`` in map
-    mode, where candidates are reference frames that are never decided). NaN when no candidate is
-    left.
+    The Appendix's recursive test (``recursiveUpdate``), repaired and iterative. The same-place
+    set M starts as z and the frames within +-``window`` of z (all skipped). Candidates are visited
+    once in increasing difference; a candidate z_r joins M when ``match[z_r]`` is in M or
+    ``match[min(M)] == z_r`` (``match`` holds -1 for frames never decided, which never passes the
+    test; ``None`` in map mode, where candidates are reference frames that are never decided). NaN
+    when no candidate is left.
     """
     low, high = max(0, z - window), min(row.size, z + window + 1)
     if match is None:  # map mode: M never grows, so m_r is the smallest finite difference outside z's window

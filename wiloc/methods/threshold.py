@@ -1,4 +1,5 @@
-"""The heuristic threshold baseline (paper V.C, SPEC.md section 5).
+"""The heuristic threshold baseline (paper V.C, SPEC.md section 5): the paper's non-probabilistic
+model, whose threshold t Table II and Figure 5 set against the probabilistic one.
 
 Same candidates and hypothesis as the online model (z = argmin d_k); the score is m itself and a
 match is accepted when m <= t. To share one axis with probabilities, t is normalised to

@@ -3,7 +3,8 @@
 It is the comparator that needs ground truth, like FAB-MAP's training phase. By default the
 histograms are filled with each training frame's best-match difference m, labelled by whether
 that best match is a true match (``pairs="minima"``): this is the distribution of the statistic
-the decision is made on. ``pairs="all"`` is the paper's literal III.B (every pair). See
+the decision is made on. ``pairs="all"`` is the paper's literal III.B (every pair: eq. 3's set of
+differences, split by label into P(d and L) and P(d and not L)). See
 docs/algorithm.md for the measurement behind the default.
 """
 from __future__ import annotations

@@ -21,7 +21,8 @@ posterior mass within +-``mode_window`` nodes of the decided node, times 1 - P(n
 FAB-MAP's evidence rows (``log_ratio``, high = alike) are ranked the same way, negated: only
 their order counts, never their scale (FAB-MAP's log-ratios span hundreds of nats).
 docs/catgraph.md gives the formulation in full and docs/calibration.md the measurements behind
-every default.
+every default. The paper's eq. 1 runs as this particle filter, eq. 7 as ``_moved`` then ``weigh``, eq. 8
+as ``locate`` then ``RankLikelihood.at``; eqs 9-10's new location particle is ``Unexplained``.
 """
 from __future__ import annotations
 

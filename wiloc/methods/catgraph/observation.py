@@ -3,8 +3,9 @@
 Three pieces, used by the CAT-Graph filter (``wiloc.methods.catgraph.filter``); docs/calibration.md gives
 the derivation and the measurements behind every default.
 
-- ``RankLikelihood``: the observation model. A difference d in query frame k's row is scored by
-  its mid-rank p-value within that row, u = (#{j: d_kj < d} + 1/2) / N, t = -ln u. At the same
+- ``RankLikelihood``: the observation model (in place of the paper's eq. 8 ratio P(d | x) / P(d)
+  of histograms). A difference d in query frame k's row is scored by its mid-rank p-value
+  within that row, u = (#{j: d_kj < d} + 1/2) / N, t = -ln u. At the same
   place u follows Beta(a, 1), elsewhere Uniform(0, 1), so the likelihood ratio is
   lambda = a u^(a - 1): proper (its mean over ordinary places is exactly 1), monotone in d, with
   no smoothing, floor or cap. FAB-MAP's evidence rows are ranked negated (-log-ratio as the
@@ -15,8 +16,9 @@ the derivation and the measurements behind every default.
   below 1), learned online as ``a`` is.
 - ``novelty_weights``: map frames that nearly repeat their neighbours (a stopped vehicle) are not
   independent evidence; at node j the model uses a_j = 1 - omega_j (1 - a).
-- ``Unexplained``: a two-state chain for "the frame is not explained by the map" (a new place or
-  a blind spot of the map), with hazards of leaving and re-entering the map and a small chance of
+- ``Unexplained`` (in place of the paper's new location particle, eqs 9-10): a two-state chain
+  for "the frame is not explained by the map" (a new place or a blind spot of the map), with
+  hazards of leaving and re-entering the map and a small chance of
   jumping elsewhere on it; the share of unexplained stretches that are departures (not blind
   spots) is learned from the stretches the run has completed. P(new place) = q U.
 """
