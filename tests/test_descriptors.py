@@ -41,7 +41,7 @@ def test_spec_compute_gives_length_and_dtype(name: str) -> None:
 def test_unknown_names_and_params_list_the_choices() -> None:
     with pytest.raises(ValueError, match="sad, gist, brisk-gist"):
         get_descriptor("surf")
-    with pytest.raises(ValueError, match="crop, patch, storage"):
+    with pytest.raises(ParameterError, match=r"size: not a parameter of descriptor 'sad' \(valid: crop, patch, storage\)"):
         get_descriptor("sad", size=3)
     with pytest.raises(ParameterError, match="crop: must be one of none, top-half, got 'bottom'"):
         get_descriptor("sad", crop="bottom")

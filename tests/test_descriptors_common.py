@@ -109,6 +109,19 @@ def test_the_class_declares_what_the_pipeline_asks(made: tuple[type[Descriptor],
     assert spec.metric != "hamming" or spec.dtype == np.uint8  # packed bits
 
 
+@pytest.mark.parametrize("name", [*COMPUTED, *IMPORTED])
+def test_an_unknown_parameter_is_named_as_a_method_names_it(name: str) -> None:
+    """``descriptor_params={"patchh": 8}`` was a ParameterError naming ``descriptor`` (the same
+    for every wrong name); like a method's, it names the parameter and lists the valid ones."""
+    from wiloc import api
+    from wiloc.errors import ParameterError
+
+    with pytest.raises(ParameterError) as err:
+        api.describe([], name, descriptor_params={"no_such_parameter": 1})
+    assert err.value.parameter == "no_such_parameter"
+    assert err.value.problem.startswith(f"not a parameter of descriptor '{name}' (valid: ")
+
+
 def test_shape_dtype_and_determinism(made: tuple[type[Descriptor], dict]) -> None:
     cls, given = made
     spec = registry.get_descriptor(cls.name, **given)

@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.parameters import Declared, Parameters, declared
 
 METRICS = ("l1", "sqeuclidean", "hamming", "cosine")
@@ -154,10 +154,11 @@ class Descriptor:
 
 
 def check_names(name: str, given: Mapping[str, Any], valid: Sequence[str]) -> None:
-    """A ValueError listing the valid parameters when ``given`` names another."""
+    """A ParameterError naming the first parameter in ``given`` that descriptor ``name`` does not
+    take and listing those it does, as a method's parameters are refused."""
     unknown = sorted(set(given) - set(valid))
     if unknown:
-        raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for '{name}'; valid: {', '.join(valid) or 'none'}")
+        raise ParameterError(unknown[0], f"not a parameter of descriptor '{name}' (valid: {', '.join(valid) or 'none'})")
 
 
 def scale_and_max(metric: str, length: int) -> tuple[float, float | None]:
