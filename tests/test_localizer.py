@@ -423,3 +423,10 @@ def test_errors_pickle_with_their_fields() -> None:
         assert type(again) is type(error) and str(again) == str(error)
         assert (again.where, again.problem, again.parameter, again.exit_code) == \
                (error.where, error.problem, error.parameter, error.exit_code)
+
+
+def test_the_package_lists_the_names_it_loads_on_first_use() -> None:
+    """``dir(wiloc)`` (a notebook's completion of ``wiloc.``) showed none of the verbs nor
+    ``Localizer``, which load on first use; each listed name is there."""
+    assert set(wiloc.__all__) <= set(dir(wiloc))
+    assert all(getattr(wiloc, name) is not None for name in wiloc.__all__)

@@ -25,3 +25,9 @@ def __getattr__(name: str) -> Any:
         from wiloc.localization.localizer import Localizer
         return Localizer
     raise AttributeError(f"module 'wiloc' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The loaded names and those loaded on first use, so that completion (``wiloc.<Tab>`` in a
+    notebook) and ``dir`` show the verbs and ``Localizer`` before they are used."""
+    return sorted({*globals(), *__all__})
