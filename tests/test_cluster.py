@@ -7,21 +7,28 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
+from helpers import ends_in_one_error
+from typer.testing import CliRunner
 
 pytest.importorskip("distributed")
 from distributed import LocalCluster  # noqa: E402
 
 from wiloc import api  # noqa: E402
 from wiloc.cache.store import Cache  # noqa: E402
+from wiloc.cli import app  # noqa: E402
+from wiloc.description import cluster as cluster_module  # noqa: E402
 from wiloc.description.cluster import connect, disconnect  # noqa: E402
 from wiloc.description.differences import ComputedDifferences  # noqa: E402
 from wiloc.description.distances import DifferencesTo  # noqa: E402
+from wiloc.errors import WilocError  # noqa: E402
 
 TRAVERSALS = ("day_right", "day_left", "night_right")
 VOLATILE = {"created", "updated"}  # times of writing: the only attributes allowed to differ
@@ -100,6 +107,46 @@ def test_an_unreachable_scheduler_is_one_error_line(tmp_path: Path) -> None:
                          env={**os.environ, "WILOC_CACHE": str(tmp_path / "cache")})
     assert run.returncode == 1, run.stderr
     assert run.stderr.count("error:") == 1 and "tcp://127.0.0.1:9: cannot reach the Dask scheduler" in run.stderr
+
+
+@contextmanager
+def own_cluster(workers: int) -> Iterator[LocalCluster]:
+    """A local cluster of its own (to close or starve), the environment put back after it."""
+    environ = dict(os.environ)
+    try:
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as local:
+            yield local
+            disconnect(local.scheduler_address)
+    finally:
+        os.environ.clear()
+        os.environ.update(environ)
+
+
+@pytest.mark.parametrize("address", ["http://127.0.0.1:8787", "127.0.0.1"])
+def test_a_malformed_scheduler_address_is_a_usage_error(address: str, tmp_path: Path) -> None:
+    result = CliRunner().invoke(app, ["describe", str(tmp_path), "--scheduler", address])
+    ends_in_one_error(result, 2, "--scheduler:", "is no Dask scheduler address", "tcp://HOST:8786")
+
+
+def test_a_scheduler_without_workers_is_one_error_not_a_wait(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(cluster_module, "WORKER_WAIT", 1)
+    with own_cluster(0) as local, pytest.raises(WilocError, match="no worker joined the Dask scheduler in 1 s"):
+        connect(local.scheduler_address)
+
+
+def test_a_lost_scheduler_ends_the_run_in_one_error() -> None:
+    with own_cluster(1) as local:
+        results = connect(local.scheduler_address).in_batches(lambda batch: time.sleep(0.2) or batch, list(range(64)))
+        assert next(results) in range(64)
+        local.close()
+        with pytest.raises(WilocError, match="the Dask cluster failed during the run .the connection was lost.; "
+                                             "the frames described so far are kept in the cache"):
+            list(results)
+
+
+def test_a_task_that_kills_its_workers_is_one_error(scheduler: str) -> None:
+    with pytest.raises(WilocError, match="a task's worker died each time it ran"):
+        list(connect(scheduler).in_batches(lambda batch: os._exit(1), [1]))
 
 
 @pytest.mark.realdata

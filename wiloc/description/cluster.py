@@ -10,23 +10,30 @@ docs/scaling.md tells how to start a scheduler and workers.
 from __future__ import annotations
 
 import atexit
+import logging
 import os
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import CancelledError
+from contextlib import contextmanager
 from typing import TypeVar
 
 import numpy as np
-from distributed import Client, Future, LocalCluster, as_completed
+from distributed import Client, Future, KilledWorker, LocalCluster, as_completed
+from distributed.comm.core import CommClosedError
 from numpy.typing import NDArray
 
 from wiloc.description.distances import DifferencesTo
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 
 LOCAL = "local"
 #: Items per batch task (frames, for describe): enough that a task's round trip costs little next
 #: to its work.
 BATCH = 16
+#: Seconds a scheduler may take to have its first worker: without one, tasks would wait forever.
+WORKER_WAIT = 30
+#: What a describe that lost its cluster, or a task that kept killing workers, leaves behind.
+RESUME = "the frames described so far are kept in the cache; run again to resume"
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -52,8 +59,17 @@ class Cluster:
                 self.client = Client(self._local)
             else:
                 self.client = Client(scheduler)
+        except ValueError as exc:  # no scheme Dask knows (http://, the dashboard's), no port
+            raise ParameterError("scheduler", f"{scheduler!r} is no Dask scheduler address ({exc}); give "
+                                              "tcp://HOST:8786, or local") from None
         except (OSError, TimeoutError) as exc:
             raise WilocError(scheduler, f"cannot reach the Dask scheduler ({exc})") from None
+        try:
+            self.client.wait_for_workers(1, timeout=WORKER_WAIT)
+        except TimeoutError:
+            self.close()
+            raise WilocError(scheduler, f"no worker joined the Dask scheduler in {WORKER_WAIT} s; start some "
+                                        f"(dask worker {scheduler} --nthreads 1)") from None
 
     @property
     def workers(self) -> int:
@@ -67,16 +83,18 @@ class Cluster:
         batches = [list(items[i:i + BATCH]) for i in range(0, len(items), BATCH)]
         futures = [self.client.submit(work, batch, pure=False) for batch in batches]
         try:
-            for future in as_completed(futures):
-                yield from future.result()
+            with self._failures(RESUME):
+                for future in as_completed(futures):
+                    yield from future.result()
         finally:
-            self.client.cancel(futures)
+            self._cancel(futures)
 
     def blocks(self, data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
         """A ``wiloc.description.differences.BlockRunner``: the blocks in order, a few per worker in flight;
         the prepared references go to every worker once (again if a dying worker took the last
         copy with it, and the blocks that needed it are sent again)."""
-        shared = self.client.scatter(to, broadcast=True)
+        with self._failures("run again"):
+            shared = self.client.scatter(to, broadcast=True)
         ahead = 2 * self.workers
         todo = deque(ranges)
         pending: deque[tuple[tuple[int, int], Future]] = deque()
@@ -87,28 +105,57 @@ class Cluster:
                 pending.append(((start, stop), self.client.submit(_block, shared, data[start:stop], pure=False)))
 
         try:
-            fill()
-            while pending:
-                span, future = pending[0]
-                try:
-                    block = future.result()
-                except CancelledError:  # lost dependencies: the references went with a worker
-                    todo.extendleft(reversed([s for s, _ in pending]))
-                    self.client.cancel([f for _, f in pending])
-                    pending.clear()
-                    shared = self.client.scatter(to, broadcast=True)
-                    fill()
-                    continue
-                pending.popleft()
+            with self._failures("run again"):
                 fill()
-                yield block
+                while pending:
+                    span, future = pending[0]
+                    try:
+                        block = future.result()
+                    except CancelledError as exc:  # lost dependencies: the references went with a worker
+                        if _lost(exc):
+                            raise
+                        todo.extendleft(reversed([s for s, _ in pending]))
+                        self.client.cancel([f for _, f in pending])
+                        pending.clear()
+                        shared = self.client.scatter(to, broadcast=True)
+                        fill()
+                        continue
+                    pending.popleft()
+                    fill()
+                    yield block
         finally:
-            self.client.cancel([f for _, f in pending] + [shared])
+            self._cancel([f for _, f in pending] + [shared])
+
+    @contextmanager
+    def _failures(self, then: str) -> Iterator[None]:
+        """What Dask raises when the cluster fails under a run, as one WilocError naming the
+        scheduler and ending with ``then`` (what to do): the connection lost, no worker left, a
+        task whose workers kept dying (a task's own error, a WilocError of a worker, passes as
+        it is)."""
+        try:
+            yield
+        except KilledWorker:
+            raise WilocError(self.scheduler, "a task's worker died each time it ran (out of memory, or killed); "
+                                             f"{then}") from None
+        except (CancelledError, CommClosedError, TimeoutError) as exc:
+            detail = "no worker left" if type(exc) is TimeoutError else "the connection was lost"
+            logging.getLogger("distributed.client").setLevel(logging.CRITICAL)  # its reconnect attempts: said here
+            raise WilocError(self.scheduler, f"the Dask cluster failed during the run ({detail}); {then}") from None
+
+    def _cancel(self, futures: list[Future]) -> None:
+        """Cancel what is left of a run's tasks, unless the client has lost its scheduler."""
+        if self.client.status == "running":
+            self.client.cancel(futures)
 
     def close(self) -> None:
         self.client.close()
         if self._local is not None:
             self._local.close()
+
+
+def _lost(exc: CancelledError) -> bool:
+    """Whether a task was cancelled because the client lost its scheduler (not a dependency)."""
+    return "connection" in str(getattr(exc, "reason", "") or "")
 
 
 def _restore(environ: dict[str, str]) -> None:
