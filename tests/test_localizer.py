@@ -430,3 +430,16 @@ def test_the_package_lists_the_names_it_loads_on_first_use() -> None:
     ``Localizer``, which load on first use; each listed name is there."""
     assert set(wiloc.__all__) <= set(dir(wiloc))
     assert all(getattr(wiloc, name) is not None for name in wiloc.__all__)
+
+
+def test_localize_takes_one_query_and_one_reference(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
+    """``api.localize([q1, q2], ...)``, as the command line takes several queries, was a bare
+    TypeError from pathlib: the query and the reference are one traversal each, named in the error."""
+    queries = list(demo_route.queries[:2])
+    for query, reference, parameter, got in ([queries, demo_route.reference, "query", "got list: localize each"],
+                                             [queries[0], [demo_route.reference], "reference", "got list"],
+                                             [None, demo_route.reference, "query", "got NoneType"]):
+        with pytest.raises(ParameterError) as err:
+            api.localize(query, reference=reference, method="threshold")
+        assert err.value.parameter == parameter and err.value.problem.startswith("one traversal (a folder")
+        assert got in err.value.problem

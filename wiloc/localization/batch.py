@@ -15,7 +15,7 @@ from wiloc.description.describing import is_stream
 from wiloc.description.traversals import Progress, descriptors_digest, stage
 from wiloc.evaluation.results import Results, make_results, write_results
 from wiloc.localization.run_files import results_lock, run_header
-from wiloc.localization.session import RunSession
+from wiloc.localization.session import RunSession, check_traversal
 from wiloc.localization.training import Training
 from wiloc.sources.video import Sampling
 
@@ -71,6 +71,9 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     (a Dask scheduler's address, or ``local``) describes and computes the differences on its workers.
     """
     started = time.perf_counter()
+    check_traversal(query, "query", hint=": localize each ([api.localize(q, ...) for q in queries])")
+    if reference is not None:
+        check_traversal(reference, "reference", " or None for sequence mode")
     query = Path(query)
     with results_lock(None if out is None else Path(out)):  # a follower of the same file would append to a replaced one
         session = RunSession(reference, method=method, method_params=method_params, descriptor=descriptor,

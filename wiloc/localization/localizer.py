@@ -26,8 +26,8 @@ from wiloc.cache.store import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decision
 from wiloc.description.traversals import Describer, is_matrix_file
-from wiloc.errors import FrameError, ParameterError, WilocError, load_problem
-from wiloc.localization.session import RunSession
+from wiloc.errors import FrameError, WilocError, load_problem
+from wiloc.localization.session import RunSession, check_traversal
 from wiloc.localization.training import Training
 from wiloc.methods.base import Method, TrainingRows
 from wiloc.sources.frames import check_aspect, read_colour, read_gray, to_uint8, unusable_reason
@@ -311,11 +311,10 @@ def _file(frame: object) -> Path | None:
 def _map(map: object) -> str | os.PathLike | Entry | None:
     """``map`` checked before anything is described: one traversal's path, an ``Entry`` or None;
     anything else (a list of folders, an array of descriptors) is a ParameterError naming it."""
-    if map is None or isinstance(map, (str, os.PathLike, Entry)):
-        return map
-    raise ParameterError("map", f"one traversal (a folder, video, ROS bag or descriptor matrix file), descriptors "
-                                "in memory as an Entry (wiloc.description.traversals.entry_from_array(rows, names, "
-                                f"spec)) or None for sequence mode, got {type(map).__name__}")
+    if map is not None and not isinstance(map, Entry):
+        check_traversal(map, "map", ", descriptors in memory as an Entry (wiloc.description.traversals."
+                                    "entry_from_array(rows, names, spec)) or None for sequence mode")
+    return map
 
 
 def _frame_array(frame: object) -> NDArray:

@@ -10,6 +10,7 @@ A new method input or row kind is added here once, for both.
 """
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator, Mapping
 from functools import cached_property
 from pathlib import Path
@@ -24,7 +25,7 @@ from wiloc.description.describing import check_sampling, check_topic
 from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive, pairwise
 from wiloc.description.traversals import Describer, Progress, is_matrix_file, open_cluster, stage
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
 from wiloc.methods.base import MapContext, Method, TrainingRows
@@ -32,6 +33,19 @@ from wiloc.methods.registry import make_method
 
 if TYPE_CHECKING:
     from wiloc.sources.video import Sampling
+
+
+#: What a query or map is, as errors about one say it.
+TRAVERSAL = "one traversal (a folder, video, ROS bag or descriptor matrix file)"
+
+
+def check_traversal(value: object, parameter: str, also: str = "", hint: str = "") -> None:
+    """Refuse, as a ParameterError naming ``parameter``, a ``value`` that is not one traversal's
+    path (text or a path object): a list of several, an array of descriptors, None. ``also``
+    says what else the parameter takes, ``hint`` what to do with several."""
+    if not isinstance(value, (str, os.PathLike)):
+        several = hint if isinstance(value, (list, tuple)) else ""
+        raise ParameterError(parameter, f"{TRAVERSAL}{also}, got {type(value).__name__}{several}")
 
 
 class RunSession:
