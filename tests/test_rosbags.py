@@ -173,12 +173,14 @@ def test_raw_and_lossless_compressed_images_give_the_same_descriptors(tmp_path: 
     np.testing.assert_array_equal(raw.entry.data, png.entry.data)
 
 
-@pytest.mark.parametrize("encoding", ["mono16", "rgb8", "bgr8", "rgba8", "bgra8"])
+@pytest.mark.parametrize("encoding", ["mono16", "rgb8", "bgr8", "rgba8", "bgra8", "rgb16", "bgra16"])
 def test_raw_encodings_are_read_as_grayscale(encoding: str, tmp_path: Path) -> None:
     gray = scenes(1)[0]
     pixels = {"mono16": gray.astype(np.uint16) * 257,
               "rgb8": cv2.cvtColor(gray, cv2.COLOR_GRAY2RGB), "bgr8": cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR),
-              "rgba8": cv2.cvtColor(gray, cv2.COLOR_GRAY2RGBA), "bgra8": cv2.cvtColor(gray, cv2.COLOR_GRAY2BGRA)}[encoding]
+              "rgba8": cv2.cvtColor(gray, cv2.COLOR_GRAY2RGBA), "bgra8": cv2.cvtColor(gray, cv2.COLOR_GRAY2BGRA),
+              "rgb16": cv2.cvtColor(gray, cv2.COLOR_GRAY2RGB).astype(np.uint16) * 257,
+              "bgra16": cv2.cvtColor(gray, cv2.COLOR_GRAY2BGRA).astype(np.uint16) * 257}[encoding]
     writer = BagWriter(tmp_path / "run.bag", "ros1")
     writer.image("/cam", T0, pixels, encoding)
     writer.close()
@@ -187,6 +189,35 @@ def test_raw_encodings_are_read_as_grayscale(encoding: str, tmp_path: Path) -> N
         frames = list(bag.frames(api.Sampling()))
     assert len(frames) == 1 and frames[0].problem == ""
     np.testing.assert_array_equal(frames[0].gray, gray)
+
+
+def mosaic(bgr: np.ndarray, pattern: str) -> np.ndarray:
+    """A colour image as a camera's Bayer sensor sees it: `pattern` names the colours of each 2 x 2
+    cell's pixels, row by row ('rggb': red top left, blue bottom right)."""
+    out = np.zeros(bgr.shape[:2], bgr.dtype)
+    for k, colour in enumerate(pattern):
+        out[k // 2::2, k % 2::2] = bgr[k // 2::2, k % 2::2, "bgr".index(colour)]
+    return out
+
+
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+@pytest.mark.parametrize("bits", [8, 16])
+def test_bayer_images_are_demosaiced_by_their_pattern(pattern: str, bits: int, tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    bgr = cv2.GaussianBlur(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8), (9, 9), 0)
+    raw = mosaic(bgr, pattern)
+    writer = BagWriter(tmp_path / "run.bag", "ros1")
+    writer.image("/cam", T0, raw if bits == 8 else raw.astype(np.uint16) * 257, f"bayer_{pattern}{bits}")
+    writer.close()
+    with Bag(tmp_path / "run.bag") as bag:
+        bag.choose("/cam")
+        [frame] = list(bag.frames(api.Sampling()))
+    assert frame.problem == "" and frame.gray.dtype == np.uint8 and frame.gray.shape == raw.shape
+    truth = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(int)
+    # the right pattern's demosaicing is the one nearest the scene's gray, by a margin
+    errors = {code: np.abs(cv2.cvtColor(raw, getattr(cv2, f"COLOR_Bayer{code}2GRAY")).astype(int) - truth).mean()
+              for code in ("BG", "RG", "GR", "GB")}
+    assert np.abs(frame.gray.astype(int) - truth).mean() == min(errors.values()) < 0.5 * sorted(errors.values())[1]
 
 
 def test_odometry_topic_gives_the_distance_between_frames(tmp_path: Path, cache_dir: Path) -> None:

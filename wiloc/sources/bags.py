@@ -27,14 +27,20 @@ from wiloc.sources.video import Sampling, video_fingerprint
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 ODOMETRY = "nav_msgs/msg/Odometry"
-#: Raw image encodings read: channels, sample type and the conversion to grayscale.
+#: Raw image conversions to grayscale by the colour part of an encoding's name: channels and
+#: OpenCV's code. A Bayer mosaic is demosaiced as cv_bridge does (ROS's ``bayer_rggb`` is
+#: OpenCV's ``BayerBG``: OpenCV names the pattern by the second row's second and third pixels).
+_COLOURS: dict[str, tuple[int, int | None]] = {
+    "mono": (1, None), "rgb": (3, cv2.COLOR_RGB2GRAY), "bgr": (3, cv2.COLOR_BGR2GRAY),
+    "rgba": (4, cv2.COLOR_RGBA2GRAY), "bgra": (4, cv2.COLOR_BGRA2GRAY),
+    "bayer_rggb": (1, cv2.COLOR_BayerBG2GRAY), "bayer_bggr": (1, cv2.COLOR_BayerRG2GRAY),
+    "bayer_gbrg": (1, cv2.COLOR_BayerGR2GRAY), "bayer_grbg": (1, cv2.COLOR_BayerGB2GRAY),
+}
+#: Raw image encodings read (sensor_msgs' names, 8 and 16 bits of each): channels, sample type
+#: and the conversion to grayscale; 16-bit samples are converted, then scaled by 255/65535.
 ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
-    "mono8": (1, np.dtype(np.uint8), None),
-    "mono16": (1, np.dtype(np.uint16), None),
-    "rgb8": (3, np.dtype(np.uint8), cv2.COLOR_RGB2GRAY),
-    "bgr8": (3, np.dtype(np.uint8), cv2.COLOR_BGR2GRAY),
-    "rgba8": (4, np.dtype(np.uint8), cv2.COLOR_RGBA2GRAY),
-    "bgra8": (4, np.dtype(np.uint8), cv2.COLOR_BGRA2GRAY),
+    f"{colour}{bits}": (channels, np.dtype(np.uint8 if bits == 8 else np.uint16), code)
+    for colour, (channels, code) in _COLOURS.items() for bits in (8, 16)
 }
 INSTALL = 'reading ROS bags needs the rosbags package: pip install "wiloc[rosbags]"'
 #: File name endings of bags: ROS 1, and the ROS 2 storage files rosbags reads on their own.
@@ -231,9 +237,9 @@ class Bag:
         rows = data[:height * step].reshape(height, step)[:, :row]
         order = ">" if message.is_bigendian else "<"
         pixels = np.ascontiguousarray(rows).view(dtype.newbyteorder(order)).reshape(height, width, channels)
-        if conversion is not None:
-            return cv2.cvtColor(pixels, conversion)
-        return to_uint8(pixels[:, :, 0].astype(dtype), where)
+        pixels = pixels.astype(dtype, copy=False)  # native byte order
+        gray = pixels[:, :, 0] if conversion is None else cv2.cvtColor(pixels, conversion)
+        return to_uint8(gray, where)
 
     def arclength(self, topic: str, names: list[str]) -> NDArray[np.float64]:
         """The distance travelled along `topic`'s ``nav_msgs/msg/Odometry`` positions (x, y, z)
