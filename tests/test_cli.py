@@ -285,3 +285,20 @@ def test_evaluate_draws_the_matrix_and_example_pairs_of_each_run(route: tuple[Pa
     names = sorted(Path(f).name for f in report["files"])
     assert names == ["m-query-online.png", "m-query-threshold.png", "p-query-online.png", "p-query-threshold.png"]
     assert all(Path(f).read_bytes()[:4] == b"\x89PNG" for f in report["files"])
+
+
+def test_figures_of_runs_of_one_file_name_in_two_folders_are_two_files(route: tuple[Path, Path],
+                                                                       tmp_path: Path) -> None:
+    """Each run's figure is named after its results file with as many folders as tell files of one
+    name apart, where both runs' went to one file, the second drawn over the first."""
+    ref, query = route
+    runs = [tmp_path / folder / "query-sad-online.csv" for folder in ("a", "b")]
+    for out, method in zip(runs, ("online", "threshold")):
+        out.parent.mkdir()
+        assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", method,
+                                   "--out", str(out)]).exit_code == 0
+    result = runner.invoke(app, ["evaluate", *map(str, runs), "--matrix-plot", str(tmp_path / "m.png"), "--json"])
+    files = _json(result)["files"]
+    assert sorted(Path(f).name for f in files) == ["m-a-query-sad-online.png", "m-b-query-sad-online.png"]
+    assert "replaced" not in result.stderr and all(Path(f).read_bytes()[:4] == b"\x89PNG" for f in files)
+    assert Path(files[0]).read_bytes() != Path(files[1]).read_bytes()

@@ -60,7 +60,7 @@ def evaluate(
               "traversal": e.traversal, **e.summary.as_dict()}
              for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
     rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
-    drawings = _run_plots(evaluations, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only)
+    drawings = _run_plots(evaluations, names, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only)
     written = []
     if pr_plot is not None:
         from wiloc.figures.plots import plot_pr
@@ -88,13 +88,15 @@ def evaluate(
         out.print(f"wrote {path}")
 
 
-def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pairs_plot: Path | None,
+def _run_plots(evaluations: list[api.Evaluation], names: list[str], matrix_plot: Path | None, pairs_plot: Path | None,
                cache: Path | None, notes: Notes, pairs: int = 3, wrong_only: bool = False) -> list[Callable[[], Path]]:
     """Each run's difference matrix and example pairs (``pairs`` right and wrong ones, or wrong
     ones only), ready to be written: the pictures are made (and a run whose images are no longer
     its own refused) before any file is written, so a refusal leaves no output behind. With several
-    runs each file is named after its results file too (``matrix-day_left-sad-online.png``). A run
-    that recorded no digest of its images (so that they cannot be checked as the run's) is said so."""
+    runs each file is named after its results file too (``names``: as many of its folders as tell
+    files of one name apart, ``matrix-day_left-sad-online.png``, ``matrix-a-day_left-sad-online.png``).
+    A run that recorded no digest of its images (so that they cannot be checked as the run's) is
+    said so."""
     if matrix_plot is None and pairs_plot is None:
         return []
     from wiloc.cache.store import Cache
@@ -103,9 +105,10 @@ def _run_plots(evaluations: list[api.Evaluation], matrix_plot: Path | None, pair
 
     store = Cache(cache)
     drawings: list[Callable[[], Path]] = []
-    for e in evaluations:
+    for e, name in zip(evaluations, names, strict=True):
         def target(path: Path) -> Path:
-            return path.with_name(f"{path.stem}-{Path(e.name).stem}{path.suffix}") if len(evaluations) > 1 else path
+            run = Path(name).with_suffix("").as_posix().replace("/", "-")
+            return path.with_name(f"{path.stem}-{run}{path.suffix}") if len(evaluations) > 1 else path
         descriptor = e.results.header.descriptor or ""
         for line in unchecked_folders(e):
             notes.add("warning", line)
