@@ -235,3 +235,19 @@ def test_the_example_method_runs_through_localize_and_the_localizer(demo_route: 
     first = loc.observe(sorted(demo_route.queries[0].iterdir())[0])
     assert first.match_name == run.results.frames["match"].iloc[0]
     assert f"{first.confidence:.9g}" == f"{run.decisions.confidence[0]:.9g}"
+
+
+@pytest.mark.usefixtures("with_ratio")
+@pytest.mark.parametrize("name", ALL)
+def test_a_map_self_matrix_that_is_not_square_is_named(name: str) -> None:
+    """run_on_rows with the map's differences to itself cut to half its columns (an N x M query
+    matrix given in its place) was an IndexError from reading its diagonal: a ParameterError
+    names map_self and the shape."""
+    from wiloc.localization.array_run import run_on_rows
+
+    method = _method(name)
+    rng = np.random.default_rng(4)
+    for wrong in (_rows(np.arange(80, dtype=np.float64), 80, rng)[:, :40], np.ones(80)):
+        with pytest.raises(ParameterError) as err:
+            run_on_rows(method, _query_for(method, rng), 40, map_self=wrong, exclude_recent=5, natural_max=2.0)
+        assert err.value.parameter == "map_self" and f"got shape {wrong.shape}" in err.value.problem

@@ -9,6 +9,7 @@ from numpy.typing import NDArray
 
 from wiloc.decisions import Decisions
 from wiloc.description.differences import summarize
+from wiloc.errors import ParameterError
 from wiloc.methods.base import MapContext, Method, Progress, TrainingRows
 from wiloc.rows import ArrayRows, RowBlocks
 
@@ -24,6 +25,10 @@ def run_on_rows(method: Method, rows: Iterable[NDArray[np.float64]], n_frames: i
     summarized when the method asks; the map's steps (``MapContext.neighbours``) are read off its
     first off-diagonal.
     """
+    shape = None if map_self is None else map_self.shape if hasattr(map_self, "rows") else np.shape(map_self)
+    if shape is not None and (len(shape) != 2 or shape[0] != shape[1]):  # else an IndexError inside the method
+        raise ParameterError("map_self", f"the map's differences to itself: a square matrix, one row and one "
+                                         f"column per map frame; got shape {shape}")
     self_rows = map_self if map_self is None or hasattr(map_self, "rows") else ArrayRows(np.asarray(map_self))
     steps = None if self_rows is None else \
         np.array([self_rows.rows(i, i + 1)[0, i + 1] for i in range(self_rows.shape[0] - 1)], dtype=np.float64)
