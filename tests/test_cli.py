@@ -207,7 +207,18 @@ def test_help_groups_method_options_with_their_defaults() -> None:
     for panel in ("online options", "catgraph options", "threshold options", "trained options"):
         assert panel in text
     catgraph = text[text.index("catgraph options"):]
-    assert "--particles" in catgraph and "2000" in catgraph and "0.5,0.666667,1,1.5,2" in catgraph
+    assert "--particles" in catgraph and "2000" in catgraph and "0.5,0.6666666666666666,1,1.5,2" in catgraph
+
+
+def test_a_list_default_typed_as_the_help_shows_it_is_the_default() -> None:
+    """A researcher copies a default from the help to vary one of its numbers: typed unchanged, it
+    must give the same parameters (0.333333 for 1/3 gave other decisions)."""
+    from wiloc.cli.params import method_options
+
+    lists = [option for option in method_options().values() if option.first.kind == "floats" and option.shared]
+    assert any(1 / 3 in option.first.default for option in lists)
+    for option in lists:
+        assert option.parse(option.default()) == tuple(option.first.default), option.name
 
 
 def test_an_option_methods_describe_differently_shows_each_description() -> None:

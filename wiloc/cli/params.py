@@ -73,10 +73,11 @@ class DeclaredOption:
         return len({d.default for d in self.by_owner.values()}) == 1
 
     def default(self) -> Any:
-        """The option's default as it takes it (a list of numbers as text); None when the methods
-        taking it differ (the help then names each method's)."""
+        """The option's default as it takes it (a list of numbers as text, each written so that
+        typing the text shown gives the default itself: 1/3 as 0.3333333333333333, not 0.333333);
+        None when the methods taking it differ (the help then names each method's)."""
         value = self.first.default if self.shared else None
-        return ",".join(f"{v:g}" for v in value) if isinstance(value, tuple) else value
+        return ",".join(map(_number_text, value)) if isinstance(value, tuple) else value
 
     def default_text(self) -> str | bool:
         """What the help shows as the default: the default itself, what happens without one when
@@ -106,6 +107,13 @@ class DeclaredOption:
             return tuple(float(part) for part in str(value).split(",") if part.strip())
         except ValueError:
             raise UsageError(flag(self.name), f"give comma-separated numbers, got {value!r}") from None
+
+
+def _number_text(value: float) -> str:
+    """``value`` as short as text that reads back as the same float: 2 for 2.0, 0.5, and all the
+    digits of 1/3 (``{:g}``'s 0.333333 is another number)."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(float(value))
 
 
 def _said_default(help: str) -> tuple[str, str | None]:
