@@ -135,6 +135,28 @@ def test_a_p_new_place_panel_only_for_the_runs_given_it(run: tuple[np.ndarray, n
     assert panels[2].containers[0].lines[0].get_color() == "C1"  # catgraph's colour
 
 
+def test_every_reliability_panel_names_its_axes_when_their_meanings_differ(run: tuple[np.ndarray, np.ndarray]) -> None:
+    """A P(new place) panel beside confidence panels names its own axes (P(new place), share
+    without a true match), and a confidence panel above a P(new place) one its own, where only the
+    outer panels kept labels: one of the other meaning's, or none. Panels of one meaning still
+    name their axes once: at the left, and under the last panel of each column (with its numbers),
+    also where the row below is short."""
+    confidence, correct = run
+    names = ["online day_left", "catgraph day_left", "online night_right"]
+    series = {name: reliability_bins(confidence, correct) for name in names}
+    new_place = {name: reliability_bins(1 - confidence, ~correct) for name in names[:2]}
+    panels = _visible(reliability_figure(series, new_place=new_place))
+    assert len(panels) == 5
+    for ax in panels:
+        new = ax.get_title().endswith("P(new place)")
+        assert (ax.get_xlabel(), ax.get_ylabel()) == (("P(new place)", "share without a true match") if new
+                                                      else ("confidence", "share correct"))
+    alike = _visible(reliability_figure({**series, "threshold day_left": reliability_bins(confidence, correct)}))
+    assert [(ax.get_xlabel(), ax.get_ylabel()) for ax in alike] == [
+        ("", "share correct"), ("confidence", ""), ("confidence", ""), ("confidence", "share correct")]
+    assert all(ax.xaxis.get_tick_params()["labelbottom"] == bool(ax.get_xlabel()) for ax in alike)
+
+
 def test_one_encoding_colour_is_the_method_line_style_the_traversal(run: tuple[np.ndarray, np.ndarray]) -> None:
     confidence, correct = run
     names = ["online day_left", "catgraph day_left", "online night_right", "catgraph night_right"]

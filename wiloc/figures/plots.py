@@ -238,12 +238,18 @@ def reliability_figure(series: Mapping[str, ReliabilityBins],
     fig, axes = _figure(ncols=ncols, nrows=nrows, width=3.8 * ncols + 0.4, height=3.4 * nrows + 0.7,
                         sharex=True, sharey=True)
     styles = run_styles(list(series))
-    for ax, (name, bins, probability, share) in zip(axes, panels):
+    alike = len({(probability, share) for _, _, probability, share in panels}) <= 1
+    for k, (ax, (name, bins, probability, share)) in enumerate(zip(axes, panels)):
         colour = styles.get(name.removesuffix(": P(new place)"), ("C0", "-"))[0]
         _reliability_panel(ax, bins, colour)
         ax.set_title("\n".join(textwrap.wrap(name, 40)), fontsize="small")
-        ax.set(xlabel=probability, ylabel=share)
-        ax.label_outer()
+        last_in_column = k + ncols >= len(panels)
+        if last_in_column:  # no panel below to show the shared axis' numbers
+            ax.xaxis.set_tick_params(labelbottom=True)
+        # axes of one meaning are named once, on the last panel of a column and the first of a
+        # row; axes of mixed meanings (confidence, P(new place)) on every panel
+        ax.set(xlabel=probability if last_in_column or not alike else "",
+               ylabel=share if k % ncols == 0 or not alike else "")
     for ax in axes[len(panels):]:
         ax.set_axis_off()
     if not panels:
