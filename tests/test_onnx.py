@@ -110,6 +110,25 @@ def test_describe_matches_numpy_reference(tmp_path: Path, cache_dir: Path) -> No
     assert loc.observe(images[7]).match_name == "frame007.png"
 
 
+def test_new_weights_in_an_external_data_file_are_a_new_descriptor(tmp_path: Path, cache_dir: Path) -> None:
+    """torch's exporter keeps the weights in model.onnx.data beside the graph: retrained weights
+    leave model.onnx's bytes as they were, and must not reuse the old weights' descriptors."""
+    images = colour_images(tmp_path / "route", 4)
+    model, graphs = tmp_path / "m.onnx", set()
+    for seed in (0, 1):
+        weights = conv_model(model, seed=seed)
+        (tmp_path / "m.onnx.data").unlink(missing_ok=True)
+        onnx.save_model(onnx.load(str(model)), str(model), save_as_external_data=True, all_tensors_to_one_file=True,
+                        location="m.onnx.data", size_threshold=0)
+        graphs.add(model.read_bytes())
+        [report] = _ok(runner.invoke(app, ["describe", str(tmp_path / "route"), "--descriptor", "onnx",
+                                           "--model", str(model), "--json"]))["results"]
+        assert report["computed"] == 4 and report["reused"] == 0
+        stored = describe_folder(tmp_path / "route", get_descriptor("onnx", model=model), Cache(cache_dir))
+        np.testing.assert_allclose(stored.entry.data, reference(images, **weights), atol=1e-5)
+    assert len(graphs) == 1  # the same graph file both times: only the weights beside it changed
+
+
 def test_options_override_metadata_and_change_the_cache_key(tmp_path: Path, cache_dir: Path) -> None:
     model = tmp_path / "m.onnx"
     weights = conv_model(model, metadata={})  # no metadata: defaults, input size from the model

@@ -74,8 +74,36 @@ def _model_bytes(path: Path) -> bytes:
     return path.read_bytes()
 
 
-def _digest(data: bytes) -> str:
-    return hashlib.blake2b(data, digest_size=16).hexdigest()
+def _digest(path: Path) -> str:
+    """The blake2b digest of the model file's bytes and, when its weights are kept in files
+    beside it (external data: torch's exporter writes ``model.onnx.data``), of those files'
+    names and bytes too: new weights under the same graph make a new descriptor."""
+    data = _model_bytes(path)
+    digest = hashlib.blake2b(data, digest_size=16)
+    for name in external_files(data):
+        digest.update(b"\0" + name.encode())
+        weights = path.parent / name
+        if weights.is_file():  # missing: onnxruntime refuses the model, naming it
+            with weights.open("rb") as handle:
+                while chunk := handle.read(1 << 24):
+                    digest.update(chunk)
+    return digest.hexdigest()
+
+
+def external_files(model: bytes) -> list[str]:
+    """The files an ONNX model's tensors keep their data in, read from its protobuf bytes without
+    the onnx package: each tensor's ``external_data`` entry ``location`` (field 1, the key, then
+    field 2, the value: ``0a 08 'location' 12 <length> <name>``)."""
+    names = set()
+    for found in re.finditer(rb"\x0a\x08location\x12", model):
+        length, shift, at = 0, 0, found.end()
+        while at < len(model):  # the value's length, a varint
+            length |= (model[at] & 0x7F) << shift
+            shift, at = shift + 7, at + 1
+            if model[at - 1] < 0x80:
+                break
+        names.add(model[at:at + length].decode("utf-8", "replace"))
+    return sorted(names)
 
 
 @lru_cache(maxsize=4)
@@ -84,7 +112,7 @@ def _session(path: str, digest: str, threads: int) -> Any:
     intra-op threads (0: onnxruntime's default, every physical core). Kept for the next batch
     of the same model: making one parses and optimises the graph."""
     ort = _runtime()
-    if _digest(_model_bytes(Path(path))) != digest:
+    if _digest(Path(path)) != digest:
         raise WilocError(path, "the model file changed while in use; run again")
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
@@ -110,7 +138,7 @@ def open_network(model: str | Path) -> Network:
     """Check the model file and read what it says about itself; WilocError naming the file for a
     file that is missing, not ONNX, without one 4-D image input, or without a vector output."""
     path = Path(model).expanduser().resolve()
-    digest = _digest(_model_bytes(path))
+    digest = _digest(path)
     session = _session(str(path), digest, 0)
     inputs, outputs = session.get_inputs(), session.get_outputs()
     if len(inputs) != 1:
