@@ -22,6 +22,7 @@ from rich.console import Console
 from rich.markup import escape
 from typer import _click as click
 from typer._click import exceptions as problems
+from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
@@ -65,6 +66,19 @@ def refuse_unused(uses: dict[str, tuple[bool, str]]) -> None:
         if not used and given(name):
             param = next(p for p in ctx.command.params if p.name == name)
             raise UsageError(_name(param), f"applies to {scope} only")
+
+
+def refuse_besides(option: str, takes: tuple[str, ...]) -> None:
+    """A usage error for the first parameter typed on the command line besides ``option`` and
+    those it ``takes`` (Python names), when ``option`` does one thing of its own (``--list``):
+    the others would be ignored. Environment variables (``WILOC_SCHEDULER``) are not typed."""
+    ctx = get_current_context()
+    params = {p.name: p for p in ctx.command.params}
+    for name, param in params.items():
+        if name not in (option, *takes) and ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE:
+            alone = _name(params[option])
+            raise UsageError(_name(param), f"does not go with {alone}, which takes "
+                                           f"{' and '.join(_name(params[t]) for t in takes) or 'no other option'} only")
 
 
 def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:

@@ -8,7 +8,7 @@ from typing import Any, Optional
 
 import typer
 
-from wiloc.cli.core import Notes, error, fail, handles_errors, out, refuse_unused
+from wiloc.cli.core import Notes, error, fail, handles_errors, out, refuse_besides, refuse_unused
 from wiloc.cli.options import (SAMPLING, STREAMS, CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption,
                                ModelOption, PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
                                VocabularyOption, descriptor_params_given, output_file)
@@ -61,8 +61,11 @@ def describe(
         if folders or importing or list_cache:
             fail("--list-descriptors: shows the descriptors there are; give it no FOLDER, --import or --list",
                  EXIT_USAGE)
+        refuse_besides("list_descriptors", ("as_json",))
         _list_descriptors(as_json)
         return
+    if list_cache:
+        refuse_besides("list_cache", ("cache", "as_json"))
     refuse_unused({"descriptor": (not importing, "image folders and video files"),
                    **descriptor_uses(descriptor, described=not importing),
                    "metric": (importing, "--import"), "names": (importing, "--import"),
