@@ -42,12 +42,16 @@ class OnlineParams(Parameters):
     owner = "online"
     init: int = param(100, "Sequence mode: initialisation frames, whose minima fill c (map mode "
                            "initialises from every map frame).", low=1)
-    bins: int = param(100, "Histogram bins.", low=1, high=100_000)
-    same_place_window: int = param(2, "Frames within +-W of the best match are the same place.", low=0)
-    prior: float | None = param(None, "P(L), the prior that a frame revisits a place; default: the "
+    bins: int = param(100, "Bins of the learned histograms b and c (Figure 1; the decisions and the "
+                                "confidence, the filter's posterior, do not use them).", low=1, high=100_000)
+    same_place_window: int = param(2, "Frames within +-W of the best match are the same place when m_r "
+                                            "is sought (the m_r column and c; not the decisions).", low=0)
+    prior: float | None = param(None, "P(L) of the learned model's P(L | d) (Figure 1; not used by the "
+                                      "decisions), the prior that a frame revisits a place; default: the "
                                       "share of same-place samples.", low=0.0, high=1.0, low_open=True,
                                 high_open=True)
-    smoothing: float = param(0.1, "Pseudo-count added to every histogram bin.", low=0.0, low_open=True)
+    smoothing: float = param(0.1, "Pseudo-count added to every bin of the learned histograms (Figure 1; "
+                                   "not used by the decisions).", low=0.0, low_open=True)
     seed: int | None = param(0, "Random seed of the CAT-Graph filter whose posterior calibrates the "
                                 "confidence (none: a fresh one).", low=0)
 
