@@ -132,6 +132,10 @@ UNUSED = {
     "names for a folder": (["localize", "{query}", "--map", "{ref}", "--names", "n.txt"], "--names: applies to a descriptor matrix file"),
     "sampling with import": (["describe", "--import", "{ref}/x.npy", "--every", "2"], "--every: applies to video files and ROS bags only"),
     "sampling with a folder": (["describe", "{ref}", "--every", "2"], "--every/--fps/--start/--stop: applies to video files and ROS bags only"),
+    "map odometry in sequence mode": (["localize", "{query}", "--method", "catgraph", "--map-odometry", "{tmp}/o.csv"],
+                                      "--map-odometry: applies to map mode (--map) only"),
+    "odometry in sequence mode": (["localize", "{query}", "--method", "catgraph", "--odometry", "{tmp}/o.csv"],
+                                  "--odometry: applies to map mode (--map) only"),
     "jobs below one": (["describe", "{ref}", "--jobs", "0"], "--jobs: must be at least 1"),
     "several queries one file": (["localize", "{query}", "{ref}", "--map", "{ref}", "--out", "{tmp}/o.csv"], "with several queries --out names a folder"),
 }

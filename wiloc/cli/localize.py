@@ -81,7 +81,8 @@ def localize(
                    "metric": (any(matrices), "descriptor matrix files (.npy, .csv, .h5)"),
                    "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
                    "map_names": (reference is not None and is_matrix_file(reference),
-                                 "a descriptor matrix file as --map")})
+                                 "a descriptor matrix file as --map"),
+                   **{name: (reference is not None, "map mode (--map)") for name in ("odometry", "map_odometry")}})
     train_inputs = (train_query, train_map, train_gt)
     refuse_unused({name: (any(train_inputs), "a training pair (--train-query, --train-map, --train-gt)")
                    for name in ("train_gt_map", "train_tolerance", "train_radius")})
