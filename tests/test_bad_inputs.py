@@ -136,6 +136,10 @@ UNUSED = {
                                       "--map-odometry: applies to map mode (--map) only"),
     "odometry in sequence mode": (["localize", "{query}", "--method", "catgraph", "--odometry", "{tmp}/o.csv"],
                                   "--odometry: applies to map mode (--map) only"),
+    "model plot of a method without one": (["localize", "{query}", "--map", "{ref}", "--method", "catgraph",
+                                            "--model-plot", "{tmp}/m.png"], "--model-plot: method 'catgraph' learns no"),
+    "model plot of several queries": (["localize", "{query}", "{ref}", "--map", "{ref}", "--out", "{tmp}/runs/",
+                                       "--model-plot", "{tmp}/m.png"], "--model-plot: draws one run's histograms"),
     "jobs below one": (["describe", "{ref}", "--jobs", "0"], "--jobs: must be at least 1"),
     "several queries one file": (["localize", "{query}", "{ref}", "--map", "{ref}", "--out", "{tmp}/o.csv"], "with several queries --out names a folder"),
 }

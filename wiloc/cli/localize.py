@@ -48,7 +48,7 @@ def localize(
     map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV.", rich_help_panel="catgraph inputs"),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", callback=output_file, show_default="QUERY-DESCRIPTOR-METHOD.csv here",
                                             help="Results file (a folder with several queries)."),
-    model_plot: Optional[Path] = typer.Option(None, callback=plot_file, show_default="none: not drawn", help="online/trained: draw the learned histograms (the paper's Figure 1)."),
+    model_plot: Optional[Path] = typer.Option(None, callback=plot_file, show_default="none: not drawn", help="online/trained: draw the learned histograms of one QUERY's run (the paper's Figure 1)."),
     cache: CacheOption = None,
     jobs: JobsOption = None,
     scheduler: SchedulerOption = None,
@@ -114,7 +114,9 @@ def localize(
     if len(queries) > 1 and out_path is not None and not out_folder:
         fail(f"{out_path}: with several queries --out names a folder", EXIT_USAGE)
     if model_plot is not None and method not in ("online", "trained"):
-        fail(f"{model_plot}: method '{method}' learns no histogram model to draw", EXIT_USAGE)
+        fail(f"--model-plot: method '{method}' learns no histogram model to draw", EXIT_USAGE)
+    if model_plot is not None and len(queries) > 1:
+        fail("--model-plot: draws one run's histograms; give one QUERY", EXIT_USAGE)
     if out_path is not None and not out_folder:
         targets = [out_path]
     else:

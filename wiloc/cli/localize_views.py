@@ -23,8 +23,8 @@ if TYPE_CHECKING:
 def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str, model_plot: Path | None,
               as_json: bool) -> None:
     """The runs of one `localize` as a table (or JSON), each with its cache repairs (``repairs``)
-    and its notes, skipped frames and warnings, each said once; with ``model_plot``, the first
-    run's learned histograms drawn there."""
+    and its notes, skipped frames and warnings, each said once; with ``model_plot``, the run's
+    learned histograms drawn there (the command line gives it one run then)."""
     shown = set()
     rows, notes = [], []
     for label, run, repaired in zip(short_names([r.query for r in runs]), runs, repairs):
