@@ -129,6 +129,28 @@ def test_new_weights_in_an_external_data_file_are_a_new_descriptor(tmp_path: Pat
     assert len(graphs) == 1  # the same graph file both times: only the weights beside it changed
 
 
+def test_a_half_precision_model_takes_its_batch_as_float16(tmp_path: Path, cache_dir: Path) -> None:
+    """A model exported with model.half() declares a float16 input: it gets the same batch in
+    float16 and gives the float model's descriptors within float16's precision."""
+    images = colour_images(tmp_path / "route", 6)
+    weights = conv_model(tmp_path / "float.onnx")
+    model = onnx.load(str(tmp_path / "float.onnx"))
+    model.graph.input[0].type.tensor_type.elem_type = TensorProto.FLOAT16
+    model.graph.node.insert(0, helper.make_node("Cast", ["image"], ["image32"], to=TensorProto.FLOAT))
+    model.graph.node[1].input[0] = "image32"
+    onnx.checker.check_model(model)
+    onnx.save(model, str(tmp_path / "half.onnx"))
+    rows = {}
+    for name in ("float", "half"):
+        [report] = _ok(runner.invoke(app, ["describe", str(tmp_path / "route"), "--descriptor", "onnx",
+                                           "--model", str(tmp_path / f"{name}.onnx"), "--json"]))["results"]
+        assert report["computed"] == 6
+        rows[name] = describe_folder(tmp_path / "route", get_descriptor("onnx", model=tmp_path / f"{name}.onnx"),
+                                     Cache(cache_dir)).entry.data
+    np.testing.assert_allclose(rows["half"], reference(images, **weights), atol=5e-3)
+    assert not np.array_equal(rows["half"], rows["float"])  # the input was rounded to float16
+
+
 def test_options_override_metadata_and_change_the_cache_key(tmp_path: Path, cache_dir: Path) -> None:
     model = tmp_path / "m.onnx"
     weights = conv_model(model, metadata={})  # no metadata: defaults, input size from the model

@@ -44,6 +44,9 @@ INSTALL = 'needs onnxruntime, an optional dependency: pip install "wiloc[onnx]"'
 #: Images per inference run when the model's batch axis is dynamic: large enough that the
 #: runtime's threads share out each run, small enough that a batch's inputs stay a few MB.
 BATCH = 16
+#: Input sample types taken, and the array type each is given as: a half-precision export
+#: (``model.half()``) takes its batch as float16.
+INPUT_TYPES = {"tensor(float)": np.float32, "tensor(float16)": np.float16}
 
 
 @dataclass(frozen=True)
@@ -150,8 +153,8 @@ def open_network(model: str | Path) -> Network:
     if isinstance(shape[1], int) and shape[1] != 3:
         raise WilocError(path, f"input '{inputs[0].name}' has {shape[1]} channels ({_shape(shape)}); "
                                "need 3 colour channels (N x 3 x H x W)")
-    if inputs[0].type != "tensor(float)":
-        raise WilocError(path, f"input '{inputs[0].name}' is a {inputs[0].type}; need tensor(float)")
+    if inputs[0].type not in INPUT_TYPES:
+        raise WilocError(path, f"input '{inputs[0].name}' is a {inputs[0].type}; need {' or '.join(INPUT_TYPES)}")
     out = outputs[0].shape
     if len(out) != 2:
         raise WilocError(path, f"output '{outputs[0].name}' has shape {_shape(out)}; need one vector per "
@@ -283,9 +286,9 @@ def _resized(image: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint
 def _run(path: str, digest: str, batch: NDArray[np.float32], threads: int) -> NDArray[np.float32]:
     """The network's output for an input batch, checked to be one vector per image."""
     session = _session(path, digest, threads)
-    name = session.get_inputs()[0].name
+    [given] = session.get_inputs()
     try:
-        out = session.run(None, {name: batch})[0]
+        out = session.run(None, {given.name: batch.astype(INPUT_TYPES[given.type], copy=False)})[0]
     except Exception as exc:  # onnxruntime's own error classes
         raise WilocError(path, f"the model failed on a batch of {batch.shape[0]} ({_said(exc, path)})") from None
     out = np.asarray(out)
