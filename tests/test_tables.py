@@ -3,6 +3,7 @@ inside a word; at 160 the Recall@N headers stay on one line; compare writes CSV,
 LaTeX."""
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -122,9 +123,18 @@ def test_compare_writes_csv_markdown_and_latex(runs: tuple[Path, list[str]]) -> 
     assert set(pd.read_csv(tmp / "compare-curves.csv")["results"]) == set(everything)
     markdown = _invoke(["compare", *everything, "--markdown", "--recall-at", "1,20"], NARROW)
     table1 = [line for line in markdown.splitlines() if line.startswith("| day_left | catgraph/sad |")]
-    assert markdown.count("|---|---|") == 3 and len(table1) == 2  # Table I and the calibration
+    assert markdown.count("|---|---|") == 4 and len(table1) == 3  # Table I, the calibration, P(new place)'s
+    new_place = markdown.split("**P(new place) against the frames without a true match", 1)[1].split("**Table II", 1)[0]
+    assert "| traversal | method | ECE | Brier | mean P(new place) | share new |" in new_place
+    said = {(run["traversal"], run["label"]): run["new_place"] for run in json.loads(
+        _invoke(["compare", *everything, "--json"], NARROW))["runs"] if "new_place" in run}
+    rows = [line.split(" | ") for line in new_place.splitlines()[4:] if line.startswith("| ")]  # under the head
+    assert said and len(rows) == len(said)  # the runs that say P(new place), with compare's numbers
+    for traversal, label, ece, brier, *_ in rows:
+        assert (float(ece), float(brier)) == pytest.approx(
+            (said[traversal.strip("| "), label]["ece"], said[traversal.strip("| "), label]["brier"]), abs=5e-4)
     assert "| traversal | method | R@100%P | R@99%P | R@90%P | AUC | R@1 | R@20 |" in markdown
     latex = _invoke(["compare", *everything, "--latex", "--no-global-threshold"], NARROW)
-    assert latex.count(r"\begin{tabular}") == 2 and r"day\_left & catgraph/sad &" in latex
+    assert latex.count(r"\begin{tabular}") == 3 and r"day\_left & catgraph/sad &" in latex
     both = runner.invoke(app, ["compare", *everything, "--markdown", "--latex"])
     assert both.exit_code == 2 and "--latex: give one of" in both.output

@@ -72,7 +72,7 @@ def compare(
     if markdown or latex:
         from wiloc.text_tables import latex as as_latex
         from wiloc.text_tables import markdown as as_markdown
-        for title, rows, columns, labels in records[:None if global_threshold else 2]:
+        for title, rows, columns, labels in records if global_threshold else records[:-1]:  # Table II is last
             print(as_latex(rows, columns, labels, title) if latex else f"**{title}**\n\n{as_markdown(rows, columns, labels)}",
                   end="\n\n")
         for path in written:
