@@ -170,10 +170,10 @@ def test_follow_refuses_what_it_cannot_follow(demo_route: demo.DemoRoute, tmp_pa
     runner = CliRunner()
     result = runner.invoke(app, ["localize", str(demo_route.queries[0]), str(demo_route.queries[1]), "--map",
                                  str(demo_route.reference), "--follow"])
-    assert result.exit_code == 2 and "--follow takes one query folder" in result.stderr
+    assert result.exit_code == 2 and "--follow: takes one query folder" in result.stderr
     result = runner.invoke(app, ["localize", str(demo_route.queries[0]), "--map", str(demo_route.reference),
                                  "--idle", "3"])
-    assert result.exit_code == 2 and "--idle goes with --follow" in result.stderr
+    assert result.exit_code == 2 and "--idle: applies to --follow only" in result.stderr
     out = tmp_path / "r.csv"
     first = runner.invoke(app, ["localize", str(demo_route.queries[0]), "--map", str(demo_route.reference), "--follow",
                                 "--idle", "0.5", "--out", str(out)])

@@ -82,14 +82,16 @@ def localize(
                    "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
                    "map_names": (reference is not None and is_matrix_file(reference),
                                  "a descriptor matrix file as --map"),
-                   **{name: (reference is not None, "map mode (--map)") for name in ("odometry", "map_odometry")}})
+                   **{name: (reference is not None, "map mode (--map)") for name in ("odometry", "map_odometry")},
+                   "idle": (follow, "--follow")})
     train_inputs = (train_query, train_map, train_gt)
     refuse_unused({name: (any(train_inputs), "a training pair (--train-query, --train-map, --train-gt)")
                    for name in ("train_gt_map", "train_tolerance", "train_radius")})
     training = None
     if any(train_inputs):
-        if not all(train_inputs):
-            fail("--train-query, --train-map and --train-gt go together", EXIT_USAGE)
+        for option, value in zip(("--train-query", "--train-map", "--train-gt"), train_inputs):
+            if value is None:
+                fail(f"{option}: missing; --train-query, --train-map and --train-gt go together", EXIT_USAGE)
         training = api.Training(train_query, train_map,
                                 truth_source(train_gt, train_gt_map, train_tolerance, train_radius, prefix="train_"))
     sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
@@ -99,7 +101,7 @@ def localize(
                                           ("--metric", metric), ("--model-plot", model_plot)) if value is not None]
         given += ["video sampling"] * (sampling != api.Sampling())
         if len(queries) != 1 or given:
-            fail(f"--follow takes one query folder{' and not ' + ', '.join(given) if given else ''}", EXIT_USAGE)
+            fail(f"--follow: takes one query folder{' and not ' + ', '.join(given) if given else ''}", EXIT_USAGE)
         show_followed(queries[0], api.follow_folder(
             queries[0], reference=reference, descriptor=descriptor,
             descriptor_params=descriptor_params_given(descriptor, descriptor_options, vocabulary, cache, model, preprocess),
@@ -108,8 +110,6 @@ def localize(
             out=out_path / api.results_name(queries[0], method, descriptor) if out_path is not None and out_path.is_dir() else out_path,
             cache=Cache(cache), jobs=jobs, idle=idle), as_json)
         return
-    if idle is not None:
-        fail("--idle goes with --follow", EXIT_USAGE)
     out_folder = out_path is not None and (out_path.is_dir() or not out_path.suffix)
     if len(queries) > 1 and out_path is not None and not out_folder:
         fail(f"{out_path}: with several queries --out names a folder", EXIT_USAGE)
