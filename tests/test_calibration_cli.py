@@ -131,6 +131,19 @@ def test_metrics_csv_and_its_curves_name_each_run_alike(tmp_path: Path, command:
         assert run.auc == pytest.approx(float((gains * curve["precision"]).sum()))
 
 
+@pytest.mark.parametrize(("command", "option", "name"), [
+    ("evaluate", "--csv", "m.csv"), ("evaluate", "--pr-plot", "pr.png"), ("report", "-o", "report.html")])
+def test_an_output_file_inside_a_file_is_refused_naming_it_no_folder(tmp_path: Path, command: str, option: str,
+                                                                     name: str) -> None:
+    """An output file whose folder is a file: a usage error saying so, where it said the folder
+    did not exist while it was there."""
+    (tmp_path / "notes").write_text("a file\n")
+    result = runner.invoke(app, [command, str(_gardens(tmp_path)), option, str(tmp_path / "notes" / name)])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.strip() == (f"error: {option if option != '-o' else '--out'}: {tmp_path / 'notes'} is not "
+                                     "a folder (the file would go into it)")
+
+
 def test_calibration_plot_is_written(tmp_path: Path) -> None:
     plot = tmp_path / "plots" / "reliability.png"
     plot.parent.mkdir()  # an output file's folder must exist (docs/guide.md)

@@ -24,10 +24,22 @@ def output_file(value: Path | None) -> Path | None:
     if str(value) == "-":
         raise typer.BadParameter("-: wiloc writes files here, not standard output (give a file name)")
     if value.suffix and not value.is_dir() and not value.parent.is_dir():
+        if value.parent.exists():
+            raise typer.BadParameter(f"{value.parent} is not a folder (the file would go into it)")
         raise typer.BadParameter(f"the folder {value.parent} does not exist (create it first)")
     problem = None if value.is_dir() else output_problem(value)
     if problem is not None:
         raise typer.BadParameter(f"{value}: {problem}")
+    return value
+
+
+def metric_name(value: str | None) -> str | None:
+    """A ``--metric`` option, checked as the options are read: one of the metrics descriptors are
+    compared with (a typo was found only once the matrix file was read, as bad input)."""
+    from wiloc.descriptors.base import METRICS
+
+    if value is not None and value not in METRICS:
+        raise typer.BadParameter(f"'{value}' is no metric; give one of {', '.join(METRICS)}")
     return value
 
 
