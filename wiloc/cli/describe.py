@@ -11,7 +11,7 @@ import typer
 from wiloc.cli.core import Notes, error, fail, handles_errors, out, refuse_besides, refuse_unused
 from wiloc.cli.options import (SAMPLING, STREAMS, CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption,
                                ModelOption, PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
-                               VocabularyOption, descriptor_params_given, output_file)
+                               VocabularyOption, descriptor_params_given, metric_name, output_file)
 from wiloc.cli.params import descriptor_uses, with_descriptor_options
 from wiloc.cli.views import print_command_json, progress_bar, table
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE
@@ -29,7 +29,7 @@ def describe(
     preprocess: PreprocessOption = None,
     import_file: Optional[Path] = typer.Option(None, "--import", help="External descriptors: an N x D matrix (.npy, .csv, .h5), hloc's global-feats-*.h5, or a folder of per-image .npy files (with --out)."),
     names: Optional[Path] = typer.Option(None, help="With --import .npy: text file of frame names, one a line."),
-    metric: Optional[str] = typer.Option(None, show_default="the file's recorded metric, else l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
+    metric: Optional[str] = typer.Option(None, callback=metric_name, show_default="the file's recorded metric, else l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
     import_out: Optional[Path] = typer.Option(None, "--out", "-o", callback=output_file, show_default="none: only the cache",
                                               help="With --import: write the descriptors to FILE.h5 with their names and metric, so that localize and evaluate take FILE.h5 alone."),
     prefix: str = typer.Option("", show_default="none: every frame", help="With --import --out: keep only the frames whose names begin with this (hloc's db/ or query/), dropping it from the names."),

@@ -12,7 +12,8 @@ from wiloc.cli.core import fail, handles_errors, refuse_unused
 from wiloc.cli.localize_views import show_followed, show_runs
 from wiloc.cli.options import (CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption, ModelOption,
                                PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
-                               VocabularyOption, descriptor_params_given, output_file, plot_file)
+                               VocabularyOption, descriptor_params_given, metric_name, output_file,
+                               plot_file)
 from wiloc.cli.params import descriptor_uses, method_params, with_descriptor_options, with_method_options
 from wiloc.cli.truth import truth_source
 from wiloc.cli.views import progress_bar
@@ -32,7 +33,7 @@ def localize(
     vocabulary: VocabularyOption = None,
     model: ModelOption = None,
     preprocess: PreprocessOption = None,
-    metric: Optional[str] = typer.Option(None, show_default="the file's recorded metric", help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
+    metric: Optional[str] = typer.Option(None, callback=metric_name, show_default="the file's recorded metric", help="For descriptor matrix files: l1 | sqeuclidean | hamming | cosine"),
     method: str = typer.Option("online", help=" | ".join(METHODS)),
     exclude_recent: int = typer.Option(DEFAULT_EXCLUDE_RECENT, "--exclude-recent", "-R", help="Recent frames excluded as candidates (sequence mode) and around each map frame when learning from the map."),
     train_query: Optional[Path] = typer.Option(None, help="trained: labelled training query traversal.", rich_help_panel="trained inputs"),
