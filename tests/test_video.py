@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -214,6 +215,29 @@ def test_cut_video_keeps_its_good_frames(tmp_path: Path) -> None:
     assert (again.computed, again.reused, again.failed) == (0, good, report.failed)
     stopped = describe_video(cut, FakeSpec(), cache, Sampling(stop=good))  # the cut ends before the damage
     assert stopped.failed == [] and stopped.entry.names == names(range(good))
+
+
+def longer_duration(path: Path, duration_ms: float) -> Path:
+    """A Matroska file's header duration set to `duration_ms`, its frames untouched: what a video
+    of variable frame rate looks like to OpenCV, whose frame count is the duration times the
+    nominal rate (a phone's 1 fps stretch counts 10 frames a second at a nominal 10 fps)."""
+    data = bytearray(path.read_bytes())
+    header = data[:data.index(b"\x1f\x43\xb6\x75")]  # up to the first cluster: no frame bytes
+    at = header.index(b"\x44\x89\x88") + 3  # Info's Duration, a float64 in ms
+    data[at:at + 8] = struct.pack(">d", duration_ms)
+    path.write_bytes(bytes(data))
+    return path
+
+
+def test_a_frame_count_beyond_the_frames_at_the_end_of_the_duration_is_no_cut(tmp_path: Path) -> None:
+    video = longer_duration(write_video(tmp_path / "vfr.mkv", 20, fourcc="FFV1"), 2500.0)  # frames at 0-1.9 s
+    capture = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG)
+    assert capture.get(cv2.CAP_PROP_FRAME_COUNT) == 25 and len(decoded_gray(video)) == 20
+    report = describe_video(video, FakeSpec(), Cache(tmp_path / "cache"))
+    assert report.failed == [] and report.entry.names == names(range(20))
+    cut = longer_duration(write_video(tmp_path / "cut.mkv", 20, fourcc="FFV1"), 5000.0)  # 3 s of frames missing
+    [(name, reason)] = describe_video(cut, FakeSpec(), Cache(tmp_path / "cache")).failed
+    assert name == frame_name(20) and "cannot decode frame 000020 of 50 (the file is cut or damaged there)" in reason
 
 
 def _cli(*args: str, cache: Path) -> subprocess.CompletedProcess:

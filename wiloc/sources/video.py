@@ -33,6 +33,8 @@ NAME_WIDTH = 6
 #: Timestamps are decoder milliseconds in floating point (99.99999 for 100): a frame within this
 #: many ms before a start, stop or fps boundary counts as reaching it.
 TOLERANCE_MS = 0.5
+#: A video whose decoding stops within this many ms of its container's duration ended whole.
+END_MS = 1000.0
 #: The fingerprint reads the head and the tail (containers keep their index at either end) and
 #: a block at each ninth of the file: 2.5 MiB whatever the file's size.
 _END_BYTES = 1 << 20
@@ -263,9 +265,19 @@ class Video:
             yield index, timestamp
             index += 1
             if not self._capture.grab():
-                if self.frame_count is not None and index < self.frame_count:
+                if self.frame_count is not None and index < self.frame_count and not self._near_end(timestamp):
                     self._ended = (index, timestamp + (1000.0 / self.rate if self.rate else 0.0))
                 return
+
+    def _near_end(self, timestamp: float) -> bool:
+        """Whether a last frame at `timestamp` (ms) lies at the end of the container's duration,
+        within END_MS or two frame intervals: then the video ended where it should, and a frame
+        count above its frames is the duration times the nominal rate of a video with a variable
+        frame rate (a phone's), not frames lost to a cut."""
+        if not self.rate or self.frame_count is None:
+            return False
+        interval = 1000.0 / self.rate
+        return timestamp + max(END_MS, 2 * interval) >= self.frame_count * interval
 
     def _stopped(self, index: int) -> VideoFrame:
         """The item for the frame where decoding stopped early."""
