@@ -443,3 +443,25 @@ def test_localize_takes_one_query_and_one_reference(demo_route: demo.DemoRoute, 
             api.localize(query, reference=reference, method="threshold")
         assert err.value.parameter == parameter and err.value.problem.startswith("one traversal (a folder")
         assert got in err.value.problem
+
+
+def test_a_map_in_memory_is_checked_as_an_observed_row_is() -> None:
+    """entry_from_array cast the rows into the descriptor's dtype: 300 became 44 in a sad map,
+    1e40 infinite in a float32 one, and NaN rows were kept; each is refused naming the source."""
+    from wiloc.description.traversals import entry_from_array
+    from wiloc.descriptors.registry import get_descriptor
+
+    names = [f"m{i}" for i in range(6)]
+    sad, floats = get_descriptor("sad"), get_descriptor("external", metric="l1", length=8)
+    nan_row = np.ones((6, 8))
+    nan_row[2] = np.nan
+    for rows, spec, problem in ([np.full((6, 1152), 300), sad, "a descriptor of int64 values; this map's rows are "
+                                                               "uint8 (integers in [0, 255])"],
+                                [np.full((6, 8), 1e40), floats, "the descriptor holds values beyond the range of "
+                                                                 "this map's float32 rows"],
+                                [nan_row, floats, "the descriptor holds NaN or infinite values"]):
+        with pytest.raises(WilocError) as err:
+            entry_from_array(rows, names, spec, source="walk.npy")
+        assert str(err.value) == f"walk.npy: {problem}"
+    kept = entry_from_array(np.full((6, 1152), 255, np.int64)[:, ::1], names, sad)
+    assert kept.data.dtype == np.uint8 and kept.data.flags.c_contiguous and int(kept.data.max()) == 255

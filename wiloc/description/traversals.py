@@ -38,14 +38,38 @@ def descriptor_spec(descriptor: str, params: Mapping[str, Any] | None = None) ->
 
 def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, source: str = "memory") -> Entry:
     """Descriptors computed elsewhere (one row per frame, named) as an entry that is not cached:
-    a map held in memory. Its digest is a hash of names and values, so a change is seen."""
-    data = np.ascontiguousarray(data, dtype=spec.dtype)
+    a map held in memory. Its digest is a hash of names and values, so a change is seen. Values
+    are checked as an observed row's are (``checked_rows``): never wrapped into the descriptor's
+    dtype, NaN refused."""
+    data = np.asarray(data)
     if data.ndim != 2 or data.shape[1] != spec.length or data.shape[0] != len(names):
         raise WilocError(source, f"descriptors of shape {data.shape} for {len(names)} names; "
                                  f"'{spec.name}' rows have {spec.length} values")
+    data = np.ascontiguousarray(checked_rows(data, spec.dtype, source))
     header = EntryHeader.create(source, spec.name, dict(spec.params), spec.metric, spec.scale, spec.natural_max,
                                 spec.dtype, spec.length)
     return Entry(**asdict(header), names=list(names), data=data, digest=descriptors_digest(names, data))
+
+
+def checked_rows(values: NDArray, dtype: np.dtype, where: str) -> NDArray:
+    """Descriptor values given from outside (a map's rows in memory, a row to observe) as the
+    rows of ``dtype`` they are compared with: numbers and finite; for integer rows (``sad``,
+    ``brisk-gist``: uint8) whole numbers within the type's range, never wrapped; for float32 rows
+    (``gist``) within its range, never made infinite. Else a WilocError naming ``where``."""
+    if values.dtype.kind not in "biuf":
+        raise WilocError(where, f"a descriptor of {values.dtype} values; give numbers")
+    if values.dtype.kind == "f" and not np.all(np.isfinite(values)):
+        raise WilocError(where, "the descriptor holds NaN or infinite values")
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
+        if values.dtype.kind == "f" or (values.size and (values.min() < info.min or values.max() > info.max)):
+            raise WilocError(where, f"a descriptor of {values.dtype} values; this map's rows are {dtype} "
+                                    f"(integers in [{info.min}, {info.max}])")
+    with np.errstate(over="ignore"):  # a float64 value beyond float32's range: refused below
+        rows = values.astype(dtype, copy=False)
+    if dtype.kind == "f" and not np.all(np.isfinite(rows)):
+        raise WilocError(where, f"the descriptor holds values beyond the range of this map's {dtype} rows")
+    return rows
 
 
 def descriptors_digest(names: list[str], data: np.ndarray) -> str:

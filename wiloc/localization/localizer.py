@@ -25,7 +25,7 @@ from wiloc.atomic import written_whole
 from wiloc.cache.store import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decision
-from wiloc.description.traversals import Describer, is_matrix_file
+from wiloc.description.traversals import Describer, checked_rows, is_matrix_file
 from wiloc.errors import FrameError, WilocError, load_problem
 from wiloc.localization.session import RunSession, check_traversal
 from wiloc.localization.training import Training
@@ -140,20 +140,7 @@ class Localizer:
         length, dtype = data.shape[1], data.dtype
         if row.size != length:
             raise WilocError("observe", f"a descriptor of {row.size} values; this map's have {length}")
-        if row.dtype.kind not in "biuf":
-            raise WilocError("observe", f"a descriptor of {row.dtype} values; give numbers")
-        if row.dtype.kind == "f" and not np.all(np.isfinite(row)):
-            raise WilocError("observe", "the descriptor holds NaN or infinite values")
-        if dtype.kind in "iu":
-            info = np.iinfo(dtype)
-            if row.dtype.kind == "f" or (row.size and (row.min() < info.min or row.max() > info.max)):
-                raise WilocError("observe", f"a descriptor of {row.dtype} values; this map's rows are {dtype} "
-                                            f"(integers in [{info.min}, {info.max}])")
-        with np.errstate(over="ignore"):  # a float64 value beyond float32's range: refused below
-            row = row.astype(dtype, copy=False)
-        if dtype.kind == "f" and not np.all(np.isfinite(row)):
-            raise WilocError("observe", f"the descriptor holds values beyond the range of this map's {dtype} rows")
-        return row
+        return checked_rows(row, dtype, "observe")
 
     def row(self, descriptor: NDArray) -> NDArray[np.float64]:
         """The next frame's row (:meth:`RunSession.row`): its differences to every map frame, or
