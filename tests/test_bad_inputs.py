@@ -1472,3 +1472,12 @@ def test_sequence_mode_refuses_a_map_positions_file_other_than_the_query_s(tmp_p
         TruthSource(kind="positions", path=str(own), ref_path=str(other), radius=2.0).load(
             names, names, str(tmp_path), sequence=True, exclude_recent=2)
     assert refused.value.parameter == "ref_path"
+
+
+def test_vocabulary_of_one_folder_given_twice_is_refused(route: tuple[Path, Path], cache_dir: Path) -> None:
+    """A folder typed twice (``ref ref/``) would count its images twice in the clustering: refused
+    before any work, naming it."""
+    ref, _ = route
+    ends_in_one_error(runner.invoke(app, ["vocabulary", str(ref), f"{ref}/", "--words", "2"]), 2,
+                      f"FOLDER...: {ref} is given twice")
+    assert not list(cache_dir.glob("vocabularies/*"))

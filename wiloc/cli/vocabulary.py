@@ -6,9 +6,10 @@ from pathlib import Path
 
 import typer
 
-from wiloc.cli.core import Notes, handles_errors, out
+from wiloc.cli.core import Notes, fail, handles_errors, out
 from wiloc.cli.options import CacheOption
 from wiloc.cli.views import print_command_json, progress_bar, table
+from wiloc.errors import EXIT_USAGE
 
 
 @handles_errors
@@ -33,6 +34,10 @@ def vocabulary(
     from wiloc import api
     from wiloc.cache.store import Cache
 
+    seen = [folder.resolve() for folder in folders]
+    twice = next((folder for folder, path in zip(folders, seen) if seen.count(path) > 1), None)
+    if twice is not None:
+        fail(f"FOLDER...: {twice} is given twice (its images would count twice in the clustering)", EXIT_USAGE)
     params = {"feature": feature, "words": words, "max_features": max_features, "max_side": max_side,
               "iterations": iterations, "seed": seed}
     with progress_bar(not as_json) as progress:
