@@ -465,3 +465,15 @@ def test_a_map_in_memory_is_checked_as_an_observed_row_is() -> None:
         assert str(err.value) == f"walk.npy: {problem}"
     kept = entry_from_array(np.full((6, 1152), 255, np.int64)[:, ::1], names, sad)
     assert kept.data.dtype == np.uint8 and kept.data.flags.c_contiguous and int(kept.data.max()) == 255
+
+
+def test_the_cache_is_given_as_a_cache_or_its_folder(demo_route: demo.DemoRoute, tmp_path: Path) -> None:
+    """``cache="~/wiloc-cache"``, as ``--cache DIR`` takes it, was an AttributeError ('str' object
+    has no attribute 'lock') once describing began: a folder's path is that cache's folder."""
+    [report] = api.describe(demo_route.reference, cache=str(tmp_path / "by-text"))
+    assert [info.folder for info in Cache(tmp_path / "by-text").list_entries()] == [report.folder]
+    loc = Localizer(demo_route.reference, method="threshold", cache=tmp_path / "by-text")
+    assert loc.describer.cache.root == (tmp_path / "by-text").resolve()
+    with pytest.raises(ParameterError) as err:
+        api.describe(demo_route.reference, cache=5)
+    assert err.value.parameter == "cache" and err.value.problem == "a Cache or a cache folder's path, got int"

@@ -40,7 +40,7 @@ __all__ = ["TABLE1_KEYS", "Comparison", "Evaluation", "FollowRun", "LocalizeRun"
 # ----------------------------------------------------------------------------------------- describe
 
 def describe(folders: Sequence[str | Path] | str | Path, descriptor: str = "sad", *,
-             descriptor_params: Mapping[str, Any] | None = None, cache: Cache | None = None,
+             descriptor_params: Mapping[str, Any] | None = None, cache: Cache | str | os.PathLike | None = None,
              jobs: int | None = None, progress: Progress | None = None,
              sampling: Sampling | None = None, scheduler: str | None = None,
              topic: str | None = None) -> list[DescribeReport]:
@@ -53,7 +53,7 @@ def describe(folders: Sequence[str | Path] | str | Path, descriptor: str = "sad"
     ``folders``; one folder given alone (not in a list) is described as ``[folder]``, never as
     the characters of its name."""
     spec = descriptor_spec(descriptor, descriptor_params)
-    cache = cache or Cache()
+    cache = Cache.given(cache)
     paths = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(folder) for folder in folders]
     check_sampling(paths, sampling)
     check_topic(paths, topic)

@@ -35,7 +35,7 @@ import platformdirs
 
 from wiloc.atomic import process_alive, write_error
 from wiloc.cache.entries import Entry, EntryHeader, FrameRecord, StoredEntry, header_from_attrs, now, read_h5, write_h5
-from wiloc.errors import CacheBusyError, WilocError
+from wiloc.errors import CacheBusyError, ParameterError, WilocError
 
 #: Seconds a process waits for another one holding the same entry before CacheBusyError: long
 #: enough to ride out a concurrent fold or a small describe, short enough to report a stuck run.
@@ -203,6 +203,16 @@ class Cache:
         self.lock_timeout = lock_timeout
         self.repairs: list[str] = []
         self._swept = False  # temporary files of dead writers are removed before the first write
+
+    @classmethod
+    def given(cls, cache: Cache | str | os.PathLike | None) -> Cache:
+        """The cache a caller of the library gave: a ``Cache``, a folder's path (as ``--cache DIR``
+        names one) or None for the default folder; anything else a ParameterError naming ``cache``."""
+        if isinstance(cache, Cache):
+            return cache
+        if cache is None or isinstance(cache, (str, os.PathLike)):
+            return cls(None if cache is None else Path(cache))
+        raise ParameterError("cache", f"a Cache or a cache folder's path, got {type(cache).__name__}")
 
     def _make_folder(self, folder: Path) -> None:
         """Create a folder inside the cache (and the cache itself) on first use."""

@@ -3,6 +3,7 @@ stepped over the query's rows, and the results (``wiloc.localize``; ``wiloc.Loca
 same session frame by frame)."""
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
@@ -52,7 +53,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
              exclude_recent: int = DEFAULT_EXCLUDE_RECENT, training: Training | None = None,
              odometry: Path | None = None, map_odometry: Path | None = None,
              query_names_file: Path | None = None, ref_names_file: Path | None = None,
-             out: Path | None = None, cache: Cache | None = None, jobs: int | None = None,
+             out: Path | None = None, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,
              sampling: Sampling | None = None, progress: Progress | None = None,
              scheduler: str | None = None, topic: str | None = None,
              odometry_topic: str | None = None) -> LocalizeRun:

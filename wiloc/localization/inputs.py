@@ -37,13 +37,13 @@ def import_descriptors(path: Path, *, metric: str | None = None, names: Path | N
     source = Path(path)
     metric = metric or recorded_metric(source) or "l1"
     if out is not None:
-        return import_to_file(source, Path(out), cache or Cache(), names, metric, prefix)
+        return import_to_file(source, Path(out), Cache.given(cache), names, metric, prefix)
     if source.is_dir():
         raise ParameterError("out", f"{source}: a folder of .npy files is imported into a descriptor file; "
                                     "give one to write (FILE.h5)")
     if prefix:
         raise ParameterError("prefix", "keeps part of a file written to a descriptor file; give that file too")
-    return import_matrix(source, cache or Cache(), names, metric)
+    return import_matrix(source, Cache.given(cache), names, metric)
 
 
 def vocabulary(folders: Sequence[str | Path] | str | Path, params: Mapping[str, Any] | None = None, *,
@@ -52,7 +52,7 @@ def vocabulary(folders: Sequence[str | Path] | str | Path, params: Mapping[str, 
     folder or several): local features clustered into words, for the ``bow`` descriptor and
     FAB-MAP (docs/fabmap.md)."""
     paths = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(f) for f in folders]
-    return build_vocabulary(paths, cache or Cache(), VocabularyParams.create(params),
+    return build_vocabulary(paths, Cache.given(cache), VocabularyParams.create(params),
                             progress=stage(progress, "vocabulary"))
 
 
@@ -61,7 +61,7 @@ def vocabulary_file(vocabulary: str | Path, cache: Cache | None = None) -> Path:
     path = Path(vocabulary).expanduser()
     if path.is_file():
         return path
-    in_cache = vocabulary_path(cache or Cache(), str(vocabulary))
+    in_cache = vocabulary_path(Cache.given(cache), str(vocabulary))
     if str(vocabulary).isalnum() and in_cache.is_file():
         return in_cache
     raise WilocError(None, f"{str(vocabulary)!r} is neither a vocabulary file nor the key of one in the cache",

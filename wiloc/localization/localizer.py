@@ -60,7 +60,7 @@ class Localizer:
                  descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
                  method: str = "online", exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
                  training: Training | TrainingRows | None = None, map_odometry: str | Path | None = None,
-                 map_names: str | Path | None = None, sampling: Sampling | None = None, cache: Cache | None = None,
+                 map_names: str | Path | None = None, sampling: Sampling | None = None, cache: Cache | str | os.PathLike | None = None,
                  jobs: int | None = None, **params: Any) -> None:
         self._setup(RunSession(_map(map), method=method, method_params=params, descriptor=descriptor,
                                descriptor_params=descriptor_params, metric=metric, exclude_recent=exclude_recent,
@@ -213,7 +213,7 @@ class Localizer:
         return path
 
     @classmethod
-    def load(cls, path: str | Path, cache: Cache | None = None, jobs: int | None = None,
+    def load(cls, path: str | Path, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,
              map: Entry | None = None) -> Localizer:
         """A localizer continuing from a state written by :meth:`save`: its next decisions are the
         ones the saved localizer would have made. The map must be unchanged; a map that was held

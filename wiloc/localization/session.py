@@ -65,7 +65,7 @@ class RunSession:
                  training: Training | TrainingRows | None = None, map_odometry: Path | None = None,
                  map_names: Path | None = None, query: Path | None = None, query_names: Path | None = None,
                  odometry: Path | None = None, odometry_topic: str | None = None,
-                 sampling: Sampling | None = None, cache: Cache | None = None, jobs: int | None = None,
+                 sampling: Sampling | None = None, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,
                  progress: Progress | None = None, scheduler: str | None = None, topic: str | None = None,
                  restoring: bool = False) -> None:
         self.method: Method = make_method(method, method_params)
@@ -87,7 +87,7 @@ class RunSession:
             check_sampling([Path(source) for source in (query, map) if source is not None], sampling)
             pair = (training.query, training.reference) if isinstance(training, Training) else ()
             check_topic([Path(source) for source in (query, map, *pair) if source is not None], topic)
-        self.describer = Describer(descriptor, dict(descriptor_params or {}), cache or Cache(), metric=metric,
+        self.describer = Describer(descriptor, dict(descriptor_params or {}), Cache.given(cache), metric=metric,
                                    jobs=jobs, progress=progress, sampling=sampling,
                                    cluster=open_cluster(scheduler, jobs), topic=topic)
         self.query: Entry | None = None if query is None else self.describer.entry(Path(query), query_names)
