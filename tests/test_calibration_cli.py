@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -142,6 +143,27 @@ def test_an_output_file_inside_a_file_is_refused_naming_it_no_folder(tmp_path: P
     assert result.exit_code == 2, result.output
     assert result.stderr.strip() == (f"error: {option if option != '-o' else '--out'}: {tmp_path / 'notes'} is not "
                                      "a folder (the file would go into it)")
+
+
+def test_a_ground_truth_csv_given_without_its_form_is_read_as_its_first_line_says(tmp_path: Path) -> None:
+    """A bare --gt FILE.csv is pairs, positions or a matrix as its header (or its numbers) shows,
+    scored as the same file with its form named; every CSV was read as pairs, so a positions file
+    or a matrix ended in 'missing column(s) query, reference'."""
+    run = str(_gardens(tmp_path))
+    names = [f"img{i}.png" for i in range(10)]
+    (tmp_path / "pairs.csv").write_text("query,reference\n" + "".join(f"{n},{n}\n" for n in names[:8]))
+    (tmp_path / "q.csv").write_text("name,x,y\n" + "".join(f"{n},{i}.0,0.0\n" for i, n in enumerate(names))
+                                    + "new.png,100.0,0.0\n")
+    (tmp_path / "r.csv").write_text("name,x,y\n" + "".join(f"{n},{i}.0,0.0\n" for i, n in enumerate(names)))
+    np.savetxt(tmp_path / "m.csv", np.eye(11, 10, dtype=int), fmt="%d", delimiter=",")
+    for kind, extra in (("pairs", []), ("positions", ["--gt-map", str(tmp_path / "r.csv"), "--radius", "0.5"]),
+                        ("matrix", [])):
+        path = tmp_path / {"pairs": "pairs.csv", "positions": "q.csv", "matrix": "m.csv"}[kind]
+        named, bare = (_json(runner.invoke(app, ["evaluate", run, "--gt", gt, *extra, "--json"]))
+                       for gt in (f"{kind}:{path}", str(path)))
+        assert bare["ground_truth"] == named["ground_truth"] and bare["ground_truth"].startswith(kind)
+        assert bare["runs"][0]["with_true_match"] == named["runs"][0]["with_true_match"] > 0
+        assert bare["runs"][0]["recall_at_1"] == named["runs"][0]["recall_at_1"]
 
 
 def test_calibration_plot_is_written(tmp_path: Path) -> None:

@@ -50,9 +50,30 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
 
 
 def _guess_kind(path: str) -> str:
+    """The form of a file given without its kind: VPR-Bench's file by its name, a .npy or .mat as
+    a matrix, a CSV by its first line (``query,reference``: pairs; ``name`` with ``x,y`` or
+    ``lat,lon``: positions; numbers alone: a matrix), anything else as pairs, whose reader
+    says what is missing."""
     if Path(path).name.lower() == "ground_truth_new.npy":
         return "vprbench"
-    return "matrix" if Path(path).suffix.lower() in (".npy", ".mat") else "pairs"
+    if Path(path).suffix.lower() in (".npy", ".mat"):
+        return "matrix"
+    try:
+        with open(path, encoding="utf-8-sig", errors="replace") as file:
+            cells = [cell.strip().lower() for cell in file.readline().split(",")]
+    except OSError:  # no such file yet ('{query}' in its name): the pairs reader names the problem
+        return "pairs"
+    if "name" in cells and ({"x", "y"} <= set(cells) or {"lat", "lon"} <= set(cells)):
+        return "positions"
+    return "matrix" if cells != [""] and all(_number(cell) for cell in cells) else "pairs"
+
+
+def _number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames; 'aligned:index': same index, "
