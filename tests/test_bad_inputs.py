@@ -1481,3 +1481,13 @@ def test_vocabulary_of_one_folder_given_twice_is_refused(route: tuple[Path, Path
     ends_in_one_error(runner.invoke(app, ["vocabulary", str(ref), f"{ref}/", "--words", "2"]), 2,
                       f"FOLDER...: {ref} is given twice")
     assert not list(cache_dir.glob("vocabularies/*"))
+
+
+def test_demo_out_under_a_file_is_a_usage_error_before_any_work(tmp_path: Path, cache_dir: Path) -> None:
+    """`demo --out` names a folder: a file there (or above it) is refused naming --out, where the
+    demo drew its route first and failed inside it ('route/reference: Not a directory', exit 1)."""
+    taken = tmp_path / "notes.txt"
+    taken.write_text("mine")
+    for out in (taken, taken / "demo"):
+        ends_in_one_error(runner.invoke(app, ["demo", "--out", str(out)]), 2, f"--out: {taken} is a file, not a folder")
+    assert taken.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]

@@ -9,9 +9,22 @@ from wiloc.cli.core import handles_errors, out
 from wiloc.cli.views import print_command_json, progress_bar, run_records, table1_view, table2_view
 
 
+def output_folder(value: Path) -> Path:
+    """``--out``, checked as the options are read, before any work: a folder (made if missing),
+    so neither it nor a folder above it may be a file, and not ``-`` (no name for standard output
+    here)."""
+    if str(value) == "-":
+        raise typer.BadParameter("-: wiloc writes a folder of files here, not standard output (give a folder)")
+    existing = next(path for path in (value, *value.parents) if path.exists())
+    if not existing.is_dir():
+        raise typer.BadParameter(f"{existing} is a file, not a folder")
+    return value
+
+
 @handles_errors
 def demo(
-    out_dir: Path = typer.Option(Path("wiloc-demo"), "--out", help="Where the demo route, results and plots go."),
+    out_dir: Path = typer.Option(Path("wiloc-demo"), "--out", callback=output_folder,
+                                 help="Where the demo route, results and plots go (a folder, made if missing)."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
     """Generate a small route with ground truth, localize it with every method and compare them.
