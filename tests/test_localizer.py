@@ -477,3 +477,19 @@ def test_the_cache_is_given_as_a_cache_or_its_folder(demo_route: demo.DemoRoute,
     with pytest.raises(ParameterError) as err:
         api.describe(demo_route.reference, cache=5)
     assert err.value.parameter == "cache" and err.value.problem == "a Cache or a cache folder's path, got int"
+
+
+def test_training_and_jobs_of_another_type_are_named(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
+    """A training pair given as a tuple was an AttributeError ('tuple' object has no attribute
+    'query'), and jobs='2' (read from a config file) a TypeError comparing it with 1."""
+    pair = (demo_route.queries[1], demo_route.reference, demo_route.truth())
+    for run in (lambda: Localizer(demo_route.reference, method="trained", training=pair),
+                lambda: api.localize(demo_route.queries[0], reference=demo_route.reference, method="trained",
+                                     training=pair)):
+        with pytest.raises(ParameterError) as err:
+            run()
+        assert err.value.parameter == "training" and err.value.problem.endswith("got tuple")
+    for jobs in ("2", 2.0):
+        with pytest.raises(ParameterError) as err:
+            api.describe(demo_route.reference, jobs=jobs)
+        assert err.value.parameter == "jobs" and err.value.problem == f"must be an integer, got {jobs!r}"

@@ -67,9 +67,11 @@ _devnull: int | None = None
 
 
 def check_jobs(jobs: int | None) -> int:
-    """The worker count: the cores this process may use by default, else at least 1."""
+    """The worker count: the cores this process may use by default, else an integer, at least 1."""
     if jobs is None:
         return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)):  # '2' from a config file, 2.0
+        raise ParameterError("jobs", f"must be an integer, got {jobs!r}")
     if jobs < 1:
         raise ParameterError("jobs", f"must be at least 1, got {jobs}")
     return jobs

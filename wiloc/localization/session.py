@@ -68,6 +68,9 @@ class RunSession:
                  sampling: Sampling | None = None, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,
                  progress: Progress | None = None, scheduler: str | None = None, topic: str | None = None,
                  restoring: bool = False) -> None:
+        if training is not None and not isinstance(training, (Training, TrainingRows)):
+            raise ParameterError("training", "a labelled pair: Training(query, reference, truth) (wiloc.api.Training) "
+                                             f"or TrainingRows(rows, labels), got {type(training).__name__}")
         self.method: Method = make_method(method, method_params)
         self.exclude_recent = R = check_exclude_recent(exclude_recent)
         self.sequence = map is None
