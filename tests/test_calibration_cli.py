@@ -84,6 +84,18 @@ def test_evaluate_default_cuts_accept_nothing_above_every_confidence(tmp_path: P
     assert row["cuts"][2]["accepted"] == 0 and row["cuts"][2]["precision"] is None  # NaN -> null
 
 
+def test_cuts_are_each_reported_once_in_order(tmp_path: Path) -> None:
+    """--cuts 0.9,0.5,0.9: the cuts 0.5 and 0.9, in the table, the JSON and the CSV alike, where
+    the JSON listed 0.9 twice and the CSV held it once."""
+    path = _gardens(tmp_path)
+    (row,) = _json(runner.invoke(app, ["evaluate", str(path), "--cuts", "0.9,0.5,0.9", "--json",
+                                       "--csv", str(tmp_path / "m.csv")]))["runs"]
+    assert [c["cut"] for c in row["cuts"]] == [0.5, 0.9]
+    assert (tmp_path / "m.csv").read_text().splitlines()[0].count(",precision@") == 2
+    table = runner.invoke(app, ["evaluate", str(path), "--cuts", "0.9,0.5,0.9"]).stdout
+    assert table.count("cut 0.9 ") == 1 and table.index("cut 0.5") < table.index("cut 0.9")
+
+
 @pytest.mark.parametrize("cuts", ["0.5,1.5", "abc", "0.9,", "-0.1", "nan", ""])
 def test_bad_cuts_are_one_line_usage_errors(tmp_path: Path, cuts: str) -> None:
     path = _gardens(tmp_path)

@@ -38,14 +38,16 @@ def parse_recall_at(text: str) -> list[int]:
 
 
 def parse_cuts(text: str) -> list[float]:
-    """`--cuts 0.5,0.9,0.99`: numbers in [0, 1]; anything else is a usage error."""
+    """`--cuts 0.5,0.9,0.99`: numbers in [0, 1], each once and in order, as ``--recall-at``'s N
+    (a cut given twice was a table row and a JSON entry twice, but one CSV column); anything
+    else is a usage error."""
     try:
         cuts = [float(part) for part in text.split(",") if part.strip()]
     except ValueError:
         cuts = []
     if not cuts or not all(0.0 <= cut <= 1.0 for cut in cuts):
         fail(f"--cuts: '{text}': give confidences in [0, 1], comma-separated, such as {CUTS_TEXT}", EXIT_USAGE)
-    return cuts
+    return sorted(set(cuts))
 
 
 def warn_about_truth(evaluations: list[api.Evaluation]) -> Notes:
