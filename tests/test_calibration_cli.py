@@ -96,6 +96,12 @@ def test_cuts_are_each_reported_once_in_order(tmp_path: Path) -> None:
     assert table.count("cut 0.9 ") == 1 and table.index("cut 0.5") < table.index("cut 0.9")
 
 
+def test_a_target_precision_given_twice_is_one_table_ii_row(tmp_path: Path) -> None:
+    table2 = _json(runner.invoke(app, ["compare", str(_gardens(tmp_path)), str(_nordland(tmp_path)),
+                                       "--precision", "99,100,99", "--json"]))["table2"]
+    assert [row["precision"] for row in table2] == [99.0, 99.0, 100.0, 100.0]  # per traversal, in the order given
+
+
 @pytest.mark.parametrize("cuts", ["0.5,1.5", "abc", "0.9,", "-0.1", "nan", ""])
 def test_bad_cuts_are_one_line_usage_errors(tmp_path: Path, cuts: str) -> None:
     path = _gardens(tmp_path)

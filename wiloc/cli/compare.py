@@ -53,7 +53,7 @@ def compare(
     if len(shown) > 1:
         fail(f"{shown[1]}: give one of --markdown, --latex and --json", EXIT_USAGE)
     try:
-        targets = [float(p) for p in precision.split(",") if p.strip()]
+        targets = list(dict.fromkeys(float(p) for p in precision.split(",") if p.strip()))  # each once, as given
     except ValueError:
         fail(f"--precision: '{precision}': give percentages such as 100,99.5", EXIT_USAGE)
     at = parse_cuts(cuts)
