@@ -228,6 +228,18 @@ def test_plot_pairs_shows_each_example(tmp_path: Path) -> None:
     assert "correct=False" in repr(pairs[1]) and "ndarray(48 x 64)" in repr(pairs[1])
 
 
+def test_pairs_of_a_run_without_a_wrong_match_say_none_to_show(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """--pairs-plot --wrong-only of a run whose every match is right: the figure says there is none
+    to show under its title, where it said 'no decided match to show' of a run of decided matches."""
+    from wiloc.figures import plots
+
+    drawn: list[Figure] = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or Path(path))
+    plots.plot_pairs([], tmp_path / "pairs.png", title="online on day_left (sad): the most confident wrong matches")
+    assert [text.get_text() for ax in drawn[0].axes for text in ax.texts] == ["none to show"]
+
+
 def test_every_figure_the_docs_show_exists_and_every_figure_in_docs_img_is_shown() -> None:
     """The plots the examples regenerate into docs/img/ (``--update-docs``) are the ones the pages
     embed: none missing, none left over."""

@@ -384,6 +384,6 @@ def plot_pairs(pairs: Sequence[ImagePair], path: str | Path, title: str = "Examp
     for ax in axes[3 * len(pairs):]:
         ax.set_axis_off()
     if not pairs:
-        axes[1].text(0.5, 0.5, "no decided match to show", ha="center", va="center")
+        axes[1].text(0.5, 0.5, "none to show", ha="center", va="center")  # the title says of what
     _title(fig, title)
     return _save(fig, path)
