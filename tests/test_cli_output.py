@@ -207,6 +207,17 @@ def test_reports_have_short_reprs(tmp_path: Path, cache_dir: Path) -> None:
     np.testing.assert_array_equal(report.entry.data.shape, (40, 1152))
 
 
+def test_short_reprs_show_numpy_scalars_and_paths_by_value() -> None:
+    """A numpy scalar showed as its type and empty shape ('int64()'), a path over 60 characters
+    as '<PosixPath>': the value, and the path's end (its file's name)."""
+    from wiloc.reprs import brief
+
+    long = Path("/data/" + "walks/" * 12 + "day_left-sad-online.csv")
+    assert brief(long) == repr("..." + str(long)[-57:]) and brief(long).endswith("day_left-sad-online.csv'")
+    assert brief(Path("runs/a.csv")) == "'runs/a.csv'"
+    assert [brief(v) for v in (np.int64(3), np.float32(0.5), np.bool_(True))] == ["3", "0.5", "True"]
+
+
 def test_localize_without_out_writes_nothing_and_evaluate_takes_the_run(tmp_path: Path, cache_dir: Path,
                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     import wiloc

@@ -6,8 +6,11 @@ shape, long lists by length, nested reports by class.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import fields, is_dataclass
 from typing import Any, TypeVar
+
+import numpy as np
 
 T = TypeVar("T", bound=type)
 
@@ -17,6 +20,11 @@ _SHORT = 60
 
 def brief(value: Any) -> str:
     """A few characters saying what ``value`` is."""
+    if isinstance(value, np.generic):  # a numpy scalar: its value (its shape, (), says nothing)
+        return brief(value.item())
+    if isinstance(value, os.PathLike):  # its text, the end kept: the file's name tells it apart
+        text = os.fspath(value)
+        return repr(text) if len(text) <= _SHORT else repr("..." + text[3 - _SHORT:])
     if isinstance(value, float):
         return f"{value:.4g}"
     if value is None or isinstance(value, (bool, int, complex)):
