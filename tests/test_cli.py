@@ -332,3 +332,21 @@ def test_vocabulary_options_are_its_declared_parameters() -> None:
     assert "(>= 2) [default: 1000]" in text and "(>= 16) [default: 640]" in text
     result = runner.invoke(app, ["vocabulary", "F", "--max-side", "8"])
     assert result.exit_code == 2 and result.stderr.strip() == "error: --max-side: must be >= 16, got 8"
+
+
+def test_a_run_that_measures_itself_is_warned_of(route: tuple[Path, Path], tmp_path: Path) -> None:
+    """A query that is the map (loop closure meant, --map left in) and a trained model tested on its
+    own training pair run, with one warning each, on stderr and in the --json warnings."""
+    ref, query = route
+    result = runner.invoke(app, ["localize", str(ref), "--map", f"{ref}/", "--method", "threshold",
+                                 "--out", str(tmp_path / "self.csv"), "--json"])
+    [warning] = _json(result)["warnings"]
+    assert warning.startswith(f"warning: {ref}: the query is the map itself") and warning in result.stderr.replace("warning ", "warning: ")
+    args = ["localize", str(query), "--map", str(ref), "--method", "trained", "--train-gt", "aligned",
+            "--pairs", "all", "--out", str(tmp_path / "t.csv"), "--json"]
+    own = _json(runner.invoke(app, [*args, "--train-query", str(query), "--train-map", str(ref)]))["warnings"]
+    assert [w for w in own if "tested on its own training pair" in w] == [
+        f"warning: {query}: --method trained is tested on its own training pair (--train-query, --train-map); "
+        "its confidences will look better than on another pair"]
+    other = _json(runner.invoke(app, [*args, "--train-query", str(ref), "--train-map", str(query)]))["warnings"]
+    assert not [w for w in other if w.startswith("warning:")]

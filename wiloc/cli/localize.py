@@ -8,7 +8,7 @@ from typing import Any, Optional
 import typer
 
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
-from wiloc.cli.core import fail, handles_errors, refuse_unused
+from wiloc.cli.core import Notes, fail, handles_errors, refuse_unused
 from wiloc.cli.localize_views import show_followed, show_runs
 from wiloc.cli.options import (CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption, ModelOption,
                                PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
@@ -125,6 +125,9 @@ def localize(
     clash = next((t for t in targets if targets.count(t) > 1), None)
     if clash is not None:
         fail(f"{clash}: two queries would write the same results file; give each its own --out", EXIT_USAGE)
+    cautions = Notes()
+    for line in _doubtful(queries, reference, training):
+        cautions.add("warning", line)
     store = Cache(cache)
     runs, repairs = [], []
     with progress_bar(not as_json) as progress:
@@ -140,4 +143,19 @@ def localize(
                                      cache=store, jobs=jobs, progress=progress, scheduler=scheduler,
                                      topic=topic, odometry_topic=odometry_topic))
             repairs.append(store.repairs[known:])
-    show_runs(runs, repairs, method, model_plot, as_json)
+    show_runs(runs, repairs, method, model_plot, as_json, cautions)
+
+
+def _same(a: Path | None, b: Path | None) -> bool:
+    return a is not None and b is not None and a.resolve() == b.resolve()
+
+
+def _doubtful(queries: list[Path], reference: Path | None, training: Any) -> list[str]:
+    """What makes a run measure better than it would on new data: a query that is the map itself
+    (each frame's best match is itself), a trained model tested on its own training pair."""
+    lines = [f"{q}: the query is the map itself, so each frame matches itself; for loop closure within one "
+             "traversal leave out --map (sequence mode)" for q in queries if _same(q, reference)]
+    if training is not None and _same(reference, training.reference):
+        lines += [f"{q}: --method trained is tested on its own training pair (--train-query, --train-map); its "
+                  "confidences will look better than on another pair" for q in queries if _same(q, training.query)]
+    return lines

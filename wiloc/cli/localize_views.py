@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import json
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -21,10 +22,11 @@ if TYPE_CHECKING:
 
 
 def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str, model_plot: Path | None,
-              as_json: bool) -> None:
+              as_json: bool, cautions: Sequence[str] = ()) -> None:
     """The runs of one `localize` as a table (or JSON), each with its cache repairs (``repairs``)
     and its notes, skipped frames and warnings, each said once; with ``model_plot``, the run's
-    learned histograms drawn there (the command line gives it one run then)."""
+    learned histograms drawn there (the command line gives it one run then); ``cautions``, the
+    warnings said before the runs, lead the --json warnings."""
     shown = set()
     rows, notes = [], []
     for label, run, repaired in zip(short_names([r.query for r in runs]), runs, repairs):
@@ -56,7 +58,7 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
             {**row, "descriptor": run.results.header.descriptor, "traversal": row["query"],
              "query": str(run.query.resolve()), "results": str(run.path.resolve()),
              "skipped": [list(item) for item in run.skipped]} for row, run in zip(rows, runs)],
-            [line for said in notes for line in said])
+            [*cautions, *(line for said in notes for line in said)])
         return
     for row in rows:
         row["decided"] = f"{row['decided']}/{row.pop('frames')}"
