@@ -71,6 +71,8 @@ USAGE = {
     "option without value": (["localize", "Q", "--out"], "--out: needs a value"),
     "flag with value": (["describe", "F", "--json=3"], "--json: takes no value"),
     "negative tolerance": (["evaluate", "R", "--tolerance", "-1"], "--tolerance: input should be greater"),
+    "negative training tolerance": (["localize", "Q", "--method", "trained", "--train-query", "T", "--train-map", "M",
+                                     "--train-gt", "aligned", "--train-tolerance", "-1"], "--train-tolerance: input should be greater"),
     "nothing to describe": (["describe"], "FOLDER...: give image folders"),
     "list with folders": (["describe", "--list", "F"], "--list: shows what the cache holds"),
     "list of one descriptor": (["describe", "--list", "--descriptor", "gist", "--json"],

@@ -40,7 +40,7 @@ def localize(
     train_map: Optional[Path] = typer.Option(None, help="trained: its reference traversal.", rich_help_panel="trained inputs"),
     train_gt: Optional[str] = typer.Option(None, help="trained: ground truth, as --gt of `wiloc evaluate`.", rich_help_panel="trained inputs"),
     train_gt_map: Optional[str] = typer.Option(None, help="trained: the training map's positions CSV (positions form).", rich_help_panel="trained inputs"),
-    train_tolerance: int = typer.Option(2, help="trained: +-frames for aligned ground truth.", rich_help_panel="trained inputs"),
+    train_tolerance: int = typer.Option(2, min=0, help="trained: +-frames for aligned ground truth.", rich_help_panel="trained inputs"),
     train_radius: Optional[float] = typer.Option(None, help="trained: metres, for positions ground truth.", rich_help_panel="trained inputs"),
     names: Optional[Path] = typer.Option(None, help="A .npy QUERY matrix: its frame names, one per line."),
     map_names: Optional[Path] = typer.Option(None, help="A .npy --map matrix: its frame names, one per line."),
