@@ -144,6 +144,17 @@ def test_a_lost_scheduler_ends_the_run_in_one_error() -> None:
             list(results)
 
 
+def test_a_run_whose_workers_all_left_ends_in_one_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(cluster_module, "WORKER_WAIT", 1)
+    monkeypatch.setattr(cluster_module, "POLL", 0.2)
+    with own_cluster(1) as local:
+        results = connect(local.scheduler_address).in_batches(lambda batch: time.sleep(0.2) or batch, list(range(64)))
+        assert next(results) in range(64)
+        local.scale(0)  # the only worker retires, and none comes back: Dask would wait for ever
+        with pytest.raises(WilocError, match=r"failed during the run \(no worker for 1 s\)"):
+            list(results)
+
+
 def test_a_task_that_kills_its_workers_is_one_error(scheduler: str) -> None:
     with pytest.raises(WilocError, match="a task's worker died each time it ran"):
         list(connect(scheduler).in_batches(lambda batch: os._exit(1), [1]))

@@ -12,6 +12,7 @@ from __future__ import annotations
 import atexit
 import logging
 import os
+import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import CancelledError
@@ -19,7 +20,7 @@ from contextlib import contextmanager
 from typing import TypeVar
 
 import numpy as np
-from distributed import Client, Future, KilledWorker, LocalCluster, as_completed
+from distributed import Client, Future, KilledWorker, LocalCluster, wait
 from distributed.comm.core import CommClosedError
 from numpy.typing import NDArray
 
@@ -30,8 +31,11 @@ LOCAL = "local"
 #: Items per batch task (frames, for describe): enough that a task's round trip costs little next
 #: to its work.
 BATCH = 16
-#: Seconds a scheduler may take to have its first worker: without one, tasks would wait forever.
+#: Seconds a scheduler may be without a worker, before a run and during one: without one, tasks
+#: would wait for ever.
 WORKER_WAIT = 30
+#: Seconds between looks at the scheduler's workers while waiting for a task.
+POLL = 2
 #: What a describe that lost its cluster, or a task that kept killing workers, leaves behind.
 RESUME = "the frames described so far are kept in the cache; run again to resume"
 T = TypeVar("T")
@@ -84,7 +88,7 @@ class Cluster:
         futures = [self.client.submit(work, batch, pure=False) for batch in batches]
         try:
             with self._failures(RESUME):
-                for future in as_completed(futures):
+                for future in self._finished(futures):
                     yield from future.result()
         finally:
             self._cancel(futures)
@@ -110,7 +114,7 @@ class Cluster:
                 while pending:
                     span, future = pending[0]
                     try:
-                        block = future.result()
+                        block = next(self._finished([future])).result()
                     except CancelledError as exc:  # lost dependencies: the references went with a worker
                         if _lost(exc):
                             raise
@@ -126,6 +130,21 @@ class Cluster:
         finally:
             self._cancel([f for _, f in pending] + [shared])
 
+    def _finished(self, futures: list[Future]) -> Iterator[Future]:
+        """``futures`` as they finish; a TimeoutError once the scheduler has had no worker for
+        WORKER_WAIT s (every worker gone mid-run, none restarted), where Dask waits for ever."""
+        pending, alone_since = set(futures), None
+        while pending:
+            try:
+                done, pending = wait(pending, timeout=POLL, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                if self.client.scheduler_info(n_workers=-1)["workers"]:
+                    alone_since = None
+                elif time.monotonic() - (alone_since := alone_since or time.monotonic()) > WORKER_WAIT:
+                    raise TimeoutError(f"no worker for {WORKER_WAIT} s") from None
+                continue
+            yield from done
+
     @contextmanager
     def _failures(self, then: str) -> Iterator[None]:
         """What Dask raises when the cluster fails under a run, as one WilocError naming the
@@ -138,7 +157,8 @@ class Cluster:
             raise WilocError(self.scheduler, "a task's worker died each time it ran (out of memory, or killed); "
                                              f"{then}") from None
         except (CancelledError, CommClosedError, TimeoutError) as exc:
-            detail = "no worker left" if type(exc) is TimeoutError else "the connection was lost"
+            lonely = type(exc) is TimeoutError and str(exc)  # no worker: Dask's words, or _finished's
+            detail = str(exc).splitlines()[0].lower() if lonely else "the connection was lost"
             logging.getLogger("distributed.client").setLevel(logging.CRITICAL)  # its reconnect attempts: said here
             raise WilocError(self.scheduler, f"the Dask cluster failed during the run ({detail}); {then}") from None
 
