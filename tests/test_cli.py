@@ -319,21 +319,6 @@ def test_figures_of_runs_of_one_file_name_in_two_folders_are_two_files(route: tu
     assert Path(files[0]).read_bytes() != Path(files[1]).read_bytes()
 
 
-def test_vocabulary_options_are_its_declared_parameters() -> None:
-    """`wiloc vocabulary`'s options come from VocabularyParams: each with its default and valid
-    range in the help, and a value out of range named by its flag."""
-    from wiloc.bow.vocabulary import VocabularyParams
-    from wiloc.parameters import declared
-
-    text = " ".join(runner.invoke(app, ["vocabulary", "--help"], env={"COLUMNS": "300"}).output.split())
-    for d in declared(VocabularyParams):
-        flag = "--" + d.name.replace("_", "-")
-        assert flag in text and f"[default: {d.default}]" in text[text.index(flag):], d.name
-    assert "(>= 2) [default: 1000]" in text and "(>= 16) [default: 640]" in text
-    result = runner.invoke(app, ["vocabulary", "F", "--max-side", "8"])
-    assert result.exit_code == 2 and result.stderr.strip() == "error: --max-side: must be >= 16, got 8"
-
-
 def test_a_run_that_measures_itself_is_warned_of(route: tuple[Path, Path], tmp_path: Path) -> None:
     """A query that is the map (loop closure meant, --map left in) and a trained model tested on its
     own training pair run, with one warning each, on stderr and in the --json warnings."""

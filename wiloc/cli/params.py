@@ -21,7 +21,6 @@ import typer
 from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 
-from wiloc.bow.vocabulary import VocabularyParams
 from wiloc.descriptors.learned import KEYS as PREPROCESSING
 from wiloc.descriptors.registry import DESCRIPTORS
 from wiloc.errors import UsageError
@@ -91,7 +90,7 @@ class DeclaredOption:
     def help(self) -> str:
         """The parameter's help, or each owner's (``online: ... fabmap: ...``) when they differ."""
         d = self.first
-        texts = {m: _sentence(_said_default(t.help)[0] if self.shared else t.help) for m, t in self.by_owner.items()}
+        texts = {m: _said_default(t.help)[0] if self.shared else t.help for m, t in self.by_owner.items()}
         same = len(set(texts.values())) == 1
         parts = [texts[next(iter(texts))] if same else " ".join(f"{m}: {text}" for m, text in texts.items())]
         if d.range_text:
@@ -117,11 +116,6 @@ def _number_text(value: float) -> str:
     return short if float(short) == value else repr(float(value))
 
 
-def _sentence(text: str) -> str:
-    """A parameter's help as a sentence, as every option's help reads: capital, full stop."""
-    return text[:1].upper() + text[1:].rstrip(".") + "." if text else text
-
-
 def _said_default(help: str) -> tuple[str, str | None]:
     """A parameter's help without its closing "; default: WHAT." and that WHAT (None when the
     help says no default), so the help page shows it where it shows every default."""
@@ -140,12 +134,6 @@ def descriptor_options() -> dict[str, DeclaredOption]:
     """Every declared parameter of every registered descriptor that one sets by a flag of its
     own (not :data:`OWN_FORMS`), once, in registry order."""
     return _options({name: [d for d in cls.options() if d.name not in OWN_FORMS] for name, cls in DESCRIPTORS.items()})
-
-
-@functools.cache
-def vocabulary_options() -> dict[str, DeclaredOption]:
-    """The declared parameters of a visual vocabulary (``wiloc vocabulary``)."""
-    return _options({"vocabulary": declared(VocabularyParams)})
 
 
 def _options(by_owner: Mapping[str, list[Declared]]) -> dict[str, DeclaredOption]:
@@ -172,13 +160,6 @@ def with_descriptor_options(command: Callable[..., Any]) -> Callable[..., Any]:
     collected into its ``descriptor_options`` argument as {name: value} for the options typed on
     the command line."""
     return _with_options(command, descriptor_options(), "descriptor_options")
-
-
-def with_vocabulary_options(command: Callable[..., Any]) -> Callable[..., Any]:
-    """``command`` with one keyword option per vocabulary parameter, collected into its ``params``
-    argument as {name: value} for the options typed on the command line (the rest keep the
-    defaults :class:`VocabularyParams` declares)."""
-    return _with_options(command, vocabulary_options(), "params")
 
 
 def _with_options(command: Callable[..., Any], options: dict[str, DeclaredOption],
