@@ -12,7 +12,7 @@ import pytest
 from helpers import ends_in_one_error
 from typer.testing import CliRunner
 
-from wiloc import api
+from wiloc import Localizer, api
 from wiloc.cache.store import Cache
 from wiloc.cli import app
 from wiloc.description.describing import describe_bag
@@ -262,6 +262,24 @@ def two_topics(tmp_path: Path) -> Path:
     writer.odometry("/odom", T0, 0.0, 0.0)
     writer.close()
     return tmp_path / "two.bag"
+
+
+def test_the_localizer_takes_a_map_bag_of_several_image_topics(tmp_path: Path, cache_dir: Path) -> None:
+    writer = BagWriter(tmp_path / "two.bag", "ros1")
+    left, right = scenes(6, seed=1), scenes(6, seed=2)
+    for stamp, a, b in zip(stamps(6), left, right):
+        writer.image("/left", stamp, a)
+        writer.image("/right", stamp, b)
+    writer.close()
+    with pytest.raises(WilocError, match="has 2 image topics, give one"):
+        Localizer(tmp_path / "two.bag", method="threshold", exclude_recent=0)
+    loc = Localizer(tmp_path / "two.bag", topic="/right", method="threshold", exclude_recent=0)
+    assert loc.observe(right[3]).match_name == frame_name(stamps(6)[3])
+    loc.save(tmp_path / "run.npz")
+    assert Localizer.load(tmp_path / "run.npz").observe(right[4]).match_name == frame_name(stamps(6)[4])
+    cv2.imwrite(str(tmp_path / "frame.png"), left[0])
+    with pytest.raises(WilocError, match="topic: applies to ROS bags only"):
+        Localizer(tmp_path, topic="/right", method="threshold")
 
 
 def test_a_missing_topic_lists_the_image_topics(tmp_path: Path, cache_dir: Path) -> None:

@@ -48,7 +48,8 @@ class Localizer:
     sequence mode (loop closure within the frames observed); anything else is a ParameterError naming
     ``map``. ``method`` names a registered method and
     ``params`` its parameters; ``training`` is the labelled pair of ``trained`` (traversals, or
-    their difference rows and truth as ``TrainingRows``); ``sampling`` the frames of a map video; ``map_odometry``
+    their difference rows and truth as ``TrainingRows``); ``sampling`` the frames of a map video; ``topic`` the
+    image topic of a map ROS bag (needed when it has several); ``map_odometry``
     the map's odometry CSV for methods that take odometry.
 
         loc = Localizer(map="day_right/", descriptor="sad", method="catgraph", seed=0)
@@ -60,13 +61,13 @@ class Localizer:
                  descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
                  method: str = "online", exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
                  training: Training | TrainingRows | None = None, map_odometry: str | Path | None = None,
-                 map_names: str | Path | None = None, sampling: Sampling | None = None, cache: Cache | str | os.PathLike | None = None,
-                 jobs: int | None = None, **params: Any) -> None:
+                 map_names: str | Path | None = None, sampling: Sampling | None = None, topic: str | None = None,
+                 cache: Cache | str | os.PathLike | None = None, jobs: int | None = None, **params: Any) -> None:
         self._setup(RunSession(_map(map), method=method, method_params=params, descriptor=descriptor,
                                descriptor_params=descriptor_params, metric=metric, exclude_recent=exclude_recent,
                                training=training, map_odometry=None if map_odometry is None else Path(map_odometry),
                                map_names=None if map_names is None else Path(map_names), sampling=sampling,
-                               cache=cache, jobs=jobs))
+                               topic=topic, cache=cache, jobs=jobs))
         self.method.start(self._session.context())
 
     def _setup(self, session: RunSession) -> None:
@@ -197,7 +198,7 @@ class Localizer:
                 "descriptor": describer.descriptor, "descriptor_params": dict(describer.params),
                 "metric": describer.metric, "method": self.method.name,
                 "sampling": None if describer.sampling is None else asdict(describer.sampling),
-                "params": self.method.params.as_dict(), "exclude_recent": self.exclude_recent,
+                "topic": describer.topic, "params": self.method.params.as_dict(), "exclude_recent": self.exclude_recent,
                 "names": list(self.names), "seen": session.seen,
                 "method_state": self.method.state()}
 
@@ -253,7 +254,7 @@ class Localizer:
                              map_odometry=None if meta["map_odometry"] is None else Path(meta["map_odometry"]),
                              map_names=None if map_names is None else Path(map_names),
                              sampling=None if meta["sampling"] is None else Sampling(**meta["sampling"]),
-                             cache=cache, jobs=jobs, restoring=True)
+                             topic=meta.get("topic"), cache=cache, jobs=jobs, restoring=True)
         if session.map is not None and session.map.digest != meta["map_digest"]:
             raise WilocError(session.map.folder, f"the map changed since {source} was saved")
         loc = cls.__new__(cls)

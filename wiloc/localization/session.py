@@ -88,8 +88,8 @@ class RunSession:
                                      map_odometry=map_odometry is not None or self._map_bag)
         if query is not None:  # a batch run's sources: its query, map and training pair
             check_sampling([Path(source) for source in (query, map) if source is not None], sampling)
-            pair = (training.query, training.reference) if isinstance(training, Training) else ()
-            check_topic([Path(source) for source in (query, map, *pair) if source is not None], topic)
+        pair = (training.query, training.reference) if isinstance(training, Training) else ()
+        check_topic([Path(s) for s in (query, map, *pair) if s is not None and not isinstance(s, Entry)], topic)
         self.describer = Describer(descriptor, dict(descriptor_params or {}), Cache.given(cache), metric=metric,
                                    jobs=jobs, progress=progress, sampling=sampling,
                                    cluster=open_cluster(scheduler, jobs), topic=topic)
