@@ -282,6 +282,15 @@ def test_the_localizer_takes_a_map_bag_of_several_image_topics(tmp_path: Path, c
         Localizer(tmp_path, topic="/right", method="threshold")
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_topic_without_messages_is_said_so(kind: str, tmp_path: Path, cache_dir: Path) -> None:
+    path = tmp_path / ("empty.bag" if kind == "ros1" else "empty")
+    writer = BagWriter(path, kind)
+    writer.writer.add_connection("/cam", IMAGE, typestore=writer.store)  # a recorded topic that got no message
+    writer.close()
+    ends_in_one_error(runner.invoke(app, ["describe", str(path)]), 1, f"{path}: topic /cam holds no image message")
+
+
 def test_a_missing_topic_lists_the_image_topics(tmp_path: Path, cache_dir: Path) -> None:
     bag = two_topics(tmp_path)
     ends_in_one_error(runner.invoke(app, ["describe", str(bag), "--topic", "/camera"]), 1,

@@ -294,7 +294,8 @@ def describe_bag(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampl
         stored, entry, computed, repairs = _describe_stream(
             cache, _header(path, spec, params), sampling.estimate(bag.count, bag.rate),
             lambda skip: describe_frames(spec, bag_print, bag.frames(sampling, spec.min_size, skip=skip)),
-            WilocError(path, f"the cut ({sampling.cut}) holds no image of topic {bag.topic} (it has {bag.count})"), progress)
+            WilocError(path, f"topic {bag.topic} holds no image message" if bag.count == 0 else
+                       f"the cut ({sampling.cut}) holds no image of topic {bag.topic} (it has {bag.count})"), progress)
     report = _report(stored, entry, computed, start, repairs=repairs)
     return replace(report, notes=[bag.note] if bag.note else [])
 
