@@ -2,6 +2,7 @@
 format is refused before drawing."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import BinaryIO
 
@@ -72,6 +73,17 @@ def _colour_columns(image: np.ndarray, colour: str) -> np.ndarray:
     plot_area = image[: int(0.7 * image.shape[0]), :, :3]
     near = np.all(np.abs(plot_area - matplotlib.colors.to_rgb(colour)) < 0.06, axis=-1)
     return np.flatnonzero(near.any(axis=0))
+
+
+@pytest.mark.parametrize("suffix", ["eps", "ps"])
+def test_a_postscript_figure_prints_no_line_of_matplotlib(tmp_path: Path, run: tuple[np.ndarray, np.ndarray],
+                                                          suffix: str, caplog: pytest.LogCaptureFixture) -> None:
+    """PostScript has no transparency: matplotlib's line saying so went to stderr, in no form of
+    wiloc's and missing from --json's warnings."""
+    confidence, correct = run
+    with caplog.at_level(logging.WARNING):
+        path = plot_pr({"online day_left": pr_curve(confidence, correct, 200)}, tmp_path / f"pr.{suffix}")
+    assert path.read_bytes()[:4] == b"%!PS" and not caplog.records
 
 
 def test_plot_model_overlays_both_histograms_on_one_axis(tmp_path: Path) -> None:

@@ -13,9 +13,11 @@ no global figure state is kept and nothing is shown; the format follows the file
 from __future__ import annotations
 
 import io
+import logging
 import math
 import textwrap
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -64,11 +66,25 @@ def _save(fig: Figure, path: str | Path) -> Path:
     out = Path(path)
     check_plot_path(out)
     try:
-        with written_whole(out, "the figure", binary=True) as file:
+        with written_whole(out, "the figure", binary=True) as file, _postscript_quiet():
             fig.savefig(file, format=out.suffix.lower().lstrip("."), dpi=120)
     except RuntimeError as exc:  # a format whose tool is missing (pgf: TeX)
         raise WilocError(out, f"cannot write the figure ({exc})") from None
     return out
+
+
+@contextmanager
+def _postscript_quiet() -> Iterator[None]:
+    """PostScript (.ps, .eps) has no transparency: matplotlib draws the translucent parts (legend
+    frames, shaded bands) opaque and says so in a log line of its own on stderr, which is no
+    output of wiloc's (nor one of its warnings)."""
+    log = logging.getLogger("matplotlib.backends.backend_ps")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
 
 
 def figure_bytes(fig: Figure, format: str = "png", dpi: int = 100) -> bytes:
