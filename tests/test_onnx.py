@@ -20,7 +20,7 @@ from onnx import TensorProto, helper, numpy_helper  # noqa: E402
 from wiloc import Localizer  # noqa: E402
 from wiloc.cache.store import Cache  # noqa: E402
 from wiloc.cli import app  # noqa: E402
-from wiloc.description.describing import describe_folder, describe_video  # noqa: E402
+from wiloc.description.describing import describe_bag, describe_folder, describe_video  # noqa: E402
 from wiloc.descriptors.registry import get_descriptor  # noqa: E402
 
 runner = CliRunner()
@@ -225,6 +225,27 @@ def slow(self, images, threads=0):
 DescriptorSpec.compute_batch = slow
 wiloc.description.describing.describe_folder(Path(sys.argv[1]), get_descriptor("onnx", model=sys.argv[3]), Cache(Path(sys.argv[2])))
 """
+
+
+def test_bag_images_are_described_in_colour_as_the_folder_s(tmp_path: Path, cache_dir: Path) -> None:
+    pytest.importorskip("rosbags")
+    from test_rosbags import BagWriter, stamps
+    model = tmp_path / "m.onnx"
+    conv_model(model)
+    images = colour_images(tmp_path / "route", 5)
+    writer = BagWriter(tmp_path / "run.bag", "ros1")
+    for stamp, image in zip(stamps(5), images):
+        writer.image("/raw", stamp, image[:, :, ::-1], "rgb8")
+        writer.compressed("/png", stamp, cv2.imencode(".png", image)[1].tobytes(), "png")
+    writer.close()
+    spec = get_descriptor("onnx", model=model)
+    folder = describe_folder(tmp_path / "route", spec, Cache(cache_dir)).entry.data
+    for topic in ("/raw", "/png"):
+        [report] = _ok(runner.invoke(app, ["describe", str(tmp_path / "run.bag"), "--topic", topic, "--descriptor",
+                                           "onnx", "--model", str(model), "--json"]))["results"]
+        assert report["computed"] == 5 and report["failed"] == 0
+        bag = describe_bag(tmp_path / "run.bag", spec, Cache(cache_dir), topic=topic)
+        np.testing.assert_array_equal(bag.entry.data, folder)
 
 
 def test_killed_describe_resumes(tmp_path: Path) -> None:

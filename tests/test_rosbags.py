@@ -191,6 +191,35 @@ def test_raw_encodings_are_read_as_grayscale(encoding: str, tmp_path: Path) -> N
     np.testing.assert_array_equal(frames[0].gray, gray)
 
 
+@pytest.mark.parametrize("kind", ["bgr8", "rgb8", "bgra16", "mono8", "png", "bayer_rggb8"])
+def test_frames_in_colour_are_bgr_as_a_file_decodes(kind: str, tmp_path: Path) -> None:
+    """For a network (a colour descriptor): each encoding's pixels as 8-bit BGR, as OpenCV decodes
+    an image file of the same picture."""
+    rng = np.random.default_rng(3)
+    bgr = cv2.GaussianBlur(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8), (9, 9), 0)
+    writer = BagWriter(tmp_path / "run.bag", "ros1")
+    if kind == "png":
+        writer.compressed("/cam", T0, cv2.imencode(".png", bgr)[1].tobytes(), "png")
+        expected = bgr
+    elif kind == "mono8":
+        gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+        writer.image("/cam", T0, gray, kind)
+        expected = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+    elif kind == "bayer_rggb8":
+        writer.image("/cam", T0, mosaic(bgr, "rggb"), kind)
+        expected = cv2.cvtColor(mosaic(bgr, "rggb"), cv2.COLOR_BayerBG2BGR)
+    else:
+        pixels = {"bgr8": bgr, "rgb8": bgr[:, :, ::-1], "bgra16": cv2.cvtColor(bgr, cv2.COLOR_BGR2BGRA).astype(np.uint16) * 257}
+        writer.image("/cam", T0, pixels[kind], kind)
+        expected = bgr
+    writer.close()
+    with Bag(tmp_path / "run.bag") as bag:
+        bag.choose("/cam")
+        [frame] = list(bag.frames(api.Sampling(), colour=True))
+    assert frame.gray.dtype == np.uint8 and frame.gray.shape == (48, 64, 3)
+    np.testing.assert_array_equal(frame.gray, expected)
+
+
 def mosaic(bgr: np.ndarray, pattern: str) -> np.ndarray:
     """A colour image as a camera's Bayer sensor sees it: `pattern` names the colours of each 2 x 2
     cell's pixels, row by row ('rggb': red top left, blue bottom right)."""

@@ -284,16 +284,14 @@ def describe_bag(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampl
     start = time.perf_counter()
     sampling = sampling or Sampling()
     path = Path(path)
-    if spec.colour:
-        raise WilocError(path, f"'{spec.name}' descriptors take colour images, and a bag's images are read as gray "
-                               "here: describe a folder or video of them instead")
     with opencv_quiet(), Bag(path) as bag:
         bag.choose(topic)
         bag_print = bag_fingerprint(path)
         params = {**spec.params, "bag": bag_print.digest, "topic": bag.topic, "sampling": asdict(sampling)}
         stored, entry, computed, repairs = _describe_stream(
             cache, _header(path, spec, params), sampling.estimate(bag.count, bag.rate),
-            lambda skip: describe_frames(spec, bag_print, bag.frames(sampling, spec.min_size, skip=skip)),
+            lambda skip: describe_frames(spec, bag_print, bag.frames(sampling, spec.min_size, skip=skip,
+                                                                       colour=spec.colour)),
             WilocError(path, f"topic {bag.topic} holds no image message" if bag.count == 0 else
                        f"the cut ({sampling.cut}) holds no image of topic {bag.topic} (it has {bag.count})"), progress)
     report = _report(stored, entry, computed, start, repairs=repairs)

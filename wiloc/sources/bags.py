@@ -21,26 +21,31 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import FrameError, UsageError, WilocError
-from wiloc.sources.frames import Fingerprint, decode_gray, to_uint8
+from wiloc.sources.frames import Fingerprint, decode_colour, decode_gray, to_uint8
 from wiloc.sources.video import Sampling, video_fingerprint
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 ODOMETRY = "nav_msgs/msg/Odometry"
-#: Raw image conversions to grayscale by the colour part of an encoding's name: channels and
-#: OpenCV's code. A Bayer mosaic is demosaiced as cv_bridge does (ROS's ``bayer_rggb`` is
-#: OpenCV's ``BayerBG``: OpenCV names the pattern by the second row's second and third pixels).
-_COLOURS: dict[str, tuple[int, int | None]] = {
-    "mono": (1, None), "rgb": (3, cv2.COLOR_RGB2GRAY), "bgr": (3, cv2.COLOR_BGR2GRAY),
-    "rgba": (4, cv2.COLOR_RGBA2GRAY), "bgra": (4, cv2.COLOR_BGRA2GRAY),
-    "bayer_rggb": (1, cv2.COLOR_BayerBG2GRAY), "bayer_bggr": (1, cv2.COLOR_BayerRG2GRAY),
-    "bayer_gbrg": (1, cv2.COLOR_BayerGR2GRAY), "bayer_grbg": (1, cv2.COLOR_BayerGB2GRAY),
+#: Raw image conversions by the colour part of an encoding's name: channels, and OpenCV's codes
+#: to grayscale and to BGR (None: none needed). A Bayer mosaic is demosaiced as cv_bridge does
+#: (ROS's ``bayer_rggb`` is OpenCV's ``BayerBG``: OpenCV names the pattern by the second row's
+#: second and third pixels).
+_COLOURS: dict[str, tuple[int, int | None, int | None]] = {
+    "mono": (1, None, cv2.COLOR_GRAY2BGR), "rgb": (3, cv2.COLOR_RGB2GRAY, cv2.COLOR_RGB2BGR),
+    "bgr": (3, cv2.COLOR_BGR2GRAY, None), "rgba": (4, cv2.COLOR_RGBA2GRAY, cv2.COLOR_RGBA2BGR),
+    "bgra": (4, cv2.COLOR_BGRA2GRAY, cv2.COLOR_BGRA2BGR),
+    "bayer_rggb": (1, cv2.COLOR_BayerBG2GRAY, cv2.COLOR_BayerBG2BGR),
+    "bayer_bggr": (1, cv2.COLOR_BayerRG2GRAY, cv2.COLOR_BayerRG2BGR),
+    "bayer_gbrg": (1, cv2.COLOR_BayerGR2GRAY, cv2.COLOR_BayerGR2BGR),
+    "bayer_grbg": (1, cv2.COLOR_BayerGB2GRAY, cv2.COLOR_BayerGB2BGR),
 }
 #: Raw image encodings read (sensor_msgs' names, 8 and 16 bits of each): channels, sample type
-#: and the conversion to grayscale; 16-bit samples are converted, then scaled by 255/65535.
-ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
-    f"{colour}{bits}": (channels, np.dtype(np.uint8 if bits == 8 else np.uint16), code)
-    for colour, (channels, code) in _COLOURS.items() for bits in (8, 16)
+#: and the conversions to grayscale and to BGR; 16-bit samples are converted, then scaled by
+#: 255/65535.
+ENCODINGS: dict[str, tuple[int, np.dtype, int | None, int | None]] = {
+    f"{colour}{bits}": (channels, np.dtype(np.uint8 if bits == 8 else np.uint16), gray, bgr)
+    for colour, (channels, gray, bgr) in _COLOURS.items() for bits in (8, 16)
 }
 INSTALL = 'reading ROS bags needs the rosbags package: pip install "wiloc[rosbags]"'
 #: File name endings of bags: ROS 1, and the ROS 2 storage files rosbags reads on their own.
@@ -87,8 +92,9 @@ def bag_fingerprint(path: Path) -> Fingerprint:
 
 @dataclass(frozen=True)
 class BagFrame:
-    """One picked frame: its name, stamp (ms since the epoch) and grayscale pixels, or, when its
-    image cannot be decoded, no pixels and the `problem`."""
+    """One picked frame: its name, stamp (ms since the epoch) and grayscale pixels (BGR ones when
+    the frames were asked for in colour), or, when its image cannot be decoded, no pixels and
+    the `problem`."""
 
     name: str
     timestamp_ms: float
@@ -191,11 +197,12 @@ class Bag:
                 yield (stamp_ns if stamp_ns > 0 else logged), message
 
     def frames(self, sampling: Sampling, min_size: tuple[int, int] | None = None,
-               skip: Container[str] = frozenset()) -> Iterator[BagFrame]:
+               skip: Container[str] = frozenset(), colour: bool = False) -> Iterator[BagFrame]:
         """The frames `sampling` picks (start and stop by message index on the topic, or by
-        seconds after the first message's stamp), decoded to grayscale, in order; names in `skip`
-        are passed over undecoded. A compressed JPEG is decoded as a folder's would be
-        (``min_size``: the reduced decode the descriptor allows)."""
+        seconds after the first message's stamp), decoded to grayscale (to 8-bit BGR with
+        `colour`, for a network), in order; names in `skip` are passed over undecoded. A
+        compressed JPEG is decoded as a folder's would be (``min_size``: the reduced decode the
+        descriptor allows)."""
         current: list[tuple[str, int, Any]] = []
 
         def stream() -> Iterator[tuple[int, float]]:
@@ -212,23 +219,26 @@ class Bag:
                 continue
             where = f"{self.path}/{name}"
             try:
-                gray = self._gray(message, where, min_size)
+                gray = self._pixels(message, where, min_size, colour)
             except FrameError as exc:
                 yield BagFrame(name, stamp_ns / 1e6, None, exc.problem)
                 continue
             yield BagFrame(name, stamp_ns / 1e6, gray)
 
-    def _gray(self, message: Any, where: str, min_size: tuple[int, int] | None) -> NDArray[np.uint8]:
-        """A message's image as 8-bit grayscale: a compressed one decoded with OpenCV, a raw one
-        converted from its encoding (another encoding stops the run: every frame would fail)."""
+    def _pixels(self, message: Any, where: str, min_size: tuple[int, int] | None,
+                colour: bool) -> NDArray[np.uint8]:
+        """A message's image as 8-bit grayscale (BGR with `colour`): a compressed one decoded
+        with OpenCV as an image file is, a raw one converted from its encoding (another encoding
+        stops the run: every frame would fail)."""
         data = np.asarray(message.data, dtype=np.uint8)
         if self.topics[self.topic] == COMPRESSED:
-            return decode_gray(data, where, min_size)
+            return decode_colour(data, where) if colour else decode_gray(data, where, min_size)
         encoding = message.encoding.lower()
         if encoding not in ENCODINGS:
             raise WilocError(self.path, f"topic {self.topic}: image encoding '{message.encoding}' is not "
                                         f"supported (supported: {', '.join(ENCODINGS)})")
-        channels, dtype, conversion = ENCODINGS[encoding]
+        channels, dtype, to_gray, to_bgr = ENCODINGS[encoding]
+        conversion = to_bgr if colour else to_gray
         height, width, step = int(message.height), int(message.width), int(message.step)
         row = width * channels * dtype.itemsize
         if height == 0 or width == 0 or step < row or data.size < height * step:
@@ -238,8 +248,8 @@ class Bag:
         order = ">" if message.is_bigendian else "<"
         pixels = np.ascontiguousarray(rows).view(dtype.newbyteorder(order)).reshape(height, width, channels)
         pixels = pixels.astype(dtype, copy=False)  # native byte order
-        gray = pixels[:, :, 0] if conversion is None else cv2.cvtColor(pixels, conversion)
-        return to_uint8(gray, where)
+        image = (pixels if colour else pixels[:, :, 0]) if conversion is None else cv2.cvtColor(pixels, conversion)
+        return to_uint8(image, where)
 
     def arclength(self, topic: str, names: list[str]) -> NDArray[np.float64]:
         """The distance travelled along `topic`'s ``nav_msgs/msg/Odometry`` positions (x, y, z)

@@ -320,7 +320,13 @@ def read_colour(path: Path) -> NDArray[np.uint8]:
     repeated over three channels, alpha dropped, 16-bit samples scaled as :func:`to_uint8` does.
     For descriptors that take colour (learned networks); the same FrameErrors as :func:`read_gray`."""
     path = Path(path)
-    image = decode(_checked(_file_bytes(path), path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH, path)
+    return decode_colour(_file_bytes(path), path)
+
+
+def decode_colour(data: NDArray[np.uint8], path: Path | str) -> NDArray[np.uint8]:
+    """:func:`read_colour` of an encoded image already in memory (a ROS bag's compressed frame);
+    ``path`` names the image in errors."""
+    image = decode(_checked(data, path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH, path)
     if image is None or image.size == 0:
         raise FrameError(path, "cannot decode image data")
     if image.ndim != 3 or image.shape[2] != 3:
