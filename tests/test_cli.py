@@ -335,3 +335,15 @@ def test_a_run_that_measures_itself_is_warned_of(route: tuple[Path, Path], tmp_p
         "its confidences will look better than on another pair"]
     other = _json(runner.invoke(app, [*args, "--train-query", str(ref), "--train-map", str(query)]))["warnings"]
     assert not [w for w in other if w.startswith("warning:")]
+
+
+def test_describe_list_of_a_cache_folder_that_is_not_there_says_so(tmp_path: Path) -> None:
+    """A misspelt --cache listed as an empty cache looked like a cache emptied: a note names it (and
+    nothing is made there); a file there is an error."""
+    missing = tmp_path / "cahce"
+    result = runner.invoke(app, ["describe", "--list", "--cache", str(missing), "--json"])
+    assert _json(result)["warnings"] == [f"note: {missing}: no such cache folder; nothing has been described into it"]
+    assert not missing.exists()
+    (tmp_path / "file").write_text("")
+    result = runner.invoke(app, ["describe", "--list", "--cache", str(tmp_path / "file")])
+    assert result.exit_code == 1 and result.stderr.strip() == f"error: {tmp_path / 'file'}: is a file, not a cache folder"
