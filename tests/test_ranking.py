@@ -108,6 +108,16 @@ def test_recall_at_1_from_the_ranking_is_the_r_at_1_of_the_matches() -> None:
     assert "recall_at_5" not in without.as_dict() and "recall_at_10" not in without.as_dict()
 
 
+def test_rankings_shorter_than_an_older_files_ten_tell_every_recall_at_n() -> None:
+    """Rankings that all stop short (catgraph's nodes holding weight, a small map) hold every
+    candidate: Recall@10 and @20 are told, equal to the recall over the whole ranking, where they
+    were left out of the tables and the JSON without a word."""
+    truth, ranking = _truth(), _ranking()[:, :4]
+    summary = summarize(ranking[:, 0], np.full(len(QUERY), 0.5), truth, ranking, (1, 5, 10, 20))
+    assert summary.recall_at_n == {n: recall_at_k(ranking, truth, 4) for n in (5, 10, 20)}
+    assert summary.recall_at_n[20] == 2 / 4
+
+
 def _decisions() -> Decisions:
     ranking = _ranking()
     ranking[4] = -1  # new.png undecided

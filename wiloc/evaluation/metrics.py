@@ -27,6 +27,11 @@ RANKED_KS = (1, 5, 10)
 """The N of Recall@N reported by default (``--recall-at``) for runs whose results rank the map
 (docs/evaluation.md); R@1 is reported for every run, from its decided match."""
 
+OLDER_RANKED = 10
+"""Candidates per frame in the rankings of older results files (today's keep
+``wiloc.candidates.RANKED``): a file whose longest ranking holds exactly this many tells no
+Recall@N beyond it."""
+
 PRECISION_RTOL = 1e-9
 """Relative slack when testing precision >= target: a target given in percent is rounded
 (99.9 / 100 > 0.999), yet 999 of 1000 meets it; 100 % stays exact below 10**9 accepted frames."""
@@ -132,6 +137,15 @@ def recall_at_1(correct: ArrayLike, has_match: ArrayLike) -> float:
     return float(ok[positive].mean()) if positive.any() else 0.0
 
 
+def ranking_tells(ranking: ArrayLike, n: int) -> bool:
+    """Whether rankings (frames x ranks, -1 padding) tell Recall@``n``: a ranking shorter than the
+    writer's K holds every candidate (the map is smaller, or catgraph's nodes holding weight are
+    fewer), so N beyond the longest is told too, unless that longest is an older file's K of
+    ``OLDER_RANKED``, which may have cut candidates off."""
+    longest = np.asarray(ranking).shape[1]
+    return n <= longest or longest != OLDER_RANKED
+
+
 def recall_at_k(ranking: ArrayLike, truth: Truth, k: int) -> float:
     """Recall@K as place recognition reports it: the share of frames with a true match that have
     one among their ``k`` best-ranked candidates (``ranking``: frames x ranks, best first, -1
@@ -218,8 +232,8 @@ def summarize(match: ArrayLike, confidence: ArrayLike, truth: Truth, ranking: Ar
               recall_at: Sequence[int] = RANKED_KS) -> Summary:
     """All reported metrics of one run: recall at 100/99/90 % precision, AUC, max F1, R@1, counts,
     and with each frame's ``ranking`` (best candidates first) Recall@N for each N > 1 of
-    ``recall_at`` that the ranking is long enough to tell (a results file keeps
-    ``wiloc.candidates.RANKED`` candidates per frame; older files 10).
+    ``recall_at`` that the ranking tells (:func:`ranking_tells`: a results file keeps
+    ``wiloc.candidates.RANKED`` candidates per frame, or every one where fewer; older files 10).
 
     ``match`` and ``confidence`` are per query frame in the order of ``truth.query_names``; a
     frame is decided when its match is >= 0 and its confidence is not NaN.
@@ -237,4 +251,4 @@ def summarize(match: ArrayLike, confidence: ArrayLike, truth: Truth, ranking: Ar
                    max_f1_threshold=f1_threshold, recall_at_1=recall_at_1(correct, has_match),
                    curve=curve, recall_at_n={} if ranking is None else {
                        n: recall_at_k(ranking, truth, n) for n in sorted(set(recall_at))
-                       if 1 < n <= np.asarray(ranking).shape[1]})
+                       if n > 1 and ranking_tells(ranking, n)})
