@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -123,19 +124,30 @@ def _halves(gray: np.ndarray, side: int = 2) -> np.ndarray:
     return cv2.resize(gray, (side, side), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()
 
 
-def test_a_loaded_plugin_joins_the_one_registry(monkeypatch: pytest.MonkeyPatch) -> None:
-    """In process: a plugin's entry point becomes a registered class like the built-in ones."""
+def _installed(monkeypatch: pytest.MonkeyPatch, name: str, value: str, compute: Callable[..., np.ndarray]) -> type:
+    """A plugin of 4 values per image (``compute``, metric l1) installed in process as the entry
+    point ``value`` named ``name``, the registry's plugins read again; returns the entry point's class
+    (the caller clears ``registry._plugins`` when done)."""
     from wiloc.descriptors import DescriptorPlugin, registry
 
     class Point:
-        name, value, dist = "halves", "halves_module:HALVES", None
+        dist = None
 
         def load(self) -> DescriptorPlugin:
-            return DescriptorPlugin(compute=_halves, metric="l1", length=4, params={"side": 2})
+            return DescriptorPlugin(compute=compute, metric="l1", length=4, params={"side": 2})
 
+    Point.name, Point.value = name, value
     monkeypatch.setattr(registry, "entry_points", lambda group: [Point()])
     monkeypatch.setattr(registry, "DESCRIPTORS", dict(registry.DESCRIPTORS))
     registry._plugins.cache_clear()
+    return Point
+
+
+def test_a_loaded_plugin_joins_the_one_registry(monkeypatch: pytest.MonkeyPatch) -> None:
+    """In process: a plugin's entry point becomes a registered class like the built-in ones."""
+    from wiloc.descriptors import registry
+
+    Point = _installed(monkeypatch, "halves", "halves_module:HALVES", _halves)
     try:
         spec = registry.get_descriptor("halves")
         cls = registry.DESCRIPTORS["halves"]
@@ -165,19 +177,11 @@ def test_a_plugin_computing_other_rows_than_it_declares_is_named(compute, proble
     NaN rows were cached and compared: either is one error naming the plugin, from describe and
     from the localizer, and no entry is cached."""
     from wiloc import api
-    from wiloc.descriptors import DescriptorPlugin, registry
+    from wiloc.descriptors import registry
     from wiloc.errors import WilocError
     from wiloc.localization.localizer import Localizer
 
-    class Point:
-        name, value, dist = "odd", "odd_module:ODD", None
-
-        def load(self) -> DescriptorPlugin:
-            return DescriptorPlugin(compute=compute, metric="l1", length=4, params={"side": 2})
-
-    monkeypatch.setattr(registry, "entry_points", lambda group: [Point()])
-    monkeypatch.setattr(registry, "DESCRIPTORS", dict(registry.DESCRIPTORS))
-    registry._plugins.cache_clear()
+    Point = _installed(monkeypatch, "odd", "odd_module:ODD", compute)
     route = tmp_path / "route"
     route.mkdir()
     for i in range(3):
