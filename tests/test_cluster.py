@@ -9,26 +9,20 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
-from helpers import ends_in_one_error
-from typer.testing import CliRunner
 
 pytest.importorskip("distributed")
 from distributed import LocalCluster  # noqa: E402
 
 from wiloc import api  # noqa: E402
 from wiloc.cache.store import Cache  # noqa: E402
-from wiloc.cli import app  # noqa: E402
-from wiloc.description import cluster as cluster_module  # noqa: E402
 from wiloc.description.cluster import connect, disconnect  # noqa: E402
 from wiloc.description.differences import ComputedDifferences  # noqa: E402
 from wiloc.description.distances import DifferencesTo  # noqa: E402
-from wiloc.errors import WilocError  # noqa: E402
 
 TRAVERSALS = ("day_right", "day_left", "night_right")
 VOLATILE = {"created", "updated"}  # times of writing: the only attributes allowed to differ
@@ -109,62 +103,63 @@ def test_an_unreachable_scheduler_is_one_error_line(tmp_path: Path) -> None:
     assert run.stderr.count("error:") == 1 and "tcp://127.0.0.1:9: cannot reach the Dask scheduler" in run.stderr
 
 
-@contextmanager
-def own_cluster(workers: int) -> Iterator[LocalCluster]:
-    """A local cluster of its own (to close or starve), the environment put back after it."""
-    environ = dict(os.environ)
-    try:
-        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as local:
-            yield local
-            disconnect(local.scheduler_address)
-    finally:
-        os.environ.clear()
-        os.environ.update(environ)
-
-
 @pytest.mark.parametrize("address", ["http://127.0.0.1:8787", "127.0.0.1"])
 def test_a_malformed_scheduler_address_is_a_usage_error(address: str, tmp_path: Path) -> None:
-    result = CliRunner().invoke(app, ["describe", str(tmp_path), "--scheduler", address])
-    ends_in_one_error(result, 2, "--scheduler:", "is no Dask scheduler address", "tcp://HOST:8786")
+    """In a process of its own: a client that failed to start leaves Dask's shared event loop
+    unusable for the other tests' clients."""
+    code = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
+    env = {**os.environ, "WILOC_CACHE": str(tmp_path / "cache")}
+    run = subprocess.run([sys.executable, "-c", code, "describe", str(tmp_path), "--scheduler", address],
+                         capture_output=True, text=True, timeout=120, env=env)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert lines[0].startswith("error: --scheduler:") and "is no Dask scheduler address" in lines[0] \
+        and "tcp://HOST:8786" in lines[0], lines
 
 
-def test_a_scheduler_without_workers_is_one_error_not_a_wait(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(cluster_module, "WORKER_WAIT", 1)
-    with own_cluster(0) as local, pytest.raises(WilocError, match="no worker joined the Dask scheduler in 1 s"):
-        connect(local.scheduler_address)
-
-
-def failure_in_a_process(body: str) -> str:
-    """The WilocError line of `body` (code run on `local`, a 1-worker local cluster, and
-    `results`, describe-like batches running on it) in a process of its own: a cluster lost
-    under a client leaves Dask's shared event loop unusable for the other tests' clients."""
+def error_in_a_process(workers: int, work: str, then: str = "", wait: float = 1) -> str:
+    """The WilocError line of a describe-like run of ``work`` over batches on a local cluster of
+    ``workers`` workers (``local``), with ``then`` done once its first result is in and the run
+    ending when no worker is there for ``wait`` seconds, run in a
+    process of its own: a cluster lost or starved under a client leaves Dask's shared event loop
+    unusable for the other tests' clients."""
     code = "\n".join([
-        "import time", "from distributed import LocalCluster", "from wiloc.description import cluster",
-        "from wiloc.errors import WilocError", "cluster.WORKER_WAIT, cluster.POLL = 1, 0.2",
-        "local = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=':0')",
-        "results = cluster.connect(local.scheduler_address).in_batches(lambda b: time.sleep(0.2) or b, list(range(64)))",
-        "assert next(results) in range(64)", body,
-        "try:", "    list(results)", "except WilocError as exc:", "    print(exc)"])
-    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+        "import os, time", "from distributed import LocalCluster", "from wiloc.description import cluster",
+        "from wiloc.errors import WilocError", f"cluster.WORKER_WAIT, cluster.POLL = {wait}, 0.2",
+        f"local = LocalCluster(n_workers={workers}, threads_per_worker=1, processes=True, dashboard_address=':0')",
+        "try:",
+        f"    results = cluster.connect(local.scheduler_address).in_batches({work}, list(range(64)))",
+        *(["    assert next(results) in range(64)", f"    {then}"] if then else []),
+        "    list(results)",
+        "except WilocError as exc:", "    print(exc)"])
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=180)
     assert run.returncode == 0, run.stderr
     return run.stdout.strip()
 
 
+SLOW_BATCH = "lambda b: time.sleep(0.2) or b"
+
+
+def test_a_scheduler_without_workers_is_one_error_not_a_wait() -> None:
+    line = error_in_a_process(0, SLOW_BATCH)
+    assert line.endswith(": no worker joined the Dask scheduler in 1 s; start some (the dask worker command, one "
+                         "thread each)"), line
+
+
 def test_a_lost_scheduler_ends_the_run_in_one_error() -> None:
-    line = failure_in_a_process("local.close()")
+    line = error_in_a_process(1, SLOW_BATCH, "local.close()")
     assert line.endswith(": the Dask cluster failed during the run (the connection was lost); the frames described so "
                          "far are kept in the cache; run again to resume"), line
 
 
 def test_a_run_whose_workers_all_left_ends_in_one_error() -> None:
-    line = failure_in_a_process("local.scale(0)  # the only worker retires, none comes back: Dask waits for ever")
+    line = error_in_a_process(1, SLOW_BATCH, "local.scale(0)  # the only worker retires, none comes back")
     assert line.endswith(": the Dask cluster failed during the run (no worker for 1 s); the frames described so far "
                          "are kept in the cache; run again to resume"), line
 
 
-def test_a_task_that_kills_its_workers_is_one_error(scheduler: str) -> None:
-    with pytest.raises(WilocError, match="a task's worker died each time it ran"):
-        list(connect(scheduler).in_batches(lambda batch: os._exit(1), [1]))
+def test_a_task_that_kills_its_workers_is_one_error() -> None:
+    assert "a task's worker died each time it ran" in error_in_a_process(1, "lambda b: os._exit(1)", wait=60)
 
 
 @pytest.mark.realdata

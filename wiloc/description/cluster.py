@@ -73,7 +73,7 @@ class Cluster:
         except TimeoutError:
             self.close()
             raise WilocError(scheduler, f"no worker joined the Dask scheduler in {WORKER_WAIT} s; start some "
-                                        f"(dask worker {scheduler} --nthreads 1)") from None
+                                        "(the dask worker command, one thread each)") from None
 
     @property
     def workers(self) -> int:
