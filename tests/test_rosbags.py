@@ -243,10 +243,11 @@ def test_bayer_images_are_demosaiced_by_their_pattern(pattern: str, bits: int, t
         [frame] = list(bag.frames(api.Sampling()))
     assert frame.problem == "" and frame.gray.dtype == np.uint8 and frame.gray.shape == raw.shape
     truth = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(int)
-    # the right pattern's demosaicing is the one nearest the scene's gray, by a margin
-    errors = {code: np.abs(cv2.cvtColor(raw, getattr(cv2, f"COLOR_Bayer{code}2GRAY")).astype(int) - truth).mean()
-              for code in ("BG", "RG", "GR", "GB")}
-    assert np.abs(frame.gray.astype(int) - truth).mean() == min(errors.values()) < 0.5 * sorted(errors.values())[1]
+    # demosaiced by the right pattern: nearer the scene's gray than half the error of any wrong one (OpenCV's
+    # 16-bit demosaicing rounds otherwise than its 8-bit one in some releases, so the errors need not be equal)
+    errors = sorted(np.abs(cv2.cvtColor(raw, getattr(cv2, f"COLOR_Bayer{code}2GRAY")).astype(int) - truth).mean()
+                    for code in ("BG", "RG", "GR", "GB"))
+    assert np.abs(frame.gray.astype(int) - truth).mean() < 0.5 * errors[1] and errors[0] < 0.5 * errors[1]
 
 
 def test_odometry_topic_gives_the_distance_between_frames(tmp_path: Path, cache_dir: Path) -> None:
