@@ -279,3 +279,44 @@ def test_load_truth_dispatches_each_kind(tmp_path: Path, mask: np.ndarray) -> No
         load_truth("gps", pos, query_names=REFS, ref_names=REFS)
     with pytest.raises(WilocError, match="radius"):
         load_truth("positions", pos, query_names=REFS, ref_names=REFS)
+
+
+# --- a file given without its form -------------------------------------------------------------
+
+@pytest.mark.parametrize(("name", "text", "form"), [
+    ("gt.csv", "query,reference\na.jpg,b.jpg\n", "pairs"),
+    ("gt.csv", "Name, X, Y\na.jpg,0,0\n", "positions"),
+    ("gt.csv", "name,lat,lon\na.jpg,0,0\n", "positions"),
+    ("gt.csv", "1,0,0\n0,1,0\n", "matrix"),
+    ("gt.csv", "1,0,x\n", "pairs"),  # not all numbers: the pairs reader says what is missing
+    ("gt.csv", "", "pairs"),
+    ("gt.npy", "", "matrix"),
+    ("gt.mat", "", "matrix"),
+    ("ground_truth_new.npy", "", "vprbench"),
+])
+def test_a_file_given_without_its_form_is_read_as_the_form_it_holds(tmp_path: Path, name: str, text: str,
+                                                                     form: str) -> None:
+    from wiloc.evaluation.truth_source import file_form
+
+    path = tmp_path / name
+    path.write_text(text)
+    assert file_form(path) == form
+    assert file_form(tmp_path / "absent.csv") == "pairs"  # ('{query}' in its name) the pairs reader names it
+
+
+def test_one_helper_tells_a_number_in_a_csv_cell() -> None:
+    """Odometry's header test and the ground-truth form guess share one helper: no module of the
+    package holds a copy of ``try: float(text) ... return True``."""
+    import ast
+
+    import wiloc
+    from wiloc.evaluation.groundtruth import is_number
+
+    root = Path(wiloc.__file__).parent
+    twins = sorted(f"{path.relative_to(root)}:{node.name}" for path in root.rglob("*.py")
+                   for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.FunctionDef)
+                   and any(isinstance(inner, ast.Try) and "float(" in ast.unparse(inner.body[0]) and
+                           any(isinstance(s, ast.Return) and ast.unparse(s) == "return False"
+                               for handler in inner.handlers for s in handler.body) for inner in node.body))
+    assert twins == ["evaluation/groundtruth.py:is_number"]
+    assert is_number(" 2.5e3") and is_number("-1") and not is_number("x") and not is_number("")

@@ -24,13 +24,14 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
     pairs:p.csv, matrix:m.npy, vprbench:g.npy), or a path whose suffix tells the form. Options of another form are refused (``prefix``:
     the options' name prefix, ``train_`` for the trained method's)."""
     from wiloc import api
+    from wiloc.evaluation.truth_source import file_form
 
     flag = f"--{prefix.replace('_', '-')}gt"
     kind, sep, path = gt.partition(":")
     if not sep:
         if gt not in NAMED_FORMS and not Path(gt).is_file() and "{query}" not in gt:
             fail(f"{flag}: '{gt}' is neither a ground-truth form nor a file (forms: {FORMS})", EXIT_USAGE)
-        kind, path = (gt, "") if gt in NAMED_FORMS else (_guess_kind(gt), gt)
+        kind, path = (gt, "") if gt in NAMED_FORMS else (file_form(gt), gt)
     if kind not in ("aligned", "positions", "pairs", "matrix", "vprbench", "utm-names", "exif"):
         fail(f"{flag}: unknown ground-truth form '{kind}' in '{gt}' (forms: {FORMS})", EXIT_USAGE)
     refuse_unused({f"{prefix}tolerance": (kind == "aligned", "--gt aligned (pairs files carry their own)"),
@@ -46,34 +47,6 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
         path, variable = path.rsplit(":", 1)
     return api.TruthSource(kind=kind, path=path or None, ref_path=gt_ref, tolerance=tolerance, radius=radius,
                            variable=variable, by=by)
-
-
-
-def _guess_kind(path: str) -> str:
-    """The form of a file given without its kind: VPR-Bench's file by its name, a .npy or .mat as
-    a matrix, a CSV by its first line (``query,reference``: pairs; ``name`` with ``x,y`` or
-    ``lat,lon``: positions; numbers alone: a matrix), anything else as pairs, whose reader
-    says what is missing."""
-    if Path(path).name.lower() == "ground_truth_new.npy":
-        return "vprbench"
-    if Path(path).suffix.lower() in (".npy", ".mat"):
-        return "matrix"
-    try:
-        with open(path, encoding="utf-8-sig", errors="replace") as file:
-            cells = [cell.strip().lower() for cell in file.readline().split(",")]
-    except OSError:  # no such file yet ('{query}' in its name): the pairs reader names the problem
-        return "pairs"
-    if "name" in cells and ({"x", "y"} <= set(cells) or {"lat", "lon"} <= set(cells)):
-        return "positions"
-    return "matrix" if cells != [""] and all(_number(cell) for cell in cells) else "pairs"
-
-
-def _number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames; 'aligned:index': same index, "

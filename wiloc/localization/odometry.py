@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import ParameterError, WilocError
+from wiloc.evaluation.groundtruth import is_number
 from wiloc.sources.bags import Bag, is_bag
 
 
@@ -61,14 +62,6 @@ def steps(arclength: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.diff(arc, prepend=arc[:1])
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
 def read_odometry(path: str | Path) -> Odometry:
     """Read a ``name,distance`` or ``name,x,y`` CSV; WilocError naming the line on any problem."""
     where = str(path)
@@ -78,7 +71,7 @@ def read_odometry(path: str | Path) -> Odometry:
                     if row and any(cell.strip() for cell in row)]
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise WilocError(where, f"cannot read odometry: {exc}") from exc
-    if rows and not all(_is_number(cell) for cell in rows[0][1][1:]):
+    if rows and not all(is_number(cell) for cell in rows[0][1][1:]):
         rows = rows[1:]  # header
     if not rows:
         raise WilocError(where, "no odometry rows")
@@ -94,7 +87,7 @@ def read_odometry(path: str | Path) -> Odometry:
         cells = [cell.strip() for cell in row]
         if not cells[0]:
             raise WilocError(where, f"line {line}: empty frame name")
-        if not all(_is_number(cell) for cell in cells[1:]):
+        if not all(is_number(cell) for cell in cells[1:]):
             raise WilocError(where, f"line {line}: not a number in {','.join(cells[1:])!r}")
         values[i] = [float(cell) for cell in cells[1:]]
         if not np.all(np.isfinite(values[i])):
