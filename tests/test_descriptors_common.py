@@ -50,7 +50,7 @@ def _folder(path: Path, seeds: range) -> Path:
 # --- parameters of the descriptors that need a file: one maker each ------------------------------
 
 def _bow(tmp: Path) -> dict[str, Any]:
-    from wiloc.bow.vocabulary import VocabularyParams
+    from wiloc.bow.vocabulary_params import VocabularyParams
     from wiloc.description.vocabulary_build import build_vocabulary
 
     small = VocabularyParams(words=16, max_features=60, max_side=320, iterations=10)

@@ -17,17 +17,13 @@ import pytest
 
 from wiloc.bow.clustering import assign, kmajority, kmeans
 from wiloc.bow.features import extract_features, to_scale
+from wiloc.bow.vocabulary import pack_words, read_vocabulary, unpack_words
+from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.cache.store import Cache
 from wiloc.description.describing import describe_folder
+from wiloc.description.vocabulary_build import build_vocabulary, vocabulary_path
 from wiloc.descriptors import get_descriptor
 from wiloc.errors import ParameterError, WilocError
-from wiloc.bow.vocabulary import (
-                                  VocabularyParams,
-                                  pack_words,
-                                  read_vocabulary,
-                                  unpack_words,
-                                  )
-from wiloc.description.vocabulary_build import build_vocabulary, vocabulary_path
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = VocabularyParams(words=16, max_features=60, max_side=320, iterations=10)
@@ -173,6 +169,27 @@ def test_orb_vocabulary_and_unreadable_frames(tmp_path: Path, cache_dir: Path) -
     assert len(report.vocabulary.training_frames) == 5
 
 
+def test_the_command_line_takes_every_vocabulary_parameter_as_declared(tmp_path: Path, cache_dir: Path) -> None:
+    """`wiloc vocabulary`'s options are VocabularyParams' declarations: one per field, with its
+    default, and a value the parameter refuses is a usage error naming the option before any work."""
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+    from wiloc.parameters import declared
+
+    runner = CliRunner()
+    text = runner.invoke(app, ["vocabulary", "--help"], env={"COLUMNS": "400"}).stdout
+    for d in declared(VocabularyParams):
+        line = next(line for line in text.splitlines() if f"│ --{d.name.replace('_', '-')} " in line)
+        assert f"[default: {d.default}]" in line, line
+    folder = _folder(tmp_path / "train", range(2))
+    for flag, value in [("--words", "1"), ("--max-side", "8"), ("--feature", "surf")]:
+        result = runner.invoke(app, ["vocabulary", str(folder), flag, value, "--cache", str(cache_dir)])
+        assert result.exit_code == 2, result.output
+        assert result.output.startswith(f"error: {flag}: "), result.output
+    assert not (cache_dir / "vocabularies").exists() or not list((cache_dir / "vocabularies").glob("*.h5"))
+
+
 def test_too_many_words_for_the_features_is_a_usage_error(tmp_path: Path, cache_dir: Path) -> None:
     folder = _folder(tmp_path / "train", range(2))
     with pytest.raises(ParameterError) as info:
@@ -195,7 +212,7 @@ _KILLED_BUILD = textwrap.dedent("""
     import sys, time
     from pathlib import Path
     import wiloc.description.vocabulary_build as build
-    from wiloc.bow.vocabulary import VocabularyParams
+    from wiloc.bow.vocabulary_params import VocabularyParams
     from wiloc.cache.store import Cache
 
     folder, marker, stage = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]

@@ -15,7 +15,6 @@ import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import h5py
 import numpy as np
@@ -23,8 +22,8 @@ from numpy.typing import NDArray
 
 from wiloc.bow.clustering import assign, kmajority, kmeans
 from wiloc.bow.features import DTYPES, extract_features
+from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.errors import ParameterError, WilocError
-from wiloc.parameters import Parameters, param
 from wiloc.version import __version__
 
 FORMAT = "wiloc-vocabulary"
@@ -35,24 +34,6 @@ FORMAT_VERSION = 1
 #: thumbnails 10 (5 % empty), and the bounds sit between (docs/fabmap.md).
 FEW_WORDS = 50
 NO_WORDS = 0.01
-
-
-@dataclass(frozen=True)
-class VocabularyParams(Parameters):
-    """How a vocabulary is made; every field takes part in its cache key."""
-
-    feature: Literal["sift", "orb"] = param("sift", "local feature: sift (k-means) or orb (k-majority)")
-    words: int = param(1000, "K, the number of visual words", low=2)
-    max_features: int = param(500, "local features kept per image, strongest first", low=1)
-    max_side: int = param(640, "images are shrunk so their longer side is at most this many pixels",
-                          low=16)
-    iterations: int = param(25, "at most this many clustering rounds (fewer once assignments stop "
-                                "changing)", low=1)
-    seed: int = param(0, "seeds the random choice of the initial centres", low=0)
-
-    def to_json(self) -> str:
-        """Canonical JSON of the values (numpy scalars as plain numbers)."""
-        return json.dumps(self.as_dict(), sort_keys=True, default=lambda v: v.item())
 
 
 def pack_words(present: NDArray[np.bool_]) -> NDArray[np.uint8]:

@@ -21,6 +21,7 @@ import typer
 from typer._click.core import ParameterSource
 from typer._click.globals import get_current_context
 
+from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.descriptors.learned import KEYS as PREPROCESSING
 from wiloc.descriptors.registry import DESCRIPTORS
 from wiloc.errors import UsageError
@@ -136,6 +137,13 @@ def descriptor_options() -> dict[str, DeclaredOption]:
     return _options({name: [d for d in cls.options() if d.name not in OWN_FORMS] for name, cls in DESCRIPTORS.items()})
 
 
+@functools.cache
+def vocabulary_options() -> dict[str, DeclaredOption]:
+    """How a vocabulary is made (:class:`~wiloc.bow.vocabulary_params.VocabularyParams`), one
+    option of ``wiloc vocabulary`` each."""
+    return _options({"vocabulary": declared(VocabularyParams)})
+
+
 def _options(by_owner: Mapping[str, list[Declared]]) -> dict[str, DeclaredOption]:
     options: dict[str, dict[str, Declared]] = {}
     for owner, parameters in by_owner.items():
@@ -160,6 +168,13 @@ def with_descriptor_options(command: Callable[..., Any]) -> Callable[..., Any]:
     collected into its ``descriptor_options`` argument as {name: value} for the options typed on
     the command line."""
     return _with_options(command, descriptor_options(), "descriptor_options")
+
+
+def with_vocabulary_options(command: Callable[..., Any]) -> Callable[..., Any]:
+    """``command`` with one keyword option per vocabulary parameter (:func:`vocabulary_options`),
+    collected into its ``vocabulary_options`` argument as {name: value} for the options typed on
+    the command line."""
+    return _with_options(command, vocabulary_options(), "vocabulary_options")
 
 
 def _with_options(command: Callable[..., Any], options: dict[str, DeclaredOption],

@@ -3,26 +3,24 @@ in the cache for bow and FAB-MAP."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from wiloc.cli.core import Notes, fail, handles_errors, out
 from wiloc.cli.options import CacheOption
+from wiloc.cli.params import with_vocabulary_options
 from wiloc.cli.views import print_command_json, progress_bar, table
 from wiloc.errors import EXIT_USAGE
 
 
 @handles_errors
+@with_vocabulary_options
 def vocabulary(
     folders: list[Path] = typer.Argument(..., metavar="FOLDER...", help="Training image folders (never the pair you will test on)."),
-    feature: str = typer.Option("sift", help="Local feature: sift (k-means) or orb (k-majority)."),
-    words: int = typer.Option(1000, help="K, the number of visual words."),
-    max_features: int = typer.Option(500, help="Local features kept per image, strongest first."),
-    max_side: int = typer.Option(640, help="Images are shrunk so their longer side is at most this many pixels."),
-    iterations: int = typer.Option(25, help="At most this many clustering rounds."),
-    seed: int = typer.Option(0, help="Seeds the initial centres."),
     cache: CacheOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+    vocabulary_options: dict[str, Any] | None = None,
 ) -> None:
     """Cluster the local features of training folders into a visual vocabulary for bow and FAB-MAP.
 
@@ -38,8 +36,7 @@ def vocabulary(
     twice = next((folder for folder, path in zip(folders, seen) if seen.count(path) > 1), None)
     if twice is not None:
         fail(f"FOLDER...: {twice} is given twice (its images would count twice in the clustering)", EXIT_USAGE)
-    params = {"feature": feature, "words": words, "max_features": max_features, "max_side": max_side,
-              "iterations": iterations, "seed": seed}
+    params = vocabulary_options or {}
     with progress_bar(not as_json) as progress:
         report = api.vocabulary(folders, params, cache=Cache(cache), progress=progress)
     notes = Notes()

@@ -24,8 +24,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from wiloc.bow.features import DTYPES, WIDTHS, decode_size, extract_features
-from wiloc.bow.vocabulary import (FORMAT_VERSION, Vocabulary, VocabularyParams, read_vocabulary, train_vocabulary,
-                                  write_vocabulary)
+from wiloc.bow.vocabulary import FORMAT_VERSION, Vocabulary, read_vocabulary, train_vocabulary, write_vocabulary
+from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.cache.entries import EntryHeader, FrameRecord
 from wiloc.cache.store import Cache, Journal, scan_journal
 from wiloc.errors import FrameError, WilocError

@@ -10,7 +10,7 @@ from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
 
-from wiloc.bow.vocabulary import VocabularyParams
+from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.cache.store import Cache
 from wiloc.description.describing import DescribeReport
 from wiloc.description.matrix_import import import_matrix, import_to_file
