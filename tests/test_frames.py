@@ -36,6 +36,26 @@ def test_natural_key_orders_numbers_by_value() -> None:
     assert sorted(["frame10", "frame", "Frame1", "frame2"], key=natural_key) == ["frame", "Frame1", "frame2", "frame10"]
 
 
+def test_natural_key_orders_decimal_fractions_as_fractions() -> None:
+    # timestamps written as floats (Python's str, ROS's to_sec()) drop trailing zeros: a fraction's
+    # digits are read as a fraction, as time goes, where natural order put .2 before .15
+    rng = np.random.default_rng(3)
+    stamps = [float(t) for t in np.round(1614000000 + np.cumsum(rng.uniform(0.01, 0.3, 60)), 6)]
+    names = [f"{t}.jpg" for t in stamps]
+    assert len({len(name) for name in names}) > 2  # fractions of different lengths
+    assert sorted(names[::-1], key=natural_key) == names
+    # dotted runs that are no decimal number (dates, versions) keep each run's value
+    assert sorted(["v2021.3.15.png", "v2021.3.9.png"], key=natural_key) == ["v2021.3.9.png", "v2021.3.15.png"]
+    assert sorted(["frame.10.png", "frame.2.png"], key=natural_key) == ["frame.2.png", "frame.10.png"]
+
+
+def test_list_traversal_orders_float_timestamps_in_time_order(tmp_path: Path) -> None:
+    for name in ("1614000000.2.png", "1614000000.15.png", "1614000000.1.png", "1614000001.05.png"):
+        (tmp_path / name).write_bytes(b"x")
+    names = list_traversal(tmp_path).names
+    assert names == sorted(names, key=lambda name: float(name.removesuffix(".png")))
+
+
 _NAME = st.text(alphabet="aAb_.-é0123456789", min_size=1, max_size=8)
 
 

@@ -59,12 +59,21 @@ _SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 MAX_ASPECT = 256
 _NATURAL = natsort_keygen(alg=ns.IGNORECASE)
 _DIGITS_AS_ZERO = str.maketrans("123456789", "000000000")
+# A decimal number, ``1614000000.15``: digits, a point, digits, in no longer dotted run (``2021.3.15``).
+_DECIMAL = re.compile(r"(?<![\d.])(\d+\.)(\d+)(?!\d|\.\d)")
+_FRACTION_WIDTH = 32
+
+
+def _fraction_padded(match: re.Match[str]) -> str:
+    return match[1] + match[2].ljust(_FRACTION_WIDTH, "0")
 
 
 def natural_key(name: str) -> tuple[Any, str]:
     """Sort key that orders digit runs by value, so ``img2`` comes before ``img10`` (natsort's,
-    ignoring case); names equal but for case or leading zeros keep one order by the name itself."""
-    return _NATURAL(name), name
+    ignoring case), and a decimal number's fraction as a fraction, so ``1614000000.15`` (a
+    timestamp written as a float) comes before ``1614000000.2``; names equal but for case or
+    leading zeros keep one order by the name itself."""
+    return _NATURAL(_DECIMAL.sub(_fraction_padded, name)), name
 
 
 def natural_sorted(names: Iterable[str]) -> list[str]:
