@@ -47,6 +47,17 @@ def test_csv_round_trip(tmp_path: Path, header: bool) -> None:
     assert names == NAMES and np.array_equal(matrix, _matrix())
 
 
+@pytest.mark.parametrize("index_label", ["name", None])
+def test_csv_written_by_pandas_keeps_its_header_out(tmp_path: Path, index_label: str | None) -> None:
+    # DataFrame.to_csv heads the value columns 0, 1, 2, ... (numbers) and an unnamed index with an
+    # empty cell: the header is no frame, whose row would have held the column labels
+    import pandas as pd
+
+    pd.DataFrame(_matrix(np.float64), index=NAMES).to_csv(tmp_path / "m.csv", index_label=index_label)
+    names, matrix = read_external(tmp_path / "m.csv", None, "l1")
+    assert names == NAMES and np.array_equal(matrix, _matrix())
+
+
 def test_csv_hamming_becomes_uint8(tmp_path: Path) -> None:
     path = _csv(tmp_path / "h.csv", [["x", 0, 255], ["y", 17, 3]])
     names, matrix = read_external(path, None, "hamming")

@@ -6,7 +6,8 @@ Formats (chosen by suffix; a folder is one ``.npy`` vector per image):
 - ``.npy``: the N x D matrix; names from ``names_path`` (one per line, or the first column of a
   ``.csv``; a first cell ``name``/``frame``/``file`` is a header) or generated ``frame000000``...
 - ``.csv``: one row per frame, first column the frame name, the rest numbers; an optional header
-  row (recognised when none of its value cells is a number).
+  row (recognised when none of its value cells is a number, or its first cell is empty or a
+  word such as ``name``: pandas heads the value columns 0, 1, 2, ...).
 - ``.h5`` / ``.hdf5``: dataset ``descriptors`` (N x D) and, optionally, dataset ``names``
   (N strings) and attribute ``metric`` (what :func:`write_matrix` writes); ``names_path``
   overrides the names. Or hloc's ``global-feats-*.h5``: one group per image name (names with
@@ -37,7 +38,7 @@ from wiloc.sources.frames import natural_sorted
 METRIC_ATTRIBUTE = "metric"
 """The attribute of a wiloc descriptor file that records its metric."""
 HLOC_DATASET = "global_descriptor"
-_NAME_HEADERS = frozenset({"name", "names", "frame", "frames", "file", "filename"})
+_NAME_HEADERS = frozenset({"name", "names", "frame", "frames", "file", "filename", "image", "path"})
 _HAMMING_HINT = "hamming descriptors must be uint8 (8 packed bits per byte)"
 
 
@@ -189,6 +190,13 @@ def _text(path: Path, i: int, name: object) -> str:
         raise WilocError(path, f"dataset 'names', entry {i + 1}: {name[:40]!r} is not UTF-8 text") from None
 
 
+def _is_name_header(cell: str) -> bool:
+    """Whether a CSV's first cell heads its name column: empty (pandas' ``to_csv`` of an unnamed
+    index) or a word such as ``name``. Such a header's value cells may be numbers (pandas' column
+    labels 0, 1, 2, ...), so they alone do not tell it from a frame's row."""
+    return cell.strip().lower() in _NAME_HEADERS | {""}
+
+
 def _read_csv(path: Path) -> tuple[NDArray, list[str]]:
     import pandas as pd
 
@@ -199,7 +207,7 @@ def _read_csv(path: Path) -> tuple[NDArray, list[str]]:
     if table.shape[1] < 2:
         raise WilocError(path, "need a name column and at least one value column")
     cells = table.iloc[:, 1:].apply(lambda col: pd.to_numeric(col.str.strip(), errors="coerce"))
-    if len(table) and cells.iloc[0].isna().all():
+    if len(table) and (cells.iloc[0].isna().all() or _is_name_header(table.iloc[0, 0])):
         table, cells = table.iloc[1:], cells.iloc[1:]
     if cells.empty:
         raise WilocError(path, "no data rows")
