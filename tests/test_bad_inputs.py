@@ -142,6 +142,9 @@ UNUSED = {
                                       "--map-odometry: applies to map mode (--map) only"),
     "odometry in sequence mode": (["localize", "{query}", "--method", "catgraph", "--odometry", "{tmp}/o.csv"],
                                   "--odometry: applies to map mode (--map) only"),
+    "recent window against a map": (["localize", "{query}", "--map", "{ref}", "--method", "threshold", "-R", "3"],
+                                    "--exclude-recent: applies to sequence mode, and in map mode to the methods that "
+                                    "learn from the map's differences to itself (online) only"),
     "model plot of a method without one": (["localize", "{query}", "--map", "{ref}", "--method", "catgraph",
                                             "--model-plot", "{tmp}/m.png"], "--model-plot: method 'catgraph' learns no"),
     "model plot of several queries": (["localize", "{query}", "{ref}", "--map", "{ref}", "--out", "{tmp}/runs/",

@@ -239,7 +239,7 @@ def test_an_example_descriptor_from_the_command_line(with_stripes: None, tmp_pat
     assert (row["descriptor"], row["shape"], row["computed"]) == ("stripes", [12, 6], 12)
     out = tmp_path / "out.csv"
     ran = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--descriptor", "stripes",
-                              "--method", "threshold", "-R", "0", "--jobs", "1", "-o", str(out)], env=env)
+                              "--method", "threshold", "--jobs", "1", "-o", str(out)], env=env)
     assert ran.exit_code == 0, ran.output
     assert list(read_results(out).frames["match"]) == [p.name for p in sorted(ref.iterdir())]
     refused = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--descriptor", "stripes",

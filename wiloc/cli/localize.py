@@ -84,6 +84,9 @@ def localize(
                    "map_names": (reference is not None and is_matrix_file(reference),
                                  "a descriptor matrix file as --map"),
                    **{name: (reference is not None, "map mode (--map)") for name in ("odometry", "map_odometry")},
+                   "exclude_recent": (reference is None or "map_self" in method_class(method).needs,
+                                      "sequence mode, and in map mode to the methods that learn from the map's "
+                                      f"differences to itself ({', '.join(_learning_from_the_map())})"),
                    "idle": (follow, "--follow")})
     train_inputs = (train_query, train_map, train_gt)
     refuse_unused({name: (any(train_inputs), "a training pair (--train-query, --train-map, --train-gt)")
@@ -144,6 +147,11 @@ def localize(
                                      topic=topic, odometry_topic=odometry_topic))
             repairs.append(store.repairs[known:])
     show_runs(runs, repairs, method, model_plot, as_json, cautions)
+
+
+def _learning_from_the_map() -> list[str]:
+    """The methods that read the map's differences to itself outside +-R (``--exclude-recent``)."""
+    return [name for name, cls in METHODS.items() if "map_self" in cls.needs]
 
 
 def _same(a: Path | None, b: Path | None) -> bool:
