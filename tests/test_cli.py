@@ -221,6 +221,18 @@ def test_a_list_default_typed_as_the_help_shows_it_is_the_default() -> None:
         assert option.parse(option.default()) == tuple(option.first.default), option.name
 
 
+def test_the_help_offers_no_value_the_command_line_cannot_take() -> None:
+    """An option with a default takes a value of its type: its help may not offer 'none' (a
+    parameter's None, which only the Python API can pass) unless 'none' is one of its choices."""
+    from wiloc.cli.params import descriptor_options, method_options
+
+    for option in [*method_options().values(), *descriptor_options().values()]:
+        if option.default() is not None and "none" not in (option.first.choices or ()):
+            assert "none" not in option.help().lower(), (option.name, option.help())
+    shown = runner.invoke(app, ["localize", "--help"], env={"COLUMNS": "200"}).output
+    assert "--seed" in shown and "none: a fresh one" not in shown
+
+
 def test_an_option_methods_describe_differently_shows_each_description() -> None:
     from dataclasses import replace
 

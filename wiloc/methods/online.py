@@ -37,7 +37,8 @@ from wiloc.parameters import Parameters, param
 
 @dataclass(frozen=True)
 class OnlineParams(Parameters):
-    """Parameters of the online model (docs/algorithm.md gives the measurements behind each)."""
+    """Parameters of the online model (docs/algorithm.md gives the measurements behind each);
+    ``seed=None`` draws a fresh seed, so that confidences differ from run to run."""
 
     owner = "online"
     init: int = param(100, "Sequence mode: initialisation frames, whose minima fill c (map mode "
@@ -53,7 +54,7 @@ class OnlineParams(Parameters):
     smoothing: float = param(0.1, "Pseudo-count added to every bin of the learned histograms (Figure 1; "
                                    "not used by the decisions).", low=0.0, low_open=True)
     seed: int | None = param(0, "Random seed of the CAT-Graph filter whose posterior calibrates the "
-                                "confidence (none: a fresh one).", low=0)
+                                "confidence: the same seed gives identical results.", low=0)
 
 
 def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,

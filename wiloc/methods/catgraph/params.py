@@ -11,11 +11,12 @@ from wiloc.parameters import Parameters, param
 
 @dataclass(frozen=True)
 class CatGraphParams(Parameters):
-    """Parameters of the whole-image CAT-Graph filter (docs/catgraph.md, docs/calibration.md)."""
+    """Parameters of the whole-image CAT-Graph filter (docs/catgraph.md, docs/calibration.md);
+    ``seed=None`` draws a fresh seed, so that decisions differ from run to run."""
 
     owner = "catgraph"
     particles: int = param(2000, "Number of particles.", low=1, high=1_000_000)
-    seed: int | None = param(0, "Random seed: the same seed gives identical decisions (none: a fresh one).",
+    seed: int | None = param(0, "Random seed: the same seed gives identical decisions.",
                              low=0)
     step_noise: float = param(0.15, "Motion noise, a fraction of each step.", low=0.0)
     noise_floor: float = param(0.0, "Motion noise floor, a fraction of the mean node spacing.", low=0.0)
