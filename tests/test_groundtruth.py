@@ -159,6 +159,27 @@ def test_positions_bad_input_names_the_file(tmp_path: Path, rows: dict, problem:
     assert err.value.where == str(csv)
 
 
+@pytest.mark.parametrize("rename, why", [
+    (lambda name: f"q/{name}", "hold a folder: frames are matched by file name alone"),
+    (lambda name: f"/data/run1/{name}", "hold a folder"),
+    (lambda name: name.removesuffix(".jpg"), "differ from the frames' in their suffix"),
+    (lambda name: name.replace(".jpg", ".png"), "differ from the frames' in their suffix"),
+    (str.upper, "differ from the frames' in case"),
+])
+def test_names_that_match_no_frame_say_how_they_differ(tmp_path: Path, rename, why: str) -> None:
+    # a ground truth written with paths, without suffixes or in other case matches no frame: the
+    # error shows one of its names beside the frame it would have named
+    frames = [f"img{i}.jpg" for i in range(3)]
+    names = [rename(frame) for frame in frames]
+    positions = write_csv(tmp_path / "p.csv", {"name": names, "x": [0.0, 1.0, 2.0], "y": [0.0, 0.0, 0.0]})
+    pairs = write_csv(tmp_path / "pairs.csv", {"query": names, "reference": frames})
+    for read in (lambda: positions_truth(positions, positions, 1.0, frames, frames),
+                 lambda: pairs_truth(pairs, frames, frames)):
+        with pytest.raises(WilocError, match="names such as") as err:
+            read()
+        assert why in str(err.value) and repr(names[0]) in str(err.value) and repr(frames[0]) in str(err.value)
+
+
 @pytest.mark.parametrize("text, problem", [
     ("a.jpg,0.0,0.0\nb.jpg,1.0,0.0\n",
      "missing column(s) name: its first line is 'a.jpg,0.0,0.0'; the first line must be a header naming the "

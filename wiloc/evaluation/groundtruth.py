@@ -114,6 +114,25 @@ def _lookup(wanted: ArrayLike, names: Sequence[str]) -> NDArray[np.int64]:
     return name_index(names).get_indexer(np.asarray(wanted, dtype=object)).astype(np.int64)
 
 
+def _why_unmatched(names: Sequence[str], frames: Sequence[str]) -> str:
+    """What the ground truth's ``names`` and the traversal's ``frames`` show of why none matches,
+    to follow a 'no name matches' error: names that hold a folder, differ in suffix or in case
+    from frame names; else an example of each."""
+    named = [str(name) for name in names[:1000]]
+    framed = set(frames)
+    tests = (("hold a folder: frames are matched by file name alone", lambda n: re.split(r"[/\\]", n)[-1]),
+             ("differ from the frames' in their suffix", lambda n: n.rsplit(".", 1)[0]),
+             ("differ from the frames' in case", str.lower))
+    for why, key in tests:
+        keyed = {key(frame): frame for frame in frames}
+        for name in named:
+            if name not in framed and key(name) in keyed:
+                return f" (names such as {name!r} {why}, such as {keyed[key(name)]!r})"
+    if not named or not frames:
+        return ""
+    return f" (names such as {named[0]!r}; the frames are named such as {frames[0]!r})"
+
+
 def _check_tolerance(tolerance: int) -> int:
     if isinstance(tolerance, bool) or not isinstance(tolerance, (int, np.integer)) or tolerance < 0:
         raise WilocError(None, f"must be a whole number of frames >= 0, got {tolerance!r}", parameter="tolerance")
@@ -288,7 +307,8 @@ def _frames_with_positions(positions: Positions, frames: Sequence[str],
     at = names.get_indexer(name_index(frames))
     found = at >= 0
     if not found.any():
-        raise WilocError(where, f"no name matches any of the {len(frames)} {role} frames")
+        raise WilocError(where, f"no name matches any of the {len(frames)} {role} frames"
+                                + _why_unmatched(list(names), frames))
     warnings = unmatched(where, int((~found).sum()), len(frames),
                           f"{role} frames have no ground-truth row (never a true match)")
     unused = len(names) - int(np.unique(at[found]).size)
@@ -358,8 +378,9 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     r = _lookup(frame["reference"], ref_names)
     usable = (q >= 0) & (r >= 0)
     if not usable.any():
+        column, names = ("query", query_names) if not (q >= 0).any() else ("reference", ref_names)
         raise WilocError(path, f"none of the {len(frame)} rows names a known query frame and a "
-                               "known reference frame")
+                               f"known reference frame{_why_unmatched(frame[column].tolist(), names)}")
     warnings = unmatched(path, int((q < 0).sum()), len(frame), "rows name no query frame (skipped)")
     warnings += unmatched(path, int((r < 0).sum()), len(frame),
                            "rows name no reference frame (skipped)")
