@@ -153,6 +153,11 @@ def _written(tmp_path: Path) -> tuple[Path, str]:
     (lambda t: t.replace(",2 1\n", ",2 2\n"), r"line \d+: ranking names a frame twice"),
     (lambda t: t.replace(",2 1\n", ",1 2\n"), r"line \d+: ranking does not start with the match"),
     (lambda t: t.replace(",2 1\n", ",\n"), r"line \d+: ranking does not start with the match"),
+    (lambda t: t.replace("# mode: map", "# mode: sequence").replace("# map: \n", "# map: /r\n"),
+     "header 'map' names a map, but 'mode' is sequence: a sequence-mode run is its own map"),
+    (lambda t: t.replace("# mode: map", "# mode: sequence").replace("# map: \n", "# map: \n# map_digest: 0a1b\n"),
+     "header 'map_digest' names a map"),
+    (lambda t: t.replace("# mode: map", "# mode: seq"), "header 'mode' must be map or sequence, got 'seq'"),
 ])
 def test_a_results_file_no_run_writes_is_refused_naming_the_line(tmp_path: Path, edit, message: str) -> None:
     path, text = _written(tmp_path)

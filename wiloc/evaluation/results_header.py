@@ -122,6 +122,11 @@ def parse_header(lines: Iterable[str], path: Path | None) -> ResultsHeader:
         raise WilocError(path, "not a wiloc results file (no '# wiloc-results: 1' header)")
     known = {f.name for f in fields(ResultsHeader)} - {"extra"}
     typed = {key: _typed(path, key, value) for key, value in values.items() if key in known}
+    if typed.get("mode") == "sequence":
+        given = next((key for key in ("map", "map_digest") if typed.get(key)), None)
+        if given is not None:
+            raise WilocError(path, f"header '{given}' names a map, but 'mode' is sequence: a sequence-mode run "
+                                   "is its own map")
     return ResultsHeader(**typed, extra={k: v for k, v in values.items() if k not in known})
 
 
@@ -131,6 +136,8 @@ def _typed(path: Path | None, key: str, value: Any) -> Any:
         if not (value.isascii() and value.isdigit()):
             raise WilocError(path, f"header '{key}' must be a whole number >= 0, got {value!r}")
         return int(value)
+    if key == "mode" and value not in ("map", "sequence", ""):  # "": a file made by hand does not say
+        raise WilocError(path, f"header 'mode' must be map or sequence, got {value!r}")
     if key == "follow":
         return value == "True"
     if key == "reference_frames":
