@@ -137,6 +137,22 @@ def test_positions_latlon_agree_with_haversine(tmp_path: Path) -> None:
     assert dense(truth).diagonal().all()
 
 
+def test_positions_that_make_every_pair_the_same_place_are_warned(tmp_path: Path) -> None:
+    # GPS degrees written as x,y are read as metres: a whole route spans a fraction of a "metre",
+    # every frame is near every other, and every match would count as right without a word
+    rng = np.random.default_rng(1)
+    lat, lon = -27.4775 + np.cumsum(rng.uniform(1e-5, 2e-5, 8)), 153.028 + np.zeros(8)
+    degrees = write_csv(tmp_path / "deg.csv", {"name": REFS, "x": lon, "y": lat})
+    truth = positions_truth(degrees, degrees, 25.0, REFS, REFS)
+    assert dense(truth).all() and any("look like degrees" in w and "lat,lon" in w for w in truth.warnings)
+    as_latlon = write_csv(tmp_path / "gps.csv", {"name": REFS, "lat": lat, "lon": lon})
+    assert not any("every match counts" in w for w in positions_truth(as_latlon, as_latlon, 5.0, REFS, REFS).warnings)
+    metres = write_csv(tmp_path / "m.csv", {"name": REFS, "x": np.arange(8) * 10.0, "y": np.zeros(8)})
+    wide = positions_truth(metres, metres, 100.0, REFS, REFS).warnings
+    assert any("every match counts" in w and "degrees" not in w for w in wide)
+    assert not any("every match counts" in w for w in positions_truth(metres, metres, 15.0, REFS, REFS).warnings)
+
+
 def test_positions_partial_names_are_warned_with_counts(tmp_path: Path) -> None:
     csv = write_csv(tmp_path / "p.csv", {"name": ["a", "b", "zzz"], "x": [0, 1, 2], "y": [0, 0, 0]})
     truth = positions_truth(csv, csv, 1.5, ["a", "b", "c"], ["a", "b", "c"])

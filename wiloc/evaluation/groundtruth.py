@@ -340,7 +340,21 @@ def truth_within(query: Positions, ref: Positions, radius: float, query_names: S
         q_pts, r_pts = _unit_vectors(q_pts), _unit_vectors(r_pts)
         reach = 2.0 * np.sin(min(reach / EARTH_RADIUS_M, np.pi) / 2.0)
     near = cKDTree(q_pts).sparse_distance_matrix(cKDTree(r_pts), reach, output_type="ndarray")
+    if r_idx.size > 1 and near.size == q_idx.size * r_idx.size:
+        warnings.append(_all_near(query, ref, radius))
     return truth_from_pairs(q_idx[near["i"]], r_idx[near["j"]], query_names, ref_names, warnings)
+
+
+def _all_near(query: Positions, ref: Positions, radius: float) -> str:
+    """The warning for positions that put every query frame within the radius of every reference
+    frame, so that any match counts as right; GPS degrees given as x,y (read as metres) do so."""
+    coords = np.concatenate([query.coords, ref.coords])
+    degrees = (not query.geographic and bool(np.all(np.abs(coords) <= 180))
+               and float(np.ptp(coords, axis=0).max()) < 1.0)
+    hint = ("; its x,y look like degrees: give GPS positions as columns lat,lon" if degrees
+            else "; a smaller radius tells places apart")
+    return (f"{query.source}: every query frame lies within {radius:g} m of every reference frame, so "
+            f"every match counts as right{hint}")
 
 
 def positions_truth(query_csv: Path, ref_csv: Path, radius: float, query_names: Sequence[str],
