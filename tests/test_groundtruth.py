@@ -263,13 +263,15 @@ def mask() -> np.ndarray:
     return (rng.random((5, 8)) < 0.3).astype(np.uint8)
 
 
-@pytest.mark.parametrize("suffix", [".npy", ".csv", ".mat"])
+@pytest.mark.parametrize("suffix", [".npy", ".csv", ".npz", ".mat"])
 def test_matrix_forms_read_nonzero_as_same_place(tmp_path: Path, mask: np.ndarray, suffix: str) -> None:
     path = tmp_path / f"mask{suffix}"
     if suffix == ".npy":
         np.save(path, mask)
     elif suffix == ".csv":
         np.savetxt(path, mask, delimiter=",", fmt="%d")
+    elif suffix == ".npz":
+        np.savez(path, GThard=mask.astype(bool))
     else:
         scipy.io.savemat(path, {"truth": mask})
     truth = matrix_truth(path, [f"q{i}" for i in range(5)], REFS)
@@ -288,6 +290,20 @@ def test_matrix_shape_and_mat_choice_errors(tmp_path: Path, mask: np.ndarray) ->
     np.testing.assert_array_equal(dense(picked), mask != 0)
     with pytest.raises(WilocError, match="no such file"):
         matrix_truth(tmp_path / "absent.npy", names, REFS)
+
+
+def test_matrix_of_reference_x_query_frames_is_told_and_npz_arrays_are_picked(tmp_path: Path,
+                                                                             mask: np.ndarray) -> None:
+    # VPR_Tutorial's GT.npz holds GThard and GTsoft as reference x query frames
+    names = [f"q{i}" for i in range(5)]
+    np.savez(tmp_path / "GT.npz", GThard=mask.T.astype(bool), GTsoft=mask.T.astype(bool))
+    with pytest.raises(WilocError, match="holds 2 2-D arrays, name one of: GThard, GTsoft"):
+        matrix_truth(tmp_path / "GT.npz", names, REFS)
+    with pytest.raises(WilocError, match=r"matrix is 8 x 5, expected 5 x 8 \(query x reference frames\): it is "
+                                         r"reference x query frames .*transpose"):
+        matrix_truth(tmp_path / "GT.npz", names, REFS, variable="GThard")
+    np.savez(tmp_path / "GT_t.npz", GThard=np.load(tmp_path / "GT.npz")["GThard"].T)
+    np.testing.assert_array_equal(dense(matrix_truth(tmp_path / "GT_t.npz", names, REFS)), mask != 0)
 
 
 # --- sequence restriction and dispatch -------------------------------------------------------
@@ -329,6 +345,7 @@ def test_load_truth_dispatches_each_kind(tmp_path: Path, mask: np.ndarray) -> No
     ("gt.csv", "", "pairs"),
     ("gt.npy", "", "matrix"),
     ("gt.mat", "", "matrix"),
+    ("GT.npz", "", "matrix"),
     ("ground_truth_new.npy", "", "vprbench"),
 ])
 def test_a_file_given_without_its_form_is_read_as_the_form_it_holds(tmp_path: Path, name: str, text: str,

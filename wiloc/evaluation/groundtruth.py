@@ -402,31 +402,37 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 
+def _named_array(path: Path, arrays: dict[str, NDArray], variable: str | None) -> NDArray:
+    """The 2-D numeric array named ``variable`` among a .mat's or .npz's ``arrays``, or the only
+    one when ``variable`` is None."""
+    arrays = {k: v for k, v in arrays.items() if not k.startswith("__") and getattr(v, "ndim", 0) == 2
+              and (np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_)}
+    if variable is not None:
+        if variable not in arrays:
+            raise WilocError(path, f"no 2-D variable {variable!r}; choose one of {', '.join(sorted(arrays)) or 'none'}")
+        return arrays[variable]
+    if len(arrays) != 1:
+        raise WilocError(path, f"holds {len(arrays)} 2-D arrays, name one of: {', '.join(sorted(arrays)) or 'none'}")
+    return next(iter(arrays.values()))
+
+
 def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | sparse.sparray:
-    """The 2-D array stored in a .npy, .csv or .mat file."""
+    """The 2-D array stored in a .npy, .csv, .npz or .mat file."""
     suffix = path.suffix.lower()
     try:
         if suffix == ".npy":
             return np.load(path, allow_pickle=False)
         if suffix == ".csv":
             return np.loadtxt(path, delimiter=",", dtype=np.float64, ndmin=2, encoding="utf-8-sig")
+        if suffix == ".npz":
+            with np.load(path, allow_pickle=False) as archive:
+                return _named_array(path, {name: archive[name] for name in archive.files}, variable)
         if suffix == ".mat":
-            arrays = {k: v for k, v in scipy.io.loadmat(path).items()
-                      if not k.startswith("__") and getattr(v, "ndim", 0) == 2
-                      and (np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_)}
-            if variable is not None:
-                if variable not in arrays:
-                    raise WilocError(path, f"no 2-D variable {variable!r}; choose one of "
-                                           f"{', '.join(sorted(arrays)) or 'none'}")
-                return arrays[variable]
-            if len(arrays) != 1:
-                raise WilocError(path, f"holds {len(arrays)} 2-D arrays, name one of: "
-                                       f"{', '.join(sorted(arrays)) or 'none'}")
-            return next(iter(arrays.values()))
+            return _named_array(path, scipy.io.loadmat(path), variable)
     except (ValueError, OSError, NotImplementedError, EOFError, IndexError, scipy.io.matlab.MatReadError) as exc:
         hint = "; VPR-Bench's ground_truth_new.npy is the vprbench form" if str(exc).startswith("Object arrays") else ""
         raise WilocError(path, f"cannot read matrix ({load_problem(exc)}){hint}") from exc
-    raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv or .mat")
+    raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv, .npz or .mat")
 
 
 def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str],
@@ -436,7 +442,7 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
 
     The matrix carries no names: row i is the i-th query frame and column j the j-th reference
     frame in the traversals' natural order, so its shape must match both exactly.
-    ``variable`` picks one array in a .mat file holding several.
+    ``variable`` picks one array in a .mat or .npz file holding several.
     """
     path = Path(path)
     check_file(path)
@@ -445,8 +451,10 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
         raise WilocError(path, f"matrix holds {data.dtype} values; give numbers (1 = same place, 0 = not) or booleans")
     expected = (len(query_names), len(ref_names))
     if data.ndim != 2 or data.shape != expected:
+        turned = (": it is reference x query frames (as VPR_Tutorial's GThard); save its transpose, M.T"
+                  if data.shape == expected[::-1] else "")
         raise WilocError(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "
-                               f"{expected[0]} x {expected[1]} (query x reference frames)")
+                               f"{expected[0]} x {expected[1]} (query x reference frames){turned}")
     matrix = sparse.csr_array(data)
     values = matrix.data.astype(np.float64, copy=False)
     if not np.isfinite(values).all():

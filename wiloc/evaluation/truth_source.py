@@ -51,12 +51,12 @@ def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
 
 def file_form(path: str | Path) -> str:
     """The form of a ground-truth file given without its kind: VPR-Bench's file by its name, a
-    .npy or .mat as a matrix, a CSV by its first line (``query,reference``: pairs; ``name`` with
+    .npy, .npz or .mat as a matrix, a CSV by its first line (``query,reference``: pairs; ``name`` with
     ``x,y`` or ``lat,lon``: positions; numbers alone: a matrix), anything else as pairs, whose
     reader says what is missing."""
     if Path(path).name.lower() == "ground_truth_new.npy":
         return "vprbench"
-    if Path(path).suffix.lower() in (".npy", ".mat"):
+    if Path(path).suffix.lower() in (".npy", ".npz", ".mat"):
         return "matrix"
     try:
         with open(path, encoding="utf-8-sig", errors="replace") as file:
