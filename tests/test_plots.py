@@ -207,6 +207,26 @@ def test_an_unknown_figure_suffix_is_refused_naming_the_file(tmp_path: Path) -> 
     check_plot_path(tmp_path / "pr.PDF")  # any case
 
 
+def test_a_pgf_figure_without_tex_is_refused_before_any_work(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                            run: tuple[np.ndarray, np.ndarray]) -> None:
+    """matplotlib measures a .pgf figure's text with TeX: without it the option is refused as it
+    is read, in one line naming the option, not after the work with matplotlib's words."""
+    from helpers import ends_in_one_error
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+
+    monkeypatch.setattr("wiloc.figures.plots.shutil.which", lambda name: None)  # no TeX here
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(WilocError, match=r"pr\.pgf: '\.pgf' figures need xelatex .*not installed; write a \.pdf"):
+        plot_pr({"online q": run}, tmp_path / "pr.pgf")
+    for command in (["evaluate", "R", "--pr-plot", "pr.pgf"], ["compare", "R", "--threshold-plot", "t.pgf"],
+                    ["localize", "Q", "--model-plot", "m.pgf"]):
+        ends_in_one_error(CliRunner().invoke(app, command), 2, f"{command[-2]}: '.pgf' figures need xelatex")
+    assert list(tmp_path.iterdir()) == []
+    check_plot_path(tmp_path / "pr.pdf")
+
+
 def test_plot_threshold_marks_table_ii_thresholds(tmp_path: Path) -> None:
     grid = np.linspace(0, 1, 11)
     nothing = {"online day": (grid, np.full(11, np.nan))}  # no line of its own: only the mark is C0

@@ -15,12 +15,14 @@ from __future__ import annotations
 import io
 import logging
 import math
+import shutil
 import textwrap
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import matplotlib
 import numpy as np
 from numpy.typing import NDArray
 from matplotlib.axes import Axes
@@ -46,12 +48,17 @@ CORRECT, WRONG, TRUTH = "#2ca02c", "#d62728", "white"
 
 
 def check_plot_path(path: str | Path) -> None:
-    """WilocError naming the file when its suffix is no figure format (``pr.pgn``)."""
+    """WilocError naming the file when its suffix is no figure format (``pr.pgn``), or is one whose
+    tool is missing (``.pgf`` without TeX), so that the option is refused before the work."""
     suffix = Path(path).suffix.lower().lstrip(".")
     if suffix not in FORMATS:
         shown = f"'.{suffix}'" if suffix else "no suffix"
         raise WilocError(path, f"{shown} is not a figure format; end the name in one of "
                                f"{', '.join('.' + f for f in FORMATS)}")
+    tex = matplotlib.rcParams["pgf.texsystem"]
+    if suffix == "pgf" and shutil.which(tex) is None:
+        raise WilocError(path, f"'.pgf' figures need {tex} (matplotlib measures their text with TeX), which is "
+                               "not installed; write a .pdf or .svg instead")
 
 
 def _figure(ncols: int = 1, width: float = 6.0, nrows: int = 1, height: float = 4.5,
