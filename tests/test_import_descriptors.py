@@ -8,7 +8,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from helpers import ends_in_one_error
+from helpers import ends_in_one_error, write_images
 from typer.testing import CliRunner
 
 from wiloc.cli import app
@@ -129,3 +129,16 @@ def test_bad_sources_are_one_line(case: str, tmp_path: Path, cache_dir: Path) ->
 def test_a_matrix_file_without_a_recorded_metric_still_needs_one(tmp_path: Path, cache_dir: Path) -> None:
     feats = _hloc_file(tmp_path / "feats.h5", {f"img{i}.jpg": v for i, v in enumerate(_descriptors()[0])})
     ends_in_one_error(runner.invoke(app, ["localize", str(feats)]), 2, "--metric: ", "needs a metric", "imported descriptors")
+
+
+def test_a_folder_against_a_matrix_of_other_descriptors_names_both(tmp_path: Path, cache_dir: Path) -> None:
+    # a map of sad's length and metric from another tool differs in scale only: the error leads
+    # with what the scale follows from, the two descriptors
+    names = write_images(tmp_path / "query", 4)
+    np.save(tmp_path / "map.npy", np.random.default_rng(0).integers(0, 256, (4, 1152)).astype(np.uint8))
+    (tmp_path / "names.txt").write_text("\n".join(names))
+    result = runner.invoke(app, ["localize", str(tmp_path / "query"), "--map", str(tmp_path / "map.npy"),
+                                 "--map-names", str(tmp_path / "names.txt"), "--metric", "l1", "--method", "threshold",
+                                 "--out", str(tmp_path / "run.csv")])
+    ends_in_one_error(result, 1, "cannot be compared with", "descriptor sad vs external (describe both alike)")
+    assert not (tmp_path / "run.csv").exists()

@@ -122,6 +122,8 @@ def summarize(matrix: RowBlocks, exclude_recent: int, progress: Progress | None 
 def check_comparable(query: Entry, ref: Entry) -> None:
     """Raise WilocError naming both folders when the two entries cannot be compared."""
     problems = []
+    if query.descriptor != ref.descriptor:  # say first what the scale or length below follow from
+        problems.append(f"descriptor {query.descriptor} vs {ref.descriptor} (describe both alike)")
     if query.metric != ref.metric:
         problems.append(f"metric {query.metric} vs {ref.metric}")
     if query.scale != ref.scale:
