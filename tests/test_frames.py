@@ -49,6 +49,20 @@ def test_natural_key_orders_decimal_fractions_as_fractions() -> None:
     assert sorted(["frame.10.png", "frame.2.png"], key=natural_key) == ["frame.2.png", "frame.10.png"]
 
 
+def test_a_folder_of_sub_folders_names_them(tmp_path: Path) -> None:
+    # datasets keep each camera's images in a folder of its own (EuRoC's cam0/data, KITTI's
+    # image_0): given their parent, the error says the sub-folders were not searched, and which
+    for camera in ("cam1", "cam0"):
+        (tmp_path / camera / "data").mkdir(parents=True)
+        cv2.imwrite(str(tmp_path / camera / "data" / "0.png"), _textured(8, 8))
+    (tmp_path / ".git").mkdir()
+    with pytest.raises(WilocError, match=r"no image files .*; sub-folders are not searched: give the one holding "
+                                         r"the images \(cam0, cam1\)$"):
+        list_traversal(tmp_path)
+    with pytest.raises(WilocError, match=r"no image files \([^)]*\)$"):
+        list_traversal(tmp_path / ".git")
+
+
 def test_list_traversal_orders_float_timestamps_in_time_order(tmp_path: Path) -> None:
     for name in ("1614000000.2.png", "1614000000.15.png", "1614000000.1.png", "1614000001.05.png"):
         (tmp_path / name).write_bytes(b"x")

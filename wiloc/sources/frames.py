@@ -143,10 +143,13 @@ def list_traversal(folder: Path) -> Traversal:
         raise WilocError(folder, "not a folder")
     frames: list[str] = []
     ignored: list[str] = []
+    subfolders: list[str] = []
     unusable: list[tuple[str, str]] = []
     with os.scandir(folder) as entries:  # the entries know their type: no stat per file
         for item in entries:
             suffix = os.path.splitext(item.name)[1].lower()
+            if item.is_dir() and not item.name.startswith("."):
+                subfolders.append(shown_name(item.name))
             if (item.name.startswith(".") or (suffix not in IMAGE_SUFFIXES and suffix not in OTHER_IMAGE_SUFFIXES)
                     or item.is_dir()):
                 ignored.append(shown_name(item.name))
@@ -162,7 +165,10 @@ def list_traversal(folder: Path) -> Traversal:
         raise WilocError(folder, f"no usable image files ({name}: {reason}"
                                  f"{f'; {len(unusable) - 1} more' if len(unusable) > 1 else ''})")
     if not frames:
-        raise WilocError(folder, f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))})")
+        shown = ", ".join(natural_sorted(subfolders)[:5]) + (", ..." if len(subfolders) > 5 else "")
+        raise WilocError(folder, f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))})"
+                                 + (f"; sub-folders are not searched: give the one holding the images ({shown})"
+                                    if subfolders else ""))
     return Traversal(folder=folder, frame_names=tuple(natural_sorted(frames)),
                      ignored=tuple(folder / name for name in natural_sorted(ignored)),
                      unusable=tuple(sorted(unusable, key=lambda u: natural_key(u[0]))))
