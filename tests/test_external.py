@@ -58,6 +58,17 @@ def test_csv_written_by_pandas_keeps_its_header_out(tmp_path: Path, index_label:
     assert names == NAMES and np.array_equal(matrix, _matrix())
 
 
+def test_a_matrix_of_one_column_per_frame_is_told_with_its_transpose(tmp_path: Path) -> None:
+    # tools that store one descriptor per column (MATLAB's habit) give a D x N matrix
+    np.save(tmp_path / "m.npy", _matrix().T)
+    (tmp_path / "names.txt").write_text("\n".join(NAMES))
+    with pytest.raises(WilocError, match=r"3 frame names for 4 descriptor rows \(the matrix is 4 x 3: one column "
+                                         r"per frame\? save its transpose"):
+        read_external(tmp_path / "m.npy", tmp_path / "names.txt", "l1")
+    np.save(tmp_path / "m.npy", _matrix())
+    assert read_external(tmp_path / "m.npy", tmp_path / "names.txt", "l1")[0] == NAMES
+
+
 def test_csv_hamming_becomes_uint8(tmp_path: Path) -> None:
     path = _csv(tmp_path / "h.csv", [["x", 0, 255], ["y", 17, 3]])
     names, matrix = read_external(path, None, "hamming")

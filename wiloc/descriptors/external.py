@@ -282,7 +282,9 @@ def read_external(
         names = _generated_names(matrix.shape[0])
     where = path if names_path is None else Path(names_path)
     if len(names) != matrix.shape[0]:
-        raise WilocError(where, f"{len(names)} frame names for {matrix.shape[0]} descriptor rows")
+        turned = (f" (the matrix is {matrix.shape[0]} x {matrix.shape[1]}: one column per frame? save its "
+                  "transpose, one row per frame)" if len(names) == matrix.shape[1] else "")
+        raise WilocError(where, f"{len(names)} frame names for {matrix.shape[0]} descriptor rows{turned}")
     if prefix:
         keep = [i for i, name in enumerate(names) if name.startswith(prefix)]
         if not keep:
