@@ -69,6 +69,20 @@ def test_a_matrix_of_one_column_per_frame_is_told_with_its_transpose(tmp_path: P
     assert read_external(tmp_path / "m.npy", tmp_path / "names.txt", "l1")[0] == NAMES
 
 
+def test_npz_archive_with_or_without_names(tmp_path: Path) -> None:
+    # np.savez of the descriptors and, as another tool may add, their names
+    np.savez(tmp_path / "named.npz", descriptors=_matrix(), names=np.array(NAMES))
+    names, matrix = read_external(tmp_path / "named.npz", None, "l1")
+    assert names == NAMES and np.array_equal(matrix, _matrix())
+    np.savez(tmp_path / "bare.npz", _matrix())
+    (tmp_path / "names.txt").write_text("\n".join(NAMES[::-1]))
+    assert read_external(tmp_path / "bare.npz", tmp_path / "names.txt", "l1")[0] == NAMES[::-1]
+    assert read_external(tmp_path / "bare.npz", None, "l1")[0] == ["frame000000", "frame000001", "frame000002"]
+    np.savez(tmp_path / "two.npz", a=_matrix(), b=_matrix())
+    with pytest.raises(WilocError, match=r"holds 2 2-D arrays of numbers \(a, b\)"):
+        read_external(tmp_path / "two.npz", None, "l1")
+
+
 def test_csv_hamming_becomes_uint8(tmp_path: Path) -> None:
     path = _csv(tmp_path / "h.csv", [["x", 0, 255], ["y", 17, 3]])
     names, matrix = read_external(path, None, "hamming")

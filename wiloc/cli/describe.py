@@ -27,7 +27,7 @@ def describe(
     vocabulary: VocabularyOption = None,
     model: ModelOption = None,
     preprocess: PreprocessOption = None,
-    import_file: Optional[Path] = typer.Option(None, "--import", help="External descriptors: an N x D matrix (.npy, .csv, .h5), hloc's global-feats-*.h5, or a folder of per-image .npy files (with --out)."),
+    import_file: Optional[Path] = typer.Option(None, "--import", help="External descriptors: an N x D matrix (.npy, .npz, .csv, .h5), hloc's global-feats-*.h5, or a folder of per-image .npy files (with --out)."),
     names: Optional[Path] = typer.Option(None, help="With --import .npy: text file of frame names, one a line."),
     metric: Optional[str] = typer.Option(None, callback=metric_name, show_default="the file's recorded metric, else l1", help="With --import: l1 | sqeuclidean | hamming | cosine"),
     import_out: Optional[Path] = typer.Option(None, "--out", "-o", callback=output_file, show_default="none: only the cache",

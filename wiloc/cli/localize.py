@@ -79,7 +79,7 @@ def localize(
     matrices = [is_matrix_file(Path(p)) for p in (*queries, reference, train_query, train_map) if p is not None]
     refuse_unused({"descriptor": (not all(matrices), "image folders and video files"),
                    **descriptor_uses(descriptor, described=not all(matrices)),
-                   "metric": (any(matrices), "descriptor matrix files (.npy, .csv, .h5)"),
+                   "metric": (any(matrices), "descriptor matrix files (.npy, .npz, .csv, .h5)"),
                    "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
                    "map_names": (reference is not None and is_matrix_file(reference),
                                  "a descriptor matrix file as --map"),

@@ -80,7 +80,7 @@ def descriptors_digest(names: list[str], data: np.ndarray) -> str:
 
 
 #: The suffixes of descriptor matrix files a traversal may be (``descriptors.external`` reads them).
-MATRIX_SUFFIXES = frozenset({".npy", ".csv", ".h5", ".hdf5"})
+MATRIX_SUFFIXES = frozenset({".npy", ".npz", ".csv", ".h5", ".hdf5"})
 
 
 def is_matrix_file(source: Path) -> bool:
@@ -159,7 +159,7 @@ class Describer:
                 kind = ("an image file" if suffix in IMAGE_SUFFIXES
                         else f"a {suffix} file" if suffix else "a file without a suffix")
                 raise WilocError(source, f"{kind} is not a traversal: give a folder of images, a video or a "
-                                         "descriptor matrix file (.npy, .csv, .h5)")
+                                         "descriptor matrix file (.npy, .npz, .csv, .h5)")
             metric = self.metric or recorded_metric(source)
             if metric is None:
                 raise ParameterError("metric", f"{source}: a descriptor matrix file needs a metric (l1, sqeuclidean, "

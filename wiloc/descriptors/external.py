@@ -5,6 +5,8 @@ Formats (chosen by suffix; a folder is one ``.npy`` vector per image):
 
 - ``.npy``: the N x D matrix; names from ``names_path`` (one per line, or the first column of a
   ``.csv``; a first cell ``name``/``frame``/``file`` is a header) or generated ``frame000000``...
+- ``.npz``: numpy's archive holding one N x D array of numbers, and optionally one array of N
+  strings, the names (else as ``.npy``).
 - ``.csv``: one row per frame, first column the frame name, the rest numbers; an optional header
   row (recognised when none of its value cells is a number, or its first cell is empty or a
   word such as ``name``: pandas heads the value columns 0, 1, 2, ...).
@@ -75,6 +77,30 @@ def _read_npy(path: Path) -> NDArray:
         return np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
         raise WilocError(path, f"not a readable .npy array ({load_problem(exc)})") from exc
+
+
+def _read_npz(path: Path) -> tuple[NDArray, list[str] | None]:
+    """numpy's archive (``np.savez``): its one 2-D array of numbers, and as frame names its one
+    1-D array of text as long, if it holds one."""
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise WilocError(path, f"not a readable .npz archive ({load_problem(exc)})") from exc
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        return archive, None  # an .npy array named .npz
+    with archive:
+        try:
+            arrays = {name: archive[name] for name in archive.files}
+        except (OSError, ValueError, EOFError) as exc:
+            raise WilocError(path, f"not a readable .npz archive ({load_problem(exc)})") from exc
+    matrices = [name for name, array in arrays.items() if array.ndim == 2 and array.dtype.kind in "biuf"]
+    if len(matrices) != 1:
+        raise WilocError(path, f"holds {len(matrices)} 2-D arrays of numbers ({', '.join(matrices) or 'none'}); "
+                               "give an archive of one, the N x D descriptors")
+    matrix = arrays[matrices[0]]
+    texts = [array for array in arrays.values()
+             if array.ndim == 1 and array.dtype.kind == "U" and array.size == matrix.shape[0]]
+    return matrix, [str(name) for name in texts[0]] if len(texts) == 1 else None
 
 
 def _read_h5(path: Path) -> tuple[NDArray, list[str] | None]:
@@ -267,6 +293,8 @@ def read_external(
         matrix, names = _read_npy_folder(path)
     elif suffix == ".npy":
         matrix = _read_npy(path)
+    elif suffix == ".npz":
+        matrix, names = _read_npz(path)
     elif suffix in (".h5", ".hdf5"):
         matrix, names = _read_h5(path)
     elif suffix == ".csv":
@@ -274,7 +302,7 @@ def read_external(
             raise WilocError(names_path, "a .csv matrix names its frames in its first column")
         matrix, names = _read_csv(path)
     else:
-        raise WilocError(path, "unknown matrix format (use .npy, .csv or .h5)")
+        raise WilocError(path, "unknown matrix format (use .npy, .npz, .csv or .h5)")
     matrix = _checked_matrix(path, np.asarray(matrix), metric, from_text=suffix == ".csv")
     if names_path is not None:
         names = read_names(Path(names_path))
