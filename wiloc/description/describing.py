@@ -12,7 +12,7 @@ import os
 import time
 from collections.abc import Callable, Container, Generator, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -89,10 +89,13 @@ def is_stream(source: Path) -> bool:
 
 
 def check_sampling(sources: Sequence[Path], sampling: Sampling | None) -> None:
-    """ParameterError when a sampling other than every frame is given and none of ``sources`` is
-    a video file or ROS bag: it applies to those only (image folders beside them take every frame)."""
+    """ParameterError naming the sampling's first field that was set (``fps``, ...) when it keeps
+    other than every frame and none of ``sources`` is a video file or ROS bag: it applies to those
+    only (image folders beside them take every frame)."""
     if sampling is not None and sampling != Sampling() and not any(is_stream(Path(s)) for s in sources):
-        raise ParameterError("sampling", f"applies to video files and ROS bags only; {sources[0]} is neither")
+        unset = Sampling()
+        given = next(f.name for f in fields(Sampling) if getattr(sampling, f.name) != getattr(unset, f.name))
+        raise ParameterError(given, f"applies to video files and ROS bags only; {sources[0]} is neither")
 
 
 def check_topic(sources: Sequence[Path], topic: str | None) -> None:
