@@ -102,3 +102,19 @@ class Decisions:
                    confidence=np.array([d.confidence for d in steps], dtype=np.float64),
                    stage=np.array([d.stage for d in steps], dtype=np.str_),
                    columns={name: column(name) for name in columns}, ranking=ranking, **kwargs)
+
+    @classmethod
+    def concatenated(cls, parts: list[Decisions], **kwargs: Any) -> Decisions:
+        """The decisions of consecutive ``parts`` (one at least, of one run: the same columns, all
+        ranked or none) as one, their rankings padded with -1 to the widest, as :meth:`collect` pads."""
+        def joined(name: str) -> NDArray:
+            return np.concatenate([getattr(part, name) for part in parts])
+        ranking = None
+        if parts[0].ranking is not None:
+            ranking = np.full((sum(map(len, parts)), max(part.ranking.shape[1] for part in parts)), -1, dtype=np.int64)
+            ends = np.cumsum([len(part) for part in parts])
+            for part, end in zip(parts, ends):
+                ranking[end - len(part):end, :part.ranking.shape[1]] = part.ranking
+        return cls(match=joined("match"), difference=joined("difference"), confidence=joined("confidence"),
+                   stage=joined("stage"), ranking=ranking, **kwargs,
+                   columns={name: np.concatenate([part.columns[name] for part in parts]) for name in parts[0].columns})

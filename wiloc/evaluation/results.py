@@ -71,6 +71,13 @@ class Results:
             return None
         return self.frames[NEW_PLACE].to_numpy(dtype=np.float64)
 
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write these results as a results file (:func:`write_results`, atomically): the file
+        ``wiloc evaluate``, ``wiloc compare`` and :func:`read_results` read."""
+        path = Path(path)
+        write_results(path, self)
+        return path
+
     @property
     def ranking(self) -> np.ndarray | None:
         """Each frame's best candidates as reference positions, best first, padded with -1

@@ -6,14 +6,13 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from wiloc.cache.store import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
-from wiloc.description.describing import is_stream
-from wiloc.description.traversals import Progress, descriptors_digest, stage
+from wiloc.description.traversals import Progress, stage
 from wiloc.evaluation.results import Results, make_results, write_results
 from wiloc.localization.run_files import results_lock, run_header
 from wiloc.localization.session import RunSession, check_traversal
@@ -88,14 +87,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
         rows = session.batch_rows()
         decisions = session.method.run(rows, len(q.names), odometry=session.query_steps(),
                                        progress=stage(progress, f"{method} {query.name}"))
-        streamed = any(is_stream(Path(source)) for source in (query, reference) if source is not None)
-        evidence = session.evidence  # FAB-MAP's training data: the vocabulary's images
-        header = replace(run_header(method, describer, query, q.metric, reference, R, training),
-                         query_digest=descriptors_digest(q.names, q.data),
-                         map_digest="" if session.sequence else descriptors_digest(r.names, r.data),
-                         sampling=asdict(sampling or Sampling()) if streamed else None, topic=topic,
-                         odometry_topic=odometry_topic, rows="fabmap" if evidence is not None else None,
-                         fabmap_training=tuple(evidence.training_folders) if evidence is not None else None)
+        header = replace(run_header(method, describer, query, q.metric, reference, R, training), **session.recorded())
         results = make_results(decisions, query_names=q.names, ref_names=r.names, header=header)
         replaced = write_results(Path(out), results) if out is not None else False
         return LocalizeRun(query=query, reference=Path(reference) if reference else query, method=method,

@@ -4,7 +4,7 @@ wrote before is resumed (``wiloc.api.follow_folder``)."""
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +15,7 @@ from wiloc.errors import WilocError
 from wiloc.evaluation.results import RANKING, ResultsStream
 from wiloc.localization.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localization.localizer import Localizer
-from wiloc.localization.run_files import lock_results, results_name, run_header, unlock_results
+from wiloc.localization.run_files import lock_results, results_name, unlock_results
 from wiloc.localization.training import Training
 
 
@@ -91,12 +91,8 @@ def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descr
     localizer = Localizer(reference, descriptor=descriptor, descriptor_params=descriptor_params, method=method,
                           exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
                           cache=cache, jobs=jobs, **dict(method_params or {}))
-    header = replace(run_header(method, localizer.describer, query, localizer.metric, reference,
-                                localizer.exclude_recent, training),
-                     params=localizer.method.header(),
-                     reference_frames=() if reference is None else tuple(localizer.map_names))
     ranked = (RANKING,) if localizer.method.ranks else ()
-    stream = ResultsStream(path, header, (*localizer.method.columns, *ranked), resume=True)
+    stream = ResultsStream(path, localizer.header(query), (*localizer.method.columns, *ranked), resume=True)
     names = stream.rows["frame"].tolist()
     for name, line in zip(names, stream.written_lines()):
         decision = localizer.observe(query / name)

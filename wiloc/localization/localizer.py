@@ -5,7 +5,9 @@ with the batch ``wiloc.api.localize``): its differences to the map (or, in seque
 earlier frame outside the recent window: the map grows as frames arrive), and steps the chosen
 method. Per-frame cost is bounded by the map's size: no N x N matrix is built; the map's
 differences to itself, which some methods learn from when started, are computed block by block
-and never stored. ``save``/``load`` let a long run stop and resume with identical decisions.
+and never stored. The decisions made are kept, compactly, so that ``results`` gives the run's
+results as a batch run of the same frames does. ``save``/``load`` let a long run stop and resume
+with identical decisions, and keep the decisions made before.
 """
 from __future__ import annotations
 
@@ -21,23 +23,25 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc import __version__
 from wiloc.atomic import written_whole
 from wiloc.cache.store import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decision
 from wiloc.description.traversals import Describer, checked_rows, is_matrix_file
 from wiloc.errors import FrameError, WilocError, load_problem
-from wiloc.localization.session import RunSession, check_traversal
-from wiloc.localization.training import Training
-from wiloc.methods.base import Method, TrainingRows
+from wiloc.evaluation.results import Results
+from wiloc.evaluation.results_header import ResultsHeader
+from wiloc.localization.session import RunSession, TrainingPair, check_traversal
+from wiloc.localization.streamed import DecisionLog, streamed_header, streamed_results
 from wiloc.sources.frames import check_aspect, read_colour, read_gray, to_uint8, unusable_reason
 from wiloc.sources.video import Sampling
-from wiloc.version import __version__
 
 STATE_FORMAT = "wiloc-localizer-state"
-#: 5: catgraph reads each node against its chance resemblance; 4: sequence mode runs the catgraph
-#: filter; 3: catgraph knows a repeated image; 2: it ranks FAB-MAP evidence
-STATE_VERSION = 5
+#: 6: the decisions made are kept (``results``); 5: catgraph reads each node against its chance
+#: resemblance; 4: sequence mode runs the catgraph filter; 3: catgraph knows a repeated image; 2: it
+#: ranks FAB-MAP evidence
+STATE_VERSION = 6
 
 
 class Localizer:
@@ -52,15 +56,21 @@ class Localizer:
     image topic of a map ROS bag (needed when it has several); ``map_odometry``
     the map's odometry CSV for methods that take odometry.
 
+    It keeps every decision it makes (about 60 bytes a frame, and 8 per ranked candidate: 220 for
+    the methods that rank), so that :meth:`results` gives the run's results, scored by
+    ``wiloc.evaluate`` and written by ``Results.save`` as a batch run's; :meth:`save`, :meth:`load`
+    and pickling keep them.
+
         loc = Localizer(map="day_right/", descriptor="sad", method="catgraph", seed=0)
         for path in sorted(Path("day_left").glob("*.jpg")):
             decision = loc.observe(path)
+        loc.results(query="day_left/").save("day_left-sad-catgraph.csv")   # wiloc evaluate reads it
     """
 
     def __init__(self, map: str | Path | Entry | None = None, *, descriptor: str = "sad",
                  descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
                  method: str = "online", exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
-                 training: Training | TrainingRows | None = None, map_odometry: str | Path | None = None,
+                 training: TrainingPair | None = None, map_odometry: str | Path | None = None,
                  map_names: str | Path | None = None, sampling: Sampling | None = None, topic: str | None = None,
                  cache: Cache | str | os.PathLike | None = None, jobs: int | None = None, **params: Any) -> None:
         self._setup(RunSession(_map(map), method=method, method_params=params, descriptor=descriptor,
@@ -73,11 +83,12 @@ class Localizer:
     def _setup(self, session: RunSession) -> None:
         """Everything but the method's start: shared by a new localizer and a loaded one."""
         self._session = session
-        self.method: Method = session.method
+        self.method = session.method
         self.exclude_recent = session.exclude_recent
         self.sequence = session.sequence
         self.names: list[str] = []  # the frames observed, in order
         self._named: set[str] = set()  # the same, looked up for each new name
+        self._log = DecisionLog(self.method.columns, self.method.ranks)  # their decisions
         path = session.map_path
         self._spec = None if path is not None and is_matrix_file(path) else session.describer.spec
 
@@ -158,6 +169,7 @@ class Localizer:
         descriptor = self.describe(frame)
         decision = self.method.step(self.row(descriptor), odometry)
         self._session.add(descriptor)
+        self._log.append(decision)
         self.names.append(name)
         self._named.add(name)
         candidates = self.map_names
@@ -185,6 +197,25 @@ class Localizer:
                                         "each frame needs a name of its own (name=...)")
         return name
 
+    # ------------------------------------------------------------------------------------ results
+
+    def results(self, query: str | os.PathLike | None = None) -> Results:
+        """The run's results so far: one row per frame observed, in order, with the header, model
+        and columns a batch ``wiloc.localize`` of the same frames gives (and, when decisions are
+        the same, the same rows): ``wiloc.evaluate`` scores them, ``Results.save(path)`` writes
+        the file ``wiloc evaluate`` and ``wiloc compare`` read. ``query`` is the traversal the
+        frames came from (a folder), recorded as a batch run records its query: ground truth
+        that finds its files by the query's name (``{query}``) or reads its images needs it. A
+        batch run's query digest is left out: no query descriptors are kept."""
+        if query is not None:
+            check_traversal(query, "query", " or None")
+        return streamed_results(self._session, self._log, self.names, query)
+
+    def header(self, query: str | os.PathLike | None = None) -> ResultsHeader:
+        """What the results file of this run starts with (a followed folder's as it starts, before
+        any row): the setup, the method's parameters and the map's frames."""
+        return streamed_header(self._session, query)
+
     # -------------------------------------------------------------------------------- save / load
 
     def state(self) -> dict[str, Any]:
@@ -199,7 +230,7 @@ class Localizer:
                 "metric": describer.metric, "method": self.method.name,
                 "sampling": None if describer.sampling is None else asdict(describer.sampling),
                 "topic": describer.topic, "params": self.method.params.as_dict(), "exclude_recent": self.exclude_recent,
-                "names": list(self.names), "seen": session.seen,
+                "names": list(self.names), "seen": session.seen, "decisions": self._log.state(),
                 "method_state": self.method.state()}
 
     def save(self, path: str | Path) -> Path:
@@ -261,6 +292,7 @@ class Localizer:
         loc._setup(session)
         loc.names = list(meta["names"])
         loc._named = set(loc.names)
+        loc._log = DecisionLog.restored(loc.method.columns, loc.method.ranks, meta["decisions"])
         if session.map is None:
             session.resume(meta["seen"])
         loc.method.restore(session.context(), meta["method_state"])

@@ -10,9 +10,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from wiloc.atomic import write_error
-from wiloc.cache.store import lock_file
+from wiloc.cache.entries import EXTERNAL
+from wiloc.cache.store import Entry, lock_file
 from wiloc.description.describing import is_stream
-from wiloc.description.traversals import Describer, descriptor_label
+from wiloc.description.traversals import Describer, descriptor_label, is_matrix_file
 from wiloc.errors import CacheBusyError, ParameterError
 from wiloc.evaluation.results import Results, read_results
 from wiloc.evaluation.results_header import ResultsHeader
@@ -33,13 +34,20 @@ def results_name(query: Path, method: str, descriptor: str, metric: str | None =
     return f"{name}-{label}-{method}.csv"
 
 
-def run_header(method: str, describer: Describer, query: Path, metric: str, reference: Path | None,
+def run_header(method: str, describer: Describer, query: Path | None, metric: str, reference: Path | Entry | None,
                exclude_recent: int, training: Training | None) -> ResultsHeader:
-    """What a results header says about a run besides the method's parameters."""
-    return ResultsHeader(method=method, descriptor=describer.label(query), descriptor_params=dict(describer.params),
-                         metric=metric, mode="sequence" if reference is None else "map", query=text_path(query),
-                         map=text_path(reference) if reference else "", exclude_recent=exclude_recent,
-                         wiloc=__version__, train_query=str(training.query) if training else None,
+    """What a results header says about a run besides the method's parameters. A streaming run
+    may not know its ``query`` (None: recorded as "") and may hold its map in memory (an
+    ``Entry``: recorded by its ``folder``). Imported descriptors (a query or map that is a
+    matrix file, or rows given as ``external``) are named ``external:METRIC``."""
+    sources = [Path(source) for source in (query, reference) if isinstance(source, (str, os.PathLike))]
+    external = describer.descriptor == EXTERNAL or any(is_matrix_file(source) for source in sources)
+    return ResultsHeader(method=method, descriptor=f"{EXTERNAL}:{metric}" if external else describer.descriptor,
+                         descriptor_params=dict(describer.params), metric=metric,
+                         mode="sequence" if reference is None else "map", query="" if query is None else text_path(query),
+                         map=reference.folder if isinstance(reference, Entry) else text_path(reference) if reference else "",
+                         exclude_recent=exclude_recent, wiloc=__version__,
+                         train_query=str(training.query) if training else None,
                          train_map=str(training.reference) if training else None)
 
 

@@ -12,28 +12,29 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator, Mapping
+from dataclasses import asdict
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.cache.store import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
-from wiloc.description.describing import check_sampling, check_topic
+from wiloc.description.describing import check_sampling, check_topic, is_stream
 from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive, pairwise
-from wiloc.description.traversals import Describer, Progress, is_matrix_file, open_cluster, stage
+from wiloc.description.traversals import Describer, Progress, descriptors_digest, is_matrix_file, open_cluster, stage
 from wiloc.errors import ParameterError, WilocError
 from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
 from wiloc.methods.base import MapContext, Method, TrainingRows
 from wiloc.methods.registry import make_method
+from wiloc.sources.video import Sampling
 
-if TYPE_CHECKING:
-    from wiloc.sources.video import Sampling
-
+#: The labelled pair of ``trained``: its traversals and truth, or their difference rows and labels.
+TrainingPair = Training | TrainingRows
 
 #: What a query or map is, as errors about one say it.
 TRAVERSAL = "one traversal (a folder, video, ROS bag or descriptor matrix file)"
@@ -62,7 +63,7 @@ class RunSession:
     def __init__(self, map: Path | Entry | None, *, method: str, method_params: Mapping[str, Any] | None = None,
                  descriptor: str = "sad", descriptor_params: Mapping[str, Any] | None = None,
                  metric: str | None = None, exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
-                 training: Training | TrainingRows | None = None, map_odometry: Path | None = None,
+                 training: TrainingPair | None = None, map_odometry: Path | None = None,
                  map_names: Path | None = None, query: Path | None = None, query_names: Path | None = None,
                  odometry: Path | None = None, odometry_topic: str | None = None,
                  sampling: Sampling | None = None, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,
@@ -126,6 +127,20 @@ class RunSession:
         if "map_self" in self.method.needs and n_map <= R + 1:
             raise WilocError(where, f"the map has {n_map} frames: with exclude_recent={R} no two map "
                                     "frames are far enough apart to learn different-place differences")
+
+    def recorded(self) -> dict[str, Any]:
+        """What a results header records of this run's inputs besides its setup
+        (``wiloc.localization.run_files.run_header``): the digests of the query's descriptors (a
+        batch run's; a streaming run keeps none) and the map's ("" in sequence mode), a video's or
+        bag's sampling and topics, and FAB-MAP's evidence rows with the folders they were trained on."""
+        streamed = any(path is not None and is_stream(path) for path in (self.query_path, self.map_path))
+        q, evidence = self.query, self.evidence
+        return {"query_digest": None if q is None else descriptors_digest(q.names, q.data),
+                "map_digest": "" if self.map is None else descriptors_digest(self.map.names, self.map.data),
+                "sampling": asdict(self.describer.sampling or Sampling()) if streamed else None,
+                "topic": self.describer.topic, "odometry_topic": self.odometry_topic,
+                "rows": "fabmap" if evidence is not None else None,
+                "fabmap_training": tuple(evidence.training_folders) if evidence is not None else None}
 
     # ------------------------------------------------------------------------------------ context
 
