@@ -1212,7 +1212,7 @@ def test_a_match_without_a_confidence_or_a_confidence_without_a_match_is_refused
                       "without a match (a run writes both or neither)")
 
 
-@pytest.mark.parametrize("name", ["notes.txt", "frames.npz", "README"])
+@pytest.mark.parametrize("name", ["notes.txt", "frames.pkl", "README"])
 def test_a_file_that_is_no_traversal_says_so_not_that_it_needs_a_metric(name: str, route: tuple[Path, Path],
                                                                         tmp_path: Path) -> None:
     _, query = route
@@ -1221,7 +1221,7 @@ def test_a_file_that_is_no_traversal_says_so_not_that_it_needs_a_metric(name: st
     ends_in_one_error(runner.invoke(app, ["localize", str(query), "--map", str(tmp_path / name), "--out",
                                           str(tmp_path / "o.csv")]), 1,
                       f"{tmp_path / name}: {kind} is not a traversal: give a folder of images, a video or a "
-                      "descriptor matrix file (.npy, .csv, .h5)")
+                      "descriptor matrix file (.npy, .npz, .csv, .h5)")
 
 
 def test_a_refused_figure_leaves_no_other_output_behind(route: tuple[Path, Path], results: Path,
