@@ -153,6 +153,17 @@ def test_positions_that_make_every_pair_the_same_place_are_warned(tmp_path: Path
     assert not any("every match counts" in w for w in positions_truth(metres, metres, 15.0, REFS, REFS).warnings)
 
 
+@pytest.mark.parametrize("lat, lon", [("latitude", "longitude"), ("Latitude", "Longitude"), ("lat", "lng")])
+def test_positions_take_the_other_names_of_lat_lon(tmp_path: Path, lat: str, lon: str) -> None:
+    # GPS logs and exports spell the columns out (latitude,longitude) or shorten longitude to lng
+    rng = np.random.default_rng(2)
+    coords = {"name": REFS, "lat": 50 + rng.uniform(0, 1e-3, 8), "lon": 8 + rng.uniform(0, 1e-3, 8)}
+    plain = write_csv(tmp_path / "plain.csv", coords)
+    other = write_csv(tmp_path / "other.csv", {"name": REFS, lat: coords["lat"], lon: coords["lon"]})
+    np.testing.assert_array_equal(dense(positions_truth(other, other, 20.0, REFS, REFS)),
+                                  dense(positions_truth(plain, plain, 20.0, REFS, REFS)))
+
+
 def test_positions_partial_names_are_warned_with_counts(tmp_path: Path) -> None:
     csv = write_csv(tmp_path / "p.csv", {"name": ["a", "b", "zzz"], "x": [0, 1, 2], "y": [0, 0, 0]})
     truth = positions_truth(csv, csv, 1.5, ["a", "b", "c"], ["a", "b", "c"])
@@ -340,6 +351,8 @@ def test_load_truth_dispatches_each_kind(tmp_path: Path, mask: np.ndarray) -> No
     ("gt.csv", "query,reference\na.jpg,b.jpg\n", "pairs"),
     ("gt.csv", "Name, X, Y\na.jpg,0,0\n", "positions"),
     ("gt.csv", "name,lat,lon\na.jpg,0,0\n", "positions"),
+    ("gt.csv", "name,Latitude,Longitude\na.jpg,0,0\n", "positions"),
+    ("gt.csv", "filename,x,y\na.jpg,0,0\n", "positions"),  # the positions reader says 'name' is missing
     ("gt.csv", "1,0,0\n0,1,0\n", "matrix"),
     ("gt.csv", "1,0,x\n", "pairs"),  # not all numbers: the pairs reader says what is missing
     ("gt.csv", "", "pairs"),

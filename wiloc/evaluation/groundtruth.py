@@ -276,9 +276,16 @@ class Positions:
     geographic: bool
 
 
+COORDINATE_NAMES = {"latitude": "lat", "longitude": "lon", "lng": "lon", "long": "lon"}
+"""Other names of the lat/lon columns that GPS logs and exports use."""
+
+
 def _read_positions(path: Path) -> Positions:
     """Names, coordinates and whether they are lat/lon (else metric x,y) from a positions CSV."""
     frame = _read_csv(path)
+    for other, column in COORDINATE_NAMES.items():
+        if other in frame.columns and column not in frame.columns:
+            frame = frame.rename(columns={other: column})
     _require_columns(path, frame, ["name"], "name,x,y")
     if {"lat", "lon"} <= set(frame.columns):
         geographic, columns = True, ["lat", "lon"]

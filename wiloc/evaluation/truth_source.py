@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Literal
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, Truth, aligned_truth, is_number, matrix_truth, pairs_truth,
-                                          positions_truth, restrict_sequence)
+from wiloc.evaluation.groundtruth import (COORDINATE_NAMES, FOLDER_KINDS, KINDS, Truth, aligned_truth, is_number,
+                                          matrix_truth, pairs_truth, positions_truth, restrict_sequence)
 from wiloc.evaluation.truth_formats import DEFAULT_RADIUS_M, exif_truth, utm_names_truth, vprbench_truth
 
 
@@ -51,8 +51,8 @@ def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
 
 def file_form(path: str | Path) -> str:
     """The form of a ground-truth file given without its kind: VPR-Bench's file by its name, a
-    .npy, .npz or .mat as a matrix, a CSV by its first line (``query,reference``: pairs; ``name`` with
-    ``x,y`` or ``lat,lon``: positions; numbers alone: a matrix), anything else as pairs, whose
+    .npy, .npz or .mat as a matrix, a CSV by its first line (``query,reference``: pairs; ``x,y`` or
+    ``lat,lon`` (or ``latitude,longitude``): positions; numbers alone: a matrix), anything else as pairs, whose
     reader says what is missing."""
     if Path(path).name.lower() == "ground_truth_new.npy":
         return "vprbench"
@@ -63,7 +63,8 @@ def file_form(path: str | Path) -> str:
             cells = [cell.strip().lower() for cell in file.readline().split(",")]
     except OSError:  # no such file yet ('{query}' in its name): the pairs reader names the problem
         return "pairs"
-    if "name" in cells and ({"x", "y"} <= set(cells) or {"lat", "lon"} <= set(cells)):
+    columns = {COORDINATE_NAMES.get(cell, cell) for cell in cells}
+    if {"x", "y"} <= columns or {"lat", "lon"} <= columns:  # the positions reader says what else is missing
         return "positions"
     return "matrix" if cells != [""] and all(is_number(cell) for cell in cells) else "pairs"
 
