@@ -67,19 +67,26 @@ def test_localizer_results_score_as_the_batch_run(demo_route: demo.DemoRoute, me
     assert run["frames"] == len(frames) and run["recall_at_1"] == expected.summary.recall_at_1 > 0.5
 
 
-def test_results_in_sequence_mode_name_the_frames_observed(tmp_path: Path) -> None:
+def test_results_in_sequence_mode_are_the_batch_run_of_the_same_rows(tmp_path: Path) -> None:
     rng = np.random.default_rng(1)
     rows = rng.integers(0, 256, (30, 16)).astype(np.float32)[np.r_[np.arange(30), np.arange(30)]]
+    names = [f"f{i:02d}" for i in range(len(rows))]
+    np.save(tmp_path / "loop.npy", rows)
+    (tmp_path / "names.txt").write_text("\n".join(names) + "\n")
+    batch = api.localize(tmp_path / "loop.npy", metric="l1", query_names_file=tmp_path / "names.txt",
+                         method="online", method_params={"init": 25}, cache=tmp_path / "cache")
     loc = Localizer(None, descriptor="external", descriptor_params={"metric": "l1", "length": 16},
                     method="online", init=25, cache=tmp_path / "cache")
-    decisions = [loc.observe(row, name=f"f{i:02d}") for i, row in enumerate(rows)]
-    results = loc.results()
-    assert results.header.mode == "sequence" and results.header.descriptor == "external:l1"
-    assert results.header.query == "" and results.header.frames == len(rows)
+    decisions = [loc.observe(row, name=name) for row, name in zip(rows, names)]
+    assert loc.results().header.query == ""
+    results = loc.results(tmp_path / "loop.npy")
+    header, expected = results.header, batch.results.header
+    assert (header.mode, header.descriptor, header.query) == ("sequence", "external:l1", expected.query)
+    assert header.query_digest == expected.query_digest  # the frames observed are its candidates: kept
+    assert header.reference_frames == tuple(names) and header.frames == len(rows)
     assert results.frames["match"].tolist() == [d.match_name for d in decisions]
-    assert results.reference_frames == loc.names
-    assert read_run(results.save(tmp_path / "loop.csv")).frames["match"].tolist() == \
-        [d.match_name for d in decisions]
+    pd.testing.assert_frame_equal(_table(results.save(tmp_path / "loop.csv")), _table(batch.results.save(tmp_path / "b.csv")))
+    assert read_run(tmp_path / "loop.csv").frames["match"].tolist() == [d.match_name for d in decisions]
 
 
 def test_results_refuse_a_run_without_frames_and_a_query_that_is_no_path(tmp_path: Path) -> None:

@@ -205,8 +205,9 @@ class Localizer:
         the same, the same rows): ``wiloc.evaluate`` scores them, ``Results.save(path)`` writes
         the file ``wiloc evaluate`` and ``wiloc compare`` read. ``query`` is the traversal the
         frames came from (a folder), recorded as a batch run records its query: ground truth
-        that finds its files by the query's name (``{query}``) or reads its images needs it. A
-        batch run's query digest is left out: no query descriptors are kept."""
+        that finds its files by the query's name (``{query}``) or reads its images needs it.
+        Against a map the query's digest is left out: no query descriptors are kept (in
+        sequence mode they are the candidates, kept, and the digest is the batch run's)."""
         if query is not None:
             check_traversal(query, "query", " or None")
         return streamed_results(self._session, self._log, self.names, query)

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.decisions import Decision, Decisions
+from wiloc.description.traversals import descriptors_digest
 from wiloc.errors import WilocError
 from wiloc.evaluation.results import Results, make_results
 from wiloc.evaluation.results_header import ResultsHeader
@@ -78,12 +79,15 @@ def streamed_header(session: RunSession, query: str | Path | None) -> ResultsHea
 
 def streamed_results(session: RunSession, log: DecisionLog, names: list[str], query: str | Path | None) -> Results:
     """The results of the frames ``names`` decided as ``log`` holds them: the rows, header and
-    model a batch run of the same frames gives, but for the query's digest (a streaming run
-    keeps no query descriptors). No frame yet is a WilocError: there is nothing to score."""
+    model a batch run of the same frames gives, but for the query's digest against a map (a
+    streaming run keeps no query descriptors there; in sequence mode they are its candidates).
+    No frame yet is a WilocError: there is nothing to score."""
     if not names:
         raise WilocError("results", "no frame observed yet: results hold the decisions of the frames observed")
     method = session.method
     header = replace(streamed_header(session, query), **session.recorded())
+    if session.map is None:
+        header = replace(header, query_digest=descriptors_digest(names, session.seen))
     decisions = log.decisions(model=method.model, params=method.header())
     return make_results(decisions, query_names=names, header=header,
                         ref_names=names if session.map is None else session.map.names)
