@@ -420,8 +420,9 @@ def test_sequence_mode_refuses_a_traversal_too_short_and_odometry() -> None:
     with pytest.raises(WilocError) as err:
         method.step(np.ones(40), odometry=1.0)
     assert err.value.parameter == "odometry"
-    with pytest.raises(WilocError, match="odometry"):
+    with pytest.raises(WilocError, match="takes no map odometry in sequence mode") as err:  # the map's positions
         CatGraph().start(base.MapContext(sequence=True, exclude_recent=10, arclength=np.arange(50.0)))
+    assert err.value.parameter == "map_odometry"
 
 
 @pytest.mark.parametrize("n", [2, 3, 17, 1000])

@@ -389,6 +389,21 @@ def test_topic_options_need_a_bag(tmp_path: Path, cache_dir: Path) -> None:
                                           "--odometry-topic", "/odom"]), 2, "--odometry-topic: applies to ROS bags only")
 
 
+def test_an_odometry_topic_refused_is_named_as_given(tmp_path: Path, cache_dir: Path) -> None:
+    """The bag's odometry came by --odometry-topic: a refusal names that option, not --odometry
+    (a CSV the user never gave)."""
+    bag = write_bag(tmp_path / "run", "ros1", scenes(6), odometry="/odom")
+    ref = write_bag(tmp_path / "ref", "ros1", scenes(6), odometry="/odom")
+    ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--map", str(ref), "--method", "online",
+                                          "--odometry-topic", "/odom"]), 2,
+                      "error: --odometry-topic: method 'online' takes no odometry")
+    ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--method", "catgraph", "--odometry-topic", "/odom"]),
+                      2, "error: --odometry-topic: applies to map mode (--map) only")
+    with pytest.raises(WilocError) as refused:
+        api.localize(bag, reference=ref, method="threshold", odometry_topic="/odom")
+    assert refused.value.parameter == "odometry_topic"
+
+
 # ------------------------------------------------------------------------------- Gardens Point
 
 @pytest.mark.realdata

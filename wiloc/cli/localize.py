@@ -83,7 +83,7 @@ def localize(
                    "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
                    "map_names": (reference is not None and is_matrix_file(reference),
                                  "a descriptor matrix file as --map"),
-                   **{name: (reference is not None, "map mode (--map)") for name in ("odometry", "map_odometry")},
+                   **{name: (reference is not None, "map mode (--map)") for name in ("odometry", "map_odometry", "odometry_topic")},
                    "exclude_recent": (reference is None or "map_self" in method_class(method).needs,
                                       "sequence mode, and in map mode to the methods that learn from the map's "
                                       f"differences to itself ({', '.join(_learning_from_the_map())})"),

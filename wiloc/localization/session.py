@@ -26,7 +26,7 @@ from wiloc.description.describing import check_sampling, check_topic, is_stream
 from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive, pairwise
 from wiloc.description.traversals import Describer, Progress, descriptors_digest, is_matrix_file, open_cluster, stage
-from wiloc.errors import ParameterError, WilocError
+from wiloc.errors import ParameterError, UsageError, WilocError
 from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
 from wiloc.methods.base import MapContext, Method, TrainingRows
@@ -84,9 +84,7 @@ class RunSession:
         self.query_path = None if query is None else Path(query)
         self._query_bag, self._map_bag = bag_odometry(query, self.map_path, odometry_topic, odometry, map_odometry)
         if not restoring:
-            self.method.check_inputs(sequence=self.sequence, training=training is not None,
-                                     odometry=odometry is not None or self._query_bag,
-                                     map_odometry=map_odometry is not None or self._map_bag)
+            self._check_inputs(training is not None, odometry is not None, map_odometry is not None)
         if query is not None:  # a batch run's sources: its query, map and training pair
             check_sampling([Path(source) for source in (query, map) if source is not None], sampling)
         pair = (training.query, training.reference) if isinstance(training, Training) else ()
@@ -117,6 +115,18 @@ class RunSession:
     def _to_map(self) -> DifferencesTo:
         """The map prepared for frame-by-frame differences (a streaming run's; made on first use)."""
         return DifferencesTo(self.map.data, self.metric, self.scale)
+
+    def _check_inputs(self, training: bool, odometry: bool, map_odometry: bool) -> None:
+        """The method's refusal of an input it does not take, naming the input as given: an
+        odometry read from a ROS bag is ``odometry_topic``'s, not a CSV's."""
+        try:
+            self.method.check_inputs(sequence=self.sequence, training=training, odometry=odometry or self._query_bag,
+                                     map_odometry=map_odometry or self._map_bag)
+        except WilocError as exc:
+            from_bag = {"odometry": self._query_bag, "map_odometry": self._map_bag}  # never besides a CSV
+            if not from_bag.get(exc.parameter or ""):
+                raise
+            raise UsageError(None, exc.problem, parameter="odometry_topic") from None
 
     def _check_map(self, R: int) -> None:
         """One place for the map's size checks: two frames at least, and for methods learning

@@ -101,8 +101,8 @@ class CatGraph(Method):
         self._odometry = False  # whether any step came with odometry
         if context.sequence:
             if context.arclength is not None:
-                raise WilocError("catgraph", "takes no odometry in sequence mode (the map grows by one frame "
-                                             "index per frame)", parameter="odometry")
+                raise WilocError("catgraph", "takes no map odometry in sequence mode (the map grows by one frame "
+                                             "index per frame)", parameter="map_odometry")
             self._nodes = np.empty(0)
             return
         if context.neighbours is None:
