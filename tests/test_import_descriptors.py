@@ -87,6 +87,20 @@ def test_the_recorded_metric_names_the_results_and_an_explicit_one_wins(tmp_path
     assert read_results(tmp_path / "l1.csv").header.metric == "l1"
 
 
+def test_jobs_with_matrix_files_alone_is_refused_as_describing_nothing(tmp_path: Path, cache_dir: Path) -> None:
+    """Matrix files are not described: --jobs would change nothing, so it is refused as every option
+    the inputs do not use is."""
+    ref, query = _descriptors()
+    np.save(tmp_path / "ref.npy", ref)
+    np.save(tmp_path / "query.npy", query)
+    matrices = ["localize", str(tmp_path / "query.npy"), "--map", str(tmp_path / "ref.npy"), "--metric", "l1",
+                "--method", "threshold", "--out", str(tmp_path / "run.csv")]
+    ends_in_one_error(runner.invoke(app, [*matrices, "--jobs", "2"]), 2,
+                      "error: --jobs: applies to image folders, video files and ROS bags to describe")
+    assert not (tmp_path / "run.csv").exists()
+    assert runner.invoke(app, matrices).exit_code == 0
+
+
 @pytest.fixture(autouse=True)
 def _in_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)  # results files without --out land here

@@ -80,6 +80,8 @@ def localize(
     refuse_unused({"descriptor": (not all(matrices), "image folders and video files"),
                    **descriptor_uses(descriptor, described=not all(matrices)),
                    "metric": (any(matrices), "descriptor matrix files (.npy, .npz, .csv, .h5)"),
+                   "jobs": (not all(matrices) or scheduler == "local",
+                            "image folders, video files and ROS bags to describe, and a local Dask cluster (--scheduler local)"),
                    "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
                    "map_names": (reference is not None and is_matrix_file(reference),
                                  "a descriptor matrix file as --map"),
