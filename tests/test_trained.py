@@ -1,6 +1,8 @@
 """The trained model: histograms from labelled pairs, decisions with P(L | m)."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import scipy.sparse
@@ -81,3 +83,21 @@ def test_bad_option_names_the_parameter(option: str, value: float) -> None:
     with pytest.raises(WilocError) as err:
         Trained(**{option: value})
     assert err.value.parameter == option and err.value.problem.startswith("must ")
+
+
+def test_p_new_place_is_one_minus_the_confidence_and_the_docs_say_so() -> None:
+    """trained models no new place: its P(new place) is 1 - P(L | m), which a wrong match in the
+    map raises as a frame off the map does. The docs that list it among the runs saying
+    P(new place) must say what it is, not present it as a model of new places."""
+    from pathlib import Path
+
+    rng = np.random.default_rng(17)
+    rows, labels = _labelled(rng, 200, 5)
+    test_rows, _ = _labelled(rng, 30, 5)
+    out = run_on_rows(Trained(bins=20), list(test_rows), 30, training=TrainingRows(list(rows), labels))
+    np.testing.assert_allclose(out.columns["new_place"], 1.0 - out.confidence)
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    for name in ("evaluation.md", "guide.md", "formats.md", "algorithm.md"):
+        text = " ".join(docs.joinpath(name).read_text().split())
+        assert re.search(r"`trained`('s)?[^.]*?(P\(new place\)|new_place)?[^.]*? 1 - (its |`)?confidence"
+                         r"|`new_place` is 1 - P\(L \| m\)", text), name
