@@ -467,6 +467,23 @@ def test_a_map_in_memory_is_checked_as_an_observed_row_is() -> None:
     assert kept.data.dtype == np.uint8 and kept.data.flags.c_contiguous and int(kept.data.max()) == 255
 
 
+def test_a_map_in_memory_names_each_row_once_in_text() -> None:
+    """entry_from_array took a name twice (matches to either row then named the same frame) and
+    names that are no text (a range of indices: a TypeError in the digest); each is refused naming
+    the source, as an imported matrix's names are."""
+    from wiloc.description.traversals import entry_from_array
+    from wiloc.descriptors.registry import get_descriptor
+
+    rows, spec = np.ones((4, 8), np.float32), get_descriptor("external", metric="l1", length=8)
+    for names, problem in ([["a.jpg", "b.jpg", "a.jpg", "c.jpg"], "duplicate frame name 'a.jpg'"],
+                           [list(range(4)), "frame names are non-empty text, one per row; got 0"],
+                           [["a.jpg", "", "b.jpg", "c.jpg"], "frame names are non-empty text, one per row; got ''"]):
+        with pytest.raises(WilocError) as err:
+            entry_from_array(rows, names, spec, source="walk.npy")
+        assert str(err.value).startswith(f"walk.npy: {problem}")
+    assert entry_from_array(rows, np.array(["a", "b", "c", "d"]), spec).names == ["a", "b", "c", "d"]
+
+
 def test_the_cache_is_given_as_a_cache_or_its_folder(demo_route: demo.DemoRoute, tmp_path: Path) -> None:
     """``cache="~/wiloc-cache"``, as ``--cache DIR`` takes it, was an AttributeError ('str' object
     has no attribute 'lock') once describing began: a folder's path is that cache's folder."""

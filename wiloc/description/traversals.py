@@ -40,8 +40,15 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
     """Descriptors computed elsewhere (one row per frame, named) as an entry that is not cached:
     a map held in memory. Its digest is a hash of names and values, so a change is seen. Values
     are checked as an observed row's are (``checked_rows``): never wrapped into the descriptor's
-    dtype, NaN refused."""
-    data = np.asarray(data)
+    dtype, NaN refused; names are unique non-empty text, as an imported matrix's are."""
+    data, names = np.asarray(data), list(names)
+    if (bad := next((name for name in names if not isinstance(name, str) or not name), None)) is not None:
+        raise WilocError(source, f"frame names are non-empty text, one per row; got {bad!r}")
+    seen: set[str] = set()
+    for name in names:
+        if name in seen:
+            raise WilocError(source, f"duplicate frame name {name!r}: each row names a frame of its own")
+        seen.add(name)
     if data.ndim != 2 or data.shape[1] != spec.length or data.shape[0] != len(names):
         raise WilocError(source, f"descriptors of shape {data.shape} for {len(names)} names; "
                                  f"'{spec.name}' rows have {spec.length} values")
