@@ -83,6 +83,18 @@ def test_npz_archive_with_or_without_names(tmp_path: Path) -> None:
         read_external(tmp_path / "two.npz", None, "l1")
 
 
+def test_a_row_without_a_name_is_refused(tmp_path: Path) -> None:
+    # a blank name cell was a frame named '' that no ground truth or results file can name
+    path = _csv(tmp_path / "m.csv", [["name", "d0", "d1"], ["a.png", 1, 2], ["", 3, 4], ["c.png", 5, 6]])
+    with pytest.raises(WilocError, match="row 2 has no frame name"):
+        read_external(path, None, "l1")
+    with h5py.File(tmp_path / "m.h5", "w") as handle:
+        handle["descriptors"] = _matrix()
+        handle["names"] = np.array([b"a.png", b"b.png", b""])
+    with pytest.raises(WilocError, match="row 3 has no frame name"):
+        read_external(tmp_path / "m.h5", None, "l1")
+
+
 def test_csv_hamming_becomes_uint8(tmp_path: Path) -> None:
     path = _csv(tmp_path / "h.csv", [["x", 0, 255], ["y", 17, 3]])
     names, matrix = read_external(path, None, "hamming")

@@ -319,7 +319,9 @@ def read_external(
             raise WilocError(where, f"no frame name begins with {prefix!r} (the first is {names[0]!r})")
         names, matrix = [names[i][len(prefix):] for i in keep], matrix[keep]
     seen: set[str] = set()
-    for name in names:
+    for row, name in enumerate(names, 1):
+        if not name:
+            raise WilocError(where, f"row {row} has no frame name")
         if name in seen:
             raise WilocError(where, f"duplicate frame name {name!r}")
         seen.add(name)
