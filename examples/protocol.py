@@ -32,7 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 METHODS = ("online", "threshold", "trained", "catgraph")
 RECALL_AT = (1, 5, 10, 20)  # Recall@N as place recognition papers report it
 console = Console()
-err = Console(stderr=True)
+err = Console(stderr=True, soft_wrap=True)  # an error is one line, however long its path
 
 
 @dataclass(frozen=True)
