@@ -1,0 +1,113 @@
+"""examples/live.py on the real data: a Gardens Point walk played frame by frame through a
+``Localizer``, restarted halfway from its saved state, scored as the batch run is.
+
+What it prints must hold together: the resumed run decides every frame as an uninterrupted one;
+with the frames as the cache decodes them (``--frames read``, the default) the live run's rows
+and metrics are the batch run's, and its R@1 is what docs/results.md quotes for catgraph on
+day_left, within one frame (the tolerance tests/test_examples.py allows another CPU); the results
+file it wrote scores as printed. With full-size BGR arrays (``--frames bgr``, a camera driver's)
+only the restart is checked: such frames are described otherwise than the files.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from wiloc import api
+
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLE = REPO / "examples" / "live.py"
+ONE_FRAME = 1 / 200  # of Gardens Point's 200: how far another CPU may move R@1 (tests/test_examples.py)
+AGREEMENT = re.compile(r"^live run against (an uninterrupted one|a batch .*?): (\d+) of (\d+) frames decided alike",
+                       re.MULTILINE)
+
+
+def _run(data_root: Path, cache: Path, out: Path, *options: str) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "WILOC_CACHE": str(cache)}
+    return subprocess.run([sys.executable, str(EXAMPLE), str(data_root), "--out", str(out), "--quiet", *options],
+                          capture_output=True, text=True, env=env, check=False)
+
+
+def _agreements(stdout: str) -> dict[str, tuple[int, int]]:
+    """'uninterrupted' and 'batch': (frames alike, frames), as printed."""
+    found = {("uninterrupted" if "uninterrupted" in what else "batch"): (int(alike), int(frames))
+             for what, alike, frames in AGREEMENT.findall(stdout)}
+    assert set(found) == {"uninterrupted", "batch"}, stdout
+    return found
+
+
+def _metrics_table(stdout: str) -> dict[str, tuple[str, str, str]]:
+    """The printed table: metric -> (live, batch, equal)."""
+    rows = [line.strip("|").split("|") for line in stdout.splitlines() if line.startswith("| ")]
+    return {cells[0].strip(): tuple(c.strip() for c in cells[1:]) for cells in rows[1:]}
+
+
+def _quoted_r_at_1() -> float:
+    """catgraph's R@1 on day_left as docs/results.md quotes it from examples/gardens_point.py."""
+    text = (REPO / "docs" / "results.md").read_text(encoding="utf-8")
+    block = text[text.index("<!-- begin gardens_point"):text.index("<!-- end gardens_point")]
+    lines = [line.strip("|").split("|") for line in block.splitlines() if line.startswith("|")]
+    header = [cell.strip() for cell in lines[0]]
+    row = next(cells for cells in lines if [c.strip() for c in cells[:2]] == ["catgraph", "day_left"])
+    return float(row[header.index("R@1")]) / 100
+
+
+@pytest.mark.realdata
+@pytest.mark.slow  # two Localizer passes and a batch run over a Gardens Point walk: seconds, more on a cold cache
+def test_live_run_resumes_and_scores_as_the_batch_run(data_root: Path, real_data_cache: Path, tmp_path: Path) -> None:
+    proc = _run(data_root, real_data_cache, tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr
+    assert not re.search(r"^Image\d+\.jpg ", proc.stdout, re.MULTILINE)  # --quiet: no line per frame
+    frames = len(list((data_root / "gardens-point-walking" / "day_left").glob("*.jpg")))
+    agreements = _agreements(proc.stdout)
+    assert agreements["uninterrupted"] == (frames, frames)
+    assert agreements["batch"] == (frames, frames)
+    assert re.search(r"^restart after frame 100: saved .*state\.npz", proc.stdout, re.MULTILINE)
+
+    table = _metrics_table(proc.stdout)
+    assert set(table) == {"R@1", "AP", "ECE", "precision@0.9", "recall@0.9"}
+    for metric, (live, batch, equal) in table.items():
+        assert live == batch and equal == "yes", (metric, live, batch)
+    assert "live metrics equal the batch run's" in proc.stdout
+    summary = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
+    assert summary["live"] == summary["batch"]
+    assert summary["live"]["R@1"] >= _quoted_r_at_1() - ONE_FRAME
+    assert float(table["R@1"][0]) == pytest.approx(summary["live"]["R@1"], abs=5e-5)
+
+    written = api.evaluate(tmp_path / "day_left-sad-catgraph.csv", api.TruthSource(kind="aligned", tolerance=2))
+    assert written.summary.as_dict()["recall_at_1"] == summary["live"]["R@1"]
+    assert written.calibration.ece == pytest.approx(summary["live"]["ECE"], rel=1e-6)  # the file keeps 9 digits
+    cpu = summary["cpu_ms"]["observe"]
+    assert 0 < cpu["median_ms"] <= cpu["p95_ms"] <= cpu["max_ms"]
+    assert re.search(r"^CPU per frame: observe median [\d.]+ ms, 95th percentile [\d.]+ ms", proc.stdout, re.MULTILINE)
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_camera_frames_resume_as_an_uninterrupted_run(data_root: Path, real_data_cache: Path,
+                                                      tmp_path: Path) -> None:
+    proc = _run(data_root, real_data_cache, tmp_path, "--frames", "bgr")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    frames = len(list((data_root / "gardens-point-walking" / "day_left").glob("*.jpg")))
+    agreements = _agreements(proc.stdout)
+    assert agreements["uninterrupted"] == (frames, frames)
+    if agreements["batch"][0] < frames:
+        assert "(not checked: full-size BGR arrays give other descriptors" in proc.stdout
+    assert json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))["batch_checked"] is False
+
+
+def test_missing_data_is_one_error_line(tmp_path: Path) -> None:
+    proc = subprocess.run([sys.executable, str(EXAMPLE), str(tmp_path), "--out", str(tmp_path / "out"), "--quiet"],
+                          capture_output=True, text=True, check=False)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == [
+        f"error: {tmp_path / 'gardens-point-walking' / 'day_right'}: dataset folder not found "
+        "(pass the data folder or set WILOC_DATA)"]
+    assert not (tmp_path / "out").exists()
