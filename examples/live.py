@@ -51,6 +51,7 @@ from protocol import _finite, aligned, default_data_root, err, require
 
 import wiloc
 from wiloc import api
+from wiloc.atomic import write_error, written_whole
 from wiloc.decisions import Decision
 from wiloc.errors import WilocError
 from wiloc.methods.registry import method_class
@@ -198,7 +199,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     paths = [query / name for name in list_traversal(query).frame_names]
     params = {"seed": args.seed} if "seed" in method_class(args.method).Params.create().as_dict() else {}
     setup = {"descriptor": args.descriptor, "method": args.method, **params}
-    args.out.mkdir(parents=True, exist_ok=True)
+    output_folder(args.out)
     say(f"live: {query.name} against {reference.name}, {args.descriptor}, {args.method}"
         f"{''.join(f', {k} {v}' for k, v in params.items())}, frames as {args.frames}, {len(paths)} frames")
     loc, timing, restart = live_run(wiloc.Localizer(reference, **setup), paths, args.frames,
@@ -235,9 +236,21 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     print(render(summary))
     say(f"live metrics {'equal' if summary['metrics_equal'] else 'differ from'} the batch run's")
     say(cpu_line(summary["cpu_ms"], args.frames, len(loc.map_names)))
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    with written_whole(args.out / "summary.json", "the summary") as out:
+        out.write(json.dumps(summary, indent=2) + "\n")
     say(f"wrote {live_file}, {args.out / 'state.npz'}, {args.out / 'summary.json'}")
     return summary
+
+
+def output_folder(folder: Path) -> None:
+    """Make ``--out`` before any work: a file there, or a folder that cannot be made, is an error
+    naming it."""
+    if folder.exists() and not folder.is_dir():
+        raise WilocError(folder, "not a folder (--out names the output folder)")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise write_error(folder, "the output folder", exc) from None
 
 
 def cpu_line(cpu_ms: dict[str, dict[str, float]], frames: str, map_frames: int) -> str:

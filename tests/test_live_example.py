@@ -111,3 +111,14 @@ def test_missing_data_is_one_error_line(tmp_path: Path) -> None:
         f"error: {tmp_path / 'gardens-point-walking' / 'day_right'}: dataset folder not found "
         "(pass the data folder or set WILOC_DATA)"]
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.realdata
+def test_out_that_is_a_file_is_one_error_line_before_any_work(data_root: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    out.write_text("not a folder\n", encoding="utf-8")
+    proc = _run(data_root, tmp_path / "cache", out)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == [f"error: {out}: not a folder (--out names the output folder)"]
+    assert proc.stdout == ""
+    assert out.read_text(encoding="utf-8") == "not a folder\n"
