@@ -20,6 +20,14 @@ def bench():
         yield module
 
 
+@pytest.fixture
+def shared_cache(real_data_cache: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """The session's real-data cache as ``WILOC_CACHE``, which the benchmark reads its traversals
+    through: Gardens Point's descriptors and differences are described once a session, not once a test."""
+    monkeypatch.setenv("WILOC_CACHE", str(real_data_cache))
+    return real_data_cache
+
+
 def by_name(bench, n: int) -> dict:
     return {v.name: v for v in bench.variants(n)}
 
@@ -112,7 +120,7 @@ def test_a_run_scores_with_wilocs_measures(bench) -> None:
 
 
 @pytest.mark.realdata
-def test_a_thinned_map_decides_as_localize_on_a_folder_of_those_frames(bench, data_root: Path, cache_dir: Path,
+def test_a_thinned_map_decides_as_localize_on_a_folder_of_those_frames(bench, data_root: Path, shared_cache: Path,
                                                                       tmp_path: Path) -> None:
     from wiloc import api
 
@@ -131,7 +139,7 @@ def test_a_thinned_map_decides_as_localize_on_a_folder_of_those_frames(bench, da
 
 
 @pytest.mark.realdata
-def test_the_command_runs_the_chosen_runs_with_method_parameters(bench, data_root: Path, cache_dir: Path,
+def test_the_command_runs_the_chosen_runs_with_method_parameters(bench, data_root: Path, shared_cache: Path,
                                                                  tmp_path: Path, capsys) -> None:
     out = tmp_path / "rows.json"
     rows = bench.main([str(data_root), "--traversals", "day_left/sad", "--variants", "same,pace-2",
@@ -164,7 +172,7 @@ def test_seeds_are_listed_once_each_and_runs_merge_into_their_means(bench) -> No
 
 
 @pytest.mark.realdata
-def test_the_command_runs_each_seed_and_prints_their_means(bench, data_root: Path, cache_dir: Path,
+def test_the_command_runs_each_seed_and_prints_their_means(bench, data_root: Path, shared_cache: Path,
                                                            tmp_path: Path, capsys) -> None:
     out = tmp_path / "rows.json"
     rows = bench.main([str(data_root), "--traversals", "day_left/sad", "--variants", "pace-2",
