@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -53,7 +54,7 @@ import wiloc
 from wiloc import api
 from wiloc.atomic import write_error, written_whole
 from wiloc.decisions import Decision
-from wiloc.errors import WilocError
+from wiloc.errors import EXIT_CLOSED_OUTPUT, EXIT_INTERRUPTED, WilocError
 from wiloc.methods.registry import method_class
 from wiloc.sources.frames import list_traversal
 
@@ -202,8 +203,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     output_folder(args.out)
     say(f"live: {query.name} against {reference.name}, {args.descriptor}, {args.method}"
         f"{''.join(f', {k} {v}' for k, v in params.items())}, frames as {args.frames}, {len(paths)} frames")
-    loc, timing, restart = live_run(wiloc.Localizer(reference, **setup), paths, args.frames,
-                                    args.out / "state.npz", not args.quiet)
+    started = time.perf_counter()
+    loc = wiloc.Localizer(reference, **setup)  # describes the map unless the cache holds it
+    ready_ms = 1000 * (time.perf_counter() - started)
+    say(f"map ready: {len(loc.map_names)} frames, {ready_ms:.0f} ms")
+    loc, timing, restart = live_run(loc, paths, args.frames, args.out / "state.npz", not args.quiet)
     live = loc.results(query=query)
     live_file = live.save(args.out / f"{query.name}-{args.descriptor}-{args.method}.csv")
 
@@ -228,7 +232,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     summary = _finite({
         "experiment": "live", "map": reference.name, "query": query.name, "descriptor": args.descriptor,
         "method": args.method, "params": params, "frames_as": args.frames,
-        "ground_truth": f"aligned, +-{TOLERANCE} frames", "restart": restart, "resumed": resumed,
+        "ground_truth": f"aligned, +-{TOLERANCE} frames", "map_ready_ms": ready_ms, "restart": restart,
+        "resumed": resumed,
         "batch_run": batched, "batch_checked": exact,
         "live": metrics(api.evaluate(live, truth)), "batch": metrics(api.evaluate(batch, truth)),
         "cpu_ms": timing.as_dict()})
@@ -272,6 +277,12 @@ def main() -> None:
     except WilocError as exc:
         err.print(f"error: {exc}", markup=False, highlight=False)
         sys.exit(exc.exit_code)
+    except BrokenPipeError:  # the reader of the live log has gone (| head): what is buffered goes nowhere
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        sys.exit(EXIT_CLOSED_OUTPUT)
+    except KeyboardInterrupt:
+        err.print("error: interrupted", markup=False, highlight=False)
+        sys.exit(EXIT_INTERRUPTED)
     resumed, batch = summary["resumed"], summary["batch_run"]
     if resumed["rows_alike"] < resumed["frames"] or (summary["batch_checked"] and (
             batch["rows_alike"] < batch["frames"] or not summary["metrics_equal"])):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -20,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from wiloc import api
+from wiloc.errors import EXIT_CLOSED_OUTPUT, EXIT_INTERRUPTED
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "examples" / "live.py"
@@ -122,3 +124,29 @@ def test_out_that_is_a_file_is_one_error_line_before_any_work(data_root: Path, t
     assert proc.stderr.strip().splitlines() == [f"error: {out}: not a folder (--out names the output folder)"]
     assert proc.stdout == ""
     assert out.read_text(encoding="utf-8") == "not a folder\n"
+
+
+def _started(data_root: Path, cache: Path, out: Path) -> subprocess.Popen[str]:
+    """The example running with its live log on a pipe, Ctrl-C reaching it; its first decision read."""
+    env = {**os.environ, "WILOC_CACHE": str(cache)}
+    proc = subprocess.Popen([sys.executable, str(EXAMPLE), str(data_root), "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        if line.startswith("Image000.jpg"):
+            return proc
+    raise AssertionError(proc.stderr.read() if proc.stderr else "no decision printed")
+
+
+@pytest.mark.realdata
+def test_reader_gone_or_ctrl_c_is_no_traceback(data_root: Path, real_data_cache: Path, tmp_path: Path) -> None:
+    proc = _started(data_root, real_data_cache, tmp_path / "piped")
+    proc.stdout.close()  # | head: the reader has gone
+    assert proc.wait() == EXIT_CLOSED_OUTPUT
+    assert proc.stderr.read() == ""
+    proc = _started(data_root, real_data_cache, tmp_path / "stopped")
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate()
+    assert proc.returncode == EXIT_INTERRUPTED
+    assert stderr == "error: interrupted\n"
