@@ -387,3 +387,36 @@ def test_one_helper_tells_a_number_in_a_csv_cell() -> None:
                                for handler in inner.handlers for s in handler.body) for inner in node.body))
     assert twins == ["evaluation/groundtruth.py:is_number"]
     assert is_number(" 2.5e3") and is_number("-1") and not is_number("x") and not is_number("")
+
+
+
+@pytest.mark.parametrize("suffix", [".mat", ".npz"])
+def test_the_command_line_picks_one_array_of_a_file_holding_several(tmp_path: Path, suffix: str) -> None:
+    """``--gt matrix:FILE:NAME`` names the array to read, in a .npz (VPR_Tutorial's GT.npz holds
+    GThard and GTsoft) as in a .mat; without it the reader names the choices."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+
+    names = [f"{i}.jpg" for i in range(3)]
+    header = {"wiloc-results": "1", "method": "online", "descriptor": "sad", "mode": "map", "query": "/q",
+              "map": "/r", "exclude_recent": "0", "frames": "3", "reference_frames": json.dumps(names)}
+    results = tmp_path / "q-online.csv"
+    results.write_text("".join(f"# {key}: {value}\n" for key, value in header.items())
+                       + "frame,match,difference,confidence,stage\n"
+                       + "".join(f"{name},{name},0.5,0.9,update\n" for name in names))
+    hard, soft = np.eye(3, dtype=bool), np.zeros((3, 3), dtype=bool)  # every match right by one, wrong by the other
+    path = tmp_path / f"GT{suffix}"
+    if suffix == ".npz":
+        np.savez(path, GThard=hard, GTsoft=soft)
+    else:
+        scipy.io.savemat(path, {"GThard": hard, "GTsoft": soft})
+    runner = CliRunner()
+    for name, correct in [("GThard", 1), ("GTsoft", 0)]:
+        result = runner.invoke(app, ["evaluate", str(results), "--gt", f"matrix:{path}:{name}", "--json"])
+        assert result.exit_code == 0, result.output
+        assert json.loads(result.stdout)["runs"][0]["share_correct"] == correct
+    result = runner.invoke(app, ["evaluate", str(results), "--gt", f"matrix:{path}"])
+    assert result.exit_code == 1 and "GThard" in result.output and "GTsoft" in result.output, result.output

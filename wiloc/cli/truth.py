@@ -43,7 +43,7 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
     if kind in NAMED_FORMS and path:
         fail(f"{flag}: '{kind}' reads the traversals themselves and takes no file ('{gt}')", EXIT_USAGE)
     variable = None
-    if kind == "matrix" and ".mat:" in path:
+    if kind == "matrix" and (".mat:" in path or ".npz:" in path):  # matrix:M.mat:NAME picks one array of several
         path, variable = path.rsplit(":", 1)
     return api.TruthSource(kind=kind, path=path or None, ref_path=gt_ref, tolerance=tolerance, radius=radius,
                            variable=variable, by=by)
@@ -51,7 +51,7 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
 
 GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames; 'aligned:index': same index, "
            "a video's frame by its index in the video, as for a video against a folder of its frames), 'positions:Q.csv' (with "
-           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat' ('matrix:M.mat:NAME' picks one array of a .mat), 'vprbench:ground_truth_new.npy' (VPR-Bench), "
+           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat|.npz' ('matrix:M.mat:NAME' or 'matrix:M.npz:NAME' picks one array of several), 'vprbench:ground_truth_new.npy' (VPR-Bench), "
            "'utm-names' (@UTM_east@UTM_north@ file names) or 'exif' (the images' GPS EXIF), these two within --radius "
            "metres (default 25). '{query}' in a path is replaced by the query folder's name.")
 GtOption = Annotated[str, typer.Option("--gt", help=GT_HELP)]
