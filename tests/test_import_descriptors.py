@@ -156,3 +156,22 @@ def test_a_folder_against_a_matrix_of_other_descriptors_names_both(tmp_path: Pat
                                  "--out", str(tmp_path / "run.csv")])
     ends_in_one_error(result, 1, "cannot be compared with", "descriptor sad vs external (describe both alike)")
     assert not (tmp_path / "run.csv").exists()
+
+
+def test_an_entry_imported_by_an_earlier_reader_is_not_reused(tmp_path: Path, cache_dir: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """The reader's version is part of an imported entry's key: after a change of how a format is
+    read (a pandas CSV's header once made a frame of its own), the file is read again, never
+    taken from the entry an earlier reader made."""
+    from wiloc.cache.store import Cache
+    from wiloc.description import matrix_import
+
+    path = tmp_path / "m.csv"
+    path.write_text("a.jpg,1,2\nb.jpg,3,4\n")
+    first = matrix_import.import_matrix(path, Cache(cache_dir), None, "l1")
+    again = matrix_import.import_matrix(path, Cache(cache_dir), None, "l1")
+    assert (first.computed, again.computed, again.reused) == (2, 0, 2)
+    monkeypatch.setattr(matrix_import, "READER_VERSION", matrix_import.READER_VERSION + 1)
+    newer = matrix_import.import_matrix(path, Cache(cache_dir), None, "l1")
+    assert (newer.computed, newer.reused) == (2, 0)
+    assert newer.entry.key != first.entry.key

@@ -8,7 +8,7 @@ from pathlib import Path
 from wiloc.cache.entries import EXTERNAL, EntryHeader, FrameRecord, StoredEntry, entry_key
 from wiloc.cache.store import Cache
 from wiloc.description.describing import DescribeReport, read_stored
-from wiloc.descriptors.external import read_external, write_matrix
+from wiloc.descriptors.external import READER_VERSION, read_external, write_matrix
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.errors import ParameterError, WilocError
 from wiloc.sources.frames import fingerprint, text_path
@@ -17,8 +17,9 @@ from wiloc.sources.frames import fingerprint, text_path
 def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str) -> DescribeReport:
     """Bring a user's N x D descriptor matrix into the cache as an entry of its own.
 
-    The entry is keyed by the file's resolved path, the metric and the content digests of the
-    matrix file and of the names file, so an edited file makes a new entry, never a silent mix.
+    The entry is keyed by the file's resolved path, the metric, the reader's version and the
+    content digests of the matrix file and of the names file, so an edited file (or a file read
+    otherwise by a newer wiloc) makes a new entry, never a silent mix.
     """
     start = time.perf_counter()
     sources = [Path(p).resolve() for p in (path, names_path) if p is not None]
@@ -27,7 +28,7 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
             raise WilocError(source, "file does not exist")
         text_path(source)
     prints = [fingerprint(source) for source in sources]
-    params = {"metric": metric, "file_digest": prints[0].digest,
+    params = {"metric": metric, "reader": READER_VERSION, "file_digest": prints[0].digest,
               "names": str(sources[1]) if names_path is not None else None,
               "names_digest": prints[1].digest if names_path is not None else None}
     key = entry_key(str(sources[0]), EXTERNAL, params)
