@@ -69,16 +69,17 @@ def _great_circle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return 2 * EARTH_RADIUS_M * np.arcsin(np.sqrt(h))
 
 
-@pytest.fixture
-def vpr_route(tmp_path: Path, cache_dir: Path) -> dict:
-    """database/ and queries/ over the same places, a threshold run of one against the other, and
-    the pairs CSVs that list the same place by UTM and by lat/lon within 25 m (brute force)."""
+def _make_route(tmp_path: Path) -> dict:
+    """database/ and queries/ over the same places, a threshold run of one against the other (on
+    the cache in tmp_path), and the pairs CSVs that list the same place by UTM and by lat/lon within
+    25 m (brute force)."""
     scenes = places(N)
     ref = _write_images(tmp_path / "database", scenes, 1.0, 1)
     query = _write_images(tmp_path / "queries", scenes, 0.7, 2)
     run = tmp_path / "run.csv"
     result = runner.invoke(app, ["localize", str(tmp_path / "queries"), "--map", str(tmp_path / "database"),
-                                 "--method", "threshold", "--out", str(run), "--jobs", "1"])
+                                 "--method", "threshold", "--out", str(run), "--jobs", "1",
+                                 "--cache", str(tmp_path / "cache")])
     assert result.exit_code == 0, result.output
     metres = {"utm": np.hypot(query["east"].to_numpy()[:, None] - ref["east"].to_numpy(),
                               query["north"].to_numpy()[:, None] - ref["north"].to_numpy()),
@@ -91,6 +92,19 @@ def vpr_route(tmp_path: Path, cache_dir: Path) -> dict:
         pd.DataFrame({"query": query["name"].to_numpy()[q], "reference": ref["name"].to_numpy()[r]}).to_csv(
             pairs[kind], index=False)
     return {"root": tmp_path, "run": run, "pairs": pairs, "query": query, "ref": ref}
+
+
+@pytest.fixture(scope="module")
+def vpr_route(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The route of `_make_route`, made once for the tests that only read it (they write their own
+    files into their own tmp_path)."""
+    return _make_route(tmp_path_factory.mktemp("vpr-route"))
+
+
+@pytest.fixture
+def own_vpr_route(tmp_path: Path, cache_dir: Path) -> dict:
+    """The route of `_make_route` for a test that changes its images."""
+    return _make_route(tmp_path)
 
 
 def _write_vprbench(path: Path, pairs_csv: Path, run: Path) -> Path:
@@ -122,10 +136,10 @@ FORMS = {"utm-names": (["--gt", "utm-names", "--radius", "25"], "utm", ("utm-nam
 
 
 @pytest.mark.parametrize("form", FORMS)
-def test_each_form_evaluates_as_the_equivalent_pairs_csv(form: str, vpr_route: dict) -> None:
+def test_each_form_evaluates_as_the_equivalent_pairs_csv(form: str, vpr_route: dict, tmp_path: Path) -> None:
     args, pairs_kind, (kind, path) = FORMS[form]
     pairs, run = vpr_route["pairs"][pairs_kind], vpr_route["run"]
-    gt_file = _write_vprbench(vpr_route["root"] / "ground_truth_new.npy", pairs, run)
+    gt_file = _write_vprbench(tmp_path / "ground_truth_new.npy", pairs, run)
     expected = _evaluation(run, ["--gt", f"pairs:{pairs}"])
     assert expected["with_true_match"] > 0
     assert _evaluation(run, [arg.format(gt_file=gt_file) for arg in args]) == expected
@@ -134,10 +148,10 @@ def test_each_form_evaluates_as_the_equivalent_pairs_csv(form: str, vpr_route: d
     assert (truth.matrix != reference.matrix).nnz == 0 and truth.matrix.nnz == reference.matrix.nnz
 
 
-def test_utm_names_in_sequence_mode_match_a_positions_csv(vpr_route: dict, tmp_path: Path) -> None:
+def test_utm_names_in_sequence_mode_match_a_positions_csv(vpr_route: dict, tmp_path: Path, cache_dir: Path) -> None:
     run = tmp_path / "seq.csv"
-    assert runner.invoke(app, ["localize", str(tmp_path / "queries"), "--method", "threshold", "--out", str(run),
-                               "--jobs", "1", "-R", "1"]).exit_code == 0
+    assert runner.invoke(app, ["localize", str(vpr_route["root"] / "queries"), "--method", "threshold",
+                               "--out", str(run), "--jobs", "1", "-R", "1"]).exit_code == 0
     positions = tmp_path / "positions.csv"
     vpr_route["query"].rename(columns={"east": "x", "north": "y"})[["name", "x", "y"]].to_csv(positions, index=False)
     expected = _evaluation(run, ["--gt", f"positions:{positions}", "--radius", "25"])
@@ -187,8 +201,8 @@ def _bad_vprbench(tmp: Path, kind: str) -> Path:
     ("flat", "row 1 is not [query index, [reference indices]]"),
     ("pickled dict", "holds a 0-d object array, not VPR-Bench's rows"),
 ])
-def test_bad_vprbench_files_are_one_line(kind: str, message: str, vpr_route: dict) -> None:
-    path = _bad_vprbench(vpr_route["root"], kind)
+def test_bad_vprbench_files_are_one_line(kind: str, message: str, vpr_route: dict, tmp_path: Path) -> None:
+    path = _bad_vprbench(tmp_path, kind)
     ends_in_one_error(runner.invoke(app, ["evaluate", str(vpr_route["run"]), "--gt", f"vprbench:{path}"]), 1,
                       str(path), message)
 
@@ -201,32 +215,32 @@ def test_a_foreign_pickle_is_never_run(tmp_path: Path) -> None:
         read_vprbench(tmp_path / "gt.npy")
 
 
-def test_a_name_without_utm_fields_is_one_line(vpr_route: dict) -> None:
-    ref = vpr_route["root"] / "database"
-    first = ref / vpr_route["ref"]["name"][3]
+def test_a_name_without_utm_fields_is_one_line(own_vpr_route: dict) -> None:
+    ref = own_vpr_route["root"] / "database"
+    first = ref / own_vpr_route["ref"]["name"][3]
     first.rename(ref / "img3.jpg")
-    run = vpr_route["root"] / "renamed.csv"
-    assert runner.invoke(app, ["localize", str(vpr_route["root"] / "queries"), "--map", str(ref), "--method",
+    run = own_vpr_route["root"] / "renamed.csv"
+    assert runner.invoke(app, ["localize", str(own_vpr_route["root"] / "queries"), "--map", str(ref), "--method",
                                "threshold", "--out", str(run), "--jobs", "1"]).exit_code == 0
     ends_in_one_error(runner.invoke(app, ["evaluate", str(run), "--gt", "utm-names"]), 1,
                       f"{ref.resolve() / 'img3.jpg'}: not a name of the form @UTM_east@UTM_north@")
 
 
-def test_names_of_two_utm_zones_are_one_line(vpr_route: dict) -> None:
-    ref = vpr_route["root"] / "database"
-    name = vpr_route["ref"]["name"][5]
+def test_names_of_two_utm_zones_are_one_line(own_vpr_route: dict) -> None:
+    ref = own_vpr_route["root"] / "database"
+    name = own_vpr_route["ref"]["name"][5]
     (ref / name).rename(ref / name.replace("@30@U@", "@31@U@"))
-    run = vpr_route["root"] / "zones.csv"
-    assert runner.invoke(app, ["localize", str(vpr_route["root"] / "queries"), "--map", str(ref), "--method",
+    run = own_vpr_route["root"] / "zones.csv"
+    assert runner.invoke(app, ["localize", str(own_vpr_route["root"] / "queries"), "--map", str(ref), "--method",
                                "threshold", "--out", str(run), "--jobs", "1"]).exit_code == 0
     ends_in_one_error(runner.invoke(app, ["evaluate", str(run), "--gt", "utm-names"]), 1, "UTM zone")
 
 
-def test_an_image_without_gps_exif_is_one_line(vpr_route: dict) -> None:
-    query = vpr_route["root"] / "queries"
-    name = vpr_route["query"]["name"][7]
+def test_an_image_without_gps_exif_is_one_line(own_vpr_route: dict) -> None:
+    query = own_vpr_route["root"] / "queries"
+    name = own_vpr_route["query"]["name"][7]
     Image.open(query / name).save(query / name)  # written again without its EXIF
-    ends_in_one_error(runner.invoke(app, ["evaluate", str(vpr_route["run"]), "--gt", "exif"]), 1,
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(own_vpr_route["run"]), "--gt", "exif"]), 1,
                       f"{query.resolve() / name}: no GPS position in its EXIF (1 of {N} images")
 
 
