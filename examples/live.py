@@ -20,15 +20,17 @@ from the file, as a robot restarted mid-route, warmed up again, and the run goes
 What a frame is (``--frames``): ``read`` (the default) hands ``observe`` the 8-bit gray array
 ``Localizer.read`` decodes, OpenCV's reduced-size JPEG decode that the descriptor cache and so the
 batch run make: an image array, as a driver gives one, and the same pixels, so the live run must
-equal the batch run exactly. ``path`` hands it the file's path (the same decode, inside
+equal the batch run exactly (with ``sad`` and ``brisk-gist``, whose differences are integer sums;
+``gist``'s float differences are summed in another order frame by frame than in blocks, and their
+last digits differ). ``path`` hands it the file's path (the same decode, inside
 ``observe``). ``bgr`` hands it ``cv2.imread``'s full-size BGR array, as a camera driver (or
 ``cv_bridge``'s ``bgr8``) delivers frames: ``observe`` converts it to gray and describes it, which
 gives other descriptors than the files' reduced decode (docs/guide.md, "Which array"), so its
 decisions are compared with the batch run's but may differ from them.
 
 Writes into ``--out``: the saved state (``state.npz``), the live run's results file (which
-``wiloc evaluate`` reads) and ``summary.json``. Exits with 1 when the resumed run or (with
-``read`` and ``path`` frames) the batch run decided otherwise than the live run.
+``wiloc evaluate`` reads) and ``summary.json``. Exits with 1 when the resumed run, or the batch
+run where it must agree, decided otherwise than the live run.
 
     python examples/live.py [DATA] [--out FOLDER] [--query day_left|night_right] [--method catgraph]
                             [--descriptor sad] [--seed 0] [--frames read|path|bgr] [--quiet]
@@ -58,6 +60,7 @@ from wiloc import api
 from wiloc.atomic import write_error, written_whole
 from wiloc.decisions import Decision
 from wiloc.errors import EXIT_CLOSED_OUTPUT, EXIT_INTERRUPTED, WilocError
+from wiloc.evaluation.results import Results
 from wiloc.methods.registry import method_class
 from wiloc.sources.frames import list_traversal
 
@@ -75,6 +78,8 @@ def say(text: str) -> None:
 
 
 def parse_args() -> argparse.Namespace:
+    """The command line: the data folder and output folder as the other examples take them, and
+    what to play."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", nargs="?", type=Path, default=default_data_root(),
                         help="folder holding the datasets (default: $WILOC_DATA or ../shared/data)")
@@ -207,8 +212,32 @@ def agreement(live: pd.DataFrame, other: pd.DataFrame, what: str) -> dict[str, i
               "matches_alike": int((live["match"].to_numpy() == other["match"].to_numpy()).sum())
               if len(live) == len(other) else 0}
     say(f"live run against {what}: {counts['rows_alike']} of {counts['frames']} frames decided alike in every "
-        f"column (match, confidence, P(new place), ranking), {counts['matches_alike']} matches alike")
+        f"column ({', '.join(live.columns[1:])}), {counts['matches_alike']} matches alike")
     return counts
+
+
+def reruns(live: Results, reference: Path, query: Path, paths: Sequence[Path], setup: dict[str, Any],
+           params: dict[str, Any], frames: str) -> tuple[dict[str, int], api.LocalizeRun, dict[str, int], bool]:
+    """The same frames decided by an uninterrupted localizer (``setup``) and by a batch run
+    (``params``: the method's): how far each agrees with the live run, the batch run, and whether
+    it must agree (exact differences)."""
+    uninterrupted = wiloc.Localizer(reference, **setup)
+    play(uninterrupted, paths, frame_source(uninterrupted, frames), None, False)
+    resumed = agreement(live.frames, uninterrupted.results(query=query).frames, "an uninterrupted one")
+    batch = api.localize(query, reference=reference, descriptor=setup["descriptor"], method=setup["method"],
+                         method_params=params)
+    batched = agreement(live.frames, batch.results.frames, f"a batch wiloc.api.localize of {query.name}")
+    # Integer descriptors (sad, brisk-gist) give exact differences, summed alike frame by frame and
+    # in blocks; gist's float32 products are summed in another order (docs/guide.md).
+    exact = uninterrupted.describer.entry(reference).data.dtype == np.uint8 and frames != "bgr"
+    if not exact:
+        say("(not checked: " + ("full-size BGR arrays give other descriptors than the files' reduced gray decode "
+                                "the batch run describes" if frames == "bgr" else
+                                f"{setup['descriptor']}'s float differences are summed in another order frame by "
+                                "frame than in the batch run's blocks: their last digits differ, and can move a "
+                                "confidence or a match")
+            + "; docs/guide.md, Frame by frame)")
+    return resumed, batch, batched, exact
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -232,31 +261,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     live = loc.results(query=query)
     live_file = live.save(args.out / f"{query.name}-{args.descriptor}-{args.method}.csv")
 
-    uninterrupted = wiloc.Localizer(reference, **setup)
-    play(uninterrupted, paths, frame_source(uninterrupted, args.frames), None, False)
-    resumed = agreement(live.frames, uninterrupted.results(query=query).frames, "an uninterrupted one")
-    batch = api.localize(query, reference=reference, descriptor=args.descriptor, method=args.method,
-                         method_params=params)
-    batched = agreement(live.frames, batch.results.frames, f"a batch wiloc.api.localize of {query.name}")
-    # Integer descriptors (sad, brisk-gist) give exact differences, summed alike frame by frame and
-    # in blocks; gist's float32 products are summed in another order (docs/guide.md).
-    exact = loc.describer.entry(reference).data.dtype == np.uint8 and args.frames != "bgr"
-    if not exact:
-        say("(not checked: " + ("full-size BGR arrays give other descriptors than the files' reduced gray decode "
-                                "the batch run describes" if args.frames == "bgr" else
-                                f"{args.descriptor}'s float differences are summed in another order frame by frame "
-                                "than in the batch run's blocks: their last digits differ, and can move a "
-                                "confidence or a match")
-            + "; docs/guide.md, Frame by frame)")
-
+    resumed, batch, batched, exact = reruns(live, reference, query, paths, setup, params, args.frames)
     truth = aligned(TOLERANCE)
     summary = _finite({
         "experiment": "live", "map": reference.name, "query": query.name, "descriptor": args.descriptor,
         "method": args.method, "params": params, "frames_as": args.frames,
-        "ground_truth": f"aligned, +-{TOLERANCE} frames", "map_ready_ms": ready_ms,
-        "warm_up_ms": warm_ms, "restart": restart,
-        "resumed": resumed,
-        "batch_run": batched, "batch_checked": exact,
+        "ground_truth": f"aligned, +-{TOLERANCE} frames", "map_ready_ms": ready_ms, "warm_up_ms": warm_ms,
+        "restart": restart, "resumed": resumed, "batch_run": batched, "batch_checked": exact,
         "live": metrics(api.evaluate(live, truth)), "batch": metrics(api.evaluate(batch, truth)),
         "cpu_ms": timing.as_dict()})
     summary["metrics_equal"] = summary["live"] == summary["batch"]
