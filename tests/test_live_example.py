@@ -6,7 +6,9 @@ with the frames as the cache decodes them (``--frames read``, the default) the l
 and metrics are the batch run's, and its R@1 is what docs/results.md quotes for catgraph on
 day_left, within one frame (the tolerance tests/test_examples.py allows another CPU); the results
 file it wrote scores as printed. With full-size BGR arrays (``--frames bgr``, a camera driver's)
-only the restart is checked: such frames are described otherwise than the files.
+only the restart is checked: such frames are described otherwise than the files. No data, an
+``--out`` that is a file, a reader of the live log that goes (``| head``) and Ctrl-C each end it
+with one line (or none) and the documented exit code, never a traceback.
 """
 from __future__ import annotations
 
