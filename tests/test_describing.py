@@ -386,3 +386,19 @@ def test_a_bad_folder_among_several_stops_the_run_before_anything_is_written(tmp
     with pytest.raises(WilocError, match="empty"):
         describe_folders([tmp_path / "good", tmp_path / "empty"], FakeSpec(), cache, jobs=1)
     assert cache.list_entries() == []
+
+
+def test_query_and_map_frames_of_another_shape_are_warned_of(tmp_path: Path, cache_dir: Path) -> None:
+    """A query of 4:3 frames against a map of 16:9 ones (another camera, a crop) gets one warning
+    line naming both sizes; the same shape at another size (a camera's other resolution) none."""
+    from wiloc import api
+
+    write_images(tmp_path / "map", 6, seed=1, size=(96, 54))
+    write_images(tmp_path / "wide", 6, seed=2, size=(192, 108))
+    write_images(tmp_path / "square", 6, seed=3, size=(80, 60))
+    cache = Cache(cache_dir)
+    same_shape = api.localize(tmp_path / "wide", reference=tmp_path / "map", method="threshold", cache=cache)
+    assert same_shape.warnings == []
+    other_shape = api.localize(tmp_path / "square", reference=tmp_path / "map", method="threshold", cache=cache)
+    [line] = other_shape.warnings
+    assert f"{(tmp_path / 'square').resolve()}: frames of 80 x 60 pixels against the map's 96 x 54" in line

@@ -192,13 +192,14 @@ def test_fabmap_and_catgraph_write_minus_the_evidence_as_the_difference(setup) -
 
 
 def _thumbnails(folder: Path, frames: int) -> Path:
-    """64 x 32 images of a few discs each: a handful of local features per image, some none."""
+    """64 x 48 images (the route's shape) of a few discs each: a handful of local features per
+    image, some none."""
     folder.mkdir()
     rng = np.random.default_rng(1)
     for k in range(frames):
-        image = np.full((32, 64), 128, np.uint8)
+        image = np.full((48, 64), 128, np.uint8)
         for _ in range(6):
-            cv2.circle(image, (int(rng.integers(0, 64)), int(rng.integers(0, 32))), int(rng.integers(2, 6)),
+            cv2.circle(image, (int(rng.integers(0, 64)), int(rng.integers(0, 48))), int(rng.integers(2, 6)),
                        int(rng.integers(0, 256)), -1)
         cv2.imwrite(str(folder / f"t{k:03d}.png"), image)
     return folder

@@ -11,6 +11,7 @@ import hashlib
 import json
 import math
 import zlib
+from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
@@ -83,12 +84,15 @@ class FrameRecord:
 class Entry(EntryHeader):
     """A cached descriptor matrix: the header's fields, rows in frame order named by file name
     (a video's frames by index), a digest of the content (names, fingerprints, params) that
-    derived files are keyed by, and per row the decoder timestamp in ms (NaN for image files)."""
+    derived files are keyed by, per row the decoder timestamp in ms (NaN for image files), and the
+    frames' most common size in pixels, (width, height) (None where no size is recorded: rows
+    imported from a matrix)."""
 
     names: list[str]
     data: np.ndarray
     digest: str
     timestamps_ms: np.ndarray | None = None
+    frame_size: tuple[int, int] | None = None
 
 @dataclass
 class StoredEntry:
@@ -126,7 +130,7 @@ class StoredEntry:
             for i, record in enumerate(good):
                 data[i] = record.row
         return Entry(**asdict(h), names=[r.name for r in good], data=data, digest=entry_digest(h, good),
-                     timestamps_ms=_timestamps(good))
+                     timestamps_ms=_timestamps(good), frame_size=_frame_size(good))
 
     def _read_in_order(self, good: list[FrameRecord]) -> bool:
         """Whether ``good`` are the rows of :attr:`read_matrix`, row after row: the matrix is then
@@ -142,6 +146,12 @@ class StoredEntry:
 def _timestamps(records: list[FrameRecord]) -> np.ndarray:
     """Each record's timestamp in ms, NaN where it has none (image files)."""
     return np.array([np.nan if r.timestamp_ms is None else r.timestamp_ms for r in records], np.float64)
+
+
+def _frame_size(records: list[FrameRecord]) -> tuple[int, int] | None:
+    """The most common (width, height) among ``records`` that record one."""
+    sizes = Counter((r.width, r.height) for r in records if r.width > 0 and r.height > 0)
+    return sizes.most_common(1)[0][0] if sizes else None
 
 
 def checksum(record: FrameRecord, dtype: np.dtype | str) -> int:

@@ -277,4 +277,22 @@ class RunSession:
         kind, params = self.describer.spec.kind, self.describer.spec.params
         return kind.doubts(params) + [
             f"{role} {entry.folder}: {line}" for role, entry in (("query", self.query), ("map", self.map))
-            if entry is not None for line in kind.traversal_doubts(entry.data, params)]
+            if entry is not None for line in kind.traversal_doubts(entry.data, params)] + shape_doubts(self.query, self.map)
+
+
+#: Query and map frames whose width / height ratios differ by more than this share are warned of.
+ASPECT_TOLERANCE = 0.1
+
+
+def shape_doubts(query: Entry | None, reference: Entry | None) -> list[str]:
+    """A line when the query's frames and the map's are of other shapes (another camera, or a crop
+    of one side): a whole-image descriptor squeezes each frame to one fixed size, so the same place
+    looks otherwise in each and every match is weaker. Sizes alone (the same shape) are no doubt."""
+    if query is None or reference is None or query.frame_size is None or reference.frame_size is None:
+        return []
+    (qw, qh), (rw, rh) = query.frame_size, reference.frame_size
+    if abs(np.log((qw / qh) / (rw / rh))) <= np.log1p(ASPECT_TOLERANCE):
+        return []
+    return [f"query {query.folder}: frames of {qw} x {qh} pixels against the map's {rw} x {rh}, another shape: "
+            "a whole-image descriptor squeezes both to one size, so the same place looks otherwise in each "
+            "(crop or resize one traversal to the other's shape)"]
