@@ -286,13 +286,13 @@ ASPECT_TOLERANCE = 0.1
 
 def shape_doubts(query: Entry | None, reference: Entry | None) -> list[str]:
     """A line when the query's frames and the map's are of other shapes (another camera, or a crop
-    of one side): a whole-image descriptor squeezes each frame to one fixed size, so the same place
-    looks otherwise in each and every match is weaker. Sizes alone (the same shape) are no doubt."""
+    of one side): a whole-image descriptor squeezes each frame to one fixed size, which can make
+    the same place look otherwise in each. Sizes alone (the same shape) are no doubt."""
     if query is None or reference is None or query.frame_size is None or reference.frame_size is None:
         return []
     (qw, qh), (rw, rh) = query.frame_size, reference.frame_size
     if abs(np.log((qw / qh) / (rw / rh))) <= np.log1p(ASPECT_TOLERANCE):
         return []
     return [f"query {query.folder}: frames of {qw} x {qh} pixels against the map's {rw} x {rh}, another shape: "
-            "a whole-image descriptor squeezes both to one size, so the same place looks otherwise in each "
-            "(crop or resize one traversal to the other's shape)"]
+            "a whole-image descriptor squeezes both to one size, which can make the same place look otherwise "
+            "(if one is a crop of the other, crop the other alike)"]
