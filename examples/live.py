@@ -53,11 +53,11 @@ import cv2
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from protocol import _finite, aligned, default_data_root, err, require
+from protocol import _finite, aligned, default_data_root, err, output_folder, require
 
 import wiloc
 from wiloc import api
-from wiloc.atomic import write_error, written_whole
+from wiloc.atomic import written_whole
 from wiloc.decisions import Decision
 from wiloc.errors import EXIT_CLOSED_OUTPUT, EXIT_INTERRUPTED, WilocError
 from wiloc.evaluation.results import Results
@@ -278,17 +278,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         out.write(json.dumps(summary, indent=2) + "\n")
     say(f"wrote {live_file}, {args.out / 'state.npz'}, {args.out / 'summary.json'}")
     return summary
-
-
-def output_folder(folder: Path) -> None:
-    """Make ``--out`` before any work: a file there, or a folder that cannot be made, is an error
-    naming it."""
-    if folder.exists() and not folder.is_dir():
-        raise WilocError(folder, "not a folder (--out names the output folder)")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise write_error(folder, "the output folder", exc) from None
 
 
 def cpu_line(cpu_ms: dict[str, dict[str, float]], frames: str, map_frames: int) -> str:

@@ -23,6 +23,7 @@ from typing import Any
 from rich.console import Console
 
 from wiloc import api
+from wiloc.atomic import write_error
 from wiloc.cache.store import Cache
 from wiloc.cli.views import progress_bar, table1_view, table2_view
 from wiloc.errors import WilocError
@@ -75,7 +76,7 @@ def aligned(tolerance: int) -> api.TruthSource:
 
 def run_experiment(experiment: Experiment, out: Path) -> dict[str, Any]:
     """Localize every query with every method and descriptor, compare, plot, write summary.json."""
-    out.mkdir(parents=True, exist_ok=True)
+    output_folder(out)
     paths = []
     with progress_bar(True) as progress:
         for descriptor in experiment.descriptors:
@@ -222,12 +223,29 @@ def run_table_script(name: str, description: str, run: Callable[[Path, Path], di
     bad input, never a traceback."""
     args = parse_args(name, description, descriptors=False)
     try:
+        check_output_folder(args.out)
         summary = run(args.data, args.out)
         if args.update_docs:
             update_docs(summary, args.out, markdown=render(summary), plots=("pr",))
     except WilocError as exc:
         err.print(f"error: {exc}", markup=False, highlight=False)
         sys.exit(exc.exit_code)
+
+
+def check_output_folder(folder: Path) -> None:
+    """``--out`` before any work: a file there is an error naming it."""
+    if folder.exists() and not folder.is_dir():
+        raise WilocError(folder, "not a folder (--out names the output folder)")
+
+
+def output_folder(folder: Path) -> None:
+    """Make ``--out`` before any work: a file there, or a folder that cannot be made, is an error
+    naming it."""
+    check_output_folder(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise write_error(folder, "the output folder", exc) from None
 
 
 def require(folders: Sequence[Path]) -> None:

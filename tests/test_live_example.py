@@ -152,3 +152,18 @@ def test_reader_gone_or_ctrl_c_is_no_traceback(data_root: Path, real_data_cache:
     _, stderr = proc.communicate()
     assert proc.returncode == EXIT_INTERRUPTED
     assert stderr == "error: interrupted\n"
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("example", ["gardens_point", "nordland", "table1", "loop_closure"])
+def test_every_example_takes_an_out_that_is_a_file_as_one_error_line(data_root: Path, tmp_path: Path,
+                                                                      example: str) -> None:
+    """The examples share their output folder's check (protocol.py): a file named by ``--out`` is
+    one error line before any work, and is left as it was."""
+    out = tmp_path / "out"
+    out.write_text("not a folder\n", encoding="utf-8")
+    proc = subprocess.run([sys.executable, str(EXAMPLE.parent / f"{example}.py"), str(data_root), "--out", str(out)],
+                          capture_output=True, text=True, check=False)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == [f"error: {out}: not a folder (--out names the output folder)"]
+    assert out.read_text(encoding="utf-8") == "not a folder\n"
