@@ -3,11 +3,9 @@
 The query walk (``day_left``, or ``night_right``) arrives one frame at a time, as a camera
 delivers it, against the map ``day_right`` (descriptor ``sad``, method ``catgraph``, seed 0). Each
 decision is printed as it comes: the frame, its match, the confidence, P(new place) and the CPU
-milliseconds ``observe`` took (``--quiet``: none of these lines). Before the first frame the
-localizer is warmed up on a copy of it (a few map frames), since the method compiles its kernels
-on its first frames: seconds on a machine whose cache holds none yet, a route's first decision
-that late otherwise. Halfway the localizer's state is saved, the localizer dropped and loaded back
-from the file, as a robot restarted mid-route, warmed up again, and the run goes on. At the end:
+milliseconds ``observe`` took (``--quiet``: none of these lines). Halfway the localizer's state is
+saved, the localizer dropped and loaded back from the file, as a robot restarted mid-route, and the
+run goes on. At the end:
 
 - the decisions are checked against an uninterrupted run of the same frames (the resumed run
   must make the same ones);
@@ -44,7 +42,6 @@ import os
 import sys
 import time
 from collections.abc import Callable, Sequence
-from copy import deepcopy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -68,7 +65,6 @@ TOLERANCE = 2  # frames, as examples/gardens_point.py
 CUT = 0.9  # the confidence a robot acts on, here
 METHODS = ("catgraph", "online", "threshold", "seqslam")  # those that need nothing but a map
 FRAMES = ("read", "path", "bgr")
-WARM_UP = 3  # map frames decided on a copy before the route: catgraph compiles kernels on its first two
 Frame = NDArray[np.uint8] | Path
 
 
@@ -171,24 +167,10 @@ def render(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def warm_up(loc: wiloc.Localizer, reference: Path, frames: str) -> float:
-    """Decide the first :data:`WARM_UP` map frames on a copy of ``loc`` (``copy.deepcopy`` gives
-    an independent localizer: ``loc`` is left as it was), so that the kernels the method compiles
-    on its first frames (numba: seconds when its cache is empty, tens of ms to load them from it)
-    are ready before the route's first frame. Wall milliseconds it took."""
-    started = time.perf_counter()
-    copy = deepcopy(loc)
-    source = frame_source(copy, frames)
-    for name in loc.map_names[:WARM_UP]:
-        copy.observe(source(reference / name))
-    return 1000 * (time.perf_counter() - started)
-
-
-def live_run(loc: wiloc.Localizer, reference: Path, paths: Sequence[Path], frames: str, state: Path,
+def live_run(loc: wiloc.Localizer, paths: Sequence[Path], frames: str, state: Path,
              show: bool) -> tuple[wiloc.Localizer, Timing, dict[str, float]]:
-    """Play ``paths`` through ``loc``, restarting halfway from its saved ``state`` (and warming
-    the restarted one up, as a restarted process must be): the localizer that finished, the CPU
-    time per frame and what the restart took."""
+    """Play ``paths`` through ``loc``, restarting halfway from its saved ``state``: the localizer
+    that finished, the CPU time per frame and what the restart took."""
     timing, half = Timing([], []), len(paths) // 2
     play(loc, paths[:half], frame_source(loc, frames), timing, show)
     started = time.perf_counter()
@@ -198,10 +180,9 @@ def live_run(loc: wiloc.Localizer, reference: Path, paths: Sequence[Path], frame
     loc = wiloc.Localizer.load(state)
     loaded = time.perf_counter()
     restart = {"after_frame": half, "state_kb": state.stat().st_size / 1024, "save_ms": 1000 * (saved - started),
-               "load_ms": 1000 * (loaded - saved), "warm_up_ms": warm_up(loc, reference, frames)}
+               "load_ms": 1000 * (loaded - saved)}
     say(f"restart after frame {half}: saved {state} ({restart['state_kb']:.0f} kB, {restart['save_ms']:.0f} ms), "
-        f"dropped the localizer, loaded it ({restart['load_ms']:.0f} ms), warmed it up "
-        f"({restart['warm_up_ms']:.0f} ms)")
+        f"dropped the localizer, loaded it ({restart['load_ms']:.0f} ms)")
     play(loc, paths[half:], frame_source(loc, frames), timing, show)
     return loc, timing, restart
 
@@ -254,10 +235,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     started = time.perf_counter()
     loc = wiloc.Localizer(reference, **setup)  # describes the map unless the cache holds it
     ready_ms = 1000 * (time.perf_counter() - started)
-    warm_ms = warm_up(loc, reference, args.frames)
-    say(f"map ready: {len(loc.map_names)} frames, {ready_ms:.0f} ms; warmed up on {WARM_UP} map frames, "
-        f"{warm_ms:.0f} ms")
-    loc, timing, restart = live_run(loc, reference, paths, args.frames, args.out / "state.npz", not args.quiet)
+    say(f"map ready: {len(loc.map_names)} frames, {ready_ms:.0f} ms")
+    loc, timing, restart = live_run(loc, paths, args.frames, args.out / "state.npz", not args.quiet)
     live = loc.results(query=query)
     live_file = live.save(args.out / f"{query.name}-{args.descriptor}-{args.method}.csv")
 
@@ -266,7 +245,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     summary = _finite({
         "experiment": "live", "map": reference.name, "query": query.name, "descriptor": args.descriptor,
         "method": args.method, "params": params, "frames_as": args.frames,
-        "ground_truth": f"aligned, +-{TOLERANCE} frames", "map_ready_ms": ready_ms, "warm_up_ms": warm_ms,
+        "ground_truth": f"aligned, +-{TOLERANCE} frames", "map_ready_ms": ready_ms,
         "restart": restart, "resumed": resumed, "batch_run": batched, "batch_checked": exact,
         "live": metrics(api.evaluate(live, truth)), "batch": metrics(api.evaluate(batch, truth)),
         "cpu_ms": timing.as_dict()})
