@@ -38,12 +38,12 @@ from wiloc.errors import WilocError, load_problem
 from wiloc.sources.frames import natural_sorted
 
 METRIC_ATTRIBUTE = "metric"
+"""The attribute of a wiloc descriptor file that records its metric."""
 #: Which reading of the formats above made an imported entry, part of its cache key: raised when
 #: a format's reading changes (the rows, names or order a file gives), so that no entry an
 #: earlier reader made is reused. 2: a pandas CSV's header is no frame; names that are decimal
 #: timestamps sort in time order.
 READER_VERSION = 2
-"""The attribute of a wiloc descriptor file that records its metric."""
 HLOC_DATASET = "global_descriptor"
 _NAME_HEADERS = frozenset({"name", "names", "frame", "frames", "file", "filename", "image", "path"})
 _HAMMING_HINT = "hamming descriptors must be uint8 (8 packed bits per byte)"
