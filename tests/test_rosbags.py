@@ -399,6 +399,13 @@ def test_an_odometry_topic_refused_is_named_as_given(tmp_path: Path, cache_dir: 
                       "error: --odometry-topic: method 'online' takes no odometry")
     ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--method", "catgraph", "--odometry-topic", "/odom"]),
                       2, "error: --odometry-topic: applies to map mode (--map) only")
+    folder = tmp_path / "folder"  # a map that is no bag has no odometry on the topic: refused before describing
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a.png"), scenes(1)[0])
+    ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--map", str(folder), "--method", "catgraph",
+                                          "--odometry-topic", "/odom"]),
+                      2, "error: --map-odometry: the query's odometry needs the map's too, in the same units")
+    assert not list(Path(cache_dir).rglob("*.h5"))
     with pytest.raises(WilocError) as refused:
         api.localize(bag, reference=ref, method="threshold", odometry_topic="/odom")
     assert refused.value.parameter == "odometry_topic"

@@ -129,7 +129,8 @@ class Method(ABC):
 
     def check_inputs(self, *, sequence: bool, training: bool, odometry: bool = False,
                      map_odometry: bool = False) -> None:
-        """Refuse a run without what the method needs (``needs``), or with inputs it does not take."""
+        """Refuse a run without what the method needs (``needs``), or with inputs it does not take
+        (a query's odometry without the map's, which it is measured against)."""
         if "map" in self.needs and sequence:
             raise UsageError(None, f"method '{self.name}' needs a map (a reference trajectory)",
                              parameter="reference")
@@ -139,6 +140,9 @@ class Method(ABC):
         for given, parameter in ((odometry, "odometry"), (map_odometry, "map_odometry")):
             if given and "odometry" not in self.needs:
                 raise UsageError(None, f"method '{self.name}' takes no odometry", parameter=parameter)
+        if odometry and not map_odometry and not sequence:  # refused before describing, not at the first frame
+            raise UsageError(None, "the query's odometry needs the map's too, in the same units",
+                             parameter="map_odometry")
 
     def row_kind(self, descriptor: str) -> str:
         """What this method's rows hold with this descriptor: FAB-MAP's evidence (``log_ratio``)
