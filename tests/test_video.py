@@ -13,7 +13,7 @@ import cv2
 import h5py
 import numpy as np
 import pytest
-from helpers import FakeSpec, interrupt_after_six_frames
+from helpers import FakeSpec, ends_in_one_error, interrupt_after_six_frames
 from typer.testing import CliRunner
 
 from wiloc import api
@@ -338,6 +338,9 @@ def test_cli_describe_samples_videos(tmp_path: Path, cache_dir: Path) -> None:
     assert (row["frames"], row["computed"], row["failed"]) == (4, 4, 0)
     bad = CliRunner().invoke(app, ["describe", str(video), "--fps", "0"])
     assert bad.exit_code == 2 and "--fps" in bad.output
+    for command in (["describe", str(video)], ["localize", str(video), "--map", str(video)]):
+        both = CliRunner().invoke(app, [*command, "--every", "2", "--fps", "3"])  # named as typed, not as `every`
+        ends_in_one_error(both, 2, "--fps: does not go with --every (got --every 2)")
     none = CliRunner().invoke(app, ["describe", str(video), "--start", "40"])
     assert none.exit_code == 1 and "the cut (start 40) holds no frame of this video (it has 30 frames)" in none.output
     folder = tmp_path / "frames"

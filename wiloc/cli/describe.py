@@ -11,7 +11,8 @@ import typer
 from wiloc.cli.core import Notes, error, fail, handles_errors, out, refuse_besides, refuse_unused
 from wiloc.cli.options import (SAMPLING, STREAMS, CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption,
                                ModelOption, PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
-                               VocabularyOption, descriptor_params_given, metric_name, output_file)
+                               VocabularyOption, descriptor_params_given, metric_name, output_file,
+                               sampling_given)
 from wiloc.cli.params import descriptor_uses, with_descriptor_options
 from wiloc.cli.views import print_command_json, progress_bar, table
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE, WilocError
@@ -78,7 +79,7 @@ def describe(
         return
     if not importing and not folders:
         fail("FOLDER...: give image folders, video files, ROS bags, --import FILE or --list", EXIT_USAGE)
-    sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
+    sampling = sampling_given(every, fps, start, stop)
     with progress_bar(not as_json) as progress:
         if importing:
             reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store, out=import_out,

@@ -13,7 +13,7 @@ from wiloc.cli.localize_views import show_followed, show_runs
 from wiloc.cli.options import (CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption, ModelOption,
                                PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
                                VocabularyOption, descriptor_params_given, metric_name, output_file,
-                               plot_file)
+                               plot_file, sampling_given)
 from wiloc.cli.params import descriptor_uses, method_params, with_descriptor_options, with_method_options
 from wiloc.cli.truth import truth_source
 from wiloc.cli.views import progress_bar
@@ -100,7 +100,7 @@ def localize(
                 fail(f"{option}: missing; --train-query, --train-map and --train-gt go together", EXIT_USAGE)
         training = api.Training(train_query, train_map,
                                 truth_source(train_gt, train_gt_map, train_tolerance, train_radius, prefix="train_"))
-    sampling = api.Sampling(every=every, fps=fps, start=start, stop=stop)
+    sampling = sampling_given(every, fps, start, stop)
     if follow:
         given = [flag for flag, value in (("--odometry", odometry), ("--odometry-topic", odometry_topic),
                                           ("--topic", topic), ("--names", names), ("--map-names", map_names),

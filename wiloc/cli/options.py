@@ -3,14 +3,17 @@ options are read (before any work), and the descriptor parameters the flags set.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
 
 from wiloc.atomic import NOT_A_FILE, output_problem
 from wiloc.cli.core import Notes, fail, note
 from wiloc.cli.params import descriptor_params, descriptor_takers
-from wiloc.errors import EXIT_USAGE, WilocError
+from wiloc.errors import EXIT_USAGE, UsageError, WilocError
+
+if TYPE_CHECKING:
+    from wiloc.sources.video import Sampling
 
 
 def output_file(value: Path | None) -> Path | None:
@@ -144,6 +147,16 @@ SchedulerOption = Annotated[Optional[str], typer.Option(
     help="Dask scheduler address (tcp://host:8786), or 'local' for a local cluster of --jobs workers; "
          "needs the optional dask extra (docs/scaling.md).")]
 SAMPLING = ("every", "fps", "start", "stop")
+
+
+def sampling_given(every: int, fps: float | None, start: str, stop: str | None) -> Sampling:
+    """The video sampling the options say; --fps with --every is refused in the flags the user
+    typed (the library's message names its parameters, ``every``)."""
+    from wiloc.sources.video import Sampling
+
+    if fps is not None and every != 1:
+        raise UsageError("--fps", f"does not go with --every (got --every {every}); give one of them")
+    return Sampling(every=every, fps=fps, start=start, stop=stop)
 PrPlotOption = Annotated[Optional[Path], typer.Option(callback=plot_file, show_default="none: not drawn", help="Draw the precision-recall curves.")]
 CalibrationPlotOption = Annotated[Optional[Path], typer.Option(
     "--calibration-plot", callback=plot_file, show_default="none: not drawn", help="Draw the reliability diagram (share correct against confidence).")]
