@@ -30,7 +30,7 @@ from wiloc.parameters import Declared, declared
 
 #: Library parameter names whose flag is not simply ``--`` + the name with dashes.
 FLAGS = {"reference": "--map", "training": "--train-query", "query_names_file": "--names",
-         "ref_names_file": "--map-names", "out": "--out",
+         "ref_names_file": "--map-names",
          "path": "--gt", "ref_path": "--gt-map", "train_path": "--train-gt", "train_ref_path": "--train-gt-map",
          "precisions": "--precision", "runs": "RESULTS..."}
 
