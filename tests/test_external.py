@@ -86,12 +86,12 @@ def test_npz_archive_with_or_without_names(tmp_path: Path) -> None:
 def test_a_row_without_a_name_is_refused(tmp_path: Path) -> None:
     # a blank name cell was a frame named '' that no ground truth or results file can name
     path = _csv(tmp_path / "m.csv", [["name", "d0", "d1"], ["a.png", 1, 2], ["", 3, 4], ["c.png", 5, 6]])
-    with pytest.raises(WilocError, match="row 2 has no frame name"):
+    with pytest.raises(WilocError, match="row 2: frame name ''; each row needs a non-empty text name"):
         read_external(path, None, "l1")
     with h5py.File(tmp_path / "m.h5", "w") as handle:
         handle["descriptors"] = _matrix()
         handle["names"] = np.array([b"a.png", b"b.png", b""])
-    with pytest.raises(WilocError, match="row 3 has no frame name"):
+    with pytest.raises(WilocError, match="row 3: frame name ''; each row needs a non-empty text name"):
         read_external(tmp_path / "m.h5", None, "l1")
 
 
@@ -210,7 +210,7 @@ def _bad_not_npy(tmp: Path) -> tuple[Path, Path | None, str]:
         (_bad_npy_1d, "N x D"),
         (_bad_npy_nan, "NaN"),
         (_bad_npy_inf, "infinite"),
-        (_bad_duplicates, "duplicate"),
+        (_bad_duplicates, "rows 1 and 3: duplicate frame name 'a'; each row names a frame of its own"),
         (_bad_count, "2 frame names for 3"),
         (_bad_metric, "unknown metric"),
         (_bad_cell, "'x7' is not a number"),

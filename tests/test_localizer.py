@@ -475,9 +475,9 @@ def test_a_map_in_memory_names_each_row_once_in_text() -> None:
     from wiloc.descriptors.registry import get_descriptor
 
     rows, spec = np.ones((4, 8), np.float32), get_descriptor("external", metric="l1", length=8)
-    for names, problem in ([["a.jpg", "b.jpg", "a.jpg", "c.jpg"], "duplicate frame name 'a.jpg'"],
-                           [list(range(4)), "frame names are non-empty text, one per row; got 0"],
-                           [["a.jpg", "", "b.jpg", "c.jpg"], "frame names are non-empty text, one per row; got ''"]):
+    for names, problem in ([["a.jpg", "b.jpg", "a.jpg", "c.jpg"], "rows 1 and 3: duplicate frame name 'a.jpg'"],
+                           [list(range(4)), "row 1: frame name 0; each row needs a non-empty text name"],
+                           [["a.jpg", "", "b.jpg", "c.jpg"], "row 2: frame name ''; each row needs a non-empty text name"]):
         with pytest.raises(WilocError) as err:
             entry_from_array(rows, names, spec, source="walk.npy")
         assert str(err.value).startswith(f"walk.npy: {problem}")

@@ -14,7 +14,7 @@ from wiloc.cache.entries import Entry, EntryHeader
 from wiloc.cache.store import Cache
 from wiloc.description.describing import describe_source
 from wiloc.description.matrix_import import import_matrix
-from wiloc.descriptors.external import recorded_metric
+from wiloc.descriptors.external import check_frame_names, recorded_metric
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import ParameterError, WilocError
 from wiloc.sources.bags import is_bag
@@ -42,13 +42,7 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
     are checked as an observed row's are (``checked_rows``): never wrapped into the descriptor's
     dtype, NaN refused; names are unique non-empty text, as an imported matrix's are."""
     data, names = np.asarray(data), list(names)
-    if (bad := next((name for name in names if not isinstance(name, str) or not name), None)) is not None:
-        raise WilocError(source, f"frame names are non-empty text, one per row; got {bad!r}")
-    seen: set[str] = set()
-    for name in names:
-        if name in seen:
-            raise WilocError(source, f"duplicate frame name {name!r}: each row names a frame of its own")
-        seen.add(name)
+    check_frame_names(names, source)
     if data.ndim != 2 or data.shape[1] != spec.length or data.shape[0] != len(names):
         raise WilocError(source, f"descriptors of shape {data.shape} for {len(names)} names; "
                                  f"'{spec.name}' rows have {spec.length} values")

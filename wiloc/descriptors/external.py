@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from wiloc.atomic import written_whole
 from wiloc.descriptors.base import METRICS
 from wiloc.errors import WilocError, load_problem
+from wiloc.given import check_frame_names  # also the check of a map's names held in memory
 from wiloc.sources.frames import natural_sorted
 
 METRIC_ATTRIBUTE = "metric"
@@ -323,11 +324,5 @@ def read_external(
         if not keep:
             raise WilocError(where, f"no frame name begins with {prefix!r} (the first is {names[0]!r})")
         names, matrix = [names[i][len(prefix):] for i in keep], matrix[keep]
-    seen: set[str] = set()
-    for row, name in enumerate(names, 1):
-        if not name:
-            raise WilocError(where, f"row {row} has no frame name")
-        if name in seen:
-            raise WilocError(where, f"duplicate frame name {name!r}")
-        seen.add(name)
+    check_frame_names(names, where)
     return names, matrix

@@ -204,15 +204,6 @@ def check_file(path: Path) -> None:
         raise WilocError(path, "the file is empty (0 bytes)")
 
 
-def is_number(text: str) -> bool:
-    """Whether a CSV cell reads as a number (telling a header line from a line of data)."""
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
 def _read_csv(path: Path) -> pd.DataFrame:
     """A CSV as strings with stripped, lower-case column names; missing file -> WilocError."""
     path = Path(path)

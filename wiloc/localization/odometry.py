@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.evaluation.groundtruth import is_number
+from wiloc.given import is_number
 from wiloc.sources.bags import Bag, is_bag
 
 
