@@ -58,6 +58,21 @@ def test_csv_written_by_pandas_keeps_its_header_out(tmp_path: Path, index_label:
     assert names == NAMES and np.array_equal(matrix, _matrix())
 
 
+def test_a_csv_of_values_alone_is_not_read_with_its_first_column_as_names(tmp_path: Path) -> None:
+    # np.savetxt(m.csv, features, delimiter=",") writes no names: its first column of values was
+    # taken as frame names ('1.257e-01', ...) and the descriptors lost a dimension, silently
+    values = np.random.default_rng(0).normal(size=(5, 4))
+    np.savetxt(tmp_path / "bare.csv", values, delimiter=",")
+    with pytest.raises(WilocError, match=r"bare\.csv: its first column holds numbers such as '.*', as large as "
+                                         r"the other columns' values, not frame names"):
+        read_external(tmp_path / "bare.csv", None, "l1")
+    # names that are numbers outside the values' range (timestamps) or whole (frame numbers) stay names
+    for first in (1614000000.0 + np.arange(5) * 0.25, np.arange(5.0)):
+        np.savetxt(tmp_path / "named.csv", np.column_stack([first, values]), delimiter=",", fmt="%.15g")
+        names, matrix = read_external(tmp_path / "named.csv", None, "l1")
+        assert [float(name) for name in names] == first.tolist() and matrix.shape == (5, 4)
+
+
 def test_a_matrix_of_one_column_per_frame_is_told_with_its_transpose(tmp_path: Path) -> None:
     # tools that store one descriptor per column (MATLAB's habit) give a D x N matrix
     np.save(tmp_path / "m.npy", _matrix().T)

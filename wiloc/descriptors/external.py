@@ -9,7 +9,8 @@ Formats (chosen by suffix; a folder is one ``.npy`` vector per image):
   strings, the names (else as ``.npy``).
 - ``.csv``: one row per frame, first column the frame name, the rest numbers; an optional header
   row (recognised when none of its value cells is a number, or its first cell is empty or a
-  word such as ``name``: pandas heads the value columns 0, 1, 2, ...).
+  word such as ``name``: pandas heads the value columns 0, 1, 2, ...). A first column that is
+  evidently values, not names (``np.savetxt`` of the descriptors alone), is refused.
 - ``.h5`` / ``.hdf5``: dataset ``descriptors`` (N x D) and, optionally, dataset ``names``
   (N strings) and attribute ``metric`` (what :func:`write_matrix` writes); ``names_path``
   overrides the names. Or hloc's ``global-feats-*.h5``: one group per image name (names with
@@ -43,8 +44,8 @@ METRIC_ATTRIBUTE = "metric"
 #: Which reading of the formats above made an imported entry, part of its cache key: raised when
 #: a format's reading changes (the rows, names or order a file gives), so that no entry an
 #: earlier reader made is reused. 2: a pandas CSV's header is no frame; names that are decimal
-#: timestamps sort in time order.
-READER_VERSION = 2
+#: timestamps sort in time order. 3: a CSV whose first column is evidently values is refused.
+READER_VERSION = 3
 HLOC_DATASET = "global_descriptor"
 _NAME_HEADERS = frozenset({"name", "names", "frame", "frames", "file", "filename", "image", "path"})
 _HAMMING_HINT = "hamming descriptors must be uint8 (8 packed bits per byte)"
@@ -251,7 +252,24 @@ def _read_csv(path: Path) -> tuple[NDArray, list[str]]:
             path, f"row {table.index[row] + 1}, column {col + 2}: {value!r} is not a number"
         )
     names = [name.strip() for name in table.iloc[:, 0].tolist()]
-    return cells.to_numpy(dtype=np.float64), names
+    values = cells.to_numpy(dtype=np.float64)
+    if _values_as_names(names, values):
+        raise WilocError(path, f"its first column holds numbers such as {names[0]!r}, as large as the other "
+                               "columns' values, not frame names: a .csv matrix needs the frame names in its first "
+                               "column (name,d0,d1,...); descriptors alone go in a .npy, named by --names")
+    return values, names
+
+
+def _values_as_names(names: list[str], values: NDArray[np.float64]) -> bool:
+    """Whether a CSV's first column is evidently one more column of values rather than frame
+    names: every cell a number, some with a fraction (names such as ``12`` or ``000012`` are
+    frame numbers), none more than ten times the largest value cell in size (a timestamp such
+    as ``1614000000.15`` is)."""
+    import pandas as pd
+
+    numbers = pd.to_numeric(pd.Series(names), errors="coerce").to_numpy(np.float64)
+    return bool(np.isfinite(numbers).all() and np.any(numbers != np.round(numbers))
+                and np.abs(numbers).max() <= 10 * np.abs(values).max())
 
 
 def _checked_matrix(path: Path, matrix: NDArray, metric: str, from_text: bool) -> NDArray:
