@@ -49,6 +49,22 @@ def test_natural_key_orders_decimal_fractions_as_fractions() -> None:
     assert sorted(["frame.10.png", "frame.2.png"], key=natural_key) == ["frame.2.png", "frame.10.png"]
 
 
+def test_numbering_written_with_dots_keeps_its_order(tmp_path: Path) -> None:
+    """``scene1.10`` read as the decimal 1.1 came before ``scene1.9``: names that differ only by a
+    fraction's trailing zeros (``scene1.1``, ``scene1.10``) are numbering, which a decimal's
+    writing never gives, so the whole folder keeps each dotted run's value; timestamps stay in
+    time order."""
+    numbered = [f"scene{s}.{k}.png" for s in (1, 2) for k in range(1, 13)]
+    assert natural_sorted(numbered[::-1]) == numbered
+    every_fifth = [f"scene1.{k}.png" for k in range(5, 60, 5)]  # 1.5 and 1.50
+    assert natural_sorted(every_fifth[::-1]) == every_fifth
+    for name in numbered[:12]:
+        cv2.imwrite(str(tmp_path / name), _textured(8, 8))
+    assert list(list_traversal(tmp_path).frame_names) == numbered[:12]
+    stamps = ["1614000000.1.jpg", "1614000000.15.jpg", "1614000000.2.jpg", "1614000001.05.jpg"]
+    assert natural_sorted(stamps[::-1]) == stamps
+
+
 def test_a_folder_of_sub_folders_names_them(tmp_path: Path) -> None:
     # datasets keep each camera's images in a folder of its own (EuRoC's cam0/data, KITTI's
     # image_0): given their parent, the error says the sub-folders were not searched, and which

@@ -68,22 +68,36 @@ def _fraction_padded(match: re.Match[str]) -> str:
     return match[1] + match[2].ljust(_FRACTION_WIDTH, "0")
 
 
-def natural_key(name: str) -> tuple[Any, str]:
+def natural_key(name: str, decimals: bool = True) -> tuple[Any, str]:
     """Sort key that orders digit runs by value, so ``img2`` comes before ``img10`` (natsort's,
-    ignoring case), and a decimal number's fraction as a fraction, so ``1614000000.15`` (a
-    timestamp written as a float) comes before ``1614000000.2``; names equal but for case or
-    leading zeros keep one order by the name itself."""
-    return _NATURAL(_DECIMAL.sub(_fraction_padded, name)), name
+    ignoring case), and with ``decimals`` a decimal number's fraction as a fraction, so
+    ``1614000000.15`` (a timestamp written as a float) comes before ``1614000000.2``; names equal
+    but for case or leading zeros keep one order by the name itself."""
+    return _NATURAL(_DECIMAL.sub(_fraction_padded, name) if decimals else name), name
+
+
+def reads_decimals(names: Iterable[str]) -> bool:
+    """Whether the dotted numbers in ``names`` can be decimal fractions: not when two names
+    differ only by a fraction's trailing zeros (``scene1.1``, ``scene1.10``), which numbering
+    (scene 1, frame 10) writes and a number written as a decimal never does."""
+    given = set(names)
+    return len({_DECIMAL.sub(_trailing_zeros_dropped, name) for name in given}) == len(given)
+
+
+def _trailing_zeros_dropped(match: re.Match[str]) -> str:
+    return match[1] + match[2].rstrip("0")
 
 
 def natural_sorted(names: Iterable[str]) -> list[str]:
-    """``names`` in natural order (:func:`natural_key`). Numbered frames, names alike but for
+    """``names`` in natural order (:func:`natural_key`), a dotted number read as a decimal unless
+    the names show it is numbering (:func:`reads_decimals`). Numbered frames, names alike but for
     digit runs of one length as cameras and datasets write them, are in natural order once
     sorted as text: they skip natsort's keys (0.1 s per 35,000 names)."""
     ordered = sorted(names)
     pattern = ordered[0].translate(_DIGITS_AS_ZERO) if ordered else ""
     if not all(name.translate(_DIGITS_AS_ZERO) == pattern for name in ordered):
-        ordered.sort(key=natural_key)
+        decimals = reads_decimals(ordered)
+        ordered.sort(key=lambda name: natural_key(name, decimals))
     return ordered
 
 
