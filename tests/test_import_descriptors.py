@@ -12,6 +12,7 @@ from helpers import ends_in_one_error, write_images
 from typer.testing import CliRunner
 
 from wiloc.cli import app
+from wiloc.description.traversals import descriptor_label
 from wiloc.descriptors.external import read_external, recorded_metric
 from wiloc.evaluation.results import read_results
 
@@ -82,9 +83,24 @@ def test_the_recorded_metric_names_the_results_and_an_explicit_one_wins(tmp_path
     _invoke("describe", "--import", feats, "--metric", "sqeuclidean", "--out", tmp_path / "seq.h5")
     result = runner.invoke(app, ["localize", str(tmp_path / "seq.h5"), "--method", "threshold", "-R", "1"])
     assert result.exit_code == 0, result.output
-    assert read_results(Path("seq-external-sqeuclidean-threshold.csv")).header.metric == "sqeuclidean"
+    header = read_results(Path("seq-external-sqeuclidean-threshold.csv")).header
+    assert (header.metric, header.descriptor) == ("sqeuclidean", "external:sqeuclidean")  # its name's label
     _invoke("localize", tmp_path / "seq.h5", "--metric", "l1", "--method", "threshold", "-R", "1", "--out", tmp_path / "l1.csv")
     assert read_results(tmp_path / "l1.csv").header.metric == "l1"
+
+
+def test_one_label_names_imported_descriptors(tmp_path: Path) -> None:
+    """Results files and their headers take the descriptor's label from one place: a matrix file
+    (its recorded metric, or the one given), rows given as ``external``, a described folder."""
+    ref, _ = _descriptors()
+    feats = _hloc_file(tmp_path / "feats.h5", {f"img{i}.jpg": v for i, v in enumerate(ref)})
+    _invoke("describe", "--import", feats, "--metric", "cosine", "--out", tmp_path / "cos.h5")
+    folder = tmp_path / "frames"
+    write_images(folder, 2)
+    assert descriptor_label("sad", None, [folder, tmp_path / "cos.h5"]) == "external:cosine"
+    assert descriptor_label("sad", "l1", [tmp_path / "cos.h5"]) == "external:l1"
+    assert descriptor_label("external", "hamming") == "external:hamming"
+    assert descriptor_label("gist", None, [folder]) == "gist"
 
 
 def test_jobs_with_matrix_files_alone_is_refused_as_describing_nothing(tmp_path: Path, cache_dir: Path) -> None:

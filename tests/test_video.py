@@ -20,7 +20,7 @@ from wiloc import api
 from wiloc.cache.store import Cache
 from wiloc.cli import app
 from wiloc.description.describing import describe_folder, describe_video
-from wiloc.description.traversals import Describer
+from wiloc.description.traversals import Describer, descriptor_label
 from wiloc.errors import ParameterError, WilocError
 from wiloc.sources.frames import list_traversal, read_gray
 from wiloc.sources.video import Sampling, frame_name, is_video, video_fingerprint
@@ -317,7 +317,7 @@ def test_api_describe_and_describer_take_videos(tmp_path: Path) -> None:
     assert report.entry.names == names([0, 5, 10, 15]) and report.shape == (4, 1152)
     describer = Describer("sad", cache=cache, sampling=Sampling(every=5))
     assert describer.entry(video).digest == report.entry.digest and describer.skipped == []
-    assert describer.label(video) == "sad"
+    assert descriptor_label("sad", None, [video]) == "sad"  # a video is described, not imported
     assert Describer("sad", cache=cache).entry(video).names == names(range(20))
     folder = tmp_path / "frames"
     folder.mkdir()

@@ -3,14 +3,14 @@ through the cache, a user's descriptor matrix file imported into it, or descript
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from wiloc.cache.entries import Entry, EntryHeader
+from wiloc.cache.entries import EXTERNAL, Entry, EntryHeader
 from wiloc.cache.store import Cache
 from wiloc.description.describing import describe_source
 from wiloc.description.matrix_import import import_matrix
@@ -89,12 +89,14 @@ def is_matrix_file(source: Path) -> bool:
     return Path(source).is_file() and not is_video(Path(source)) and not is_bag(Path(source))
 
 
-def descriptor_label(source: Path, descriptor: str, metric: str | None) -> str:
-    """The descriptor of a traversal as results name it: ``sad``, or ``external:cosine`` for an
-    imported matrix file (``metric`` None: the one the file records)."""
-    if not is_matrix_file(source):
-        return descriptor
-    return f"external:{metric or recorded_metric(source)}"
+def descriptor_label(descriptor: str, metric: str | None, sources: Iterable[Path] = ()) -> str:
+    """The descriptor of a run as results name it: ``sad``, or ``external:cosine`` for imported
+    descriptors (a source that is a matrix file, or rows given as ``external``; ``metric`` None:
+    the one the first matrix file records)."""
+    matrices = [Path(source) for source in sources if is_matrix_file(Path(source))]
+    if metric is None and matrices:
+        metric = recorded_metric(matrices[0])
+    return f"{EXTERNAL}:{metric}" if (descriptor == EXTERNAL or matrices) and metric else descriptor
 
 
 def stage(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
@@ -145,10 +147,6 @@ class Describer:
     @property
     def spec(self) -> DescriptorSpec:
         return descriptor_spec(self.descriptor, self.params)
-
-    def label(self, source: Path) -> str:
-        """What results headers call the descriptor of ``source``."""
-        return descriptor_label(source, self.descriptor, self.metric)
 
     def entry(self, source: Path, names: Path | None = None) -> Entry:
         """The descriptors of a folder or of a video's or bag's sampled frames (computed on demand), or of

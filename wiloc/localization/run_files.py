@@ -10,10 +10,9 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from wiloc.atomic import write_error
-from wiloc.cache.entries import EXTERNAL
 from wiloc.cache.store import Entry, lock_file
 from wiloc.description.describing import is_stream
-from wiloc.description.traversals import Describer, descriptor_label, is_matrix_file
+from wiloc.description.traversals import Describer, descriptor_label
 from wiloc.errors import CacheBusyError, ParameterError
 from wiloc.evaluation.results import Results, read_results
 from wiloc.evaluation.results_header import ResultsHeader
@@ -28,7 +27,7 @@ def results_name(query: Path, method: str, descriptor: str, metric: str | None =
     ``metric`` then names it, video file or ROS bag), descriptor and method:
     ``day_left-sad-online.csv``; a video's or bag file's suffix stays in its name
     (``day_left-mp4-sad-online.csv``), so that its run and a folder's of the same name never share a file."""
-    label = descriptor_label(query, descriptor, metric).replace(":", "-")
+    label = descriptor_label(descriptor, metric, [query]).replace(":", "-")
     name = query.name if not query.is_file() else \
         f"{query.stem}-{query.suffix.lstrip('.').lower()}" if is_stream(query) else query.stem
     return f"{name}-{label}-{method}.csv"
@@ -41,8 +40,7 @@ def run_header(method: str, describer: Describer, query: Path | None, metric: st
     ``Entry``: recorded by its ``folder``). Imported descriptors (a query or map that is a
     matrix file, or rows given as ``external``) are named ``external:METRIC``."""
     sources = [Path(source) for source in (query, reference) if isinstance(source, (str, os.PathLike))]
-    external = describer.descriptor == EXTERNAL or any(is_matrix_file(source) for source in sources)
-    return ResultsHeader(method=method, descriptor=f"{EXTERNAL}:{metric}" if external else describer.descriptor,
+    return ResultsHeader(method=method, descriptor=descriptor_label(describer.descriptor, metric, sources),
                          descriptor_params=dict(describer.params), metric=metric,
                          mode="sequence" if reference is None else "map", query="" if query is None else text_path(query),
                          map=reference.folder if isinstance(reference, Entry) else text_path(reference) if reference else "",
