@@ -533,3 +533,41 @@ def test_the_compiled_kernels_are_ready_when_the_localizer_starts(demo_route: de
                             text=True, check=True)
     before, after = json.loads(result.stdout)
     assert before == [0, 0] and min(after) >= 1, result.stdout
+
+
+_COMPILED_IN_SEQUENCE_MODE = """
+import json, sys
+import numpy as np
+from numba.core.registry import CPUDispatcher
+from wiloc.localization.localizer import Localizer
+
+def compiled():
+    return {f"{name}.{attr}": len(kernel.signatures) for name, module in list(sys.modules.items())
+            if name.startswith("wiloc") for attr, kernel in vars(module).items() if isinstance(kernel, CPUDispatcher)}
+
+rng = np.random.default_rng(3)
+places = rng.integers(0, 256, (60, 64))
+rows = np.clip(places[np.r_[np.arange(60), np.arange(60)]] + rng.integers(-12, 13, (120, 64)), 0, 255)
+loc = Localizer(None, descriptor="external", descriptor_params={"metric": "l1", "length": 64}, method=sys.argv[1],
+                cache=sys.argv[2], **json.loads(sys.argv[4]))
+if sys.argv[3] == "loaded":
+    loc.save(sys.argv[2] + "/state.npz")
+    loc = Localizer.load(sys.argv[2] + "/state.npz", cache=sys.argv[2])
+ready = compiled()
+stages = [loc.observe(row.astype(np.float32)).stage for row in rows]
+print(json.dumps([ready, compiled(), stages]))
+"""
+
+
+@pytest.mark.parametrize("method, how", [("catgraph", "new"), ("online", "new"), ("catgraph", "loaded")])
+def test_the_compiled_kernels_are_ready_in_sequence_mode(method: str, how: str, tmp_path: Path, cache_dir: Path) -> None:
+    """In sequence mode too the kernels are built as the localizer starts or is loaded, not when
+    its filter starts mid-run (frame 72 with catgraph's defaults, 5 s of CPU on a machine that
+    had not built them): no frame of the run compiles or loads one. Its decisions are those of
+    a localizer that did not (test_streaming_equals_batch_in_sequence_mode)."""
+    params = {"frontier": 10} if method == "catgraph" else {}  # online: init ends at frame 110
+    result = subprocess.run([sys.executable, "-c", _COMPILED_IN_SEQUENCE_MODE, method, str(tmp_path), how,
+                             json.dumps(params)], capture_output=True, text=True, check=True)
+    ready, after, stages = json.loads(result.stdout)
+    assert {"track", "update"} & set(stages), stages  # the filter (online: its update stage) ran
+    assert ready and after == ready, (ready, after)

@@ -44,6 +44,11 @@ STATE_FORMAT = "wiloc-localizer-state"
 #: ranks FAB-MAP evidence
 STATE_VERSION = 6
 
+#: Sequence mode: the made-up frames a copy of the method steps, at most, to build its compiled
+#: kernels (:meth:`Localizer._compile`), and how many it steps after its first whole decision.
+TRIAL_FRAMES = 400
+SETTLED_FRAMES = 2
+
 
 class Localizer:
     """Frame-by-frame localization against a map (or within the run itself, in sequence mode).
@@ -83,17 +88,28 @@ class Localizer:
         self._compile()
 
     def _compile(self) -> None:
-        """Step a copy of the method over three of the map's frames, so that its compiled kernels
-        are built (or loaded from the cache) as the localizer starts, not on the first frame: the
-        first frames of catgraph took 7 s of CPU on a machine that had not built them yet. The
-        copy is dropped: the localizer's own state, its random generator's too, is untouched, so
-        its decisions do not change. Sequence mode has no map yet to step over."""
-        reference = self._session.map
-        if reference is None:
+        """Step a copy of the method so that its compiled kernels are built (or loaded from the
+        cache) as the localizer starts or is loaded, not on a frame a robot gives it: catgraph's
+        first frames took 7 s of CPU on a machine that had not built them yet. Against a map the
+        copy steps over three map frames; in sequence mode, where the filter starts only once the
+        run has frames enough (frame 72 with catgraph's defaults), over made-up frames
+        (:meth:`RunSession.made_up_rows`) until it decides with every value it gives, then
+        :data:`SETTLED_FRAMES` more (at most :data:`TRIAL_FRAMES` in all). The copy is dropped:
+        the localizer's own state, its random generator's too, is untouched, so its decisions do
+        not change."""
+        trial, reference = copy.deepcopy(self.method), self._session.map
+        if reference is not None:
+            for descriptor in reference.data[:3]:
+                trial.step(self.row(descriptor))
             return
-        trial = copy.deepcopy(self.method)
-        for descriptor in reference.data[:3]:
-            trial.step(self.row(descriptor))
+        settled = 0
+        for _, row in zip(range(TRIAL_FRAMES), self._session.made_up_rows(trial.frames)):
+            decision = trial.step(row)
+            whole = np.isfinite(decision.confidence) and ("new_place" not in trial.columns
+                                                          or np.isfinite(decision.new_place))
+            settled += bool(whole or settled)
+            if settled > SETTLED_FRAMES:
+                return
 
     def _setup(self, session: RunSession) -> None:
         """Everything but the method's start: shared by a new localizer and a loaded one."""

@@ -10,6 +10,7 @@ A new method input or row kind is added here once, for both.
 """
 from __future__ import annotations
 
+import itertools
 import os
 from collections.abc import Iterator, Mapping
 from dataclasses import asdict
@@ -261,6 +262,25 @@ class RunSession:
     def seen(self) -> NDArray:
         """The descriptors of the frames added as candidates (sequence mode), in order."""
         return self._seen[:self._count]
+
+    def made_up_rows(self, start: int, seed: int = 0) -> Iterator[NDArray[np.float64]]:
+        """Sequence mode: endless rows of made-up frames, as :meth:`row` would give the frames
+        after the first ``start`` (inf within the recent window; FAB-MAP's rows -inf there), their
+        values the run's own difference kernel's between random descriptors of the candidates'
+        length and type. A copy of the method stepped over them builds its compiled kernels
+        before a real frame needs them; the session itself is left as it was."""
+        rng, seen = np.random.default_rng(seed), self._seen
+        if seen.dtype.kind in "iu":
+            made = rng.integers(0, min(256, np.iinfo(seen.dtype).max + 1), (32, seen.shape[1])).astype(seen.dtype)
+        else:
+            made = rng.random((32, seen.shape[1])).astype(seen.dtype)
+        values = pairwise(made, made, self.metric, self.scale).astype(np.float64)
+        sign, blank = (-1.0, -np.inf) if self.kind == "log_ratio" else (1.0, np.inf)
+        for k in itertools.count(start):
+            row = np.full(k, blank)
+            far = max(0, k - self.exclude_recent)
+            row[:far] = sign * np.resize(values[k % len(made)], far)
+            yield row
 
     @property
     def candidates_data(self) -> NDArray:
