@@ -196,6 +196,16 @@ def test_a_changed_map_is_refused_on_load(demo_route: demo.DemoRoute, tmp_path: 
         Localizer.load(tmp_path / "junk.npz")
 
 
+def test_loading_a_missing_file_or_a_folder_says_so(tmp_path: Path) -> None:
+    """A state file that is not there is named as missing, a folder as a folder: not as a file
+    of the wrong kind with the system's error number."""
+    for given, problem in ((tmp_path / "gone.npz", "file does not exist"), (tmp_path, "a folder, not a saved")):
+        with pytest.raises(WilocError) as err:
+            Localizer.load(given)
+        assert err.value.where == str(given) and err.value.problem.startswith(problem), str(err.value)
+        assert "Errno" not in str(err.value)
+
+
 @pytest.mark.realdata
 @pytest.mark.parametrize("method", DIFFERENCE_METHODS)
 def test_gardens_point_streamed_frame_by_frame_equals_batch(data_root: Path, method: str, tmp_path: Path,

@@ -283,12 +283,18 @@ class Localizer:
         ones the saved localizer would have made. The map must be unchanged; a map that was held
         in memory is given again as ``map``."""
         path = Path(path)
+        if not path.exists():
+            raise WilocError(path, "file does not exist")
+        if path.is_dir():
+            raise WilocError(path, "a folder, not a saved localizer state (an .npz file Localizer.save wrote)")
         if path.is_file() and not zipfile.is_zipfile(path):  # np.load would take it for .npy or pickle
             raise WilocError(path, "not a saved localizer state (not an .npz file)")
         try:
             with np.load(path, allow_pickle=False) as data:
                 meta = _join(json.loads(str(data["meta"])), {key: data[key] for key in data.files if key != "meta"})
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
+        except OSError as exc:  # unreadable (no permission)
+            raise WilocError(path, f"cannot read file ({exc.strerror or exc})") from None
+        except (ValueError, KeyError, EOFError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
             raise WilocError(path, f"not a saved localizer state ({load_problem(exc)})") from None
         if meta.get("format") != STATE_FORMAT or meta.get("version") != STATE_VERSION:
             raise WilocError(path, "not a saved localizer state of this wiloc version")
