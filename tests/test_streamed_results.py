@@ -109,3 +109,21 @@ def test_concatenated_decisions_are_collected_ones() -> None:
     for name in ("match", "difference", "confidence", "stage", "ranking"):
         np.testing.assert_array_equal(getattr(joined, name), getattr(whole, name))
     np.testing.assert_array_equal(joined.columns["new_place"], whole.columns["new_place"])
+
+
+def test_runs_in_memory_without_a_query_are_labelled_as_one_unnamed_traversal(demo_route: demo.DemoRoute,
+                                                                              tmp_path: Path) -> None:
+    """Two methods' streaming runs of the same frames, their query not given, are one traversal
+    of the tables (not one per method), and each run is named by it and its method, not by the
+    method alone (``-online``)."""
+    cache, truth = Cache(tmp_path / "cache"), api.TruthSource(by="index")  # found without the query
+    runs = []
+    for method in ("threshold", "online"):
+        loc = Localizer(demo_route.reference, method=method, cache=cache)
+        for frame in sorted(demo_route.queries[0].iterdir())[:40]:
+            loc.observe(frame)
+        runs.append(loc.results())
+    compared = api.compare(runs, truth)
+    assert [e.name for e in compared.evaluations] == ["unnamed-threshold", "unnamed-online"]
+    assert compared.traversals == ["unnamed", "unnamed"] and compared.labels == ["threshold", "online"]
+    assert set(compared.table1["traversal"]) == {"unnamed"}

@@ -28,6 +28,10 @@ from wiloc.labels import short_names
 from wiloc.reprs import short_repr
 
 
+#: The query traversal of a run in memory that records none (``Localizer.results()`` without ``query``).
+UNNAMED_QUERY = "unnamed"
+
+
 @short_repr
 @dataclass
 class Evaluation:
@@ -47,12 +51,17 @@ class Evaluation:
 
     @property
     def name(self) -> str:
-        """The results file's name, or for a run in memory its query traversal and method."""
-        return self.path.name if self.path else f"{Path(self.results.header.query).name}-{self.method}"
+        """The results file's name, or for a run in memory its query traversal and method
+        (``day_left-online``; ``unnamed-online`` for a streaming run whose query was not given)."""
+        return self.path.name if self.path else f"{self.traversal}-{self.method}"
 
     @property
     def traversal(self) -> str:
-        return Path(self.results.header.query or self.name).name
+        """The query traversal's folder name; for a run that records none, its results file's
+        name, or :data:`UNNAMED_QUERY` for a run in memory (``Localizer.results()`` without
+        ``query``): runs of one such stream share a column of Table I whatever their method."""
+        query = self.results.header.query
+        return Path(query).name if query else self.path.name if self.path else UNNAMED_QUERY
 
     @property
     def method(self) -> str:
@@ -122,7 +131,7 @@ class Comparison:
 def traversal_labels(evaluations: Sequence[Evaluation]) -> list[str]:
     """Each run's query traversal: its folder name, or as many trailing parts of its path as keep
     apart traversals of one name from different folders (say, two datasets' ``winter``)."""
-    return short_names([e.results.header.query or e.name for e in evaluations])
+    return short_names([e.results.header.query or e.traversal for e in evaluations])
 
 
 def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
