@@ -120,6 +120,21 @@ def _write_vprbench(path: Path, pairs_csv: Path, run: Path) -> Path:
     return path
 
 
+def _write_positives(path: Path, pairs_csv: Path, run: Path) -> Path:
+    """The pairs as positives per query, as pytorch-NetVLAD and VPR-methods-evaluation keep them:
+    an object array whose i-th entry holds the reference indices of the i-th query frame (empty
+    for a query frame without one)."""
+    results = read_results(run)
+    queries, refs = results.frames["frame"].tolist(), list(results.reference_frames)
+    pairs = pd.read_csv(pairs_csv)
+    positives = np.empty(len(queries), dtype=object)
+    for i, name in enumerate(queries):
+        positives[i] = np.array([refs.index(r) for r in pairs.loc[pairs["query"] == name, "reference"]], dtype=np.int64)
+    assert len({p.size for p in positives}) > 1  # ragged: numpy keeps it an object array
+    np.save(path, positives)
+    return path
+
+
 def _evaluation(run: Path, gt: list[str]) -> dict:
     result = runner.invoke(app, ["evaluate", str(run), *gt, "--json"])
     assert result.exit_code == 0, result.output
@@ -132,14 +147,17 @@ FORMS = {"utm-names": (["--gt", "utm-names", "--radius", "25"], "utm", ("utm-nam
          "utm-names, default radius": (["--gt", "utm-names"], "utm", ("utm-names", None)),
          "exif": (["--gt", "exif", "--radius", "25"], "gps", ("exif", None)),
          "vprbench": (["--gt", "vprbench:{gt_file}"], "utm", ("vprbench", "{gt_file}")),
-         "vprbench, the file alone": (["--gt", "{gt_file}"], "utm", ("vprbench", "{gt_file}"))}
+         "vprbench, the file alone": (["--gt", "{gt_file}"], "utm", ("vprbench", "{gt_file}")),
+         "positives": (["--gt", "positives:{gt_file}"], "utm", ("positives", "{gt_file}")),
+         "positives, the file alone": (["--gt", "{gt_file}"], "gps", ("positives", "{gt_file}"))}
 
 
 @pytest.mark.parametrize("form", FORMS)
 def test_each_form_evaluates_as_the_equivalent_pairs_csv(form: str, vpr_route: dict, tmp_path: Path) -> None:
     args, pairs_kind, (kind, path) = FORMS[form]
     pairs, run = vpr_route["pairs"][pairs_kind], vpr_route["run"]
-    gt_file = _write_vprbench(tmp_path / "ground_truth_new.npy", pairs, run)
+    write = _write_positives if kind == "positives" else _write_vprbench
+    gt_file = write(tmp_path / ("positives.npy" if kind == "positives" else "ground_truth_new.npy"), pairs, run)
     expected = _evaluation(run, ["--gt", f"pairs:{pairs}"])
     assert expected["with_true_match"] > 0
     assert _evaluation(run, [arg.format(gt_file=gt_file) for arg in args]) == expected
@@ -213,6 +231,39 @@ def test_a_foreign_pickle_is_never_run(tmp_path: Path) -> None:
     np.save(tmp_path / "gt.npy", rows)
     with pytest.raises(WilocError, match="it names test_truth_formats.Smuggled"):
         read_vprbench(tmp_path / "gt.npy")
+
+
+def _bad_positives(tmp: Path, kind: str, n_query: int) -> Path:
+    path = tmp / f"{kind}.npy"
+    positives = np.empty(n_query - (kind == "one short"), dtype=object)
+    positives[:] = [np.array([i % 3], dtype=np.int64) for i in range(positives.size)]
+    if kind == "out of range":
+        positives[4] = np.array([2, 9999])
+    elif kind == "not indices":
+        positives[1] = np.array([0.5, 1.5])
+    np.save(path, np.eye(n_query) if kind == "mask" else positives)
+    return path
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("one short", "lists positives of 23 query frames, but the query traversal has 24: entry i is the i-th query frame"),
+    ("out of range", "entry 5: reference index 9999, but the reference traversal has 24 frames"),
+    ("not indices", "entry 2 is not a list of reference indices"),
+    ("mask", "holds a 24 x 24 array of float64, not one array of reference indices per query frame (a queries x "
+             "references mask of 0 and 1 is the matrix form)"),
+])
+def test_bad_positives_files_are_one_line(kind: str, message: str, vpr_route: dict, tmp_path: Path) -> None:
+    path = _bad_positives(tmp_path, kind, len(read_results(vpr_route["run"]).frames))
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(vpr_route["run"]), "--gt", f"positives:{path}"]), 1,
+                      str(path), message)
+
+
+def test_positives_of_equal_counts_saved_as_one_integer_array_are_read(tmp_path: Path) -> None:
+    """np.save of positives that all hold k indices stores a queries x k integer array, no object
+    array: the positives form reads it as such, where a bare .npy of it is a matrix."""
+    np.save(tmp_path / "top2.npy", np.array([[0, 1], [1, 2], [2, 0]]))
+    truth = load_truth("positives", tmp_path / "top2.npy", query_names=["a", "b", "c"], ref_names=["x", "y", "z"])
+    assert truth.matrix.toarray().tolist() == [[True, True, False], [False, True, True], [True, False, True]]
 
 
 def test_a_name_without_utm_fields_is_one_line(own_vpr_route: dict) -> None:

@@ -15,13 +15,13 @@ if TYPE_CHECKING:
     from wiloc import api
 
 NAMED_FORMS = ("aligned", "utm-names", "exif")  # forms without a file
-FORMS = "aligned, aligned:index, positions:Q.csv, pairs:P.csv, matrix:M.npy, vprbench:G.npy, utm-names, exif"
+FORMS = "aligned, aligned:index, positions:Q.csv, pairs:P.csv, matrix:M.npy, vprbench:G.npy, positives:P.npy, utm-names, exif"
 
 
 def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | None,
                  prefix: str = "") -> api.TruthSource:
     """`--gt` is a form name without a file (aligned, utm-names, exif) or KIND:PATH (positions:q.csv,
-    pairs:p.csv, matrix:m.npy, vprbench:g.npy), or a path whose suffix tells the form. Options of another form are refused (``prefix``:
+    pairs:p.csv, matrix:m.npy, vprbench:g.npy, positives:p.npy), or a path whose suffix tells the form. Options of another form are refused (``prefix``:
     the options' name prefix, ``train_`` for the trained method's)."""
     from wiloc import api
     from wiloc.evaluation.truth_source import file_form
@@ -32,7 +32,7 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
         if gt not in NAMED_FORMS and not Path(gt).is_file() and "{query}" not in gt:
             fail(f"{flag}: '{gt}' is neither a ground-truth form nor a file (forms: {FORMS})", EXIT_USAGE)
         kind, path = (gt, "") if gt in NAMED_FORMS else (file_form(gt), gt)
-    if kind not in ("aligned", "positions", "pairs", "matrix", "vprbench", "utm-names", "exif"):
+    if kind not in ("aligned", "positions", "pairs", "matrix", "vprbench", "positives", "utm-names", "exif"):
         fail(f"{flag}: unknown ground-truth form '{kind}' in '{gt}' (forms: {FORMS})", EXIT_USAGE)
     refuse_unused({f"{prefix}tolerance": (kind == "aligned", "--gt aligned (pairs files carry their own)"),
                    f"{prefix}gt_map": (kind == "positions", "positions ground truth"),
@@ -51,7 +51,7 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
 
 GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames; 'aligned:index': same index, "
            "a video's frame by its index in the video, as for a video against a folder of its frames), 'positions:Q.csv' (with "
-           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat|.npz' ('matrix:M.mat:NAME' or 'matrix:M.npz:NAME' picks one array of several), 'vprbench:ground_truth_new.npy' (VPR-Bench), "
+           "--gt-map R.csv), 'pairs:P.csv' or 'matrix:M.npy|.csv|.mat|.npz' ('matrix:M.mat:NAME' or 'matrix:M.npz:NAME' picks one array of several), 'vprbench:ground_truth_new.npy' (VPR-Bench), 'positives:P.npy' (reference indices per query), "
            "'utm-names' (@UTM_east@UTM_north@ file names) or 'exif' (the images' GPS EXIF), these two within --radius "
            "metres (default 25). '{query}' in a path is replaced by the query folder's name.")
 GtOption = Annotated[str, typer.Option("--gt", help=GT_HELP)]

@@ -29,7 +29,7 @@ from wiloc.reprs import short_repr
 EARTH_RADIUS_M = 6_371_008.8
 """Mean Earth radius (IUGG) used for lat/lon distances on a sphere."""
 
-KINDS = ("aligned", "positions", "pairs", "matrix", "vprbench", "utm-names", "exif")
+KINDS = ("aligned", "positions", "pairs", "matrix", "vprbench", "positives", "utm-names", "exif")
 FOLDER_KINDS = ("utm-names", "exif")
 """Forms read from the traversals themselves (their file names, their images' EXIF): no file."""
 
@@ -428,7 +428,8 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
         if suffix == ".mat":
             return _named_array(path, scipy.io.loadmat(path), variable)
     except (ValueError, OSError, NotImplementedError, EOFError, IndexError, scipy.io.matlab.MatReadError) as exc:
-        hint = "; VPR-Bench's ground_truth_new.npy is the vprbench form" if str(exc).startswith("Object arrays") else ""
+        hint = ("; an array of reference indices per query is the positives form, VPR-Bench's "
+                "ground_truth_new.npy the vprbench form" if str(exc).startswith("Object arrays") else "")
         raise WilocError(path, f"cannot read matrix ({load_problem(exc)}){hint}") from exc
     raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv, .npz or .mat")
 

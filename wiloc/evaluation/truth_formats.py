@@ -7,7 +7,7 @@ from __future__ import annotations
 import pickle
 from collections.abc import Sequence
 from pathlib import Path, PurePosixPath
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,6 +27,7 @@ _NUMPY_GLOBALS: dict[str, Any] = {"_reconstruct": np.empty(0).__reduce__()[0], "
                                   "dtype": np.dtype, "scalar": np.int64(0).__reduce__()[0]}
 _NUMPY_MODULES = frozenset({"numpy", "numpy.core.multiarray", "numpy._core.multiarray"})
 _VPRBENCH = "VPR-Bench's rows of [query index, [reference indices]]"
+_POSITIVES = "one array of reference indices per query frame"
 
 
 class _ArraysOnly(pickle.Unpickler):
@@ -44,18 +45,41 @@ class _ArraysOnly(pickle.Unpickler):
         raise pickle.UnpicklingError(f"it names {module}.{name}, which is no part of a numpy array")
 
 
-def _load_object_npy(path: Path, file: BinaryIO) -> NDArray[np.object_]:
-    """The object array of a ``.npy`` file, unpickled by :class:`_ArraysOnly`."""
-    version = np.lib.format.read_magic(file)
-    read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-    shape, _, dtype = read_header(file)
-    if not dtype.hasobject:
-        raise WilocError(path, f"holds a plain {' x '.join(map(str, shape))} array of {dtype}, not {_VPRBENCH} "
-                               "(a queries x references matrix is the matrix form)")
-    array = _ArraysOnly(file).load()
+def _read_npy(path: Path) -> NDArray:
+    """The array of a ``.npy`` file: an object array unpickled by :class:`_ArraysOnly` (a pickle
+    that holds no array, such as a dict, is an error), any other as numpy reads it without pickles."""
+    check_file(path)
+    try:
+        with path.open("rb") as file:
+            version = np.lib.format.read_magic(file)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            if not read_header(file)[2].hasobject:
+                file.seek(0)
+                return np.lib.format.read_array(file, allow_pickle=False)
+            array = _ArraysOnly(file).load()
+    except (ValueError, OSError, EOFError, pickle.UnpicklingError) as exc:
+        raise WilocError(path, f"not a readable .npy file of reference indices ({exc})") from exc
     if not isinstance(array, np.ndarray):
-        raise WilocError(path, f"holds a pickled {type(array).__name__}, not {_VPRBENCH}")
+        raise WilocError(path, f"holds a pickled {type(array).__name__}, not an array of reference indices")
     return array
+
+
+def npy_form(path: Path) -> str:
+    """The ground-truth form of a ``.npy`` file given without its kind, from its header alone: an
+    object array of two columns is VPR-Bench's rows, of one axis a list of positives per query,
+    anything else a matrix (whose reader says what is wrong)."""
+    try:
+        with Path(path).open("rb") as file:
+            version = np.lib.format.read_magic(file)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, _, dtype = read_header(file)
+    except (ValueError, OSError, EOFError):
+        return "matrix"
+    if not dtype.hasobject:
+        return "matrix"
+    return "vprbench" if len(shape) == 2 and shape[1] == 2 else "positives" if len(shape) == 1 else "matrix"
 
 
 def _whole_number(value: Any) -> int | None:
@@ -80,12 +104,10 @@ def _references(value: Any) -> NDArray[np.int64] | None:
 def read_vprbench(path: Path) -> list[tuple[int, NDArray[np.int64]]]:
     """The (query index, reference indices) rows of a VPR-Bench ``ground_truth_new.npy``."""
     path = Path(path)
-    check_file(path)
-    try:
-        with path.open("rb") as file:
-            array = _load_object_npy(path, file)
-    except (ValueError, OSError, EOFError, pickle.UnpicklingError) as exc:
-        raise WilocError(path, f"not {_VPRBENCH} ({exc})") from exc
+    array = _read_npy(path)
+    if not array.dtype.hasobject:
+        raise WilocError(path, f"holds a plain {' x '.join(map(str, array.shape))} array of {array.dtype}, not "
+                               f"{_VPRBENCH} (a queries x references matrix is the matrix form)")
     if array.ndim not in (1, 2) or (array.ndim == 2 and array.shape[1] != 2):
         shape = " x ".join(map(str, array.shape)) or "0-d"
         raise WilocError(path, f"holds a {shape} object array, not {_VPRBENCH}")
@@ -120,6 +142,35 @@ def vprbench_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[s
     without = n_query - len({q for q, _ in rows})
     warnings = unmatched(path, without, n_query, "query frames have no row (never a true match)")
     return truth_from_pairs(queries, refs, query_names, ref_names, warnings)
+
+
+def positives_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str]) -> Truth:
+    """Positives form: the i-th entry lists the reference indices that are the same place as the
+    i-th query frame (an object array of index arrays, as pytorch-NetVLAD's and
+    VPR-methods-evaluation's ``positives_per_query`` are, or a queries x k integer array); the
+    indices count frames in each traversal's natural order, so the file must have one entry per
+    query frame."""
+    path = Path(path)
+    array = _read_npy(path)
+    if not ((array.dtype.hasobject and array.ndim == 1) or (array.dtype.kind in "iu" and array.ndim == 2)):
+        raise WilocError(path, f"holds a {' x '.join(map(str, array.shape)) or '0-d'} array of {array.dtype}, not "
+                               f"{_POSITIVES} (a queries x references mask of 0 and 1 is the matrix form)")
+    n_query, n_ref = len(query_names), len(ref_names)
+    if len(array) != n_query:
+        raise WilocError(path, f"lists positives of {len(array)} query frames, but the query traversal has {n_query}: "
+                               "entry i is the i-th query frame in natural order")
+    positives = []
+    for i, entry in enumerate(array):
+        refs = _references(entry)
+        if refs is None:
+            raise WilocError(path, f"entry {i + 1} is not a list of reference indices ({_POSITIVES})")
+        if refs.size and not (0 <= refs.min() and refs.max() < n_ref):
+            bad = int(refs[(refs < 0) | (refs >= n_ref)][0])
+            raise WilocError(path, f"entry {i + 1}: reference index {bad}, but the reference traversal has {n_ref} frames")
+        positives.append(refs)
+    queries = np.repeat(np.arange(n_query, dtype=np.int64), [refs.size for refs in positives])
+    refs = np.concatenate(positives) if positives else np.zeros(0, dtype=np.int64)
+    return truth_from_pairs(queries, refs, query_names, ref_names, [])
 
 
 # ------------------------------------------------------------------------------------ @UTM names

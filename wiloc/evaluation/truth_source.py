@@ -11,7 +11,8 @@ from typing import Literal
 from wiloc.errors import ParameterError, WilocError
 from wiloc.evaluation.groundtruth import (COORDINATE_NAMES, FOLDER_KINDS, KINDS, Truth, aligned_truth,
                                           matrix_truth, pairs_truth, positions_truth, restrict_sequence)
-from wiloc.evaluation.truth_formats import DEFAULT_RADIUS_M, exif_truth, utm_names_truth, vprbench_truth
+from wiloc.evaluation.truth_formats import (DEFAULT_RADIUS_M, exif_truth, npy_form, positives_truth, utm_names_truth,
+                                            vprbench_truth)
 from wiloc.given import is_number
 
 
@@ -47,17 +48,22 @@ def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
         return pairs_truth(Path(path), query_names, ref_names)
     if kind == "vprbench":
         return vprbench_truth(Path(path), query_names, ref_names)
+    if kind == "positives":
+        return positives_truth(Path(path), query_names, ref_names)
     return matrix_truth(Path(path), query_names, ref_names, variable=variable)
 
 
 def file_form(path: str | Path) -> str:
     """The form of a ground-truth file given without its kind: VPR-Bench's file by its name, a
-    .npy, .npz or .mat as a matrix, a CSV by its first line (``query,reference``: pairs; ``x,y`` or
+    .npy by its header (:func:`~wiloc.evaluation.truth_formats.npy_form`: VPR-Bench's rows, positives
+    per query or a matrix), a .npz or .mat as a matrix, a CSV by its first line (``query,reference``: pairs; ``x,y`` or
     ``lat,lon`` (or ``latitude,longitude``): positions; numbers alone: a matrix), anything else as pairs, whose
     reader says what is missing."""
     if Path(path).name.lower() == "ground_truth_new.npy":
         return "vprbench"
-    if Path(path).suffix.lower() in (".npy", ".npz", ".mat"):
+    if Path(path).suffix.lower() == ".npy":
+        return npy_form(Path(path))
+    if Path(path).suffix.lower() in (".npz", ".mat"):
         return "matrix"
     try:
         with open(path, encoding="utf-8-sig", errors="replace") as file:
