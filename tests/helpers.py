@@ -122,6 +122,10 @@ class FakeSpec:
     def length(self) -> int:
         return self.params["side"] ** 2
 
+    @property
+    def cache_params(self) -> dict[str, Any]:
+        return self.params
+
     def compute(self, gray: np.ndarray) -> np.ndarray:
         side = self.params["side"]
         return cv2.resize(gray, (side, side), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()

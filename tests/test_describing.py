@@ -227,6 +227,24 @@ def test_ctrl_c_the_moment_decoders_are_quieted_leaves_stderr_where_it_was(
     assert (now.st_dev, now.st_ino) == (original.st_dev, original.st_ino)
 
 
+def test_a_new_version_of_a_descriptors_code_describes_afresh(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An entry's key holds the version of its descriptor's computation: rows an earlier version
+    computed are never reused once the version is raised; the same version reuses them."""
+    from wiloc.descriptors.registry import get_descriptor
+    from wiloc.descriptors.sad import Sad
+
+    folder = tmp_path / "route"
+    write_images(folder, 3)
+    cache = Cache(tmp_path / "cache")
+    first = describe_folder(folder, get_descriptor("sad"), cache, jobs=1)
+    assert describe_folder(folder, get_descriptor("sad"), cache, jobs=1).computed == 0
+    monkeypatch.setattr(Sad, "version", Sad.version + 1)
+    again = describe_folder(folder, get_descriptor("sad"), cache, jobs=1)
+    assert (first.computed, again.computed) == (3, 3) and again.entry.key != first.entry.key
+    assert np.array_equal(again.entry.data, first.entry.data)
+    assert sorted(i.params["code_version"] for i in cache.list_entries()) == [Sad.version - 1, Sad.version]
+
+
 def test_describe_in_another_process_reports_a_busy_entry(tmp_path: Path) -> None:
     from wiloc.descriptors.registry import get_descriptor
 
@@ -234,7 +252,7 @@ def test_describe_in_another_process_reports_a_busy_entry(tmp_path: Path) -> Non
     write_images(folder, 2)
     cache = Cache(tmp_path / "cache")
     spec = get_descriptor("gist")
-    key = EntryHeader.create(str(folder.resolve()), spec.name, spec.params, spec.metric, spec.scale,
+    key = EntryHeader.create(str(folder.resolve()), spec.name, spec.cache_params, spec.metric, spec.scale,
                              spec.natural_max, spec.dtype, spec.length).key
     code = _RUN.replace("Cache(Path(sys.argv[2]))", "Cache(Path(sys.argv[2]), lock_timeout=0.3)")
     with cache.lock(cache.entry_name(key)):

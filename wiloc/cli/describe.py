@@ -162,10 +162,11 @@ def _list_descriptors(as_json: bool) -> None:
 
 def _params_text(descriptor: str, params: dict[str, Any]) -> str:
     """An entry's parameters as a table shows them: those that differ from the descriptor's
-    defaults, a video's or bag's sampling and topic, an import's metric; never the content digests."""
+    defaults (the version of the descriptor's code when not the present one's), a video's or bag's
+    sampling and topic, an import's metric; never the content digests."""
     from wiloc.descriptors.registry import DESCRIPTOR_NAMES, get_descriptor
 
-    defaults = get_descriptor(descriptor).params if descriptor in DESCRIPTOR_NAMES else {}
+    defaults = get_descriptor(descriptor).cache_params if descriptor in DESCRIPTOR_NAMES else {}
     parts = []
     for key, value in sorted(params.items()):
         if key == "sampling":

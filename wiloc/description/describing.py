@@ -136,7 +136,7 @@ def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache
     keys = []
     for folder, callback in zip(folders, callbacks):
         traversal = list_traversal(folder)
-        header = _header(Path(folder), spec, spec.params)
+        header = _header(Path(folder), spec, spec.cache_params)
         runs.setdefault(header.key, _Settling(header, callback, traversal))
         keys.append(header.key)
     settling = list(runs.values())
@@ -264,7 +264,7 @@ def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sam
     path = Path(path)
     with opencv_quiet(), Video(path) as video:
         video_print = video_fingerprint(path)
-        params = {**spec.params, "video": video_print.digest, "sampling": asdict(sampling)}
+        params = {**spec.cache_params, "video": video_print.digest, "sampling": asdict(sampling)}
         length = "" if video.frame_count is None else f" (it has {video.frame_count} frames)"
         stored, entry, computed, repairs = _describe_stream(
             cache, _header(path, spec, params), sampling.estimate(video.frame_count, video.rate),
@@ -290,7 +290,7 @@ def describe_bag(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampl
     with opencv_quiet(), Bag(path) as bag:
         bag.choose(topic)
         bag_print = bag_fingerprint(path)
-        params = {**spec.params, "bag": bag_print.digest, "topic": bag.topic, "sampling": asdict(sampling)}
+        params = {**spec.cache_params, "bag": bag_print.digest, "topic": bag.topic, "sampling": asdict(sampling)}
         stored, entry, computed, repairs = _describe_stream(
             cache, _header(path, spec, params), sampling.estimate(bag.count, bag.rate),
             lambda skip: describe_frames(spec, bag_print, bag.frames(sampling, spec.min_size, skip=skip,

@@ -40,6 +40,12 @@ class DescriptorSpec:
     colour: bool = False  # computed from 8-bit BGR images (H x W x 3), in batches: ``compute_batch``
 
     @property
+    def cache_params(self) -> dict[str, Any]:
+        """What the cache keys an entry by: the parameters and the version of the class's
+        computation (``Descriptor.version``), so that rows computed otherwise are never reused."""
+        return {**self.params, "code_version": self.kind.version}
+
+    @property
     def key(self) -> str:
         """Canonical JSON of name and parameters: the descriptor part of a cache key."""
         return json.dumps({"name": self.name, "params": dict(self.params)}, sort_keys=True)
@@ -97,6 +103,9 @@ class Descriptor:
     colour: ClassVar[bool] = False  # computed from colour images, in batches
     words: ClassVar[bool] = False  # visual word presence: methods reading FAB-MAP's evidence take it
     derived: ClassVar[tuple[str, ...]] = ()  # parameters read from its files (given, they must agree)
+    #: How its rows are computed: raised with any change to the computation that moves a row, so
+    #: that the cache describes afresh what an earlier version computed (its entries' key holds it).
+    version: ClassVar[int] = 1
 
     @classmethod
     def options(cls) -> list[Declared]:
