@@ -98,6 +98,31 @@ def test_npz_archive_with_or_without_names(tmp_path: Path) -> None:
         read_external(tmp_path / "two.npz", None, "l1")
 
 
+@pytest.mark.parametrize("dtype", ["U", "S", "O"])
+def test_npz_names_as_text_bytes_or_python_strings(tmp_path: Path, dtype: str) -> None:
+    # names saved as bytes (as h5py gives them) were passed over and frames named frame000000...;
+    # names as Python strings (a pandas column's .values) made the whole archive unreadable
+    np.savez(tmp_path / "m.npz", descriptors=_matrix(), names=np.array(NAMES, dtype=dtype))
+    names, matrix = read_external(tmp_path / "m.npz", None, "l1")
+    assert names == NAMES and np.array_equal(matrix, _matrix())
+
+
+def test_npz_of_descriptors_one_column_per_frame_is_told(tmp_path: Path) -> None:
+    # a D x N archive with its N names imported as D frames named frame000000...
+    np.savez(tmp_path / "t.npz", descriptors=_matrix().T, names=np.array(NAMES))
+    with pytest.raises(WilocError, match=r"t\.npz: 3 frame names for 4 descriptor rows \(the matrix is 4 x 3: one "
+                                         r"column per frame\? save its transpose"):
+        read_external(tmp_path / "t.npz", None, "l1")
+
+
+def test_npz_naming_foreign_code_is_refused_unrun(tmp_path: Path) -> None:
+    names = np.array([Path("a"), Path("b"), Path("c")], dtype=object)
+    np.savez(tmp_path / "m.npz", descriptors=_matrix(), names=names)
+    with pytest.raises(WilocError, match=r"m\.npz: not a readable \.npz archive \(it names pathlib\.\w+, which is no "
+                                         r"part of a numpy array\)"):
+        read_external(tmp_path / "m.npz", None, "l1")
+
+
 def test_a_row_without_a_name_is_refused(tmp_path: Path) -> None:
     # a blank name cell was a frame named '' that no ground truth or results file can name
     path = _csv(tmp_path / "m.csv", [["name", "d0", "d1"], ["a.png", 1, 2], ["", 3, 4], ["c.png", 5, 6]])

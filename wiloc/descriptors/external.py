@@ -6,7 +6,7 @@ Formats (chosen by suffix; a folder is one ``.npy`` vector per image):
 - ``.npy``: the N x D matrix; names from ``names_path`` (one per line, or the first column of a
   ``.csv``; a first cell ``name``/``frame``/``file`` is a header) or generated ``frame000000``...
 - ``.npz``: numpy's archive holding one N x D array of numbers, and optionally one array of N
-  strings, the names (else as ``.npy``).
+  names (text, UTF-8 bytes or Python strings, read without running anything), else as ``.npy``.
 - ``.csv``: one row per frame, first column the frame name, the rest numbers; an optional header
   row (recognised when none of its value cells is a number, or its first cell is empty or a
   word such as ``name``: pandas heads the value columns 0, 1, 2, ...). A first column that is
@@ -27,6 +27,7 @@ the file.
 """
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +38,7 @@ from wiloc.atomic import written_whole
 from wiloc.descriptors.base import METRICS
 from wiloc.errors import WilocError, load_problem
 from wiloc.given import check_frame_names  # also the check of a map's names held in memory
+from wiloc.object_arrays import read_npz
 from wiloc.sources.frames import natural_sorted
 
 METRIC_ATTRIBUTE = "metric"
@@ -89,26 +91,35 @@ def _read_npy(path: Path) -> NDArray:
 
 def _read_npz(path: Path) -> tuple[NDArray, list[str] | None]:
     """numpy's archive (``np.savez``): its one 2-D array of numbers, and as frame names its one
-    1-D array of text as long, if it holds one."""
+    1-D array of text (str, UTF-8 bytes, or Python strings, which numpy pickles: read without
+    running anything, :mod:`wiloc.object_arrays`), or of several the one as long as the matrix."""
+    import zipfile
+
+    if not zipfile.is_zipfile(path):
+        return _read_npy(path), None  # an .npy array named .npz
     try:
-        archive = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
+        arrays = read_npz(path)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError) as exc:
         raise WilocError(path, f"not a readable .npz archive ({load_problem(exc)})") from exc
-    if not isinstance(archive, np.lib.npyio.NpzFile):
-        return archive, None  # an .npy array named .npz
-    with archive:
-        try:
-            arrays = {name: archive[name] for name in archive.files}
-        except (OSError, ValueError, EOFError) as exc:
-            raise WilocError(path, f"not a readable .npz archive ({load_problem(exc)})") from exc
-    matrices = [name for name, array in arrays.items() if array.ndim == 2 and array.dtype.kind in "biuf"]
+    matrices = [name for name, array in arrays.items()
+                if isinstance(array, np.ndarray) and array.ndim == 2 and array.dtype.kind in "biuf"]
     if len(matrices) != 1:
         raise WilocError(path, f"holds {len(matrices)} 2-D arrays of numbers ({', '.join(matrices) or 'none'}); "
                                "give an archive of one, the N x D descriptors")
     matrix = arrays[matrices[0]]
-    texts = [array for array in arrays.values()
-             if array.ndim == 1 and array.dtype.kind == "U" and array.size == matrix.shape[0]]
-    return matrix, [str(name) for name in texts[0]] if len(texts) == 1 else None
+    texts = {name: names for name, array in arrays.items() if (names := _texts(path, name, array)) is not None}
+    if len(texts) > 1:
+        texts = {name: names for name, names in texts.items() if len(names) == matrix.shape[0]}
+    return matrix, next(iter(texts.values())) if len(texts) == 1 else None
+
+
+def _texts(path: Path, name: str, array: Any) -> list[str] | None:
+    """A 1-D array of text as frame names (bytes decoded as UTF-8), None for any other array."""
+    if not isinstance(array, np.ndarray) or array.ndim != 1 or array.dtype.kind not in "USO":
+        return None
+    if array.dtype.kind == "O" and not all(isinstance(item, (str, bytes)) for item in array):
+        return None
+    return [_text(path, i, item, name) for i, item in enumerate(array)]
 
 
 def _read_h5(path: Path) -> tuple[NDArray, list[str] | None]:
@@ -214,14 +225,15 @@ def write_matrix(path: Path, names: list[str], matrix: NDArray, metric: str) -> 
     return Path(path)
 
 
-def _text(path: Path, i: int, name: object) -> str:
-    """One frame name of an HDF5 ``names`` dataset as text; WilocError when its bytes are no UTF-8."""
+def _text(path: Path, i: int, name: object, dataset: str = "names") -> str:
+    """One frame name of a ``names`` dataset (HDF5, or an array of a .npz) as text; WilocError
+    when its bytes are no UTF-8."""
     if not isinstance(name, bytes):
         return str(name)
     try:
         return name.decode("utf-8")
     except UnicodeDecodeError:
-        raise WilocError(path, f"dataset 'names', entry {i + 1}: {name[:40]!r} is not UTF-8 text") from None
+        raise WilocError(path, f"dataset '{dataset}', entry {i + 1}: {name[:40]!r} is not UTF-8 text") from None
 
 
 def _is_name_header(cell: str) -> bool:

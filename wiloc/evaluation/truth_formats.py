@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from wiloc.errors import WilocError
 from wiloc.evaluation.groundtruth import Positions, Truth, check_file, name_index, truth_from_pairs, truth_within, unmatched
+from wiloc.object_arrays import npy_header, read_npy
 
 DEFAULT_RADIUS_M = 25.0
 """Same place within 25 m: the threshold of VPR-methods-evaluation and of the benchmarks it follows
@@ -21,43 +22,17 @@ DEFAULT_RADIUS_M = 25.0
 
 # ------------------------------------------------------------------------------------- VPR-Bench
 
-#: What a pickled numpy object array may name: the array's and its elements' constructors (as
-#: numpy 1.x and 2.x spell their modules), nothing else.
-_NUMPY_GLOBALS: dict[str, Any] = {"_reconstruct": np.empty(0).__reduce__()[0], "ndarray": np.ndarray,
-                                  "dtype": np.dtype, "scalar": np.int64(0).__reduce__()[0]}
-_NUMPY_MODULES = frozenset({"numpy", "numpy.core.multiarray", "numpy._core.multiarray"})
 _VPRBENCH = "VPR-Bench's rows of [query index, [reference indices]]"
 _POSITIVES = "one array of reference indices per query frame"
 
 
-class _ArraysOnly(pickle.Unpickler):
-    """An unpickler that builds numpy arrays, numbers and lists only.
-
-    VPR-Bench stores its ground truth as a numpy object array, which numpy saves as a pickle, and
-    ``np.load(allow_pickle=True)`` would run whatever code such a file names. Reading the pickle
-    here instead, with every global other than numpy's array constructors refused, gives the
-    rows VPR-Bench writes and turns anything else into an error rather than running it.
-    """
-
-    def find_class(self, module: str, name: str) -> Any:
-        if module in _NUMPY_MODULES and name in _NUMPY_GLOBALS:
-            return _NUMPY_GLOBALS[name]
-        raise pickle.UnpicklingError(f"it names {module}.{name}, which is no part of a numpy array")
-
-
 def _read_npy(path: Path) -> NDArray:
-    """The array of a ``.npy`` file: an object array unpickled by :class:`_ArraysOnly` (a pickle
-    that holds no array, such as a dict, is an error), any other as numpy reads it without pickles."""
+    """The array of a ``.npy`` file, object arrays read by :func:`~wiloc.object_arrays.read_npy`
+    (nothing a file names is run); a pickle that holds no array, such as a dict, is an error."""
     check_file(path)
     try:
         with path.open("rb") as file:
-            version = np.lib.format.read_magic(file)
-            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                           else np.lib.format.read_array_header_2_0)
-            if not read_header(file)[2].hasobject:
-                file.seek(0)
-                return np.lib.format.read_array(file, allow_pickle=False)
-            array = _ArraysOnly(file).load()
+            array = read_npy(file)
     except (ValueError, OSError, EOFError, pickle.UnpicklingError) as exc:
         raise WilocError(path, f"not a readable .npy file of reference indices ({exc})") from exc
     if not isinstance(array, np.ndarray):
@@ -71,10 +46,7 @@ def npy_form(path: Path) -> str:
     anything else a matrix (whose reader says what is wrong)."""
     try:
         with Path(path).open("rb") as file:
-            version = np.lib.format.read_magic(file)
-            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                           else np.lib.format.read_array_header_2_0)
-            shape, _, dtype = read_header(file)
+            shape, dtype = npy_header(file)
     except (ValueError, OSError, EOFError):
         return "matrix"
     if not dtype.hasobject:
