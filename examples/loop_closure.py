@@ -1,8 +1,9 @@
-"""Loop closure within one traversal, as the paper's Section V.B runs it on Oxford City Centre:
-the online model against FAB-MAP in sequence mode (no map: each frame is either a new place or a
-return to an earlier frame of the same traversal), on loops put together from Gardens Point; and
-CAT-Graph on the same loops, as Table I's "self" column runs it (one traversal localized against
-itself).
+"""Loop closure within one traversal: the online model and CAT-Graph against FAB-MAP, on Gardens Point.
+
+As the paper's Section V.B runs it on Oxford City Centre: the online model against FAB-MAP in
+sequence mode (no map: each frame is either a new place or a return to an earlier frame of the
+same traversal), on loops put together from Gardens Point; and CAT-Graph on the same loops, as
+Table I's "self" column runs it (one traversal localized against itself).
 
 Each loop is one traversal of 400 frames, ``f0000``-``f0399``: Gardens Point ``day_right``
 frames 0-199, then the same route again from another walk (``day_left``, the other side of the

@@ -1,5 +1,7 @@
-"""The paper's Table I on Gardens Point: local features (FAB-MAP, local-feature CAT-Graph) against
-whole images (CAT-Graph on sad and gist, the online model), map day_right.
+"""The paper's Table I on Gardens Point, map day_right: local features against whole images.
+
+Local features: FAB-MAP and local-feature CAT-Graph; whole images: CAT-Graph on sad and gist, and
+the online model.
 
 For each query (day_left, night_right) the visual vocabulary, which FAB-MAP's Chow-Liu tree and
 new-place samples are learned from too, is trained on the OTHER query only: never on the tested
