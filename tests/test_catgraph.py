@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from wiloc.cache.store import Cache
 from wiloc.decisions import Decisions
 from wiloc.errors import WilocError
 from wiloc.localization.array_run import run_on_rows
@@ -446,14 +447,14 @@ def test_sequence_modes_reads_are_those_of_the_general_lookup_on_its_nodes(n: in
 
 @pytest.mark.realdata
 @pytest.mark.parametrize("descriptor", ["sad", "gist"])
-def test_sequence_mode_closes_the_gardens_point_loop_with_probabilities(data_root, descriptor: str) -> None:
+def test_sequence_mode_closes_the_gardens_point_loop_with_probabilities(data_root, real_data_cache, descriptor: str) -> None:
     """GP day_right then day_left as one traversal (benchmarks/bench_loops.py, loop dr+dl),
     without a map: the revisit is followed, every frame claimed at 0.99 is right, first visits
     are called new places, and the confidence is calibrated (ECE 0.025 and 0.040 measured)."""
     from helpers import benchmark_module
 
     with benchmark_module("bench_loops") as bench:
-        row = bench.run_loop(bench.load_loop("dr+dl", descriptor, data_root), "catgraph")
+        row = bench.run_loop(bench.load_loop("dr+dl", descriptor, data_root, Cache(real_data_cache)), "catgraph")
     assert row["r1"] >= 0.9 and row["r100"] >= 0.7
     assert row["precision@0.99"] >= 0.99 and row["accepted@0.99"] >= 100
     assert row["new_first"] >= 0.85 and row["new_revisit"] <= 0.1 and row["ece"] <= 0.05
@@ -462,7 +463,7 @@ def test_sequence_mode_closes_the_gardens_point_loop_with_probabilities(data_roo
 
 
 @pytest.mark.realdata
-def test_a_first_pass_through_look_alike_country_is_new_ground(data_root) -> None:
+def test_a_first_pass_through_look_alike_country_is_new_ground(data_root, real_data_cache) -> None:
     """Nordland summer 0-999 then winter 0-999 as one traversal with gist (loop s+w): the first
     pass is mostly forest and track that resemble earlier frames by chance. Read against each
     node's chance resemblance, its frames are called new places (mean P(new place) 0.83, against
@@ -471,7 +472,7 @@ def test_a_first_pass_through_look_alike_country_is_new_ground(data_root) -> Non
     from helpers import benchmark_module
 
     with benchmark_module("bench_loops") as bench:
-        loop = bench.load_loop("s+w", "gist", data_root)
+        loop = bench.load_loop("s+w", "gist", data_root, Cache(real_data_cache))
         row, alike = bench.run_loop(loop, "catgraph"), bench.run_loop(loop, "catgraph", {"hub_weight": 0})
     assert row["new_first"] >= 0.75 and row["ece"] <= 0.1
     assert alike["new_first"] <= row["new_first"] - 0.2 and alike["ece"] >= row["ece"] + 0.08  # what it changes

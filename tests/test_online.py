@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from wiloc.cache.store import Cache
 from wiloc.decisions import Decisions
 from wiloc.errors import WilocError
 from wiloc.localization.array_run import run_on_rows
@@ -278,13 +279,13 @@ def test_sequence_mode_restores_to_identical_decisions() -> None:
 
 
 @pytest.mark.realdata
-def test_loop_closure_on_gardens_point_claims_no_first_visit(data_root) -> None:
+def test_loop_closure_on_gardens_point_claims_no_first_visit(data_root, real_data_cache) -> None:
     """GP day_right then day_left as one traversal (benchmarks/bench_loops.py, loop dr+dl): no
     frame at confidence >= 0.99 is wrong, first visits are called new places, and the confidence
     is calibrated (ECE 0.048 measured; P(L | m) gave 0.203, the revisit chain 0.069)."""
     from helpers import benchmark_module
 
     with benchmark_module("bench_loops") as bench:
-        row = bench.run_loop(bench.load_loop("dr+dl", "sad", data_root), "online")
+        row = bench.run_loop(bench.load_loop("dr+dl", "sad", data_root, Cache(real_data_cache)), "online")
     assert row["accepted@0.99"] >= 20 and row["precision@0.99"] >= 0.99
     assert row["new_first"] >= 0.95 and row["ece"] <= 0.06
