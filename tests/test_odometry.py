@@ -77,3 +77,33 @@ def test_unreadable_file_raises(tmp_path: Path) -> None:
     binary.write_bytes(b"\xff\xfe\x00\x81")
     with pytest.raises(WilocError, match="cannot read"):
         read_odometry(binary)
+
+
+@pytest.mark.parametrize("text", [
+    "timestamp,name,distance\n0.0,a.png,0\n0.1,b.png,2\n0.2,c.png,3\n",
+    "name,x,y,z\na.png,0,0,5\nb.png,0,2,7\nc.png,3,2,1\n",
+    "frame,heading,y,x\na.png,90,0,0\nb.png,90,2,0\nc.png,0,2,3\n",
+])
+def test_a_header_picks_its_columns_by_name(tmp_path: Path, text: str) -> None:
+    """A log with a timestamp first or a z after x,y was refused ('not a number in a.png,0',
+    'got 4 columns'): the header names the columns, so they are taken by name."""
+    odo = read_odometry(_write(tmp_path, text))
+    assert odo.names == ("a.png", "b.png", "c.png")
+    np.testing.assert_allclose(odo.arclength(), [0.0, 2.0, 5.0])
+
+
+def test_a_row_shorter_than_its_header_is_named(tmp_path: Path) -> None:
+    with pytest.raises(WilocError, match="line 3: expected 3 columns, as the header names, got 2"):
+        read_odometry(_write(tmp_path, "timestamp,name,distance\n0.0,a.png,0\n0.1,b.png\n"))
+
+
+def test_names_that_match_no_frame_say_why(tmp_path: Path) -> None:
+    odo = read_odometry(_write(tmp_path, "name,distance\n0000,0\n0001,1\n"))
+    with pytest.raises(WilocError, match=r"no odometry for 2 frame\(s\), first '0000.jpg' \(names such as '0000' "
+                                         r"differ from the frames' in their suffix, such as '0000.jpg'\)"):
+        odo.arclength(["0000.jpg", "0001.jpg"])
+
+
+def test_another_separator_is_named(tmp_path: Path) -> None:
+    with pytest.raises(WilocError, match="got 1 columns; columns must be separated by commas"):
+        read_odometry(_write(tmp_path, "name;distance\na.png;0\nb.png;1\n"))

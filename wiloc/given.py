@@ -1,9 +1,10 @@
 """Checks on text that users give by hand: whether a CSV cell is a number (a header line or a
-line of data?), and whether frame names are usable (text, non-empty, each once). The ground-truth
-readers, odometry, imported descriptor matrices and maps held in memory share them, so that each
-problem reads the same wherever it is found."""
+line of data?), whether frame names are usable (text, non-empty, each once), and why the names
+a file gives match no frame. The ground-truth readers, odometry, imported descriptor matrices
+and maps held in memory share them, so that each problem reads the same wherever it is found."""
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -30,3 +31,22 @@ def check_frame_names(names: Sequence[object], where: Path | str) -> None:
             raise WilocError(where, f"rows {first[name]} and {row}: duplicate frame name {name!r}; "
                                     "each row names a frame of its own")
         first[name] = row
+
+
+def why_unmatched(names: Sequence[str], frames: Sequence[str]) -> str:
+    """What the names a file gives (``names``: ground truth's, odometry's) and the traversal's
+    ``frames`` show of why none matches, to follow a 'no name matches' error: names that hold a
+    folder, differ in suffix or in case from frame names; else an example of each."""
+    named = [str(name) for name in names[:1000]]
+    framed = set(frames)
+    tests = (("hold a folder: frames are matched by file name alone", lambda n: re.split(r"[/\\]", n)[-1]),
+             ("differ from the frames' in their suffix", lambda n: n.rsplit(".", 1)[0]),
+             ("differ from the frames' in case", str.lower))
+    for why, key in tests:
+        keyed = {key(frame): frame for frame in frames}
+        for name in named:
+            if name not in framed and key(name) in keyed:
+                return f" (names such as {name!r} {why}, such as {keyed[key(name)]!r})"
+    if not named or not frames:
+        return ""
+    return f" (names such as {named[0]!r}; the frames are named such as {frames[0]!r})"

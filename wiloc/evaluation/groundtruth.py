@@ -24,6 +24,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from wiloc.errors import ParameterError, WilocError, load_problem
+from wiloc.given import why_unmatched
 from wiloc.reprs import short_repr
 
 EARTH_RADIUS_M = 6_371_008.8
@@ -112,25 +113,6 @@ def name_index(names: Sequence[str]) -> pd.Index:
 def _lookup(wanted: ArrayLike, names: Sequence[str]) -> NDArray[np.int64]:
     """Position of each wanted name among ``names``, -1 where it is not a frame."""
     return name_index(names).get_indexer(np.asarray(wanted, dtype=object)).astype(np.int64)
-
-
-def _why_unmatched(names: Sequence[str], frames: Sequence[str]) -> str:
-    """What the ground truth's ``names`` and the traversal's ``frames`` show of why none matches,
-    to follow a 'no name matches' error: names that hold a folder, differ in suffix or in case
-    from frame names; else an example of each."""
-    named = [str(name) for name in names[:1000]]
-    framed = set(frames)
-    tests = (("hold a folder: frames are matched by file name alone", lambda n: re.split(r"[/\\]", n)[-1]),
-             ("differ from the frames' in their suffix", lambda n: n.rsplit(".", 1)[0]),
-             ("differ from the frames' in case", str.lower))
-    for why, key in tests:
-        keyed = {key(frame): frame for frame in frames}
-        for name in named:
-            if name not in framed and key(name) in keyed:
-                return f" (names such as {name!r} {why}, such as {keyed[key(name)]!r})"
-    if not named or not frames:
-        return ""
-    return f" (names such as {named[0]!r}; the frames are named such as {frames[0]!r})"
 
 
 def _check_tolerance(tolerance: int) -> int:
@@ -306,7 +288,7 @@ def _frames_with_positions(positions: Positions, frames: Sequence[str],
     found = at >= 0
     if not found.any():
         raise WilocError(where, f"no name matches any of the {len(frames)} {role} frames"
-                                + _why_unmatched(list(names), frames))
+                                + why_unmatched(list(names), frames))
     warnings = unmatched(where, int((~found).sum()), len(frames),
                           f"{role} frames have no ground-truth row (never a true match)")
     unused = len(names) - int(np.unique(at[found]).size)
@@ -392,7 +374,7 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     if not usable.any():
         column, names = ("query", query_names) if not (q >= 0).any() else ("reference", ref_names)
         raise WilocError(path, f"none of the {len(frame)} rows names a known query frame and a "
-                               f"known reference frame{_why_unmatched(frame[column].tolist(), names)}")
+                               f"known reference frame{why_unmatched(frame[column].tolist(), names)}")
     warnings = unmatched(path, int((q < 0).sum()), len(frame), "rows name no query frame (skipped)")
     warnings += unmatched(path, int((r < 0).sum()), len(frame),
                            "rows name no reference frame (skipped)")

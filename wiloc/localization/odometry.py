@@ -4,7 +4,10 @@ Two forms, one row per frame, an optional header row:
 - ``name,distance``: the distance travelled since the previous frame of the file (the first
   row's value is ignored: nothing was travelled before the first frame);
 - ``name,x,y``: the position (metres); arc length is the summed step length in frame order.
-Frames are matched by file name. docs/catgraph.md describes how the filter uses them.
+A header that names these columns (``name``, or ``frame``, ``file``, ``filename``, ``image``;
+``distance`` or ``x`` and ``y``) picks them wherever they stand, other columns (a timestamp, a
+``z``) passed over; without one the columns are taken in order. Frames are matched by file
+name. docs/catgraph.md describes how the filter uses them.
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.given import is_number
+from wiloc.given import is_number, why_unmatched
 from wiloc.sources.bags import Bag, is_bag
 
 
@@ -41,7 +44,8 @@ class Odometry:
         index = {name: i for i, name in enumerate(self.names)}
         missing = [name for name in order if name not in index]
         if missing:
-            raise WilocError(self.path, f"no odometry for {len(missing)} frame(s), first {missing[0]!r}")
+            raise WilocError(self.path, f"no odometry for {len(missing)} frame(s), first {missing[0]!r}"
+                                        + why_unmatched(list(self.names), missing))
         rows = [index[name] for name in order]
         if self.values.shape[1] == 2:
             vals = self.values[rows]
@@ -71,14 +75,24 @@ def read_odometry(path: str | Path) -> Odometry:
                     if row and any(cell.strip() for cell in row)]
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise WilocError(where, f"cannot read odometry: {exc}") from exc
+    columns = None
     if rows and not all(is_number(cell) for cell in rows[0][1][1:]):
-        rows = rows[1:]  # header
+        header, columns = rows[0][1], _named_columns(rows[0][1])
+        rows = rows[1:]
     if not rows:
         raise WilocError(where, "no odometry rows")
+    if columns is not None:
+        short = next(((line, row) for line, row in rows if len(row) != len(header)), None)
+        if short is not None:
+            raise WilocError(where, f"line {short[0]}: expected {len(header)} columns, as the header names, "
+                                    f"got {len(short[1])}")
+        rows = [(line, [row[i] for i in columns]) for line, row in rows]
     width = len(rows[0][1])
     if width not in (2, 3):
+        first = rows[0][1][0]
+        hint = "; columns must be separated by commas" if width == 1 and (";" in first or "\t" in first) else ""
         raise WilocError(where, f"line {rows[0][0]}: expected name,distance or name,x,y, "
-                                f"got {width} columns")
+                                f"got {width} columns{hint}")
     names: list[str] = []
     values = np.empty((len(rows), width - 1), dtype=np.float64)
     for i, (line, row) in enumerate(rows):
@@ -97,6 +111,23 @@ def read_odometry(path: str | Path) -> Odometry:
     if twice:
         raise WilocError(where, f"frame {twice[0]!r} appears more than once")
     return Odometry(names=tuple(names), values=values, path=where)
+
+
+_NAME_COLUMNS = ("name", "frame", "file", "filename", "image")
+
+
+def _named_columns(header: list[str]) -> list[int] | None:
+    """The positions of a header's name column and its ``distance`` or ``x,y`` columns, when it
+    names them (other columns, a timestamp or a ``z``, are then passed over); else None, and the
+    columns are taken in order."""
+    cells = [cell.strip().lower() for cell in header]
+    name = next((cells.index(c) for c in _NAME_COLUMNS if c in cells), None)
+    if name is None:
+        return None
+    for values in (["distance"], ["x", "y"]):
+        if all(value in cells for value in values):
+            return [name, *(cells.index(value) for value in values)]
+    return None
 
 
 def bag_odometry(query: Path | None, reference: Path | None, topic: str | None, odometry: Path | None,
