@@ -74,6 +74,14 @@ def test_demo_writes_results_tables_and_plots(demo_runs: tuple[Path, dict, str])
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+
+def test_demo_names_its_outputs_where_they_are(demo_runs: tuple[Path, dict, str]) -> None:
+    """The closing line names each file by its path under --out: results files lie in results/."""
+    out, _, text = demo_runs
+    named = " ".join(text[text.index("demo outputs in"):].split()).split(": ", 1)[1].split(", ")
+    assert all((out / name).is_file() for name in named) and "results/dusk-online.csv" in named
+
+
 def test_demo_reports_online_worst_recall_at_global_threshold(demo_runs: tuple[Path, dict, str]) -> None:
     out, report, text = demo_runs
     rows = [r for r in report["table2"] if r["method"] == "online"]

@@ -1,6 +1,7 @@
 """`wiloc demo`: a generated route localized by every method and compared."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import typer
@@ -41,4 +42,4 @@ def demo(
         return
     out.print(table1_view(report.comparison))
     out.print(table2_view(report.comparison))
-    out.print(f"demo outputs in [bold]{out_dir}[/bold]: " + ", ".join(p.name for p in report.files))
+    out.print(f"demo outputs in [bold]{out_dir}[/bold]: " + ", ".join(os.path.relpath(p, out_dir) for p in report.files))
