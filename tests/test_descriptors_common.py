@@ -218,12 +218,12 @@ def test_an_example_descriptor_from_python(with_stripes: None, tmp_path: Path) -
     [report] = api.describe([ref], "stripes", descriptor_params={"stripes": 4}, cache=cache, jobs=1)
     assert report.shape == (12, 4) and report.descriptor == "stripes"
     run = api.localize(query, reference=ref, descriptor="stripes", descriptor_params={"stripes": 4},
-                       method="threshold", exclude_recent=0, cache=cache, jobs=1, out=tmp_path / "out.csv")
+                       method="threshold", cache=cache, jobs=1, out=tmp_path / "out.csv")
     assert list(run.results.frames["match"]) == [p.name for p in sorted(ref.iterdir())]  # the same images
     header = read_results(tmp_path / "out.csv").header
     assert (header.descriptor, header.descriptor_params) == ("stripes", {"stripes": 4})
     localizer = Localizer(ref, descriptor="stripes", descriptor_params={"stripes": 4}, method="threshold",
-                          exclude_recent=0, cache=cache, jobs=1)
+                          cache=cache, jobs=1)
     assert localizer.observe(query / "img007.png").match_name == "img007.png"
 
 

@@ -506,6 +506,28 @@ def test_the_cache_is_given_as_a_cache_or_its_folder(demo_route: demo.DemoRoute,
     assert err.value.parameter == "cache" and err.value.problem == "a Cache or a cache folder's path, got int"
 
 
+@pytest.mark.parametrize("method", ["threshold", "catgraph"])
+def test_exclude_recent_against_a_map_is_refused_where_it_does_nothing(demo_route: demo.DemoRoute, method: str,
+                                                                        tmp_path: Path, cache_dir: Path) -> None:
+    """Against a map only the methods learning from the map's differences to itself read
+    exclude_recent: given to another, the API refuses it, as the CLI refuses --exclude-recent,
+    before any work (nothing is written); left out, the run goes on with the default."""
+    query, out = demo_route.queries[0], tmp_path / "run.csv"
+    calls = (lambda **kw: Localizer(demo_route.reference, method=method, **kw),
+             lambda **kw: api.localize(query, reference=demo_route.reference, method=method, out=out, **kw),
+             lambda **kw: api.follow_folder(query, reference=demo_route.reference, method=method, out=out, **kw))
+    for call in calls:
+        with pytest.raises(ParameterError) as err:
+            call(exclude_recent=3)
+        assert err.value.parameter == "exclude_recent" and f"for method '{method}'" in err.value.problem
+        assert "online" in err.value.problem and not out.exists()
+    assert Localizer(demo_route.reference, method=method).exclude_recent == 10
+    assert Localizer(demo_route.reference, method="online", exclude_recent=3).exclude_recent == 3
+    sequence = Localizer(None, descriptor="external", descriptor_params={"metric": "l1", "length": 4},
+                         method=method, exclude_recent=3, **({"normaliser": 1.0} if method == "threshold" else {}))
+    assert sequence.exclude_recent == 3
+
+
 def test_training_and_jobs_of_another_type_are_named(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
     """A training pair given as a tuple was an AttributeError ('tuple' object has no attribute
     'query'), and jobs='2' (read from a config file) a TypeError comparing it with 1."""

@@ -302,8 +302,8 @@ def test_the_localizer_takes_a_map_bag_of_several_image_topics(tmp_path: Path, c
         writer.image("/right", stamp, b)
     writer.close()
     with pytest.raises(WilocError, match="has 2 image topics, give one"):
-        Localizer(tmp_path / "two.bag", method="threshold", exclude_recent=0)
-    loc = Localizer(tmp_path / "two.bag", topic="/right", method="threshold", exclude_recent=0)
+        Localizer(tmp_path / "two.bag", method="threshold")
+    loc = Localizer(tmp_path / "two.bag", topic="/right", method="threshold")
     assert loc.observe(right[3]).match_name == frame_name(stamps(6)[3])
     loc.save(tmp_path / "run.npz")
     assert Localizer.load(tmp_path / "run.npz").observe(right[4]).match_name == frame_name(stamps(6)[4])

@@ -15,10 +15,11 @@ from wiloc.cli.options import (CacheOption, DescriptorOption, EveryOption, FpsOp
                                VocabularyOption, descriptor_params_given, metric_name, output_file,
                                plot_file, sampling_given)
 from wiloc.cli.params import descriptor_uses, method_params, with_descriptor_options, with_method_options
+from wiloc.cli.params import given as typed  # its name 'given' is the --follow check's list
 from wiloc.cli.truth import truth_source
 from wiloc.cli.views import progress_bar
 from wiloc.errors import EXIT_USAGE
-from wiloc.methods.registry import METHODS, method_class
+from wiloc.methods.registry import METHODS, learning_from_the_map, method_class
 
 
 @handles_errors
@@ -88,7 +89,7 @@ def localize(
                    **{name: (reference is not None, "map mode (--map)") for name in ("odometry", "map_odometry", "odometry_topic")},
                    "exclude_recent": (reference is None or "map_self" in method_class(method).needs,
                                       "sequence mode, and in map mode to the methods that learn from the map's "
-                                      f"differences to itself ({', '.join(_learning_from_the_map())})"),
+                                      f"differences to itself ({', '.join(learning_from_the_map())})"),
                    "idle": (follow, "--follow")})
     train_inputs = (train_query, train_map, train_gt)
     refuse_unused({name: (any(train_inputs), "a training pair (--train-query, --train-map, --train-gt)")
@@ -101,6 +102,7 @@ def localize(
         training = api.Training(train_query, train_map,
                                 truth_source(train_gt, train_gt_map, train_tolerance, train_radius, prefix="train_"))
     sampling = sampling_given(every, fps, start, stop)
+    recent = exclude_recent if typed("exclude_recent") else None  # the library refuses it where it does nothing
     if follow:
         given = [flag for flag, value in (("--odometry", odometry), ("--odometry-topic", odometry_topic),
                                           ("--topic", topic), ("--names", names), ("--map-names", map_names),
@@ -112,7 +114,7 @@ def localize(
             queries[0], reference=reference, descriptor=descriptor,
             descriptor_params=descriptor_params_given(descriptor, descriptor_options, vocabulary, cache, model, preprocess),
             method=method, method_params=params,
-            exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
+            exclude_recent=recent, training=training, map_odometry=map_odometry,
             out=out_path / api.results_name(queries[0], method, descriptor) if out_path is not None and out_path.is_dir() else out_path,
             cache=Cache(cache), jobs=jobs, idle=idle), as_json)
         return
@@ -142,18 +144,13 @@ def localize(
                                      descriptor_params=descriptor_params_given(descriptor, descriptor_options, vocabulary,
                                                                               cache, model, preprocess),
                                      metric=metric, method=method, method_params=params,
-                                     exclude_recent=exclude_recent, training=training,
+                                     exclude_recent=recent, training=training,
                                      odometry=odometry, map_odometry=map_odometry,
                                      query_names_file=names, ref_names_file=map_names, out=target,
                                      cache=store, jobs=jobs, progress=progress, scheduler=scheduler,
                                      topic=topic, odometry_topic=odometry_topic))
             repairs.append(store.repairs[known:])
     show_runs(runs, repairs, method, model_plot, as_json, cautions)
-
-
-def _learning_from_the_map() -> list[str]:
-    """The methods that read the map's differences to itself outside +-R (``--exclude-recent``)."""
-    return [name for name, cls in METHODS.items() if "map_self" in cls.needs]
 
 
 def _same(a: Path | None, b: Path | None) -> bool:

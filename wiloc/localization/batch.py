@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from wiloc.cache.store import Cache
-from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.description.traversals import Progress, stage
 from wiloc.evaluation.results import Results, make_results, write_results
 from wiloc.localization.run_files import results_lock, run_header
@@ -49,7 +48,7 @@ class LocalizeRun:
 def localize(query: Path, *, reference: Path | None = None, descriptor: str = "sad",
              descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
              method: str = "online", method_params: Mapping[str, Any] | None = None,
-             exclude_recent: int = DEFAULT_EXCLUDE_RECENT, training: Training | None = None,
+             exclude_recent: int | None = None, training: Training | None = None,
              odometry: Path | None = None, map_odometry: Path | None = None,
              query_names_file: Path | None = None, ref_names_file: Path | None = None,
              out: Path | None = None, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,

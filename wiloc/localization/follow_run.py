@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 from wiloc.cache.store import Cache
-from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decision
 from wiloc.errors import WilocError
 from wiloc.evaluation.results import RANKING, ResultsStream
@@ -61,7 +60,7 @@ class FollowRun:
 
 def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str = "sad",
                   descriptor_params: Mapping[str, Any] | None = None, method: str = "online",
-                  method_params: Mapping[str, Any] | None = None, exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
+                  method_params: Mapping[str, Any] | None = None, exclude_recent: int | None = None,
                   training: Training | None = None, map_odometry: Path | None = None, out: Path | None = None,
                   cache: Cache | None = None, jobs: int | None = None, idle: float | None = None,
                   poll: float = 0.1) -> FollowRun:
@@ -85,7 +84,7 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
 
 def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descriptor: str,
             descriptor_params: Mapping[str, Any] | None, method: str, method_params: Mapping[str, Any] | None,
-            exclude_recent: int, training: Training | None, map_odometry: Path | None, cache: Cache | None,
+            exclude_recent: int | None, training: Training | None, map_odometry: Path | None, cache: Cache | None,
             jobs: int | None, idle: float | None, poll: float) -> FollowRun:
     """:func:`follow_folder` once the results file ``path`` is locked (``lock``)."""
     localizer = Localizer(reference, descriptor=descriptor, descriptor_params=descriptor_params, method=method,

@@ -27,7 +27,6 @@ from numpy.typing import NDArray
 from wiloc import __version__
 from wiloc.atomic import written_whole
 from wiloc.cache.store import Cache, Entry
-from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decision
 from wiloc.description.traversals import Describer, checked_rows, is_matrix_file
 from wiloc.errors import FrameError, WilocError, load_problem
@@ -75,7 +74,7 @@ class Localizer:
 
     def __init__(self, map: str | Path | Entry | None = None, *, descriptor: str = "sad",
                  descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
-                 method: str = "online", exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
+                 method: str = "online", exclude_recent: int | None = None,
                  training: TrainingPair | None = None, map_odometry: str | Path | None = None,
                  map_names: str | Path | None = None, sampling: Sampling | None = None, topic: str | None = None,
                  cache: Cache | str | os.PathLike | None = None, jobs: int | None = None, **params: Any) -> None:

@@ -31,7 +31,7 @@ from wiloc.errors import ParameterError, UsageError, WilocError
 from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
 from wiloc.methods.base import MapContext, Method, TrainingRows
-from wiloc.methods.registry import make_method
+from wiloc.methods.registry import learning_from_the_map, make_method
 from wiloc.sources.video import Sampling
 
 #: The labelled pair of ``trained``: its traversals and truth, or their difference rows and labels.
@@ -56,14 +56,17 @@ class RunSession:
 
     A batch run gives its ``query`` (described first, then the map) with its odometry
     (``odometry``: a CSV; ``odometry_topic``: the topic of the query's and the map's ROS bags);
-    a streaming run gives none and computes each frame's row with :meth:`row`. ``restoring``
+    a streaming run gives none and computes each frame's row with :meth:`row`. ``exclude_recent``
+    (R) None means not given: :data:`DEFAULT_EXCLUDE_RECENT`; given against a map to a method that
+    does not learn from the map's differences to itself, where it changes nothing, it is a
+    ParameterError (as the CLI refuses ``--exclude-recent`` there). ``restoring``
     leaves the method's inputs unchecked: a saved state is continued, which was checked when it
     was started. ``progress``, ``scheduler`` and ``topic`` are the batch run's describing.
     """
 
     def __init__(self, map: Path | Entry | None, *, method: str, method_params: Mapping[str, Any] | None = None,
                  descriptor: str = "sad", descriptor_params: Mapping[str, Any] | None = None,
-                 metric: str | None = None, exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
+                 metric: str | None = None, exclude_recent: int | None = None,
                  training: TrainingPair | None = None, map_odometry: Path | None = None,
                  map_names: Path | None = None, query: Path | None = None, query_names: Path | None = None,
                  odometry: Path | None = None, odometry_topic: str | None = None,
@@ -74,7 +77,12 @@ class RunSession:
             raise ParameterError("training", "a labelled pair: Training(query, reference, truth) (wiloc.api.Training) "
                                              f"or TrainingRows(rows, labels), got {type(training).__name__}")
         self.method: Method = make_method(method, method_params)
-        self.exclude_recent = R = check_exclude_recent(exclude_recent)
+        self.exclude_recent = R = DEFAULT_EXCLUDE_RECENT if exclude_recent is None else check_exclude_recent(exclude_recent)
+        if exclude_recent is not None and map is not None and not restoring and "map_self" not in self.method.needs:
+            raise ParameterError("exclude_recent", f"has no effect against a map for method '{self.method.name}': it "
+                                                   f"applies to sequence mode (no map), and against a map to the methods "
+                                                   f"that learn from the map's differences to itself "
+                                                   f"({', '.join(learning_from_the_map())})")
         self.sequence = map is None
         self.map_path = None if map is None or isinstance(map, Entry) else Path(map)
         self.map_odometry = None if map_odometry is None else Path(map_odometry)

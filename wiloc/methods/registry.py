@@ -38,6 +38,12 @@ def lowest_confidence(name: str) -> float:
     return METHODS[name].lowest_confidence if name in METHODS else 0.0
 
 
+def learning_from_the_map() -> list[str]:
+    """The methods that read the map's differences to itself outside +-R (``exclude_recent``):
+    the only ones R changes against a map."""
+    return [name for name, cls in METHODS.items() if "map_self" in cls.needs]
+
+
 def make_method(name: str, params: Mapping[str, Any] | None = None) -> Method:
     """A new method object of the registered ``name`` with ``params`` (defaults for the rest)."""
     return method_class(name)(params)
