@@ -289,6 +289,31 @@ def test_matrix_forms_read_nonzero_as_same_place(tmp_path: Path, mask: np.ndarra
     np.testing.assert_array_equal(dense(truth), mask != 0)
 
 
+def _save_mat_v73(path: Path, variables: dict[str, np.ndarray]) -> Path:
+    """A MATLAB v7.3 file as MATLAB writes one: HDF5 behind a 512-byte header that names the
+    format, each array stored in MATLAB's column order (as h5py shows it, transposed)."""
+    import h5py
+
+    with h5py.File(path, "w", userblock_size=512) as handle:
+        for name, array in variables.items():
+            stored = handle.create_dataset(name, data=np.asarray(array).T.astype(np.uint8))
+            stored.attrs["MATLAB_class"] = np.bytes_("logical")
+    header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, HDF5 schema 1.00 .".ljust(116) + bytes(8) + b"\x00\x02IM"
+    with path.open("r+b") as file:
+        file.write(header)
+    return path
+
+
+def test_a_mat_file_of_matlab_v73_is_read(tmp_path: Path, mask: np.ndarray) -> None:
+    """MATLAB saves with -v7.3 (and must, past 2 GB) as HDF5, which scipy refuses: the matrix
+    form was 'cannot read matrix (Please use HDF reader for matlab v7.3 files, e.g. h5py)'."""
+    names = [f"q{i}" for i in range(5)]
+    path = _save_mat_v73(tmp_path / "gt.mat", {"GThard": mask != 0, "GTsoft": np.ones_like(mask)})
+    np.testing.assert_array_equal(dense(matrix_truth(path, names, REFS, variable="GThard")), mask != 0)
+    with pytest.raises(WilocError, match="holds 2 2-D arrays, name one of: GThard, GTsoft"):
+        matrix_truth(path, names, REFS)
+
+
 def test_matrix_shape_and_mat_choice_errors(tmp_path: Path, mask: np.ndarray) -> None:
     np.save(tmp_path / "m.npy", mask)
     with pytest.raises(WilocError, match="matrix is 5 x 8, expected 8 x 8"):

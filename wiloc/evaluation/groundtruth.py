@@ -396,6 +396,18 @@ def _named_array(path: Path, arrays: dict[str, NDArray], variable: str | None) -
     return next(iter(arrays.values()))
 
 
+def _mat_arrays(path: Path) -> dict[str, NDArray]:
+    """A .mat file's variables: scipy reads MATLAB up to v7; a v7.3 file is HDF5, read with h5py,
+    its arrays (stored in MATLAB's column order) transposed back to MATLAB's shape."""
+    try:
+        return scipy.io.loadmat(path)
+    except NotImplementedError:  # v7.3
+        import h5py
+
+        with h5py.File(path, "r") as handle:
+            return {name: item[()].T for name, item in handle.items() if isinstance(item, h5py.Dataset)}
+
+
 def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | sparse.sparray:
     """The 2-D array stored in a .npy, .csv, .npz or .mat file."""
     suffix = path.suffix.lower()
@@ -408,7 +420,7 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
             with np.load(path, allow_pickle=False) as archive:
                 return _named_array(path, {name: archive[name] for name in archive.files}, variable)
         if suffix == ".mat":
-            return _named_array(path, scipy.io.loadmat(path), variable)
+            return _named_array(path, _mat_arrays(path), variable)
     except (ValueError, OSError, NotImplementedError, EOFError, IndexError, scipy.io.matlab.MatReadError) as exc:
         hint = ("; an array of reference indices per query is the positives form, VPR-Bench's "
                 "ground_truth_new.npy the vprbench form" if str(exc).startswith("Object arrays") else "")
