@@ -146,6 +146,10 @@ UNUSED = {
     "query odometry without the map's": (["localize", "{query}", "--map", "{ref}", "--method", "catgraph",
                                           "--odometry", "{tmp}/o.csv"],
                                          "--map-odometry: the query's odometry needs the map's too"),
+    "external descriptor of images": (["localize", "{query}", "--map", "{ref}", "--descriptor", "external"],
+                                      "--descriptor: 'external' names imported descriptor matrices, which are not described"),
+    "external descriptor to describe": (["describe", "{ref}", "-d", "external"],
+                                        "--descriptor: 'external' names imported descriptor matrices"),
     "recent window against a map": (["localize", "{query}", "--map", "{ref}", "--method", "threshold", "-R", "3"],
                                     "--exclude-recent: applies to sequence mode, and in map mode to the methods that "
                                     "learn from the map's differences to itself (online) only"),

@@ -46,6 +46,19 @@ def metric_name(value: str | None) -> str | None:
     return value
 
 
+def descriptor_name(value: str) -> str:
+    """A ``--descriptor`` option, checked as the options are read: ``external`` names imported
+    matrices (their metric and length read from the file), so it describes no image (it failed
+    on a metric the command line cannot give)."""
+    from wiloc.cache.entries import EXTERNAL
+
+    if value == EXTERNAL:
+        raise typer.BadParameter(f"'{EXTERNAL}' names imported descriptor matrices, which are not described: give "
+                                 "the matrix file itself (as QUERY or --map, or to describe --import), or describe "
+                                 "images with another descriptor (describe --list-descriptors)")
+    return value
+
+
 def one_file(value: Path | None) -> Path | None:
     """An output option that names one file (a table, a figure, a page): checked as
     :func:`output_file`, and a folder there is refused too, before any work, since writing the
@@ -116,7 +129,7 @@ def _preprocess_options(items: list[str]) -> dict[str, str]:
 
 
 DescriptorOption = Annotated[str, typer.Option(
-    "--descriptor", "-d", help="sad | gist | brisk-gist | bow (with --vocabulary; fabmap and catgraph then read "
+    "--descriptor", "-d", callback=descriptor_name, help="sad | gist | brisk-gist | bow (with --vocabulary; fabmap and catgraph then read "
                                "FAB-MAP's evidence) | onnx (with --model) | a plugin's (describe --list-descriptors)")]
 ModelOption = Annotated[Optional[Path], typer.Option(
     "--model", help="onnx: the network, an .onnx file (docs/descriptors.md, Learned descriptors).")]
