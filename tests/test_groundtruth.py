@@ -153,13 +153,18 @@ def test_positions_that_make_every_pair_the_same_place_are_warned(tmp_path: Path
     assert not any("every match counts" in w for w in positions_truth(metres, metres, 15.0, REFS, REFS).warnings)
 
 
-@pytest.mark.parametrize("lat, lon", [("latitude", "longitude"), ("Latitude", "Longitude"), ("lat", "lng")])
-def test_positions_take_the_other_names_of_lat_lon(tmp_path: Path, lat: str, lon: str) -> None:
-    # GPS logs and exports spell the columns out (latitude,longitude) or shorten longitude to lng
+@pytest.mark.parametrize("name, lat, lon", [("name", "latitude", "longitude"), ("name", "Latitude", "Longitude"),
+                                            ("name", "lat", "lng"), ("filename", "lat", "lon"), ("Image", "lat", "lon")])
+def test_positions_take_the_other_names_of_lat_lon(tmp_path: Path, name: str, lat: str, lon: str) -> None:
+    # GPS logs and exports spell the columns out (latitude,longitude) or shorten longitude to lng;
+    # a name column headed filename or image was 'missing column(s) name'
+    from wiloc.evaluation.truth_source import file_form
+
     rng = np.random.default_rng(2)
     coords = {"name": REFS, "lat": 50 + rng.uniform(0, 1e-3, 8), "lon": 8 + rng.uniform(0, 1e-3, 8)}
     plain = write_csv(tmp_path / "plain.csv", coords)
-    other = write_csv(tmp_path / "other.csv", {"name": REFS, lat: coords["lat"], lon: coords["lon"]})
+    other = write_csv(tmp_path / "other.csv", {name: REFS, lat: coords["lat"], lon: coords["lon"]})
+    assert file_form(other) == "positions"
     np.testing.assert_array_equal(dense(positions_truth(other, other, 20.0, REFS, REFS)),
                                   dense(positions_truth(plain, plain, 20.0, REFS, REFS)))
 
@@ -174,7 +179,7 @@ def test_positions_partial_names_are_warned_with_counts(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("rows, problem", [
     ({"name": ["a", "b"], "x": [0.0, 1.0]}, "name,x,y"),
-    ({"frame": ["a", "b"], "x": [0.0, 1.0], "y": [0.0, 1.0]}, "missing column"),
+    ({"id": ["a", "b"], "x": [0.0, 1.0], "y": [0.0, 1.0]}, "missing column"),
     ({"name": ["a", "b"], "x": [0.0, np.nan], "y": [0.0, 1.0]}, "missing or non-numeric"),
     ({"name": ["a", "a"], "x": [0.0, 1.0], "y": [0.0, 1.0]}, "duplicate"),
     ({"name": ["x1", "x2"], "x": [0.0, 1.0], "y": [0.0, 1.0]}, "no name matches"),
@@ -213,7 +218,7 @@ def test_names_that_match_no_frame_say_how_they_differ(tmp_path: Path, rename, w
      "columns, such as 'name,x,y'"),
     ("name;x;y\na.jpg;0;0\n", "missing column(s) name: its first line is 'name;x;y'; columns must be separated by "
                                "commas"),
-    ("frame,x,y\na.jpg,0,0\n", "missing column(s) name: its first line is 'frame,x,y'"),
+    ("id,x,y\na.jpg,0,0\n", "missing column(s) name: its first line is 'id,x,y'"),
 ])
 def test_a_csv_without_the_columns_shows_its_first_line_and_why(tmp_path: Path, text: str, problem: str) -> None:
     """No header (a first line of data, which pandas would show lower-cased and de-duplicated as

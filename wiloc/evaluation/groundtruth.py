@@ -249,14 +249,16 @@ class Positions:
     geographic: bool
 
 
-COORDINATE_NAMES = {"latitude": "lat", "longitude": "lon", "lng": "lon", "long": "lon"}
-"""Other names of the lat/lon columns that GPS logs and exports use."""
+COLUMN_NAMES = {"latitude": "lat", "longitude": "lon", "lng": "lon", "long": "lon",
+                "filename": "name", "file": "name", "image": "name", "frame": "name"}
+"""Other names of the lat/lon columns that GPS logs and exports use, and of the name column (as
+odometry CSVs and imported descriptors take them)."""
 
 
 def _read_positions(path: Path) -> Positions:
     """Names, coordinates and whether they are lat/lon (else metric x,y) from a positions CSV."""
     frame = _read_csv(path)
-    for other, column in COORDINATE_NAMES.items():
+    for other, column in COLUMN_NAMES.items():
         if other in frame.columns and column not in frame.columns:
             frame = frame.rename(columns={other: column})
     _require_columns(path, frame, ["name"], "name,x,y")

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Literal
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.evaluation.groundtruth import (COORDINATE_NAMES, FOLDER_KINDS, KINDS, Truth, aligned_truth,
+from wiloc.evaluation.groundtruth import (COLUMN_NAMES, FOLDER_KINDS, KINDS, Truth, aligned_truth,
                                           matrix_truth, pairs_truth, positions_truth, restrict_sequence)
 from wiloc.evaluation.truth_formats import (DEFAULT_RADIUS_M, exif_truth, npy_form, positives_truth, utm_names_truth,
                                             vprbench_truth)
@@ -70,7 +70,7 @@ def file_form(path: str | Path) -> str:
             cells = [cell.strip().lower() for cell in file.readline().split(",")]
     except OSError:  # no such file yet ('{query}' in its name): the pairs reader names the problem
         return "pairs"
-    columns = {COORDINATE_NAMES.get(cell, cell) for cell in cells}
+    columns = {COLUMN_NAMES.get(cell, cell) for cell in cells}
     if {"x", "y"} <= columns or {"lat", "lon"} <= columns:  # the positions reader says what else is missing
         return "positions"
     return "matrix" if cells != [""] and all(is_number(cell) for cell in cells) else "pairs"
