@@ -74,6 +74,15 @@ def test_help_pages_name_arguments_show_every_default_and_no_type_placeholders()
     assert "; default:" not in localize  # said where every default is said
 
 
+def test_the_command_list_gives_each_command_one_whole_sentence() -> None:
+    """`wiloc --help` lists each command by its help's first paragraph, whose line breaks it
+    keeps: a break there left a sentence cut in the middle of the list."""
+    group = typer.main.get_command(app)
+    for name, command in group.commands.items():
+        first = (command.help or "").strip().split("\n\n")[0]
+        assert first and "\n" not in first, (name, first)
+
+
 def test_the_command_line_loads_without_the_heavy_libraries() -> None:
     heavy = ("pandas", "scipy", "h5py", "cv2", "matplotlib", "numba", "wiloc.api")
     code = f"import sys, wiloc.cli; print([m for m in {heavy!r} if m in sys.modules])"

@@ -34,8 +34,9 @@ def report(
     cache: CacheOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a line."),
 ) -> None:
-    """One self-contained HTML page of a comparison: tables, figures, per run a timeline and the
-    difference matrix, and a frame browser. It needs no network; images are embedded as thumbnails.
+    """One self-contained HTML page of a comparison: tables, figures, timelines and a frame browser.
+
+    Per run a timeline and the difference matrix; the page needs no network, images are embedded as thumbnails.
 
     Example: wiloc report runs/day_left-sad-online.csv runs/day_left-sad-catgraph.csv --gt aligned -o report.html
     """
