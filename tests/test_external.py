@@ -73,6 +73,15 @@ def test_a_csv_of_values_alone_is_not_read_with_its_first_column_as_names(tmp_pa
         assert [float(name) for name in names] == first.tolist() and matrix.shape == (5, 4)
 
 
+@pytest.mark.parametrize("separator", [";", "\t"])
+def test_a_csv_of_another_separator_is_told_to_use_commas(tmp_path: Path, separator: str) -> None:
+    path = tmp_path / "m.csv"
+    path.write_text("\n".join(separator.join(map(str, [name, *row])) for name, row in zip(NAMES, _matrix().tolist())))
+    with pytest.raises(WilocError, match="need a name column and at least one value column; columns must be "
+                                         "separated by commas"):
+        read_external(path, None, "l1")
+
+
 def test_a_matrix_of_one_column_per_frame_is_told_with_its_transpose(tmp_path: Path) -> None:
     # tools that store one descriptor per column (MATLAB's habit) give a D x N matrix
     np.save(tmp_path / "m.npy", _matrix().T)

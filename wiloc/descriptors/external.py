@@ -251,7 +251,9 @@ def _read_csv(path: Path) -> tuple[NDArray, list[str]]:
     except (OSError, ValueError, pd.errors.ParserError) as exc:
         raise WilocError(path, f"not a readable CSV table ({exc})") from exc
     if table.shape[1] < 2:
-        raise WilocError(path, "need a name column and at least one value column")
+        first = str(table.iloc[0, 0]) if table.size else ""
+        hint = "; columns must be separated by commas" if ";" in first or "\t" in first else ""
+        raise WilocError(path, f"need a name column and at least one value column{hint}")
     cells = table.iloc[:, 1:].apply(lambda col: pd.to_numeric(col.str.strip(), errors="coerce"))
     if len(table) and (cells.iloc[0].isna().all() or _is_name_header(table.iloc[0, 0])):
         table, cells = table.iloc[1:], cells.iloc[1:]
