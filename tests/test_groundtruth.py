@@ -197,6 +197,7 @@ def test_positions_bad_input_names_the_file(tmp_path: Path, rows: dict, problem:
     (lambda name: name.removesuffix(".jpg"), "differ from the frames' in their suffix"),
     (lambda name: name.replace(".jpg", ".png"), "differ from the frames' in their suffix"),
     (str.upper, "differ from the frames' in case"),
+    (lambda name: name[3], "are numbers: frames are matched by file name, such as 'img0.jpg', not by index"),
 ])
 def test_names_that_match_no_frame_say_how_they_differ(tmp_path: Path, rename, why: str) -> None:
     # a ground truth written with paths, without suffixes or in other case matches no frame: the

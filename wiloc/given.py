@@ -36,7 +36,8 @@ def check_frame_names(names: Sequence[object], where: Path | str) -> None:
 def why_unmatched(names: Sequence[str], frames: Sequence[str]) -> str:
     """What the names a file gives (``names``: ground truth's, odometry's) and the traversal's
     ``frames`` show of why none matches, to follow a 'no name matches' error: names that hold a
-    folder, differ in suffix or in case from frame names; else an example of each."""
+    folder, differ in suffix or in case from frame names, or are numbers where the frames' are
+    not (indices); else an example of each."""
     named = [str(name) for name in names[:1000]]
     framed = set(frames)
     tests = (("hold a folder: frames are matched by file name alone", lambda n: re.split(r"[/\\]", n)[-1]),
@@ -49,4 +50,7 @@ def why_unmatched(names: Sequence[str], frames: Sequence[str]) -> str:
                 return f" (names such as {name!r} {why}, such as {keyed[key(name)]!r})"
     if not named or not frames:
         return ""
+    if all(name.isdigit() for name in named) and not all(str(frame).isdigit() for frame in frames[:1000]):
+        return (f" (names such as {named[0]!r} are numbers: frames are matched by file name, such as "
+                f"{frames[0]!r}, not by index)")
     return f" (names such as {named[0]!r}; the frames are named such as {frames[0]!r})"

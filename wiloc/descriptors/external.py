@@ -271,7 +271,8 @@ def _read_csv(path: Path) -> tuple[NDArray, list[str]]:
     if _values_as_names(names, values):
         raise WilocError(path, f"its first column holds numbers such as {names[0]!r}, as large as the other "
                                "columns' values, not frame names: a .csv matrix needs the frame names in its first "
-                               "column (name,d0,d1,...); descriptors alone go in a .npy, their names in a text file of one a line")
+                               "column (name,d0,d1,...); descriptors alone go in a .npy, their names in a text "
+                               "file of one a line")
     return values, names
 
 

@@ -138,7 +138,8 @@ def positives_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[
             raise WilocError(path, f"entry {i + 1} is not a list of reference indices ({_POSITIVES})")
         if refs.size and not (0 <= refs.min() and refs.max() < n_ref):
             bad = int(refs[(refs < 0) | (refs >= n_ref)][0])
-            raise WilocError(path, f"entry {i + 1}: reference index {bad}, but the reference traversal has {n_ref} frames")
+            raise WilocError(path, f"entry {i + 1}: reference index {bad}, but the reference traversal has "
+                                   f"{n_ref} frames")
         positives.append(refs)
     queries = np.repeat(np.arange(n_query, dtype=np.int64), [refs.size for refs in positives])
     refs = np.concatenate(positives) if positives else np.zeros(0, dtype=np.int64)
