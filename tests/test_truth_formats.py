@@ -21,7 +21,7 @@ from wiloc.errors import WilocError
 from wiloc.evaluation.groundtruth import EARTH_RADIUS_M
 from wiloc.evaluation.results import read_results
 from wiloc.evaluation.truth_formats import read_vprbench
-from wiloc.evaluation.truth_source import load_truth
+from wiloc.evaluation.truth_source import file_form, load_truth
 
 runner = CliRunner()
 N = 24
@@ -264,6 +264,10 @@ def test_positives_of_equal_counts_saved_as_one_integer_array_are_read(tmp_path:
     np.save(tmp_path / "top2.npy", np.array([[0, 1], [1, 2], [2, 0]]))
     truth = load_truth("positives", tmp_path / "top2.npy", query_names=["a", "b", "c"], ref_names=["x", "y", "z"])
     assert truth.matrix.toarray().tolist() == [[True, True, False], [False, True, True], [True, False, True]]
+    with pytest.raises(WilocError, match=r"matrix is 3 x 2, expected 3 x 3 \(query x reference frames\); rows of "
+                                         r"reference indices are the positives form \(positives:FILE\)"):
+        load_truth(file_form(tmp_path / "top2.npy"), tmp_path / "top2.npy", query_names=["a", "b", "c"],
+                   ref_names=["x", "y", "z"])
 
 
 def test_a_name_without_utm_fields_is_one_line(own_vpr_route: dict) -> None:

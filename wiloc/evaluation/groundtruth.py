@@ -447,7 +447,8 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
     expected = (len(query_names), len(ref_names))
     if data.ndim != 2 or data.shape != expected:
         turned = (": it is reference x query frames (as VPR_Tutorial's GThard); save its transpose, M.T"
-                  if data.shape == expected[::-1] else "")
+                  if data.shape == expected[::-1] else "; rows of reference indices are the positives form (positives:"
+                  "FILE)" if data.dtype.kind in "iu" and data.ndim == 2 and data.shape[0] == expected[0] else "")
         raise WilocError(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "
                                f"{expected[0]} x {expected[1]} (query x reference frames){turned}")
     matrix = sparse.csr_array(data)
