@@ -365,3 +365,42 @@ def test_a_batch_run_leaves_a_followed_results_file_alone(demo_route: demo.DemoR
     api.localize(live, reference=demo_route.reference, method="threshold", out=out)
     assert len(_rows(out)) == 4
     assert not (tmp_path / ".r.csv.lock").exists()
+
+
+@pytest.mark.parametrize("method", ["online", "catgraph"])
+def test_a_followed_file_ends_with_what_the_run_learned_and_resumes(demo_route: demo.DemoRoute, method: str,
+                                                                    tmp_path: Path, cache_dir: Path) -> None:
+    """A followed run's header ends as the batch run's of the same frames: the learned model, the
+    learned parameters (catgraph's learned_a) and the map's digest (it started with the prior's, and without the
+    digest). Such a file resumes, and so does one an older version wrote (no digest, no model):
+    the run goes on and ends with the batch header of all its frames."""
+    from wiloc.evaluation.results_header import read_header
+
+    frames = sorted(demo_route.queries[0].iterdir())
+    live, out = tmp_path / "live", tmp_path / "follow.csv"
+    live.mkdir()
+
+    def follow_to_the_end(count: int) -> tuple[int, int]:
+        for path in frames[:count]:
+            if not (live / path.name).exists():
+                (live / path.name).write_bytes(path.read_bytes())
+        run = api.follow_folder(live, reference=demo_route.reference, method=method, out=out, idle=0.5, poll=0.05)
+        return run.resumed, sum(1 for _ in run)
+
+    def assert_batch_header(count: int) -> None:
+        batch = api.localize(live, reference=demo_route.reference, method=method, out=tmp_path / f"batch{count}.csv")
+        (got, _), (expected, _) = read_header(out), read_header(batch.path)
+        assert got.follow and got.frames is None and got.query_digest is None
+        assert got.model == expected.model and (got.model is not None) == (method == "online")
+        assert got.params == expected.params
+        assert got.map_digest == expected.map_digest and got.map_digest
+        pd.testing.assert_frame_equal(_rows(out), _rows(batch.path))
+
+    assert follow_to_the_end(20) == (0, 20)
+    assert_batch_header(20)
+    assert follow_to_the_end(26) == (20, 6)  # a finished file resumed: its learned values are not settings
+    assert_batch_header(26)
+    lines = out.read_text().splitlines(keepends=True)
+    out.write_text("".join(line for line in lines if not line.startswith(("# map_digest:", "# model:"))))
+    assert follow_to_the_end(30) == (26, 4)  # an older version's file
+    assert_batch_header(30)

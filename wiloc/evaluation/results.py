@@ -13,7 +13,8 @@ import csv
 import io
 import math
 import os
-from collections.abc import Callable
+import stat
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -170,10 +171,14 @@ class ResultsStream:
     Opening it writes the header (``follow: True``, no ``frames`` count, no model) and the column
     line atomically, unless ``resume`` and the file exists: then a torn last row is cut off and
     :attr:`rows` holds the rows already written (as text), for the caller to replay and check.
-    Each :meth:`append` is one write of one whole line, so the file never holds half a row.
+    Each :meth:`append` is one write of one whole line, so the file never holds half a row;
+    :meth:`finish` writes what the run learned into the header once it ends. ``learned`` names
+    the ``params`` the run learns (``Method.facts``), which a resumed file's header may hold
+    otherwise than the run's start.
     """
 
-    def __init__(self, path: Path, header: ResultsHeader, columns: tuple[str, ...], *, resume: bool) -> None:
+    def __init__(self, path: Path, header: ResultsHeader, columns: tuple[str, ...], *, resume: bool,
+                 learned: Collection[str] = ()) -> None:
         self.path = Path(path)
         self.columns = (*BASE_COLUMNS, *columns)
         self.header = replace(header, follow=True)
@@ -182,7 +187,7 @@ class ResultsStream:
             self._repair()
             found, self.rows, _ = _read_table(self.path)
             expected = parse_header(self.header.text().splitlines(), self.path)  # as a file gives it back
-            if replace(found, wiloc="") != replace(expected, wiloc=""):  # another version may go on
+            if _settings(found, expected, learned) != _settings(expected, expected, learned):
                 raise WilocError(None, f"{self.path} holds a run with other settings; give another file to start anew",
                                  parameter="out")
         else:
@@ -215,6 +220,30 @@ class ResultsStream:
 
     def close(self) -> None:
         os.close(self._fd)
+
+    def finish(self, header: ResultsHeader) -> None:
+        """Write ``header``, the run's as it ended (its learned model and parameters, a
+        sequence-mode run's query digest), over the file's, keeping its rows and mode: atomically,
+        so that a kill meanwhile leaves the file as it was. Called once :meth:`close` has been."""
+        with self.path.open(encoding="utf-8", newline="") as handle:
+            body = "".join(line for line in handle if not line.startswith("# "))
+        self.header = replace(header, follow=True, frames=None)
+        _write_atomically(self.path, self.header, lambda out: out.write(body),
+                          mode=stat.S_IMODE(self.path.stat().st_mode))
+
+
+#: Header lines a followed file of an older wiloc lacks: a resumed file without them is the run's.
+FOLLOW_ADDED = ("map_digest", "sampling", "topic", "odometry_topic", "rows", "fabmap_training")
+
+
+def _settings(header: ResultsHeader, expected: ResultsHeader, learned: Collection[str]) -> ResultsHeader:
+    """What of a followed file's ``header`` must equal the run's (``expected``) for the run to
+    resume it: all but the version that wrote it, what the run learned (its model, the
+    ``learned`` params, a sequence-mode query digest: written as it ends) and the lines
+    (:data:`FOLLOW_ADDED`) that an older version's file lacks, where it lacks them."""
+    older = {name: getattr(expected, name) for name in FOLLOW_ADDED if getattr(header, name) is None}
+    params = {key: value for key, value in header.params.items() if key not in learned}
+    return replace(header, **older, wiloc="", model=None, query_digest=None, params=params)
 
 
 def read_results(path: Path, lowest_confidence: Callable[[str], float] | None = None) -> Results:

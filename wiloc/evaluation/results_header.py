@@ -27,8 +27,9 @@ JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "sampli
 @dataclass(frozen=True)
 class ResultsHeader:
     """A results file's header. Fields left None are not written (a run that has no such thing:
-    no training pair, no video, a followed run's count and digests); the others always are, except
-    ``model``, which a followed run's file leaves out. Fields are written in this order."""
+    no training pair, no video, a followed run's count and query digest); the others always are,
+    except ``model``, which a followed run's file holds only once its run has ended. Fields are
+    written in this order."""
 
     method: str = ""
     descriptor: str | None = None  # None: the file does not say (files made by hand)
@@ -82,9 +83,10 @@ class ResultsHeader:
 
     def _written(self, name: str, value: Any) -> bool:
         """Whether the field has a line: ``model`` in every batch file (null: the method keeps
-        none), ``follow`` only when true, the others unless None."""
+        none) and in a followed one once its run has ended (where the method keeps one),
+        ``follow`` only when true, the others unless None."""
         if name == "model":
-            return not self.follow
+            return not self.follow or value is not None
         if name == "follow":
             return bool(value)
         return value is not None

@@ -24,7 +24,10 @@ class FollowRun:
 
     Opening it resumes a results file the same settings wrote before: the frames it lists are
     decided again, in its order, and must give the same rows (so later decisions are the ones an
-    uninterrupted run makes); ``resumed`` counts them.
+    uninterrupted run makes); ``resumed`` counts them. When the iteration ends (``idle``, Ctrl-C,
+    the loop left), the header gets what the run learned by then, as a batch run's of the same
+    frames holds it: the model, the learned parameters (catgraph's ``learned_a``) and in sequence
+    mode the query's digest (:meth:`ResultsStream.finish`).
     """
 
     query: Path
@@ -49,7 +52,11 @@ class FollowRun:
                 yield event
         finally:
             self.stream.close()
-            self.release()
+            try:
+                if self.localizer.frames:
+                    self.stream.finish(self.localizer.results(self.query).header)
+            finally:
+                self.release()
 
     def release(self) -> None:
         """Let go of the results file's lock (iterating to the end does so)."""
@@ -91,7 +98,8 @@ def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descr
                           exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
                           cache=cache, jobs=jobs, **dict(method_params or {}))
     ranked = (RANKING,) if localizer.method.ranks else ()
-    stream = ResultsStream(path, localizer.header(query), (*localizer.method.columns, *ranked), resume=True)
+    stream = ResultsStream(path, localizer.header(query), (*localizer.method.columns, *ranked), resume=True,
+                           learned=localizer.method.facts().keys())
     names = stream.rows["frame"].tolist()
     for name, line in zip(names, stream.written_lines()):
         decision = localizer.observe(query / name)

@@ -244,7 +244,9 @@ class Localizer:
 
     def header(self, query: str | os.PathLike | None = None) -> ResultsHeader:
         """What the results file of this run starts with (a followed folder's as it starts, before
-        any row): the setup, the method's parameters and the map's frames."""
+        any row): the setup and inputs, the method's parameters as they are now and the map's
+        frames; no model, and no query digest (a followed folder's file gets what the run learned
+        when it ends: ``wiloc.localization.follow_run.FollowRun``)."""
         return streamed_header(self._session, query)
 
     # -------------------------------------------------------------------------------- save / load

@@ -65,15 +65,16 @@ class DecisionLog:
 
 
 def streamed_header(session: RunSession, query: str | Path | None) -> ResultsHeader:
-    """What a streaming run's results header says of it: its setup (as a batch run's header says
-    it), the method's parameters as they are now and the map's frames (none in sequence mode,
-    where they are the frames observed). ``query`` is the traversal the frames came from, if
-    known (None: recorded as "")."""
+    """What a streaming run's results header says of it: its setup and inputs (as a batch run's
+    header says them: the map's digest, a video's sampling, a bag's topic, FAB-MAP's rows; no
+    query digest), the method's parameters as they are now and the map's frames (none in
+    sequence mode, where they are the frames observed). ``query`` is the traversal the frames
+    came from, if known (None: recorded as "")."""
     training = session.training if isinstance(session.training, Training) else None
     reference = session.map_path if session.map_path is not None else session.map
     header = run_header(session.method.name, session.describer, None if query is None else Path(query),
                         session.metric, reference, session.exclude_recent, training)
-    return replace(header, params=session.method.header(),
+    return replace(header, params=session.method.header(), **session.recorded(),
                    reference_frames=() if session.map is None else tuple(session.map.names))
 
 
@@ -85,7 +86,7 @@ def streamed_results(session: RunSession, log: DecisionLog, names: list[str], qu
     if not names:
         raise WilocError("results", "no frame observed yet: results hold the decisions of the frames observed")
     method = session.method
-    header = replace(streamed_header(session, query), **session.recorded())
+    header = streamed_header(session, query)
     if session.map is None:
         header = replace(header, query_digest=descriptors_digest(names, session.seen))
     decisions = log.decisions(model=method.model, params=method.header())
