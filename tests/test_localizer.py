@@ -239,6 +239,23 @@ def test_observe_says_what_it_got_that_is_no_frame(frame: object, what: str, dem
     assert loc.frames == 0
 
 
+def test_a_float_image_outside_0_1_says_what_it_holds(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
+    """A float image of 8-bit values (``cv2.imread(...).astype(np.float32)``) is told to be one,
+    with what to give; NaN is named as NaN, other values by their range; none is decided."""
+    loc = Localizer(demo_route.reference, method="threshold")
+    image = cv2.imread(str(sorted(demo_route.queries[0].iterdir())[10]))
+    low, high = int(image.min()), int(image.max())
+    nan = (image / 255.0).astype(np.float32)
+    nan[0, 0, 0] = np.nan
+    for given, said in ((image.astype(np.float32), f"values in [{low}, {high}] found: an 8-bit image's values, "
+                                                   "give it as uint8 or divided by 255"),
+                        (nan, "NaN found"), (image / 255.0 - 0.5, f"values in [{low / 255 - 0.5:g}, {high / 255 - 0.5:g}] found)")):
+        with pytest.raises(WilocError) as err:
+            loc.observe(given)
+        assert said in str(err.value) and str(err.value).startswith("observe: a float")
+    assert loc.frames == 0
+
+
 def test_observe_takes_a_nested_list_of_8_bit_values(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
     """A nested list of ints (as JSON gives) or tuples are read as the 8-bit image they spell, as an
     integer array of another type whose values lie in [0, 255]; values outside are refused, never

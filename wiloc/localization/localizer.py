@@ -430,7 +430,7 @@ def _image_samples(array: NDArray) -> NDArray:
     check_aspect(array, "observe")
     if array.dtype.kind == "f":
         if not np.all((array >= 0) & (array <= 1)):
-            raise WilocError("observe", f"a {array.dtype} image must hold values in [0, 1] (NaN or values outside found)")
+            raise WilocError("observe", f"a {array.dtype} image must hold values in [0, 1] ({_float_range(array)})")
         array = np.rint(array * 255).astype(np.uint8)
     elif array.dtype.kind in "iu" and array.dtype not in (np.uint8, np.uint16):
         low, high = int(array.min()), int(array.max())
@@ -442,6 +442,16 @@ def _image_samples(array: NDArray) -> NDArray:
     elif array.dtype not in (np.uint8, np.uint16):
         raise WilocError("observe", f"an image of {array.dtype} values; give 8- or 16-bit integers or floats in [0, 1]")
     return array
+
+
+def _float_range(array: NDArray[np.floating]) -> str:
+    """What a float image outside [0, 1] holds: NaN, or its range, with what to do when that is
+    an 8-bit image's (a ``cv2.imread(...).astype(np.float32)``, a network's input before scaling)."""
+    if np.isnan(array).any():
+        return "NaN found"
+    low, high = float(array.min()), float(array.max())
+    hint = ": an 8-bit image's values, give it as uint8 or divided by 255" if low >= 0 and high <= 255 else ""
+    return f"values in [{low:g}, {high:g}] found{hint}"
 
 
 ARRAY = "__array__"  # marks, in a saved state's JSON, a value stored as an array of the .npz
