@@ -127,3 +127,20 @@ def test_runs_in_memory_without_a_query_are_labelled_as_one_unnamed_traversal(de
     assert [e.name for e in compared.evaluations] == ["unnamed-threshold", "unnamed-online"]
     assert compared.traversals == ["unnamed", "unnamed"] and compared.labels == ["threshold", "online"]
     assert set(compared.table1["traversal"]) == {"unnamed"}
+
+
+def test_the_training_pair_is_recorded_by_its_resolved_path_as_query_and_map_are(
+        demo_route: demo.DemoRoute, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A training pair given relative to the current folder was recorded as typed
+    (``train_query: ../shared/data/...``), beside a query and map resolved: read from elsewhere
+    the header named folders that are not there."""
+    cache = Cache(tmp_path / "cache")
+    monkeypatch.chdir(demo_route.reference.parent)
+    pair = api.Training(Path(demo_route.queries[1].name), Path(demo_route.reference.name), demo_route.truth())
+    batch = api.localize(demo_route.queries[0], reference=demo_route.reference, method="trained", training=pair,
+                         out=tmp_path / "batch.csv", cache=cache)
+    loc = Localizer(demo_route.reference, method="trained", training=pair, cache=cache)
+    loc.observe(sorted(demo_route.queries[0].iterdir())[0])
+    for header in (read_header(batch.path)[0], loc.results().header):
+        assert header.train_query == str(demo_route.queries[1].resolve())
+        assert header.train_map == str(demo_route.reference.resolve()) == header.map

@@ -45,8 +45,8 @@ def run_header(method: str, describer: Describer, query: Path | None, metric: st
                          mode="sequence" if reference is None else "map", query="" if query is None else text_path(query),
                          map=reference.folder if isinstance(reference, Entry) else text_path(reference) if reference else "",
                          exclude_recent=exclude_recent, wiloc=__version__,
-                         train_query=str(training.query) if training else None,
-                         train_map=str(training.reference) if training else None)
+                         train_query=text_path(training.query) if training else None,
+                         train_map=text_path(training.reference) if training else None)
 
 
 def read_run(path: Path) -> Results:
