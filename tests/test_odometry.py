@@ -107,3 +107,17 @@ def test_names_that_match_no_frame_say_why(tmp_path: Path) -> None:
 def test_another_separator_is_named(tmp_path: Path) -> None:
     with pytest.raises(WilocError, match="got 1 columns; columns must be separated by commas"):
         read_odometry(_write(tmp_path, "name;distance\na.png;0\nb.png;1\n"))
+
+
+def test_gps_positions_give_metres_along_the_earth(tmp_path: Path) -> None:
+    """A name,lat,lon log was read as x,y: its arc length came out in degrees (1e-5 'metres' a
+    step), and the filter took the robot for standing still."""
+    from wiloc.given import EARTH_RADIUS_M
+
+    north = np.degrees(np.array([0.0, 10.0, 25.0]) / EARTH_RADIUS_M)  # 10 m, then 15 m due north
+    rows = "".join(f"{name},{float(51.0 + d)!r},-1.0\n" for name, d in zip("abc", north))
+    for header in ("name,lat,lon\n", "image,Latitude,Longitude\n"):
+        np.testing.assert_allclose(read_odometry(_write(tmp_path, header + rows)).arclength(), [0.0, 10.0, 25.0],
+                                   rtol=1e-9)
+    with pytest.raises(WilocError, match=r"lat must lie in \[-90, 90\]"):
+        read_odometry(_write(tmp_path, "name,lat,lon\na,95,0\nb,96,0\n"))

@@ -1,6 +1,7 @@
 """Checks on text that users give by hand: whether a CSV cell is a number (a header line or a
-line of data?), whether frame names are usable (text, non-empty, each once), and why the names
-a file gives match no frame. The ground-truth readers, odometry, imported descriptor matrices
+line of data?), whether frame names are usable (text, non-empty, each once), why the names a
+file gives match no frame, and the conventions their CSVs share (other names of columns, the
+Earth radius for GPS degrees). The ground-truth readers, odometry, imported descriptor matrices
 and maps held in memory share them, so that each problem reads the same wherever it is found."""
 from __future__ import annotations
 
@@ -9,6 +10,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from wiloc.errors import WilocError
+
+EARTH_RADIUS_M = 6_371_008.8
+"""Mean Earth radius (IUGG) used for distances between GPS positions (lat/lon) on a sphere."""
+COLUMN_NAMES = {"latitude": "lat", "longitude": "lon", "lng": "lon", "long": "lon",
+                "filename": "name", "file": "name", "image": "name", "frame": "name"}
+"""Other names of the lat/lon columns that GPS logs and exports use, and of a CSV's name column:
+positions and odometry CSVs read a header through it."""
 
 
 def is_number(text: str) -> bool:

@@ -24,11 +24,8 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from wiloc.errors import ParameterError, WilocError, load_problem
-from wiloc.given import why_unmatched
+from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, why_unmatched
 from wiloc.reprs import short_repr
-
-EARTH_RADIUS_M = 6_371_008.8
-"""Mean Earth radius (IUGG) used for lat/lon distances on a sphere."""
 
 KINDS = ("aligned", "positions", "pairs", "matrix", "vprbench", "positives", "utm-names", "exif")
 FOLDER_KINDS = ("utm-names", "exif")
@@ -247,12 +244,6 @@ class Positions:
     names: pd.Index
     coords: NDArray[np.float64]
     geographic: bool
-
-
-COLUMN_NAMES = {"latitude": "lat", "longitude": "lon", "lng": "lon", "long": "lon",
-                "filename": "name", "file": "name", "image": "name", "frame": "name"}
-"""Other names of the lat/lon columns that GPS logs and exports use, and of the name column (as
-odometry CSVs and imported descriptors take them)."""
 
 
 def _read_positions(path: Path) -> Positions:

@@ -9,11 +9,11 @@ from pathlib import Path
 from typing import Literal
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.evaluation.groundtruth import (COLUMN_NAMES, FOLDER_KINDS, KINDS, Truth, aligned_truth,
+from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, Truth, aligned_truth,
                                           matrix_truth, pairs_truth, positions_truth, restrict_sequence)
 from wiloc.evaluation.truth_formats import (DEFAULT_RADIUS_M, exif_truth, npy_form, positives_truth, utm_names_truth,
                                             vprbench_truth)
-from wiloc.given import is_number
+from wiloc.given import COLUMN_NAMES, is_number
 
 
 def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],

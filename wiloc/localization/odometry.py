@@ -1,12 +1,14 @@
 """Odometry CSVs: arc length travelled at each frame, for the CAT-Graph motion model.
 
-Two forms, one row per frame, an optional header row:
+Three forms, one row per frame, an optional header row:
 - ``name,distance``: the distance travelled since the previous frame of the file (the first
   row's value is ignored: nothing was travelled before the first frame);
-- ``name,x,y``: the position (metres); arc length is the summed step length in frame order.
+- ``name,x,y``: the position (metres); arc length is the summed step length in frame order;
+- ``name,lat,lon`` (a header naming them): a GPS position (degrees); steps are great-circle.
 A header that names these columns (``name``, or ``frame``, ``file``, ``filename``, ``image``;
-``distance`` or ``x`` and ``y``) picks them wherever they stand, other columns (a timestamp, a
-``z``) passed over; without one the columns are taken in order. Frames are matched by file
+``distance``, ``x`` and ``y``, or ``lat`` and ``lon`` under their other names) picks them
+wherever they stand, other columns (a timestamp, a ``z``) passed over; without one the columns
+are taken in order. Frames are matched by file
 name. docs/catgraph.md describes how the filter uses them.
 """
 from __future__ import annotations
@@ -21,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.given import is_number, why_unmatched
+from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, is_number, why_unmatched
 from wiloc.sources.bags import Bag, is_bag
 
 
@@ -30,8 +32,9 @@ class Odometry:
     """Per-frame values read from an odometry CSV, in file order."""
 
     names: tuple[str, ...]
-    values: NDArray[np.float64]  # (n, 1) cumulative distance or (n, 2) positions
+    values: NDArray[np.float64]  # (n, 1) distances or (n, 2) positions
     path: str
+    geographic: bool = False  # positions are (lat, lon) degrees, else (x, y) metres
 
     def arclength(self, names: Sequence[str] | None = None) -> NDArray[np.float64]:
         """Arc length at each of ``names`` (default: the file's order), in that order.
@@ -49,7 +52,10 @@ class Odometry:
         rows = [index[name] for name in order]
         if self.values.shape[1] == 2:
             vals = self.values[rows]
-            return np.r_[0.0, np.cumsum(np.hypot(*np.diff(vals, axis=0).T))] if len(rows) else np.zeros(0)
+            if not len(rows):
+                return np.zeros(0)
+            step = _great_circle_steps(vals) if self.geographic else np.hypot(*np.diff(vals, axis=0).T)
+            return np.r_[0.0, np.cumsum(step)]
         travelled = self.values[:, 0].copy()
         negative = np.flatnonzero(travelled < 0)
         if negative.size:
@@ -58,6 +64,14 @@ class Odometry:
         travelled[0] = 0.0
         cumulative = np.cumsum(travelled)[rows]
         return cumulative - cumulative[0] if len(rows) else cumulative
+
+
+def _great_circle_steps(latlon: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Metres between consecutive (lat, lon) positions in degrees, along a sphere of the mean
+    Earth radius (haversine), as positions ground truth measures them."""
+    lat, lon = np.radians(latlon).T
+    h = np.sin(np.diff(lat) / 2) ** 2 + np.cos(lat[:-1]) * np.cos(lat[1:]) * np.sin(np.diff(lon) / 2) ** 2
+    return 2.0 * EARTH_RADIUS_M * np.arcsin(np.sqrt(np.clip(h, 0.0, 1.0)))
 
 
 def steps(arclength: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -75,9 +89,9 @@ def read_odometry(path: str | Path) -> Odometry:
                     if row and any(cell.strip() for cell in row)]
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise WilocError(where, f"cannot read odometry: {exc}") from exc
-    columns = None
+    columns, geographic = None, False
     if rows and not all(is_number(cell) for cell in rows[0][1][1:]):
-        header, columns = rows[0][1], _named_columns(rows[0][1])
+        header, (columns, geographic) = rows[0][1], _named_columns(rows[0][1])
         rows = rows[1:]
     if not rows:
         raise WilocError(where, "no odometry rows")
@@ -110,24 +124,23 @@ def read_odometry(path: str | Path) -> Odometry:
     twice = [name for name, count in Counter(names).items() if count > 1]
     if twice:
         raise WilocError(where, f"frame {twice[0]!r} appears more than once")
-    return Odometry(names=tuple(names), values=values, path=where)
+    if geographic and (np.any(np.abs(values[:, 0]) > 90) or np.any(np.abs(values[:, 1]) > 360)):
+        raise WilocError(where, "lat must lie in [-90, 90] and lon in [-360, 360] degrees")
+    return Odometry(names=tuple(names), values=values, path=where, geographic=geographic)
 
 
-_NAME_COLUMNS = ("name", "frame", "file", "filename", "image")
-
-
-def _named_columns(header: list[str]) -> list[int] | None:
-    """The positions of a header's name column and its ``distance`` or ``x,y`` columns, when it
-    names them (other columns, a timestamp or a ``z``, are then passed over); else None, and the
+def _named_columns(header: list[str]) -> tuple[list[int] | None, bool]:
+    """The positions of a header's name column and its ``distance``, ``x,y`` or ``lat,lon``
+    columns (under their other names, ``COLUMN_NAMES``), when it names them (other columns, a
+    timestamp or a ``z``, are then passed over), and whether they are lat,lon; else None, and the
     columns are taken in order."""
-    cells = [cell.strip().lower() for cell in header]
-    name = next((cells.index(c) for c in _NAME_COLUMNS if c in cells), None)
-    if name is None:
-        return None
-    for values in (["distance"], ["x", "y"]):
+    cells = [COLUMN_NAMES.get(cell.strip().lower(), cell.strip().lower()) for cell in header]
+    if "name" not in cells:
+        return None, False
+    for values in (["distance"], ["x", "y"], ["lat", "lon"]):
         if all(value in cells for value in values):
-            return [name, *(cells.index(value) for value in values)]
-    return None
+            return [cells.index("name"), *(cells.index(value) for value in values)], values == ["lat", "lon"]
+    return None, False
 
 
 def bag_odometry(query: Path | None, reference: Path | None, topic: str | None, odometry: Path | None,
