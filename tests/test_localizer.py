@@ -3,6 +3,7 @@ and sequence mode, and a saved run continues identically in another process."""
 from __future__ import annotations
 
 import json
+import pickle
 import re
 import subprocess
 import sys
@@ -194,6 +195,22 @@ def test_a_changed_map_is_refused_on_load(demo_route: demo.DemoRoute, tmp_path: 
     (tmp_path / "junk.npz").write_bytes(b"not a state")
     with pytest.raises(WilocError, match="not a saved localizer state"):
         Localizer.load(tmp_path / "junk.npz")
+
+
+def test_a_saved_or_pickled_trained_localizer_keeps_its_training_pair(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                                       cache_dir: Path) -> None:
+    """The results of a trained localizer loaded or unpickled record its training pair as the
+    original's do (they said none: a header without train_query and train_map)."""
+    frames = sorted(demo_route.queries[0].iterdir())
+    training = _training(demo_route)
+    loc = Localizer(demo_route.reference, method="trained", training=training)
+    loc.observe(frames[0])
+    loc.save(tmp_path / "state.npz")
+    for copy in (Localizer.load(tmp_path / "state.npz"), pickle.loads(pickle.dumps(loc))):
+        copy.observe(frames[1])
+        assert copy.results().header.train_query == str(training.query.resolve())
+    loc.observe(frames[1])
+    assert copy.results().header == loc.results().header
 
 
 def test_loading_a_missing_file_or_a_folder_says_so(tmp_path: Path) -> None:

@@ -34,6 +34,7 @@ from wiloc.evaluation.results import Results
 from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.localization.session import RunSession, TrainingPair, check_traversal
 from wiloc.localization.streamed import DecisionLog, streamed_header, streamed_results
+from wiloc.localization.training import Training
 from wiloc.sources.frames import check_aspect, read_colour, read_gray, to_uint8, unusable_reason
 from wiloc.sources.video import Sampling
 
@@ -263,6 +264,7 @@ class Localizer:
                 "metric": describer.metric, "method": self.method.name,
                 "sampling": None if describer.sampling is None else asdict(describer.sampling),
                 "topic": describer.topic, "params": self.method.params.as_dict(), "exclude_recent": self.exclude_recent,
+                "training": session.training.state() if isinstance(session.training, Training) else None,
                 "names": list(self.names), "seen": session.seen, "decisions": self._log.state(),
                 "method_state": self.method.state()}
 
@@ -324,7 +326,8 @@ class Localizer:
                              map_odometry=None if meta["map_odometry"] is None else Path(meta["map_odometry"]),
                              map_names=None if map_names is None else Path(map_names),
                              sampling=None if meta["sampling"] is None else Sampling(**meta["sampling"]),
-                             topic=meta.get("topic"), cache=cache, jobs=jobs, restoring=True)
+                             topic=meta.get("topic"), cache=cache, jobs=jobs, restoring=True,
+                             training=None if meta.get("training") is None else Training.restored(meta["training"]))
         if session.map is not None and session.map.digest != meta["map_digest"]:
             raise WilocError(session.map.folder, f"the map changed since {source} was saved")
         loc = cls.__new__(cls)

@@ -1,8 +1,10 @@
 """The labelled traversal pair of the ``trained`` comparator: its difference rows and truth."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 from wiloc.candidates import check_exclude_recent
 from wiloc.description.differences import candidate_rows, differences
@@ -19,6 +21,17 @@ class Training:
     query: Path
     reference: Path
     truth: TruthSource
+
+    def state(self) -> dict[str, Any]:
+        """The pair as a saved localizer's state keeps it (its traversals resolved, as the map's
+        path is, and its truth's fields), so that a loaded one's results header records it."""
+        return {"query": str(Path(self.query).resolve()), "reference": str(Path(self.reference).resolve()),
+                "truth": asdict(self.truth)}
+
+    @classmethod
+    def restored(cls, state: Mapping[str, Any]) -> Training:
+        """The pair :meth:`state` kept."""
+        return cls(Path(state["query"]), Path(state["reference"]), TruthSource(**state["truth"]))
 
 
 def training_rows(training: Training, describer: Describer, exclude_recent: int) -> TrainingRows:
