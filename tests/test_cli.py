@@ -121,7 +121,7 @@ def test_odometry_missing_a_frame_is_reported(route: tuple[Path, Path], tmp_path
     ref, query = route
     (tmp_path / "odo.csv").write_text("img0.png,0\nimg1.png,1\n")
     result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "catgraph",
-                                 "--odometry", str(tmp_path / "odo.csv")])
+                                 "--odometry", str(tmp_path / "odo.csv"), "--map-odometry", str(tmp_path / "odo.csv")])
     assert result.exit_code == 1 and "no odometry for 38 frame(s)" in result.stderr
 
 
