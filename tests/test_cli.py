@@ -272,6 +272,26 @@ def test_two_queries_with_one_name_are_refused(route: tuple[Path, Path], tmp_pat
     assert result.exit_code == 2 and "same results file" in result.stderr
 
 
+def test_out_with_a_trailing_slash_names_a_folder(route: tuple[Path, Path], tmp_path: Path) -> None:
+    """--out runs.v2/ is a folder, as the guide says, though its name has a suffix: the results
+    go into it under their own names (a file runs.v2 was written, and two queries refused); a
+    file there is refused before any work."""
+    ref, query = route
+    folder = tmp_path / "runs.v2"
+    ran = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
+                              "--out", f"{folder}/", "--json"])
+    assert ran.exit_code == 0, ran.output
+    assert [p.name for p in folder.iterdir()] == ["query-sad-threshold.csv"]
+    both = runner.invoke(app, ["localize", str(query), str(ref), "--map", str(ref), "--method", "threshold",
+                               "--out", f"{tmp_path / 'both.v2'}/"])
+    assert both.exit_code == 0, both.output
+    assert sorted(p.name for p in (tmp_path / "both.v2").iterdir()) == ["query-sad-threshold.csv", "ref-sad-threshold.csv"]
+    (tmp_path / "taken.csv").write_text("a file\n")
+    refused = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--out", f"{tmp_path / 'taken.csv'}/"])
+    assert refused.exit_code == 2 and "error: --out: " in refused.stderr and "is a file, not a folder" in refused.stderr
+    assert (tmp_path / "taken.csv").read_text() == "a file\n"
+
+
 def test_evaluate_positions_needs_a_radius(route: tuple[Path, Path], tmp_path: Path) -> None:
     ref, query = route
     out = tmp_path / "t.csv"

@@ -12,8 +12,8 @@ from wiloc.cli.core import Notes, fail, handles_errors, refuse_unused
 from wiloc.cli.localize_views import show_followed, show_runs
 from wiloc.cli.options import (CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption, ModelOption,
                                PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
-                               VocabularyOption, descriptor_params_given, metric_name, output_file,
-                               plot_file, sampling_given)
+                               VocabularyOption, descriptor_params_given, metric_name, names_folder,
+                               plot_file, results_out, sampling_given)
 from wiloc.cli.params import descriptor_uses, method_params, with_descriptor_options, with_method_options
 from wiloc.cli.params import given as typed  # its name 'given' is the --follow check's list
 from wiloc.cli.truth import truth_source
@@ -48,7 +48,7 @@ def localize(
     odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y).", rich_help_panel="catgraph inputs"),
     odometry_topic: Optional[str] = typer.Option(None, help="catgraph: the nav_msgs Odometry topic of the ROS bags (query and map).", rich_help_panel="catgraph inputs"),
     map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV.", rich_help_panel="catgraph inputs"),
-    out_path: Optional[Path] = typer.Option(None, "--out", "-o", callback=output_file, show_default="QUERY-DESCRIPTOR-METHOD.csv here",
+    out_text: Optional[str] = typer.Option(None, "--out", "-o", callback=results_out, show_default="QUERY-DESCRIPTOR-METHOD.csv here",
                                             help="Results file (a folder with several queries)."),
     model_plot: Optional[Path] = typer.Option(None, callback=plot_file, show_default="none: not drawn", help="online/trained: draw the learned histograms of one QUERY's run (the paper's Figure 1)."),
     cache: CacheOption = None,
@@ -102,6 +102,8 @@ def localize(
         training = api.Training(train_query, train_map,
                                 truth_source(train_gt, train_gt_map, train_tolerance, train_radius, prefix="train_"))
     sampling = sampling_given(every, fps, start, stop)
+    out_path = None if out_text is None else Path(out_text)
+    out_folder = out_text is not None and names_folder(out_text)
     recent = exclude_recent if typed("exclude_recent") else None  # the library refuses it where it does nothing
     if follow:
         given = [flag for flag, value in (("--odometry", odometry), ("--odometry-topic", odometry_topic),
@@ -115,10 +117,9 @@ def localize(
             descriptor_params=descriptor_params_given(descriptor, descriptor_options, vocabulary, cache, model, preprocess),
             method=method, method_params=params,
             exclude_recent=recent, training=training, map_odometry=map_odometry,
-            out=out_path / api.results_name(queries[0], method, descriptor) if out_path is not None and out_path.is_dir() else out_path,
+            out=out_path / api.results_name(queries[0], method, descriptor) if out_folder else out_path,
             cache=Cache(cache), jobs=jobs, idle=idle), as_json)
         return
-    out_folder = out_path is not None and (out_path.is_dir() or not out_path.suffix)
     if len(queries) > 1 and out_path is not None and not out_folder:
         fail(f"{out_path}: with several queries --out names a folder", EXIT_USAGE)
     if model_plot is not None and method not in ("online", "trained"):

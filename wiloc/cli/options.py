@@ -2,6 +2,7 @@
 options are read (before any work), and the descriptor parameters the flags set."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Optional
 
@@ -34,6 +35,31 @@ def output_file(value: Path | None) -> Path | None:
     if problem is not None:
         raise typer.BadParameter(f"{value}: {problem}")
     return value
+
+
+def results_out(value: str | None) -> str | None:
+    """localize's ``--out``, checked as :func:`output_file` checks a file, before any work; kept as
+    typed, since a trailing ``/`` names a folder even where the name has a suffix (``runs.v2/``),
+    which a path would lose (:func:`names_folder`)."""
+    if value is None:
+        return None
+    path = Path(value)
+    if not _trailing_separator(value):
+        output_file(path)
+    elif path.exists() and not path.is_dir():
+        raise typer.BadParameter(f"{path} is a file, not a folder")
+    return value
+
+
+def names_folder(value: str) -> bool:
+    """Whether localize's ``--out`` names a folder: one that exists, a name without a suffix, or
+    one ending in ``/``."""
+    path = Path(value)
+    return _trailing_separator(value) or path.is_dir() or not path.suffix
+
+
+def _trailing_separator(value: str) -> bool:
+    return value.endswith(("/", os.sep))
 
 
 def metric_name(value: str | None) -> str | None:
