@@ -82,6 +82,14 @@ def test_a_csv_of_another_separator_is_told_to_use_commas(tmp_path: Path, separa
         read_external(path, None, "l1")
 
 
+def test_a_names_file_with_a_header_of_its_own_is_told(tmp_path: Path) -> None:
+    np.save(tmp_path / "m.npy", np.ones((3, 6)))
+    (tmp_path / "names.txt").write_text("\n".join(["image_path", *NAMES]))
+    with pytest.raises(WilocError, match=r"names\.txt: 4 frame names for 3 descriptor rows \(is the first, "
+                                         r"'image_path', a header\? only file, filename, frame, .* are known as one\)"):
+        read_external(tmp_path / "m.npy", tmp_path / "names.txt", "l1")
+
+
 def test_a_matrix_of_one_column_per_frame_is_told_with_its_transpose(tmp_path: Path) -> None:
     # tools that store one descriptor per column (MATLAB's habit) give a D x N matrix
     np.save(tmp_path / "m.npy", _matrix().T)

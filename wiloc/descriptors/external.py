@@ -351,7 +351,9 @@ def read_external(
     where = path if names_path is None else Path(names_path)
     if len(names) != matrix.shape[0]:
         turned = (f" (the matrix is {matrix.shape[0]} x {matrix.shape[1]}: one column per frame? save its "
-                  "transpose, one row per frame)" if len(names) == matrix.shape[1] else "")
+                  "transpose, one row per frame)" if len(names) == matrix.shape[1] else
+                  f" (is the first, {names[0]!r}, a header? only {', '.join(sorted(_NAME_HEADERS))} are known as one)"
+                  if len(names) == matrix.shape[0] + 1 and names_path is not None else "")
         raise WilocError(where, f"{len(names)} frame names for {matrix.shape[0]} descriptor rows{turned}")
     if prefix:
         keep = [i for i, name in enumerate(names) if name.startswith(prefix)]
