@@ -82,6 +82,16 @@ def test_a_csv_of_another_separator_is_told_to_use_commas(tmp_path: Path, separa
         read_external(path, None, "l1")
 
 
+@pytest.mark.parametrize("shape", [(3, 4, 1, 1), (3, 1, 4)])
+def test_a_pooled_network_output_is_one_vector_per_frame(tmp_path: Path, shape: tuple[int, ...]) -> None:
+    # a CNN's globally pooled features, saved as they come (N x D x 1 x 1), were 'need an N x D matrix'
+    np.save(tmp_path / "m.npy", _matrix().reshape(shape))
+    assert np.array_equal(read_external(tmp_path / "m.npy", None, "l1")[1], _matrix())
+    np.save(tmp_path / "m.npy", np.ones((3, 2, 2)))
+    with pytest.raises(WilocError, match=r"need an N x D matrix \(N, D >= 1\); got shape \(3, 2, 2\)"):
+        read_external(tmp_path / "m.npy", None, "l1")
+
+
 def test_a_names_file_with_a_header_of_its_own_is_told(tmp_path: Path) -> None:
     np.save(tmp_path / "m.npy", np.ones((3, 6)))
     (tmp_path / "names.txt").write_text("\n".join(["image_path", *NAMES]))

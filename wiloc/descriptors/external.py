@@ -289,6 +289,8 @@ def _values_as_names(names: list[str], values: NDArray[np.float64]) -> bool:
 
 
 def _checked_matrix(path: Path, matrix: NDArray, metric: str, from_text: bool) -> NDArray:
+    if matrix.ndim > 2 and matrix.shape[0] >= 1 and sum(n != 1 for n in matrix.shape[1:]) <= 1:
+        matrix = matrix.reshape(matrix.shape[0], -1)  # N x D x 1 x 1 (a network's pooled output), N x 1 x D
     if matrix.ndim != 2 or matrix.shape[0] < 1 or matrix.shape[1] < 1:
         raise WilocError(path, f"need an N x D matrix (N, D >= 1); got shape {matrix.shape}")
     if metric == "hamming":
