@@ -92,6 +92,17 @@ def test_a_pooled_network_output_is_one_vector_per_frame(tmp_path: Path, shape: 
         read_external(tmp_path / "m.npy", None, "l1")
 
 
+def test_names_saved_with_np_save_are_read(tmp_path: Path) -> None:
+    # np.save(names.npy, names) was 'cannot read frame names ('utf-8' codec can't decode byte 0x93 ...)'
+    np.save(tmp_path / "m.npy", _matrix())
+    for dtype in ("U", "O"):
+        np.save(tmp_path / "names.npy", np.array(NAMES, dtype=dtype))
+        assert read_external(tmp_path / "m.npy", tmp_path / "names.npy", "l1")[0] == NAMES
+    np.save(tmp_path / "names.npy", np.arange(3))
+    with pytest.raises(WilocError, match=r"names\.npy: holds a 3 array of int64, not frame names \(a 1-D array of text\)"):
+        read_external(tmp_path / "m.npy", tmp_path / "names.npy", "l1")
+
+
 def test_a_names_file_with_a_header_of_its_own_is_told(tmp_path: Path) -> None:
     np.save(tmp_path / "m.npy", np.ones((3, 6)))
     (tmp_path / "names.txt").write_text("\n".join(["image_path", *NAMES]))

@@ -3,8 +3,9 @@ and writing one in wiloc's own HDF5 layout, which records names and metric once.
 
 Formats (chosen by suffix; a folder is one ``.npy`` vector per image):
 
-- ``.npy``: the N x D matrix; names from ``names_path`` (one per line, or the first column of a
-  ``.csv``; a first cell ``name``/``frame``/``file`` is a header) or generated ``frame000000``...
+- ``.npy``: the N x D matrix; names from ``names_path`` (one per line, the first column of a
+  ``.csv``, or a ``.npy`` of text; a first cell ``name``/``frame``/``file`` is a header) or
+  generated ``frame000000``...
 - ``.npz``: numpy's archive holding one N x D array of numbers, and optionally one array of N
   names (text, UTF-8 bytes or Python strings, read without running anything), else as ``.npy``.
 - ``.csv``: one row per frame, first column the frame name, the rest numbers; an optional header
@@ -38,7 +39,7 @@ from wiloc.atomic import written_whole
 from wiloc.descriptors.base import METRICS
 from wiloc.errors import WilocError, load_problem
 from wiloc.given import check_frame_names  # also the check of a map's names held in memory
-from wiloc.object_arrays import read_npz
+from wiloc.object_arrays import read_npy, read_npz
 from wiloc.sources.frames import natural_sorted
 
 METRIC_ATTRIBUTE = "metric"
@@ -60,12 +61,15 @@ def _generated_names(count: int) -> list[str]:
 
 
 def read_names(path: Path) -> list[str]:
-    """Frame names from a text file (one per line) or the first column of a ``.csv`` file.
+    """Frame names from a text file (one per line), the first column of a ``.csv`` file, or a
+    ``.npy`` array of text (``np.save`` of the names, read as :func:`_read_npz` reads them).
 
     Blank lines are skipped; a first entry ``name``, ``frame`` or ``file`` is taken as a header.
     """
     import pandas as pd  # pandas and h5py load in 0.2-0.5 s: only when a matrix is imported
 
+    if path.suffix.lower() == ".npy":
+        return _npy_names(path)
     try:
         if path.suffix.lower() == ".csv":
             table = pd.read_csv(path, header=None, dtype=str, keep_default_na=False, usecols=[0], encoding="utf-8-sig")
@@ -80,6 +84,22 @@ def read_names(path: Path) -> list[str]:
     if not names:
         raise WilocError(path, "no frame names")
     return names
+
+
+def _npy_names(path: Path) -> list[str]:
+    """The frame names of a ``.npy`` file: one 1-D array of text (str, UTF-8 bytes or Python
+    strings, read without running anything)."""
+    try:
+        with path.open("rb") as file:
+            array = read_npy(file)
+    except (OSError, ValueError, EOFError, pickle.UnpicklingError) as exc:
+        raise WilocError(path, f"cannot read frame names ({load_problem(exc)})") from exc
+    names = _texts(path, "names", array)
+    if names is None:
+        shape = " x ".join(map(str, getattr(array, "shape", ()))) or "0-d"
+        raise WilocError(path, f"holds a {shape} array of {getattr(array, 'dtype', type(array).__name__)}, "
+                               "not frame names (a 1-D array of text)")
+    return [name.strip() for name in names]
 
 
 def _read_npy(path: Path) -> NDArray:
