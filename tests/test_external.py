@@ -58,6 +58,18 @@ def test_csv_written_by_pandas_keeps_its_header_out(tmp_path: Path, index_label:
     assert names == NAMES and np.array_equal(matrix, _matrix())
 
 
+def test_a_csv_of_pandas_index_then_names_passes_the_index_over(tmp_path: Path) -> None:
+    # df.to_csv(path) of a table with a name column writes its index first: it was
+    # "row 2, column 2: 'a.png' is not a number"
+    import pandas as pd
+
+    table = pd.DataFrame(_matrix(np.float64))
+    table.insert(0, "name", NAMES)
+    table.to_csv(tmp_path / "m.csv")
+    names, matrix = read_external(tmp_path / "m.csv", None, "l1")
+    assert names == NAMES and np.array_equal(matrix, _matrix())
+
+
 def test_a_csv_of_values_alone_is_not_read_with_its_first_column_as_names(tmp_path: Path) -> None:
     # np.savetxt(m.csv, features, delimiter=",") writes no names: its first column of values was
     # taken as frame names ('1.257e-01', ...) and the descriptors lost a dimension, silently

@@ -10,8 +10,9 @@ Formats (chosen by suffix; a folder is one ``.npy`` vector per image):
   names (text, UTF-8 bytes or Python strings, read without running anything), else as ``.npy``.
 - ``.csv``: one row per frame, first column the frame name, the rest numbers; an optional header
   row (recognised when none of its value cells is a number, or its first cell is empty or a
-  word such as ``name``: pandas heads the value columns 0, 1, 2, ...). A first column that is
-  evidently values, not names (``np.savetxt`` of the descriptors alone), is refused.
+  word such as ``name``: pandas heads the value columns 0, 1, 2, ...); pandas' unheaded index
+  column before a column headed ``name`` is passed over. A first column that is evidently
+  values, not names (``np.savetxt`` of the descriptors alone), is refused.
 - ``.h5`` / ``.hdf5``: dataset ``descriptors`` (N x D) and, optionally, dataset ``names``
   (N strings) and attribute ``metric`` (what :func:`write_matrix` writes); ``names_path``
   overrides the names. Or hloc's ``global-feats-*.h5``: one group per image name (names with
@@ -274,6 +275,9 @@ def _read_csv(path: Path) -> tuple[NDArray, list[str]]:
         first = str(table.iloc[0, 0]) if table.size else ""
         hint = "; columns must be separated by commas" if ";" in first or "\t" in first else ""
         raise WilocError(path, f"need a name column and at least one value column{hint}")
+    if table.shape[1] > 2 and len(table) and not table.iloc[0, 0].strip() and \
+            table.iloc[0, 1].strip().lower() in _NAME_HEADERS:
+        table = table.iloc[:, 1:]  # pandas' unnamed index before a name column (to_csv without index=False)
     cells = table.iloc[:, 1:].apply(lambda col: pd.to_numeric(col.str.strip(), errors="coerce"))
     if len(table) and (cells.iloc[0].isna().all() or _is_name_header(table.iloc[0, 0])):
         table, cells = table.iloc[1:], cells.iloc[1:]
