@@ -1153,6 +1153,29 @@ def test_an_output_name_as_long_as_the_file_system_takes_is_written(results: Pat
     assert [p.name for p in out.parent.iterdir()] == [out.name] and out.stat().st_size > 0
 
 
+@pytest.mark.parametrize("command, option, suffix", [
+    ("evaluate", "--pr-plot", ".png"), ("evaluate", "--csv", ".csv"), ("report", "-o", ".html"),
+    ("localize", "--out", ".csv"), ("demo", "--out", "")])
+def test_an_output_name_longer_than_the_file_system_takes_is_one_line(
+        results: Path, route: tuple[Path, Path], tmp_path: Path, command: str, option: str, suffix: str) -> None:
+    """A name over 255 bytes ended in the OSError's traceback (File name too long) as the options
+    were checked; so did a --csv name that is fine but whose curves file beside it is not."""
+    ref, query = route
+    inputs = {"localize": [str(query), "--map", str(ref), "--method", "threshold"],
+              "demo": []}.get(command, [str(results)])
+    for name in ("q" * 300 + suffix, "q" * (255 - len(suffix)) + suffix):
+        if option != "--csv" and len(name) == 255:
+            continue  # a name that long is fine for these (test above)
+        out = tmp_path / name
+        result = runner.invoke(app, [command, *inputs, option, str(out)])
+        too_long = out if len(name) > 255 else out.with_name(out.stem + "-curves.csv")
+        ends_in_one_error(result, 2, f"{too_long}", "no file can have this name")
+    if command == "localize":  # a folder named with a trailing /
+        ends_in_one_error(runner.invoke(app, [command, *inputs, option, f"{tmp_path / ('q' * 300)}/"]), 2,
+                          "no file can have this name")
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith("qq")] == []
+
+
 def test_the_library_refuses_to_replace_what_is_no_regular_file(localizers: dict[str, Localizer],
                                                                 tmp_path: Path) -> None:
     fifo = tmp_path / "state.npz"

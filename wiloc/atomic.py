@@ -22,10 +22,26 @@ NOT_A_FILE = "it is not a regular file (a device, a pipe or a folder), which wri
 NAME_MAX = 255
 
 
+def name_problem(path: Path) -> str | None:
+    """Why no file can be named ``path`` (a part longer than file systems take, a path longer than
+    the system takes), or None; asking the system about such a name raises an OSError."""
+    longest = max((len(os.fsencode(part)) for part in path.parts), default=0)
+    if longest > NAME_MAX:
+        return f"no file can have this name (a part of {longest} bytes; file systems take at most {NAME_MAX})"
+    try:
+        path.exists()
+    except OSError as exc:
+        return f"no file can have this name ({exc.strerror or exc})"
+    return None
+
+
 def output_problem(path: Path) -> str | None:
-    """Why ``path`` cannot take an output file, or None: something there that is no regular file
-    (it would be replaced), or the file this process prints to (``--csv /dev/stdout`` with the
-    output redirected to a file: replacing it would lose what is printed)."""
+    """Why ``path`` cannot take an output file, or None: a name no file can have
+    (:func:`name_problem`), something there that is no regular file (it would be replaced), or
+    the file this process prints to (``--csv /dev/stdout`` with the output redirected to a file:
+    replacing it would lose what is printed)."""
+    if (problem := name_problem(path)) is not None:
+        return problem
     if path.exists() and not path.is_file():
         return NOT_A_FILE
     for fd, stream in ((1, "standard output"), (2, "standard error")):

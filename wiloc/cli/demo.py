@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from wiloc.atomic import name_problem
 from wiloc.cli.core import handles_errors, out
 from wiloc.cli.views import print_command_json, progress_bar, run_records, table1_view, table2_view
 
@@ -16,6 +17,8 @@ def output_folder(value: Path) -> Path:
     here)."""
     if str(value) == "-":
         raise typer.BadParameter("-: wiloc writes a folder of files here, not standard output (give a folder)")
+    if (problem := name_problem(value)) is not None:
+        raise typer.BadParameter(f"{value}: {problem}")
     existing = next(path for path in (value, *value.parents) if path.exists())
     if not existing.is_dir():
         raise typer.BadParameter(f"{existing} is a file, not a folder")

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
 
-from wiloc.atomic import NOT_A_FILE, output_problem
+from wiloc.atomic import NOT_A_FILE, name_problem, output_problem
 from wiloc.cli.core import Notes, fail, note
 from wiloc.cli.params import descriptor_params, descriptor_takers
 from wiloc.errors import EXIT_USAGE, UsageError, WilocError
@@ -27,6 +27,8 @@ def output_file(value: Path | None) -> Path | None:
         return None
     if str(value) == "-":
         raise typer.BadParameter("-: wiloc writes files here, not standard output (give a file name)")
+    if (problem := name_problem(value)) is not None:
+        raise typer.BadParameter(f"{value}: {problem}")
     if value.suffix and not value.is_dir() and not value.parent.is_dir():
         if value.parent.exists():
             raise typer.BadParameter(f"{value.parent} is not a folder (the file would go into it)")
@@ -46,6 +48,8 @@ def results_out(value: str | None) -> str | None:
     path = Path(value)
     if not _trailing_separator(value):
         output_file(path)
+    elif (problem := name_problem(path)) is not None:
+        raise typer.BadParameter(f"{path}: {problem}")
     elif path.exists() and not path.is_dir():
         raise typer.BadParameter(f"{path} is a file, not a folder")
     return value
