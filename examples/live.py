@@ -50,13 +50,13 @@ import cv2
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from protocol import _finite, aligned, default_data_root, err, output_folder, require
+from protocol import _finite, aligned, default_data_root, err, one_line_errors, output_folder, require
 
 import wiloc
 from wiloc import api
 from wiloc.atomic import written_whole
 from wiloc.decisions import Decision
-from wiloc.errors import EXIT_CLOSED_OUTPUT, EXIT_INTERRUPTED, WilocError
+from wiloc.errors import EXIT_CLOSED_OUTPUT
 from wiloc.evaluation.results import Results
 from wiloc.methods.registry import method_class
 from wiloc.sources.frames import list_traversal
@@ -274,16 +274,11 @@ def main() -> None:
     when a check fails."""
     args = parse_args()
     try:
-        summary = run(args)
-    except WilocError as exc:
-        err.print(f"error: {exc}", markup=False, highlight=False)
-        sys.exit(exc.exit_code)
+        with one_line_errors():
+            summary = run(args)
     except BrokenPipeError:  # the reader of the live log has gone (| head): what is buffered goes nowhere
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         sys.exit(EXIT_CLOSED_OUTPUT)
-    except KeyboardInterrupt:
-        err.print("error: interrupted", markup=False, highlight=False)
-        sys.exit(EXIT_INTERRUPTED)
     resumed, batch = summary["resumed"], summary["batch_run"]
     if resumed["rows_alike"] < resumed["frames"] or (summary["batch_checked"] and (
             batch["rows_alike"] < batch["frames"] or not summary["metrics_equal"])):

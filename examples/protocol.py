@@ -15,7 +15,8 @@ import math
 import os
 import shutil
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,7 +27,7 @@ from wiloc import api
 from wiloc.atomic import write_error
 from wiloc.cache.store import Cache
 from wiloc.cli.views import progress_bar, table1_view, table2_view
-from wiloc.errors import WilocError
+from wiloc.errors import EXIT_INTERRUPTED, WilocError, interrupted
 from wiloc.figures import plots, run_figures
 
 REPO = Path(__file__).resolve().parents[1]
@@ -204,32 +205,42 @@ def update_docs(summary: dict[str, Any], out: Path, markdown: str | None = None,
     console.print(f"updated {doc} and docs/img/{name}-*.png")
 
 
-def main(build: Callable[[], tuple[Experiment, Path, bool]]) -> None:
-    """Run an example: one error line and its exit code for bad input, never a traceback."""
+@contextmanager
+def one_line_errors() -> Iterator[None]:
+    """An example's end on a problem, never a traceback: bad input as one error line and its exit
+    code, Ctrl-C as 'error: interrupted' and 130, as the wiloc command ends (what was described
+    stays in the cache: a rerun goes on from there)."""
     try:
+        yield
+    except WilocError as exc:
+        err.print(f"error: {exc}", markup=False, highlight=False)
+        sys.exit(exc.exit_code)
+    except BaseException as exc:
+        if not interrupted(exc):
+            raise
+        err.print("error: interrupted", markup=False, highlight=False)
+        sys.exit(EXIT_INTERRUPTED)
+
+
+def main(build: Callable[[], tuple[Experiment, Path, bool]]) -> None:
+    """Run an example (:func:`one_line_errors`)."""
+    with one_line_errors():
         experiment, out, docs = build()
         summary = run_experiment(experiment, out)
         if docs:
             update_docs(summary, out)
-    except WilocError as exc:
-        err.print(f"error: {exc}", markup=False, highlight=False)
-        sys.exit(exc.exit_code)
 
 
 def run_table_script(name: str, description: str, run: Callable[[Path, Path], dict[str, Any]],
                      render: Callable[[dict[str, Any]], str]) -> None:
     """Run an example that prints one table and draws PR curves (``run(data, out)`` gives its
-    summary, ``render`` the table docs/results.md quotes): one error line and its exit code for
-    bad input, never a traceback."""
+    summary, ``render`` the table docs/results.md quotes; :func:`one_line_errors`)."""
     args = parse_args(name, description, descriptors=False)
-    try:
+    with one_line_errors():
         check_output_folder(args.out)
         summary = run(args.data, args.out)
         if args.update_docs:
             update_docs(summary, args.out, markdown=render(summary), plots=("pr",))
-    except WilocError as exc:
-        err.print(f"error: {exc}", markup=False, highlight=False)
-        sys.exit(exc.exit_code)
 
 
 def check_output_folder(folder: Path) -> None:

@@ -92,6 +92,24 @@ def _protocol() -> ModuleType:
     return module
 
 
+def test_a_one_table_example_ends_on_ctrl_c_with_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """table1.py and loop_closure.py (protocol.run_table_script) end on Ctrl-C with 'error:
+    interrupted' and exit code 130, as the wiloc command does, not with a traceback."""
+    protocol = _protocol()
+
+    def interrupted(data: Path, out: Path) -> dict:  # Ctrl-C as a library rewords it (a plain one would stop pytest)
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise RuntimeError("interrupted while loading") from exc
+
+    monkeypatch.setattr(sys, "argv", ["table1.py", str(tmp_path), "--out", str(tmp_path / "out")])
+    with pytest.raises(SystemExit) as ended:
+        protocol.run_table_script("table1", "a one-table example", interrupted, lambda summary: "")
+    assert ended.value.code == 130 and capsys.readouterr().err == "error: interrupted\n"
+
+
 @pytest.fixture(scope="module")
 def runs(data_root: Path, tmp_path_factory: pytest.TempPathFactory,
          real_data_cache: Path) -> dict[str, tuple[dict, str]]:

@@ -21,8 +21,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers import interrupt_after_six_frames
 
 from wiloc import api
+from wiloc.cache.store import Cache
 from wiloc.errors import EXIT_CLOSED_OUTPUT, EXIT_INTERRUPTED
 
 REPO = Path(__file__).resolve().parents[1]
@@ -167,3 +169,23 @@ def test_every_example_takes_an_out_that_is_a_file_as_one_error_line(data_root: 
     assert proc.returncode == 1
     assert proc.stderr.strip().splitlines() == [f"error: {out}: not a folder (--out names the output folder)"]
     assert out.read_text(encoding="utf-8") == "not a folder\n"
+
+
+#: Runs an example script as ``python SCRIPT ARGS...`` does, from ``python -c`` (its folder first on
+#: sys.path: it imports protocol.py beside it).
+_RUN_SCRIPT = ("import runpy, sys; from pathlib import Path; sys.argv = sys.argv[1:]; "
+               "sys.path.insert(0, str(Path(sys.argv[0]).parent)); runpy.run_path(sys.argv[0], run_name='__main__')")
+
+
+@pytest.mark.realdata
+def test_an_example_ends_on_ctrl_c_with_one_line(data_root: Path, cache_dir: Path, tmp_path: Path) -> None:
+    """Ctrl-C while gardens_point.py describes is 'error: interrupted' and exit code 130, as
+    live.py and the wiloc command end; it was a KeyboardInterrupt's traceback. (The one-table
+    scripts end the same way: tests/test_examples.py.)"""
+    script = EXAMPLE.parent / "gardens_point.py"
+    run = interrupt_after_six_frames([_RUN_SCRIPT, str(script), str(data_root), "--out", str(tmp_path / "out")],
+                                     Cache(cache_dir), signal.SIGINT)
+    stderr = run.stderr.read().decode()
+    assert run.returncode == EXIT_INTERRUPTED, stderr
+    assert stderr.strip().splitlines()[-1] == "error: interrupted" and "Traceback" not in stderr, stderr
+
