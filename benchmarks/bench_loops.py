@@ -58,7 +58,8 @@ from wiloc.decisions import Decisions
 from wiloc.description.differences import ComputedDifferences, candidate_blocks
 from wiloc.description.differences import summarize as summarize_self
 from wiloc.description.distances import DifferencesTo
-from wiloc.description.traversals import Describer
+from wiloc.description.traversals import Describer, descriptor_spec
+from wiloc.errors import WilocError
 from wiloc.evaluation.groundtruth import Truth
 from wiloc.evaluation.metrics import correct_matches, decided_confidence, summarize
 from wiloc.evaluation.reliability import summarize_calibration
@@ -219,11 +220,25 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         if name not in METHODS:
             parser.error(f"unknown method {name!r}")
     params = parse_params(args.param, methods)
+    descriptors = [d.strip() for d in args.descriptors.split(",") if d.strip()]
+    try:  # a bad name or value stops here, before any loop is described
+        for method in methods:
+            make_method(method, params[method])
+    except WilocError as exc:
+        parser.error(f"--param {method}.{exc}")
+    try:
+        for descriptor in descriptors:
+            descriptor_spec(descriptor, {})
+    except WilocError as exc:
+        parser.error(f"--descriptors: {exc.problem}")
     rows = []
-    for descriptor in (d.strip() for d in args.descriptors.split(",") if d.strip()):
-        for name in loops:
-            loop = load_loop(name, descriptor, args.data)
-            rows += [run_loop(loop, method, params[method]) for method in methods]
+    try:
+        for descriptor in descriptors:
+            for name in loops:
+                loop = load_loop(name, descriptor, args.data)
+                rows += [run_loop(loop, method, params[method]) for method in methods]
+    except WilocError as exc:  # the data: a folder missing or unreadable
+        parser.exit(exc.exit_code, f"error: {exc}\n")
     console.print(render(rows))
     write_json(args.json, rows, console)
     return rows

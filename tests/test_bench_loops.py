@@ -1,0 +1,23 @@
+"""benchmarks/bench_loops.py's command line: a bad option or missing data ends it with one error
+line and an exit code before any loop is described, never a traceback."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from helpers import benchmark_module
+
+
+@pytest.mark.parametrize(("args", "code", "line"), [
+    (["--descriptors", "sad,nosuch"], 2, "error: --descriptors: unknown descriptor 'nosuch'"),
+    (["--param", "online.nosuch=1"], 2, "error: --param online.nosuch: not a parameter of method 'online'"),
+    (["--param", "online.init=0"], 2, "error: --param online.init: must be >= 1, got 0"),
+    ([], 1, "gardens-point-walking/day_right: folder does not exist"),
+])
+def test_bad_options_and_missing_data_are_one_line(args: list[str], code: int, line: str, tmp_path: Path,
+                                                   cache_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with benchmark_module("bench_loops") as bench, pytest.raises(SystemExit) as ended:
+        bench.main([str(tmp_path / "no-data"), "--loops", "dr+dl", "--methods", "online", *args])
+    stderr = capsys.readouterr().err
+    assert ended.value.code == code and line in stderr.strip().splitlines()[-1] and "Traceback" not in stderr
+    assert not cache_dir.exists()  # nothing described
