@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pandas as pd
@@ -53,10 +54,15 @@ def test_route_is_reproducible(demo_route: demo.DemoRoute, tmp_path: Path) -> No
 
 @pytest.fixture(scope="module")
 def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, str]:
-    """`wiloc demo --json`, then the table view into the same folder (a rerun)."""
+    """`wiloc demo --json` given a relative --out, then the table view into the same folder (a rerun)."""
     out = tmp_path_factory.mktemp("demo")
     runner = CliRunner()
-    as_json = runner.invoke(app, ["demo", "--out", str(out), "--json"])
+    here = os.getcwd()
+    os.chdir(out.parent)
+    try:
+        as_json = runner.invoke(app, ["demo", "--out", out.name, "--json"])
+    finally:
+        os.chdir(here)
     assert as_json.exit_code == 0, as_json.output
     text = runner.invoke(app, ["demo", "--out", str(out)], terminal_width=200)
     assert text.exit_code == 0, text.output
@@ -69,7 +75,8 @@ def test_demo_writes_results_tables_and_plots(demo_runs: tuple[Path, dict, str])
     assert len(results) == len(demo.METHODS) * len(demo.DRIVES[1:])
     for name in ("table1.csv", "table2.csv", *PLOTS):
         assert (out / name).stat().st_size > 0
-        assert str(out / name) in report["files"]
+        assert str(out / name) in report["files"]  # absolute, as every --json path (docs/formats.md)
+    assert report["out"] == str(out) and all(Path(p).is_absolute() and Path(p).is_file() for p in report["files"])
     for name in PLOTS:
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

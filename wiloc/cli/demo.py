@@ -40,8 +40,8 @@ def demo(
         report = run_demo(out_dir, progress=progress)
     if as_json:
         print_command_json("demo", "runs", run_records(report.comparison), [],
-                           table2=report.comparison.table2.to_dict(orient="records"), out=str(out_dir),
-                           files=[str(p) for p in report.files])
+                           table2=report.comparison.table2.to_dict(orient="records"), out=str(out_dir.resolve()),
+                           files=[str(p.resolve()) for p in report.files])
         return
     out.print(table1_view(report.comparison))
     out.print(table2_view(report.comparison))
