@@ -1527,3 +1527,12 @@ def test_demo_out_under_a_file_is_a_usage_error_before_any_work(tmp_path: Path, 
     for out in (taken, taken / "demo"):
         ends_in_one_error(runner.invoke(app, ["demo", "--out", str(out)]), 2, f"--out: {taken} is a file, not a folder")
     assert taken.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_a_message_that_spans_lines_is_printed_as_one(results: Path, tmp_path: Path) -> None:
+    """pandas' message for a CSV it cannot tokenize ends in a line break: its ')' was printed on
+    a line of its own after the error line. A name holding a line break is written as \\n."""
+    result = runner.invoke(app, ["evaluate", str(results), "--gt", str(results)])
+    ends_in_one_error(result, 1, f"{results}: not a readable CSV (", "Expected")
+    assert result.stderr.strip().endswith(")")
+    assert str(WilocError(tmp_path / "a\nb.csv", "line one\n  line two")) == f"{tmp_path}/a\\nb.csv: line one line two"

@@ -18,8 +18,22 @@ def shown_name(name: str) -> str:
     return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
+def _one_line_name(name: str) -> str:
+    """A file name as :func:`shown_name` writes it, its line breaks written as ``\\n`` and ``\\r``."""
+    return shown_name(name).replace("\n", "\\n").replace("\r", "\\r")
+
+
+def _one_line_problem(text: str) -> str:
+    """``text`` with its line breaks (and the spaces around them) as one space each: a library's
+    message (pandas') may end in one."""
+    if "\n" not in text and "\r" not in text:
+        return text
+    return " ".join(part.strip() for part in text.replace("\r", "\n").split("\n") if part.strip())
+
+
 class WilocError(Exception):
-    """A problem with the user's input: printed as one line naming the file, never a traceback.
+    """A problem with the user's input: printed as one line naming the file, never a traceback
+    (a problem's line breaks, as a library's message may hold, become spaces).
 
     ``parameter`` names the library parameter the problem came through (``where`` is then that
     name), so that a front end can name its own spelling of it (the CLI: its flag). File names
@@ -29,8 +43,8 @@ class WilocError(Exception):
     exit_code = EXIT_BAD_INPUT
 
     def __init__(self, where: str | Path | None, problem: str, *, parameter: str | None = None) -> None:
-        self.where = parameter if parameter is not None else None if where is None else shown_name(str(where))
-        self.problem = shown_name(problem)
+        self.where = parameter if parameter is not None else None if where is None else _one_line_name(str(where))
+        self.problem = _one_line_problem(shown_name(problem))
         self.parameter = parameter
         super().__init__(f"{self.where}: {self.problem}" if self.where else self.problem)
 
