@@ -379,3 +379,28 @@ def test_describe_list_of_a_cache_folder_that_is_not_there_says_so(tmp_path: Pat
     (tmp_path / "file").write_text("")
     result = runner.invoke(app, ["describe", "--list", "--cache", str(tmp_path / "file")])
     assert result.exit_code == 1 and result.stderr.strip() == f"error: {tmp_path / 'file'}: is a file, not a cache folder"
+
+
+def test_every_comparison_figure_names_its_data_and_ground_truth(route: tuple[Path, Path], tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/evaluation.md: every figure is titled with the query folders' parent, the descriptor
+    and the ground truth. The reliability diagram of evaluate and compare was titled with neither,
+    though which matches count as right is the ground truth's (and its tolerance's) doing."""
+    from wiloc.figures import plots
+
+    titles: dict[str, str] = {}
+    drawn = plots._title
+    monkeypatch.setattr(plots, "_title", lambda fig, title: (titles.update({title.split(":")[0]: title}),
+                                                             drawn(fig, title))[1])
+    ref, query = route
+    run = tmp_path / "query-online.csv"
+    assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "online",
+                               "--out", str(run)]).exit_code == 0
+    subject = f"{tmp_path.name}, sad, aligned by name, +-3 frames"
+    for command in ("evaluate", "compare"):
+        titles.clear()
+        result = runner.invoke(app, [command, str(run), "-T", "3", "--pr-plot", str(tmp_path / "pr.png"),
+                                     "--calibration-plot", str(tmp_path / "reliability.png")])
+        assert result.exit_code == 0, result.output
+        assert set(titles) == {"Precision-recall", "Reliability"}
+        assert all(subject in title for title in titles.values()), (command, titles)

@@ -118,6 +118,6 @@ def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshol
                                      title=f"Precision-recall: {subject}"))
     if calibration_plot is not None:
         written.append(plots.plot_reliability(api.reliability_series(comparison.evaluations),
-                                              replacing(notes, calibration_plot),
+                                              replacing(notes, calibration_plot), title=f"Reliability: {subject}",
                                               new_place=api.new_place_series(comparison.evaluations)))
     return written

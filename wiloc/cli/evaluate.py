@@ -62,15 +62,15 @@ def evaluate(
     rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
     drawings = _run_plots(evaluations, names, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only)
     written = []
+    subject = api.run_subject(evaluations, source)
     if pr_plot is not None:
         from wiloc.figures.plots import plot_pr
         written.append(plot_pr(dict(zip(api.run_names(evaluations), (e.curve for e in evaluations))),
-                               replacing(notes, pr_plot),
-                               title=f"Precision-recall: {api.run_subject(evaluations, source)}"))
+                               replacing(notes, pr_plot), title=f"Precision-recall: {subject}"))
     if calibration_plot is not None:
         from wiloc.figures.plots import plot_reliability
         written.append(plot_reliability(api.reliability_series(evaluations), replacing(notes, calibration_plot),
-                                        new_place=api.new_place_series(evaluations)))
+                                        title=f"Reliability: {subject}", new_place=api.new_place_series(evaluations)))
     written += [draw() for draw in drawings]
     if csv_out is not None:
         written += write_metrics_csv(csv_out, rows, evaluations, notes)
