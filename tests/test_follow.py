@@ -404,3 +404,33 @@ def test_a_followed_file_ends_with_what_the_run_learned_and_resumes(demo_route: 
     out.write_text("".join(line for line in lines if not line.startswith(("# map_digest:", "# model:"))))
     assert follow_to_the_end(30) == (26, 4)  # an older version's file
     assert_batch_header(30)
+
+
+def test_frames_of_another_shape_than_the_maps_are_warned_of_once(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                                  cache_dir: Path) -> None:
+    """A camera whose frames are of another shape than the map's (a crop) is warned of once, by
+    the Localizer (``doubts``) and by a followed folder (a warning after its first such frame), as
+    a batch run warns of such a query; frames of the map's shape, other sizes too, are not."""
+    import cv2
+
+    frames = sorted(demo_route.queries[0].iterdir())
+    loc = Localizer(demo_route.reference, method="threshold")
+    image = cv2.imread(str(frames[0]))
+    loc.observe(cv2.resize(image, None, fx=2, fy=2))  # another size, the same shape
+    assert loc.frame_doubts == [] and loc.doubts == []
+    height, width = image.shape[:2]
+    for k in (1, 2):
+        loc.observe(image[:, : width // 2])
+    [line] = loc.frame_doubts
+    assert line.startswith(f"observe: images of {width // 2} x {height} pixels against the map's {width} x {height}, "
+                           "another shape") and loc.doubts == [line]
+    live = tmp_path / "live"
+    live.mkdir()
+    for k, path in enumerate(frames[:3]):
+        cv2.imwrite(str(live / path.name), cv2.imread(str(path))[:, : width // 2] if k else cv2.imread(str(path)))
+    run = api.follow_folder(live, reference=demo_route.reference, method="threshold", out=tmp_path / "r.csv",
+                            idle=0.5, poll=0.05)
+    events = list(run)
+    warnings = [e for e in events if isinstance(e, Skipped)]
+    assert [e.kind for e in warnings] == ["warning"] and warnings[0].path.name == frames[1].name
+    assert "another shape" in str(warnings[0]) and sum(not isinstance(e, Skipped) for e in events) == 3

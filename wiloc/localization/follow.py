@@ -45,7 +45,8 @@ REWRITTEN = ("written again after it was decided; --follow decides each file nam
 @dataclass(frozen=True)
 class Skipped:
     """A frame left out: its file and why; ``kind`` is ``warning`` for a file already decided
-    that was written again (:data:`REWRITTEN`), said once."""
+    that was written again (:data:`REWRITTEN`), said once, and for the first frame of a shape
+    other than the map's (``Localizer.frame_doubts``: decided, then said)."""
 
     path: Path
     reason: str
@@ -213,6 +214,7 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
                 last = clock()
                 yield Skipped(path, reason)
                 continue
+            said = len(localizer.frame_doubts)
             try:
                 decision = localizer.observe(path)
             except FrameError as exc:
@@ -226,6 +228,8 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
                 continue
             failing.pop(path.name, None)
             last = clock()
+            for line in localizer.frame_doubts[said:]:  # a camera of another shape than the map's
+                yield Skipped(path, line, kind="warning")
             yield decision
         if idle is not None and clock() - last >= idle \
                 and all(clock() - first >= SETTLE_SECONDS + idle + 2 * poll for first in failing.values()):

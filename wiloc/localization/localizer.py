@@ -20,7 +20,6 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -32,10 +31,10 @@ from wiloc.description.traversals import Describer, checked_rows, is_matrix_file
 from wiloc.errors import FrameError, WilocError, load_problem
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.results_header import ResultsHeader
-from wiloc.localization.session import RunSession, TrainingPair, check_traversal
+from wiloc.localization.frame_arrays import colour_image, frame_array, gray_image
+from wiloc.localization.session import RunSession, TrainingPair, check_traversal, shape_doubt
 from wiloc.localization.streamed import DecisionLog, streamed_header, streamed_results
-from wiloc.localization.training import Training
-from wiloc.sources.frames import check_aspect, read_colour, read_gray, to_uint8, unusable_reason
+from wiloc.sources.frames import read_colour, read_gray, unusable_reason
 from wiloc.sources.video import Sampling
 
 STATE_FORMAT = "wiloc-localizer-state"
@@ -120,14 +119,17 @@ class Localizer:
         self.names: list[str] = []  # the frames observed, in order
         self._named: set[str] = set()  # the same, looked up for each new name
         self._log = DecisionLog(self.method.columns, self.method.ranks)  # their decisions
+        self.frame_doubts: list[str] = []  # one line per shape of the images described that is not the map's
+        self._shapes: set[tuple[int, int]] = set()  # the (width, height) of the images described
         path = session.map_path
         self._spec = None if path is not None and is_matrix_file(path) else session.describer.spec
 
     @property
     def doubts(self) -> list[str]:
         """What makes every decision doubtful (``RunSession.doubts``: bow's sparse vocabulary, a
-        map whose images give too few words); none for a map of imported descriptors."""
-        return self._session.doubts()
+        map whose images give too few words; none for a map of imported descriptors), then what
+        makes the frames observed so far doubtful (:attr:`frame_doubts`)."""
+        return self._session.doubts() + self.frame_doubts
 
     @property
     def describer(self) -> Describer:
@@ -162,11 +164,11 @@ class Localizer:
 
     def describe(self, frame: NDArray | str | bytes | os.PathLike) -> NDArray:
         """The descriptor of an image file (any path, bytes too), a decoded image
-        (:func:`gray_image`) or a descriptor given as it is (:meth:`_descriptor`): a row, or a
+        (``frame_arrays.gray_image``) or a descriptor given as it is (:meth:`_descriptor`): a row, or a
         1 x D array of the map's length D."""
         if (path := _file(frame)) is not None:
             frame = self.read(path)
-        array = _frame_array(frame)
+        array = frame_array(frame)
         if array.ndim == 2 and array.shape == (1, self._session.candidates_data.shape[1]):
             array = array[0]  # one descriptor as a batch of one (a network's output, rows[k:k + 1])
         if array.ndim == 1:
@@ -174,7 +176,17 @@ class Localizer:
         if self._spec is None:
             raise WilocError("observe", "a map of imported descriptors takes descriptors, not images")
         image = colour_image(array) if self._spec.colour else gray_image(array)
+        self._check_shape(image, decoded=path is not None)
         return self._spec.compute(image)
+
+    def _check_shape(self, image: NDArray, decoded: bool) -> None:
+        """A line in :attr:`frame_doubts` for the first image of each shape other than the map's
+        (``shape_doubt``, as a batch run warns); a JPEG file may be decoded at 1/2 to 1/8 size."""
+        size = (image.shape[1], image.shape[0])
+        if size not in self._shapes and self._session.map is not None:
+            self._shapes.add(size)
+            if line := shape_doubt(size, self._session.map.frame_size, "images decoded" if decoded else "images"):
+                self.frame_doubts.append(f"observe: {line}")
 
     def _descriptor(self, row: NDArray) -> NDArray:
         """A descriptor row given to :meth:`observe`, in the map's dtype: as long as the map's
@@ -264,7 +276,7 @@ class Localizer:
                 "metric": describer.metric, "method": self.method.name,
                 "sampling": None if describer.sampling is None else asdict(describer.sampling),
                 "topic": describer.topic, "params": self.method.params.as_dict(), "exclude_recent": self.exclude_recent,
-                "training": session.training.state() if isinstance(session.training, Training) else None,
+                "training": session.training_state(),
                 "names": list(self.names), "seen": session.seen, "decisions": self._log.state(),
                 "method_state": self.method.state()}
 
@@ -317,17 +329,7 @@ class Localizer:
         """A localizer continuing from a :meth:`state` read back (``source``: where from, for errors)."""
         if meta["map"] is None and meta["map_digest"] is not None and map is None:
             raise WilocError(source, "was saved with a map held in memory: give it again (map=...)")
-        saved_map = map if map is not None else None if meta["map"] is None else Path(meta["map"])
-        map_names = meta.get("map_names")  # states saved before it was recorded: a map without a names file
-        session = RunSession(saved_map, method=meta["method"],
-                             method_params={k: tuple(v) if isinstance(v, list) else v for k, v in meta["params"].items()},
-                             descriptor=meta["descriptor"], descriptor_params=meta["descriptor_params"],
-                             metric=meta["metric"], exclude_recent=meta["exclude_recent"],
-                             map_odometry=None if meta["map_odometry"] is None else Path(meta["map_odometry"]),
-                             map_names=None if map_names is None else Path(map_names),
-                             sampling=None if meta["sampling"] is None else Sampling(**meta["sampling"]),
-                             topic=meta.get("topic"), cache=cache, jobs=jobs, restoring=True,
-                             training=None if meta.get("training") is None else Training.restored(meta["training"]))
+        session = RunSession.restored(meta, map, cache, jobs)
         if session.map is not None and session.map.digest != meta["map_digest"]:
             raise WilocError(session.map.folder, f"the map changed since {source} was saved")
         loc = cls.__new__(cls)
@@ -378,83 +380,6 @@ def _map(map: object) -> str | os.PathLike | Entry | None:
         check_traversal(map, "map", ", descriptors in memory as an Entry (wiloc.description.traversals."
                                     "entry_from_array(rows, names, spec)) or None for sequence mode")
     return map
-
-
-def _frame_array(frame: object) -> NDArray:
-    """A frame that is no file as an array (an image or a descriptor row; a nested list or tuple
-    of numbers too, as numpy makes one of it); None, a scalar or what numpy cannot make one array
-    of numbers (a ragged list, a dict) is a WilocError saying what was given and what is taken."""
-    takes = "give an image file's path, an image array or a descriptor row"
-    if frame is None:
-        raise WilocError("observe", f"frame is None; {takes}")
-    try:
-        array = np.asarray(frame)
-    except (TypeError, ValueError):  # rows of different lengths
-        array = None
-    if array is None or array.ndim == 0 or array.dtype == object:
-        raise WilocError("observe", f"frame is of type {type(frame).__name__}, not an array of numbers; {takes}")
-    return array
-
-
-def gray_image(array: NDArray) -> NDArray[np.uint8]:
-    """An image array as the 8-bit gray image descriptors are computed from: gray (H x W, or
-    H x W x 1) or BGR/BGRA as OpenCV decodes, of 8- or 16-bit integers (16-bit scaled by
-    255/65535, as a 16-bit file is), of other integers in [0, 255] (a nested list's int64, read as
-    8-bit) or of floats in [0, 1] (scaled by 255 and rounded). Anything else is a WilocError saying
-    what was given."""
-    array = _image_samples(array)
-    if array.ndim == 3:
-        array = cv2.cvtColor(array, cv2.COLOR_BGR2GRAY if array.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-    return to_uint8(array, "observe")
-
-
-def colour_image(array: NDArray) -> NDArray[np.uint8]:
-    """An image array as the 8-bit BGR image colour descriptors (``onnx``) are computed from:
-    the arrays :func:`gray_image` takes, gray repeated over three channels, alpha dropped."""
-    array = _image_samples(array)
-    if array.ndim == 2:
-        array = cv2.cvtColor(array, cv2.COLOR_GRAY2BGR)
-    elif array.shape[2] == 4:
-        array = cv2.cvtColor(array, cv2.COLOR_BGRA2BGR)
-    return to_uint8(array, "observe")
-
-
-def _image_samples(array: NDArray) -> NDArray:
-    """An image array checked (gray, BGR or BGRA; not empty; 8- or 16-bit integers, other integers
-    in [0, 255] or floats in [0, 1], both of which become 8-bit), a single channel's last axis
-    dropped. Integers of another type are read as 8-bit values, as a nested list of Python ints
-    (JSON's) spells an 8-bit image: one outside [0, 255] is refused, never wrapped or scaled."""
-    if array.ndim == 3 and array.shape[2] == 1:
-        array = array[:, :, 0]
-    if not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (3, 4))):
-        raise WilocError("observe", f"an image must be gray (H x W) or BGR/BGRA (H x W x 3 or 4), got shape {array.shape}")
-    if array.shape[0] == 0 or array.shape[1] == 0:
-        raise WilocError("observe", f"an empty image ({array.shape[0]} x {array.shape[1]} pixels)")
-    check_aspect(array, "observe")
-    if array.dtype.kind == "f":
-        if not np.all((array >= 0) & (array <= 1)):
-            raise WilocError("observe", f"a {array.dtype} image must hold values in [0, 1] ({_float_range(array)})")
-        array = np.rint(array * 255).astype(np.uint8)
-    elif array.dtype.kind in "iu" and array.dtype not in (np.uint8, np.uint16):
-        low, high = int(array.min()), int(array.max())
-        if low < 0 or high > 255:
-            raise WilocError("observe", f"an image of {array.dtype} values in [{low}, {high}]; integers other than "
-                                        "uint8 and uint16 are read as 8-bit values in [0, 255]: give 16-bit values "
-                                        "as a uint16 array")
-        array = array.astype(np.uint8)
-    elif array.dtype not in (np.uint8, np.uint16):
-        raise WilocError("observe", f"an image of {array.dtype} values; give 8- or 16-bit integers or floats in [0, 1]")
-    return array
-
-
-def _float_range(array: NDArray[np.floating]) -> str:
-    """What a float image outside [0, 1] holds: NaN, or its range, with what to do when that is
-    an 8-bit image's (a ``cv2.imread(...).astype(np.float32)``, a network's input before scaling)."""
-    if np.isnan(array).any():
-        return "NaN found"
-    low, high = float(array.min()), float(array.max())
-    hint = ": an 8-bit image's values, give it as uint8 or divided by 255" if low >= 0 and high <= 255 else ""
-    return f"values in [{low:g}, {high:g}] found{hint}"
 
 
 ARRAY = "__array__"  # marks, in a saved state's JSON, a value stored as an array of the .npz

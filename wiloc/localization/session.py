@@ -120,6 +120,29 @@ class RunSession:
         if self.map is not None and self.evidence is not None:
             self.evidence.add_places(self.map.data)
 
+    @classmethod
+    def restored(cls, meta: Mapping[str, Any], map: Entry | None, cache: Cache | str | os.PathLike | None,
+                 jobs: int | None) -> RunSession:
+        """The session of a saved localizer's state (``Localizer.state``), its inputs unchecked
+        (they were when it started); ``map`` is the map it held in memory, if it did."""
+        saved_map = map if map is not None else None if meta["map"] is None else Path(meta["map"])
+        map_names = meta.get("map_names")  # states saved before it was recorded: a map without a names file
+        return cls(saved_map, method=meta["method"],
+                   method_params={k: tuple(v) if isinstance(v, list) else v for k, v in meta["params"].items()},
+                   descriptor=meta["descriptor"], descriptor_params=meta["descriptor_params"], metric=meta["metric"],
+                   exclude_recent=meta["exclude_recent"],
+                   map_odometry=None if meta["map_odometry"] is None else Path(meta["map_odometry"]),
+                   map_names=None if map_names is None else Path(map_names),
+                   sampling=None if meta["sampling"] is None else Sampling(**meta["sampling"]),
+                   topic=meta.get("topic"), cache=cache, jobs=jobs, restoring=True,
+                   training=None if meta.get("training") is None else Training.restored(meta["training"]))
+
+    def training_state(self) -> dict[str, Any] | None:
+        """The training pair as a saved localizer's state keeps it (``Training.state``), so that
+        a loaded one's results header records it; None without one, or for rows given as arrays
+        (the header records no pair for them)."""
+        return self.training.state() if isinstance(self.training, Training) else None
+
     @cached_property
     def _to_map(self) -> DifferencesTo:
         """The map prepared for frame-by-frame differences (a streaming run's; made on first use)."""
@@ -313,14 +336,23 @@ ASPECT_TOLERANCE = 0.1
 
 
 def shape_doubts(query: Entry | None, reference: Entry | None) -> list[str]:
-    """A line when the query's frames and the map's are of other shapes (another camera, or a crop
-    of one side): a whole-image descriptor squeezes each frame to one fixed size, which can make
-    the same place look otherwise in each. Sizes alone (the same shape) are no doubt."""
-    if query is None or reference is None or query.frame_size is None or reference.frame_size is None:
+    """A line when the query's frames and the map's are of other shapes (:func:`shape_doubt`)."""
+    if query is None or reference is None or query.frame_size is None:
         return []
-    (qw, qh), (rw, rh) = query.frame_size, reference.frame_size
+    line = shape_doubt(query.frame_size, reference.frame_size)
+    return [] if line is None else [f"query {query.folder}: {line}"]
+
+
+def shape_doubt(size: tuple[int, int], map_size: tuple[int, int] | None, frames: str = "frames") -> str | None:
+    """Why ``frames`` of ``size`` (width, height) are doubtful against a map of frames of
+    ``map_size``, when the shapes differ (another camera, or a crop of one side): a whole-image
+    descriptor squeezes each frame to one fixed size, which can make the same place look
+    otherwise in each. Sizes alone (the same shape) are no doubt; None then, or without a size."""
+    if map_size is None:
+        return None
+    (qw, qh), (rw, rh) = size, map_size
     if abs(np.log((qw / qh) / (rw / rh))) <= np.log1p(ASPECT_TOLERANCE):
-        return []
-    return [f"query {query.folder}: frames of {qw} x {qh} pixels against the map's {rw} x {rh}, another shape: "
-            "a whole-image descriptor squeezes both to one size, which can make the same place look otherwise "
-            "(if one is a crop of the other, crop the other alike)"]
+        return None
+    return (f"{frames} of {qw} x {qh} pixels against the map's {rw} x {rh}, another shape: a whole-image "
+            "descriptor squeezes both to one size, which can make the same place look otherwise (if one is "
+            "a crop of the other, crop the other alike)")
