@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 from wiloc import api, demo
+from wiloc.errors import WilocError
 from wiloc.localization.follow import SETTLE_SECONDS, FolderWatch, Skipped, follow
 from wiloc.localization.localizer import Localizer
 
@@ -181,6 +182,10 @@ def test_follow_refuses_what_it_cannot_follow(demo_route: demo.DemoRoute, tmp_pa
     other = runner.invoke(app, ["localize", str(demo_route.queries[0]), "--map", str(demo_route.reference), "--follow",
                                 "--idle", "0.5", "--out", str(out), "--method", "threshold"])
     assert other.exit_code == 1 and "holds a run with other settings" in other.stderr
+    with pytest.raises(WilocError) as err:  # the API given a folder as out: as a batch run, before any work
+        api.follow_folder(demo_route.queries[0], reference=demo_route.reference, out=tmp_path)
+    assert str(err.value) == (f"{tmp_path}: cannot write the results file: it is not a regular file (a device, a "
+                              "pipe or a folder), which writing would replace")
 
 
 @pytest.mark.realdata

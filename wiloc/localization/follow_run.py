@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from wiloc.atomic import output_problem
 from wiloc.cache.store import Cache
 from wiloc.decisions import Decision
 from wiloc.errors import WilocError
@@ -74,10 +75,13 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
     """Follow a folder that is still being filled: each frame decided as it arrives, its row
     appended to the results file at once (see :class:`FollowRun`). Ends after ``idle`` seconds
     without a new frame (None: when interrupted). A query that is no folder is refused before
-    the map is described or the results file written; so is a results file another run holds
+    the map is described or the results file written, as is an ``out`` that can take no file (a
+    folder); so is a results file another run holds
     (CacheBusyError): the run holds it until iterated to its end (or :meth:`FollowRun.release`)."""
     query = followed_folder(query)
     path = Path(out) if out else Path.cwd() / results_name(query, method, descriptor)
+    if (problem := output_problem(path)) is not None:  # a folder, as a batch run refuses it
+        raise WilocError(path, f"cannot write the results file: {problem}")
     lock = lock_results(path)
     try:
         return _opened(query, path, lock, reference=reference, descriptor=descriptor,
