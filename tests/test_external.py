@@ -115,6 +115,16 @@ def test_names_saved_with_np_save_are_read(tmp_path: Path) -> None:
         read_external(tmp_path / "m.npy", tmp_path / "names.npy", "l1")
 
 
+def test_an_h5_of_other_dataset_names_lists_them(tmp_path: Path) -> None:
+    with h5py.File(tmp_path / "m.h5", "w") as handle:
+        handle["features"] = _matrix()
+        handle["meta/image_names"] = np.array([b"a", b"b", b"c"])
+    with pytest.raises(WilocError, match=r"neither a dataset 'descriptors' \(N x D\) nor hloc's groups holding "
+                                         r"'global_descriptor' \(global-feats-\*\.h5\); it holds features \(3 x 4\), "
+                                         r"meta/image_names \(3\)$"):
+        read_external(tmp_path / "m.h5", None, "l1")
+
+
 def test_a_names_file_with_a_header_of_its_own_is_told(tmp_path: Path) -> None:
     np.save(tmp_path / "m.npy", np.ones((3, 6)))
     (tmp_path / "names.txt").write_text("\n".join(["image_path", *NAMES]))

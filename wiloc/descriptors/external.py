@@ -167,15 +167,19 @@ def _hloc_rows(path: Path, handle: Any) -> tuple[list[str], list[NDArray]]:
     import h5py
 
     found: dict[str, NDArray] = {}
+    others: list[str] = []
 
     def visit(name: str, item: Any) -> None:
         if isinstance(item, h5py.Dataset) and name.rsplit("/", 1)[-1] == HLOC_DATASET:
             found[item.parent.name.strip("/")] = item[()]
+        elif isinstance(item, h5py.Dataset):
+            others.append(f"{name} ({' x '.join(map(str, item.shape)) or 'scalar'})")
 
     handle.visititems(visit)
     if not found:
+        held = f"; it holds {', '.join(others[:5])}{', ...' if len(others) > 5 else ''}" if others else ""
         raise WilocError(path, f"neither a dataset 'descriptors' (N x D) nor hloc's groups holding "
-                               f"'{HLOC_DATASET}' (global-feats-*.h5)")
+                               f"'{HLOC_DATASET}' (global-feats-*.h5){held}")
     names = natural_sorted(found)
     return names, [found[name] for name in names]
 
