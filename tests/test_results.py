@@ -204,3 +204,12 @@ def _umask() -> int:
     current = os.umask(0)
     os.umask(current)
     return current
+
+
+def test_a_name_no_file_can_have_is_refused_naming_the_file(tmp_path: Path) -> None:
+    """A name over 255 bytes was OSError's (File name too long) from Results.save, not the
+    WilocError naming the file that every other failed write is."""
+    path = tmp_path / ("r" * 300 + ".csv")
+    with pytest.raises(WilocError, match="cannot write the results file: no file can have this name"):
+        _made().save(path)
+    assert list(tmp_path.iterdir()) == []

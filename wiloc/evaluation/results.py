@@ -145,8 +145,11 @@ def write_results(path: Path, results: Results) -> bool:
     """Write a results file atomically (keeping the mode of a file it replaces); True when it
     replaced one."""
     path = Path(path)
-    replaced = path.exists()
-    mode = path.stat().st_mode & 0o7777 if replaced else None
+    try:
+        mode: int | None = path.stat().st_mode & 0o7777
+    except OSError:  # nothing there, or a name no file can have (which writing says)
+        mode = None
+    replaced = mode is not None
     _write_atomically(path, results.header,
                       lambda out: results.frames.to_csv(out, index=False, float_format="%.9g"), mode=mode)
     return replaced
