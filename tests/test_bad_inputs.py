@@ -1536,3 +1536,19 @@ def test_a_message_that_spans_lines_is_printed_as_one(results: Path, tmp_path: P
     ends_in_one_error(result, 1, f"{results}: not a readable CSV (", "Expected")
     assert result.stderr.strip().endswith(")")
     assert str(WilocError(tmp_path / "a\nb.csv", "line one\n  line two")) == f"{tmp_path}/a\\nb.csv: line one line two"
+
+
+def test_ground_truth_files_may_be_given_as_paths(tmp_path: Path) -> None:
+    """``TruthSource`` takes path-like files as the rest of the API does (a ``Path`` ended in a
+    TypeError), ``{query}`` in them too."""
+    from wiloc.evaluation.truth_source import TruthSource
+
+    names = [f"img{i}.png" for i in range(30)]
+    own = _positions_csv(tmp_path / "q.csv")
+    as_text = TruthSource(kind="positions", path=str(own), ref_path=str(own), radius=10.0)
+    as_path = TruthSource(kind="positions", path=own, ref_path=tmp_path / "{query}.csv", radius=10.0)
+    expected = as_text.load(names, names, str(tmp_path / "q"), sequence=True, exclude_recent=2).matrix
+    got = as_path.load(names, names, str(tmp_path / "q"), sequence=True, exclude_recent=2).matrix
+    assert expected.nnz > 0 and (expected != got).nnz == 0
+    with pytest.raises(WilocError, match="no such file"):
+        TruthSource(kind="pairs", path=tmp_path / "gone.csv").load(names, names, str(tmp_path), False, 10)

@@ -3,6 +3,7 @@ datasets ship, its files and tolerances (:class:`TruthSource`), read by :func:`l
 one :class:`~wiloc.evaluation.groundtruth.Truth`."""
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -80,13 +81,13 @@ def file_form(path: str | Path) -> str:
 class TruthSource:
     """Which ground truth to use: a form (SPEC.md section 7) and its files and tolerances.
 
-    ``path`` and ``ref_path`` may contain ``{query}``, replaced by the query folder's name, so that
-    several query traversals can each find their own file.
+    ``path`` and ``ref_path`` (text or path-like) may contain ``{query}``, replaced by the query
+    folder's name, so that several query traversals can each find their own file.
     """
 
     kind: str = "aligned"
-    path: str | None = None
-    ref_path: str | None = None
+    path: str | os.PathLike[str] | None = None
+    ref_path: str | os.PathLike[str] | None = None
     tolerance: int = 2
     radius: float | None = None
     by: Literal["name", "index"] = "name"
@@ -123,12 +124,13 @@ class TruthSource:
         return restrict_sequence(truth, exclude_recent) if sequence else truth
 
 
-def _for_query(template: str | None, name: str, parameter: str) -> Path | None:
+def _for_query(template: str | os.PathLike[str] | None, name: str, parameter: str) -> Path | None:
     """A ground-truth file path with ``{query}`` replaced by the query folder's name (other braces
     are part of the name); a WilocError naming ``parameter`` and the template when the file it
     gives does not exist."""
     if not template:
         return None
+    template = os.fspath(template)
     path = Path(template.replace("{query}", name))
     if "{query}" in template and not path.exists():
         raise WilocError(None, f"{path} ({template} for query {name}): no such file", parameter=parameter)
