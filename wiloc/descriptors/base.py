@@ -47,7 +47,8 @@ class DescriptorSpec:
 
     @property
     def key(self) -> str:
-        """Canonical JSON of name and parameters: the descriptor part of a cache key."""
+        """Canonical JSON of name and parameters: equal descriptors give equal keys (the cache keys
+        entries by :attr:`cache_params`)."""
         return json.dumps({"name": self.name, "params": dict(self.params)}, sort_keys=True)
 
     def compute(self, image: NDArray[np.uint8]) -> NDArray:
