@@ -404,6 +404,10 @@ def test_every_comparison_figure_names_its_data_and_ground_truth(route: tuple[Pa
         assert result.exit_code == 0, result.output
         assert set(titles) == {"Precision-recall", "Reliability"}
         assert all(subject in title for title in titles.values()), (command, titles)
+    titles.clear()  # inside one run: the right and wrong matches are the ground truth's
+    assert runner.invoke(app, ["evaluate", str(run), "-T", "3", "--matrix-plot", str(tmp_path / "matrix.png"),
+                               "--pairs-plot", str(tmp_path / "pairs.png")]).exit_code == 0
+    assert len(titles) == 2 and all("sad, aligned by name, +-3 frames" in title for title in titles.values()), titles
     titles.clear()  # the learned histograms, which no ground truth enters: the data and descriptor
     assert runner.invoke(app, ["compare", str(run), "--model-plot", str(tmp_path / "model.png")]).exit_code == 0
     assert titles == {"Learned model": f"Learned model: online, query ({tmp_path.name}, sad)"}

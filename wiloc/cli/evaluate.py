@@ -60,7 +60,8 @@ def evaluate(
               "traversal": e.traversal, **e.summary.as_dict()}
              for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
     rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
-    drawings = _run_plots(evaluations, names, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only)
+    drawings = _run_plots(evaluations, names, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only,
+                          truth=source.describe())
     written = []
     subject = api.run_subject(evaluations, source)
     if pr_plot is not None:
@@ -89,9 +90,10 @@ def evaluate(
 
 
 def _run_plots(evaluations: list[api.Evaluation], names: list[str], matrix_plot: Path | None, pairs_plot: Path | None,
-               cache: Path | None, notes: Notes, pairs: int = 3, wrong_only: bool = False) -> list[Callable[[], Path]]:
+               cache: Path | None, notes: Notes, pairs: int = 3, wrong_only: bool = False,
+               truth: str = "") -> list[Callable[[], Path]]:
     """Each run's difference matrix and example pairs (``pairs`` right and wrong ones, or wrong
-    ones only), ready to be written: the pictures are made (and a run whose images are no longer
+    ones only), titled with the descriptor and ``truth`` (the ground truth in words), ready to be written: the pictures are made (and a run whose images are no longer
     its own refused) before any file is written, so a refusal leaves no output behind. With several
     runs each file is named after its results file too (``names``: as many of its folders as tell
     files of one name apart, ``matrix-day_left-sad-online.png``, ``matrix-a-day_left-sad-online.png``).
@@ -109,17 +111,17 @@ def _run_plots(evaluations: list[api.Evaluation], names: list[str], matrix_plot:
         def target(path: Path) -> Path:
             run = Path(name).with_suffix("").as_posix().replace("/", "-")
             return path.with_name(f"{path.stem}-{run}{path.suffix}") if len(evaluations) > 1 else path
-        descriptor = e.results.header.descriptor or ""
+        subject = ", ".join(filter(None, (e.results.header.descriptor, truth)))  # right and wrong are the truth's
         for line in unchecked_folders(e):
             notes.add("warning", line)
         if matrix_plot is not None:
             picture = matrix_picture(e, store)
-            title = (f"{e.method} on {picture.query} against {picture.reference} ({descriptor}): differences, "
+            title = (f"{e.method} on {picture.query} against {picture.reference} ({subject}): differences, "
                      "decided matches and ground truth")
             drawings.append(_drawing(plot_matrix, picture, target(matrix_plot), title, notes))
         if pairs_plot is not None:
             shown = "wrong matches" if wrong_only else "right and wrong matches"
-            title = f"{e.method} on {e.traversal} ({descriptor}): the most confident {shown}"
+            title = f"{e.method} on {e.traversal} ({subject}): the most confident {shown}"
             drawings.append(_drawing(plot_pairs, example_pairs(e, pairs, wrong_only, cache=store),
                                      target(pairs_plot), title, notes))
     return drawings
