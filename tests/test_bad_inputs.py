@@ -861,6 +861,9 @@ def _positions_csv(path: Path, n: int = 30) -> Path:
     (["--gt", "positions:{tmp}/q.csv", "--gt-map", "{tmp}/q.csv", "--radius", "nan"], 2,
      "--radius: must be a finite number >= 0 metres, got nan"),
     (["--gt", "positions:", "--radius", "1"], 2, "--gt: positions ground truth needs a file (positions:FILE)"),
+    # checked as given, before the images are read for their names or EXIF (which these have not)
+    (["--gt", "exif", "--radius", "-1"], 2, "--radius: must be a finite number >= 0 metres, got -1.0"),
+    (["--gt", "utm-names", "--radius", "nan"], 2, "--radius: must be a finite number >= 0 metres, got nan"),
     (["--gt", "matrix:/dev/null"], 1, "/dev/null: not a regular file"),
 ])
 def test_ground_truth_problems_name_the_option_or_file(args: list[str], code: int, message: str, results: Path,

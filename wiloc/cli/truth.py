@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Optional
 import typer
 
 from wiloc.cli.core import fail, refuse_unused
-from wiloc.errors import EXIT_USAGE
+from wiloc.errors import EXIT_USAGE, ParameterError
 
 if TYPE_CHECKING:
     from wiloc import api
@@ -45,8 +45,11 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
     variable = None
     if kind == "matrix" and (".mat:" in path or ".npz:" in path):  # matrix:M.mat:NAME picks one array of several
         path, variable = path.rsplit(":", 1)
-    return api.TruthSource(kind=kind, path=path or None, ref_path=gt_ref, tolerance=tolerance, radius=radius,
-                           variable=variable, by=by)
+    try:
+        return api.TruthSource(kind=kind, path=path or None, ref_path=gt_ref, tolerance=tolerance, radius=radius,
+                               variable=variable, by=by)
+    except ParameterError as exc:  # named as typed: --train-radius for the training pair's
+        raise ParameterError(f"{prefix}{exc.parameter}", exc.problem) from None
 
 
 GT_HELP = ("Ground truth: 'aligned' (same file name, +-tolerance frames; 'aligned:index': same index, "

@@ -289,7 +289,8 @@ def _frames_with_positions(positions: Positions, frames: Sequence[str],
     return np.flatnonzero(found).astype(np.int64), positions.coords[at[found]], warnings
 
 
-def _check_radius(radius: float) -> float:
+def check_radius(radius: float) -> float:
+    """The radius in metres, a finite number >= 0 (a ParameterError naming ``radius`` otherwise)."""
     if not 0 <= radius < np.inf:
         raise ParameterError("radius", f"must be a finite number >= 0 metres, got {radius}")
     return float(radius)
@@ -301,7 +302,7 @@ def truth_within(query: Positions, ref: Positions, radius: float, query_names: S
     great-circle distance on lat,lon (a sphere of the mean Earth radius, found as the chord
     between unit vectors). Every positions-based form (CSV files, @UTM names, EXIF GPS) ends
     here. Passing the same ``Positions`` twice is sequence mode."""
-    reach = _check_radius(radius)
+    reach = check_radius(radius)
     if query.geographic != ref.geographic:
         raise WilocError(ref.source, f"uses {'lat/lon' if ref.geographic else 'x/y'} but {query.source} uses "
                                      f"{'lat/lon' if query.geographic else 'x/y'}")
@@ -337,7 +338,7 @@ def positions_truth(query_csv: Path, ref_csv: Path, radius: float, query_names: 
     CSV columns ``name,x,y`` (metres, Euclidean) or ``name,lat,lon`` (degrees; great-circle
     distance, see :func:`truth_within`). Sequence mode: pass the same CSV twice.
     """
-    _check_radius(radius)
+    check_radius(radius)
     query = _read_positions(query_csv)
     same_file = Path(query_csv).resolve() == Path(ref_csv).resolve()
     ref = query if same_file else _read_positions(ref_csv)

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Literal
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, Truth, aligned_truth,
+from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, Truth, aligned_truth, check_radius,
                                           matrix_truth, pairs_truth, positions_truth, restrict_sequence)
 from wiloc.evaluation.truth_formats import (DEFAULT_RADIUS_M, exif_truth, npy_form, positives_truth, utm_names_truth,
                                             vprbench_truth)
@@ -92,6 +92,11 @@ class TruthSource:
     radius: float | None = None
     by: Literal["name", "index"] = "name"
     variable: str | None = None  # matrix form, .mat files holding several arrays: which one
+
+    def __post_init__(self) -> None:
+        """A radius is checked as it is given, before any file or folder is read."""
+        if self.radius is not None:
+            check_radius(self.radius)
 
     def describe(self) -> str:
         """The ground truth in words, as tables print it: 'aligned, +-2 frames'."""
