@@ -17,6 +17,7 @@ from wiloc import api, demo
 from wiloc.errors import WilocError
 from wiloc.localization.follow import SETTLE_SECONDS, FolderWatch, Skipped, follow
 from wiloc.localization.localizer import Localizer
+from wiloc.sources.frames import natural_sorted
 
 CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
 
@@ -60,6 +61,29 @@ def test_watch_hands_out_stable_files_in_natural_order(tmp_path: Path) -> None:
     assert watch.poll() == []  # it grew since the last poll
     assert [p.name for p in watch.poll()] == ["f11.png"]
     assert watch.poll() == []
+
+
+@pytest.mark.parametrize("names", [
+    [f"scene1.{i}.png" for i in range(1, 12)],  # numbered: each dotted run keeps its value
+    ["1614000000.1.png", "1614000000.15.png", "1614000000.2.png", "1614000000.25.png"],  # decimals
+])
+def test_a_followed_folder_is_handed_out_in_the_batch_runs_order(names: list[str], tmp_path: Path) -> None:
+    for name in names:
+        (tmp_path / name).write_bytes(b"x" * 10)
+    watch = FolderWatch(tmp_path)
+    watch.poll()
+    assert [p.name for p in watch.poll()] == natural_sorted(names)
+
+
+def test_a_poll_orders_its_names_as_numbered_once_earlier_names_showed_it(tmp_path: Path) -> None:
+    """scene1.2 and scene1.11 alone could be decimals; scene1.1 and scene1.10, decided earlier
+    (or in a run resumed), showed the folder numbered."""
+    names = [f"scene1.{i}.png" for i in range(1, 12)]
+    watch = FolderWatch(tmp_path, done=["scene1.1.png", "scene1.10.png"])
+    for name in names:
+        (tmp_path / name).write_bytes(b"x" * 10)
+    watch.poll()
+    assert [p.name for p in watch.poll()] == [n for n in natural_sorted(names) if n not in ("scene1.1.png", "scene1.10.png")]
 
 
 def test_an_undecodable_frame_is_retried_then_left_out(demo_route: demo.DemoRoute, tmp_path: Path,

@@ -16,7 +16,7 @@ from pathlib import Path
 from wiloc.decisions import Decision
 from wiloc.errors import FrameError, WilocError
 from wiloc.localization.localizer import Localizer
-from wiloc.sources.frames import IMAGE_SUFFIXES, natural_key, shown_name, unusable_reason
+from wiloc.sources.frames import IMAGE_SUFFIXES, decimal_form, natural_key, shown_name, unusable_reason
 
 #: Seconds a stable (unchanging) file may stay undecodable before it is left out as bad: a writer
 #: that is slow to finish a file gets this long.
@@ -88,6 +88,8 @@ class FolderWatch:
         self._listed: tuple[int, int, float] | None = None  # folder's mtime_ns, wall ns and clock of the last listing
         self._pending: list[str] = []  # image files not handed out at the last listing
         self.rewritten: list[Path] = []  # decided files found written again, each once (the caller empties it)
+        self._forms: dict[str, str] | None = {}  # decimal_form -> name of every name seen; None once numbered
+        self._known(self._done)
 
     def _images(self) -> list[Path]:
         """The image files not handed out, in natural order. A handed-out one found written again
@@ -133,7 +135,19 @@ class FolderWatch:
                 except OSError:
                     continue
                 names.append(name)
-        return sorted(names, key=natural_key)
+        decimals = self._known(names)
+        return sorted(names, key=lambda name: natural_key(name, decimals))
+
+    def _known(self, names: Iterable[str]) -> bool:
+        """Whether dotted numbers still read as decimals once ``names`` are seen, as a batch run of
+        the folder decides it over every name (:func:`~wiloc.sources.frames.natural_sorted`):
+        not once two names seen so far differ only by a fraction's trailing zeros (numbering)."""
+        if self._forms is not None:
+            for name in names:
+                if self._forms.setdefault(decimal_form(name), name) != name:
+                    self._forms = None
+                    break
+        return self._forms is not None
 
     def _rewritten(self, name: str) -> None:
         del self._decided[name]  # said once

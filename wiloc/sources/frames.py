@@ -81,7 +81,13 @@ def reads_decimals(names: Iterable[str]) -> bool:
     differ only by a fraction's trailing zeros (``scene1.1``, ``scene1.10``), which numbering
     (scene 1, frame 10) writes and a number written as a decimal never does."""
     given = set(names)
-    return len({_DECIMAL.sub(_trailing_zeros_dropped, name) for name in given}) == len(given)
+    return len({decimal_form(name) for name in given}) == len(given)
+
+
+def decimal_form(name: str) -> str:
+    """``name`` with its decimal fractions' trailing zeros dropped: two names of one form show
+    numbering (:func:`reads_decimals`)."""
+    return _DECIMAL.sub(_trailing_zeros_dropped, name)
 
 
 def _trailing_zeros_dropped(match: re.Match[str]) -> str:
