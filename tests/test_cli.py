@@ -378,7 +378,22 @@ def test_describe_list_of_a_cache_folder_that_is_not_there_says_so(tmp_path: Pat
     assert not missing.exists()
     (tmp_path / "file").write_text("")
     result = runner.invoke(app, ["describe", "--list", "--cache", str(tmp_path / "file")])
-    assert result.exit_code == 1 and result.stderr.strip() == f"error: {tmp_path / 'file'}: is a file, not a cache folder"
+    assert result.exit_code == 2 and result.stderr.strip() == f"error: --cache: {tmp_path / 'file'} is a file, not a cache folder"
+
+
+@pytest.mark.parametrize("command", [["describe", "--list"], ["describe", "FOLDER"], ["localize", "FOLDER"],
+                                     ["vocabulary", "FOLDER"]])
+def test_a_cache_option_naming_a_file_is_a_usage_error(command: list[str], tmp_path: Path) -> None:
+    """A bad --cache is a bad option value (exit code 2) for every command, also a folder to be made
+    inside a file; it was the cache's error (exit code 1) after the folders were listed."""
+    (tmp_path / "file").write_text("")
+    (tmp_path / "FOLDER").mkdir()
+    args = [str(tmp_path / arg) if arg == "FOLDER" else arg for arg in command]
+    for cache in (tmp_path / "file", tmp_path / "file" / "sub"):
+        result = runner.invoke(app, [*args, "--cache", str(cache)])
+        assert result.exit_code == 2, result.output
+        assert result.stderr.startswith(f"error: --cache: {tmp_path / 'file'} is a file, not a cache folder")
+        assert not list((tmp_path / "FOLDER").iterdir())
 
 
 def test_every_comparison_figure_names_its_data_and_ground_truth(route: tuple[Path, Path], tmp_path: Path,

@@ -15,7 +15,7 @@ from wiloc.cli.options import (SAMPLING, STREAMS, CacheOption, DescriptorOption,
                                sampling_given)
 from wiloc.cli.params import descriptor_uses, with_descriptor_options
 from wiloc.cli.views import print_command_json, progress_bar, table
-from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE, WilocError
+from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE
 from wiloc.labels import short_names
 
 
@@ -123,8 +123,6 @@ def describe(
 def _list_cache(store: Any, as_json: bool) -> None:
     """`describe --list`: one row per cache entry, told apart by folder, descriptor and parameters;
     a cache folder that does not exist (a misspelt --cache) is said to, not shown as an empty one."""
-    if store.root.exists() and not store.root.is_dir():
-        raise WilocError(str(store.root), "is a file, not a cache folder")
     notes = Notes()
     if not store.root.exists():
         notes.add("note", f"{store.root}: no such cache folder; nothing has been described into it")

@@ -66,6 +66,19 @@ def _trailing_separator(value: str) -> bool:
     return value.endswith(("/", os.sep))
 
 
+def cache_folder(value: Path | None) -> Path | None:
+    """A ``--cache`` option (or ``WILOC_CACHE``), checked as the options are read: no file may be
+    where the folder, or a folder it would be made in, is. A folder that does not exist is made
+    when something is described into it."""
+    if value is None:
+        return None
+    existing = next((path for path in (value, *value.absolute().parents) if path.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise typer.BadParameter(f"{existing} is a file, not a cache folder"
+                                 + (f" (the cache would be made in it: {value})" if existing != value else ""))
+    return value
+
+
 def metric_name(value: str | None) -> str | None:
     """A ``--metric`` option, checked as the options are read: one of the metrics descriptors are
     compared with (a typo was found only once the matrix file was read, as bad input)."""
@@ -170,7 +183,7 @@ PreprocessOption = Annotated[Optional[list[str]], typer.Option(
 VocabularyOption = Annotated[Optional[str], typer.Option(
     help="bow: the vocabulary (its file, or its key in the cache) from `wiloc vocabulary`.")]
 CacheOption = Annotated[Optional[Path], typer.Option(envvar="WILOC_CACHE", show_default="the per-user cache folder",
-                                                     help="Cache folder.")]
+                                                     callback=cache_folder, help="Cache folder.")]
 JobsOption = Annotated[Optional[int], typer.Option("--jobs", "-j", show_default="all cores",
                                                    help="Worker processes for describing image folders (onnx: threads).")]
 STREAMS = "video files and ROS bags"
