@@ -463,3 +463,27 @@ def test_frames_of_another_shape_than_the_maps_are_warned_of_once(demo_route: de
     warnings = [e for e in events if isinstance(e, Skipped)]
     assert [e.kind for e in warnings] == ["warning"] and warnings[0].path.name == frames[1].name
     assert "another shape" in str(warnings[0]) and sum(not isinstance(e, Skipped) for e in events) == 3
+
+
+def test_a_results_name_near_the_longest_is_written_and_a_longer_one_named(demo_route: demo.DemoRoute,
+                                                                          tmp_path: Path, cache_dir: Path) -> None:
+    """A results file named within 6 bytes of the 255 a file system takes is written, batch and
+    followed (its lock file's name was too long); a longer name is refused naming the results file,
+    not its lock file, and nothing is left beside it."""
+    live = tmp_path / "live"
+    live.mkdir()
+    for path in sorted(demo_route.queries[0].iterdir())[:4]:
+        (live / path.name).write_bytes(path.read_bytes())
+    runs = {"batch": lambda out: api.localize(live, reference=demo_route.reference, method="threshold", out=out),
+            "followed": lambda out: list(api.follow_folder(live, reference=demo_route.reference, method="threshold",
+                                                           out=out, idle=0.5))}
+    for how, run in runs.items():
+        out = tmp_path / ("r" * (251 - len(how)) + how + ".csv")
+        run(out)
+        assert _rows(out)["frame"].tolist() == sorted(p.name for p in live.iterdir()), how
+        too_long = tmp_path / ("r" * 260 + ".csv")
+        with pytest.raises(WilocError) as error:
+            run(too_long)
+        assert error.value.where == str(too_long) and "cannot write the results file: no file can have this name" \
+            in error.value.problem, how
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []

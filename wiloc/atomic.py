@@ -104,15 +104,21 @@ def _umask() -> int:
 
 
 def _temporary_stem(name: str) -> str:
-    """What stands for file ``name`` in its temporary files' names: the name itself, or when the
-    temporary name would pass :data:`NAME_MAX` bytes (a pid, a random part and a suffix are added,
-    up to 24 bytes), its first bytes and a digest of the whole, so that a name the file system
-    takes is never refused for its temporary file's sake."""
+    """What stands for file ``name`` in its temporary files' names (a pid, a random part and a
+    suffix are added, up to 24 bytes): :func:`fitting_stem`."""
+    return fitting_stem(name, 24)
+
+
+def fitting_stem(name: str, added: int) -> str:
+    """What stands for file ``name`` in the name of a file kept beside it (a temporary file, a
+    lock), ``added`` bytes longer: the name itself, or when that would pass :data:`NAME_MAX`
+    bytes, its first bytes and a digest of the whole, so that a name the file system takes is
+    never refused for its companion's sake."""
     raw = name.encode("utf-8", "surrogateescape")
-    if len(raw) <= NAME_MAX - 24:
+    if len(raw) <= NAME_MAX - added:
         return name
     digest = hashlib.sha1(raw).hexdigest()[:12]
-    return raw[:NAME_MAX - 24 - 13].decode("utf-8", "ignore") + "~" + digest
+    return raw[:NAME_MAX - added - 13].decode("utf-8", "ignore") + "~" + digest
 
 
 def _remove_orphans(path: Path) -> None:

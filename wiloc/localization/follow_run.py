@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from wiloc.atomic import output_problem
 from wiloc.cache.store import Cache
 from wiloc.decisions import Decision
 from wiloc.errors import WilocError
@@ -80,9 +79,7 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
     (CacheBusyError): the run holds it until iterated to its end (or :meth:`FollowRun.release`)."""
     query = followed_folder(query)
     path = Path(out) if out else Path.cwd() / results_name(query, method, descriptor)
-    if (problem := output_problem(path)) is not None:  # a folder, as a batch run refuses it
-        raise WilocError(path, f"cannot write the results file: {problem}")
-    lock = lock_results(path)
+    lock = lock_results(path)  # a path that can take no file refused, as a batch run's
     try:
         return _opened(query, path, lock, reference=reference, descriptor=descriptor,
                        descriptor_params=descriptor_params, method=method, method_params=method_params,

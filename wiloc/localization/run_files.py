@@ -9,11 +9,11 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from wiloc.atomic import write_error
+from wiloc.atomic import fitting_stem, output_problem, write_error
 from wiloc.cache.store import Entry, lock_file
 from wiloc.description.describing import is_stream
 from wiloc.description.traversals import Describer, descriptor_label
-from wiloc.errors import CacheBusyError, ParameterError
+from wiloc.errors import CacheBusyError, ParameterError, WilocError
 from wiloc.evaluation.results import Results, read_results
 from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.localization.training import Training
@@ -85,7 +85,11 @@ def run_list(runs: object, alone: tuple[type, ...]) -> list:
 def lock_results(path: Path) -> int:
     """Hold an exclusive lock on the results file ``path`` (the lock file ``.NAME.lock`` beside
     it, holding the holder's pid, as the cache's locks do), without waiting: a CacheBusyError
-    naming ``path`` when another run holds it, so that two runs never append to one file."""
+    naming ``path`` when another run holds it, so that two runs never append to one file. A
+    ``path`` that can take no file (a folder, a name over 255 bytes) is a WilocError naming it,
+    not its lock, before anything is written."""
+    if (problem := output_problem(path)) is not None:
+        raise WilocError(path, f"cannot write the results file: {problem}")
     lock = _lock_path(path)
     try:
         lock.parent.mkdir(parents=True, exist_ok=True)  # as the results file's own writing does
@@ -97,9 +101,10 @@ def lock_results(path: Path) -> int:
 
 def _lock_path(path: Path) -> Path:
     """The lock file of the results file ``path``: beside the file it names (a link resolved), so
-    that every spelling of one file shares one lock."""
+    that every spelling of one file shares one lock; a name within 6 bytes of the longest a file
+    system takes is shortened (:func:`~wiloc.atomic.fitting_stem`)."""
     real = Path(os.path.realpath(path))
-    return real.with_name(f".{real.name}.lock")
+    return real.with_name(f".{fitting_stem(real.name, len('..lock'))}.lock")
 
 
 def unlock_results(path: Path, fd: int) -> None:
