@@ -426,3 +426,26 @@ def test_every_comparison_figure_names_its_data_and_ground_truth(route: tuple[Pa
     titles.clear()  # the learned histograms, which no ground truth enters: the data and descriptor
     assert runner.invoke(app, ["compare", str(run), "--model-plot", str(tmp_path / "model.png")]).exit_code == 0
     assert titles == {"Learned model": f"Learned model: online, query ({tmp_path.name}, sad)"}
+
+
+@pytest.mark.parametrize("out", [["--out", "seq.csv"], ["--out", "runs/"], []])
+def test_localize_says_in_which_folder_its_results_are(out: list[str], route: tuple[Path, Path], tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """The closing line names the results' folder as a path to go to: with --out seq.csv it was '.',
+    where no --out gave the absolute folder."""
+    ref, query = route
+    monkeypatch.chdir(tmp_path)
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold", *out])
+    assert result.exit_code == 0, result.output
+    folder = tmp_path / "runs" if out[1:] == ["runs/"] else tmp_path
+    assert f"resultsin{folder};" in "".join(result.stdout.split())
+
+
+def test_a_followed_run_ends_naming_its_results_file_whole(route: tuple[Path, Path], tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    ref, query = route
+    monkeypatch.chdir(tmp_path)
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold", "--follow",
+                                 "--idle", "0.3", "--out", "live.csv"])
+    assert result.exit_code == 0, result.output
+    assert result.stdout.splitlines()[-1].endswith(f"; results in {tmp_path / 'live.csv'}")

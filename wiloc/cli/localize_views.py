@@ -62,7 +62,7 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
         return
     for row in rows:
         row["decided"] = f"{row['decided']}/{row.pop('frames')}"
-    folders = ", ".join(dict.fromkeys(str(run.path.parent) for run in runs))
+    folders = ", ".join(dict.fromkeys(str(run.path.absolute().parent) for run in runs))  # --out seq.csv: not "."
     out.print(table("localize", rows, ["query", "method", "decided", "median_confidence", "results"],
                     labels={"median_confidence": "median\nconf."},
                     caption=f"results in {folders}; {sum(run.seconds for run in runs):.1f} s"))
@@ -126,4 +126,4 @@ def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
                     print(json.dumps({"warnings": notes[-1:]}), flush=True)
     if live is None and not as_json and run.idle is not None:
         print(f"# ended: no new frame for {run.idle:g} s; {decided} frames decided ({run.resumed} resumed before), "
-              f"{sum(n.startswith('skipped:') for n in notes)} left out; results in {run.path}", flush=True)
+              f"{sum(n.startswith('skipped:') for n in notes)} left out; results in {run.path.absolute()}", flush=True)
