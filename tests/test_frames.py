@@ -309,3 +309,45 @@ def test_reduced_decode_keeps_min_size(tmp_path: Path, min_size: tuple[int, int]
 def test_reduced_decode_of_small_image_is_full(tmp_path: Path) -> None:
     path = _write(tmp_path / "small.jpg", _textured(30, 40))
     assert read_gray(path, (256, 256)).shape == (30, 40)
+
+
+def _tiff(pages: list[tuple[np.ndarray, int]], big: bool = False) -> bytes:
+    """A little-endian uncompressed 8-bit TIFF (BigTIFF with ``big``) of ``pages``, each an image
+    and its NewSubfileType (1: a reduced-resolution image, a thumbnail)."""
+    import struct
+
+    offset, count, entry = ("Q", "Q", "<HHQQ") if big else ("I", "H", "<HHII")
+    out = bytearray(b"II+\x00\x08\x00\x00\x00" + bytes(8) if big else b"II*\x00" + bytes(4))
+    link = len(out) - struct.calcsize(offset)  # where the next directory's offset goes
+    for image, kind in pages:
+        strip = len(out)
+        out += image.tobytes()
+        tags = [(254, 4, kind), (256, 4, image.shape[1]), (257, 4, image.shape[0]), (258, 3, 8), (259, 3, 1),
+                (262, 3, 1), (273, 4, strip), (277, 3, 1), (278, 4, image.shape[0]), (279, 4, image.size)]
+        struct.pack_into("<" + offset, out, link, len(out))
+        out += struct.pack("<" + count, len(tags)) + b"".join(struct.pack(entry, t, k, 1, v) for t, k, v in tags)
+        link = len(out)
+        out += bytes(struct.calcsize(offset))
+    return bytes(out)
+
+
+@pytest.mark.parametrize("big", [False, True])
+def test_a_tiff_of_several_pages_is_refused_and_its_thumbnail_read_past(big: bool, tmp_path: Path) -> None:
+    """OpenCV decodes a TIFF's first page alone: a stack of frames in one file was read as its
+    first frame, silently. A thumbnail after the image (a reduced-resolution page) is no page."""
+    image, other = _textured(32, 48, 1), _textured(32, 48, 2)
+    stack = tmp_path / "stack.tif"
+    stack.write_bytes(_tiff([(image, 0), (other, 0), (image, 0)], big))
+    with pytest.raises(FrameError, match="a TIFF of 3 pages: .* write each page to a file of its own"):
+        read_gray(stack)
+    one = tmp_path / "one.tif"
+    one.write_bytes(_tiff([(image, 0), (other[::4, ::4].copy(), 1)], big))
+    assert np.array_equal(read_gray(one), image)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.int32])
+def test_a_tiff_of_float_or_32_bit_samples_says_what_to_save(dtype: type, tmp_path: Path) -> None:
+    path = tmp_path / "frame.tif"
+    assert cv2.imwrite(str(path), _textured(16, 16).astype(dtype))
+    with pytest.raises(FrameError, match=f"unsupported sample type {np.dtype(dtype)}: .*save .* as 16-bit"):
+        read_gray(path)

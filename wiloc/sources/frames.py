@@ -11,6 +11,7 @@ import hashlib
 import math
 import os
 import re
+import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
@@ -43,6 +44,9 @@ _MARKER = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")
 _EOI = 0xD9
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _IEND_CHUNK = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # length 0, type, CRC: the chunk a PNG ends with
+# TIFF's byte-order marks and magic numbers -> (struct byte order, offset width): classic, BigTIFF.
+_TIFF_HEADS = {b"II*\x00": ("<", 4), b"MM\x00*": (">", 4), b"II+\x00": ("<", 8), b"MM\x00+": (">", 8)}
+_NEW_SUBFILE_TYPE = 254  # its bits 0 and 2: a reduced-resolution image (a thumbnail), a transparency mask
 _STANDALONE = frozenset({0x01, 0xD8})  # TEM and SOI: markers without a length field
 _SOS = 0xDA
 _SEQUENTIAL_SOF = frozenset({0xC0, 0xC1})  # baseline and extended sequential (Huffman) frames
@@ -294,7 +298,8 @@ def to_uint8(image: NDArray, path: Path | str) -> NDArray[np.uint8]:
         return image
     if image.dtype == np.uint16:
         return np.rint(image.astype(np.float32) * np.float32(255.0 / 65535.0)).astype(np.uint8)
-    raise FrameError(path, f"unsupported sample type {image.dtype} (need 8- or 16-bit integers)")
+    raise FrameError(path, f"unsupported sample type {image.dtype}: frames are read as 8- or 16-bit integers "
+                           "(save float or 32-bit frames as 16-bit, scaled to its full range)")
 
 
 def check_aspect(image: NDArray, where: Path | str) -> NDArray:
@@ -336,11 +341,42 @@ def _file_bytes(path: Path) -> NDArray[np.uint8]:
         raise FrameError(path, f"cannot read file ({exc.strerror or exc})") from exc
 
 
+def tiff_pages(data: NDArray[np.uint8]) -> int:
+    """How many full-resolution images a TIFF holds: its chain of image directories, thumbnails
+    and masks (``NewSubfileType``) not counted; 0 for another format or a chain cut short there."""
+    layout = _TIFF_HEADS.get(data[:4].tobytes())
+    if layout is None:
+        return 0
+    order, width = layout
+    offset_format, count_format, entry, value_at = ("Q", "Q", 20, 12) if width == 8 else ("I", "H", 12, 8)
+    pages, seen = 0, set()
+    try:
+        offset = struct.unpack_from(order + offset_format, data, width)[0]  # after the magic (BigTIFF's: 4 bytes more)
+        while offset and offset not in seen:
+            seen.add(offset)
+            count = struct.unpack_from(order + count_format, data, offset)[0]
+            first = offset + struct.calcsize(count_format)
+            kind = 0
+            for at in range(first, first + count * entry, entry):
+                tag, typ = struct.unpack_from(order + "HH", data, at)
+                if tag == _NEW_SUBFILE_TYPE:
+                    kind = struct.unpack_from(order + ("H" if typ == 3 else "I"), data, at + value_at)[0]
+            pages += kind & 0b101 == 0
+            offset = struct.unpack_from(order + offset_format, data, first + count * entry)[0]
+    except struct.error:  # a directory past the file's end: the pages counted so far
+        pass
+    return pages
+
+
 def _checked(data: NDArray[np.uint8], path: Path | str) -> NDArray[np.uint8]:
-    """``data``, an encoded image; FrameError naming ``path`` when it is empty, or a JPEG or PNG
-    cut short (OpenCV 4.8 and 4.10 decode a cut JPEG as a whole image, its missing part filled in)."""
+    """``data``, an encoded image; FrameError naming ``path`` when it is empty, a JPEG or PNG
+    cut short (OpenCV 4.8 and 4.10 decode a cut JPEG as a whole image, its missing part filled in),
+    or a TIFF of several pages (OpenCV decodes its first page alone: a stack of frames is no frame)."""
     if data.size == 0:
         raise FrameError(path, "empty file (0 bytes)")
+    if (pages := tiff_pages(data)) > 1:
+        raise FrameError(path, f"a TIFF of {pages} pages: a frame is one image per file, and this one would be "
+                               "its first page alone; write each page to a file of its own")
     head = data[: len(_PNG_SIGNATURE)].tobytes()
     if head[:2] == b"\xff\xd8":
         if not _has_eoi(data):
