@@ -80,7 +80,10 @@ def test_a_folder_of_sub_folders_names_them(tmp_path: Path) -> None:
 
 
 def test_list_traversal_orders_float_timestamps_in_time_order(tmp_path: Path) -> None:
-    for name in ("1614000000.2.png", "1614000000.15.png", "1614000000.1.png", "1614000001.05.png"):
+    # a whole second written with its fraction's zeros and point dropped (1614000001) is x.0: it
+    # came after every fraction of its second, 1614000001.05 before 1614000001
+    for name in ("1614000000.2.png", "1614000000.15.png", "1614000000.1.png", "1614000001.05.png",
+                 "1614000001.png", "1614000000.png", "1614000002.png"):
         (tmp_path / name).write_bytes(b"x")
     names = list_traversal(tmp_path).names
     assert names == sorted(names, key=lambda name: float(name.removesuffix(".png")))

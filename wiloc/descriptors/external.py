@@ -50,7 +50,8 @@ METRIC_ATTRIBUTE = "metric"
 #: earlier reader made is reused. 2: a pandas CSV's header is no frame; names that are decimal
 #: timestamps sort in time order. 3: a CSV whose first column is evidently values is refused.
 #: 4: names numbered with dots (``scene1.1`` .. ``scene1.10``) keep each dotted run's value.
-READER_VERSION = 4
+#: 5: a whole number among decimals (``1614000000``, its fraction's zeros dropped) is one of fraction 0.
+READER_VERSION = 5
 HLOC_DATASET = "global_descriptor"
 _NAME_HEADERS = frozenset({"name", "names", "frame", "frames", "file", "filename", "image", "path"})
 _HAMMING_HINT = "hamming descriptors must be uint8 (8 packed bits per byte)"

@@ -66,6 +66,10 @@ _DIGITS_AS_ZERO = str.maketrans("123456789", "000000000")
 # A decimal number, ``1614000000.15``: digits, a point, digits, in no longer dotted run (``2021.3.15``).
 _DECIMAL = re.compile(r"(?<![\d.])(\d+\.)(\d+)(?!\d|\.\d)")
 _FRACTION_WIDTH = 32
+# A whole number in no dotted run: ``1614000000`` of ``1614000000.jpg``, a timestamp whose fraction
+# was all trailing zeros, is ``1614000000.0`` among decimals.
+_WHOLE = re.compile(r"(?<![\d.])(\d+)(?!\d|\.\d)")
+_ZERO_FRACTION = "." + "0" * _FRACTION_WIDTH
 
 
 def _fraction_padded(match: re.Match[str]) -> str:
@@ -75,9 +79,13 @@ def _fraction_padded(match: re.Match[str]) -> str:
 def natural_key(name: str, decimals: bool = True) -> tuple[Any, str]:
     """Sort key that orders digit runs by value, so ``img2`` comes before ``img10`` (natsort's,
     ignoring case), and with ``decimals`` a decimal number's fraction as a fraction, so
-    ``1614000000.15`` (a timestamp written as a float) comes before ``1614000000.2``; names equal
-    but for case or leading zeros keep one order by the name itself."""
-    return _NATURAL(_DECIMAL.sub(_fraction_padded, name) if decimals else name), name
+    ``1614000000.15`` (a timestamp written as a float) comes before ``1614000000.2``, and a whole
+    number as one of fraction 0, so ``1614000000`` (its zeros dropped with its point) comes before
+    both; names equal but for case or leading zeros keep one order by the name itself."""
+    if decimals:
+        name_key = _WHOLE.sub(lambda match: match[1] + _ZERO_FRACTION, _DECIMAL.sub(_fraction_padded, name))
+        return _NATURAL(name_key), name
+    return _NATURAL(name), name
 
 
 def reads_decimals(names: Iterable[str]) -> bool:
