@@ -487,3 +487,22 @@ def test_a_results_name_near_the_longest_is_written_and_a_longer_one_named(demo_
         assert error.value.where == str(too_long) and "cannot write the results file: no file can have this name" \
             in error.value.problem, how
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+
+
+def test_a_run_whose_decided_frame_is_gone_cannot_resume_and_says_why(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                                       cache_dir: Path) -> None:
+    """A folder trimmed as it fills (its oldest frames removed): resuming decides the file's frames
+    again, and the error named the missing image alone, not the results file nor what to do."""
+    live = tmp_path / "live"
+    live.mkdir()
+    for path in sorted(demo_route.queries[0].iterdir())[:4]:
+        (live / path.name).write_bytes(path.read_bytes())
+    out = tmp_path / "r.csv"
+    list(api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3))
+    gone = sorted(live.iterdir())[0]
+    gone.unlink()
+    with pytest.raises(WilocError) as error:
+        api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3)
+    assert error.value.where == "out" and error.value.problem.startswith(f"{out}: cannot resume: its frame '{gone.name}'")
+    assert "give another file to start anew" in error.value.problem
+    assert not (tmp_path / ".r.csv.lock").exists() and len(_rows(out)) == 4

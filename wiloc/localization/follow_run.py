@@ -10,7 +10,7 @@ from typing import Any
 
 from wiloc.cache.store import Cache
 from wiloc.decisions import Decision
-from wiloc.errors import WilocError
+from wiloc.errors import FrameError, WilocError
 from wiloc.evaluation.results import RANKING, ResultsStream
 from wiloc.localization.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localization.localizer import Localizer
@@ -103,7 +103,12 @@ def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descr
                            learned=localizer.method.facts().keys())
     names = stream.rows["frame"].tolist()
     for name, line in zip(names, stream.written_lines()):
-        decision = localizer.observe(query / name)
+        try:
+            decision = localizer.observe(query / name)
+        except FrameError as exc:  # removed since (a camera's folder kept as a ring buffer), or damaged
+            stream.close()
+            raise WilocError(None, f"{path}: cannot resume: its frame '{name}', decided again to resume, is unusable "
+                                   f"({exc.problem}); give another file to start anew", parameter="out") from None
         if stream.line(decision) != line:
             stream.close()
             raise WilocError(None, f"{path}: frame '{name}' decided again differs from its row: the map, the "
