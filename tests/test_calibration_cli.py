@@ -283,3 +283,22 @@ def test_traversal_labels_keep_one_name_when_the_folder_is_the_same(tmp_path: Pa
     evaluations = [api.evaluate(p, api.TruthSource(kind="aligned")) for p in paths]
     assert api.traversal_labels(evaluations) == ["day_left", "day_left"]
     assert api.run_names(evaluations) == ["online day_left", "threshold day_left"]
+
+
+def test_figures_keep_one_colour_per_method_when_traversal_folders_have_spaces(tmp_path: Path) -> None:
+    from wiloc.figures.plots import threshold_figure
+
+    names = [f"img{i}.png" for i in range(4)]
+    rows = [(name, name, 0.9) for name in names]
+    paths = [_results(tmp_path / f"{q}-{method}.csv", f"/data/gp/{q} walk", "/data/gp/day_right", names, method, rows)
+             for q in ("day", "night") for method in ("online", "catgraph")]
+    comparison = api.compare(paths, api.TruthSource(kind="aligned"))
+    assert api.run_names(comparison.evaluations) == ["online day walk", "catgraph day walk", "online night walk",
+                                                     "catgraph night walk"]
+    fig = threshold_figure(api.threshold_series(comparison), marks=api.threshold_marks(comparison))
+    drawn = {line.get_label(): (line.get_color(), line.get_linestyle()) for line in fig.axes[0].lines}
+    assert {label: style for label, style in drawn.items() if "Table II" not in label} == {
+        "online day walk": ("C0", "-"), "catgraph day walk": ("C1", "-"),
+        "online night walk": ("C0", "--"), "catgraph night walk": ("C1", "--")}
+    assert {label.split(":")[0]: colour for label, (colour, _) in drawn.items() if "Table II" in label} == {
+        "online": "C0", "catgraph": "C1"}

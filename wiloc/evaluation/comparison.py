@@ -215,9 +215,26 @@ def comparison(evaluations: Sequence[Evaluation], truth: TruthSource, *,
                       table2=table2, cut_table=cut_table, ground_truth=truth.describe())
 
 
-def run_names(evaluations: Sequence[Evaluation]) -> list[str]:
+class RunName(str):
+    """A run's name "method traversal" as legends show it, holding its two parts: either may
+    contain spaces (a folder ``day left``, a results file in ``my runs/``), so that the figures
+    read the method and traversal from here rather than split the text."""
+
+    method: str
+    traversal: str
+
+    def __new__(cls, method: str, traversal: str) -> RunName:
+        name = super().__new__(cls, f"{method} {traversal}")
+        name.method, name.traversal = method, traversal
+        return name
+
+    def __getnewargs__(self) -> tuple[str, str]:  # type: ignore[override]  # copied and pickled whole
+        return self.method, self.traversal
+
+
+def run_names(evaluations: Sequence[Evaluation]) -> list[RunName]:
     """One distinct "method traversal" name per run, as the tables label it (for plot legends)."""
-    return [f"{label} {traversal}"
+    return [RunName(label, traversal)
             for label, traversal in zip(method_labels(evaluations), traversal_labels(evaluations))]
 
 

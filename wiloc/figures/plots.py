@@ -31,6 +31,7 @@ from matplotlib.figure import Figure
 
 from wiloc.atomic import written_whole
 from wiloc.errors import WilocError
+from wiloc.evaluation.comparison import RunName
 from wiloc.evaluation.metrics import PRCurve
 from wiloc.evaluation.reliability import ReliabilityBins, wilson_interval
 from wiloc.model import HistogramModel
@@ -103,9 +104,9 @@ def figure_bytes(fig: Figure, format: str = "png", dpi: int = 100) -> bytes:
 
 
 def run_styles(names: Sequence[str]) -> dict[str, tuple[str, str]]:
-    """(colour, line style) per run name "method traversal" (``comparison.run_names``, split at its last
-    space): one colour per method and one line style per query traversal, in order of first
-    appearance."""
+    """(colour, line style) per run name "method traversal" (``comparison.run_names``, whose
+    :class:`RunName` knows its parts; other text is split at its last space): one colour per
+    method and one line style per query traversal, in order of first appearance."""
     colours: dict[str, str] = {}
     styles: dict[str, str] = {}
     drawn = {}
@@ -117,7 +118,10 @@ def run_styles(names: Sequence[str]) -> dict[str, tuple[str, str]]:
 
 
 def _method_traversal(name: str) -> tuple[str, str]:
-    """A run name "method traversal" split at its last space (a name without one is a method)."""
+    """A run name's method and traversal: a RunName's own, else "method traversal" split at its
+    last space (a name without one is a method)."""
+    if isinstance(name, RunName):
+        return name.method, name.traversal
     method, _, traversal = name.rpartition(" ")
     return (method, traversal) if method else (traversal, "")
 
