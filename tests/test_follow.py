@@ -15,6 +15,7 @@ import pytest
 
 from wiloc import api, demo
 from wiloc.errors import WilocError
+from wiloc.evaluation.results import read_results
 from wiloc.localization.follow import SETTLE_SECONDS, FolderWatch, Skipped, follow
 from wiloc.localization.localizer import Localizer
 from wiloc.sources.frames import natural_sorted
@@ -506,3 +507,17 @@ def test_a_run_whose_decided_frame_is_gone_cannot_resume_and_says_why(demo_route
     assert error.value.where == "out" and error.value.problem.startswith(f"{out}: cannot resume: its frame '{gone.name}'")
     assert "give another file to start anew" in error.value.problem
     assert not (tmp_path / ".r.csv.lock").exists() and len(_rows(out)) == 4
+
+
+def test_a_frame_whose_name_starts_like_a_header_line_keeps_its_row(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                                    cache_dir: Path) -> None:
+    """The header rewritten as the run ends dropped every line starting with '# ', the row of a frame
+    named '# 2.jpg' too; names with a comma, a quote or a line break keep theirs as well."""
+    live = tmp_path / "live"
+    live.mkdir()
+    names = ["# 2.jpg", "a,b.jpg", 'q"uote.jpg', "line\nbreak.jpg"]
+    for name, path in zip(names, sorted(demo_route.queries[0].iterdir())):
+        (live / name).write_bytes(path.read_bytes())
+    out = tmp_path / "r.csv"
+    list(api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3))
+    assert sorted(read_results(out).frames["frame"]) == sorted(names)

@@ -229,7 +229,9 @@ class ResultsStream:
         sequence-mode run's query digest), over the file's, keeping its rows and mode: atomically,
         so that a kill meanwhile leaves the file as it was. Called once :meth:`close` has been."""
         with self.path.open(encoding="utf-8", newline="") as handle:
-            body = "".join(line for line in handle if not line.startswith("# "))
+            lines = handle.readlines()
+        header_lines = next((i for i, line in enumerate(lines) if not line.startswith("# ")), len(lines))
+        body = "".join(lines[header_lines:])  # a row may start with '# ' too: a frame named '# 1.jpg'
         self.header = replace(header, follow=True, frames=None)
         _write_atomically(self.path, self.header, lambda out: out.write(body),
                           mode=stat.S_IMODE(self.path.stat().st_mode))
