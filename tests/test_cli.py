@@ -449,3 +449,21 @@ def test_a_followed_run_ends_naming_its_results_file_whole(route: tuple[Path, Pa
                                  "--idle", "0.3", "--out", "live.csv"])
     assert result.exit_code == 0, result.output
     assert result.stdout.splitlines()[-1].endswith(f"; results in {tmp_path / 'live.csv'}")
+
+
+def test_a_followed_runs_lines_keep_one_field_per_column_whatever_the_names(route: tuple[Path, Path],
+                                                                           tmp_path: Path) -> None:
+    """A tab or line break in a frame's name split its tab-separated line."""
+    ref, query = route
+    live = tmp_path / "live"
+    live.mkdir()
+    names = ["tab\there.png", "line\nbreak.png", "back\\slash.png"]
+    for name, path in zip(names, sorted(query.iterdir())):
+        (live / name).write_bytes(path.read_bytes())
+    result = runner.invoke(app, ["localize", str(live), "--map", str(ref), "--method", "threshold", "--follow",
+                                 "--idle", "0.3", "--out", str(tmp_path / "live.csv")])
+    assert result.exit_code == 0, result.output
+    header, *lines, end = result.stdout.splitlines()
+    assert len(lines) == len(names) and all(len(line.split("\t")) == 5 for line in lines)
+    assert sorted(line.split("\t")[0] for line in lines) == sorted(["tab\\there.png", "line\\nbreak.png",
+                                                                    "back\\\\slash.png"])

@@ -118,7 +118,7 @@ def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
                                                  "confidence": event.confidence, "new_place": event.new_place,
                                                  "stage": event.stage})), flush=True)
                 else:
-                    print(f"{event.frame}\t{event.match_name or '-'}\t{cell(event.confidence)}\t"
+                    print(f"{_field(event.frame)}\t{_field(event.match_name or '-')}\t{cell(event.confidence)}\t"
                           f"{cell(event.new_place)}\t{event.stage}", flush=True)
             else:
                 notes.add(event.kind, str(event))
@@ -127,3 +127,9 @@ def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
     if live is None and not as_json and run.idle is not None:
         print(f"# ended: no new frame for {run.idle:g} s; {decided} frames decided ({run.resumed} resumed before), "
               f"{sum(n.startswith('skipped:') for n in notes)} left out; results in {run.path.absolute()}", flush=True)
+
+
+def _field(name: str) -> str:
+    """A frame's name as one field of a tab-separated line: its tabs and line breaks, which would
+    split the field or the line, written as ``\\t``, ``\\n`` and ``\\r`` (a backslash doubled)."""
+    return name.replace("\\", "\\\\").replace("\t", "\\t").replace("\n", "\\n").replace("\r", "\\r")
