@@ -302,3 +302,24 @@ def test_figures_keep_one_colour_per_method_when_traversal_folders_have_spaces(t
         "online night walk": ("C0", "--"), "catgraph night walk": ("C1", "--")}
     assert {label.split(":")[0]: colour for label, (colour, _) in drawn.items() if "Table II" in label} == {
         "online": "C0", "catgraph": "C1"}
+
+
+def test_compare_markdown_and_latex_give_each_cut_with_compare_numbers(tmp_path: Path) -> None:
+    paths = [_gardens(tmp_path, new_place=[0.0] * 10 + [0.9]), _nordland(tmp_path)]
+    said = {run["traversal"]: run for run in _json(runner.invoke(app, ["compare", *map(str, paths), "--cuts", "0.7,0.95",
+                                                                       "--json"]))["runs"]}
+    markdown = runner.invoke(app, ["compare", *map(str, paths), "--cuts", "0.7,0.95", "--markdown"])
+    assert markdown.exit_code == 0, markdown.output
+    calibration, new_place = (part.split("\n\n**", 1)[0] for part in markdown.stdout.split("**Calibration", 1)[1]
+                              .split("**P(new place)", 1))
+    assert "| P@0.7 | R@0.7 | n@0.7 | P@0.95 | R@0.95 | n@0.95 |" in calibration
+    assert set(said) == {"day_left", "winter"}
+    for traversal, run in said.items():
+        (row,) = [line for line in calibration.splitlines() if line.startswith(f"| {traversal} |")]
+        shown = row.strip("| ").split(" | ")[-6:]
+        expected = [value for cut in run["cuts"] for value in (cut["precision"], cut["recall"], cut["accepted"])]
+        assert shown == ["-" if v is None else str(v) if isinstance(v, int) else f"{v:.3f}" for v in expected]
+    (row,) = [line for line in new_place.splitlines() if line.startswith("| day_left |")]
+    assert row.strip("| ").split(" | ")[-6:][2::3] == [str(cut["accepted"]) for cut in said["day_left"]["new_place"]["cuts"]]
+    latex = runner.invoke(app, ["compare", *map(str, paths), "--cuts", "0.7", "--latex"])
+    assert latex.exit_code == 0 and r"P@0.7 & R@0.7 & n@0.7 \\" in latex.stdout

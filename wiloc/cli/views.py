@@ -413,21 +413,27 @@ def table2_view(comparison: api.Comparison) -> Table:
 
 def comparison_records(comparison: api.Comparison) -> list[tuple[str, list[dict[str, Any]], list[str], dict[str, str]]]:
     """`compare`'s tables as plain records for CSV, Markdown and LaTeX: (title, rows, columns,
-    one-line headers) of Table I (one row per run), the calibration, P(new place)'s calibration
-    (the runs that say it; left out when none does) and Table II, last."""
+    one-line headers) of Table I (one row per run), the calibration with P / R / n at each cut,
+    P(new place)'s the same (the runs that say it; left out when none does) and Table II, last."""
     table1 = comparison.table1.to_dict(orient="records")
     ranked = ["recall_at_1", *recall_at_keys(table1)]
     heads = {"recall_at_100": "R@100%P", "recall_at_99": "R@99%P", "recall_at_90": "R@90%P", "auc": "AUC",
              **{key: f"R@{key.removeprefix('recall_at_')}" for key in ranked}}
-    calibration = {"ece": "ECE", "brier": "Brier", "mean_confidence": "mean conf.", "share_correct": "share correct"}
+    at = [key.removeprefix("precision@") for key in comparison.cut_table.columns if key.startswith("precision@")]
+    at_cuts = {f"{key}@{cut}": f"{head}@{cut}" for cut in at
+               for key, head in (("precision", "P"), ("recall", "R"), ("accepted", "n"))}
+    calibration = {"ece": "ECE", "brier": "Brier", "mean_confidence": "mean conf.", "share_correct": "share correct",
+                   **at_cuts}
     cuts = comparison.cut_table.to_dict(orient="records")
     new_place = {NEW_PLACE_KEYS + key: head for key, head in
                  {**calibration, "mean_confidence": "mean P(new place)", "share_correct": "share new"}.items()}
-    given = [row for row in cuts if _says_new_place(row)]
+    given = [{**row, **{key: int(row[key]) for key in new_place if key.startswith(NEW_PLACE_KEYS + "accepted@")}}
+             for row in cuts if _says_new_place(row)]  # counts, not floats beside the runs without the column
     return [(f"Table I: recall at 100 / 99 / 90 % precision, AUC and Recall@N; {comparison.ground_truth}",
              table1, ["traversal", "method", *heads], heads),
-            (f"Calibration; {comparison.ground_truth}", cuts, ["traversal", "method", *calibration], calibration),
-            *([(f"P(new place) against the frames without a true match; {comparison.ground_truth}", given,
+            (f"Calibration and fixed confidence cuts ({CUT_CAPTION}); {comparison.ground_truth}", cuts,
+             ["traversal", "method", *calibration], calibration),
+            *([(f"{NEW_PLACE_CAPTION}; {comparison.ground_truth}", given,
                 ["traversal", "method", *new_place], new_place)] if given else []),
             (f"Table II: one global threshold per method (worst traversal marked); {comparison.ground_truth}",
              [{**row, "precision": f"{row['precision']:g}%"} for row in comparison.table2.to_dict(orient="records")],
