@@ -521,3 +521,17 @@ def test_a_frame_whose_name_starts_like_a_header_line_keeps_its_row(demo_route: 
     out = tmp_path / "r.csv"
     list(api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3))
     assert sorted(read_results(out).frames["frame"]) == sorted(names)
+
+
+def test_idle_zero_decides_the_frames_there_then_ends(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                      cache_dir: Path) -> None:
+    """--idle 0 ended at the first poll, which only notes each file's size: every frame was left
+    out as still being written."""
+    live = tmp_path / "live"
+    live.mkdir()
+    for path in sorted(demo_route.queries[0].iterdir())[:4]:
+        (live / path.name).write_bytes(path.read_bytes())
+    events = list(api.follow_folder(live, reference=demo_route.reference, method="threshold",
+                                    out=tmp_path / "r.csv", idle=0))
+    assert [e.frame for e in events if not isinstance(e, Skipped)] == sorted(p.name for p in live.iterdir())
+    assert [e for e in events if isinstance(e, Skipped)] == []

@@ -88,6 +88,7 @@ class FolderWatch:
         self._listed: tuple[int, int, float] | None = None  # folder's mtime_ns, wall ns and clock of the last listing
         self._pending: list[str] = []  # image files not handed out at the last listing
         self.rewritten: list[Path] = []  # decided files found written again, each once (the caller empties it)
+        self.arriving = False  # whether the last poll saw a file the one before did not (not yet known stable)
         self._forms: dict[str, str] | None = {}  # decimal_form -> name of every name seen; None once numbered
         self._known(self._done)
 
@@ -189,6 +190,7 @@ class FolderWatch:
             if self._seen.get(path.name) == seen[path.name]:
                 ready.append(path)
                 marks[path.name] = (stat.st_ino, stat.st_size, stat.st_mtime_ns)
+        self.arriving = any(name not in self._seen for name in seen)
         self._seen = seen
         self._done.update(marks)
         self._decided.update(marks)
@@ -211,7 +213,8 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
            clock: Callable[[], float] = time.monotonic,
            sleep: Callable[[float], None] = time.sleep) -> Iterator[Decision | Skipped]:
     """Decide every frame the watch hands out, as it arrives, until ``idle`` seconds pass without
-    one (None: until interrupted). A stable file that cannot be decoded (an empty one too) is
+    one (None: until interrupted), and never before a file first seen is polled again (with
+    ``idle`` 0, a folder's frames are decided, then the run ends). A stable file that cannot be decoded (an empty one too) is
     retried for :data:`SETTLE_SECONDS` (the run does not end meanwhile, nor for ``idle`` seconds
     after), then left out; one that cannot be a frame at all (:func:`~wiloc.sources.frames.unusable_reason`)
     is left out at once. A file still changing when the run ends on ``idle`` (one that failed to
@@ -245,7 +248,7 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
             for line in localizer.frame_doubts[said:]:  # a camera of another shape than the map's
                 yield Skipped(path, line, kind="warning")
             yield decision
-        if idle is not None and clock() - last >= idle \
+        if idle is not None and clock() - last >= idle and not watch.arriving \
                 and all(clock() - first >= SETTLE_SECONDS + idle + 2 * poll for first in failing.values()):
             for path in watch.unsettled():
                 yield Skipped(path, "still being written when the run ended (not decided; a run resuming "
