@@ -428,6 +428,30 @@ def test_every_comparison_figure_names_its_data_and_ground_truth(route: tuple[Pa
     assert titles == {"Learned model": f"Learned model: online, query ({tmp_path.name}, sad)"}
 
 
+def test_figures_of_a_live_run_name_its_map_dataset(route: tuple[Path, Path], tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run saved from Localizer.results() without ``query`` records no query folder: its figures
+    are titled with the map's dataset (Figure 1's was '(, sad)', the others' '?, sad')."""
+    import wiloc
+    from wiloc.figures import plots
+
+    titles: dict[str, str] = {}
+    drawn = plots._title
+    monkeypatch.setattr(plots, "_title", lambda fig, title: (titles.update({title.split(":")[0]: title}),
+                                                             drawn(fig, title))[1])
+    ref, query = route
+    loc = wiloc.Localizer(ref, descriptor="sad", method="online", seed=0, cache=tmp_path / "cache")
+    for image in sorted(query.iterdir())[:8]:
+        loc.observe(image)
+    run = loc.results().save(tmp_path / "live-online.csv")
+    result = runner.invoke(app, ["compare", str(run), "--model-plot", str(tmp_path / "model.png"),
+                                 "--threshold-plot", str(tmp_path / "fig5.png")])
+    assert result.exit_code == 0, result.output
+    assert titles == {"Learned model": f"Learned model: online, live-online.csv ({tmp_path.name}, sad)",
+                      "Precision against threshold": f"Precision against threshold: {tmp_path.name}, sad, "
+                                                     "aligned by name, +-2 frames"}
+
+
 @pytest.mark.parametrize("out", [["--out", "seq.csv"], ["--out", "runs/"], []])
 def test_localize_says_in_which_folder_its_results_are(out: list[str], route: tuple[Path, Path], tmp_path: Path,
                                                        monkeypatch: pytest.MonkeyPatch) -> None:

@@ -111,10 +111,10 @@ def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshol
                                             marks=api.threshold_marks(comparison),
                                             title=f"Precision against threshold: {subject}"))
     if model_plot is not None:
-        run, header = learned[0], learned[0].results.header  # no ground truth enters the model's title
+        run = learned[0]  # no ground truth enters the model's title
         written.append(plots.plot_model(run.results.model, replacing(notes, model_plot),
                                         title=f"Learned model: {run.method}, {run.traversal} "
-                                              f"({Path(header.query).parent.name}, {header.descriptor})"))
+                                              f"({api.run_subject([run], None)})"))
     if pr_plot is not None:
         written.append(plots.plot_pr(api.pr_series(comparison), replacing(notes, pr_plot),
                                      title=f"Precision-recall: {subject}"))

@@ -238,14 +238,16 @@ def run_names(evaluations: Sequence[Evaluation]) -> list[RunName]:
             for label, traversal in zip(method_labels(evaluations), traversal_labels(evaluations))]
 
 
-def run_subject(evaluations: Sequence[Evaluation], truth: TruthSource) -> str:
+def run_subject(evaluations: Sequence[Evaluation], truth: TruthSource | None) -> str:
     """What a figure of these runs shows, for its title: the dataset (the query folders' parent
-    folder), the descriptor and the ground truth with its tolerance, e.g.
+    folder; the map's for a run that records no query, as a live run in memory), the descriptor
+    and the ground truth with its tolerance (none for a figure no ground truth enters), e.g.
     ``gardens-point-walking, sad, aligned by name, +-2 frames``."""
-    datasets = dict.fromkeys(Path(e.results.header.query).parent.name or "?" for e in evaluations)
+    datasets = dict.fromkeys(Path(e.results.header.query or e.results.header.map).parent.name or "?"
+                             for e in evaluations)
     descriptors = dict.fromkeys("?" if e.results.header.descriptor is None else e.results.header.descriptor
                                 for e in evaluations)
-    return f"{' + '.join(datasets)}, {' + '.join(descriptors)}, {truth.describe()}"
+    return ", ".join([" + ".join(datasets), " + ".join(descriptors), *([truth.describe()] if truth else [])])
 
 
 def threshold_marks(comparison: Comparison) -> dict[str, list[tuple[float, float]]]:
