@@ -145,6 +145,29 @@ def test_a_run_whose_images_are_gone_still_gets_its_page(runs: list[Path], tmp_p
     assert _data(page)["images"] == [] and len(_data(page)["runs"][0]["frames"]) == 45
 
 
+def test_a_live_run_saved_without_its_query_shows_no_other_folder(tmp_path: Path, cache_dir: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """Localizer.results() without query records none: the figures said the current folder
+    ('its query . no longer gives the frames it lists'), having described it in the run's place."""
+    import wiloc
+
+    scenes = places(12)
+    ref = write_traversal(tmp_path / "route" / "ref", scenes, 1.0, 1)
+    query = write_traversal(tmp_path / "route" / "query", scenes, 0.7, 2)
+    loc = wiloc.Localizer(ref, descriptor="sad", method="online", seed=0)
+    for image in sorted(query.iterdir()):
+        loc.observe(image)
+    run = loc.results().save(tmp_path / "live-online.csv")
+    monkeypatch.chdir(query)  # the images of the run, as it happens: still not a folder the run names
+    result = runner.invoke(app, ["evaluate", str(run), "--matrix-plot", str(tmp_path / "matrix.png")])
+    assert result.exit_code == 1 and not (tmp_path / "matrix.png").exists()
+    assert result.stderr.strip() == (f"error: {run}: the run records no query folder (a live run saved without one: "
+                                     "Localizer.results(query=FOLDER) records it), so its images cannot be shown")
+    page = _report([run], tmp_path / "report.html").read_text(encoding="utf-8")
+    assert page.count("the run records no query folder") == 2  # the browser's note and the matrix's
+    assert _data(page)["images"] == []
+
+
 def _chromium(page: Path, *args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([CHROMIUM, "--headless", "--disable-gpu", "--no-sandbox", "--hide-scrollbars",
                            "--virtual-time-budget=5000", "--enable-logging=stderr", "--v=0", *args, page.as_uri()],

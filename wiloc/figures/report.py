@@ -151,21 +151,20 @@ def _browser_run(name: str, e: Evaluation, images: Thumbnails, notes: list[str],
     the run's (``run_figures.checked_entries``) are not shown, and the page says why."""
     from wiloc.figures.run_figures import checked_entries, run_traversals, true_places, unchecked_folders
 
-    query, reference, _ = run_traversals(e)
     names = e.results.frames["frame"].tolist()
     ref_names = e.results.reference_frames or names
     match, place = e.results.match_index, true_places(e)
-    shown = query.is_dir() and reference.is_dir()
-    if not shown:
-        notes.append(f"{name}: no images in the frame browser, {query if not query.is_dir() else reference} "
-                     "is not an image folder")
-    else:
-        try:
-            checked_entries(e, cache)
-            notes.extend(unchecked_folders(e))
-        except WilocError as exc:
-            notes.append(f"{name}: no images in the frame browser, {exc.problem}")
-            shown = False
+    query = reference = Path()
+    try:
+        query, reference, _ = run_traversals(e)
+        if not (query.is_dir() and reference.is_dir()):
+            raise WilocError(e.path, f"{query if not query.is_dir() else reference} is not an image folder")
+        checked_entries(e, cache)
+        notes.extend(unchecked_folders(e))
+        shown = True
+    except WilocError as exc:
+        notes.append(f"{name}: no images in the frame browser, {exc.problem}")
+        shown = False
 
     def image(folder: Path, index: int, frames: list[str]) -> int:
         return images.add(folder / frames[index]) if shown and index >= 0 else -1

@@ -105,8 +105,15 @@ def true_places(evaluation: Evaluation) -> NDArray[np.int64]:
 
 
 def run_traversals(evaluation: Evaluation) -> tuple[Path, Path, bool]:
-    """(query, reference, sequence mode) as the results header names them."""
+    """(query, reference, sequence mode) as the results header names them: a WilocError when it
+    names none (a live run saved without its query), whose images no figure can show (an empty
+    name would be the current folder, described in their place)."""
     header = evaluation.results.header
+    for role, folder in (("query", header.query), ("map", header.sequence or header.map)):
+        if not folder:
+            raise WilocError(evaluation.path or evaluation.name,
+                             f"the run records no {role} folder (a live run saved without one: "
+                             f"Localizer.results(query=FOLDER) records it), so its images cannot be shown")
     query = Path(header.query)
     return query, query if header.sequence else Path(header.map), header.sequence
 
