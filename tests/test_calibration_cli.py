@@ -323,3 +323,12 @@ def test_compare_markdown_and_latex_give_each_cut_with_compare_numbers(tmp_path:
     assert row.strip("| ").split(" | ")[-6:][2::3] == [str(cut["accepted"]) for cut in said["day_left"]["new_place"]["cuts"]]
     latex = runner.invoke(app, ["compare", *map(str, paths), "--cuts", "0.7", "--latex"])
     assert latex.exit_code == 0 and r"P@0.7 & R@0.7 & n@0.7 \\" in latex.stdout
+
+
+def test_an_output_naming_a_results_file_read_is_refused_and_the_run_kept(tmp_path: Path) -> None:
+    path = _gardens(tmp_path)
+    run = path.read_bytes()
+    for command in ("evaluate", "compare"):
+        result = runner.invoke(app, [command, str(path), "--csv", str(path)])
+        assert result.exit_code == 2 and result.stderr.startswith(f"error: --csv: {path} is one of the results files read")
+        assert path.read_bytes() == run and not (tmp_path / "day_left-online-curves.csv").exists()

@@ -123,6 +123,18 @@ def plot_file(value: Path | None) -> Path | None:
     return value
 
 
+def separate_outputs(read: list[Path], written: dict[str, Path | None]) -> None:
+    """A usage error, before any work, for an output option (``written``: option -> file, None
+    when not given) whose file another output option names too, or is one of the files the
+    command reads: the later write would replace it (a figure by a table, a run by its metrics)."""
+    taken = {path.resolve(): "one of the results files read" for path in read}
+    for option, path in written.items():
+        if path is None:
+            continue
+        if (owner := taken.setdefault(path.resolve(), f"{option}'s file")) != f"{option}'s file":
+            raise UsageError(option, f"{path} is {owner}; give each output a file of its own")
+
+
 def replacing(notes: Notes, path: Path) -> Path:
     """``path``, about to be written: an existing file there is said to be replaced, as
     results files are."""
