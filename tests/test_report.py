@@ -145,19 +145,42 @@ def test_a_run_whose_images_are_gone_still_gets_its_page(runs: list[Path], tmp_p
     assert _data(page)["images"] == [] and len(_data(page)["runs"][0]["frames"]) == 45
 
 
-def test_a_live_run_saved_without_its_query_shows_no_other_folder(tmp_path: Path, cache_dir: Path,
-                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
-    """Localizer.results() without query records none: the figures said the current folder
-    ('its query . no longer gives the frames it lists'), having described it in the run's place."""
+def _live_run(tmp_path: Path, observed: int, recorded: bool) -> tuple[Path, Path]:
+    """A live run over the first ``observed`` frames of a query of 12, saved with its query folder
+    (``recorded``) or without: the results file and the query folder."""
     import wiloc
 
     scenes = places(12)
     ref = write_traversal(tmp_path / "route" / "ref", scenes, 1.0, 1)
     query = write_traversal(tmp_path / "route" / "query", scenes, 0.7, 2)
     loc = wiloc.Localizer(ref, descriptor="sad", method="online", seed=0)
-    for image in sorted(query.iterdir()):
-        loc.observe(image)
-    run = loc.results().save(tmp_path / "live-online.csv")
+    for k in range(observed):
+        loc.observe(query / f"img{k}.png")
+    return loc.results(query=query if recorded else None).save(tmp_path / "live-online.csv"), query
+
+
+def test_a_live_run_over_the_first_frames_of_a_folder_is_drawn(tmp_path: Path, cache_dir: Path) -> None:
+    """A live run stopped before the folder's end lists its first frames: they are the run's, where
+    the figures said the folder 'no longer gives the frames it lists (... 6 more new)'."""
+    from wiloc.cache.store import Cache
+    from wiloc.figures.run_figures import matrix_picture
+
+    run, _ = _live_run(tmp_path, 6, recorded=True)
+    result = runner.invoke(app, ["evaluate", str(run), "--matrix-plot", str(tmp_path / "matrix.png"),
+                                 "--pairs-plot", str(tmp_path / "pairs.png")])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "matrix.png").is_file() and (tmp_path / "pairs.png").is_file()
+    assert matrix_picture(api.evaluate(run, api.TruthSource()), Cache()).shape == (6, 12)
+    page = _report([run], tmp_path / "report.html").read_text(encoding="utf-8")
+    assert "no images in the frame browser" not in page and "no difference matrix" not in page
+    assert sum(index >= 0 for index in _data(page)["runs"][0]["query_image"]) == 6
+
+
+def test_a_live_run_saved_without_its_query_shows_no_other_folder(tmp_path: Path, cache_dir: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """Localizer.results() without query records none: the figures said the current folder
+    ('its query . no longer gives the frames it lists'), having described it in the run's place."""
+    run, query = _live_run(tmp_path, 12, recorded=False)
     monkeypatch.chdir(query)  # the images of the run, as it happens: still not a folder the run names
     result = runner.invoke(app, ["evaluate", str(run), "--matrix-plot", str(tmp_path / "matrix.png")])
     assert result.exit_code == 1 and not (tmp_path / "matrix.png").exists()

@@ -11,7 +11,7 @@ the file lists is an error naming the file.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -133,9 +133,9 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
                           sampling=None if header.sampling is None else Sampling(**header.sampling),
                           topic=header.topic)
     query, reference, sequence = run_traversals(evaluation)
-    q = describer.entry(query)
-    r = q if sequence else describer.entry(reference)
     results = evaluation.results
+    q = _first_frames(describer.entry(query), results.frames["frame"].tolist())
+    r = q if sequence else describer.entry(reference)
     for role, entry, listed in (("query", q, results.frames["frame"].tolist()), ("map", r, results.reference_frames)):
         if listed and entry.names != listed:
             raise WilocError(evaluation.path, f"its {role} {entry.folder} no longer gives the frames it lists "
@@ -147,6 +147,17 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
                                               "used (its images changed, or it is another folder of the same "
                                               "names); cannot draw it")
     return q, r
+
+
+def _first_frames(entry: Entry, listed: list[str]) -> Entry:
+    """The query's entry cut to the frames the run lists when they are its first ones (a live run
+    stopped before the folder's end, a folder that has grown since): those are the run's frames,
+    checked as any; other lists are left whole for the check to name what changed."""
+    if len(listed) >= len(entry.names) or entry.names[:len(listed)] != listed:
+        return entry
+    n = len(listed)
+    return replace(entry, names=list(listed), data=entry.data[:n],
+                   timestamps_ms=None if entry.timestamps_ms is None else entry.timestamps_ms[:n])
 
 
 def _changes(listed: list[str], names: list[str]) -> str:
