@@ -28,6 +28,7 @@ from wiloc.atomic import write_error
 from wiloc.cache.store import Cache
 from wiloc.cli.views import progress_bar, table1_view, table2_view
 from wiloc.errors import EXIT_INTERRUPTED, WilocError, interrupted
+from wiloc.quiet import stderr_back
 from wiloc.figures import plots, run_figures
 
 REPO = Path(__file__).resolve().parents[1]
@@ -213,11 +214,13 @@ def one_line_errors() -> Iterator[None]:
     try:
         yield
     except WilocError as exc:
+        stderr_back()
         err.print(f"error: {exc}", markup=False, highlight=False)
         sys.exit(exc.exit_code)
     except BaseException as exc:
         if not interrupted(exc):
             raise
+        stderr_back()  # a Ctrl-C may end image decoders' quiet stretch before it puts stderr back
         err.print("error: interrupted", markup=False, highlight=False)
         sys.exit(EXIT_INTERRUPTED)
 

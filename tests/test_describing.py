@@ -200,6 +200,7 @@ def test_ctrl_c_the_moment_decoders_are_quieted_leaves_stderr_where_it_was(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Ctrl-C raised just as descriptor 2 has been moved to /dev/null (the libjpeg messages'
     silencer) puts it back: the command's "error: interrupted" must reach the user."""
+    from wiloc import quiet
     from wiloc.description import frame_describing
 
     image = tmp_path / write_images(tmp_path, 1)[0]
@@ -214,8 +215,8 @@ def test_ctrl_c_the_moment_decoders_are_quieted_leaves_stderr_where_it_was(
             raise KeyboardInterrupt
         return result
 
-    monkeypatch.setattr(frame_describing, "_devnull", devnull)
-    monkeypatch.setattr(frame_describing.os, "dup2", interrupted_on_quieting)
+    monkeypatch.setattr(quiet, "_devnull", devnull)
+    monkeypatch.setattr(quiet.os, "dup2", interrupted_on_quieting)
     try:
         with pytest.raises(KeyboardInterrupt):
             frame_describing._read_gray(image, None)
@@ -224,6 +225,45 @@ def test_ctrl_c_the_moment_decoders_are_quieted_leaves_stderr_where_it_was(
         dup2(saved, 2)  # for the tests after this one, whatever happened
         os.close(saved)
         os.close(devnull)
+    assert (now.st_dev, now.st_ino) == (original.st_dev, original.st_ino)
+
+
+def test_ctrl_c_as_stderr_is_put_back_is_mended_before_an_error_is_printed(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C raised as the quiet stretch ends, before descriptor 2 is back from /dev/null: the
+    error printers call stderr_back first, which puts it back ("error: interrupted" was lost
+    now and then: exit code 130 and an empty stderr)."""
+    from wiloc import quiet
+    from wiloc.description import frame_describing
+
+    image = tmp_path / write_images(tmp_path, 1)[0]
+    original = os.fstat(2)
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    null = os.fstat(devnull)
+    dup2 = os.dup2
+    interrupted: list[int] = []
+
+    def interrupted_on_putting_back(fd: int, fd2: int) -> int:
+        if fd != devnull and not interrupted:  # the stretch's own putting back, cut short
+            interrupted.append(fd)
+            raise KeyboardInterrupt
+        return dup2(fd, fd2)
+
+    monkeypatch.setattr(quiet, "_devnull", devnull)
+    monkeypatch.setattr(quiet.os, "dup2", interrupted_on_putting_back)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            frame_describing._read_gray(image, None)
+        cut_short = os.fstat(2)
+        quiet.stderr_back()
+        quiet.stderr_back()  # a second call changes nothing
+        now = os.fstat(2)
+    finally:
+        dup2(saved, 2)  # for the tests after this one, whatever happened
+        os.close(saved)
+        os.close(devnull)
+    assert interrupted and (cut_short.st_dev, cut_short.st_ino) == (null.st_dev, null.st_ino)
     assert (now.st_dev, now.st_ino) == (original.st_dev, original.st_ino)
 
 

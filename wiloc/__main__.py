@@ -144,6 +144,7 @@ def main() -> int:
         signal.signal(signal.SIGINT, _on_ctrl_c)  # first: everything after it may import
     sys.unraisablehook = _deliver_swallowed_interrupt
     from wiloc.errors import EXIT_BAD_INPUT, EXIT_CLOSED_OUTPUT, EXIT_INTERRUPTED, interrupted
+    from wiloc.quiet import stderr_back
 
     try:
         from wiloc.cli import run
@@ -156,12 +157,14 @@ def main() -> int:
     except OSError as exc:
         if exc.filename != _NamedOutput.NAME:
             raise
+        stderr_back()
         sys.stderr.write(f"error: {exc.filename}: {exc.strerror}\n")  # its buffered end (a full disk)
         _discard_output()
         code = EXIT_BAD_INPUT
     except BaseException as exc:
         if not interrupted(exc):
             raise
+        stderr_back()  # a Ctrl-C may end image decoders' quiet stretch before it puts stderr back
         sys.stderr.write("error: interrupted\n")
         code = EXIT_INTERRUPTED
     signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -28,13 +28,15 @@ from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from wiloc.cli.params import flag, given
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError, interrupted
+from wiloc.quiet import stderr_back
 
 out = Console()
 err = Console(stderr=True)
 
 
 def error(message: str) -> None:
-    """One unwrapped `error:` line on stderr."""
+    """One unwrapped `error:` line on stderr (put back first if image decoders held it quiet)."""
+    stderr_back()
     err.print(f"[bold red]error:[/bold red] {escape(message)}", highlight=False, soft_wrap=True)
 
 

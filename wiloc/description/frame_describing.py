@@ -26,6 +26,7 @@ from wiloc.cache.entries import FrameRecord
 from wiloc.description.workers import WorkerError, borrowed_pool, can_fork, kept_pool
 from wiloc.descriptors.registry import DescriptorSpec
 from wiloc.errors import FrameError, ParameterError, WilocError
+from wiloc.quiet import decoders_quiet, quiet_always
 from wiloc.sources.frames import Fingerprint, fingerprint, jpeg_size, read_colour, read_gray
 
 if TYPE_CHECKING:
@@ -61,8 +62,6 @@ COLOUR_BATCH = 64
 _OPENCV_ERRORS_ONLY = 2  # OpenCV's LOG_LEVEL_ERROR (the same number in every 4.x)
 
 Task = tuple[Path, FrameRecord | None]
-#: In a worker process: a descriptor open on /dev/null, where its image decoders' stderr goes.
-_devnull: int | None = None
 
 
 
@@ -209,10 +208,9 @@ def _describe_tagged(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]]) ->
 def _init_worker() -> None:
     """Workers keep OpenCV's and libjpeg's warnings to themselves: wiloc reports bad frames itself.
     (They leave Ctrl-C to the parent, which stops them and keeps what was journaled.)"""
-    global _devnull
     _opencv_log_level(_OPENCV_ERRORS_ONLY)
     cv2.setNumThreads(1)  # the processes share out the cores already
-    _devnull = os.open(os.devnull, os.O_WRONLY)
+    quiet_always()
 
 
 @contextmanager
@@ -232,32 +230,9 @@ def _opencv_log_level(level: int) -> int:
     return (cv2.setLogLevel if logging is None else logging.setLogLevel)(level)
 
 
-@contextmanager
-def _decoders_quiet() -> Iterator[None]:
-    """File descriptor 2 on /dev/null meanwhile: libjpeg prints "Corrupt JPEG data: ..." there
-    itself. Always in a worker, which runs no other thread, so nothing else is lost; in the
-    caller's process only when stderr is no terminal: on a terminal other threads of the caller
-    (a progress display) write there, so it is left alone. Descriptor 2 is moved inside the
-    ``try``: a Ctrl-C raised the moment the move is done still puts it back (else the command's
-    own "error: interrupted" would go to /dev/null)."""
-    global _devnull
-    if _devnull is None:
-        if os.isatty(2):
-            yield
-            return
-        _devnull = os.open(os.devnull, os.O_WRONLY)
-    saved = os.dup(2)
-    try:
-        os.dup2(_devnull, 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
 def _read_gray(path: Path, min_size: tuple[int, int] | None) -> np.ndarray:
-    """`read_gray`, the decoders quiet (:func:`_decoders_quiet`)."""
-    with _decoders_quiet():
+    """`read_gray`, the decoders quiet (:func:`decoders_quiet`)."""
+    with decoders_quiet():
         return read_gray(path, min_size)
 
 
@@ -323,7 +298,7 @@ def _describe_colour(spec: DescriptorSpec, tasks: Sequence[Task], threads: int) 
     """:func:`_describe_one` for a colour descriptor's tasks, as one batch: the images decoded
     in colour on ``threads`` threads (OpenCV's decoders let go of the GIL), then described
     together (``DescriptorSpec.compute_batch``, the network's runtime on ``threads`` threads)."""
-    with _decoders_quiet(), ThreadPoolExecutor(max(1, threads), thread_name_prefix="wiloc-decode") as pool:
+    with decoders_quiet(), ThreadPoolExecutor(max(1, threads), thread_name_prefix="wiloc-decode") as pool:
         settled = list(pool.map(lambda task: _settle(task, read_colour), tasks))
     decoded = [i for i, item in enumerate(settled) if isinstance(item[0], Fingerprint)]
     rows = spec.compute_batch([settled[i][1] for i in decoded], threads) if decoded else []
