@@ -196,43 +196,14 @@ def test_describe_keeps_decoder_warnings_off_stderr(tmp_path: Path) -> None:
         assert run.stderr == ""  # libpng's and libjpeg's own messages too: stderr is no terminal
 
 
-def test_ctrl_c_the_moment_decoders_are_quieted_leaves_stderr_where_it_was(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("moment", ["moved", "put back"])
+def test_ctrl_c_at_either_end_of_the_decoders_quiet_stretch_leaves_stderr_where_it_was(
+        moment: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Ctrl-C raised just as descriptor 2 has been moved to /dev/null (the libjpeg messages'
-    silencer) puts it back: the command's "error: interrupted" must reach the user."""
-    from wiloc import quiet
-    from wiloc.description import frame_describing
-
-    image = tmp_path / write_images(tmp_path, 1)[0]
-    original = os.fstat(2)
-    saved = os.dup(2)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    dup2 = os.dup2
-
-    def interrupted_on_quieting(fd: int, fd2: int) -> int:
-        result = dup2(fd, fd2)
-        if fd == devnull:
-            raise KeyboardInterrupt
-        return result
-
-    monkeypatch.setattr(quiet, "_devnull", devnull)
-    monkeypatch.setattr(quiet.os, "dup2", interrupted_on_quieting)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            frame_describing._read_gray(image, None)
-        now = os.fstat(2)
-    finally:
-        dup2(saved, 2)  # for the tests after this one, whatever happened
-        os.close(saved)
-        os.close(devnull)
-    assert (now.st_dev, now.st_ino) == (original.st_dev, original.st_ino)
-
-
-def test_ctrl_c_as_stderr_is_put_back_is_mended_before_an_error_is_printed(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Ctrl-C raised as the quiet stretch ends, before descriptor 2 is back from /dev/null: the
-    error printers call stderr_back first, which puts it back ("error: interrupted" was lost
-    now and then: exit code 130 and an empty stderr)."""
+    silencer) or as the stretch's end puts it back, before it is back: the command's "error:
+    interrupted" must reach the user. The first the stretch puts back itself; the second
+    stderr_back, which every error printer calls first (the line was lost now and then: exit code
+    130 and an empty stderr)."""
     from wiloc import quiet
     from wiloc.description import frame_describing
 
@@ -244,18 +215,22 @@ def test_ctrl_c_as_stderr_is_put_back_is_mended_before_an_error_is_printed(
     dup2 = os.dup2
     interrupted: list[int] = []
 
-    def interrupted_on_putting_back(fd: int, fd2: int) -> int:
-        if fd != devnull and not interrupted:  # the stretch's own putting back, cut short
+    def interrupting(fd: int, fd2: int) -> int:
+        if moment == "put back" and fd != devnull and not interrupted:  # cut short before it moves
             interrupted.append(fd)
             raise KeyboardInterrupt
-        return dup2(fd, fd2)
+        result = dup2(fd, fd2)
+        if moment == "moved" and fd == devnull:
+            interrupted.append(fd)
+            raise KeyboardInterrupt
+        return result
 
     monkeypatch.setattr(quiet, "_devnull", devnull)
-    monkeypatch.setattr(quiet.os, "dup2", interrupted_on_putting_back)
+    monkeypatch.setattr(quiet.os, "dup2", interrupting)
     try:
         with pytest.raises(KeyboardInterrupt):
             frame_describing._read_gray(image, None)
-        cut_short = os.fstat(2)
+        stretch_ended = os.fstat(2)
         quiet.stderr_back()
         quiet.stderr_back()  # a second call changes nothing
         now = os.fstat(2)
@@ -263,7 +238,8 @@ def test_ctrl_c_as_stderr_is_put_back_is_mended_before_an_error_is_printed(
         dup2(saved, 2)  # for the tests after this one, whatever happened
         os.close(saved)
         os.close(devnull)
-    assert interrupted and (cut_short.st_dev, cut_short.st_ino) == (null.st_dev, null.st_ino)
+    left = original if moment == "moved" else null
+    assert interrupted and (stretch_ended.st_dev, stretch_ended.st_ino) == (left.st_dev, left.st_ino)
     assert (now.st_dev, now.st_ino) == (original.st_dev, original.st_ino)
 
 
