@@ -336,3 +336,31 @@ def test_every_json_output_carries_the_lines_printed_on_stderr(tmp_path: Path, c
     assert said["localize again"][-1] == f"note: replaced the existing results file {out}"
     assert [line.split(":")[0] for line in said["localize --follow"]] == ["skipped"]
     assert f"note: replaced the existing file {csv}" in said["evaluate"]
+
+
+def _recalls_at_cuts(text: str) -> list[str]:
+    """The recall lines of a table's cut cells (``R 0.250``, ``R -``), in order."""
+    return re.findall(r"(?<![\w@])R (-|\d\.\d{3})", text)
+
+
+def test_a_recall_with_nothing_to_recall_is_undefined_not_0(tmp_path: Path, cache_dir: Path) -> None:
+    """Recall at a cut over no frames is 0 / 0: "-" in the tables and null in --json, as precision
+    when nothing is accepted. P(new place)'s on a route whose every frame has a true match (it
+    showed R 0.000), the match's under a ground truth that gives no frame one."""
+    ref, query = _route(tmp_path)
+    run = tmp_path / "run.csv"
+    assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "catgraph", "--out", str(run),
+                               "--jobs", "1"]).exit_code == 0
+    nothing = tmp_path / "nothing.npy"
+    np.save(nothing, np.zeros((24, 24), dtype=bool))
+    for truth, (match, new) in {"aligned": (False, True), f"matrix:{nothing}": (True, False)}.items():
+        evaluate = runner.invoke(app, ["evaluate", str(run), "--gt", truth], env=NARROW)
+        compare = runner.invoke(app, ["compare", str(run), "--gt", truth], env=NARROW)
+        assert evaluate.exit_code == 0 and compare.exit_code == 0, (evaluate.output, compare.output)
+        at_match, at_new = (_recalls_at_cuts(part) for part in evaluate.stdout.split("P(new place) >= ", 1))
+        compared = (_recalls_at_cuts(part) for part in compare.stdout.split("P(new place) (ground truth", 1))
+        for recalls, undefined in ((at_match, match), (at_new, new), *zip(compared, (match, new))):
+            assert len(recalls) == 3 and (recalls == ["-"] * 3) == undefined, (truth, evaluate.stdout, compare.stdout)
+        (said,) = json.loads(runner.invoke(app, ["evaluate", str(run), "--gt", truth, "--json"]).stdout)["runs"]
+        for cuts, undefined in ((said["cuts"], match), (said["new_place"]["cuts"], new)):
+            assert all((cut["recall"] is None) == undefined for cut in cuts), cuts

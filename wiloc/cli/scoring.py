@@ -58,7 +58,7 @@ def warn_about_truth(evaluations: list[api.Evaluation]) -> Notes:
             notes.add("warning", f"{e.path}: {warning}")
         if not e.truth.has_match().any():
             notes.add("warning", f"{e.path}: no frame has a true match under this ground truth, so every "
-                                 "recall is 0 (check --gt, --tolerance, --radius)")
+                                 "recall is 0, at a cut undefined (check --gt, --tolerance, --radius)")
     return notes
 
 

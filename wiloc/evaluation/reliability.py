@@ -127,7 +127,7 @@ def counts_at_cuts(confidence: ArrayLike, correct: ArrayLike, n_positive: int,
 
     Accepted = decided and confidence >= cut; TP = accepted and correct (an accepted frame with no
     true match is wrong); precision = TP / accepted (NaN when nothing is accepted); recall = TP /
-    ``n_positive``, the frames with at least one true match (0 when there are none).
+    ``n_positive``, the frames with at least one true match (NaN when there are none: 0 / 0).
     """
     at = np.asarray(cuts, dtype=np.float64).reshape(-1)
     if not np.all((at >= 0.0) & (at <= 1.0)):
@@ -135,7 +135,7 @@ def counts_at_cuts(confidence: ArrayLike, correct: ArrayLike, n_positive: int,
     tp, fp = _counts_at(confidence, correct, at)
     accepted = tp + fp
     precision = np.divide(tp, accepted, out=np.full(at.shape, np.nan), where=accepted > 0)
-    recall = tp / n_positive if n_positive > 0 else np.zeros(at.shape)
+    recall = tp / n_positive if n_positive > 0 else np.full(at.shape, np.nan)
     return CutCounts(cuts=at, accepted=accepted, true_positives=tp, precision=precision,
                      recall=np.asarray(recall, dtype=np.float64))
 
