@@ -4,6 +4,7 @@ LaTeX."""
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -14,6 +15,7 @@ from typer.testing import CliRunner
 
 from wiloc.cli import app
 from wiloc.evaluation.results import read_results, write_results
+from wiloc.text_tables import threshold_text
 from wiloc.wrapping import widest_word, wrap
 
 runner = CliRunner()
@@ -138,3 +140,36 @@ def test_compare_writes_csv_markdown_and_latex(runs: tuple[Path, list[str]]) -> 
     assert latex.count(r"\begin{tabular}") == 3 and r"day\_left & catgraph/sad &" in latex
     both = runner.invoke(app, ["compare", *everything, "--markdown", "--latex"])
     assert both.exit_code == 2 and "--latex: give one of" in both.output
+
+
+def _names_to_four_digits(text: str, value: float | None) -> bool:
+    """Whether a printed threshold names ``value`` to four significant digits of its distance to 0
+    or 1, whichever is nearer (where confidences crowd)."""
+    if value is None:
+        return text == "-"
+    gap = min(abs(value), abs(1.0 - value))
+    return abs(float(text) - value) <= (0.5 * 10.0 ** (math.floor(math.log10(gap)) - 3) if gap else 0.0) * (1 + 1e-9)
+
+
+def test_thresholds_are_printed_with_the_digits_that_say_what_was_chosen(runs: tuple[Path, list[str]]) -> None:
+    """Table II (as a table and in Markdown) and evaluate's threshold at max F1 showed 3 decimals:
+    0.99951 as 1.000, 0.9897 and 0.9903 both as 0.990. JSON keeps the full float."""
+    assert [threshold_text(v) for v in (0.99951, 0.9897, 0.9903, 0.14, 1.5e-05, 1.0, math.nan)] == [
+        "0.99951", "0.9897", "0.9903", "0.140", "0.000015", "1.000", "-"]
+    tmp, _ = runs
+    everything = sorted(map(str, (tmp / "runs").glob("*.csv")))
+    args = ["compare", *everything, "--precision", "100,99,90"]
+    chosen = {(row["method"], f"{row['precision']:g}%"): row["threshold"]
+              for row in json.loads(_invoke([*args, "--json"], WIDE))["table2"]}
+    table = [[part.strip() for part in line.split("│")[1:4]] for line in _invoke(args, WIDE).split("Table II", 1)[1]
+             .splitlines() if line.startswith("│") and "%" in line]
+    markdown = [line.split(" | ")[:3] for line in _invoke([*args, "--markdown"], WIDE).split("**Table II", 1)[1]
+                .splitlines() if line.startswith("| ") and "%" in line]
+    for shown in (table, [[method.removeprefix("| "), target, text] for method, target, text in markdown]):
+        assert {(method, target) for method, target, _ in shown} == set(chosen)  # Markdown: once per traversal
+        assert all(_names_to_four_digits(text, chosen[method, target]) for method, target, text in shown), shown
+    assert len(table) == len(chosen) and any(len(text.split(".")[1]) > 3 for _, _, text in table)  # 3 decimals lost
+    said = json.loads(_invoke(["evaluate", *everything, "--json"], WIDE))["runs"]
+    (line,) = [line for line in _invoke(["evaluate", *everything], WIDE).splitlines() if "threshold at max F1" in line]
+    shown = [part.strip() for part in line.split("│")[2:-1]]
+    assert len(shown) == len(said) and all(map(_names_to_four_digits, shown, [run["max_f1_threshold"] for run in said]))

@@ -1,11 +1,29 @@
 """Tables as text to paste into a paper or a README: Markdown (GitHub's pipe tables) and LaTeX
 (a ``tabular`` with booktabs rules), from rows of dicts as ``wiloc compare --markdown`` and
-``--latex`` print them. Numbers have 3 decimals, a missing one is ``-``."""
+``--latex`` print them. Numbers have 3 decimals (a threshold as many as :func:`threshold_text`
+gives), a missing one is ``-``."""
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
 from typing import Any
+
+
+class Digits(str):
+    """A number already written out (a threshold by :func:`threshold_text`): aligned as numbers are."""
+
+
+def threshold_text(value: float | None) -> str:
+    """A threshold written out to say what was chosen: four significant digits of its distance to
+    0 or 1, whichever is nearer, since confidences crowd there (0.99951 is no 1.000, and 0.9897
+    and 0.9903 are not both 0.990); at least 3 decimals as other numbers, no trailing zero beyond
+    them; "-" when there is none."""
+    if value is None or not math.isfinite(value):
+        return "-"
+    gap = min(abs(value), abs(1.0 - value))
+    decimals = 3 if gap == 0 else max(3, 3 - math.floor(math.log10(gap)))
+    whole, _, fraction = f"{value:.{decimals}f}".partition(".")
+    return f"{whole}.{fraction.rstrip('0').ljust(3, '0')}"
 
 
 def _text(value: Any) -> str:
@@ -17,7 +35,8 @@ def _text(value: Any) -> str:
 
 
 def _numeric(rows: Sequence[dict[str, Any]], column: str) -> bool:
-    return any(isinstance(row.get(column), (int, float)) and not isinstance(row.get(column), bool) for row in rows)
+    return any(isinstance(row.get(column), (int, float, Digits)) and not isinstance(row.get(column), bool)
+               for row in rows)
 
 
 def markdown(rows: Sequence[dict[str, Any]], columns: Sequence[str], labels: dict[str, str]) -> str:

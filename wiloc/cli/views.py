@@ -28,6 +28,7 @@ from rich.table import Table
 from wiloc.candidates import RANKED
 from wiloc.cli.core import err, out
 from wiloc.evaluation.reliability import NEW_PLACE_KEYS
+from wiloc.text_tables import Digits, threshold_text
 from wiloc.wrapping import Words
 
 if TYPE_CHECKING:
@@ -298,7 +299,8 @@ def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str,
     view.add_row(Words("results", whole_lines=True), *[name(row["results"]) for row in rows])
     for key in keys:
         view.add_row(Words(METRIC_LABELS.get(key) or recall_at_label(key), whole_lines=True),
-                     *[cell(row.get(key)) for row in rows])
+                     *[threshold_text(row.get(key)) if key == "max_f1_threshold" else cell(row.get(key))
+                       for row in rows])
     for cut in cuts:
         view.add_row(f"cut {cut:g}", *[at_cut(row, cut) for row in rows])
     if new_place:
@@ -397,7 +399,8 @@ def _missing(value: Any) -> bool:
 
 
 def table2_view(comparison: api.Comparison) -> Table:
-    """Table II: the global threshold per method and precision, recall per traversal, worst marked."""
+    """Table II: the global threshold per method and precision (its digits by :func:`threshold_text`),
+    recall per traversal, worst marked."""
     t2 = comparison.table2
     traversals = list(dict.fromkeys(t2["traversal"]))
     view = Table(title=escape(f"Table II: one global threshold per method (worst traversal marked *); "
@@ -407,7 +410,8 @@ def table2_view(comparison: api.Comparison) -> Table:
     for (method, target), group in t2.groupby(["method", "precision"], sort=False):
         cells = {row.traversal: f"{row.recall:.1%}{' *' if row.worst else ''}" for row in group.itertuples()}
         threshold = group["threshold"].iloc[0]
-        view.add_row(name(method), f"{target:g}%", cell(float(threshold)), *[cells.get(t, "") for t in traversals])
+        view.add_row(name(method), f"{target:g}%", threshold_text(float(threshold)),
+                     *[cells.get(t, "") for t in traversals])
     return fit(view)
 
 
@@ -436,5 +440,6 @@ def comparison_records(comparison: api.Comparison) -> list[tuple[str, list[dict[
             *([(f"{NEW_PLACE_CAPTION}; {comparison.ground_truth}", given,
                 ["traversal", "method", *new_place], new_place)] if given else []),
             (f"Table II: one global threshold per method (worst traversal marked); {comparison.ground_truth}",
-             [{**row, "precision": f"{row['precision']:g}%"} for row in comparison.table2.to_dict(orient="records")],
+             [{**row, "precision": f"{row['precision']:g}%", "threshold": Digits(threshold_text(row["threshold"]))}
+              for row in comparison.table2.to_dict(orient="records")],
              ["method", "precision", "threshold", "traversal", "recall", "worst"], {})]
