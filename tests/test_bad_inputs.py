@@ -1559,3 +1559,28 @@ def test_ground_truth_files_may_be_given_as_paths(tmp_path: Path) -> None:
     assert expected.nnz > 0 and (expected != got).nnz == 0
     with pytest.raises(WilocError, match="no such file"):
         TruthSource(kind="pairs", path=tmp_path / "gone.csv").load(names, names, str(tmp_path), False, 10)
+
+
+def test_a_tolerance_wider_than_the_map_is_the_whole_map(results: Path) -> None:
+    """--tolerance beyond int64 (a typo of many digits) counts every map frame as a true match, as
+    one of the map's length does: it ended in numpy's OverflowError, with a traceback."""
+    def metrics(tolerance: int) -> dict[str, object]:
+        result = runner.invoke(app, ["evaluate", str(results), "--tolerance", str(tolerance), "--json"])
+        assert result.exit_code == 0, result.output
+        return {k: v for k, v in json.loads(result.stdout)["runs"][0].items() if k != "ground_truth"}
+
+    assert metrics(10 ** 23) == metrics(30)
+
+
+def test_a_pairs_tolerance_wider_than_the_map_is_the_whole_map(tmp_path: Path) -> None:
+    """A pairs file's tolerance of 1e30 marks the whole map, as one of the map's length does: cast
+    to int64 it wrapped to a negative band, so that row silently had no true match at all."""
+    from wiloc.evaluation.truth_source import TruthSource
+
+    names = [f"img{i}.png" for i in range(30)]
+    truths = {}
+    for tolerance in ("1e30", "30"):
+        path = tmp_path / f"pairs-{tolerance}.csv"
+        path.write_text(f"query,reference,tolerance\nimg3.png,img3.png,{tolerance}\nimg4.png,img4.png,1\n")
+        truths[tolerance] = TruthSource(kind="pairs", path=path).load(names, names, str(tmp_path), False, 10).matrix
+    assert truths["30"][[3]].nnz == 30 and (truths["1e30"] != truths["30"]).nnz == 0

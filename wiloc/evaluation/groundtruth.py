@@ -85,7 +85,8 @@ def truth_from_pairs(rows: NDArray[np.int64], cols: NDArray[np.int64], query_nam
 def _band(rows: NDArray[np.int64], centres: NDArray[np.int64], tolerance: ArrayLike,
           n_ref: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Expand each (row, centre) into (row, centre - T .. centre + T) within the n_ref reference
-    frames; T may differ per row. A band marking more than MAX_TRUE_PAIRS pairs is refused
+    frames; T may differ per row, and callers clip it to n_ref (a band that wide covers the whole
+    map) so that it fits int64. A band marking more than MAX_TRUE_PAIRS pairs is refused
     before anything is allocated."""
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.int64), rows.shape)
     first = np.clip(centres - tol, 0, n_ref)
@@ -153,7 +154,7 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
     Used when traversals were recorded frame by frame along the same route (Gardens Point,
     Nordland). ``tolerance`` counts frames in the reference's order.
     """
-    tol = _check_tolerance(tolerance)
+    tol = min(_check_tolerance(tolerance), len(ref_names))  # wider than the map is the whole map, and fits int64
     where = f"aligned ground truth (by {by})"
     n_query = len(query_names)
     if by == "name":
@@ -359,7 +360,7 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
         tol = _numeric(path, frame, ["tolerance"])[:, 0]
         if np.any(tol < 0) or np.any(tol != np.round(tol)):
             raise WilocError(path, "tolerance must be a whole number of frames >= 0")
-        tolerance = tol.astype(np.int64)
+        tolerance = np.minimum(tol, len(ref_names)).astype(np.int64)  # 1e30 would wrap to a negative band
     else:
         tolerance = np.zeros(len(frame), dtype=np.int64)
     q = _lookup(frame["query"], query_names)
