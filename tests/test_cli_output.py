@@ -364,3 +364,16 @@ def test_a_recall_with_nothing_to_recall_is_undefined_not_0(tmp_path: Path, cach
         (said,) = json.loads(runner.invoke(app, ["evaluate", str(run), "--gt", truth, "--json"]).stdout)["runs"]
         for cuts, undefined in ((said["cuts"], match), (said["new_place"]["cuts"], new)):
             assert all((cut["recall"] is None) == undefined for cut in cuts), cuts
+
+
+def test_describe_says_what_its_rate_counts(tmp_path: Path, cache_dir: Path) -> None:
+    """An imported descriptor matrix is read a row at a time, not decoded from images: its rate is
+    rows/s (it was labelled images/s); a folder's stays images/s."""
+    ref, _ = _route(tmp_path, 6)
+    matrix = tmp_path / "features.npy"
+    np.save(matrix, np.random.default_rng(0).random((6, 16)).astype(np.float32))
+    imported = runner.invoke(app, ["describe", "--import", str(matrix)], env=NARROW)
+    described = runner.invoke(app, ["describe", str(ref), "--jobs", "1"], env=NARROW)
+    assert imported.exit_code == 0 and described.exit_code == 0, (imported.output, described.output)
+    assert "rows/s" in imported.stdout and "images/s" not in imported.stdout, imported.stdout
+    assert "images/s" in described.stdout and "rows/s" not in described.stdout, described.stdout

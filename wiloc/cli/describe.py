@@ -109,7 +109,8 @@ def describe(
                            [line for said in notes for line in said])
     else:
         out.print(table("describe", [{**row, "shape": "x".join(map(str, row["shape"]))} for row in rows],
-                        labels={"images_per_second": "images/s"}, digits={"images_per_second": 1}))
+                        labels={"images_per_second": "rows/s" if importing else "images/s"},  # an import reads rows
+                        digits={"images_per_second": 1}))
     # A video that stops decoding early is an error, after its good frames went into the cache.
     problems = [f"{r.folder}: {reason}" for r in reports if r.video for _, reason in r.failed]
     problems += [f"{r.folder}: no image could be described (see the lines above)"
