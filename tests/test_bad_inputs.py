@@ -1584,3 +1584,16 @@ def test_a_pairs_tolerance_wider_than_the_map_is_the_whole_map(tmp_path: Path) -
         path.write_text(f"query,reference,tolerance\nimg3.png,img3.png,{tolerance}\nimg4.png,img4.png,1\n")
         truths[tolerance] = TruthSource(kind="pairs", path=path).load(names, names, str(tmp_path), False, 10).matrix
     assert truths["30"][[3]].nnz == 30 and (truths["1e30"] != truths["30"]).nnz == 0
+
+
+def test_a_model_header_whose_counts_do_not_fit_its_bins_is_refused(route: tuple[Path, Path], tmp_path: Path) -> None:
+    """A results file's model with one bin edge deleted by hand is no histogram model: compare
+    --model-plot ended in matplotlib's size mismatch, with a traceback."""
+    ref, query = route
+    run = tmp_path / "online.csv"
+    assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--out", str(run), "--jobs", "1"]).exit_code == 0
+    run.write_text(re.sub(r'("edges": \[)[^,]+, ', r"\1", run.read_text(), count=1))
+    figure = tmp_path / "fig1.png"
+    ends_in_one_error(runner.invoke(app, ["compare", str(run), "--model-plot", str(figure)]), 1,
+                      f"{run}: header 'model' is not a histogram model (b must hold a count >= 0 for each of the 99 bins)")
+    assert not figure.exists()

@@ -39,6 +39,9 @@ class HistogramModel:
             self.c = np.zeros(self.n_bins, dtype=np.float64)
         self.b = np.asarray(self.b, dtype=np.float64)
         self.c = np.asarray(self.c, dtype=np.float64)
+        for name, counts in (("b", self.b), ("c", self.c)):  # a results header edited by hand
+            if counts.shape != (self.n_bins,) or not np.all(np.isfinite(counts) & (counts >= 0)):
+                raise ValueError(f"{name} must hold a count >= 0 for each of the {self.n_bins} bins")
 
     @classmethod
     def from_range(cls, low: float, high: float, bins: int = 100, **kwargs: float | None) -> "HistogramModel":
