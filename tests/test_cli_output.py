@@ -343,14 +343,20 @@ def _recalls_at_cuts(text: str) -> list[str]:
     return re.findall(r"(?<![\w@])R (-|\d\.\d{3})", text)
 
 
-def test_a_recall_with_nothing_to_recall_is_undefined_not_0(tmp_path: Path, cache_dir: Path) -> None:
-    """Recall at a cut over no frames is 0 / 0: "-" in the tables and null in --json, as precision
-    when nothing is accepted. P(new place)'s on a route whose every frame has a true match (it
-    showed R 0.000), the match's under a ground truth that gives no frame one."""
+def _catgraph_run(tmp_path: Path) -> Path:
+    """A catgraph run (it says P(new place)) over :func:`_route`, every frame with a true match."""
     ref, query = _route(tmp_path)
     run = tmp_path / "run.csv"
     assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "catgraph", "--out", str(run),
                                "--jobs", "1"]).exit_code == 0
+    return run
+
+
+def test_a_recall_with_nothing_to_recall_is_undefined_not_0(tmp_path: Path, cache_dir: Path) -> None:
+    """Recall at a cut over no frames is 0 / 0: "-" in the tables and null in --json, as precision
+    when nothing is accepted. P(new place)'s on a route whose every frame has a true match (it
+    showed R 0.000), the match's under a ground truth that gives no frame one."""
+    run = _catgraph_run(tmp_path)
     nothing = tmp_path / "nothing.npy"
     np.save(nothing, np.zeros((24, 24), dtype=bool))
     for truth, (match, new) in {"aligned": (False, True), f"matrix:{nothing}": (True, False)}.items():
@@ -377,3 +383,15 @@ def test_describe_says_what_its_rate_counts(tmp_path: Path, cache_dir: Path) -> 
     assert imported.exit_code == 0 and described.exit_code == 0, (imported.output, described.output)
     assert "rows/s" in imported.stdout and "images/s" not in imported.stdout, imported.stdout
     assert "images/s" in described.stdout and "rows/s" not in described.stdout, described.stdout
+
+
+def test_compare_pads_every_table_within_its_edges(tmp_path: Path, cache_dir: Path) -> None:
+    """The calibration table at fixed cuts kept no space inside its left and right edges when it
+    had room ('│catgraph │ ... │ P 1.000│'), unlike every other table: fit() makes room by dropping
+    the edges when the console is narrow."""
+    run = _catgraph_run(tmp_path)
+    compare = runner.invoke(app, ["compare", str(run)], env={"COLUMNS": "120"})
+    assert compare.exit_code == 0, compare.output
+    edged = [line for line in compare.stdout.splitlines() if line[:1] in "│┃"]
+    assert any("P " in line for line in edged)  # the cut table is among them
+    assert all(line[1] == " " and line[-2] == " " for line in edged), compare.stdout

@@ -322,7 +322,7 @@ def cut_views(comparison: api.Comparison, cuts: Sequence[float]) -> list[Table]:
     tables = []
     for traversal, group in comparison.cut_table.groupby("traversal", sort=False):
         view = Table(title=cell(f"Calibration and fixed confidence cuts: {traversal} ({comparison.ground_truth})"),
-                     caption=CUT_CAPTION, pad_edge=False)
+                     caption=CUT_CAPTION)
         view.add_column("method")
         for column in CALIBRATION_COLUMNS.values():
             view.add_column(column, justify="right")
