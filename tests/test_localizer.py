@@ -197,12 +197,18 @@ def test_a_changed_map_is_refused_on_load(demo_route: demo.DemoRoute, tmp_path: 
         Localizer.load(tmp_path / "junk.npz")
 
 
+@pytest.mark.parametrize("as_paths", [False, True])
 def test_a_saved_or_pickled_trained_localizer_keeps_its_training_pair(demo_route: demo.DemoRoute, tmp_path: Path,
-                                                                       cache_dir: Path) -> None:
+                                                                       cache_dir: Path, as_paths: bool) -> None:
     """The results of a trained localizer loaded or unpickled record its training pair as the
-    original's do (they said none: a header without train_query and train_map)."""
+    original's do (they said none: a header without train_query and train_map), its ground-truth
+    files given as text or as paths (a Path ended the save in json's TypeError)."""
     frames = sorted(demo_route.queries[0].iterdir())
     training = _training(demo_route)
+    if as_paths:
+        truth = training.truth
+        training = api.Training(training.query, training.reference, api.TruthSource(
+            kind=truth.kind, path=Path(truth.path), ref_path=Path(truth.ref_path), radius=truth.radius))
     loc = Localizer(demo_route.reference, method="trained", training=training)
     loc.observe(frames[0])
     loc.save(tmp_path / "state.npz")

@@ -81,8 +81,8 @@ def file_form(path: str | Path) -> str:
 class TruthSource:
     """Which ground truth to use: a form (SPEC.md section 7) and its files and tolerances.
 
-    ``path`` and ``ref_path`` (text or path-like) may contain ``{query}``, replaced by the query
-    folder's name, so that several query traversals can each find their own file.
+    ``path`` and ``ref_path`` (text or path-like, kept as text) may contain ``{query}``, replaced
+    by the query folder's name, so that several query traversals can each find their own file.
     """
 
     kind: str = "aligned"
@@ -94,7 +94,11 @@ class TruthSource:
     variable: str | None = None  # matrix form, .mat files holding several arrays: which one
 
     def __post_init__(self) -> None:
-        """A radius is checked as it is given, before any file or folder is read."""
+        """Path-like files kept as text, as a saved localizer's state writes them to JSON; a radius
+        checked as it is given, before any file or folder is read."""
+        for name in ("path", "ref_path"):
+            if isinstance(value := getattr(self, name), os.PathLike):
+                object.__setattr__(self, name, os.fspath(value))
         if self.radius is not None:
             check_radius(self.radius)
 
