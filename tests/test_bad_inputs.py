@@ -1586,14 +1586,32 @@ def test_a_pairs_tolerance_wider_than_the_map_is_the_whole_map(tmp_path: Path) -
     assert truths["30"][[3]].nnz == 30 and (truths["1e30"] != truths["30"]).nnz == 0
 
 
-def test_a_model_header_whose_counts_do_not_fit_its_bins_is_refused(route: tuple[Path, Path], tmp_path: Path) -> None:
+def test_a_model_header_whose_counts_do_not_fit_its_bins_is_refused(online_results: Path, tmp_path: Path) -> None:
     """A results file's model with one bin edge deleted by hand is no histogram model: compare
     --model-plot ended in matplotlib's size mismatch, with a traceback."""
-    ref, query = route
-    run = tmp_path / "online.csv"
-    assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--out", str(run), "--jobs", "1"]).exit_code == 0
+    run = online_results
     run.write_text(re.sub(r'("edges": \[)[^,]+, ', r"\1", run.read_text(), count=1))
     figure = tmp_path / "fig1.png"
     ends_in_one_error(runner.invoke(app, ["compare", str(run), "--model-plot", str(figure)]), 1,
                       f"{run}: header 'model' is not a histogram model (b must hold a count >= 0 for each of the 99 bins)")
     assert not figure.exists()
+
+
+@pytest.mark.parametrize("given", ["particles=5", [("crop", "none")]])
+def test_parameters_given_as_no_mapping_are_a_parameter_error(given: object, route: tuple[Path, Path],
+                                                              tmp_path: Path) -> None:
+    """A string or a list of pairs where the API takes a dict of parameters is a ParameterError
+    naming the argument: dict() made it a ValueError or TypeError about update sequences."""
+    from wiloc import api
+
+    ref, query = route
+    calls = {"method_params": lambda: api.localize(query, reference=ref, method_params=given),
+             "descriptor_params": lambda: api.describe(ref, descriptor_params=given)}
+    calls["descriptor_params (localizer)"] = lambda: Localizer(ref, descriptor_params=given)
+    calls["method_params (follow)"] = lambda: api.follow_folder(query, reference=ref, method_params=given,
+                                                                out=tmp_path / "f.csv")
+    for name, call in calls.items():
+        with pytest.raises(ParameterError, match="must map parameter names to values \\(a dict\\), got (str|list)") as refused:
+            call()
+        assert refused.value.parameter == name.split()[0]
+    assert not (tmp_path / "f.csv").exists()

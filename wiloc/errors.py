@@ -1,6 +1,7 @@
 """Errors that reach the user as one line, and the exit codes they map to."""
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -83,6 +84,17 @@ class ParameterError(UsageError):
 
     def __init__(self, parameter: str, problem: str) -> None:
         super().__init__(None, problem, parameter=parameter)
+
+
+def parameter_values(values: object, name: str) -> dict[str, Any]:
+    """``values`` (None: none) as a dict of parameter names to values: a string or a list given
+    where a mapping goes is a ParameterError naming ``name`` (``method_params``,
+    ``descriptor_params``), not dict()'s ValueError about update sequences."""
+    if values is None:
+        return {}
+    if not isinstance(values, Mapping):
+        raise ParameterError(name, f"must map parameter names to values (a dict), got {type(values).__name__}")
+    return dict(values)
 
 
 def load_problem(exc: Exception) -> str:

@@ -16,7 +16,7 @@ from wiloc.description.describing import describe_source
 from wiloc.description.matrix_import import import_matrix
 from wiloc.descriptors.external import check_frame_names, recorded_metric
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
-from wiloc.errors import ParameterError, WilocError
+from wiloc.errors import ParameterError, WilocError, parameter_values
 from wiloc.sources.bags import is_bag
 from wiloc.sources.frames import IMAGE_SUFFIXES
 from wiloc.sources.video import Sampling, is_video
@@ -31,7 +31,7 @@ Progress = Callable[[str, int, int], None]
 def descriptor_spec(descriptor: str, params: Mapping[str, Any] | None = None) -> DescriptorSpec:
     """The descriptor's spec; an unknown name or parameter is an error naming ``descriptor``."""
     try:
-        return get_descriptor(descriptor, **dict(params or {}))
+        return get_descriptor(descriptor, **parameter_values(params, "descriptor_params"))
     except ValueError as exc:
         raise ParameterError("descriptor", str(exc)) from None
 

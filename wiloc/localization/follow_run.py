@@ -10,7 +10,7 @@ from typing import Any
 
 from wiloc.cache.store import Cache
 from wiloc.decisions import Decision
-from wiloc.errors import FrameError, WilocError
+from wiloc.errors import FrameError, WilocError, parameter_values
 from wiloc.evaluation.results import RANKING, ResultsStream
 from wiloc.localization.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localization.localizer import Localizer
@@ -97,7 +97,7 @@ def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descr
     """:func:`follow_folder` once the results file ``path`` is locked (``lock``)."""
     localizer = Localizer(reference, descriptor=descriptor, descriptor_params=descriptor_params, method=method,
                           exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
-                          cache=cache, jobs=jobs, **dict(method_params or {}))
+                          cache=cache, jobs=jobs, **parameter_values(method_params, "method_params"))
     ranked = (RANKING,) if localizer.method.ranks else ()
     stream = ResultsStream(path, localizer.header(query), (*localizer.method.columns, *ranked), resume=True,
                            learned=localizer.method.facts().keys())

@@ -27,7 +27,7 @@ from wiloc.description.describing import check_sampling, check_topic, is_stream
 from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive, pairwise
 from wiloc.description.traversals import Describer, Progress, descriptors_digest, is_matrix_file, open_cluster, stage
-from wiloc.errors import ParameterError, UsageError, WilocError
+from wiloc.errors import ParameterError, UsageError, WilocError, parameter_values
 from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
 from wiloc.methods.base import MapContext, Method, TrainingRows
@@ -98,7 +98,7 @@ class RunSession:
             check_sampling([Path(source) for source in (query, map) if source is not None], sampling)
         pair = (training.query, training.reference) if isinstance(training, Training) else ()
         check_topic([Path(s) for s in (query, map, *pair) if s is not None and not isinstance(s, Entry)], topic)
-        self.describer = Describer(descriptor, dict(descriptor_params or {}), Cache.given(cache), metric=metric,
+        self.describer = Describer(descriptor, parameter_values(descriptor_params, "descriptor_params"), Cache.given(cache), metric=metric,
                                    jobs=jobs, progress=progress, sampling=sampling,
                                    cluster=open_cluster(scheduler, jobs), topic=topic)
         self.query: Entry | None = None if query is None else self.describer.entry(Path(query), query_names)

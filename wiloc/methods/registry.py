@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from wiloc.errors import ParameterError
+from wiloc.errors import ParameterError, parameter_values
 from wiloc.methods.base import Method
 from wiloc.methods.catgraph.filter import CatGraph
 from wiloc.methods.fabmap import FabMapMethod
@@ -46,4 +46,4 @@ def learning_from_the_map() -> list[str]:
 
 def make_method(name: str, params: Mapping[str, Any] | None = None) -> Method:
     """A new method object of the registered ``name`` with ``params`` (defaults for the rest)."""
-    return method_class(name)(params)
+    return method_class(name)(parameter_values(params, "method_params"))
