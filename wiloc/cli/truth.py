@@ -24,6 +24,7 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
     pairs:p.csv, matrix:m.npy, vprbench:g.npy, positives:p.npy), or a path whose suffix tells the form. Options of another form are refused (``prefix``:
     the options' name prefix, ``train_`` for the trained method's)."""
     from wiloc import api
+    from wiloc.evaluation.groundtruth import KINDS
     from wiloc.evaluation.truth_source import file_form
 
     flag = f"--{prefix.replace('_', '-')}gt"
@@ -32,7 +33,7 @@ def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | No
         if gt not in NAMED_FORMS and not Path(gt).is_file() and "{query}" not in gt:
             fail(f"{flag}: '{gt}' is neither a ground-truth form nor a file (forms: {FORMS})", EXIT_USAGE)
         kind, path = (gt, "") if gt in NAMED_FORMS else (file_form(gt), gt)
-    if kind not in ("aligned", "positions", "pairs", "matrix", "vprbench", "positives", "utm-names", "exif"):
+    if kind not in KINDS:
         fail(f"{flag}: unknown ground-truth form '{kind}' in '{gt}' (forms: {FORMS})", EXIT_USAGE)
     refuse_unused({f"{prefix}tolerance": (kind == "aligned", "--gt aligned (pairs files carry their own)"),
                    f"{prefix}gt_map": (kind == "positions", "positions ground truth"),
