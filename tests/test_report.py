@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 from helpers import places, write_traversal
 from wiloc import api
 from wiloc.cli import app
+from wiloc.labels import threshold_text
 
 runner = CliRunner()
 MAX_BYTES = 20_000_000
@@ -103,6 +104,18 @@ def test_the_report_shows_p_new_place_calibration_as_evaluate_gives_it(runs: lis
     plain = api.localize(route / "query", reference=route / "ref", method="threshold",
                          out=tmp_path / "query-sad-threshold.csv", jobs=1).path
     assert "no run says P(new place)" in _report([plain], tmp_path / "plain.html").read_text(encoding="utf-8")
+
+
+def test_the_report_writes_table_ii_thresholds_as_compare_does(runs: list[Path], tmp_path: Path) -> None:
+    """Table II's thresholds carry the digits that say what was chosen (threshold_text), as compare
+    prints them: the page gave 3 decimals, so 0.99951 read 1.000."""
+    page = _report(runs, tmp_path / "report.html").read_text(encoding="utf-8")
+    section = page.split("Table II", 1)[1].split("</table>", 1)[0]
+    shown = [row.split("</td><td>")[:3] for row in re.findall(r"<tr><td>(.*?)</td></tr>", section)]
+    compared = json.loads(runner.invoke(app, ["compare", *map(str, runs), "--gt", "aligned", "--json"]).stdout)
+    chosen = {(row["method"], f"{row['precision']:g}"): row["threshold"] for row in compared["table2"]}
+    assert shown and {(method, target) for method, target, _ in shown} == set(chosen)
+    assert all(text == threshold_text(chosen[method, target]) for method, target, text in shown), shown
 
 
 def test_a_report_over_an_existing_file_says_so_and_bad_names_are_refused(runs: list[Path], tmp_path: Path) -> None:

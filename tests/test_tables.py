@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from wiloc.cli import app
 from wiloc.evaluation.results import read_results, write_results
-from wiloc.text_tables import threshold_text
+from wiloc.labels import threshold_text
 from wiloc.wrapping import widest_word, wrap
 
 runner = CliRunner()

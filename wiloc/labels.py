@@ -1,8 +1,9 @@
-"""Short names for paths in tables and legends: each path's own name, or as many trailing parts as
-keep apart paths of the same name (two datasets' ``winter``: ``nordland/winter`` and
-``other/winter``)."""
+"""Short texts for tables and legends: names for paths (each path's own name, or as many trailing
+parts as keep apart paths of the same name: two datasets' ``winter``, ``nordland/winter`` and
+``other/winter``), and a confidence threshold written out with the digits that say it."""
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import PurePath
 
@@ -19,3 +20,16 @@ def short_names(paths: Sequence[str | PurePath]) -> list[str]:
         labels = [PurePath(*p[-depth:]).as_posix() if label in clashing else label
                   for p, label in zip(parts, labels)]
     return labels
+
+
+def threshold_text(value: float | None) -> str:
+    """A threshold written out to say what was chosen: four significant digits of its distance to
+    0 or 1, whichever is nearer, since confidences crowd there (0.99951 is no 1.000, and 0.9897
+    and 0.9903 are not both 0.990); at least 3 decimals as other numbers, no trailing zero beyond
+    them; "-" when there is none."""
+    if value is None or not math.isfinite(value):
+        return "-"
+    gap = min(abs(value), abs(1.0 - value))
+    decimals = 3 if gap == 0 else max(3, 3 - math.floor(math.log10(gap)))
+    whole, _, fraction = f"{value:.{decimals}f}".partition(".")
+    return f"{whole}.{fraction.rstrip('0').ljust(3, '0')}"

@@ -1,6 +1,6 @@
 """Tables as text to paste into a paper or a README: Markdown (GitHub's pipe tables) and LaTeX
 (a ``tabular`` with booktabs rules), from rows of dicts as ``wiloc compare --markdown`` and
-``--latex`` print them. Numbers have 3 decimals (a threshold as many as :func:`threshold_text`
+``--latex`` print them. Numbers have 3 decimals (a threshold as many as :func:`wiloc.labels.threshold_text`
 gives), a missing one is ``-``."""
 from __future__ import annotations
 
@@ -10,20 +10,7 @@ from typing import Any
 
 
 class Digits(str):
-    """A number already written out (a threshold by :func:`threshold_text`): aligned as numbers are."""
-
-
-def threshold_text(value: float | None) -> str:
-    """A threshold written out to say what was chosen: four significant digits of its distance to
-    0 or 1, whichever is nearer, since confidences crowd there (0.99951 is no 1.000, and 0.9897
-    and 0.9903 are not both 0.990); at least 3 decimals as other numbers, no trailing zero beyond
-    them; "-" when there is none."""
-    if value is None or not math.isfinite(value):
-        return "-"
-    gap = min(abs(value), abs(1.0 - value))
-    decimals = 3 if gap == 0 else max(3, 3 - math.floor(math.log10(gap)))
-    whole, _, fraction = f"{value:.{decimals}f}".partition(".")
-    return f"{whole}.{fraction.rstrip('0').ljust(3, '0')}"
+    """A number already written out (a threshold by :func:`wiloc.labels.threshold_text`): aligned as numbers are."""
 
 
 def _text(value: Any) -> str:

@@ -28,7 +28,8 @@ from rich.table import Table
 from wiloc.candidates import RANKED
 from wiloc.cli.core import err, out
 from wiloc.evaluation.reliability import NEW_PLACE_KEYS
-from wiloc.text_tables import Digits, threshold_text
+from wiloc.labels import threshold_text
+from wiloc.text_tables import Digits
 from wiloc.wrapping import Words
 
 if TYPE_CHECKING:

@@ -27,6 +27,7 @@ from wiloc.atomic import written_whole
 from wiloc.description.traversals import stage
 from wiloc.errors import WilocError
 from wiloc.evaluation.reliability import NEW_PLACE_KEYS
+from wiloc.labels import threshold_text
 from wiloc.version import __version__
 
 if TYPE_CHECKING:
@@ -239,15 +240,16 @@ def _figures(comparison: Comparison, names: list[str], cache: Cache, notes: list
 # --------------------------------------------------------------------------------------------- page
 
 def _table(frame: pd.DataFrame, columns: Mapping[str, str], percent: Sequence[str] = (),
-           general: Sequence[str] = ()) -> str:
+           general: Sequence[str] = (), thresholds: Sequence[str] = ()) -> str:
     """A DataFrame as an HTML table of ``columns`` (key: header) it has; ``percent`` columns as
-    percentages, ``general`` ones as short as they go (100, 99.5), other floats to 3 places, NaN
-    as a dash."""
+    percentages, ``general`` ones as short as they go (100, 99.5), ``thresholds`` with the digits
+    that say them (:func:`wiloc.labels.threshold_text`), other floats to 3 places, NaN as a dash."""
     keys = [key for key in columns if key in frame and not (frame[key].isna().all() and key.startswith("recall_at_"))]
     head = "".join(f"<th>{html.escape(columns[key])}</th>" for key in keys)
     rows = []
     for record in frame.to_dict(orient="records"):
-        texts = [f"{record[key]:g}" if key in general else _cell(record[key], key in percent) for key in keys]
+        texts = [f"{record[key]:g}" if key in general else threshold_text(record[key]) if key in thresholds
+                 else _cell(record[key], key in percent) for key in keys]
         cells = "".join(f"<td>{html.escape(text)}</td>" for text in texts)
         rows.append(f"<tr>{cells}</tr>")
     return f'<table class="metrics"><thead><tr>{head}</tr></thead><tbody>{"".join(rows)}</tbody></table>'
@@ -311,7 +313,7 @@ def _page(comparison: Comparison, title: str, figures: Figures, runs: list[dict[
         "table1": _table(comparison.table1, TABLE1_COLUMNS, [k for k in TABLE1_COLUMNS if k.startswith("recall_at")]),
         "calibration": _table(comparison.cut_table, _cut_columns(comparison, CALIBRATION_COLUMNS)),
         "new_place": _new_place_table(comparison),
-        "table2": _table(comparison.table2, TABLE2_COLUMNS, ["recall"], ["precision"]) if len(comparison.table2) else
+        "table2": _table(comparison.table2, TABLE2_COLUMNS, ["recall"], ["precision"], ["threshold"]) if len(comparison.table2) else
         '<p class="note">not computed</p>',
         "pr": figures.pr, "threshold": figures.threshold, "reliability": figures.reliability,
         "runs": per_run, "run_options": options, "confident": f"{CONFIDENT:g}",
