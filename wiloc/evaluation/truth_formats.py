@@ -73,6 +73,15 @@ def _references(value: Any) -> NDArray[np.int64] | None:
     return None if any(i is None for i in items) else np.array(items, dtype=np.int64)
 
 
+def _check_references(path: Path, place: str, refs: NDArray[np.int64], n_ref: int) -> NDArray[np.int64]:
+    """``refs``, the reference indices of one row or entry of ``path`` (``place``: ``row 3``), or a
+    WilocError naming the first that is no frame of the reference traversal's ``n_ref``."""
+    if refs.size and not (0 <= refs.min() and refs.max() < n_ref):
+        bad = int(refs[(refs < 0) | (refs >= n_ref)][0])
+        raise WilocError(path, f"{place}: reference index {bad}, but the reference traversal has {n_ref} frames")
+    return refs
+
+
 def read_vprbench(path: Path) -> list[tuple[int, NDArray[np.int64]]]:
     """The (query index, reference indices) rows of a VPR-Bench ``ground_truth_new.npy``."""
     path = Path(path)
@@ -106,9 +115,7 @@ def vprbench_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[s
     for i, (query, refs) in enumerate(rows):
         if not 0 <= query < n_query:
             raise WilocError(path, f"row {i + 1}: query index {query}, but the query traversal has {n_query} frames")
-        if refs.size and not (0 <= refs.min() and refs.max() < n_ref):
-            bad = int(refs[(refs < 0) | (refs >= n_ref)][0])
-            raise WilocError(path, f"row {i + 1}: reference index {bad}, but the reference traversal has {n_ref} frames")
+        _check_references(path, f"row {i + 1}", refs, n_ref)
     queries = np.repeat(np.array([q for q, _ in rows], dtype=np.int64), [refs.size for _, refs in rows])
     refs = np.concatenate([refs for _, refs in rows])
     without = n_query - len({q for q, _ in rows})
@@ -136,11 +143,7 @@ def positives_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[
         refs = _references(entry)
         if refs is None:
             raise WilocError(path, f"entry {i + 1} is not a list of reference indices ({_POSITIVES})")
-        if refs.size and not (0 <= refs.min() and refs.max() < n_ref):
-            bad = int(refs[(refs < 0) | (refs >= n_ref)][0])
-            raise WilocError(path, f"entry {i + 1}: reference index {bad}, but the reference traversal has "
-                                   f"{n_ref} frames")
-        positives.append(refs)
+        positives.append(_check_references(path, f"entry {i + 1}", refs, n_ref))
     queries = np.repeat(np.arange(n_query, dtype=np.int64), [refs.size for refs in positives])
     refs = np.concatenate(positives) if positives else np.zeros(0, dtype=np.int64)
     return truth_from_pairs(queries, refs, query_names, ref_names, [])
