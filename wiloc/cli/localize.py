@@ -14,8 +14,7 @@ from wiloc.cli.options import (CacheOption, DescriptorOption, EveryOption, FpsOp
                                PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
                                VocabularyOption, descriptor_params_given, metric_name, names_folder,
                                plot_file, results_out, sampling_given)
-from wiloc.cli.params import descriptor_uses, method_params, with_descriptor_options, with_method_options
-from wiloc.cli.params import given as typed  # its name 'given' is the --follow check's list
+from wiloc.cli.params import descriptor_uses, given, method_params, with_descriptor_options, with_method_options
 from wiloc.cli.truth import truth_source
 from wiloc.cli.views import progress_bar
 from wiloc.errors import EXIT_USAGE
@@ -104,14 +103,14 @@ def localize(
     sampling = sampling_given(every, fps, start, stop)
     out_path = None if out_text is None else Path(out_text)
     out_folder = out_text is not None and names_folder(out_text)
-    recent = exclude_recent if typed("exclude_recent") else None  # the library refuses it where it does nothing
+    recent = exclude_recent if given("exclude_recent") else None  # the library refuses it where it does nothing
     if follow:
-        given = [flag for flag, value in (("--odometry", odometry), ("--odometry-topic", odometry_topic),
-                                          ("--topic", topic), ("--names", names), ("--map-names", map_names),
-                                          ("--metric", metric), ("--model-plot", model_plot)) if value is not None]
-        given += ["video sampling"] * (sampling != api.Sampling())
-        if len(queries) != 1 or given:
-            fail(f"--follow: takes one query folder{' and not ' + ', '.join(given) if given else ''}", EXIT_USAGE)
+        refused = [flag for flag, value in (("--odometry", odometry), ("--odometry-topic", odometry_topic),
+                                            ("--topic", topic), ("--names", names), ("--map-names", map_names),
+                                            ("--metric", metric), ("--model-plot", model_plot)) if value is not None]
+        refused += ["video sampling"] * (sampling != api.Sampling())
+        if len(queries) != 1 or refused:
+            fail(f"--follow: takes one query folder{' and not ' + ', '.join(refused) if refused else ''}", EXIT_USAGE)
         show_followed(queries[0], api.follow_folder(
             queries[0], reference=reference, descriptor=descriptor,
             descriptor_params=descriptor_params_given(descriptor, descriptor_options, vocabulary, cache, model, preprocess),
