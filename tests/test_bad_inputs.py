@@ -1615,3 +1615,19 @@ def test_parameters_given_as_no_mapping_are_a_parameter_error(given: object, rou
             call()
         assert refused.value.parameter == name.split()[0]
     assert not (tmp_path / "f.csv").exists()
+
+
+@pytest.mark.parametrize("folders, got", [(None, "got NoneType"), (3, "got int"), (["{ref}", 3], "got a list holding int")])
+def test_describe_and_vocabulary_of_no_paths_are_a_parameter_error(folders: object, got: str,
+                                                                   route: tuple[Path, Path]) -> None:
+    """None, a number, or a list holding one where describe and vocabulary take folders is a
+    ParameterError naming ``folders``: it was Python's TypeError ('NoneType' object is not
+    iterable, expected str ... not int)."""
+    from wiloc import api
+
+    ref, _ = route
+    given = [str(ref) if f == "{ref}" else f for f in folders] if isinstance(folders, list) else folders
+    for verb in (api.describe, api.vocabulary):
+        with pytest.raises(ParameterError, match=f"a traversal's path .* or a list of them, {got}$") as refused:
+            verb(given)
+        assert refused.value.parameter == "folders"

@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from wiloc.cache.store import Cache
-from wiloc.description.describing import DescribeReport, check_sampling, check_topic, describe_sources
+from wiloc.description.describing import (DescribeReport, check_sampling, check_topic, describe_sources,
+                                         traversal_paths)
 from wiloc.description.traversals import Progress, descriptor_spec, open_cluster, stage
 from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_once,
                                          check_precisions, comparison, method_labels, new_place_series, pr_series,
@@ -54,7 +55,7 @@ def describe(folders: Sequence[str | Path] | str | Path, descriptor: str = "sad"
     the characters of its name."""
     spec = descriptor_spec(descriptor, descriptor_params)
     cache = Cache.given(cache)
-    paths = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(folder) for folder in folders]
+    paths = traversal_paths(folders, "folders")
     check_sampling(paths, sampling)
     check_topic(paths, topic)
     cluster = open_cluster(scheduler, jobs)

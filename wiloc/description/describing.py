@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable, Container, Generator, Iterator, Sequence
+from collections.abc import Callable, Container, Generator, Iterable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field, fields, replace
 from functools import partial
@@ -86,6 +86,22 @@ def describe_sources(sources: Sequence[Path], spec: DescriptorSpec, cache: Cache
 def is_stream(source: Path) -> bool:
     """Whether a traversal is read in order as one stream, sampled: a video file or a ROS bag."""
     return is_video(source) or is_bag(source)
+
+
+def traversal_paths(traversals: object, parameter: str) -> list[Path]:
+    """``traversals`` as a list of paths: one given alone (text or a path object) as ``[path]``,
+    never as the characters of its name; any other iterable read once. None, a number, or an
+    iterable holding anything but paths is a ParameterError naming ``parameter``."""
+    if isinstance(traversals, (str, os.PathLike)):
+        return [Path(traversals)]
+    wanted = "a traversal's path (a folder, video or ROS bag) or a list of them"
+    if not isinstance(traversals, Iterable):
+        raise ParameterError(parameter, f"{wanted}, got {type(traversals).__name__}")
+    listed = list(traversals)
+    for item in listed:
+        if not isinstance(item, (str, os.PathLike)):
+            raise ParameterError(parameter, f"{wanted}, got a {type(traversals).__name__} holding {type(item).__name__}")
+    return [Path(item) for item in listed]
 
 
 def check_sampling(sources: Sequence[Path], sampling: Sampling | None) -> None:

@@ -3,8 +3,6 @@ vocabularies built or found, and worker processes shared by several describes (`
 offers these as its own functions)."""
 from __future__ import annotations
 
-import os
-
 from collections.abc import Mapping, Sequence
 from contextlib import AbstractContextManager
 from pathlib import Path
@@ -12,7 +10,7 @@ from typing import Any
 
 from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.cache.store import Cache
-from wiloc.description.describing import DescribeReport
+from wiloc.description.describing import DescribeReport, traversal_paths
 from wiloc.description.matrix_import import import_matrix, import_to_file
 from wiloc.description.traversals import Progress, stage
 from wiloc.description.vocabulary_build import VocabularyReport, build_vocabulary, vocabulary_path
@@ -51,7 +49,7 @@ def vocabulary(folders: Sequence[str | Path] | str | Path, params: Mapping[str, 
     """Build (or reuse from the cache) the visual vocabulary of the images in ``folders`` (one
     folder or several): local features clustered into words, for the ``bow`` descriptor and
     FAB-MAP (docs/fabmap.md)."""
-    paths = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(f) for f in folders]
+    paths = traversal_paths(folders, "folders")
     return build_vocabulary(paths, Cache.given(cache), VocabularyParams.create(params),
                             progress=stage(progress, "vocabulary"))
 
