@@ -131,8 +131,9 @@ def separate_outputs(read: list[Path], written: dict[str, Path | None]) -> None:
     for option, path in written.items():
         if path is None:
             continue
-        if (owner := taken.setdefault(path.resolve(), f"{option}'s file")) != f"{option}'s file":
+        if (owner := taken.get(path.resolve())) is not None:
             raise UsageError(option, f"{path} is {owner}; give each output a file of its own")
+        taken[path.resolve()] = f"{option}'s file"
 
 
 def replacing(notes: Notes, path: Path) -> Path:
