@@ -113,6 +113,11 @@ USAGE = {
     "csv in a missing folder": (["evaluate", "R", "--csv", "nowhere/m.csv"], "--csv: the folder nowhere does not exist (create it first)"),
     "plot in a missing folder": (["evaluate", "R", "--pr-plot", "no/where/pr.png"], "--pr-plot: the folder no/where does not exist"),
     "out in a missing folder": (["localize", "Q", "-o", "nowhere/run.csv"], "--out: the folder nowhere does not exist"),
+    # an unset shell variable ("$MAP") makes an empty path, which pathlib reads as the current folder
+    "empty results file": (["evaluate", ""], "RESULTS...: an empty path; give a file or folder"),
+    "empty folder among several": (["describe", "F", ""], "FOLDER...: an empty path"),
+    "empty map": (["localize", "Q", "--map", ""], "--map: an empty path"),
+    "empty cache": (["describe", "F", "--cache="], "--cache: an empty path"),
 }
 
 

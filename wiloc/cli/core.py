@@ -15,7 +15,8 @@ import functools
 import re
 import sys
 from collections.abc import Callable
-from typing import Any, NoReturn
+from pathlib import Path
+from typing import Any, NoReturn, get_args
 
 import typer
 from rich.console import Console
@@ -165,9 +166,26 @@ def _plain_help(param: click.Parameter) -> None:
         param.show_default = "none"
 
 
+def _no_empty_paths(param: click.Parameter) -> None:
+    """A path parameter (``Path``, ``Optional[Path]``, ``list[Path]``) typed empty is a usage error
+    naming it: ``-o "$OUT"`` with OUT unset would be ``Path("")``, the current folder, which a
+    command described as a query, wrote its outputs into or made its cache in."""
+    annotation = getattr(getattr(param, "type_descriptor", None), "annotation", None)
+    if Path not in (annotation, *get_args(annotation)):
+        return
+    convert = param.process_value
+
+    def refusing_empty(ctx: click.Context, value: Any) -> Any:
+        if value == "" or (isinstance(value, (list, tuple)) and "" in value):
+            raise problems.BadParameter("an empty path; give a file or folder", ctx=ctx, param=param)
+        return convert(ctx, value)
+
+    param.process_value = refusing_empty  # type: ignore[method-assign]
+
+
 class _PlainFlags:
     """Help that shows no type placeholder beside a flag (including --help) or an argument, and
-    every option's default."""
+    every option's default; no path parameter may be typed empty."""
 
     params: list[click.Parameter]
 
@@ -175,6 +193,7 @@ class _PlainFlags:
         super().__init__(*args, **kwargs)
         for param in self.params:
             _plain_help(param)
+            _no_empty_paths(param)
 
     def get_help_option(self, ctx: click.Context) -> TyperOption | None:
         option = super().get_help_option(ctx)  # type: ignore[misc]
