@@ -292,6 +292,18 @@ def test_out_with_a_trailing_slash_names_a_folder(route: tuple[Path, Path], tmp_
     assert (tmp_path / "taken.csv").read_text() == "a file\n"
 
 
+@pytest.mark.parametrize("follow", [False, True])
+def test_out_without_a_suffix_over_a_file_is_refused(route: tuple[Path, Path], tmp_path: Path, follow: bool) -> None:
+    """--out NAME without a suffix names a folder, so a file of that name is refused before any
+    work, as one with a trailing slash is (it ended in an error about a lock file inside it)."""
+    ref, query = route
+    (tmp_path / "taken").write_text("a file\n")
+    refused = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--out", str(tmp_path / "taken"),
+                                  *(["--follow", "--idle", "0"] if follow else [])])
+    assert refused.exit_code == 2 and f"error: --out: {tmp_path / 'taken'} is a file, not a folder" in refused.stderr
+    assert (tmp_path / "taken").read_text() == "a file\n"
+
+
 def test_evaluate_positions_needs_a_radius(route: tuple[Path, Path], tmp_path: Path) -> None:
     ref, query = route
     out = tmp_path / "t.csv"

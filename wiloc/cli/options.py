@@ -40,18 +40,20 @@ def output_file(value: Path | None) -> Path | None:
 
 
 def results_out(value: str | None) -> str | None:
-    """localize's ``--out``, checked as :func:`output_file` checks a file, before any work; kept as
-    typed, since a trailing ``/`` names a folder even where the name has a suffix (``runs.v2/``),
-    which a path would lose (:func:`names_folder`)."""
+    """localize's ``--out``, checked as :func:`output_file` checks a file, before any work, and a
+    file where it names a folder (:func:`names_folder`) refused; kept as typed, since a trailing
+    ``/`` names a folder even where the name has a suffix (``runs.v2/``), which a path would lose."""
     if value is None:
         return None
     path = Path(value)
-    if not _trailing_separator(value):
+    trailing = _trailing_separator(value)
+    if not trailing:
         output_file(path)
     elif (problem := name_problem(path)) is not None:
         raise typer.BadParameter(f"{path}: {problem}")
-    elif path.exists() and not path.is_dir():
-        raise typer.BadParameter(f"{path} is a file, not a folder")
+    if names_folder(value) and path.exists() and not path.is_dir():
+        why = "" if trailing else " (a name without a suffix names a folder)"
+        raise typer.BadParameter(f"{path} is a file, not a folder{why}")
     return value
 
 
