@@ -1636,3 +1636,16 @@ def test_describe_and_vocabulary_of_no_paths_are_a_parameter_error(folders: obje
         with pytest.raises(ParameterError, match=f"a traversal's path .* or a list of them, {got}$") as refused:
             verb(given)
         assert refused.value.parameter == "folders"
+
+
+def test_an_fps_beyond_any_camera_is_refused_and_the_highest_keeps_every_frame() -> None:
+    """--fps 1e308 passed the check (finite, > 0) and ended in an OverflowError with a traceback
+    once a frame's slot, ms x fps / 1000, became infinite; the highest fps taken keeps every frame
+    of a day-long video."""
+    from wiloc.sources.video import MAX_FPS, Sampling
+
+    with pytest.raises(ParameterError, match=r"must be a number of frames per second > 0 and at most 1e\+06") as refused:
+        Sampling(fps=1e308)
+    assert refused.value.parameter == "fps"
+    stream = [(i, i * 40.0) for i in range(0, 2_160_000, 1000)]  # 24 h at 25 frames/s, a frame of each 1000
+    assert list(Sampling(fps=MAX_FPS).pick(stream)) == stream

@@ -33,6 +33,9 @@ NAME_WIDTH = 6
 #: Timestamps are decoder milliseconds in floating point (99.99999 for 100): a frame within this
 #: many ms before a start, stop or fps boundary counts as reaching it.
 TOLERANCE_MS = 0.5
+#: The highest ``fps``: far above any camera's rate (every frame is kept long before it), and low
+#: enough that a frame's slot, ms x fps / 1000, stays finite over any video's length.
+MAX_FPS = 1e6
 #: A video whose decoding stops within this many ms of its container's duration ended whole.
 END_MS = 1000.0
 #: The fingerprint reads the head and the tail (containers keep their index at either end) and
@@ -133,8 +136,9 @@ class Sampling:
         object.__setattr__(self, "every", int(every))
         if self.fps is not None:
             fps = self.fps
-            if not isinstance(fps, Real) or isinstance(fps, bool) or not math.isfinite(fps) or fps <= 0:
-                raise ParameterError("fps", f"must be a number of frames per second > 0, got {fps!r}")
+            if not isinstance(fps, Real) or isinstance(fps, bool) or not 0 < fps <= MAX_FPS:
+                raise ParameterError("fps", f"must be a number of frames per second > 0 and at most {MAX_FPS:g}, "
+                                            f"got {fps!r}")
             if self.every != 1:
                 raise ParameterError("fps", f"cannot be combined with every (got every={self.every})")
             object.__setattr__(self, "fps", float(fps))
