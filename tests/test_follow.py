@@ -41,6 +41,15 @@ def _rows(path: Path) -> pd.DataFrame:
     return pd.read_csv(path, comment="#", dtype=str, keep_default_na=False)
 
 
+def _live_folder(tmp_path: Path, frames: list[Path]) -> Path:
+    """A folder ``live`` holding copies of ``frames``, as a camera has written them."""
+    live = tmp_path / "live"
+    live.mkdir()
+    for path in frames:
+        (live / path.name).write_bytes(path.read_bytes())
+    return live
+
+
 def _follower(folder: Path, ref: Path | None, out: Path, method: str, idle: float) -> subprocess.Popen:
     """``wiloc localize FOLDER --follow`` against ``ref`` (None: sequence mode) in a new process."""
     args = ["localize", str(folder), *(["--map", str(ref)] if ref is not None else []), "--method", method,
@@ -354,11 +363,8 @@ def test_two_followers_of_one_results_file_one_ends_busy(demo_route: demo.DemoRo
                                                          cache_dir: Path) -> None:
     """Two runs started at once on the same --out: the second ends at once with exit 3 (busy), before
     deciding anything; the file holds each frame once."""
-    live = tmp_path / "live"
-    live.mkdir()
     frames = sorted(demo_route.queries[0].iterdir())[:6]
-    for path in frames:
-        (live / path.name).write_bytes(path.read_bytes())
+    live = _live_folder(tmp_path, frames)
     out = tmp_path / "r.csv"
     api.localize(live, reference=demo_route.reference, method="threshold", out=tmp_path / "warm.csv")  # the map described
     runs = [_follower(live, demo_route.reference, out, "threshold", idle=3) for _ in range(2)]
@@ -377,10 +383,7 @@ def test_a_batch_run_leaves_a_followed_results_file_alone(demo_route: demo.DemoR
     """A batch run given the --out a follower appends to ends busy (exit 3) rather than replacing the
     file under it (the follower's later rows would go to the replaced file, lost); once the
     follower has ended, the batch run writes it."""
-    live = tmp_path / "live"
-    live.mkdir()
-    for path in sorted(demo_route.queries[0].iterdir())[:4]:
-        (live / path.name).write_bytes(path.read_bytes())
+    live = _live_folder(tmp_path, sorted(demo_route.queries[0].iterdir())[:4])
     out = tmp_path / "r.csv"
     run = api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.0)
     try:
@@ -471,10 +474,7 @@ def test_a_results_name_near_the_longest_is_written_and_a_longer_one_named(demo_
     """A results file named within 6 bytes of the 255 a file system takes is written, batch and
     followed (its lock file's name was too long); a longer name is refused naming the results file,
     not its lock file, and nothing is left beside it."""
-    live = tmp_path / "live"
-    live.mkdir()
-    for path in sorted(demo_route.queries[0].iterdir())[:4]:
-        (live / path.name).write_bytes(path.read_bytes())
+    live = _live_folder(tmp_path, sorted(demo_route.queries[0].iterdir())[:4])
     runs = {"batch": lambda out: api.localize(live, reference=demo_route.reference, method="threshold", out=out),
             "followed": lambda out: list(api.follow_folder(live, reference=demo_route.reference, method="threshold",
                                                            out=out, idle=0.5))}
@@ -494,10 +494,7 @@ def test_a_run_whose_decided_frame_is_gone_cannot_resume_and_says_why(demo_route
                                                                        cache_dir: Path) -> None:
     """A folder trimmed as it fills (its oldest frames removed): resuming decides the file's frames
     again, and the error named the missing image alone, not the results file nor what to do."""
-    live = tmp_path / "live"
-    live.mkdir()
-    for path in sorted(demo_route.queries[0].iterdir())[:4]:
-        (live / path.name).write_bytes(path.read_bytes())
+    live = _live_folder(tmp_path, sorted(demo_route.queries[0].iterdir())[:4])
     out = tmp_path / "r.csv"
     list(api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3))
     gone = sorted(live.iterdir())[0]
@@ -527,10 +524,7 @@ def test_idle_zero_decides_the_frames_there_then_ends(demo_route: demo.DemoRoute
                                                       cache_dir: Path) -> None:
     """--idle 0 ended at the first poll, which only notes each file's size: every frame was left
     out as still being written."""
-    live = tmp_path / "live"
-    live.mkdir()
-    for path in sorted(demo_route.queries[0].iterdir())[:4]:
-        (live / path.name).write_bytes(path.read_bytes())
+    live = _live_folder(tmp_path, sorted(demo_route.queries[0].iterdir())[:4])
     events = list(api.follow_folder(live, reference=demo_route.reference, method="threshold",
                                     out=tmp_path / "r.csv", idle=0))
     assert [e.frame for e in events if not isinstance(e, Skipped)] == sorted(p.name for p in live.iterdir())
