@@ -22,6 +22,18 @@ def route(tmp_path: Path, cache_dir: Path) -> tuple[Path, Path]:
             write_traversal(tmp_path / "query", scenes, 0.7, 2))
 
 
+@pytest.fixture
+def titles(monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
+    """The title of each figure drawn from now on, by its first words (up to a colon)."""
+    from wiloc.figures import plots
+
+    drawn: dict[str, str] = {}
+    titled = plots._title
+    monkeypatch.setattr(plots, "_title", lambda fig, title: (drawn.update({title.split(":")[0]: title}),
+                                                             titled(fig, title))[1])
+    return drawn
+
+
 def _json(result) -> object:
     assert result.exit_code == 0, result.output
     return json.loads(result.stdout)
@@ -409,16 +421,10 @@ def test_a_cache_option_naming_a_file_is_a_usage_error(command: list[str], tmp_p
 
 
 def test_every_comparison_figure_names_its_data_and_ground_truth(route: tuple[Path, Path], tmp_path: Path,
-                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+                                                                 titles: dict[str, str]) -> None:
     """docs/evaluation.md: every figure is titled with the query folders' parent, the descriptor
     and the ground truth. The reliability diagram of evaluate and compare was titled with neither,
     though which matches count as right is the ground truth's (and its tolerance's) doing."""
-    from wiloc.figures import plots
-
-    titles: dict[str, str] = {}
-    drawn = plots._title
-    monkeypatch.setattr(plots, "_title", lambda fig, title: (titles.update({title.split(":")[0]: title}),
-                                                             drawn(fig, title))[1])
     ref, query = route
     run = tmp_path / "query-online.csv"
     assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "online",
@@ -441,16 +447,11 @@ def test_every_comparison_figure_names_its_data_and_ground_truth(route: tuple[Pa
 
 
 def test_figures_of_a_live_run_name_its_map_dataset(route: tuple[Path, Path], tmp_path: Path,
-                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+                                                    titles: dict[str, str]) -> None:
     """A run saved from Localizer.results() without ``query`` records no query folder: its figures
     are titled with the map's dataset (Figure 1's was '(, sad)', the others' '?, sad')."""
     import wiloc
-    from wiloc.figures import plots
 
-    titles: dict[str, str] = {}
-    drawn = plots._title
-    monkeypatch.setattr(plots, "_title", lambda fig, title: (titles.update({title.split(":")[0]: title}),
-                                                             drawn(fig, title))[1])
     ref, query = route
     loc = wiloc.Localizer(ref, descriptor="sad", method="online", seed=0, cache=tmp_path / "cache")
     for image in sorted(query.iterdir())[:8]:
