@@ -228,6 +228,8 @@ def sampling_given(every: int, fps: float | None, start: str, stop: str | None) 
     if fps is not None and every != 1:
         raise UsageError("--fps", f"does not go with --every (got --every {every}); give one of them")
     return Sampling(every=every, fps=fps, start=start, stop=stop)
+
+
 PrPlotOption = Annotated[Optional[Path], typer.Option(callback=plot_file, show_default="none: not drawn", help="Draw the precision-recall curves.")]
 CalibrationPlotOption = Annotated[Optional[Path], typer.Option(
     "--calibration-plot", callback=plot_file, show_default="none: not drawn", help="Draw the reliability diagram (share correct against confidence).")]
