@@ -1,13 +1,16 @@
 """Checks on text that users give by hand: whether a CSV cell is a number (a header line or a
 line of data?), whether frame names are usable (text, non-empty, each once), why the names a
-file gives match no frame, and the conventions their CSVs share (other names of columns, the
-Earth radius for GPS degrees). The ground-truth readers, odometry, imported descriptor matrices
+file gives match no frame, whether GPS degrees are in range, and the conventions their CSVs
+share (other names of columns, the Earth radius for GPS degrees). The ground-truth readers, odometry, imported descriptor matrices
 and maps held in memory share them, so that each problem reads the same wherever it is found."""
 from __future__ import annotations
 
 import re
 from collections.abc import Sequence
 from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
 
 from wiloc.errors import WilocError
 
@@ -26,6 +29,13 @@ def is_number(text: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def check_lat_lon(latlon: NDArray[np.float64], where: Path | str) -> None:
+    """A WilocError naming ``where`` unless every (lat, lon) row is in degrees: lat in [-90, 90],
+    lon in [-360, 360] (positions and odometry CSVs headed lat,lon)."""
+    if np.any(np.abs(latlon[:, 0]) > 90) or np.any(np.abs(latlon[:, 1]) > 360):
+        raise WilocError(where, "lat must lie in [-90, 90] and lon in [-360, 360] degrees")
 
 
 def check_frame_names(names: Sequence[object], where: Path | str) -> None:

@@ -24,7 +24,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from wiloc.errors import ParameterError, WilocError, load_problem
-from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, why_unmatched
+from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, check_lat_lon, why_unmatched
 from wiloc.reprs import short_repr
 
 KINDS = ("aligned", "positions", "pairs", "matrix", "vprbench", "positives", "utm-names", "exif")
@@ -263,8 +263,8 @@ def _read_positions(path: Path) -> Positions:
                                f"found {', '.join(frame.columns)}")
     _no_duplicates(path, frame, ["name"])
     coords = _numeric(path, frame, columns)
-    if geographic and (np.any(np.abs(coords[:, 0]) > 90) or np.any(np.abs(coords[:, 1]) > 360)):
-        raise WilocError(path, "lat must lie in [-90, 90] and lon in [-360, 360] degrees")
+    if geographic:
+        check_lat_lon(coords, path)
     return Positions(path, name_index(frame["name"]), coords, geographic)
 
 

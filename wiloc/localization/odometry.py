@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, is_number, why_unmatched
+from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, check_lat_lon, is_number, why_unmatched
 from wiloc.sources.bags import Bag, is_bag
 
 
@@ -124,8 +124,8 @@ def read_odometry(path: str | Path) -> Odometry:
     twice = [name for name, count in Counter(names).items() if count > 1]
     if twice:
         raise WilocError(where, f"frame {twice[0]!r} appears more than once")
-    if geographic and (np.any(np.abs(values[:, 0]) > 90) or np.any(np.abs(values[:, 1]) > 360)):
-        raise WilocError(where, "lat must lie in [-90, 90] and lon in [-360, 360] degrees")
+    if geographic:
+        check_lat_lon(values, where)
     return Odometry(names=tuple(names), values=values, path=where, geographic=geographic)
 
 
