@@ -294,13 +294,13 @@ class RunSession:
         """The descriptors of the frames added as candidates (sequence mode), in order."""
         return self._seen[:self._count]
 
-    def made_up_rows(self, start: int, seed: int = 0) -> Iterator[NDArray[np.float64]]:
+    def made_up_rows(self, start: int) -> Iterator[NDArray[np.float64]]:
         """Sequence mode: endless rows of made-up frames, as :meth:`row` would give the frames
         after the first ``start`` (inf within the recent window; FAB-MAP's rows -inf there), their
         values the run's own difference kernel's between random descriptors of the candidates'
         length and type. A copy of the method stepped over them builds its compiled kernels
         before a real frame needs them; the session itself is left as it was."""
-        rng, seen = np.random.default_rng(seed), self._seen
+        rng, seen = np.random.default_rng(0), self._seen
         if seen.dtype.kind in "iu":
             made = rng.integers(0, min(256, np.iinfo(seen.dtype).max + 1), (32, seen.shape[1])).astype(seen.dtype)
         else:
