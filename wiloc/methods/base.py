@@ -14,7 +14,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import closing
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -26,7 +26,6 @@ from wiloc.decisions import Decision, Decisions
 from wiloc.errors import UsageError, WilocError
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters
-from wiloc.reprs import short_repr
 
 if TYPE_CHECKING:
     from wiloc.descriptors.base import DescriptorSpec
