@@ -1649,3 +1649,16 @@ def test_an_fps_beyond_any_camera_is_refused_and_the_highest_keeps_every_frame()
     assert refused.value.parameter == "fps"
     stream = [(i, i * 40.0) for i in range(0, 2_160_000, 1000)]  # 24 h at 25 frames/s, a frame of each 1000
     assert list(Sampling(fps=MAX_FPS).pick(stream)) == stream
+
+
+@pytest.mark.parametrize("value", [10 ** 400, 10 ** 20, -10 ** 30])
+def test_an_integer_parameter_beyond_64_bits_is_a_parameter_error(value: int) -> None:
+    """Integer parameters reach compiled kernels as int64: --same-place-window 99999999999999999999
+    ended in numba's OverflowError and --seed of 401 digits in float()'s, each with a traceback."""
+    from wiloc.methods.registry import make_method
+
+    for method, name in (("online", "same_place_window"), ("online", "seed"), ("catgraph", "seed")):
+        with pytest.raises(ParameterError, match=r"must be a 64-bit integer \(-2\^63 to 2\^63 - 1\), got one of \d+ digits$") as refused:
+            make_method(method, {name: value})
+        assert refused.value.parameter == name
+    assert make_method("online", {"seed": 2 ** 63 - 1}).params.seed == 2 ** 63 - 1

@@ -24,6 +24,7 @@ from wiloc.errors import ParameterError
 from wiloc.reprs import brief
 
 P = TypeVar("P", bound="Parameters")
+INT64 = np.iinfo(np.int64)  # the integers a parameter may hold: what compiled kernels take
 
 
 def param(default: Any, help: str, *, low: float | None = None, high: float | None = None,
@@ -135,6 +136,8 @@ def _problem(value: Any, d: Declared) -> str | None:
     elif d.kind == "int":
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
             return f"must be an integer, got {value!r}"
+        if not INT64.min <= value <= INT64.max:  # compiled kernels take int64 (and float() of 10**400 fails)
+            return f"must be a 64-bit integer (-2^63 to 2^63 - 1), got one of {len(str(abs(int(value))))} digits"
         values = [value]
     else:
         if not _is_number(value):
