@@ -1662,3 +1662,13 @@ def test_an_integer_parameter_beyond_64_bits_is_a_parameter_error(value: int) ->
             make_method(method, {name: value})
         assert refused.value.parameter == name
     assert make_method("online", {"seed": 2 ** 63 - 1}).params.seed == 2 ** 63 - 1
+
+
+def test_a_seqslam_velocity_step_too_small_for_a_float_ratio_is_a_parameter_error() -> None:
+    """--v-step 1e-320 made (v_max - v_min) / v_step infinite, and counting the velocities ended
+    in an OverflowError with a traceback, where 1e-300 was refused as too many velocities."""
+    from wiloc.methods.registry import make_method
+
+    with pytest.raises(ParameterError, match="gives more than 1000 velocities from v_min to v_max") as refused:
+        make_method("seqslam", {"v_step": 1e-320})
+    assert refused.value.parameter == "v_step"

@@ -55,7 +55,8 @@ class SeqSLAMParams(Parameters):
 
     def velocities(self) -> NDArray[np.float64]:
         """v_min, v_min + v_step, ... up to v_max (included within rounding)."""
-        count = int(np.floor((self.v_max - self.v_min) / self.v_step + 1e-9)) + 1
+        steps = min((self.v_max - self.v_min) / self.v_step, MAX_VELOCITIES)  # v_step 1e-320: inf steps
+        count = int(np.floor(steps + 1e-9)) + 1
         return np.round(self.v_min + self.v_step * np.arange(min(count, MAX_VELOCITIES + 1)), 9)
 
 
