@@ -506,6 +506,28 @@ def test_a_run_whose_decided_frame_is_gone_cannot_resume_and_says_why(demo_route
     assert not (tmp_path / ".r.csv.lock").exists() and len(_rows(out)) == 4
 
 
+def test_a_resume_interrupted_while_it_replays_closes_the_results_file(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                                       cache_dir: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C (or any error but the two a replay names) while a resumed run decides its file's frames
+    again left the file's descriptor open; the lock is given back as well."""
+    live = _live_folder(tmp_path, sorted(demo_route.queries[0].iterdir())[:4])
+    out = tmp_path / "r.csv"
+    list(api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3))
+
+    def interrupted(self: Localizer, frame: object, *args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    def open_on(path: Path) -> int:
+        return sum(os.path.realpath(f"/proc/self/fd/{fd}") == str(path.resolve()) for fd in os.listdir("/proc/self/fd"))
+
+    monkeypatch.setattr(Localizer, "observe", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3)
+    assert open_on(out) == 0
+    assert not (tmp_path / ".r.csv.lock").exists() and len(_rows(out)) == 4
+
+
 def test_a_frame_whose_name_starts_like_a_header_line_keeps_its_row(demo_route: demo.DemoRoute, tmp_path: Path,
                                                                     cache_dir: Path) -> None:
     """The header rewritten as the run ends dropped every line starting with '# ', the row of a frame

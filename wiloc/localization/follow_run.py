@@ -102,16 +102,20 @@ def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descr
     stream = ResultsStream(path, localizer.header(query), (*localizer.method.columns, *ranked), resume=True,
                            learned=localizer.method.facts().keys())
     names = stream.rows["frame"].tolist()
-    for name, line in zip(names, stream.written_lines()):
-        try:
-            decision = localizer.observe(query / name)
-        except FrameError as exc:  # removed since (a camera's folder kept as a ring buffer), or damaged
-            stream.close()
-            raise WilocError(None, f"{path}: cannot resume: its frame '{name}', decided again to resume, is unusable "
-                                   f"({exc.problem}); give another file to start anew", parameter="out") from None
-        if stream.line(decision) != line:
-            stream.close()
-            raise WilocError(None, f"{path}: frame '{name}' decided again differs from its row: the map, the "
-                                   "frames or the settings changed; give another file to start anew", parameter="out")
+    try:
+        for name, line in zip(names, stream.written_lines()):
+            try:
+                decision = localizer.observe(query / name)
+            except FrameError as exc:  # removed since (a camera's folder kept as a ring buffer), or damaged
+                raise WilocError(None, f"{path}: cannot resume: its frame '{name}', decided again to resume, is "
+                                       f"unusable ({exc.problem}); give another file to start anew",
+                                 parameter="out") from None
+            if stream.line(decision) != line:
+                raise WilocError(None, f"{path}: frame '{name}' decided again differs from its row: the map, the "
+                                       "frames or the settings changed; give another file to start anew",
+                                 parameter="out")
+    except BaseException:  # the stream's descriptor is closed whatever ends the replay (Ctrl-C too)
+        stream.close()
+        raise
     return FollowRun(query=query, localizer=localizer, stream=stream, idle=idle, poll=poll, resumed=len(names),
                      warnings=localizer.doubts, lock=lock)
