@@ -1672,3 +1672,18 @@ def test_a_seqslam_velocity_step_too_small_for_a_float_ratio_is_a_parameter_erro
     with pytest.raises(ParameterError, match="gives more than 1000 velocities from v_min to v_max") as refused:
         make_method("seqslam", {"v_step": 1e-320})
     assert refused.value.parameter == "v_step"
+
+
+def test_a_seqslam_enhance_window_wider_than_the_map_is_the_whole_map() -> None:
+    """--enhance-window 2**62 listed a shift for each of its 2**62 + 1 offsets before finding that
+    none overlaps the map, filling the memory (the machine's OOM killer ended the run): a window
+    wider than the map is the whole map. Run with 3 GiB of address space, so that the old way
+    ends in a MemoryError here, not in the OOM killer."""
+    import resource
+
+    code = ("import numpy as np; from wiloc.methods.seqslam import enhance; "
+            "rows = np.random.default_rng(0).random((2, 30)); "
+            "print(np.array_equal(enhance(rows, 2 ** 62), enhance(rows, 30)))")
+    limit = functools.partial(resource.setrlimit, resource.RLIMIT_AS, (3 << 30, 3 << 30))
+    ran = subprocess.run([sys.executable, "-c", code], preexec_fn=limit, capture_output=True, text=True, timeout=120)
+    assert (ran.returncode, ran.stdout.strip()) == (0, "True"), ran.stderr[-500:]

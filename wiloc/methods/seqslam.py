@@ -70,6 +70,7 @@ def enhance(rows: NDArray[np.floating], half_window: int) -> NDArray[np.float64]
     """
     x = np.asarray(rows, dtype=np.float64)
     n = x.shape[-1]
+    half_window = min(half_window, n)  # the whole map: wider shifts overlap none of it (and would fill memory)
     shifts = [(d, max(0, -d), min(n, n - d)) for d in range(-half_window, half_window + 1)]
     total, count = np.zeros_like(x), np.zeros(n, dtype=np.float64)
     for d, lo, hi in shifts:
