@@ -1687,3 +1687,18 @@ def test_a_seqslam_enhance_window_wider_than_the_map_is_the_whole_map() -> None:
     limit = functools.partial(resource.setrlimit, resource.RLIMIT_AS, (3 << 30, 3 << 30))
     ran = subprocess.run([sys.executable, "-c", code], preexec_fn=limit, capture_output=True, text=True, timeout=120)
     assert (ran.returncode, ran.stdout.strip()) == (0, "True"), ran.stderr[-500:]
+
+
+@pytest.mark.parametrize("recall_at, got", [([50], "got 50"), ([100], "got 100"), ([0], "got 0"), ([1.5], "got 1.5"),
+                                            ("5", "got str")])
+def test_recall_at_beyond_the_kept_candidates_is_a_parameter_error(recall_at: object, got: str, results: Path) -> None:
+    """api.evaluate's recall_at takes what --recall-at takes, whole numbers from 1 to 20: a
+    results file keeps 20 candidates per frame, so Recall@50 was silently Recall@20's number on a
+    larger map, and Recall@100 replaced recall at 100 % precision under its key; 0 was dropped,
+    1.5 and '5' ended in TypeErrors."""
+    from wiloc import api
+
+    with pytest.raises(ParameterError, match=f"whole numbers from 1 to 20.*, {got}$") as refused:
+        api.evaluate(results, api.TruthSource(), recall_at=recall_at)
+    assert refused.value.parameter == "recall_at"
+    assert api.evaluate(results, api.TruthSource(), recall_at=[20]).summary.as_dict()["recall_at_20"] == 1.0

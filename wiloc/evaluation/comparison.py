@@ -8,7 +8,7 @@ and call :func:`score` and :func:`comparison` (``DEFAULT_CUTS`` and ``RANKED_KS`
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from wiloc.candidates import RANKED
 from wiloc.errors import ParameterError
 from wiloc.evaluation.groundtruth import Truth
 from wiloc.evaluation.metrics import (RANKED_KS, PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
@@ -90,6 +91,7 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
     ``cuts``) of one run's ``results`` (read from ``path``, None for a run in memory) against
     ground truth, and of its P(new place) where the run gives one. Recall@N for each N of
     ``recall_at`` when the run ranks the map."""
+    check_recall_at(recall_at)
     query_names = results.frames["frame"].tolist()
     header = results.header
     ref_names = results.reference_frames or query_names
@@ -158,6 +160,20 @@ def check_precisions(precisions: Sequence[float]) -> None:
     bad = [p for p in precisions if not 0.0 < float(p) <= 100.0]
     if bad:
         raise ParameterError("precisions", f"{bad[0]:g} is not a percentage in (0, 100]")
+
+
+def check_recall_at(recall_at: Sequence[int]) -> None:
+    """Recall@N's N are whole numbers from 1 to RANKED, as ``--recall-at`` takes them: a results
+    file keeps that many candidates per frame, so Recall@50 would be Recall@20's number, and N of
+    90, 99 or 100 would take the key of recall at that precision. A ParameterError names the first
+    that is not."""
+    if isinstance(recall_at, (str, bytes)) or not isinstance(recall_at, Iterable):
+        raise ParameterError("recall_at", f"whole numbers from 1 to {RANKED}, got {type(recall_at).__name__}")
+    bad = [n for n in recall_at if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer))
+           or not 1 <= n <= RANKED]
+    if bad:
+        raise ParameterError("recall_at", f"whole numbers from 1 to {RANKED} (results keep the {RANKED} best "
+                                          f"candidates), got {bad[0]!r}")
 
 
 def check_once(paths: Sequence[Path | None]) -> None:
