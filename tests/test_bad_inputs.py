@@ -1702,3 +1702,14 @@ def test_recall_at_beyond_the_kept_candidates_is_a_parameter_error(recall_at: ob
         api.evaluate(results, api.TruthSource(), recall_at=recall_at)
     assert refused.value.parameter == "recall_at"
     assert api.evaluate(results, api.TruthSource(), recall_at=[20]).summary.as_dict()["recall_at_20"] == 1.0
+
+
+@pytest.mark.parametrize("cuts, got", [([0.5, 1.5], "got 1.5"), ([float("nan")], "got nan"), (None, "got NoneType")])
+def test_cuts_outside_0_1_are_a_parameter_error(cuts: object, got: str, results: Path) -> None:
+    """api.evaluate's cuts take what --cuts takes: 1.5 or NaN ended in the calibration's
+    ValueError, and None was read as a cut of NaN ('got [nan]')."""
+    from wiloc import api
+
+    with pytest.raises(ParameterError, match=rf"confidences in \[0, 1\], {got}$") as refused:
+        api.evaluate(results, api.TruthSource(), cuts=cuts)
+    assert refused.value.parameter == "cuts"

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from numbers import Real
 from pathlib import Path
 from typing import Any
 
@@ -91,6 +92,7 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
     ``cuts``) of one run's ``results`` (read from ``path``, None for a run in memory) against
     ground truth, and of its P(new place) where the run gives one. Recall@N for each N of
     ``recall_at`` when the run ranks the map."""
+    check_cuts(cuts)
     check_recall_at(recall_at)
     query_names = results.frames["frame"].tolist()
     header = results.header
@@ -160,6 +162,16 @@ def check_precisions(precisions: Sequence[float]) -> None:
     bad = [p for p in precisions if not 0.0 < float(p) <= 100.0]
     if bad:
         raise ParameterError("precisions", f"{bad[0]:g} is not a percentage in (0, 100]")
+
+
+def check_cuts(cuts: Sequence[float]) -> None:
+    """The fixed confidence cuts are numbers in [0, 1], as ``--cuts`` takes them: a ParameterError
+    names the first that is not, where the calibration's ValueError said it with a traceback."""
+    if isinstance(cuts, (str, bytes)) or not isinstance(cuts, Iterable):
+        raise ParameterError("cuts", f"confidences in [0, 1], got {type(cuts).__name__}")
+    bad = [c for c in cuts if isinstance(c, bool) or not isinstance(c, Real) or not 0.0 <= c <= 1.0]
+    if bad:
+        raise ParameterError("cuts", f"confidences in [0, 1], got {bad[0]!r}")
 
 
 def check_recall_at(recall_at: Sequence[int]) -> None:
