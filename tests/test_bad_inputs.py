@@ -1713,3 +1713,35 @@ def test_cuts_outside_0_1_are_a_parameter_error(cuts: object, got: str, results:
     with pytest.raises(ParameterError, match=rf"confidences in \[0, 1\], {got}$") as refused:
         api.evaluate(results, api.TruthSource(), cuts=cuts)
     assert refused.value.parameter == "cuts"
+
+
+@pytest.mark.parametrize("given, parameter, message", [
+    ({"truth": "aligned"}, "truth", "a TruthSource (api.TruthSource(kind='aligned', tolerance=2), ...), got str"),
+    ({"precisions": "99"}, "precisions", "percentages such as 100,99, got str"),
+    ({"precisions": None}, "precisions", "percentages such as 100,99, got NoneType"),
+    ({"precisions": ["99"]}, "precisions", "'99' is not a percentage in (0, 100]")])
+def test_compare_arguments_of_another_type_are_a_parameter_error(given: dict[str, object], parameter: str, message: str,
+                                                                 results: Path) -> None:
+    """A ground truth given as its command-line text ended in an AttributeError ('str' object has
+    no attribute 'load'), precisions=None in a TypeError, and precisions='99' was read character
+    by character: Table II for a target precision of 9 %, twice."""
+    from wiloc import api
+
+    arguments = {"truth": api.TruthSource(), **given}
+    with pytest.raises(ParameterError) as refused:
+        api.compare([results], arguments.pop("truth"), **arguments)
+    assert (refused.value.parameter, str(refused.value)) == (parameter, f"{parameter}: {message}")
+
+
+def test_cuts_recall_at_and_precisions_may_be_any_iterable_read_once(results: Path, online_results: Path) -> None:
+    """Generators are read once, by the checks, and what they held is used: each run of a
+    comparison gets every cut and N, not only the first run."""
+    from wiloc import api
+
+    as_lists = api.compare([results, online_results], api.TruthSource(), precisions=[100, 99], cuts=[0.5, 0.9],
+                           recall_at=[1, 5])
+    as_generators = api.compare([results, online_results], api.TruthSource(), precisions=iter([100, 99]),
+                                cuts=(c for c in [0.5, 0.9]), recall_at=iter([1, 5]))
+    assert "recall@0.9" in as_generators.cut_table and "recall_at_5" in as_generators.table1
+    for table in ("table1", "table2", "cut_table"):
+        assert getattr(as_generators, table).equals(getattr(as_lists, table)), table

@@ -18,10 +18,10 @@ from wiloc.cache.store import Cache
 from wiloc.description.describing import (DescribeReport, check_sampling, check_topic, describe_sources,
                                          traversal_paths)
 from wiloc.description.traversals import Progress, descriptor_spec, open_cluster, stage
-from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_once,
-                                         check_precisions, comparison, method_labels, new_place_series, pr_series,
-                                         reliability_series, run_names, run_subject, score, threshold_marks,
-                                         threshold_series, traversal_labels)
+from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_cuts,
+                                         check_once, check_precisions, check_recall_at, comparison, method_labels,
+                                         new_place_series, pr_series, reliability_series, run_names, run_subject,
+                                         score, threshold_marks, threshold_series, traversal_labels)
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.truth_source import TruthSource
 from wiloc.localization.batch import LocalizeRun, localize
@@ -95,7 +95,7 @@ def compare(runs: Iterable[Run] | Run, truth: TruthSource, *, precisions: Sequen
     as the characters of its name; any iterable of runs is read once. No run, a file given twice
     (or a copy of one), no precision or one outside (0, 100] is a ParameterError: each run counts
     once in the tables."""
-    check_precisions(precisions)
+    precisions, cuts, recall_at = check_precisions(precisions), check_cuts(cuts), check_recall_at(recall_at)
     runs = run_list(runs, (LocalizeRun, Results))
     check_once([run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results)
                 else results_file(run, "runs") for run in runs])

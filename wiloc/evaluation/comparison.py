@@ -92,8 +92,10 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
     ``cuts``) of one run's ``results`` (read from ``path``, None for a run in memory) against
     ground truth, and of its P(new place) where the run gives one. Recall@N for each N of
     ``recall_at`` when the run ranks the map."""
-    check_cuts(cuts)
-    check_recall_at(recall_at)
+    if not isinstance(truth, TruthSource):
+        raise ParameterError("truth", f"a TruthSource (api.TruthSource(kind='aligned', tolerance=2), ...), "
+                                      f"got {type(truth).__name__}")
+    cuts, recall_at = check_cuts(cuts), check_recall_at(recall_at)
     query_names = results.frames["frame"].tolist()
     header = results.header
     ref_names = results.reference_frames or query_names
@@ -154,38 +156,48 @@ def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
 TABLE1_KEYS = ("recall_at_100", "recall_at_99", "recall_at_90", "auc", "recall_at_1", "frames")
 
 
-def check_precisions(precisions: Sequence[float]) -> None:
-    """Table II's target precisions are percentages in (0, 100], at least one: a ParameterError
-    names the first that is not."""
-    if not len(precisions):
+def check_precisions(precisions: Iterable[float]) -> list[float]:
+    """Table II's target precisions, percentages in (0, 100], at least one, as a list (any iterable
+    read once): a ParameterError names the first that is not."""
+    if isinstance(precisions, (str, bytes)) or not isinstance(precisions, Iterable):
+        raise ParameterError("precisions", f"percentages such as 100,99, got {type(precisions).__name__}")
+    precisions = list(precisions)
+    if not precisions:
         raise ParameterError("precisions", "no target precision; give percentages such as 100,99")
-    bad = [p for p in precisions if not 0.0 < float(p) <= 100.0]
+    bad = [p for p in precisions if isinstance(p, bool) or not isinstance(p, Real) or not 0.0 < p <= 100.0]
     if bad:
-        raise ParameterError("precisions", f"{bad[0]:g} is not a percentage in (0, 100]")
+        shown = f"{bad[0]:g}" if isinstance(bad[0], Real) else repr(bad[0])
+        raise ParameterError("precisions", f"{shown} is not a percentage in (0, 100]")
+    return precisions
 
 
-def check_cuts(cuts: Sequence[float]) -> None:
-    """The fixed confidence cuts are numbers in [0, 1], as ``--cuts`` takes them: a ParameterError
-    names the first that is not, where the calibration's ValueError said it with a traceback."""
+def check_cuts(cuts: Iterable[float]) -> list[float]:
+    """The fixed confidence cuts, numbers in [0, 1] as ``--cuts`` takes them, as a list (any
+    iterable read once): a ParameterError names the first that is not, where the calibration's
+    ValueError said it with a traceback."""
     if isinstance(cuts, (str, bytes)) or not isinstance(cuts, Iterable):
         raise ParameterError("cuts", f"confidences in [0, 1], got {type(cuts).__name__}")
+    cuts = list(cuts)
     bad = [c for c in cuts if isinstance(c, bool) or not isinstance(c, Real) or not 0.0 <= c <= 1.0]
     if bad:
         raise ParameterError("cuts", f"confidences in [0, 1], got {bad[0]!r}")
+    return cuts
 
 
-def check_recall_at(recall_at: Sequence[int]) -> None:
-    """Recall@N's N are whole numbers from 1 to RANKED, as ``--recall-at`` takes them: a results
-    file keeps that many candidates per frame, so Recall@50 would be Recall@20's number, and N of
-    90, 99 or 100 would take the key of recall at that precision. A ParameterError names the first
-    that is not."""
+def check_recall_at(recall_at: Iterable[int]) -> list[int]:
+    """Recall@N's N, whole numbers from 1 to RANKED as ``--recall-at`` takes them, as a list (any
+    iterable read once): a results file keeps that many candidates per frame, so Recall@50 would
+    be Recall@20's number, and N of 90, 99 or 100 would take the key of recall at that precision.
+    A ParameterError names the first that is not."""
     if isinstance(recall_at, (str, bytes)) or not isinstance(recall_at, Iterable):
         raise ParameterError("recall_at", f"whole numbers from 1 to {RANKED}, got {type(recall_at).__name__}")
+    recall_at = list(recall_at)
     bad = [n for n in recall_at if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer))
            or not 1 <= n <= RANKED]
     if bad:
         raise ParameterError("recall_at", f"whole numbers from 1 to {RANKED} (results keep the {RANKED} best "
                                           f"candidates), got {bad[0]!r}")
+    return recall_at
 
 
 def check_once(paths: Sequence[Path | None]) -> None:
