@@ -1745,3 +1745,19 @@ def test_cuts_recall_at_and_precisions_may_be_any_iterable_read_once(results: Pa
     assert "recall@0.9" in as_generators.cut_table and "recall_at_5" in as_generators.table1
     for table in ("table1", "table2", "cut_table"):
         assert getattr(as_generators, table).equals(getattr(as_lists, table)), table
+
+
+@pytest.mark.parametrize("given, parameter, message", [
+    ({"kind": "positions", "path": "q.csv", "radius": "25"}, "radius", "must be a finite number >= 0 metres, got '25'"),
+    ({"kind": "pairs", "path": 3}, "path", "a file's path (text or a path object), got int"),
+    ({"kind": "positions", "path": "q.csv", "ref_path": ["r.csv"], "radius": 2.0}, "ref_path",
+     "a file's path (text or a path object), got list")])
+def test_a_ground_truth_of_wrong_types_is_refused_as_it_is_made(given: dict[str, object], parameter: str,
+                                                               message: str) -> None:
+    """TruthSource(radius='25') ended in a TypeError comparing it with 0, and a path given as a
+    number or a list in a TypeError only once a run was scored."""
+    from wiloc.evaluation.truth_source import TruthSource
+
+    with pytest.raises(ParameterError) as refused:
+        TruthSource(**given)
+    assert (refused.value.parameter, str(refused.value)) == (parameter, f"{parameter}: {message}")

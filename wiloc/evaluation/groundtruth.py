@@ -13,6 +13,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from numbers import Real
 from pathlib import Path
 from typing import Literal
 
@@ -292,8 +293,9 @@ def _frames_with_positions(positions: Positions, frames: Sequence[str],
 
 def check_radius(radius: float) -> float:
     """The radius in metres, a finite number >= 0 (a ParameterError naming ``radius`` otherwise)."""
-    if not 0 <= radius < np.inf:
-        raise ParameterError("radius", f"must be a finite number >= 0 metres, got {radius}")
+    if isinstance(radius, bool) or not isinstance(radius, Real) or not 0 <= radius < np.inf:
+        shown = radius if isinstance(radius, Real) else repr(radius)
+        raise ParameterError("radius", f"must be a finite number >= 0 metres, got {shown}")
     return float(radius)
 
 

@@ -94,11 +94,13 @@ class TruthSource:
     variable: str | None = None  # matrix form, .mat files holding several arrays: which one
 
     def __post_init__(self) -> None:
-        """Path-like files kept as text, as a saved localizer's state writes them to JSON; a radius
-        checked as it is given, before any file or folder is read."""
+        """Path-like files kept as text, as a saved localizer's state writes them to JSON; files of
+        another type and a radius checked as they are given, before any file or folder is read."""
         for name in ("path", "ref_path"):
             if isinstance(value := getattr(self, name), os.PathLike):
                 object.__setattr__(self, name, os.fspath(value))
+            elif value is not None and not isinstance(value, str):
+                raise ParameterError(name, f"a file's path (text or a path object), got {type(value).__name__}")
         if self.radius is not None:
             check_radius(self.radius)
 
