@@ -1761,3 +1761,20 @@ def test_a_ground_truth_of_wrong_types_is_refused_as_it_is_made(given: dict[str,
     with pytest.raises(ParameterError) as refused:
         TruthSource(**given)
     assert (refused.value.parameter, str(refused.value)) == (parameter, f"{parameter}: {message}")
+
+
+def test_a_sampling_that_is_no_sampling_or_of_a_folder_map_is_a_parameter_error(route: tuple[Path, Path]) -> None:
+    """sampling='2' ended in a TypeError from asdict() in describe, localize and Localizer (a
+    video map's), and a Localizer's folder map took Sampling(every=2) silently, where a batch run
+    refuses it: a folder's frames are all taken."""
+    from wiloc import api
+
+    ref, query = route
+    for call in (lambda: api.describe(ref, sampling="2"), lambda: api.localize(query, reference=ref, sampling="2"),
+                 lambda: Localizer(ref, sampling="2")):
+        with pytest.raises(ParameterError, match="a Sampling .*, got str$") as refused:
+            call()
+        assert refused.value.parameter == "sampling"
+    with pytest.raises(ParameterError, match=f"applies to video files and ROS bags only; {ref} is neither") as refused:
+        Localizer(ref, sampling=api.Sampling(every=2))
+    assert refused.value.parameter == "every"
