@@ -1778,3 +1778,12 @@ def test_a_sampling_that_is_no_sampling_or_of_a_folder_map_is_a_parameter_error(
     with pytest.raises(ParameterError, match=f"applies to video files and ROS bags only; {ref} is neither") as refused:
         Localizer(ref, sampling=api.Sampling(every=2))
     assert refused.value.parameter == "every"
+
+
+@pytest.mark.parametrize("path", [None, 3])
+def test_loading_a_state_given_as_no_path_is_a_parameter_error(path: object) -> None:
+    """Localizer.load(None) (a path looked up and not found) ended in pathlib's TypeError."""
+    expected = f"path: a saved state's file (text or a path object), got {type(path).__name__}"
+    with pytest.raises(ParameterError, match=re.escape(expected)) as refused:
+        Localizer.load(path)
+    assert refused.value.parameter == "path"

@@ -28,7 +28,7 @@ from wiloc.atomic import written_whole
 from wiloc.cache.store import Cache, Entry
 from wiloc.decisions import Decision
 from wiloc.description.traversals import Describer, checked_rows, is_matrix_file
-from wiloc.errors import FrameError, WilocError, load_problem
+from wiloc.errors import FrameError, ParameterError, WilocError, load_problem
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.localization.frame_arrays import colour_image, frame_array, gray_image
@@ -297,6 +297,8 @@ class Localizer:
         """A localizer continuing from a state written by :meth:`save`: its next decisions are the
         ones the saved localizer would have made. The map must be unchanged; a map that was held
         in memory is given again as ``map``."""
+        if not isinstance(path, (str, os.PathLike)):
+            raise ParameterError("path", f"a saved state's file (text or a path object), got {type(path).__name__}")
         path = Path(path)
         if not path.exists():
             raise WilocError(path, "file does not exist")
