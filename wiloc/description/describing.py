@@ -100,7 +100,8 @@ def traversal_paths(traversals: object, parameter: str) -> list[Path]:
     listed = list(traversals)
     for item in listed:
         if not isinstance(item, (str, os.PathLike)):
-            raise ParameterError(parameter, f"{wanted}, got a {type(traversals).__name__} holding {type(item).__name__}")
+            raise ParameterError(parameter, f"{wanted}, got a {type(traversals).__name__} holding "
+                                            f"{type(item).__name__}")
     return [Path(item) for item in listed]
 
 

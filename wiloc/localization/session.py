@@ -99,8 +99,8 @@ class RunSession:
             check_sampling(sources, sampling)
         pair = (training.query, training.reference) if isinstance(training, Training) else ()
         check_topic([Path(s) for s in (query, map, *pair) if s is not None and not isinstance(s, Entry)], topic)
-        self.describer = Describer(descriptor, parameter_values(descriptor_params, "descriptor_params"), Cache.given(cache), metric=metric,
-                                   jobs=jobs, progress=progress, sampling=sampling,
+        self.describer = Describer(descriptor, parameter_values(descriptor_params, "descriptor_params"),
+                                   Cache.given(cache), metric=metric, jobs=jobs, progress=progress, sampling=sampling,
                                    cluster=open_cluster(scheduler, jobs), topic=topic)
         self.query: Entry | None = None if query is None else self.describer.entry(Path(query), query_names)
         self.map: Entry | None = None
