@@ -118,6 +118,7 @@ USAGE = {
     "empty folder among several": (["describe", "F", ""], "FOLDER...: an empty path"),
     "empty map": (["localize", "Q", "--map", ""], "--map: an empty path"),
     "empty cache": (["describe", "F", "--cache="], "--cache: an empty path"),
+    "empty results out": (["localize", "Q", "-o", ""], "--out: an empty path; give a file or folder"),
 }
 
 

@@ -33,6 +33,7 @@ from wiloc.quiet import stderr_back
 
 out = Console()
 err = Console(stderr=True)
+EMPTY_PATH = "an empty path; give a file or folder"  # a path option typed '' (an unset shell variable)
 
 
 def error(message: str) -> None:
@@ -177,7 +178,7 @@ def _no_empty_paths(param: click.Parameter) -> None:
 
     def refusing_empty(ctx: click.Context, value: Any) -> Any:
         if value == "" or (isinstance(value, (list, tuple)) and "" in value):
-            raise problems.BadParameter("an empty path; give a file or folder", ctx=ctx, param=param)
+            raise problems.BadParameter(EMPTY_PATH, ctx=ctx, param=param)
         return convert(ctx, value)
 
     param.process_value = refusing_empty  # type: ignore[method-assign]

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 import typer
 
 from wiloc.atomic import NOT_A_FILE, name_problem, output_problem
-from wiloc.cli.core import Notes, fail, note
+from wiloc.cli.core import EMPTY_PATH, Notes, fail, note
 from wiloc.cli.params import descriptor_params, descriptor_takers
 from wiloc.errors import EXIT_USAGE, UsageError, WilocError
 
@@ -45,6 +45,8 @@ def results_out(value: str | None) -> str | None:
     ``/`` names a folder even where the name has a suffix (``runs.v2/``), which a path would lose."""
     if value is None:
         return None
+    if not value:  # Path('') is the current folder
+        raise typer.BadParameter(EMPTY_PATH)
     path = Path(value)
     trailing = _trailing_separator(value)
     if not trailing:
