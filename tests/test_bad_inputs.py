@@ -1788,3 +1788,27 @@ def test_loading_a_state_given_as_no_path_is_a_parameter_error(path: object) -> 
     with pytest.raises(ParameterError, match=re.escape(expected)) as refused:
         Localizer.load(path)
     assert refused.value.parameter == "path"
+
+
+@pytest.mark.parametrize("follow", [False, True])
+def test_results_never_replace_a_file_that_is_no_results_file(follow: bool, route: tuple[Path, Path], results: Path,
+                                                               tmp_path: Path) -> None:
+    """-o naming one of the query's own frames (or a table of one's own) replaced it, with only the
+    note 'replaced the existing results file' (a followed run refused it already, and says the same
+    now); a batch run still replaces a results file (with an editor's byte-order mark too) and takes an
+    empty file."""
+    ref, query = route
+    frame = query / "img3.png"
+    kept = frame.read_bytes()
+    run = ["localize", str(query), "--map", str(ref), "--method", "threshold", "--jobs", "1",
+           *(["--follow", "--idle", "0.3"] if follow else [])]
+    result = runner.invoke(app, [*run, "--out", str(frame)])
+    ends_in_one_error(result, 1, f"{frame}: cannot write the results file: the file there is no wiloc results file")
+    assert frame.read_bytes() == kept and not (query / ".img3.png.lock").exists()
+    marked = tmp_path / "marked.csv"
+    marked.write_bytes(b"\xef\xbb\xbf" + results.read_bytes())
+    empty = tmp_path / "empty.csv"
+    empty.touch()
+    for out in () if follow else (results, marked, empty):
+        assert runner.invoke(app, [*run, "--out", str(out)]).exit_code == 0, out
+        assert out.read_text(encoding="utf-8").startswith("# wiloc-results: 1")
