@@ -156,12 +156,18 @@ def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
 TABLE1_KEYS = ("recall_at_100", "recall_at_99", "recall_at_90", "auc", "recall_at_1", "frames")
 
 
+def _listed(values: Iterable[Any], parameter: str, wanted: str) -> list[Any]:
+    """``values`` as a list (any iterable read once); text, or anything that is no iterable, is a
+    ParameterError naming ``parameter`` that says what is ``wanted``."""
+    if isinstance(values, (str, bytes)) or not isinstance(values, Iterable):
+        raise ParameterError(parameter, f"{wanted}, got {type(values).__name__}")
+    return list(values)
+
+
 def check_precisions(precisions: Iterable[float]) -> list[float]:
     """Table II's target precisions, percentages in (0, 100], at least one, as a list (any iterable
     read once): a ParameterError names the first that is not."""
-    if isinstance(precisions, (str, bytes)) or not isinstance(precisions, Iterable):
-        raise ParameterError("precisions", f"percentages such as 100,99, got {type(precisions).__name__}")
-    precisions = list(precisions)
+    precisions = _listed(precisions, "precisions", "percentages such as 100,99")
     if not precisions:
         raise ParameterError("precisions", "no target precision; give percentages such as 100,99")
     bad = [p for p in precisions if isinstance(p, bool) or not isinstance(p, Real) or not 0.0 < p <= 100.0]
@@ -175,9 +181,7 @@ def check_cuts(cuts: Iterable[float]) -> list[float]:
     """The fixed confidence cuts, numbers in [0, 1] as ``--cuts`` takes them, as a list (any
     iterable read once): a ParameterError names the first that is not, where the calibration's
     ValueError said it with a traceback."""
-    if isinstance(cuts, (str, bytes)) or not isinstance(cuts, Iterable):
-        raise ParameterError("cuts", f"confidences in [0, 1], got {type(cuts).__name__}")
-    cuts = list(cuts)
+    cuts = _listed(cuts, "cuts", "confidences in [0, 1]")
     bad = [c for c in cuts if isinstance(c, bool) or not isinstance(c, Real) or not 0.0 <= c <= 1.0]
     if bad:
         raise ParameterError("cuts", f"confidences in [0, 1], got {bad[0]!r}")
@@ -189,9 +193,7 @@ def check_recall_at(recall_at: Iterable[int]) -> list[int]:
     iterable read once): a results file keeps that many candidates per frame, so Recall@50 would
     be Recall@20's number, and N of 90, 99 or 100 would take the key of recall at that precision.
     A ParameterError names the first that is not."""
-    if isinstance(recall_at, (str, bytes)) or not isinstance(recall_at, Iterable):
-        raise ParameterError("recall_at", f"whole numbers from 1 to {RANKED}, got {type(recall_at).__name__}")
-    recall_at = list(recall_at)
+    recall_at = _listed(recall_at, "recall_at", f"whole numbers from 1 to {RANKED}")
     bad = [n for n in recall_at if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer))
            or not 1 <= n <= RANKED]
     if bad:
