@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wiloc.decisions import Decisions
+from wiloc.decisions import Decision, Decisions
 from wiloc.errors import WilocError
-from wiloc.evaluation.results import Results, make_results, read_results, write_results
+from wiloc.evaluation.results import Results, ResultsStream, make_results, read_results, write_results
 from wiloc.evaluation.results_header import ResultsHeader, parse_header
 from wiloc.model import HistogramModel
 
@@ -45,6 +45,37 @@ def test_round_trip_keeps_names_values_and_model(tmp_path: Path) -> None:
     assert back.header.params == {"init": 1}
     assert back.model is not None and back.model.b.tolist() == [1.0, 1.0, 0.0, 0.0]
     assert not list(tmp_path.glob(".*tmp"))
+
+
+#: Every character that ends a line for a reader of the file: pandas' (\r, \n) or Python's (str.splitlines).
+LINE_BREAKS = ("\r", "\n", "\r\n", "\x0b", "\x0c", "\x1c", "\x1d", "\x1e", "\x85", "\u2028", "\u2029")
+
+
+@pytest.mark.parametrize("brk", LINE_BREAKS)
+def test_a_line_break_in_a_frames_name_survives_a_write_and_a_read(tmp_path: Path, brk: str) -> None:
+    """A carriage return in a name (Linux file names may hold one) was written unquoted, and
+    pandas read the row as two: 'holds 5 rows, its header says 3'."""
+    path = tmp_path / "run.csv"
+    names, refs = [f"q{brk}0.png", "q1.png", f"{brk}q2.png"], ["x", "y", f"z{brk}"]
+    write_results(path, make_results(_decisions(), query_names=names, ref_names=refs, header=ResultsHeader()))
+    back = read_results(path)
+    assert back.frames["frame"].tolist() == names
+    assert back.frames["match"].tolist() == ["", refs[2], refs[0]]
+
+
+@pytest.mark.parametrize("brk", LINE_BREAKS)
+def test_a_line_break_in_a_frames_name_survives_a_followed_runs_rows(tmp_path: Path, brk: str) -> None:
+    path = tmp_path / "live.csv"
+    stream = ResultsStream(path, ResultsHeader(method="threshold", reference_frames=("x", f"y{brk}")), (),
+                           resume=False)
+    decision = Decision(match=1, difference=0.5, confidence=0.5, stage="update", frame=f"a{brk}b.png",
+                        match_name=f"y{brk}")
+    stream.append(decision)
+    stream.close()
+    again = ResultsStream(path, stream.header, (), resume=True)
+    again.close()
+    assert again.written_lines() == [stream.line(decision)]
+    assert read_results(path).frames[["frame", "match"]].values.tolist() == [[f"a{brk}b.png", f"y{brk}"]]
 
 
 def test_header_names_the_run(tmp_path: Path) -> None:
@@ -186,13 +217,15 @@ def test_a_write_that_fails_leaves_the_old_file_and_says_so_in_one_line(tmp_path
                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     import pandas as pd
 
+    from wiloc.evaluation import results
+
     path, text = _written(tmp_path)
 
-    def full_disk(self: pd.DataFrame, out: object, **kwargs: object) -> None:
+    def full_disk(out: object, frames: pd.DataFrame) -> None:
         out.write("frame,match\na,x\n")  # type: ignore[attr-defined]  # a start, then the disk is full
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(pd.DataFrame, "to_csv", full_disk)
+    monkeypatch.setattr(results, "_write_table", full_disk)
     with pytest.raises(WilocError, match=r"cannot write the results file \(No space left on device\)"):
         write_results(path, _made())
     assert path.read_text(encoding="utf-8") == text

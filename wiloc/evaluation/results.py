@@ -150,22 +150,32 @@ def write_results(path: Path, results: Results) -> bool:
     except OSError:  # nothing there, or a name no file can have (which writing says)
         mode = None
     replaced = mode is not None
-    _write_atomically(path, results.header,
-                      lambda out: results.frames.to_csv(out, index=False, float_format="%.9g"), mode=mode)
+    _write_atomically(path, results.header, lambda out: _write_table(out, results.frames), mode=mode)
     return replaced
 
 
+def _write_table(out: Any, frames: pd.DataFrame) -> None:
+    """Write ``frames`` as a results file's table: its column line, then one :func:`_csv_line` a row."""
+    out.write(_csv_line(list(frames.columns)))
+    for row in frames.itertuples(index=False, name=None):
+        out.write(_csv_line([_cell(value) for value in row]))
+
+
 def _cell(value: Any) -> Any:
-    """A value as the batch table writes it: floats with 9 significant digits, NaN empty."""
-    if isinstance(value, float):
+    """A value as a results table holds it: floats with 9 significant digits, NaN empty."""
+    if isinstance(value, (float, np.floating)):
         return "" if math.isnan(value) else "%.9g" % value
     return value
 
 
 def _csv_line(cells: list[Any]) -> str:
+    """One line of a results table ending in ``\\n``. A cell holding a carriage return is quoted as
+    one holding a line feed is: readers (pandas, Python's universal newlines) end a line at
+    either, and the csv module quotes only the characters of its line terminator, hence the
+    ``\\r\\n`` written and its end replaced."""
     text = io.StringIO()
-    csv.writer(text, lineterminator="\n").writerow(cells)
-    return text.getvalue()
+    csv.writer(text, lineterminator="\r\n").writerow(cells)
+    return text.getvalue()[:-2] + "\n"
 
 
 class ResultsStream:
