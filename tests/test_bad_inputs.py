@@ -1812,3 +1812,20 @@ def test_results_never_replace_a_file_that_is_no_results_file(follow: bool, rout
     for out in () if follow else (results, marked, empty):
         assert runner.invoke(app, [*run, "--out", str(out)]).exit_code == 0, out
         assert out.read_text(encoding="utf-8").startswith("# wiloc-results: 1")
+
+
+def test_a_sampling_without_frames_to_sample_is_a_parameter_error() -> None:
+    """A Localizer in sequence mode (no map) or over a map held in memory took Sampling(every=2)
+    and ignored it: neither has a video's frames to sample."""
+    from wiloc import api
+    from wiloc.description.traversals import entry_from_array
+    from wiloc.descriptors.registry import get_descriptor
+
+    spec = get_descriptor("sad")
+    memory = entry_from_array(np.zeros((5, spec.length), np.uint8), [f"m{i}" for i in range(5)], spec)
+    for given in (None, memory):
+        with pytest.raises(ParameterError, match="applies to video files and ROS bags only; no traversal given "
+                                                 "is one$") as refused:
+            Localizer(given, method="catgraph", sampling=api.Sampling(every=2))
+        assert refused.value.parameter == "every"
+    assert Localizer(None, method="catgraph", sampling=api.Sampling()).sequence

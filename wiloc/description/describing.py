@@ -108,15 +108,16 @@ def traversal_paths(traversals: object, parameter: str) -> list[Path]:
 def check_sampling(sources: Sequence[Path], sampling: Sampling | None) -> None:
     """ParameterError naming the sampling's first field that was set (``fps``, ...) when it keeps
     other than every frame and none of ``sources`` is a video file or ROS bag: it applies to those
-    only (image folders beside them take every frame); anything but a Sampling is a ParameterError
-    naming ``sampling``."""
+    only (image folders beside them take every frame; a map held in memory, or none in sequence
+    mode, has no frames to sample); anything but a Sampling is a ParameterError naming ``sampling``."""
     if sampling is not None and not isinstance(sampling, Sampling):
         raise ParameterError("sampling", f"a Sampling (Sampling(every=2), Sampling(fps=2.0, start='60s')), "
                                          f"got {type(sampling).__name__}")
     if sampling is not None and sampling != Sampling() and not any(is_stream(Path(s)) for s in sources):
         unset = Sampling()
         given = next(f.name for f in fields(Sampling) if getattr(sampling, f.name) != getattr(unset, f.name))
-        raise ParameterError(given, f"applies to video files and ROS bags only; {sources[0]} is neither")
+        neither = f"{sources[0]} is neither" if sources else "no traversal given is one"
+        raise ParameterError(given, f"applies to video files and ROS bags only; {neither}")
 
 
 def check_topic(sources: Sequence[Path], topic: str | None) -> None:

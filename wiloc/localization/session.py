@@ -95,8 +95,7 @@ class RunSession:
         if not restoring:
             self._check_inputs(training is not None, odometry is not None, map_odometry is not None)
         sources = [Path(source) for source in (query, map) if source is not None and not isinstance(source, Entry)]
-        if sources:  # a map held in memory, or none (sequence mode), has no frames to sample
-            check_sampling(sources, sampling)
+        check_sampling(sources, sampling)
         pair = (training.query, training.reference) if isinstance(training, Training) else ()
         check_topic([Path(s) for s in (query, map, *pair) if s is not None and not isinstance(s, Entry)], topic)
         self.describer = Describer(descriptor, parameter_values(descriptor_params, "descriptor_params"),
