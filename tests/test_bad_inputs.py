@@ -1829,3 +1829,21 @@ def test_a_sampling_without_frames_to_sample_is_a_parameter_error() -> None:
             Localizer(given, method="catgraph", sampling=api.Sampling(every=2))
         assert refused.value.parameter == "every"
     assert Localizer(None, method="catgraph", sampling=api.Sampling()).sequence
+
+
+@pytest.mark.parametrize("line, edited, message", [
+    ("# method: threshold", "# method: treshold", "header 'method' must be one of online, threshold, trained, catgraph, "
+                                                  "fabmap, seqslam, got 'treshold'"),
+    ("# method: threshold", "# method: ", "header 'method' must be one of online, threshold, trained, catgraph, "
+                                          "fabmap, seqslam, got ''"),
+    ("# metric: l1", "# metric: l7", "header 'metric' must be one of l1, sqeuclidean, hamming, cosine, got 'l7'")])
+def test_a_header_edited_to_an_unknown_method_or_metric_is_refused_naming_the_line(line: str, edited: str, message: str,
+                                                                                   results: Path, tmp_path: Path) -> None:
+    """A results file whose method or metric was edited by hand to a name no run writes was
+    scored as any other run: as [0, 1] confidences for a method that is none of wiloc's."""
+    lines = results.read_text().splitlines()
+    number = lines.index(line) + 1
+    lines[number - 1] = edited
+    path = tmp_path / "edited.csv"
+    path.write_text("\n".join(lines) + "\n")
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(path)]), 1, f"{path}: line {number}: {message}")

@@ -188,7 +188,7 @@ def _written(tmp_path: Path) -> tuple[Path, str]:
      "header 'map' names a map, but 'mode' is sequence: a sequence-mode run is its own map"),
     (lambda t: t.replace("# mode: map", "# mode: sequence").replace("# map: \n", "# map: \n# map_digest: 0a1b\n"),
      "header 'map_digest' names a map"),
-    (lambda t: t.replace("# mode: map", "# mode: seq"), "header 'mode' must be map or sequence, got 'seq'"),
+    (lambda t: t.replace("# mode: map", "# mode: seq"), "line 5: header 'mode' must be map or sequence, got 'seq'"),
 ])
 def test_a_results_file_no_run_writes_is_refused_naming_the_line(tmp_path: Path, edit, message: str) -> None:
     path, text = _written(tmp_path)
@@ -246,3 +246,13 @@ def test_a_name_no_file_can_have_is_refused_naming_the_file(tmp_path: Path) -> N
     with pytest.raises(WilocError, match="cannot write the results file: no file can have this name"):
         _made().save(path)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_file_without_a_method_line_is_refused_where_the_methods_are_known(tmp_path: Path) -> None:
+    from wiloc.methods.registry import METHODS
+
+    path, text = _written(tmp_path)
+    path.write_text(text.replace("# method: \n", ""), encoding="utf-8")
+    assert read_results(path).method == ""  # no methods given: any name, none too
+    with pytest.raises(WilocError, match="no 'method' header: the method that wrote the file .* is unknown"):
+        read_results(path, METHODS)

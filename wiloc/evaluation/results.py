@@ -14,10 +14,10 @@ import io
 import math
 import os
 import stat
-from collections.abc import Callable, Collection
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -25,9 +25,12 @@ import pandas as pd
 from wiloc.atomic import write_error, written_whole
 from wiloc.decisions import Decision, Decisions
 from wiloc.errors import WilocError
-from wiloc.evaluation.results_header import ResultsHeader, parse_header, read_header
+from wiloc.evaluation.results_header import ResultsHeader, header_line, parse_header, read_header
 from wiloc.model import HistogramModel
 from wiloc.reprs import short_repr
+
+if TYPE_CHECKING:
+    from wiloc.methods.base import Method
 
 BASE_COLUMNS = ("frame", "match", "difference", "confidence", "stage")
 RANKING = "ranking"  # the column of each frame's best candidates (methods that rank; docs/formats.md)
@@ -261,13 +264,15 @@ def _settings(header: ResultsHeader, expected: ResultsHeader, learned: Collectio
     return replace(header, **older, wiloc="", model=None, query_digest=None, params=params)
 
 
-def read_results(path: Path, lowest_confidence: Callable[[str], float] | None = None) -> Results:
+def read_results(path: Path, methods: Mapping[str, type[Method]] | None = None) -> Results:
     """Read a results file written by :func:`write_results` (or a followed run's); WilocError
     naming the file and line when it is not one or holds something no run writes.
-    ``lowest_confidence(method)`` is the lowest confidence the run's method writes
-    (``wiloc.methods.registry.lowest_confidence``); without it confidences lie in [0, 1]."""
+    ``methods`` are those a file may name (``wiloc.methods.registry.METHODS``): a file naming
+    another is refused, and its confidences go down to its method's ``lowest_confidence``;
+    without it any name passes and confidences lie in [0, 1]."""
     path = Path(path)
     header, frames, first_line = _read_table(path)
+    method = _method(path, header, methods) if methods is not None else None
     reference = _reference_frames(path, header, frames)
     known = set(reference)
     for i, match in enumerate(frames["match"]):
@@ -282,10 +287,20 @@ def read_results(path: Path, lowest_confidence: Callable[[str], float] | None = 
             i = int(np.flatnonzero(bad.to_numpy())[0])
             raise WilocError(path, f"line {first_line + i}: {column} '{frames[column].iloc[i]}' is not a number")
         frames[column] = numbers.astype(np.float64)
-    lowest = lowest_confidence(header.method) if lowest_confidence is not None else 0.0
-    _check_probabilities(path, frames, header.method, lowest, first_line)
+    _check_probabilities(path, frames, header.method, method.lowest_confidence if method else 0.0, first_line)
     _check_decided(path, frames, first_line)
     return Results(header=header, frames=frames, reference_frames=reference)
+
+
+def _method(path: Path, header: ResultsHeader, methods: Mapping[str, type[Method]]) -> type[Method]:
+    """The class of the method a results file names; a WilocError naming the file and the line
+    when it names none of ``methods`` (a header edited by hand)."""
+    if header.method in methods:
+        return methods[header.method]
+    line, choices = header_line(path, "method"), ", ".join(methods)
+    if line is None:
+        raise WilocError(path, f"no 'method' header: the method that wrote the file (one of {choices}) is unknown")
+    raise WilocError(path, f"line {line}: header 'method' must be one of {choices}, got {header.method!r}")
 
 
 def _check_probabilities(path: Path, frames: pd.DataFrame, method: str, lowest: float, first_line: int) -> None:

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from wiloc.descriptors.base import METRICS
 from wiloc.errors import WilocError
 from wiloc.model import HistogramModel
 from wiloc.reprs import short_repr
@@ -95,6 +96,12 @@ class ResultsHeader:
 def read_header(path: Path) -> tuple[ResultsHeader, int]:
     """A results file's header and its number of lines; WilocError naming the file when it is
     no results file or its header holds a value no run writes."""
+    lines = _header_lines(path)
+    return parse_header(lines, path), len(lines)
+
+
+def _header_lines(path: Path) -> list[str]:
+    """A results file's header lines (those starting ``# ``, up to the first that does not)."""
     if not path.is_file():
         raise WilocError(path, "results file does not exist")
     lines = []
@@ -106,12 +113,21 @@ def read_header(path: Path) -> tuple[ResultsHeader, int]:
                 lines.append(line)
     except UnicodeDecodeError:
         raise WilocError(path, "not a wiloc results file (not UTF-8 text)") from None
-    return parse_header(lines, path), len(lines)
+    return lines
+
+
+def header_line(path: Path, key: str) -> int | None:
+    """The line number of ``key`` in a results file's header (its last, which counts); None
+    when the header has no such line. For messages naming the line of a value refused later."""
+    found = [n for n, line in enumerate(_header_lines(path), 1) if line[2:].partition(": ")[0] == key]
+    return found[-1] if found else None
 
 
 def parse_header(lines: Iterable[str], path: Path | None) -> ResultsHeader:
-    """The header of ``# key: value`` lines (the last of a key given twice counts)."""
+    """The header of ``# key: value`` lines (the last of a key given twice counts); a WilocError
+    naming the line of a value no run writes."""
     values: dict[str, Any] = {}
+    where: dict[str, int] = {}
     for n, line in enumerate(lines, 1):
         key, sep, value = line[2:].rstrip("\n").partition(": ")
         if not sep:
@@ -119,11 +135,18 @@ def parse_header(lines: Iterable[str], path: Path | None) -> ResultsHeader:
         try:
             values[key] = json.loads(value) if key in JSON_KEYS else value
         except json.JSONDecodeError as exc:
-            raise WilocError(path, f"header '{key}' is not valid JSON ({exc.msg})") from None
+            raise WilocError(path, f"line {n}: header '{key}' is not valid JSON ({exc.msg})") from None
+        where[key] = n
     if values.pop(VERSION_KEY, None) != FORMAT_VERSION:
         raise WilocError(path, "not a wiloc results file (no '# wiloc-results: 1' header)")
     known = {f.name for f in fields(ResultsHeader)} - {"extra"}
-    typed = {key: _typed(path, key, value) for key, value in values.items() if key in known}
+    typed = {}
+    for key, value in values.items():
+        try:
+            if key in known:
+                typed[key] = _typed(path, key, value)
+        except WilocError as exc:
+            raise WilocError(path, f"line {where[key]}: {exc.problem}") from None
     if typed.get("mode") == "sequence":
         given = next((key for key in ("map", "map_digest") if typed.get(key)), None)
         if given is not None:
@@ -140,6 +163,8 @@ def _typed(path: Path | None, key: str, value: Any) -> Any:
         return int(value)
     if key == "mode" and value not in ("map", "sequence", ""):  # "": a file made by hand does not say
         raise WilocError(path, f"header 'mode' must be map or sequence, got {value!r}")
+    if key == "metric" and value not in ("", *METRICS):  # "": a file of an older version does not say
+        raise WilocError(path, f"header 'metric' must be one of {', '.join(METRICS)}, got {value!r}")
     if key == "follow":
         return value == "True"
     if key == "reference_frames":

@@ -17,7 +17,7 @@ from wiloc.errors import CacheBusyError, ParameterError, WilocError
 from wiloc.evaluation.results import Results, read_results
 from wiloc.evaluation.results_header import VERSION_KEY, ResultsHeader
 from wiloc.localization.training import Training
-from wiloc.methods.registry import lowest_confidence
+from wiloc.methods.registry import METHODS
 from wiloc.sources.frames import text_path
 from wiloc.version import __version__
 
@@ -53,9 +53,9 @@ def run_header(method: str, describer: Describer, query: Path | None, metric: st
 
 
 def read_run(path: Path) -> Results:
-    """The results file at ``path``, its confidences checked against the bounds of the method
-    that wrote it (``threshold``'s go below 0)."""
-    return read_results(path, lowest_confidence)
+    """The results file at ``path``, naming a registered method, its confidences checked against
+    the bounds of the method that wrote it (``threshold``'s go below 0)."""
+    return read_results(path, METHODS)
 
 
 def results_file(run: object, parameter: str) -> Path:

@@ -32,12 +32,6 @@ def method_class(name: str) -> type[Method]:
     return METHODS[name]
 
 
-def lowest_confidence(name: str) -> float:
-    """The lowest confidence the method registered under ``name`` writes (0 for a name that is
-    not registered): what results files of its runs are checked against."""
-    return METHODS[name].lowest_confidence if name in METHODS else 0.0
-
-
 def learning_from_the_map() -> list[str]:
     """The methods that read the map's differences to itself outside +-R (``exclude_recent``):
     the only ones R changes against a map."""
