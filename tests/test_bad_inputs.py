@@ -1847,3 +1847,14 @@ def test_a_header_edited_to_an_unknown_method_or_metric_is_refused_naming_the_li
     path = tmp_path / "edited.csv"
     path.write_text("\n".join(lines) + "\n")
     ends_in_one_error(runner.invoke(app, ["evaluate", str(path)]), 1, f"{path}: line {number}: {message}")
+
+
+@pytest.mark.parametrize("value", ["-3", "inf"])
+def test_a_difference_no_run_on_differences_writes_is_refused_naming_the_line(value: str, results: Path,
+                                                                             tmp_path: Path) -> None:
+    """Every metric's differences are finite and >= 0 (only FAB-MAP's evidence gives negative
+    ones, rows: fabmap); an edited -3 or inf was read silently."""
+    edited = _edited(results, "difference", value, tmp_path / "edited.csv")
+    line = next(i for i, text in enumerate(edited.read_text().splitlines()) if text.startswith("frame,")) + 2
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(edited)]), 1,
+                      f"{edited}: line {line}: difference {value} is not a finite number >= 0")

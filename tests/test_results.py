@@ -189,6 +189,8 @@ def _written(tmp_path: Path) -> tuple[Path, str]:
     (lambda t: t.replace("# mode: map", "# mode: sequence").replace("# map: \n", "# map: \n# map_digest: 0a1b\n"),
      "header 'map_digest' names a map"),
     (lambda t: t.replace("# mode: map", "# mode: seq"), "line 5: header 'mode' must be map or sequence, got 'seq'"),
+    (lambda t: t.replace("# mode: map", "# mode: map\n# rows: evidence"),
+     r"line 6: header 'rows' must be fabmap \(a run on FAB-MAP's evidence\), got 'evidence'"),
 ])
 def test_a_results_file_no_run_writes_is_refused_naming_the_line(tmp_path: Path, edit, message: str) -> None:
     path, text = _written(tmp_path)
@@ -256,3 +258,26 @@ def test_a_file_without_a_method_line_is_refused_where_the_methods_are_known(tmp
     assert read_results(path).method == ""  # no methods given: any name, none too
     with pytest.raises(WilocError, match="no 'method' header: the method that wrote the file .* is unknown"):
         read_results(path, METHODS)
+
+
+@pytest.mark.parametrize("header, legitimate", [
+    (ResultsHeader(method="fabmap", descriptor="bow", rows="fabmap"), True),
+    (ResultsHeader(method="catgraph", descriptor="bow", rows="fabmap"), True),
+    (ResultsHeader(method="catgraph", descriptor="bow", follow=True), True),  # an older followed file: no rows line
+    (ResultsHeader(method="catgraph", descriptor="sad"), False),
+    (ResultsHeader(method="online", descriptor="bow"), False)])
+def test_a_negative_difference_is_read_only_from_a_run_on_fabmaps_evidence(header: ResultsHeader, legitimate: bool,
+                                                                          tmp_path: Path) -> None:
+    """Every metric's differences are >= 0; FAB-MAP's evidence gives -r, of either sign. A
+    negative difference edited into a run on differences was read silently."""
+    from wiloc.methods.registry import METHODS
+
+    decisions = _decisions()
+    decisions.difference[1] = -2.5
+    path = tmp_path / "run.csv"
+    write_results(path, make_results(decisions, query_names=["a", "b", "c"], ref_names=["x", "y", "z"], header=header))
+    if legitimate:
+        assert read_results(path, METHODS).frames["difference"].iloc[1] == -2.5
+    else:
+        with pytest.raises(WilocError, match=r"line \d+: difference -2.5 is not a finite number >= 0"):
+            read_results(path, METHODS)

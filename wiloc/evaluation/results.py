@@ -268,8 +268,9 @@ def read_results(path: Path, methods: Mapping[str, type[Method]] | None = None) 
     """Read a results file written by :func:`write_results` (or a followed run's); WilocError
     naming the file and line when it is not one or holds something no run writes.
     ``methods`` are those a file may name (``wiloc.methods.registry.METHODS``): a file naming
-    another is refused, and its confidences go down to its method's ``lowest_confidence``;
-    without it any name passes and confidences lie in [0, 1]."""
+    another is refused, its confidences go down to its method's ``lowest_confidence`` and its
+    differences are checked (:func:`_check_differences`); without it any name passes,
+    confidences lie in [0, 1] and differences are not checked."""
     path = Path(path)
     header, frames, first_line = _read_table(path)
     method = _method(path, header, methods) if methods is not None else None
@@ -288,6 +289,8 @@ def read_results(path: Path, methods: Mapping[str, type[Method]] | None = None) 
             raise WilocError(path, f"line {first_line + i}: {column} '{frames[column].iloc[i]}' is not a number")
         frames[column] = numbers.astype(np.float64)
     _check_probabilities(path, frames, header.method, method.lowest_confidence if method else 0.0, first_line)
+    if method is not None:
+        _check_differences(path, frames, _on_evidence(header, method), first_line)
     _check_decided(path, frames, first_line)
     return Results(header=header, frames=frames, reference_frames=reference)
 
@@ -301,6 +304,27 @@ def _method(path: Path, header: ResultsHeader, methods: Mapping[str, type[Method
     if line is None:
         raise WilocError(path, f"no 'method' header: the method that wrote the file (one of {choices}) is unknown")
     raise WilocError(path, f"line {line}: header 'method' must be one of {choices}, got {header.method!r}")
+
+
+def _on_evidence(header: ResultsHeader, method: type[Method]) -> bool:
+    """Whether a run's rows were FAB-MAP's evidence, whose differences (-r) go below 0: its header
+    says ``rows: fabmap``; a followed file of an older version, without the line, may be such a
+    run where its method reads evidence and its descriptor is ``bow`` (or not said)."""
+    if header.rows is not None:
+        return header.rows == "fabmap"
+    return "log_ratio" in method.rows and header.descriptor in ("bow", None)
+
+
+def _check_differences(path: Path, frames: pd.DataFrame, evidence: bool, first_line: int) -> None:
+    """A WilocError naming the file and line of a difference no run writes: infinite, or below 0
+    where the rows were differences (every metric's are >= 0; FAB-MAP's evidence gives -r, of
+    either sign). Empty cells (undecided frames) pass."""
+    values = frames["difference"].to_numpy()
+    bad = ~np.isnan(values) & ~(np.isfinite(values) & ((values >= 0) | evidence))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        span = "a finite number" if evidence else "a finite number >= 0 (as every run on differences writes it)"
+        raise WilocError(path, f"line {first_line + i}: difference {values[i]:g} is not {span}")
 
 
 def _check_probabilities(path: Path, frames: pd.DataFrame, method: str, lowest: float, first_line: int) -> None:

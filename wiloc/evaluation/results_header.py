@@ -163,6 +163,8 @@ def _typed(path: Path | None, key: str, value: Any) -> Any:
         return int(value)
     if key == "mode" and value not in ("map", "sequence", ""):  # "": a file made by hand does not say
         raise WilocError(path, f"header 'mode' must be map or sequence, got {value!r}")
+    if key == "rows" and value != "fabmap":  # the one kind of rows written (differences: no line)
+        raise WilocError(path, f"header 'rows' must be fabmap (a run on FAB-MAP's evidence), got {value!r}")
     if key == "metric" and value not in ("", *METRICS):  # "": a file of an older version does not say
         raise WilocError(path, f"header 'metric' must be one of {', '.join(METRICS)}, got {value!r}")
     if key == "follow":
