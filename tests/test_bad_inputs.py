@@ -1295,8 +1295,14 @@ def test_a_followed_results_file_cut_short_in_its_last_row_is_refused(results: P
 def test_a_map_frame_named_twice_in_the_header_is_refused(results: Path, tmp_path: Path) -> None:
     edited = tmp_path / "twice.csv"
     edited.write_text(results.read_text().replace('"img1.png"', '"img0.png"', 1))
+    line = _header_line(edited, "reference_frames")
     ends_in_one_error(runner.invoke(app, ["evaluate", str(edited)]), 1,
-                      f"{edited}: header 'reference_frames' names 'img0.png' twice")
+                      f"{edited}: line {line}: header 'reference_frames' names 'img0.png' twice")
+
+
+def _header_line(path: Path, key: str) -> int:
+    """The line number of a results file's header line ``# key: ...``."""
+    return next(n for n, text in enumerate(path.read_text().splitlines(), 1) if text.startswith(f"# {key}: "))
 
 
 def test_a_ground_truth_path_is_read_as_given_but_for_query(route: tuple[Path, Path], results: Path,
@@ -1599,7 +1605,8 @@ def test_a_model_header_whose_counts_do_not_fit_its_bins_is_refused(online_resul
     run.write_text(re.sub(r'("edges": \[)[^,]+, ', r"\1", run.read_text(), count=1))
     figure = tmp_path / "fig1.png"
     ends_in_one_error(runner.invoke(app, ["compare", str(run), "--model-plot", str(figure)]), 1,
-                      f"{run}: header 'model' is not a histogram model (b must hold a count >= 0 for each of the 99 bins)")
+                      f"{run}: line {_header_line(run, 'model')}: header 'model' is not a histogram model "
+                      "(b must hold a count >= 0 for each of the 99 bins)")
     assert not figure.exists()
 
 
