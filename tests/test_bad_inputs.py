@@ -1865,3 +1865,19 @@ def test_a_difference_no_run_on_differences_writes_is_refused_naming_the_line(va
     line = next(i for i, text in enumerate(edited.read_text().splitlines()) if text.startswith("frame,")) + 2
     ends_in_one_error(runner.invoke(app, ["evaluate", str(edited)]), 1,
                       f"{edited}: line {line}: difference {value} is not a finite number >= 0")
+
+
+@pytest.mark.parametrize("role", ["query", "map", "import"])
+def test_a_results_file_given_for_descriptors_says_it_is_a_results_file(role: str, route: tuple[Path, Path],
+                                                                         results: Path, tmp_path: Path) -> None:
+    """A results CSV as QUERY or --map asked for --metric, as a descriptor matrix, and given one
+    ended in pandas' tokenizing error; describe --import said the same."""
+    ref, query = route
+    args = {"query": ["localize", str(results), "--map", str(ref), "--out", str(tmp_path / "o.csv")],
+            "map": ["localize", str(query), "--map", str(results), "--out", str(tmp_path / "o.csv")],
+            "import": ["describe", "--import", str(results), "--metric", "l1"]}[role]
+    wanted = ("holds no descriptors to import: give a descriptor matrix file" if role == "import" else
+              "is not a traversal: give a folder of images, a video or a descriptor matrix file")
+    ends_in_one_error(runner.invoke(app, args), 1, f"{results}: a wiloc results file {wanted}",
+                      "; evaluate and compare read results files")
+    assert not (tmp_path / "o.csv").exists()

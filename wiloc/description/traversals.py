@@ -14,7 +14,7 @@ from wiloc.cache.entries import EXTERNAL, Entry, EntryHeader
 from wiloc.cache.store import Cache
 from wiloc.description.describing import describe_source
 from wiloc.description.matrix_import import import_matrix
-from wiloc.descriptors.external import check_frame_names, recorded_metric
+from wiloc.descriptors.external import check_frame_names, recorded_metric, refuse_results_file
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import ParameterError, WilocError, parameter_values
 from wiloc.sources.bags import is_bag
@@ -153,6 +153,8 @@ class Describer:
         an imported matrix file (``names``: its frame names, one per line, for .npy matrices)."""
         source = Path(source)
         if is_matrix_file(source):
+            refuse_results_file(source, "is not a traversal: give a folder of images, a video or a descriptor matrix "
+                                        "file (.npy, .npz, .csv, .h5)")
             suffix = source.suffix.lower()
             if suffix not in MATRIX_SUFFIXES:
                 kind = ("an image file" if suffix in IMAGE_SUFFIXES

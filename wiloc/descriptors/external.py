@@ -345,6 +345,15 @@ def _checked_matrix(path: Path, matrix: NDArray, metric: str, from_text: bool) -
     return out
 
 
+def refuse_results_file(path: Path, problem: str) -> None:
+    """A WilocError naming ``path`` when it is a wiloc results file given where descriptors go
+    (as a traversal, or to import): ``problem`` says what was wanted instead."""
+    from wiloc.evaluation.results_header import starts_as_results  # a later module: read only here
+
+    if starts_as_results(path):
+        raise WilocError(path, f"a wiloc results file {problem}; evaluate and compare read results files")
+
+
 def read_external(
     path: Path, names_path: Path | None = None, metric: str = "l1", prefix: str = ""
 ) -> tuple[list[str], NDArray]:
@@ -356,6 +365,7 @@ def read_external(
         raise WilocError(path, f"unknown metric {metric!r}; choose one of {', '.join(METRICS)}")
     if not path.is_file() and not path.is_dir():
         raise WilocError(path, "file does not exist")
+    refuse_results_file(path, "holds no descriptors to import: give a descriptor matrix file (.npy, .npz, .csv, .h5)")
     suffix = path.suffix.lower()
     names: list[str] | None = None
     if path.is_dir():

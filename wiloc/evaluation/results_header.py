@@ -21,6 +21,8 @@ from wiloc.reprs import short_repr
 
 FORMAT_VERSION = "1"
 VERSION_KEY = "wiloc-results"
+_START = f"# {VERSION_KEY}:".encode()  # a results file's first bytes
+_BOM = b"\xef\xbb\xbf"  # a UTF-8 byte-order mark an editor may put before them
 JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "sampling")
 
 
@@ -91,6 +93,17 @@ class ResultsHeader:
         if name == "follow":
             return bool(value)
         return value is not None
+
+
+def starts_as_results(path: Path) -> bool | None:
+    """Whether the file at ``path`` starts as a results file does (its first line
+    ``# wiloc-results: ...``, after an editor's byte-order mark); None when it cannot be read (no
+    file, a folder). What tells a results file given where other files go."""
+    try:
+        with Path(path).open("rb") as file:
+            return file.read(len(_BOM) + len(_START)).removeprefix(_BOM).startswith(_START)
+    except OSError:
+        return None
 
 
 def read_header(path: Path) -> tuple[ResultsHeader, int]:

@@ -15,14 +15,12 @@ from wiloc.description.describing import is_stream
 from wiloc.description.traversals import Describer, descriptor_label
 from wiloc.errors import CacheBusyError, ParameterError, WilocError
 from wiloc.evaluation.results import Results, read_results
-from wiloc.evaluation.results_header import VERSION_KEY, ResultsHeader
+from wiloc.evaluation.results_header import VERSION_KEY, ResultsHeader, starts_as_results
 from wiloc.localization.training import Training
 from wiloc.methods.registry import METHODS
 from wiloc.sources.frames import text_path
 from wiloc.version import __version__
 
-_RESULTS_START = f"# {VERSION_KEY}:".encode()  # a results file's first bytes
-_BOM = b"\xef\xbb\xbf"  # a UTF-8 byte-order mark an editor may put before them
 
 
 def results_name(query: Path, method: str, descriptor: str, metric: str | None = None) -> str:
@@ -106,12 +104,8 @@ def _other_file(path: Path) -> str | None:
     """Why the file at ``path`` is not to be replaced by results (or resumed): it holds something
     else, such as a frame of the query (``-o day_left/Image000.jpg``) or a table of one's own,
     which would be lost. None for no file, an empty one or a wiloc results file."""
-    try:
-        with path.open("rb") as file:
-            start = file.read(len(_BOM) + len(_RESULTS_START))
-    except OSError:  # no file (or none to read): output_problem and the writing say what is wrong
-        return None
-    if not start or start.removeprefix(_BOM).startswith(_RESULTS_START):
+    started = starts_as_results(path)  # None: no file, or none to read (output_problem and the writing say so)
+    if started is not False or path.stat().st_size == 0:
         return None
     return (f"the file there is no wiloc results file (its first line is not '# {VERSION_KEY}: ...'), and "
             "writing would replace it; give another name, or remove it first")
