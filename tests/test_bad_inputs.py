@@ -1881,3 +1881,17 @@ def test_a_results_file_given_for_descriptors_says_it_is_a_results_file(role: st
     ends_in_one_error(runner.invoke(app, args), 1, f"{results}: a wiloc results file {wanted}",
                       "; evaluate and compare read results files")
     assert not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.parametrize("layout", ["file.npy", "file.npz", "folder"])
+def test_an_empty_npy_file_to_import_is_one_line(layout: str, tmp_path: Path, cache_dir: Path) -> None:
+    """An empty .npy (or an empty file named .npz, read as .npy) ended in numpy's EOFError with a
+    traceback, as a folder of .npy vectors holding one did."""
+    empty = tmp_path / "vectors" / "a.npy" if layout == "folder" else tmp_path / layout
+    empty.parent.mkdir(exist_ok=True)
+    empty.write_bytes(b"")
+    given = ([str(empty.parent), "--out", str(tmp_path / "out.h5")] if layout == "folder"
+             else [str(empty), "--metric", "l1"])
+    ends_in_one_error(runner.invoke(app, ["describe", "--import", *given]), 1,
+                      f"{empty}: not a readable .npy array (the file is empty or cut short)")
+    assert not (tmp_path / "out.h5").exists()

@@ -107,7 +107,7 @@ def _npy_names(path: Path) -> list[str]:
 def _read_npy(path: Path) -> NDArray:
     try:
         return np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty file
         raise WilocError(path, f"not a readable .npy array ({load_problem(exc)})") from exc
 
 
