@@ -1895,3 +1895,20 @@ def test_an_empty_npy_file_to_import_is_one_line(layout: str, tmp_path: Path, ca
     ends_in_one_error(runner.invoke(app, ["describe", "--import", *given]), 1,
                       f"{empty}: not a readable .npy array (the file is empty or cut short)")
     assert not (tmp_path / "out.h5").exists()
+
+
+@pytest.mark.parametrize(("metric", "value"), [("l1", 3e38), ("sqeuclidean", 1e20), ("cosine", 1e300)])
+def test_descriptors_too_large_for_float32_differences_are_refused(metric: str, value: float, tmp_path: Path,
+                                                                   cache_dir: Path) -> None:
+    """Differences are computed in float32: a matrix whose values overflowed them (float64 beyond
+    float32's range, or l1 sums and squares past it) gave infinite differences, read as no
+    candidate, and localize ended with every frame undecided, exit code 0."""
+    values = np.random.default_rng(0).random((6, 8)) * value
+    np.save(tmp_path / "q.npy", values)
+    np.save(tmp_path / "m.npy", values[::-1].copy())
+    out = tmp_path / "run.csv"
+    ends_in_one_error(runner.invoke(app, ["localize", str(tmp_path / "q.npy"), "--map", str(tmp_path / "m.npy"),
+                                          "--metric", metric, "--method", "threshold", "--out", str(out)]),
+                      1, f"{tmp_path / 'q.npy'}: values up to ", f"{metric} differences of rows of 8 values would "
+                                                                  "pass float32's range")
+    assert not out.exists()

@@ -29,6 +29,7 @@ the file.
 """
 from __future__ import annotations
 
+import math
 import pickle
 from pathlib import Path
 from typing import Any
@@ -317,6 +318,19 @@ def _values_as_names(names: list[str], values: NDArray[np.float64]) -> bool:
                 and np.abs(numbers).max() <= 10 * np.abs(values).max())
 
 
+def _largest_value(metric: str, length: int) -> float:
+    """The largest magnitude a value of rows of ``length`` values may have so that no ``metric``
+    difference (computed in float32) overflows: an l1 difference sums up to 2 x that per value,
+    a squared euclidean one (2 x that) squared; cosine rows are made float32 before they are
+    scaled to unit length."""
+    most = float(np.finfo(np.float32).max)
+    if metric == "l1":
+        return most / (2 * length)
+    if metric == "sqeuclidean":
+        return math.sqrt(most / length) / 2
+    return most
+
+
 def _checked_matrix(path: Path, matrix: NDArray, metric: str, from_text: bool) -> NDArray:
     if matrix.ndim > 2 and matrix.shape[0] >= 1 and sum(n != 1 for n in matrix.shape[1:]) <= 1:
         matrix = matrix.reshape(matrix.shape[0], -1)  # N x D x 1 x 1 (a network's pooled output), N x 1 x D
@@ -338,6 +352,11 @@ def _checked_matrix(path: Path, matrix: NDArray, metric: str, from_text: bool) -
     if not np.all(np.isfinite(out)):
         row = int(np.argwhere(~np.isfinite(out))[0, 0])
         raise WilocError(path, f"NaN or infinite value in row {row + 1}")
+    largest, limit = float(np.abs(out).max()), _largest_value(metric, out.shape[1])
+    if largest > limit:
+        raise WilocError(path, f"values up to {largest:.3g}: {metric} differences of rows of {out.shape[1]} values "
+                               f"would pass float32's range, in which they are computed; scale the descriptors "
+                               f"to within +-{limit:.3g}")
     if metric == "cosine":
         zero = np.flatnonzero(~np.any(out != 0, axis=1))
         if zero.size:
