@@ -1,4 +1,4 @@
-"""`wiloc demo`: a generated route localized by every method and compared."""
+"""`wiloc demo`: a generated route localized by online, threshold and catgraph and compared."""
 from __future__ import annotations
 
 import os
@@ -31,7 +31,7 @@ def demo(
                                  help="Where the demo route, results and plots go (a folder, made if missing)."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
-    """Generate a small route with ground truth, localize it with every method and compare them.
+    """Generate a small route with ground truth, localize it with online, threshold and catgraph, compare them.
 
     Example: wiloc demo --out /tmp/wiloc-demo
     """
