@@ -284,3 +284,22 @@ def test_every_figure_the_docs_show_exists_and_every_figure_in_docs_img_is_shown
     for name in kept:
         picture = matplotlib.image.imread(docs / "img" / name)
         assert picture.shape[0] > 200 and picture.shape[1] > 200, name
+
+
+@pytest.mark.parametrize("runs", [2, 30])
+def test_a_legend_of_many_runs_fits_the_figure_and_leaves_the_axes_their_room(runs: int,
+                                                                               run: tuple[np.ndarray, np.ndarray]) -> None:
+    """Constrained layout took a long legend's room from the axes of a fixed-size figure: thirty
+    runs with their Table II thresholds left the axes a sliver and cut the legend off at the
+    figure's edges."""
+    confidence, correct = run
+    names = [f"catgraph [seed{i}/night_right-sad-catgraph] night_right" for i in range(runs)]
+    grid = np.linspace(0, 1, 11)
+    series = {name: (grid, precision_at_thresholds(confidence, correct, grid)) for name in names}
+    marks = {name.rsplit(" ", 1)[0]: [(100.0, 0.4 + i / 100), (99.0, 0.3)] for i, name in enumerate(names)}
+    for fig in (pr_figure({name: pr_curve(confidence, correct, 180) for name in names}),
+                threshold_figure(series, marks=marks)):
+        fig.canvas.draw()
+        legend, axes = fig.legends[0].get_window_extent(), fig.axes[0].get_window_extent()
+        assert fig.bbox.x0 <= legend.x0 and legend.x1 <= fig.bbox.x1 and fig.bbox.y0 <= legend.y0
+        assert legend.y1 < axes.y0 and axes.height / fig.dpi > 2.5

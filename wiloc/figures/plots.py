@@ -46,6 +46,10 @@ NEW_PLACE = "#9467bd"
 FORMATS = tuple(sorted(FigureCanvasAgg.get_supported_filetypes()))
 """File suffixes (without the dot) the figures can be written as."""
 CORRECT, WRONG, TRUTH = "#2ca02c", "#d62728", "white"
+AXES_ROOM = 3.6
+"""Inches of a figure's height kept for its title, axes and their labels above a legend beside them."""
+LEGEND_MARGIN = 0.2
+"""Inches of a figure's width beyond its legend's."""
 
 
 def check_plot_path(path: str | Path) -> None:
@@ -133,11 +137,23 @@ def _title(fig: Figure, title: str) -> None:
 
 
 def _legend_beside(fig: Figure, ax: Axes) -> None:
-    """The axes' legend below them, outside the data, in two columns."""
+    """The axes' legend below them, outside the data, in two columns, or one when two would be
+    wider than the figure. The figure grows to hold it (taller by the legend's rows beyond what
+    leaves the axes ``AXES_ROOM``, wider for labels longer than it is wide): constrained layout
+    takes a legend's room from the axes, so that thirty runs left them a sliver and cut the
+    legend off at the figure's edges."""
     handles, labels = ax.get_legend_handles_labels()
-    if handles:
-        fig.legend(handles, labels, loc="outside lower center", ncols=2 if len(handles) > 2 else len(handles),
-                   fontsize="small")
+    if not handles:
+        return
+    renderer = fig.canvas.get_renderer()
+    for ncols in (2, 1) if len(handles) > 2 else (len(handles),):
+        legend = fig.legend(handles, labels, loc="outside lower center", ncols=ncols, fontsize="small")
+        box = legend.get_window_extent(renderer)
+        if ncols == 1 or box.width <= fig.bbox.width:
+            break
+        legend.remove()
+    fig.set_size_inches(max(fig.get_figwidth(), box.width / fig.dpi + LEGEND_MARGIN),
+                        max(fig.get_figheight(), box.height / fig.dpi + AXES_ROOM))
 
 
 def _span(values: Sequence[float], low: float, high: float, step: float = 0.1) -> tuple[float, float]:
