@@ -1912,3 +1912,22 @@ def test_descriptors_too_large_for_float32_differences_are_refused(metric: str, 
                       1, f"{tmp_path / 'q.npy'}: values up to ", f"{metric} differences of rows of 8 values would "
                                                                   "pass float32's range")
     assert not out.exists()
+
+
+def test_a_catgraph_mode_window_wider_than_the_map_is_the_whole_map() -> None:
+    """--mode-window 10**6 (particles x its width of nodes to sum) ended in a MemoryError, and
+    2**62 wrapped the width around int64 into a buffer too small for the nodes written to it: a
+    window wider than the map is the whole map, with the same decisions. Run with 3 GiB of
+    address space, as the seqslam window's test."""
+    import resource
+
+    code = ("import numpy as np; from wiloc.localization.array_run import run_on_rows; "
+            "from wiloc.methods.catgraph.filter import CatGraph; rng = np.random.default_rng(0); "
+            "rows, ref = rng.random((20, 30)), rng.random((30, 30)); "
+            "runs = [run_on_rows(CatGraph(mode_window=w), iter(rows), 20, map_self=ref, exclude_recent=2) "
+            "for w in (30, 10 ** 6, 2 ** 62)]; "
+            "print(all(np.array_equal(r.match, runs[0].match) and np.array_equal(r.confidence, runs[0].confidence) "
+            "for r in runs))")
+    limit = functools.partial(resource.setrlimit, resource.RLIMIT_AS, (3 << 30, 3 << 30))
+    ran = subprocess.run([sys.executable, "-c", code], preexec_fn=limit, capture_output=True, text=True, timeout=300)
+    assert (ran.returncode, ran.stdout.strip()) == (0, "True"), ran.stderr[-500:]

@@ -208,7 +208,7 @@ def posterior_mode(j: NDArray[np.intp], frac: NDArray[np.float64], w: NDArray[np
     for p in range(j.size):
         nearest[p] = j[p] + (1 if frac[p] >= 0.5 else 0)
         own[nearest[p]] += w[p]
-    nodes = np.empty(j.size * (2 * half + 1), dtype=np.intp)
+    nodes = np.empty(min(j.size * (2 * half + 1), n), dtype=np.intp)  # each node is summed once at most
     masses = np.empty(nodes.size)
     count = 0
     top = 0.0
