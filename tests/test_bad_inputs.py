@@ -1931,3 +1931,21 @@ def test_a_catgraph_mode_window_wider_than_the_map_is_the_whole_map() -> None:
     limit = functools.partial(resource.setrlimit, resource.RLIMIT_AS, (3 << 30, 3 << 30))
     ran = subprocess.run([sys.executable, "-c", code], preexec_fn=limit, capture_output=True, text=True, timeout=300)
     assert (ran.returncode, ran.stdout.strip()) == (0, "True"), ran.stderr[-500:]
+
+
+def test_a_catgraph_contrast_window_beyond_its_bound_is_a_parameter_error(route: tuple[Path, Path],
+                                                                          tmp_path: Path) -> None:
+    """The contrast normalisation steps over each row's window before its running sums: its time
+    grows with the window, unbounded (--contrast-window 10**9 ran for minutes on a map of 30
+    frames, 2**62 for ever). Beyond the map the window still changes the values (the row's ends
+    extended), so it is bounded, not clipped."""
+    from wiloc.methods.registry import make_method
+
+    ref, query = route
+    with pytest.raises(ParameterError, match=r"must lie in \[1, 100000\], got 1000000000$") as refused:
+        make_method("catgraph", {"contrast_window": 10 ** 9})
+    assert refused.value.parameter == "contrast_window"
+    ends_in_one_error(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "catgraph",
+                                          "--contrast-window", str(2 ** 62), "--out", str(tmp_path / "o.csv")]),
+                      2, f"--contrast-window: must lie in [1, 100000], got {2 ** 62}")
+    assert make_method("catgraph", {"contrast_window": 100_000}).params.contrast_window == 100_000

@@ -48,7 +48,7 @@ class CatGraphParams(Parameters):
     reseed_backward: float = param(0.1, "Share of re-seeded particles that go to the best backward trajectory "
                                          "(when sequence_speeds has negative paces).", low=0.0, high=1.0)
     contrast_window: int = param(10, "Half window (nodes) of the sequence score's contrast normalisation.",
-                                 low=1)
+                                 low=1, high=100_000)  # each row takes time in proportion: 10**9 never ended
     frontier: int = param(60, "Sequence mode: frames before the recent window (exclude_recent) that are not yet "
                               "map nodes. A frame resembles the stretch walked just before it, so the map "
                               "keeps away from it (docs/catgraph.md).", low=0)
