@@ -269,13 +269,30 @@ def test_same_traversal_name_from_two_datasets_gets_distinct_labels(tmp_path: Pa
 def test_results_files_of_one_name_in_two_folders_get_distinct_labels(tmp_path: Path) -> None:
     paths = [_gardens(tmp_path / "before"), _gardens(tmp_path / "after", new_place=[0.0] * 10 + [0.9])]
     evaluations = [api.evaluate(p, api.TruthSource(kind="aligned")) for p in paths]
-    assert api.method_labels(evaluations) == ["online [before/day_left-online]", "online [after/day_left-online]"]
+    assert api.method_labels(evaluations) == ["online [before]", "online [after]"]
     assert len(api.reliability_series(evaluations)) == 2
-    assert list(api.new_place_series(evaluations)) == ["online [after/day_left-online] day_left"]
+    assert list(api.new_place_series(evaluations)) == ["online [after] day_left"]
     plot = tmp_path / "reliability.png"
     result = runner.invoke(app, ["evaluate", *map(str, paths), "--calibration-plot", str(plot)])
     assert result.exit_code == 0, result.output
     assert plot.read_bytes()[:8] == PNG_SIGNATURE
+
+
+def test_table_ii_takes_one_threshold_per_folder_of_runs_of_a_method(tmp_path: Path) -> None:
+    """Runs of one method over the same traversals from two folders (two settings): each run was
+    labelled by its file, so that Table II took a threshold per run, never one over a setting's
+    traversals; runs of one folder now share a label and Table II's threshold."""
+    a = [_gardens(tmp_path / "a"), _nordland(tmp_path / "a")]
+    b = [_gardens(tmp_path / "b", new_place=[0.0] * 10 + [0.9]), _nordland(tmp_path / "b")]
+    b[1].write_text(b[1].read_text().replace(",0.92,", ",0.93,", 1))  # another run, not a copy
+    truth = api.TruthSource(kind="aligned")
+    comparison = api.compare([*a, *b], truth, precisions=(100.0,))
+    assert comparison.labels == ["online [a]", "online [a]", "online [b]", "online [b]"]
+    groups = comparison.table2.groupby("method", sort=False)["traversal"].agg(list).to_dict()
+    assert groups == {"online [a]": ["day_left", "winter"], "online [b]": ["day_left", "winter"]}
+    alone = api.compare(a, truth, precisions=(100.0,)).table2
+    assert comparison.table2[comparison.table2["method"] == "online [a]"]["threshold"].tolist() == \
+        alone["threshold"].tolist()
 
 
 def test_traversal_labels_keep_one_name_when_the_folder_is_the_same(tmp_path: Path) -> None:

@@ -117,9 +117,10 @@ class Comparison:
     """Methods x traversals side by side: the paper's Table I, Table II and the calibration table.
 
     ``labels[i]`` names the method of ``evaluations[i]`` in the tables: the method, with the
-    descriptor when several are compared, and with the results file's name (and as many of its
-    folders as tell two files of one name apart) when one method holds the same traversal more
-    than once (say, two parameter settings). ``traversals[i]`` names its query traversal (see
+    descriptor when several are compared, and when one method holds the same traversal more than
+    once (say, two parameter settings) with its results file's folder (as many folders as tell
+    them apart), or where one folder holds a traversal twice with the file's name (see
+    :func:`method_labels`). ``traversals[i]`` names its query traversal (see
     :func:`traversal_labels`). ``cut_table`` has one row per run: ECE, Brier
     score, mean confidence, share correct and precision@c, recall@c, accepted@c per cut c, and
     the same of P(new place) under ``new_place_*`` keys where a run gives it (NaN for the others).
@@ -141,14 +142,25 @@ def traversal_labels(evaluations: Sequence[Evaluation]) -> list[str]:
 
 
 def method_labels(evaluations: Sequence[Evaluation]) -> list[str]:
-    """One distinct table label per (method, traversal) run; see :class:`Comparison`."""
+    """One distinct table label per (method, traversal) run; see :class:`Comparison`. A method
+    that holds a traversal more than once is told apart by its results files' folders when each
+    folder holds each traversal once (``online [runs/a]``, ``online [runs/b]``): every run of the
+    method is, so that the runs of one folder (one setting, written by one ``localize --out``)
+    share Table II's threshold; else each repeated run by its file."""
     with_descriptor = len({e.results.header.descriptor for e in evaluations}) > 1
     bases = [f"{e.method}/{e.results.header.descriptor}" if with_descriptor else e.method
              for e in evaluations]
     pairs = list(zip(bases, traversal_labels(evaluations)))
     files = [str(Path(name).with_suffix("")) if e.path else name  # as many folders as tell the files apart
              for name, e in zip(short_names([e.path or e.name for e in evaluations]), evaluations)]
-    return [f"{pair[0]} [{file}]" if pairs.count(pair) > 1 else pair[0] for pair, file in zip(pairs, files)]
+    labels = [f"{pair[0]} [{file}]" if pairs.count(pair) > 1 else pair[0] for pair, file in zip(pairs, files)]
+    for base in {base for base, traversal in pairs if pairs.count((base, traversal)) > 1}:
+        runs = [i for i, pair in enumerate(pairs) if pair[0] == base]
+        folders = [evaluations[i].path and evaluations[i].path.absolute().parent for i in runs]
+        if None not in folders and len(set(zip(folders, (pairs[i][1] for i in runs)))) == len(runs):
+            for i, folder in zip(runs, short_names(folders)):
+                labels[i] = f"{base} [{folder}]"
+    return labels
 
 
 #: Table I's metrics per (method, traversal), as Summary names them, followed by Recall@N
