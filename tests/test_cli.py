@@ -10,6 +10,7 @@ from helpers import places, write_traversal
 from typer.testing import CliRunner
 
 from wiloc.cli import app
+from wiloc.errors import UsageError
 
 runner = CliRunner()
 
@@ -219,7 +220,7 @@ def test_help_groups_method_options_with_their_defaults() -> None:
     for panel in ("online options", "catgraph options", "threshold options", "trained options"):
         assert panel in text
     catgraph = text[text.index("catgraph options"):]
-    assert "--particles" in catgraph and "2000" in catgraph and "0.5,0.6666666666666666,1,1.5,2" in catgraph
+    assert "--particles" in catgraph and "2000" in catgraph and "0.5,2/3,1,1.5,2" in catgraph
 
 
 def test_a_list_default_typed_as_the_help_shows_it_is_the_default() -> None:
@@ -231,6 +232,20 @@ def test_a_list_default_typed_as_the_help_shows_it_is_the_default() -> None:
     assert any(1 / 3 in option.first.default for option in lists)
     for option in lists:
         assert option.parse(option.default()) == tuple(option.first.default), option.name
+
+
+def test_a_list_default_shows_its_numbers_as_they_are_typed() -> None:
+    """--sequence-speeds's default showed 1/3 as 0.3333333333333333, which no one types: a number
+    that no short decimal is shows, and is taken, as the fraction it is."""
+    from wiloc.cli.params import method_options
+
+    shown = runner.invoke(app, ["localize", "--help"], env={"COLUMNS": "200"}).output
+    assert "[default: 1/3,0.5,2/3,1,1.5,2,3,-0.5,-2/3,-1,-1.5,-2]" in shown and "0.333" not in shown
+    speeds = method_options()["sequence_speeds"]
+    assert speeds.parse("1/3, -2/3,1e-3") == (1 / 3, -2 / 3, 0.001)
+    for bad in ("1/0", "1/2/3", "one/3"):
+        with pytest.raises(UsageError, match=f"^--sequence-speeds: give comma-separated numbers, got '{bad}'$"):
+            speeds.parse(bad)
 
 
 def test_the_help_offers_no_value_the_command_line_cannot_take() -> None:

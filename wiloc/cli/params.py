@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+from fractions import Fraction
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Optional
@@ -75,8 +76,8 @@ class DeclaredOption:
 
     def default(self) -> Any:
         """The option's default as it takes it (a list of numbers as text, each written so that
-        typing the text shown gives the default itself: 1/3 as 0.3333333333333333, not 0.333333);
-        None when the methods taking it differ (the help then names each method's)."""
+        typing the text shown gives the default itself: 1/3 as 1/3, not 0.333333); None when the
+        methods taking it differ (the help then names each method's)."""
         value = self.first.default if self.shared else None
         return ",".join(map(_number_text, value)) if isinstance(value, tuple) else value
 
@@ -97,7 +98,7 @@ class DeclaredOption:
         if d.range_text:
             parts.append(f"({d.range_text})")
         if d.kind == "floats":
-            parts.append("Comma-separated numbers.")
+            parts.append("Comma-separated numbers (fractions such as 1/3 too).")
         return " ".join(parts)
 
     def parse(self, value: Any) -> Any:
@@ -105,16 +106,30 @@ class DeclaredOption:
         if self.first.kind != "floats":
             return value
         try:
-            return tuple(float(part) for part in str(value).split(",") if part.strip())
-        except ValueError:
+            return tuple(_number(part) for part in str(value).split(",") if part.strip())
+        except (ValueError, ZeroDivisionError):
             raise UsageError(flag(self.name), f"give comma-separated numbers, got {value!r}") from None
 
 
+def _number(text: str) -> float:
+    """One number of a comma-separated list: a decimal, or a fraction such as 1/3 (exactly the
+    float 1 / 3 is, which no decimal short enough to type is)."""
+    top, slash, bottom = text.partition("/")
+    return float(top) / float(bottom) if slash else float(text)
+
+
 def _number_text(value: float) -> str:
-    """``value`` as short as text that reads back as the same float: 2 for 2.0, 0.5, and all the
-    digits of 1/3 (``{:g}``'s 0.333333 is another number)."""
-    short = f"{value:g}"
-    return short if float(short) == value else repr(float(value))
+    """``value`` as a user types it, text that :func:`_number` reads back as the same float: 2 for
+    2.0, 0.5, 1234567.5, 1/3 and -2/3 (``{:g}``'s 0.333333 is another number, and
+    0.3333333333333333 no one types); all its digits where neither 12 of them nor a fraction of a
+    denominator up to 1000 is it."""
+    short = f"{value:.12g}"
+    if float(short) == value:
+        return short
+    ratio = Fraction(value).limit_denominator(1000)
+    if ratio.numerator / ratio.denominator != value:
+        return repr(float(value))
+    return str(ratio.numerator) if ratio.denominator == 1 else f"{ratio.numerator}/{ratio.denominator}"
 
 
 def _said_default(help: str) -> tuple[str, str | None]:
