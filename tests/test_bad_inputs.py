@@ -1949,3 +1949,14 @@ def test_a_catgraph_contrast_window_beyond_its_bound_is_a_parameter_error(route:
                                           "--contrast-window", str(2 ** 62), "--out", str(tmp_path / "o.csv")]),
                       2, f"--contrast-window: must lie in [1, 100000], got {2 ** 62}")
     assert make_method("catgraph", {"contrast_window": 100_000}).params.contrast_window == 100_000
+
+
+@pytest.mark.parametrize("command", ["evaluate", "compare"])
+def test_metrics_curves_over_a_results_file_read_are_a_usage_error(command: str, results: Path, tmp_path: Path) -> None:
+    """--csv m.csv writes its curves to m-curves.csv beside it: a results file of that name among
+    those read was replaced by the curves (with only the note 'replaced the existing file')."""
+    read = results.rename(tmp_path / "m-curves.csv")
+    before = read.read_bytes()
+    ends_in_one_error(runner.invoke(app, [command, str(read), "--csv", str(tmp_path / "m.csv")]), 2,
+                      f"--csv: {read} is one of the results files read; give each output a file of its own")
+    assert read.read_bytes() == before and not (tmp_path / "m.csv").exists()

@@ -9,8 +9,8 @@ import typer
 
 from wiloc.cli.core import Notes, fail, handles_errors, note, out, refuse_unused
 from wiloc.cli.options import CalibrationPlotOption, PrPlotOption, plot_file, replacing, separate_outputs
-from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, metrics_file, parse_cuts,
-                               parse_recall_at, warn_about_truth, write_metrics_csv)
+from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, metrics_file, metrics_outputs,
+                               parse_cuts, parse_recall_at, warn_about_truth, write_metrics_csv)
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
 from wiloc.cli.views import (comparison_records, cut_views, new_place_view, print_command_json, run_records,
                              table1_view, table2_view)
@@ -50,7 +50,7 @@ def compare(
 
     refuse_unused({"precision": (global_threshold, "Table II (--global-threshold)")})
     separate_outputs(results, {"--threshold-plot": threshold_plot, "--model-plot": model_plot, "--pr-plot": pr_plot,
-                               "--calibration-plot": calibration_plot, "--csv": csv_out})
+                               "--calibration-plot": calibration_plot, "--csv": metrics_outputs(csv_out)})
     shown = [flag for flag, given in (("--markdown", markdown), ("--latex", latex), ("--json", as_json)) if given]
     if len(shown) > 1:
         fail(f"{shown[1]}: give one of --markdown, --latex and --json", EXIT_USAGE)

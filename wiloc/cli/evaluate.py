@@ -10,8 +10,8 @@ import typer
 
 from wiloc.cli.core import Notes, handles_errors, out, refuse_unused
 from wiloc.cli.options import CacheOption, CalibrationPlotOption, PrPlotOption, plot_file, replacing, separate_outputs
-from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, metrics_file, parse_cuts,
-                               parse_recall_at, warn_about_truth, write_metrics_csv)
+from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, metrics_file, metrics_outputs,
+                               parse_cuts, parse_recall_at, warn_about_truth, write_metrics_csv)
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
 from wiloc.cli.views import metrics_views, print_command_json
 from wiloc.labels import short_names
@@ -51,7 +51,7 @@ def evaluate(
 
     refuse_unused({"pairs": (pairs_plot is not None, "--pairs-plot"), "wrong_only": (pairs_plot is not None, "--pairs-plot")})
     separate_outputs(results, {"--pr-plot": pr_plot, "--calibration-plot": calibration_plot, "--matrix-plot": matrix_plot,
-                               "--pairs-plot": pairs_plot, "--csv": csv_out})
+                               "--pairs-plot": pairs_plot, "--csv": metrics_outputs(csv_out)})
     at = parse_cuts(cuts)
     ranks = parse_recall_at(recall_at)
     source = truth_source(gt, gt_map, tolerance, radius)

@@ -127,17 +127,17 @@ def plot_file(value: Path | None) -> Path | None:
     return value
 
 
-def separate_outputs(read: list[Path], written: dict[str, Path | None]) -> None:
-    """A usage error, before any work, for an output option (``written``: option -> file, None
-    when not given) whose file another output option names too, or is one of the files the
-    command reads: the later write would replace it (a figure by a table, a run by its metrics)."""
+def separate_outputs(read: list[Path], written: dict[str, Path | list[Path] | None]) -> None:
+    """A usage error, before any work, for an output option (``written``: option -> its file, or
+    the files it writes, None when not given) whose file another output option names too, or is
+    one of the files the command reads: the later write would replace it (a figure by a table, a
+    run by its metrics or their curves)."""
     taken = {path.resolve(): "one of the results files read" for path in read}
-    for option, path in written.items():
-        if path is None:
-            continue
-        if (owner := taken.get(path.resolve())) is not None:
-            raise UsageError(option, f"{path} is {owner}; give each output a file of its own")
-        taken[path.resolve()] = f"{option}'s file"
+    for option, paths in written.items():
+        for path in [paths] if isinstance(paths, Path) else paths or []:
+            if (owner := taken.get(path.resolve())) is not None:
+                raise UsageError(option, f"{path} is {owner}; give each output a file of its own")
+            taken[path.resolve()] = f"{option}'s file"
 
 
 def replacing(notes: Notes, path: Path) -> Path:

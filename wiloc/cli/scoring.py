@@ -67,6 +67,11 @@ def curves_file(path: Path) -> Path:
     return path.with_name(path.stem + "-curves.csv")
 
 
+def metrics_outputs(value: Path | None) -> list[Path]:
+    """The files ``--csv FILE`` writes: the metrics and their curves beside them (none without it)."""
+    return [] if value is None else [value, curves_file(value)]
+
+
 def metrics_file(value: Path | None) -> Path | None:
     """``--csv FILE``, checked before any work: one file (:func:`one_file`), and nothing but a
     file where its curves go beside it, so that neither is left written without the other."""
