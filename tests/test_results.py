@@ -281,3 +281,21 @@ def test_a_negative_difference_is_read_only_from_a_run_on_fabmaps_evidence(heade
     else:
         with pytest.raises(WilocError, match=r"line \d+: difference -2.5 is not a finite number >= 0"):
             read_results(path, METHODS)
+
+
+@pytest.mark.parametrize("brk", LINE_BREAKS)
+def test_a_line_break_in_a_header_value_survives_a_write_a_read_and_a_resume(tmp_path: Path, brk: str) -> None:
+    """A query folder named with a line break split its header line: the file was unreadable
+    ('unreadable table') for \\r and \\n, and a followed run could not resume it ('malformed
+    header line') for the breaks only str.splitlines knows (\\x0b, \\x85, \\u2028 ...)."""
+    header = ResultsHeader(method="threshold", mode="map", query=f"/q{brk}day", map=f"/m{brk}", topic='"quoted"',
+                           extra={"note": f"a{brk}b"}, reference_frames=("x", "y", "z"))
+    path = tmp_path / "run.csv"
+    write_results(path, _made(header))
+    back = read_results(path).header
+    assert (back.query, back.map, back.topic, back.extra) == (header.query, header.map, header.topic, header.extra)
+    live = tmp_path / "live.csv"
+    ResultsStream(live, header, (), resume=False).close()
+    again = ResultsStream(live, header, (), resume=True)
+    again.close()
+    assert read_results(live).header.query == header.query

@@ -74,7 +74,7 @@ class ResultsHeader:
         for f in fields(self):
             value = getattr(self, f.name)
             if f.name == "extra":
-                yield from value.items()
+                yield from ((key, _text_line(text)) for key, text in value.items())
             elif not self._written(f.name, value):
                 continue
             elif f.name in JSON_KEYS:
@@ -82,7 +82,7 @@ class ResultsHeader:
             elif f.name == "fabmap_training":
                 yield f.name, str(list(value))
             else:
-                yield f.name, str(value)
+                yield f.name, _text_line(str(value))
 
     def _written(self, name: str, value: Any) -> bool:
         """Whether the field has a line: ``model`` in every batch file (null: the method keeps
@@ -93,6 +93,28 @@ class ResultsHeader:
         if name == "follow":
             return bool(value)
         return value is not None
+
+
+#: What ends a line for a reader of the header: a line feed, a carriage return, and str.splitlines' others.
+_LINE_BREAKS = frozenset("\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029")
+
+
+def _text_line(text: str) -> str:
+    """A text value as its header line holds it: as it is, or as a JSON string where it holds a
+    line break (a folder's name may) or starts with a quote, so that the line stays one line."""
+    return json.dumps(text) if text.startswith('"') or not _LINE_BREAKS.isdisjoint(text) else text
+
+
+def _text_read(text: str) -> str:
+    """A text value of a header line as :func:`_text_line` wrote it."""
+    if text.startswith('"'):
+        try:
+            decoded = json.loads(text)
+        except json.JSONDecodeError:  # a file written by hand, or before such values were quoted
+            return text
+        if isinstance(decoded, str):
+            return decoded
+    return text
 
 
 def starts_as_results(path: Path) -> bool | None:
@@ -146,7 +168,7 @@ def parse_header(lines: Iterable[str], path: Path | None) -> ResultsHeader:
         if not sep:
             raise WilocError(path, f"malformed header line {n}")
         try:
-            values[key] = json.loads(value) if key in JSON_KEYS else value
+            values[key] = json.loads(value) if key in JSON_KEYS else _text_read(value)
         except json.JSONDecodeError as exc:
             raise WilocError(path, f"line {n}: header '{key}' is not valid JSON ({exc.msg})") from None
         where[key] = n
