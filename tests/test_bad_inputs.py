@@ -1960,3 +1960,14 @@ def test_metrics_curves_over_a_results_file_read_are_a_usage_error(command: str,
     ends_in_one_error(runner.invoke(app, [command, str(read), "--csv", str(tmp_path / "m.csv")]), 2,
                       f"--csv: {read} is one of the results files read; give each output a file of its own")
     assert read.read_bytes() == before and not (tmp_path / "m.csv").exists()
+
+
+def test_a_run_s_figure_over_another_output_is_a_usage_error(results: Path, online_results: Path,
+                                                            tmp_path: Path) -> None:
+    """With several runs --matrix-plot m.png draws m-RESULTS.png for each: --pr-plot m-run.png was
+    written, then replaced by run.csv's matrix, both said 'wrote m-run.png'."""
+    pr = tmp_path / f"m-{results.stem}.png"
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), str(online_results), "--pr-plot", str(pr),
+                                          "--matrix-plot", str(tmp_path / "m.png")]), 2,
+                      f"--matrix-plot: {pr} is --pr-plot's file; give each output a file of its own")
+    assert not list(tmp_path.glob("*.png"))

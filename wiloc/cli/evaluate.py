@@ -50,19 +50,20 @@ def evaluate(
     from wiloc import api
 
     refuse_unused({"pairs": (pairs_plot is not None, "--pairs-plot"), "wrong_only": (pairs_plot is not None, "--pairs-plot")})
-    separate_outputs(results, {"--pr-plot": pr_plot, "--calibration-plot": calibration_plot, "--matrix-plot": matrix_plot,
-                               "--pairs-plot": pairs_plot, "--csv": metrics_outputs(csv_out)})
+    names = short_names(results)
+    matrix_files, pairs_files = _per_run(matrix_plot, names), _per_run(pairs_plot, names)
+    separate_outputs(results, {"--pr-plot": pr_plot, "--calibration-plot": calibration_plot, "--matrix-plot": matrix_files,
+                               "--pairs-plot": pairs_files, "--csv": metrics_outputs(csv_out)})
     at = parse_cuts(cuts)
     ranks = parse_recall_at(recall_at)
     source = truth_source(gt, gt_map, tolerance, radius)
     evaluations = [api.evaluate(path, source, at, ranks) for path in results]
     notes = warn_about_truth(evaluations)
-    names = short_names([e.path for e in evaluations])
     heads = [{"run": run, "results": name, "method": e.method, "descriptor": e.results.header.descriptor,
               "traversal": e.traversal, **e.summary.as_dict()}
              for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
     rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
-    drawings = _run_plots(evaluations, names, matrix_plot, pairs_plot, cache, notes, pairs, wrong_only,
+    drawings = _run_plots(evaluations, matrix_files, pairs_files, cache, notes, pairs, wrong_only,
                           truth=source.describe())
     written = []
     subject = api.run_subject(evaluations, source)
@@ -91,17 +92,26 @@ def evaluate(
         out.print(f"wrote {path}")
 
 
-def _run_plots(evaluations: list[api.Evaluation], names: list[str], matrix_plot: Path | None, pairs_plot: Path | None,
+def _per_run(path: Path | None, names: list[str]) -> list[Path]:
+    """The files of a figure drawn per run (none when ``path`` is None): ``path`` for one run; with
+    several, each named after its results file too (``names``: as many of its folders as tell
+    files of one name apart, ``matrix-day_left-sad-online.png``, ``matrix-a-day_left-sad-online.png``)."""
+    if path is None or len(names) == 1:
+        return [] if path is None else [path]
+    runs = [Path(name).with_suffix("").as_posix().replace("/", "-") for name in names]
+    return [path.with_name(f"{path.stem}-{run}{path.suffix}") for run in runs]
+
+
+def _run_plots(evaluations: list[api.Evaluation], matrix_files: list[Path], pairs_files: list[Path],
                cache: Path | None, notes: Notes, pairs: int = 3, wrong_only: bool = False,
                truth: str = "") -> list[Callable[[], Path]]:
     """Each run's difference matrix and example pairs (``pairs`` right and wrong ones, or wrong
-    ones only), titled with the descriptor and ``truth`` (the ground truth in words), ready to be written: the pictures are made (and a run whose images are no longer
-    its own refused) before any file is written, so a refusal leaves no output behind. With several
-    runs each file is named after its results file too (``names``: as many of its folders as tell
-    files of one name apart, ``matrix-day_left-sad-online.png``, ``matrix-a-day_left-sad-online.png``).
-    A run that recorded no digest of its images (so that they cannot be checked as the run's) is
-    said so."""
-    if matrix_plot is None and pairs_plot is None:
+    ones only) into its file of ``matrix_files`` and ``pairs_files`` (:func:`_per_run`; empty: not
+    drawn), titled with the descriptor and ``truth`` (the ground truth in words), ready to be
+    written: the pictures are made (and a run whose images are no longer its own refused) before
+    any file is written, so a refusal leaves no output behind. A run that recorded no digest of
+    its images (so that they cannot be checked as the run's) is said so."""
+    if not matrix_files and not pairs_files:
         return []
     from wiloc.cache.store import Cache
     from wiloc.figures.plots import plot_matrix, plot_pairs
@@ -109,23 +119,20 @@ def _run_plots(evaluations: list[api.Evaluation], names: list[str], matrix_plot:
 
     store = Cache(cache)
     drawings: list[Callable[[], Path]] = []
-    for e, name in zip(evaluations, names, strict=True):
-        def target(path: Path) -> Path:
-            run = Path(name).with_suffix("").as_posix().replace("/", "-")
-            return path.with_name(f"{path.stem}-{run}{path.suffix}") if len(evaluations) > 1 else path
+    for i, e in enumerate(evaluations):
         subject = ", ".join(filter(None, (e.results.header.descriptor, truth)))  # right and wrong are the truth's
         for line in unchecked_folders(e):
             notes.add("warning", line)
-        if matrix_plot is not None:
+        if matrix_files:
             picture = matrix_picture(e, store)
             title = (f"{e.method} on {picture.query} against {picture.reference} ({subject}): differences, "
                      "decided matches and ground truth")
-            drawings.append(_drawing(plot_matrix, picture, target(matrix_plot), title, notes))
-        if pairs_plot is not None:
+            drawings.append(_drawing(plot_matrix, picture, matrix_files[i], title, notes))
+        if pairs_files:
             shown = "wrong matches" if wrong_only else "right and wrong matches"
             title = f"{e.method} on {e.traversal} ({subject}): the most confident {shown}"
             drawings.append(_drawing(plot_pairs, example_pairs(e, pairs, wrong_only, cache=store),
-                                     target(pairs_plot), title, notes))
+                                     pairs_files[i], title, notes))
     return drawings
 
 
