@@ -189,6 +189,8 @@ def _written(tmp_path: Path) -> tuple[Path, str]:
     (lambda t: t.replace("# mode: map", "# mode: sequence").replace("# map: \n", "# map: \n# map_digest: 0a1b\n"),
      "header 'map_digest' names a map"),
     (lambda t: t.replace("# mode: map", "# mode: seq"), "line 5: header 'mode' must be map or sequence, got 'seq'"),
+    (lambda t: t.replace("# mode: map", "# mode: map\n# mode: sequence"),
+     r"line 6: header 'mode' again \(line 5 gives it\): a run writes each key once"),
     (lambda t: t.replace("# mode: map", "# mode: map\n# rows: evidence"),
      r"line 6: header 'rows' must be fabmap \(a run on FAB-MAP's evidence\), got 'evidence'"),
 ])

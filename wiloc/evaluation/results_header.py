@@ -152,21 +152,23 @@ def _header_lines(path: Path) -> list[str]:
 
 
 def header_line(path: Path, key: str) -> int | None:
-    """The line number of ``key`` in a results file's header (its last, which counts); None
-    when the header has no such line. For messages naming the line of a value refused later."""
-    found = [n for n, line in enumerate(_header_lines(path), 1) if line[2:].partition(": ")[0] == key]
-    return found[-1] if found else None
+    """The line number of ``key`` in a results file's header; None when the header has no such
+    line. For messages naming the line of a value refused later."""
+    return next((n for n, line in enumerate(_header_lines(path), 1) if line[2:].partition(": ")[0] == key), None)
 
 
 def parse_header(lines: Iterable[str], path: Path | None) -> ResultsHeader:
-    """The header of ``# key: value`` lines (the last of a key given twice counts); a WilocError
-    naming the line of a value no run writes."""
+    """The header of ``# key: value`` lines; a WilocError naming the line of a value no run writes,
+    or of a key given twice (which of the two counts is no one's guess: an edit by hand)."""
     values: dict[str, Any] = {}
     where: dict[str, int] = {}
     for n, line in enumerate(lines, 1):
         key, sep, value = line[2:].rstrip("\n").partition(": ")
         if not sep:
             raise WilocError(path, f"malformed header line {n}")
+        if key in where:
+            raise WilocError(path, f"line {n}: header '{key}' again (line {where[key]} gives it): a run writes each "
+                                   "key once")
         try:
             values[key] = json.loads(value) if key in JSON_KEYS else _text_read(value)
         except json.JSONDecodeError as exc:
