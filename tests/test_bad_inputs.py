@@ -1971,3 +1971,15 @@ def test_a_run_s_figure_over_another_output_is_a_usage_error(results: Path, onli
                                           "--matrix-plot", str(tmp_path / "m.png")]), 2,
                       f"--matrix-plot: {pr} is --pr-plot's file; give each output a file of its own")
     assert not list(tmp_path.glob("*.png"))
+
+
+def test_a_run_s_figure_that_no_file_can_take_is_refused_before_any_output(results: Path, online_results: Path,
+                                                                            tmp_path: Path) -> None:
+    """With several runs --matrix-plot m.png draws m-RESULTS.png for each; a folder there was
+    found only when that figure was written, after --pr-plot's and the first run's ('note
+    replaced the existing file' said of the folder)."""
+    (tmp_path / f"m-{online_results.stem}.png").mkdir()
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), str(online_results), "--pr-plot",
+                                          str(tmp_path / "pr.png"), "--matrix-plot", str(tmp_path / "m.png")]), 2,
+                      f"--matrix-plot: {tmp_path / f'm-{online_results.stem}.png'}: it is not a regular file")
+    assert not [p for p in tmp_path.glob("*.png") if p.is_file()]

@@ -131,10 +131,14 @@ def separate_outputs(read: list[Path], written: dict[str, Path | list[Path] | No
     """A usage error, before any work, for an output option (``written``: option -> its file, or
     the files it writes, None when not given) whose file another output option names too, or is
     one of the files the command reads: the later write would replace it (a figure by a table, a
-    run by its metrics or their curves)."""
+    run by its metrics or their curves); or one that no file can take (:func:`output_problem`: a
+    folder there, a name too long), which a file named from the option's, as a run's figure with
+    several runs, meets only here."""
     taken = {path.resolve(): "one of the results files read" for path in read}
     for option, paths in written.items():
         for path in [paths] if isinstance(paths, Path) else paths or []:
+            if (problem := output_problem(path)) is not None:
+                raise UsageError(option, f"{path}: {problem}")
             if (owner := taken.get(path.resolve())) is not None:
                 raise UsageError(option, f"{path} is {owner}; give each output a file of its own")
             taken[path.resolve()] = f"{option}'s file"
