@@ -1973,6 +1973,20 @@ def test_a_run_s_figure_over_another_output_is_a_usage_error(results: Path, onli
     assert not list(tmp_path.glob("*.png"))
 
 
+def test_a_blank_line_inside_a_results_table_is_refused_naming_it(online_results: Path, tmp_path: Path) -> None:
+    """pandas skipped a blank line between rows, so the rows after it were named one line early
+    (a confidence edited on line 28 was 'line 27'); blank lines an editor leaves at the end pass."""
+    lines = online_results.read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("frame,")) + 1
+    edited = tmp_path / "blank.csv"
+    edited.write_text("\n".join(lines[:first + 4] + [""] + lines[first + 4:]) + "\n")
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(edited)]), 1,
+                      f"{edited}: line {first + 5}: a blank line in the table, where a run writes none")
+    ended = tmp_path / "ended.csv"
+    ended.write_text("\n".join(lines) + "\n\n\n")
+    assert runner.invoke(app, ["evaluate", str(ended)]).exit_code == 0
+
+
 def test_a_run_s_figure_that_no_file_can_take_is_refused_before_any_output(results: Path, online_results: Path,
                                                                             tmp_path: Path) -> None:
     """With several runs --matrix-plot m.png draws m-RESULTS.png for each; a folder there was
@@ -1983,3 +1997,18 @@ def test_a_run_s_figure_that_no_file_can_take_is_refused_before_any_output(resul
                                           str(tmp_path / "pr.png"), "--matrix-plot", str(tmp_path / "m.png")]), 2,
                       f"--matrix-plot: {tmp_path / f'm-{online_results.stem}.png'}: it is not a regular file")
     assert not [p for p in tmp_path.glob("*.png") if p.is_file()]
+
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (4, 100)])
+def test_an_orb_vocabulary_of_an_image_a_pixel_thin_is_one_line(shape: tuple[int, int], tmp_path: Path,
+                                                                 cache_dir: Path) -> None:
+    """ORB's image pyramid cannot shrink an image one pixel high (1 x 1, or 4 x 100 shrunk to
+    --max-side 16 as 1 x 16): OpenCV's resize assertion ended vocabulary --feature orb with a
+    traceback. Such an image has no features, as a flat one."""
+    (tmp_path / "thin").mkdir()
+    cv2.imwrite(str(tmp_path / "thin" / "a.png"),
+                np.random.default_rng(0).integers(0, 256, shape, dtype=np.uint8))
+    ends_in_one_error(runner.invoke(app, ["vocabulary", str(tmp_path / "thin"), "--feature", "orb", "--words", "2",
+                                          "--max-side", "16"]),
+                      2, "--words: 2 words need at least as many training features; the training images gave 0")

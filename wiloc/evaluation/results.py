@@ -393,6 +393,18 @@ def _torn(path: Path) -> bool:
         return handle.read(1) != b"\n"
 
 
+def _without_blank_lines(path: Path, frames: pd.DataFrame, first_line: int) -> pd.DataFrame:
+    """``frames`` without the empty rows of blank lines at the file's end (an editor's); a
+    WilocError naming the line of one between rows, which no run writes and which, skipped,
+    would move every later row's line number in the messages that name it."""
+    blank = (frames == "").all(axis=1).to_numpy()
+    kept = int(np.flatnonzero(~blank)[-1]) + 1 if not blank.all() else 0
+    if blank[:kept].any():
+        raise WilocError(path, f"line {first_line + int(np.flatnonzero(blank)[0])}: a blank line in the table, "
+                               "where a run writes none")
+    return frames if kept == len(frames) else frames.iloc[:kept].copy()
+
+
 def _read_table(path: Path) -> tuple[ResultsHeader, pd.DataFrame, int]:
     """A results file's header, its table (every cell as text) and the line number of the
     table's first row."""
@@ -401,12 +413,14 @@ def _read_table(path: Path) -> tuple[ResultsHeader, pd.DataFrame, int]:
         raise WilocError(path, "its last row is cut short (no line end): the followed run stopped while writing "
                                "it, or is writing it now; read the file again, or resume the run, which cuts it off")
     try:
-        frames = pd.read_csv(path, skiprows=n_header, dtype=str, keep_default_na=False, encoding="utf-8-sig")
+        frames = pd.read_csv(path, skiprows=n_header, dtype=str, keep_default_na=False, encoding="utf-8-sig",
+                             skip_blank_lines=False)
     except (pd.errors.ParserError, ValueError) as exc:
         raise WilocError(path, f"unreadable table: {exc}") from None
     missing = [c for c in BASE_COLUMNS if c not in frames.columns]
     if missing:
         raise WilocError(path, f"missing column(s): {', '.join(missing)}")
+    frames = _without_blank_lines(path, frames, n_header + 2)
     if header.frames is not None and len(frames) != header.frames:
         raise WilocError(path, f"holds {len(frames)} rows, its header says {header.frames}: "
                                "the file is incomplete or was edited")
