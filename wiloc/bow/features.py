@@ -20,6 +20,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 FEATURES = ("sift", "orb")
+#: The shortest side an image may have to be searched for features: ORB's image pyramid cannot
+#: shrink one a pixel high or wide (OpenCV's resize asserts), and neither detector finds any there.
+MIN_SIDE = 2
 #: Values per feature and their type, per feature kind.
 WIDTHS = {"sift": 128, "orb": 32}
 DTYPES = {"sift": np.dtype(np.float32), "orb": np.dtype(np.uint8)}
@@ -53,10 +56,13 @@ def extract_features(
     gray: NDArray[np.uint8], feature: str = "sift", max_features: int = 500, max_side: int = 640
 ) -> NDArray:
     """The local feature descriptors of one 8-bit grayscale image, ``(n, WIDTHS[feature])`` of
-    ``DTYPES[feature]`` with ``n <= max_features`` (0 rows for a featureless image)."""
+    ``DTYPES[feature]`` with ``n <= max_features`` (0 rows for a featureless image, and for one
+    whose shorter side, once shrunk, is under ``MIN_SIDE`` pixels)."""
     if feature not in FEATURES:
         raise ValueError(f"feature must be one of {', '.join(FEATURES)}; got {feature!r}")
     image = to_scale(np.ascontiguousarray(gray, dtype=np.uint8), max_side)
+    if min(image.shape) < MIN_SIDE:
+        return np.zeros((0, WIDTHS[feature]), DTYPES[feature])
     keypoints, descriptors = _detector(feature, max_features).detectAndCompute(image, None)
     if descriptors is None or not keypoints:
         return np.zeros((0, WIDTHS[feature]), DTYPES[feature])
