@@ -2012,18 +2012,3 @@ def test_an_orb_vocabulary_of_an_image_a_pixel_thin_is_one_line(shape: tuple[int
     ends_in_one_error(runner.invoke(app, ["vocabulary", str(tmp_path / "thin"), "--feature", "orb", "--words", "2",
                                           "--max-side", "16"]),
                       2, "--words: 2 words need at least as many training features; the training images gave 0")
-
-
-
-@pytest.mark.parametrize("shape", [(1, 1), (4, 100)])
-def test_an_orb_vocabulary_of_an_image_a_pixel_thin_is_one_line(shape: tuple[int, int], tmp_path: Path,
-                                                                 cache_dir: Path) -> None:
-    """ORB's image pyramid cannot shrink an image one pixel high (1 x 1, or 4 x 100 shrunk to
-    --max-side 16 as 1 x 16): OpenCV's resize assertion ended vocabulary --feature orb with a
-    traceback. Such an image has no features, as a flat one."""
-    (tmp_path / "thin").mkdir()
-    cv2.imwrite(str(tmp_path / "thin" / "a.png"),
-                np.random.default_rng(0).integers(0, 256, shape, dtype=np.uint8))
-    ends_in_one_error(runner.invoke(app, ["vocabulary", str(tmp_path / "thin"), "--feature", "orb", "--words", "2",
-                                          "--max-side", "16"]),
-                      2, "--words: 2 words need at least as many training features; the training images gave 0")
