@@ -162,6 +162,55 @@ def test_a_task_that_kills_its_workers_is_one_error() -> None:
     assert "a task's worker died each time it ran" in error_in_a_process(1, "lambda b: os._exit(1)", wait=60)
 
 
+def blocks_in_a_process(stuck: str) -> str:
+    """What a run of difference blocks on a local cluster of 2 workers ends with: ``same`` (its
+    blocks are the local ones) or its WilocError line; with ``stuck`` (code that makes Dask lose
+    track of blocks, as it rarely does after a worker died) run first and the stall bound at 1 s,
+    in a process of its own, as error_in_a_process's."""
+    code = "\n".join([
+        "import asyncio, numpy as np", "from distributed import Client, LocalCluster",
+        "from wiloc.description import cluster", "from wiloc.description.distances import DifferencesTo",
+        "from wiloc.errors import WilocError", "cluster.POLL, cluster.STALL = 0.2, 1", stuck,
+        "rng = np.random.default_rng(0)", "query = rng.integers(0, 256, (64, 1152), dtype=np.uint8)",
+        "to = DifferencesTo(rng.integers(0, 256, (300, 1152), dtype=np.uint8), 'l1', 1 / 1152)",
+        "local = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=':0')",
+        "ranges = [(start, start + 16) for start in range(0, 64, 16)]",
+        "try:",
+        "    blocks = cluster.connect(local.scheduler_address).blocks(query, to, ranges)",
+        "    print('same' if np.concatenate(list(blocks)).tobytes() == to(query).tobytes() else 'differ')",
+        "except WilocError as exc:", "    print(exc)"])
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    return run.stdout.strip()
+
+
+def test_a_block_whose_result_never_arrives_is_sent_again() -> None:
+    stuck = "\n".join([  # the first result asked for is never received, though its task finished
+        "gather, asked = Client._gather, []",
+        "async def _gather(self, *args, **kwargs):",
+        "    asked.append(args)",
+        "    return await (asyncio.Event().wait() if len(asked) == 1 else gather(self, *args, **kwargs))",
+        "Client._gather = _gather"])
+    assert blocks_in_a_process(stuck) == "same"
+
+
+def test_a_block_slower_than_the_stall_bound_is_no_stall() -> None:
+    slow = "\n".join([  # each block computes for 1.5 s, where a stall (none allowed) is 1 s without progress
+        "import time", "cluster.RESENDS = 0", "submit = Client.submit",
+        "def slow(work, *args):", "    time.sleep(1.5)", "    return work(*args)",
+        "Client.submit = lambda self, work, *args, **kwargs: submit(self, slow, work, *args, **kwargs)"])
+    assert blocks_in_a_process(slow) == "same"
+
+
+def test_blocks_that_never_run_end_in_one_error() -> None:
+    stuck = "\n".join([  # every block waits for a resource no worker has, with the workers idle
+        "cluster.RESENDS = 1", "submit = Client.submit",
+        "Client.submit = lambda self, *args, **kwargs: submit(self, *args, resources={'none': 1}, **kwargs)"])
+    line = blocks_in_a_process(stuck)
+    assert line.endswith(": the Dask cluster failed during the run (a block made no progress in 1 s, 2 times); run "
+                         "again"), line
+
+
 @pytest.mark.realdata
 @pytest.mark.slow
 def test_describe_and_localize_on_a_cluster_match_the_local_run(scheduler: str, data_root: Path,

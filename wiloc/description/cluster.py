@@ -36,6 +36,17 @@ BATCH = 16
 WORKER_WAIT = 30
 #: Seconds between looks at the scheduler's workers while waiting for a task.
 POLL = 2
+#: Seconds the oldest difference block may make no progress before the blocks in flight are sent
+#: again: Dask can lose track of a task after a worker died (seen: a block in memory on a live
+#: worker whose result the client never received) and would then wait for ever. No progress is
+#: measured where a slow block cannot be mistaken for it: while the block's task is unfinished,
+#: no worker computing any task (a slow block keeps its worker computing, a busy shared cluster
+#: its workers); once it finished, its result not arriving in STALL s plus one per TRANSFER bytes.
+STALL = 60
+#: Bytes a second a finished block's result is sure to arrive at, from a live worker.
+TRANSFER = 10_000_000
+#: Stalls in a row the blocks in flight are sent again after, before the run ends in an error.
+RESENDS = 2
 #: What a describe that lost its cluster, or a task that kept killing workers, leaves behind.
 RESUME = "the frames described so far are kept in the cache; run again to resume"
 T = TypeVar("T")
@@ -95,53 +106,84 @@ class Cluster:
 
     def blocks(self, data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
         """A ``wiloc.description.differences.BlockRunner``: the blocks in order, a few per worker in flight;
-        the prepared references go to every worker once (again if a dying worker took the last
-        copy with it, and the blocks that needed it are sent again)."""
+        the prepared references go to every worker once (again, with the blocks in flight, if a
+        dying worker took the last copy with it or the oldest block stalled: see STALL)."""
         with self._failures("run again"):
             shared = self.client.scatter(to, broadcast=True)
         ahead = 2 * self.workers
         todo = deque(ranges)
         pending: deque[tuple[tuple[int, int], Future]] = deque()
+        stalls = 0
 
         def fill() -> None:
             while todo and len(pending) < ahead:
                 start, stop = todo.popleft()
                 pending.append(((start, stop), self.client.submit(_block, shared, data[start:stop], pure=False)))
 
+        def resend() -> None:
+            """Send the blocks in flight again, with fresh references (a new key: the scheduler's
+            record of the old ones may be what went wrong)."""
+            nonlocal shared
+            todo.extendleft(reversed([s for s, _ in pending]))
+            self.client.cancel([f for _, f in pending] + [shared])
+            pending.clear()
+            shared = self.client.scatter(to, broadcast=True, hash=False)
+            fill()
+
         try:
             with self._failures("run again"):
                 fill()
                 while pending:
-                    span, future = pending[0]
+                    (start, stop), future = pending[0]
                     try:
-                        block = next(self._finished([future])).result()
+                        block = self._result(future, (stop - start) * to.shape[0] * np.dtype(np.float32).itemsize)
                     except CancelledError as exc:  # lost dependencies: the references went with a worker
                         if _lost(exc):
                             raise
-                        todo.extendleft(reversed([s for s, _ in pending]))
-                        self.client.cancel([f for _, f in pending])
-                        pending.clear()
-                        shared = self.client.scatter(to, broadcast=True)
-                        fill()
+                        resend()
                         continue
+                    except _Stalled:
+                        stalls += 1
+                        if stalls > RESENDS:
+                            raise TimeoutError(f"a block made no progress in {STALL} s, {stalls} times") from None
+                        resend()
+                        continue
+                    stalls = 0
                     pending.popleft()
                     fill()
                     yield block
         finally:
             self._cancel([f for _, f in pending] + [shared])
 
-    def _finished(self, futures: list[Future]) -> Iterator[Future]:
+    def _result(self, future: Future, nbytes: int) -> NDArray[np.float32]:
+        """One block task's result (``nbytes`` long); a _Stalled once it made no progress (STALL)."""
+        next(self._finished([future], stall=STALL))
+        try:
+            return future.result(timeout=STALL + nbytes / TRANSFER)
+        except TimeoutError:
+            raise _Stalled() from None
+
+    def _finished(self, futures: list[Future], stall: float | None = None) -> Iterator[Future]:
         """``futures`` as they finish; a TimeoutError once the scheduler has had no worker for
-        WORKER_WAIT s (every worker gone mid-run, none restarted), where Dask waits for ever."""
-        pending, alone_since = set(futures), None
+        WORKER_WAIT s (every worker gone mid-run, none restarted), where Dask waits for ever;
+        given ``stall``, a _Stalled once its workers have all been idle for ``stall`` s while
+        these are unfinished (tasks Dask lost track of)."""
+        pending, alone_since, idle_since = set(futures), None, None
         while pending:
             try:
                 done, pending = wait(pending, timeout=POLL, return_when="FIRST_COMPLETED")
             except TimeoutError:
-                if self.client.scheduler_info(n_workers=-1)["workers"]:
+                now = time.monotonic()
+                if not self.client.scheduler_info(n_workers=-1)["workers"]:
+                    idle_since = None
+                    if now - (alone_since := alone_since or now) > WORKER_WAIT:
+                        raise TimeoutError(f"no worker for {WORKER_WAIT} s") from None
+                else:
                     alone_since = None
-                elif time.monotonic() - (alone_since := alone_since or time.monotonic()) > WORKER_WAIT:
-                    raise TimeoutError(f"no worker for {WORKER_WAIT} s") from None
+                    if stall is None or any(self.client.processing().values()):
+                        idle_since = None
+                    elif now - (idle_since := idle_since or now) > stall:
+                        raise _Stalled()
                 continue
             yield from done
 
@@ -171,6 +213,10 @@ class Cluster:
         self.client.close()
         if self._local is not None:
             self._local.close()
+
+
+class _Stalled(Exception):
+    """A block that made no progress for STALL s (``Cluster.blocks`` sends it again)."""
 
 
 def _lost(exc: CancelledError) -> bool:
