@@ -7,8 +7,8 @@ For each query (day_left, night_right) the visual vocabulary, which FAB-MAP's Ch
 new-place samples are learned from too, is trained on the OTHER query only: never on the tested
 pair. Recall at 100 / 99 / 90 % precision, AP and R@1 per query and method, aligned ground
 truth +-2 frames (the table docs/results.md quotes), and the time per frame of each method (printed
-and in summary.json: a second run of each, with descriptors and difference matrices in the cache;
-FAB-MAP's evidence is computed per frame every run).
+and in summary.json: a second run of each, with the descriptors in the cache; the differences, and
+FAB-MAP's evidence, are computed every run).
 
     python examples/table1.py [DATA] [--out FOLDER] [--update-docs]
 """
@@ -48,7 +48,7 @@ def run(data: Path, out: Path) -> dict[str, Any]:
         for label, descriptor, method in RUNS:
             params = {"file": str(vocabulary.path)} if descriptor == "bow" else {}
             target = out / "results" / f"{query.name}-{descriptor}-{method}.csv"
-            for _ in range(2):  # the second run is timed: descriptors and differences are in the cache
+            for _ in range(2):  # the second run is timed: the descriptors are in the cache
                 started = time.perf_counter()
                 result = api.localize(query, reference=reference, descriptor=descriptor, descriptor_params=params,
                                       method=method, out=target)
@@ -68,7 +68,7 @@ def run(data: Path, out: Path) -> dict[str, Any]:
                        "ground_truth": f"aligned, +-{TOLERANCE} frames", "table": table})
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     console.print(table1_view(comparison))
-    times = Table(title="time per frame (ms), descriptors and differences in the cache")
+    times = Table(title="time per frame (ms), a second run: descriptors in the cache")
     for column in ("method", "traversal", "ms per frame"):
         times.add_column(column)
     for row in table:
