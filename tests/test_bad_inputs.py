@@ -2012,3 +2012,14 @@ def test_an_orb_vocabulary_of_an_image_a_pixel_thin_is_one_line(shape: tuple[int
     ends_in_one_error(runner.invoke(app, ["vocabulary", str(tmp_path / "thin"), "--feature", "orb", "--words", "2",
                                           "--max-side", "16"]),
                       2, "--words: 2 words need at least as many training features; the training images gave 0")
+
+
+def test_a_model_plot_of_an_online_run_without_its_model_line_is_one_line(online_results: Path, tmp_path: Path) -> None:
+    """An online results file without its '# model:' line is read (and scored) as any other; asked
+    for its --model-plot, compare ended in an AttributeError drawing the model it has not."""
+    edited = tmp_path / "no-model.csv"
+    edited.write_text("".join(line for line in online_results.read_text().splitlines(keepends=True)
+                              if not line.startswith("# model:")))
+    ends_in_one_error(runner.invoke(app, ["compare", str(edited), "--model-plot", str(tmp_path / "fig1.png")]), 1,
+                      "fig1.png: none of the results is an online or trained run with a model")
+    assert not (tmp_path / "fig1.png").exists()

@@ -103,7 +103,8 @@ def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshol
     from wiloc.figures import plots
 
     subject = api.run_subject(comparison.evaluations, source)
-    learned = sorted((e for e in comparison.evaluations if e.method in ("online", "trained")),
+    learned = sorted((e for e in comparison.evaluations  # a file without its model line has none to draw
+                      if e.method in ("online", "trained") and e.results.model is not None),
                      key=lambda e: e.method != "online")
     if model_plot is not None and not learned:  # refused before any figure is written
         fail(f"{model_plot}: none of the results is an online or trained run with a model", EXIT_BAD_INPUT)
