@@ -351,7 +351,7 @@ class CatGraph(Method):
         ``j``, ``a``), the confidence its window's mass times 1 - P(new place)."""
         from wiloc.methods.catgraph import filter_kernels  # numba loads with the first frame, not the command line
 
-        mode, mass = filter_kernels.posterior_mode(j, a, w, self._mode_half, MODE_TIE, self._own, self._marks,
+        mode, mass = filter_kernels.posterior_mode(j, a, w, self.params.mode_window, MODE_TIE, self._own, self._marks,
                                                    self.frames + 1)
         p_new = self._new_place
         return Decision(match=mode, difference=float(self._sign * row[mode]), confidence=float(mass * (1.0 - p_new)),
@@ -422,14 +422,8 @@ class CatGraph(Method):
 
         if self._nodes.size == 0:  # sequence mode before the filter starts
             return 0.0
-        mass = filter_kernels.window_sum(self._own, self._mode_half, node)
+        mass = filter_kernels.window_sum(self._own, self.params.mode_window, node)
         return float(mass * (1.0 - self._new_place))
-
-    @property
-    def _mode_half(self) -> int:
-        """``mode_window``, a window wider than the map taken as the whole map (the same masses):
-        the read-out's work and memory grow with the window, and a huge one would fill the memory."""
-        return min(self.params.mode_window, self._own.size)
 
     @property
     def _new_place(self) -> float:

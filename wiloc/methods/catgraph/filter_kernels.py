@@ -155,6 +155,7 @@ def locate(nodes: NDArray[np.float64], pos: NDArray[np.float64], j: NDArray[np.i
 def window_sum(own: NDArray[np.float64], half: int, i: int) -> float:
     """:func:`window_mass` at node i alone, summed in its order."""
     n = own.size
+    half = min(half, n)  # a window wider than the map is the whole map (2 half + 1 must not wrap around int64)
     total = 0.0
     if n - 2 * half > 0:
         for k in range(max(i - half, 0), min(i + half, n - 1) + 1):
@@ -203,6 +204,7 @@ def posterior_mode(j: NDArray[np.intp], frac: NDArray[np.float64], w: NDArray[np
     beyond ``tie`` (massless nodes would count) or not finite.
     """
     n = own.size
+    half = min(half, n)  # a window wider than the map is the whole map: the same masses, work bounded by the map
     own[:] = 0.0
     nearest = np.empty(j.size, dtype=np.intp)
     for p in range(j.size):
