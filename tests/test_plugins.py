@@ -7,7 +7,7 @@ import json
 import os
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import cv2
@@ -198,3 +198,102 @@ def test_a_plugin_computing_other_rows_than_it_declares_is_named(compute, proble
         assert str(err.value) == f"descriptor 'odd' ({Point.value}): {problem}" and loc.frames == 0
     finally:
         registry._plugins.cache_clear()
+
+
+THUMB_DIST, THUMB_MODULE = "wiloc-test-thumb-plugin", "wiloc_test_thumb_plugin"
+
+#: A plugin that leaves a file named after the process that computed each row (in the folder
+#: $WILOC_TEST_PIDS), and takes 10 ms a frame: the workers take their first batches meanwhile.
+THUMB_SOURCE = '''
+import os
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from wiloc.descriptors import DescriptorPlugin
+
+
+def thumb(gray, side=4):
+    Path(os.environ["WILOC_TEST_PIDS"], str(os.getpid())).touch()
+    time.sleep(0.01)
+    return cv2.resize(gray, (side, side), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()
+
+
+THUMB = DescriptorPlugin(compute=thumb, metric="l1", length=16, params={"side": 4})
+'''
+
+
+@pytest.fixture
+def thumb_plugin(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
+    """The plugin ``thumb`` installed on the module search path (a distribution's metadata beside
+    its module, as pip leaves them; worker processes search the same path), its computing
+    processes' pids collected in the folder returned."""
+    from wiloc.descriptors import registry
+
+    site = tmp_path / "site"
+    meta = site / f"{THUMB_MODULE}-1.0.dist-info"
+    meta.mkdir(parents=True)
+    (meta / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {THUMB_DIST}\nVersion: 1.0\n")
+    (meta / "entry_points.txt").write_text(f"[wiloc.descriptors]\nthumb = {THUMB_MODULE}:THUMB\n")
+    (site / f"{THUMB_MODULE}.py").write_text(THUMB_SOURCE)
+    pids = tmp_path / "pids"
+    pids.mkdir()
+    monkeypatch.setenv("WILOC_TEST_PIDS", str(pids))
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.setattr(registry, "DESCRIPTORS", dict(registry.DESCRIPTORS))
+    monkeypatch.delitem(sys.modules, THUMB_MODULE, raising=False)
+    registry._plugins.cache_clear()
+    yield pids
+    registry._plugins.cache_clear()  # the next use reads the installed plugins again
+
+
+def test_a_plugin_spec_pickles_by_name(thumb_plugin: Path) -> None:
+    """The class of a plugin is made as it loads; pickle finds it through the registry."""
+    import pickle
+
+    from wiloc.descriptors import registry
+
+    spec = registry.get_descriptor("thumb")
+    again = pickle.loads(pickle.dumps(spec))
+    assert again == spec and again.kind is spec.kind is registry.DESCRIPTORS["thumb"]
+    assert not hasattr(registry, "Plugin[sad]")  # a built-in class is no plugin's
+
+
+@pytest.mark.parametrize("start", ["forked", "fresh"])
+def test_worker_processes_describe_a_plugin_as_this_process_does(start: str, thumb_plugin: Path, tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """A plugin's class could not be pickled to the workers ('Can't pickle Plugin[tiny]'): a
+    describe with workers ended in a traceback. Workers (forked, or fresh interpreters that load
+    the plugin from its entry point) now compute the same cache entry as one process."""
+    import threading
+
+    from wiloc import api
+    from wiloc.description import frame_describing
+    from wiloc.description.frame_describing import WorkerStart
+    from wiloc.description.workers import can_fork
+
+    route = tmp_path / "route"
+    route.mkdir()
+    rng = np.random.default_rng(1)
+    for i in range(40):
+        cv2.imwrite(str(route / f"f{i:02d}.png"), rng.integers(0, 256, (24, 32), dtype=np.uint8))
+    alone = api.describe(route, "thumb", cache=Cache(tmp_path / "alone"), jobs=1)[0].entry
+    assert {int(p.name) for p in thumb_plugin.iterdir()} == {os.getpid()}
+    for name in ("FORKED_START", "FRESH_START"):  # workers from the third frame on
+        monkeypatch.setattr(frame_describing, name, WorkerStart(seconds=0.0, frames=1))
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)  # another thread running: workers are fresh interpreters
+    if start == "fresh":
+        other.start()
+    try:
+        assert can_fork() == (start == "forked")
+        shared = api.describe(route, "thumb", cache=Cache(tmp_path / "shared"), jobs=2)[0].entry
+    finally:
+        stop.set()
+        if other.is_alive():
+            other.join()
+    assert len({int(p.name) for p in thumb_plugin.iterdir()} - {os.getpid()}) == 1  # the worker computed rows
+    assert shared.key == alone.key and shared.names == alone.names and shared.digest == alone.digest
+    assert shared.data.tobytes() == alone.data.tobytes()

@@ -2,9 +2,10 @@
 :class:`~wiloc.parameters.Parameters` dataclass) and saying how it is stored, compared and computed;
 and :class:`DescriptorSpec`, one descriptor with fixed parameters, as the pipeline carries it.
 
-A spec holds only data (name, parameters, storage facts) and looks its class up by name when it
-computes, so it pickles cheaply into worker processes. Its ``params`` hold every parameter
-(defaults filled in), so equal descriptors give equal cache keys. This module, and every
+A spec holds data (name, parameters, storage facts) and the class that made it, which pickles
+by name (a plugin's too, through the registry), so a spec pickles cheaply into worker processes.
+Its ``params`` hold every parameter (defaults filled in), so equal descriptors give equal cache
+keys. This module, and every
 descriptor's declarations, load without OpenCV: the command line builds its options from them.
 """
 from __future__ import annotations

@@ -94,9 +94,10 @@ class DescriptorPlugin:
 
     ``compute(gray, **params)`` gives the descriptor of one 8-bit grayscale image (H x W) as a flat
     ``(length,)`` array of ``dtype`` (packed bits, uint8, for ``hamming``); ``params`` are its
-    parameters and their defaults (JSON values). It runs in worker processes, so it must be a
-    module-level function. The cache keys its results by name, parameters and the package's
-    version, so a new release of the package computes afresh.
+    parameters and their defaults (JSON values). It runs in worker processes too, each of which
+    loads the plugin from its entry point (a spec pickles its class by name). The cache keys its
+    results by name, parameters and the package's version, so a new release of the package
+    computes afresh.
     """
 
     compute: Callable[..., NDArray]
@@ -164,10 +165,31 @@ def _plugins() -> _Plugins:
             said = str(exc).strip().splitlines()
             problems.append(f"{where} failed to load: {type(exc).__name__}{': ' + said[0] if said else ''}")
             continue
-        DESCRIPTORS[point.name] = type(f"Plugin[{point.name}]", (PluginDescriptor,), {
-            "name": point.name, "metric": plugin.metric, "source": origin, "plugin": plugin})
+        DESCRIPTORS[point.name] = type(_plugin_class_name(point.name), (PluginDescriptor,), {
+            "__module__": __name__, "name": point.name, "metric": plugin.metric, "source": origin,
+            "plugin": plugin})
         found[point.name] = origin
     return _Plugins(found, tuple(problems))
+
+
+def _plugin_class_name(name: str) -> str:
+    """What the class of plugin ``name`` is called, in this module: ``Plugin[NAME]``."""
+    return f"Plugin[{name}]"
+
+
+def __getattr__(attribute: str) -> type[Descriptor]:
+    """A plugin's class by its name in this module (PEP 562), the installed plugins loaded first.
+
+    The classes are made as the plugins load, so pickle (a spec sent to a worker process, or to
+    a Dask worker by cloudpickle) can find one by name only here; a worker that unpickles it
+    loads the plugins itself, from their entry points, and computes with the very same code."""
+    name = attribute.removeprefix("Plugin[").removesuffix("]")
+    if attribute == _plugin_class_name(name) and name not in DESCRIPTORS:
+        _plugins()
+    found = DESCRIPTORS.get(name)
+    if found is None or found.__qualname__ != attribute:
+        raise AttributeError(f"module {__name__!r} has no attribute {attribute!r}")
+    return found
 
 
 def plugin_problems() -> tuple[str, ...]:
