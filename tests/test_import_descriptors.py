@@ -191,3 +191,30 @@ def test_an_entry_imported_by_an_earlier_reader_is_not_reused(tmp_path: Path, ca
     newer = matrix_import.import_matrix(path, Cache(cache_dir), None, "l1")
     assert (newer.computed, newer.reused) == (2, 0)
     assert newer.entry.key != first.entry.key
+
+
+def test_a_run_on_imported_matrices_records_no_descriptor_parameters(tmp_path: Path, cache_dir: Path) -> None:
+    """The command line passes the default descriptor's crop with matrix files too, and their
+    runs' headers recorded sad's {"crop": "none"}, though no row of them was sad's: they record no
+    parameters now, and rows given as ``external`` their own. A file written before still reads
+    and draws."""
+    from wiloc.localization.localizer import Localizer
+
+    ref, query = _descriptors()
+    np.save(tmp_path / "ref.npy", ref)
+    np.save(tmp_path / "query.npy", query)
+    _invoke("localize", tmp_path / "query.npy", "--map", tmp_path / "ref.npy", "--metric", "l1", "--method",
+            "threshold", "--out", tmp_path / "run.csv")
+    header = read_results(tmp_path / "run.csv").header
+    assert (header.descriptor, header.descriptor_params) == ("external:l1", {})
+    loc = Localizer(tmp_path / "ref.npy", descriptor="external", descriptor_params={"metric": "l1", "length": D},
+                    method="threshold", metric="l1")
+    loc.observe(query[0])
+    assert loc.results().header.descriptor_params == {"metric": "l1", "length": D}
+
+    text = (tmp_path / "run.csv").read_text()
+    assert text.count("# descriptor_params: {}\n") == 1
+    (tmp_path / "old.csv").write_text(text.replace("# descriptor_params: {}\n", '# descriptor_params: {"crop": "none"}\n'))
+    assert read_results(tmp_path / "old.csv").header.descriptor_params == {"crop": "none"}
+    _invoke("evaluate", tmp_path / "old.csv", "--matrix-plot", tmp_path / "matrix.png")
+    assert (tmp_path / "matrix.png").stat().st_size > 0

@@ -39,10 +39,11 @@ def run_header(method: str, describer: Describer, query: Path | None, metric: st
     """What a results header says about a run besides the method's parameters. A streaming run
     may not know its ``query`` (None: recorded as "") and may hold its map in memory (an
     ``Entry``: recorded by its ``folder``). Imported descriptors (a query or map that is a
-    matrix file, or rows given as ``external``) are named ``external:METRIC``."""
+    matrix file, or rows given as ``external``) are named ``external:METRIC``, with the
+    parameters ``Describer.recorded_params`` gives (none for matrix files)."""
     sources = [Path(source) for source in (query, reference) if isinstance(source, (str, os.PathLike))]
     return ResultsHeader(method=method, descriptor=descriptor_label(describer.descriptor, metric, sources),
-                         descriptor_params=dict(describer.params), metric=metric,
+                         descriptor_params=describer.recorded_params(sources), metric=metric,
                          mode="sequence" if reference is None else "map", query="" if query is None else text_path(query),
                          map=reference.folder if isinstance(reference, Entry) else text_path(reference) if reference else "",
                          exclude_recent=exclude_recent, wiloc=__version__,
