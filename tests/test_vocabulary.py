@@ -17,7 +17,7 @@ import pytest
 
 from wiloc.bow.clustering import assign, kmajority, kmeans
 from wiloc.bow.features import extract_features, to_scale
-from wiloc.bow.vocabulary import pack_words, read_vocabulary, unpack_words
+from wiloc.bow.vocabulary import pack_words, read_vocabulary, train_vocabulary, unpack_words
 from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.cache.store import Cache
 from wiloc.description.describing import describe_folder
@@ -103,6 +103,23 @@ def test_kmajority_recovers_binary_prototypes() -> None:
     distance = np.unpackbits(centres[:, None] ^ prototypes[None], axis=-1).sum(-1)
     assert np.all(distance.min(axis=0) == 0)  # every prototype found exactly
     assert len(rounds) < 30
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.uint8])
+def test_repeated_features_start_no_two_words_alike(dtype: type) -> None:
+    """Features repeated (an image given twice) were drawn as two initial centres alike: the
+    second never won a feature, so a vocabulary of 12 words held fewer distinct ones; and the
+    words were made from fewer distinct features than words, with no word said."""
+    distinct = np.random.default_rng(2).integers(0, 256, (12, 32)).astype(dtype)
+    repeated = np.concatenate([distinct] * 5)
+    cluster = kmeans if dtype == np.float32 else kmajority
+    assert len(np.unique(cluster(repeated, 12, 5, seed=0), axis=0)) == 12
+    with pytest.raises(ValueError, match="12 distinct features cannot make 13 clusters"):
+        cluster(repeated, 13, 5, seed=0)
+    params = VocabularyParams.create({"words": 13, "feature": "sift" if dtype == np.float32 else "orb"})
+    with pytest.raises(ParameterError, match=r"13 words need at least as many distinct training features; the "
+                                             r"training images gave 60 \(12 distinct\)"):
+        train_vocabulary("key", params, ["a.png"] * 5, [distinct] * 5)
 
 
 def test_too_few_features_for_the_words() -> None:

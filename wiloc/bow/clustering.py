@@ -60,12 +60,36 @@ def _nearest_signs(signs: NDArray[np.float32], centre_signs: NDArray[np.float32]
     return out
 
 
+def _row_keys(features: NDArray) -> NDArray:
+    """Each row of ``features`` as one opaque value (its bytes), so rows compare and sort whole."""
+    rows = np.ascontiguousarray(features)
+    return rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
+
+
+def distinct_rows(features: NDArray) -> NDArray[np.intp]:
+    """The index of each distinct row of ``features`` where it first occurs, in row order."""
+    return np.sort(np.unique(_row_keys(features), return_index=True)[1])
+
+
 def _initial(features: NDArray, k: int, seed: int) -> NDArray:
-    """``k`` training features drawn at random without replacement (Forgy initialisation)."""
+    """``k`` distinct training features drawn at random without replacement (Forgy
+    initialisation). A repeated feature (an image given twice, copies of one patch) drawn more
+    than once is drawn again among the features distinct from those drawn: two words started
+    alike stay alike, the second never nearest to a feature, so the vocabulary had fewer words
+    than it counted. A draw without repeats is kept as it is."""
     if len(features) < k:
         raise ValueError(f"{len(features)} features cannot make {k} clusters")
     rng = np.random.default_rng(seed)
-    return features[np.sort(rng.choice(len(features), k, replace=False))].copy()
+    drawn = features[np.sort(rng.choice(len(features), k, replace=False))]
+    kept = distinct_rows(drawn)
+    if len(kept) == k:
+        return drawn.copy()
+    distinct = distinct_rows(features)
+    if len(distinct) < k:
+        raise ValueError(f"{len(distinct)} distinct features cannot make {k} clusters")
+    others = distinct[~np.isin(_row_keys(features[distinct]), _row_keys(drawn))]
+    more = np.sort(rng.choice(others, k - len(kept), replace=False))
+    return np.concatenate([drawn[kept], features[more]])
 
 
 def kmeans(features: NDArray[np.float32], k: int, iterations: int, seed: int,

@@ -20,7 +20,7 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.bow.clustering import assign, kmajority, kmeans
+from wiloc.bow.clustering import assign, distinct_rows, kmajority, kmeans
 from wiloc.bow.features import DTYPES, extract_features
 from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.errors import ParameterError, WilocError
@@ -117,9 +117,11 @@ def train_vocabulary(key: str, params: VocabularyParams, frames: Sequence[str],
         raise ValueError(f"need one feature array per training frame, at least one; got "
                          f"{len(features)} for {len(frames)} frames")
     pooled = np.concatenate(features).astype(DTYPES[params.feature])
-    if len(pooled) < params.words:
-        raise ParameterError("words", f"{params.words} words need at least as many training features; "
-                                  f"the training images gave {len(pooled)}")
+    distinct = len(distinct_rows(pooled)) if len(pooled) else 0
+    if distinct < params.words:
+        repeated = f" ({distinct} distinct)" if distinct < len(pooled) else ""
+        raise ParameterError("words", f"{params.words} words need at least as many distinct training features; "
+                                      f"the training images gave {len(pooled)}{repeated}")
     cluster = kmeans if params.feature == "sift" else kmajority
     centres = cluster(pooled, params.words, params.iterations, params.seed, step)
     occurrences = np.array([word_presence(f, centres) for f in features], dtype=bool)
