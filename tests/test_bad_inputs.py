@@ -2023,3 +2023,22 @@ def test_a_model_plot_of_an_online_run_without_its_model_line_is_one_line(online
     ends_in_one_error(runner.invoke(app, ["compare", str(edited), "--model-plot", str(tmp_path / "fig1.png")]), 1,
                       "fig1.png: none of the results is an online or trained run with a model")
     assert not (tmp_path / "fig1.png").exists()
+
+
+@pytest.mark.parametrize(("given", "parameter", "message"), [
+    ({"path": None}, "path", "a file's path (text or a path object), got NoneType"),
+    ({"names": ["a.png"]}, "names", "a file's path (text or a path object), got list"),
+    ({"out": 5}, "out", "a file's path (text or a path object), got int"),
+    ({"out": "x.h5", "prefix": 5}, "prefix", "the text frame names begin with (db/, query/), got int")])
+def test_import_arguments_of_another_type_are_a_parameter_error(given: dict[str, object], parameter: str,
+                                                                 message: str, tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """api.import_descriptors given no path, a list of names, a number as out or prefix ended in
+    pathlib's or str.startswith's TypeError."""
+    from wiloc import api
+
+    monkeypatch.chdir(tmp_path)
+    np.save(tmp_path / "m.npy", np.random.default_rng(0).random((3, 4)).astype(np.float32))
+    with pytest.raises(ParameterError, match=re.escape(message)) as raised:
+        api.import_descriptors(**{"path": tmp_path / "m.npy", "metric": "l1", **given})
+    assert raised.value.parameter == parameter and not (tmp_path / "x.h5").exists()

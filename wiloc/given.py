@@ -5,6 +5,7 @@ share (other names of columns, the Earth radius for GPS degrees). The ground-tru
 and maps held in memory share them, so that each problem reads the same wherever it is found."""
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -12,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 
 EARTH_RADIUS_M = 6_371_008.8
 """Mean Earth radius (IUGG) used for distances between GPS positions (lat/lon) on a sphere."""
@@ -20,6 +21,13 @@ COLUMN_NAMES = {"latitude": "lat", "longitude": "lon", "lng": "lon", "long": "lo
                 "filename": "name", "file": "name", "image": "name", "frame": "name"}
 """Other names of the lat/lon columns that GPS logs and exports use, and of a CSV's name column:
 positions and odometry CSVs read a header through it."""
+
+
+def check_file_path(value: object, parameter: str) -> None:
+    """A ParameterError naming ``parameter`` when ``value`` is no file's path (text or a path
+    object), before pathlib's TypeError says so of a number, a list or None."""
+    if not isinstance(value, (str, os.PathLike)):
+        raise ParameterError(parameter, f"a file's path (text or a path object), got {type(value).__name__}")
 
 
 def is_number(text: str) -> bool:

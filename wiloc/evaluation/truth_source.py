@@ -14,7 +14,7 @@ from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, Truth, aligned_tr
                                           matrix_truth, pairs_truth, positions_truth, restrict_sequence)
 from wiloc.evaluation.truth_formats import (DEFAULT_RADIUS_M, exif_truth, npy_form, positives_truth, utm_names_truth,
                                             vprbench_truth)
-from wiloc.given import COLUMN_NAMES, is_number
+from wiloc.given import COLUMN_NAMES, check_file_path, is_number
 
 
 def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
@@ -99,8 +99,8 @@ class TruthSource:
         for name in ("path", "ref_path"):
             if isinstance(value := getattr(self, name), os.PathLike):
                 object.__setattr__(self, name, os.fspath(value))
-            elif value is not None and not isinstance(value, str):
-                raise ParameterError(name, f"a file's path (text or a path object), got {type(value).__name__}")
+            elif value is not None:
+                check_file_path(value, name)
         if self.radius is not None:
             check_radius(self.radius)
 

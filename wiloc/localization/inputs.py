@@ -17,6 +17,7 @@ from wiloc.description.vocabulary_build import VocabularyReport, build_vocabular
 from wiloc.description.workers import keeping_pools
 from wiloc.descriptors.external import recorded_metric
 from wiloc.errors import ParameterError, WilocError
+from wiloc.given import check_file_path
 
 
 def shared_workers() -> AbstractContextManager[None]:
@@ -31,7 +32,14 @@ def import_descriptors(path: Path, *, metric: str | None = None, names: Path | N
     ``global-feats-*.h5``, or (with ``out``) a folder of per-image ``.npy`` vectors. With ``out``
     they are written first to that wiloc descriptor file, which records names and metric, so that
     ``localize OUT.h5 --map MAP.h5`` needs neither again; ``prefix`` keeps the frames whose names
-    begin with it (hloc's ``db/``, ``query/``). ``metric``: default the file's recorded one, else l1."""
+    begin with it (hloc's ``db/``, ``query/``). ``metric``: default the file's recorded one, else l1.
+    A path, names or out that is no file's path, or a prefix that is no text, is a ParameterError
+    naming it."""
+    for name, value in (("path", path), ("names", names), ("out", out)):
+        if value is not None or name == "path":
+            check_file_path(value, name)
+    if not isinstance(prefix, str):
+        raise ParameterError("prefix", f"the text frame names begin with (db/, query/), got {type(prefix).__name__}")
     source = Path(path)
     metric = metric or recorded_metric(source) or "l1"
     if out is not None:
