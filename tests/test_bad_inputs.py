@@ -1839,15 +1839,13 @@ def test_a_sampling_without_frames_to_sample_is_a_parameter_error() -> None:
 
 
 @pytest.mark.parametrize("line, edited, message", [
-    ("# method: threshold", "# method: treshold", "header 'method' must be one of online, threshold, trained, catgraph, "
-                                                  "fabmap, seqslam, got 'treshold'"),
-    ("# method: threshold", "# method: ", "header 'method' must be one of online, threshold, trained, catgraph, "
-                                          "fabmap, seqslam, got ''"),
+    ("# method: threshold", "# method: ", "header 'method' is empty: the method that wrote the file is unknown"),
     ("# metric: l1", "# metric: l7", "header 'metric' must be one of l1, sqeuclidean, hamming, cosine, got 'l7'")])
-def test_a_header_edited_to_an_unknown_method_or_metric_is_refused_naming_the_line(line: str, edited: str, message: str,
-                                                                                   results: Path, tmp_path: Path) -> None:
-    """A results file whose method or metric was edited by hand to a name no run writes was
-    scored as any other run: as [0, 1] confidences for a method that is none of wiloc's."""
+def test_a_header_edited_to_no_method_or_an_unknown_metric_is_refused_naming_the_line(line: str, edited: str,
+                                                                                      message: str, results: Path,
+                                                                                      tmp_path: Path) -> None:
+    """A results file whose method was edited away, or whose metric names none there is, was
+    scored as any other run."""
     lines = results.read_text().splitlines()
     number = lines.index(line) + 1
     lines[number - 1] = edited
@@ -2025,6 +2023,19 @@ def test_a_model_plot_of_an_online_run_without_its_model_line_is_one_line(online
     assert not (tmp_path / "fig1.png").exists()
 
 
+def test_a_run_of_a_method_registered_elsewhere_is_read_with_confidences_in_0_1(results: Path, tmp_path: Path) -> None:
+    """A method a program of its own registers (docs/architecture.md) writes results files that
+    the installed wiloc evaluate reads: its confidences are checked against [0, 1], as no
+    registered method's bounds apply."""
+    text = results.read_text().replace("# method: threshold", "# method: ratio")
+    path = tmp_path / "day_left-sad-ratio.csv"
+    path.write_text(text)
+    assert runner.invoke(app, ["evaluate", str(path)]).exit_code == 0
+    edited = _edited(path, "confidence", "7.5", tmp_path / "edited.csv")
+    result = runner.invoke(app, ["evaluate", str(edited)])
+    assert result.exit_code == 1 and "confidence 7.5" in result.output, result.output
+
+
 @pytest.mark.parametrize(("given", "parameter", "message"), [
     ({"path": None}, "path", "a file's path (text or a path object), got NoneType"),
     ({"names": ["a.png"]}, "names", "a file's path (text or a path object), got list"),
@@ -2042,3 +2053,12 @@ def test_import_arguments_of_another_type_are_a_parameter_error(given: dict[str,
     with pytest.raises(ParameterError, match=re.escape(message)) as raised:
         api.import_descriptors(**{"path": tmp_path / "m.npy", "metric": "l1", **given})
     assert raised.value.parameter == parameter and not (tmp_path / "x.h5").exists()
+
+
+def test_a_vocabulary_max_features_beyond_a_c_int_is_a_usage_error(tmp_path: Path, cache_dir: Path) -> None:
+    """OpenCV's detectors take the feature cap as a C int: --max-features 3000000000 ended in
+    cv2's 'integer won't fit into a C int' with a traceback, after the images were read."""
+    (tmp_path / "train").mkdir()
+    cv2.imwrite(str(tmp_path / "train" / "a.png"), np.random.default_rng(0).integers(0, 256, (64, 64), dtype=np.uint8))
+    ends_in_one_error(runner.invoke(app, ["vocabulary", str(tmp_path / "train"), "--max-features", "3000000000"]),
+                      2, "--max-features: must lie in [1, 2147483647], got 3000000000")

@@ -267,10 +267,11 @@ def _settings(header: ResultsHeader, expected: ResultsHeader, learned: Collectio
 def read_results(path: Path, methods: Mapping[str, type[Method]] | None = None) -> Results:
     """Read a results file written by :func:`write_results` (or a followed run's); WilocError
     naming the file and line when it is not one or holds something no run writes.
-    ``methods`` are those a file may name (``wiloc.methods.registry.METHODS``): a file naming
-    another is refused, its confidences go down to its method's ``lowest_confidence`` and its
-    differences are checked (:func:`_check_differences`); without it any name passes,
-    confidences lie in [0, 1] and differences are not checked."""
+    ``methods`` are the registered ones (``wiloc.methods.registry.METHODS``): a file naming one
+    has its confidences checked down to that method's ``lowest_confidence`` and its differences
+    checked (:func:`_check_differences`); a file naming another (a method a program of its own
+    registers), or read without ``methods``, has confidences in [0, 1] and differences unchecked;
+    a file naming no method is refused."""
     path = Path(path)
     header, frames, first_line = _read_table(path)
     method = _method(path, header, methods) if methods is not None else None
@@ -295,15 +296,18 @@ def read_results(path: Path, methods: Mapping[str, type[Method]] | None = None) 
     return Results(header=header, frames=frames, reference_frames=reference)
 
 
-def _method(path: Path, header: ResultsHeader, methods: Mapping[str, type[Method]]) -> type[Method]:
-    """The class of the method a results file names; a WilocError naming the file and the line
-    when it names none of ``methods`` (a header edited by hand)."""
+def _method(path: Path, header: ResultsHeader, methods: Mapping[str, type[Method]]) -> type[Method] | None:
+    """The class of the method a results file names, None for a name not among ``methods`` (one a
+    program of its own registers: its runs are read, unchecked against its bounds); a WilocError
+    naming the file and the line when it names none (every run writes its method's name)."""
     if header.method in methods:
         return methods[header.method]
-    line, choices = header_line(path, "method"), ", ".join(methods)
+    if header.method.strip():
+        return None
+    line = header_line(path, "method")
     if line is None:
-        raise WilocError(path, f"no 'method' header: the method that wrote the file (one of {choices}) is unknown")
-    raise WilocError(path, f"line {line}: header 'method' must be one of {choices}, got {header.method!r}")
+        raise WilocError(path, "no 'method' header: the method that wrote the file is unknown")
+    raise WilocError(path, f"line {line}: header 'method' is empty: the method that wrote the file is unknown")
 
 
 def _on_evidence(header: ResultsHeader, method: type[Method]) -> bool:
