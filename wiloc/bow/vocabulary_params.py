@@ -16,7 +16,8 @@ class VocabularyParams(Parameters):
 
     feature: Literal["sift", "orb"] = param("sift", "Local feature: sift (k-means) or orb (k-majority).")
     words: int = param(1000, "K, the number of visual words.", low=2)
-    max_features: int = param(500, "Local features kept per image, strongest first.", low=1)
+    max_features: int = param(500, "Local features kept per image, strongest first.", low=1,
+                              high=2**31 - 1)  # OpenCV's detectors take a C int
     max_side: int = param(640, "Images are shrunk so their longer side is at most this many "
                                            "pixels.", low=16)
     iterations: int = param(25, "At most this many clustering rounds (fewer once assignments stop "
