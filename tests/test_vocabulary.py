@@ -215,6 +215,22 @@ def test_too_many_words_for_the_features_is_a_usage_error(tmp_path: Path, cache_
     assert not list((cache_dir / "vocabularies").glob("*.h5"))
 
 
+@pytest.mark.parametrize("damage", ["nan centre", "fewer centres"])
+def test_a_vocabulary_file_of_damaged_centres_is_refused(damage: str, tmp_path: Path, cache_dir: Path) -> None:
+    """A NaN centre is every feature's nearest word (argmin takes NaN first), so that every image
+    held that one word alone and FAB-MAP ran on it, exit code 0; centres fewer than its words
+    were read as they were."""
+    path = build_vocabulary([_folder(tmp_path / "train", range(6))], Cache(cache_dir), SMALL).path
+    with h5py.File(path, "a") as f:
+        centres = f["centres"][()]
+        del f["centres"]
+        if damage == "nan centre":
+            centres[3, 5] = np.nan
+        f["centres"] = centres if damage == "nan centre" else centres[:-1]
+    with pytest.raises(WilocError, match=r"damaged vocabulary file: its centres are not 16 rows of 128 finite values"):
+        read_vocabulary(path)
+
+
 def test_an_incomplete_file_is_not_a_vocabulary(tmp_path: Path) -> None:
     path = tmp_path / "half.h5"
     with h5py.File(path, "w") as f:

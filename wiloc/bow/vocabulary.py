@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.bow.clustering import assign, distinct_rows, kmajority, kmeans
-from wiloc.bow.features import DTYPES, extract_features
+from wiloc.bow.features import DTYPES, WIDTHS, extract_features
 from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.errors import ParameterError, WilocError
 from wiloc.version import __version__
@@ -168,7 +168,7 @@ def read_vocabulary(path: Path) -> Vocabulary:
         try:
             params = VocabularyParams(**json.loads(f.attrs["params"]))
             n_words = int(f.attrs["n_words"])
-            return Vocabulary(
+            vocabulary = Vocabulary(
                 key=str(f.attrs["key"]), params=params,
                 centres=np.asarray(f["centres"][()], dtype=DTYPES[params.feature]),
                 training_frames=tuple(s.decode() for s in f["training/frames"][()]),
@@ -176,3 +176,9 @@ def read_vocabulary(path: Path) -> Vocabulary:
             )
         except (KeyError, ValueError, TypeError) as exc:
             raise WilocError(path, f"unreadable vocabulary file ({exc})") from exc
+    # a NaN centre is every feature's nearest word (argmin takes NaN first): every image would
+    # hold that one word alone
+    centres, width = vocabulary.centres, WIDTHS[params.feature]
+    if centres.shape != (n_words, width) or not np.isfinite(centres).all():
+        raise WilocError(path, f"damaged vocabulary file: its centres are not {n_words} rows of {width} finite values")
+    return vocabulary
