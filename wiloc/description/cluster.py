@@ -38,10 +38,13 @@ WORKER_WAIT = 30
 POLL = 2
 #: Seconds the oldest difference block may make no progress before the blocks in flight are sent
 #: again: Dask can lose track of a task after a worker died (seen: a block in memory on a live
-#: worker whose result the client never received) and would then wait for ever. No progress is
+#: worker whose result the client never received; blocks waiting on their worker for scattered
+#: references the scheduler thought it held) and would then wait for ever. No progress is
 #: measured where a slow block cannot be mistaken for it: while the block's task is unfinished,
-#: no worker computing any task (a slow block keeps its worker computing, a busy shared cluster
-#: its workers); once it finished, its result not arriving in STALL s plus one per TRANSFER bytes.
+#: no worker computing any task or fetching its data (a slow block keeps its worker computing, a
+#: busy shared cluster its workers; a task the scheduler counts as processing may be waiting on
+#: its worker for data lost with a dead worker); once it finished, its result not arriving in
+#: STALL s plus one per TRANSFER bytes.
 STALL = 60
 #: Bytes a second a finished block's result is sure to arrive at, from a live worker.
 TRANSFER = 10_000_000
@@ -166,21 +169,22 @@ class Cluster:
     def _finished(self, futures: list[Future], stall: float | None = None) -> Iterator[Future]:
         """``futures`` as they finish; a TimeoutError once the scheduler has had no worker for
         WORKER_WAIT s (every worker gone mid-run, none restarted), where Dask waits for ever;
-        given ``stall``, a _Stalled once its workers have all been idle for ``stall`` s while
-        these are unfinished (tasks Dask lost track of)."""
+        given ``stall``, a _Stalled once its workers have all been idle (see _busy) for ``stall``
+        s while these are unfinished (tasks Dask lost track of)."""
         pending, alone_since, idle_since = set(futures), None, None
         while pending:
             try:
                 done, pending = wait(pending, timeout=POLL, return_when="FIRST_COMPLETED")
             except TimeoutError:
                 now = time.monotonic()
-                if not self.client.scheduler_info(n_workers=-1)["workers"]:
+                workers = self.client.scheduler_info(n_workers=-1)["workers"]
+                if not workers:
                     idle_since = None
                     if now - (alone_since := alone_since or now) > WORKER_WAIT:
                         raise TimeoutError(f"no worker for {WORKER_WAIT} s") from None
                 else:
                     alone_since = None
-                    if stall is None or any(self.client.processing().values()):
+                    if stall is None or any(map(_busy, workers.values())):
                         idle_since = None
                     elif now - (idle_since := idle_since or now) > stall:
                         raise _Stalled()
@@ -213,6 +217,14 @@ class Cluster:
         self.client.close()
         if self._local is not None:
             self._local.close()
+
+
+def _busy(worker: dict) -> bool:
+    """Whether a worker (as ``scheduler_info`` describes it, as of its last heartbeat) is computing
+    a task or fetching a task's data. Not the scheduler's "processing": seen, tasks processing there
+    for ever on a worker that waited for scattered references the scheduler wrongly thought it had."""
+    counts = worker.get("metrics", {}).get("task_counts", {})
+    return bool(counts.get("executing") or counts.get("flight"))
 
 
 class _Stalled(Exception):
