@@ -2062,3 +2062,13 @@ def test_a_vocabulary_max_features_beyond_a_c_int_is_a_usage_error(tmp_path: Pat
     cv2.imwrite(str(tmp_path / "train" / "a.png"), np.random.default_rng(0).integers(0, 256, (64, 64), dtype=np.uint8))
     ends_in_one_error(runner.invoke(app, ["vocabulary", str(tmp_path / "train"), "--max-features", "3000000000"]),
                       2, "--max-features: must lie in [1, 2147483647], got 3000000000")
+
+
+@pytest.mark.parametrize("flag", ["no", None, 0])
+def test_compare_global_thresholds_of_another_type_are_a_parameter_error(flag: object, results: Path) -> None:
+    """global_thresholds='no' was read as true (Table II computed), None and 0 as false."""
+    from wiloc import api
+
+    with pytest.raises(ParameterError, match=f"True or False, got {type(flag).__name__}$") as refused:
+        api.compare([results], api.TruthSource(), global_thresholds=flag)
+    assert refused.value.parameter == "global_thresholds"

@@ -239,7 +239,10 @@ def comparison(evaluations: Sequence[Evaluation], truth: TruthSource, *,
                precisions: Sequence[float] = (100.0, 99.0), global_thresholds: bool = True) -> Comparison:
     """Table I (recall at 100/99/90 % precision per traversal and method), Table II (per method,
     the one threshold reaching each of ``precisions`` over all its traversals, when
-    ``global_thresholds``) and the calibration table of scored runs."""
+    ``global_thresholds``, True or False: text such as "no" would be true) and the calibration
+    table of scored runs."""
+    if not isinstance(global_thresholds, (bool, np.bool_)):
+        raise ParameterError("global_thresholds", f"True or False, got {type(global_thresholds).__name__}")
     evaluations = list(evaluations)
     labels = method_labels(evaluations)
     traversals = traversal_labels(evaluations)
