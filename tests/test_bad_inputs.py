@@ -2072,3 +2072,10 @@ def test_compare_global_thresholds_of_another_type_are_a_parameter_error(flag: o
     with pytest.raises(ParameterError, match=f"True or False, got {type(flag).__name__}$") as refused:
         api.compare([results], api.TruthSource(), global_thresholds=flag)
     assert refused.value.parameter == "global_thresholds"
+
+
+@pytest.mark.parametrize("command", ["evaluate", "compare"])
+def test_a_folder_given_as_results_is_said_to_be_a_folder(command: str, tmp_path: Path) -> None:
+    """A folder given to evaluate or compare was said not to exist, which it does."""
+    ends_in_one_error(runner.invoke(app, [command, str(tmp_path)]), 1,
+                      f"{tmp_path}: a folder, not a results file", "runs/day_left-sad-online.csv")

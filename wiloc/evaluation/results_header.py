@@ -137,6 +137,9 @@ def read_header(path: Path) -> tuple[ResultsHeader, int]:
 
 def _header_lines(path: Path) -> list[str]:
     """A results file's header lines (those starting ``# ``, up to the first that does not)."""
+    if path.is_dir():
+        raise WilocError(path, "a folder, not a results file (evaluate and compare read the results "
+                               "files localize writes, such as runs/day_left-sad-online.csv)")
     if not path.is_file():
         raise WilocError(path, "results file does not exist")
     lines = []
