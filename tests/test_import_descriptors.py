@@ -218,3 +218,15 @@ def test_a_run_on_imported_matrices_records_no_descriptor_parameters(tmp_path: P
     assert read_results(tmp_path / "old.csv").header.descriptor_params == {"crop": "none"}
     _invoke("evaluate", tmp_path / "old.csv", "--matrix-plot", tmp_path / "matrix.png")
     assert (tmp_path / "matrix.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("args", [["describe", "--import"], ["describe", "--out", "out.h5", "--import"],
+                                  ["localize", "--metric", "l1", "-R", "1"]])
+def test_names_given_a_folder_are_said_to_be_a_folder(args: list[str], tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """--names naming a folder was said not to exist, which it does."""
+    monkeypatch.chdir(tmp_path)
+    np.save(tmp_path / "m.npy", np.random.default_rng(0).random((3, 4)).astype(np.float32))
+    (tmp_path / "names").mkdir()
+    ends_in_one_error(runner.invoke(app, [*args, "m.npy", "--names", "names"]), 1,
+                      "names: a folder, not a file of frame names")

@@ -8,7 +8,7 @@ from pathlib import Path
 from wiloc.cache.entries import EXTERNAL, EntryHeader, FrameRecord, StoredEntry, entry_key
 from wiloc.cache.store import Cache
 from wiloc.description.describing import DescribeReport, read_stored
-from wiloc.descriptors.external import READER_VERSION, read_external, write_matrix
+from wiloc.descriptors.external import READER_VERSION, check_names_file, read_external, write_matrix
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.errors import ParameterError, WilocError
 from wiloc.sources.frames import fingerprint, text_path
@@ -23,9 +23,11 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
     """
     start = time.perf_counter()
     sources = [Path(p).resolve() for p in (path, names_path) if p is not None]
+    if not sources[0].is_file():
+        raise WilocError(sources[0], "file does not exist")
+    if names_path is not None:
+        check_names_file(sources[1])
     for source in sources:
-        if not source.is_file():
-            raise WilocError(source, "file does not exist")
         text_path(source)
     prints = [fingerprint(source) for source in sources]
     params = {"metric": metric, "reader": READER_VERSION, "file_digest": prints[0].digest,

@@ -63,6 +63,15 @@ def _generated_names(count: int) -> list[str]:
     return [f"frame{i:0{width}d}" for i in range(count)]
 
 
+def check_names_file(path: Path) -> None:
+    """WilocError naming ``path`` unless it is a file, saying so when it is a folder (a folder
+    given to --names was said not to exist)."""
+    if path.is_dir():
+        raise WilocError(path, "a folder, not a file of frame names (one name a line)")
+    if not path.is_file():
+        raise WilocError(path, "file does not exist")
+
+
 def read_names(path: Path) -> list[str]:
     """Frame names from a text file (one per line), the first column of a ``.csv`` file, or a
     ``.npy`` array of text (``np.save`` of the names, read as :func:`_read_npz` reads them).
@@ -71,6 +80,7 @@ def read_names(path: Path) -> list[str]:
     """
     import pandas as pd  # pandas and h5py load in 0.2-0.5 s: only when a matrix is imported
 
+    check_names_file(path)
     if path.suffix.lower() == ".npy":
         return _npy_names(path)
     try:
