@@ -3,6 +3,7 @@
 them without --names and --metric; bad sources are one line and a non-zero exit code."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import h5py
@@ -230,3 +231,19 @@ def test_names_given_a_folder_are_said_to_be_a_folder(args: list[str], tmp_path:
     (tmp_path / "names").mkdir()
     ends_in_one_error(runner.invoke(app, [*args, "m.npy", "--names", "names"]), 1,
                       "names: a folder, not a file of frame names")
+
+
+@pytest.mark.parametrize("out", [[], ["--out", "again.h5"]])
+def test_a_metric_overriding_the_recorded_one_is_said_to(out: list[str], tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """describe --import X.h5 --metric cosine, X.h5 recording sqeuclidean, took cosine silently."""
+    monkeypatch.chdir(tmp_path)
+    np.save(tmp_path / "m.npy", np.random.default_rng(0).random((3, 4)).astype(np.float32))
+    assert runner.invoke(app, ["describe", "--import", "m.npy", "--metric", "sqeuclidean", "--out", "x.h5"]).exit_code == 0
+    result = runner.invoke(app, ["describe", "--import", "x.h5", "--metric", "cosine", *out, "--json"])
+    assert result.exit_code == 0, result.output
+    said = "records the metric sqeuclidean; the one given (--metric cosine) overrides it"
+    assert [line for line in json.loads(result.stdout)["warnings"] if said in line] != [], result.output
+    assert said in result.stderr
+    quiet = runner.invoke(app, ["describe", "--import", "x.h5", "--metric", "sqeuclidean", *out, "--json"])
+    assert quiet.exit_code == 0 and json.loads(quiet.stdout)["warnings"] == [], quiet.output

@@ -3,12 +3,13 @@ or first -> a wiloc descriptor file that records names and metric."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from wiloc.cache.entries import EXTERNAL, EntryHeader, FrameRecord, StoredEntry, entry_key
 from wiloc.cache.store import Cache
 from wiloc.description.describing import DescribeReport, read_stored
-from wiloc.descriptors.external import READER_VERSION, check_names_file, read_external, write_matrix
+from wiloc.descriptors.external import READER_VERSION, check_names_file, read_external, recorded_metric, write_matrix
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.errors import ParameterError, WilocError
 from wiloc.sources.frames import fingerprint, text_path
@@ -55,7 +56,17 @@ def import_matrix(path: Path, cache: Cache, names_path: Path | None, metric: str
         folder=str(sources[0]), descriptor=EXTERNAL, shape=entry.data.shape, frames=n,
         computed=n if fresh else 0, reused=0 if fresh else n, failed=[], ignored=[], sizes=[],
         seconds=seconds, images_per_second=(n if fresh else 0) / seconds, entry=entry, repairs=repairs,
+        notes=_overridden_metric(sources[0], metric),
     )
+
+
+def _overridden_metric(source: Path, metric: str) -> list[str]:
+    """A line saying ``metric`` overrides the other metric ``source`` records (docs/descriptors.md),
+    so that a --metric contradicting the file is never taken silently; none otherwise."""
+    recorded = recorded_metric(source)
+    if recorded is None or recorded == metric:
+        return []
+    return [f"{source}: records the metric {recorded}; the one given (--metric {metric}) overrides it"]
 
 
 def import_to_file(source: Path, out: Path, cache: Cache, names_path: Path | None, metric: str,
@@ -71,5 +82,6 @@ def import_to_file(source: Path, out: Path, cache: Cache, names_path: Path | Non
         raise ParameterError("out", f"{out} is the file being imported; name another")
     names, matrix = read_external(Path(source), names_path, metric, prefix)
     write_matrix(out, names, matrix, metric)
-    return import_matrix(out, cache, None, metric)
+    report = import_matrix(out, cache, None, metric)
+    return replace(report, notes=[*_overridden_metric(Path(source), metric), *report.notes])
 
