@@ -2079,3 +2079,14 @@ def test_a_folder_given_as_results_is_said_to_be_a_folder(command: str, tmp_path
     """A folder given to evaluate or compare was said not to exist, which it does."""
     ends_in_one_error(runner.invoke(app, [command, str(tmp_path)]), 1,
                       f"{tmp_path}: a folder, not a results file", "runs/day_left-sad-online.csv")
+
+
+def test_a_vocabulary_key_the_cache_does_not_hold_is_a_usage_error(tmp_path: Path, cache_dir: Path) -> None:
+    """--vocabulary takes a file or a key from `wiloc vocabulary`: a key the cache does not hold is a
+    wrong option value (exit code 2), and a path that is no file a missing file (exit code 1)."""
+    (tmp_path / "train").mkdir()
+    cv2.imwrite(str(tmp_path / "train" / "a.png"), np.random.default_rng(0).integers(0, 256, (64, 64), dtype=np.uint8))
+    describe = ["describe", str(tmp_path / "train"), "--descriptor", "bow", "--vocabulary"]
+    ends_in_one_error(runner.invoke(app, [*describe, "nosuchkey"]), 2,
+                      "--vocabulary: 'nosuchkey' is neither a vocabulary file nor the key of one in the cache")
+    ends_in_one_error(runner.invoke(app, [*describe, str(tmp_path / "v.npz")]), 1, "--vocabulary: ", "v.npz")

@@ -126,7 +126,7 @@ def test_the_command_line_builds_a_vocabulary_and_runs_fabmap(setup, tmp_path: P
     assert wrong.exit_code == 2 and "--vocabulary: applies to --descriptor bow only" in wrong.stderr
     missing = runner.invoke(app, ["localize", str(route.query), "--map", str(route.reference), "--descriptor",
                                   "bow", "--vocabulary", "nope", "--cache", str(cache.root)])
-    assert missing.exit_code == 1 and "--vocabulary: 'nope' is neither a vocabulary file" in missing.stderr
+    assert missing.exit_code == 2 and "--vocabulary: 'nope' is neither a vocabulary file" in missing.stderr
 
 
 def test_fabmap_s_own_parameters_reach_its_model_from_the_api_and_the_command_line(setup, tmp_path: Path) -> None:

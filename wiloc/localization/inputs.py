@@ -63,12 +63,16 @@ def vocabulary(folders: Sequence[str | Path] | str | Path, params: Mapping[str, 
 
 
 def vocabulary_file(vocabulary: str | Path, cache: Cache | None = None) -> Path:
-    """A vocabulary's file: ``vocabulary`` is the file, or the key of a vocabulary in the cache."""
+    """A vocabulary's file: ``vocabulary`` is the file, or the key of a vocabulary in the cache.
+    A key the cache does not hold is a ParameterError (a wrong value, as an unknown name is); a
+    path that is no file is a WilocError (a missing file)."""
     path = Path(vocabulary).expanduser()
     if path.is_file():
         return path
+    problem = f"{str(vocabulary)!r} is neither a vocabulary file nor the key of one in the cache"
+    if not str(vocabulary).isalnum():
+        raise WilocError(None, problem, parameter="vocabulary")
     in_cache = vocabulary_path(Cache.given(cache), str(vocabulary))
-    if str(vocabulary).isalnum() and in_cache.is_file():
-        return in_cache
-    raise WilocError(None, f"{str(vocabulary)!r} is neither a vocabulary file nor the key of one in the cache",
-                     parameter="vocabulary")
+    if not in_cache.is_file():
+        raise ParameterError("vocabulary", problem)
+    return in_cache
