@@ -215,6 +215,19 @@ def test_too_many_words_for_the_features_is_a_usage_error(tmp_path: Path, cache_
     assert not list((cache_dir / "vocabularies").glob("*.h5"))
 
 
+@pytest.mark.parametrize("unreadable", [False, True])
+def test_a_build_refused_after_extracting_leaves_no_journal(unreadable: bool, tmp_path: Path, cache_dir: Path) -> None:
+    """Features refused (too few distinct ones for the words, no readable image) are refused again
+    for the same frames and parameters: their journal was left in the cache, never to be used."""
+    folder = _folder(tmp_path / "train", range(2))
+    if unreadable:
+        for image in folder.iterdir():
+            image.write_bytes(b"not an image")
+    with pytest.raises(WilocError, match="no readable training image" if unreadable else "distinct training features"):
+        build_vocabulary([folder], Cache(cache_dir), VocabularyParams(words=5000, max_side=320))
+    assert list((cache_dir / "vocabularies").iterdir()) == []
+
+
 @pytest.mark.parametrize("damage", ["nan centre", "fewer centres"])
 def test_a_vocabulary_file_of_damaged_centres_is_refused(damage: str, tmp_path: Path, cache_dir: Path) -> None:
     """A NaN centre is every feature's nearest word (argmin takes NaN first), so that every image

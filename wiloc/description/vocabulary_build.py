@@ -11,7 +11,8 @@ build leaves no file that looks complete (at most a temporary file, which the ne
 removes once its process is gone). Each training frame's local features are journaled as they
 are extracted (``<key>.features.journal``, the descriptor cache's crash-safe journal), so a
 killed build resumes with the frames it had not reached; the journal goes once the vocabulary
-is written.
+is written, or once the features are refused (too few distinct ones, no readable image), which
+they would be again.
 """
 from __future__ import annotations
 
@@ -127,10 +128,14 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
                     progress(done, total)
         finally:
             journal.close()
-        if not names:
-            raise WilocError(folders[0], "no readable training image")
         step = None if progress is None else (lambda i: progress(len(frames) + i, total))
-        vocabulary = train_vocabulary(key, params, names, features, step)
+        try:
+            if not names:
+                raise WilocError(folders[0], "no readable training image")
+            vocabulary = train_vocabulary(key, params, names, features, step)
+        except WilocError:  # these frames and parameters (the key) are refused again: nothing to resume
+            journal_path.unlink(missing_ok=True)
+            raise
         count = int(sum(len(f) for f in features))
         seconds = time.perf_counter() - start
         with cache.atomic_h5(path) as f:
