@@ -162,53 +162,87 @@ def test_a_task_that_kills_its_workers_is_one_error() -> None:
     assert "a task's worker died each time it ran" in error_in_a_process(1, "lambda b: os._exit(1)", wait=60)
 
 
-def blocks_in_a_process(stuck: str) -> str:
-    """What a run of difference blocks on a local cluster of 2 workers ends with: ``same`` (its
-    blocks are the local ones) or its WilocError line; with ``stuck`` (code that makes Dask lose
-    track of blocks, as it rarely does after a worker died) run first and the stall bound at 1 s,
-    in a process of its own, as error_in_a_process's."""
+def stalled_in_a_process(stuck: str, *run: str) -> str:
+    """What ``run`` (lines that print how a run on ``local``, a local cluster of 2 workers, ended)
+    prints, or the run's WilocError line; with ``stuck`` (code that makes Dask lose track of tasks,
+    as it rarely does after a worker died) run first and the stall bound at 1 s, in a process of
+    its own, as error_in_a_process's."""
     code = "\n".join([
         "import asyncio, numpy as np", "from distributed import Client, LocalCluster",
         "from wiloc.description import cluster", "from wiloc.description.distances import DifferencesTo",
         "from wiloc.errors import WilocError", "cluster.POLL, cluster.STALL = 0.2, 1", stuck,
-        "rng = np.random.default_rng(0)", "query = rng.integers(0, 256, (64, 1152), dtype=np.uint8)",
-        "to = DifferencesTo(rng.integers(0, 256, (300, 1152), dtype=np.uint8), 'l1', 1 / 1152)",
         "local = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=':0')",
-        "ranges = [(start, start + 16) for start in range(0, 64, 16)]",
-        "try:",
-        "    blocks = cluster.connect(local.scheduler_address).blocks(query, to, ranges)",
-        "    print('same' if np.concatenate(list(blocks)).tobytes() == to(query).tobytes() else 'differ')",
+        "try:", *(f"    {line}" for line in run),
         "except WilocError as exc:", "    print(exc)"])
-    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert run.returncode == 0, run.stderr
-    return run.stdout.strip()
+    process = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert process.returncode == 0, process.stderr
+    return process.stdout.strip()
 
 
-def test_a_block_whose_result_never_arrives_is_sent_again() -> None:
-    stuck = "\n".join([  # the first result asked for is never received, though its task finished
+def blocks_in_a_process(stuck: str) -> str:
+    """How a run of difference blocks ends (stalled_in_a_process): ``same`` (its blocks are the
+    local ones) or its WilocError line."""
+    return stalled_in_a_process(
+        stuck, "rng = np.random.default_rng(0)", "query = rng.integers(0, 256, (64, 1152), dtype=np.uint8)",
+        "to = DifferencesTo(rng.integers(0, 256, (300, 1152), dtype=np.uint8), 'l1', 1 / 1152)",
+        "ranges = [(start, start + 16) for start in range(0, 64, 16)]",
+        "blocks = cluster.connect(local.scheduler_address).blocks(query, to, ranges)",
+        "print('same' if np.concatenate(list(blocks)).tobytes() == to(query).tobytes() else 'differ')")
+
+
+def never_received(nth: int) -> str:
+    """Code by which the ``nth`` result asked for is never received, though its task finished."""
+    return "\n".join([
         "gather, asked = Client._gather, []",
         "async def _gather(self, *args, **kwargs):",
         "    asked.append(args)",
-        "    return await (asyncio.Event().wait() if len(asked) == 1 else gather(self, *args, **kwargs))",
+        f"    return await (asyncio.Event().wait() if len(asked) == {nth} else gather(self, *args, **kwargs))",
         "Client._gather = _gather"])
-    assert blocks_in_a_process(stuck) == "same"
+
+
+SLOW = "\n".join([  # each task computes for 1.5 s, where a stall (none allowed) is 1 s without progress
+    "import time", "cluster.RESENDS = 0", "submit = Client.submit",
+    "def slow(work, *args):", "    time.sleep(1.5)", "    return work(*args)",
+    "Client.submit = lambda self, work, *args, **kwargs: submit(self, slow, work, *args, **kwargs)"])
+NEVER_RUN = "\n".join([  # every task waits for a resource no worker has, with the workers idle
+    "cluster.RESENDS = 1", "submit = Client.submit",
+    "Client.submit = lambda self, *args, **kwargs: submit(self, *args, resources={'none': 1}, **kwargs)"])
+
+
+def test_a_block_whose_result_never_arrives_is_sent_again() -> None:
+    assert blocks_in_a_process(never_received(1)) == "same"
 
 
 def test_a_block_slower_than_the_stall_bound_is_no_stall() -> None:
-    slow = "\n".join([  # each block computes for 1.5 s, where a stall (none allowed) is 1 s without progress
-        "import time", "cluster.RESENDS = 0", "submit = Client.submit",
-        "def slow(work, *args):", "    time.sleep(1.5)", "    return work(*args)",
-        "Client.submit = lambda self, work, *args, **kwargs: submit(self, slow, work, *args, **kwargs)"])
-    assert blocks_in_a_process(slow) == "same"
+    assert blocks_in_a_process(SLOW) == "same"
 
 
 def test_blocks_that_never_run_end_in_one_error() -> None:
-    stuck = "\n".join([  # every block waits for a resource no worker has, with the workers idle
-        "cluster.RESENDS = 1", "submit = Client.submit",
-        "Client.submit = lambda self, *args, **kwargs: submit(self, *args, resources={'none': 1}, **kwargs)"])
-    line = blocks_in_a_process(stuck)
+    line = blocks_in_a_process(NEVER_RUN)
     assert line.endswith(": the Dask cluster failed during the run (a block made no progress in 1 s, 2 times); run "
                          "again"), line
+
+
+def batches_in_a_process(stuck: str) -> str:
+    """How a describe-like run of 64 items in batches ends (stalled_in_a_process): ``once`` (every
+    item's result, each yielded once), the results it yielded otherwise, or its WilocError line."""
+    return stalled_in_a_process(
+        stuck, "results = list(cluster.connect(local.scheduler_address).in_batches(lambda b: b, list(range(64))))",
+        "print('once' if sorted(results) == list(range(64)) else results)")
+
+
+def test_a_batch_whose_result_never_arrives_is_sent_again_and_its_results_come_once() -> None:
+    assert batches_in_a_process(never_received(2)) == "once"  # after the first batch's results: not sent again
+
+
+def test_a_batch_slower_than_the_stall_bound_is_no_stall() -> None:
+    assert batches_in_a_process(SLOW) == "once"
+
+
+def test_batches_that_never_run_end_in_one_error() -> None:
+    line = batches_in_a_process(NEVER_RUN)
+    assert line.endswith(": the Dask cluster failed during the run (a batch made no progress in 1 s, 2 times); the "
+                         "frames described so far are kept in the cache; run again to resume"), line
 
 
 @pytest.mark.realdata

@@ -14,10 +14,10 @@ import logging
 import os
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import CancelledError
 from contextlib import contextmanager
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 from distributed import Client, Future, KilledWorker, LocalCluster, wait
@@ -36,19 +36,19 @@ BATCH = 16
 WORKER_WAIT = 30
 #: Seconds between looks at the scheduler's workers while waiting for a task.
 POLL = 2
-#: Seconds the oldest difference block may make no progress before the blocks in flight are sent
-#: again: Dask can lose track of a task after a worker died (seen: a block in memory on a live
-#: worker whose result the client never received; blocks waiting on their worker for scattered
-#: references the scheduler thought it held) and would then wait for ever. No progress is
-#: measured where a slow block cannot be mistaken for it: while the block's task is unfinished,
-#: no worker computing any task or fetching its data (a slow block keeps its worker computing, a
-#: busy shared cluster its workers; a task the scheduler counts as processing may be waiting on
-#: its worker for data lost with a dead worker); once it finished, its result not arriving in
-#: STALL s plus one per TRANSFER bytes.
+#: Seconds the oldest difference block, or describe's batches, may make no progress before the
+#: tasks in flight are sent again: Dask can lose track of a task after a worker died (seen: a
+#: block in memory on a live worker whose result the client never received; blocks waiting on
+#: their worker for scattered references the scheduler thought it held) and would then wait for
+#: ever. No progress is measured where a slow task cannot be mistaken for it: while the tasks
+#: waited for are unfinished, no worker computing any task or fetching its data (a slow task keeps
+#: its worker computing, a busy shared cluster its workers; a task the scheduler counts as
+#: processing may be waiting on its worker for data lost with a dead worker); once one finished,
+#: its result not arriving in STALL s plus one per TRANSFER bytes.
 STALL = 60
-#: Bytes a second a finished block's result is sure to arrive at, from a live worker.
+#: Bytes a second a finished task's result is sure to arrive at, from a live worker.
 TRANSFER = 10_000_000
-#: Stalls in a row the blocks in flight are sent again after, before the run ends in an error.
+#: Stalls in a row the tasks in flight are sent again after, before the run ends in an error.
 RESENDS = 2
 #: What a describe that lost its cluster, or a task that kept killing workers, leaves behind.
 RESUME = "the frames described so far are kept in the cache; run again to resume"
@@ -97,15 +97,29 @@ class Cluster:
     def in_batches(self, work: Callable[[list[T]], list[R]], items: Sequence[T]) -> Iterator[R]:
         """``work`` (a module-level function, or a partial of one: the workers import it) over
         batches of ``BATCH`` items on the workers; each item's result as its batch finishes, in
-        any order (describe: ``frame_describing.describe_quietly`` over frame tasks)."""
-        batches = [list(items[i:i + BATCH]) for i in range(0, len(items), BATCH)]
-        futures = [self.client.submit(work, batch, pure=False) for batch in batches]
+        any order (describe: ``frame_describing.describe_quietly`` over frame tasks). Once they
+        stall (see STALL) the batches not yet received are sent again: ``work`` is a pure function
+        of its items, so a batch run twice costs only time, and its results are yielded once."""
+
+        def send(batches: Iterable[list[T]]) -> dict[Future, list[T]]:
+            return {self.client.submit(work, batch, pure=False): batch for batch in batches}
+
+        sent = send(list(items[i:i + BATCH]) for i in range(0, len(items), BATCH))
+        stalls = 0
         try:
             with self._failures(RESUME):
-                for future in self._finished(futures):
-                    yield from future.result()
+                while sent:
+                    try:
+                        for future, results in self._results(list(sent)):
+                            del sent[future]
+                            stalls = 0
+                            yield from results
+                    except _Stalled:
+                        stalls = _stalled(stalls, "a batch")
+                        self.client.cancel(list(sent))
+                        sent = send(sent.values())
         finally:
-            self._cancel(futures)
+            self._cancel(list(sent))
 
     def blocks(self, data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
         """A ``wiloc.description.differences.BlockRunner``: the blocks in order, a few per worker in flight;
@@ -138,17 +152,16 @@ class Cluster:
                 fill()
                 while pending:
                     (start, stop), future = pending[0]
+                    nbytes = (stop - start) * to.shape[0] * np.dtype(np.float32).itemsize
                     try:
-                        block = self._result(future, (stop - start) * to.shape[0] * np.dtype(np.float32).itemsize)
+                        _, block = next(self._results([future], nbytes))
                     except CancelledError as exc:  # lost dependencies: the references went with a worker
                         if _lost(exc):
                             raise
                         resend()
                         continue
                     except _Stalled:
-                        stalls += 1
-                        if stalls > RESENDS:
-                            raise TimeoutError(f"a block made no progress in {STALL} s, {stalls} times") from None
+                        stalls = _stalled(stalls, "a block")
                         resend()
                         continue
                     stalls = 0
@@ -158,19 +171,22 @@ class Cluster:
         finally:
             self._cancel([f for _, f in pending] + [shared])
 
-    def _result(self, future: Future, nbytes: int) -> NDArray[np.float32]:
-        """One block task's result (``nbytes`` long); a _Stalled once it made no progress (STALL)."""
-        next(self._finished([future], stall=STALL))
-        try:
-            return future.result(timeout=STALL + nbytes / TRANSFER)
-        except TimeoutError:
-            raise _Stalled() from None
+    def _results(self, futures: list[Future], nbytes: int = 0) -> Iterator[tuple[Future, Any]]:
+        """``futures`` with their results (``nbytes`` long at most; describe's records are a
+        descriptor row each, small) as they finish; a _Stalled once they made no progress (see
+        STALL), a finished one's result not received in time included."""
+        for future in self._finished(futures):
+            try:
+                result = future.result(timeout=STALL + nbytes / TRANSFER)
+            except TimeoutError:
+                raise _Stalled() from None
+            yield future, result
 
-    def _finished(self, futures: list[Future], stall: float | None = None) -> Iterator[Future]:
+    def _finished(self, futures: list[Future]) -> Iterator[Future]:
         """``futures`` as they finish; a TimeoutError once the scheduler has had no worker for
-        WORKER_WAIT s (every worker gone mid-run, none restarted), where Dask waits for ever;
-        given ``stall``, a _Stalled once its workers have all been idle (see _busy) for ``stall``
-        s while these are unfinished (tasks Dask lost track of)."""
+        WORKER_WAIT s (every worker gone mid-run, none restarted), where Dask waits for ever; a
+        _Stalled once its workers have all been idle (see _busy) for STALL s while these are
+        unfinished (tasks Dask lost track of)."""
         pending, alone_since, idle_since = set(futures), None, None
         while pending:
             try:
@@ -184,9 +200,9 @@ class Cluster:
                         raise TimeoutError(f"no worker for {WORKER_WAIT} s") from None
                 else:
                     alone_since = None
-                    if stall is None or any(map(_busy, workers.values())):
+                    if any(map(_busy, workers.values())):
                         idle_since = None
-                    elif now - (idle_since := idle_since or now) > stall:
+                    elif now - (idle_since := idle_since or now) > STALL:
                         raise _Stalled()
                 continue
             yield from done
@@ -228,7 +244,17 @@ def _busy(worker: dict) -> bool:
 
 
 class _Stalled(Exception):
-    """A block that made no progress for STALL s (``Cluster.blocks`` sends it again)."""
+    """Tasks that made no progress for STALL s (``Cluster.blocks`` and ``Cluster.in_batches`` send
+    them again)."""
+
+
+def _stalled(stalls: int, what: str) -> int:
+    """The stalls in a row of a run's tasks with one more of ``what`` (a block, a batch); past
+    RESENDS, a TimeoutError that ends the run in one error line saying so."""
+    stalls += 1
+    if stalls > RESENDS:
+        raise TimeoutError(f"{what} made no progress in {STALL} s, {stalls} times")
+    return stalls
 
 
 def _lost(exc: CancelledError) -> bool:
