@@ -643,3 +643,31 @@ def test_the_compiled_kernels_are_ready_in_sequence_mode(method: str, how: str, 
     ready, after, stages = json.loads(result.stdout)
     assert {"track", "update"} & set(stages), stages  # the filter (online: its update stage) ran
     assert ready and after == ready, (ready, after)
+
+
+def test_a_map_held_in_memory_gives_its_descriptor_and_refuses_another() -> None:
+    """A Localizer over an in-memory map took the default descriptor, sad: its results header
+    recorded sad for a gist map, and an image observed ended in numpy's ValueError about rows
+    of 1152 and 512 values."""
+    from wiloc.description.traversals import entry_from_array
+    from wiloc.descriptors.registry import get_descriptor
+
+    spec = get_descriptor("gist")
+    rows = np.random.default_rng(0).random((30, spec.length)).astype(np.float32)
+    map_ = entry_from_array(rows, [f"m{i}" for i in range(30)], spec)
+    loc = Localizer(map_, method="online")
+    loc.observe(rows[4])
+    assert loc.observe(np.random.default_rng(1).integers(0, 256, (48, 64), dtype=np.uint8)).match >= 0
+    assert (loc.results().header.descriptor, loc.describer.spec.length) == ("gist", spec.length)
+    with pytest.raises(ParameterError, match="the map held in memory was described with 'gist', not 'sad'") as refused:
+        Localizer(map_, descriptor="sad", method="online")
+    assert refused.value.parameter == "descriptor"
+    sad = get_descriptor("sad")
+    thumbnails = entry_from_array(np.zeros((30, sad.length), np.uint8), [f"m{i}" for i in range(30)], sad)
+    assert Localizer(thumbnails, descriptor_params={"patch": 8}, method="online").describer.spec == sad
+    with pytest.raises(ParameterError, match="the map held in memory was described with") as refused:
+        Localizer(thumbnails, descriptor_params={"patch": 4}, method="online")
+    assert refused.value.parameter == "descriptor_params"
+    external = get_descriptor("external", metric="l1", length=8)
+    small = entry_from_array(rows[:, :8], [f"m{i}" for i in range(30)], external)
+    assert Localizer(small, descriptor="external", metric="l1", method="online").describer.spec.metric == "l1"

@@ -55,7 +55,8 @@ class Localizer:
     ``map`` is one traversal (a folder, video or ROS bag), a descriptor matrix file (with ``metric``) or an
     in-memory ``Entry`` (descriptors in an array: ``wiloc.description.traversals.entry_from_array``), None for
     sequence mode (loop closure within the frames observed); anything else is a ParameterError naming
-    ``map``. ``method`` names a registered method and
+    ``map``. ``descriptor`` and ``descriptor_params`` describe the frames (default ``sad``; a map
+    held in memory brings its own, which given ones must equal). ``method`` names a registered method and
     ``params`` its parameters; ``training`` is the labelled pair of ``trained`` (traversals, or
     their difference rows and truth as ``TrainingRows``); ``sampling`` the frames of a map video; ``topic`` the
     image topic of a map ROS bag (needed when it has several); ``map_odometry``
@@ -72,7 +73,7 @@ class Localizer:
         loc.results(query="day_left/").save("day_left-sad-catgraph.csv")   # wiloc evaluate reads it
     """
 
-    def __init__(self, map: str | Path | Entry | None = None, *, descriptor: str = "sad",
+    def __init__(self, map: str | Path | Entry | None = None, *, descriptor: str | None = None,
                  descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
                  method: str = "online", exclude_recent: int | None = None,
                  training: TrainingPair | None = None, map_odometry: str | Path | None = None,

@@ -11,6 +11,7 @@ A new method input or row kind is added here once, for both.
 from __future__ import annotations
 
 import itertools
+import json
 import os
 from collections.abc import Iterator, Mapping
 from dataclasses import asdict
@@ -26,7 +27,8 @@ from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_
 from wiloc.description.describing import check_sampling, check_topic, is_stream
 from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive, pairwise
-from wiloc.description.traversals import Describer, Progress, descriptors_digest, is_matrix_file, open_cluster, stage
+from wiloc.description.traversals import (Describer, Progress, descriptor_spec, descriptors_digest, is_matrix_file,
+                                         open_cluster, stage)
 from wiloc.errors import ParameterError, UsageError, WilocError, parameter_values
 from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
@@ -50,6 +52,23 @@ def check_traversal(value: object, parameter: str, also: str = "", hint: str = "
         raise ParameterError(parameter, f"{TRAVERSAL}{also}, got {type(value).__name__}{several}")
 
 
+def _map_descriptor(map: Path | Entry | None, descriptor: str | None,
+                    params: Mapping[str, Any] | None) -> tuple[str, Mapping[str, Any] | None]:
+    """The descriptor and parameters a run describes frames with: those given (None: ``sad``); for
+    a map held in memory, those it was described with, which given ones must equal (the frames
+    are compared with its rows, and a results header records them)."""
+    if not isinstance(map, Entry):
+        return descriptor or "sad", params
+    if descriptor is not None and descriptor != map.descriptor:
+        raise ParameterError("descriptor", f"the map held in memory was described with {map.descriptor!r}, not "
+                                           f"{descriptor!r}")
+    if params is not None and json.loads(json.dumps(descriptor_spec(map.descriptor, params).params,
+                                                    sort_keys=True)) != map.params:
+        raise ParameterError("descriptor_params", f"the map held in memory was described with {map.params!r}, "
+                                                  f"not {dict(params)!r}")
+    return map.descriptor, map.params
+
+
 class RunSession:
     """A run against ``map`` (a traversal, a descriptor matrix file or an ``Entry`` in memory;
     None: sequence mode, loop closure within the query's own frames).
@@ -65,7 +84,7 @@ class RunSession:
     """
 
     def __init__(self, map: Path | Entry | None, *, method: str, method_params: Mapping[str, Any] | None = None,
-                 descriptor: str = "sad", descriptor_params: Mapping[str, Any] | None = None,
+                 descriptor: str | None = "sad", descriptor_params: Mapping[str, Any] | None = None,
                  metric: str | None = None, exclude_recent: int | None = None,
                  training: TrainingPair | None = None, map_odometry: Path | None = None,
                  map_names: Path | None = None, query: Path | None = None, query_names: Path | None = None,
@@ -98,6 +117,7 @@ class RunSession:
         check_sampling(sources, sampling)
         pair = (training.query, training.reference) if isinstance(training, Training) else ()
         check_topic([Path(s) for s in (query, map, *pair) if s is not None and not isinstance(s, Entry)], topic)
+        descriptor, descriptor_params = _map_descriptor(map, descriptor, descriptor_params)
         self.describer = Describer(descriptor, parameter_values(descriptor_params, "descriptor_params"),
                                    Cache.given(cache), metric=metric, jobs=jobs, progress=progress, sampling=sampling,
                                    cluster=open_cluster(scheduler, jobs), topic=topic)
