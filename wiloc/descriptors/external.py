@@ -117,8 +117,10 @@ def _npy_names(path: Path) -> list[str]:
 
 def _read_npy(path: Path) -> NDArray:
     try:
+        if path.stat().st_size == 0:  # numpy's own error for it differs by version (EOFError, or a pickle's)
+            raise EOFError
         return np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty file
+    except (OSError, ValueError, EOFError) as exc:
         raise WilocError(path, f"not a readable .npy array ({load_problem(exc)})") from exc
 
 
