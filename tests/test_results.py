@@ -274,7 +274,7 @@ def test_a_negative_difference_is_read_only_from_a_run_on_fabmaps_evidence(heade
     negative difference edited into a run on differences was read silently."""
     from wiloc.methods.registry import METHODS
 
-    decisions = _decisions()
+    decisions = replace(_decisions(), columns={})  # m_r: online's column, which these methods do not write
     decisions.difference[1] = -2.5
     path = tmp_path / "run.csv"
     write_results(path, make_results(decisions, query_names=["a", "b", "c"], ref_names=["x", "y", "z"], header=header))
@@ -301,3 +301,24 @@ def test_a_line_break_in_a_header_value_survives_a_write_a_read_and_a_resume(tmp
     again = ResultsStream(live, header, (), resume=True)
     again.close()
     assert read_results(live).header.query == header.query
+
+
+
+@pytest.mark.parametrize("column, renamed", [("m_r", "new_plac"), ("m_r", "novelty"), ("ranking", "rank")])
+def test_a_column_the_method_does_not_write_is_refused_naming_it(tmp_path: Path, column: str, renamed: str) -> None:
+    """A renamed column (new_place as new_plac) was read as if the run had no such values: an
+    online run's without P(new place). Columns the file's method writes are read."""
+    from wiloc.methods.registry import METHODS
+
+    path = tmp_path / "run.csv"
+    write_results(path, _made(ResultsHeader(method="online")))
+    lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
+    header = next(i for i, line in enumerate(lines) if line.startswith("frame,"))
+    path.write_text("".join(lines[:header] + [lines[header].replace("m_r", "new_place")] + lines[header + 1:]),
+                    encoding="utf-8")
+    assert read_results(path, METHODS).new_place is not None
+    path.write_text("".join(lines[:header] + [lines[header].replace(column, renamed)] + lines[header + 1:]),
+                    encoding="utf-8")
+    with pytest.raises(WilocError, match=rf"line {header + 1}: unknown column\(s\) '{renamed}': the method online "
+                                         "writes frame, match, difference, confidence, stage, m_r, new_place, ranking"):
+        read_results(path, METHODS)

@@ -275,6 +275,8 @@ def read_results(path: Path, methods: Mapping[str, type[Method]] | None = None) 
     path = Path(path)
     header, frames, first_line = _read_table(path)
     method = _method(path, header, methods) if methods is not None else None
+    if method is not None:
+        _check_columns(path, frames, header.method, method, first_line - 1)
     reference = _reference_frames(path, header, frames)
     known = set(reference)
     for i, match in enumerate(frames["match"]):
@@ -308,6 +310,16 @@ def _method(path: Path, header: ResultsHeader, methods: Mapping[str, type[Method
     if line is None:
         raise WilocError(path, "no 'method' header: the method that wrote the file is unknown")
     raise WilocError(path, f"line {line}: header 'method' is empty: the method that wrote the file is unknown")
+
+
+def _check_columns(path: Path, frames: pd.DataFrame, name: str, method: type[Method], line: int) -> None:
+    """A WilocError naming the file and its column line (``line``) for a column ``method`` never
+    writes: a renamed one (``new_plac``) would otherwise be read as if the run had no such values."""
+    known = (*BASE_COLUMNS, *method.columns, *((RANKING,) if method.ranks else ()))
+    unknown = [column for column in frames.columns if column not in known]
+    if unknown:
+        raise WilocError(path, f"line {line}: unknown column(s) {', '.join(map(repr, unknown))}: "
+                               f"the method {name} writes {', '.join(known)}")
 
 
 def _on_evidence(header: ResultsHeader, method: type[Method]) -> bool:
