@@ -19,7 +19,7 @@ import pandas as pd
 
 from wiloc.candidates import RANKED
 from wiloc.errors import ParameterError
-from wiloc.evaluation.groundtruth import Truth
+from wiloc.evaluation.groundtruth import Truth, TruthMismatch
 from wiloc.evaluation.metrics import (RANKED_KS, PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
                                       precision_at_thresholds, summarize)
 from wiloc.evaluation.reliability import (DEFAULT_CUTS, NEW_PLACE_KEYS, Calibration, ReliabilityBins,
@@ -99,7 +99,11 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
     query_names = results.frames["frame"].tolist()
     header = results.header
     ref_names = results.reference_frames or query_names
-    loaded = truth.load(query_names, ref_names, header.query, header.sequence, header.exclude_recent, header.map)
+    try:
+        loaded = truth.load(query_names, ref_names, header.query, header.sequence, header.exclude_recent, header.map)
+    except TruthMismatch as exc:
+        raise exc.of_run(str(path) if path else f"in memory (query {header.query or UNNAMED_QUERY}, "
+                                                 f"method {header.method})") from None
     match = results.match_index
     summary = summarize(match, results.confidence, loaded, results.ranking, recall_at)
     correct = correct_matches(match, loaded)

@@ -33,6 +33,16 @@ FOLDER_KINDS = ("utm-names", "exif")
 """Forms read from the traversals themselves (their file names, their images' EXIF): no file."""
 
 
+class TruthMismatch(WilocError):
+    """Ground truth that does not fit a run's frames (a matrix of another shape, indices or names
+    of frames the run lacks): the reader names the file; :func:`~wiloc.evaluation.comparison.score`
+    adds which run, :meth:`of_run`, since with several runs the frame counts alone do not tell."""
+
+    def of_run(self, run: str) -> TruthMismatch:
+        """The same problem, saying that ``run`` is the run the ground truth does not fit."""
+        return TruthMismatch(self.where, f"does not fit the run {run}: {self.problem}")
+
+
 @short_repr
 @dataclass
 class Truth:
@@ -167,7 +177,7 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
         raise WilocError(None, f"aligned ground truth: by must be 'name' or 'index', got {by!r}")
     found = centres >= 0
     if not found.any():
-        raise WilocError(where, f"none of the {n_query} query frames has a reference frame "
+        raise TruthMismatch(where, f"none of the {n_query} query frames has a reference frame "
                                 + ("of the same name (to align by position, as a video's frames with a folder's: "
                                    "aligned:index)" if by == "name" else "at its position"))
     warnings = unmatched(where, int((~found).sum()), n_query,
@@ -282,7 +292,7 @@ def _frames_with_positions(positions: Positions, frames: Sequence[str],
     at = names.get_indexer(name_index(frames))
     found = at >= 0
     if not found.any():
-        raise WilocError(where, f"no name matches any of the {len(frames)} {role} frames"
+        raise TruthMismatch(where, f"no name matches any of the {len(frames)} {role} frames"
                                 + why_unmatched(list(names), frames))
     warnings = unmatched(where, int((~found).sum()), len(frames),
                           f"{role} frames have no ground-truth row (never a true match)")
@@ -370,7 +380,7 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     usable = (q >= 0) & (r >= 0)
     if not usable.any():
         column, names = ("query", query_names) if not (q >= 0).any() else ("reference", ref_names)
-        raise WilocError(path, f"none of the {len(frame)} rows names a known query frame and a "
+        raise TruthMismatch(path, f"none of the {len(frame)} rows names a known query frame and a "
                                f"known reference frame{why_unmatched(frame[column].tolist(), names)}")
     warnings = unmatched(path, int((q < 0).sum()), len(frame), "rows name no query frame (skipped)")
     warnings += unmatched(path, int((r < 0).sum()), len(frame),
@@ -444,7 +454,7 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
         turned = (": it is reference x query frames (as VPR_Tutorial's GThard); save its transpose, M.T"
                   if data.shape == expected[::-1] else "; rows of reference indices are the positives form (positives:"
                   "FILE)" if data.dtype.kind in "iu" and data.ndim == 2 and data.shape[0] == expected[0] else "")
-        raise WilocError(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "
+        raise TruthMismatch(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "
                                f"{expected[0]} x {expected[1]} (query x reference frames){turned}")
     matrix = sparse.csr_array(data)
     values = matrix.data.astype(np.float64, copy=False)

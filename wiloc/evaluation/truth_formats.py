@@ -13,7 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import WilocError
-from wiloc.evaluation.groundtruth import Positions, Truth, check_file, name_index, truth_from_pairs, truth_within, unmatched
+from wiloc.evaluation.groundtruth import (Positions, Truth, TruthMismatch, check_file, name_index, truth_from_pairs,
+                                          truth_within, unmatched)
 from wiloc.object_arrays import npy_header, read_npy
 
 DEFAULT_RADIUS_M = 25.0
@@ -78,7 +79,7 @@ def _check_references(path: Path, place: str, refs: NDArray[np.int64], n_ref: in
     WilocError naming the first that is no frame of the reference traversal's ``n_ref``."""
     if refs.size and not (0 <= refs.min() and refs.max() < n_ref):
         bad = int(refs[(refs < 0) | (refs >= n_ref)][0])
-        raise WilocError(path, f"{place}: reference index {bad}, but the reference traversal has {n_ref} frames")
+        raise TruthMismatch(path, f"{place}: reference index {bad}, but the reference traversal has {n_ref} frames")
     return refs
 
 
@@ -114,7 +115,7 @@ def vprbench_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[s
     n_query, n_ref = len(query_names), len(ref_names)
     for i, (query, refs) in enumerate(rows):
         if not 0 <= query < n_query:
-            raise WilocError(path, f"row {i + 1}: query index {query}, but the query traversal has {n_query} frames")
+            raise TruthMismatch(path, f"row {i + 1}: query index {query}, but the query traversal has {n_query} frames")
         _check_references(path, f"row {i + 1}", refs, n_ref)
     queries = np.repeat(np.array([q for q, _ in rows], dtype=np.int64), [refs.size for _, refs in rows])
     refs = np.concatenate([refs for _, refs in rows])
@@ -136,7 +137,7 @@ def positives_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[
                                f"{_POSITIVES} (a queries x references mask of 0 and 1 is the matrix form)")
     n_query, n_ref = len(query_names), len(ref_names)
     if len(array) != n_query:
-        raise WilocError(path, f"lists positives of {len(array)} query frames, but the query traversal has {n_query}: "
+        raise TruthMismatch(path, f"lists positives of {len(array)} query frames, but the query traversal has {n_query}: "
                                "entry i is the i-th query frame in natural order")
     positives = []
     for i, entry in enumerate(array):

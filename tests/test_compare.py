@@ -1,0 +1,57 @@
+"""`wiloc compare` and `wiloc report` over several results files: problems named by the run they concern."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import ends_in_one_error
+from typer.testing import CliRunner
+
+from wiloc import api
+from wiloc.cli import app
+from wiloc.decisions import Decisions
+from wiloc.errors import WilocError
+from wiloc.evaluation.results import make_results, read_results, write_results
+from wiloc.evaluation.results_header import ResultsHeader
+
+runner = CliRunner()
+
+
+def _run(path: Path, queries: int) -> Path:
+    """A threshold run of ``queries`` frames q0, q1, ... against the map frames r0, r1, r2, each
+    matched to its own place."""
+    decisions = Decisions(match=np.arange(queries) % 3, difference=np.full(queries, 0.2),
+                          confidence=np.full(queries, 0.8), stage=np.full(queries, "update"))
+    header = ResultsHeader(method="threshold", descriptor="sad", query=str(path.parent / path.stem), map="/r")
+    write_results(path, make_results(decisions, query_names=[f"q{i}" for i in range(queries)],
+                                     ref_names=["r0", "r1", "r2"], header=header))
+    return path
+
+
+@pytest.fixture
+def runs(tmp_path: Path) -> list[Path]:
+    """Two runs against one map of 3 frames, of 3 and of 2 query frames, and a 3 x 3 mask fitting the first."""
+    np.save(tmp_path / "gt.npy", np.eye(3))
+    return [_run(tmp_path / "a" / "day.csv", 3), _run(tmp_path / "b" / "day.csv", 2)]
+
+
+def test_a_ground_truth_matrix_that_does_not_fit_a_run_names_the_run(runs: list[Path], tmp_path: Path) -> None:
+    """With several runs, 'matrix is 3 x 3, expected 2 x 3' did not say which run it does not fit."""
+    gt = tmp_path / "gt.npy"
+    source = api.TruthSource(kind="matrix", path=gt)
+    assert api.evaluate(runs[0], source).summary.frames == 3
+    with pytest.raises(WilocError, match=rf"{gt}: does not fit the run {runs[1]}: matrix is 3 x 3, expected 2 x 3 "
+                                         r"\(query x reference frames\)"):
+        api.compare(runs, source)
+    with pytest.raises(WilocError, match=r"does not fit the run in memory \(query .*b[/\\]day, method threshold\): "
+                                         "matrix is 3 x 3, expected 2 x 3"):
+        api.compare([read_results(path) for path in runs], source)
+
+
+@pytest.mark.parametrize("command", [["compare"], ["report", "-o", "page.html"]])
+def test_compare_and_report_name_the_run_a_ground_truth_does_not_fit(command: list[str], runs: list[Path],
+                                                                      tmp_path: Path) -> None:
+    gt = tmp_path / "gt.npy"
+    result = runner.invoke(app, [command[0], *map(str, runs), "--gt", f"matrix:{gt}", *command[1:]])
+    ends_in_one_error(result, 1, f"{gt}: does not fit the run {runs[1]}: matrix is 3 x 3, expected 2 x 3")
