@@ -224,7 +224,7 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
     np.save(tmp / "objects.npy", np.array([{"a": 1}], dtype=object))
     return {
         "missing folder": (["describe", str(tmp / "nope")], "folder does not exist"),
-        "a text file": (["describe", str(tmp / "notes.txt")], "not a folder"),
+        "a text file": (["describe", str(tmp / "notes.txt")], "a .txt file is not a traversal: describe takes folders"),
         "no images": (["describe", str(tmp / "empty")], "no image files"),
         "only broken links": (["describe", str(tmp / "links")], "no usable image files (a.png: broken symbolic link)"),
         "only bad images": (["describe", str(tmp / "bad-only"), "--jobs", "1"], "no image could be described"),
@@ -2090,3 +2090,20 @@ def test_a_vocabulary_key_the_cache_does_not_hold_is_a_usage_error(tmp_path: Pat
     ends_in_one_error(runner.invoke(app, [*describe, "nosuchkey"]), 2,
                       "--vocabulary: 'nosuchkey' is neither a vocabulary file nor the key of one in the cache")
     ends_in_one_error(runner.invoke(app, [*describe, str(tmp_path / "v.npz")]), 1, "--vocabulary: ", "v.npz")
+
+
+def test_a_results_file_given_to_describe_is_said_to_be_one(results: Path, tmp_path: Path) -> None:
+    """describe R.csv, and a vocabulary or api.describe of it, said 'not a folder': neither what the
+    file is nor what they take."""
+    from wiloc import api
+
+    ends_in_one_error(runner.invoke(app, ["describe", str(results)]), 1,
+                      f"{results}: a wiloc results file is not a traversal: describe takes folders of images, video "
+                      "files and ROS bags, and descriptor matrices with --import; evaluate and compare read results files")
+    (tmp_path / "one.png").write_bytes(b"")
+    ends_in_one_error(runner.invoke(app, ["describe", str(tmp_path / "one.png")]), 1,
+                      "one.png: an image file is not a traversal: describe takes folders of images")
+    ends_in_one_error(runner.invoke(app, ["vocabulary", str(results)]), 1,
+                      f"{results}: a wiloc results file is not a traversal: give a folder of images; evaluate")
+    with pytest.raises(WilocError, match="a wiloc results file is not a traversal: give a folder of images"):
+        api.describe(results)

@@ -18,6 +18,9 @@ from wiloc.cli.views import print_command_json, progress_bar, table
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE
 from wiloc.labels import short_names
 
+#: What describe takes, said when it is given another file.
+TAKES = "describe takes folders of images, video files and ROS bags, and descriptor matrices with --import"
+
 
 @handles_errors
 @with_descriptor_options
@@ -54,6 +57,8 @@ def describe(
     """
     from wiloc import api
     from wiloc.cache.store import Cache
+    from wiloc.description.describing import is_stream
+    from wiloc.sources.frames import not_a_traversal
 
     importing = import_file is not None
     if list_cache and (folders or importing):
@@ -80,6 +85,9 @@ def describe(
     if not importing and not folders:
         fail("FOLDER...: give image folders, video files, ROS bags, --import FILE or --list", EXIT_USAGE)
     sampling = sampling_given(every, fps, start, stop)
+    for path in folders or ():
+        if path.is_file() and not is_stream(path):
+            fail(f"{path}: {not_a_traversal(path, TAKES)}", EXIT_BAD_INPUT)
     with progress_bar(not as_json) as progress:
         if importing:
             reports = [api.import_descriptors(import_file, metric=metric, names=names, cache=store, out=import_out,

@@ -164,6 +164,18 @@ def unusable_reason(item: os.DirEntry[str] | Path) -> str | None:
     return "not a regular file"
 
 
+def not_a_traversal(path: Path, takes: str) -> str:
+    """Why the file at ``path``, given where a traversal goes, is none, saying what it is (a wiloc
+    results file, an image file, a .txt file) and, in ``takes``, what the command takes instead."""
+    from wiloc.evaluation.results_header import starts_as_results  # a later module: read only here
+
+    suffix = Path(path).suffix.lower()
+    kind = ("a wiloc results file" if starts_as_results(path) else "an image file" if suffix in IMAGE_SUFFIXES
+            else f"a {suffix} file" if suffix else "a file without a suffix")
+    hint = "; evaluate and compare read results files" if kind == "a wiloc results file" else ""
+    return f"{kind} is not a traversal: {takes}{hint}"
+
+
 def list_traversal(folder: Path) -> Traversal:
     """List a traversal folder: image files in natural order; hidden and non-image files and
     subfolders (not searched) ignored, image names that cannot be frames (:func:`unusable_reason`,
@@ -171,6 +183,8 @@ def list_traversal(folder: Path) -> Traversal:
     folder = Path(folder)
     if not folder.exists():
         raise WilocError(folder, "folder does not exist")
+    if folder.is_file():
+        raise WilocError(folder, not_a_traversal(folder, "give a folder of images"))
     if not folder.is_dir():
         raise WilocError(folder, "not a folder")
     frames: list[str] = []
