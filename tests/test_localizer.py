@@ -671,3 +671,22 @@ def test_a_map_held_in_memory_gives_its_descriptor_and_refuses_another() -> None
     external = get_descriptor("external", metric="l1", length=8)
     small = entry_from_array(rows[:, :8], [f"m{i}" for i in range(30)], external)
     assert Localizer(small, descriptor="external", metric="l1", method="online").describer.spec.metric == "l1"
+
+
+def test_a_localizer_over_a_cached_map_takes_its_descriptor_parameters(demo_route: demo.DemoRoute,
+                                                                        tmp_path: Path) -> None:
+    """A Localizer over the entry api.describe gives (its parameters hold the cache's
+    code_version besides the descriptor's) ended in 'code_version: not a parameter of descriptor
+    'sad'', given descriptor parameters or not."""
+    from wiloc.descriptors.registry import get_descriptor
+
+    cache = Cache(tmp_path / "cache")
+    [report] = api.describe([demo_route.reference], "sad", descriptor_params={"patch": 4}, cache=cache)
+    loc = Localizer(report.entry, method="threshold", cache=cache)
+    assert loc.describer.spec == get_descriptor("sad", patch=4)
+    first = sorted(demo_route.reference.iterdir())[0]
+    assert loc.observe(first).match_name == first.name
+    assert Localizer(report.entry, descriptor_params={"patch": 4}, method="threshold").describer.spec.params["patch"] == 4
+    with pytest.raises(ParameterError, match="the map held in memory was described with") as refused:
+        Localizer(report.entry, descriptor_params={"patch": 8}, method="threshold")
+    assert refused.value.parameter == "descriptor_params"

@@ -52,6 +52,17 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
     return Entry(**asdict(header), names=list(names), data=data, digest=descriptors_digest(names, data))
 
 
+#: What a cache entry's parameters hold besides its descriptor's: the computation's version
+#: (``DescriptorSpec.cache_params``), a video's or bag's print, topic and sampling (``describing``).
+_CACHE_KEYS = ("code_version", "video", "bag", "topic", "sampling")
+
+
+def entry_params(entry: Entry) -> dict[str, Any]:
+    """The parameters of the descriptor ``entry`` was described with (a cached entry's without
+    what the cache keys it by besides), as a run on it describes frames with and records them."""
+    return {name: value for name, value in entry.params.items() if name not in _CACHE_KEYS}
+
+
 def checked_rows(values: NDArray, dtype: np.dtype, where: str) -> NDArray:
     """Descriptor values given from outside (a map's rows in memory, a row to observe) as the
     rows of ``dtype`` they are compared with: numbers and finite; for integer rows (``sad``,

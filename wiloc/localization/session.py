@@ -27,8 +27,8 @@ from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_
 from wiloc.description.describing import check_sampling, check_topic, is_stream
 from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive, pairwise
-from wiloc.description.traversals import (Describer, Progress, descriptor_spec, descriptors_digest, is_matrix_file,
-                                         open_cluster, stage)
+from wiloc.description.traversals import (Describer, Progress, descriptor_spec, descriptors_digest, entry_params,
+                                         is_matrix_file, open_cluster, stage)
 from wiloc.errors import ParameterError, UsageError, WilocError, parameter_values
 from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
@@ -62,11 +62,12 @@ def _map_descriptor(map: Path | Entry | None, descriptor: str | None,
     if descriptor is not None and descriptor != map.descriptor:
         raise ParameterError("descriptor", f"the map held in memory was described with {map.descriptor!r}, not "
                                            f"{descriptor!r}")
+    own = entry_params(map)
     if params is not None and json.loads(json.dumps(descriptor_spec(map.descriptor, params).params,
-                                                    sort_keys=True)) != map.params:
-        raise ParameterError("descriptor_params", f"the map held in memory was described with {map.params!r}, "
+                                                    sort_keys=True)) != own:
+        raise ParameterError("descriptor_params", f"the map held in memory was described with {own!r}, "
                                                   f"not {dict(params)!r}")
-    return map.descriptor, map.params
+    return map.descriptor, own
 
 
 class RunSession:
