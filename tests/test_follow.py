@@ -551,3 +551,23 @@ def test_idle_zero_decides_the_frames_there_then_ends(demo_route: demo.DemoRoute
                                     out=tmp_path / "r.csv", idle=0))
     assert [e.frame for e in events if not isinstance(e, Skipped)] == sorted(p.name for p in live.iterdir())
     assert [e for e in events if isinstance(e, Skipped)] == []
+
+
+def test_a_followed_file_recording_the_parameters_given_resumes(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                                cache_dir: Path) -> None:
+    """Results headers record every descriptor parameter now; a followed file of an older wiloc
+    recorded those given (and sad's crop) and is the same run's: it resumes, and a file whose
+    parameters resolve otherwise is still refused."""
+    live = _live_folder(tmp_path, sorted(demo_route.queries[0].iterdir())[:4])
+    out = tmp_path / "r.csv"
+    list(api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3))
+    text = out.read_text()
+    line = '# descriptor_params: {"crop": "none", "patch": 8, "storage": "uint8"}\n'
+    assert text.count(line) == 1
+    out.write_text(text.replace(line, '# descriptor_params: {"crop": "none"}\n'))
+    run = api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3)
+    assert run.resumed == 4
+    list(run)
+    out.write_text(text.replace(line, '# descriptor_params: {"crop": "top-half"}\n'))
+    with pytest.raises(WilocError, match="holds a run with other settings"):
+        api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3)

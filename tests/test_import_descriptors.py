@@ -211,7 +211,7 @@ def test_a_run_on_imported_matrices_records_no_descriptor_parameters(tmp_path: P
     loc = Localizer(tmp_path / "ref.npy", descriptor="external", descriptor_params={"metric": "l1", "length": D},
                     method="threshold", metric="l1")
     loc.observe(query[0])
-    assert loc.results().header.descriptor_params == {"metric": "l1", "length": D}
+    assert loc.results().header.descriptor_params == {"metric": "l1", "length": D, "dtype": "float32"}
 
     text = (tmp_path / "run.csv").read_text()
     assert text.count("# descriptor_params: {}\n") == 1

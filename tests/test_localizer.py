@@ -690,3 +690,30 @@ def test_a_localizer_over_a_cached_map_takes_its_descriptor_parameters(demo_rout
     with pytest.raises(ParameterError, match="the map held in memory was described with") as refused:
         Localizer(report.entry, descriptor_params={"patch": 8}, method="threshold")
     assert refused.value.parameter == "descriptor_params"
+
+
+@pytest.mark.parametrize("descriptor", ["sad", "brisk-gist"])
+def test_a_run_records_the_same_descriptor_parameters_however_it_is_made(descriptor: str, demo_route: demo.DemoRoute,
+                                                                          tmp_path: Path) -> None:
+    """wiloc localize recorded sad's {"crop": "none"}, the same run through api.localize or a
+    Localizer over the map's folder {}, and a Localizer over the map's cached entry ended in
+    'code_version: not a parameter of descriptor': each records every parameter, defaults resolved."""
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+    from wiloc.descriptors.registry import get_descriptor
+    from wiloc.evaluation.results import read_results
+
+    query, reference, cache = demo_route.queries[0], demo_route.reference, Cache(tmp_path / "cache")
+    cli = CliRunner().invoke(app, ["localize", str(query), "--map", str(reference), "--descriptor", descriptor,
+                                   "--method", "threshold", "--cache", str(cache.root), "--out", str(tmp_path / "cli.csv")])
+    assert cli.exit_code == 0, cli.output
+    recorded = [read_results(tmp_path / "cli.csv").header.descriptor_params,
+                api.localize(query, reference=reference, descriptor=descriptor, method="threshold",
+                             cache=cache).results.header.descriptor_params]
+    [report] = api.describe([reference], descriptor, cache=cache)
+    for map_ in (reference, report.entry):
+        loc = Localizer(map_, descriptor=descriptor, method="threshold", cache=cache)
+        loc.observe(sorted(query.iterdir())[0])
+        recorded.append(loc.results().header.descriptor_params)
+    assert recorded == [dict(get_descriptor(descriptor).params)] * 4

@@ -164,7 +164,7 @@ def descriptor_params_given(descriptor: str, options: dict[str, Any] | None, voc
     if descriptor not in DESCRIPTORS or DESCRIPTORS[descriptor].source != BUILT_IN:
         for problem in plugin_problems():
             note("warning", problem)
-    params = descriptor_params(descriptor, options or {})
+    params = descriptor_params(options or {})
     if descriptor in descriptor_takers("file"):
         if vocabulary is None:
             fail(f"--vocabulary: --descriptor {descriptor} needs one (a file, or a key from `wiloc vocabulary`)",

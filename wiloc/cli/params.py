@@ -39,9 +39,6 @@ FLAGS = {"reference": "--map", "training": "--train-query", "query_names_file": 
 #: ``file`` as ``--vocabulary`` (a file, or a key in the cache), a network's ``model`` as ``--model``
 #: and its preprocessing as ``--preprocess KEY=VALUE``.
 OWN_FORMS = {"file": "vocabulary", "model": "model", **{key: "preprocess" for key in PREPROCESSING}}
-#: Descriptor options the command line passes even when not typed (with their default), as it
-#: always has: results files name them.
-ALWAYS_PASSED = ("crop",)
 
 _TYPES = {"int": int, "float": float, "str": str, "bool": bool, "floats": str}
 
@@ -248,12 +245,8 @@ def descriptor_uses(descriptor: str, described: bool) -> dict[str, tuple[bool, s
     return uses
 
 
-def descriptor_params(descriptor: str, given: Mapping[str, Any]) -> dict[str, Any]:
-    """The parameters for ``descriptor`` from its generated options typed (``given``, each one it
-    takes: :func:`descriptor_uses` refused the others), and those of :data:`ALWAYS_PASSED` it
-    takes, with their default when not typed."""
-    cls = DESCRIPTORS.get(descriptor)
-    takes = {d.name: d for d in cls.options()} if cls is not None else {}
-    params = {name: takes[name].default for name in ALWAYS_PASSED if name in takes}
-    params.update({name: descriptor_options()[name].parse(value) for name, value in given.items()})
-    return params
+def descriptor_params(given: Mapping[str, Any]) -> dict[str, Any]:
+    """The parameters for a descriptor from its generated options typed (``given``, each one it
+    takes: :func:`descriptor_uses` refused the others); the library resolves the others' defaults
+    (a results header records them all)."""
+    return {name: descriptor_options()[name].parse(value) for name, value in given.items()}

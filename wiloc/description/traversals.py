@@ -161,13 +161,15 @@ class Describer:
 
     def recorded_params(self, sources: Iterable[Path]) -> dict[str, Any]:
         """The descriptor parameters a results header records of a run on ``sources`` (its query
-        and map): this describer's, or none where they are imported matrix files and this is no
-        ``external`` describer. Such a run names ``external:METRIC``; the parameters of the
-        descriptor asked for (``sad``'s ``crop``, which the command line always passes) are no
-        part of it, and the header records the metric and the matrices' digests apart."""
+        and map): every parameter of this describer's descriptor, defaults resolved, so that a run
+        records the same whether made by the command line, ``wiloc.api`` or a ``Localizer`` over a
+        map in memory; none where they are imported matrix files and this is no ``external``
+        describer. Such a run names ``external:METRIC``; the parameters of the descriptor asked for
+        (``sad``'s ``crop``) are no part of it, and the header records the metric and the
+        matrices' digests apart."""
         if self.descriptor != EXTERNAL and any(is_matrix_file(Path(source)) for source in sources):
             return {}
-        return dict(self.params)
+        return dict(self.spec.params)
 
     def entry(self, source: Path, names: Path | None = None) -> Entry:
         """The descriptors of a folder or of a video's or bag's sampled frames (computed on demand), or of

@@ -4,14 +4,16 @@ wrote before is resumed (``wiloc.api.follow_folder``)."""
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from wiloc.cache.store import Cache
+from wiloc.description.traversals import descriptor_spec
 from wiloc.decisions import Decision
 from wiloc.errors import FrameError, WilocError, parameter_values
 from wiloc.evaluation.results import RANKING, ResultsStream
+from wiloc.evaluation.results_header import ResultsHeader, read_header
 from wiloc.localization.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localization.localizer import Localizer
 from wiloc.localization.run_files import lock_results, results_name, unlock_results
@@ -99,8 +101,8 @@ def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descr
                           exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
                           cache=cache, jobs=jobs, **parameter_values(method_params, "method_params"))
     ranked = (RANKING,) if localizer.method.ranks else ()
-    stream = ResultsStream(path, localizer.header(query), (*localizer.method.columns, *ranked), resume=True,
-                           learned=localizer.method.facts().keys())
+    stream = ResultsStream(path, _as_written(path, localizer.header(query), localizer.describer.descriptor),
+                           (*localizer.method.columns, *ranked), resume=True, learned=localizer.method.facts().keys())
     names = stream.rows["frame"].tolist()
     try:
         for name, line in zip(names, stream.written_lines()):
@@ -119,3 +121,17 @@ def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descr
         raise
     return FollowRun(query=query, localizer=localizer, stream=stream, idle=idle, poll=poll, resumed=len(names),
                      warnings=localizer.doubts, lock=lock)
+
+
+def _as_written(path: Path, header: ResultsHeader, descriptor: str) -> ResultsHeader:
+    """The run's ``header`` with the descriptor parameters the file at ``path`` records when they
+    resolve to the run's: a file an older wiloc followed recorded those given (and ``sad``'s
+    ``crop``), not every one, and is resumed as the same run's."""
+    if not path.is_file():
+        return header
+    try:
+        found, _ = read_header(path)
+        resolved = descriptor_spec(descriptor, found.descriptor_params).params
+    except WilocError:  # no results file, or parameters of another descriptor: the stream refuses it
+        return header
+    return replace(header, descriptor_params=found.descriptor_params) if resolved == header.descriptor_params else header
