@@ -59,18 +59,49 @@ def test_unexplained_masses_sum_to_one_and_stretches_teach_the_departure_share()
         assert prior.track + prior.jump + prior.unexplained == pytest.approx(1.0)
     assert chain.q == pytest.approx(0.5)
     chain.u = 0.01
-    chain.follow(frame=0, odometer=0.0, position=10.0, spacing=1.0, sigma=0.15)  # anchored
+    chain.follow(frame=0, odometer=0.0, position=10.0, spacing=1.0, pace=1.0, sigma=0.15)  # anchored
     chain.u = 0.9
-    chain.follow(frame=5, odometer=5.0, position=15.0, spacing=1.0, sigma=0.15)  # a stretch opens
+    chain.follow(frame=5, odometer=5.0, position=15.0, spacing=1.0, pace=1.0, sigma=0.15)  # a stretch opens
     chain.u = 0.01
-    chain.follow(frame=9, odometer=9.0, position=60.0, spacing=1.0, sigma=0.15)  # back, far from 19
+    chain.follow(frame=9, odometer=9.0, position=60.0, spacing=1.0, pace=1.0, sigma=0.15)  # back, far from 19
     assert chain.departures == 1 and chain.blind_spots == 0 and chain.q == pytest.approx(2 / 3)
     chain.u = 0.9
-    chain.follow(frame=12, odometer=12.0, position=63.0, spacing=1.0, sigma=0.15)
+    chain.follow(frame=12, odometer=12.0, position=63.0, spacing=1.0, pace=1.0, sigma=0.15)
     chain.u = 0.01
-    chain.follow(frame=15, odometer=15.0, position=66.0, spacing=1.0, sigma=0.15)  # back where reckoned
+    chain.follow(frame=15, odometer=15.0, position=66.0, spacing=1.0, pace=1.0, sigma=0.15)  # back where reckoned
     assert chain.blind_spots == 1 and chain.q == pytest.approx(2 / 4)
     assert type(chain.q) is float  # a plain float, as after a reload (numpy's would print otherwise)
+
+
+def test_a_blind_spot_is_reckoned_across_at_the_pace_of_the_track() -> None:
+    """A query at half the map's pace (or walking it backwards) that loses the map for 20
+    frames and finds it again 10 nodes on (10 nodes back) has crossed a blind spot of the map,
+    not left it: reckoned at the map's pace it would be 20 nodes on."""
+    for pace in (0.5, -0.5):
+        chain = Unexplained(u0=0.01, h_in=0.01, h_out=0.02, jump=0.03, q_prior=(1.0, 1.0), open_at=0.5, close_at=0.1)
+        chain.follow(frame=0, odometer=0.0, position=50.0, spacing=1.0, pace=pace, sigma=0.075)  # anchored
+        chain.u = 0.9
+        chain.follow(frame=1, odometer=1.0, position=50.0 + pace, spacing=1.0, pace=pace, sigma=0.075)
+        chain.u = 0.01
+        chain.follow(frame=20, odometer=20.0, position=50.0 + 20 * pace, spacing=1.0, pace=pace, sigma=0.075)
+        assert chain.blind_spots == 1 and chain.departures == 0
+
+
+def test_a_query_at_half_the_pace_learns_that_its_unexplained_stretches_were_blind_spots() -> None:
+    """A generated drive at half the map's pace through two stretches the map does not explain
+    (no dip in their rows) that end where the drive, at its pace, has got to: both are blind
+    spots, so the share of departures falls from its prior (1.9 / 2) and with it P(new place)."""
+    n_map, rng = 300, np.random.default_rng(5)
+    truth = np.clip(5.0 + np.cumsum(0.5 + rng.normal(0.0, 0.05, 400)), 0, n_map - 1)
+    truth[120:150] = np.nan
+    truth[260:290] = np.nan
+    rows = _route_rows(rng, truth, n_map)
+    ref = _route_rows(rng, np.arange(n_map, dtype=np.float64), n_map)
+    filt = CatGraph(seed=0, particles=1000)
+    out = run_on_rows(filt, iter(rows), truth.size, map_self=ref)
+    assert np.mean(np.abs(out.match[300:] - truth[300:]) <= 2) > 0.9  # the track is kept at half the pace
+    assert filt._unexplained.blind_spots >= 2 and filt._unexplained.departures == 0
+    assert filt.facts()["departure_share"] < 0.5
 
 
 def _route_rows(rng: np.random.Generator, truth: np.ndarray, n_map: int) -> np.ndarray:

@@ -41,7 +41,7 @@ STATE_FORMAT = "wiloc-localizer-state"
 #: 6: the decisions made are kept (``results``); 5: catgraph reads each node against its chance
 #: resemblance; 4: sequence mode runs the catgraph filter; 3: catgraph knows a repeated image; 2: it
 #: ranks FAB-MAP evidence
-STATE_VERSION = 6
+STATE_VERSION = 7
 
 #: Sequence mode: the made-up frames a copy of the method steps, at most, to build its compiled
 #: kernels (:meth:`Localizer._compile`), and how many it steps after its first whole decision.

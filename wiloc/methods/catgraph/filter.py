@@ -225,10 +225,9 @@ class CatGraph(Method):
                 self._shifted = (u, (at, a, read_runs(at, a, self._nodes.size)))
         return self._shifted[1]
 
-    @property
-    def motion_sigma(self) -> float:
-        """The motion noise of a frame without odometry, in node spacings."""
-        return float(np.hypot(self.params.step_noise, self.params.noise_floor))
+    def motion_sigma(self, pace: float) -> float:
+        """The motion noise of a frame at this pace without odometry, in node spacings."""
+        return float(np.hypot(self.params.step_noise * abs(pace), self.params.noise_floor))
 
     def _advance(self, sequence: NDArray[np.float64], contrast: NDArray[np.float64], u: float,
                  first: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -328,7 +327,9 @@ class CatGraph(Method):
         unexplained.update(log_map, prior.unexplained)
 
         decision = self._read_out(row, j, a, w)
-        unexplained.follow(self.frames, self._odometer, float(nodes[decision.match]), self._spacing, self.motion_sigma)
+        pace = self._track_pace(decision.match, j, a, w, speed)
+        unexplained.follow(self.frames, self._odometer, float(nodes[decision.match]), self._spacing, pace,
+                           self.motion_sigma(pace))
         likelihood.learn(w * omega, 1.0 - unexplained.u)
 
         if 1.0 / squares < p.resample_ess * p.particles:
@@ -337,6 +338,13 @@ class CatGraph(Method):
             log_w = np.full(p.particles, -np.log(p.particles))
         self._pos, self._speed, self._log_w = pos, speed, log_w
         return decision
+
+    def _track_pace(self, node: int, j: NDArray[np.intp], a: NDArray[np.float64], w: NDArray[np.float64],
+                    speed: NDArray[np.float64]) -> float:
+        """The decided track's pace: the posterior's mean pace over the particles nearest to a
+        node within ``mode_window`` of the decided one (the read-out's window)."""
+        near = np.abs(j + a - node) <= self.params.mode_window + 0.5
+        return float(np.dot(w[near], speed[near]) / w[near].sum())
 
     def _moved(self, pos: NDArray[np.float64], speed: NDArray[np.float64], u: float) -> NDArray[np.float64]:
         """The motion model: s += v u + noise (sd ``step_noise`` of the step, floored); a particle

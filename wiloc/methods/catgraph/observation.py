@@ -26,7 +26,7 @@ the derivation and the measurements behind every default.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -193,14 +193,25 @@ class Transition:
                           unexplained=self.unexplained + self.track * share)
 
 
+class Anchor(NamedTuple):
+    """The last frame the map explained well, to reckon an unexplained stretch from: where the
+    track was, how far the query had travelled, and its pace and motion noise there."""
+
+    frame: int
+    odometer: float
+    position: float
+    pace: float
+    sigma: float
+
+
 class Unexplained:
     """The probability U that the map does not explain the current frame, and the learned share
     q of unexplained stretches that are departures from the map (P(new place) = q U).
 
     A stretch opens when U reaches ``open_at`` after an anchor frame (U below ``close_at``) and
     closes when U falls below ``close_at`` again; it was a blind spot when the track resumed
-    within 2 + 3 sigma sqrt(frames since the anchor) nodes of the dead-reckoned anchor, else a
-    departure. q has a Beta prior (``q_prior``: departures, blind spots).
+    within 2 + 3 sigma sqrt(frames since the anchor) nodes of the anchor dead-reckoned at the
+    track's pace there, else a departure. q has a Beta prior (``q_prior``: departures, blind spots).
     """
 
     def __init__(self, u0: float, h_in: float, h_out: float, jump: float, q_prior: tuple[float, float],
@@ -210,7 +221,7 @@ class Unexplained:
         self.q_prior, self.open_at, self.close_at = q_prior, open_at, close_at
         self.departures = 0.0
         self.blind_spots = 0.0
-        self.anchor: tuple[int, float, float] | None = None  # (frame, odometer, position) when last well explained
+        self.anchor: Anchor | None = None  # the last frame the map explained well
         self.in_stretch = False
 
     def transition(self, first: bool) -> Transition:
@@ -237,23 +248,29 @@ class Unexplained:
     def new_place(self) -> float:
         return self.q * self.u
 
-    def follow(self, frame: int, odometer: float, position: float, spacing: float, sigma: float) -> None:
+    def follow(self, frame: int, odometer: float, position: float, spacing: float, pace: float,
+               sigma: float) -> None:
         """Track stretches: open, close (learning whether it was a departure), move the anchor.
 
         ``odometer`` is the distance travelled since the start, ``position`` the decided place's
-        (both in the map's units); ``sigma`` the motion noise per frame in node spacings.
+        (both in the map's units); ``pace`` the decided track's pace (map distance per unit
+        travelled, negative backwards) and ``sigma`` its motion noise per frame in node spacings.
+        A blind spot is reckoned across at the pace the query kept where the map last explained
+        it: reckoned at the map's pace, every blind spot of a query at another pace was counted
+        a departure.
         """
         if not self.in_stretch and self.u >= self.open_at and self.anchor is not None:
             self.in_stretch = True
         elif self.in_stretch and self.u < self.close_at:
             self.in_stretch = False
-            frame0, odometer0, position0 = self.anchor  # type: ignore[misc]
-            reckoned = position0 + (odometer - odometer0)
-            blind = bool(abs(position - reckoned) <= 2 * spacing + 3 * sigma * spacing * np.sqrt(frame - frame0))
+            at = self.anchor
+            assert at is not None  # a stretch opens only after an anchor
+            reckoned = at.position + at.pace * (odometer - at.odometer)
+            blind = bool(abs(position - reckoned) <= 2 * spacing + 3 * at.sigma * spacing * np.sqrt(frame - at.frame))
             self.blind_spots += blind
             self.departures += not blind
         if self.u < self.close_at and not self.in_stretch:
-            self.anchor = (frame, odometer, position)
+            self.anchor = Anchor(frame, odometer, position, pace, sigma)
 
     def state(self) -> dict[str, Any]:
         return {"u": self.u, "departures": self.departures, "blind_spots": self.blind_spots,
@@ -263,5 +280,5 @@ class Unexplained:
         self.u = float(state["u"])
         self.departures, self.blind_spots = float(state["departures"]), float(state["blind_spots"])
         anchor = state["anchor"]
-        self.anchor = None if anchor is None else (int(anchor[0]), float(anchor[1]), float(anchor[2]))
+        self.anchor = None if anchor is None else Anchor(int(anchor[0]), *(float(value) for value in anchor[1:]))
         self.in_stretch = bool(state["in_stretch"])
