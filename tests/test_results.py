@@ -193,6 +193,11 @@ def _written(tmp_path: Path) -> tuple[Path, str]:
      r"line 6: header 'mode' again \(line 5 gives it\): a run writes each key once"),
     (lambda t: t.replace("# mode: map", "# mode: map\n# rows: evidence"),
      r"line 6: header 'rows' must be fabmap \(a run on FAB-MAP's evidence\), got 'evidence'"),
+    (lambda t: t.replace("stage,m_r,", "stage,ranking,"), r"line \d+: column 'ranking' twice"),
+    (lambda t: t.replace("stage,m_r,", "stage,,"), r"line \d+: column 6 has no name"),
+    (lambda t: t.replace("b,z,0.25,0.9,update,0.7,2 1", "b,z,0.25"),
+     r"line \d+: 3 cells, where the column line \(line \d+\) names 7 columns"),
+    (lambda t: t.replace(",2 1\n", ",2 1,x\n"), r"line \d+: 8 cells, where the column line \(line \d+\) names 7"),
 ])
 def test_a_results_file_no_run_writes_is_refused_naming_the_line(tmp_path: Path, edit, message: str) -> None:
     path, text = _written(tmp_path)
@@ -322,3 +327,20 @@ def test_a_column_the_method_does_not_write_is_refused_naming_it(tmp_path: Path,
     with pytest.raises(WilocError, match=rf"line {header + 1}: unknown column\(s\) '{renamed}': the method online "
                                          "writes frame, match, difference, confidence, stage, m_r, new_place, ranking"):
         read_results(path, METHODS)
+
+
+def test_a_row_of_other_cells_than_columns_names_its_line_and_line_ends_of_any_kind_read_alike(tmp_path: Path) -> None:
+    """A row cut short was filled with empty cells (so read as an undecided frame, or refused for
+    a ranking it never had); an editor's line ends (CR LF, CR alone, mixed) read the same table."""
+    path, text = _written(tmp_path)
+    lines = text.splitlines()
+    column_line = lines.index("frame,match,difference,confidence,stage,m_r,ranking") + 1
+    expected = read_results(path).frames
+    for ends in ("\r\n", "\r", None):
+        mixed = "".join(line + (ends or ("\r\n" if i % 2 else "\n")) for i, line in enumerate(lines))
+        path.write_bytes(mixed.encode("utf-8"))
+        assert read_results(path).frames.equals(expected)
+    path.write_text("\n".join(lines[:-1] + ["c,x,0.5"]) + "\n", encoding="utf-8")
+    with pytest.raises(WilocError, match=rf"line {len(lines)}: 3 cells, where the column line \(line {column_line}\) "
+                                         "names 7 columns"):
+        read_results(path)

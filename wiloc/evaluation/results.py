@@ -421,6 +421,35 @@ def _without_blank_lines(path: Path, frames: pd.DataFrame, first_line: int) -> p
     return frames if kept == len(frames) else frames.iloc[:kept].copy()
 
 
+def _table(path: Path, n_header: int) -> pd.DataFrame:
+    """The table after a results file's ``n_header`` header lines, every cell as text (a blank
+    line as a row of empty cells); a WilocError naming the line of what no run writes and a
+    table keyed by column names would read unnoticed: a column named twice or not at all (pandas
+    renamed them ``new_place.1``, ``Unnamed: 8``), a row of fewer cells than columns (pandas
+    filled it with empty ones) or of more."""
+    line = n_header + 1  # the column line's
+    try:
+        with path.open(encoding="utf-8-sig", newline="") as handle:  # newline="": csv reads quoted line breaks
+            for _ in range(n_header):
+                handle.readline()
+            reader = csv.reader(handle)
+            columns = next(reader, [])
+            if "" in columns:
+                raise WilocError(path, f"line {line}: column {columns.index('') + 1} has no name")
+            twice = next((name for i, name in enumerate(columns) if name in columns[:i]), None)
+            if twice is not None:
+                raise WilocError(path, f"line {line}: column '{twice}' twice")
+            rows = []
+            for row in reader:
+                if row and len(row) != len(columns):
+                    raise WilocError(path, f"line {n_header + reader.line_num}: {len(row)} cells, where the "
+                                           f"column line (line {line}) names {len(columns)} columns")
+                rows.append(row or [""] * len(columns))
+    except (csv.Error, ValueError) as exc:
+        raise WilocError(path, f"unreadable table: {exc}") from None
+    return pd.DataFrame(rows, columns=columns, dtype=str)
+
+
 def _read_table(path: Path) -> tuple[ResultsHeader, pd.DataFrame, int]:
     """A results file's header, its table (every cell as text) and the line number of the
     table's first row."""
@@ -428,11 +457,7 @@ def _read_table(path: Path) -> tuple[ResultsHeader, pd.DataFrame, int]:
     if header.follow and _torn(path):
         raise WilocError(path, "its last row is cut short (no line end): the followed run stopped while writing "
                                "it, or is writing it now; read the file again, or resume the run, which cuts it off")
-    try:
-        frames = pd.read_csv(path, skiprows=n_header, dtype=str, keep_default_na=False, encoding="utf-8-sig",
-                             skip_blank_lines=False)
-    except (pd.errors.ParserError, ValueError) as exc:
-        raise WilocError(path, f"unreadable table: {exc}") from None
+    frames = _table(path, n_header)
     missing = [c for c in BASE_COLUMNS if c not in frames.columns]
     if missing:
         raise WilocError(path, f"missing column(s): {', '.join(missing)}")
