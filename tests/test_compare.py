@@ -55,3 +55,13 @@ def test_compare_and_report_name_the_run_a_ground_truth_does_not_fit(command: li
     gt = tmp_path / "gt.npy"
     result = runner.invoke(app, [command[0], *map(str, runs), "--gt", f"matrix:{gt}", *command[1:]])
     ends_in_one_error(result, 1, f"{gt}: does not fit the run {runs[1]}: matrix is 3 x 3, expected 2 x 3")
+
+
+def test_a_run_of_no_frames_is_said_to_hold_none(tmp_path: Path) -> None:
+    """A results file of no rows (a followed run that has decided nothing yet, an edit) was said
+    not to fit the ground truth: 'none of the 0 query frames has a reference frame of the same name'."""
+    empty = _run(tmp_path / "empty.csv", 0)
+    for args in (["evaluate", empty], ["compare", empty, _run(tmp_path / "day.csv", 3)]):
+        ends_in_one_error(runner.invoke(app, list(map(str, args))), 1, f"{empty}: holds no rows: there is no frame to score")
+    with pytest.raises(WilocError, match=r"^the run in memory \(query .*empty, method threshold\) holds no frames"):
+        api.evaluate(read_results(empty), api.TruthSource())

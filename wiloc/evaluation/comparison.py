@@ -18,13 +18,14 @@ import numpy as np
 import pandas as pd
 
 from wiloc.candidates import RANKED
-from wiloc.errors import ParameterError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.evaluation.groundtruth import Truth, TruthMismatch
 from wiloc.evaluation.metrics import (RANKED_KS, PRCurve, Summary, correct_matches, decided_confidence, global_threshold,
                                       precision_at_thresholds, summarize)
 from wiloc.evaluation.reliability import (DEFAULT_CUTS, NEW_PLACE_KEYS, Calibration, ReliabilityBins,
                                           summarize_calibration, summarize_new_place)
 from wiloc.evaluation.results import Results
+from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.evaluation.truth_source import TruthSource
 from wiloc.labels import short_names
 from wiloc.reprs import short_repr
@@ -99,11 +100,13 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
     query_names = results.frames["frame"].tolist()
     header = results.header
     ref_names = results.reference_frames or query_names
+    if not query_names:  # every ground truth would say it does not fit
+        raise WilocError(path, "holds no rows: there is no frame to score") if path else \
+            WilocError(None, f"the run {_run_name(path, header)} holds no frames: there is no frame to score")
     try:
         loaded = truth.load(query_names, ref_names, header.query, header.sequence, header.exclude_recent, header.map)
     except TruthMismatch as exc:
-        raise exc.of_run(str(path) if path else f"in memory (query {header.query or UNNAMED_QUERY}, "
-                                                 f"method {header.method})") from None
+        raise exc.of_run(_run_name(path, header)) from None
     match = results.match_index
     summary = summarize(match, results.confidence, loaded, results.ranking, recall_at)
     correct = correct_matches(match, loaded)
@@ -113,6 +116,11 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
     new_place = None if p_new is None else summarize_new_place(p_new, loaded.has_match(), cuts)
     return Evaluation(path=path, results=results, truth=loaded, correct=correct, summary=summary,
                       confidence=confidence, calibration=calibration, new_place=new_place)
+
+
+def _run_name(path: Path | None, header: ResultsHeader) -> str:
+    """A run as messages name it: its results file, or for a run in memory its query and method."""
+    return str(path) if path else f"in memory (query {header.query or UNNAMED_QUERY}, method {header.method})"
 
 
 @short_repr
