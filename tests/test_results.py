@@ -196,8 +196,8 @@ def _written(tmp_path: Path) -> tuple[Path, str]:
     (lambda t: t.replace("stage,m_r,", "stage,ranking,"), r"line \d+: column 'ranking' twice"),
     (lambda t: t.replace("stage,m_r,", "stage,,"), r"line \d+: column 6 has no name"),
     (lambda t: t.replace("b,z,0.25,0.9,update,0.7,2 1", "b,z,0.25"),
-     r"line \d+: 3 cells, where the column line \(line \d+\) names 7 columns"),
-    (lambda t: t.replace(",2 1\n", ",2 1,x\n"), r"line \d+: 8 cells, where the column line \(line \d+\) names 7"),
+     r"line \d+: 3 cell\(s\), where the column line \(line \d+\) names 7 columns"),
+    (lambda t: t.replace(",2 1\n", ",2 1,x\n"), r"line \d+: 8 cell\(s\), where the column line \(line \d+\) names 7"),
 ])
 def test_a_results_file_no_run_writes_is_refused_naming_the_line(tmp_path: Path, edit, message: str) -> None:
     path, text = _written(tmp_path)
@@ -341,6 +341,6 @@ def test_a_row_of_other_cells_than_columns_names_its_line_and_line_ends_of_any_k
         path.write_bytes(mixed.encode("utf-8"))
         assert read_results(path).frames.equals(expected)
     path.write_text("\n".join(lines[:-1] + ["c,x,0.5"]) + "\n", encoding="utf-8")
-    with pytest.raises(WilocError, match=rf"line {len(lines)}: 3 cells, where the column line \(line {column_line}\) "
+    with pytest.raises(WilocError, match=rf"line {len(lines)}: 3 cell\(s\), where the column line \(line {column_line}\) "
                                          "names 7 columns"):
         read_results(path)

@@ -442,7 +442,7 @@ def _table(path: Path, n_header: int) -> pd.DataFrame:
             rows = []
             for row in reader:
                 if row and len(row) != len(columns):
-                    raise WilocError(path, f"line {n_header + reader.line_num}: {len(row)} cells, where the "
+                    raise WilocError(path, f"line {n_header + reader.line_num}: {len(row)} cell(s), where the "
                                            f"column line (line {line}) names {len(columns)} columns")
                 rows.append(row or [""] * len(columns))
     except (csv.Error, ValueError) as exc:
