@@ -1373,7 +1373,7 @@ def test_a_float64_row_beyond_float32_is_refused_not_made_infinite(localizers: d
                                              "float32 rows"):
             loc.observe(np.full(512, 1e39))
     assert loc.frames == 0
-    assert loc.observe(np.full(512, 1e30)).frame == "000000"  # large, within float32: a descriptor
+    assert loc.observe(np.full(512, 1e15)).frame == "000000"  # large, within its differences' float32: a descriptor
 
 
 def test_a_video_or_demo_folder_whose_path_is_not_utf8_is_one_line_not_a_crash(tmp_path: Path,
@@ -2107,3 +2107,23 @@ def test_a_results_file_given_to_describe_is_said_to_be_one(results: Path, tmp_p
                       f"{results}: a wiloc results file is not a traversal: give a folder of images; evaluate")
     with pytest.raises(WilocError, match="a wiloc results file is not a traversal: give a folder of images"):
         api.describe(results)
+
+
+@pytest.mark.parametrize(("metric", "value"), [("l1", 1e38), ("sqeuclidean", 1e20)])
+def test_rows_in_memory_too_large_for_float32_differences_are_refused(metric: str, value: float) -> None:
+    """A matrix file of such values is refused (its differences, in float32, overflowed); a map's
+    rows held in memory and a row observed were taken: every frame undecided, no error."""
+    from wiloc.description.traversals import entry_from_array
+    from wiloc.descriptors.registry import get_descriptor
+
+    spec, rows = get_descriptor("external", metric=metric, length=8), np.random.default_rng(0).random((30, 8))
+    names = [f"m{i}" for i in range(30)]
+    with pytest.raises(WilocError, match=f"values up to .*: {metric} differences of rows of 8 values would pass "
+                                         "float32's range") as refused:
+        entry_from_array(rows * value, names, spec, source="my map")
+    assert refused.value.where == "my map"
+    loc = Localizer(entry_from_array(rows, names, spec), descriptor="external", metric=metric, method="threshold")
+    with pytest.raises(WilocError, match=f"values up to .*: {metric} differences") as refused:
+        loc.observe(rows[3] * value)
+    assert refused.value.where == "observe"
+    assert loc.observe(rows[3]).match == 3

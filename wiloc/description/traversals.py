@@ -14,7 +14,7 @@ from wiloc.cache.entries import EXTERNAL, Entry, EntryHeader
 from wiloc.cache.store import Cache
 from wiloc.description.describing import describe_source
 from wiloc.description.matrix_import import import_matrix
-from wiloc.descriptors.external import check_frame_names, recorded_metric, refuse_results_file
+from wiloc.descriptors.external import check_frame_names, check_value_range, recorded_metric, refuse_results_file
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import ParameterError, WilocError, parameter_values
 from wiloc.sources.bags import is_bag
@@ -46,7 +46,7 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
     if data.ndim != 2 or data.shape[1] != spec.length or data.shape[0] != len(names):
         raise WilocError(source, f"descriptors of shape {data.shape} for {len(names)} names; "
                                  f"'{spec.name}' rows have {spec.length} values")
-    data = np.ascontiguousarray(checked_rows(data, spec.dtype, source))
+    data = np.ascontiguousarray(checked_rows(data, spec.dtype, spec.metric, source))
     header = EntryHeader.create(source, spec.name, dict(spec.params), spec.metric, spec.scale, spec.natural_max,
                                 spec.dtype, spec.length)
     return Entry(**asdict(header), names=list(names), data=data, digest=descriptors_digest(names, data))
@@ -63,11 +63,12 @@ def entry_params(entry: Entry) -> dict[str, Any]:
     return {name: value for name, value in entry.params.items() if name not in _CACHE_KEYS}
 
 
-def checked_rows(values: NDArray, dtype: np.dtype, where: str) -> NDArray:
+def checked_rows(values: NDArray, dtype: np.dtype, metric: str, where: str) -> NDArray:
     """Descriptor values given from outside (a map's rows in memory, a row to observe) as the
     rows of ``dtype`` they are compared with: numbers and finite; for integer rows (``sad``,
     ``brisk-gist``: uint8) whole numbers within the type's range, never wrapped; for float32 rows
-    (``gist``) within its range, never made infinite. Else a WilocError naming ``where``."""
+    (``gist``) within its range, never made infinite; small enough that no ``metric`` difference
+    overflows, as an imported matrix file's (``check_value_range``). Else a WilocError naming ``where``."""
     if values.dtype.kind not in "biuf":
         raise WilocError(where, f"a descriptor of {values.dtype} values; give numbers")
     if values.dtype.kind == "f" and not np.all(np.isfinite(values)):
@@ -81,6 +82,7 @@ def checked_rows(values: NDArray, dtype: np.dtype, where: str) -> NDArray:
         rows = values.astype(dtype, copy=False)
     if dtype.kind == "f" and not np.all(np.isfinite(rows)):
         raise WilocError(where, f"the descriptor holds values beyond the range of this map's {dtype} rows")
+    check_value_range(rows, metric, where)
     return rows
 
 

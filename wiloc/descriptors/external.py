@@ -343,6 +343,19 @@ def _largest_value(metric: str, length: int) -> float:
     return most
 
 
+def check_value_range(rows: NDArray, metric: str, where: str | Path) -> None:
+    """Refuse, as a WilocError naming ``where``, descriptor ``rows`` (the last axis a row's values)
+    whose values would overflow their ``metric`` differences, computed in float32
+    (:func:`_largest_value`): they would be infinite, read as no candidate, every frame undecided."""
+    if rows.size == 0:
+        return
+    largest, limit = max(abs(float(rows.max())), abs(float(rows.min()))), _largest_value(metric, rows.shape[-1])
+    if largest > limit:
+        raise WilocError(where, f"values up to {largest:.3g}: {metric} differences of rows of {rows.shape[-1]} values "
+                                f"would pass float32's range, in which they are computed; scale the descriptors "
+                                f"to within +-{limit:.3g}")
+
+
 def _checked_matrix(path: Path, matrix: NDArray, metric: str, from_text: bool) -> NDArray:
     if matrix.ndim > 2 and matrix.shape[0] >= 1 and sum(n != 1 for n in matrix.shape[1:]) <= 1:
         matrix = matrix.reshape(matrix.shape[0], -1)  # N x D x 1 x 1 (a network's pooled output), N x 1 x D
@@ -364,11 +377,7 @@ def _checked_matrix(path: Path, matrix: NDArray, metric: str, from_text: bool) -
     if not np.all(np.isfinite(out)):
         row = int(np.argwhere(~np.isfinite(out))[0, 0])
         raise WilocError(path, f"NaN or infinite value in row {row + 1}")
-    largest, limit = float(np.abs(out).max()), _largest_value(metric, out.shape[1])
-    if largest > limit:
-        raise WilocError(path, f"values up to {largest:.3g}: {metric} differences of rows of {out.shape[1]} values "
-                               f"would pass float32's range, in which they are computed; scale the descriptors "
-                               f"to within +-{limit:.3g}")
+    check_value_range(out, metric, path)
     if metric == "cosine":
         zero = np.flatnonzero(~np.any(out != 0, axis=1))
         if zero.size:

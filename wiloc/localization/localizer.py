@@ -191,12 +191,13 @@ class Localizer:
 
     def _descriptor(self, row: NDArray) -> NDArray:
         """A descriptor row given to :meth:`observe`, in the map's dtype: as long as the map's
-        rows, finite, and whole numbers in range for a map of integer rows (``sad``, ``brisk-gist``)."""
+        rows, finite, whole numbers in range for a map of integer rows (``sad``, ``brisk-gist``),
+        and small enough that its differences do not overflow (``checked_rows``)."""
         data = self._session.candidates_data
         length, dtype = data.shape[1], data.dtype
         if row.size != length:
             raise WilocError("observe", f"a descriptor of {row.size} values; this map's have {length}")
-        return checked_rows(row, dtype, "observe")
+        return checked_rows(row, dtype, self._session.metric, "observe")
 
     def row(self, descriptor: NDArray) -> NDArray[np.float64]:
         """The next frame's row (:meth:`RunSession.row`): its differences to every map frame, or
