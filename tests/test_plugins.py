@@ -308,3 +308,61 @@ def test_worker_processes_describe_a_plugin_as_this_process_does(start: str, thu
     pid, key, digest, data = run.stdout.split()
     assert len({int(p.name) for p in thumb_plugin.iterdir()} - {os.getpid(), int(pid)}) == 1  # a worker computed rows
     assert (key, digest, data) == (alone.key, alone.digest, hashlib.sha256(alone.data.tobytes()).hexdigest())
+
+
+#: A program that registers a descriptor of its own (its class defined in its __main__) and
+#: describes the route (argv 1) into the cache at argv 2 with fresh worker processes; it prints
+#: the error's parameter and problem.
+MAIN_DESCRIPTOR = """
+import sys, threading
+from dataclasses import dataclass
+import numpy as np
+from wiloc import api
+from wiloc.cache.store import Cache
+from wiloc.description import frame_describing
+from wiloc.description.frame_describing import WorkerStart
+from wiloc.descriptors import registry
+from wiloc.descriptors.base import Descriptor
+from wiloc.errors import WilocError
+from wiloc.parameters import Parameters
+
+@dataclass(frozen=True)
+class MeanParams(Parameters):
+    owner = "mean"
+
+class Mean(Descriptor):
+    name, Params, metric = "mean", MeanParams, "l1"
+
+    @classmethod
+    def spec(cls, params):
+        return cls._spec(params, dtype=np.dtype(np.float32), length=1, scale=1.0, min_size=None, natural_max=255.0)
+
+    @classmethod
+    def compute(cls, image, params):
+        return np.array([image.mean()], np.float32)
+
+registry.DESCRIPTORS["mean"] = Mean
+for name in ("FORKED_START", "FRESH_START"):
+    setattr(frame_describing, name, WorkerStart(seconds=0.0, frames=1))
+threading.Thread(target=threading.Event().wait, daemon=True).start()  # another thread: fresh interpreters
+try:
+    api.describe(sys.argv[1], "mean", cache=Cache(sys.argv[2]), jobs=2)
+except WilocError as exc:
+    print(exc.parameter, exc.problem)
+"""
+
+
+def test_a_descriptor_registered_by_the_script_run_is_refused_by_fresh_workers_in_one_error(tmp_path: Path) -> None:
+    """A fresh worker process, which never runs the caller's main script, cannot unpickle a
+    descriptor class defined there: it printed pickle's traceback ("Can't get attribute 'Mean'
+    on <module '__main__'>") and the describe ended in 'a worker process ended without answering'."""
+    route = tmp_path / "route"
+    route.mkdir()
+    for i in range(40):
+        cv2.imwrite(str(route / f"f{i:02d}.png"), np.full((24, 32), i, np.uint8))
+    run = subprocess.run([sys.executable, "-c", MAIN_DESCRIPTOR, str(route), str(tmp_path / "cache")],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
+    assert run.stdout.startswith("descriptor 'mean' cannot be described in worker processes, which do not find its "
+                                 "class by name (Can't get attribute 'Mean' on <module '__main__'"), run.stdout
+    assert "describe with jobs 1, or register it in a module the workers can import" in run.stdout

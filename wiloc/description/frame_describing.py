@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from wiloc.cache.entries import FrameRecord
-from wiloc.description.workers import WorkerError, borrowed_pool, can_fork, kept_pool
+from wiloc.description.workers import UnknownToWorkers, WorkerError, borrowed_pool, can_fork, kept_pool
 from wiloc.descriptors.registry import DescriptorSpec
 from wiloc.errors import FrameError, ParameterError, WilocError
 from wiloc.quiet import decoders_quiet, quiet_always
@@ -141,6 +141,12 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[tuple[int, Task]]
             folder = paths[0].parent if paths else None  # a batch may reach into the next folder
             names = ", ".join(path.name if path.parent == folder else str(path) for path in paths)
             raise WilocError(folder, f"{exc.problem} while describing {names}") from None
+        except UnknownToWorkers as exc:
+            pool.kill()
+            raise WilocError(None, f"'{spec.name}' cannot be described in worker processes, which do not find its "
+                                   f"class by name ({exc.problem}), as when the script run (__main__) registers it: "
+                                   "describe with jobs 1, or register it in a module the workers can import",
+                             parameter="descriptor") from None
         except BaseException:
             pool.kill()  # an interrupted run keeps what was journaled; in-flight work is lost
             raise

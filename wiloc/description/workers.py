@@ -65,6 +65,14 @@ class WorkerError(WilocError):
         self.items = items
 
 
+class UnknownToWorkers(WilocError):
+    """A worker process could not find by name what it was sent to run (``problem``: pickle's
+    words): a class the caller's main script defines, which a fresh worker never runs."""
+
+    def __init__(self, problem: str) -> None:
+        super().__init__(None, problem)
+
+
 def _pack(message: Any) -> bytes:
     """A message as sent: its pickle, prefixed by the pickle's length."""
     data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
@@ -101,7 +109,8 @@ def _read_exactly(stream: BinaryIO, size: int) -> bytes:
 
 def serve() -> None:
     """A worker's loop: run the initializer it is sent first, then answer each ``(func, items)``
-    with ``(True, [func(item) ...])`` or ``(False, exception)``, until its stdin closes. The
+    with ``(True, [func(item) ...])`` or ``(False, exception)`` (:class:`UnknownToWorkers` when
+    it names what this process cannot find), until its stdin closes. The
     pipes are moved off descriptors 0 and 1 first, so that whatever prints goes to stderr."""
     inbox = os.fdopen(os.dup(0), "rb")
     outbox = os.fdopen(os.dup(1), "wb")
@@ -114,7 +123,11 @@ def serve() -> None:
         if initializer is not None:
             initializer()
         while True:
-            func, items = _receive(inbox)
+            try:
+                func, items = _receive(inbox)
+            except (AttributeError, ImportError, pickle.UnpicklingError) as exc:  # read whole: the next one follows
+                _send(outbox, (False, UnknownToWorkers(str(exc))))
+                continue
             try:
                 answer: tuple[bool, Any] = (True, [func(item) for item in items])
             except Exception as exc:  # noqa: BLE001 - the parent re-raises it
