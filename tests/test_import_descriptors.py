@@ -247,3 +247,28 @@ def test_a_metric_overriding_the_recorded_one_is_said_to(out: list[str], tmp_pat
     assert said in result.stderr
     quiet = runner.invoke(app, ["describe", "--import", "x.h5", "--metric", "sqeuclidean", *out, "--json"])
     assert quiet.exit_code == 0 and json.loads(quiet.stdout)["warnings"] == [], quiet.output
+
+
+def test_localize_with_a_metric_overriding_the_recorded_one_says_so(tmp_path: Path, cache_dir: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """localize Q.h5 --map M.h5 --metric cosine, both recording l1, compared with cosine and said
+    nothing; it says so once per file, as describe --import does. A .npy records no metric: the
+    one given is its only one, and nothing is said."""
+    monkeypatch.chdir(tmp_path)
+    ref, query = _descriptors()
+    np.save(tmp_path / "m.npy", ref)
+    np.save(tmp_path / "q.npy", query)
+    for name in ("m", "q"):
+        _invoke("describe", "--import", f"{name}.npy", "--metric", "l1", "--out", f"{name}.h5")
+    result = runner.invoke(app, ["localize", "q.h5", "--map", "m.h5", "--metric", "cosine", "--method", "threshold",
+                                 "--out", "run.csv", "--json"])
+    assert result.exit_code == 0, result.output
+    said = [line for line in json.loads(result.stdout)["warnings"] if "overrides it" in line]
+    assert said == [f"note: {tmp_path / name}.h5: records the metric l1; the one given (--metric cosine) overrides it"
+                    for name in ("q", "m")], result.output
+    assert read_results(tmp_path / "run.csv").header.metric == "cosine"
+    quiet_runs = (["q.h5", "--map", "m.h5", "--metric", "l1"], ["q.npy", "--map", "m.npy", "--metric", "cosine"])
+    for i, args in enumerate(quiet_runs):
+        quiet = runner.invoke(app, ["localize", *args, "--method", "threshold", "--out", f"again{i}.csv", "--json"])
+        assert quiet.exit_code == 0 and not any("overrides" in line for line in json.loads(quiet.stdout)["warnings"]), \
+            quiet.output

@@ -191,10 +191,11 @@ class Describer:
                 raise ParameterError("metric", f"{source}: a descriptor matrix file needs a metric (l1, sqeuclidean, "
                                                "hamming, cosine), or an .h5 file of imported descriptors, which "
                                                "records it")
-            return import_matrix(source, self.cache, names, metric).entry
-        report = describe_source(source, self.spec, self.cache, jobs=self.jobs, sampling=self.sampling,
-                                 progress=stage(self.progress, f"describe {source.name}"), cluster=self.cluster,
-                                 topic=self.topic)
+            report = import_matrix(source, self.cache, names, metric)  # a note when metric overrides the file's
+        else:
+            report = describe_source(source, self.spec, self.cache, jobs=self.jobs, sampling=self.sampling,
+                                     progress=stage(self.progress, f"describe {source.name}"), cluster=self.cluster,
+                                     topic=self.topic)
         self.skipped.extend((str(source / name), reason) for name, reason in report.failed)
         self.notes.extend(note for note in report.notes if note not in self.notes)
         entry = report.entry
