@@ -717,3 +717,15 @@ def test_a_run_records_the_same_descriptor_parameters_however_it_is_made(descrip
         loc.observe(sorted(query.iterdir())[0])
         recorded.append(loc.results().header.descriptor_params)
     assert recorded == [dict(get_descriptor(descriptor).params)] * 4
+
+
+def test_a_localizer_over_an_imported_map_from_the_cache_compares_its_rows(tmp_path: Path) -> None:
+    """The entry api.import_descriptors gives holds the file's digest and reader in its
+    parameters, not external's storage: a Localizer over it ended in 'file_digest: not a
+    parameter of descriptor 'external''. It takes the entry's metric, length and dtype."""
+    rows = np.random.default_rng(0).random((20, 16)).astype(np.float32)
+    np.save(tmp_path / "m.npy", rows)
+    report = api.import_descriptors(tmp_path / "m.npy", cache=Cache(tmp_path / "cache"), metric="l1")
+    loc = Localizer(report.entry, descriptor="external", metric="l1", method="threshold")
+    assert loc.observe(rows[7]).match == 7
+    assert loc.results().header.descriptor_params == {"metric": "l1", "length": 16, "dtype": "float32"}

@@ -59,7 +59,10 @@ _CACHE_KEYS = ("code_version", "video", "bag", "topic", "sampling")
 
 def entry_params(entry: Entry) -> dict[str, Any]:
     """The parameters of the descriptor ``entry`` was described with (a cached entry's without
-    what the cache keys it by besides), as a run on it describes frames with and records them."""
+    what the cache keys it by besides), as a run on it describes frames with and records them;
+    an imported matrix's are its storage (``external``'s), which its cache key does not hold."""
+    if entry.descriptor == EXTERNAL:
+        return {"metric": entry.metric, "length": entry.length, "dtype": np.dtype(entry.dtype).name}
     return {name: value for name, value in entry.params.items() if name not in _CACHE_KEYS}
 
 
