@@ -39,7 +39,8 @@ from wiloc.methods.base import MapContext, Method
 from wiloc.methods.catgraph.observation import RankLikelihood, Unexplained, novelty_weights
 from wiloc.methods.catgraph.params import CatGraphParams
 from wiloc.methods.catgraph.trajectory import (even_shifted_reads, locate, lowest_nodes, node_positions,
-                                               posterior_ranking, read_runs, shifted_reads, smallest, systematic)
+                                               posterior_ranking, read_runs, shifted_reads, smallest, systematic,
+                                               track_pace)
 from wiloc.recycled import RecycledArrays
 
 START_DEALT = 0.5  # share of particles that start at the paces other than the map's (_start_paces)
@@ -225,10 +226,6 @@ class CatGraph(Method):
                 self._shifted = (u, (at, a, read_runs(at, a, self._nodes.size)))
         return self._shifted[1]
 
-    def motion_sigma(self, pace: float) -> float:
-        """The motion noise of a frame at this pace without odometry, in node spacings."""
-        return float(np.hypot(self.params.step_noise * abs(pace), self.params.noise_floor))
-
     def _advance(self, sequence: NDArray[np.float64], contrast: NDArray[np.float64], u: float,
                  first: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The sequence score after a frame of this contrast and step u (a new array: the leaky
@@ -327,9 +324,9 @@ class CatGraph(Method):
         unexplained.update(log_map, prior.unexplained)
 
         decision = self._read_out(row, j, a, w)
-        pace = self._track_pace(decision.match, j, a, w, speed)
+        pace = track_pace(j, a, w, speed, decision.match, p.mode_window)  # to reckon an unexplained stretch at
         unexplained.follow(self.frames, self._odometer, float(nodes[decision.match]), self._spacing, pace,
-                           self.motion_sigma(pace))
+                           float(np.hypot(p.step_noise * pace, p.noise_floor)))
         likelihood.learn(w * omega, 1.0 - unexplained.u)
 
         if 1.0 / squares < p.resample_ess * p.particles:
@@ -338,13 +335,6 @@ class CatGraph(Method):
             log_w = np.full(p.particles, -np.log(p.particles))
         self._pos, self._speed, self._log_w = pos, speed, log_w
         return decision
-
-    def _track_pace(self, node: int, j: NDArray[np.intp], a: NDArray[np.float64], w: NDArray[np.float64],
-                    speed: NDArray[np.float64]) -> float:
-        """The decided track's pace: the posterior's mean pace over the particles nearest to a
-        node within ``mode_window`` of the decided one (the read-out's window)."""
-        near = np.abs(j + a - node) <= self.params.mode_window + 0.5
-        return float(np.dot(w[near], speed[near]) / w[near].sum())
 
     def _moved(self, pos: NDArray[np.float64], speed: NDArray[np.float64], u: float) -> NDArray[np.float64]:
         """The motion model: s += v u + noise (sd ``step_noise`` of the step, floored); a particle

@@ -1,7 +1,7 @@
 """The CAT-Graph filter's operations on plain arrays along the reference trajectory (used by
 ``wiloc.methods.catgraph.filter``): the nodes' positions and where particles sit between them, the
 sequence score's contrast and shifted reads, choosing among ties the same on every CPU,
-systematic resampling, and the posterior's ranking of the map. docs/catgraph.md gives the filter
+systematic resampling, and the posterior's ranking of the map and pace at the decided node. docs/catgraph.md gives the filter
 they serve.
 """
 from __future__ import annotations
@@ -114,6 +114,15 @@ def posterior_ranking(own: NDArray[np.float64], mode: int, k: int = RANKED) -> N
     held = held[held != mode]
     order = held[np.argsort(-own[held], kind="stable")][:k - 1]
     return np.concatenate([np.array([mode], dtype=np.int64), order.astype(np.int64)])
+
+
+def track_pace(j: NDArray[np.intp], frac: NDArray[np.float64], w: NDArray[np.float64],
+               speed: NDArray[np.float64], node: int, window: int) -> float:
+    """The decided track's pace: the mean pace, by weight ``w``, of the particles (between nodes
+    j and j + 1, a ``frac`` of the way) whose nearest node lies within ``window`` nodes of
+    ``node``, the decided one (the read-out's window)."""
+    near = np.abs(j + frac - node) <= window + 0.5
+    return float(np.dot(w[near], speed[near]) / w[near].sum())
 
 
 def systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.intp]:
