@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from wiloc.cache.store import Cache
-from wiloc.description.traversals import descriptor_spec
 from wiloc.decisions import Decision
+from wiloc.description.traversals import descriptor_spec
 from wiloc.errors import FrameError, WilocError, parameter_values
 from wiloc.evaluation.results import RANKING, ResultsStream
 from wiloc.evaluation.results_header import ResultsHeader, read_header
