@@ -18,7 +18,7 @@ from wiloc.descriptors.external import check_frame_names, check_value_range, rec
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import ParameterError, WilocError, parameter_values
 from wiloc.sources.bags import is_bag
-from wiloc.sources.frames import IMAGE_SUFFIXES
+from wiloc.sources.frames import not_a_traversal
 from wiloc.sources.video import Sampling, is_video
 
 if TYPE_CHECKING:
@@ -183,12 +183,9 @@ class Describer:
         if is_matrix_file(source):
             refuse_results_file(source, "is not a traversal: give a folder of images, a video or a descriptor matrix "
                                         "file (.npy, .npz, .csv, .h5)")
-            suffix = source.suffix.lower()
-            if suffix not in MATRIX_SUFFIXES:
-                kind = ("an image file" if suffix in IMAGE_SUFFIXES
-                        else f"a {suffix} file" if suffix else "a file without a suffix")
-                raise WilocError(source, f"{kind} is not a traversal: give a folder of images, a video or a "
-                                         "descriptor matrix file (.npy, .npz, .csv, .h5)")
+            if source.suffix.lower() not in MATRIX_SUFFIXES:
+                raise WilocError(source, not_a_traversal(source, "give a folder of images, a video or a descriptor "
+                                                                 "matrix file (.npy, .npz, .csv, .h5)"))
             metric = self.metric or recorded_metric(source)
             if metric is None:
                 raise ParameterError("metric", f"{source}: a descriptor matrix file needs a metric (l1, sqeuclidean, "
