@@ -6,7 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import ends_in_one_error
+from typer.testing import CliRunner
 
+from wiloc.cli import app
 from wiloc.decisions import Decision, Decisions
 from wiloc.errors import WilocError
 from wiloc.evaluation.results import Results, ResultsStream, make_results, read_results, write_results
@@ -265,6 +268,53 @@ def test_a_file_without_a_method_line_is_refused_where_the_methods_are_known(tmp
     assert read_results(path).method == ""  # no methods given: any name, none too
     with pytest.raises(WilocError, match="no 'method' header: the method that wrote the file is unknown"):
         read_results(path, METHODS)
+
+
+@pytest.mark.parametrize("name, meant", [("catgrap", "catgraph"), ("Catgraph", "catgraph"), ("cat-graph", "catgraph"),
+                                         ("ONLINE", "online"), ("seq_slam", "seqslam"), ("treshold", "threshold"),
+                                         ("ratoi", "ratio")])
+def test_a_method_name_close_to_a_registered_one_is_refused_naming_it(tmp_path: Path, name: str, meant: str) -> None:
+    """A misspelt method (catgrap) was read as a method another program registers: its columns and
+    differences unchecked, so a renamed column or a bad value catgraph's checks refuse passed.
+    Names are close without case, '-' and '_', and to a program's own registered method too."""
+    from wiloc.methods.registry import METHODS
+
+    path = tmp_path / "run.csv"
+    write_results(path, _made(ResultsHeader(method=name)))
+    line = path.read_text(encoding="utf-8").splitlines().index(f"# method: {name}") + 1
+    with pytest.raises(WilocError, match=rf"run.csv: line {line}: method '{name}' is not registered: "
+                                         rf"did you mean '{meant}'\?"):
+        read_results(path, {**METHODS, "ratio": METHODS["online"]})
+
+
+@pytest.mark.parametrize("name", ["ratio", "offline", "random", "mymethod"])
+def test_a_method_name_resembling_no_registered_one_is_read_as_another_program_s(tmp_path: Path, name: str) -> None:
+    """A method a program of its own registers (docs/architecture.md) is read where it is not
+    registered, its columns unchecked, and where it is as that method's."""
+    from wiloc.methods.registry import METHODS
+
+    path = tmp_path / "run.csv"
+    write_results(path, _made(ResultsHeader(method=name)))
+    assert read_results(path, METHODS).frames["m_r"].iloc[1] == pytest.approx(0.7)
+    assert read_results(path, {**METHODS, name: METHODS["online"]}).method == name  # m_r: online's column
+
+
+def test_every_built_in_method_name_is_read_as_its_method(tmp_path: Path) -> None:
+    from wiloc.methods.registry import METHODS
+
+    path = tmp_path / "run.csv"
+    for name, method in METHODS.items():
+        decisions = replace(_decisions(), columns={}, ranking=_decisions().ranking if method.ranks else None)
+        write_results(path, make_results(decisions, query_names=["a", "b", "c"], ref_names=["x", "y", "z"],
+                                         header=ResultsHeader(method=name)))
+        assert read_results(path, METHODS).method == name
+
+
+def test_evaluate_refuses_a_misspelt_method_in_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "run.csv"
+    write_results(path, _made(ResultsHeader(method="catgrap")))
+    ends_in_one_error(CliRunner().invoke(app, ["evaluate", str(path)]), 1,
+                      f"{path}: line 2: method 'catgrap' is not registered: did you mean 'catgraph'?")
 
 
 @pytest.mark.parametrize("header, legitimate", [

@@ -10,6 +10,7 @@ each row is one write, and a torn last row is cut off when the run resumes.
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import math
 import os
@@ -271,7 +272,7 @@ def read_results(path: Path, methods: Mapping[str, type[Method]] | None = None) 
     has its confidences checked down to that method's ``lowest_confidence`` and its differences
     checked (:func:`_check_differences`); a file naming another (a method a program of its own
     registers), or read without ``methods``, has confidences in [0, 1] and differences unchecked;
-    a file naming no method is refused."""
+    a file naming no method, or one close to a registered name (:func:`_method`), is refused."""
     path = Path(path)
     header, frames, first_line = _read_table(path)
     method = _method(path, header, methods) if methods is not None else None
@@ -301,15 +302,38 @@ def read_results(path: Path, methods: Mapping[str, type[Method]] | None = None) 
 def _method(path: Path, header: ResultsHeader, methods: Mapping[str, type[Method]]) -> type[Method] | None:
     """The class of the method a results file names, None for a name not among ``methods`` (one a
     program of its own registers: its runs are read, unchecked against its bounds); a WilocError
-    naming the file and the line when it names none (every run writes its method's name)."""
+    naming the file and the line when it names none (every run writes its method's name) or a
+    name close to a registered one (:func:`_resembled`): a misspelt ``catgrap`` read as another
+    program's method would pass, unchecked, what catgraph's checks refuse."""
     if header.method in methods:
         return methods[header.method]
     if header.method.strip():
-        return None
+        close = _resembled(header.method, methods)
+        if close is None:
+            return None
+        raise WilocError(path, f"line {header_line(path, 'method')}: method '{header.method}' is not registered: "
+                               f"did you mean '{close}'? (a program that registers '{header.method}' reads its runs)")
     line = header_line(path, "method")
     if line is None:
         raise WilocError(path, "no 'method' header: the method that wrote the file is unknown")
     raise WilocError(path, f"line {line}: header 'method' is empty: the method that wrote the file is unknown")
+
+
+#: How alike (difflib's ratio) a results file's method name and a registered one must be for the
+#: file's name to be taken as the registered one misspelt: one letter dropped, added or changed in
+#: names of six letters or more (``catgrap``, ``onlin``), not another word (``offline``, ``random``).
+CLOSE_NAME = 0.8
+
+
+def _resembled(name: str, methods: Collection[str]) -> str | None:
+    """The registered method name ``name`` resembles, compared without case, ``-`` and ``_``
+    (``Catgraph``, ``cat-graph`` are catgraph's); None when it resembles none."""
+    def key(text: str) -> str:
+        return text.lower().replace("-", "").replace("_", "")
+
+    keys = {key(registered): registered for registered in methods}
+    close = difflib.get_close_matches(key(name), keys, n=1, cutoff=CLOSE_NAME)
+    return keys[close[0]] if close else None
 
 
 def _check_columns(path: Path, frames: pd.DataFrame, name: str, method: type[Method], line: int) -> None:
