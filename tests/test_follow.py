@@ -571,3 +571,43 @@ def test_a_followed_file_recording_the_parameters_given_resumes(demo_route: demo
     out.write_text(text.replace(line, '# descriptor_params: {"crop": "top-half"}\n'))
     with pytest.raises(WilocError, match="holds a run with other settings"):
         api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3)
+
+
+WRITTEN = "frame, match, difference, confidence, stage, ranking"  # the columns a threshold run writes
+
+
+@pytest.mark.parametrize("table, problem", [
+    (lambda rows: rows[["frame", "match", "confidence", "difference", "stage", "ranking"]],
+     f"its columns are in another order (frame, match, confidence, difference, stage, ranking) than this run "
+     f"writes ({WRITTEN})"),
+    (lambda rows: rows.iloc[:0][["frame", "match", "confidence", "difference", "stage", "ranking"]],
+     f"its columns are in another order (frame, match, confidence, difference, stage, ranking) than this run "
+     f"writes ({WRITTEN})"),
+    (lambda rows: rows.drop(columns="ranking"),
+     f"its columns (frame, match, difference, confidence, stage) are not those this run writes ({WRITTEN}): "
+     "ranking missing"),
+    (lambda rows: rows.assign(note="x")[["frame", "note", "match", "difference", "confidence", "stage"]],
+     f"its columns (frame, note, match, difference, confidence, stage) are not those this run writes ({WRITTEN}): "
+     "ranking missing, note extra"),
+], ids=["reordered", "reordered-no-rows", "missing", "missing-and-extra"])
+def test_a_followed_file_with_other_columns_is_refused_for_them_not_the_settings(
+        demo_route: demo.DemoRoute, table: object, problem: str, tmp_path: Path, cache_dir: Path) -> None:
+    """A followed file re-saved with its columns moved was refused as if the map, the frames or the
+    settings had changed (a user then changes settings that were right), and one holding the column
+    line alone was resumed, its new rows appended in the run's order under the file's. The refusal
+    names the columns found and those the run writes; the file is left as it was."""
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+    live = _live_folder(tmp_path, sorted(demo_route.queries[0].iterdir())[:4])
+    out = tmp_path / "r.csv"
+    list(api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3))
+    header = "".join(line for line in out.read_text().splitlines(keepends=True) if line.startswith("# "))
+    out.write_text(header + table(_rows(out)).to_csv(index=False))
+    edited = out.read_bytes()
+    result = CliRunner().invoke(app, ["localize", str(live), "--map", str(demo_route.reference), "--method",
+                                      "threshold", "--follow", "--idle", "0.3", "--out", str(out)])
+    assert result.exit_code == 1 and result.stdout == ""
+    assert result.stderr.splitlines() == [f"error: --out: {out}: cannot resume: {problem}; give another file to "
+                                          "start anew"]
+    assert out.read_bytes() == edited and not (tmp_path / ".r.csv.lock").exists()

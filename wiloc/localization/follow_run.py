@@ -105,6 +105,7 @@ def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descr
                            (*localizer.method.columns, *ranked), resume=True, learned=localizer.method.facts().keys())
     names = stream.rows["frame"].tolist()
     try:
+        _check_columns(path, list(stream.rows.columns), list(stream.columns))
         for name, line in zip(names, stream.written_lines()):
             try:
                 decision = localizer.observe(query / name)
@@ -121,6 +122,21 @@ def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descr
         raise
     return FollowRun(query=query, localizer=localizer, stream=stream, idle=idle, poll=poll, resumed=len(names),
                      warnings=localizer.doubts, lock=lock)
+
+
+def _check_columns(path: Path, found: list[str], written: list[str]) -> None:
+    """A WilocError when the results file's columns (``found``) are not those the run writes
+    (``written``), in that order: its rows would differ from the lines the run decides again, as
+    if the settings had changed, and new rows would go under a column line naming other values."""
+    if found == written:
+        return
+    shown = ", ".join(found), ", ".join(written)
+    if sorted(found) == sorted(written):
+        problem = "its columns are in another order ({}) than this run writes ({})".format(*shown)
+    else:
+        odd = [f"{c} missing" for c in written if c not in found] + [f"{c} extra" for c in found if c not in written]
+        problem = "its columns ({}) are not those this run writes ({}): ".format(*shown) + ", ".join(odd)
+    raise WilocError(None, f"{path}: cannot resume: {problem}; give another file to start anew", parameter="out")
 
 
 def _as_written(path: Path, header: ResultsHeader, descriptor: str) -> ResultsHeader:
