@@ -23,6 +23,14 @@ re-sampling of frame indices, never a copy of an image:
     drift       map thinned to every 2nd frame; the query's step drifts smoothly between 1 and 4
                 frames (0.5x to 2x the map's pace), one slow-fast-slow cycle every 200 frames
 
+Two more, run only when named (``--variants start-off,leave``), where part of the query has no
+place on the map, so that a frame matched there is wrong and P(new place) should be high:
+
+    start-off   the map begins a quarter of the way along the route (frame 50 of 200), the query
+                at the route's start: its first frames lie before the map
+    leave       the map without the route's frames 30-50 % (60-99 of 200): the query leaves the
+                map and comes back to it
+
 The ground truth of a query frame is the map node holding its original frame (for a thinned map,
 the nearest node), +-2 map nodes. The method runs on the difference rows of the re-sampled query
 to the re-sampled map, started on the re-sampled map (its size, its neighbours' differences, its
@@ -43,7 +51,8 @@ From an experiment script (with ``benchmarks/`` on ``sys.path``, e.g. ``sys.path
 
 ``run_variant(traversal, variant, method="catgraph", params=None, progress=None) -> dict`` returns
 the measures of one run as plain floats and ints (keys: traversal, variant, method, params,
-frames, map_nodes, decided, r1, ap, ece, precision@0.9, accepted@0.9, new_place, seconds);
+frames, map_nodes, decided, r1, ap, ece, precision@0.9, accepted@0.9, new_place, new_place_ece, seconds;
+``new_place_ece``: the ECE of P(new place) as the probability that the frame has no place on the map);
 ``decide(traversal, variant, method, params)`` the run's ``Decisions``, ``score(decisions, variant)``
 its measures and ``truth(variant, tolerance=2)`` its ground truth as a ``wiloc.evaluation.groundtruth.Truth``. ``variants(n)`` builds the variants of a route
 of ``n`` frames (``names`` picks some); ``TRAVERSALS`` lists the traversals by name.
@@ -97,6 +106,8 @@ TRAVERSALS: dict[str, tuple[str, str, str, str]] = {
 }
 
 VARIANTS = ("same", "pace-1/3", "pace-1/2", "pace-2", "pace-3", "reversed", "stop", "u-turn", "jump", "drift")
+OFF_MAP_VARIANTS = ("start-off", "leave")  # run when named: part of the query has no place on the map
+NO_NODE = -1  # the true node of a query frame whose place is not on the map
 
 
 # ------------------------------------------------------------------------------------------ variants
@@ -122,6 +133,18 @@ def _variant(name: str, query: Sequence[int] | NDArray[np.integer], n: int, map_
         raise ValueError(f"{name}: query frames outside 0..{n - 1}")
     nearest = np.minimum((2 * q + map_step - 1) // (2 * map_step), map_frames.size - 1)
     return Variant(name, map_frames, q, nearest.astype(np.int64))
+
+
+def _off_map(name: str, kept: NDArray[np.int64], n: int) -> Variant:
+    """The query retracing the whole route against a map of the route frames ``kept`` only: a
+    query frame's true node is its place's when the map keeps it, else the nearest kept frame
+    within the tolerance, else none (:data:`NO_NODE`)."""
+    q = np.arange(n, dtype=np.int64)
+    after = np.clip(np.searchsorted(kept, q), 0, kept.size - 1)
+    before = np.clip(after - 1, 0, kept.size - 1)
+    nearest = np.where(np.abs(kept[before] - q) < np.abs(kept[after] - q), before, after)
+    truth = np.where(np.abs(kept[nearest] - q) <= TOLERANCE, nearest, NO_NODE)
+    return Variant(name, kept, q, truth.astype(np.int64))
 
 
 def _stops(n: int) -> NDArray[np.int64]:
@@ -161,22 +184,31 @@ def variants(n: int, names: Sequence[str] | None = None) -> list[Variant]:
         "u-turn": lambda: _variant("u-turn", np.r_[0:turn + 1, turn:back_to - 1:-1], n),
         "jump": lambda: _variant("jump", np.r_[0:cut, resume:n, cut:resume], n),
         "drift": lambda: _variant("drift", _drift(n), n, map_step=2),
+        "start-off": lambda: _off_map("start-off", everything[round(0.25 * n):], n),
+        "leave": lambda: _off_map("leave", np.r_[0:round(0.3 * n), round(0.5 * n):n].astype(np.int64), n),
     }
     chosen = list(VARIANTS) if names is None else list(names)
     unknown = [name for name in chosen if name not in build]
     if unknown:
-        raise ValueError(f"unknown variant(s) {', '.join(unknown)} (choose from {', '.join(VARIANTS)})")
+        raise ValueError(f"unknown variant(s) {', '.join(unknown)} (choose from "
+                         f"{', '.join(VARIANTS + OFF_MAP_VARIANTS)})")
     return [build[name]() for name in chosen]
 
 
 def truth(variant: Variant, tolerance: int = TOLERANCE) -> Truth:
     """The variant's ground truth as wiloc scores it: query frame k matches map nodes within
-    +-``tolerance`` of its true node (the matrix form of ``wiloc.evaluation.groundtruth``)."""
+    +-``tolerance`` of its true node (the matrix form of ``wiloc.evaluation.groundtruth``), on
+    the same stretch of the map (not across a gap the map leaves out); a frame whose true node is
+    :data:`NO_NODE` matches none."""
     n_query, n_map = variant.truth.size, variant.map_frames.size
     offsets = np.arange(-tolerance, tolerance + 1)
     rows = np.repeat(np.arange(n_query), offsets.size)
-    cols = (variant.truth[:, None] + offsets[None, :]).ravel()
-    keep = (cols >= 0) & (cols < n_map)
+    true_node = np.repeat(variant.truth, offsets.size)
+    cols = true_node + np.tile(offsets, n_query)
+    keep = (true_node != NO_NODE) & (cols >= 0) & (cols < n_map)
+    step = int(np.diff(variant.map_frames).min()) if n_map > 1 else 1
+    frames = variant.map_frames
+    keep[keep] = np.abs(frames[cols[keep]] - frames[true_node[keep]]) <= tolerance * step
     matrix = sparse.coo_array((np.ones(int(keep.sum()), dtype=np.bool_), (rows[keep], cols[keep])),
                               shape=(n_query, n_map)).tocsr()
     # distinct names on each axis, so that a variant is never taken for a run against itself
@@ -268,7 +300,8 @@ def score(decisions: Decisions, variant: Variant) -> dict[str, float | int]:
             "r1": summary.recall_at_1, "ap": summary.auc, "ece": calibration["ece"],
             f"precision@{CUT:g}": calibration[f"precision@{CUT:g}"],
             f"accepted@{CUT:g}": calibration[f"accepted@{CUT:g}"],
-            "new_place": float("nan") if p_new is None else p_new.mean_confidence}
+            "new_place": float("nan") if p_new is None else p_new.mean_confidence,
+            "new_place_ece": float("nan") if p_new is None else p_new.ece}
 
 
 def run_variant(traversal: Traversal, variant: Variant, method: str = "catgraph",
@@ -291,7 +324,8 @@ def over_seeds(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     merged = []
     for runs in groups.values():
         row = dict(runs[0])
-        for key in ("r1", "ap", "ece", f"precision@{CUT:g}", f"accepted@{CUT:g}", "new_place", "seconds"):
+        for key in ("r1", "ap", "ece", f"precision@{CUT:g}", f"accepted@{CUT:g}", "new_place", "new_place_ece",
+                    "seconds"):
             values = np.array([np.nan if r[key] is None else r[key] for r in runs], dtype=np.float64)
             row[key] = float(np.nanmean(values)) if np.isfinite(values).any() else float("nan")
         row[f"accepted@{CUT:g}"] = round(row[f"accepted@{CUT:g}"])
@@ -348,8 +382,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     parser = benchmark_parser(__doc__, "catgraph,seqslam", "catgraph.particles=4000")
     parser.add_argument("--traversals", default=",".join(TRAVERSALS), help="comma-separated (default: all): "
                         + ", ".join(TRAVERSALS))
-    parser.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated (default: all): "
-                        + ", ".join(VARIANTS))
+    parser.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated (default: all of "
+                        + ", ".join(VARIANTS) + "; also " + ", ".join(OFF_MAP_VARIANTS) + ")")
     parser.add_argument("--seed", type=int, default=None, help="seed of methods that take one (default: 0)")
     parser.add_argument("--seeds", default=None, help="run methods that take a seed once per seed and print "
                         "the means, e.g. 0-4 or 0,3,7-9 (instead of --seed)")
@@ -370,9 +404,9 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     for t in traversal_names:
         if t not in TRAVERSALS:
             parser.error(f"unknown traversal {t!r} (choose from {', '.join(TRAVERSALS)})")
-    bad = [v for v in variant_names if v not in VARIANTS]
+    bad = [v for v in variant_names if v not in VARIANTS + OFF_MAP_VARIANTS]
     if bad:
-        parser.error(f"unknown variant(s) {', '.join(bad)} (choose from {', '.join(VARIANTS)})")
+        parser.error(f"unknown variant(s) {', '.join(bad)} (choose from {', '.join(VARIANTS + OFF_MAP_VARIANTS)})")
     if args.seed is not None and args.seeds is not None:
         parser.error("give --seed or --seeds, not both")
     try:

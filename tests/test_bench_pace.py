@@ -104,6 +104,28 @@ def test_truth_is_the_true_node_plus_minus_two(bench) -> None:
     np.testing.assert_array_equal(np.flatnonzero(dense[10]), [7, 8, 9, 10, 11])
 
 
+def test_off_map_variants_are_built_only_when_named(bench) -> None:
+    assert not set(bench.OFF_MAP_VARIANTS) & {v.name for v in bench.variants(200)}
+    start, leave = bench.variants(200, ["start-off", "leave"])
+    np.testing.assert_array_equal(start.map_frames, np.arange(50, 200))
+    np.testing.assert_array_equal(start.query_frames, np.arange(200))
+    assert (start.truth[:48] == bench.NO_NODE).all()
+    assert start.truth[48] == 0 and start.truth[50] == 0 and start.truth[199] == 149
+    np.testing.assert_array_equal(leave.map_frames, np.r_[0:60, 100:200])
+    assert leave.truth[59] == 59 and leave.truth[61] == 59 and leave.truth[98] == 60 and leave.truth[100] == 60
+    assert (leave.truth[62:98] == bench.NO_NODE).all()
+
+
+def test_off_map_frames_match_nothing_and_no_frame_matches_across_the_gap(bench) -> None:
+    start, leave = bench.variants(200, ["start-off", "leave"])
+    has = bench.truth(start).has_match()
+    assert not has[:48].any() and has[48:].all()
+    dense = bench.truth(leave).matrix.toarray()
+    assert not dense[62:98].any()
+    np.testing.assert_array_equal(np.flatnonzero(dense[59]), [57, 58, 59])  # nodes 60, 61 are places 100, 101
+    np.testing.assert_array_equal(np.flatnonzero(dense[100]), [60, 61, 62])
+
+
 def test_a_run_scores_with_wilocs_measures(bench) -> None:
     rng = np.random.default_rng(0)
     n = 60
@@ -116,7 +138,7 @@ def test_a_run_scores_with_wilocs_measures(bench) -> None:
     variant = by_name(bench, n)["reversed"]
     row = bench.run_variant(trav, variant, "threshold")
     assert row["r1"] == 1.0 and row["frames"] == n and row["map_nodes"] == n
-    assert {"ap", "ece", "precision@0.9", "accepted@0.9", "new_place", "seconds"} <= set(row)
+    assert {"ap", "ece", "precision@0.9", "accepted@0.9", "new_place", "new_place_ece", "seconds"} <= set(row)
 
 
 @pytest.mark.realdata
@@ -160,6 +182,7 @@ def test_seeds_are_listed_once_each_and_runs_merge_into_their_means(bench) -> No
         with pytest.raises(ValueError, match="--seeds"):
             bench.seed_list(bad)
     run = {"traversal": "t", "variant": "same", "method": "catgraph", "ap": 0.5, "ece": 0.1, "new_place": None,
+           "new_place_ece": None,
            "seconds": 1.0}
     rows = [{**run, "r1": 0.9, "precision@0.9": 1.0, "accepted@0.9": 10, "params": {"seed": 0}},
             {**run, "r1": 0.6, "precision@0.9": None, "accepted@0.9": 0, "params": {"seed": 1}},
