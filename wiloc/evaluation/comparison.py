@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from numbers import Real
 from pathlib import Path
 from typing import Any
@@ -25,10 +25,11 @@ from wiloc.evaluation.metrics import (RANKED_KS, PRCurve, Summary, correct_match
 from wiloc.evaluation.reliability import (DEFAULT_CUTS, NEW_PLACE_KEYS, Calibration, ReliabilityBins,
                                           summarize_calibration, summarize_new_place)
 from wiloc.evaluation.results import Results
-from wiloc.evaluation.results_header import ResultsHeader
+from wiloc.evaluation.results_header import ResultsHeader, header_line, read_header
 from wiloc.evaluation.truth_source import TruthSource
 from wiloc.labels import short_names
 from wiloc.reprs import short_repr
+from wiloc.sources.frames import natural_sorted
 
 
 #: The query traversal of a run in memory that records none (``Localizer.results()`` without ``query``).
@@ -97,6 +98,7 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
         raise ParameterError("truth", f"a TruthSource (api.TruthSource(kind='aligned', tolerance=2), ...), "
                                       f"got {type(truth).__name__}")
     cuts, recall_at = check_cuts(cuts), check_recall_at(recall_at)
+    results = in_run_order(path, results)
     query_names = results.frames["frame"].tolist()
     header = results.header
     ref_names = results.reference_frames or query_names
@@ -116,6 +118,42 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
     new_place = None if p_new is None else summarize_new_place(p_new, loaded.has_match(), cuts)
     return Evaluation(path=path, results=results, truth=loaded, correct=correct, summary=summary,
                       confidence=confidence, calibration=calibration, new_place=new_place)
+
+
+def in_run_order(path: Path | None, results: Results) -> Results:
+    """``results`` with its rows in the order its run decided the frames, as ground truth that
+    counts frames by position reads them (a matrix, positives, VPR-Bench's indices, aligned by
+    index, sequence mode's earlier frames): a file sorted by confidence, or its halves swapped,
+    scores as the file the run wrote. The file itself records that order: in sequence mode its
+    header's ``reference_frames`` (the run's own frames, in order), where a row of another frame,
+    or a listed frame without a row, is a WilocError naming it; for a batch run on a folder or a
+    video (a ``query_digest`` in map mode, no bag ``topic``) the frames' natural order, in which
+    such a run lists them. Other runs (frame by frame, followed, a bag's in message order) keep
+    the rows' order."""
+    header, names = results.header, results.frames["frame"].tolist()
+    if header.sequence and header.reference_frames:
+        order = list(header.reference_frames)
+    elif not header.sequence and header.query_digest is not None and header.topic is None:
+        order = natural_sorted(names)
+    else:
+        return results
+    rank = {name: i for i, name in enumerate(order)}
+    run = "" if path else f" in the run {_run_name(path, header)}"
+    stray = next((i for i, name in enumerate(names) if name not in rank), None)
+    if stray is not None:
+        line = f"line {read_header(path)[1] + 2 + stray}: " if path else ""
+        raise WilocError(path, f"{line}frame '{names[stray]}' is not one of the run's frames (its header's "
+                               f"reference_frames){run}")
+    if len(names) < len(order):
+        present = set(names)
+        missing = next(name for name in order if name not in present)
+        listed = f" (line {header_line(path, 'reference_frames')})" if path else ""
+        raise WilocError(path, f"no row for frame '{missing}', which its header's reference_frames{listed} "
+                               f"lists{run}: the file is incomplete or was edited")
+    rows = np.argsort([rank[name] for name in names], kind="stable")
+    if (rows == np.arange(len(names))).all():
+        return results
+    return replace(results, frames=results.frames.iloc[rows].reset_index(drop=True))
 
 
 def _run_name(path: Path | None, header: ResultsHeader) -> str:
