@@ -143,7 +143,7 @@ def test_missing_column_and_duplicates(tmp_path: Path) -> None:
         read_results(path)
     lines = text.replace("# frames: 3", "# frames: 4").splitlines()
     path.write_text("\n".join(lines + [lines[-1]]) + "\n", encoding="utf-8")
-    with pytest.raises(WilocError, match="duplicate row"):
+    with pytest.raises(WilocError, match=f"line {len(lines) + 1}: frame 'c' again \\(line {len(lines)} gives it\\)"):
         read_results(path)
 
 

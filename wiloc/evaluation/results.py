@@ -489,7 +489,10 @@ def _read_table(path: Path) -> tuple[ResultsHeader, pd.DataFrame, int]:
     if header.frames is not None and len(frames) != header.frames:
         raise WilocError(path, f"holds {len(frames)} rows, its header says {header.frames}: "
                                "the file is incomplete or was edited")
-    if frames["frame"].duplicated().any():
-        dup = frames["frame"][frames["frame"].duplicated()].iloc[0]
-        raise WilocError(path, f"duplicate row for frame '{dup}'")
+    again = np.flatnonzero(frames["frame"].duplicated().to_numpy())
+    if again.size:
+        name, first = frames["frame"].iloc[again[0]], n_header + 2
+        earlier = first + frames["frame"].tolist().index(name)
+        raise WilocError(path, f"line {first + again[0]}: frame '{name}' again (line {earlier} gives it): "
+                               "a run writes one row a frame")
     return header, frames, n_header + 2
