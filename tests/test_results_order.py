@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -64,12 +65,16 @@ def _two_swapped(rows: list[str]) -> list[str]:
     return [rows[7], *rows[1:7], rows[0], *rows[8:]]
 
 
-def _scores(path: Path, *gt: str) -> dict[str, object]:
-    """What ``wiloc evaluate --json`` prints of a run, without the file's name."""
+def _evaluated(path: Path, *gt: str) -> dict[str, Any]:
+    """What ``wiloc evaluate --json`` prints of a run."""
     result = CliRunner().invoke(app, ["evaluate", str(path), *gt, "--json"])
     assert result.exit_code == 0, result.output
-    run = json.loads(result.stdout)["runs"][0]
-    return {key: value for key, value in run.items() if key != "results"}
+    return json.loads(result.stdout)["runs"][0]
+
+
+def _scores(path: Path, *gt: str) -> dict[str, Any]:
+    """The numbers ``wiloc evaluate --json`` prints of a run (without the file's name and warnings)."""
+    return {key: value for key, value in _evaluated(path, *gt).items() if key not in ("results", "truth_warnings")}
 
 
 @pytest.fixture
@@ -93,6 +98,8 @@ def test_a_batch_runs_rows_in_another_order_score_as_the_file_the_run_wrote(tmp_
     expected = _scores(written, *gt)
     assert 0.0 < expected["recall_at_1"] < 1.0  # the run's wrong matches are counted wrong, its right ones right
     assert _scores(edited, *gt) == expected
+    assert _evaluated(written, *gt)["truth_warnings"] == []
+    assert [w for w in _evaluated(edited, *gt)["truth_warnings"] if "rows are out of their run's order" in w]
 
 
 def test_a_sequence_runs_rows_in_another_order_score_as_the_file_the_run_wrote(tmp_path: Path) -> None:
@@ -126,6 +133,17 @@ def test_a_frame_of_a_sequence_run_without_its_row_is_refused_naming_it(tmp_path
     ends_in_one_error(result, 1, f"{edited}: no row for frame 'img5.png', which its header's reference_frames")
 
 
+def test_a_frame_renamed_in_a_batch_runs_file_is_said_naming_its_line(tmp_path: Path, identity: str) -> None:
+    """A renamed frame takes its new name's place in the frames' natural order, moving the rows
+    between: the warning names the count and the first row out of place, as the file holds it."""
+    written = _write_run(tmp_path / "walk-sad-online.csv", MAP_RUN)
+    edited = _edited(written, lambda rows: [rows[0].replace("img1.png", "img99.png", 1), *rows[1:]], "edited.csv")
+    first_row = written.read_text(encoding="utf-8").splitlines().index("frame,match,difference,confidence,stage") + 2
+    warnings = _evaluated(edited, "--gt", f"matrix:{identity}")["truth_warnings"]
+    assert warnings == [f"{len(NAMES)} of {len(NAMES)} rows are out of their run's order (its frames' natural order), "
+                        f"the first at line {first_row}, frame 'img99.png': scored in the run's order"]
+
+
 def test_a_run_that_records_no_order_keeps_its_rows_order(tmp_path: Path, identity: str) -> None:
     """A frame-by-frame or followed run (no query digest against a map) decided its frames in the
     order they came, which its rows keep: that order, not the names', is the one positions count."""
@@ -136,4 +154,5 @@ def test_a_run_that_records_no_order_keeps_its_rows_order(tmp_path: Path, identi
     live = tmp_path / "live.csv"
     header = ResultsHeader(method="online", mode="map", query="/data/walk", map="/data/map")
     write_results(live, make_results(decisions, query_names=arrival, ref_names=NAMES, header=header))
-    assert _scores(live, "--gt", f"matrix:{identity}")["recall_at_1"] == 1.0
+    run = _evaluated(live, "--gt", f"matrix:{identity}")
+    assert run["recall_at_1"] == 1.0 and run["truth_warnings"] == []

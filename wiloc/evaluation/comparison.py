@@ -98,7 +98,9 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
         raise ParameterError("truth", f"a TruthSource (api.TruthSource(kind='aligned', tolerance=2), ...), "
                                       f"got {type(truth).__name__}")
     cuts, recall_at = check_cuts(cuts), check_recall_at(recall_at)
-    results = in_run_order(path, results)
+    ordered = in_run_order(path, results)
+    moved = _out_of_order(path, results, ordered)
+    results = ordered
     query_names = results.frames["frame"].tolist()
     header = results.header
     ref_names = results.reference_frames or query_names
@@ -109,6 +111,8 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
         loaded = truth.load(query_names, ref_names, header.query, header.sequence, header.exclude_recent, header.map)
     except TruthMismatch as exc:
         raise exc.of_run(_run_name(path, header)) from None
+    if moved:
+        loaded.warnings.append(moved)
     match = results.match_index
     summary = summarize(match, results.confidence, loaded, results.ranking, recall_at)
     correct = correct_matches(match, loaded)
@@ -154,6 +158,20 @@ def in_run_order(path: Path | None, results: Results) -> Results:
     if (rows == np.arange(len(names))).all():
         return results
     return replace(results, frames=results.frames.iloc[rows].reset_index(drop=True))
+
+
+def _out_of_order(path: Path | None, results: Results, ordered: Results) -> str | None:
+    """The warning for rows that :func:`in_run_order` moved (sorted or moved by hand, or a frame
+    renamed, which moves every row between its old and new place): their count and the first, as
+    the file holds it; None when every row stood in its place."""
+    found = results.frames["frame"].to_numpy()
+    moved = np.flatnonzero(found != ordered.frames["frame"].to_numpy())
+    if not moved.size:
+        return None
+    line = f"line {read_header(path)[1] + 2 + int(moved[0])}, " if path else ""
+    kept = "the order of its reference_frames" if results.header.sequence else "its frames' natural order"
+    return (f"{moved.size} of {found.size} rows are out of their run's order ({kept}), the first at {line}frame "
+            f"'{found[moved[0]]}': scored in the run's order")
 
 
 def _run_name(path: Path | None, header: ResultsHeader) -> str:
