@@ -147,6 +147,18 @@ def test_missing_column_and_duplicates(tmp_path: Path) -> None:
         read_results(path)
 
 
+def test_a_row_without_a_frame_name_is_refused_naming_its_line(tmp_path: Path) -> None:
+    """A row whose frame cell an edit emptied was read as a frame named '' and scored."""
+    path = tmp_path / "run.csv"
+    write_results(path, _made())
+    lines = path.read_text(encoding="utf-8").splitlines()
+    row = lines.index(next(line for line in lines if line.startswith("b,")))
+    lines[row] = lines[row][1:]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(WilocError, match=f"line {row + 1}: the frame cell is empty"):
+        read_results(path)
+
+
 def test_missing_file() -> None:
     with pytest.raises(WilocError, match="does not exist"):
         read_results(Path("/nonexistent/run.csv"))

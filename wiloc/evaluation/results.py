@@ -489,10 +489,11 @@ def _read_table(path: Path) -> tuple[ResultsHeader, pd.DataFrame, int]:
     if header.frames is not None and len(frames) != header.frames:
         raise WilocError(path, f"holds {len(frames)} rows, its header says {header.frames}: "
                                "the file is incomplete or was edited")
-    again = np.flatnonzero(frames["frame"].duplicated().to_numpy())
-    if again.size:
-        name, first = frames["frame"].iloc[again[0]], n_header + 2
-        earlier = first + frames["frame"].tolist().index(name)
-        raise WilocError(path, f"line {first + again[0]}: frame '{name}' again (line {earlier} gives it): "
-                               "a run writes one row a frame")
+    odd = np.flatnonzero((frames["frame"].duplicated() | (frames["frame"] == "")).to_numpy())  # a run names each once
+    if odd.size:
+        names, first = frames["frame"].tolist(), n_header + 2
+        name = names[odd[0]]
+        problem = (f"frame '{name}' again (line {first + names.index(name)} gives it): a run writes one row a frame"
+                   if name else "the frame cell is empty: a run names the frame of every row")
+        raise WilocError(path, f"line {first + odd[0]}: {problem}")
     return header, frames, n_header + 2
