@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -155,4 +156,18 @@ def test_a_run_that_records_no_order_keeps_its_rows_order(tmp_path: Path, identi
     header = ResultsHeader(method="online", mode="map", query="/data/walk", map="/data/map")
     write_results(live, make_results(decisions, query_names=arrival, ref_names=NAMES, header=header))
     run = _evaluated(live, "--gt", f"matrix:{identity}")
+    assert run["recall_at_1"] == 1.0 and run["truth_warnings"] == []
+
+
+def test_a_batch_run_on_imported_descriptors_keeps_its_rows_order(tmp_path: Path, identity: str) -> None:
+    """An imported matrix's frames keep its rows' order, not their names' natural order: a batch
+    run on it writes its rows so, and they are scored so, without a warning."""
+    arrival = [NAMES[1], NAMES[0], *NAMES[2:]]
+    k = np.arange(len(NAMES))
+    decisions = Decisions(match=k, difference=np.full(k.size, 0.1), confidence=np.linspace(0.99, 0.4, k.size),
+                          stage=np.full(k.size, "update"))
+    path = tmp_path / "queries-external:cosine-online.csv"
+    header = replace(MAP_RUN, descriptor="external:cosine", query="/data/queries.h5")
+    write_results(path, make_results(decisions, query_names=arrival, ref_names=NAMES, header=header))
+    run = _evaluated(path, "--gt", f"matrix:{identity}")
     assert run["recall_at_1"] == 1.0 and run["truth_warnings"] == []

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from wiloc.cache.entries import EXTERNAL
 from wiloc.candidates import RANKED
 from wiloc.errors import ParameterError, WilocError
 from wiloc.evaluation.groundtruth import Truth, TruthMismatch
@@ -131,13 +132,14 @@ def in_run_order(path: Path | None, results: Results) -> Results:
     scores as the file the run wrote. The file itself records that order: in sequence mode its
     header's ``reference_frames`` (the run's own frames, in order), where a row of another frame,
     or a listed frame without a row, is a WilocError naming it; for a batch run on a folder or a
-    video (a ``query_digest`` in map mode, no bag ``topic``) the frames' natural order, in which
-    such a run lists them. Other runs (frame by frame, followed, a bag's in message order) keep
-    the rows' order."""
+    video (a ``query_digest`` in map mode, no bag ``topic``, no imported descriptors) the frames'
+    natural order, in which such a run lists them. Other runs (frame by frame, followed, a bag's
+    in message order, an imported matrix's in its rows' order) keep the rows' order."""
     header, names = results.header, results.frames["frame"].tolist()
     if header.sequence and header.reference_frames:
         order = list(header.reference_frames)
-    elif not header.sequence and header.query_digest is not None and header.topic is None:
+    elif (not header.sequence and header.query_digest is not None and header.topic is None
+          and (header.descriptor or "").partition(":")[0] != EXTERNAL):
         order = natural_sorted(names)
     else:
         return results
