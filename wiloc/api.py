@@ -19,9 +19,9 @@ from wiloc.description.describing import (DescribeReport, check_sampling, check_
                                          traversal_paths)
 from wiloc.description.traversals import Progress, descriptor_spec, open_cluster, stage
 from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_cuts,
-                                         check_once, check_precisions, check_recall_at, comparison, method_labels,
-                                         new_place_series, pr_series, reliability_series, run_names, run_subject,
-                                         score, threshold_marks, threshold_series, traversal_labels)
+                                         check_frames, check_once, check_precisions, check_recall_at, comparison,
+                                         method_labels, new_place_series, pr_series, reliability_series, run_names,
+                                         run_subject, score, threshold_marks, threshold_series, traversal_labels)
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.truth_source import TruthSource
 from wiloc.localization.batch import LocalizeRun, localize
@@ -70,34 +70,38 @@ Run = Path | str | LocalizeRun | Results
 
 
 def evaluate(run: Run, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS,
-             recall_at: Sequence[int] = RANKED_KS) -> Evaluation:
+             recall_at: Sequence[int] = RANKED_KS, *, frames: slice | str | None = None) -> Evaluation:
     """Precision-recall metrics and calibration (with precision and recall at fixed confidence
     ``cuts``) of one run against ground truth, and of its P(new place) where the run gives one:
     a results file, or a run in memory. Recall@N for each N of ``recall_at`` when the run ranks
-    the map (``wiloc.evaluation.comparison.score``). Several runs are scored one by one, or side by
-    side with :func:`compare`: a list is a ParameterError naming ``run`` and saying so."""
+    the map (``wiloc.evaluation.comparison.score``). ``frames`` scores a slice of the run's frames
+    only, in the run's order (``slice(20, None)`` or ``"20:"``: after the first 20). Several runs
+    are scored one by one, or side by side with :func:`compare`: a list is a ParameterError naming
+    ``run`` and saying so."""
+    frames = check_frames(frames)  # refused before any file is read
     if isinstance(run, LocalizeRun):
-        return score(run.path, run.results, truth, cuts, recall_at)
+        return score(run.path, run.results, truth, cuts, recall_at, frames)
     if isinstance(run, Results):
-        return score(None, run, truth, cuts, recall_at)
+        return score(None, run, truth, cuts, recall_at, frames)
     path = results_file(run, "run")
-    return score(path, read_run(path), truth, cuts, recall_at)
+    return score(path, read_run(path), truth, cuts, recall_at, frames)
 
 
 # ------------------------------------------------------------------------------------------ compare
 
 def compare(runs: Iterable[Run] | Run, truth: TruthSource, *, precisions: Sequence[float] = (100.0, 99.0),
             global_thresholds: bool = True, cuts: Sequence[float] = DEFAULT_CUTS,
-            recall_at: Sequence[int] = RANKED_KS) -> Comparison:
+            recall_at: Sequence[int] = RANKED_KS, frames: slice | str | None = None) -> Comparison:
     """Table I (recall at 100/99/90 % precision per traversal and method), Table II and the
     calibration table with precision and recall at the fixed confidence ``cuts``, over results
     files or runs in memory. One run given alone (not in a list) is compared as ``[run]``, never
     as the characters of its name; any iterable of runs is read once. No run, a file given twice
     (or a copy of one), no precision or one outside (0, 100] is a ParameterError: each run counts
-    once in the tables."""
+    once in the tables. ``frames`` scores a slice of each run's frames only, as :func:`evaluate`."""
     precisions, cuts, recall_at = check_precisions(precisions), check_cuts(cuts), check_recall_at(recall_at)
+    frames = check_frames(frames)
     runs = run_list(runs, (LocalizeRun, Results))
     check_once([run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results)
                 else results_file(run, "runs") for run in runs])
-    evaluations = [evaluate(run, truth, cuts, recall_at) for run in runs]
+    evaluations = [evaluate(run, truth, cuts, recall_at, frames=frames) for run in runs]
     return comparison(evaluations, truth, precisions=precisions, global_thresholds=global_thresholds)

@@ -9,8 +9,9 @@ import typer
 
 from wiloc.cli.core import Notes, fail, handles_errors, note, out, refuse_unused
 from wiloc.cli.options import CalibrationPlotOption, PrPlotOption, plot_file, replacing, separate_outputs
-from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, metrics_file, metrics_outputs,
-                               parse_cuts, parse_recall_at, warn_about_truth, write_metrics_csv)
+from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, FramesOption, RecallAtOption, metrics_file,
+                               metrics_outputs, parse_cuts, parse_recall_at, scored_frames, slice_columns,
+                               slice_key, warn_about_truth, write_metrics_csv)
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
 from wiloc.cli.views import (comparison_records, cut_views, new_place_view, print_command_json, run_records,
                              table1_view, table2_view)
@@ -32,6 +33,7 @@ def compare(
     precision: str = typer.Option("100,99", help="Table II target precisions in percent, comma-separated."),
     cuts: CutsOption = CUTS_TEXT,
     recall_at: RecallAtOption = RECALL_AT_TEXT,
+    frames: FramesOption = None,
     threshold_plot: Optional[Path] = typer.Option(None, callback=plot_file, show_default="none: not drawn", help="Precision against normalised threshold (the paper's Figure 5)."),
     model_plot: Optional[Path] = typer.Option(None, callback=plot_file, show_default="none: not drawn", help="Learned histograms of the first online run (Figure 1)."),
     pr_plot: PrPlotOption = None,
@@ -62,13 +64,13 @@ def compare(
     ranks = parse_recall_at(recall_at)
     source = truth_source(gt, gt_map, tolerance, radius)
     comparison = api.compare(results, source, precisions=targets, global_thresholds=global_threshold, cuts=at,
-                             recall_at=ranks)
+                             recall_at=ranks, frames=frames)
     notes = warn_about_truth(comparison.evaluations)
     written = _compare_plots(comparison, source, threshold_plot, model_plot, pr_plot, calibration_plot, notes)
     records = comparison_records(comparison)
     if csv_out is not None:
         (_, table1, _, _), (_, calibration, _, _) = records[:2]
-        runs = [{"results": str(e.path), "descriptor": e.results.header.descriptor, **a, **b}
+        runs = [{"results": str(e.path), "descriptor": e.results.header.descriptor, **a, **b, **slice_columns(e)}
                 for e, a, b in zip(comparison.evaluations, table1, calibration)]
         written += write_metrics_csv(csv_out, runs, comparison.evaluations, notes)
     if markdown or latex:
@@ -77,12 +79,15 @@ def compare(
         for title, rows, columns, labels in records if global_threshold else records[:-1]:  # Table II is last
             print(as_latex(rows, columns, labels, title) if latex else f"**{title}**\n\n{as_markdown(rows, columns, labels)}",
                   end="\n\n")
+        for line in scored_frames(comparison.evaluations):
+            note("scored", line)
         for path in written:
             note("wrote", str(path))  # stdout holds the tables alone
         return
     if as_json:
         print_command_json("compare", "runs", run_records(comparison), notes, ground_truth=comparison.ground_truth,
-                           table2=comparison.table2.to_dict(orient="records"), files=[str(p.resolve()) for p in written])
+                           table2=comparison.table2.to_dict(orient="records"),
+                           files=[str(p.resolve()) for p in written], **slice_key(comparison.evaluations))
         return
     out.print(table1_view(comparison))
     for view in cut_views(comparison, at):
@@ -92,6 +97,8 @@ def compare(
         out.print(view)
     if global_threshold:
         out.print(table2_view(comparison))
+    for line in scored_frames(comparison.evaluations):
+        out.print(line, markup=False, highlight=False)
     for path in written:
         out.print(f"wrote {path}")
 

@@ -10,8 +10,9 @@ import typer
 
 from wiloc.cli.core import Notes, handles_errors, out, refuse_unused
 from wiloc.cli.options import CacheOption, CalibrationPlotOption, PrPlotOption, plot_file, replacing, separate_outputs
-from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, RecallAtOption, metrics_file, metrics_outputs,
-                               parse_cuts, parse_recall_at, warn_about_truth, write_metrics_csv)
+from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, FramesOption, RecallAtOption, metrics_file,
+                               metrics_outputs, parse_cuts, parse_recall_at, scored_frames, slice_columns,
+                               slice_key, warn_about_truth, write_metrics_csv)
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
 from wiloc.cli.views import metrics_views, print_command_json
 from wiloc.labels import short_names
@@ -31,6 +32,7 @@ def evaluate(
     calibration_plot: CalibrationPlotOption = None,
     cuts: CutsOption = CUTS_TEXT,
     recall_at: RecallAtOption = RECALL_AT_TEXT,
+    frames: FramesOption = None,
     matrix_plot: Optional[Path] = typer.Option(
         None, callback=plot_file, show_default="none: not drawn", help="Draw the difference matrix with the decided matches and the ground truth "
                                         "(with several results files: one FILE-RESULTS figure each)."),
@@ -49,7 +51,9 @@ def evaluate(
     """
     from wiloc import api
 
-    refuse_unused({"pairs": (pairs_plot is not None, "--pairs-plot"), "wrong_only": (pairs_plot is not None, "--pairs-plot")})
+    refuse_unused({"pairs": (pairs_plot is not None, "--pairs-plot"), "wrong_only": (pairs_plot is not None, "--pairs-plot"),
+                   "matrix_plot": (frames is None, "a whole run (without --frames)"),
+                   "pairs_plot": (frames is None, "a whole run (without --frames)")})
     names = short_names(results)
     matrix_files, pairs_files = _per_run(matrix_plot, names), _per_run(pairs_plot, names)
     separate_outputs(results, {"--pr-plot": pr_plot, "--calibration-plot": calibration_plot, "--matrix-plot": matrix_files,
@@ -57,10 +61,10 @@ def evaluate(
     at = parse_cuts(cuts)
     ranks = parse_recall_at(recall_at)
     source = truth_source(gt, gt_map, tolerance, radius)
-    evaluations = [api.evaluate(path, source, at, ranks) for path in results]
+    evaluations = [api.evaluate(path, source, at, ranks, frames=frames) for path in results]
     notes = warn_about_truth(evaluations)
     heads = [{"run": run, "results": name, "method": e.method, "descriptor": e.results.header.descriptor,
-              "traversal": e.traversal, **e.summary.as_dict()}
+              "traversal": e.traversal, **e.summary.as_dict(), **slice_columns(e)}
              for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
     rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
     drawings = _run_plots(evaluations, matrix_files, pairs_files, cache, notes, pairs, wrong_only,
@@ -84,10 +88,13 @@ def evaluate(
              "truth_warnings": e.truth.warnings,
              "curve": {"precision": e.curve.precision.tolist(), "recall": e.curve.recall.tolist(),
                        "thresholds": e.curve.thresholds.tolist()}} for head, e in zip(heads, evaluations)],
-            notes, ground_truth=source.describe(), files=[str(p.resolve()) for p in written])
+            notes, ground_truth=source.describe(), files=[str(p.resolve()) for p in written],
+            **slice_key(evaluations))
         return
     for view in metrics_views(rows, at, source.describe()):
         out.print(view)
+    for line in scored_frames(evaluations):
+        out.print(line, markup=False, highlight=False)
     for path in written:
         out.print(f"wrote {path}")
 

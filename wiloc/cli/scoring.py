@@ -3,7 +3,7 @@ about ground truth that leaves nothing to recall, and the metrics CSV."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
 
@@ -25,6 +25,10 @@ RecallAtOption = Annotated[str, typer.Option(
     "--recall-at", help=f"N of Recall@N (a true match among the N best-ranked map frames; runs that rank the map), "
                         f"comma-separated, each 1 to {RANKED}, such as 1,5,10,20.")]
 RECALL_AT_TEXT = ",".join(map(str, RANKED_KS))
+FramesOption = Annotated[Optional[str], typer.Option(
+    "--frames", metavar="SLICE", show_default="every frame",
+    help="Score only a slice of each run's frames, counted in the run's order, as Python slices a list: 20: (from "
+         "the 21st frame on), :20 (the first 20), 100:300; a negative number counts from the end.")]
 
 
 def parse_recall_at(text: str) -> list[int]:
@@ -48,6 +52,27 @@ def parse_cuts(text: str) -> list[float]:
     if not cuts or not all(0.0 <= cut <= 1.0 for cut in cuts):
         fail(f"--cuts: '{text}': give confidences in [0, 1], comma-separated, such as {CUTS_TEXT}", EXIT_USAGE)
     return sorted(set(cuts))
+
+
+def scored_frames(evaluations: list[api.Evaluation]) -> list[str]:
+    """A line per run scored on a slice of its frames (``--frames``) saying which, and of how many;
+    none when every frame was scored."""
+    return [f"{e.path or e.name}: frames {e.frame_slice} of {e.run_frames} scored ({e.summary.frames} frames)"
+            for e in evaluations if e.frame_slice is not None]
+
+
+def slice_columns(evaluation: api.Evaluation) -> dict[str, Any]:
+    """A run's ``frame_slice`` and ``run_frames`` for its table row, CSV row and --json, when it was
+    scored on a slice of its frames (``--frames``); none when every frame was scored."""
+    e = evaluation
+    return {} if e.frame_slice is None else {"frame_slice": e.frame_slice, "run_frames": e.run_frames}
+
+
+def slice_key(evaluations: list[api.Evaluation]) -> dict[str, str]:
+    """The --json's ``frame_slice``: the slice of each run's frames scored (``--frames``, one for all
+    runs); none when every frame was scored."""
+    frames = evaluations[0].frame_slice
+    return {} if frames is None else {"frame_slice": frames}
 
 
 def warn_about_truth(evaluations: list[api.Evaluation]) -> Notes:

@@ -27,7 +27,8 @@ from wiloc.evaluation.reliability import (DEFAULT_CUTS, NEW_PLACE_KEYS, Calibrat
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.truth_source import TruthSource
 from wiloc.labels import short_names
-from wiloc.evaluation.run_frames import UNNAMED_QUERY, in_run_order, out_of_order, run_name
+from wiloc.evaluation.run_frames import (UNNAMED_QUERY, check_frames, frame_rows, frames_text, in_run_order,
+                                          of_frames, out_of_order, run_name)
 from wiloc.reprs import short_repr
 
 
@@ -37,7 +38,9 @@ class Evaluation:
     """One run's results scored against ground truth; ``confidence`` is NaN for undecided frames.
     ``path`` is the results file (None for a run evaluated in memory). ``new_place`` is the
     calibration of the run's P(new place) against the frames without a true match, for methods
-    that give one (None for the others)."""
+    that give one (None for the others). ``frame_slice`` is the slice of the run's frames scored
+    (``20:``; every measure is over those frames) and ``run_frames`` how many frames the run has;
+    both None when every frame is scored."""
 
     path: Path | None
     results: Results
@@ -47,6 +50,8 @@ class Evaluation:
     confidence: np.ndarray
     calibration: Calibration
     new_place: Calibration | None = None
+    frame_slice: str | None = None
+    run_frames: int | None = None
 
     @property
     def name(self) -> str:
@@ -84,15 +89,17 @@ class Evaluation:
 
 
 def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequence[float] = DEFAULT_CUTS,
-          recall_at: Sequence[int] = RANKED_KS) -> Evaluation:
+          recall_at: Sequence[int] = RANKED_KS, frames: slice | str | None = None) -> Evaluation:
     """Precision-recall metrics and calibration (with precision and recall at fixed confidence
     ``cuts``) of one run's ``results`` (read from ``path``, None for a run in memory) against
     ground truth, and of its P(new place) where the run gives one. Recall@N for each N of
-    ``recall_at`` when the run ranks the map."""
+    ``recall_at`` when the run ranks the map. ``frames`` (a slice or its text, ``20:``;
+    :func:`check_frames`) scores only those of the run's frames, counted in the run's order,
+    against the ground truth of the whole run cut to them."""
     if not isinstance(truth, TruthSource):
         raise ParameterError("truth", f"a TruthSource (api.TruthSource(kind='aligned', tolerance=2), ...), "
                                       f"got {type(truth).__name__}")
-    cuts, recall_at = check_cuts(cuts), check_recall_at(recall_at)
+    cuts, recall_at, frames = check_cuts(cuts), check_recall_at(recall_at), check_frames(frames)
     ordered = in_run_order(path, results)
     moved = out_of_order(path, results, ordered)
     results = ordered
@@ -108,6 +115,8 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
         raise exc.of_run(run_name(path, header)) from None
     if moved:
         loaded.warnings.append(moved)
+    if frames is not None:
+        results, loaded = of_frames(results, loaded, frame_rows(frames, len(query_names), run_name(path, header)))
     match = results.match_index
     summary = summarize(match, results.confidence, loaded, results.ranking, recall_at)
     correct = correct_matches(match, loaded)
@@ -116,7 +125,9 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
     p_new = results.new_place
     new_place = None if p_new is None else summarize_new_place(p_new, loaded.has_match(), cuts)
     return Evaluation(path=path, results=results, truth=loaded, correct=correct, summary=summary,
-                      confidence=confidence, calibration=calibration, new_place=new_place)
+                      confidence=confidence, calibration=calibration, new_place=new_place,
+                      frame_slice=None if frames is None else frames_text(frames),
+                      run_frames=None if frames is None else len(query_names))
 
 
 @short_repr

@@ -1,21 +1,74 @@
 """Which frames of a run are scored, and in what order: its rows in the order the run decided
-the frames (:func:`in_run_order`), as ``wiloc.evaluation.comparison.score`` reads them.
+the frames (:func:`in_run_order`), and a slice of them (``wiloc evaluate --frames 20:``), say the
+first frames of a run, where a filter locks on, against the steady state after them.
+
+``wiloc.evaluation.comparison.score`` calls these; a slice is checked in one place,
+:func:`check_frames`, for the library and the command line alike.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from wiloc.cache.entries import EXTERNAL
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
+from wiloc.evaluation.groundtruth import Truth
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.results_header import ResultsHeader, header_line, read_header
 from wiloc.sources.frames import natural_sorted
 
 #: The query traversal of a run in memory that records none (``Localizer.results()`` without ``query``).
 UNNAMED_QUERY = "unnamed"
+
+_BOUND = r"\s*(-?\d+)?\s*"
+_SLICE = re.compile(rf"{_BOUND}:{_BOUND}")
+_EXAMPLES = "give START:STOP as in Python, e.g. 20: (from the 21st frame on), :20 (the first 20) or 100:300"
+
+
+def check_frames(frames: slice | str | None) -> slice | None:
+    """The frames of each run to score, as a slice of its frames in the run's order (None: every
+    frame), given as a slice or as its text (``20:``, ``:20``, ``100:300``; a negative number
+    counts from the end, as in Python). Anything else (a step, a bound that is no whole number,
+    a number alone, which could mean a frame or a count) is a ParameterError naming ``frames``."""
+    if frames is None:
+        return None
+    if isinstance(frames, str):
+        found = _SLICE.fullmatch(frames)
+        if found is None:
+            step = frames.count(":") > 1 and " (a step is not taken)"
+            raise ParameterError("frames", f"'{frames}'{step or ''}: {_EXAMPLES}")
+        frames = slice(*(None if bound is None else int(bound) for bound in found.groups()))
+    if not isinstance(frames, slice) or frames.step is not None or \
+            any(b is not None and (isinstance(b, (bool, np.bool_)) or not isinstance(b, (int, np.integer)))
+                for b in (frames.start, frames.stop)):
+        raise ParameterError("frames", f"a slice of whole numbers without a step, such as slice(20, None) "
+                                       f"or '20:', got {frames!r}")
+    return slice(None if frames.start is None else int(frames.start), None if frames.stop is None else int(frames.stop))
+
+
+def frames_text(frames: slice) -> str:
+    """A checked slice as ``--frames`` takes it: ``20:``, ``:20``, ``100:300``."""
+    return ":".join("" if bound is None else str(bound) for bound in (frames.start, frames.stop))
+
+
+def frame_rows(frames: slice, count: int, run: str) -> np.ndarray:
+    """The rows of a run of ``count`` frames that a checked slice ``frames`` picks, in order; a
+    ParameterError naming ``frames`` and the ``run`` when it picks none (``300:`` of 200 frames)."""
+    rows = np.arange(count)[frames]
+    if not rows.size:
+        raise ParameterError("frames", f"'{frames_text(frames)}' selects none of the {count} frames of the run {run}")
+    return rows
+
+
+def of_frames(results: Results, truth: Truth, rows: np.ndarray) -> tuple[Results, Truth]:
+    """A run and its ground truth cut to the query frames at ``rows`` (in the run's order): the
+    reference frames, and in sequence mode each frame's earlier frames, stay as they were."""
+    kept = replace(results, frames=results.frames.iloc[rows].reset_index(drop=True))
+    return kept, Truth(truth.matrix[rows], [truth.query_names[k] for k in rows], list(truth.ref_names),
+                       list(truth.warnings))
 
 
 def in_run_order(path: Path | None, results: Results) -> Results:
