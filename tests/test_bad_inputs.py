@@ -2127,3 +2127,18 @@ def test_rows_in_memory_too_large_for_float32_differences_are_refused(metric: st
         loc.observe(rows[3] * value)
     assert refused.value.where == "observe"
     assert loc.observe(rows[3]).match == 3
+
+
+@pytest.mark.parametrize("command", ["evaluate", "compare"])
+def test_a_bad_frames_slice_is_refused_before_any_results_file_is_read(tmp_path: Path, command: str) -> None:
+    """A step, or text that is no slice, is one usage error naming --frames, though the results
+    file is missing too: the slice is checked before any file is read (the library's the same)."""
+    from wiloc import api
+
+    missing = tmp_path / "missing.csv"
+    ends_in_one_error(runner.invoke(app, [command, str(missing), "--frames", "1:2:3"]), 2,
+                      "--frames: '1:2:3' (a step is not taken): give START:STOP")
+    ends_in_one_error(runner.invoke(app, [command, str(missing), "--frames", "first"]), 2, "--frames: 'first'")
+    with pytest.raises(ParameterError, match="a slice of whole numbers without a step") as refused:
+        api.compare([missing], api.TruthSource(kind="aligned"), frames=20)
+    assert refused.value.parameter == "frames"
