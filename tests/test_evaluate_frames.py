@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 from helpers import ends_in_one_error
+from test_cli_output import OUTPUT_SCHEMA
 from test_results_order import MAP_RUN, NAMES, SEQUENCE_RUN, _edited, _halves_swapped, _write_run
 from typer.testing import CliRunner
 
@@ -92,6 +93,16 @@ def test_the_table_and_compare_say_which_frames_were_scored(tmp_path: Path) -> N
     shown = json.loads(compared.stdout)
     assert shown["frame_slice"] == ":4" and [run["frames"] for run in shown["runs"]] == [4, 4]
     assert "frame_slice" not in json.loads(runner.invoke(app, ["evaluate", str(written), "--json"]).stdout)
+
+
+def test_the_output_schema_declares_the_slice_and_the_runs_frames(tmp_path: Path) -> None:
+    """The keys --frames adds are in the schema of --json, with their types, and the output fits it."""
+    shown = _evaluated(_write_run(tmp_path / "walk-sad-online.csv", MAP_RUN), "--frames", "6:")
+    OUTPUT_SCHEMA.validate(shown)
+    declared = OUTPUT_SCHEMA.schema["$defs"]["evaluated_run"]["properties"]
+    assert OUTPUT_SCHEMA.schema["properties"]["frame_slice"]["type"] == declared["frame_slice"]["type"] == "string"
+    assert declared["run_frames"]["type"] == "integer"
+    assert not OUTPUT_SCHEMA.is_valid({**shown, "runs": [{**shown["runs"][0], "run_frames": "all"}]})
 
 
 @pytest.mark.parametrize(("frames", "problem"), [
