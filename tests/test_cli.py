@@ -58,6 +58,21 @@ def test_missing_folder_is_one_line_error(tmp_path: Path, cache_dir: Path) -> No
     assert len(result.stderr.strip().splitlines()) == 1
 
 
+def test_names_that_look_like_emoji_codes_are_printed_as_they_are(route: tuple[Path, Path], tmp_path: Path,
+                                                                  cache_dir: Path) -> None:
+    """A path or option value holding ':name:' (a colon-separated name, a slice such as 1:100:2) is
+    printed verbatim in errors and tables, not turned into an emoji."""
+    result = runner.invoke(app, ["describe", str(tmp_path / "x:thumbs_up:y")])
+    assert result.exit_code == 1 and "x:thumbs_up:y" in result.stderr and "\N{THUMBS UP SIGN}" not in result.stderr
+    ref, query = route
+    runs = tmp_path / "a:smile:b"
+    runs.mkdir()
+    made = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
+                               "--out", str(runs / "query-threshold.csv")], env={"COLUMNS": "300"})
+    assert made.exit_code == 0, made.output
+    assert "a:smile:b" in made.stdout and "\N{SMILING FACE WITH OPEN MOUTH AND SMILING EYES}" not in made.stdout
+
+
 def test_localize_evaluate_compare(route: tuple[Path, Path], tmp_path: Path) -> None:
     ref, query = route
     runs = tmp_path / "runs"

@@ -31,8 +31,9 @@ from wiloc.cli.params import flag, given
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError, interrupted
 from wiloc.quiet import stderr_back
 
-out = Console()
-err = Console(stderr=True)
+# emoji off: a path or value holding ':name:' (x:thumbs_up:y, the slice 1:100:2) is printed as typed
+out = Console(emoji=False)
+err = Console(stderr=True, emoji=False)
 EMPTY_PATH = "an empty path; give a file or folder"  # a path option typed '' (an unset shell variable)
 
 
