@@ -76,6 +76,11 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=20, help="frames not timed")
     parser.add_argument("--profile", default="", help="methods to profile (cProfile, comma-separated)")
     args = parser.parse_args()
+    if args.warmup < 0:
+        parser.error(f"--warmup must be at least 0, got {args.warmup}")
+    if args.frames < args.warmup + 2:  # the 10 % and 90 % marks take two timed frames
+        parser.error(f"--frames must be at least --warmup + 2 = {args.warmup + 2} "
+                     f"(the first {args.warmup} are not timed), got {args.frames}")
     print(f"{'N':>7} {'method':<10} {'ahead ms':>9} {'step ms':>9} {'p10 ms':>7} {'p90 ms':>7}")
     for n_map in (int(s) for s in args.sizes.split(",")):
         rows, context = rows_and_context(n_map, args.frames, np.random.default_rng(n_map))
