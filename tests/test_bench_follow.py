@@ -1,0 +1,47 @@
+"""benchmarks/bench_follow.py's frames/s: the run on the empty folder, subtracted from the full
+folder's, does the same fixed work, and a rate that would come out negative is refused."""
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from helpers import benchmark_module
+
+
+@pytest.fixture()
+def bench():
+    with benchmark_module("bench_follow") as module:
+        yield module
+
+
+def test_a_full_run_no_longer_than_the_empty_one_gives_no_rate(bench) -> None:
+    # A run's timings: the empty folder's had described the map, the full folder's read it from the cache.
+    with pytest.raises(bench.BrokenMeasure, match="no longer than the empty folder's"):
+        bench.frames_per_second(3576, full=7.2, empty=9.47)
+    with pytest.raises(bench.BrokenMeasure):
+        bench.frames_per_second(3576, full=2.7, empty=2.7)
+    assert bench.frames_per_second(3576, full=7.2, empty=2.7) == pytest.approx(3576 / (7.2 - 2.7))
+
+
+def test_neither_timed_run_pays_for_describing_the_map(bench, tmp_path: Path, monkeypatch) -> None:
+    """Stand-in runs on a stand-in clock: each costs a start-up, its idle wait, a time per frame, and
+    describing the map when no run has described it before."""
+    winter = tmp_path / "winter"
+    winter.mkdir()
+    for k in range(40):
+        (winter / f"{k:05d}.png").write_bytes(b"")
+    per_frame, clock, described = 0.25, SimpleNamespace(now=0.0), set()
+
+    def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
+        frames = sorted(folder.iterdir())
+        clock.now += 1.5 + idle + per_frame * len(frames) + (30.0 if summer not in described else 0.0)
+        described.add(summer)
+        out.write_text("# wiloc results\nframe,node\n" + "".join(f"{p.name},0\n" for p in frames), encoding="utf-8")
+        return SimpleNamespace(wait=lambda: 0)
+
+    monkeypatch.setattr(bench, "follow", follow)
+    monkeypatch.setattr(bench, "time", SimpleNamespace(perf_counter=lambda: clock.now))
+    work = tmp_path / "work"
+    work.mkdir()
+    assert bench.throughput(winter, tmp_path / "summer", "catgraph", work) == pytest.approx(1 / per_frame)
