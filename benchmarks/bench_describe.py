@@ -77,7 +77,7 @@ def describe_run(name: str, folders: list[Path], jobs: int) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("data_root", nargs="?", help="folder holding gardens-point-walking/")
     parser.add_argument("--repeat", type=int, default=3, help="runs per figure; medians are reported")
     parser.add_argument("--child", nargs=2, metavar=("DESCRIPTOR", "JOBS"), help=argparse.SUPPRESS)
