@@ -38,7 +38,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,8 +46,9 @@ import numpy as np
 
 from bench_describe import TRAVERSALS, data_root, plain_decode_rate
 from bench_localizer import SPEC, route
-from wiloc.cache.entries import EntryHeader, FrameRecord, StoredEntry
+from wiloc.cache.entries import FrameRecord, StoredEntry
 from wiloc.cache.store import Cache
+from wiloc.description.describing import folder_header
 
 METHODS = ("online", "threshold", "trained", "catgraph")
 KERNEL_BLOCKS = {"online": ("query", "map"), "threshold": ("query",), "trained": ("query", "train"),
@@ -55,7 +56,8 @@ KERNEL_BLOCKS = {"online": ("query", "map"), "threshold": ("query",), "trained":
 
 
 def seed_folder(folder: Path, data: np.ndarray, names: list[str], cache: Cache) -> None:
-    """A folder of empty image files whose `sad` descriptors the cache already holds."""
+    """A folder of empty image files whose `sad` descriptors the cache already holds, under the
+    key `describe` looks the folder up by."""
     folder.mkdir(parents=True)
     records = {}
     for name, row in zip(names, data):
@@ -63,9 +65,7 @@ def seed_folder(folder: Path, data: np.ndarray, names: list[str], cache: Cache) 
         path.touch()
         stat = path.stat()
         records[name] = FrameRecord(name, stat.st_size, stat.st_mtime_ns, "", row, "", 64, 32)
-    header = EntryHeader.create(str(folder.resolve()), SPEC.name, SPEC.params, SPEC.metric, SPEC.scale,
-                                SPEC.natural_max, SPEC.dtype, SPEC.length)
-    cache.write_entry(StoredEntry(header, records), complete=True)
+    cache.write_entry(StoredEntry(folder_header(folder, SPEC), records), complete=True)
 
 
 def make_case(root: Path, n: int) -> dict[str, Any]:
@@ -209,7 +209,7 @@ def describe_rows(data: Path, repeat: int, descriptors: list[str], scheduler: st
     return rows
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", default="1000,5000,20000,35000", help="N, comma-separated (0: none)")
     parser.add_argument("--methods", default=",".join(METHODS))
@@ -223,7 +223,7 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--root", help=argparse.SUPPRESS)
     parser.add_argument("--method", help=argparse.SUPPRESS)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.child:
         children: dict[str, Callable[[argparse.Namespace], dict[str, float]]] = {
             "localize": child_localize, "kernel": child_kernel, "describe": child_describe}

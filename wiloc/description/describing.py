@@ -158,7 +158,7 @@ def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache
     keys = []
     for folder, callback in zip(folders, callbacks):
         traversal = list_traversal(folder)
-        header = _header(Path(folder), spec, spec.cache_params)
+        header = folder_header(Path(folder), spec)
         runs.setdefault(header.key, _Settling(header, callback, traversal))
         keys.append(header.key)
     settling = list(runs.values())
@@ -343,6 +343,13 @@ def _describe_stream(cache: Cache, header: EntryHeader, total: int | None,
         if not stored.records:
             raise empty
         return stored, cache.write_entry(stored, complete=True), run.computed, repairs
+
+
+def folder_header(folder: Path, spec: DescriptorSpec) -> EntryHeader:
+    """The header of a folder's entry for ``spec``, keyed as :func:`describe_folders` looks it up
+    (the descriptor's parameters and code version): the one recipe for whoever writes such an entry
+    itself (a benchmark's generated descriptors for placeholder images)."""
+    return _header(folder, spec, spec.cache_params)
 
 
 def _header(source: Path, spec: DescriptorSpec, params: dict) -> EntryHeader:

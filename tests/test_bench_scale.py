@@ -1,0 +1,33 @@
+"""benchmarks/bench_scale.py: the folders it fills the cache for are found described, so that a
+small size runs end to end."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from helpers import benchmark_module
+
+from wiloc.cache.store import Cache
+from wiloc.description.describing import describe_folders
+
+
+@pytest.fixture(scope="module")
+def bench():
+    with benchmark_module("bench_scale") as module:
+        yield module
+
+
+def test_seeded_folders_are_reused_from_the_cache(bench, tmp_path: Path) -> None:
+    bench.make_case(tmp_path, 50)
+    folders = [tmp_path / name for name in ("map", "query", "train")]
+    reports = describe_folders(folders, bench.SPEC, Cache(tmp_path / "cache"), jobs=1)
+    # the placeholder images are empty files: any frame described afresh would fail to load
+    assert [(r.computed, r.failed, r.reused) for r in reports] == [(0, [], r.frames) for r in reports]
+    assert [r.frames for r in reports] == [50, 50, 25]
+
+
+def test_a_small_size_runs_end_to_end(bench, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bench.main(["--sizes", "50", "--repeat", "1", "--methods", "threshold", "--work", str(tmp_path)])
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()]
+    assert [row[:2] for row in rows if row and row[0] == "50"] == [["50", "threshold"]]
+    assert not any(tmp_path.iterdir())  # its scratch folder removed
