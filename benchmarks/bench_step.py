@@ -81,8 +81,16 @@ def main() -> None:
     if args.frames < args.warmup + 2:  # the 10 % and 90 % marks take two timed frames
         parser.error(f"--frames must be at least --warmup + 2 = {args.warmup + 2} "
                      f"(the first {args.warmup} are not timed), got {args.frames}")
+    try:
+        sizes = [int(s) for s in args.sizes.split(",")]
+    except ValueError:
+        parser.error(f"--sizes must be whole numbers, comma-separated, got {args.sizes!r}")
+    most = min(sizes) - min(sizes) // 10  # the query follows the map from its 10 % mark to its end
+    if args.frames > most:
+        parser.error(f"--frames must be at most {most} for a map of {min(sizes)} frames (the query starts "
+                     f"at its 10 % mark), got {args.frames}")
     print(f"{'N':>7} {'method':<10} {'ahead ms':>9} {'step ms':>9} {'p10 ms':>7} {'p90 ms':>7}")
-    for n_map in (int(s) for s in args.sizes.split(",")):
+    for n_map in sizes:
         rows, context = rows_and_context(n_map, args.frames, np.random.default_rng(n_map))
         for method in args.methods.split(","):
             ahead, t = step_ms(method, rows, context, args.warmup, method in args.profile.split(","))

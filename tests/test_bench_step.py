@@ -1,5 +1,6 @@
-"""benchmarks/bench_step.py's command line: too few frames to leave any timed after the warm-up
-end it with one error line naming --frames and the least it takes, exit 2, before any map is made."""
+"""benchmarks/bench_step.py's command line: too few frames to leave any timed after the warm-up,
+more than the query can follow on the smallest map, or a size that is no number end it with one
+error line naming the option and its bound, exit 2, before any map is made."""
 from __future__ import annotations
 
 import sys
@@ -12,8 +13,12 @@ from helpers import benchmark_module
     (["--frames", "20"], "error: --frames must be at least --warmup + 2 = 22 (the first 20 are not timed), got 20"),
     (["--frames", "6", "--warmup", "5"], "error: --frames must be at least --warmup + 2 = 7"),
     (["--warmup", "-1"], "error: --warmup must be at least 0, got -1"),
+    (["--frames", "901"],
+     "error: --frames must be at most 900 for a map of 1000 frames (the query starts at its 10 % mark), got 901"),
+    (["--sizes", "1000,2000", "--frames", "950"], "error: --frames must be at most 900 for a map of 1000 frames"),
+    (["--sizes", "1000,10k"], "error: --sizes must be whole numbers, comma-separated, got '1000,10k'"),
 ])
-def test_too_few_frames_are_one_error_line(args: list[str], line: str, monkeypatch: pytest.MonkeyPatch,
+def test_bad_frames_and_sizes_are_one_error_line(args: list[str], line: str, monkeypatch: pytest.MonkeyPatch,
                                            capsys: pytest.CaptureFixture[str]) -> None:
     monkeypatch.setattr(sys, "argv", ["bench_step.py", "--sizes", "1000", *args])
     with benchmark_module("bench_step") as bench:
