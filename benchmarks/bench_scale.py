@@ -229,6 +229,9 @@ def main(argv: Sequence[str] | None = None) -> None:
             "localize": child_localize, "kernel": child_kernel, "describe": child_describe}
         print(json.dumps(children[args.child](args)))
         return
+    if args.work and not Path(args.work).is_dir():
+        problem = "not a folder" if Path(args.work).exists() else "folder does not exist"
+        parser.error(f"--work {args.work}: {problem}")
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, medians of {args.repeat}")
     sizes = [int(s) for s in args.sizes.split(",") if int(s) > 0]
     if sizes:

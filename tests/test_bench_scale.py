@@ -31,3 +31,14 @@ def test_a_small_size_runs_end_to_end(bench, tmp_path: Path, capsys: pytest.Capt
     rows = [line.split() for line in capsys.readouterr().out.splitlines()]
     assert [row[:2] for row in rows if row and row[0] == "50"] == [["50", "threshold"]]
     assert not any(tmp_path.iterdir())  # its scratch folder removed
+
+
+@pytest.mark.parametrize(("work", "problem"), [("missing", "folder does not exist"), ("file", "not a folder")])
+def test_a_work_folder_that_is_none_is_one_error_line(bench, work: str, problem: str, tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "file").touch()
+    with pytest.raises(SystemExit) as ended:
+        bench.main(["--sizes", "50", "--work", str(tmp_path / work)])
+    out, err = capsys.readouterr()
+    assert ended.value.code == 2 and out == "" and "Traceback" not in err
+    assert err.strip().splitlines()[-1].endswith(f"error: --work {tmp_path / work}: {problem}")
