@@ -30,6 +30,7 @@ import cv2
 from wiloc.cache.store import Cache
 from wiloc.description.describing import describe_folders
 from wiloc.descriptors.registry import get_descriptor
+from wiloc.errors import WilocError
 from wiloc.sources.frames import list_traversal
 
 TRAVERSALS = ("day_left", "day_right", "night_right")
@@ -45,9 +46,8 @@ def data_root(argument: str | None) -> Path:
     return Path(env) if env else Path(__file__).resolve().parents[2] / "shared/data"
 
 
-def plain_decode_rate(folders: list[Path]) -> float:
+def plain_decode_rate(paths: list[Path]) -> float:
     """Images/s of cv2.imread at full size, in colour as a plain user would, single process."""
-    paths = [p for folder in folders for p in list_traversal(folder).frames]
     start = time.perf_counter()
     for path in paths:
         if cv2.imread(str(path)) is None:
@@ -82,12 +82,18 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="runs per figure; medians are reported")
     parser.add_argument("--child", nargs=2, metavar=("DESCRIPTOR", "JOBS"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.repeat < 1:
+        parser.error(f"--repeat must be at least 1, got {args.repeat}")
     folders = [data_root(args.data_root) / "gardens-point-walking" / t for t in TRAVERSALS]
     if args.child:
         print(json.dumps(describe_run(args.child[0], folders, int(args.child[1]))))
         return
+    try:  # the data: a folder missing or holding no frames stops here, before any run
+        paths = [path for folder in folders for path in list_traversal(folder).frames]
+    except WilocError as exc:
+        parser.exit(exc.exit_code, f"error: {exc}\n")
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, medians of {args.repeat}")
-    decode = statistics.median(plain_decode_rate(folders) for _ in range(args.repeat))
+    decode = statistics.median(plain_decode_rate(paths) for _ in range(args.repeat))
     print(f"{'what':<22}{'jobs':>5}{'images/s':>10}{'/decode':>8}{'vs 1':>7}"
           f"{'CPU ms/image: caller':>22}{'workers':>9}{'total':>7}")
     print(f"{'cv2.imread full size':<22}{'':>5}{decode:>10.1f}{1.0:>8.2f}")
