@@ -49,6 +49,7 @@ from bench_localizer import SPEC, route
 from wiloc.cache.entries import FrameRecord, StoredEntry
 from wiloc.cache.store import Cache
 from wiloc.description.describing import folder_header
+from wiloc.sources.frames import list_traversal
 
 METHODS = ("online", "threshold", "trained", "catgraph")
 KERNEL_BLOCKS = {"online": ("query", "map"), "threshold": ("query",), "trained": ("query", "train"),
@@ -191,8 +192,8 @@ def child_describe(args: argparse.Namespace) -> dict[str, float]:
 def describe_rows(data: Path, repeat: int, descriptors: list[str], scheduler: str | None) -> list[str]:
     """Images/s of each descriptor with 1 and 2 processes (and on the Dask ``scheduler`` with
     2 workers, when given), against plain decoding, medians; each run a fresh process."""
-    decode = statistics.median(plain_decode_rate([data / "gardens-point-walking" / t for t in TRAVERSALS])
-                               for _ in range(repeat))
+    frames = [path for t in TRAVERSALS for path in list_traversal(data / "gardens-point-walking" / t).frames]
+    decode = statistics.median(plain_decode_rate(frames) for _ in range(repeat))
     rows = [f"{'cv2.imread full size':<14} {'':>7} {decode:>9.1f} {1.0:>7.2f} {'':>8}"]
     ways = {"1": ["--jobs", "1"], "2": ["--jobs", "2"],
             **({"dask": ["--jobs", "2", "--scheduler", scheduler]} if scheduler else {})}

@@ -42,3 +42,11 @@ def test_a_work_folder_that_is_none_is_one_error_line(bench, work: str, problem:
     out, err = capsys.readouterr()
     assert ended.value.code == 2 and out == "" and "Traceback" not in err
     assert err.strip().splitlines()[-1].endswith(f"error: --work {tmp_path / work}: {problem}")
+
+
+@pytest.mark.realdata
+def test_the_describe_table_runs_on_gardens_point(bench, data_root: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bench.main(["--sizes", "0", "--describe", "--repeat", "1", "--descriptors", "sad", "--data", str(data_root)])
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()]
+    assert [row[:2] for row in rows if row and row[0] == "sad"] == [["sad", "1"], ["sad", "2"]]
+    assert ["cv2.imread", "full", "size"] in [row[:3] for row in rows]
