@@ -29,6 +29,10 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from wiloc.errors import WilocError
+from wiloc.methods.registry import method_class
+from wiloc.sources.frames import list_traversal
+
 CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
 
 
@@ -69,7 +73,10 @@ def throughput(winter: Path, summer: Path, method: str, work: Path) -> float:
     empty.mkdir()
     shutil.copytree(winter, full)
     idle = 1.0
-    follow(empty, summer, work / f"warm-{method}.csv", method, idle).wait()
+    code = follow(empty, summer, work / f"warm-{method}.csv", method, idle).wait()
+    if code:  # its output is discarded: a method that cannot run on this map ends every run alike
+        raise SystemExit(f"error: wiloc localize --follow --method {method} ended with exit code {code} "
+                         "(run it by hand to see why)")
     start = time.perf_counter()
     follow(empty, summer, work / f"empty-{method}.csv", method, idle).wait()
     baseline = time.perf_counter() - start
@@ -115,7 +122,21 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=20.0, help="frames per second fed for the latency")
     parser.add_argument("--frames", type=int, default=300, help="frames fed for the latency")
     args = parser.parse_args()
+    if args.frames < 1:
+        parser.error(f"--frames must be at least 1, got {args.frames}")
+    if args.rate <= 0:
+        parser.error(f"--rate must be above 0, got {args.rate:g}")
+    try:
+        for method in args.methods.split(","):
+            method_class(method)
+    except WilocError as exc:
+        parser.error(f"--methods: {exc.problem}")
     root = args.data / "nordland-summer-winter-64x32"
+    try:  # the data: a folder missing stops here, before any run
+        for folder in (root / "winter", root / "summer"):
+            list_traversal(folder)
+    except WilocError as exc:
+        parser.exit(exc.exit_code, f"error: {exc}\n")
     table = Table(title=f"--follow on Nordland (map summer, query winter), latency at {args.rate:g} frames/s")
     for column in ("method", "frames/s (folder full)", "latency median ms", "latency 90 % ms"):
         table.add_column(column, justify="right")

@@ -1,7 +1,10 @@
-"""benchmarks/bench_follow.py's frames/s: the run on the empty folder, subtracted from the full
-folder's, does the same fixed work, and a rate that would come out negative is refused."""
+"""benchmarks/bench_follow.py: its frames/s, where the run on the empty folder, subtracted from the
+full folder's, does the same fixed work and a rate that would come out negative is refused; and
+its command line, where bad options, missing data or a method that cannot run end it with one
+error line and an exit code."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -45,3 +48,29 @@ def test_neither_timed_run_pays_for_describing_the_map(bench, tmp_path: Path, mo
     work = tmp_path / "work"
     work.mkdir()
     assert bench.throughput(winter, tmp_path / "summer", "catgraph", work) == pytest.approx(1 / per_frame)
+
+
+@pytest.mark.parametrize(("args", "code", "line"), [
+    (["--frames", "0"], 2, "error: --frames must be at least 1, got 0"),
+    (["--rate", "0"], 2, "error: --rate must be above 0, got 0"),
+    (["--methods", "catgraph,nosuch"], 2, "error: --methods: unknown method 'nosuch' (choose from"),
+    ([], 1, "nordland-summer-winter-64x32/winter: folder does not exist"),
+])
+def test_bad_options_and_missing_data_are_one_line(bench, args: list[str], code: int, line: str, tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(sys, "argv", ["bench_follow.py", str(tmp_path / "no-data"), *args])
+    monkeypatch.setattr(bench, "follow", lambda *_: pytest.fail("a run was started"))
+    with pytest.raises(SystemExit) as ended:
+        bench.main()
+    captured = capsys.readouterr()
+    assert ended.value.code == code and line in captured.err.strip().splitlines()[-1]
+    assert "Traceback" not in captured.err and not captured.out
+
+
+def test_a_method_that_cannot_run_ends_the_benchmark_with_its_exit_code(bench, tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "winter").mkdir()
+    monkeypatch.setattr(bench, "follow", lambda *_: SimpleNamespace(wait=lambda: 3))
+    with pytest.raises(SystemExit, match="--method fabmap ended with exit code 3"):
+        bench.throughput(tmp_path / "winter", tmp_path / "summer", "fabmap", tmp_path)
