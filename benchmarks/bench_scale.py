@@ -49,6 +49,8 @@ from bench_localizer import SPEC, route
 from wiloc.cache.entries import FrameRecord, StoredEntry
 from wiloc.cache.store import Cache
 from wiloc.description.describing import folder_header
+from wiloc.description.traversals import descriptor_spec
+from wiloc.errors import WilocError
 from wiloc.sources.frames import list_traversal
 
 METHODS = ("online", "threshold", "trained", "catgraph")
@@ -230,11 +232,26 @@ def main(argv: Sequence[str] | None = None) -> None:
             "localize": child_localize, "kernel": child_kernel, "describe": child_describe}
         print(json.dumps(children[args.child](args)))
         return
+    if args.repeat < 1:
+        parser.error(f"--repeat must be at least 1, got {args.repeat}")
+    try:
+        sizes = [n for n in (int(s) for s in args.sizes.split(",")) if n > 0]
+    except ValueError:
+        parser.error(f"--sizes must be whole numbers, comma-separated, got {args.sizes!r}")
+    methods = args.methods.split(",")
+    for name in methods:
+        if name not in METHODS:
+            parser.error(f"--methods: unknown method {name!r} (choose from {', '.join(METHODS)})")
+    descriptors = args.descriptors.split(",")
+    try:
+        for name in descriptors:
+            descriptor_spec(name)
+    except WilocError as exc:
+        parser.error(f"--descriptors: {exc.problem}")
     if args.work and not Path(args.work).is_dir():
         problem = "not a folder" if Path(args.work).exists() else "folder does not exist"
         parser.error(f"--work {args.work}: {problem}")
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, medians of {args.repeat}")
-    sizes = [int(s) for s in args.sizes.split(",") if int(s) > 0]
     if sizes:
         header = (f"{'N':>7} {'method':<10} {'kernel s':>8} {'kern cpu':>8} {'cold s':>8} {'cold cpu':>8} "
                   f"{'ratio':>7} {'cpu ratio':>9} {'warm s':>8} {'warm cpu':>8} {'ratio':>7} {'cpu ratio':>9} "
@@ -243,14 +260,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         print("-" * len(header))
         with tempfile.TemporaryDirectory(dir=args.work) as temp:
             for n in sizes:
-                for row in scale_rows(n, args.methods.split(","), args.repeat, args.scheduler, Path(temp)):
+                for row in scale_rows(n, methods, args.repeat, args.scheduler, Path(temp)):
                     print(row, flush=True)
         print("kernel: SAD kernel wall and CPU s over the blocks the method needs, measured before each cold run;"
               " ratio (cpu ratio): median of each run's wall (CPU) / its kernel's wall (CPU); cache MB: what"
               " localize left in the cache besides the descriptors.")
     if args.describe:
         print(f"\n{'descriptor':<14} {'jobs':>7} {'images/s':>9} {'/decode':>7} {'vs 1':>8}")
-        for row in describe_rows(data_root(args.data), args.repeat, args.descriptors.split(","), args.scheduler):
+        for row in describe_rows(data_root(args.data), args.repeat, descriptors, args.scheduler):
             print(row, flush=True)
 
 

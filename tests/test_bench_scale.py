@@ -33,15 +33,24 @@ def test_a_small_size_runs_end_to_end(bench, tmp_path: Path, capsys: pytest.Capt
     assert not any(tmp_path.iterdir())  # its scratch folder removed
 
 
-@pytest.mark.parametrize(("work", "problem"), [("missing", "folder does not exist"), ("file", "not a folder")])
-def test_a_work_folder_that_is_none_is_one_error_line(bench, work: str, problem: str, tmp_path: Path,
-                                                      capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(("args", "line"), [
+    (["--work", "{tmp}/missing"], "error: --work {tmp}/missing: folder does not exist"),
+    (["--work", "{tmp}/file"], "error: --work {tmp}/file: not a folder"),
+    (["--repeat", "0"], "error: --repeat must be at least 1, got 0"),
+    (["--sizes", "50,many"], "error: --sizes must be whole numbers, comma-separated, got '50,many'"),
+    (["--methods", "online,nosuch"], "error: --methods: unknown method 'nosuch' (choose from online, threshold, "
+                                     "trained, catgraph)"),
+    (["--describe", "--descriptors", "sad,nosuch"], "error: --descriptors: unknown descriptor 'nosuch'"),
+])
+def test_a_bad_option_is_one_error_line(bench, args: list[str], line: str, tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "file").touch()
     with pytest.raises(SystemExit) as ended:
-        bench.main(["--sizes", "50", "--work", str(tmp_path / work)])
+        bench.main(["--sizes", "50", *(arg.format(tmp=tmp_path) for arg in args)])
     out, err = capsys.readouterr()
     assert ended.value.code == 2 and out == "" and "Traceback" not in err
-    assert err.strip().splitlines()[-1].endswith(f"error: --work {tmp_path / work}: {problem}")
+    assert line.format(tmp=tmp_path) in err.strip().splitlines()[-1]
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["file"]  # nothing made
 
 
 @pytest.mark.realdata
