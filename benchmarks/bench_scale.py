@@ -191,10 +191,17 @@ def child_describe(args: argparse.Namespace) -> dict[str, float]:
         return {"rate": sum(report.computed for report in reports) / (time.perf_counter() - start)}
 
 
-def describe_rows(data: Path, repeat: int, descriptors: list[str], scheduler: str | None) -> list[str]:
+def gardens_point_frames(data: Path) -> list[Path]:
+    """The image files of the Gardens Point traversals under ``data``; a WilocError naming a
+    folder that is missing or holds no frames."""
+    return [path for t in TRAVERSALS for path in list_traversal(data / "gardens-point-walking" / t).frames]
+
+
+def describe_rows(data: Path, frames: list[Path], repeat: int, descriptors: list[str],
+                  scheduler: str | None) -> list[str]:
     """Images/s of each descriptor with 1 and 2 processes (and on the Dask ``scheduler`` with
-    2 workers, when given), against plain decoding, medians; each run a fresh process."""
-    frames = [path for t in TRAVERSALS for path in list_traversal(data / "gardens-point-walking" / t).frames]
+    2 workers, when given), against plain decoding of ``frames`` (``data``'s), medians; each run
+    a fresh process."""
     decode = statistics.median(plain_decode_rate(frames) for _ in range(repeat))
     rows = [f"{'cv2.imread full size':<14} {'':>7} {decode:>9.1f} {1.0:>7.2f} {'':>8}"]
     ways = {"1": ["--jobs", "1"], "2": ["--jobs", "2"],
@@ -251,6 +258,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.work and not Path(args.work).is_dir():
         problem = "not a folder" if Path(args.work).exists() else "folder does not exist"
         parser.error(f"--work {args.work}: {problem}")
+    frames: list[Path] = []
+    if args.describe:
+        try:  # the data: a folder missing or holding no frames stops here, before any run
+            frames = gardens_point_frames(data_root(args.data))
+        except WilocError as exc:
+            parser.exit(exc.exit_code, f"error: {exc}\n")
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, medians of {args.repeat}")
     if sizes:
         header = (f"{'N':>7} {'method':<10} {'kernel s':>8} {'kern cpu':>8} {'cold s':>8} {'cold cpu':>8} "
@@ -267,7 +280,7 @@ def main(argv: Sequence[str] | None = None) -> None:
               " localize left in the cache besides the descriptors.")
     if args.describe:
         print(f"\n{'descriptor':<14} {'jobs':>7} {'images/s':>9} {'/decode':>7} {'vs 1':>8}")
-        for row in describe_rows(data_root(args.data), args.repeat, descriptors, args.scheduler):
+        for row in describe_rows(data_root(args.data), frames, args.repeat, descriptors, args.scheduler):
             print(row, flush=True)
 
 

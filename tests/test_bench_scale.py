@@ -53,6 +53,16 @@ def test_a_bad_option_is_one_error_line(bench, args: list[str], line: str, tmp_p
     assert sorted(path.name for path in tmp_path.iterdir()) == ["file"]  # nothing made
 
 
+def test_missing_data_for_the_describe_table_is_one_error_line_before_any_run(
+        bench, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as ended:
+        bench.main(["--sizes", "50", "--describe", "--data", str(tmp_path / "no-data"), "--work", str(tmp_path)])
+    out, err = capsys.readouterr()
+    assert ended.value.code == 1 and out == "" and "Traceback" not in err
+    assert err.strip().splitlines() == [f"error: {tmp_path}/no-data/gardens-point-walking/day_left: folder does not exist"]
+    assert not any(tmp_path.iterdir())  # no size was run
+
+
 @pytest.mark.realdata
 def test_the_describe_table_runs_on_gardens_point(bench, data_root: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bench.main(["--sizes", "0", "--describe", "--repeat", "1", "--descriptors", "sad", "--data", str(data_root)])
