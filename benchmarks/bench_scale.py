@@ -134,8 +134,13 @@ def child_kernel(args: argparse.Namespace) -> dict[str, float]:
 
 
 def run_child(*argv: str) -> dict[str, float]:
-    """Run this script as a child with ``argv`` and return the JSON it prints last."""
-    done = subprocess.run([sys.executable, __file__, *argv], check=True, capture_output=True, text=True)
+    """Run this script as a child with ``argv`` and return the JSON it prints last. A child that
+    fails ends the benchmark with its last error line (what went wrong, the end of its traceback),
+    which a CalledProcessError would leave unsaid."""
+    done = subprocess.run([sys.executable, __file__, *argv], capture_output=True, text=True)
+    if done.returncode:
+        said = done.stderr.strip().splitlines() or [f"exit status {done.returncode}"]
+        sys.exit(f"error: {' '.join(argv)}: {said[-1]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 

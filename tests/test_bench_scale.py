@@ -69,3 +69,10 @@ def test_the_describe_table_runs_on_gardens_point(bench, data_root: Path, capsys
     rows = [line.split() for line in capsys.readouterr().out.splitlines()]
     assert [row[:2] for row in rows if row and row[0] == "sad"] == [["sad", "1"], ["sad", "2"]]
     assert ["cv2.imread", "full", "size"] in [row[:3] for row in rows]
+
+
+def test_a_failed_child_run_ends_the_benchmark_with_its_error(bench, tmp_path: Path) -> None:
+    with pytest.raises(SystemExit) as ended:
+        bench.run_child("--child", "localize", "--root", str(tmp_path), "--method", "threshold")
+    assert ended.value.code == (f"error: --child localize --root {tmp_path} --method threshold: "
+                                f"wiloc.errors.WilocError: {tmp_path}/query: folder does not exist")
