@@ -25,10 +25,10 @@ from wiloc.evaluation.metrics import (RANKED_KS, PRCurve, Summary, correct_match
 from wiloc.evaluation.reliability import (DEFAULT_CUTS, NEW_PLACE_KEYS, Calibration, ReliabilityBins,
                                           summarize_calibration, summarize_new_place)
 from wiloc.evaluation.results import Results
-from wiloc.evaluation.truth_source import TruthSource
-from wiloc.labels import short_names
 from wiloc.evaluation.run_frames import (UNNAMED_QUERY, check_frames, frame_rows, frames_text, in_run_order,
                                           of_frames, out_of_order, run_name)
+from wiloc.evaluation.truth_source import TruthSource
+from wiloc.labels import short_names
 from wiloc.reprs import short_repr
 
 

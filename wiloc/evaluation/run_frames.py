@@ -66,8 +66,7 @@ def frame_rows(frames: slice, count: int, run: str) -> np.ndarray:
 def of_frames(results: Results, truth: Truth, rows: np.ndarray) -> tuple[Results, Truth]:
     """A run and its ground truth cut to the query frames at ``rows`` (in the run's order): the
     reference frames, and in sequence mode each frame's earlier frames, stay as they were."""
-    kept = replace(results, frames=results.frames.iloc[rows].reset_index(drop=True))
-    return kept, Truth(truth.matrix[rows], [truth.query_names[k] for k in rows], list(truth.ref_names),
+    return _with_rows(results, rows), Truth(truth.matrix[rows], [truth.query_names[k] for k in rows], list(truth.ref_names),
                        list(truth.warnings))
 
 
@@ -93,7 +92,7 @@ def in_run_order(path: Path | None, results: Results) -> Results:
     run = "" if path else f" in the run {run_name(path, header)}"
     stray = next((i for i, name in enumerate(names) if name not in rank), None)
     if stray is not None:
-        line = f"line {read_header(path)[1] + 2 + stray}: " if path else ""
+        line = f"line {_line(path, stray)}: " if path else ""
         raise WilocError(path, f"{line}frame '{names[stray]}' is not one of the run's frames (its header's "
                                f"reference_frames){run}")
     if len(names) < len(order):
@@ -105,7 +104,17 @@ def in_run_order(path: Path | None, results: Results) -> Results:
     rows = np.argsort([rank[name] for name in names], kind="stable")
     if (rows == np.arange(len(names))).all():
         return results
+    return _with_rows(results, rows)
+
+
+def _with_rows(results: Results, rows: np.ndarray) -> Results:
+    """``results`` holding its rows at ``rows``, in that order."""
     return replace(results, frames=results.frames.iloc[rows].reset_index(drop=True))
+
+
+def _line(path: Path, row: int) -> int:
+    """The line of a results file that holds its data row ``row`` (counted from 0)."""
+    return read_header(path)[1] + 2 + row
 
 
 def out_of_order(path: Path | None, results: Results, ordered: Results) -> str | None:
@@ -116,7 +125,7 @@ def out_of_order(path: Path | None, results: Results, ordered: Results) -> str |
     moved = np.flatnonzero(found != ordered.frames["frame"].to_numpy())
     if not moved.size:
         return None
-    line = f"line {read_header(path)[1] + 2 + int(moved[0])}, " if path else ""
+    line = f"line {_line(path, int(moved[0]))}, " if path else ""
     kept = "the order of its reference_frames" if results.header.sequence else "its frames' natural order"
     return (f"{moved.size} of {found.size} rows are out of their run's order ({kept}), the first at {line}frame "
             f"'{found[moved[0]]}': scored in the run's order")
