@@ -87,10 +87,13 @@ def throughput(winter: Path, summer: Path, method: str, work: Path) -> float:
 
 
 def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, frames: int) -> list[float]:
-    """Seconds from each frame file's arrival to its row, for ``frames`` frames fed at ``rate``."""
+    """Seconds from each frame file's arrival to its row, for ``frames`` frames fed at ``rate``.
+    A run that ends before deciding any of them (it failed, or found none it could decide) ends
+    the benchmark with one error line: there is no latency to report."""
     live, out = work / f"live-{method}", work / f"live-{method}.csv"
     live.mkdir()
-    process = follow(live, summer, out, method, idle=3.0)
+    idle = 3.0
+    process = follow(live, summer, out, method, idle=idle)
     while not out.exists():  # the map is described and the method started: the run is ready
         time.sleep(0.01)
     arrived: list[float] = []
@@ -110,7 +113,11 @@ def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, fr
         decided.extend([time.perf_counter()] * (n - len(decided)))
         time.sleep(0.001)
     feeder.join()
-    process.wait()
+    code = process.wait()
+    if not decided:
+        why = f"and ended with exit code {code}" if code else f"before {idle:g} s without a new frame ended it"
+        raise SystemExit(f"error: wiloc localize --follow --method {method} decided none of the {len(arrived)} "
+                         f"frames fed {why}")
     return [d - a for a, d in zip(arrived, decided)]
 
 

@@ -74,3 +74,28 @@ def test_a_method_that_cannot_run_ends_the_benchmark_with_its_exit_code(bench, t
     monkeypatch.setattr(bench, "follow", lambda *_: SimpleNamespace(wait=lambda: 3))
     with pytest.raises(SystemExit, match="--method fabmap ended with exit code 3"):
         bench.throughput(tmp_path / "winter", tmp_path / "summer", "fabmap", tmp_path)
+
+
+@pytest.mark.parametrize(("code", "said"), [
+    (0, "decided none of the 2 frames fed before 3 s without a new frame ended it"),
+    (3, "decided none of the 2 frames fed and ended with exit code 3"),
+])
+def test_a_run_that_decides_no_frame_fed_is_one_error_line(bench, code: int, said: str, tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """The latency run's process ends (idle, or failing) before any row: no latency to take a median of."""
+    for season in ("winter", "summer"):
+        folder = tmp_path / "nordland-summer-winter-64x32" / season
+        folder.mkdir(parents=True)
+        for k in range(2):
+            (folder / f"images-{k:05d}.png").write_bytes(b"")
+
+    def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
+        out.write_text("# wiloc results\nframe,node\n", encoding="utf-8")  # started, then ended without a row
+        return SimpleNamespace(poll=lambda: code, wait=lambda: code)
+
+    monkeypatch.setattr(sys, "argv", ["bench_follow.py", str(tmp_path), "--methods", "threshold", "--frames", "2"])
+    monkeypatch.setattr(bench, "throughput", lambda *_: 100.0)
+    monkeypatch.setattr(bench, "follow", follow)
+    with pytest.raises(SystemExit) as ended:
+        bench.main()
+    assert ended.value.code == f"error: wiloc localize --follow --method threshold {said}"
