@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from helpers import ends_in_one_error
 from test_cli_output import OUTPUT_SCHEMA
@@ -80,6 +81,54 @@ def test_a_sequence_runs_slice_keeps_each_frames_earlier_frames(tmp_path: Path) 
     (run,) = json.loads(result.stdout)["runs"]
     assert (run["frames"], run["with_true_match"]) == (6, 6)
     assert run["recall_at_1"] == pytest.approx(4 / 6)
+
+
+#: A run whose last three frames (in its order) are of places the map lacks: no ground truth covers them.
+UNCOVERED = [*NAMES[:9], "new1.png", "new2.png", "new3.png"]
+
+
+def _uncovering_truth(form: str, tmp_path: Path) -> tuple[list[str], str, str]:
+    """Ground truth of the form ``form`` for a run of frames UNCOVERED against the map NAMES, where
+    the frames new1-new3 have no true match: its options, the warning counting those frames (where
+    it names, what it says) and, for positions, a row naming no frame of the run, warned of too."""
+    if form == "aligned":
+        return ["--gt", "aligned", "--tolerance", "0"], "aligned ground truth (by name)", \
+            "query frames have no reference frame to align with"
+    if form == "positions":
+        query, ref = tmp_path / "walk.csv", tmp_path / "map.csv"
+        query.write_text("name,x,y\n" + "".join(f"{n},{10 * k},0\n" for k, n in enumerate([*NAMES[:9], "gone.png"])))
+        ref.write_text("name,x,y\n" + "".join(f"{n},{10 * k},0\n" for k, n in enumerate(NAMES)))
+        return ["--gt", f"positions:{query}", "--gt-map", str(ref), "--radius", "1"], str(query), \
+            "query frames have no ground-truth row (never a true match)"
+    rows = np.empty((9, 2), dtype=object)  # vprbench: a row for each of the first nine frames
+    for k in range(9):
+        rows[k] = [k, [k]]
+    np.save(path := tmp_path / "ground_truth_new.npy", rows)
+    return ["--gt", f"vprbench:{path}"], str(path), "query frames have no row (never a true match)"
+
+
+@pytest.mark.parametrize("form", ["aligned", "positions", "vprbench"])
+def test_warnings_that_count_frames_count_the_frames_scored(form: str, tmp_path: Path) -> None:
+    """The warnings counting frames without ground truth counted the whole run's ('3 of 12') when a
+    slice was scored, the first six frames, all covered, among them. A warning about the ground
+    truth's file (a positions row naming no frame of the run) is the whole run's whatever is scored."""
+    written = _write_run(tmp_path / "walk-sad-online.csv", MAP_RUN, UNCOVERED)
+    gt, where, what = _uncovering_truth(form, tmp_path)
+    file_wide = [f"{where}: 1 of 10 ground-truth rows name no query frame"] if form == "positions" else []
+
+    def warned(*frames: str) -> list[str]:
+        result = runner.invoke(app, ["evaluate", str(written), *gt, *frames, "--json"])
+        assert result.exit_code == 0, result.output
+        shown = json.loads(result.stdout)
+        assert shown["warnings"] == [f"warning: {written}: {line}" for line in shown["runs"][0]["truth_warnings"]]
+        return shown["runs"][0]["truth_warnings"]
+
+    assert sorted(warned()) == sorted([f"{where}: 3 of 12 {what}", *file_wide])
+    assert warned("--frames", ":6") == file_wide
+    assert sorted(warned("--frames", "6:")) == sorted([f"{where}: 3 of 6 {what}", *file_wide])
+    assert sorted(warned("--frames", "8:10")) == sorted([f"{where}: 1 of 2 {what}", *file_wide])
+    scored = api.evaluate(written, api.TruthSource(kind="aligned", tolerance=0), frames=":6")
+    assert scored.truth.warnings == []
 
 
 def test_the_table_and_compare_say_which_frames_were_scored(tmp_path: Path) -> None:

@@ -25,6 +25,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from wiloc.errors import ParameterError, WilocError, load_problem
+from wiloc.evaluation.truth_warnings import QueryFramesWarning, query_frames_without, unmatched
 from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, check_lat_lon, why_unmatched
 from wiloc.reprs import short_repr
 
@@ -69,6 +70,14 @@ class Truth:
     def has_match(self) -> NDArray[np.bool_]:
         """Per query frame: whether at least one reference frame is the same place."""
         return np.diff(self.matrix.indptr) > 0
+
+    def of_queries(self, rows: NDArray[np.int64]) -> Truth:
+        """The truth of the query frames at ``rows`` alone, in that order (the reference frames as
+        they are), with its warnings that count query frames (:class:`QueryFramesWarning`) counted
+        over those frames: a run scored on a slice of its frames is warned about the frames scored."""
+        warnings = [line for warning in self.warnings
+                    for line in (warning.of_rows(rows) if isinstance(warning, QueryFramesWarning) else [warning])]
+        return Truth(self.matrix[rows], [self.query_names[k] for k in rows], list(self.ref_names), warnings)
 
     def is_true(self, query_idx: ArrayLike, ref_idx: ArrayLike) -> NDArray[np.bool_]:
         """Whether each (query, reference) index pair is the same place; reference -1 gives False."""
@@ -130,11 +139,6 @@ def _check_tolerance(tolerance: int) -> int:
     return int(tolerance)
 
 
-def unmatched(where: Path | str, count: int, total: int, what: str) -> list[str]:
-    """A warning line when some of ``total`` items found no counterpart (none when all did)."""
-    return [f"{where}: {count} of {total} {what}"] if count else []
-
-
 def frame_indices(names: Sequence[str]) -> NDArray[np.int64]:
     """Each frame's index in its traversal, as aligned ground truth by index reads it: the number
     a video's frame names hold (``000005``: its index in the video, which sampling every n-th
@@ -180,8 +184,7 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
         raise TruthMismatch(where, f"none of the {n_query} query frames has a reference frame "
                                 + ("of the same name (to align by position, as a video's frames with a folder's: "
                                    "aligned:index)" if by == "name" else "at its position"))
-    warnings = unmatched(where, int((~found).sum()), n_query,
-                          "query frames have no reference frame to align with")
+    warnings = query_frames_without(where, ~found, "query frames have no reference frame to align with")
     rows, cols = _band(np.flatnonzero(found).astype(np.int64), centres[found], tol, len(ref_names))
     return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
@@ -294,8 +297,9 @@ def _frames_with_positions(positions: Positions, frames: Sequence[str],
     if not found.any():
         raise TruthMismatch(where, f"no name matches any of the {len(frames)} {role} frames"
                                 + why_unmatched(list(names), frames))
-    warnings = unmatched(where, int((~found).sum()), len(frames),
-                          f"{role} frames have no ground-truth row (never a true match)")
+    what = f"{role} frames have no ground-truth row (never a true match)"
+    warnings = (query_frames_without(where, ~found, what) if role == "query"  # a slice of the run counts its own
+                else unmatched(where, int((~found).sum()), len(frames), what))
     unused = len(names) - int(np.unique(at[found]).size)
     warnings += unmatched(where, unused, len(names), f"ground-truth rows name no {role} frame")
     return np.flatnonzero(found).astype(np.int64), positions.coords[at[found]], warnings

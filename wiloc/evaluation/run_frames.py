@@ -65,9 +65,9 @@ def frame_rows(frames: slice, count: int, run: str) -> np.ndarray:
 
 def of_frames(results: Results, truth: Truth, rows: np.ndarray) -> tuple[Results, Truth]:
     """A run and its ground truth cut to the query frames at ``rows`` (in the run's order): the
-    reference frames, and in sequence mode each frame's earlier frames, stay as they were."""
-    return _with_rows(results, rows), Truth(truth.matrix[rows], [truth.query_names[k] for k in rows], list(truth.ref_names),
-                       list(truth.warnings))
+    reference frames, and in sequence mode each frame's earlier frames, stay as they were; the
+    truth's warnings that count query frames count those alone (:meth:`Truth.of_queries`)."""
+    return _with_rows(results, rows), truth.of_queries(rows)
 
 
 def in_run_order(path: Path | None, results: Results) -> Results:

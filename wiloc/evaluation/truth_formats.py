@@ -14,7 +14,8 @@ from numpy.typing import NDArray
 
 from wiloc.errors import WilocError
 from wiloc.evaluation.groundtruth import (Positions, Truth, TruthMismatch, check_file, name_index, truth_from_pairs,
-                                          truth_within, unmatched)
+                                          truth_within)
+from wiloc.evaluation.truth_warnings import query_frames_without
 from wiloc.object_arrays import npy_header, read_npy
 
 DEFAULT_RADIUS_M = 25.0
@@ -119,8 +120,9 @@ def vprbench_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[s
         _check_references(path, f"row {i + 1}", refs, n_ref)
     queries = np.repeat(np.array([q for q, _ in rows], dtype=np.int64), [refs.size for _, refs in rows])
     refs = np.concatenate([refs for _, refs in rows])
-    without = n_query - len({q for q, _ in rows})
-    warnings = unmatched(path, without, n_query, "query frames have no row (never a true match)")
+    without = np.ones(n_query, dtype=np.bool_)
+    without[[q for q, _ in rows]] = False
+    warnings = query_frames_without(path, without, "query frames have no row (never a true match)")
     return truth_from_pairs(queries, refs, query_names, ref_names, warnings)
 
 
