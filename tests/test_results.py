@@ -406,3 +406,25 @@ def test_a_row_of_other_cells_than_columns_names_its_line_and_line_ends_of_any_k
     with pytest.raises(WilocError, match=rf"line {len(lines)}: 3 cell\(s\), where the column line \(line {column_line}\) "
                                          "names 7 columns"):
         read_results(path)
+
+
+@pytest.mark.parametrize("edit", [
+    lambda text: text + "   \n", lambda text: text + "  ", lambda text: text + " \t \n\n",
+    lambda text: text + "\n  \n", lambda text: text.replace("\n", "\r\n") + "  \r\n",
+    lambda text: text.replace("\n", "\r\n") + " \r\n\r\n",
+])
+def test_lines_of_spaces_at_a_tables_end_read_as_the_blank_lines_they_look(tmp_path: Path, edit) -> None:
+    """An editor's last lines of spaces (or of spaces and a CR) were refused as a row of one cell,
+    where blank lines there read; between rows such a line is a blank line in the table, refused
+    naming its line, and spaces between a row's data are a row of one cell still."""
+    path, text = _written(tmp_path)
+    expected = read_results(path).frames
+    path.write_text(edit(text), encoding="utf-8", newline="")
+    assert read_results(path).frames.equals(expected)
+    lines = text.splitlines()
+    path.write_text("\n".join([*lines[:-1], "   ", lines[-1]]) + "\n", encoding="utf-8")
+    with pytest.raises(WilocError, match=rf"line {len(lines)}: a blank line in the table, where a run writes none"):
+        read_results(path)
+    path.write_text("\n".join([*lines[:-1], lines[-1].replace(",", " ")]) + "\n", encoding="utf-8")
+    with pytest.raises(WilocError, match=rf"line {len(lines)}: 1 cell\(s\), where the column line"):
+        read_results(path)

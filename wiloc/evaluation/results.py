@@ -434,9 +434,9 @@ def _torn(path: Path) -> bool:
 
 
 def _without_blank_lines(path: Path, frames: pd.DataFrame, first_line: int) -> pd.DataFrame:
-    """``frames`` without the empty rows of blank lines at the file's end (an editor's); a
-    WilocError naming the line of one between rows, which no run writes and which, skipped,
-    would move every later row's line number in the messages that name it."""
+    """``frames`` without the empty rows of blank lines (or lines of spaces) at the file's end (an
+    editor's); a WilocError naming the line of one between rows, which no run writes and which,
+    skipped, would move every later row's line number in the messages that name it."""
     blank = (frames == "").all(axis=1).to_numpy()
     kept = int(np.flatnonzero(~blank)[-1]) + 1 if not blank.all() else 0
     if blank[:kept].any():
@@ -447,7 +447,7 @@ def _without_blank_lines(path: Path, frames: pd.DataFrame, first_line: int) -> p
 
 def _table(path: Path, n_header: int) -> pd.DataFrame:
     """The table after a results file's ``n_header`` header lines, every cell as text (a blank
-    line as a row of empty cells); a WilocError naming the line of what no run writes and a
+    line, or one of spaces alone, as a row of empty cells); a WilocError naming the line of what no run writes and a
     table keyed by column names would read unnoticed: a column named twice or not at all (pandas
     renamed them ``new_place.1``, ``Unnamed: 8``), a row of fewer cells than columns (pandas
     filled it with empty ones) or of more."""
@@ -465,6 +465,8 @@ def _table(path: Path, n_header: int) -> pd.DataFrame:
                 raise WilocError(path, f"line {line}: column '{twice}' twice")
             rows = []
             for row in reader:
+                if len(row) == 1 and not row[0].strip():  # a line of spaces (an editor's) reads as a blank one
+                    row = []
                 if row and len(row) != len(columns):
                     raise WilocError(path, f"line {n_header + reader.line_num}: {len(row)} cell(s), where the "
                                            f"column line (line {line}) names {len(columns)} columns")
