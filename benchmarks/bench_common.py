@@ -1,5 +1,6 @@
 """What the benchmarks that run methods on re-sampled real traversals share (``bench_pace``,
-``bench_loops``): where the data is, ``--param method.key=value`` options, and printing."""
+``bench_loops``): where the data is, ``--param method.key=value`` options, and printing; and the
+console every benchmark prints with."""
 from __future__ import annotations
 
 import argparse
@@ -9,6 +10,8 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+from rich.console import Console
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -66,6 +69,12 @@ def parse_params(items: Sequence[str], methods: Sequence[str]) -> dict[str, dict
             raise SystemExit(f"--param {item!r}: method {method!r} is not run")
         params[method][key] = parse_value(value)
     return params
+
+
+def plain_console(**options: Any) -> Console:
+    """A rich console (``options`` as ``Console`` takes them) that prints text as given, as wiloc's
+    own do: emoji codes off, so that a path holding ':name:' (a:smile:b) is not shown as an emoji."""
+    return Console(emoji=False, **options)
 
 
 def fmt(value: float | None, digits: int = 3) -> str:

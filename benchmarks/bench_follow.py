@@ -26,12 +26,13 @@ import threading
 import time
 from pathlib import Path
 
-from rich.console import Console
 from rich.table import Table
 
 from wiloc.errors import WilocError
 from wiloc.methods.registry import method_class
 from wiloc.sources.frames import list_traversal
+
+from bench_common import plain_console
 
 CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
 
@@ -160,7 +161,7 @@ def main() -> None:
             waits = sorted(latency(root / "winter", root / "summer", method, work, args.rate, args.frames))
             table.add_row(method, rate, f"{1000 * statistics.median(waits):.0f}",
                           f"{1000 * waits[int(0.9 * (len(waits) - 1))]:.0f}")
-    console = Console()
+    console = plain_console()
     console.print(table)
     for line in refused:
         console.print(line)

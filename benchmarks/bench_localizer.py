@@ -29,7 +29,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from wiloc.description.differences import ComputedDifferences, summarize
@@ -39,6 +38,8 @@ from wiloc.descriptors.registry import get_descriptor
 from wiloc.localization.localizer import Localizer
 from wiloc.methods.base import MapContext, TrainingRows
 from wiloc.methods.registry import METHODS, make_method
+
+from bench_common import plain_console
 
 SPEC = get_descriptor("sad")
 
@@ -148,7 +149,7 @@ def main() -> None:
                 cells += [f"{r['sequence_wall']:.2f} / {r['sequence_cpu']:.2f}",
                           f"{r['sequence_cpu'] / r['excluded_cpu']:.2f}x"] if sequence else ["-", "-"]
             table.add_row(*cells)
-    Console().print(table)
+    plain_console().print(table)
 
 
 if __name__ == "__main__":

@@ -48,7 +48,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from rich.console import Console
 from rich.table import Table
 from scipy import sparse
 
@@ -66,7 +65,7 @@ from wiloc.evaluation.reliability import summarize_calibration
 from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
 
-from bench_common import default_data_root, fmt, parse_params, parser as benchmark_parser, write_json
+from bench_common import default_data_root, fmt, parse_params, parser as benchmark_parser, plain_console, write_json
 
 TOLERANCE = 2  # places either side that count as the same place
 CUTS = (0.9, 0.99)
@@ -209,7 +208,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
                         help="comma-separated (default: %(default)s; 'held-out': " + ", ".join(HELD_OUT) + ")")
     parser.add_argument("--descriptors", default="sad", help="comma-separated (default: %(default)s)")
     args = parser.parse_args(argv)
-    console = Console() if Console().is_terminal else Console(width=200)
+    console = plain_console() if plain_console().is_terminal else plain_console(width=200)
     loops = [loop for name in args.loops.split(",") if name.strip()
              for loop in (HELD_OUT if name.strip() == "held-out" else [name.strip()])]
     methods = [name.strip() for name in args.methods.split(",") if name.strip()]

@@ -73,7 +73,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 from scipy import sparse
@@ -91,7 +90,7 @@ from wiloc.evaluation.reliability import summarize_calibration, summarize_new_pl
 from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
 
-from bench_common import default_data_root, fmt, parse_params, parser as benchmark_parser, write_json
+from bench_common import default_data_root, fmt, parse_params, parser as benchmark_parser, plain_console, write_json
 
 TOLERANCE = 2  # map nodes either side of the true node that count as the same place
 CUT = 0.9  # the confidence above which precision is reported
@@ -389,9 +388,9 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
                         "the means, e.g. 0-4 or 0,3,7-9 (instead of --seed)")
     parser.add_argument("--frames", type=int, default=None, help="keep only the first N route frames")
     args = parser.parse_args(argv)
-    console, err = Console(), Console(stderr=True)
+    console, err = plain_console(), plain_console(stderr=True)
     if not console.is_terminal:  # a file or a pipe: wide enough for every method's columns
-        console = Console(width=220)
+        console = plain_console(width=220)
 
     methods = []
     for method in (m.strip() for m in args.methods.split(",") if m.strip()):

@@ -49,9 +49,10 @@ from typing import Any
 
 import h5py
 import numpy as np
-from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
+
+from bench_common import plain_console
 
 REPO = Path(__file__).resolve().parents[1]
 DESCRIPTORS = ("sad", "gist", "brisk-gist", "bow")
@@ -66,7 +67,7 @@ CLOCK_KEYS = frozenset({"seconds", "build_seconds"})
 SKIPPED_FOLDER = re.compile(r"^numba")
 #: Rich tables as wide on every machine.
 ENVIRONMENT = {"COLUMNS": "200", "NO_COLOR": "1", "TERM": "dumb"}
-console = Console(width=shutil.get_terminal_size((160, 24)).columns)
+console = plain_console(width=shutil.get_terminal_size((160, 24)).columns)
 
 
 @dataclass(frozen=True)

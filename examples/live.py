@@ -50,11 +50,12 @@ import cv2
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from protocol import _finite, aligned, default_data_root, err, one_line_errors, output_folder, require
+from protocol import _finite, aligned, default_data_root, one_line_errors, output_folder, require
 
 import wiloc
 from wiloc import api
 from wiloc.atomic import written_whole
+from wiloc.cli.core import error
 from wiloc.decisions import Decision
 from wiloc.errors import EXIT_CLOSED_OUTPUT
 from wiloc.evaluation.results import Results
@@ -282,7 +283,7 @@ def main() -> None:
     resumed, batch = summary["resumed"], summary["batch_run"]
     if resumed["rows_alike"] < resumed["frames"] or (summary["batch_checked"] and (
             batch["rows_alike"] < batch["frames"] or not summary["metrics_equal"])):
-        err.print("error: the live run decided otherwise than it should (see above)", markup=False, highlight=False)
+        error("the live run decided otherwise than it should (see above)")
         sys.exit(1)
 
 

@@ -21,21 +21,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rich.console import Console
-
 from wiloc import api
 from wiloc.atomic import write_error
 from wiloc.cache.store import Cache
+from wiloc.cli.core import error, out as console  # wiloc's: a path holding ':name:' is printed as typed
 from wiloc.cli.views import progress_bar, table1_view, table2_view
 from wiloc.errors import EXIT_INTERRUPTED, WilocError, interrupted
-from wiloc.quiet import stderr_back
 from wiloc.figures import plots, run_figures
 
 REPO = Path(__file__).resolve().parents[1]
 METHODS = ("online", "threshold", "trained", "catgraph")
 RECALL_AT = (1, 5, 10, 20)  # Recall@N as place recognition papers report it
-console = Console()
-err = Console(stderr=True, soft_wrap=True)  # an error is one line, however long its path
 
 
 @dataclass(frozen=True)
@@ -214,14 +210,12 @@ def one_line_errors() -> Iterator[None]:
     try:
         yield
     except WilocError as exc:
-        stderr_back()
-        err.print(f"error: {exc}", markup=False, highlight=False)
+        error(str(exc))
         sys.exit(exc.exit_code)
     except BaseException as exc:
         if not interrupted(exc):
             raise
-        stderr_back()  # a Ctrl-C may end image decoders' quiet stretch before it puts stderr back
-        err.print("error: interrupted", markup=False, highlight=False)
+        error("interrupted")  # puts stderr back first: a Ctrl-C may end image decoders' quiet stretch before it does
         sys.exit(EXIT_INTERRUPTED)
 
 
