@@ -81,6 +81,29 @@ def test_a_line_break_in_a_frames_name_survives_a_followed_runs_rows(tmp_path: P
     assert read_results(path).frames[["frame", "match"]].values.tolist() == [[f"a{brk}b.png", f"y{brk}"]]
 
 
+@pytest.mark.parametrize("tail", ["\n", "   \n", " \r\n\n", "\n  "])
+def test_a_followed_run_resumed_after_an_editors_blank_lines_appends_where_its_rows_end(tmp_path: Path,
+                                                                                      tail: str) -> None:
+    """Blank lines (or lines of spaces) at a followed file's end, which reading passes over, were
+    kept when the run resumed, so that its next rows followed them and the file, blank lines
+    between rows, was refused; a torn last row is still cut off."""
+    path = tmp_path / "live.csv"
+    header = ResultsHeader(method="threshold", reference_frames=("x", "y"))
+    decisions = [Decision(match=k, difference=0.5, confidence=0.5, stage="update", frame=f"{name}.png",
+                          match_name="xy"[k]) for k, name in enumerate("ab")]
+    stream = ResultsStream(path, header, (), resume=False)
+    stream.append(decisions[0])
+    stream.close()
+    with path.open("a", encoding="utf-8", newline="") as file:
+        file.write(tail + "b.png,x,0.")  # a row torn after the editor's lines
+    again = ResultsStream(path, stream.header, (), resume=True)
+    assert again.written_lines() == [stream.line(decisions[0])]
+    again.append(decisions[1])
+    again.close()
+    assert read_results(path).frames["frame"].tolist() == ["a.png", "b.png"]
+    assert path.read_text(encoding="utf-8").endswith(stream.line(decisions[0]) + stream.line(decisions[1]))
+
+
 def test_header_names_the_run(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
     write_results(path, _made(ResultsHeader(method="threshold", descriptor="sad", wiloc="0.1.0")))

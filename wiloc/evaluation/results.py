@@ -212,10 +212,16 @@ class ResultsStream:
         self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
 
     def _repair(self) -> None:
-        """Cut a torn last line (a kill during its write) off the file."""
+        """Cut a torn last line (a kill during its write) off the file, and the blank lines (or lines
+        of spaces) an editor left at its end, which reading passes over but rows appended after
+        would leave between rows, where reading refuses them."""
         data = self.path.read_bytes()
-        if data and not data.endswith(b"\n"):
-            os.truncate(self.path, data.rfind(b"\n") + 1)
+        lines = data[:data.rfind(b"\n") + 1].split(b"\n")[:-1]  # whole lines, each without its end
+        while lines and not lines[-1].strip():  # the header and the column line are never blank
+            lines.pop()
+        kept = sum(len(line) + 1 for line in lines)
+        if kept < len(data):
+            os.truncate(self.path, kept)
 
     def line(self, decision: Decision) -> str:
         """The CSV line of one decision, as the batch writer formats it."""
@@ -447,10 +453,10 @@ def _without_blank_lines(path: Path, frames: pd.DataFrame, first_line: int) -> p
 
 def _table(path: Path, n_header: int) -> pd.DataFrame:
     """The table after a results file's ``n_header`` header lines, every cell as text (a blank
-    line, or one of spaces alone, as a row of empty cells); a WilocError naming the line of what no run writes and a
-    table keyed by column names would read unnoticed: a column named twice or not at all (pandas
-    renamed them ``new_place.1``, ``Unnamed: 8``), a row of fewer cells than columns (pandas
-    filled it with empty ones) or of more."""
+    line, or one of spaces alone, as a row of empty cells); a WilocError naming the line of what
+    no run writes and a table keyed by column names would read unnoticed: a column named twice or
+    not at all (pandas renamed them ``new_place.1``, ``Unnamed: 8``), a row of fewer cells than
+    columns (pandas filled it with empty ones) or of more."""
     line = n_header + 1  # the column line's
     try:
         with path.open(encoding="utf-8-sig", newline="") as handle:  # newline="": csv reads quoted line breaks
