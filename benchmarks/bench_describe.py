@@ -46,6 +46,17 @@ def data_root(argument: str | None) -> Path:
     return Path(env) if env else Path(__file__).resolve().parents[2] / "shared/data"
 
 
+def gardens_point_folders(data: Path) -> list[Path]:
+    """The Gardens Point traversals timed, under the data folder ``data``."""
+    return [data / "gardens-point-walking" / t for t in TRAVERSALS]
+
+
+def gardens_point_frames(data: Path) -> list[Path]:
+    """The image files of the Gardens Point traversals under ``data``; a WilocError naming a
+    folder that is missing or holds no frames."""
+    return [path for folder in gardens_point_folders(data) for path in list_traversal(folder).frames]
+
+
 def plain_decode_rate(paths: list[Path]) -> float:
     """Images/s of cv2.imread at full size, in colour as a plain user would, single process."""
     start = time.perf_counter()
@@ -84,12 +95,13 @@ def main() -> None:
     args = parser.parse_args()
     if args.repeat < 1:
         parser.error(f"--repeat must be at least 1, got {args.repeat}")
-    folders = [data_root(args.data_root) / "gardens-point-walking" / t for t in TRAVERSALS]
+    data = data_root(args.data_root)
+    folders = gardens_point_folders(data)
     if args.child:
         print(json.dumps(describe_run(args.child[0], folders, int(args.child[1]))))
         return
     try:  # the data: a folder missing or holding no frames stops here, before any run
-        paths = [path for folder in folders for path in list_traversal(folder).frames]
+        paths = gardens_point_frames(data)
     except WilocError as exc:
         parser.exit(exc.exit_code, f"error: {exc}\n")
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, medians of {args.repeat}")

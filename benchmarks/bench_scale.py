@@ -44,14 +44,13 @@ from typing import Any
 
 import numpy as np
 
-from bench_describe import TRAVERSALS, data_root, plain_decode_rate
+from bench_describe import data_root, gardens_point_folders, gardens_point_frames, plain_decode_rate
 from bench_localizer import SPEC, route
 from wiloc.cache.entries import FrameRecord, StoredEntry
 from wiloc.cache.store import Cache
 from wiloc.description.describing import folder_header
 from wiloc.description.traversals import descriptor_spec
 from wiloc.errors import WilocError
-from wiloc.sources.frames import list_traversal
 
 METHODS = ("online", "threshold", "trained", "catgraph")
 KERNEL_BLOCKS = {"online": ("query", "map"), "threshold": ("query",), "trained": ("query", "train"),
@@ -189,17 +188,11 @@ def child_describe(args: argparse.Namespace) -> dict[str, float]:
     describe` call: workers (or the Dask client) start inside the timing."""
     from wiloc import api
 
-    folders = [Path(args.root) / "gardens-point-walking" / t for t in TRAVERSALS]
+    folders = gardens_point_folders(Path(args.root))
     with tempfile.TemporaryDirectory() as temp:
         start = time.perf_counter()
         reports = api.describe(folders, args.method, cache=Cache(Path(temp)), jobs=args.jobs, scheduler=args.scheduler)
         return {"rate": sum(report.computed for report in reports) / (time.perf_counter() - start)}
-
-
-def gardens_point_frames(data: Path) -> list[Path]:
-    """The image files of the Gardens Point traversals under ``data``; a WilocError naming a
-    folder that is missing or holds no frames."""
-    return [path for t in TRAVERSALS for path in list_traversal(data / "gardens-point-walking" / t).frames]
 
 
 def describe_rows(data: Path, frames: list[Path], repeat: int, descriptors: list[str],
