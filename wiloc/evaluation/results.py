@@ -212,15 +212,10 @@ class ResultsStream:
         self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
 
     def _repair(self) -> None:
-        """Cut a torn last line (a kill during its write) off the file, and the blank lines (or lines
-        of spaces) an editor left at its end, which reading passes over but rows appended after
-        would leave between rows, where reading refuses them."""
+        """Cut a torn last line (a kill during its write) and an editor's blank lines (or lines of
+        spaces) off the file's end: rows appended after them would leave them between rows."""
         data = self.path.read_bytes()
-        lines = data[:data.rfind(b"\n") + 1].split(b"\n")[:-1]  # whole lines, each without its end
-        while lines and not lines[-1].strip():  # the header and the column line are never blank
-            lines.pop()
-        kept = sum(len(line) + 1 for line in lines)
-        if kept < len(data):
+        if (kept := data.find(b"\n", len(data[:data.rfind(b"\n") + 1].rstrip())) + 1) < len(data):
             os.truncate(self.path, kept)
 
     def line(self, decision: Decision) -> str:
@@ -471,12 +466,10 @@ def _table(path: Path, n_header: int) -> pd.DataFrame:
                 raise WilocError(path, f"line {line}: column '{twice}' twice")
             rows = []
             for row in reader:
-                if len(row) == 1 and not row[0].strip():  # a line of spaces (an editor's) reads as a blank one
-                    row = []
-                if row and len(row) != len(columns):
+                if row and len(row) != len(columns) and (len(row) > 1 or row[0].strip()):  # spaces alone: blank
                     raise WilocError(path, f"line {n_header + reader.line_num}: {len(row)} cell(s), where the "
                                            f"column line (line {line}) names {len(columns)} columns")
-                rows.append(row or [""] * len(columns))
+                rows.append(row if len(row) == len(columns) else [""] * len(columns))
     except (csv.Error, ValueError) as exc:
         raise WilocError(path, f"unreadable table: {exc}") from None
     return pd.DataFrame(rows, columns=columns, dtype=str)
