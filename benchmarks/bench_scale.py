@@ -38,7 +38,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -196,12 +196,16 @@ def child_describe(args: argparse.Namespace) -> dict[str, float]:
 
 
 def describe_rows(data: Path, frames: list[Path], repeat: int, descriptors: list[str],
-                  scheduler: str | None) -> list[str]:
-    """Images/s of each descriptor with 1 and 2 processes (and on the Dask ``scheduler`` with
-    2 workers, when given), against plain decoding of ``frames`` (``data``'s), medians; each run
-    a fresh process."""
+                  scheduler: str | None) -> Iterator[str]:
+    """The describe table's lines as they are measured (its header first): images/s of each
+    descriptor with 1 and 2 processes (and on the Dask ``scheduler`` with 2 workers, when given),
+    against plain decoding of ``frames`` (``data``'s), medians; each run a fresh process. The
+    first column is as wide as its longest label, so that every figure stands under its header."""
+    decoding = "cv2.imread full size"
+    width = max(len(label) for label in ("descriptor", decoding, *descriptors))
+    yield f"{'descriptor':<{width}} {'jobs':>7} {'images/s':>9} {'/decode':>7} {'vs 1':>8}"
     decode = statistics.median(plain_decode_rate(frames) for _ in range(repeat))
-    rows = [f"{'cv2.imread full size':<14} {'':>7} {decode:>9.1f} {1.0:>7.2f} {'':>8}"]
+    yield f"{decoding:<{width}} {'':>7} {decode:>9.1f} {1.0:>7.2f} {'':>8}"
     ways = {"1": ["--jobs", "1"], "2": ["--jobs", "2"],
             **({"dask": ["--jobs", "2", "--scheduler", scheduler]} if scheduler else {})}
     for name in descriptors:
@@ -213,8 +217,7 @@ def describe_rows(data: Path, frames: list[Path], repeat: int, descriptors: list
         for way in ways:
             r = statistics.median(rates[way])
             vs = f"{r / one:>7.2f}x" if way != "1" else f"{'':>8}"
-            rows.append(f"{name:<14} {way:>7} {r:>9.1f} {r / decode:>7.2f} {vs}")
-    return rows
+            yield f"{name:<{width}} {way:>7} {r:>9.1f} {r / decode:>7.2f} {vs}"
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -277,7 +280,7 @@ def main(argv: Sequence[str] | None = None) -> None:
               " ratio (cpu ratio): median of each run's wall (CPU) / its kernel's wall (CPU); cache MB: what"
               " localize left in the cache besides the descriptors.")
     if args.describe:
-        print(f"\n{'descriptor':<14} {'jobs':>7} {'images/s':>9} {'/decode':>7} {'vs 1':>8}")
+        print()
         for row in describe_rows(data_root(args.data), frames, args.repeat, descriptors, args.scheduler):
             print(row, flush=True)
 

@@ -2,6 +2,7 @@
 small size runs end to end."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -76,3 +77,16 @@ def test_a_failed_child_run_ends_the_benchmark_with_its_error(bench, tmp_path: P
         bench.run_child("--child", "localize", "--root", str(tmp_path), "--method", "threshold")
     assert ended.value.code == (f"error: --child localize --root {tmp_path} --method threshold: "
                                 f"wiloc.errors.WilocError: {tmp_path}/query: folder does not exist")
+
+
+def test_the_describe_table_shows_each_label_whole_and_its_figures_under_their_headers(
+        bench, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(bench, "plain_decode_rate", lambda frames: 306.3)
+    monkeypatch.setattr(bench, "run_child", lambda *argv: {"rate": 744.4 if argv[-1] == "1" else 765.8})
+    header, *lines = bench.describe_rows(tmp_path, [], 1, ["sad", "brisk-gist"], None)
+    labels = ["cv2.imread full size", "sad", "sad", "brisk-gist", "brisk-gist"]
+    assert [line[:len(label) + 1] for line, label in zip(lines, labels)] == [f"{label} " for label in labels]
+    assert len(lines) == len(labels)
+    for column in ("images/s", "/decode"):  # right-aligned: each figure ends where its header does
+        end = header.index(column) + len(column)
+        assert all(re.fullmatch(r"\d+\.\d+", line[:end].split()[-1]) and line[end] == " " for line in lines), lines
