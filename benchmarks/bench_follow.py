@@ -35,6 +35,8 @@ from wiloc.sources.frames import list_traversal
 from bench_common import plain_console
 
 CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
+#: The latency run's --idle (seconds): the frames must come faster, or it stops between two of them.
+LATENCY_IDLE = 3.0
 
 
 def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> subprocess.Popen:
@@ -93,8 +95,7 @@ def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, fr
     the benchmark with one error line: there is no latency to report."""
     live, out = work / f"live-{method}", work / f"live-{method}.csv"
     live.mkdir()
-    idle = 3.0
-    process = follow(live, summer, out, method, idle=idle)
+    process = follow(live, summer, out, method, idle=LATENCY_IDLE)
     while not out.exists():  # the map is described and the method started: the run is ready
         time.sleep(0.01)
     arrived: list[float] = []
@@ -116,7 +117,7 @@ def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, fr
     feeder.join()
     code = process.wait()
     if not decided:
-        why = f"and ended with exit code {code}" if code else f"before {idle:g} s without a new frame ended it"
+        why = f"and ended with exit code {code}" if code else f"before {LATENCY_IDLE:g} s without a new frame ended it"
         raise SystemExit(f"error: wiloc localize --follow --method {method} decided none of the {len(arrived)} "
                          f"frames fed {why}")
     return [d - a for a, d in zip(arrived, decided)]
@@ -127,13 +128,15 @@ def main() -> None:
     parser.add_argument("data", nargs="?", type=Path,
                         default=Path(os.environ.get("WILOC_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data"))
     parser.add_argument("--methods", default="online,catgraph")
-    parser.add_argument("--rate", type=float, default=20.0, help="frames per second fed for the latency")
+    parser.add_argument("--rate", type=float, default=20.0,
+                        help=f"frames per second fed for the latency (more than one per {LATENCY_IDLE:g} s)")
     parser.add_argument("--frames", type=int, default=300, help="frames fed for the latency")
     args = parser.parse_args()
     if args.frames < 1:
         parser.error(f"--frames must be at least 1, got {args.frames}")
-    if args.rate <= 0:
-        parser.error(f"--rate must be above 0, got {args.rate:g}")
+    if not args.rate * LATENCY_IDLE > 1:  # nan too; slower, the run stops after the first frame and the feed goes on alone
+        parser.error(f"--rate must exceed one frame per {LATENCY_IDLE:g} s (the followed run stops after "
+                     f"{LATENCY_IDLE:g} s without a new frame), got {args.rate:g}")
     try:
         for method in args.methods.split(","):
             method_class(method)

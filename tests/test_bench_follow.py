@@ -52,7 +52,12 @@ def test_neither_timed_run_pays_for_describing_the_map(bench, tmp_path: Path, mo
 
 @pytest.mark.parametrize(("args", "code", "line"), [
     (["--frames", "0"], 2, "error: --frames must be at least 1, got 0"),
-    (["--rate", "0"], 2, "error: --rate must be above 0, got 0"),
+    (["--rate", "0"], 2, "error: --rate must exceed one frame per 3 s (the followed run stops after 3 s without "
+                         "a new frame), got 0"),
+    (["--rate", "0.25"], 2, "error: --rate must exceed one frame per 3 s (the followed run stops after 3 s without "
+                            "a new frame), got 0.25"),
+    (["--rate", "nan"], 2, "error: --rate must exceed one frame per 3 s (the followed run stops after 3 s without "
+                           "a new frame), got nan"),
     (["--methods", "catgraph,nosuch"], 2, "error: --methods: unknown method 'nosuch' (choose from"),
     ([], 1, "nordland-summer-winter-64x32/winter: folder does not exist"),
 ])
