@@ -1,11 +1,15 @@
 """`wiloc compare` and `wiloc report` over several results files: problems named by the run they concern."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 from helpers import ends_in_one_error
+from test_cli_output import OUTPUT_SCHEMA
+from test_evaluate_frames import UNCOVERED
+from test_results_order import MAP_RUN, _edited, _halves_swapped, _write_run
 from typer.testing import CliRunner
 
 from wiloc import api
@@ -67,3 +71,29 @@ def test_a_run_of_no_frames_is_said_to_hold_none(tmp_path: Path) -> None:
         ends_in_one_error(runner.invoke(app, list(map(str, args))), 1, f"{empty}: holds no rows: there is no frame to score")
     with pytest.raises(WilocError, match=r"^the run in memory \(query .*empty, method threshold\) holds no frames"):
         api.evaluate(read_results(empty), api.TruthSource())
+
+
+def test_compare_json_gives_each_run_its_truth_warnings_as_evaluate_does(tmp_path: Path) -> None:
+    """compare's --json runs had no ``truth_warnings``: a warning about one run's ground truth (its
+    last three frames have none) was in ``warnings`` alone, where evaluate's run holds its own."""
+    covered = _write_run(tmp_path / "a" / "walk-sad-online.csv", MAP_RUN)
+    uncovered = _write_run(tmp_path / "b" / "walk-sad-online.csv", MAP_RUN, UNCOVERED)
+    gt = ["--gt", "aligned", "--tolerance", "0"]
+    result = runner.invoke(app, ["compare", str(covered), str(uncovered), *gt, "--json"])
+    assert result.exit_code == 0, result.output
+    shown = json.loads(result.stdout)
+    OUTPUT_SCHEMA.validate(shown)
+    evaluated = runner.invoke(app, ["evaluate", str(uncovered), *gt, "--json"])
+    expected = json.loads(evaluated.stdout)["runs"][0]["truth_warnings"]
+    assert [run["truth_warnings"] for run in shown["runs"]] == [[], expected]
+    assert expected and [f"warning: {uncovered}: {line}" for line in expected] == shown["warnings"]
+
+
+def test_compare_warns_of_rows_out_of_their_runs_order_naming_the_file(tmp_path: Path) -> None:
+    """A run whose rows were moved is scored in its run's order, and compare says so of that file."""
+    written = _write_run(tmp_path / "walk-sad-online.csv", MAP_RUN)
+    shuffled = _edited(written, _halves_swapped, "shuffled.csv")
+    result = runner.invoke(app, ["compare", str(shuffled), "--gt", "aligned:index", "--tolerance", "0"])
+    assert result.exit_code == 0, result.output
+    (line,) = [line for line in result.stderr.splitlines() if "rows are out of their run's order" in line]
+    assert line.startswith(f"warning {shuffled}: 12 of 12 rows are out of their run's order"), line

@@ -85,7 +85,9 @@ def compare(
             note("wrote", str(path))  # stdout holds the tables alone
         return
     if as_json:
-        print_command_json("compare", "runs", run_records(comparison), notes, ground_truth=comparison.ground_truth,
+        runs = [{**record, "truth_warnings": e.truth.warnings}  # as evaluate's --json: the run's own
+                for record, e in zip(run_records(comparison), comparison.evaluations)]
+        print_command_json("compare", "runs", runs, notes, ground_truth=comparison.ground_truth,
                            table2=comparison.table2.to_dict(orient="records"),
                            files=[str(p.resolve()) for p in written], **slice_key(comparison.evaluations))
         return
