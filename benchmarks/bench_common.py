@@ -1,6 +1,6 @@
 """What the benchmarks that run methods on re-sampled real traversals share (``bench_pace``,
 ``bench_loops``): where the data is, ``--param method.key=value`` options, and printing; and the
-console every benchmark prints with."""
+console every benchmark prints with, and the line a failed child process is reported by."""
 from __future__ import annotations
 
 import argparse
@@ -69,6 +69,13 @@ def parse_params(items: Sequence[str], methods: Sequence[str]) -> dict[str, dict
             raise SystemExit(f"--param {item!r}: method {method!r} is not run")
         params[method][key] = parse_value(value)
     return params
+
+
+def last_error_line(stderr: str, code: int) -> str:
+    """What a failed child process said last on ``stderr`` (its error line, or the end of its
+    traceback), else its exit status ``code``: the one line that says why it failed."""
+    said = stderr.strip().splitlines()
+    return said[-1] if said else f"exit status {code}"
 
 
 def plain_console(**options: Any) -> Console:

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from bench_common import last_error_line
 from bench_describe import data_root, gardens_point_folders, gardens_point_frames, plain_decode_rate
 from bench_localizer import SPEC, route
 from wiloc.cache.entries import FrameRecord, StoredEntry
@@ -138,8 +139,7 @@ def run_child(*argv: str) -> dict[str, float]:
     which a CalledProcessError would leave unsaid."""
     done = subprocess.run([sys.executable, __file__, *argv], capture_output=True, text=True)
     if done.returncode:
-        said = done.stderr.strip().splitlines() or [f"exit status {done.returncode}"]
-        sys.exit(f"error: {' '.join(argv)}: {said[-1]}")
+        sys.exit(f"error: {' '.join(argv)}: {last_error_line(done.stderr, done.returncode)}")
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
