@@ -32,7 +32,7 @@ from wiloc.errors import WilocError
 from wiloc.methods.registry import method_class
 from wiloc.sources.frames import list_traversal
 
-from bench_common import plain_console
+from bench_common import last_error_line, plain_console
 
 CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
 #: The latency run's --idle (seconds): the frames must come faster, or it stops between two of them.
@@ -40,10 +40,26 @@ LATENCY_IDLE = 3.0
 
 
 def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> subprocess.Popen:
-    """A `wiloc localize --follow` process, its output discarded."""
-    return subprocess.Popen([sys.executable, "-c", CLI, "localize", str(folder), "--map", str(summer),
-                             "--method", method, "--follow", "--idle", str(idle), "--out", str(out)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    """A `wiloc localize --follow` process, its output discarded but for its error output, kept in
+    :func:`error_log` for :func:`ended` to report."""
+    with error_log(out).open("wb") as log:  # the child holds its own copy of the file
+        return subprocess.Popen([sys.executable, "-c", CLI, "localize", str(folder), "--map", str(summer),
+                                 "--method", method, "--follow", "--idle", str(idle), "--out", str(out)],
+                                stdout=subprocess.DEVNULL, stderr=log)
+
+
+def error_log(out: Path) -> Path:
+    """Where the run writing the results file ``out`` writes its error output."""
+    return out.with_name(f"{out.name}.err")
+
+
+def ended(method: str, code: int, out: Path, when: str) -> SystemExit:
+    """The benchmark's end when the run of ``method`` writing ``out`` ended with exit code
+    ``code`` ``when`` (what it had not done): one error line with the last line it said."""
+    log = error_log(out)
+    said = last_error_line(log.read_text(encoding="utf-8", errors="replace") if log.exists() else "", code)
+    return SystemExit(f"error: wiloc localize --follow --method {method} ended with exit code {code} {when}; "
+                      f"it said: {said}")
 
 
 def rows(path: Path) -> int:
@@ -76,50 +92,65 @@ def throughput(winter: Path, summer: Path, method: str, work: Path) -> float:
     empty.mkdir()
     shutil.copytree(winter, full)
     idle = 1.0
-    code = follow(empty, summer, work / f"warm-{method}.csv", method, idle).wait()
-    if code:  # its output is discarded: a method that cannot run on this map ends every run alike
-        raise SystemExit(f"error: wiloc localize --follow --method {method} ended with exit code {code} "
-                         "(run it by hand to see why)")
-    start = time.perf_counter()
-    follow(empty, summer, work / f"empty-{method}.csv", method, idle).wait()
-    baseline = time.perf_counter() - start
-    start = time.perf_counter()
-    follow(full, summer, work / f"full-{method}.csv", method, idle).wait()
-    spent = time.perf_counter() - start
-    return frames_per_second(rows(work / f"full-{method}.csv"), spent, baseline)
+    spent: dict[str, float] = {}
+    for run, folder, doing in (("warm", empty, "describing the map"), ("empty", empty, "on the empty folder"),
+                               ("full", full, "on the full folder")):
+        out = work / f"{run}-{method}.csv"
+        start = time.perf_counter()
+        code = follow(folder, summer, out, method, idle).wait()
+        spent[run] = time.perf_counter() - start
+        if code:  # a method that cannot run on this map ends the first run; a later failure leaves no rate
+            raise ended(method, code, out, doing)
+    return frames_per_second(rows(work / f"full-{method}.csv"), spent["full"], spent["empty"])
 
 
 def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, frames: int) -> list[float]:
     """Seconds from each frame file's arrival to its row, for ``frames`` frames fed at ``rate``.
-    A run that ends before deciding any of them (it failed, or found none it could decide) ends
-    the benchmark with one error line: there is no latency to report."""
+    Every wait also watches the run and the feeder, so that neither ending early leaves the
+    benchmark waiting: a run that fails, or ends before deciding any frame, or a feed that
+    fails, ends the benchmark with one error line: there is no latency to report."""
     live, out = work / f"live-{method}", work / f"live-{method}.csv"
     live.mkdir()
     process = follow(live, summer, out, method, idle=LATENCY_IDLE)
     while not out.exists():  # the map is described and the method started: the run is ready
+        if (code := process.poll()) is not None and not out.exists():
+            raise ended(method, code, out, "before writing its results file")
         time.sleep(0.01)
     arrived: list[float] = []
+    stop, broken = threading.Event(), []
 
     def feed() -> None:
         for path in sorted(winter.iterdir())[:frames]:
+            if stop.is_set():
+                return
             tmp = live / f".{path.name}.part"
-            shutil.copyfile(path, tmp)
-            os.replace(tmp, live / path.name)
+            try:
+                shutil.copyfile(path, tmp)
+                os.replace(tmp, live / path.name)
+            except OSError as exc:
+                broken.append(f"error: feeding {path} to wiloc localize --follow --method {method}: {exc}")
+                return
             arrived.append(time.perf_counter())
-            time.sleep(1.0 / rate)
+            stop.wait(1.0 / rate)
     feeder = threading.Thread(target=feed)
     feeder.start()
     decided: list[float] = []
-    while len(decided) < frames and process.poll() is None:
+    while len(decided) < frames and process.poll() is None and not broken:
         n = rows(out)
         decided.extend([time.perf_counter()] * (n - len(decided)))
         time.sleep(0.001)
+    stop.set()
     feeder.join()
+    if broken:
+        process.terminate()
+        process.wait()
+        raise SystemExit(broken[0])
     code = process.wait()
+    if code:
+        raise ended(method, code, out, f"after deciding {len(decided)} of the {len(arrived)} frames fed")
     if not decided:
-        why = f"and ended with exit code {code}" if code else f"before {LATENCY_IDLE:g} s without a new frame ended it"
         raise SystemExit(f"error: wiloc localize --follow --method {method} decided none of the {len(arrived)} "
-                         f"frames fed {why}")
+                         f"frames fed before {LATENCY_IDLE:g} s without a new frame ended it")
     return [d - a for a, d in zip(arrived, decided)]
 
 

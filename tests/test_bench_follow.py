@@ -4,12 +4,13 @@ its command line, where bad options, missing data or a method that cannot run en
 error line and an exit code."""
 from __future__ import annotations
 
+import subprocess
 import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from helpers import benchmark_module
+from helpers import BENCHMARKS, benchmark_module
 
 
 @pytest.fixture()
@@ -73,17 +74,76 @@ def test_bad_options_and_missing_data_are_one_line(bench, args: list[str], code:
     assert "Traceback" not in captured.err and not captured.out
 
 
-def test_a_method_that_cannot_run_ends_the_benchmark_with_its_exit_code(bench, tmp_path: Path,
-                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize(("failing", "said"), [
+    ("warm", "ended with exit code 3 describing the map; it said: exit status 3"),
+    ("full", "ended with exit code 3 on the full folder; it said: exit status 3"),
+])
+def test_a_run_that_fails_ends_the_benchmark_with_its_exit_code(bench, failing: str, said: str, tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """The first run fails where the method cannot run on this map; a timed run that fails gives no rate."""
     (tmp_path / "winter").mkdir()
-    monkeypatch.setattr(bench, "follow", lambda *_: SimpleNamespace(wait=lambda: 3))
-    with pytest.raises(SystemExit, match="--method fabmap ended with exit code 3"):
+    monkeypatch.setattr(bench, "follow", lambda folder, summer, out, method, idle: SimpleNamespace(
+        wait=lambda: 3 if out.name.startswith(failing) else 0))
+    with pytest.raises(SystemExit) as ended:
         bench.throughput(tmp_path / "winter", tmp_path / "summer", "fabmap", tmp_path)
+    assert ended.value.code == f"error: wiloc localize --follow --method fabmap {said}"
+
+
+def test_a_run_that_fails_before_its_results_file_ends_the_benchmark_with_its_error(tmp_path: Path) -> None:
+    """A real followed run that refuses its options (threshold's --normaliser below 0) ends before it
+    writes its results file, which the latency run waits for: the benchmark ends with its error
+    line rather than waiting on (the timeout only stops a benchmark that would wait for ever)."""
+    for folder in ("winter", "summer"):
+        (tmp_path / folder).mkdir()
+    refusing = ("import sys; from wiloc.cli import app; "
+                "sys.exit(app(args=sys.argv[1:] + ['--normaliser', '-1'], prog_name='wiloc'))")
+    driver = (f"import sys; sys.path.insert(0, {str(BENCHMARKS)!r}); from pathlib import Path; import bench_follow; "
+              f"bench_follow.CLI = {refusing!r}; root = Path({str(tmp_path)!r}); "
+              "bench_follow.latency(root / 'winter', root / 'summer', 'threshold', root, rate=20.0, frames=2)")
+    done = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True, timeout=120)
+    assert (done.returncode, done.stderr.strip().splitlines()) == (1, [
+        "error: wiloc localize --follow --method threshold ended with exit code 2 before writing its results "
+        "file; it said: error: --normaliser: must be > 0, got -1.0"])
+
+
+def test_a_feed_that_fails_ends_the_benchmark_and_its_run(bench, tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """The feeder cannot write the second frame: the run, which would follow the folder on, is
+    stopped, and the benchmark ends with the feeder's error."""
+    winter = tmp_path / "winter"
+    winter.mkdir()
+    for k in range(3):
+        (winter / f"images-{k:05d}.png").write_bytes(b"")
+    run = SimpleNamespace(polls=0, stopped=False)
+
+    def poll() -> int | None:
+        run.polls += 1  # a run following on, which a stand-in cannot do for ever
+        return 0 if run.stopped or run.polls > 5000 else None
+
+    def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
+        out.write_text("# wiloc results\nframe,node\n", encoding="utf-8")
+        return SimpleNamespace(poll=poll, wait=poll, terminate=lambda: setattr(run, "stopped", True))
+
+    copied: list[Path] = []
+
+    def copyfile(source: Path, target: Path) -> None:
+        if copied:
+            raise OSError(28, "No space left on device")
+        copied.append(source)
+        target.write_bytes(b"")
+
+    monkeypatch.setattr(bench, "follow", follow)
+    monkeypatch.setattr(bench.shutil, "copyfile", copyfile)
+    with pytest.raises(SystemExit) as ended:
+        bench.latency(winter, tmp_path / "summer", "catgraph", tmp_path, rate=1000.0, frames=3)
+    assert ended.value.code == (f"error: feeding {winter}/images-00001.png to wiloc localize --follow --method "
+                                "catgraph: [Errno 28] No space left on device")
+    assert run.stopped
 
 
 @pytest.mark.parametrize(("code", "said"), [
     (0, "decided none of the 2 frames fed before 3 s without a new frame ended it"),
-    (3, "decided none of the 2 frames fed and ended with exit code 3"),
+    (3, "ended with exit code 3 after deciding 0 of the 2 frames fed; it said: exit status 3"),
 ])
 def test_a_run_that_decides_no_frame_fed_is_one_error_line(bench, code: int, said: str, tmp_path: Path,
                                                            monkeypatch: pytest.MonkeyPatch) -> None:
@@ -96,7 +156,10 @@ def test_a_run_that_decides_no_frame_fed_is_one_error_line(bench, code: int, sai
 
     def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
         out.write_text("# wiloc results\nframe,node\n", encoding="utf-8")  # started, then ended without a row
-        return SimpleNamespace(poll=lambda: code, wait=lambda: code)
+
+        def poll() -> int | None:  # ended once both frames are in; its error output: none
+            return code if len([p for p in folder.iterdir() if not p.name.startswith(".")]) == 2 else None
+        return SimpleNamespace(poll=poll, wait=poll)
 
     monkeypatch.setattr(sys, "argv", ["bench_follow.py", str(tmp_path), "--methods", "threshold", "--frames", "2"])
     monkeypatch.setattr(bench, "throughput", lambda *_: 100.0)
