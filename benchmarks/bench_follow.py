@@ -3,12 +3,13 @@ its row in the results file.
 
     python benchmarks/bench_follow.py [DATA] [--methods online,catgraph] [--rate 20] [--frames 300]
 
-Throughput: the winter frames (3576) are put in a folder first, then `--follow --idle 1` decides
+Throughput: the winter frames (3576, as wiloc lists them) are put in a folder first, then `--follow --idle 1` decides
 them all (descriptor included: each frame is read and described as it is decided); frames/s =
 frames / (wall time - the wall time of a run on an empty folder), which pays the same start-up
 and idle wait: a first, untimed run on the empty folder has described the map into the cache,
 which both timed runs then read. Latency: a
-feeder writes `--frames` winter frames into an empty folder at `--rate` frames/s, each file
+feeder writes the first `--frames` winter frames (the image files as wiloc lists them, in its
+order: no other file, no subfolder) into an empty folder at `--rate` frames/s, each file
 written whole under a temporary name and renamed (as a camera driver would); the time from the
 rename to the row appearing in the results file is taken for every frame (the results file is
 polled every millisecond). Medians of the per-frame latencies, wall clock.
@@ -90,7 +91,9 @@ def throughput(winter: Path, summer: Path, method: str, work: Path) -> float:
     described into the cache by an untimed run first, so that neither timed run pays for it."""
     empty, full = work / f"empty-{method}", work / f"full-{method}"
     empty.mkdir()
-    shutil.copytree(winter, full)
+    full.mkdir()
+    for path in list_traversal(winter).frames:
+        shutil.copyfile(path, full / path.name)
     idle = 1.0
     spent: dict[str, float] = {}
     for run, folder, doing in (("warm", empty, "describing the map"), ("empty", empty, "on the empty folder"),
@@ -116,11 +119,12 @@ def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, fr
         if (code := process.poll()) is not None and not out.exists():
             raise ended(method, code, out, "before writing its results file")
         time.sleep(0.01)
+    fed = list_traversal(winter).frames[:frames]  # as the run lists them: no other file, no subfolder
     arrived: list[float] = []
     stop, broken = threading.Event(), []
 
     def feed() -> None:
-        for path in sorted(winter.iterdir())[:frames]:
+        for path in fed:
             if stop.is_set():
                 return
             tmp = live / f".{path.name}.part"
@@ -135,7 +139,7 @@ def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, fr
     feeder = threading.Thread(target=feed)
     feeder.start()
     decided: list[float] = []
-    while len(decided) < frames and process.poll() is None and not broken:
+    while len(decided) < len(fed) and process.poll() is None and not broken:
         n = rows(out)
         decided.extend([time.perf_counter()] * (n - len(decided)))
         time.sleep(0.001)

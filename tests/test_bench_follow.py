@@ -51,6 +51,47 @@ def test_neither_timed_run_pays_for_describing_the_map(bench, tmp_path: Path, mo
     assert bench.throughput(winter, tmp_path / "summer", "catgraph", work) == pytest.approx(1 / per_frame)
 
 
+def a_users_winter(folder: Path) -> list[str]:
+    """A winter folder as a user's may be: frames whose natural order is not their text order, a
+    text file and a subfolder beside them. Returns the frames' names, in natural order."""
+    folder.mkdir()
+    (folder / "a-notes.txt").write_text("taken in December\n", encoding="utf-8")
+    (folder / "b-sub").mkdir()
+    names = [f"images-{k}.png" for k in (9, 10, 11)]
+    for name in names:
+        (folder / name).write_bytes(b"")
+    return names
+
+
+def test_the_full_folder_holds_the_frames_alone(bench, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    names = a_users_winter(tmp_path / "winter")
+    monkeypatch.setattr(bench, "follow", lambda *_: SimpleNamespace(wait=lambda: 0))
+    monkeypatch.setattr(bench, "frames_per_second", lambda *_: 1.0)
+    bench.throughput(tmp_path / "winter", tmp_path / "summer", "catgraph", tmp_path)
+    assert sorted(path.name for path in (tmp_path / "full-catgraph").iterdir()) == sorted(names)
+
+
+def test_the_feeder_feeds_the_frames_alone_in_their_order(bench, tmp_path: Path,
+                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """A stand-in run that decides each file as soon as it is in its folder."""
+    names = a_users_winter(tmp_path / "winter")
+
+    def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
+        def poll() -> None:
+            decided = "".join(f"{p.name},0\n" for p in folder.iterdir() if not p.name.startswith("."))
+            out.write_text("# wiloc results\nframe,node\n" + decided, encoding="utf-8")
+        poll()
+        return SimpleNamespace(poll=poll, wait=lambda: 0)
+
+    copied: list[str] = []
+    copyfile = bench.shutil.copyfile
+    monkeypatch.setattr(bench, "follow", follow)
+    monkeypatch.setattr(bench.shutil, "copyfile", lambda source, target: (copied.append(Path(source).name),
+                                                                          copyfile(source, target)))
+    waits = bench.latency(tmp_path / "winter", tmp_path / "summer", "catgraph", tmp_path, rate=1000.0, frames=3)
+    assert copied == names and len(waits) == 3
+
+
 @pytest.mark.parametrize(("args", "code", "line"), [
     (["--frames", "0"], 2, "error: --frames must be at least 1, got 0"),
     (["--rate", "0"], 2, "error: --rate must exceed one frame per 3 s (the followed run stops after 3 s without "
@@ -82,6 +123,7 @@ def test_a_run_that_fails_ends_the_benchmark_with_its_exit_code(bench, failing: 
                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
     """The first run fails where the method cannot run on this map; a timed run that fails gives no rate."""
     (tmp_path / "winter").mkdir()
+    (tmp_path / "winter" / "images-00000.png").write_bytes(b"")
     monkeypatch.setattr(bench, "follow", lambda folder, summer, out, method, idle: SimpleNamespace(
         wait=lambda: 3 if out.name.startswith(failing) else 0))
     with pytest.raises(SystemExit) as ended:
