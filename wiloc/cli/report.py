@@ -7,7 +7,8 @@ import typer
 
 from wiloc.cli.core import handles_errors, out
 from wiloc.cli.options import CacheOption, one_file, replacing
-from wiloc.cli.scoring import CUTS_TEXT, CutsOption, parse_cuts, warn_about_truth
+from wiloc.cli.scoring import (CUTS_TEXT, CutsOption, FramesOption, parse_cuts, scored_frames, slice_key,
+                               warn_about_truth)
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
 from wiloc.cli.views import print_command_json, progress_bar
 
@@ -30,6 +31,7 @@ def report(
     tolerance: ToleranceOption = 2,
     radius: RadiusOption = None,
     cuts: CutsOption = CUTS_TEXT,
+    frames: FramesOption = None,
     thumb_width: int = typer.Option(160, min=40, max=640, help="Width in pixels of the frame browser's images."),
     cache: CacheOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a line."),
@@ -37,6 +39,8 @@ def report(
     """One self-contained HTML page of a comparison: tables, figures, timelines and a frame browser.
 
     Per run a timeline and the difference matrix; the page needs no network, images are embedded as thumbnails.
+    With --frames every table, figure and the browser cover that slice of each run's frames; the difference
+    matrices, drawn of whole runs, are left out.
 
     Example: wiloc report runs/day_left-sad-online.csv runs/day_left-sad-catgraph.csv --gt aligned -o report.html
     """
@@ -46,18 +50,20 @@ def report(
 
     at = parse_cuts(cuts)
     source = truth_source(gt, gt_map, tolerance, radius)
-    comparison = api.compare(results, source, cuts=at)
+    comparison = api.compare(results, source, cuts=at, frames=frames)
     notes = warn_about_truth(comparison.evaluations)
     with progress_bar(not as_json) as progress:
         written = write_report(comparison, replacing(notes, out_file), cache=Cache(cache), thumb_width=thumb_width,
                                title=f"wiloc report: {api.run_subject(comparison.evaluations, source)}",
-                               progress=progress)
+                               scope=scored_frames(comparison.evaluations), progress=progress)
     for note in written.notes:
         notes.add("note", note)
     if as_json:
         print_command_json("report", "results", [{"file": str(written.path.resolve()), "size": written.size,
                                                   "images": written.images, "thumb_width": written.thumb_width}],
-                           notes)
+                           notes, **slice_key(comparison.evaluations))
         return
+    for line in scored_frames(comparison.evaluations):
+        out.print(line, markup=False, highlight=False)
     out.print(f"wrote {written.path} ({written.size / 1e6:.1f} MB, {written.images} images "
               f"at most {written.thumb_width} px wide)")

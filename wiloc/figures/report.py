@@ -70,9 +70,12 @@ class Report:
 
 
 def write_report(comparison: Comparison, path: Path, *, cache: Cache, title: str = "wiloc report",
-                 thumb_width: int = THUMB_WIDTH, progress: Progress | None = None) -> Report:
+                 thumb_width: int = THUMB_WIDTH, scope: Sequence[str] = (),
+                 progress: Progress | None = None) -> Report:
     """Build the page of ``comparison`` and write it to ``path`` whole (or not at all). ``cache``
-    gives back the runs' descriptors for the difference matrices."""
+    gives back the runs' descriptors for the difference matrices; ``scope`` are lines shown under
+    the ground truth that say what of the runs was scored (``wiloc report --frames``: which frames
+    of each)."""
     from wiloc.evaluation.comparison import run_names
 
     notes: list[str] = []
@@ -84,7 +87,7 @@ def write_report(comparison: Comparison, path: Path, *, cache: Cache, title: str
         if sum(map(len, data)) <= THUMB_BUDGET:
             break
     figures = _figures(comparison, names, cache, notes, stage(progress, "figures"))
-    page = _page(comparison, title, figures, runs, data, notes)
+    page = _page(comparison, title, figures, runs, data, notes, scope)
     with written_whole(Path(path), "the report") as file:
         file.write(page)
     return Report(path=Path(path), size=len(page.encode("utf-8")), thumb_width=width, images=len(images.paths),
@@ -288,7 +291,7 @@ def _new_place_table(comparison: Comparison) -> str:
 
 
 def _page(comparison: Comparison, title: str, figures: Figures, runs: list[dict[str, Any]], images: list[str],
-          notes: list[str]) -> str:
+          notes: list[str], scope: Sequence[str]) -> str:
     """The whole HTML page."""
     folder = resources.files("wiloc.figures")
     template = folder.joinpath("report_page.html").read_text(encoding="utf-8")
@@ -308,6 +311,7 @@ def _page(comparison: Comparison, title: str, figures: Figures, runs: list[dict[
         "script": folder.joinpath("report.js").read_text(encoding="utf-8"),
         "version": html.escape(__version__),
         "ground_truth": html.escape(comparison.ground_truth),
+        "scope": "".join(f'<p class="scope">{html.escape(line)}</p>' for line in scope),
         "notes": "".join(f"<li>{html.escape(note)}</li>" for note in notes),
         "notes_hidden": "" if notes else " hidden",
         "table1": _table(comparison.table1, TABLE1_COLUMNS, [k for k in TABLE1_COLUMNS if k.startswith("recall_at")]),

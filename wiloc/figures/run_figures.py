@@ -122,8 +122,10 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
     """The query's and the map's descriptors, through the cache, checked against the file's frames
     and against the digests the run recorded of them: a WilocError naming the folder whose images
     are no longer the run's (changed, or another folder of the same names), so that no figure
-    shows other images than the run's."""
+    shows other images than the run's. For a run scored on a slice of its frames (``--frames``)
+    the query's entry is the whole run's, whose slice must be the frames the file lists."""
     from wiloc.description.traversals import Describer, descriptors_digest
+    from wiloc.evaluation.run_frames import check_frames
     from wiloc.sources.video import Sampling
 
     header = evaluation.results.header
@@ -134,12 +136,16 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
                           topic=header.topic)
     query, reference, sequence = run_traversals(evaluation)
     results = evaluation.results
-    q = _first_frames(describer.entry(query), results.frames["frame"].tolist())
+    scored = results.frames["frame"].tolist()
+    q = describer.entry(query)
+    frames = check_frames(evaluation.frame_slice)  # a run scored on a slice lists those of its frames
+    q = _first_frames(q, scored if frames is None else q.names[:evaluation.run_frames])
     r = q if sequence else describer.entry(reference)
-    for role, entry, listed in (("query", q, results.frames["frame"].tolist()), ("map", r, results.reference_frames)):
-        if listed and entry.names != listed:
+    for role, entry, names, listed in (("query", q, q.names if frames is None else q.names[frames], scored),
+                                       ("map", r, r.names, results.reference_frames)):
+        if listed and names != listed:
             raise WilocError(evaluation.path, f"its {role} {entry.folder} no longer gives the frames it lists "
-                                              f"({_changes(listed, entry.names)}); cannot draw it")
+                                              f"({_changes(listed, names)}); cannot draw it")
     for role, entry in (("query", q), ("map", r)):
         recorded = header.query_digest if role == "query" else header.map_digest  # batch runs record them
         if recorded and recorded != descriptors_digest(entry.names, entry.data):
@@ -188,6 +194,9 @@ def matrix_picture(evaluation: Evaluation, cache: Cache, max_side: int = MAX_SID
     from wiloc.candidates import mask_recent
     from wiloc.description.differences import differences
 
+    if evaluation.frame_slice is not None:
+        raise WilocError(evaluation.path, f"drawn for the whole run only, and frames {evaluation.frame_slice} "
+                                          f"of its {evaluation.run_frames} were scored")
     q, r = checked_entries(evaluation, cache)
     _, _, sequence = run_traversals(evaluation)
     exclude = evaluation.results.header.exclude_recent
