@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 from pathlib import Path
+
+import pytest
 
 from helpers import ends_in_one_error
 from test_cli_output import OUTPUT_SCHEMA
@@ -58,6 +61,21 @@ def test_the_report_of_a_slice_covers_those_frames_and_says_so(runs: list[Path],
     assert shown.exit_code == 0, shown.output
     OUTPUT_SCHEMA.validate(json.loads(shown.stdout))
     assert json.loads(shown.stdout)["frame_slice"] == "30:"
+
+
+@pytest.mark.parametrize("edit", ["gone", "changed"])
+def test_a_slices_images_are_shown_only_while_the_whole_run_is_the_folders(edit: str, runs: list[Path],
+                                                                          tmp_path: Path) -> None:
+    """A slice's frames are checked as the whole run's: a query image outside the slice gone or
+    changed since the run leaves the browser without pictures, as it does the whole run's."""
+    last = tmp_path / "route" / "query" / "img44.png"
+    if edit == "gone":
+        last.unlink()
+    else:
+        shutil.copyfile(tmp_path / "route" / "query" / "img0.png", last)
+    page = _report(runs[:1], tmp_path / "part.html", "--frames", ":20").read_text(encoding="utf-8")
+    assert "no images in the frame browser" in page and "no longer gives the descriptors" in page
+    assert _data(page)["images"] == [] and len(_data(page)["runs"][0]["frames"]) == 20
 
 
 def test_a_bad_slice_is_one_error_line_and_no_page(runs: list[Path], tmp_path: Path) -> None:
