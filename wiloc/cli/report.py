@@ -39,8 +39,8 @@ def report(
     """One self-contained HTML page of a comparison: tables, figures, timelines and a frame browser.
 
     Per run a timeline and the difference matrix; the page needs no network, images are embedded as thumbnails.
-    With --frames every table, figure and the browser cover that slice of each run's frames; the difference
-    matrices, drawn of whole runs, are left out.
+
+    With --frames the tables, figures and browser cover that slice of each run's frames; the matrices are left out.
 
     Example: wiloc report runs/day_left-sad-online.csv runs/day_left-sad-catgraph.csv --gt aligned -o report.html
     """
