@@ -12,7 +12,8 @@ feeder writes the first `--frames` winter frames (the image files as wiloc lists
 order: no other file, no subfolder) into an empty folder at `--rate` frames/s, each file
 written whole under a temporary name and renamed (as a camera driver would); the time from the
 rename to the row appearing in the results file is taken for every frame (the results file is
-polled every millisecond). Medians of the per-frame latencies, wall clock.
+polled every millisecond; rows written as the run ends are taken when its end is seen, read from
+the whole file once it has ended). Medians of the per-frame latencies, wall clock.
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ from pathlib import Path
 from rich.table import Table
 
 from wiloc.errors import WilocError
+from wiloc.evaluation.results import read_results
 from wiloc.methods.registry import method_class
 from wiloc.sources.frames import list_traversal
 
@@ -71,6 +73,16 @@ def rows(path: Path) -> int:
     return max(0, sum(not line.startswith("#") for line in lines) - 1)
 
 
+def decided_frames(out: Path) -> list[str]:
+    """The frames a followed run that has ended decided, in its order: every row of its results
+    file ``out``, read as wiloc reads results. A file wiloc would not read ends the benchmark with
+    its one error line."""
+    try:
+        return read_results(out).frames["frame"].tolist()
+    except WilocError as exc:
+        raise SystemExit(f"error: {exc}") from None
+
+
 class BrokenMeasure(ValueError):
     """The two timed runs did not differ by the frames alone: no rate can be taken from them."""
 
@@ -110,8 +122,10 @@ def throughput(winter: Path, summer: Path, method: str, work: Path) -> float:
 def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, frames: int) -> list[float]:
     """Seconds from each frame file's arrival to its row, for ``frames`` frames fed at ``rate``.
     Every wait also watches the run and the feeder, so that neither ending early leaves the
-    benchmark waiting: a run that fails, or ends before deciding any frame, or a feed that
-    fails, ends the benchmark with one error line: there is no latency to report."""
+    benchmark waiting. Once the run has ended, its results file is read whole, so that the rows
+    it wrote as it ended count, taken at the time its end was seen. A run that fails, or ends
+    before deciding any frame, or a feed that fails, ends the benchmark with one error line:
+    there is no latency to report."""
     live, out = work / f"live-{method}", work / f"live-{method}.csv"
     live.mkdir()
     process = follow(live, summer, out, method, idle=LATENCY_IDLE)
@@ -150,8 +164,11 @@ def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, fr
         process.wait()
         raise SystemExit(broken[0])
     code = process.wait()
+    seen = time.perf_counter()
     if code:
-        raise ended(method, code, out, f"after deciding {len(decided)} of the {len(arrived)} frames fed")
+        raise ended(method, code, out, f"after deciding {rows(out)} of the {len(arrived)} frames fed")
+    names = decided_frames(out)
+    decided.extend([seen] * (len(names) - len(decided)))  # written as the run ended, after the last poll
     if not decided:
         raise SystemExit(f"error: wiloc localize --follow --method {method} decided none of the {len(arrived)} "
                          f"frames fed before {LATENCY_IDLE:g} s without a new frame ended it")

@@ -1,11 +1,13 @@
 """benchmarks/bench_follow.py: its frames/s, where the run on the empty folder, subtracted from the
-full folder's, does the same fixed work and a rate that would come out negative is refused; and
-its command line, where bad options, missing data or a method that cannot run end it with one
-error line and an exit code."""
+full folder's, does the same fixed work and a rate that would come out negative is refused; its
+latency, which counts every row a run wrote, those written as it ended too; and its command line,
+where bad options, missing data or a method that cannot run end it with one error line and an exit
+code."""
 from __future__ import annotations
 
 import subprocess
 import sys
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -17,6 +19,13 @@ from helpers import BENCHMARKS, benchmark_module
 def bench():
     with benchmark_module("bench_follow") as module:
         yield module
+
+
+def write_results(out: Path, frames: Iterable[str]) -> None:
+    """A stand-in run's followed results file, as wiloc reads it: a row (undecided) for each of ``frames``."""
+    out.write_text('# wiloc-results: 1\n# method: catgraph\n# reference_frames: ["m.png"]\n# follow: True\n'
+                   "frame,match,difference,confidence,stage\n" + "".join(f"{name},,,,\n" for name in frames),
+                   encoding="utf-8")
 
 
 def test_a_full_run_no_longer_than_the_empty_one_gives_no_rate(bench) -> None:
@@ -41,7 +50,7 @@ def test_neither_timed_run_pays_for_describing_the_map(bench, tmp_path: Path, mo
         frames = sorted(folder.iterdir())
         clock.now += 1.5 + idle + per_frame * len(frames) + (30.0 if summer not in described else 0.0)
         described.add(summer)
-        out.write_text("# wiloc results\nframe,node\n" + "".join(f"{p.name},0\n" for p in frames), encoding="utf-8")
+        write_results(out, (p.name for p in frames))
         return SimpleNamespace(wait=lambda: 0)
 
     monkeypatch.setattr(bench, "follow", follow)
@@ -78,8 +87,7 @@ def test_the_feeder_feeds_the_frames_alone_in_their_order(bench, tmp_path: Path,
 
     def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
         def poll() -> None:
-            decided = "".join(f"{p.name},0\n" for p in folder.iterdir() if not p.name.startswith("."))
-            out.write_text("# wiloc results\nframe,node\n" + decided, encoding="utf-8")
+            write_results(out, (p.name for p in folder.iterdir() if not p.name.startswith(".")))
         poll()
         return SimpleNamespace(poll=poll, wait=lambda: 0)
 
@@ -163,7 +171,7 @@ def test_a_feed_that_fails_ends_the_benchmark_and_its_run(bench, tmp_path: Path,
         return 0 if run.stopped or run.polls > 5000 else None
 
     def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
-        out.write_text("# wiloc results\nframe,node\n", encoding="utf-8")
+        write_results(out, [])
         return SimpleNamespace(poll=poll, wait=poll, terminate=lambda: setattr(run, "stopped", True))
 
     copied: list[Path] = []
@@ -197,7 +205,7 @@ def test_a_run_that_decides_no_frame_fed_is_one_error_line(bench, code: int, sai
             (folder / f"images-{k:05d}.png").write_bytes(b"")
 
     def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
-        out.write_text("# wiloc results\nframe,node\n", encoding="utf-8")  # started, then ended without a row
+        write_results(out, [])  # started, then ended without a row
 
         def poll() -> int | None:  # ended once both frames are in; its error output: none
             return code if len([p for p in folder.iterdir() if not p.name.startswith(".")]) == 2 else None
@@ -209,3 +217,36 @@ def test_a_run_that_decides_no_frame_fed_is_one_error_line(bench, code: int, sai
     with pytest.raises(SystemExit) as ended:
         bench.main()
     assert ended.value.code == f"error: wiloc localize --follow --method threshold {said}"
+
+
+def traversal_of(folder: Path, count: int) -> list[str]:
+    """A traversal's folder of ``count`` (empty) frames; their names, in order."""
+    folder.mkdir(parents=True)
+    names = [f"images-{k:05d}.png" for k in range(count)]
+    for name in names:
+        (folder / name).write_bytes(b"")
+    return names
+
+
+def ending_run(decides: int) -> Callable[..., SimpleNamespace]:
+    """A stand-in for `bench_follow.follow`: a run that writes its results file at once, then, as
+    it ends (once the feeder has put 3 frames in its folder), a row for the first ``decides`` of
+    them: rows no poll of the run's results file can see while it runs."""
+    def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
+        write_results(out, [])
+
+        def poll() -> int | None:
+            fed = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+            if len(fed) < 3:
+                return None
+            write_results(out, fed[:decides])
+            return 0
+        return SimpleNamespace(poll=poll, wait=lambda: 0)
+    return follow
+
+
+def test_rows_written_as_the_run_ends_are_counted(bench, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    traversal_of(tmp_path / "winter", 3)
+    monkeypatch.setattr(bench, "follow", ending_run(decides=3))
+    waits = bench.latency(tmp_path / "winter", tmp_path / "summer", "catgraph", tmp_path, rate=1000.0, frames=3)
+    assert len(waits) == 3 and min(waits) >= 0
