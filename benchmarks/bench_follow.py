@@ -13,7 +13,9 @@ order: no other file, no subfolder) into an empty folder at `--rate` frames/s, e
 written whole under a temporary name and renamed (as a camera driver would); the time from the
 rename to the row appearing in the results file is taken for every frame (the results file is
 polled every millisecond; rows written as the run ends are taken when its end is seen, read from
-the whole file once it has ended). Medians of the per-frame latencies, wall clock.
+the whole file once it has ended). A run that leaves a fed frame without a row ends the benchmark
+with an error line rather than a latency of the frames it did decide. Medians of the per-frame
+latencies, wall clock.
 """
 from __future__ import annotations
 
@@ -124,8 +126,8 @@ def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, fr
     Every wait also watches the run and the feeder, so that neither ending early leaves the
     benchmark waiting. Once the run has ended, its results file is read whole, so that the rows
     it wrote as it ended count, taken at the time its end was seen. A run that fails, or ends
-    before deciding any frame, or a feed that fails, ends the benchmark with one error line:
-    there is no latency to report."""
+    leaving a fed frame without a row, or a feed that fails, ends the benchmark with one error
+    line: there is no latency to report, or one of some frames alone."""
     live, out = work / f"live-{method}", work / f"live-{method}.csv"
     live.mkdir()
     process = follow(live, summer, out, method, idle=LATENCY_IDLE)
@@ -172,6 +174,11 @@ def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, fr
     if not decided:
         raise SystemExit(f"error: wiloc localize --follow --method {method} decided none of the {len(arrived)} "
                          f"frames fed before {LATENCY_IDLE:g} s without a new frame ended it")
+    written = set(names)
+    missing = [path.name for path in fed[:len(arrived)] if path.name not in written]
+    if missing:
+        raise SystemExit(f"error: wiloc localize --follow --method {method} decided {len(arrived) - len(missing)} "
+                         f"of the {len(arrived)} frames fed; the first without a row: {missing[0]}")
     return [d - a for a, d in zip(arrived, decided)]
 
 

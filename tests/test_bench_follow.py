@@ -1,8 +1,8 @@
 """benchmarks/bench_follow.py: its frames/s, where the run on the empty folder, subtracted from the
 full folder's, does the same fixed work and a rate that would come out negative is refused; its
-latency, which counts every row a run wrote, those written as it ended too; and its command line,
-where bad options, missing data or a method that cannot run end it with one error line and an exit
-code."""
+latency, which counts every row a run wrote, those written as it ended too, and refuses a run that
+left a fed frame without a row; and its command line, where bad options, missing data or a method
+that cannot run end it with one error line and an exit code."""
 from __future__ import annotations
 
 import subprocess
@@ -250,3 +250,34 @@ def test_rows_written_as_the_run_ends_are_counted(bench, tmp_path: Path, monkeyp
     monkeypatch.setattr(bench, "follow", ending_run(decides=3))
     waits = bench.latency(tmp_path / "winter", tmp_path / "summer", "catgraph", tmp_path, rate=1000.0, frames=3)
     assert len(waits) == 3 and min(waits) >= 0
+
+
+def deciding_run(skips: str) -> Callable[..., SimpleNamespace]:
+    """A stand-in for `bench_follow.follow`: a run that writes each frame's row as soon as the frame
+    is in its folder, but for the frame named ``skips``, and ends once the feeder has put 3 in."""
+    def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
+        def poll() -> int | None:
+            fed = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+            write_results(out, [name for name in fed if name != skips])
+            return 0 if len(fed) == 3 else None
+        poll()
+        return SimpleNamespace(poll=poll, wait=lambda: 0)
+    return follow
+
+
+@pytest.mark.parametrize("run", [ending_run(decides=2), deciding_run(skips="images-00002.png")],
+                         ids=["rows as it ends", "rows while it runs"])
+def test_a_run_that_leaves_a_fed_frame_without_a_row_is_one_error_line(bench, run: Callable[..., SimpleNamespace],
+                                                                       tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """The run ends well (exit code 0) having decided 2 of the 3 frames fed: their latencies alone
+    are no measure of the run's."""
+    for season in ("winter", "summer"):
+        traversal_of(tmp_path / "nordland-summer-winter-64x32" / season, 3)
+    monkeypatch.setattr(sys, "argv", ["bench_follow.py", str(tmp_path), "--methods", "threshold", "--frames", "3"])
+    monkeypatch.setattr(bench, "throughput", lambda *_: 100.0)
+    monkeypatch.setattr(bench, "follow", run)
+    with pytest.raises(SystemExit) as ended:
+        bench.main()
+    assert ended.value.code == ("error: wiloc localize --follow --method threshold decided 2 of the 3 frames fed; "
+                                "the first without a row: images-00002.png")
