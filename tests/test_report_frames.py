@@ -7,14 +7,19 @@ import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
+from matplotlib.collections import PathCollection
+from matplotlib.figure import Figure
 
 from helpers import ends_in_one_error
 from test_cli_output import OUTPUT_SCHEMA
-from test_report import _data, _report, runs  # noqa: F401  (runs: the fixture of two methods' runs)
+from test_report import (_data, _report, assert_loads_without_errors, needs_chromium,  # noqa: F401
+                         runs)  # runs: the fixture of two methods' runs
 from typer.testing import CliRunner
 
 from wiloc.cli import app
+from wiloc.figures import plots
 
 runner = CliRunner()
 
@@ -61,6 +66,38 @@ def test_the_report_of_a_slice_covers_those_frames_and_says_so(runs: list[Path],
     assert shown.exit_code == 0, shown.output
     OUTPUT_SCHEMA.validate(json.loads(shown.stdout))
     assert json.loads(shown.stdout)["frame_slice"] == "30:"
+
+
+@pytest.mark.parametrize(("frames", "shown"), [("30:", range(30, 45)), ("-5:", range(40, 45)), (":20", range(20))])
+def test_a_slices_timelines_and_browser_number_its_frames_as_the_run_does(
+        frames: str, shown: range, runs: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The timelines of a slice's page drew its frames from 0 (30: as 0-14): every point, shaded
+    span and the axis are at the run's frame numbers, and the browser's data numbers them so."""
+    drawn: list[Figure] = []
+    timeline_figure = plots.timeline_figure
+    monkeypatch.setattr(plots, "timeline_figure", lambda *args, **kwargs: drawn.append(
+        timeline_figure(*args, **kwargs)) or drawn[-1])
+    page = _report(runs, tmp_path / "part.html", "--frames", frames).read_text(encoding="utf-8")
+    assert len(drawn) == len(runs)
+    for figure in drawn:
+        top, bottom = figure.axes
+        assert top.get_xlim() == (shown.start - 0.5, shown.stop - 0.5)
+        for ax in (top, bottom):
+            xs = np.concatenate([c.get_offsets()[:, 0] for c in ax.collections if isinstance(c, PathCollection)]
+                                + [line.get_xdata() for line in ax.lines])  # the points and the lines
+            assert set(xs.tolist()) == set(shown)
+        # the frames past the map's end (40-44) shaded where shown
+        assert [patch.get_x() for patch in top.patches] == ([39.5] if shown.stop > 40 else [])
+    for run in _data(page)["runs"]:
+        assert (run["first"], run["run_frames"], len(run["frames"])) == (shown.start, 45, len(shown))
+
+
+@needs_chromium
+def test_a_slices_browser_says_the_frames_number_in_the_run(runs: list[Path], tmp_path: Path) -> None:
+    dom = assert_loads_without_errors(_report(runs[:1], tmp_path / "part.html", "--frames", "30:"))
+    assert re.search(r'id="frame-info"[^>]*>frame 31 of 45 ', dom)
+    whole = assert_loads_without_errors(_report(runs[:1], tmp_path / "whole.html"))
+    assert re.search(r'id="frame-info"[^>]*>frame 1 of 45 ', whole)
 
 
 @pytest.mark.parametrize("edit", ["gone", "changed"])

@@ -60,6 +60,14 @@ class Evaluation:
         return self.path.name if self.path else f"{self.traversal}-{self.method}"
 
     @property
+    def first_frame(self) -> int:
+        """The run's number (from 0, in the run's order) of the first frame scored: 0 for a whole
+        run, a slice's start (``100:300``: 100; ``-5:`` of 200: 195), so that a figure or a page
+        of a slice numbers its frames as the run does."""
+        frames = check_frames(self.frame_slice)
+        return 0 if frames is None or self.run_frames is None else frames.indices(self.run_frames)[0]
+
+    @property
     def traversal(self) -> str:
         """The query traversal's folder name; for a run that records none, its results file's
         name, or :data:`UNNAMED_QUERY` for a run in memory (``Localizer.results()`` without

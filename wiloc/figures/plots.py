@@ -369,26 +369,29 @@ def timeline_figure(timeline: Timeline, title: str = "Timeline") -> Figure:
     """A run frame by frame: above, the map frame each query frame was matched to (green right,
     red wrong) over the ground truth's true places (light grey); below, the confidence of each
     decided match (green right, red wrong) and P(new place) where the run gives it. Frames without
-    a true match in the map are shaded in both."""
-    n = timeline.match.size
+    a true match in the map are shaded in both. Query frames are numbered as the run numbers
+    them: a slice's from its start (``timeline.first``)."""
+    n, first = timeline.match.size, timeline.first
+    frames = first + np.arange(n)
     fig, (top, bottom) = _figure(nrows=2, width=10.0, height=5.0, sharex=True, height_ratios=[3, 2])
-    top.scatter(timeline.truth_rows, timeline.truth_cols, s=6, c="0.8", linewidths=0, label="ground truth: true place")
+    top.scatter(first + timeline.truth_rows, timeline.truth_cols, s=6, c="0.8", linewidths=0,
+                label="ground truth: true place")
     decided = timeline.match >= 0
     for mask, colour, label in ((decided & timeline.correct, CORRECT, "right"),
                                 (decided & ~timeline.correct, WRONG, "wrong")):
         rows = np.flatnonzero(mask)
-        top.scatter(rows, timeline.match[rows], s=6, c=colour, linewidths=0,
+        top.scatter(frames[rows], timeline.match[rows], s=6, c=colour, linewidths=0,
                     label=f"decided match, {label} ({rows.size})")
-        bottom.scatter(rows, np.clip(timeline.confidence[rows], 0.0, 1.0), s=6, c=colour, linewidths=0)
-    bottom.plot(np.arange(n), np.clip(timeline.confidence, 0.0, 1.0), color="0.6", linewidth=0.6, label="confidence")
+        bottom.scatter(frames[rows], np.clip(timeline.confidence[rows], 0.0, 1.0), s=6, c=colour, linewidths=0)
+    bottom.plot(frames, np.clip(timeline.confidence, 0.0, 1.0), color="0.6", linewidth=0.6, label="confidence")
     if timeline.new_place is not None:
-        bottom.plot(np.arange(n), timeline.new_place, color=NEW_PLACE, linewidth=1.0, label="P(new place)")
+        bottom.plot(frames, timeline.new_place, color=NEW_PLACE, linewidth=1.0, label="P(new place)")
     for start, stop in _runs_of(~timeline.has_match):
         for ax in (top, bottom):
-            ax.axvspan(start - 0.5, stop - 0.5, color="0.5", alpha=0.15, linewidth=0)
+            ax.axvspan(first + start - 0.5, first + stop - 0.5, color="0.5", alpha=0.15, linewidth=0)
     if (~timeline.has_match).any():
         bottom.fill_between([], [], color="0.5", alpha=0.15, label="no true match in the map")
-    top.set(ylabel="map frame", xlim=(-0.5, n - 0.5))
+    top.set(ylabel="map frame", xlim=(first - 0.5, first + n - 0.5))
     bottom.set(xlabel="query frame", ylabel="confidence", ylim=(-0.03, 1.03))
     for ax in (top, bottom):
         ax.grid(alpha=0.3)

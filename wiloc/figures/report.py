@@ -151,8 +151,10 @@ def thumbnail_uri(path: Path, width: int, quality: int = 75) -> str:
 
 def _browser_run(name: str, e: Evaluation, images: Thumbnails, notes: list[str], cache: Cache) -> dict[str, Any]:
     """One run for the frame browser: per query frame its name, match, true place, confidence,
-    P(new place), verdict and the indices of the three images (-1: none). Images that are no longer
-    the run's (``run_figures.checked_entries``) are not shown, and the page says why."""
+    P(new place), verdict and the indices of the three images (-1: none), and the run's number of
+    the first frame and its count of frames, from which the browser numbers the frames as the run
+    does (a slice's, ``--frames``, from its start). Images that are no longer the run's
+    (``run_figures.checked_entries``) are not shown, and the page says why."""
     from wiloc.figures.run_figures import checked_entries, run_traversals, true_places, unchecked_folders
 
     names = e.results.frames["frame"].tolist()
@@ -174,7 +176,8 @@ def _browser_run(name: str, e: Evaluation, images: Thumbnails, notes: list[str],
         return images.add(folder / frames[index]) if shown and index >= 0 else -1
 
     p_new = e.results.new_place
-    return {"name": name, "results": str(e.path or e.name), "frames": names,
+    return {"name": name, "results": str(e.path or e.name), "frames": names, "first": e.first_frame,
+            "run_frames": e.run_frames or len(names),
             "match": [ref_names[m] if m >= 0 else None for m in match.tolist()],
             "truth": [ref_names[t] if t >= 0 else None for t in place.tolist()],
             "confidence": _numbers(e.confidence), "new_place": None if p_new is None else _numbers(p_new),

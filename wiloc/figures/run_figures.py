@@ -70,7 +70,9 @@ class ImagePair:
 class Timeline:
     """A run frame by frame: each query frame's match (-1: undecided), whether it is right, its
     confidence (NaN: undecided) and P(new place) (None: the run gives none), whether the frame has
-    a true match in the map, and the ground truth's true (query, map) pairs."""
+    a true match in the map, and the ground truth's true (query, map) pairs, counted from the
+    first frame shown; ``first`` is that frame's number in the run (a slice's start, ``--frames``),
+    from which the figure numbers the frames."""
 
     match: NDArray[np.int64]
     correct: NDArray[np.bool_]
@@ -79,17 +81,20 @@ class Timeline:
     has_match: NDArray[np.bool_]
     truth_rows: NDArray[np.int64]
     truth_cols: NDArray[np.int64]
+    first: int = 0
 
 
 def run_timeline(evaluation: Evaluation) -> Timeline:
-    """The run's timeline, from its results and ground truth (no images, no descriptors)."""
+    """The run's timeline, from its results and ground truth (no images, no descriptors): of the
+    frames scored, numbered as the run numbers them."""
     coo = evaluation.truth.matrix.tocoo()
     new_place = evaluation.results.new_place
     return Timeline(match=evaluation.results.match_index, correct=evaluation.correct,
                     confidence=evaluation.confidence,
                     new_place=None if new_place is None else np.asarray(new_place, dtype=np.float64),
                     has_match=np.asarray(evaluation.truth.has_match(), dtype=np.bool_),
-                    truth_rows=coo.row.astype(np.int64), truth_cols=coo.col.astype(np.int64))
+                    truth_rows=coo.row.astype(np.int64), truth_cols=coo.col.astype(np.int64),
+                    first=evaluation.first_frame)
 
 
 def true_places(evaluation: Evaluation) -> NDArray[np.int64]:
