@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 
 from helpers import places, write_traversal
 from wiloc import api
-from wiloc.figures.run_figures import example_pairs
+from wiloc.figures.run_figures import ImagePair, example_pairs
 
 runner = CliRunner()
 
@@ -46,3 +46,32 @@ def test_pairs_options_on_the_command_line(run: Path, tmp_path: Path) -> None:
         assert result.exit_code == 2 and "applies to --pairs-plot only" in result.stderr
     result = runner.invoke(app, ["evaluate", str(run), "--pairs-plot", str(figure), "--pairs", "0"])
     assert result.exit_code == 2 and "--pairs" in result.stderr
+
+
+def test_the_pairs_of_a_slice_are_of_its_frames_numbered_as_in_the_run(run: Path, tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """evaluate refused --pairs-plot with --frames; it draws the slice's pairs alone, each query
+    captioned with its frame's number in the run, and the title names the slice."""
+    from matplotlib.figure import Figure
+
+    from wiloc.cli import app
+    from wiloc.figures import plots
+
+    drawn: list[tuple[list[ImagePair], Figure]] = []
+    pairs_figure = plots.pairs_figure
+    monkeypatch.setattr(plots, "pairs_figure", lambda pairs, title: drawn.append(
+        (list(pairs), pairs_figure(pairs, title))) or drawn[-1][1])
+    figure = tmp_path / "pairs.png"
+    result = runner.invoke(app, ["evaluate", str(run), "--frames", "10:20", "--pairs-plot", str(figure),
+                                 "--pairs", "45"])
+    assert result.exit_code == 0, result.output
+    assert figure.read_bytes()[:4] == b"\x89PNG"
+    (pairs, fig), = drawn
+    whole = api.evaluate(run, api.TruthSource(kind="aligned"))
+    decided = [k for k in range(10, 20) if whole.results.match_index[k] >= 0]
+    assert decided and sorted(pair.frame for pair in pairs) == decided  # every decided frame of 10-19, no other
+    names = whole.results.frames["frame"].tolist()
+    assert all(pair.query_name == names[pair.frame] for pair in pairs)
+    captions = [ax.get_title() for ax in fig.axes[::3][:len(pairs)]]
+    assert captions == [f"query frame {pair.frame}, {pair.query_name}" for pair in pairs]
+    assert " ".join(fig.get_suptitle().split()).endswith("the most confident right and wrong matches of frames 10:20")

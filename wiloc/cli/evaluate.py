@@ -35,10 +35,12 @@ def evaluate(
     frames: FramesOption = None,
     matrix_plot: Optional[Path] = typer.Option(
         None, callback=plot_file, show_default="none: not drawn", help="Draw the difference matrix with the decided matches and the ground truth "
-                                        "(with several results files: one FILE-RESULTS figure each)."),
+                                        "(with several results files: one FILE-RESULTS figure each; of a whole run, "
+                                        "not with --frames)."),
     pairs_plot: Optional[Path] = typer.Option(
         None, callback=plot_file, show_default="none: not drawn", help="Show the most confident right and wrong matches as image pairs (image "
-                                        "folders; with several results files: one FILE-RESULTS figure each)."),
+                                        "folders; with several results files: one FILE-RESULTS figure each; with "
+                                        "--frames, of those frames)."),
     pairs: int = typer.Option(3, "--pairs", min=1, help="With --pairs-plot: show N right and N wrong matches."),
     wrong_only: bool = typer.Option(False, "--wrong-only", help="With --pairs-plot: show the wrong matches only."),
     csv_out: Optional[Path] = typer.Option(None, "--csv", callback=metrics_file, show_default="none: not written", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
@@ -52,8 +54,7 @@ def evaluate(
     from wiloc import api
 
     refuse_unused({"pairs": (pairs_plot is not None, "--pairs-plot"), "wrong_only": (pairs_plot is not None, "--pairs-plot"),
-                   "matrix_plot": (frames is None, "a whole run (without --frames)"),
-                   "pairs_plot": (frames is None, "a whole run (without --frames)")})
+                   "matrix_plot": (frames is None, "a whole run (without --frames)")})
     names = short_names(results)
     matrix_files, pairs_files = _per_run(matrix_plot, names), _per_run(pairs_plot, names)
     separate_outputs(results, {"--pr-plot": pr_plot, "--calibration-plot": calibration_plot, "--matrix-plot": matrix_files,
@@ -137,7 +138,8 @@ def _run_plots(evaluations: list[api.Evaluation], matrix_files: list[Path], pair
             drawings.append(_drawing(plot_matrix, picture, matrix_files[i], title, notes))
         if pairs_files:
             shown = "wrong matches" if wrong_only else "right and wrong matches"
-            title = f"{e.method} on {e.traversal} ({subject}): the most confident {shown}"
+            of_frames = "" if e.frame_slice is None else f" of frames {e.frame_slice}"
+            title = f"{e.method} on {e.traversal} ({subject}): the most confident {shown}{of_frames}"
             drawings.append(_drawing(plot_pairs, example_pairs(e, pairs, wrong_only, cache=store),
                                      pairs_files[i], title, notes))
     return drawings

@@ -408,15 +408,17 @@ def _runs_of(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
 
 
-def plot_pairs(pairs: Sequence[ImagePair], path: str | Path, title: str = "Example matches") -> Path:
+def pairs_figure(pairs: Sequence[ImagePair], title: str = "Example matches") -> Figure:
     """One row per example: the query image, the map image it was matched to, and for a wrong
-    match the map image of its true place, each titled with its name; the row says whether the
-    match is right and how confident it was."""
+    match the map image of its true place, each titled with its name (the query's with its frame
+    number in the run, where the pair knows it); the row says whether the match is right and how
+    confident it was."""
     rows = max(len(pairs), 1)
     fig, axes = _figure(ncols=3, nrows=rows, width=10.0, height=2.6 * rows + 0.6)
     for k, pair in enumerate(pairs):
         verdict = "right" if pair.correct else "wrong"
-        cells = ((pair.query_image, f"query {pair.query_name}"),
+        query = f"query {pair.query_name}" if pair.frame is None else f"query frame {pair.frame}, {pair.query_name}"
+        cells = ((pair.query_image, query),
                  (pair.match_image, f"matched {pair.match_name}\n{verdict}, confidence {pair.confidence:.3f}"),
                  (pair.truth_image, f"true place {pair.truth_name}" if pair.truth_name else ""))
         for ax, (image, caption) in zip(axes[3 * k: 3 * k + 3], cells):
@@ -432,4 +434,10 @@ def plot_pairs(pairs: Sequence[ImagePair], path: str | Path, title: str = "Examp
     if not pairs:
         axes[1].text(0.5, 0.5, "none to show", ha="center", va="center")  # the title says of what
     _title(fig, title)
-    return _save(fig, path)
+    return fig
+
+
+def plot_pairs(pairs: Sequence[ImagePair], path: str | Path, title: str = "Example matches") -> Path:
+    """:func:`pairs_figure` written to ``path``."""
+    check_plot_path(path)
+    return _save(pairs_figure(pairs, title), path)

@@ -53,7 +53,8 @@ class MatrixPicture:
 @dataclass(frozen=True)
 class ImagePair:
     """One decided match to show: the query image, the map image it matched and, for a wrong match
-    of a frame that has a true place, that place's image (the middle of its true frames)."""
+    of a frame that has a true place, that place's image (the middle of its true frames); ``frame``
+    is the query frame's number in the run (from 0, in the run's order; None: not known)."""
 
     query_name: str
     match_name: str
@@ -63,6 +64,7 @@ class ImagePair:
     query_image: NDArray[np.uint8]
     match_image: NDArray[np.uint8]
     truth_image: NDArray[np.uint8] | None
+    frame: int | None = None
 
 
 @short_repr
@@ -253,9 +255,9 @@ def unchecked_folders(evaluation: Evaluation) -> list[str]:
 def example_pairs(evaluation: Evaluation, count: int = 3, wrong_only: bool = False, *,
                   cache: Cache | None = None) -> list[ImagePair]:
     """Up to ``count`` most confident right matches (none with ``wrong_only``), then up to
-    ``count`` most confident wrong ones, with their images read from the folders the results
-    header names, once :func:`checked_entries` (through ``cache``, default the user's) finds
-    them the run's."""
+    ``count`` most confident wrong ones, of the frames scored (a slice's, ``--frames``, numbered as
+    the run numbers them), with their images read from the folders the results header names, once
+    :func:`checked_entries` (through ``cache``, default the user's) finds them the run's."""
     from wiloc.cache.store import Cache
 
     query, reference, _ = run_traversals(evaluation)
@@ -279,5 +281,6 @@ def example_pairs(evaluation: Evaluation, count: int = 3, wrong_only: bool = Fal
             query_name=names[k], match_name=ref_names[match[k]], truth_name=truth_name,
             confidence=float(confidence[k]), correct=bool(correct[k]),
             query_image=read_rgb(query / names[k]), match_image=read_rgb(reference / ref_names[match[k]]),
-            truth_image=read_rgb(reference / truth_name) if truth_name else None))
+            truth_image=read_rgb(reference / truth_name) if truth_name else None,
+            frame=evaluation.first_frame + int(k)))
     return pairs
