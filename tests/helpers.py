@@ -131,6 +131,18 @@ class FakeSpec:
         return cv2.resize(gray, (side, side), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()
 
 
+def first_frames(folder: Path, dest: Path, count: int) -> Path:
+    """``dest``, a new folder of symbolic links to ``folder``'s first ``count`` frames in wiloc's
+    natural order, under their own names: a shorter traversal of the same images, for a test that
+    reads no further (a describer then describes only those, never copying an image)."""
+    from wiloc.sources.frames import list_traversal
+
+    dest.mkdir(parents=True)
+    for name in list_traversal(folder).frame_names[:count]:
+        (dest / name).symlink_to(folder / name)
+    return dest
+
+
 def write_images(folder: Path, count: int, seed: int = 0, size: tuple[int, int] = (64, 48)) -> list[str]:
     """`count` smooth random images, alternating PNG and JPEG, named img0 .. img{count-1}."""
     folder.mkdir(parents=True, exist_ok=True)
