@@ -146,7 +146,7 @@ def _killed_and_resumed(query: Path, reference: Path | None, method: str, tmp_pa
     live = tmp_path / "live"
     live.mkdir()
     out = tmp_path / "follow.csv"
-    feeder = subprocess.Popen([sys.executable, "-c", FEEDER, str(query), str(live), "0.02"])
+    feeder = subprocess.Popen([sys.executable, "-c", FEEDER, str(query), str(live), "0.01"])
     follower = _follower(live, reference, out, method, idle=60)
     n = len(batch.results.frames)
     deadline = time.monotonic() + 120
