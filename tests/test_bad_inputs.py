@@ -754,10 +754,22 @@ def test_a_library_error_names_the_parameter_and_the_command_line_its_flag(route
     ends_in_one_error(runner.invoke(app, ["describe", str(ref), "--jobs", "0"]), 2, "--jobs: must be at least 1, got 0")
 
 
+@pytest.fixture(scope="module")
+def described_map(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Cache]:
+    """A reference as :func:`route`'s (the same 30 places, gain and noise) and a cache holding its
+    sad and gist descriptors, made once a module: the tests only read them."""
+    root = tmp_path_factory.mktemp("described-map")
+    ref, cache = write_traversal(root / "ref", places(30), 1.0, 1), Cache(root / "cache")
+    for descriptor in ("sad", "gist"):
+        Localizer(ref, descriptor=descriptor, method="threshold", cache=cache, jobs=1)
+    return ref, cache
+
+
 @pytest.fixture
-def localizers(route: tuple[Path, Path], cache_dir: Path) -> dict[str, Localizer]:
-    ref, _ = route
-    return {descriptor: Localizer(ref, descriptor=descriptor, method="threshold", cache=Cache(cache_dir), jobs=1)
+def localizers(described_map: tuple[Path, Cache]) -> dict[str, Localizer]:
+    """A new threshold localizer per descriptor, none of which has observed a frame yet."""
+    ref, cache = described_map
+    return {descriptor: Localizer(ref, descriptor=descriptor, method="threshold", cache=cache, jobs=1)
             for descriptor in ("sad", "gist")}
 
 
