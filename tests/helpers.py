@@ -1,5 +1,6 @@
-"""Helpers several test files share: generated traversals and images, a stand-in descriptor, a
-cache entry, the one-error-line check, and a describe interrupted part way.
+"""Helpers several test files share: generated traversals and images, a real traversal's first
+frames as one of its own, a stand-in descriptor, a cache entry, the one-error-line check, and a
+describe interrupted part way.
 
 Test files import them from here (``from helpers import ...``), never from one another.
 """
