@@ -1,13 +1,16 @@
 """Following a folder that a camera is still filling: each new frame decided as it arrives.
 
-``FolderWatch`` polls a folder and hands out image files once they are complete: seen twice with
-the same size and modification time, and decodable. ``follow`` feeds them, in natural order of
-arrival, through a ``Localizer`` and yields each decision (or a frame left out, with why), ending
-after ``idle`` seconds without a new frame. Nothing here prints or writes; the caller records.
+``FolderWatch`` polls a folder and hands out its image files: a JPEG or PNG at first sight (the
+reader refuses one cut short, and ``follow`` retries it at the next poll), one of another format
+(BMP, TIFF, ...: one cut short may decode) once seen twice with the same size and modification
+time. ``follow`` feeds them, in natural order of arrival, through a ``Localizer`` and yields each
+decision (or a frame left out, with why), ending after ``idle`` seconds without a new frame.
+Nothing here prints or writes; the caller records.
 """
 from __future__ import annotations
 
 import os
+import stat
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -16,7 +19,8 @@ from pathlib import Path
 from wiloc.decisions import Decision
 from wiloc.errors import FrameError, WilocError
 from wiloc.localization.localizer import Localizer
-from wiloc.sources.frames import IMAGE_SUFFIXES, decimal_form, natural_key, shown_name, unusable_reason
+from wiloc.sources.frames import (FORMAT_HEAD_BYTES, IMAGE_SUFFIXES, decimal_form, end_checked, natural_key,
+                                  shown_name, unusable_reason)
 
 #: Seconds a stable (unchanging) file may stay undecodable before it is left out as bad: a writer
 #: that is slow to finish a file gets this long.
@@ -66,7 +70,8 @@ def followed_folder(folder: Path) -> Path:
 
 
 class FolderWatch:
-    """The complete image files of a folder not handed out yet, polled on demand.
+    """The image files of a folder not handed out yet, each handed out once it may be read (a JPEG
+    or PNG at first sight, another format once stable: :meth:`poll`), polled on demand.
 
     A poll lists the folder only when it may have changed: when its modification time moved since
     the last listing, when that time lies within :data:`RACY_SECONDS` of the listing (a file
@@ -88,7 +93,8 @@ class FolderWatch:
         self._listed: tuple[int, int, float] | None = None  # folder's mtime_ns, wall ns and clock of the last listing
         self._pending: list[str] = []  # image files not handed out at the last listing
         self.rewritten: list[Path] = []  # decided files found written again, each once (the caller empties it)
-        self.arriving = False  # whether the last poll saw a file the one before did not (not yet known stable)
+        self.arriving = False  # whether the last poll saw a file the one before did not
+        self._unsure: set[str] = set()  # names the last poll handed out at first sight or changed (not known stable)
         self._forms: dict[str, str] | None = {}  # decimal_form -> name of every name seen; None once numbered
         self._known(self._done)
 
@@ -178,51 +184,99 @@ class FolderWatch:
         self._turn = start + CHECKS_PER_POLL
 
     def poll(self) -> list[Path]:
-        """Files whose size and modification time are unchanged since the previous poll, in
-        natural order; they count as handed out (call :meth:`retry` for one to come again)."""
-        ready, seen, marks = [], {}, {}
+        """The files ready to be read, in natural order: those whose size and modification time
+        are unchanged since the previous poll, and at first sight (or still changing) those whose
+        end the reader checks (:func:`~wiloc.sources.frames.end_checked`: read cut short, they
+        fail, and are retried). A file of another format seen for the first time holds back those
+        after it in natural order, so that files found together are handed out in that order.
+        They count as handed out (call :meth:`retry` for one to come again; :meth:`stable` tells
+        which were known stable)."""
+        ready, seen, marks, unsure = [], {}, {}, set()
+        held = False  # a file of another format first seen by this poll comes before the rest
         for path in self._images():
             try:
-                stat = path.stat() if not path.is_symlink() or path.exists() else path.lstat()
+                found = path.stat() if not path.is_symlink() or path.exists() else path.lstat()
             except FileNotFoundError:  # renamed or removed meanwhile
                 continue
-            seen[path.name] = (stat.st_size, stat.st_mtime_ns)
-            if self._seen.get(path.name) == seen[path.name]:
-                ready.append(path)
-                marks[path.name] = (stat.st_ino, stat.st_size, stat.st_mtime_ns)
+            name = path.name
+            seen[name] = (found.st_size, found.st_mtime_ns)
+            if self._seen.get(name) != seen[name]:
+                if held or not _end_checked(path, found):
+                    held = held or name not in self._seen
+                    continue
+                unsure.add(name)
+            ready.append(path)
+            marks[name] = (found.st_ino, found.st_size, found.st_mtime_ns)
         self.arriving = any(name not in self._seen for name in seen)
         self._seen = seen
+        self._unsure = unsure
         self._done.update(marks)
         self._decided.update(marks)
         self._order.extend(marks)
         return ready
+
+    def stable(self, path: Path) -> bool:
+        """Whether ``path``, handed out by the last poll, was unchanged since the poll before (a
+        file handed out at first sight, or changed since, may still be being written)."""
+        return path.name not in self._unsure
+
+    def taken(self, path: Path) -> None:
+        """Note that ``path``, handed out by the last poll, was read whole: one handed out before it
+        was known stable is told written again from its size and time now, not from those it
+        was handed out with (its writer may have finished it since)."""
+        if path.name in self._unsure and path.name in self._decided:
+            try:
+                found = os.stat(path)
+            except OSError:  # removed meanwhile: the mark handed out stays
+                return
+            self._decided[path.name] = (found.st_ino, found.st_size, found.st_mtime_ns)
 
     def unsettled(self) -> list[Path]:
         """The image files not handed out (still changing, or just arrived), in natural order."""
         return self._images()
 
     def retry(self, path: Path) -> None:
-        """Hand ``path`` out again once it is stable (it could not be read yet)."""
+        """Hand ``path`` out again (it could not be read yet): at the next poll when it is unchanged
+        by then or its end is checked (as :meth:`poll` hands files out)."""
         self._done.discard(path.name)
         self._decided.pop(path.name, None)
-        self._seen.pop(path.name, None)
         self._listed = None  # list again: a listing since it was handed out left it out
+
+
+def _end_checked(path: Path, found: os.stat_result) -> bool:
+    """Whether ``path`` (``found`` its stat) is a regular file whose first bytes show a format whose
+    end the reader checks (:func:`~wiloc.sources.frames.end_checked`); False when it cannot be
+    read, or is too short to tell (an empty file is handed out once stable, as other formats)."""
+    if not stat.S_ISREG(found.st_mode) or found.st_size < FORMAT_HEAD_BYTES:
+        return False
+    try:
+        handle = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO put in its place meanwhile never blocks
+    except OSError:
+        return False
+    try:
+        return end_checked(os.read(handle, FORMAT_HEAD_BYTES))
+    except OSError:
+        return False
+    finally:
+        os.close(handle)
 
 
 def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll: float = 0.2,
            clock: Callable[[], float] = time.monotonic,
            sleep: Callable[[float], None] = time.sleep) -> Iterator[Decision | Skipped]:
     """Decide every frame the watch hands out, as it arrives, until ``idle`` seconds pass without
-    one (None: until interrupted), and never before a file first seen is polled again (with
-    ``idle`` 0, a folder's frames are decided, then the run ends). A stable file that cannot be decoded (an empty one too) is
-    retried for :data:`SETTLE_SECONDS` (the run does not end meanwhile, nor for ``idle`` seconds
-    after), then left out; one that cannot be a frame at all (:func:`~wiloc.sources.frames.unusable_reason`)
-    is left out at once. A file still changing when the run ends on ``idle`` (one that failed to
+    one (None: until interrupted), and never before a poll that finds no new file (with ``idle``
+    0, a folder's frames are decided, then the run ends). A file handed out before it was known
+    stable that cannot be decoded (a JPEG or PNG cut short: its writer may not be done) is
+    retried at the next poll; a stable one (an empty one too) is retried for
+    :data:`SETTLE_SECONDS` from its first failure (the run does not end meanwhile, nor for
+    ``idle`` seconds after), then left out; one that cannot be a frame at all
+    (:func:`~wiloc.sources.frames.unusable_reason`) is left out at once. A file still changing when the run ends on ``idle`` (one that failed to
     decode too, then kept changing) is left out with a line, so that every file is named."""
     last = clock()
-    failing: dict[str, float] = {}  # name -> when it first failed to decode
+    failing: dict[str, float] = {}  # name -> when it first failed to decode once stable
     while True:
-        arrived = watch.poll()
+        arrived, retried = watch.poll(), False
         for path in watch.rewritten:
             yield Skipped(path, REWRITTEN, kind="warning")
         watch.rewritten.clear()
@@ -235,6 +289,10 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
             try:
                 decision = localizer.observe(path)
             except FrameError as exc:
+                if not watch.stable(path):  # its writer may not be done: retried, the settling time not started
+                    watch.retry(path)
+                    retried = True
+                    continue
                 first = failing.setdefault(path.name, clock())
                 if clock() - first < SETTLE_SECONDS:
                     watch.retry(path)
@@ -244,6 +302,7 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
                 yield Skipped(path, exc.problem)
                 continue
             failing.pop(path.name, None)
+            watch.taken(path)
             last = clock()
             for line in localizer.frame_doubts[said:]:  # a camera of another shape than the map's
                 yield Skipped(path, line, kind="warning")
@@ -254,5 +313,5 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
                 yield Skipped(path, "still being written when the run ended (not decided; a run resuming "
                                     "this one decides it)")
             return
-        if not arrived or failing:
+        if not arrived or failing or retried:
             sleep(poll)

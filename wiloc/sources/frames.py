@@ -42,6 +42,7 @@ OTHER_IMAGE_SUFFIXES: frozenset[str] = frozenset(
 # repeat for the fill bytes, the search over entropy-coded data runs a fifth faster.
 _MARKER = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")
 _EOI = 0xD9
+_SOI = b"\xff\xd8"  # a JPEG's start-of-image marker, its first two bytes
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _IEND_CHUNK = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # length 0, type, CRC: the chunk a PNG ends with
 # TIFF's byte-order marks and magic numbers -> (struct byte order, offset width): classic, BigTIFF.
@@ -306,6 +307,18 @@ def _has_iend(data: NDArray[np.uint8]) -> bool:
     return False
 
 
+#: How many bytes of a file :func:`end_checked` needs to tell its format.
+FORMAT_HEAD_BYTES = len(_PNG_SIGNATURE)
+
+
+def end_checked(head: bytes) -> bool:
+    """Whether an encoded image whose first :data:`FORMAT_HEAD_BYTES` bytes are ``head`` is of a
+    format whose end the reader checks (a JPEG, a PNG: :func:`_checked`): cut short, it is refused
+    with a FrameError rather than decoded in part, so it may be read while its writer may not be
+    done. Other formats (BMP, TIFF, ...) may decode cut short, their missing part made up."""
+    return head[:2] == _SOI or head[: len(_PNG_SIGNATURE)] == _PNG_SIGNATURE
+
+
 def _reduction(full: tuple[int, int], min_size: tuple[int, int]) -> int:
     """Largest JPEG reduction (1, 2, 4, 8) whose decode keeps both sides >= min_size."""
     for factor, _ in _REDUCED_FLAGS:
@@ -400,7 +413,7 @@ def _checked(data: NDArray[np.uint8], path: Path | str) -> NDArray[np.uint8]:
         raise FrameError(path, f"a TIFF of {pages} pages: a frame is one image per file, and this one would be "
                                "its first page alone; write each page to a file of its own")
     head = data[: len(_PNG_SIGNATURE)].tobytes()
-    if head[:2] == b"\xff\xd8":
+    if head[:2] == _SOI:
         if not _has_eoi(data):
             raise FrameError(path, "truncated JPEG (no end-of-image marker)")
     elif head == _PNG_SIGNATURE and data[-len(_IEND_CHUNK):].tobytes() != _IEND_CHUNK and not _has_iend(data):
