@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import h5py
@@ -13,7 +14,7 @@ import pytest
 from helpers import FakeSpec, write_images
 
 from wiloc import api
-from wiloc.cache.store import Cache
+from wiloc.cache.store import Cache, lock_file
 from wiloc.description.describing import describe_folder
 from wiloc.description.differences import map_summary
 from wiloc.errors import WilocError
@@ -121,3 +122,32 @@ def test_the_lock_excludes_other_processes_while_lock_files_come_and_go(tmp_path
     assert [w.wait(timeout=120) for w in workers] == [0, 0, 0]
     assert counter.read_text() == "120"  # no increment lost: never two holders at once
     assert not (tmp_path / "c" / "descriptors" / "k.h5.lock").exists()
+
+
+_SLOW_HOLDER = """
+import fcntl, os, sys, time
+fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT, 0o644)
+fcntl.flock(fd, fcntl.LOCK_EX)
+open(sys.argv[2], "w").write("locked")
+time.sleep(0.3)  # locked, its pid not written yet
+os.pwrite(fd, f"{os.getpid()}\\n".encode(), 0)
+time.sleep(30)
+"""
+
+
+def test_a_busy_lock_names_its_holder_even_before_the_holder_wrote_its_pid(tmp_path: Path) -> None:
+    """A run refused a lock at once (a results file another run follows) names the holder's pid,
+    which the holder writes just after it locks, never "unknown" for that moment."""
+    lock, marker = tmp_path / "r.lock", tmp_path / "marker"
+    holder = subprocess.Popen([sys.executable, "-c", _SLOW_HOLDER, str(lock), str(marker)])
+    try:
+        deadline = time.monotonic() + 60
+        while not marker.exists():
+            assert holder.poll() is None and time.monotonic() < deadline
+            time.sleep(0.01)
+        with pytest.raises(RuntimeError, match=f"^held by {holder.pid}$"):
+            lock_file(lock, time.monotonic(), lambda pid: RuntimeError(f"held by {pid}"))
+    finally:
+        holder.kill()
+        holder.wait()
+

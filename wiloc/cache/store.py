@@ -49,6 +49,9 @@ _MAGIC = b"WJR1"
 _JSON_LENGTH = struct.Struct("<I")
 #: How often a process waiting for a lock tries again, in seconds.
 _LOCK_POLL = 0.05
+#: How long past its deadline a process refused a lock keeps trying while the holder's pid is not
+#: in the file yet: a holder writes it just after it locks, so a busy error can name it.
+_PID_GRACE = 1.0
 _NO_FOLLOW = os.O_NOFOLLOW | os.O_CLOEXEC
 
 
@@ -158,7 +161,8 @@ def _same_file(fd: int, path: Path) -> bool:
 
 def lock_file(path: Path, deadline: float, busy: Callable[[str], Exception]) -> int:
     """An exclusive ``flock`` on the lock file ``path``, created as needed; the holder's pid is
-    written into it. Waits until the monotonic ``deadline``, then raises ``busy(holder pid)``.
+    written into it. Waits until the monotonic ``deadline``, then raises ``busy(holder pid)`` (while
+    the holder has locked but not yet written its pid, for up to :data:`_PID_GRACE` more).
     A holder removes the file as it lets go, so a waiter that locked a removed file tries again."""
     while True:
         fd = _open_no_follow(path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -168,8 +172,10 @@ def lock_file(path: Path, deadline: float, busy: Callable[[str], Exception]) -> 
                     fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                     break
                 except BlockingIOError:
-                    if time.monotonic() >= deadline:
-                        raise busy(os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown") from None
+                    if (now := time.monotonic()) >= deadline:
+                        holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
+                        if holder or now >= deadline + _PID_GRACE:
+                            raise busy(holder or "unknown") from None
                     time.sleep(_LOCK_POLL)
             if _same_file(fd, path):
                 os.ftruncate(fd, 0)
