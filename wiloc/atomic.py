@@ -59,6 +59,17 @@ def through_links(path: Path) -> Path:
     return Path(os.path.realpath(path)) if path.is_symlink() else path
 
 
+def cut_to_whole_lines(path: Path) -> None:
+    """Cut a torn last line (a kill during its write) and an editor's blank lines (or lines of
+    spaces) off the end of a text file that lines are appended to: lines appended after them
+    would join the torn one or leave the blank ones between lines."""
+    data = path.read_bytes()
+    whole = data[:data.rfind(b"\n") + 1]  # the lines that end: a torn one has no newline yet
+    kept = whole.find(b"\n", len(whole.rstrip())) + 1  # up to the newline of the last line not blank
+    if kept < len(data):
+        os.truncate(path, kept)
+
+
 def write_error(path: Path, what: str, exc: OSError) -> WilocError:
     """The one line an OSError writing ``path`` (a full disk, a folder that refuses) becomes:
     ``PATH: cannot write WHAT (why)``; the OSError alone would not name the file."""

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from wiloc.atomic import write_error, written_whole
+from wiloc.atomic import cut_to_whole_lines, write_error, written_whole
 from wiloc.decisions import Decision, Decisions
 from wiloc.errors import WilocError
 from wiloc.evaluation.results_header import ResultsHeader, header_line, parse_header, read_header
@@ -201,7 +201,7 @@ class ResultsStream:
         self.header = replace(header, follow=True)
         self.rows = pd.DataFrame(columns=list(self.columns))
         if resume and self.path.exists():
-            self._repair()
+            cut_to_whole_lines(self.path)  # rows appended after a torn line would join it
             found, self.rows, _ = _read_table(self.path)
             expected = parse_header(self.header.text().splitlines(), self.path)  # as a file gives it back
             if _settings(found, expected, learned) != _settings(expected, expected, learned):
@@ -210,13 +210,6 @@ class ResultsStream:
         else:
             _write_atomically(self.path, self.header, lambda out: out.write(",".join(self.columns) + "\n"))
         self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
-
-    def _repair(self) -> None:
-        """Cut a torn last line (a kill during its write) and an editor's blank lines (or lines of
-        spaces) off the file's end: rows appended after them would leave them between rows."""
-        data = self.path.read_bytes()
-        if (kept := data.find(b"\n", len(data[:data.rfind(b"\n") + 1].rstrip())) + 1) < len(data):
-            os.truncate(self.path, kept)
 
     def line(self, decision: Decision) -> str:
         """The CSV line of one decision, as the batch writer formats it."""
