@@ -7,7 +7,8 @@ Throughput: the winter frames (3576, as wiloc lists them) are put in a folder fi
 them all (descriptor included: each frame is read and described as it is decided); frames/s =
 frames / (wall time - the wall time of a run on an empty folder), which pays the same start-up
 and idle wait: a first, untimed run on the empty folder has described the map into the cache,
-which both timed runs then read. Latency: a
+which both timed runs then read; a full folder's run that leaves a frame without a row ends the
+benchmark with an error line rather than a rate. Latency: a
 feeder writes the first `--frames` winter frames (the image files as wiloc lists them, in its
 order: no other file, no subfolder) into an empty folder at `--rate` frames/s, each file
 written whole under a temporary name and renamed (as a camera driver would); the time from the
@@ -15,7 +16,8 @@ rename to the row appearing in the results file is taken for every frame (the re
 polled every millisecond; rows written as the run ends are taken when its end is seen, read from
 the whole file once it has ended). A run that leaves a fed frame without a row ends the benchmark
 with an error line rather than a latency of the frames it did decide. Medians of the per-frame
-latencies, wall clock.
+latencies, wall clock. Nordland's frames are PNGs, whose end the reader checks, so a follower
+decides each at the first poll that finds it (every 0.1 s): about half a poll plus the decision.
 """
 from __future__ import annotations
 
@@ -85,6 +87,17 @@ def decided_frames(out: Path) -> list[str]:
         raise SystemExit(f"error: {exc}") from None
 
 
+def every_frame_decided(method: str, frames: list[str], names: list[str], where: str) -> None:
+    """One error line ending the benchmark when a frame of ``frames`` (``where``: fed, in the
+    folder) has no row among the ``names`` an ended run decided: a time or a rate taken over the
+    frames it did decide would stand for a run it was not."""
+    written = set(names)
+    missing = [name for name in frames if name not in written]
+    if missing:
+        raise SystemExit(f"error: wiloc localize --follow --method {method} decided {len(frames) - len(missing)} "
+                         f"of the {len(frames)} frames {where}; the first without a row: {missing[0]}")
+
+
 class BrokenMeasure(ValueError):
     """The two timed runs did not differ by the frames alone: no rate can be taken from them."""
 
@@ -102,11 +115,13 @@ def frames_per_second(frames: int, full: float, empty: float) -> float:
 
 def throughput(winter: Path, summer: Path, method: str, work: Path) -> float:
     """Frames per second deciding a folder already full, descriptor included. The map is
-    described into the cache by an untimed run first, so that neither timed run pays for it."""
+    described into the cache by an untimed run first, so that neither timed run pays for it. A
+    run that leaves a frame of the folder without a row ends the benchmark with one error line."""
     empty, full = work / f"empty-{method}", work / f"full-{method}"
     empty.mkdir()
     full.mkdir()
-    for path in list_traversal(winter).frames:
+    frames = list_traversal(winter).frames
+    for path in frames:
         shutil.copyfile(path, full / path.name)
     idle = 1.0
     spent: dict[str, float] = {}
@@ -118,7 +133,9 @@ def throughput(winter: Path, summer: Path, method: str, work: Path) -> float:
         spent[run] = time.perf_counter() - start
         if code:  # a method that cannot run on this map ends the first run; a later failure leaves no rate
             raise ended(method, code, out, doing)
-    return frames_per_second(rows(work / f"full-{method}.csv"), spent["full"], spent["empty"])
+    every_frame_decided(method, [path.name for path in frames], decided_frames(work / f"full-{method}.csv"),
+                        "in the folder")
+    return frames_per_second(len(frames), spent["full"], spent["empty"])
 
 
 def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, frames: int) -> list[float]:
@@ -174,11 +191,7 @@ def latency(winter: Path, summer: Path, method: str, work: Path, rate: float, fr
     if not decided:
         raise SystemExit(f"error: wiloc localize --follow --method {method} decided none of the {len(arrived)} "
                          f"frames fed before {LATENCY_IDLE:g} s without a new frame ended it")
-    written = set(names)
-    missing = [path.name for path in fed[:len(arrived)] if path.name not in written]
-    if missing:
-        raise SystemExit(f"error: wiloc localize --follow --method {method} decided {len(arrived) - len(missing)} "
-                         f"of the {len(arrived)} frames fed; the first without a row: {missing[0]}")
+    every_frame_decided(method, [path.name for path in fed[:len(arrived)]], names, "fed")
     return [d - a for a, d in zip(arrived, decided)]
 
 

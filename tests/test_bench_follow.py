@@ -1,5 +1,6 @@
 """benchmarks/bench_follow.py: its frames/s, where the run on the empty folder, subtracted from the
-full folder's, does the same fixed work and a rate that would come out negative is refused; its
+full folder's, does the same fixed work and a rate that would come out negative, or one of a run
+that left a frame of the folder without a row, is refused; its
 latency, which counts every row a run wrote, those written as it ended too, and refuses a run that
 left a fed frame without a row; and its command line, where bad options, missing data or a method
 that cannot run end it with one error line and an exit code."""
@@ -72,12 +73,33 @@ def a_users_winter(folder: Path) -> list[str]:
     return names
 
 
+def folder_run(skips: str = "") -> Callable[..., SimpleNamespace]:
+    """A stand-in for `bench_follow.follow`: a run that decides every frame of its folder, but for
+    the one named ``skips``, and ends well."""
+    def follow(folder: Path, summer: Path, out: Path, method: str, idle: float) -> SimpleNamespace:
+        write_results(out, (p.name for p in sorted(folder.iterdir()) if p.name != skips))
+        return SimpleNamespace(wait=lambda: 0)
+    return follow
+
+
 def test_the_full_folder_holds_the_frames_alone(bench, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     names = a_users_winter(tmp_path / "winter")
-    monkeypatch.setattr(bench, "follow", lambda *_: SimpleNamespace(wait=lambda: 0))
+    monkeypatch.setattr(bench, "follow", folder_run())
     monkeypatch.setattr(bench, "frames_per_second", lambda *_: 1.0)
     bench.throughput(tmp_path / "winter", tmp_path / "summer", "catgraph", tmp_path)
     assert sorted(path.name for path in (tmp_path / "full-catgraph").iterdir()) == sorted(names)
+
+
+def test_a_full_folder_run_that_leaves_a_frame_without_a_row_gives_no_rate(bench, tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """The run ends well (exit code 0) having decided 2 of the folder's 3 frames: a rate over its
+    time would be one of a run that decided them all."""
+    a_users_winter(tmp_path / "winter")
+    monkeypatch.setattr(bench, "follow", folder_run(skips="images-10.png"))
+    with pytest.raises(SystemExit) as ended:
+        bench.throughput(tmp_path / "winter", tmp_path / "summer", "catgraph", tmp_path)
+    assert ended.value.code == ("error: wiloc localize --follow --method catgraph decided 2 of the 3 frames in the "
+                                "folder; the first without a row: images-10.png")
 
 
 def test_the_feeder_feeds_the_frames_alone_in_their_order(bench, tmp_path: Path,
