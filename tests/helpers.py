@@ -118,6 +118,7 @@ class FakeSpec:
     min_size: tuple[int, int] | None = None
     natural_max: float | None = 255.0
     colour: bool = False  # computed from gray images, one by one, as DescriptorSpec's gray ones
+    feature_setting: None = None  # computed from the pixels, not from local features
 
     @property
     def length(self) -> int:

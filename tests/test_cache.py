@@ -5,6 +5,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 import zlib
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import numpy as np
 import pytest
 
 from wiloc.cache.entries import EntryHeader, FrameRecord, StoredEntry, checksum
+from wiloc.cache.features import FeatureStore
 from wiloc.cache.store import TEMP_SUFFIX, Cache
 
 
@@ -278,3 +280,61 @@ def test_an_entry_read_back_is_its_rows_in_frame_order_copied_only_when_they_cha
     assert changed.data is not stored.read_matrix[0]
     del stored.records["f1.png"]
     np.testing.assert_array_equal(stored.entry().data, np.array([[7.0] * 4, [10.0] * 4], np.float32))
+
+
+_KILLED_FEATURES = """
+import os, sys, time
+import numpy as np
+from wiloc.cache.features import FeatureStore
+from wiloc.cache.store import Cache
+
+def stop_here(fd):  # the file is written beside its place, not yet renamed onto it
+    open(sys.argv[1], "w").write("now")
+    time.sleep(120)
+
+os.fsync = stop_here
+FeatureStore(Cache(), {"feature": "sift", "max_features": 50, "max_side": 320}).write("d1", np.ones((3, 128), np.float32))
+"""
+
+
+def test_local_features_killed_while_written_are_absent_and_kept_by_the_next_run(tmp_path: Path) -> None:
+    marker = tmp_path / "marker"
+    proc = subprocess.Popen([sys.executable, "-c", _KILLED_FEATURES, str(marker)],
+                            env={**os.environ, "WILOC_CACHE": str(tmp_path / "c")})
+    try:
+        deadline = time.monotonic() + 60
+        while not marker.exists():
+            assert proc.poll() is None, "the write ended before the kill"
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+    finally:
+        proc.kill()
+        proc.wait()
+    store = FeatureStore(Cache(tmp_path / "c"), {"feature": "sift", "max_features": 50, "max_side": 320})
+    assert [p.name.endswith(TEMP_SUFFIX) for p in store.folder.iterdir()] == [True]
+    assert store.read("d1") is None
+    fresh = np.full((2, 128), 7, np.float32)
+    np.testing.assert_array_equal(store.features("d1", lambda: fresh), fresh)
+    np.testing.assert_array_equal(store.read("d1"), fresh)
+    assert [p.name for p in store.folder.iterdir()] == ["d1.h5"]  # the dead writer's file swept
+    empty = np.zeros((0, 128), np.float32)  # a featureless image's features are kept too
+    store.write("d2", empty)
+    assert store.read("d2").shape == (0, 128)
+
+
+@pytest.mark.parametrize("features, stored", [
+    (np.array([[0.0, 17.0, 255.0], [3.0, 0.0, 128.0]], np.float32), np.uint8),  # SIFT's whole numbers: bytes
+    (np.array([[0.5, 17.0, 255.0]], np.float32), np.float32),  # a fraction: kept as it is
+    (np.array([[256.0, 1.0, 2.0]], np.float32), np.float32),  # beyond a byte
+    (np.array([[-0.0, 1.0, 2.0]], np.float32), np.float32),  # -0.0 reads back as 0.0 from a byte
+    (np.array([[np.nan, 1.0, 2.0]], np.float32), np.float32),
+    (np.array([[9, 200, 3]], np.uint8), np.uint8),  # ORB's bytes
+])
+def test_local_features_are_stored_as_bytes_only_when_they_read_back_bit_for_bit(
+        tmp_path: Path, features: np.ndarray, stored: type) -> None:
+    store = FeatureStore(Cache(tmp_path / "c"), {"feature": "sift", "max_features": 50, "max_side": 320})
+    store.write("d1", features)
+    with h5py.File(store.path("d1"), "r") as f:
+        assert f["features"].dtype == np.dtype(stored)
+    back = store.read("d1")
+    assert back is not None and back.dtype == features.dtype and back.tobytes() == features.tobytes()

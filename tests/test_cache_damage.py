@@ -14,6 +14,7 @@ import pytest
 from helpers import FakeSpec, write_images
 
 from wiloc import api
+from wiloc.cache.features import FeatureStore
 from wiloc.cache.store import Cache, lock_file
 from wiloc.description.describing import describe_folder
 from wiloc.description.differences import map_summary
@@ -151,3 +152,31 @@ def test_a_busy_lock_names_its_holder_even_before_the_holder_wrote_its_pid(tmp_p
         holder.kill()
         holder.wait()
 
+
+SIFT = {"feature": "sift", "max_features": 50, "max_side": 320}
+
+
+@pytest.mark.parametrize("damage", ["features", "checksum", "cut short", "other setting"])
+def test_damaged_local_features_are_extracted_again(tmp_path: Path, damage: str) -> None:
+    """Local features kept in the cache whose bytes, checksum or file no longer hold, or that were
+    extracted otherwise, are never used: they are extracted again and the file replaced."""
+    store = FeatureStore(Cache(tmp_path / "c"), SIFT)
+    kept = np.arange(3 * 128, dtype=np.float32).reshape(3, 128)
+    store.write("0123abcd", kept)
+    np.testing.assert_array_equal(store.read("0123abcd"), kept)
+    path = store.path("0123abcd")
+    if damage == "features":
+        _overwrite(path, _data_offset(path, "features", element=1))
+    elif damage == "checksum":
+        with h5py.File(path, "r+") as f:
+            f.attrs["crc32"] = int(f.attrs["crc32"]) ^ 1
+    elif damage == "cut short":  # as a write in place, killed, would leave it
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    else:
+        store = FeatureStore(Cache(tmp_path / "c"), {**SIFT, "max_features": 60})
+        store.path("0123abcd").parent.mkdir(parents=True)
+        path.rename(store.path("0123abcd"))
+    assert store.read("0123abcd") is None
+    fresh = kept + 1
+    np.testing.assert_array_equal(store.features("0123abcd", lambda: fresh), fresh)
+    np.testing.assert_array_equal(store.read("0123abcd"), fresh)

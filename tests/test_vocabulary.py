@@ -207,6 +207,16 @@ def test_the_command_line_takes_every_vocabulary_parameter_as_declared(tmp_path:
     assert not (cache_dir / "vocabularies").exists() or not list((cache_dir / "vocabularies").glob("*.h5"))
 
 
+def test_a_vocabulary_is_the_same_whatever_the_processes_extracting_its_features(tmp_path: Path) -> None:
+    folder = _folder(tmp_path / "train", range(40))
+    serial = build_vocabulary([folder], Cache(tmp_path / "one"), SMALL, jobs=1).vocabulary
+    parallel = build_vocabulary([folder], Cache(tmp_path / "two"), SMALL, jobs=2).vocabulary
+    assert parallel.key == serial.key and parallel.training_frames == serial.training_frames
+    assert np.array_equal(parallel.centres, serial.centres)
+    assert np.array_equal(parallel.training_occurrences, serial.training_occurrences)
+    assert len(list((tmp_path / "two" / "features").rglob("*.h5"))) == 40
+
+
 def test_too_many_words_for_the_features_is_a_usage_error(tmp_path: Path, cache_dir: Path) -> None:
     folder = _folder(tmp_path / "train", range(2))
     with pytest.raises(ParameterError) as info:
@@ -218,7 +228,8 @@ def test_too_many_words_for_the_features_is_a_usage_error(tmp_path: Path, cache_
 @pytest.mark.parametrize("unreadable", [False, True])
 def test_a_build_refused_after_extracting_leaves_no_journal(unreadable: bool, tmp_path: Path, cache_dir: Path) -> None:
     """Features refused (too few distinct ones for the words, no readable image) are refused again
-    for the same frames and parameters: their journal was left in the cache, never to be used."""
+    for the same frames and parameters: nothing of the build is left among the vocabularies (a
+    journal of its features was, never to be used)."""
     folder = _folder(tmp_path / "train", range(2))
     if unreadable:
         for image in folder.iterdir():
@@ -301,12 +312,15 @@ def test_a_killed_build_leaves_no_complete_file_and_the_rerun_resumes(
     assert not [p for p in folder_files if p.suffix == ".h5"]  # no file that looks complete
     if stage == "writing":  # the file is built in memory and written once complete: nothing half-written
         assert not [p for p in folder_files if p.name.endswith(".wiloc-tmp")]
+    import wiloc.description.frame_describing as framing
     import wiloc.description.vocabulary_build as build
     extracted = []
-    real = build._features
-    monkeypatch.setattr(build, "_features", lambda *args: extracted.append(args[0]) or real(*args))
+    real = build.extract_features
+    for module in (build, framing):
+        monkeypatch.setattr(module, "extract_features",
+                            lambda *args, **kw: extracted.append(args[0]) or real(*args, **kw))
     rerun = build_vocabulary([folder], Cache(cache_dir), SMALL)
-    # the journal kept every frame finished before the kill: only the others are extracted again
+    # the cache kept the features of every frame finished before the kill: only the others are extracted again
     assert len(extracted) == (4 if stage == "features" else 0)
     assert not list((cache_dir / "vocabularies").glob("*.journal"))
     assert rerun.built and read_vocabulary(rerun.path).key == rerun.vocabulary.key
@@ -334,6 +348,7 @@ def test_bow_descriptor_through_workers_and_the_cache(tmp_path: Path, cache_dir:
     query = _folder(tmp_path / "query", range(20, 28))
     serial = describe_folder(query, spec, cache, jobs=1).entry
     shutil.rmtree(cache_dir / "descriptors")
+    shutil.rmtree(cache_dir / "features")  # the workers extract them again
     parallel = describe_folder(query, spec, cache, jobs=2).entry
     assert np.array_equal(serial.data, parallel.data) and serial.data.shape == (8, 2)
     assert np.array_equal(cache.read_entry(parallel.key).data, parallel.data)
@@ -344,3 +359,31 @@ def test_bow_descriptor_through_workers_and_the_cache(tmp_path: Path, cache_dir:
     other_spec = get_descriptor("bow", file=other.path)
     assert other_spec.key != spec.key
     assert describe_folder(query, other_spec, cache).entry.key != parallel.key
+
+
+def test_bow_computes_from_the_features_the_vocabulary_kept_in_the_cache(
+        tmp_path: Path, cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Describing a vocabulary's training images with ``bow`` (in their folder, or as copies under
+    other names) extracts no feature again: the cache kept them, by content, as the vocabulary was
+    trained. The rows are those computed from the pixels."""
+    import wiloc.description.frame_describing as framing
+
+    cache = Cache(cache_dir)
+    train = _folder(tmp_path / "train", range(6))
+    spec = get_descriptor("bow", file=build_vocabulary([train], cache, SMALL).path)
+    extracted = []
+    real = framing.extract_features
+    monkeypatch.setattr(framing, "extract_features", lambda *args, **kw: extracted.append(1) or real(*args, **kw))
+    renamed = tmp_path / "renamed"
+    renamed.mkdir()
+    for k, image in enumerate(sorted(train.iterdir())):
+        shutil.copy(image, renamed / f"frame{k:03d}.png")
+    for folder in (train, renamed):
+        entry = describe_folder(folder, spec, cache, jobs=1).entry
+        pixels = [spec.compute(cv2.imread(str(folder / name), cv2.IMREAD_GRAYSCALE)) for name in entry.names]
+        assert np.array_equal(entry.data, np.stack(pixels))
+    assert extracted == []
+    new = _folder(tmp_path / "new", range(30, 32))
+    assert describe_folder(new, spec, cache, jobs=1).computed == 2 and len(extracted) == 2
+    shutil.rmtree(cache_dir / "descriptors")
+    assert describe_folder(new, spec, cache, jobs=1).computed == 2 and len(extracted) == 2  # kept the first time

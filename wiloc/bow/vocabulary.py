@@ -72,8 +72,7 @@ class Vocabulary:
 
     def bag_of_words(self, gray: NDArray[np.uint8]) -> NDArray[np.bool_]:
         """Word presence ``(K,)`` of one 8-bit grayscale image."""
-        p = self.params
-        return self.occurrences(extract_features(gray, p.feature, p.max_features, p.max_side))
+        return self.occurrences(extract_features(gray, **self.params.feature_setting()))
 
     def too_few_words(self) -> str | None:
         """Why this vocabulary's training images are too small for local features

@@ -24,6 +24,11 @@ class VocabularyParams(Parameters):
                                 "changing).", low=1)
     seed: int = param(0, "Seeds the random choice of the initial centres.", low=0)
 
+    def feature_setting(self) -> dict[str, int | str]:
+        """What an image's local features depend on: ``extract_features``' keyword arguments
+        (the cache keeps features by these, shared by every vocabulary that agrees on them)."""
+        return {"feature": self.feature, "max_features": self.max_features, "max_side": self.max_side}
+
     def to_json(self) -> str:
         """Canonical JSON of the values (numpy scalars as plain numbers)."""
         return json.dumps(self.as_dict(), sort_keys=True, default=lambda v: v.item())

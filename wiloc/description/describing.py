@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from wiloc.cache.entries import Entry, EntryHeader, FrameRecord, StoredEntry
+from wiloc.cache.features import FeatureStore
 from wiloc.cache.store import Cache, Journal
 from wiloc.description.frame_describing import Task, check_jobs, compute, describe_frames, describe_quietly, opencv_quiet
 from wiloc.descriptors.registry import DescriptorSpec
@@ -183,9 +184,18 @@ def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache
                 finish(run)
         tagged = [(tag, task) for tag, run in enumerate(settling) for task in run.tasks]
         if tagged:
-            results = compute(spec, tagged, jobs) if cluster is None else _on_cluster(cluster, spec, settling)
+            results = compute(spec, tagged, jobs, _feature_store(spec, cache)) if cluster is None \
+                else _on_cluster(cluster, spec, settling)
             _journal(cache, settling, results, finish)
     return [runs[key].report for key in keys]
+
+
+def _feature_store(spec: DescriptorSpec, cache: Cache) -> FeatureStore | None:
+    """Where the cache keeps the local features `spec` is computed from (``bow``: those its
+    vocabulary's training kept, shared with every other such descriptor); None for a descriptor
+    computed from the pixels themselves."""
+    setting = spec.feature_setting
+    return None if setting is None else FeatureStore(cache, setting)
 
 
 def _on_cluster(cluster: Cluster, spec: DescriptorSpec,

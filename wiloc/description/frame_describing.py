@@ -22,7 +22,9 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from wiloc.bow.features import extract_features
 from wiloc.cache.entries import FrameRecord
+from wiloc.cache.features import FeatureStore
 from wiloc.description.workers import UnknownToWorkers, WorkerError, borrowed_pool, can_fork, kept_pool
 from wiloc.descriptors.registry import DescriptorSpec
 from wiloc.errors import FrameError, ParameterError, WilocError
@@ -77,12 +79,14 @@ def check_jobs(jobs: int | None) -> int:
 
 
 
-def compute(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]],
-             jobs: int) -> Iterator[tuple[int, FrameRecord, bool]]:
+def compute(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]], jobs: int,
+            features: FeatureStore | None = None) -> Iterator[tuple[int, FrameRecord, bool]]:
     """Settle each tagged task, yielding (tag, record, computed) as results arrive, over `jobs`
     processes. This process computes first; once the frames left would take it longer than
     starting workers (`WorkerStart`, by the median time of its frames after the first), `jobs` - 1
-    workers start and take frames from the same queue while this process goes on computing."""
+    workers start and take frames from the same queue while this process goes on computing.
+    `features`: where the local features of a descriptor computed from them (``bow``) are kept
+    and found (:func:`_describe_one`)."""
     if spec.colour:
         yield from _compute_colour(spec, tasks, jobs)
         return
@@ -92,17 +96,17 @@ def compute(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]],
         while pending and not _worth_workers(jobs, timed, len(pending)):
             started = time.perf_counter()
             tag, task = pending.popleft()
-            record = _describe_one(spec, task)
+            record = _describe_one(spec, task, features)
             timed.append(time.perf_counter() - started)
             yield (tag, *record)
         if pending:
             chunk = min(MAX_CHUNK, max(1, round(CHUNK_SECONDS / statistics.median(timed[1:]))))
             with _opencv_threads(1):
-                yield from _compute_with_workers(spec, pending, jobs - 1, chunk)
+                yield from _compute_with_workers(spec, pending, jobs - 1, chunk, features)
 
 
 def _compute_with_workers(spec: DescriptorSpec, pending: deque[tuple[int, Task]], workers: int,
-                          chunk: int) -> Iterator[tuple[int, FrameRecord, bool]]:
+                          chunk: int, features: FeatureStore | None) -> Iterator[tuple[int, FrameRecord, bool]]:
     """The pending tagged tasks settled by this process and `workers` worker processes together:
     a helper thread feeds the workers batches from `pending` (`_batches`), two at a time each,
     and queues their results; this process computes from the same deque and yields both."""
@@ -112,7 +116,7 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[tuple[int, Task]]
     with borrowed_pool(workers, _init_worker) as pool:
         def drive() -> None:
             try:
-                for batch in pool.imap_unordered(partial(_describe_tagged, spec),
+                for batch in pool.imap_unordered(partial(_describe_tagged, spec, features),
                                                  _batches(pending, chunk, workers + 1), ahead=2):
                     results.put(batch)
                 results.put(None)
@@ -127,7 +131,7 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[tuple[int, Task]]
                 item = _take(pending)
                 if item is not None:
                     tag, task = item
-                    yield (tag, *_describe_one(spec, task))
+                    yield (tag, *_describe_one(spec, task, features))
                 while not finished and (item is None or not results.empty()):  # nothing left here: wait
                     answer = results.get()
                     if isinstance(answer, BaseException):
@@ -197,18 +201,21 @@ def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
     return statistics.median(timed[1:]) * left > start.seconds  # not np.median: its first call costs 6 ms
 
 
-def describe_quietly(spec: DescriptorSpec, tasks: Sequence[Task]) -> list[tuple[FrameRecord, bool]]:
+def describe_quietly(spec: DescriptorSpec, tasks: Sequence[Task],
+                     features: FeatureStore | None = None) -> list[tuple[FrameRecord, bool]]:
     """Each task's (record, computed), OpenCV's own warnings off meanwhile (a Dask worker's batch;
-    a colour descriptor's as one batch on the worker's cores)."""
+    a colour descriptor's as one batch on the worker's cores); `features` as for :func:`compute`."""
     with opencv_quiet():
         if spec.colour:
             return _describe_colour(spec, tasks, check_jobs(None))
-        return [_describe_one(spec, task) for task in tasks]
+        return [_describe_one(spec, task, features) for task in tasks]
 
 
-def _describe_tagged(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]]) -> list[tuple[int, FrameRecord, bool]]:
+def _describe_tagged(spec: DescriptorSpec, features: FeatureStore | None,
+                     tasks: Sequence[tuple[int, Task]]) -> list[tuple[int, FrameRecord, bool]]:
     """A worker process's batch: each tagged task's (tag, record, computed)."""
-    return [(tag, *result) for (tag, _), result in zip(tasks, describe_quietly(spec, [task for _, task in tasks]))]
+    return [(tag, *result)
+            for (tag, _), result in zip(tasks, describe_quietly(spec, [task for _, task in tasks], features))]
 
 
 def _init_worker() -> None:
@@ -260,14 +267,20 @@ def _settle(task: Task, read: Callable[[Path], np.ndarray]
         return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, None, exc.problem), False
 
 
-def _describe_one(spec: DescriptorSpec, task: Task) -> tuple[FrameRecord, bool]:
+def _describe_one(spec: DescriptorSpec, task: Task, features: FeatureStore | None = None) -> tuple[FrameRecord, bool]:
     """One frame's record and whether its descriptor was computed (False: reused or failed).
-    A frame whose content digest matches its stored record keeps that record's row or failure."""
+    A frame whose content digest matches its stored record keeps that record's row or failure.
+    A descriptor computed from local features (``bow``) is computed from those `features` holds
+    for the image's content, which are extracted and kept there when it holds none."""
     settled = _settle(task, lambda path: _read_gray(path, spec.min_size))
     if not isinstance(settled[0], Fingerprint):
         return settled  # type: ignore[return-value]
     (path, _), (fp, gray) = task, settled
-    row = np.asarray(spec.compute(gray), dtype=spec.dtype)
+    if features is None:
+        row = np.asarray(spec.compute(gray), dtype=spec.dtype)
+    else:
+        found = features.features(fp.digest, lambda: extract_features(gray, **features.setting))
+        row = np.asarray(spec.compute_from_features(found), dtype=spec.dtype)
     width, height = _full_size(path, gray)
     return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, row, "", width, height), True
 

@@ -8,11 +8,10 @@ same vocabulary, a changed image a new one.
 A build holds the cache lock on its file from start to end, so two processes never build the
 same vocabulary twice at once, and writes the file in one atomic step at the end: a killed
 build leaves no file that looks complete (at most a temporary file, which the next write
-removes once its process is gone). Each training frame's local features are journaled as they
-are extracted (``<key>.features.journal``, the descriptor cache's crash-safe journal), so a
-killed build resumes with the frames it had not reached; the journal goes once the vocabulary
-is written, or once the features are refused (too few distinct ones, no readable image), which
-they would be again.
+removes once its process is gone). Each training frame's local features are kept in the cache as
+they are extracted (``wiloc.cache.features``, by the frame's content digest; on every core, by
+describing's own machinery), so a killed build resumes with the frames it had not reached, and
+describing the same images with ``bow`` later extracts nothing again.
 """
 from __future__ import annotations
 
@@ -20,18 +19,23 @@ import hashlib
 import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from contextlib import closing
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from wiloc.bow.features import DTYPES, WIDTHS, decode_size, extract_features
+import numpy as np
+from numpy.typing import NDArray
+
+from wiloc.bow.features import decode_size, extract_features
 from wiloc.bow.vocabulary import FORMAT_VERSION, Vocabulary, read_vocabulary, train_vocabulary, write_vocabulary
 from wiloc.bow.vocabulary_params import VocabularyParams
-from wiloc.cache.entries import EntryHeader, FrameRecord
-from wiloc.cache.store import Cache, Journal, scan_journal
+from wiloc.cache.features import FeatureStore
+from wiloc.cache.store import Cache
+from wiloc.description.frame_describing import check_jobs, compute
 from wiloc.errors import FrameError, WilocError
 from wiloc.reprs import short_repr
-from wiloc.sources.frames import Fingerprint, fingerprint, list_traversal, read_gray
+from wiloc.sources.frames import fingerprint, list_traversal, read_gray
 
 VOCABULARIES = "vocabularies"
 Progress = Callable[[int, int], None]
@@ -67,20 +71,49 @@ def vocabulary_path(cache: Cache, key: str) -> Path:
     return cache.root / vocabulary_name(key)
 
 
-def _features(frame: Path, print_: Fingerprint, params: VocabularyParams) -> FrameRecord:
-    """One training frame's local features (flattened), or why it could not be read."""
-    try:
-        gray = read_gray(frame, decode_size(params.max_side))
-    except FrameError as exc:
-        return FrameRecord(str(frame.resolve()), print_.size, print_.mtime_ns, print_.digest, None, exc.problem)
-    found = extract_features(gray, params.feature, params.max_features, params.max_side)
-    return FrameRecord(str(frame.resolve()), print_.size, print_.mtime_ns, print_.digest, found.ravel())
+@dataclass(frozen=True)
+class _FeatureCount:
+    """What describing (``frame_describing.compute``, given a feature store) needs of a
+    descriptor, for a descriptor that is a frame's number of local features: describing the
+    training frames with it extracts their features into the cache on every core."""
+
+    min_size: tuple[int, int]
+    name: str = "local features"
+    colour: bool = False
+    dtype: np.dtype = field(default_factory=lambda: np.dtype(np.int64))
+
+    def compute_from_features(self, features: NDArray) -> NDArray:
+        return np.array([len(features)])
+
+
+def _extract_missing(frames: Sequence[Path], digests: Sequence[str], store: FeatureStore, jobs: int | None,
+                     progress: Progress | None, total: int) -> None:
+    """The local features of those `frames` whose features the cache lacks, extracted and kept
+    there by `jobs` processes (describing's own: this one, then also workers once that pays);
+    ``progress(done, total)`` counts the frames whose features are kept (or that cannot be read)."""
+    missing = [(frame, None) for frame, digest in zip(frames, digests) if not store.path(digest).exists()]
+    done = len(frames) - len(missing)
+    spec = _FeatureCount(decode_size(store.setting["max_side"]))
+    with closing(compute(spec, list(enumerate(missing)), check_jobs(jobs), store)) as results:  # type: ignore[arg-type]
+        for _ in results:
+            done += 1
+            if progress is not None:
+                progress(done, total)
+
+
+def _features(frame: Path, digest: str, store: FeatureStore) -> NDArray:
+    """One training frame's local features, from the cache when it holds them (the frame is then
+    not decoded); FrameError when it cannot be read."""
+    setting = store.setting
+    return store.features(digest, lambda: extract_features(read_gray(frame, decode_size(setting["max_side"])),
+                                                           **setting))
 
 
 def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyParams | None = None,
-                     progress: Progress | None = None) -> VocabularyReport:
+                     progress: Progress | None = None, jobs: int | None = None) -> VocabularyReport:
     """The vocabulary of the images in `folders` (each a traversal folder), from the cache when
-    it holds it, else built now and stored.
+    it holds it, else built now and stored. The training frames' local features are extracted
+    by `jobs` processes (default: all cores), as describing computes descriptors.
 
     `progress(done, total)` counts training frames, then clustering rounds (total = frames +
     ``params.iterations``; clustering may finish early). Unreadable frames are left out and
@@ -107,35 +140,19 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
                 return VocabularyReport(vocabulary, path, False, 0, [],
                                         time.perf_counter() - start)
         names, features, failed = [], [], []
-        journal_path = path.with_name(f"{key}.features.journal")
-        header = EntryHeader.create(f"vocabulary:{key}", "local-features", params.as_dict(), "none", 1.0, None,
-                                    DTYPES[params.feature], WIDTHS[params.feature])
-        found, records, _ = scan_journal(journal_path)
-        journaled = {r.name: r for r in records} if found == header else {}
-        journal = Journal(journal_path, header)
-        try:
-            for done, frame in enumerate(frames, 1):
-                record = journaled.get(str(frame.resolve()))
-                if record is None or record.digest != prints[frame].digest:
-                    record = _features(frame, prints[frame], params)
-                    journal.append(record)
-                if record.row is None:
-                    failed.append((str(frame), record.reason))
-                else:
-                    names.append(record.name)
-                    features.append(record.row.reshape(-1, WIDTHS[params.feature]))
-                if progress is not None:
-                    progress(done, total)
-        finally:
-            journal.close()
+        store = FeatureStore(cache, params.feature_setting())
+        _extract_missing(frames, [prints[frame].digest for frame in frames], store, jobs, progress, total)
+        for frame in frames:  # from the cache now; a frame that cannot be read is tried once more
+            try:
+                features.append(_features(frame, prints[frame].digest, store))
+            except FrameError as exc:
+                failed.append((str(frame), exc.problem))
+            else:
+                names.append(str(frame.resolve()))
         step = None if progress is None else (lambda i: progress(len(frames) + i, total))
-        try:
-            if not names:
-                raise WilocError(folders[0], "no readable training image")
-            vocabulary = train_vocabulary(key, params, names, features, step)
-        except WilocError:  # these frames and parameters (the key) are refused again: nothing to resume
-            journal_path.unlink(missing_ok=True)
-            raise
+        if not names:
+            raise WilocError(folders[0], "no readable training image")
+        vocabulary = train_vocabulary(key, params, names, features, step)
         count = int(sum(len(f) for f in features))
         seconds = time.perf_counter() - start
         with cache.atomic_h5(path) as f:
@@ -144,7 +161,6 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
                 "failed": json.dumps(failed), "features": count, "build_seconds": seconds,
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             })
-        journal_path.unlink(missing_ok=True)
     if progress is not None:
         progress(total, total)
     return VocabularyReport(vocabulary, path, True, count, failed, time.perf_counter() - start)

@@ -59,6 +59,17 @@ class DescriptorSpec:
             return self.compute_batch([image])[0]
         return self._checked(self.kind.compute(image, self.params), (self.length,))
 
+    @property
+    def feature_setting(self) -> dict[str, Any] | None:
+        """For a descriptor computed from an image's local features (``bow``), how they are
+        extracted (``wiloc.bow.features.extract_features``' keyword arguments); else None."""
+        return self.kind.feature_setting(self.params)
+
+    def compute_from_features(self, features: NDArray) -> NDArray:
+        """Descriptor of one image from its local features (as :attr:`feature_setting` extracts
+        them), flat, ``(length,)`` of ``dtype``: what :meth:`compute` gives from its pixels."""
+        return self._checked(self.kind.from_features(features, self.params), (self.length,))
+
     def compute_batch(self, images: Sequence[NDArray[np.uint8]], threads: int = 0) -> NDArray:
         """Descriptors of several images, one row each: a ``colour`` descriptor's network runs
         them in batches on ``threads`` threads (0: its runtime's default); the others are
@@ -144,6 +155,18 @@ class Descriptor:
     def compute_batch(cls, images: Sequence[NDArray[np.uint8]], params: Mapping[str, Any],
                       threads: int) -> NDArray:
         """The descriptors of several 8-bit BGR images (``colour`` descriptors), one row each."""
+        raise NotImplementedError
+
+    @classmethod
+    def feature_setting(cls, params: Mapping[str, Any]) -> dict[str, Any] | None:
+        """For a descriptor computed from local features: how they are extracted
+        (``extract_features``' keyword arguments), so that describing keeps them in the cache and
+        computes from the ones it holds (:meth:`from_features`); None (the default) for the others."""
+        return None
+
+    @classmethod
+    def from_features(cls, features: NDArray, params: Mapping[str, Any]) -> NDArray:
+        """The descriptor of one image from its local features (see :meth:`feature_setting`), flat."""
         raise NotImplementedError
 
     @classmethod

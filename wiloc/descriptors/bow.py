@@ -86,6 +86,18 @@ class Bow(Descriptor):
         return compute_bow(image, **params)
 
     @classmethod
+    def feature_setting(cls, params: Mapping[str, Any]) -> dict[str, Any]:
+        """The vocabulary's feature setting: the cache keeps an image's features by it, shared
+        with the vocabulary's training and with every vocabulary of the same setting."""
+        return load_vocabulary(params["file"], params["vocabulary"]).params.feature_setting()
+
+    @classmethod
+    def from_features(cls, features: NDArray, params: Mapping[str, Any]) -> NDArray:
+        from wiloc.bow.vocabulary import pack_words
+
+        return pack_words(load_vocabulary(params["file"], params["vocabulary"]).occurrences(features))
+
+    @classmethod
     def doubts(cls, params: Mapping[str, Any]) -> list[str]:
         """A vocabulary of too few words per image makes every result doubtful."""
         sparse = load_vocabulary(params["file"], params["vocabulary"]).too_few_words()
