@@ -71,6 +71,7 @@ def test_names_that_look_like_emoji_codes_are_printed_as_they_are(route: tuple[P
                                "--out", str(runs / "query-threshold.csv")], env={"COLUMNS": "300"})
     assert made.exit_code == 0, made.output
     assert "a:smile:b" in made.stdout and "\N{SMILING FACE WITH OPEN MOUTH AND SMILING EYES}" not in made.stdout
+    assert f"results in {runs};" in made.stdout  # one line, however much longer than the table: to be copied
 
 
 def test_localize_evaluate_compare(route: tuple[Path, Path], tmp_path: Path) -> None:

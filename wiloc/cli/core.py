@@ -49,6 +49,12 @@ def fail(message: str, code: int) -> NoReturn:
     raise typer.Exit(code)
 
 
+def print_line(text: str) -> None:
+    """One unwrapped line on stdout, printed as it is (no markup, no highlighting): a line naming
+    a path stays whole, to be copied, where a table's caption would wrap it to the table's width."""
+    out.print(escape(text), highlight=False, soft_wrap=True)
+
+
 def note(kind: str, message: str) -> None:
     """One unwrapped line on stderr about something left out or worth knowing."""
     err.print(f"[yellow]{kind}[/yellow] {escape(message)}", highlight=False, soft_wrap=True)

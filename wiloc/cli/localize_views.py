@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 from rich.table import Table
 
-from wiloc.cli.core import Notes, out
+from wiloc.cli.core import Notes, out, print_line
 from wiloc.cli.options import replacing
 from wiloc.cli.views import cell, fit, json_ready, print_command_json, table
 from wiloc.labels import short_names
@@ -64,8 +64,8 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
         row["decided"] = f"{row['decided']}/{row.pop('frames')}"
     folders = ", ".join(dict.fromkeys(str(run.path.absolute().parent) for run in runs))  # --out seq.csv: not "."
     out.print(table("localize", rows, ["query", "method", "decided", "median_confidence", "results"],
-                    labels={"median_confidence": "median\nconf."},
-                    caption=f"results in {folders}; {sum(run.seconds for run in runs):.1f} s"))
+                    labels={"median_confidence": "median\nconf."}))
+    print_line(f"results in {folders}; {sum(run.seconds for run in runs):.1f} s")
     if model_plot is not None:
         out.print(f"wrote {model_plot}")
 

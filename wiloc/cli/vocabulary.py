@@ -7,7 +7,7 @@ from typing import Any
 
 import typer
 
-from wiloc.cli.core import Notes, fail, handles_errors, out
+from wiloc.cli.core import Notes, fail, handles_errors, out, print_line
 from wiloc.cli.options import CacheOption
 from wiloc.cli.params import with_vocabulary_options
 from wiloc.cli.views import print_command_json, progress_bar, table
@@ -52,4 +52,5 @@ def vocabulary(
         print_command_json("vocabulary", "results", [{**row, "failed": [list(item) for item in report.failed]}], notes)
         return
     out.print(table("vocabulary", [{**row, "file": report.path.name}], labels={"training_frames": "training\nframes"},
-                    digits={"seconds": 1}, caption=f"in {report.path.parent}"))
+                    digits={"seconds": 1}))
+    print_line(f"in {report.path.parent}")
