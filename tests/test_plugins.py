@@ -314,7 +314,7 @@ def test_worker_processes_describe_a_plugin_as_this_process_does(start: str, thu
 #: describes the route (argv 1) into the cache at argv 2 with fresh worker processes; it prints
 #: the error's parameter and problem.
 MAIN_DESCRIPTOR = """
-import sys, threading
+import sys, threading, time
 from dataclasses import dataclass
 import numpy as np
 from wiloc import api
@@ -339,6 +339,7 @@ class Mean(Descriptor):
 
     @classmethod
     def compute(cls, image, params):
+        time.sleep(0.05)  # this process cannot describe every frame before the workers are handed theirs
         return np.array([image.mean()], np.float32)
 
 registry.DESCRIPTORS["mean"] = Mean
