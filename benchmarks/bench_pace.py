@@ -5,6 +5,7 @@
     python benchmarks/bench_pace.py --param catgraph.speed_noise=0.05 --json pace.json
     python benchmarks/bench_pace.py --traversals winter/sad --frames 600   # the first 600 Nordland frames
     python benchmarks/bench_pace.py --methods catgraph --seeds 0-4         # means over five seeds
+    python benchmarks/bench_pace.py --methods catgraph --odometry 0.1      # with odometry, 10 % noise a step
 
 Each traversal pairs a map folder with a query folder of the same route whose frame i is the
 map's frame i (aligned ground truth: Gardens Point walking, map ``day_right``; Nordland, map
@@ -35,7 +36,7 @@ The ground truth of a query frame is the map node holding its original frame (fo
 the nearest node), +-2 map nodes. The method runs on the difference rows of the re-sampled query
 to the re-sampled map, started on the re-sampled map (its size, its neighbours' differences, its
 differences to itself) exactly as ``wiloc localize`` starts it on a folder holding those frames,
-with the default recent window and no odometry. The measures are wiloc's own (``wiloc.evaluation.metrics``,
+with the default recent window and no odometry (``--odometry SD``: see below). The measures are wiloc's own (``wiloc.evaluation.metrics``,
 ``wiloc.evaluation.reliability``): R@1 (the decided match is right, over every query frame), AP (the PR
 curve's average precision), ECE of the confidence, the precision among frames with confidence
 >= 0.9 and their count, and the mean P(new place) of methods that give it.
@@ -49,13 +50,22 @@ From an experiment script (with ``benchmarks/`` on ``sys.path``, e.g. ``sys.path
         print(v.name, row["r1"], row["ap"], row["ece"], row["precision@0.9"], row["accepted@0.9"],
               row["new_place"])
 
-``run_variant(traversal, variant, method="catgraph", params=None, progress=None) -> dict`` returns
-the measures of one run as plain floats and ints (keys: traversal, variant, method, params,
-frames, map_nodes, decided, r1, ap, ece, precision@0.9, accepted@0.9, new_place, new_place_ece, seconds;
-``new_place_ece``: the ECE of P(new place) as the probability that the frame has no place on the map);
-``decide(traversal, variant, method, params)`` the run's ``Decisions``, ``score(decisions, variant)``
+``run_variant(traversal, variant, method="catgraph", params=None, progress=None, odometry=None) -> dict``
+returns the measures of one run as plain floats and ints (keys: traversal, variant, method, params,
+odometry, odometry_factor, frames, map_nodes, decided, r1, ap, ece, precision@0.9, accepted@0.9,
+new_place, new_place_ece, seconds; ``odometry``: the noise of the odometry the method was given,
+None without; ``new_place_ece``: the ECE of P(new place) as the probability that the frame has no place
+on the map); ``decide(traversal, variant, method, params, odometry=None)`` the run's ``Decisions``, ``score(decisions, variant)``
 its measures and ``truth(variant, tolerance=2)`` its ground truth as a ``wiloc.evaluation.groundtruth.Truth``. ``variants(n)`` builds the variants of a route
 of ``n`` frames (``names`` picks some); ``TRAVERSALS`` lists the traversals by name.
+
+``--odometry SD`` gives the methods that take odometry (catgraph) the query's travelled distance
+per frame and the map's node positions, in route frames (a thinned map's nodes keep their frames'
+indices; a stop travels 0, the route walked backwards a positive distance: odometry measures how
+far, not which way), each step times 1 + SD x N(0, 1), clipped at 0 (``odometry_steps``: 0 is
+exact odometry, 0.1 a wheel odometry's 10 % error a step), and ``--odometry-factor F`` times
+that (the query's odometry F times the map's: 1.1 for one that reads 10 % long); the other
+methods run without.
 
 Seed 0 is one draw of a random filter: ``--seeds`` runs each method that takes a seed once per
 seed, writes every run to ``--json`` (its seed in ``params``) and prints per traversal the means
@@ -107,6 +117,7 @@ TRAVERSALS: dict[str, tuple[str, str, str, str]] = {
 VARIANTS = ("same", "pace-1/3", "pace-1/2", "pace-2", "pace-3", "reversed", "stop", "u-turn", "jump", "drift")
 OFF_MAP_VARIANTS = ("start-off", "leave")  # run when named: part of the query has no place on the map
 NO_NODE = -1  # the true node of a query frame whose place is not on the map
+ODOMETRY_SEED = 0  # the draw of --odometry's noise: every method and run gets the same steps
 
 
 # ------------------------------------------------------------------------------------------ variants
@@ -262,14 +273,29 @@ def load_traversal(name: str, data_root: Path | None = None, frames: int | None 
 
 # ------------------------------------------------------------------------------------------------ runs
 
+def odometry_steps(variant: Variant, noise: float, factor: float = 1.0,
+                   seed: int = ODOMETRY_SEED) -> NDArray[np.float64]:
+    """The query's travelled distance per frame, in route frames (0 for its first frame and a
+    repeated one) times ``factor`` (a scale the query's odometry and the map's disagree by), each
+    step times 1 + ``noise`` x N(0, 1), clipped at 0, drawn with ``seed``."""
+    steps = factor * np.r_[0.0, np.abs(np.diff(variant.query_frames))].astype(np.float64)
+    if noise > 0:
+        steps *= np.maximum(0.0, 1.0 + noise * np.random.default_rng(seed).standard_normal(steps.size))
+    return steps
+
+
 def decide(traversal: Traversal, variant: Variant, method: str = "catgraph",
            params: Mapping[str, Any] | None = None, exclude_recent: int = DEFAULT_EXCLUDE_RECENT,
-           progress: Callable[[int, int], None] | None = None) -> Decisions:
+           progress: Callable[[int, int], None] | None = None, odometry: float | None = None,
+           odometry_factor: float = 1.0) -> Decisions:
     """The method's decisions on the variant: started on the re-sampled map and stepped over the
     re-sampled query's difference rows, as ``wiloc.api.localize`` runs a query folder against a
-    map folder holding those frames."""
+    map folder holding those frames; with ``odometry`` (a noise; ``odometry_factor``:
+    :func:`odometry_steps`) and a method that takes it, as it runs with the query's and the map's
+    odometry CSVs."""
     algo = make_method(method, params)
-    algo.check_inputs(sequence=False, training=False)
+    with_odometry = odometry is not None and "odometry" in algo.needs
+    algo.check_inputs(sequence=False, training=False, odometry=with_odometry, map_odometry=with_odometry)
     map_data = np.ascontiguousarray(traversal.map_data[variant.map_frames])
     query_data = np.ascontiguousarray(traversal.query_data[variant.query_frames])
     to_map = DifferencesTo(map_data, traversal.metric, traversal.scale)
@@ -279,10 +305,12 @@ def decide(traversal: Traversal, variant: Variant, method: str = "catgraph",
     context = MapContext(
         sequence=False, exclude_recent=exclude_recent, n_map=map_data.shape[0], rows="differences",
         natural_max=traversal.natural_max, map_summary=lambda: summarize(ComputedDifferences(map_data, to_map), exclude_recent),
-        neighbours=lambda: consecutive(map_data, traversal.metric, traversal.scale))
+        neighbours=lambda: consecutive(map_data, traversal.metric, traversal.scale),
+        arclength=variant.map_frames.astype(np.float64) if with_odometry else None)
     algo.start(context)
     rows = candidate_blocks(ComputedDifferences(query_data, to_map), False, exclude_recent)
-    return algo.run(rows, query_data.shape[0], progress=progress)
+    steps = odometry_steps(variant, odometry, odometry_factor) if with_odometry and odometry is not None else None
+    return algo.run(rows, query_data.shape[0], odometry=steps, progress=progress)
 
 
 def score(decisions: Decisions, variant: Variant) -> dict[str, float | int]:
@@ -305,11 +333,16 @@ def score(decisions: Decisions, variant: Variant) -> dict[str, float | int]:
 
 def run_variant(traversal: Traversal, variant: Variant, method: str = "catgraph",
                 params: Mapping[str, Any] | None = None,
-                progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
-    """One run's measures (see the module's docstring for the keys)."""
+                progress: Callable[[int, int], None] | None = None, odometry: float | None = None,
+                odometry_factor: float = 1.0) -> dict[str, Any]:
+    """One run's measures (see the module's docstring for the keys; ``odometry``: the noise of
+    the odometry given to a method that takes it, None when it was given none)."""
     started = time.perf_counter()
-    decisions = decide(traversal, variant, method, params, progress=progress)
+    decisions = decide(traversal, variant, method, params, progress=progress, odometry=odometry,
+                       odometry_factor=odometry_factor)
+    given = odometry if odometry is not None and "odometry" in METHODS[method].needs else None
     return {"traversal": traversal.name, "variant": variant.name, "method": method, "params": dict(params or {}),
+            "odometry": given, "odometry_factor": odometry_factor if given is not None else None,
             **score(decisions, variant), "seconds": time.perf_counter() - started}
 
 
@@ -387,7 +420,19 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     parser.add_argument("--seeds", default=None, help="run methods that take a seed once per seed and print "
                         "the means, e.g. 0-4 or 0,3,7-9 (instead of --seed)")
     parser.add_argument("--frames", type=int, default=None, help="keep only the first N route frames")
+    parser.add_argument("--odometry", type=float, default=None, metavar="SD",
+                        help="give methods that take odometry the query's steps and the map's positions, each "
+                             "step times 1 + SD x N(0, 1) (0: exact; default: no odometry)")
+    parser.add_argument("--odometry-factor", type=float, default=1.0, metavar="F",
+                        help="with --odometry: the query's odometry F times the map's (a scale the two disagree "
+                             "by; default: 1)")
     args = parser.parse_args(argv)
+    if args.odometry is not None and not (math.isfinite(args.odometry) and args.odometry >= 0):
+        parser.error(f"--odometry {args.odometry:g}: give a noise of 0 (exact) or more")
+    if not (math.isfinite(args.odometry_factor) and args.odometry_factor > 0):
+        parser.error(f"--odometry-factor {args.odometry_factor:g}: give a factor above 0")
+    if args.odometry is None and args.odometry_factor != 1.0:
+        parser.error("--odometry-factor applies to runs with --odometry only")
     console, err = plain_console(), plain_console(stderr=True)
     if not console.is_terminal:  # a file or a pipe: wide enough for every method's columns
         console = plain_console(width=220)
@@ -451,7 +496,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
                 for method, chosen in ((m, p) for m in methods for p in runs_of[m]):
                     task = bar.add_task(f"{name} {variant.name} {method}", total=variant.query_frames.size)
                     row = run_variant(traversal, variant, method, chosen,
-                                      progress=lambda done, total, task=task: bar.update(task, completed=done))
+                                      progress=lambda done, total, task=task: bar.update(task, completed=done),
+                                      odometry=args.odometry, odometry_factor=args.odometry_factor)
                     bar.remove_task(task)
                     row["map"] = traversal.map_folder.name
                     table_rows.append(row)
@@ -461,7 +507,10 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
                 console.print(render(name, over_seeds(table_rows) if len(seeds) > 1 else table_rows, methods))
     changed = {m: p for m, p in params.items() if p}
     said = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {args.seeds} (means; R@1's range in brackets)"
-    console.print(f"{len(rows)} runs in {time.perf_counter() - started:.0f} s; {said}, no odometry"
+    given = sorted({r["method"] for r in rows if r["odometry"] is not None})
+    odometry = (f"odometry to {', '.join(given)} (noise sd {args.odometry:g} a step, seed {ODOMETRY_SEED}; "
+                f"{args.odometry_factor:g} times the map's)" if given else "no odometry")
+    console.print(f"{len(rows)} runs in {time.perf_counter() - started:.0f} s; {said}, {odometry}"
                   + (f"; parameters {changed}" if changed else "; default parameters"))
     write_json(args.json, rows, console)
     return rows

@@ -209,3 +209,39 @@ def test_the_command_runs_each_seed_and_prints_their_means(bench, data_root: Pat
     for wrong in (["--seeds", "1-x"], ["--param", "catgraph.seed=3"], ["--seed", "1", "--seeds", "2-3"]):
         with pytest.raises(SystemExit):
             bench.main([str(data_root), "--methods", "catgraph", *wrong])
+
+
+def test_odometry_steps_measure_how_far_not_which_way_with_the_noise_asked_for(bench) -> None:
+    n = 200
+    variants = by_name(bench, n)
+    reversed_steps = bench.odometry_steps(variants["reversed"], 0.0)
+    np.testing.assert_array_equal(reversed_steps, np.r_[0.0, np.ones(n - 1)])
+    stop = variants["stop"]
+    steps = bench.odometry_steps(stop, 0.0)
+    repeated = np.r_[False, np.diff(stop.query_frames) == 0]
+    assert repeated.sum() >= 19 and np.all(steps[repeated] == 0) and np.all(steps[~repeated][1:] == 1)
+    np.testing.assert_array_equal(bench.odometry_steps(variants["pace-3"], 0.0)[1:], 3.0)
+    np.testing.assert_allclose(bench.odometry_steps(variants["pace-3"], 0.0, factor=1.1)[1:], 3.3)
+    noisy = bench.odometry_steps(variants["pace-3"], 0.5)
+    np.testing.assert_array_equal(noisy, bench.odometry_steps(variants["pace-3"], 0.5))  # one draw for every run
+    assert noisy.min() >= 0.0 and 0.3 < np.std(noisy[1:] / 3.0) < 0.7 and not np.all(noisy[1:] == 3.0)
+
+
+def test_odometry_goes_to_the_methods_that_take_it(bench) -> None:
+    """catgraph runs with the query's steps and the map's positions (as with odometry CSVs);
+    threshold, which takes none, runs as without."""
+    rng = np.random.default_rng(0)
+    n = 60
+    places = rng.integers(0, 256, (n, 1152), dtype=np.uint8)
+    query = np.clip(places.astype(int) + rng.integers(-10, 11, places.shape), 0, 255).astype(np.uint8)
+    sad = get_descriptor("sad")
+    trav = bench.Traversal(name="synthetic", map_folder=Path("map"), query_folder=Path("query"), descriptor="sad",
+                           map_data=places, query_data=query, metric=sad.metric, scale=sad.scale,
+                           natural_max=sad.natural_max)
+    variant = by_name(bench, n)["pace-2"]
+    with_odometry = bench.run_variant(trav, variant, "catgraph", odometry=0.0)
+    without = bench.run_variant(trav, variant, "catgraph")
+    assert (with_odometry["odometry"], without["odometry"]) == (0.0, None)
+    assert bench.decide(trav, variant, "catgraph", odometry=0.0).params["odometry"] is True
+    assert bench.decide(trav, variant, "catgraph").params["odometry"] is False
+    assert bench.run_variant(trav, variant, "threshold", odometry=0.0)["odometry"] is None
