@@ -1,6 +1,8 @@
 """Tests of the whole-image CAT-Graph particle filter on synthetic traversals with known truth."""
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -69,6 +71,56 @@ def test_without_odometry_re_seeded_particles_carry_the_pace_of_their_sequence(s
     assert _hits(localize_catgraph(iter(rows), ref, truth.size).match[20:], truth[20:]).mean() >= 0.9
     one_pace = localize_catgraph(iter(rows), ref, truth.size, sequence_speeds=(1.0,))
     assert _hits(one_pace.match[20:], truth[20:]).mean() < 0.5
+
+
+@pytest.mark.parametrize("speed", [1 / 3, 3.0, -1.0, -0.5])
+def test_with_odometry_a_pace_is_a_direction_and_the_odometry_says_how_far(speed: float) -> None:
+    # Odometry measures how far the query went, not which way (the route driven backwards
+    # travels a positive distance): every particle's pace becomes +-1 at the first frame with
+    # odometry (times its factor near 1, odometry_scale), and the query is followed at a third or
+    # three times the map's node spacing a frame, or backwards.
+    rng = np.random.default_rng(1)
+    start = 10.0 if speed > 0 else N_REF - 10.0
+    truth = start + speed * np.arange(int(270 / abs(speed)))
+    rows, ref, steps = _rows(truth, N_REF, rng), _ref_self(rng), np.r_[0.0, np.abs(np.diff(truth))]
+    for scale in (0.0, 0.05):
+        method = CatGraph(odometry_scale=scale)
+        dec = run_on_rows(method, iter(rows), truth.size, map_self=ref, arclength=np.arange(float(N_REF)),
+                          odometry=steps)
+        assert _hits(dec.match[20:], truth[20:]).mean() >= 0.9 and dec.params["odometry"] is True
+        factors = np.abs(method._speed)
+        assert np.all(factors == 1.0) if scale == 0 else (np.all(np.abs(np.log(factors)) < 6 * scale)
+                                                          and np.any(factors != 1.0))
+
+
+@pytest.mark.parametrize("factor", [0.85, 1.2])
+def test_with_odometry_a_scale_the_query_and_the_map_disagree_by_is_learned(factor: float) -> None:
+    # The query's odometry reads short or long against the map's, on weak evidence: with paces of
+    # exactly +-1 the cloud runs ahead or falls behind; each particle's own factor
+    # (odometry_scale) lets the ones that fit take over.
+    rng = np.random.default_rng(5)
+    truth = 10.0 + np.arange(280.0)
+    rows, ref, steps = _rows(truth, N_REF, rng, depth=0.15), _ref_self(rng), factor * np.r_[0.0, np.ones(279)]
+    hits = {scale: _hits(localize_catgraph(iter(rows), ref, truth.size, ref_arclength=np.arange(float(N_REF)),
+                                           query_steps=steps, odometry_scale=scale).match[40:], truth[40:]).mean()
+            for scale in (0.0, 0.05)}
+    assert hits[0.05] >= 0.9 and hits[0.05] > hits[0.0]
+
+
+def test_with_odometry_a_restored_state_keeps_the_paces_as_directions() -> None:
+    rng = np.random.default_rng(4)
+    truth = 10.0 + 0.5 * np.arange(200)
+    rows, ref, steps = _rows(truth, N_REF, rng), _ref_self(rng), np.r_[0.0, np.diff(truth)]
+    whole = CatGraph(seed=3)
+    expected = run_on_rows(whole, iter(rows), truth.size, map_self=ref, arclength=np.arange(float(N_REF)),
+                           odometry=steps)
+    first = CatGraph(seed=3)
+    run_on_rows(first, iter(rows[:30]), 30, map_self=ref, arclength=np.arange(float(N_REF)), odometry=steps[:30])
+    resumed = CatGraph(seed=3)
+    resumed.restore(first.context, copy.deepcopy(first.state()))
+    later = [resumed.step(row, odometry=float(step)) for row, step in zip(rows[30:], steps[30:])]
+    assert [d.match for d in later] == expected.match[30:].tolist()
+    assert [d.confidence for d in later] == expected.confidence[30:].tolist()
 
 
 def test_finds_track_where_a_map_stretch_resembles_every_frame() -> None:

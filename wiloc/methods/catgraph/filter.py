@@ -72,7 +72,11 @@ class CatGraph(Method):
     where shares ``reseed_backward`` and ``reseed_fast`` of the re-seeded particles go (speeds
     slower than ``rank_pace_min`` rank no node); each moves at the speed whose trajectory scored
     best at its node (half of the forward ones at the map's pace). The particles start at paces
-    drawn from a prior (``start_paces``: the other paces' share of the mass).
+    drawn from a prior (``start_paces``: the other paces' share of the mass). Once frames come
+    with odometry, which measures the query's pace, a pace is its direction alone: the signs of
+    ``sequence_speeds`` (1, and -1 when it has backward paces), for the particles and the
+    sequence score alike (:meth:`_set_paces`), each particle's times its own factor near 1
+    (``odometry_scale``), which the two odometries' scales may differ by.
     Each decision is the node at the density mode (the largest weight mass within
     +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
     the confidence (that mass times 1 - P(new place)) and P(new place). The same seed gives
@@ -191,11 +195,19 @@ class CatGraph(Method):
     def _set_paces(self) -> None:
         """The sequence score's paces and the group of each: 0 forward, 1 backward and 3 faster
         than ``fast_pace`` (each ranking nodes for re-seeding apart), 2 slower than
-        ``rank_pace_min`` (giving only a pace)."""
+        ``rank_pace_min`` (giving only a pace). With odometry, the directions of
+        ``sequence_speeds``, forward first: the odometry says how far the query went, and a pace
+        other than 1 would say the map's odometry and the query's disagree by that factor (free
+        paces let look-alike tracks at a third or three times the measured pace win)."""
         p = self.params
-        self._paces = np.asarray(p.sequence_speeds, dtype=np.float64)
-        self._groups = np.select([np.abs(self._paces) < p.rank_pace_min, self._paces > p.fast_pace, self._paces < 0],
-                                 [2, 3, 1], 0).astype(np.intp)
+        speeds = np.asarray(p.sequence_speeds, dtype=np.float64)
+        if self._odometry:
+            self._paces = np.unique(np.sign(speeds))[::-1].copy()
+            self._groups = (self._paces < 0).astype(np.intp)
+        else:
+            self._paces = speeds
+            self._groups = np.select([np.abs(speeds) < p.rank_pace_min, speeds > p.fast_pace, speeds < 0],
+                                     [2, 3, 1], 0).astype(np.intp)
         self._group_lowest = np.empty((4, self._nodes.size))  # the score's lowest per group and node
 
     def _recycle(self) -> None:
@@ -218,7 +230,7 @@ class CatGraph(Method):
         """:func:`shifted_reads` for step u and their :func:`read_runs`: the same for every
         frame of equal step (always, without odometry), so they are computed once per distinct step."""
         if self._shifted is None or self._shifted[0] != u:
-            shifts = np.asarray(self.params.sequence_speeds, dtype=np.float64) * u
+            shifts = self._paces * u
             if self._growing:  # the nodes 0, 1, ..., n - 1, one more each frame
                 self._shifted = (u, even_shifted_reads(self._nodes.size, shifts))
             else:
@@ -395,6 +407,8 @@ class CatGraph(Method):
             alike = slice(None) if group else slice(1, None, 2)  # forward: every other one keeps the map's pace
             scores = self._sequence[:, best[alike]][way]  # the chosen nodes' columns only, not every node
             speed[chosen[alike]] = self._paces[way][np.argmin(scores, axis=0)]
+        if self._odometry:  # a direction, times a factor of its own
+            speed[weakest] *= self._odometry_factors(weakest.size)
 
     def _reseed_counts(self, n: int, first: bool) -> list[tuple[int, int]]:
         """How many of ``n`` re-seeded particles go to each group of paces that ranks nodes
@@ -443,8 +457,30 @@ class CatGraph(Method):
         spacing."""
         if odometry is None:
             return self._spacing
-        self._odometry = True
+        if not self._odometry:
+            self._odometry = True
+            self._paces_to_directions()
         return odometry
+
+    def _paces_to_directions(self) -> None:
+        """At the first frame with odometry: every particle's pace becomes its direction times
+        its factor (:meth:`_odometry_factors`), and the sequence score keeps the trajectories of
+        paces 1 and -1 (a direction whose pace it did not have starts at 0, a contrast-normalised
+        row's mean)."""
+        before = self._paces
+        self._set_paces()
+        kept = [np.flatnonzero(before == pace) for pace in self._paces]
+        self._sequence = np.stack([self._sequence[at[0]] if at.size else np.zeros(self._nodes.size) for at in kept])
+        self._spare, self._shifted = None, None
+        self._speed = np.sign(self._speed) * self._odometry_factors(self._speed.size)
+
+    def _odometry_factors(self, n: int) -> NDArray[np.float64]:
+        """With odometry, n particles' factors between the query's odometry and the map's: log-normal
+        around 1 (sd ``odometry_scale`` of the log). Copies inherit their parent's, so the factor
+        that keeps a track on its place survives (docs/catgraph.md, "Pace": a query whose odometry
+        is 10 % longer than the map's is followed with it, lost without)."""
+        sd = self.params.odometry_scale
+        return np.exp(sd * self._rng.standard_normal(n)) if sd > 0 else np.ones(n)
 
     def facts(self) -> dict[str, Any]:
         return {"odometry": getattr(self, "_odometry", False),
@@ -475,13 +511,13 @@ class CatGraph(Method):
         self._pos = np.asarray(state["pos"], dtype=np.float64).copy()
         self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
         self._log_w = np.asarray(state["log_w"], dtype=np.float64).copy()
+        self._odometry = bool(state["odometry"])
         self._set_paces()
         self._sequence = np.asarray(state["sequence"], dtype=np.float64).copy()
         self._spare = None
         self._own = np.asarray(state["own"], dtype=np.float64).copy()
         self._marks = np.zeros(self._own.size, dtype=np.int64)
         self._odometer = float(state["odometer"])
-        self._odometry = bool(state["odometry"])
         self._likelihood = self._observation_model()
         self._likelihood.load(state["likelihood"])
         self._unexplained = Unexplained(p.unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,

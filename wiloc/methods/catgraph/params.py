@@ -79,6 +79,10 @@ class CatGraphParams(Parameters):
     repeat_standing: float = param(0.5, "Prior probability that a query standing on one repeated image (the same "
                                         "row again) stands still, against moving on while its camera repeats "
                                         "an image.", low=0.0, high=1.0)
+    odometry_scale: float = param(0.05, "With odometry: spread (sd of its log) of each particle's factor between "
+                                        "the query's odometry and the map's, kept for its life, so that a scale "
+                                        "the two disagree by is learned by selection (0: the odometry as given).",
+                                  low=0.0)
 
     def check(self) -> None:
         low, high = self.speed_range
