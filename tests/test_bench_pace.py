@@ -126,15 +126,20 @@ def test_off_map_frames_match_nothing_and_no_frame_matches_across_the_gap(bench)
     np.testing.assert_array_equal(np.flatnonzero(dense[100]), [60, 61, 62])
 
 
-def test_a_run_scores_with_wilocs_measures(bench) -> None:
+def synthetic(bench, n: int):
+    """A traversal of ``n`` random sad rows, its query the same rows with noise: frame i is place i."""
     rng = np.random.default_rng(0)
-    n = 60
     places = rng.integers(0, 256, (n, 1152), dtype=np.uint8)
     query = np.clip(places.astype(int) + rng.integers(-10, 11, places.shape), 0, 255).astype(np.uint8)
     sad = get_descriptor("sad")
-    trav = bench.Traversal(name="synthetic", map_folder=Path("map"), query_folder=Path("query"), descriptor="sad",
+    return bench.Traversal(name="synthetic", map_folder=Path("map"), query_folder=Path("query"), descriptor="sad",
                            map_data=places, query_data=query, metric=sad.metric, scale=sad.scale,
                            natural_max=sad.natural_max)
+
+
+def test_a_run_scores_with_wilocs_measures(bench) -> None:
+    n = 60
+    trav = synthetic(bench, n)
     variant = by_name(bench, n)["reversed"]
     row = bench.run_variant(trav, variant, "threshold")
     assert row["r1"] == 1.0 and row["frames"] == n and row["map_nodes"] == n
@@ -230,14 +235,8 @@ def test_odometry_steps_measure_how_far_not_which_way_with_the_noise_asked_for(b
 def test_odometry_goes_to_the_methods_that_take_it(bench) -> None:
     """catgraph runs with the query's steps and the map's positions (as with odometry CSVs);
     threshold, which takes none, runs as without."""
-    rng = np.random.default_rng(0)
     n = 60
-    places = rng.integers(0, 256, (n, 1152), dtype=np.uint8)
-    query = np.clip(places.astype(int) + rng.integers(-10, 11, places.shape), 0, 255).astype(np.uint8)
-    sad = get_descriptor("sad")
-    trav = bench.Traversal(name="synthetic", map_folder=Path("map"), query_folder=Path("query"), descriptor="sad",
-                           map_data=places, query_data=query, metric=sad.metric, scale=sad.scale,
-                           natural_max=sad.natural_max)
+    trav = synthetic(bench, n)
     variant = by_name(bench, n)["pace-2"]
     with_odometry = bench.run_variant(trav, variant, "catgraph", odometry=0.0)
     without = bench.run_variant(trav, variant, "catgraph")
