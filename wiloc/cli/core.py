@@ -50,9 +50,10 @@ def fail(message: str, code: int) -> NoReturn:
 
 
 def print_line(text: str) -> None:
-    """One unwrapped line on stdout, printed as it is (no markup, no highlighting): a line naming
-    a path stays whole, to be copied, where a table's caption would wrap it to the table's width."""
-    out.print(escape(text), highlight=False, soft_wrap=True)
+    """One line on stdout, printed as it is (no markup, no highlighting), folded only at the
+    console's width: a line naming a path stays whole where it fits, where a table's caption
+    would fold it at the table's width."""
+    out.print(escape(text), highlight=False)
 
 
 def note(kind: str, message: str) -> None:
