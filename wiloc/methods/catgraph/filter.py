@@ -37,6 +37,7 @@ from wiloc.decisions import Decision
 from wiloc.errors import WilocError
 from wiloc.methods.base import MapContext, Method
 from wiloc.methods.catgraph.observation import RankLikelihood, Unexplained, novelty_weights
+from wiloc.methods.catgraph.paces import odometry_factors, reseed_counts, sequence_paces
 from wiloc.methods.catgraph.params import CatGraphParams
 from wiloc.methods.catgraph.trajectory import (even_shifted_reads, locate, lowest_nodes, node_positions,
                                                posterior_ranking, read_runs, shifted_reads, smallest, systematic,
@@ -193,21 +194,8 @@ class CatGraph(Method):
         return speed, log_w
 
     def _set_paces(self) -> None:
-        """The sequence score's paces and the group of each: 0 forward, 1 backward and 3 faster
-        than ``fast_pace`` (each ranking nodes for re-seeding apart), 2 slower than
-        ``rank_pace_min`` (giving only a pace). With odometry, the directions of
-        ``sequence_speeds``, forward first: the odometry says how far the query went, and a pace
-        other than 1 would say the map's odometry and the query's disagree by that factor (free
-        paces let look-alike tracks at a third or three times the measured pace win)."""
-        p = self.params
-        speeds = np.asarray(p.sequence_speeds, dtype=np.float64)
-        if self._odometry:
-            self._paces = np.unique(np.sign(speeds))[::-1].copy()
-            self._groups = (self._paces < 0).astype(np.intp)
-        else:
-            self._paces = speeds
-            self._groups = np.select([np.abs(speeds) < p.rank_pace_min, speeds > p.fast_pace, speeds < 0],
-                                     [2, 3, 1], 0).astype(np.intp)
+        """The sequence score's paces and their groups (:func:`~wiloc.methods.catgraph.paces.sequence_paces`)."""
+        self._paces, self._groups = sequence_paces(self.params, self._odometry)
         self._group_lowest = np.empty((4, self._nodes.size))  # the score's lowest per group and node
 
     def _recycle(self) -> None:
@@ -393,7 +381,7 @@ class CatGraph(Method):
         pace scores alike: all go forward at the map's pace."""
         p, groups = self.params, self._groups
         start = 0
-        for group, count in self._reseed_counts(weakest.size, first):
+        for group, count in reseed_counts(p, groups, weakest.size, first, self._rng):
             chosen = weakest[start:start + count]
             start += count
             best = lowest_nodes(lowest[group], p.reseed_top)
@@ -408,24 +396,7 @@ class CatGraph(Method):
             scores = self._sequence[:, best[alike]][way]  # the chosen nodes' columns only, not every node
             speed[chosen[alike]] = self._paces[way][np.argmin(scores, axis=0)]
         if self._odometry:  # a direction, times a factor of its own
-            speed[weakest] *= self._odometry_factors(weakest.size)
-
-    def _reseed_counts(self, n: int, first: bool) -> list[tuple[int, int]]:
-        """How many of ``n`` re-seeded particles go to each group of paces that ranks nodes
-        (:meth:`_set_paces`): the backward and fast groups their shares, the forward group the
-        rest; a group without paces none (its share goes to the forward group, or when that has
-        none either, to the first group that has paces). The first frame: all forward."""
-        p = self.params
-        present = [g for g in (0, 1, 3) if np.any(self._groups == g)]
-        if first and 0 in present:
-            return [(0, n)]
-        shares = {1: p.reseed_backward, 3: p.reseed_fast}
-        counts = {g: int(np.floor(shares[g] * n + (self._rng.random() if g == 3 else 0.5))) for g in present
-                  if g in shares}
-        rest = n - sum(counts.values())
-        main = 0 if 0 in present else present[0]
-        counts[main] = counts.get(main, 0) + rest
-        return [(g, counts[g]) for g in present if counts.get(g, 0) > 0]
+            speed[weakest] *= odometry_factors(p.odometry_scale, self._rng, weakest.size)
 
     def probability_near(self, node: int) -> float:
         """After a step: the probability that the frame shows the place of ``node`` (within
@@ -464,23 +435,15 @@ class CatGraph(Method):
 
     def _paces_to_directions(self) -> None:
         """At the first frame with odometry: every particle's pace becomes its direction times
-        its factor (:meth:`_odometry_factors`), and the sequence score keeps the trajectories of
-        paces 1 and -1 (a direction whose pace it did not have starts at 0, a contrast-normalised
-        row's mean)."""
+        its factor (:func:`~wiloc.methods.catgraph.paces.odometry_factors`), and the sequence
+        score keeps the trajectories of paces 1 and -1 (a direction whose pace it did not have
+        starts at 0, a contrast-normalised row's mean)."""
         before = self._paces
         self._set_paces()
         kept = [np.flatnonzero(before == pace) for pace in self._paces]
         self._sequence = np.stack([self._sequence[at[0]] if at.size else np.zeros(self._nodes.size) for at in kept])
         self._spare, self._shifted = None, None
-        self._speed = np.sign(self._speed) * self._odometry_factors(self._speed.size)
-
-    def _odometry_factors(self, n: int) -> NDArray[np.float64]:
-        """With odometry, n particles' factors between the query's odometry and the map's: log-normal
-        around 1 (sd ``odometry_scale`` of the log). Copies inherit their parent's, so the factor
-        that keeps a track on its place survives (docs/catgraph.md, "Pace": a query whose odometry
-        is 10 % longer than the map's is followed with it, lost without)."""
-        sd = self.params.odometry_scale
-        return np.exp(sd * self._rng.standard_normal(n)) if sd > 0 else np.ones(n)
+        self._speed = np.sign(self._speed) * odometry_factors(self.params.odometry_scale, self._rng, self._speed.size)
 
     def facts(self) -> dict[str, Any]:
         return {"odometry": getattr(self, "_odometry", False),
