@@ -56,13 +56,14 @@ def places(n: int, seed: int = 0) -> list[np.ndarray]:
 
 
 def loop_rows(rng: np.random.Generator, places: int, recent: int,
-              memory: float | None = None) -> tuple[list[np.ndarray], np.ndarray]:
-    """A first pass over ``places`` new places, then a revisit of all of them in order: each
-    place a random look, neighbouring places alike (a smooth route), each frame its place's look
-    plus noise. The looks drift as a random walk (the nearer two places, the more alike, at any
-    distance) or, with ``memory``, as an AR(1) walk of that coefficient (alike over a few
-    places, unrelated far apart). Returns sequence-mode rows (frame k against frames before
-    k - ``recent``) and each frame's place."""
+              memory: float | None = None, revisit_pace: int = 1) -> tuple[list[np.ndarray], np.ndarray]:
+    """A first pass over ``places`` new places, then a revisit of them in order (every
+    ``revisit_pace``-th place: at that multiple of the first pass's pace): each place a random
+    look, neighbouring places alike (a smooth route), each frame its place's look plus noise. The
+    looks drift as a random walk (the nearer two places, the more alike, at any distance) or,
+    with ``memory``, as an AR(1) walk of that coefficient (alike over a few places, unrelated far
+    apart). Returns sequence-mode rows (frame k against frames before k - ``recent``) and each
+    frame's place."""
     steps = rng.normal(0.0, 1.0, (places, 64))
     if memory is None:
         walk = np.cumsum(steps, axis=0) * 0.3
@@ -71,7 +72,7 @@ def loop_rows(rng: np.random.Generator, places: int, recent: int,
         for i in range(1, places):
             walk[i] = memory * walk[i - 1] + np.sqrt(1.0 - memory ** 2) * steps[i]
     look = walk + rng.normal(0.0, 1.0, (places, 64))
-    route = np.r_[np.arange(places), np.arange(places)]
+    route = np.r_[np.arange(places), np.arange(0, places, revisit_pace)]
     frames = look[route] + rng.normal(0.0, 0.35, (route.size, 64))
     differences = np.abs(frames[:, None, :] - frames[None, :, :]).mean(axis=2)
     rows = []

@@ -465,17 +465,44 @@ def test_sequence_mode_calls_a_first_pass_new_and_follows_its_revisit() -> None:
     assert out.match[started:].max() < n - recent - CatGraph.Params().frontier  # never a frame of the frontier
 
 
-def test_sequence_mode_refuses_a_traversal_too_short_and_odometry() -> None:
+def test_sequence_mode_refuses_a_traversal_too_short_mixed_odometry_and_the_maps() -> None:
     method = CatGraph(frontier=20)
     assert "at least 33" in method.query_problem(32, True, 10)
     assert method.query_problem(33, True, 10) is None and method.query_problem(5, False, 10) is None
     method.start(base.MapContext(sequence=True, exclude_recent=10))
-    with pytest.raises(WilocError) as err:
-        method.step(np.ones(40), odometry=1.0)
-    assert err.value.parameter == "odometry"
+    method.step(np.ones(40), odometry=None)
+    method.step(np.ones(40), odometry=1.0)  # the second frame says: odometry with every frame
+    with pytest.raises(WilocError, match="query frame 2: in sequence mode odometry comes with every frame") as err:
+        method.step(np.ones(40))
+    assert err.value.parameter == "odometry" and method.frames == 2
+    method.step(np.ones(40), odometry=0.5)  # refused, the frame can be given again
     with pytest.raises(WilocError, match="takes no map odometry in sequence mode") as err:  # the map's positions
         CatGraph().start(base.MapContext(sequence=True, exclude_recent=10, arclength=np.arange(50.0)))
     assert err.value.parameter == "map_odometry"
+
+
+def test_sequence_mode_with_odometry_follows_a_revisit_at_twice_the_pace() -> None:
+    """With odometry the map's nodes sit where the traversal's frames were taken and a particle's
+    pace is its direction: a revisit at twice the first pass's pace is followed from the steps the
+    odometry gives. A traversal standing still at its start has no map to move along until it
+    moves: the filter starts once the map spans a distance."""
+    rng = np.random.default_rng(11)
+    places, recent, frontier = 150, 10, CatGraph.Params().frontier
+    rows, route = loop_rows(rng, places, recent, memory=0.9, revisit_pace=2)
+    n = route.size
+    steps = np.r_[0.0, np.abs(np.diff(route))].astype(np.float64)
+    steps[places] = 1.0  # from the first pass's end back to its start: a stand-in distance
+    steps[1:5] = 0.0  # standing still at the start
+    out = run_on_rows(CatGraph(), rows, n, sequence=True, exclude_recent=recent, odometry=steps)
+    started = recent + frontier + 2 + 4  # 2 nodes, and the 4 frames standing still at one position
+    assert np.all(out.stage[:started] == "none") and np.all(out.stage[started:] == "track")
+    right = np.abs(route[np.maximum(out.match, 0)] - route) <= TOL
+    revisit = np.arange(places + 5, n)
+    assert np.mean(right[revisit]) > 0.9 and np.mean(out.columns["new_place"][revisit]) < 0.1
+    assert np.mean(out.columns["new_place"][started:places]) > 0.9
+    steps[places + 1:] = 1.0  # odometry saying the revisit keeps the first pass's pace: it is trusted, and misleads
+    misled = run_on_rows(CatGraph(), rows, n, sequence=True, exclude_recent=recent, odometry=steps)
+    assert np.mean((np.abs(route[np.maximum(misled.match, 0)] - route) <= TOL)[revisit]) < 0.5
 
 
 @pytest.mark.parametrize("n", [2, 3, 17, 1000])

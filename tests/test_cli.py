@@ -146,6 +146,20 @@ def test_catgraph_with_odometry_is_reproducible(route: tuple[Path, Path], tmp_pa
     assert "new_place" in outs[0].splitlines()[-41]
 
 
+def test_sequence_mode_takes_the_traversals_odometry(route: tuple[Path, Path], tmp_path: Path) -> None:
+    """Without --map, catgraph's map is the traversal itself, placed by the query's --odometry."""
+    _, query = route
+    (tmp_path / "odo.csv").write_text("name,distance\n" + "".join(f"img{i}.png,{2.0 if i else 0.0}\n" for i in range(40)))
+    out = tmp_path / "loop.csv"
+    result = runner.invoke(app, ["localize", str(query), "--method", "catgraph", "--frontier", "10",
+                                 "--odometry", str(tmp_path / "odo.csv"), "--out", str(out)])
+    assert result.exit_code == 0, result.stderr
+    assert '"odometry": true' in out.read_text()
+    result = runner.invoke(app, ["localize", str(query), "--method", "catgraph", "--frontier", "10",
+                                 "--map-odometry", str(tmp_path / "odo.csv")])
+    assert result.exit_code == 2 and "--map-odometry: applies to map mode (--map) only" in result.stderr
+
+
 def test_odometry_missing_a_frame_is_reported(route: tuple[Path, Path], tmp_path: Path) -> None:
     ref, query = route
     (tmp_path / "odo.csv").write_text("img0.png,0\nimg1.png,1\n")

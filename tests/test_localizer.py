@@ -148,6 +148,39 @@ def test_sequence_mode_state_round_trips(method: str, cut: int, tmp_path: Path) 
     assert list(map(repr, continued)) == list(map(repr, expected[cut:]))  # repr: NaN (no decision yet) equals NaN
 
 
+def test_sequence_mode_with_odometry_streams_as_batch_and_round_trips(tmp_path: Path) -> None:
+    """catgraph in sequence mode with the traversal's odometry (a CSV for the batch run, a step
+    per observed frame for the localizer) decides the same either way, and a state saved before
+    its map has 2 frames or mid-run goes on as before."""
+    rows, names = _looped_descriptors(seed=4)
+    np.save(tmp_path / "route.npy", rows)
+    (tmp_path / "names.txt").write_text("\n".join(names) + "\n")
+    steps = np.where(np.arange(len(names)) % 7 == 3, 0.5, 1.25)
+    steps[0] = 0.0
+    (tmp_path / "odometry.csv").write_text("name,distance\n" + "".join(f"{n},{float(s)!r}\n" for n, s in zip(names, steps)))
+    params = _SEQUENCE_PARAMS["catgraph"]
+    run = api.localize(tmp_path / "route.npy", metric="l1", query_names_file=tmp_path / "names.txt",
+                       method="catgraph", method_params=params, odometry=tmp_path / "odometry.csv",
+                       out=tmp_path / "batch.csv", cache=Cache(tmp_path / "c"))
+    make = lambda: Localizer(None, descriptor="external", method="catgraph", cache=Cache(tmp_path / "c"),  # noqa: E731
+                             descriptor_params={"metric": "l1", "length": 64}, **params)
+    whole = make()
+    expected = [whole.observe(r, name=n, odometry=float(s)) for r, n, s in zip(rows, names, steps)]
+    batch = pd.read_csv(run.path, comment="#", dtype=str, keep_default_na=False)
+    assert list(batch["match"]) == [d.match_name or "" for d in expected]
+    assert list(batch["confidence"]) == [f"{d.confidence:.9g}".replace("nan", "") for d in expected]
+    without = make()
+    assert [without.observe(r, name=n).match_name for r, n in zip(rows, names)] != [d.match_name for d in expected]
+    for cut in (15, 80):
+        part = make()
+        for r, n, s in zip(rows[:cut], names[:cut], steps[:cut]):
+            part.observe(r, name=n, odometry=float(s))
+        part.save(tmp_path / "s.npz")
+        again = Localizer.load(tmp_path / "s.npz", cache=Cache(tmp_path / "c"))
+        continued = [again.observe(r, name=n, odometry=float(s)) for r, n, s in zip(rows[cut:], names[cut:], steps[cut:])]
+        assert list(map(repr, continued)) == list(map(repr, expected[cut:]))
+
+
 def test_observe_takes_images_files_and_descriptors(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
     loc = Localizer(demo_route.reference, method="threshold")
     path = sorted(demo_route.queries[0].iterdir())[10]

@@ -266,6 +266,12 @@ def test_odometry_topic_gives_the_distance_between_frames(tmp_path: Path, cache_
     np.testing.assert_array_equal(run.decisions.confidence, given.decisions.confidence)
     plain = api.localize(bag, reference=ref, method="catgraph", sampling=every)
     assert not np.array_equal(run.decisions.confidence, plain.decisions.confidence)
+    loop = {"frontier": 1}  # sequence mode: the bag's own odometry places its frames as the map's nodes
+    own = api.localize(bag, method="catgraph", odometry_topic="/odom", exclude_recent=2, method_params=loop)
+    csv.write_text("".join(f"{frame_name(s)},{0.2 * k ** 2},0\n" for k, s in enumerate(stamps(10))))
+    assert own.results.header.params["odometry"] is True and np.isfinite(own.decisions.confidence[-1])
+    np.testing.assert_array_equal(own.decisions.confidence, api.localize(
+        bag, method="catgraph", odometry=csv, exclude_recent=2, method_params=loop).decisions.confidence)
 
 
 def test_a_bag_localizes_against_a_folder_from_the_command_line(tmp_path: Path, cache_dir: Path) -> None:
@@ -397,8 +403,8 @@ def test_an_odometry_topic_refused_is_named_as_given(tmp_path: Path, cache_dir: 
     ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--map", str(ref), "--method", "online",
                                           "--odometry-topic", "/odom"]), 2,
                       "error: --odometry-topic: method 'online' takes no odometry")
-    ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--method", "catgraph", "--odometry-topic", "/odom"]),
-                      2, "error: --odometry-topic: applies to map mode (--map) only")
+    ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--method", "online", "--odometry-topic", "/odom"]),
+                      2, "error: --odometry-topic: method 'online' takes no odometry")  # in sequence mode too
     folder = tmp_path / "folder"  # a map that is no bag has no odometry on the topic: refused before describing
     folder.mkdir()
     cv2.imwrite(str(folder / "a.png"), scenes(1)[0])

@@ -44,7 +44,7 @@ def localize(
     train_radius: Optional[float] = typer.Option(None, help="trained: metres, for positions ground truth.", rich_help_panel="trained inputs"),
     names: Optional[Path] = typer.Option(None, help="A .npy QUERY matrix: its frame names, one per line."),
     map_names: Optional[Path] = typer.Option(None, help="A .npy --map matrix: its frame names, one per line."),
-    odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y), with the map's (--map-odometry).", rich_help_panel="catgraph inputs"),
+    odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y), with the map's (--map-odometry); without --map, the traversal's own.", rich_help_panel="catgraph inputs"),
     odometry_topic: Optional[str] = typer.Option(None, help="catgraph: the nav_msgs Odometry topic of the ROS bags (query and map).", rich_help_panel="catgraph inputs"),
     map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV.", rich_help_panel="catgraph inputs"),
     out_text: Optional[str] = typer.Option(None, "--out", "-o", callback=results_out, show_default="QUERY-DESCRIPTOR-METHOD.csv here",
@@ -85,7 +85,7 @@ def localize(
                    "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
                    "map_names": (reference is not None and is_matrix_file(reference),
                                  "a descriptor matrix file as --map"),
-                   **{name: (reference is not None, "map mode (--map)") for name in ("odometry", "map_odometry", "odometry_topic")},
+                   "map_odometry": (reference is not None, "map mode (--map)"),
                    "exclude_recent": (reference is None or "map_self" in method_class(method).needs,
                                       "sequence mode, and in map mode to the methods that learn from the map's "
                                       f"differences to itself ({', '.join(learning_from_the_map())})"),

@@ -93,7 +93,8 @@ class Localizer:
         first frames took 7 s of CPU on a machine that had not built them yet. Against a map the
         copy steps over three map frames; in sequence mode, where the filter starts only once the
         run has frames enough (frame 72 with catgraph's defaults), over made-up frames
-        (:meth:`RunSession.made_up_rows`) until it decides with every value it gives, then
+        (:meth:`RunSession.made_up_rows`, each with a step of odometry where the run's frames must
+        have one: ``Method.odometry_next``) until it decides with every value it gives, then
         :data:`SETTLED_FRAMES` more (at most :data:`TRIAL_FRAMES` in all). The copy is dropped:
         the localizer's own state, its random generator's too, is untouched, so its decisions do
         not change."""
@@ -104,7 +105,7 @@ class Localizer:
             return
         settled = 0
         for _, row in zip(range(TRIAL_FRAMES), self._session.made_up_rows(trial.frames)):
-            decision = trial.step(row)
+            decision = trial.step(row, 1.0 if trial.odometry_next() else None)
             whole = np.isfinite(decision.confidence) and ("new_place" not in trial.columns
                                                           or np.isfinite(decision.new_place))
             settled += bool(whole or settled)

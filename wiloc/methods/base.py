@@ -205,6 +205,11 @@ class Method(ABC):
         """Raise a WilocError naming ``odometry`` when this run cannot take a frame's odometry (a
         method that reads it checks its map here), before anything of the frame is decided."""
 
+    def odometry_next(self) -> bool | None:
+        """Whether the next frame must come with odometry (True), must come without (False), or
+        may come either way (None, the default)."""
+        return None
+
     @abstractmethod
     def prepare(self, context: MapContext) -> None:
         """Learn from the map what the method needs before the first query frame."""

@@ -39,7 +39,7 @@ from wiloc.methods.base import MapContext, Method
 from wiloc.methods.catgraph.observation import RankLikelihood, Unexplained, novelty_weights
 from wiloc.methods.catgraph.paces import odometry_factors, reseed_counts, sequence_paces
 from wiloc.methods.catgraph.params import CatGraphParams
-from wiloc.methods.catgraph.trajectory import (even_shifted_reads, locate, lowest_nodes, node_positions,
+from wiloc.methods.catgraph.trajectory import (Trail, even_shifted_reads, locate, lowest_nodes, node_positions,
                                                posterior_ranking, read_runs, shifted_reads, smallest, systematic,
                                                track_pace)
 from wiloc.recycled import RecycledArrays
@@ -74,16 +74,16 @@ class CatGraph(Method):
     slower than ``rank_pace_min`` rank no node); each moves at the speed whose trajectory scored
     best at its node (half of the forward ones at the map's pace). The particles start at paces
     drawn from a prior (``start_paces``: the other paces' share of the mass). Once frames come
-    with odometry, which measures the query's pace, a pace is its direction alone: the signs of
-    ``sequence_speeds`` (1, and -1 when it has backward paces), for the particles and the
-    sequence score alike (:meth:`_set_paces`), each particle's times its own factor near 1
-    (``odometry_scale``), which the two odometries' scales may differ by.
+    with odometry, which measures the query's pace, a pace is its direction alone (the signs of
+    ``sequence_speeds``) for the sequence score, and for each particle its direction times a
+    factor of its own near 1 (``odometry_scale``), which the two odometries' scales may differ by.
     Each decision is the node at the density mode (the largest weight mass within
     +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
     the confidence (that mass times 1 - P(new place)) and P(new place). The same seed gives
     identical decisions, on any CPU. Started in sequence mode (no map) the map grows with the
-    traversal (:meth:`_grow`). A particle carried past either end of the map is re-seeded; on a
-    map its weight goes to the unexplained hypothesis (the query has left the mapped route).
+    traversal (:meth:`_grow`), its nodes placed by the traversal's own odometry when its frames
+    come with it (:class:`Trail`). A particle carried past either end of the map is re-seeded; on
+    a map its weight goes to the unexplained hypothesis (the query has left the mapped route).
     """
 
     name = "catgraph"
@@ -107,9 +107,9 @@ class CatGraph(Method):
         self._odometry = False  # whether any step came with odometry
         if context.sequence:
             if context.arclength is not None:
-                raise WilocError("catgraph", "takes no map odometry in sequence mode (the map grows by one frame "
-                                             "index per frame)", parameter="map_odometry")
-            self._nodes = np.empty(0)
+                raise WilocError("catgraph", "takes no map odometry in sequence mode (the map is the traversal, "
+                                             "placed by its own odometry: the query's)", parameter="map_odometry")
+            self._nodes, self._trail = np.empty(0), Trail()
             return
         if context.neighbours is None:
             raise WilocError("catgraph", "needs a map (a reference trajectory)", parameter="reference")
@@ -154,12 +154,13 @@ class CatGraph(Method):
         the first two). A new node's sequence score starts at 0, a contrast-normalised row's mean;
         the particles stay where they are."""
         if self._nodes.size == 0:
-            self._begin(np.arange(n_nodes, dtype=np.float64), np.ones(n_nodes), 1.0 - self.params.rejoin)
+            self._begin(self._trail.nodes(n_nodes), np.ones(n_nodes), 1.0 - self.params.rejoin)
             return
         old = self._nodes.size
         if n_nodes == old:
             return
-        self._nodes = np.arange(n_nodes, dtype=np.float64)
+        self._nodes = self._trail.nodes(n_nodes)
+        self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
         self._omega = np.ones(n_nodes)
         sequence = np.zeros((self._paces.size, n_nodes))
         sequence[:, :old] = self._sequence
@@ -173,13 +174,11 @@ class CatGraph(Method):
         """Each particle's pace and log weight before any frame. The query's pace is not known at
         the start: half of the particles (``START_DEALT``) cycle through the paces of
         ``sequence_speeds`` other than the map's, the rest move at the map's pace, and the weights
-        give the other paces together the prior probability ``start_paces``. A particle at every
-        pace from the first frame lets a query at another pace be followed from its start, where
-        re-seeded particles (given the jump's prior mass) take tens of frames to outweigh a cloud
-        that lags or runs ahead; the weights keep the map's pace the likelier one, so weak
-        evidence at the start does not hand the track to a lagging pace. The particles start
-        evenly spaced and the paces are dealt in a fixed pattern along them: every stretch of the
-        map starts with the same mix, as it starts with the same mass."""
+        give the other paces together the prior probability ``start_paces``: a query at another
+        pace is followed from its start (re-seeded particles take tens of frames to outweigh a
+        cloud that lags), and weak evidence at the start does not hand the track to a lagging
+        pace. The paces are dealt in a fixed pattern along the evenly spaced particles: every
+        stretch of the map starts with the same mix, as it starts with the same mass."""
         p = self.params
         speed, log_w = np.ones(p.particles), np.full(p.particles, -np.log(p.particles))
         others = np.asarray([v for v in p.sequence_speeds if v != 1.0], dtype=np.float64)
@@ -219,7 +218,7 @@ class CatGraph(Method):
         frame of equal step (always, without odometry), so they are computed once per distinct step."""
         if self._shifted is None or self._shifted[0] != u:
             shifts = self._paces * u
-            if self._growing:  # the nodes 0, 1, ..., n - 1, one more each frame
+            if self._growing and not self._trail.odometry:  # the nodes 0, 1, ..., n - 1, one more each frame
                 self._shifted = (u, even_shifted_reads(self._nodes.size, shifts))
             else:
                 at, a = shifted_reads(self._nodes, shifts)
@@ -267,8 +266,9 @@ class CatGraph(Method):
         from wiloc.methods.catgraph import filter_kernels
 
         if self._growing:  # sequence mode: the map is the run's frames before the recent window and the frontier
+            self._trail.add(self.frames, odometry)
             n_map = self.frames - self.context.exclude_recent - self.params.frontier
-            if n_map < 2:
+            if not self._trail.spans(n_map):
                 return Decision(match=-1, difference=float("nan"), confidence=float("nan"), stage="none")
             self._grow(n_map)
             row = row[:n_map]
@@ -415,13 +415,15 @@ class CatGraph(Method):
         return self._unexplained.u if self._growing else self._unexplained.new_place
 
     def check_odometry(self) -> None:
-        """A query frame's odometry needs the map's positions in the same units; sequence mode,
-        whose map grows by one frame index per frame, takes none."""
-        if self._growing:
-            raise WilocError("catgraph", "takes no odometry in sequence mode", parameter="odometry")
-        if self.context.arclength is None:
+        """A query frame's odometry needs the map's positions in the same units (in sequence mode
+        the map is placed by the query's own odometry: :class:`Trail`)."""
+        if not self._growing and self.context.arclength is None:
             raise WilocError(None, "a query odometry needs the map's too (map_odometry), in the same units",
                              parameter="odometry")
+
+    def odometry_next(self) -> bool | None:
+        """In sequence mode, from the third frame: as the frames before (:class:`Trail`)."""
+        return self._trail.odometry if self._growing and self.frames > 1 else None
 
     def _travelled(self, odometry: float | None) -> float:
         """u_k: the query's odometry step (checked by :meth:`Method.step`), else the mean node
@@ -451,9 +453,10 @@ class CatGraph(Method):
                 "departure_share": self._unexplained.q if hasattr(self, "_unexplained") else None}
 
     def save_state(self) -> dict[str, Any]:
+        trail = {"trail": self._trail.positions(), "trail_odometry": self._trail.odometry} if self._growing else {}
         if self._nodes.size == 0:  # sequence mode before the filter starts
-            return {"nodes": self._nodes, "filtered": 0}
-        return {"nodes": self._nodes, "filtered": self._filtered, "omega": self._omega, "pos": self._pos,
+            return {"nodes": self._nodes, "filtered": 0, **trail}
+        return {**trail, "nodes": self._nodes, "filtered": self._filtered, "omega": self._omega, "pos": self._pos,
                 "speed": self._speed, "log_w": self._log_w, "sequence": self._sequence.copy(), "own": self._own.copy(),
                 "odometer": self._odometer,
                 "odometry": self._odometry, "likelihood": self._likelihood.state(),
@@ -467,6 +470,8 @@ class CatGraph(Method):
         self._filtered = int(state["filtered"])
         self._nodes = np.asarray(state["nodes"], dtype=np.float64)
         self._odometry = False
+        if self._growing:  # a state saved before sequence mode took odometry has none
+            self._trail = Trail(state.get("trail_odometry", False if self.frames > 1 else None), state.get("trail"))
         if self._nodes.size == 0:
             return
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
