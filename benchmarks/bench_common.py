@@ -1,5 +1,6 @@
 """What the benchmarks that run methods on re-sampled real traversals share (``bench_pace``,
-``bench_loops``): where the data is, ``--param method.key=value`` options, and printing; and the
+``bench_loops``): where the data is, ``--param method.key=value`` options, the ``--odometry``
+noise, and printing; and the
 console every benchmark prints with, and the line a failed child process is reported by."""
 from __future__ import annotations
 
@@ -11,9 +12,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
 from rich.console import Console
 
 REPO = Path(__file__).resolve().parents[1]
+ODOMETRY_SEED = 0  # the draw of --odometry's noise: every method and run gets the same steps
 
 
 def default_data_root() -> Path:
@@ -33,6 +37,29 @@ def parser(doc: str, methods: str, example: str) -> argparse.ArgumentParser:
                       help=f"a method parameter, repeatable (e.g. {example})")
     made.add_argument("--json", type=Path, default=None, help="write every row to this file")
     return made
+
+
+def add_odometry(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--odometry SD``: give methods that take odometry ``what``, each step noisy (:func:`noisy_steps`)."""
+    parser.add_argument("--odometry", type=float, default=None, metavar="SD",
+                        help=f"give methods that take odometry {what}, each step times 1 + SD x N(0, 1) (0: exact; "
+                             "default: no odometry)")
+
+
+def odometry_problem(noise: float | None) -> str | None:
+    """Why ``--odometry``'s value is refused, or None."""
+    if noise is not None and not (math.isfinite(noise) and noise >= 0):
+        return f"--odometry {noise:g}: give a noise of 0 (exact) or more"
+    return None
+
+
+def noisy_steps(steps: NDArray[np.float64], noise: float, seed: int = ODOMETRY_SEED) -> NDArray[np.float64]:
+    """Travelled distances per frame as an odometry measures them: each times 1 + ``noise`` x
+    N(0, 1), clipped at 0, drawn with ``seed`` (every method and run gets the same steps)."""
+    steps = np.asarray(steps, dtype=np.float64).copy()
+    if noise > 0:
+        steps *= np.maximum(0.0, 1.0 + noise * np.random.default_rng(seed).standard_normal(steps.size))
+    return steps
 
 
 def parse_value(text: str) -> Any:

@@ -3,6 +3,7 @@
     python benchmarks/bench_loops.py                                  # every loop: online, threshold, catgraph
     python benchmarks/bench_loops.py --loops dr+dl,out-back-on --descriptors sad,gist
     python benchmarks/bench_loops.py --param online.init=50 --json loops.json
+    python benchmarks/bench_loops.py --methods catgraph --loops paced --odometry 0   # revisits at another pace
 
 Each *loop* is one traversal in sequence mode (``wiloc localize QUERY`` without ``--map``: every
 frame is compared with the frames before it, the latest ``exclude_recent`` left out), put
@@ -18,6 +19,14 @@ night_right, 200 frames; Nordland: summer, winter):
     u-turn-on    GP day_right 80-199 (out), day_left 199 down to 120 (back over part of it, walked
                  the other way), then day_right 79 down to 0 (on, past the start, to new ground);
                  re-sampled backwards, its frames still face the first pass's way
+
+``--loops paced`` runs four whose revisit does not keep the first pass's pace: dr+dl-2x and
+dr+dl-3x (day_left's every second and third frame), dr+dl-half (day_right's every second frame
+first: the revisit at half its pace) and dr+dl-back (day_left walked from its end to its start).
+
+``--odometry SD`` gives the methods that take odometry (catgraph) the traversal's own odometry:
+each frame's distance from the frame before in places (one place where one part of a loop ends
+and the next begins), each step times 1 + SD x N(0, 1), clipped at 0 (0: exact).
 
 ``--loops held-out`` runs six more, put together the same way from the other traversals, for
 checking on loops not looked at what the five suggested: dl+dr, nr+dl (GP day_left then
@@ -65,14 +74,15 @@ from wiloc.evaluation.reliability import summarize_calibration
 from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
 
-from bench_common import default_data_root, fmt, parse_params, parser as benchmark_parser, plain_console, write_json
+from bench_common import (add_odometry, default_data_root, fmt, noisy_steps, odometry_problem, parse_params,
+                          parser as benchmark_parser, plain_console, write_json)
 
 TOLERANCE = 2  # places either side that count as the same place
 CUTS = (0.9, 0.99)
 SETTLE = 5  # revisit frames left out at the start of each revisit when averaging P(new place)
 GP, NORDLAND = "gardens-point-walking", "nordland-summer-winter-64x32"
 
-#: name -> (dataset, [(folder, first frame, last frame)]): a segment runs backwards when last < first
+#: name -> (dataset, [(folder, first frame, last frame[, every n-th frame])]): backwards when last < first
 LOOPS: dict[str, tuple[str, list[tuple[str, int, int]]]] = {
     "dr+dl": (GP, [("day_right", 0, 199), ("day_left", 0, 199)]),
     "dr+nr": (GP, [("day_right", 0, 199), ("night_right", 0, 199)]),
@@ -86,19 +96,28 @@ LOOPS: dict[str, tuple[str, list[tuple[str, int, int]]]] = {
     "s+w-later": (NORDLAND, [("summer", 1000, 1999), ("winter", 1000, 1999)]),
     "out-back-on-dl": (GP, [("day_left", 0, 119), ("day_right", 40, 119), ("day_left", 120, 199)]),
     "u-turn-on-nr": (GP, [("night_right", 80, 199), ("day_right", 199, 120), ("night_right", 79, 0)]),
+    # paced: the revisit at another pace than the first pass, or walked the other way
+    "dr+dl-2x": (GP, [("day_right", 0, 199), ("day_left", 0, 199, 2)]),
+    "dr+dl-3x": (GP, [("day_right", 0, 199), ("day_left", 0, 199, 3)]),
+    "dr+dl-half": (GP, [("day_right", 0, 199, 2), ("day_left", 0, 199)]),
+    "dr+dl-back": (GP, [("day_right", 0, 199), ("day_left", 199, 0)]),
 }
 HELD_OUT = ("dl+dr", "nr+dl", "w+s", "s+w-later", "out-back-on-dl", "u-turn-on-nr")
-DEFAULT_LOOPS = tuple(name for name in LOOPS if name not in HELD_OUT)
+PACED = ("dr+dl-2x", "dr+dl-3x", "dr+dl-half", "dr+dl-back")
+GROUPS = {"held-out": HELD_OUT, "paced": PACED}
+DEFAULT_LOOPS = tuple(name for name in LOOPS if name not in HELD_OUT + PACED)
 
 
 @dataclass
 class Loop:
-    """One sequence-mode traversal: its descriptors in order and each frame's place."""
+    """One sequence-mode traversal: its descriptors in order, each frame's place and its distance
+    from the frame before, in places (one where a part of the loop begins; 0 for the first)."""
 
     name: str
     descriptor: str
     data: NDArray
     places: NDArray[np.int64]
+    steps: NDArray[np.float64]
     labels: list[str]
     metric: str
     scale: float
@@ -113,19 +132,21 @@ def load_loop(name: str, descriptor: str = "sad", data_root: Path | None = None,
     dataset, segments = LOOPS[name]
     root = Path(data_root or default_data_root()) / dataset
     describer = Describer(descriptor, {}, cache or Cache())
-    parts, places, labels = [], [], []
+    parts, places, steps, labels = [], [], [], []
     entry = None
-    for folder, first, last in segments:
+    for folder, first, last, *every in segments:
         entry = describer.entry(root / folder)
-        frames = np.arange(first, last + 1) if last >= first else np.arange(first, last - 1, -1)
+        way = (every[0] if every else 1) * (1 if last >= first else -1)
+        frames = np.arange(first, last + np.sign(way), way)
         if frames.max() >= len(entry.names):
             raise ValueError(f"{name}: {folder} has {len(entry.names)} frames, the loop needs frame {frames.max()}")
         parts.append(entry.data[frames])
         places.append(frames)
+        steps.append(np.r_[float(bool(steps)), np.abs(np.diff(frames))])
         labels += [f"{folder}/{entry.names[f]}" for f in frames]
     assert entry is not None
     return Loop(name, descriptor, np.ascontiguousarray(np.concatenate(parts)), np.concatenate(places).astype(np.int64),
-                labels, entry.metric, entry.scale, entry.natural_max)
+                np.concatenate(steps).astype(np.float64), labels, entry.metric, entry.scale, entry.natural_max)
 
 
 def truth(loop: Loop, exclude_recent: int = DEFAULT_EXCLUDE_RECENT, tolerance: int = TOLERANCE) -> Truth:
@@ -137,11 +158,13 @@ def truth(loop: Loop, exclude_recent: int = DEFAULT_EXCLUDE_RECENT, tolerance: i
 
 
 def decide(loop: Loop, method: str, params: Mapping[str, Any] | None = None,
-           exclude_recent: int = DEFAULT_EXCLUDE_RECENT) -> Decisions:
+           exclude_recent: int = DEFAULT_EXCLUDE_RECENT, odometry: float | None = None) -> Decisions:
     """The method's decisions in sequence mode, started and fed as ``wiloc.api.localize`` does
-    for a folder holding the loop's frames without ``--map``."""
+    for a folder holding the loop's frames without ``--map``; with ``odometry`` (a noise) and a
+    method that takes it, as it runs with the loop's odometry CSV (``Loop.steps``, noisy)."""
     algo = make_method(method, params)
-    algo.check_inputs(sequence=True, training=False)
+    with_odometry = odometry is not None and "odometry" in algo.needs
+    algo.check_inputs(sequence=True, training=False, odometry=with_odometry)
     problem = algo.query_problem(loop.places.size, True, exclude_recent)
     if problem is not None:
         raise ValueError(f"{method} on {loop.name}: {problem}")
@@ -149,7 +172,7 @@ def decide(loop: Loop, method: str, params: Mapping[str, Any] | None = None,
     algo.start(MapContext(sequence=True, exclude_recent=exclude_recent, natural_max=loop.natural_max,
                           map_summary=lambda: summarize_self(ComputedDifferences(loop.data, to_self), exclude_recent)))
     rows = candidate_blocks(ComputedDifferences(loop.data, to_self), True, exclude_recent)
-    return algo.run(rows, loop.places.size)
+    return algo.run(rows, loop.places.size, odometry=noisy_steps(loop.steps, odometry) if with_odometry else None)
 
 
 def settled_revisits(has_match: NDArray[np.bool_], settle: int = SETTLE) -> NDArray[np.bool_]:
@@ -179,18 +202,24 @@ def score(decisions: Decisions, loop: Loop, exclude_recent: int = DEFAULT_EXCLUD
             "new_revisit": float(new_place[revisit].mean()) if revisit.any() else float("nan")}
 
 
-def run_loop(loop: Loop, method: str, params: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """One run's measures, with the loop, method and seconds taken."""
+def run_loop(loop: Loop, method: str, params: Mapping[str, Any] | None = None,
+             odometry: float | None = None) -> dict[str, Any]:
+    """One run's measures, with the loop, method, the odometry's noise (None: none given) and
+    seconds taken."""
     started = time.perf_counter()
-    decisions = decide(loop, method, params)
+    decisions = decide(loop, method, params, odometry=odometry)
+    given = None if odometry is None or "odometry" not in METHODS[method].needs else odometry
     return {"loop": loop.name, "descriptor": loop.descriptor, "method": method, "params": dict(params or {}),
+            "odometry": given,
             **score(decisions, loop), "seconds": time.perf_counter() - started}
 
 
-def render(rows: list[dict[str, Any]]) -> Table:
-    """A row per loop, descriptor and method."""
+def render(rows: list[dict[str, Any]], odometry: float | None = None) -> Table:
+    """A row per loop, descriptor and method (``odometry``: the noise of the odometry given to
+    the methods that take it)."""
+    given = "" if odometry is None else f", odometry (noise sd {odometry:g} a step) to methods that take it"
     table = Table(title=f"sequence mode, ground truth +-{TOLERANCE} places, exclude_recent "
-                        f"{DEFAULT_EXCLUDE_RECENT}", title_justify="left")
+                        f"{DEFAULT_EXCLUDE_RECENT}{given}", title_justify="left")
     for column in ("loop", "descr.", "method", "frames / revisits", "R@100P", "AP", "R@1 rev.", "ECE",
                    *(f"P@{cut:g} (n)" for cut in CUTS), "P(new) first", "P(new) revisit"):
         table.add_column(column, justify="left" if column in ("loop", "descr.", "method") else "right")
@@ -205,12 +234,16 @@ def render(rows: list[dict[str, Any]]) -> Table:
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     parser = benchmark_parser(__doc__, "online,threshold,catgraph", "online.init=50")
     parser.add_argument("--loops", default=",".join(DEFAULT_LOOPS),
-                        help="comma-separated (default: %(default)s; 'held-out': " + ", ".join(HELD_OUT) + ")")
+                        help="comma-separated (default: %(default)s; " + "; ".join(
+                            f"'{group}': {', '.join(names)}" for group, names in GROUPS.items()) + ")")
     parser.add_argument("--descriptors", default="sad", help="comma-separated (default: %(default)s)")
+    add_odometry(parser, "the traversal's own steps")
     args = parser.parse_args(argv)
+    if odometry_problem(args.odometry):
+        parser.error(odometry_problem(args.odometry))
     console = plain_console() if plain_console().is_terminal else plain_console(width=200)
     loops = [loop for name in args.loops.split(",") if name.strip()
-             for loop in (HELD_OUT if name.strip() == "held-out" else [name.strip()])]
+             for loop in GROUPS.get(name.strip(), [name.strip()])]
     methods = [name.strip() for name in args.methods.split(",") if name.strip()]
     for name in loops:
         if name not in LOOPS:
@@ -235,10 +268,10 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         for descriptor in descriptors:
             for name in loops:
                 loop = load_loop(name, descriptor, args.data)
-                rows += [run_loop(loop, method, params[method]) for method in methods]
+                rows += [run_loop(loop, method, params[method], args.odometry) for method in methods]
     except WilocError as exc:  # the data: a folder missing or unreadable
         parser.exit(exc.exit_code, f"error: {exc}\n")
-    console.print(render(rows))
+    console.print(render(rows, args.odometry))
     write_json(args.json, rows, console)
     return rows
 

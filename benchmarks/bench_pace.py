@@ -100,7 +100,8 @@ from wiloc.evaluation.reliability import summarize_calibration, summarize_new_pl
 from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
 
-from bench_common import default_data_root, fmt, parse_params, parser as benchmark_parser, plain_console, write_json
+from bench_common import (ODOMETRY_SEED, add_odometry, default_data_root, fmt, noisy_steps, odometry_problem,
+                          parse_params, parser as benchmark_parser, plain_console, write_json)
 
 TOLERANCE = 2  # map nodes either side of the true node that count as the same place
 CUT = 0.9  # the confidence above which precision is reported
@@ -117,7 +118,6 @@ TRAVERSALS: dict[str, tuple[str, str, str, str]] = {
 VARIANTS = ("same", "pace-1/3", "pace-1/2", "pace-2", "pace-3", "reversed", "stop", "u-turn", "jump", "drift")
 OFF_MAP_VARIANTS = ("start-off", "leave")  # run when named: part of the query has no place on the map
 NO_NODE = -1  # the true node of a query frame whose place is not on the map
-ODOMETRY_SEED = 0  # the draw of --odometry's noise: every method and run gets the same steps
 
 
 # ------------------------------------------------------------------------------------------ variants
@@ -278,10 +278,7 @@ def odometry_steps(variant: Variant, noise: float, factor: float = 1.0,
     """The query's travelled distance per frame, in route frames (0 for its first frame and a
     repeated one) times ``factor`` (a scale the query's odometry and the map's disagree by), each
     step times 1 + ``noise`` x N(0, 1), clipped at 0, drawn with ``seed``."""
-    steps = factor * np.r_[0.0, np.abs(np.diff(variant.query_frames))].astype(np.float64)
-    if noise > 0:
-        steps *= np.maximum(0.0, 1.0 + noise * np.random.default_rng(seed).standard_normal(steps.size))
-    return steps
+    return noisy_steps(factor * np.r_[0.0, np.abs(np.diff(variant.query_frames))], noise, seed)
 
 
 def decide(traversal: Traversal, variant: Variant, method: str = "catgraph",
@@ -420,15 +417,13 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     parser.add_argument("--seeds", default=None, help="run methods that take a seed once per seed and print "
                         "the means, e.g. 0-4 or 0,3,7-9 (instead of --seed)")
     parser.add_argument("--frames", type=int, default=None, help="keep only the first N route frames")
-    parser.add_argument("--odometry", type=float, default=None, metavar="SD",
-                        help="give methods that take odometry the query's steps and the map's positions, each "
-                             "step times 1 + SD x N(0, 1) (0: exact; default: no odometry)")
+    add_odometry(parser, "the query's steps and the map's positions")
     parser.add_argument("--odometry-factor", type=float, default=1.0, metavar="F",
                         help="with --odometry: the query's odometry F times the map's (a scale the two disagree "
                              "by; default: 1)")
     args = parser.parse_args(argv)
-    if args.odometry is not None and not (math.isfinite(args.odometry) and args.odometry >= 0):
-        parser.error(f"--odometry {args.odometry:g}: give a noise of 0 (exact) or more")
+    if odometry_problem(args.odometry):
+        parser.error(odometry_problem(args.odometry))
     if not (math.isfinite(args.odometry_factor) and args.odometry_factor > 0):
         parser.error(f"--odometry-factor {args.odometry_factor:g}: give a factor above 0")
     if args.odometry is None and args.odometry_factor != 1.0:

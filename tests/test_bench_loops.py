@@ -12,6 +12,7 @@ from helpers import benchmark_module
     (["--descriptors", "sad,nosuch"], 2, "error: --descriptors: unknown descriptor 'nosuch'"),
     (["--param", "online.nosuch=1"], 2, "error: --param online.nosuch: not a parameter of method 'online'"),
     (["--param", "online.init=0"], 2, "error: --param online.init: must be >= 1, got 0"),
+    (["--odometry", "-0.1"], 2, "error: --odometry -0.1: give a noise of 0 (exact) or more"),
     ([], 1, "gardens-point-walking/day_right: folder does not exist"),
 ])
 def test_bad_options_and_missing_data_are_one_line(args: list[str], code: int, line: str, tmp_path: Path,
