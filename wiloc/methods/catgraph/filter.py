@@ -39,7 +39,8 @@ from wiloc.methods.base import MapContext, Method
 from wiloc.methods.catgraph.observation import RankLikelihood, Unexplained, novelty_weights
 from wiloc.methods.catgraph.paces import odometry_factors, reseed_counts, sequence_paces
 from wiloc.methods.catgraph.params import CatGraphParams
-from wiloc.methods.catgraph.trajectory import (Trail, even_shifted_reads, locate, lowest_nodes, node_positions,
+from wiloc.methods.catgraph.self_map import SelfMap
+from wiloc.methods.catgraph.trajectory import (even_shifted_reads, locate, lowest_nodes, node_positions,
                                                posterior_ranking, read_runs, shifted_reads, smallest, systematic,
                                                track_pace)
 from wiloc.recycled import RecycledArrays
@@ -81,8 +82,8 @@ class CatGraph(Method):
     +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
     the confidence (that mass times 1 - P(new place)) and P(new place). The same seed gives
     identical decisions, on any CPU. Started in sequence mode (no map) the map grows with the
-    traversal (:meth:`_grow`), its nodes placed by the traversal's own odometry when its frames
-    come with it (:class:`Trail`). A particle carried past either end of the map is re-seeded; on
+    traversal (:meth:`_grow`; :class:`~wiloc.methods.catgraph.self_map.SelfMap`: its nodes
+    placed by the traversal's own odometry when its frames come with it, near-duplicates damped). A particle carried past either end of the map is re-seeded; on
     a map its weight goes to the unexplained hypothesis (the query has left the mapped route).
     """
 
@@ -109,7 +110,7 @@ class CatGraph(Method):
             if context.arclength is not None:
                 raise WilocError("catgraph", "takes no map odometry in sequence mode (the map is the traversal, "
                                              "placed by its own odometry: the query's)", parameter="map_odometry")
-            self._nodes, self._trail = np.empty(0), Trail()
+            self._nodes, self._self_map = np.empty(0), SelfMap()
             return
         if context.neighbours is None:
             raise WilocError("catgraph", "needs a map (a reference trajectory)", parameter="reference")
@@ -152,16 +153,16 @@ class CatGraph(Method):
     def _grow(self, n_nodes: int) -> None:
         """Sequence mode: the map extended to its first ``n_nodes`` frames (the filter started on
         the first two). A new node's sequence score starts at 0, a contrast-normalised row's mean;
-        the particles stay where they are."""
+        the particles stay where they are. Nodes whose steps the rows bound near 0 are damped."""
+        omega = self._self_map.bounds.weights(n_nodes, self.params.near_duplicate)  # old nodes' too: bounds grow
         if self._nodes.size == 0:
-            self._begin(self._trail.nodes(n_nodes), np.ones(n_nodes), 1.0 - self.params.rejoin)
+            self._begin(self._self_map.trail.nodes(n_nodes), omega, 1.0 - self.params.rejoin)
             return
-        old = self._nodes.size
+        old, self._omega = self._nodes.size, omega
         if n_nodes == old:
             return
-        self._nodes = self._trail.nodes(n_nodes)
+        self._nodes = self._self_map.trail.nodes(n_nodes)
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
-        self._omega = np.ones(n_nodes)
         sequence = np.zeros((self._paces.size, n_nodes))
         sequence[:, :old] = self._sequence
         self._sequence, self._spare = sequence, None
@@ -218,7 +219,7 @@ class CatGraph(Method):
         frame of equal step (always, without odometry), so they are computed once per distinct step."""
         if self._shifted is None or self._shifted[0] != u:
             shifts = self._paces * u
-            if self._growing and not self._trail.odometry:  # the nodes 0, 1, ..., n - 1, one more each frame
+            if self._growing and not self._self_map.trail.odometry:  # the nodes 0, 1, ..., n - 1, one more each frame
                 self._shifted = (u, even_shifted_reads(self._nodes.size, shifts))
             else:
                 at, a = shifted_reads(self._nodes, shifts)
@@ -266,9 +267,10 @@ class CatGraph(Method):
         from wiloc.methods.catgraph import filter_kernels
 
         if self._growing:  # sequence mode: the map is the run's frames before the recent window and the frontier
-            self._trail.add(self.frames, odometry)
             n_map = self.frames - self.context.exclude_recent - self.params.frontier
-            if not self._trail.spans(n_map):
+            self._self_map.add(self.frames, odometry, row[:max(0, self.frames - self.context.exclude_recent)], n_map,
+                               bounds=self._sign > 0)  # FAB-MAP's evidence bounds no step
+            if not self._self_map.trail.spans(n_map):
                 return Decision(match=-1, difference=float("nan"), confidence=float("nan"), stage="none")
             self._grow(n_map)
             row = row[:n_map]
@@ -415,15 +417,14 @@ class CatGraph(Method):
         return self._unexplained.u if self._growing else self._unexplained.new_place
 
     def check_odometry(self) -> None:
-        """A query frame's odometry needs the map's positions in the same units (in sequence mode
-        the map is placed by the query's own odometry: :class:`Trail`)."""
+        """A query frame's odometry needs the map's positions in the same units (sequence mode: its own)."""
         if not self._growing and self.context.arclength is None:
             raise WilocError(None, "a query odometry needs the map's too (map_odometry), in the same units",
                              parameter="odometry")
 
     def odometry_next(self) -> bool | None:
-        """In sequence mode, from the third frame: as the frames before (:class:`Trail`)."""
-        return self._trail.odometry if self._growing and self.frames > 1 else None
+        """In sequence mode, from the third frame: as the frames before (``self_map.Trail``)."""
+        return self._self_map.trail.odometry if self._growing and self.frames > 1 else None
 
     def _travelled(self, odometry: float | None) -> float:
         """u_k: the query's odometry step (checked by :meth:`Method.step`), else the mean node
@@ -436,10 +437,9 @@ class CatGraph(Method):
         return odometry
 
     def _paces_to_directions(self) -> None:
-        """At the first frame with odometry: every particle's pace becomes its direction times
-        its factor (:func:`~wiloc.methods.catgraph.paces.odometry_factors`), and the sequence
-        score keeps the trajectories of paces 1 and -1 (a direction whose pace it did not have
-        starts at 0, a contrast-normalised row's mean)."""
+        """At the first frame with odometry: every particle's pace becomes its direction times its
+        factor (:func:`~wiloc.methods.catgraph.paces.odometry_factors`); the sequence score keeps
+        paces 1 and -1 (a direction it did not have starts at 0, a contrast-normalised row's mean)."""
         before = self._paces
         self._set_paces()
         kept = [np.flatnonzero(before == pace) for pace in self._paces]
@@ -453,7 +453,7 @@ class CatGraph(Method):
                 "departure_share": self._unexplained.q if hasattr(self, "_unexplained") else None}
 
     def save_state(self) -> dict[str, Any]:
-        trail = {"trail": self._trail.positions(), "trail_odometry": self._trail.odometry} if self._growing else {}
+        trail = self._self_map.state() if self._growing else {}
         if self._nodes.size == 0:  # sequence mode before the filter starts
             return {"nodes": self._nodes, "filtered": 0, **trail}
         return {**trail, "nodes": self._nodes, "filtered": self._filtered, "omega": self._omega, "pos": self._pos,
@@ -471,7 +471,7 @@ class CatGraph(Method):
         self._nodes = np.asarray(state["nodes"], dtype=np.float64)
         self._odometry = False
         if self._growing:  # a state saved before sequence mode took odometry has none
-            self._trail = Trail(state.get("trail_odometry", False if self.frames > 1 else None), state.get("trail"))
+            self._self_map = SelfMap(state, self.frames)
         if self._nodes.size == 0:
             return
         self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))

@@ -16,7 +16,8 @@ the derivation and the measurements behind every default.
   low in many rows): t is divided by the mean t the node has had in the run's rows (never
   below 1), learned online as ``a`` is.
 - ``novelty_weights``: map frames that nearly repeat their neighbours (a stopped vehicle) are not
-  independent evidence; at node j the model uses a_j = 1 - omega_j (1 - a).
+  independent evidence; at node j the model uses a_j = 1 - omega_j (1 - a) (in sequence mode
+  from bounds of the steps: ``wiloc.methods.catgraph.self_map``).
 - ``Unexplained`` (in place of the paper's new location particle, eqs 9-10): a two-state chain
   for "the frame is not explained by the map" (a new place or a blind spot of the map), with
   hazards of leaving and re-entering the map and a small chance of
@@ -34,19 +35,22 @@ from numpy.typing import NDArray
 from wiloc.recycled import RecycledArrays
 
 
-def novelty_weights(neighbours: NDArray[np.float64], threshold: float) -> NDArray[np.float64]:
-    """omega_j = min(1, c_j / (threshold * median c)), c_j node j's mean difference to its two
-    neighbours on the map (``neighbours[j]`` = d(j, j + 1)); all ones when ``threshold`` is 0."""
+def novelty_weights(neighbours: NDArray[np.float64], threshold: float,
+                    median: float | None = None) -> NDArray[np.float64]:
+    """omega_j = min(1, c_j / (threshold * median)), c_j node j's mean difference to its two
+    neighbours on the map (``neighbours[j]`` = d(j, j + 1)) and ``median`` theirs (computed when
+    not given); all ones when ``threshold`` is 0."""
     n = neighbours.size + 1
     if threshold <= 0 or n < 2:
         return np.ones(n)
     c = np.empty(n)
     c[0], c[-1] = neighbours[0], neighbours[-1]
     c[1:-1] = 0.5 * (neighbours[:-1] + neighbours[1:])
-    median = float(np.median(neighbours))
+    median = float(np.median(neighbours)) if median is None else median
     if median <= 0:
         return np.ones(n)
-    return np.clip(c / (threshold * median), 0.0, 1.0)
+    c /= threshold * median
+    return np.minimum(np.maximum(c, 0.0, out=c), 1.0, out=c)  # np.clip's values, in a tenth of its time
 
 
 def rank_table(n: int) -> NDArray[np.float64]:

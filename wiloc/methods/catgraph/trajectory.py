@@ -1,8 +1,7 @@
 """The CAT-Graph filter's operations on plain arrays along the reference trajectory (used by
 ``wiloc.methods.catgraph.filter``): the nodes' positions and where particles sit between them, the
 sequence score's contrast and shifted reads, choosing among ties the same on every CPU,
-systematic resampling, the posterior's ranking of the map and pace at the decided node, and in
-sequence mode the traversal's own positions (:class:`Trail`). docs/catgraph.md gives the filter
+systematic resampling, and the posterior's ranking of the map and pace at the decided node. docs/catgraph.md gives the filter
 they serve.
 """
 from __future__ import annotations
@@ -134,55 +133,3 @@ def systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArra
     pointers = (rng.random() + np.arange(m)) / m
     return np.searchsorted(cum, pointers, side="left")
 
-
-class Trail:
-    """Sequence mode: where each frame of the traversal was taken, the positions its map's nodes
-    take as it grows. With odometry (given with every frame after the first: the distance since
-    the frame before) the distance travelled from the first frame; without, the frame index. The
-    first frame's odometry, a distance from no frame, is not read."""
-
-    def __init__(self, odometry: bool | None = None, positions: NDArray[np.float64] | None = None) -> None:
-        """A trail whose frames come with odometry (True), without (False) or not yet known
-        (None: before the second frame), at these positions so far (with odometry)."""
-        self.odometry = odometry
-        given = np.empty(0) if positions is None else np.asarray(positions, dtype=np.float64)
-        self._positions = np.concatenate((given, np.zeros(max(16, given.size))))
-        self._size = given.size
-
-    def add(self, frame: int, odometry: float | None) -> None:
-        """Frame ``frame`` (the next), with its odometry step or None; a WilocError naming
-        ``odometry`` when frames after the first mix steps and none, before anything is added."""
-        if frame == 0:
-            return
-        if frame == 1:
-            self.odometry = odometry is not None
-            if self.odometry:
-                self._append(0.0)
-        elif (odometry is not None) != self.odometry:
-            raise WilocError("catgraph", f"query frame {frame}: in sequence mode odometry comes with every frame "
-                                         "after the first or with none", parameter="odometry")
-        if odometry is not None:
-            self._append(self._positions[self._size - 1] + odometry)
-
-    def _append(self, position: float) -> None:
-        if self._size == self._positions.size:
-            self._positions = np.concatenate((self._positions, np.zeros(self._size)))
-        self._positions[self._size] = position
-        self._size += 1
-
-    def nodes(self, n: int) -> NDArray[np.float64]:
-        """The positions of the first ``n`` frames (read-only)."""
-        if not self.odometry:
-            return np.arange(n, dtype=np.float64)
-        nodes = self._positions[:n]
-        nodes.flags.writeable = False
-        return nodes
-
-    def spans(self, n: int) -> bool:
-        """Whether the first ``n`` frames (at least 2) lie along a route of some length: a
-        traversal standing still since its first frame has no map to move along yet."""
-        return n >= 2 and (not self.odometry or bool(self._positions[n - 1] > self._positions[0]))
-
-    def positions(self) -> NDArray[np.float64]:
-        """The positions so far (empty without odometry)."""
-        return self._positions[:self._size].copy()
