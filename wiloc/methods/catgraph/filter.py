@@ -81,10 +81,10 @@ class CatGraph(Method):
     Each decision is the node at the density mode (the largest weight mass within
     +-``mode_window`` nodes; among tied nodes the one holding most weight itself), its difference,
     the confidence (that mass times 1 - P(new place)) and P(new place). The same seed gives
-    identical decisions, on any CPU. Started in sequence mode (no map) the map grows with the
-    traversal (:meth:`_grow`; :class:`~wiloc.methods.catgraph.self_map.SelfMap`: its nodes
-    placed by the traversal's own odometry when its frames come with it, near-duplicates damped). A particle carried past either end of the map is re-seeded; on
-    a map its weight goes to the unexplained hypothesis (the query has left the mapped route).
+    identical decisions, on any CPU. In sequence mode (no map) the map grows with the traversal
+    (:meth:`_grow`, :class:`~wiloc.methods.catgraph.self_map.SelfMap`: placed by its own odometry
+    when it has one, near-duplicates damped). A particle carried past either end of the map is
+    re-seeded; on a map its weight goes to the unexplained hypothesis (it left the mapped route).
     """
 
     name = "catgraph"

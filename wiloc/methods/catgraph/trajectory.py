@@ -132,4 +132,3 @@ def systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArra
     cum[-1] = 1.0
     pointers = (rng.random() + np.arange(m)) / m
     return np.searchsorted(cum, pointers, side="left")
-
