@@ -1,6 +1,7 @@
 """Local features, clustering, the visual vocabulary and its cache file, the bow descriptor."""
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -215,6 +216,23 @@ def test_a_vocabulary_is_the_same_whatever_the_processes_extracting_its_features
     assert np.array_equal(parallel.centres, serial.centres)
     assert np.array_equal(parallel.training_occurrences, serial.training_occurrences)
     assert len(list((tmp_path / "two" / "features").rglob("*.h5"))) == 40
+
+
+def test_the_command_takes_the_processes_that_extract_features(tmp_path: Path, cache_dir: Path) -> None:
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+
+    runner = CliRunner()
+    folder = _folder(tmp_path / "train", range(6))
+    small = ["--words", "16", "--max-features", "60", "--max-side", "320", "--iterations", "10"]
+    refused = runner.invoke(app, ["vocabulary", str(folder), *small, "--jobs", "0", "--cache", str(cache_dir)])
+    assert refused.exit_code == 2 and refused.output.strip() == "error: --jobs: must be at least 1, got 0"
+    assert not (cache_dir / "features").exists()  # refused before any feature was extracted
+    built = runner.invoke(app, ["vocabulary", str(folder), *small, "--jobs", "1", "--cache", str(cache_dir), "--json"])
+    assert built.exit_code == 0, built.output
+    key = json.loads(built.stdout)["results"][0]["key"]
+    assert key == build_vocabulary([folder], Cache(tmp_path / "other"), SMALL).vocabulary.key
 
 
 def test_too_many_words_for_the_features_is_a_usage_error(tmp_path: Path, cache_dir: Path) -> None:

@@ -8,7 +8,7 @@ from typing import Any
 import typer
 
 from wiloc.cli.core import Notes, fail, handles_errors, out, print_line
-from wiloc.cli.options import CacheOption
+from wiloc.cli.options import CacheOption, JobsOption
 from wiloc.cli.params import with_vocabulary_options
 from wiloc.cli.views import print_command_json, progress_bar, table
 from wiloc.errors import EXIT_USAGE
@@ -19,6 +19,7 @@ from wiloc.errors import EXIT_USAGE
 def vocabulary(
     folders: list[Path] = typer.Argument(..., metavar="FOLDER...", help="Training image folders (never the pair you will test on)."),
     cache: CacheOption = None,
+    jobs: JobsOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
     vocabulary_options: dict[str, Any] | None = None,
 ) -> None:
@@ -38,7 +39,7 @@ def vocabulary(
         fail(f"FOLDER...: {twice} is given twice (its images would count twice in the clustering)", EXIT_USAGE)
     params = vocabulary_options or {}
     with progress_bar(not as_json) as progress:
-        report = api.vocabulary(folders, params, cache=Cache(cache), progress=progress)
+        report = api.vocabulary(folders, params, cache=Cache(cache), progress=progress, jobs=jobs)
     notes = Notes()
     for path, reason in report.failed:
         notes.add("skipped", f"{path}: {reason}")

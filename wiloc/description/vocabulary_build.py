@@ -86,7 +86,7 @@ class _FeatureCount:
         return np.array([len(features)])
 
 
-def _extract_missing(frames: Sequence[Path], digests: Sequence[str], store: FeatureStore, jobs: int | None,
+def _extract_missing(frames: Sequence[Path], digests: Sequence[str], store: FeatureStore, jobs: int,
                      progress: Progress | None, total: int) -> None:
     """The local features of those `frames` whose features the cache lacks, extracted and kept
     there by `jobs` processes (describing's own: this one, then also workers once that pays);
@@ -94,7 +94,7 @@ def _extract_missing(frames: Sequence[Path], digests: Sequence[str], store: Feat
     missing = [(frame, None) for frame, digest in zip(frames, digests) if not store.path(digest).exists()]
     done = len(frames) - len(missing)
     spec = _FeatureCount(decode_size(store.setting["max_side"]))
-    with closing(compute(spec, list(enumerate(missing)), check_jobs(jobs), store)) as results:  # type: ignore[arg-type]
+    with closing(compute(spec, list(enumerate(missing)), jobs, store)) as results:  # type: ignore[arg-type]
         for _ in results:
             done += 1
             if progress is not None:
@@ -121,6 +121,7 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
     """
     start = time.perf_counter()
     params = VocabularyParams() if params is None else params
+    jobs = check_jobs(jobs)  # refused before any work, even when every feature is in the cache
     if not folders:
         raise WilocError(None, "a vocabulary needs at least one training folder")
     frames = [path for folder in folders for path in list_traversal(Path(folder)).frames]

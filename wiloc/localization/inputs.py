@@ -53,13 +53,14 @@ def import_descriptors(path: Path, *, metric: str | None = None, names: Path | N
 
 
 def vocabulary(folders: Sequence[str | Path] | str | Path, params: Mapping[str, Any] | None = None, *,
-               cache: Cache | None = None, progress: Progress | None = None) -> VocabularyReport:
+               cache: Cache | None = None, progress: Progress | None = None,
+               jobs: int | None = None) -> VocabularyReport:
     """Build (or reuse from the cache) the visual vocabulary of the images in ``folders`` (one
     folder or several): local features clustered into words, for the ``bow`` descriptor and
-    FAB-MAP (docs/fabmap.md)."""
+    FAB-MAP (docs/fabmap.md); ``jobs`` processes extract the features (default: all cores)."""
     paths = traversal_paths(folders, "folders")
     return build_vocabulary(paths, Cache.given(cache), VocabularyParams.create(params),
-                            progress=stage(progress, "vocabulary"))
+                            progress=stage(progress, "vocabulary"), jobs=jobs)
 
 
 def vocabulary_file(vocabulary: str | Path, cache: Cache | None = None) -> Path:
