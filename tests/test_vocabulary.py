@@ -235,6 +235,25 @@ def test_the_command_takes_the_processes_that_extract_features(tmp_path: Path, c
     assert key == build_vocabulary([folder], Cache(tmp_path / "other"), SMALL).vocabulary.key
 
 
+def test_damaged_features_in_the_cache_are_extracted_again_and_said_so(tmp_path: Path, cache_dir: Path) -> None:
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+
+    folder = _folder(tmp_path / "train", range(6))
+    first = build_vocabulary([folder], Cache(cache_dir), SMALL)
+    files = sorted((cache_dir / "features").rglob("*.h5"))
+    files[2].write_bytes(files[2].read_bytes()[:100])  # cut short, as a full disk might have left it
+    first.path.unlink()  # the vocabulary is built again, from the cached features
+    small = ["--words", "16", "--max-features", "60", "--max-side", "320", "--iterations", "10"]
+    again = CliRunner().invoke(app, ["vocabulary", str(folder), *small, "--cache", str(cache_dir), "--json"])
+    assert again.exit_code == 0, again.output
+    report = json.loads(again.stdout)
+    assert report["results"][0]["key"] == first.vocabulary.key
+    assert any(f"{files[2]}: damaged local features; extracted again" in w for w in report["warnings"])
+    assert np.array_equal(read_vocabulary(first.path).centres, first.vocabulary.centres)  # the same words
+
+
 def test_too_many_words_for_the_features_is_a_usage_error(tmp_path: Path, cache_dir: Path) -> None:
     folder = _folder(tmp_path / "train", range(2))
     with pytest.raises(ParameterError) as info:

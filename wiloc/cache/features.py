@@ -87,10 +87,14 @@ class FeatureStore:
                            dtype=features.dtype.str, crc32=_checksum(self._text, digest, features))
             f.create_dataset("features", data=stored)
 
-    def features(self, digest: str, extract: Callable[[], NDArray]) -> NDArray:
-        """The image's stored features, else ``extract()``'s, stored now."""
+    def features(self, digest: str, extract: Callable[[], NDArray],
+                 damaged: Callable[[Path], None] | None = None) -> NDArray:
+        """The image's stored features, else ``extract()``'s, stored now; ``damaged(file)`` is
+        told of a file that was there but could not be read or failed its checksum."""
         found = self.read(digest)
         if found is None:
+            if damaged is not None and self.path(digest).exists():
+                damaged(self.path(digest))
             found = extract()
             self.write(digest, found)
         return found

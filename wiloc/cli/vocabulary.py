@@ -41,6 +41,8 @@ def vocabulary(
     with progress_bar(not as_json) as progress:
         report = api.vocabulary(folders, params, cache=Cache(cache), progress=progress, jobs=jobs)
     notes = Notes()
+    for line in report.repairs:
+        notes.add("note", line)
     for path, reason in report.failed:
         notes.add("skipped", f"{path}: {reason}")
     sparse = report.vocabulary.too_few_words()

@@ -45,7 +45,8 @@ Progress = Callable[[int, int], None]
 @dataclass(frozen=True)
 class VocabularyReport:
     """What `build_vocabulary` did: the vocabulary, its file, whether it was built now (False:
-    the cache held it), the training frames that could not be used, and the time taken."""
+    the cache held it), the training frames that could not be used, the time taken, and the
+    damaged features files of the cache that were extracted again (``<file>: what`` lines)."""
 
     vocabulary: Vocabulary
     path: Path
@@ -53,6 +54,7 @@ class VocabularyReport:
     features: int
     failed: list[tuple[str, str]]
     seconds: float
+    repairs: list[str] = field(default_factory=list)
 
 
 def vocabulary_key(digests: Sequence[str], params: VocabularyParams) -> str:
@@ -101,12 +103,14 @@ def _extract_missing(frames: Sequence[Path], digests: Sequence[str], store: Feat
                 progress(done, total)
 
 
-def _features(frame: Path, digest: str, store: FeatureStore) -> NDArray:
+def _features(frame: Path, digest: str, store: FeatureStore, repairs: list[str]) -> NDArray:
     """One training frame's local features, from the cache when it holds them (the frame is then
-    not decoded); FrameError when it cannot be read."""
+    not decoded); FrameError when it cannot be read. A damaged features file is noted in
+    ``repairs`` and replaced."""
     setting = store.setting
     return store.features(digest, lambda: extract_features(read_gray(frame, decode_size(setting["max_side"])),
-                                                           **setting))
+                                                           **setting),
+                          lambda file: repairs.append(f"{file}: damaged local features; extracted again"))
 
 
 def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyParams | None = None,
@@ -140,12 +144,12 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
                     progress(total, total)
                 return VocabularyReport(vocabulary, path, False, 0, [],
                                         time.perf_counter() - start)
-        names, features, failed = [], [], []
+        names, features, failed, repairs = [], [], [], []
         store = FeatureStore(cache, params.feature_setting())
         _extract_missing(frames, [prints[frame].digest for frame in frames], store, jobs, progress, total)
         for frame in frames:  # from the cache now; a frame that cannot be read is tried once more
             try:
-                features.append(_features(frame, prints[frame].digest, store))
+                features.append(_features(frame, prints[frame].digest, store, repairs))
             except FrameError as exc:
                 failed.append((str(frame), exc.problem))
             else:
@@ -164,5 +168,5 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
             })
     if progress is not None:
         progress(total, total)
-    return VocabularyReport(vocabulary, path, True, count, failed, time.perf_counter() - start)
+    return VocabularyReport(vocabulary, path, True, count, failed, time.perf_counter() - start, repairs)
 
