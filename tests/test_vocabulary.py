@@ -254,6 +254,26 @@ def test_damaged_features_in_the_cache_are_extracted_again_and_said_so(tmp_path:
     assert np.array_equal(read_vocabulary(first.path).centres, first.vocabulary.centres)  # the same words
 
 
+def test_describe_list_shows_the_local_features_kept(tmp_path: Path, cache_dir: Path) -> None:
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+
+    runner = CliRunner()
+    build_vocabulary([_folder(tmp_path / "train", range(5))], Cache(cache_dir), SMALL)
+    listed = json.loads(runner.invoke(app, ["describe", "--list", "--json", "--cache", str(cache_dir)]).stdout)
+    kept = [r for r in listed["results"] if r["descriptor"] == "local features"]
+    assert len(kept) == 1 and kept[0]["frames"] == 5 and kept[0]["complete"] and kept[0]["size"] > 0
+    assert kept[0]["params"] == dict(SMALL.feature_setting())
+    table = runner.invoke(app, ["describe", "--list", "--cache", str(cache_dir)], env={"COLUMNS": "200"}).stdout
+    assert "local features" in table and "max_side=320" in table
+    for path in (cache_dir / "features").rglob("*.h5"):
+        path.write_bytes(b"not hdf5")
+    listed = json.loads(runner.invoke(app, ["describe", "--list", "--json", "--cache", str(cache_dir)]).stdout)
+    damaged = [r for r in listed["results"] if r["key"] == kept[0]["key"]]
+    assert damaged[0]["descriptor"] == "unreadable" and "no readable local-features file" in damaged[0]["problem"]
+
+
 def test_too_many_words_for_the_features_is_a_usage_error(tmp_path: Path, cache_dir: Path) -> None:
     folder = _folder(tmp_path / "train", range(2))
     with pytest.raises(ParameterError) as info:

@@ -17,6 +17,7 @@ import json
 import zlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -24,11 +25,12 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.cache.store import Cache
+from wiloc.cache.store import UNREADABLE, Cache, EntryInfo
 
 FORMAT = "wiloc-features"
 FORMAT_VERSION = 1
 FEATURES = "features"
+LISTED = "local features"  # what `describe --list` calls a setting's files
 
 
 def _checksum(setting: str, digest: str, features: NDArray) -> int:
@@ -98,3 +100,37 @@ class FeatureStore:
             found = extract()
             self.write(digest, found)
         return found
+
+
+def list_features(cache: Cache) -> list[EntryInfo]:
+    """One line per feature setting the cache holds local features of (``describe --list``):
+    the setting (read from its newest readable file), the images kept, their bytes and when the
+    newest was written; a setting none of whose files can be read is listed as unreadable."""
+    infos = []
+    for folder in sorted(p for p in (cache.root / FEATURES).glob("*") if p.is_dir()):
+        stats = {}
+        for path in folder.glob("*.h5"):
+            try:
+                stats[path] = path.stat()
+            except FileNotFoundError:  # replaced or removed meanwhile
+                continue
+        if not stats:
+            continue
+        newest = sorted(stats, key=lambda p: stats[p].st_mtime, reverse=True)
+        setting = next((s for s in map(_setting_of, newest) if s is not None), None)
+        updated = datetime.fromtimestamp(stats[newest[0]].st_mtime, timezone.utc).isoformat(timespec="seconds")
+        infos.append(EntryInfo(
+            key=folder.name, folder="", descriptor=LISTED if setting is not None else UNREADABLE,
+            params=setting or {}, frames=len(stats), complete=setting is not None,
+            size=sum(st.st_size for st in stats.values()), updated=updated,
+            problem="" if setting is not None else f"{folder}: no readable local-features file"))
+    return infos
+
+
+def _setting_of(path: Path) -> dict[str, Any] | None:
+    """The feature setting a features file was written with; None when it cannot be read."""
+    try:
+        with h5py.File(path, "r") as f:
+            return dict(json.loads(str(f.attrs["setting"])))
+    except (OSError, KeyError, ValueError, TypeError):
+        return None

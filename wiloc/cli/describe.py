@@ -130,12 +130,16 @@ def describe(
 
 
 def _list_cache(store: Any, as_json: bool) -> None:
-    """`describe --list`: one row per cache entry, told apart by folder, descriptor and parameters;
-    a cache folder that does not exist (a misspelt --cache) is said to, not shown as an empty one."""
+    """`describe --list`: one row per cache entry, told apart by folder, descriptor and parameters,
+    and one per setting of the local features kept for vocabularies and ``bow`` (descriptor
+    "local features", frames: the images kept); a cache folder that does not exist (a misspelt
+    --cache) is said to, not shown as an empty one."""
+    from wiloc.cache.features import list_features
+
     notes = Notes()
     if not store.root.exists():
         notes.add("note", f"{store.root}: no such cache folder; nothing has been described into it")
-    infos = store.list_entries()
+    infos = [*store.list_entries(), *list_features(store)]
     if as_json:
         print_command_json("describe", "results", [asdict(info) for info in infos], notes)
         return
