@@ -53,6 +53,14 @@ def odometry_problem(noise: float | None) -> str | None:
     return None
 
 
+def odometry_for(method: str, noise: float | None) -> float | None:
+    """The noise of the odometry ``method`` is given: ``noise`` when it takes odometry, else None
+    (it runs without)."""
+    from wiloc.methods.registry import METHODS
+
+    return noise if noise is not None and "odometry" in METHODS[method].needs else None
+
+
 def noisy_steps(steps: NDArray[np.float64], noise: float, seed: int = ODOMETRY_SEED) -> NDArray[np.float64]:
     """Travelled distances per frame as an odometry measures them: each times 1 + ``noise`` x
     N(0, 1), clipped at 0, drawn with ``seed`` (every method and run gets the same steps)."""

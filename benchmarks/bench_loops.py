@@ -74,8 +74,8 @@ from wiloc.evaluation.reliability import summarize_calibration
 from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
 
-from bench_common import (add_odometry, default_data_root, fmt, noisy_steps, odometry_problem, parse_params,
-                          parser as benchmark_parser, plain_console, write_json)
+from bench_common import (add_odometry, default_data_root, fmt, noisy_steps, odometry_for, odometry_problem,
+                          parse_params, parser as benchmark_parser, plain_console, write_json)
 
 TOLERANCE = 2  # places either side that count as the same place
 CUTS = (0.9, 0.99)
@@ -162,9 +162,8 @@ def decide(loop: Loop, method: str, params: Mapping[str, Any] | None = None,
     """The method's decisions in sequence mode, started and fed as ``wiloc.api.localize`` does
     for a folder holding the loop's frames without ``--map``; with ``odometry`` (a noise) and a
     method that takes it, as it runs with the loop's odometry CSV (``Loop.steps``, noisy)."""
-    algo = make_method(method, params)
-    with_odometry = odometry is not None and "odometry" in algo.needs
-    algo.check_inputs(sequence=True, training=False, odometry=with_odometry)
+    algo, given = make_method(method, params), odometry_for(method, odometry)
+    algo.check_inputs(sequence=True, training=False, odometry=given is not None)
     problem = algo.query_problem(loop.places.size, True, exclude_recent)
     if problem is not None:
         raise ValueError(f"{method} on {loop.name}: {problem}")
@@ -172,7 +171,7 @@ def decide(loop: Loop, method: str, params: Mapping[str, Any] | None = None,
     algo.start(MapContext(sequence=True, exclude_recent=exclude_recent, natural_max=loop.natural_max,
                           map_summary=lambda: summarize_self(ComputedDifferences(loop.data, to_self), exclude_recent)))
     rows = candidate_blocks(ComputedDifferences(loop.data, to_self), True, exclude_recent)
-    return algo.run(rows, loop.places.size, odometry=noisy_steps(loop.steps, odometry) if with_odometry else None)
+    return algo.run(rows, loop.places.size, odometry=None if given is None else noisy_steps(loop.steps, given))
 
 
 def settled_revisits(has_match: NDArray[np.bool_], settle: int = SETTLE) -> NDArray[np.bool_]:
@@ -208,9 +207,8 @@ def run_loop(loop: Loop, method: str, params: Mapping[str, Any] | None = None,
     seconds taken."""
     started = time.perf_counter()
     decisions = decide(loop, method, params, odometry=odometry)
-    given = None if odometry is None or "odometry" not in METHODS[method].needs else odometry
     return {"loop": loop.name, "descriptor": loop.descriptor, "method": method, "params": dict(params or {}),
-            "odometry": given,
+            "odometry": odometry_for(method, odometry),
             **score(decisions, loop), "seconds": time.perf_counter() - started}
 
 

@@ -100,8 +100,8 @@ from wiloc.evaluation.reliability import summarize_calibration, summarize_new_pl
 from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
 
-from bench_common import (ODOMETRY_SEED, add_odometry, default_data_root, fmt, noisy_steps, odometry_problem,
-                          parse_params, parser as benchmark_parser, plain_console, write_json)
+from bench_common import (ODOMETRY_SEED, add_odometry, default_data_root, fmt, noisy_steps, odometry_for,
+                          odometry_problem, parse_params, parser as benchmark_parser, plain_console, write_json)
 
 TOLERANCE = 2  # map nodes either side of the true node that count as the same place
 CUT = 0.9  # the confidence above which precision is reported
@@ -290,9 +290,8 @@ def decide(traversal: Traversal, variant: Variant, method: str = "catgraph",
     map folder holding those frames; with ``odometry`` (a noise; ``odometry_factor``:
     :func:`odometry_steps`) and a method that takes it, as it runs with the query's and the map's
     odometry CSVs."""
-    algo = make_method(method, params)
-    with_odometry = odometry is not None and "odometry" in algo.needs
-    algo.check_inputs(sequence=False, training=False, odometry=with_odometry, map_odometry=with_odometry)
+    algo, given = make_method(method, params), odometry_for(method, odometry)
+    algo.check_inputs(sequence=False, training=False, odometry=given is not None, map_odometry=given is not None)
     map_data = np.ascontiguousarray(traversal.map_data[variant.map_frames])
     query_data = np.ascontiguousarray(traversal.query_data[variant.query_frames])
     to_map = DifferencesTo(map_data, traversal.metric, traversal.scale)
@@ -303,10 +302,10 @@ def decide(traversal: Traversal, variant: Variant, method: str = "catgraph",
         sequence=False, exclude_recent=exclude_recent, n_map=map_data.shape[0], rows="differences",
         natural_max=traversal.natural_max, map_summary=lambda: summarize(ComputedDifferences(map_data, to_map), exclude_recent),
         neighbours=lambda: consecutive(map_data, traversal.metric, traversal.scale),
-        arclength=variant.map_frames.astype(np.float64) if with_odometry else None)
+        arclength=None if given is None else variant.map_frames.astype(np.float64))
     algo.start(context)
     rows = candidate_blocks(ComputedDifferences(query_data, to_map), False, exclude_recent)
-    steps = odometry_steps(variant, odometry, odometry_factor) if with_odometry and odometry is not None else None
+    steps = None if given is None else odometry_steps(variant, given, odometry_factor)
     return algo.run(rows, query_data.shape[0], odometry=steps, progress=progress)
 
 
@@ -337,7 +336,7 @@ def run_variant(traversal: Traversal, variant: Variant, method: str = "catgraph"
     started = time.perf_counter()
     decisions = decide(traversal, variant, method, params, progress=progress, odometry=odometry,
                        odometry_factor=odometry_factor)
-    given = odometry if odometry is not None and "odometry" in METHODS[method].needs else None
+    given = odometry_for(method, odometry)
     return {"traversal": traversal.name, "variant": variant.name, "method": method, "params": dict(params or {}),
             "odometry": given, "odometry_factor": odometry_factor if given is not None else None,
             **score(decisions, variant), "seconds": time.perf_counter() - started}

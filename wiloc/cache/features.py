@@ -7,8 +7,9 @@ One HDF5 file per image and feature setting, ``<root>/features/<setting>/<digest
 features (SIFT's whole-number values as bytes) and a CRC-32 over the setting, the digest and the
 features' shape, dtype and values. Written as every cache file is (:meth:`Cache.atomic_h5`: a
 kill leaves the old file or none, never half of one); a file that cannot be read or fails its
-checksum counts as absent: the features are extracted again and the file replaced. Files are immutable once written, so processes share them
-without a lock (two writing the same image write the same bytes).
+checksum counts as absent: the features are extracted again and the file replaced. Files are
+immutable once written, so processes share them without a lock (two writing the same image
+write the same bytes).
 """
 from __future__ import annotations
 
