@@ -37,7 +37,7 @@
     var k = shown[at];
     var decided = r.match[k] !== null;
     var verdict = !decided ? "undecided" : (r.correct[k] ? "right" : "wrong");
-    var parts = ["frame " + (r.first + k + 1) + " of " + r.run_frames, verdict];  /* numbered as in the run */
+    var parts = ["frame " + (r.first + k) + " (0-" + (r.run_frames - 1) + ")", verdict];  /* numbered as in the run and its timeline, from 0 */
     if (r.confidence[k] !== null) { parts.push("confidence " + r.confidence[k].toFixed(3)); }
     if (r.new_place && r.new_place[k] !== null) { parts.push("P(new place) " + r.new_place[k].toFixed(3)); }
     if (!r.has_match[k]) { parts.push("no true match in the map"); }
