@@ -274,12 +274,13 @@ def test_catgraph_on_fabmap_evidence_is_calibrated_on_gardens_point(data_root: P
 
 @pytest.mark.realdata
 @pytest.mark.slow
-def test_catgraph_with_a_vocabulary_of_thumbnails_is_warned_of_and_stays_a_probability(data_root: Path,
-                                                                                       tmp_path: Path) -> None:
+def test_catgraph_with_a_vocabulary_of_thumbnails_is_warned_of_and_stays_a_probability(
+        data_root: Path, real_data_cache: Path) -> None:
     """A vocabulary of Nordland's 64 x 32 thumbnails (FAB-MAP's log-ratios of hundreds of nats):
-    warned of where it is built and where it is used; catgraph's confidence still a probability."""
+    warned of where it is built and where it is used; catgraph's confidence still a probability.
+    (The shared cache: Gardens Point's local features are those the examples' vocabularies keep.)"""
     gp = data_root / "gardens-point-walking"
-    cache = Cache(tmp_path / "cache")
+    cache = Cache(real_data_cache)
     report = api.vocabulary([data_root / "nordland-summer-winter-64x32" / "summer"], cache=cache)
     sparse = report.vocabulary.too_few_words()
     assert sparse is not None
