@@ -5,11 +5,14 @@
     python benchmarks/bench_pace.py --param catgraph.speed_noise=0.05 --json pace.json
     python benchmarks/bench_pace.py --traversals winter/sad --frames 600   # the first 600 Nordland frames
     python benchmarks/bench_pace.py --methods catgraph --seeds 0-4         # means over five seeds
+    python benchmarks/bench_pace.py --methods catgraph --traversals held-out --seeds 0-2   # maps and queries swapped
     python benchmarks/bench_pace.py --methods catgraph --odometry 0.1      # with odometry, 10 % noise a step
 
 Each traversal pairs a map folder with a query folder of the same route whose frame i is the
 map's frame i (aligned ground truth: Gardens Point walking, map ``day_right``; Nordland, map
-``summer``). Both folders are described once through wiloc's cache; every variant is then a
+``summer``; ``--traversals held-out`` runs five more with maps and queries swapped, day_right and
+night_right against a ``day_left`` map with ``sad`` and ``gist`` and Nordland ``summer`` against a
+``winter`` map, for checking on runs no default was chosen on). Both folders are described once through wiloc's cache; every variant is then a
 re-sampling of frame indices, never a copy of an image:
 
     same        the query retraces the map at its pace (query frame i, map every frame)
@@ -57,7 +60,7 @@ new_place, new_place_ece, seconds; ``odometry``: the noise of the odometry the m
 None without; ``new_place_ece``: the ECE of P(new place) as the probability that the frame has no place
 on the map); ``decide(traversal, variant, method, params, odometry=None)`` the run's ``Decisions``, ``score(decisions, variant)``
 its measures and ``truth(variant, tolerance=2)`` its ground truth as a ``wiloc.evaluation.groundtruth.Truth``. ``variants(n)`` builds the variants of a route
-of ``n`` frames (``names`` picks some); ``TRAVERSALS`` lists the traversals by name.
+of ``n`` frames (``names`` picks some); ``TRAVERSALS`` and ``HELD_OUT`` list the traversals by name.
 
 ``--odometry SD`` gives the methods that take odometry (catgraph) the query's travelled distance
 per frame and the map's node positions, in route frames (a thinned map's nodes keep their frames'
@@ -114,6 +117,16 @@ TRAVERSALS: dict[str, tuple[str, str, str, str]] = {
     "night_right/gist": ("gardens-point-walking", "day_right", "night_right", "gist"),
     "winter/sad": ("nordland-summer-winter-64x32", "summer", "winter", "sad"),
 }
+#: run when named (``--traversals held-out``): the maps and queries swapped, for checking on runs no
+#: default was chosen on what the five above suggest
+HELD_OUT: dict[str, tuple[str, str, str, str]] = {
+    "day_right-on-day_left/sad": ("gardens-point-walking", "day_left", "day_right", "sad"),
+    "day_right-on-day_left/gist": ("gardens-point-walking", "day_left", "day_right", "gist"),
+    "night_right-on-day_left/sad": ("gardens-point-walking", "day_left", "night_right", "sad"),
+    "night_right-on-day_left/gist": ("gardens-point-walking", "day_left", "night_right", "gist"),
+    "summer-on-winter/sad": ("nordland-summer-winter-64x32", "winter", "summer", "sad"),
+}
+KNOWN = {**TRAVERSALS, **HELD_OUT}
 
 VARIANTS = ("same", "pace-1/3", "pace-1/2", "pace-2", "pace-3", "reversed", "stop", "u-turn", "jump", "drift")
 OFF_MAP_VARIANTS = ("start-off", "leave")  # run when named: part of the query has no place on the map
@@ -251,10 +264,11 @@ class Traversal:
 def load_traversal(name: str, data_root: Path | None = None, frames: int | None = None,
                    cache: Cache | None = None, progress: Callable[[str, int, int], None] | None = None) -> Traversal:
     """Describe (or read from the cache) the map and query folders of traversal ``name``
-    (:data:`TRAVERSALS`), aligned by file name; ``frames`` keeps the first so many route frames."""
-    if name not in TRAVERSALS:
-        raise ValueError(f"unknown traversal {name!r} (choose from {', '.join(TRAVERSALS)})")
-    dataset, map_name, query_name, descriptor = TRAVERSALS[name]
+    (:data:`TRAVERSALS` or :data:`HELD_OUT`), aligned by file name; ``frames`` keeps the first so
+    many route frames."""
+    if name not in KNOWN:
+        raise ValueError(f"unknown traversal {name!r} (choose from {', '.join(KNOWN)})")
+    dataset, map_name, query_name, descriptor = KNOWN[name]
     root = Path(data_root or default_data_root()) / dataset
     describer = Describer(descriptor, {}, cache or Cache(), progress=progress)
     m, q = describer.entry(root / map_name), describer.entry(root / query_name)
@@ -408,8 +422,8 @@ def render(name: str, rows: list[dict[str, Any]], methods: Sequence[str]) -> Tab
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     parser = benchmark_parser(__doc__, "catgraph,seqslam", "catgraph.particles=4000")
-    parser.add_argument("--traversals", default=",".join(TRAVERSALS), help="comma-separated (default: all): "
-                        + ", ".join(TRAVERSALS))
+    parser.add_argument("--traversals", default=",".join(TRAVERSALS), help="comma-separated (default: "
+                        + ", ".join(TRAVERSALS) + "; 'held-out': " + ", ".join(HELD_OUT) + ")")
     parser.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated (default: all of "
                         + ", ".join(VARIANTS) + "; also " + ", ".join(OFF_MAP_VARIANTS) + ")")
     parser.add_argument("--seed", type=int, default=None, help="seed of methods that take one (default: 0)")
@@ -437,11 +451,12 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
             methods.append(method)
         else:
             err.print(f"note: method '{method}' is not registered in wiloc.methods.registry: skipped")
-    traversal_names = [t.strip() for t in args.traversals.split(",") if t.strip()]
+    traversal_names = [name for t in args.traversals.split(",") if t.strip()
+                       for name in (HELD_OUT if t.strip() == "held-out" else [t.strip()])]
     variant_names = [v.strip() for v in args.variants.split(",") if v.strip()]
     for t in traversal_names:
-        if t not in TRAVERSALS:
-            parser.error(f"unknown traversal {t!r} (choose from {', '.join(TRAVERSALS)})")
+        if t not in KNOWN:
+            parser.error(f"unknown traversal {t!r} (choose from {', '.join(KNOWN)}, or held-out)")
     bad = [v for v in variant_names if v not in VARIANTS + OFF_MAP_VARIANTS]
     if bad:
         parser.error(f"unknown variant(s) {', '.join(bad)} (choose from {', '.join(VARIANTS + OFF_MAP_VARIANTS)})")

@@ -181,6 +181,21 @@ def test_the_command_runs_the_chosen_runs_with_method_parameters(bench, data_roo
         bench.main([str(data_root), "--methods", "catgraph", "--param", "catgraph.particles=0"])
 
 
+@pytest.mark.realdata
+def test_held_out_traversals_swap_the_map_and_the_query(bench, data_root: Path, shared_cache: Path) -> None:
+    """``--traversals held-out`` runs the five swapped pairs, each map the other's query."""
+    rows = bench.main([str(data_root), "--traversals", "held-out,day_left/sad", "--variants", "same",
+                       "--methods", "catgraph", "--param", "catgraph.particles=300", "--frames", "60"])
+    assert [r["traversal"] for r in rows] == [*bench.HELD_OUT, "day_left/sad"]
+    assert [r["map"] for r in rows] == ["day_left"] * 4 + ["winter", "day_right"]
+    swapped = bench.load_traversal("day_right-on-day_left/sad", data_root)
+    plain = bench.load_traversal("day_left/sad", data_root)
+    np.testing.assert_array_equal(swapped.map_data, plain.query_data)
+    np.testing.assert_array_equal(swapped.query_data, plain.map_data)
+    with pytest.raises(SystemExit):
+        bench.main([str(data_root), "--traversals", "held-out/sad"])
+
+
 def test_seeds_are_listed_once_each_and_runs_merge_into_their_means(bench) -> None:
     assert bench.seed_list("0-2,5, 7-8") == [0, 1, 2, 5, 7, 8]
     for bad in ("", "2-x", "0-2,1", "-1"):
