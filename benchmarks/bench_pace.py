@@ -120,12 +120,9 @@ TRAVERSALS: dict[str, tuple[str, str, str, str]] = {
 #: run when named (``--traversals held-out``): the maps and queries swapped, for checking on runs no
 #: default was chosen on what the five above suggest
 HELD_OUT: dict[str, tuple[str, str, str, str]] = {
-    "day_right-on-day_left/sad": ("gardens-point-walking", "day_left", "day_right", "sad"),
-    "day_right-on-day_left/gist": ("gardens-point-walking", "day_left", "day_right", "gist"),
-    "night_right-on-day_left/sad": ("gardens-point-walking", "day_left", "night_right", "sad"),
-    "night_right-on-day_left/gist": ("gardens-point-walking", "day_left", "night_right", "gist"),
-    "summer-on-winter/sad": ("nordland-summer-winter-64x32", "winter", "summer", "sad"),
-}
+    **{f"{query}-on-day_left/{descriptor}": ("gardens-point-walking", "day_left", query, descriptor)
+       for query in ("day_right", "night_right") for descriptor in ("sad", "gist")},
+    "summer-on-winter/sad": ("nordland-summer-winter-64x32", "winter", "summer", "sad")}
 KNOWN = {**TRAVERSALS, **HELD_OUT}
 
 VARIANTS = ("same", "pace-1/3", "pace-1/2", "pace-2", "pace-3", "reversed", "stop", "u-turn", "jump", "drift")
