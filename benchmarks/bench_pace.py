@@ -12,8 +12,9 @@ Each traversal pairs a map folder with a query folder of the same route whose fr
 map's frame i (aligned ground truth: Gardens Point walking, map ``day_right``; Nordland, map
 ``summer``; ``--traversals held-out`` runs five more with maps and queries swapped, day_right and
 night_right against a ``day_left`` map with ``sad`` and ``gist`` and Nordland ``summer`` against a
-``winter`` map, for checking on runs no default was chosen on). Both folders are described once through wiloc's cache; every variant is then a
-re-sampling of frame indices, never a copy of an image:
+``winter`` map, for checking on runs no default was chosen on). Both folders are described once
+through wiloc's cache; every variant is then a re-sampling of frame indices, never a copy of an
+image:
 
     same        the query retraces the map at its pace (query frame i, map every frame)
     pace-1/3    map thinned to every 3rd frame, query every frame: the query at a third of the map's pace
