@@ -10,21 +10,27 @@ import sys
 import textwrap
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import h5py
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from wiloc.bow.clustering import assign, kmajority, kmeans
 from wiloc.bow.features import extract_features, to_scale
 from wiloc.bow.vocabulary import pack_words, read_vocabulary, train_vocabulary, unpack_words
 from wiloc.bow.vocabulary_params import VocabularyParams
+from wiloc.cache.entries import Entry
+from wiloc.cache.features import FeatureStore
 from wiloc.cache.store import Cache
-from wiloc.description.describing import describe_folder
+from wiloc.description.describing import DescribeReport, describe_folder
 from wiloc.description.vocabulary_build import build_vocabulary, vocabulary_path
 from wiloc.descriptors import get_descriptor
+from wiloc.descriptors.base import DescriptorSpec
 from wiloc.errors import ParameterError, WilocError
+from wiloc.sources.frames import fingerprint
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = VocabularyParams(words=16, max_features=60, max_side=320, iterations=10)
@@ -444,3 +450,63 @@ def test_bow_computes_from_the_features_the_vocabulary_kept_in_the_cache(
     assert describe_folder(new, spec, cache, jobs=1).computed == 2 and len(extracted) == 2
     shutil.rmtree(cache_dir / "descriptors")
     assert describe_folder(new, spec, cache, jobs=1).computed == 2 and len(extracted) == 2  # kept the first time
+
+
+def _described_then_damaged(tmp_path: Path, cache: Cache, frames: int,
+                            damage: slice) -> tuple[DescriptorSpec, Entry, list[Path]]:
+    """A bow spec, the entry of a query folder of `frames` images described with it (in this
+    process) and, cut short since (as a full disk might have left them), the local-features
+    files in the cache of its images `damage` picks; a copy of the folder, ``copy``, reads them."""
+    spec = get_descriptor("bow", file=build_vocabulary([_folder(tmp_path / "train", range(6))], cache, SMALL).path)
+    query = _folder(tmp_path / "query", range(20, 20 + frames))
+    first = describe_folder(query, spec, cache, jobs=1)
+    assert first.repairs == []
+    store = FeatureStore(cache, SMALL.feature_setting())
+    files = [store.path(fingerprint(query / name).digest) for name in first.entry.names][damage]
+    for file in files:
+        file.write_bytes(file.read_bytes()[:100])
+        assert store.read(file.stem) is None
+    shutil.copytree(query, tmp_path / "copy")  # the same images elsewhere: described anew, from the cache's features
+    return spec, first.entry, files
+
+
+def _check_repaired(report: DescribeReport, first: Entry, files: list[Path], cache: Cache) -> None:
+    """Each damaged features file named in the report's repairs as a vocabulary build names it
+    (and in the cache's, which ``localize`` reports), and valid again; the rows those of the run
+    before the damage."""
+    notes = sorted(f"{file}: damaged local features; extracted again" for file in files)
+    assert sorted(report.repairs) == notes and sorted(cache.repairs) == notes
+    assert all(FeatureStore(cache, SMALL.feature_setting()).read(file.stem) is not None for file in files)
+    assert report.computed == len(first.names) and np.array_equal(report.entry.data, first.data)
+
+
+def test_bow_extracts_damaged_local_features_again_and_says_so(tmp_path: Path, cache_dir: Path) -> None:
+    """A local-features file damaged in the cache is never used by describing either: its
+    features are extracted again, the file replaced and named in the report's repairs."""
+    cache = Cache(cache_dir)
+    spec, first, files = _described_then_damaged(tmp_path, cache, 4, slice(2, 3))
+    _check_repaired(describe_folder(tmp_path / "copy", spec, cache, jobs=1), first, files, cache)
+
+
+def test_damaged_local_features_a_worker_met_are_reported_too(tmp_path: Path, cache_dir: Path,
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """A worker process that meets a damaged features file sends the repair back with its results.
+    Workers start after one frame timed here, and this process extracts slowly: they settle most."""
+    import wiloc.description.frame_describing as framing
+
+    cache = Cache(cache_dir)
+    spec, first, files = _described_then_damaged(tmp_path, cache, 12, slice(None))
+    for name in ("FORKED_START", "FRESH_START"):
+        monkeypatch.setattr(framing, name, framing.WorkerStart(seconds=0.0, frames=1))
+    here, parent, real = [], os.getpid(), framing.extract_features
+
+    def slowly_here(*args: Any, **kw: Any) -> NDArray:
+        if os.getpid() == parent:  # a forked worker inherits this patch, its own `here` too
+            here.append(1)
+            time.sleep(0.2)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(framing, "extract_features", slowly_here)
+    report = describe_folder(tmp_path / "copy", spec, cache, jobs=2)
+    assert len(here) < len(files)  # the worker extracted the others
+    _check_repaired(report, first, files, cache)

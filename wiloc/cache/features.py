@@ -103,6 +103,11 @@ class FeatureStore:
         return found
 
 
+def damaged_note(file: Path) -> str:
+    """The repair line (``<file>: what``) a run reports for a damaged features file it replaced."""
+    return f"{file}: damaged local features; extracted again"
+
+
 def list_features(cache: Cache) -> list[EntryInfo]:
     """One line per feature setting the cache holds local features of (``describe --list``):
     the setting (read from its newest readable file), the images kept, their bytes and when the

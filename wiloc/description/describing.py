@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from wiloc.cache.entries import Entry, EntryHeader, FrameRecord, StoredEntry
-from wiloc.cache.features import FeatureStore
+from wiloc.cache.features import FeatureStore, damaged_note
 from wiloc.cache.store import Cache, Journal
 from wiloc.description.frame_describing import Task, check_jobs, compute, describe_frames, describe_quietly, opencv_quiet
 from wiloc.descriptors.registry import DescriptorSpec
@@ -52,7 +52,7 @@ class DescribeReport:
     seconds: float
     images_per_second: float
     entry: Entry
-    repairs: list[str] = field(default_factory=list)  # damage found in the cache entry (Cache.repairs)
+    repairs: list[str] = field(default_factory=list)  # damage found in the cache: entry, local features
     video: bool = False
     notes: list[str] = field(default_factory=list)  # worth saying: which topic of a bag was read
 
@@ -150,8 +150,11 @@ def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache
     stops the run before anything is written. Each entry's lock is held from the start of the
     call until the entry is written (taken in key order, so that two runs over the same folders
     never wait on each other crosswise): another process that needs a later folder meanwhile
-    waits for it, up to the cache's lock timeout. A folder given twice is described once. On a
-    Dask ``cluster`` the folders are described one after the other."""
+    waits for it, up to the cache's lock timeout. A folder given twice is described once. A
+    damaged local-features file is extracted again and named in the repairs of the report of the
+    folder whose frame met it and in ``cache.repairs`` (what ``localize`` reports). On a Dask
+    ``cluster`` the folders are described one after the other (from the pixels: the workers read
+    no local features)."""
     started = time.perf_counter()
     jobs = check_jobs(jobs)
     callbacks = list(progress) if progress is not None else [None] * len(folders)
@@ -184,8 +187,12 @@ def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache
                 finish(run)
         tagged = [(tag, task) for tag, run in enumerate(settling) for task in run.tasks]
         if tagged:
-            results = compute(spec, tagged, jobs, _feature_store(spec, cache)) if cluster is None \
-                else _on_cluster(cluster, spec, settling)
+            def damaged(tag: int, file: Path) -> None:  # told to the folder's report and the cache's front end
+                settling[tag].repairs.append(damaged_note(file))
+                cache.repairs.append(damaged_note(file))
+
+            results = compute(spec, tagged, jobs, _feature_store(spec, cache), damaged) \
+                if cluster is None else _on_cluster(cluster, spec, settling)
             _journal(cache, settling, results, finish)
     return [runs[key].report for key in keys]
 
@@ -217,7 +224,7 @@ class _Settling:
         self.header, self.progress, self.traversal = header, progress, traversal
         self.stored = stored if stored is not None else StoredEntry(header)
         self.lock: ExitStack | None = None  # holds the entry's lock, until the entry is written
-        self.repairs: list[str] = []  # what reading the entry found damaged (Cache.repairs)
+        self.repairs: list[str] = []  # what reading the entry (Cache.repairs), and describing, found damaged
         self.tasks: list[Task] = []
         self.removed = False
         self.done = 0  # frames settled

@@ -64,6 +64,9 @@ COLOUR_BATCH = 64
 _OPENCV_ERRORS_ONLY = 2  # OpenCV's LOG_LEVEL_ERROR (the same number in every 4.x)
 
 Task = tuple[Path, FrameRecord | None]
+#: ``damaged(tag, file)``: told of a local-features file found damaged (so extracted again and
+#: replaced) while settling the task tagged ``tag``.
+Damaged = Callable[[int, Path], None]
 
 
 
@@ -79,14 +82,15 @@ def check_jobs(jobs: int | None) -> int:
 
 
 
-def compute(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]], jobs: int,
-            features: FeatureStore | None = None) -> Iterator[tuple[int, FrameRecord, bool]]:
+def compute(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]], jobs: int, features: FeatureStore | None = None,
+            damaged: Damaged | None = None) -> Iterator[tuple[int, FrameRecord, bool]]:
     """Settle each tagged task, yielding (tag, record, computed) as results arrive, over `jobs`
     processes. This process computes first; once the frames left would take it longer than
     starting workers (`WorkerStart`, by the median time of its frames after the first), `jobs` - 1
     workers start and take frames from the same queue while this process goes on computing.
     `features`: where the local features of a descriptor computed from them (``bow``) are kept
-    and found (:func:`_describe_one`)."""
+    and found (:func:`_describe_one`); ``damaged`` is told of each of its files found damaged, in
+    this process or a worker, before that task's result is yielded."""
     if spec.colour:
         yield from _compute_colour(spec, tasks, jobs)
         return
@@ -95,21 +99,22 @@ def compute(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]], jobs: int,
     with opencv_quiet():
         while pending and not _worth_workers(jobs, timed, len(pending)):
             started = time.perf_counter()
-            tag, task = pending.popleft()
-            record = _describe_one(spec, task, features)
+            result = _describe_one_tagged(spec, features, damaged, *pending.popleft())
             timed.append(time.perf_counter() - started)
-            yield (tag, *record)
+            yield result
         if pending:
             chunk = min(MAX_CHUNK, max(1, round(CHUNK_SECONDS / statistics.median(timed[1:]))))
             with _opencv_threads(1):
-                yield from _compute_with_workers(spec, pending, jobs - 1, chunk, features)
+                yield from _compute_with_workers(spec, pending, jobs - 1, chunk, features, damaged)
 
 
-def _compute_with_workers(spec: DescriptorSpec, pending: deque[tuple[int, Task]], workers: int,
-                          chunk: int, features: FeatureStore | None) -> Iterator[tuple[int, FrameRecord, bool]]:
+def _compute_with_workers(spec: DescriptorSpec, pending: deque[tuple[int, Task]], workers: int, chunk: int,
+                          features: FeatureStore | None,
+                          damaged: Damaged | None) -> Iterator[tuple[int, FrameRecord, bool]]:
     """The pending tagged tasks settled by this process and `workers` worker processes together:
     a helper thread feeds the workers batches from `pending` (`_batches`), two at a time each,
-    and queues their results; this process computes from the same deque and yields both."""
+    and queues their results; this process computes from the same deque and yields both, first
+    telling ``damaged`` of the damaged features files a worker's batch met."""
     results: queue.Queue = queue.Queue()
     # Forked from this process while it runs no other thread, else fresh interpreters; never the
     # caller's main module (wiloc.description.workers says why not multiprocessing's start methods).
@@ -130,15 +135,18 @@ def _compute_with_workers(spec: DescriptorSpec, pending: deque[tuple[int, Task]]
             while not finished:
                 item = _take(pending)
                 if item is not None:
-                    tag, task = item
-                    yield (tag, *_describe_one(spec, task, features))
+                    yield _describe_one_tagged(spec, features, damaged, *item)
                 while not finished and (item is None or not results.empty()):  # nothing left here: wait
                     answer = results.get()
                     if isinstance(answer, BaseException):
                         raise answer
                     finished = answer is None
                     if not finished:
-                        yield from answer
+                        described, met = answer
+                        if damaged is not None:
+                            for told in met:
+                                damaged(*told)
+                        yield from described
         except WorkerError as exc:
             pool.kill()
             paths = [path for batch in exc.items for _, (path, _) in batch]
@@ -201,21 +209,32 @@ def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
     return statistics.median(timed[1:]) * left > start.seconds  # not np.median: its first call costs 6 ms
 
 
-def describe_quietly(spec: DescriptorSpec, tasks: Sequence[Task],
-                     features: FeatureStore | None = None) -> list[tuple[FrameRecord, bool]]:
-    """Each task's (record, computed), OpenCV's own warnings off meanwhile (a Dask worker's batch;
-    a colour descriptor's as one batch on the worker's cores); `features` as for :func:`compute`."""
+def describe_quietly(spec: DescriptorSpec, tasks: Sequence[Task]) -> list[tuple[FrameRecord, bool]]:
+    """Each task's (record, computed), OpenCV's own warnings off meanwhile (a Dask worker's batch,
+    from the pixels: the cache, local features too, stays the caller's; a colour descriptor's as
+    one batch on the worker's cores)."""
     with opencv_quiet():
         if spec.colour:
             return _describe_colour(spec, tasks, check_jobs(None))
-        return [_describe_one(spec, task, features) for task in tasks]
+        return [_describe_one(spec, task) for task in tasks]
 
 
-def _describe_tagged(spec: DescriptorSpec, features: FeatureStore | None,
-                     tasks: Sequence[tuple[int, Task]]) -> list[tuple[int, FrameRecord, bool]]:
-    """A worker process's batch: each tagged task's (tag, record, computed)."""
-    return [(tag, *result)
-            for (tag, _), result in zip(tasks, describe_quietly(spec, [task for _, task in tasks], features))]
+def _describe_tagged(spec: DescriptorSpec, features: FeatureStore | None, tasks: Sequence[tuple[int, Task]]
+                     ) -> tuple[list[tuple[int, FrameRecord, bool]], list[tuple[int, Path]]]:
+    """A worker process's batch: each tagged task's (tag, record, computed), and the (tag, file)
+    of each damaged features file met, for the parent to report (:func:`_compute_with_workers`).
+    (The worker's OpenCV warnings are off for good: :func:`_init_worker`.)"""
+    met: list[tuple[int, Path]] = []
+    described = [_describe_one_tagged(spec, features, lambda tag, file: met.append((tag, file)), tag, task)
+                 for tag, task in tasks]
+    return described, met
+
+
+def _describe_one_tagged(spec: DescriptorSpec, features: FeatureStore | None, damaged: Damaged | None,
+                         tag: int, task: Task) -> tuple[int, FrameRecord, bool]:
+    """A tagged task's (tag, record, computed) (:func:`_describe_one`), ``damaged`` told of a
+    damaged features file with the tag."""
+    return (tag, *_describe_one(spec, task, features, None if damaged is None else partial(damaged, tag)))
 
 
 def _init_worker() -> None:
@@ -267,11 +286,13 @@ def _settle(task: Task, read: Callable[[Path], np.ndarray]
         return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, None, exc.problem), False
 
 
-def _describe_one(spec: DescriptorSpec, task: Task, features: FeatureStore | None = None) -> tuple[FrameRecord, bool]:
+def _describe_one(spec: DescriptorSpec, task: Task, features: FeatureStore | None = None,
+                  damaged: Callable[[Path], None] | None = None) -> tuple[FrameRecord, bool]:
     """One frame's record and whether its descriptor was computed (False: reused or failed).
     A frame whose content digest matches its stored record keeps that record's row or failure.
     A descriptor computed from local features (``bow``) is computed from those `features` holds
-    for the image's content, which are extracted and kept there when it holds none."""
+    for the image's content, which are extracted and kept there when it holds none or its file
+    there is damaged (``damaged(file)`` is told: :meth:`FeatureStore.features`)."""
     settled = _settle(task, lambda path: _read_gray(path, spec.min_size))
     if not isinstance(settled[0], Fingerprint):
         return settled  # type: ignore[return-value]
@@ -279,7 +300,7 @@ def _describe_one(spec: DescriptorSpec, task: Task, features: FeatureStore | Non
     if features is None:
         row = np.asarray(spec.compute(gray), dtype=spec.dtype)
     else:
-        found = features.features(fp.digest, lambda: extract_features(gray, **features.setting))
+        found = features.features(fp.digest, lambda: extract_features(gray, **features.setting), damaged)
         row = np.asarray(spec.compute_from_features(found), dtype=spec.dtype)
     width, height = _full_size(path, gray)
     return FrameRecord(path.name, fp.size, fp.mtime_ns, fp.digest, row, "", width, height), True

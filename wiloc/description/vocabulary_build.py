@@ -18,11 +18,12 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import closing
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,9 +31,10 @@ from numpy.typing import NDArray
 from wiloc.bow.features import decode_size, extract_features
 from wiloc.bow.vocabulary import FORMAT_VERSION, Vocabulary, read_vocabulary, train_vocabulary, write_vocabulary
 from wiloc.bow.vocabulary_params import VocabularyParams
-from wiloc.cache.features import FeatureStore
+from wiloc.cache.features import FeatureStore, damaged_note
 from wiloc.cache.store import Cache
 from wiloc.description.frame_describing import check_jobs, compute
+from wiloc.descriptors.base import Descriptor, DescriptorSpec
 from wiloc.errors import FrameError, WilocError
 from wiloc.reprs import short_repr
 from wiloc.sources.frames import fingerprint, list_traversal, read_gray
@@ -73,18 +75,22 @@ def vocabulary_path(cache: Cache, key: str) -> Path:
     return cache.root / vocabulary_name(key)
 
 
-@dataclass(frozen=True)
-class _FeatureCount:
-    """What describing (``frame_describing.compute``, given a feature store) needs of a
-    descriptor, for a descriptor that is a frame's number of local features: describing the
-    training frames with it extracts their features into the cache on every core."""
+class _FeatureCount(Descriptor):
+    """A frame's number of local features, as a descriptor computed from them: describing the
+    training frames with it (``frame_describing.compute``, given a feature store) extracts their
+    features into the cache on every core."""
 
-    min_size: tuple[int, int]
-    name: str = "local features"
-    colour: bool = False
-    dtype: np.dtype = field(default_factory=lambda: np.dtype(np.int64))
+    name = "local features"
 
-    def compute_from_features(self, features: NDArray) -> NDArray:
+    @classmethod
+    def spec(cls, params: dict[str, Any]) -> DescriptorSpec:
+        """For features extracted with the setting ``params``: frames decoded to its size (the
+        rows, counts, are neither stored nor compared)."""
+        return cls._spec(params, metric="l1", dtype=np.dtype(np.int64), length=1, scale=1.0,
+                         min_size=decode_size(params["max_side"]), natural_max=None)
+
+    @classmethod
+    def from_features(cls, features: NDArray, params: Mapping[str, Any]) -> NDArray:
         return np.array([len(features)])
 
 
@@ -92,11 +98,12 @@ def _extract_missing(frames: Sequence[Path], digests: Sequence[str], store: Feat
                      progress: Progress | None, total: int) -> None:
     """The local features of those `frames` whose features the cache lacks, extracted and kept
     there by `jobs` processes (describing's own: this one, then also workers once that pays);
-    ``progress(done, total)`` counts the frames whose features are kept (or that cannot be read)."""
+    ``progress(done, total)`` counts the frames whose features are kept (or that cannot be read).
+    A damaged features file is there, so not missing: :func:`_features` replaces it and says so."""
     missing = [(frame, None) for frame, digest in zip(frames, digests) if not store.path(digest).exists()]
     done = len(frames) - len(missing)
-    spec = _FeatureCount(decode_size(store.setting["max_side"]))
-    with closing(compute(spec, list(enumerate(missing)), jobs, store)) as results:  # type: ignore[arg-type]
+    spec = _FeatureCount.spec(dict(store.setting))
+    with closing(compute(spec, list(enumerate(missing)), jobs, store)) as results:
         for _ in results:
             done += 1
             if progress is not None:
@@ -110,7 +117,7 @@ def _features(frame: Path, digest: str, store: FeatureStore, repairs: list[str])
     setting = store.setting
     return store.features(digest, lambda: extract_features(read_gray(frame, decode_size(setting["max_side"])),
                                                            **setting),
-                          lambda file: repairs.append(f"{file}: damaged local features; extracted again"))
+                          lambda file: repairs.append(damaged_note(file)))
 
 
 def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyParams | None = None,
