@@ -1084,6 +1084,24 @@ def test_compare_refuses_a_copy_of_a_results_file(mark: bytes, results: Path, tm
                       f"RESULTS...: {copy} holds the same run as {results} (identical contents); each run counts once")
 
 
+@pytest.mark.parametrize("how", ["sorted", "crlf"])
+def test_compare_refuses_a_reordered_copy_of_a_results_file(how: str, results: Path, tmp_path: Path) -> None:
+    """A results file sorted (by confidence, in a spreadsheet) or saved with CRLF line endings is
+    still the run it was: it does not count as a second one."""
+    text = results.read_text()
+    header = [line for line in text.splitlines() if line.startswith("#")]
+    rows = [line for line in text.splitlines() if line and not line.startswith("#")]
+    copy = tmp_path / "copy.csv"
+    if how == "sorted":
+        copy.write_text("\n".join([*header, rows[0], *sorted(rows[1:], key=lambda row: row.split(",")[-1])]) + "\n")
+        assert copy.read_text() != text
+    else:
+        copy.write_bytes(text.replace("\n", "\r\n").encode())
+    ends_in_one_error(runner.invoke(app, ["compare", str(results), str(copy)]), 2,
+                      f"RESULTS...: {copy} holds the same run as {results} (the same lines, in another order or with "
+                      "other line endings); each run counts once")
+
+
 @pytest.mark.parametrize("targets", ["", ",,"])
 def test_compare_refuses_no_target_precision(targets: str, results: Path) -> None:
     ends_in_one_error(runner.invoke(app, ["compare", str(results), "--precision", targets]), 2,

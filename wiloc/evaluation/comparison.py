@@ -247,6 +247,7 @@ def check_once(paths: Sequence[Path | None]) -> None:
     memory."""
     seen: dict[Path, Path] = {}
     contents: dict[str, Path] = {}
+    lines: dict[str, Path] = {}
     for path in paths:
         if path is None:
             continue
@@ -260,6 +261,17 @@ def check_once(paths: Sequence[Path | None]) -> None:
             if first is not path:
                 raise ParameterError("runs", f"{path} holds the same run as {first} (identical contents); "
                                              "each run counts once")
+            first = lines.setdefault(_lines_digest(text), path)
+            if first is not path:
+                raise ParameterError("runs", f"{path} holds the same run as {first} (the same lines, in another "
+                                             "order or with other line endings); each run counts once")
+
+
+def _lines_digest(text: bytes) -> str:
+    """A digest of a file's non-blank lines whatever their order and line endings: a results file
+    sorted in a spreadsheet, or saved again with CRLF line endings, is still the run it was."""
+    kept = sorted(line.rstrip() for line in text.splitlines() if line.strip())
+    return hashlib.sha256(b"\n".join(kept)).hexdigest()
 
 
 def comparison(evaluations: Sequence[Evaluation], truth: TruthSource, *,
