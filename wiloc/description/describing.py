@@ -188,8 +188,9 @@ def describe_folders(folders: Sequence[Path], spec: DescriptorSpec, cache: Cache
         tagged = [(tag, task) for tag, run in enumerate(settling) for task in run.tasks]
         if tagged:
             def damaged(tag: int, file: Path) -> None:  # told to the folder's report and the cache's front end
-                settling[tag].repairs.append(damaged_note(file))
-                cache.repairs.append(damaged_note(file))
+                note = damaged_note(file)
+                settling[tag].repairs.append(note)
+                cache.repairs.append(note)
 
             results = compute(spec, tagged, jobs, _feature_store(spec, cache), damaged) \
                 if cluster is None else _on_cluster(cluster, spec, settling)
