@@ -257,8 +257,10 @@ def test_new_flags_set_their_parameters(tmp_path: Path) -> None:
         result = runner.invoke(app, ["describe", str(ref), "--jobs", "1", *args], env=env)
         assert result.exit_code == 0, result.output
     params = sorted(json.dumps(info.params, sort_keys=True) for info in Cache(tmp_path / "cache").list_entries())
-    assert params == ['{"code_version": 1, "crop": "none", "patch": 4, "storage": "float32"}',
-                      '{"code_version": 1, "keypoint_size": 24.0}']
+    libraries = {"libraries": {"opencv": cv2.__version__}}  # the key holds the version of OpenCV too
+    assert params == [json.dumps({"code_version": 1, "crop": "none", **libraries, "patch": 4, "storage": "float32"},
+                                 sort_keys=True),
+                      json.dumps({"code_version": 1, "keypoint_size": 24.0, **libraries}, sort_keys=True)]
     bad = runner.invoke(app, ["describe", str(ref), "--patch", "5"], env=env)
     assert bad.exit_code == 2 and bad.stderr.startswith("error: --patch: must divide")
     wrong = runner.invoke(app, ["describe", str(ref), "--descriptor", "gist", "--keypoint-size", "24"], env=env)

@@ -98,7 +98,8 @@ def test_an_installed_plugin_is_listed_and_described(tmp_path: Path) -> None:
         assert report["descriptor"] == "tiny" and report["shape"] == [5, 16] and report["computed"] == 5
         assert len(described.stderr.strip().splitlines()) == 1 and "'broken'" in described.stderr
         [info] = Cache(tmp_path / "cache").list_entries()
-        assert info.params == {"side": 4, "plugin": f"{DIST} {VERSION}", "code_version": 1}  # a new release computes afresh
+        assert info.params == {"side": 4, "plugin": f"{DIST} {VERSION}", "code_version": 1,  # a new release computes afresh
+                               "libraries": {"opencv": cv2.__version__}}  # as does another OpenCV (it decoded the images)
         entry = Cache(tmp_path / "cache").read_entry(info.key)
         expected = [cv2.resize(image, (4, 4), interpolation=cv2.INTER_AREA).astype(np.float32).ravel()
                     for image in images]

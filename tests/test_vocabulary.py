@@ -270,7 +270,7 @@ def test_describe_list_shows_the_local_features_kept(tmp_path: Path, cache_dir: 
     listed = json.loads(runner.invoke(app, ["describe", "--list", "--json", "--cache", str(cache_dir)]).stdout)
     kept = [r for r in listed["results"] if r["descriptor"] == "local features"]
     assert len(kept) == 1 and kept[0]["frames"] == 5 and kept[0]["complete"] and kept[0]["size"] > 0
-    assert kept[0]["params"] == dict(SMALL.feature_setting())
+    assert kept[0]["params"] == {**SMALL.feature_setting(), "libraries": {"opencv": cv2.__version__}}
     table = runner.invoke(app, ["describe", "--list", "--cache", str(cache_dir)], env={"COLUMNS": "200"}).stdout
     assert "local features" in table and "max_side=320" in table
     for path in (cache_dir / "features").rglob("*.h5"):

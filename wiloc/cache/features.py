@@ -3,13 +3,13 @@ training frames and the same images described with ``bow`` (in any folder, under
 the feature detector once.
 
 One HDF5 file per image and feature setting, ``<root>/features/<setting>/<digest>.h5``
-(``<setting>`` a hash of what the features depend on: detector, cap, image scale), holding the
-features (SIFT's whole-number values as bytes) and a CRC-32 over the setting, the digest and the
-features' shape, dtype and values. Written as every cache file is (:meth:`Cache.atomic_h5`: a
-kill leaves the old file or none, never half of one); a file that cannot be read or fails its
-checksum counts as absent: the features are extracted again and the file replaced. Files are
-immutable once written, so processes share them without a lock (two writing the same image
-write the same bytes).
+(``<setting>`` a hash of what the features depend on: detector, cap, image scale, and the version
+of OpenCV, which decodes, resizes and extracts), holding the features (SIFT's whole-number values
+as bytes) and a CRC-32 over the setting, the digest and the features' shape, dtype and values.
+Written as every cache file is (:meth:`Cache.atomic_h5`: a kill leaves the old file or none, never
+half of one); a file that cannot be read or fails its checksum counts as absent: the features are
+extracted again and the file replaced. Files are immutable once written, so processes share them
+without a lock (two writing the same image write the same bytes).
 """
 from __future__ import annotations
 
@@ -27,11 +27,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.cache.store import UNREADABLE, Cache, EntryInfo
+from wiloc.descriptors.base import library_versions
 
 FORMAT = "wiloc-features"
 FORMAT_VERSION = 1
 FEATURES = "features"
 LISTED = "local features"  # what `describe --list` calls a setting's files
+#: The libraries whose versions a setting's folder is keyed by (names of ``descriptors.base.LIBRARIES``).
+FEATURE_LIBRARIES = ("opencv",)
 
 
 def _checksum(setting: str, digest: str, features: NDArray) -> int:
@@ -50,8 +53,10 @@ class FeatureStore:
 
     @property
     def _text(self) -> str:
-        """The setting as canonical JSON (what the folder's name hashes and checksums cover)."""
-        return json.dumps(dict(self.setting), sort_keys=True)
+        """The setting and the versions of the libraries that extract the features, as canonical
+        JSON (what the folder's name hashes and checksums cover): environments sharing a cache
+        never mix their features."""
+        return json.dumps({**self.setting, "libraries": library_versions(FEATURE_LIBRARIES)}, sort_keys=True)
 
     @property
     def folder(self) -> Path:
@@ -110,8 +115,9 @@ def damaged_note(file: Path) -> str:
 
 def list_features(cache: Cache) -> list[EntryInfo]:
     """One line per feature setting the cache holds local features of (``describe --list``):
-    the setting (read from its newest readable file), the images kept, their bytes and when the
-    newest was written; a setting none of whose files can be read is listed as unreadable."""
+    the setting and OpenCV version (read from its newest readable file), the images kept, their
+    bytes and when the newest was written; a setting none of whose files can be read is listed as
+    unreadable."""
     infos = []
     for folder in sorted(p for p in (cache.root / FEATURES).glob("*") if p.is_dir()):
         stats = {}

@@ -365,8 +365,9 @@ def _describe_stream(cache: Cache, header: EntryHeader, total: int | None,
 
 def folder_header(folder: Path, spec: DescriptorSpec) -> EntryHeader:
     """The header of a folder's entry for ``spec``, keyed as :func:`describe_folders` looks it up
-    (the descriptor's parameters and code version): the one recipe for whoever writes such an entry
-    itself (a benchmark's generated descriptors for placeholder images)."""
+    (the descriptor's parameters, its code version and its libraries' versions): the one recipe
+    for whoever writes such an entry itself (a benchmark's generated descriptors for placeholder
+    images)."""
     return _header(folder, spec, spec.cache_params)
 
 

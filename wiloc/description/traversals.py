@@ -52,9 +52,10 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
     return Entry(**asdict(header), names=list(names), data=data, digest=descriptors_digest(names, data))
 
 
-#: What a cache entry's parameters hold besides its descriptor's: the computation's version
-#: (``DescriptorSpec.cache_params``), a video's or bag's print, topic and sampling (``describing``).
-_CACHE_KEYS = ("code_version", "video", "bag", "topic", "sampling")
+#: What a cache entry's parameters hold besides its descriptor's: the versions of the computation
+#: and of the libraries it ran on (``DescriptorSpec.cache_params``), a video's or bag's print, topic
+#: and sampling (``describing``).
+_CACHE_KEYS = ("code_version", "libraries", "video", "bag", "topic", "sampling")
 
 
 def entry_params(entry: Entry) -> dict[str, Any]:

@@ -10,8 +10,10 @@ descriptor's declarations, load without OpenCV: the command line builds its opti
 """
 from __future__ import annotations
 
+import functools
+import importlib
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -23,6 +25,22 @@ from wiloc.parameters import Declared, Parameters, declared
 
 METRICS = ("l1", "sqeuclidean", "hamming", "cosine")
 BUILT_IN = "built-in"
+#: The libraries whose computation a descriptor's rows may depend on (``Descriptor.libraries``),
+#: by the name a cache key gives them, each with the module whose ``__version__`` says its version.
+LIBRARIES = {"opencv": "cv2", "onnxruntime": "onnxruntime"}
+
+
+@functools.cache
+def library_version(name: str) -> str:
+    """The version of library ``name`` (one of LIBRARIES) in this environment, imported now: the
+    declarations load without it."""
+    return str(importlib.import_module(LIBRARIES[name]).__version__)
+
+
+def library_versions(names: Iterable[str]) -> dict[str, str]:
+    """``{name: version}`` of the libraries ``names`` (:func:`library_version`): what the cache keys
+    rows computed by them by, so that environments sharing a cache never mix their rows."""
+    return {name: library_version(name) for name in names}
 
 
 @dataclass(frozen=True)
@@ -42,9 +60,11 @@ class DescriptorSpec:
 
     @property
     def cache_params(self) -> dict[str, Any]:
-        """What the cache keys an entry by: the parameters and the version of the class's
-        computation (``Descriptor.version``), so that rows computed otherwise are never reused."""
-        return {**self.params, "code_version": self.kind.version}
+        """What the cache keys an entry by: the parameters, the version of the class's computation
+        (``Descriptor.version``) and those of the libraries it computes with
+        (``Descriptor.libraries``), so that rows computed otherwise are never reused."""
+        return {**self.params, "code_version": self.kind.version,
+                "libraries": library_versions(self.kind.libraries)}
 
     @property
     def key(self) -> str:
@@ -119,6 +139,9 @@ class Descriptor:
     #: How its rows are computed: raised with any change to the computation that moves a row, so
     #: that the cache describes afresh what an earlier version computed (its entries' key holds it).
     version: ClassVar[int] = 1
+    #: The libraries (names in LIBRARIES) its rows depend on beyond wiloc's code, whose versions its
+    #: entries' key holds: OpenCV decodes and resizes every image described.
+    libraries: ClassVar[tuple[str, ...]] = ("opencv",)
 
     @classmethod
     def options(cls) -> list[Declared]:

@@ -352,6 +352,7 @@ class Onnx(Descriptor):
     depends = "its model"
     colour = True
     derived = ("model_digest",)
+    libraries = ("opencv", "onnxruntime")  # OpenCV decodes and resizes, onnxruntime runs the network
 
     @classmethod
     def make(cls, given: Mapping[str, Any]) -> DescriptorSpec:
