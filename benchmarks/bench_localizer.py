@@ -101,7 +101,7 @@ def measure(method: str, n_map: int, frames: int, rng: np.random.Generator,
     batch_method.start(context)
     wall, cpu, _ = timed(lambda: batch_method.run(iter(to_map(query).astype(np.float64)), frames))
     ms = 1000.0
-    revisits = [timed(lambda q=q: seq.observe(q))[:2] for seq in [sequence_grown(method, params, map_data)]
+    revisits = [timed(lambda q=q, seq=seq: seq.observe(q))[:2] for seq in [sequence_grown(method, params, map_data)]
                 for q in query] if sequence else [(np.nan, np.nan)]
     return {"sequence_wall": ms * statistics.median(w for w, _ in revisits),
             "sequence_cpu": ms * statistics.median(c for _, c in revisits),

@@ -83,7 +83,7 @@ def make_case(root: Path, n: int) -> dict[str, Any]:
     # every fourth is unrelated noise, so that training sees wrong best matches too
     nodes = np.unique(np.rint(np.linspace(0, n - 1, min(1000, n // 2))).astype(int))
     noisy = np.clip(map_data[nodes].astype(float) + rng.normal(0, 20, (nodes.size, SPEC.length)), 0, 255)
-    noisy[::4] = np.clip(128 + 32 * rng.standard_normal((noisy[::4].shape)), 0, 255)  # some wrong best matches
+    noisy[::4] = np.clip(128 + 32 * rng.standard_normal(noisy[::4].shape), 0, 255)  # some wrong best matches
     seed_folder(root / "train", noisy.astype(np.uint8), [names[i] for i in nodes], cache)
     return {"query": query, "map": map_data, "train": noisy.astype(np.uint8)}
 
@@ -137,7 +137,7 @@ def run_child(*argv: str) -> dict[str, float]:
     """Run this script as a child with ``argv`` and return the JSON it prints last. A child that
     fails ends the benchmark with its last error line (what went wrong, the end of its traceback),
     which a CalledProcessError would leave unsaid."""
-    done = subprocess.run([sys.executable, __file__, *argv], capture_output=True, text=True)
+    done = subprocess.run([sys.executable, __file__, *argv], capture_output=True, text=True, check=False)
     if done.returncode:
         sys.exit(f"error: {' '.join(argv)}: {last_error_line(done.stderr, done.returncode)}")
     return json.loads(done.stdout.strip().splitlines()[-1])

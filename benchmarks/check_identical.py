@@ -138,7 +138,7 @@ class Runner:
     def __call__(self, name: str, *args: str) -> subprocess.CompletedProcess[str]:
         env = {**os.environ, **ENVIRONMENT, "PYTHONPATH": str(self.code), "WILOC_CACHE": str(self.cache)}
         done = subprocess.run([sys.executable, "-m", "wiloc", *args], cwd=self.work, env=env,
-                              capture_output=True, text=True)
+                              capture_output=True, text=True, check=False)
         self.count += 1
         stem = self.logs / f"{self.count:03d}-{name}"
         Path(f"{stem}.args").write_text(" ".join(args) + "\n")

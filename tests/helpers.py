@@ -114,7 +114,7 @@ class FakeSpec:
     params: dict[str, Any] = field(default_factory=lambda: {"side": 4})
     name: str = "fake"
     metric: str = "l1"
-    dtype: np.dtype = np.dtype(np.float32)
+    dtype: np.dtype = np.dtype(np.float32)  # noqa: RUF009 - a dtype is immutable
     scale: float = 1.0
     min_size: tuple[int, int] | None = None
     natural_max: float | None = 255.0

@@ -455,7 +455,7 @@ def test_ctrl_c_that_a_library_swallows_still_stops_the_command(route: tuple[Pat
             "sys.exit(entry.main())\n")
     result = subprocess.run([sys.executable, "-c", code, "localize", str(query), "--map", str(ref), "--method",
                              "catgraph", "--particles", "1000000", "--jobs", "1", "--out", str(out)],
-                            capture_output=True, text=True, timeout=120)
+                            capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 130, result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: interrupted"), result.stderr
@@ -493,7 +493,7 @@ def test_ctrl_c_during_an_import_waits_for_the_import_then_stops_the_command(
             "wiloc.cli.run = run\n"
             "sys.exit(entry.main())\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
-                            env={**os.environ, "PYTHONPATH": str(tmp_path)})
+                            env={**os.environ, "PYTHONPATH": str(tmp_path)}, check=False)
     if ignored:
         assert (result.returncode, result.stdout, result.stderr) == expected
     else:
@@ -525,7 +525,7 @@ def test_ctrl_c_while_numba_compiles_waits_for_the_kernel_then_stops_the_command
             "    return 0\n"
             "wiloc.cli.run = run\n"
             "sys.exit(entry.main())\n")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert_stopped_once_printing(result, "compiled 2\n")
 
 
@@ -537,7 +537,7 @@ def test_ctrl_c_after_the_work_leaves_the_exit_code_alone(route: tuple[Path, Pat
             "status = entry.main()\n"
             "signal.raise_signal(signal.SIGINT)\n"
             "sys.exit(status)\n")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert (result.returncode, result.stderr) == (0, "")
 
 
@@ -546,7 +546,7 @@ def test_ctrl_c_after_the_work_leaves_the_exit_code_alone(route: tuple[Path, Pat
                                            (["evaluate"], "error: RESULTS...: missing")])
 def test_usage_errors_are_one_line_from_the_console_script_too(args: list[str], message: str, tmp_path: Path) -> None:
     result = subprocess.run([str(_console_script()), *args], capture_output=True, text=True, cwd=tmp_path,
-                            timeout=120)
+                            timeout=120, check=False)
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr.splitlines() == [result.stderr.strip()] and result.stderr.startswith(message)
 
@@ -556,7 +556,7 @@ def _closed_output(command: list[str]) -> subprocess.CompletedProcess[str]:
     reader, writer = os.pipe()
     os.close(reader)
     try:
-        return subprocess.run(command, stdout=writer, stderr=subprocess.PIPE, text=True, timeout=120)
+        return subprocess.run(command, stdout=writer, stderr=subprocess.PIPE, text=True, timeout=120, check=False)
     finally:
         os.close(writer)
 
@@ -575,7 +575,7 @@ def test_a_full_disk_under_stdout_is_one_line_naming_it(args: list[str], results
         pytest.skip("no /dev/full here")
     with open("/dev/full", "w") as full:
         result = subprocess.run([str(_console_script()), *[str(results) if a == "RESULTS" else a for a in args]],
-                                stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+                                stdout=full, stderr=subprocess.PIPE, text=True, timeout=120, check=False)
     assert (result.returncode, result.stderr) == (1, "error: standard output: No space left on device\n")
 
 
@@ -593,7 +593,7 @@ def test_a_command_started_with_stdout_closed_does_its_work(route: tuple[Path, P
     out = tmp_path / "run.csv"
     result = subprocess.run([str(_console_script()), "localize", str(query), "--map", str(ref), "--method", "threshold",
                              "--jobs", "1", "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True, timeout=120, preexec_fn=lambda: os.close(1))
+                            text=True, timeout=120, preexec_fn=lambda: os.close(1), check=False)
     assert (result.returncode, result.stderr) == (0, "")
     assert len(out.read_text().splitlines()) > 30
 
@@ -604,7 +604,8 @@ def test_a_command_started_with_stderr_closed_does_its_work(tmp_path: Path, cach
     scenes = places(60)
     folders = [write_traversal(tmp_path / name, scenes, gain, seed) for name, gain, seed in (("a", 1.0, 1), ("b", 0.7, 2))]
     result = subprocess.run([str(_console_script()), "describe", *map(str, folders), "--jobs", "2", "--json"],
-                            stdout=subprocess.PIPE, text=True, timeout=300, preexec_fn=lambda: os.close(2))
+                            stdout=subprocess.PIPE, text=True, timeout=300, preexec_fn=lambda: os.close(2),
+                            check=False)
     assert result.returncode == 0
     assert [entry["frames"] for entry in json.loads(result.stdout)["results"]] == [60, 60]
 
@@ -614,7 +615,7 @@ def test_json_is_plain_json_whatever_the_terminal_asks_for(results: Path) -> Non
     not wrap it."""
     env = {**os.environ, "FORCE_COLOR": "1", "TTY_COMPATIBLE": "1", "COLUMNS": "20"}
     result = subprocess.run([str(_console_script()), "evaluate", str(results), "--json"], capture_output=True,
-                            text=True, timeout=120, env=env)
+                            text=True, timeout=120, env=env, check=False)
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["runs"][0]["results"] == str(results)
 
@@ -802,7 +803,7 @@ def test_observe_takes_float_images_in_0_1_as_their_8_bit_values(localizers: dic
     for loc in localizers.values():
         as_bytes = loc.describe(image)
         assert np.array_equal(loc.describe(image / 255.0), as_bytes)
-        assert np.array_equal(loc.describe((image.astype(np.uint16) * 257)), as_bytes)  # 16-bit, as a 16-bit file
+        assert np.array_equal(loc.describe(image.astype(np.uint16) * 257), as_bytes)  # 16-bit, as a 16-bit file
 
 
 def test_a_float_row_against_uint8_rows_is_a_wiloc_error() -> None:
@@ -1159,7 +1160,7 @@ def test_an_output_that_is_the_commands_own_stdout_is_refused(results: Path, tmp
     printed = tmp_path / "printed.txt"
     with printed.open("w") as stdout:
         result = subprocess.run([str(_console_script()), "evaluate", str(results), "--csv", "/dev/stdout"],
-                                stdout=stdout, stderr=subprocess.PIPE, text=True, timeout=120)
+                                stdout=stdout, stderr=subprocess.PIPE, text=True, timeout=120, check=False)
     assert result.returncode == 2
     assert result.stderr.strip() == ("error: --csv: /dev/stdout: it is this command's standard output, which writing "
                                      "would replace (give a file of its own)")
@@ -1419,7 +1420,7 @@ def test_a_video_or_demo_folder_whose_path_is_not_utf8_is_one_line_not_a_crash(t
     os.rename(plain, video)
     demo = os.fsencode(tmp_path) + b"/demo\xff"
     for args, shown in ((["describe", video], f"{tmp_path}/drive\\xff.avi"), (["demo", "--out", demo], f"{tmp_path}/demo\\xff")):
-        result = subprocess.run([_console_script(), *args], capture_output=True, timeout=120)
+        result = subprocess.run([_console_script(), *args], capture_output=True, timeout=120, check=False)
         stderr = result.stderr.decode()
         assert result.returncode == 1 and stderr.count("\n") == 1, (result.returncode, stderr)
         assert stderr.startswith(f"error: {shown}") and "path is not valid UTF-8" in stderr
@@ -1723,7 +1724,8 @@ def test_a_seqslam_enhance_window_wider_than_the_map_is_the_whole_map() -> None:
             "rows = np.random.default_rng(0).random((2, 30)); "
             "print(np.array_equal(enhance(rows, 2 ** 62), enhance(rows, 30)))")
     limit = functools.partial(resource.setrlimit, resource.RLIMIT_AS, (3 << 30, 3 << 30))
-    ran = subprocess.run([sys.executable, "-c", code], preexec_fn=limit, capture_output=True, text=True, timeout=120)
+    ran = subprocess.run([sys.executable, "-c", code], preexec_fn=limit, capture_output=True, text=True, timeout=120,
+                         check=False)
     assert (ran.returncode, ran.stdout.strip()) == (0, "True"), ran.stderr[-500:]
 
 
@@ -1957,7 +1959,8 @@ def test_a_catgraph_mode_window_wider_than_the_map_is_the_whole_map() -> None:
             "print(all(np.array_equal(r.match, runs[0].match) and np.array_equal(r.confidence, runs[0].confidence) "
             "for r in runs))")
     limit = functools.partial(resource.setrlimit, resource.RLIMIT_AS, (3 << 30, 3 << 30))
-    ran = subprocess.run([sys.executable, "-c", code], preexec_fn=limit, capture_output=True, text=True, timeout=300)
+    ran = subprocess.run([sys.executable, "-c", code], preexec_fn=limit, capture_output=True, text=True, timeout=300,
+                         check=False)
     assert (ran.returncode, ran.stdout.strip()) == (0, "True"), ran.stderr[-500:]
 
 

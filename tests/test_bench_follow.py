@@ -172,7 +172,7 @@ def test_a_run_that_fails_before_its_results_file_ends_the_benchmark_with_its_er
     driver = (f"import sys; sys.path.insert(0, {str(BENCHMARKS)!r}); from pathlib import Path; import bench_follow; "
               f"bench_follow.CLI = {refusing!r}; root = Path({str(tmp_path)!r}); "
               "bench_follow.latency(root / 'winter', root / 'summer', 'threshold', root, rate=20.0, frames=2)")
-    done = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True, timeout=120)
+    done = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True, timeout=120, check=False)
     assert (done.returncode, done.stderr.strip().splitlines()) == (1, [
         "error: wiloc localize --follow --method threshold ended with exit code 2 before writing its results "
         "file; it said: error: --normaliser: must be > 0, got -1.0"])

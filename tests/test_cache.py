@@ -75,11 +75,11 @@ def test_lock_times_out_in_another_process_naming_the_holder(tmp_path: Path) -> 
         "except CacheBusyError as e: print(e); sys.exit(3)\n"
     )
     with cache.lock("descriptors/k.h5"), cache.lock("descriptors/k.h5", timeout=0):  # re-entrant
-        busy = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        busy = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert busy.returncode == 3
     assert f"(pid {os.getpid()})" in busy.stdout
     assert str(cache.root / "descriptors" / "k.h5") in busy.stdout
-    free = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    free = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert free.returncode == 0, free.stderr
 
 

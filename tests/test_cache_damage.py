@@ -18,7 +18,6 @@ from wiloc.cache.features import FeatureStore
 from wiloc.cache.store import Cache, lock_file
 from wiloc.description.describing import describe_folder
 from wiloc.description.differences import map_summary
-from wiloc.errors import WilocError
 
 
 def _overwrite(path: Path, offset: int, data: bytes = b"\xde\xad\xbe\xef") -> None:

@@ -14,7 +14,6 @@ from wiloc.methods import base
 from wiloc.methods.catgraph.filter import CatGraph
 from wiloc.methods.catgraph.trajectory import (contrast_normalise, even_shifted_reads, posterior_ranking, read_runs,
                                                shifted_reads)
-from wiloc.rows import ArrayRows
 
 from helpers import loop_rows
 

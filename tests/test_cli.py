@@ -194,7 +194,7 @@ def test_external_matrices_localize_and_nan_is_refused(tmp_path: Path, cache_dir
 
 def test_the_four_verbs_are_package_functions() -> None:
     import wiloc
-    import wiloc.description.describing  # noqa: F401  (a submodule import must not shadow a verb)
+    import wiloc.description.describing  # a submodule import must not shadow a verb
     from wiloc import api
     assert all(callable(getattr(wiloc, verb)) and getattr(wiloc, verb) is getattr(api, verb)
                for verb in ("describe", "localize", "evaluate", "compare"))
@@ -545,7 +545,7 @@ def test_a_followed_runs_lines_keep_one_field_per_column_whatever_the_names(rout
     result = runner.invoke(app, ["localize", str(live), "--map", str(ref), "--method", "threshold", "--follow",
                                  "--idle", "0.3", "--out", str(tmp_path / "live.csv")])
     assert result.exit_code == 0, result.output
-    header, *lines, end = result.stdout.splitlines()
+    _header, *lines, _end = result.stdout.splitlines()
     assert len(lines) == len(names) and all(len(line.split("\t")) == 5 for line in lines)
     assert sorted(line.split("\t")[0] for line in lines) == sorted(["tab\\there.png", "line\\nbreak.png",
                                                                     "back\\\\slash.png"])

@@ -7,7 +7,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -16,13 +15,13 @@ import numpy as np
 import pytest
 
 pytest.importorskip("distributed")
-from distributed import LocalCluster  # noqa: E402
+from distributed import LocalCluster
 
-from wiloc import api  # noqa: E402
-from wiloc.cache.store import Cache  # noqa: E402
-from wiloc.description.cluster import connect, disconnect  # noqa: E402
-from wiloc.description.differences import ComputedDifferences  # noqa: E402
-from wiloc.description.distances import DifferencesTo  # noqa: E402
+from wiloc import api
+from wiloc.cache.store import Cache
+from wiloc.description.cluster import connect, disconnect
+from wiloc.description.differences import ComputedDifferences
+from wiloc.description.distances import DifferencesTo
 
 TRAVERSALS = ("day_right", "day_left", "night_right")
 VOLATILE = {"created", "updated"}  # times of writing: the only attributes allowed to differ
@@ -44,7 +43,7 @@ def scheduler() -> Iterator[str]:
 def kill_a_worker(address: str) -> None:
     """SIGKILL one worker process (its nanny starts a new one)."""
     pids = connect(address).client.run(os.getpid)
-    os.kill(sorted(pids.values())[0], signal.SIGKILL)
+    os.kill(min(pids.values()), signal.SIGKILL)
 
 
 def dataset_bytes(item: h5py.Dataset) -> bytes:
@@ -98,7 +97,7 @@ def test_an_unreachable_scheduler_is_one_error_line(tmp_path: Path) -> None:
     code = ("import dask, sys; from wiloc.cli import app; dask.config.set({'distributed.comm.timeouts.connect': '2s'}); "
             "sys.argv = ['wiloc', 'describe', sys.argv[1], '--scheduler', 'tcp://127.0.0.1:9']; app()")
     run = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=120,
-                         env={**os.environ, "WILOC_CACHE": str(tmp_path / "cache")})
+                         env={**os.environ, "WILOC_CACHE": str(tmp_path / "cache")}, check=False)
     assert run.returncode == 1, run.stderr
     assert run.stderr.count("error:") == 1 and "tcp://127.0.0.1:9: cannot reach the Dask scheduler" in run.stderr
 
@@ -110,7 +109,7 @@ def test_a_malformed_scheduler_address_is_a_usage_error(address: str, tmp_path: 
     code = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
     env = {**os.environ, "WILOC_CACHE": str(tmp_path / "cache")}
     run = subprocess.run([sys.executable, "-c", code, "describe", str(tmp_path), "--scheduler", address],
-                         capture_output=True, text=True, timeout=120, env=env)
+                         capture_output=True, text=True, timeout=120, env=env, check=False)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1, run.stderr
     assert lines[0].startswith("error: --scheduler:") and "is no Dask scheduler address" in lines[0] \
@@ -132,7 +131,7 @@ def error_in_a_process(workers: int, work: str, then: str = "", wait: float = 1)
         *(["    assert next(results) in range(64)", f"    {then}"] if then else []),
         "    list(results)",
         "except WilocError as exc:", "    print(exc)"])
-    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=180)
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=180, check=False)
     assert run.returncode == 0, run.stderr
     return run.stdout.strip()
 
@@ -174,7 +173,7 @@ def stalled_in_a_process(stuck: str, *run: str) -> str:
         "local = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=':0')",
         "try:", *(f"    {line}" for line in run),
         "except WilocError as exc:", "    print(exc)"])
-    process = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    process = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert process.returncode == 0, process.stderr
     return process.stdout.strip()
 
@@ -256,8 +255,9 @@ def test_describe_and_localize_on_a_cluster_match_the_local_run(scheduler: str, 
         kill = {"done": False}
 
         def progress(stage: str, done: int, total: int) -> None:
-            if where == "cluster" and not kill["done"] and stage.startswith("describe day_left") and done >= total // 3:
-                kill["done"] = True
+            # called during this iteration's describe, so where and kill are this iteration's
+            if where == "cluster" and not kill["done"] and stage.startswith("describe day_left") and done >= total // 3:  # noqa: B023
+                kill["done"] = True  # noqa: B023
                 kill_a_worker(scheduler)  # mid-run: its batches are run again elsewhere
 
         reports = api.describe(folders, "sad", cache=cache, jobs=2, progress=progress,

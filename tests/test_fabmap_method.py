@@ -139,7 +139,7 @@ def test_fabmap_s_own_parameters_reach_its_model_from_the_api_and_the_command_li
     assert not np.allclose(new_place["sampled"], new_place["mean-field"])  # the model's new place changed
     loc = Localizer(route.reference, descriptor="bow", descriptor_params=bow, method="fabmap", new_place="mean-field",
                     cache=cache)
-    first = loc.observe(sorted(route.query.iterdir())[0])
+    first = loc.observe(min(route.query.iterdir()))
     assert f"{first.new_place:.9g}" == f"{new_place['mean-field'][0]:.9g}"
     runner = CliRunner()
     args = ["localize", str(route.query), "--map", str(route.reference), "--descriptor", "bow", "--vocabulary",

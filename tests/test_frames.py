@@ -43,7 +43,7 @@ def test_natural_key_orders_decimal_fractions_as_fractions() -> None:
     stamps = [float(t) for t in np.round(1614000000 + np.cumsum(rng.uniform(0.01, 0.3, 60)), 6)]
     names = [f"{t}.jpg" for t in stamps]
     assert len({len(name) for name in names}) > 2  # fractions of different lengths
-    assert sorted(names[::-1], key=natural_key) == names
+    assert sorted(names[::-1], key=natural_key) == names  # noqa: C415 - sorted from the reverse order
     # dotted runs that are no decimal number (dates, versions) keep each run's value
     assert sorted(["v2021.3.15.png", "v2021.3.9.png"], key=natural_key) == ["v2021.3.9.png", "v2021.3.15.png"]
     assert sorted(["frame.10.png", "frame.2.png"], key=natural_key) == ["frame.2.png", "frame.10.png"]

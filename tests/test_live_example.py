@@ -135,7 +135,7 @@ def _started(data_root: Path, cache: Path, out: Path) -> subprocess.Popen[str]:
     env = {**os.environ, "WILOC_CACHE": str(cache)}
     proc = subprocess.Popen([sys.executable, str(EXAMPLE), str(data_root), "--out", str(out)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # noqa: PLW1509 - takes no lock
     assert proc.stdout is not None
     for line in proc.stdout:
         if line.startswith("Image000.jpg"):

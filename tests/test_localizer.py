@@ -134,7 +134,7 @@ def test_sequence_mode_state_round_trips(method: str, cut: int, tmp_path: Path) 
     """Saved and loaded mid-run (catgraph at 15: before its map has 2 frames), the localizer goes on as before."""
     rows, names = _looped_descriptors(seed=4)
     params = {"init": 30} if method == "online" else _SEQUENCE_PARAMS[method]
-    make = lambda: Localizer(None, descriptor="external", method=method, cache=Cache(tmp_path / "c"),  # noqa: E731
+    make = lambda: Localizer(None, descriptor="external", method=method, cache=Cache(tmp_path / "c"),
                              descriptor_params={"metric": "l1", "length": 64}, **params)
     whole = make()
     expected = [whole.observe(r, name=n) for r, n in zip(rows, names)]
@@ -162,7 +162,7 @@ def test_sequence_mode_with_odometry_streams_as_batch_and_round_trips(tmp_path: 
     run = api.localize(tmp_path / "route.npy", metric="l1", query_names_file=tmp_path / "names.txt",
                        method="catgraph", method_params=params, odometry=tmp_path / "odometry.csv",
                        out=tmp_path / "batch.csv", cache=Cache(tmp_path / "c"))
-    make = lambda: Localizer(None, descriptor="external", method="catgraph", cache=Cache(tmp_path / "c"),  # noqa: E731
+    make = lambda: Localizer(None, descriptor="external", method="catgraph", cache=Cache(tmp_path / "c"),
                              descriptor_params={"metric": "l1", "length": 64}, **params)
     whole = make()
     expected = [whole.observe(r, name=n, odometry=float(s)) for r, n, s in zip(rows, names, steps)]
@@ -219,7 +219,7 @@ def test_a_changed_map_is_refused_on_load(demo_route: demo.DemoRoute, tmp_path: 
     map_copy = tmp_path / "map"
     shutil.copytree(demo_route.reference, map_copy)
     loc = Localizer(map_copy, method="threshold")
-    loc.observe(sorted(demo_route.queries[0].iterdir())[0])
+    loc.observe(min(demo_route.queries[0].iterdir()))
     loc.save(tmp_path / "s.npz")
     victim = sorted(map_copy.iterdir())[3]
     cv2.imwrite(str(victim), 255 - cv2.imread(str(victim)))
@@ -383,7 +383,7 @@ def test_observe_takes_a_new_text_name_for_each_frame(demo_route: demo.DemoRoute
     before anything is decided, after a load too; a file observed again under its own name (a
     camera writing latest.jpg each time) gets the frame's index after its stem."""
     loc = Localizer(demo_route.reference, method="threshold")
-    path = sorted(demo_route.queries[0].iterdir())[0]
+    path = min(demo_route.queries[0].iterdir())
     for name, problem in ([5, "name must be text (str), got int 5"], ["", "name is empty"]):
         with pytest.raises(WilocError) as err:
             loc.observe(path, name=name)
@@ -717,7 +717,7 @@ def test_a_localizer_over_a_cached_map_takes_its_descriptor_parameters(demo_rout
     [report] = api.describe([demo_route.reference], "sad", descriptor_params={"patch": 4}, cache=cache)
     loc = Localizer(report.entry, method="threshold", cache=cache)
     assert loc.describer.spec == get_descriptor("sad", patch=4)
-    first = sorted(demo_route.reference.iterdir())[0]
+    first = min(demo_route.reference.iterdir())
     assert loc.observe(first).match_name == first.name
     assert Localizer(report.entry, descriptor_params={"patch": 4}, method="threshold").describer.spec.params["patch"] == 4
     with pytest.raises(ParameterError, match="the map held in memory was described with") as refused:
@@ -747,7 +747,7 @@ def test_a_run_records_the_same_descriptor_parameters_however_it_is_made(descrip
     [report] = api.describe([reference], descriptor, cache=cache)
     for map_ in (reference, report.entry):
         loc = Localizer(map_, descriptor=descriptor, method="threshold", cache=cache)
-        loc.observe(sorted(query.iterdir())[0])
+        loc.observe(min(query.iterdir()))
         recorded.append(loc.results().header.descriptor_params)
     assert recorded == [dict(get_descriptor(descriptor).params)] * 4
 

@@ -232,7 +232,7 @@ def test_the_example_method_runs_through_localize_and_the_localizer(demo_route: 
     assert run.results.frames.columns.tolist()[-2:] == ["second", "ranking"]  # a new method ranks by default
     assert run.results.header.params["window"] == 3
     loc = Localizer(demo_route.reference, method="ratio", window=3, cache=cache)
-    first = loc.observe(sorted(demo_route.queries[0].iterdir())[0])
+    first = loc.observe(min(demo_route.queries[0].iterdir()))
     assert first.match_name == run.results.frames["match"].iloc[0]
     assert f"{first.confidence:.9g}" == f"{run.decisions.confidence[0]:.9g}"
 

@@ -55,7 +55,7 @@ TINY = DescriptorPlugin(compute=tiny, metric="l1", length=16, params={"side": 4}
 
 def _wiloc(*args: str, env: dict[str, str]) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "wiloc", *args], capture_output=True, text=True, env=env,
-                          timeout=300)
+                          timeout=300, check=False)
 
 
 def _pip(*args: str) -> None:
@@ -304,7 +304,7 @@ def test_worker_processes_describe_a_plugin_as_this_process_does(start: str, thu
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tmp_path / "site"),
                                                                       os.environ.get("PYTHONPATH")]))}
     run = subprocess.run([sys.executable, "-c", WORKERS_DESCRIBE, str(route), str(tmp_path / "shared"), start],
-                         capture_output=True, text=True, timeout=120, env=env)
+                         capture_output=True, text=True, timeout=120, env=env, check=False)
     assert run.returncode == 0, run.stderr
     pid, key, digest, data = run.stdout.split()
     assert len({int(p.name) for p in thumb_plugin.iterdir()} - {os.getpid(), int(pid)}) == 1  # a worker computed rows
@@ -363,7 +363,7 @@ def test_a_descriptor_registered_by_the_script_run_is_refused_by_fresh_workers_i
     for i in range(40):
         cv2.imwrite(str(route / f"f{i:02d}.png"), np.full((24, 32), i, np.uint8))
     run = subprocess.run([sys.executable, "-c", MAIN_DESCRIPTOR, str(route), str(tmp_path / "cache")],
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=120, check=False)
     assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
     assert run.stdout.startswith("descriptor 'mean' cannot be described in worker processes, which do not find its "
                                  "class by name (Can't get attribute 'Mean' on <module '__main__'"), run.stdout

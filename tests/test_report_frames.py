@@ -14,19 +14,20 @@ from matplotlib.figure import Figure
 
 from helpers import ends_in_one_error
 from test_cli_output import OUTPUT_SCHEMA
-from test_report import (_data, _report, assert_loads_without_errors, needs_chromium,  # noqa: F401
-                         runs)  # runs: the fixture of two methods' runs
+import test_report
+from test_report import _data, _report, assert_loads_without_errors, needs_chromium
 from typer.testing import CliRunner
 
 from wiloc.cli import app
 from wiloc.figures import plots
 
 runner = CliRunner()
+runs = test_report.runs  # the fixture of two methods' runs, which the tests request by name
 
 
 def _calibration_table(page: str) -> str:
     """The page's calibration table, as HTML."""
-    found = re.search(r"<h3>Calibration and fixed confidence cuts</h3>\s*(<table.*?</table>)", page, re.S)
+    found = re.search(r"<h3>Calibration and fixed confidence cuts</h3>\s*(<table.*?</table>)", page, re.DOTALL)
     assert found
     return found.group(1)
 

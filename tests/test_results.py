@@ -27,7 +27,7 @@ def _decisions() -> Decisions:
                      ranking=np.array([[-1, -1], [2, 1], [0, -1]]))
 
 
-def _made(header: ResultsHeader = ResultsHeader()) -> Results:
+def _made(header: ResultsHeader = ResultsHeader()) -> Results:  # noqa: B008 - ResultsHeader is frozen
     """The run of :func:`_decisions` over query frames a, b, c and map frames x, y, z."""
     return make_results(_decisions(), query_names=["a", "b", "c"], ref_names=["x", "y", "z"], header=header)
 

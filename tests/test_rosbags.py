@@ -22,9 +22,9 @@ from wiloc.sources.bags import Bag, frame_name, is_bag, stamp_of
 from wiloc.sources.frames import read_gray
 
 pytest.importorskip("rosbags")
-from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
-from rosbags.rosbag2 import StoragePlugin, Writer as Writer2  # noqa: E402
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
+from rosbags.typesys import Stores, get_typestore
 
 runner = CliRunner()
 KINDS = ("ros1", "sqlite3", "mcap")

@@ -140,7 +140,7 @@ def test_the_training_pair_is_recorded_by_its_resolved_path_as_query_and_map_are
     batch = api.localize(demo_route.queries[0], reference=demo_route.reference, method="trained", training=pair,
                          out=tmp_path / "batch.csv", cache=cache)
     loc = Localizer(demo_route.reference, method="trained", training=pair, cache=cache)
-    loc.observe(sorted(demo_route.queries[0].iterdir())[0])
+    loc.observe(min(demo_route.queries[0].iterdir()))
     for header in (read_header(batch.path)[0], loc.results().header):
         assert header.train_query == str(demo_route.queries[1].resolve())
         assert header.train_map == str(demo_route.reference.resolve()) == header.map

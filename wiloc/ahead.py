@@ -16,7 +16,7 @@ import os
 import queue
 import sys
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable
 from typing import TypeVar
 
 T = TypeVar("T")
@@ -40,7 +40,7 @@ def _lower_priority(increment: int) -> None:
         pass
 
 
-def computed_ahead(items: Iterable[T], depth: int = 1) -> Iterator[T]:
+def computed_ahead(items: Iterable[T], depth: int = 1) -> Generator[T, None, None]:
     """The items of ``items`` in order, computed by a helper thread up to ``depth`` items ahead
     of the caller (plus the one it is computing). An exception raised computing an item is
     raised here, in its place; when the caller stops early the helper stops after its current
@@ -65,7 +65,7 @@ def computed_ahead(items: Iterable[T], depth: int = 1) -> Iterator[T]:
                 if not hand((True, item)):
                     return
             hand((False, None))
-        except BaseException as exc:  # handed to the caller, raised there
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller, raised there
             hand((False, exc))
         finally:
             close = getattr(items, "close", None)

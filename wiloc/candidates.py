@@ -31,7 +31,7 @@ def mask_recent(row: NDArray[np.float64], k: int, exclude_recent: int) -> NDArra
     return row
 
 
-def finite_minimum(row: NDArray[np.float64]) -> tuple[int, float]:
+def finite_minimum(row: NDArray[np.floating]) -> tuple[int, float]:
     """(argmin, min) over the finite entries of a difference row; (-1, nan) when there are none."""
     if row.size == 0:
         return -1, float("nan")
@@ -45,7 +45,7 @@ RANKED = 20
 Recall@1, @5, @10 and @20 as place recognition papers report them (docs/evaluation.md)."""
 
 
-def best_candidates(row: NDArray[np.float64], k: int = RANKED, *, descending: bool = False) -> NDArray[np.int64]:
+def best_candidates(row: NDArray[np.floating], k: int = RANKED, *, descending: bool = False) -> NDArray[np.int64]:
     """The positions of a row's ``k`` best candidates, best first: ascending difference (or, with
     ``descending``, falling evidence), equal values in order of position, so the first is
     :func:`finite_minimum`'s argmin. Entries that are no candidate (infinite, NaN) are never

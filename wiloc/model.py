@@ -26,8 +26,8 @@ class HistogramModel:
     edges: NDArray[np.float64]
     smoothing: float = 1.0
     prior: float | None = None
-    b: NDArray[np.float64] = field(default=None)  # type: ignore[assignment]
-    c: NDArray[np.float64] = field(default=None)  # type: ignore[assignment]
+    b: NDArray[np.float64] = field(default=None)  # type: ignore[arg-type]
+    c: NDArray[np.float64] = field(default=None)  # type: ignore[arg-type]
 
     def __post_init__(self) -> None:
         self.edges = np.asarray(self.edges, dtype=np.float64)
@@ -44,7 +44,7 @@ class HistogramModel:
                 raise ValueError(f"{name} must hold a count >= 0 for each of the {self.n_bins} bins")
 
     @classmethod
-    def from_range(cls, low: float, high: float, bins: int = 100, **kwargs: float | None) -> "HistogramModel":
+    def from_range(cls, low: float, high: float, bins: int = 100, **kwargs: float | None) -> HistogramModel:
         """A model with ``bins`` equal bins spanning [low, high]."""
         if bins < 1:
             raise ValueError(f"bins must be >= 1, got {bins}")
@@ -53,7 +53,7 @@ class HistogramModel:
         return cls(np.linspace(low, high, bins + 1), **kwargs)  # type: ignore[arg-type]
 
     @classmethod
-    def from_values(cls, values: NDArray[np.float64], bins: int, **kwargs: float | None) -> "HistogramModel":
+    def from_values(cls, values: NDArray[np.float64], bins: int, **kwargs: float | None) -> HistogramModel:
         """An empty model whose ``bins`` equal bins span [min(0, lowest value), highest value].
 
         Differences are >= 0 for every metric, and same-place values fall below the samples that
@@ -120,6 +120,6 @@ class HistogramModel:
                 "smoothing": self.smoothing, "prior": self.prior}
 
     @classmethod
-    def from_dict(cls, data: dict) -> "HistogramModel":
+    def from_dict(cls, data: dict) -> HistogramModel:
         return cls(np.asarray(data["edges"]), smoothing=float(data.get("smoothing", 1.0)),
                    prior=data.get("prior"), b=np.asarray(data["b"]), c=np.asarray(data["c"]))

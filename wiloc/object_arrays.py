@@ -8,7 +8,7 @@ from __future__ import annotations
 import pickle
 import zipfile
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import IO, Any
 
 import numpy as np
 
@@ -29,7 +29,7 @@ class _ArraysOnly(pickle.Unpickler):
         raise pickle.UnpicklingError(f"it names {module}.{name}, which is no part of a numpy array")
 
 
-def npy_header(file: BinaryIO) -> tuple[tuple[int, ...], np.dtype]:
+def npy_header(file: IO[bytes]) -> tuple[tuple[int, ...], np.dtype]:
     """The shape and dtype in a ``.npy`` stream's header, the stream left after it; ValueError
     when it has none."""
     version = np.lib.format.read_magic(file)
@@ -38,7 +38,7 @@ def npy_header(file: BinaryIO) -> tuple[tuple[int, ...], np.dtype]:
     return shape, dtype
 
 
-def read_npy(file: BinaryIO) -> Any:
+def read_npy(file: IO[bytes]) -> Any:
     """The array of a ``.npy`` stream (a file opened in binary, a zip member; both seek): a plain array as
     numpy reads it, an object array unpickled by :class:`_ArraysOnly` (whatever its pickle
     holds, which may be no array). ValueError, EOFError or pickle.UnpicklingError when it is no

@@ -25,7 +25,7 @@ FEATURES = ("sift", "orb")
 MIN_SIDE = 2
 #: Values per feature and their type, per feature kind.
 WIDTHS = {"sift": 128, "orb": 32}
-DTYPES = {"sift": np.dtype(np.float32), "orb": np.dtype(np.uint8)}
+DTYPES: dict[str, np.dtype] = {"sift": np.dtype(np.float32), "orb": np.dtype(np.uint8)}
 
 
 def decode_size(max_side: int) -> tuple[int, int]:

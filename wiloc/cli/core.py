@@ -152,7 +152,7 @@ def usage_problem(exc: problems.UsageError) -> str:
         problem = re.sub(r"^Option .*? (?=requires|does)", "", exc.message).rstrip(".")
         return f"{exc.option_name}: {_PHRASES.get(problem, _lower(problem))}"
     unknown = re.match(r"No such command '(.*)'", exc.message)
-    if unknown and isinstance(ctx.command if ctx else None, TyperGroup):
+    if unknown and ctx is not None and isinstance(ctx.command, TyperGroup):
         return f"{unknown.group(1)}: no such command ({', '.join(ctx.command.list_commands(ctx))})"
     return f"{command}: {_lower(exc.message)}"
 

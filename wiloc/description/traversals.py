@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from wiloc.cache.entries import EXTERNAL, Entry, EntryHeader
 from wiloc.cache.store import Cache

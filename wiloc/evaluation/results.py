@@ -168,7 +168,7 @@ def _write_table(out: Any, frames: pd.DataFrame) -> None:
 def _cell(value: Any) -> Any:
     """A value as a results table holds it: floats with 9 significant digits, NaN empty."""
     if isinstance(value, (float, np.floating)):
-        return "" if math.isnan(value) else "%.9g" % value
+        return "" if math.isnan(value) else f"{value:.9g}"
     return value
 
 

@@ -99,7 +99,7 @@ def read_vprbench(path: Path) -> list[tuple[int, NDArray[np.int64]]]:
         pair = isinstance(row, (list, tuple, np.ndarray)) and len(row) == 2
         query = _whole_number(row[0]) if pair else None
         refs = _references(row[1]) if query is not None else None
-        if refs is None:
+        if query is None or refs is None:
             raise WilocError(path, f"row {i + 1} is not [query index, [reference indices]] ({_VPRBENCH})")
         rows.append((query, refs))
     if not rows:

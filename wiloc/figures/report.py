@@ -211,7 +211,7 @@ def _figure_uri(fig: Figure, format: str = "png") -> str:
     return f"data:image/{format};base64," + base64.b64encode(figure_bytes(fig, format, dpi=90)).decode("ascii")
 
 
-def _figures(comparison: Comparison, names: list[str], cache: Cache, notes: list[str],
+def _figures(comparison: Comparison, names: Sequence[str], cache: Cache, notes: list[str],
              progress: Callable[[int, int], None] | None) -> Figures:
     """The comparison's figures, then each run's timeline and difference matrix (a matrix that
     cannot be rebuilt is noted instead)."""

@@ -329,8 +329,8 @@ class Localizer:
         return _unpickled, (meta, arrays, self.describer.cache, self.describer.jobs, in_memory)
 
     @classmethod
-    def _continued(cls, meta: dict[str, Any], source: str | Path, cache: Cache | None, jobs: int | None,
-                   map: Entry | None) -> Localizer:
+    def _continued(cls, meta: dict[str, Any], source: str | Path, cache: Cache | str | os.PathLike | None,
+                   jobs: int | None, map: Entry | None) -> Localizer:
         """A localizer continuing from a :meth:`state` read back (``source``: where from, for errors)."""
         if meta["map"] is None and meta["map_digest"] is not None and map is None:
             raise WilocError(source, "was saved with a map held in memory: give it again (map=...)")

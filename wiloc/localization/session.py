@@ -52,7 +52,7 @@ def check_traversal(value: object, parameter: str, also: str = "", hint: str = "
         raise ParameterError(parameter, f"{TRAVERSAL}{also}, got {type(value).__name__}{several}")
 
 
-def _map_descriptor(map: Path | Entry | None, descriptor: str | None,
+def _map_descriptor(map: str | os.PathLike | Entry | None, descriptor: str | None,
                     params: Mapping[str, Any] | None) -> tuple[str, Mapping[str, Any] | None]:
     """The descriptor and parameters a run describes frames with: those given (None: ``sad``); for
     a map held in memory, those it was described with, which given ones must equal (the frames
@@ -84,7 +84,8 @@ class RunSession:
     was started. ``progress``, ``scheduler`` and ``topic`` are the batch run's describing.
     """
 
-    def __init__(self, map: Path | Entry | None, *, method: str, method_params: Mapping[str, Any] | None = None,
+    def __init__(self, map: str | os.PathLike | Entry | None, *, method: str,
+                 method_params: Mapping[str, Any] | None = None,
                  descriptor: str | None = "sad", descriptor_params: Mapping[str, Any] | None = None,
                  metric: str | None = None, exclude_recent: int | None = None,
                  training: TrainingPair | None = None, map_odometry: Path | None = None,
@@ -125,7 +126,7 @@ class RunSession:
         self.query: Entry | None = None if query is None else self.describer.entry(Path(query), query_names)
         self.map: Entry | None = None
         if map is not None:
-            self.map = map if isinstance(map, Entry) else self.describer.entry(self.map_path, map_names)
+            self.map = map if isinstance(map, Entry) else self.describer.entry(Path(map), map_names)
             self._check_map(R)
         self.kind = self.method.row_kind(self.describer.descriptor)
         self.evidence = self.method.evidence(self.describer.spec) if self.kind == "log_ratio" else None

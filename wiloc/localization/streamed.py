@@ -4,13 +4,13 @@ writes the file ``wiloc evaluate`` and ``wiloc compare`` read); the header a fol
 results file starts with."""
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from wiloc.decisions import Decision, Decisions
 from wiloc.description.traversals import descriptors_digest
@@ -56,7 +56,7 @@ class DecisionLog:
                 "stage": kept.stage, "columns": kept.columns, "ranking": kept.ranking}
 
     @classmethod
-    def restored(cls, columns: tuple[str, ...], ranked: bool, state: Mapping[str, NDArray | None]) -> DecisionLog:
+    def restored(cls, columns: tuple[str, ...], ranked: bool, state: Mapping[str, Any]) -> DecisionLog:
         """The log :meth:`state` saved."""
         kept = Decisions(match=state["match"], difference=state["difference"], confidence=state["confidence"],
                          stage=np.asarray(state["stage"], dtype=np.str_), columns=dict(state["columns"]),
@@ -64,7 +64,7 @@ class DecisionLog:
         return cls(columns, ranked, kept)
 
 
-def streamed_header(session: RunSession, query: str | Path | None) -> ResultsHeader:
+def streamed_header(session: RunSession, query: str | os.PathLike | None) -> ResultsHeader:
     """What a streaming run's results header says of it: its setup and inputs (as a batch run's
     header says them: the map's digest, a video's sampling, a bag's topic, FAB-MAP's rows; no
     query digest), the method's parameters as they are now and the map's frames (none in
@@ -78,7 +78,8 @@ def streamed_header(session: RunSession, query: str | Path | None) -> ResultsHea
                    reference_frames=() if session.map is None else tuple(session.map.names))
 
 
-def streamed_results(session: RunSession, log: DecisionLog, names: list[str], query: str | Path | None) -> Results:
+def streamed_results(session: RunSession, log: DecisionLog, names: list[str], query: str | os.PathLike | None
+                     ) -> Results:
     """The results of the frames ``names`` decided as ``log`` holds them: the rows, header and
     model a batch run of the same frames gives, but for the query's digest against a map (a
     streaming run keeps no query descriptors there; in sequence mode they are its candidates).

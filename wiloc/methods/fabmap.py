@@ -45,7 +45,7 @@ class FabMapMethod(Method):
     def prepare(self, context: MapContext) -> None:
         pass  # the evidence rows carry everything FAB-MAP learned from the map and its training
 
-    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+    def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
         from wiloc.bow.fabmap.model import posterior  # scipy loads on first use, not with the command line
 
         if not np.isfinite(row).any():

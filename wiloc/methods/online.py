@@ -57,7 +57,7 @@ class OnlineParams(Parameters):
                                 "confidence: the same seed gives identical results.", low=0)
 
 
-def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
+def near_miss(row: NDArray[np.floating], z: int, match: NDArray[np.int64] | None,
               window: int) -> float:
     """m_r: the smallest difference in ``row`` to a frame that is not the same place as ``z``.
 
@@ -92,7 +92,7 @@ def near_miss(row: NDArray[np.float64], z: int, match: NDArray[np.int64] | None,
     return float("nan")
 
 
-def _increasing(row: NDArray[np.float64], first: int = 32) -> Iterator[int]:
+def _increasing(row: NDArray[np.floating], first: int = 32) -> Iterator[int]:
     """The finite candidates of ``row`` in increasing difference, ties in index order (a stable
     sort), found a few at a time: the near miss is nearly always among the first few, so the
     whole row is partitioned, not sorted (0.4 instead of 7 ms per frame at 35,000 candidates)."""

@@ -35,7 +35,7 @@ def best_of_rows(rows: NDArray[np.floating], window: int, ranking: NDArray[np.in
         spoilt = False  # a NaN or -inf: np.argmin's minimum is not finite
         for i in range(n):
             v = row[i]
-            spoilt |= (v != v) | (v == -np.inf)
+            spoilt |= (v != v) | (v == -np.inf)  # noqa: PLR0124 - v != v: NaN
         count = 0
         worst = np.inf
         for i in range(n):

@@ -58,7 +58,7 @@ class Threshold(Method):
         scale = self.params.normaliser or context.natural_max or largest_difference(context)
         self._scale = float(scale) if scale > 0 else 1.0
 
-    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+    def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
         z, m = finite_minimum(row)
         if z < 0:
             return Decision(match=-1, difference=np.nan, confidence=np.nan, stage="none")

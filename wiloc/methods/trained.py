@@ -109,7 +109,7 @@ class Trained(Method):
         pair = context.training()
         self._model = train_model(pair.rows, pair.labels, self.params)
 
-    def decide(self, row: NDArray[np.float64], odometry: float | None) -> Decision:
+    def decide(self, row: NDArray[np.floating], odometry: float | None) -> Decision:
         z, m = finite_minimum(row)
         if z < 0:
             return Decision(match=-1, difference=np.nan, confidence=np.nan, stage="none")

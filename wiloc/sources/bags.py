@@ -206,7 +206,8 @@ class Bag:
         current: list[tuple[str, int, Any]] = []
 
         def stream() -> Iterator[tuple[int, float]]:
-            first, seen = None, {}
+            first = None
+            seen: dict[int, int] = {}
             for index, (stamp_ns, message) in enumerate(self._messages(self.topic)):
                 first = stamp_ns if first is None else first
                 repeat = seen[stamp_ns] = seen.get(stamp_ns, -1) + 1
@@ -279,6 +280,6 @@ def _damaged(path: Path) -> Iterator[None]:
         yield
     except WilocError:
         raise
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - whatever rosbags raises
         detail = " ".join(str(arg) for arg in exc.args) or type(exc).__name__
         raise WilocError(path, f"cannot read this ROS bag (damaged or cut short?): {detail}") from None

@@ -346,7 +346,7 @@ def check_aspect(image: NDArray, where: Path | str) -> NDArray:
     return image
 
 
-def _over_limit(path: Path) -> FrameError:
+def _over_limit(path: Path | str) -> FrameError:
     return FrameError(path, "image over OpenCV's size limit (2^30 pixels; the environment variable "
                             "OPENCV_IO_MAX_IMAGE_PIXELS raises it)")
 
@@ -357,7 +357,7 @@ def _max_pixels() -> int:
     return int(value) if value.isdigit() else 1 << 30
 
 
-def decode(data: NDArray[np.uint8], flags: int, path: Path) -> NDArray | None:
+def decode(data: NDArray[np.uint8], flags: int, path: Path | str) -> NDArray | None:
     """``cv2.imdecode``, with OpenCV's own refusals (an image over its pixel limit, a broken
     header it asserts on) raised as FrameError naming the file; None when it cannot decode."""
     try:

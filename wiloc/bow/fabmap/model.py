@@ -37,7 +37,7 @@ from wiloc.bow.fabmap.params import FabMapParams
 from wiloc.errors import ParameterError
 
 
-def posterior(log_ratio: NDArray[np.float64], params: FabMapParams,
+def posterior(log_ratio: NDArray[np.floating], params: FabMapParams,
               log_prior: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], float]:
     """(p(L_j | Z) per place, p(new place | Z)) from the evidence row r_j = log p(Z | L_j) -
     log p(Z | new place): FAB-MAP's posterior, the one the model and the ``fabmap`` method share.
