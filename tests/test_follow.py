@@ -554,6 +554,30 @@ def test_a_followed_file_ends_with_what_the_run_learned_and_resumes(demo_route: 
     assert_batch_header(30)
 
 
+@pytest.mark.parametrize("method", ["threshold", "catgraph"])
+def test_a_finished_followed_run_without_a_map_resumes(demo_route: demo.DemoRoute, method: str, tmp_path: Path,
+                                                       cache_dir: Path) -> None:
+    """A followed run without a map (sequence mode) ends with every frame it saw as its reference
+    frames, which it started without: rerunning the command resumes it (no "other settings"),
+    and it ends as the batch run of all its frames."""
+    frames = sorted(demo_route.queries[0].iterdir())
+    live, out = tmp_path / "live", tmp_path / "follow.csv"
+    live.mkdir()
+
+    def follow_to_the_end(count: int) -> tuple[int, int]:
+        for path in frames[:count]:
+            if not (live / path.name).exists():
+                (live / path.name).write_bytes(path.read_bytes())
+        run = api.follow_folder(live, method=method, out=out, idle=0.5, poll=0.05)
+        return run.resumed, sum(1 for _ in run)
+
+    assert follow_to_the_end(80) == (0, 80)
+    assert follow_to_the_end(80) == (80, 0)  # nothing new: resumed, nothing decided
+    assert follow_to_the_end(86) == (80, 6)
+    batch = api.localize(live, method=method, out=tmp_path / "batch.csv")
+    pd.testing.assert_frame_equal(_rows(out), _rows(batch.path))
+
+
 def test_frames_of_another_shape_than_the_maps_are_warned_of_once(demo_route: demo.DemoRoute, tmp_path: Path,
                                                                   cache_dir: Path) -> None:
     """A camera whose frames are of another shape than the map's (a crop) is warned of once, by

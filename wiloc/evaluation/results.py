@@ -252,11 +252,13 @@ FOLLOW_ADDED = ("map_digest", "sampling", "topic", "odometry_topic", "rows", "fa
 def _settings(header: ResultsHeader, expected: ResultsHeader, learned: Collection[str]) -> ResultsHeader:
     """What of a followed file's ``header`` must equal the run's (``expected``) for the run to
     resume it: all but the version that wrote it, what the run learned (its model, the
-    ``learned`` params, a sequence-mode query digest: written as it ends) and the lines
-    (:data:`FOLLOW_ADDED`) that an older version's file lacks, where it lacks them."""
+    ``learned`` params, a sequence-mode query digest and reference frames, the frames seen: written
+    as it ends) and the lines (:data:`FOLLOW_ADDED`) that an older version's file lacks, where it
+    lacks them."""
     older = {name: getattr(expected, name) for name in FOLLOW_ADDED if getattr(header, name) is None}
     params = {key: value for key, value in header.params.items() if key not in learned}
-    return replace(header, **older, wiloc="", model=None, query_digest=None, params=params)
+    seen = {"reference_frames": ()} if header.sequence else {}
+    return replace(header, **older, **seen, wiloc="", model=None, query_digest=None, params=params)
 
 
 def read_results(path: Path, methods: Mapping[str, type[Method]] | None = None) -> Results:
