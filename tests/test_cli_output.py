@@ -395,3 +395,26 @@ def test_compare_pads_every_table_within_its_edges(tmp_path: Path, cache_dir: Pa
     edged = [line for line in compare.stdout.splitlines() if line[:1] in "│┃"]
     assert any("P " in line for line in edged)  # the cut table is among them
     assert all(line[1] == " " and line[-2] == " " for line in edged), compare.stdout
+
+
+def test_localize_reports_the_median_confidence_and_a_huge_one_stays_readable(tmp_path: Path,
+                                                                               cache_dir: Path) -> None:
+    """The localize summary's median confidence is the median of the decided frames' (the mean of
+    the middle two for an even count), in the table and in --json; threshold's unbounded
+    confidences (a tiny --normaliser) are shown in scientific notation, not as 300 digits."""
+    from wiloc.cli.views import cell
+    from wiloc.evaluation.results import read_results
+
+    ref, query = _route(tmp_path)
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
+                                 "--out", str(tmp_path / "t.csv"), "--json"])
+    assert result.exit_code == 0, result.output
+    frames = read_results(tmp_path / "t.csv").frames
+    decided = frames["confidence"][frames["match"].notna() & (frames["match"] != "")]
+    assert len(decided) % 2 == 0 and len(decided) > 0
+    assert json.loads(result.stdout)["runs"][0]["median_confidence"] == pytest.approx(float(np.median(decided)))
+    assert cell(-8.08e299) == "-8.080e+299" and cell(999999.5) == "999999.500" and cell(0.5) == "0.500"
+    result = runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "threshold",
+                                 "--normaliser", "1e-300", "--out", str(tmp_path / "huge.csv")], env=NARROW)
+    assert result.exit_code == 0, result.output
+    assert re.search(r"-\d\.\d{3}e\+\d{3}", result.stdout) and not re.search(r"\d{20}", result.stdout)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import statistics
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -48,7 +49,7 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
         d = run.decisions
         conf = d.confidence[d.decided]
         rows.append({"query": label, "method": run.method, "frames": len(d), "decided": int(d.decided.sum()),
-                     "median_confidence": float(sorted(conf)[len(conf) // 2]) if len(conf) else float("nan"),
+                     "median_confidence": float(statistics.median(conf)) if len(conf) else float("nan"),
                      "seconds": run.seconds, "results": run.path.name})
     if model_plot is not None:
         from wiloc.figures.plots import plot_model

@@ -106,12 +106,15 @@ def print_command_json(command: str, items: str, rows: list[dict[str, Any]], war
 
 
 def cell(value: Any, digits: int = 3) -> str:
-    """A table cell: ``digits`` decimals, "-" for NaN or None, "yes" or nothing for a flag; text
-    is shown as it is (a label such as ``online [run-b]`` is no markup)."""
+    """A table cell: ``digits`` decimals ("-" for NaN or None; a number of a million or more in
+    scientific notation, so that a huge one keeps the table readable), "yes" or nothing for a
+    flag; text is shown as it is (a label such as ``online [run-b]`` is no markup)."""
     if isinstance(value, bool):
         return "yes" if value else ""
     if isinstance(value, float):
-        return "-" if not math.isfinite(value) else f"{value:.{digits}f}"
+        if not math.isfinite(value):
+            return "-"
+        return f"{value:.{digits}e}" if abs(value) >= 1e6 else f"{value:.{digits}f}"
     return "-" if value is None else escape(str(value))
 
 
