@@ -9,7 +9,9 @@ docs/scaling.md tells how to start a scheduler and workers.
 """
 from __future__ import annotations
 
+import asyncio
 import atexit
+import concurrent.futures
 import logging
 import os
 import time
@@ -52,6 +54,9 @@ TRANSFER = 10_000_000
 RESENDS = 2
 #: What a describe that lost its cluster, or a task that kept killing workers, leaves behind.
 RESUME = "the frames described so far are kept in the cache; run again to resume"
+#: What a wait that runs out raises: Python 3.10's asyncio and concurrent.futures each have their
+#: own (Dask's waits raise theirs); from 3.11 all three are the builtin TimeoutError.
+TIMEOUTS = (TimeoutError, asyncio.TimeoutError, concurrent.futures.TimeoutError)
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -80,11 +85,11 @@ class Cluster:
         except ValueError as exc:  # no scheme Dask knows (http://, the dashboard's), no port
             raise ParameterError("scheduler", f"{scheduler!r} is no Dask scheduler address ({exc}); give "
                                               "tcp://HOST:8786, or local") from None
-        except (OSError, TimeoutError) as exc:
+        except (OSError, *TIMEOUTS) as exc:
             raise WilocError(scheduler, f"cannot reach the Dask scheduler ({exc})") from None
         try:
             self.client.wait_for_workers(1, timeout=WORKER_WAIT)
-        except TimeoutError:
+        except TIMEOUTS:
             self.close()
             raise WilocError(scheduler, f"no worker joined the Dask scheduler in {WORKER_WAIT} s; start some "
                                         "(the dask worker command, one thread each)") from None
@@ -178,7 +183,7 @@ class Cluster:
         for future in self._finished(futures):
             try:
                 result = future.result(timeout=STALL + nbytes / TRANSFER)
-            except TimeoutError:
+            except TIMEOUTS:
                 raise _Stalled() from None
             yield future, result
 
@@ -191,7 +196,7 @@ class Cluster:
         while pending:
             try:
                 done, pending = wait(pending, timeout=POLL, return_when="FIRST_COMPLETED")
-            except TimeoutError:
+            except TIMEOUTS:
                 now = time.monotonic()
                 workers = self.client.scheduler_info(n_workers=-1)["workers"]
                 if not workers:
@@ -218,8 +223,8 @@ class Cluster:
         except KilledWorker:
             raise WilocError(self.scheduler, "a task's worker died each time it ran (out of memory, or killed); "
                                              f"{then}") from None
-        except (CancelledError, CommClosedError, TimeoutError) as exc:
-            lonely = type(exc) is TimeoutError and str(exc)  # no worker: Dask's words, or _finished's
+        except (CancelledError, CommClosedError, *TIMEOUTS) as exc:
+            lonely = type(exc) in TIMEOUTS and str(exc)  # no worker: Dask's words, or _finished's
             detail = str(exc).splitlines()[0].lower() if lonely else "the connection was lost"
             logging.getLogger("distributed.client").setLevel(logging.CRITICAL)  # its reconnect attempts: said here
             raise WilocError(self.scheduler, f"the Dask cluster failed during the run ({detail}); {then}") from None

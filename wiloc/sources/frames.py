@@ -234,9 +234,11 @@ def fingerprint(path: Path) -> Fingerprint:
     """Size, mtime and blake2b-128 hex digest of a file's content (for cache validation)."""
     path = Path(path)
     stat = path.stat()
-    with path.open("rb") as handle:
-        digest = hashlib.file_digest(handle, lambda: hashlib.blake2b(digest_size=16)).hexdigest()
-    return Fingerprint(size=stat.st_size, mtime_ns=stat.st_mtime_ns, digest=digest)
+    digest = hashlib.blake2b(digest_size=16)
+    with path.open("rb") as handle:  # in blocks (hashlib.file_digest is Python 3.11's)
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return Fingerprint(size=stat.st_size, mtime_ns=stat.st_mtime_ns, digest=digest.hexdigest())
 
 
 def jpeg_size(data: NDArray[np.uint8]) -> tuple[int, int] | None:
