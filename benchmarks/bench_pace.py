@@ -94,7 +94,7 @@ from scipy import sparse
 from wiloc.cache.store import Cache
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.decisions import Decisions
-from wiloc.description.differences import ComputedDifferences, candidate_blocks, summarize
+from wiloc.description.differences import ComputedDifferences, candidate_blocks, summarize as summarize_map
 from wiloc.description.distances import DifferencesTo, consecutive
 from wiloc.description.traversals import Describer
 from wiloc.errors import WilocError
@@ -312,7 +312,7 @@ def decide(traversal: Traversal, variant: Variant, method: str = "catgraph",
         raise ValueError(f"{method} on {traversal.name} {variant.name}: {problem}")
     context = MapContext(
         sequence=False, exclude_recent=exclude_recent, n_map=map_data.shape[0], rows="differences",
-        natural_max=traversal.natural_max, map_summary=lambda: summarize(ComputedDifferences(map_data, to_map), exclude_recent),
+        natural_max=traversal.natural_max, map_summary=lambda: summarize_map(ComputedDifferences(map_data, to_map), exclude_recent),
         neighbours=lambda: consecutive(map_data, traversal.metric, traversal.scale),
         arclength=None if given is None else variant.map_frames.astype(np.float64))
     algo.start(context)

@@ -147,8 +147,9 @@ def test_a_run_scores_with_wilocs_measures(bench) -> None:
 
 
 @pytest.mark.realdata
+@pytest.mark.parametrize("method", ["catgraph", "online"])  # online learns from the map's own differences too
 def test_a_thinned_map_decides_as_localize_on_a_folder_of_those_frames(bench, data_root: Path, shared_cache: Path,
-                                                                      tmp_path: Path) -> None:
+                                                                      tmp_path: Path, method: str) -> None:
     from wiloc import api
 
     walk = data_root / "gardens-point-walking"
@@ -159,8 +160,8 @@ def test_a_thinned_map_decides_as_localize_on_a_folder_of_those_frames(bench, da
     frames = sorted(p.name for p in (walk / "day_right").glob("*.jpg"))
     for i in variant.map_frames:
         shutil.copyfile(walk / "day_right" / frames[i], thinned / frames[i])
-    run = api.localize(walk / "day_left", reference=thinned, descriptor="sad", method="catgraph")
-    ours = bench.decide(trav, variant, "catgraph")
+    run = api.localize(walk / "day_left", reference=thinned, descriptor="sad", method=method)
+    ours = bench.decide(trav, variant, method)
     np.testing.assert_array_equal(ours.match, run.decisions.match)
     np.testing.assert_array_equal(ours.confidence, run.decisions.confidence)
 
