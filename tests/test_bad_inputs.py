@@ -156,6 +156,9 @@ UNUSED = {
     "query odometry without the map's": (["localize", "{query}", "--map", "{ref}", "--method", "catgraph",
                                           "--odometry", "{tmp}/o.csv"],
                                          "--map-odometry: the query's odometry needs the map's too"),
+    "map odometry without the query's": (["localize", "{query}", "--map", "{ref}", "--method", "catgraph",
+                                          "--map-odometry", "{tmp}/o.csv"],
+                                         "--map-odometry: the map's odometry is used only with the query's"),
     "external descriptor of images": (["localize", "{query}", "--map", "{ref}", "--descriptor", "external"],
                                       "--descriptor: 'external' names imported descriptor matrices, which are not described"),
     "external descriptor to describe": (["describe", "{ref}", "-d", "external"],
@@ -1101,6 +1104,22 @@ def test_compare_refuses_a_reordered_copy_of_a_results_file(how: str, results: P
     ends_in_one_error(runner.invoke(app, ["compare", str(results), str(copy)]), 2,
                       f"RESULTS...: {copy} holds the same run as {results} (the same lines, in another order or with "
                       "other line endings); each run counts once")
+
+
+def test_compare_refuses_a_run_in_memory_given_twice(route: tuple[Path, Path]) -> None:
+    """A run held in memory (no results file), given twice, as it is or once inside its localize
+    run, counts once: refused, as a file given twice is; two runs of other methods are two."""
+    from wiloc import api
+
+    ref, query = route
+    run = api.localize(query, reference=ref, method="threshold", jobs=1)
+    truth = api.TruthSource(kind="aligned", tolerance=2)
+    for twice in ([run, run], [run, run.results], [run.results, run.results]):
+        with pytest.raises(ParameterError, match=r"^runs: the run of threshold on .*query in memory is given twice; "
+                                                 r"each run counts once$"):
+            api.compare(twice, truth)
+    other = api.localize(query, reference=ref, method="online", jobs=1)
+    assert len(api.compare([run, other], truth).table1) == 2
 
 
 @pytest.mark.parametrize("targets", ["", ",,"])

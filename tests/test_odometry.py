@@ -1,6 +1,7 @@
 """Tests of reading odometry CSVs into per-frame arc length."""
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +63,18 @@ def test_negative_distance_raises(tmp_path: Path) -> None:
     odo = read_odometry(_write(tmp_path, "a,5\nb,-3\n"))
     with pytest.raises(WilocError, match="negative distance at frame 'b'"):
         odo.arclength()
+
+
+@pytest.mark.parametrize("text", ["a,1e308\nb,1e308\nc,1e308\n", "a,0,0\nb,1e308,0\nc,-1e308,0\n"])
+def test_a_distance_no_float_holds_names_the_frame_and_warns_nothing(tmp_path: Path, text: str) -> None:
+    """Every value finite, their running total (or a step between two positions) not: one error
+    naming the file and the frame, no numpy warning."""
+    odo = read_odometry(_write(tmp_path, text))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(WilocError, match="the distance travelled up to frame 'c' is more than a float can hold") as err:
+            odo.arclength(["a", "b", "c"])
+    assert err.value.where == odo.path
 
 
 def test_missing_frame_raises(tmp_path: Path) -> None:

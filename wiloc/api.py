@@ -19,9 +19,10 @@ from wiloc.description.describing import (DescribeReport, check_sampling, check_
                                          traversal_paths)
 from wiloc.description.traversals import Progress, descriptor_spec, open_cluster, stage
 from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_cuts,
-                                         check_frames, check_once, check_precisions, check_recall_at, comparison,
-                                         method_labels, new_place_series, pr_series, reliability_series, run_names,
-                                         run_subject, score, threshold_marks, threshold_series, traversal_labels)
+                                         check_frames, check_held_once, check_once, check_precisions, check_recall_at,
+                                         comparison, method_labels, new_place_series, pr_series, reliability_series,
+                                         run_names, run_subject, score, threshold_marks, threshold_series,
+                                         traversal_labels)
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.truth_source import TruthSource
 from wiloc.localization.batch import LocalizeRun, localize
@@ -96,12 +97,14 @@ def compare(runs: Iterable[Run] | Run, truth: TruthSource, *, precisions: Sequen
     calibration table with precision and recall at the fixed confidence ``cuts``, over results
     files or runs in memory. One run given alone (not in a list) is compared as ``[run]``, never
     as the characters of its name; any iterable of runs is read once. No run, a file given twice
-    (or a copy of one), no precision or one outside (0, 100] is a ParameterError: each run counts
-    once in the tables. ``frames`` scores a slice of each run's frames only, as :func:`evaluate`."""
+    (or a copy of one, or a run in memory given twice), no precision or one outside (0, 100] is a
+    ParameterError: each run counts once in the tables. ``frames`` scores a slice of each run's frames only, as :func:`evaluate`."""
     precisions, cuts, recall_at = check_precisions(precisions), check_cuts(cuts), check_recall_at(recall_at)
     frames = check_frames(frames)
     runs = run_list(runs, (LocalizeRun, Results))
     check_once([run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results)
                 else results_file(run, "runs") for run in runs])
+    check_held_once([run.results if isinstance(run, LocalizeRun) else run for run in runs
+                     if isinstance(run, Results) or (isinstance(run, LocalizeRun) and run.path is None)])
     evaluations = [evaluate(run, truth, cuts, recall_at, frames=frames) for run in runs]
     return comparison(evaluations, truth, precisions=precisions, global_thresholds=global_thresholds)

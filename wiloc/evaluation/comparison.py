@@ -267,6 +267,17 @@ def check_once(paths: Sequence[Path | None]) -> None:
                                              "order or with other line endings); each run counts once")
 
 
+def check_held_once(held: Sequence[Results]) -> None:
+    """Each run counts once in the tables: a ParameterError names a run in memory given twice
+    (the same results object, as it is or inside its localize run)."""
+    seen: set[int] = set()
+    for results in held:
+        if id(results) in seen:
+            raise ParameterError("runs", f"the run of {results.header.method} on {results.header.query} in memory is "
+                                         "given twice; each run counts once")
+        seen.add(id(results))
+
+
 def _lines_digest(text: bytes) -> str:
     """A digest of a file's non-blank lines whatever their order and line endings: a results file
     sorted in a spreadsheet, or saved again with CRLF line endings, is still the run it was."""

@@ -50,20 +50,32 @@ class Odometry:
             raise WilocError(self.path, f"no odometry for {len(missing)} frame(s), first {missing[0]!r}"
                                         + why_unmatched(list(self.names), missing))
         rows = [index[name] for name in order]
+        if not len(rows):
+            return np.zeros(0)
         if self.values.shape[1] == 2:
             vals = self.values[rows]
-            if not len(rows):
-                return np.zeros(0)
-            step = _great_circle_steps(vals) if self.geographic else np.hypot(*np.diff(vals, axis=0).T)
-            return np.r_[0.0, np.cumsum(step)]
+            with np.errstate(over="ignore", invalid="ignore"):  # checked below
+                step = _great_circle_steps(vals) if self.geographic else np.hypot(*np.diff(vals, axis=0).T)
+                return self._finite(np.r_[0.0, np.cumsum(step)], order)
         travelled = self.values[:, 0].copy()
         negative = np.flatnonzero(travelled < 0)
         if negative.size:
             raise WilocError(self.path, f"negative distance at frame {self.names[negative[0]]!r}: "
                                         "expected the distance travelled since the previous frame")
         travelled[0] = 0.0
-        cumulative = np.cumsum(travelled)[rows]
-        return cumulative - cumulative[0] if len(rows) else cumulative
+        with np.errstate(over="ignore", invalid="ignore"):  # checked below
+            cumulative = self._finite(np.cumsum(travelled), self.names)[rows]
+            return cumulative - cumulative[0]
+
+    def _finite(self, arclength: NDArray[np.float64], names: Sequence[str]) -> NDArray[np.float64]:
+        """``arclength`` (at ``names``) when every value is finite, else a WilocError naming the
+        first frame whose distance from the start no float holds (each value in the file finite,
+        their sum not)."""
+        too_far = np.flatnonzero(~np.isfinite(arclength))
+        if too_far.size:
+            raise WilocError(self.path, f"the distance travelled up to frame {names[too_far[0]]!r} is more than a "
+                                        "float can hold")
+        return arclength
 
 
 def _great_circle_steps(latlon: NDArray[np.float64]) -> NDArray[np.float64]:

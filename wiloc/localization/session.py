@@ -172,7 +172,9 @@ class RunSession:
 
     def _check_inputs(self, training: bool, odometry: bool, map_odometry: bool) -> None:
         """The method's refusal of an input it does not take, naming the input as given: an
-        odometry read from a ROS bag is ``odometry_topic``'s, not a CSV's."""
+        odometry read from a ROS bag is ``odometry_topic``'s, not a CSV's. A run over a query
+        traversal given the map's odometry CSV and not the query's would not use it: refused, not
+        ignored (a Localizer is given the query's odometry frame by frame)."""
         try:
             self.method.check_inputs(sequence=self.sequence, training=training, odometry=odometry or self._query_bag,
                                      map_odometry=map_odometry or self._map_bag)
@@ -181,6 +183,9 @@ class RunSession:
             if not from_bag.get(exc.parameter or ""):
                 raise
             raise UsageError(None, exc.problem, parameter="odometry_topic") from None
+        if map_odometry and self.query_path is not None and not (odometry or self._query_bag):
+            raise UsageError(None, "the map's odometry is used only with the query's; give the query's odometry "
+                                   "too, or neither", parameter="map_odometry")
 
     def _check_map(self, R: int) -> None:
         """One place for the map's size checks: two frames at least, and for methods learning
