@@ -261,6 +261,11 @@ def test_cli_reports_a_cut_video_as_one_error_line(tmp_path: Path) -> None:
     assert (row["frames"], row["computed"], row["failed"]) == (good + 1, good, 1)
     [info] = Cache(tmp_path / "cache").list_entries()
     assert info.complete and info.frames == good
+    past = _cli("describe", str(cut), "--start", str(good + 5), cache=tmp_path / "cache2")  # the cut after the damage
+    assert past.returncode == 1
+    assert past.stderr.splitlines() == [
+        f"error: {cut.resolve()}: cannot decode frame {frame_name(good)} of 50 (the file is cut or damaged "
+        "there); the frames before it are not in the cut: no frame of the cut can be decoded"]
 
 
 def test_a_file_that_is_no_video_is_one_error_line(tmp_path: Path) -> None:

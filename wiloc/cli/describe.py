@@ -121,8 +121,8 @@ def describe(
                         digits={"images_per_second": 1}))
     # A video that stops decoding early is an error, after its good frames went into the cache.
     problems = [f"{r.folder}: {reason}" for r in reports if r.video for _, reason in r.failed]
-    problems += [f"{r.folder}: no image could be described (see the lines above)"
-                 for r in reports if r.entry.data.shape[0] == 0]
+    problems += [f"{r.folder}: no image could be described (see the lines above)"  # unless a video's line said why
+                 for r in reports if r.entry.data.shape[0] == 0 and not (r.video and r.failed)]
     for problem in problems:
         error(problem)
     if problems:

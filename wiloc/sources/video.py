@@ -248,16 +248,19 @@ class Video:
         names in `skip` are passed over undecoded (grabbed only). When decoding stops before the
         container's frame count, the last item is the frame where it stopped, without pixels,
         and says so."""
+        picked = False  # a frame of the cut came before the one where decoding stopped
         for index, timestamp in sampling.pick(self._grab_all()):
             if frame_name(index) in skip:
+                picked = True
                 continue
             ok, image = self._capture.retrieve()
             if not ok or image is None:
-                yield self._stopped(index)
+                yield self._stopped(index, picked)
                 return
+            picked = True
             yield VideoFrame(index, timestamp, image if colour else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
         if self._ended is not None and sampling.before_stop(*self._ended):
-            yield self._stopped(self._ended[0])
+            yield self._stopped(self._ended[0], picked)
 
     def _grab_all(self) -> Iterator[tuple[int, float]]:
         """(index, timestamp ms) of each frame as it is grabbed (decoded, not yet converted).
@@ -283,10 +286,12 @@ class Video:
         interval = 1000.0 / self.rate
         return timestamp + max(END_MS, 2 * interval) >= self.frame_count * interval
 
-    def _stopped(self, index: int) -> VideoFrame:
-        """The item for the frame where decoding stopped early."""
+    def _stopped(self, index: int, picked: bool) -> VideoFrame:
+        """The item for the frame where decoding stopped early, ``picked`` whether the cut had
+        frames before it (they are kept)."""
         of = "" if self.frame_count is None else f" of {self.frame_count}"
-        kept = (f"; the last good frame is {frame_name(index - 1)}, and the frames up to it are kept"
-                if index > 0 else "")
+        kept = (f"; the last good frame is {frame_name(index - 1)}, and the frames up to it are kept" if picked
+                else "; the frames before it are not in the cut: no frame of the cut can be decoded" if index > 0
+                else "")
         problem = f"cannot decode frame {frame_name(index)}{of} (the file is cut or damaged there){kept}"
         return VideoFrame(index, None, None, problem)
