@@ -78,9 +78,13 @@ def test_a_distance_no_float_holds_names_the_frame_and_warns_nothing(tmp_path: P
 
 
 def test_missing_frame_raises(tmp_path: Path) -> None:
+    """A frame missing from a file whose other names match is named alone; a file none of whose
+    names matches also says how its names look against the frames'."""
     odo = read_odometry(_write(tmp_path, "a,0\nb,1\n"))
-    with pytest.raises(WilocError, match="first 'z'"):
+    with pytest.raises(WilocError, match=r"^[^:]*: no odometry for 1 frame\(s\), first 'z'$"):
         odo.arclength(["a", "z"])
+    with pytest.raises(WilocError, match=r"first 'y' \(names such as 'a'; the frames are named such as 'y'\)$"):
+        odo.arclength(["y", "z"])
 
 
 def test_unreadable_file_raises(tmp_path: Path) -> None:

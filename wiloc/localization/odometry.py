@@ -47,8 +47,8 @@ class Odometry:
         index = {name: i for i, name in enumerate(self.names)}
         missing = [name for name in order if name not in index]
         if missing:
-            raise WilocError(self.path, f"no odometry for {len(missing)} frame(s), first {missing[0]!r}"
-                                        + why_unmatched(list(self.names), missing))
+            why = why_unmatched(list(self.names), missing) if len(missing) == len(order) else ""  # no name matches
+            raise WilocError(self.path, f"no odometry for {len(missing)} frame(s), first {missing[0]!r}{why}")
         rows = [index[name] for name in order]
         if not len(rows):
             return np.zeros(0)
