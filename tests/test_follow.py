@@ -515,6 +515,17 @@ def test_a_batch_run_leaves_a_followed_results_file_alone(demo_route: demo.DemoR
     assert not (tmp_path / ".r.csv.lock").exists()
 
 
+def _followed_to_the_end(frames: list[Path], live: Path, out: Path, method: str,
+                         reference: Path | None = None) -> tuple[int, int]:
+    """``frames`` copied into the followed folder ``live`` (those not there yet), then followed
+    into ``out`` until idle: (frames resumed from the file, frames decided now)."""
+    for path in frames:
+        if not (live / path.name).exists():
+            (live / path.name).write_bytes(path.read_bytes())
+    run = api.follow_folder(live, reference=reference, method=method, out=out, idle=0.5, poll=0.05)
+    return run.resumed, sum(1 for _ in run)
+
+
 @pytest.mark.parametrize("method", ["online", "catgraph"])
 def test_a_followed_file_ends_with_what_the_run_learned_and_resumes(demo_route: demo.DemoRoute, method: str,
                                                                     tmp_path: Path, cache_dir: Path) -> None:
@@ -529,11 +540,7 @@ def test_a_followed_file_ends_with_what_the_run_learned_and_resumes(demo_route: 
     live.mkdir()
 
     def follow_to_the_end(count: int) -> tuple[int, int]:
-        for path in frames[:count]:
-            if not (live / path.name).exists():
-                (live / path.name).write_bytes(path.read_bytes())
-        run = api.follow_folder(live, reference=demo_route.reference, method=method, out=out, idle=0.5, poll=0.05)
-        return run.resumed, sum(1 for _ in run)
+        return _followed_to_the_end(frames[:count], live, out, method, demo_route.reference)
 
     def assert_batch_header(count: int) -> None:
         batch = api.localize(live, reference=demo_route.reference, method=method, out=tmp_path / f"batch{count}.csv")
@@ -565,11 +572,7 @@ def test_a_finished_followed_run_without_a_map_resumes(demo_route: demo.DemoRout
     live.mkdir()
 
     def follow_to_the_end(count: int) -> tuple[int, int]:
-        for path in frames[:count]:
-            if not (live / path.name).exists():
-                (live / path.name).write_bytes(path.read_bytes())
-        run = api.follow_folder(live, method=method, out=out, idle=0.5, poll=0.05)
-        return run.resumed, sum(1 for _ in run)
+        return _followed_to_the_end(frames[:count], live, out, method)
 
     assert follow_to_the_end(80) == (0, 80)
     assert follow_to_the_end(80) == (80, 0)  # nothing new: resumed, nothing decided
