@@ -424,6 +424,33 @@ def test_a_refused_odometry_leaves_the_run_as_it_was(demo_route: demo.DemoRoute,
 
 
 
+def test_with_the_maps_odometry_the_first_frames_is_not_read_and_later_ones_are_needed(
+        demo_route: demo.DemoRoute, cache_dir: Path) -> None:
+    """On a map with odometry a streaming run decides as the batch run with both odometry CSVs,
+    whether its first frame comes with an odometry (unread: a distance from no frame) or with
+    none; a later frame without odometry is refused, naming it, and the run goes on as if that
+    call had not been made."""
+    from wiloc.localization.odometry import read_odometry, steps
+
+    query, positions = demo_route.queries[0], demo_route.positions
+    frames = sorted(query.iterdir())[:60]
+    travelled = steps(read_odometry(positions / f"{query.name}.csv").arclength([f.name for f in frames]))
+    batch = api.localize(query, reference=demo_route.reference, method="catgraph", method_params={"seed": 0},
+                         odometry=positions / f"{query.name}.csv", map_odometry=positions / "reference.csv")
+    for first in (None, 0.0, 5.0):
+        loc = Localizer(demo_route.reference, method="catgraph", seed=0, map_odometry=positions / "reference.csv")
+        got = []
+        for k, (frame, step) in enumerate(zip(frames, travelled)):
+            if k == 30:
+                with pytest.raises(WilocError, match="query frame 30: with the map's odometry, odometry comes with "
+                                                     "every frame after the first") as err:
+                    loc.observe(frame)
+                assert err.value.parameter == "odometry"
+            got.append(loc.observe(frame, odometry=first if k == 0 else float(step)))
+        np.testing.assert_array_equal([d.match for d in got], batch.decisions.match[:60])
+        np.testing.assert_array_equal([d.confidence for d in got], batch.decisions.confidence[:60])
+
+
 def _matrix_map(tmp_path: Path) -> tuple[np.ndarray, Path, Path]:
     """A map of imported descriptors: a .npy matrix of 40 rows and its names file."""
     rows = np.random.default_rng(7).random((40, 32)).astype(np.float32)

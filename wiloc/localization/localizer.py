@@ -91,7 +91,8 @@ class Localizer:
         """Step a copy of the method so that its compiled kernels are built (or loaded from the
         cache) as the localizer starts or is loaded, not on a frame a robot gives it: catgraph's
         first frames took 7 s of CPU on a machine that had not built them yet. Against a map the
-        copy steps over three map frames; in sequence mode, where the filter starts only once the
+        copy steps over three map frames (with a step of odometry where the run's frames must have
+        one); in sequence mode, where the filter starts only once the
         run has frames enough (frame 72 with catgraph's defaults), over made-up frames
         (:meth:`RunSession.made_up_rows`, each with a step of odometry where the run's frames must
         have one: ``Method.odometry_next``) until it decides with every value it gives, then
@@ -101,7 +102,7 @@ class Localizer:
         trial, reference = copy.deepcopy(self.method), self._session.map
         if reference is not None:
             for descriptor in reference.data[:3]:
-                trial.step(self.row(descriptor))
+                trial.step(self.row(descriptor), 1.0 if trial.odometry_next() else None)
             return
         settled = 0
         for _, row in zip(range(TRIAL_FRAMES), self._session.made_up_rows(trial.frames)):
