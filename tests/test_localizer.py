@@ -463,7 +463,7 @@ def test_a_map_with_a_names_file_is_loaded_with_it(tmp_path: Path, cache_dir: Pa
     """The state recorded the map but not its names file: a .npy map loaded with its frames
     numbered instead of named, and was refused as changed since it was saved."""
     rows, matrix, names = _matrix_map(tmp_path)
-    loc = Localizer(matrix, metric="l1", map_names=names, method="online", exclude_recent=2, init=5)
+    loc = Localizer(matrix, metric="l1", map_names=names, method="online", exclude_recent=2)
     loc.observe(rows[3] + 0.01)
     loc.save(tmp_path / "state.npz")
     again = Localizer.load(tmp_path / "state.npz")

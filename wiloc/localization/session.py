@@ -34,6 +34,7 @@ from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
 from wiloc.methods.base import MapContext, Method, TrainingRows
 from wiloc.methods.registry import learning_from_the_map, make_method
+from wiloc.parameters import declared
 from wiloc.sources.video import Sampling
 
 #: The labelled pair of ``trained``: its traversals and truth, or their difference rows and labels.
@@ -105,6 +106,11 @@ class RunSession:
                                                    f"that learn from the map's differences to itself "
                                                    f"({', '.join(learning_from_the_map())})")
         self.sequence = map is None
+        sequence_only = [d.name for d in declared(type(self.method).Params)
+                         if d.sequence_only and d.name in (method_params or {})]
+        if sequence_only and map is not None and not restoring:
+            raise ParameterError(sequence_only[0], f"applies to sequence mode (no map) only: method "
+                                                   f"'{self.method.name}' does not read it against a map")
         self.map_path = None if map is None or isinstance(map, Entry) else Path(map)
         self.map_odometry = None if map_odometry is None else Path(map_odometry)
         self.map_names = None if map_names is None else Path(map_names)

@@ -42,7 +42,7 @@ class OnlineParams(Parameters):
 
     owner = "online"
     init: int = param(100, "Sequence mode: initialisation frames, whose minima fill c (map mode "
-                           "initialises from every map frame).", low=1)
+                           "initialises from every map frame).", low=1, sequence_only=True)
     bins: int = param(100, "Bins of the learned histograms b and c (Figure 1; the decisions and the "
                                 "confidence, the filter's posterior, do not use them).", low=1, high=100_000)
     same_place_window: int = param(2, "Frames within +-W of the best match are the same place when m_r "

@@ -51,7 +51,7 @@ class CatGraphParams(Parameters):
                                  low=1, high=100_000)  # each row takes time in proportion: 10**9 never ended
     frontier: int = param(60, "Sequence mode: frames before the recent window (exclude_recent) that are not yet "
                               "map nodes. A frame resembles the stretch walked just before it, so the map "
-                              "keeps away from it (docs/catgraph.md).", low=0)
+                              "keeps away from it (docs/catgraph.md).", low=0, sequence_only=True)
     mode_window: int = param(2, "Half window (nodes) around the decided node whose posterior mass is "
                                 "the confidence: the ground truth's tolerance.", low=0)
     a0: float = param(0.5, "Prior shape of the same-place rank model Beta(a, 1), before any frame.",
