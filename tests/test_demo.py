@@ -82,6 +82,18 @@ def test_demo_writes_results_tables_and_plots(demo_runs: tuple[Path, dict, str])
 
 
 
+def test_demo_json_is_compares_and_a_rerun_says_what_it_replaced(demo_runs: tuple[Path, dict, str]) -> None:
+    """demo's --json gives its runs as compare's --json does (each with its ground truth's
+    warnings, and the ground truth named); a demo run again into the same folder says, on stderr
+    and in its --json, that it replaced each of its files."""
+    out, report, _ = demo_runs
+    assert report["ground_truth"] and all(run["truth_warnings"] == [] for run in report["runs"])
+    again = CliRunner().invoke(app, ["demo", "--out", str(out), "--json"])
+    assert again.exit_code == 0, again.output
+    replaced = [f"note: replaced the existing file {path}" for path in json.loads(again.stdout)["files"]]
+    assert json.loads(again.stdout)["warnings"] == replaced and len(replaced) == len(report["files"])
+
+
 def test_demo_names_its_outputs_where_they_are(demo_runs: tuple[Path, dict, str]) -> None:
     """The closing line names each file by its path under --out: results files lie in results/."""
     out, _, text = demo_runs

@@ -13,7 +13,7 @@ from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, FramesOpti
                                metrics_outputs, parse_cuts, parse_recall_at, scored_frames, slice_columns,
                                slice_key, warn_about_truth, write_metrics_csv)
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
-from wiloc.cli.views import (comparison_records, cut_views, new_place_view, print_command_json, run_records,
+from wiloc.cli.views import (compared_runs, comparison_records, cut_views, new_place_view, print_command_json,
                              table1_view, table2_view)
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE
 
@@ -85,9 +85,7 @@ def compare(
             note("wrote", str(path))  # stdout holds the tables alone
         return
     if as_json:
-        runs = [{**record, "truth_warnings": e.truth.warnings}  # as evaluate's --json: the run's own
-                for record, e in zip(run_records(comparison), comparison.evaluations)]
-        print_command_json("compare", "runs", runs, notes, ground_truth=comparison.ground_truth,
+        print_command_json("compare", "runs", compared_runs(comparison), notes, ground_truth=comparison.ground_truth,
                            table2=comparison.table2.to_dict(orient="records"),
                            files=[str(p.resolve()) for p in written], **slice_key(comparison.evaluations))
         return

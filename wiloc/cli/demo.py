@@ -7,8 +7,8 @@ from pathlib import Path
 import typer
 
 from wiloc.atomic import name_problem
-from wiloc.cli.core import handles_errors, out
-from wiloc.cli.views import print_command_json, progress_bar, run_records, table1_view, table2_view
+from wiloc.cli.core import Notes, handles_errors, out
+from wiloc.cli.views import compared_runs, print_command_json, progress_bar, table1_view, table2_view
 
 
 def output_folder(value: Path) -> Path:
@@ -36,10 +36,16 @@ def demo(
     Example: wiloc demo --out /tmp/wiloc-demo
     """
     from wiloc.demo import run_demo
+    before = {path.resolve() for path in out_dir.rglob("*")} if out_dir.is_dir() else set()
     with progress_bar(not as_json) as progress:
         report = run_demo(out_dir, progress=progress)
+    notes = Notes()
+    for path in report.files:
+        if path.resolve() in before:
+            notes.add("note", f"replaced the existing file {path}")
     if as_json:
-        print_command_json("demo", "runs", run_records(report.comparison), [],
+        print_command_json("demo", "runs", compared_runs(report.comparison), notes,
+                           ground_truth=report.comparison.ground_truth,
                            table2=report.comparison.table2.to_dict(orient="records"), out=str(out_dir.resolve()),
                            files=[str(p.resolve()) for p in report.files])
         return

@@ -398,6 +398,13 @@ def run_records(comparison: api.Comparison) -> list[dict[str, Any]]:
             for row, e in zip(rows, comparison.evaluations)]
 
 
+def compared_runs(comparison: api.Comparison) -> list[dict[str, Any]]:
+    """A comparison's runs as compare's and demo's --json give them: :func:`run_records`, each
+    with the warnings its ground truth gave (``truth_warnings``, as evaluate's --json)."""
+    return [{**record, "truth_warnings": e.truth.warnings}
+            for record, e in zip(run_records(comparison), comparison.evaluations)]
+
+
 def _missing(value: Any) -> bool:
     return value is None or (isinstance(value, float) and math.isnan(value))
 
