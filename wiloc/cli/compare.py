@@ -35,7 +35,7 @@ def compare(
     recall_at: RecallAtOption = RECALL_AT_TEXT,
     frames: FramesOption = None,
     threshold_plot: Optional[Path] = typer.Option(None, callback=plot_file, show_default="none: not drawn", help="Precision against normalised threshold (the paper's Figure 5)."),
-    model_plot: Optional[Path] = typer.Option(None, callback=plot_file, show_default="none: not drawn", help="Learned histograms of the first online run (Figure 1)."),
+    model_plot: Optional[Path] = typer.Option(None, callback=plot_file, show_default="none: not drawn", help="Learned histograms of the first online run, else of the first trained one (Figure 1)."),
     pr_plot: PrPlotOption = None,
     calibration_plot: CalibrationPlotOption = None,
     csv_out: Optional[Path] = typer.Option(None, "--csv", callback=metrics_file, show_default="none: not written",

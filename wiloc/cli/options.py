@@ -207,6 +207,9 @@ CacheOption = Annotated[Optional[Path], typer.Option(envvar="WILOC_CACHE", show_
                                                      callback=cache_folder, help="Cache folder.")]
 JobsOption = Annotated[Optional[int], typer.Option("--jobs", "-j", show_default="all cores",
                                                    help="Worker processes for describing image folders (onnx: threads).")]
+TrainingJobsOption = Annotated[Optional[int], typer.Option(
+    "--jobs", "-j", show_default="all cores",
+    help="Worker processes that extract the training images' local features.")]
 STREAMS = "video files and ROS bags"
 EveryOption = Annotated[int, typer.Option(help="Videos, bags: every K-th frame of the cut.", rich_help_panel=STREAMS)]
 FpsOption = Annotated[Optional[float], typer.Option(

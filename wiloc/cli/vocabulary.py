@@ -8,7 +8,7 @@ from typing import Any
 import typer
 
 from wiloc.cli.core import Notes, fail, handles_errors, out, print_line
-from wiloc.cli.options import CacheOption, JobsOption
+from wiloc.cli.options import CacheOption, TrainingJobsOption
 from wiloc.cli.params import with_vocabulary_options
 from wiloc.cli.views import print_command_json, progress_bar, table
 from wiloc.errors import EXIT_USAGE
@@ -19,7 +19,7 @@ from wiloc.errors import EXIT_USAGE
 def vocabulary(
     folders: list[Path] = typer.Argument(..., metavar="FOLDER...", help="Training image folders (never the pair you will test on)."),
     cache: CacheOption = None,
-    jobs: JobsOption = None,
+    jobs: TrainingJobsOption = None,
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
     vocabulary_options: dict[str, Any] | None = None,
 ) -> None:
