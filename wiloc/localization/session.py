@@ -34,7 +34,6 @@ from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
 from wiloc.methods.base import MapContext, Method, TrainingRows
 from wiloc.methods.registry import learning_from_the_map, make_method
-from wiloc.parameters import declared
 from wiloc.sources.video import Sampling
 
 #: The labelled pair of ``trained``: its traversals and truth, or their difference rows and labels.
@@ -106,11 +105,6 @@ class RunSession:
                                                    f"that learn from the map's differences to itself "
                                                    f"({', '.join(learning_from_the_map())})")
         self.sequence = map is None
-        sequence_only = [d.name for d in declared(type(self.method).Params)
-                         if d.sequence_only and d.name in (method_params or {})]
-        if sequence_only and map is not None and not restoring:
-            raise ParameterError(sequence_only[0], f"applies to sequence mode (no map) only: method "
-                                                   f"'{self.method.name}' does not read it against a map")
         self.map_path = None if map is None or isinstance(map, Entry) else Path(map)
         self.map_odometry = None if map_odometry is None else Path(map_odometry)
         self.map_names = None if map_names is None else Path(map_names)
@@ -120,7 +114,8 @@ class RunSession:
         self.query_path = None if query is None else Path(query)
         self._query_bag, self._map_bag = bag_odometry(query, self.map_path, odometry_topic, odometry, map_odometry)
         if not restoring:
-            self._check_inputs(training is not None, odometry is not None, map_odometry is not None)
+            self._check_inputs(training is not None, odometry is not None, map_odometry is not None,
+                               tuple(method_params or {}))
         sources = [Path(source) for source in (query, map) if source is not None and not isinstance(source, Entry)]
         check_sampling(sources, sampling)
         pair = (training.query, training.reference) if isinstance(training, Training) else ()
@@ -176,14 +171,14 @@ class RunSession:
         """The map prepared for frame-by-frame differences (a streaming run's; made on first use)."""
         return DifferencesTo(self.map.data, self.metric, self.scale)
 
-    def _check_inputs(self, training: bool, odometry: bool, map_odometry: bool) -> None:
+    def _check_inputs(self, training: bool, odometry: bool, map_odometry: bool, given: tuple[str, ...]) -> None:
         """The method's refusal of an input it does not take, naming the input as given: an
         odometry read from a ROS bag is ``odometry_topic``'s, not a CSV's. A run over a query
         traversal given the map's odometry CSV and not the query's would not use it: refused, not
         ignored (a Localizer is given the query's odometry frame by frame)."""
         try:
             self.method.check_inputs(sequence=self.sequence, training=training, odometry=odometry or self._query_bag,
-                                     map_odometry=map_odometry or self._map_bag)
+                                     map_odometry=map_odometry or self._map_bag, given=given)
         except WilocError as exc:
             from_bag = {"odometry": self._query_bag, "map_odometry": self._map_bag}  # never besides a CSV
             if not from_bag.get(exc.parameter or ""):

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from contextlib import closing
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -23,9 +23,9 @@ from numpy.typing import NDArray
 from wiloc.ahead import computed_ahead
 from wiloc.candidates import best_candidates
 from wiloc.decisions import Decision, Decisions
-from wiloc.errors import UsageError, WilocError
+from wiloc.errors import ParameterError, UsageError, WilocError
 from wiloc.model import HistogramModel
-from wiloc.parameters import Parameters
+from wiloc.parameters import Parameters, declared
 
 if TYPE_CHECKING:
     from wiloc.descriptors.base import DescriptorSpec
@@ -127,9 +127,14 @@ class Method(ABC):
         return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in changed.items())})"
 
     def check_inputs(self, *, sequence: bool, training: bool, odometry: bool = False,
-                     map_odometry: bool = False) -> None:
+                     map_odometry: bool = False, given: Collection[str] = ()) -> None:
         """Refuse a run without what the method needs (``needs``), or with inputs it does not take
-        (a query's odometry without the map's, which it is measured against)."""
+        (a query's odometry without the map's, which it is measured against; of the parameters
+        ``given``, one that only sequence mode reads, against a map)."""
+        unread = [d.name for d in declared(self.Params) if d.sequence_only and d.name in given and not sequence]
+        if unread:
+            raise ParameterError(unread[0], f"applies to sequence mode (no map) only: method '{self.name}' does not "
+                                            "read it against a map")
         if "map" in self.needs and sequence:
             raise UsageError(None, f"method '{self.name}' needs a map (a reference trajectory)",
                              parameter="reference")
@@ -188,6 +193,9 @@ class Method(ABC):
                 raise WilocError(self.name, f"method '{self.name}' takes no odometry", parameter="odometry")
             odometry = checked_step(odometry, self.frames)
             self.check_odometry()
+        elif not self.context.sequence and self.odometry_next():  # sequence mode: the method says how
+            raise WilocError(self.name, f"query frame {self.frames}: with the map's odometry, odometry comes with "
+                                        "every frame after the first", parameter="odometry")
         row = np.asarray(row)
         row = row if row.dtype == np.float32 else row.astype(np.float64, copy=False)
         self._ahead = ahead

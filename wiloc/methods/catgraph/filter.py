@@ -266,9 +266,6 @@ class CatGraph(Method):
         from wiloc.methods.catgraph import rank_kernels  # numba loads with the first frame, not the command line
         from wiloc.methods.catgraph import filter_kernels
 
-        if odometry is None and not self._growing and self.odometry_next():  # before anything is decided
-            raise WilocError("catgraph", f"query frame {self.frames}: with the map's odometry, odometry comes with "
-                                         "every frame after the first", parameter="odometry")
         if self._growing:  # sequence mode: the map is the run's frames before the recent window and the frontier
             n_map = self.frames - self.context.exclude_recent - self.params.frontier
             self._self_map.add(self.frames, odometry, row[:max(0, self.frames - self.context.exclude_recent)], n_map,
@@ -426,24 +423,15 @@ class CatGraph(Method):
                              parameter="odometry")
 
     def odometry_next(self) -> bool | None:
-        """In sequence mode, from the third frame: as the frames before (``self_map.Trail``). On a
-        map with odometry (``map_odometry``), from the second frame: always (the first frame's, a
-        distance from no frame, is not read)."""
+        """In sequence mode, from the third frame: as the frames before (``self_map.Trail``); on a
+        map with odometry, from the second frame (the first's, from no frame, is not read)."""
         if self._growing:
             return self._self_map.trail.odometry if self.frames > 1 else None
-        return True if self._map_odometry and self.frames > 0 else None
-
-    @property
-    def _map_odometry(self) -> bool:
-        """Whether the map came with its odometry: then the query's comes with every frame after
-        the first."""
-        return not self._growing and self.context is not None and self.context.arclength is not None
+        return True if self.context.arclength is not None and self.frames > 0 else None
 
     def _travelled(self, odometry: float | None) -> float:
-        """u_k: the query's odometry step (checked by :meth:`Method.step`), else the mean node
-        spacing. The paces become directions at the first frame with odometry, or on a map with
-        odometry at the first frame, whether it gives its (unread) odometry or not."""
-        if not self._odometry and (odometry is not None or self._map_odometry):
+        """u_k: the query's odometry step, else the mean node spacing; paces become directions then."""
+        if not self._odometry and (odometry is not None or self.context.arclength is not None):  # a map's: at once
             self._odometry = True
             self._paces_to_directions()
         return self._spacing if odometry is None else odometry
