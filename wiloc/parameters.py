@@ -28,12 +28,15 @@ INT64 = np.iinfo(np.int64)  # the integers a parameter may hold: what compiled k
 
 
 def param(default: Any, help: str, *, low: float | None = None, high: float | None = None,
-          low_open: bool = False, high_open: bool = False, sequence_only: bool = False) -> Any:
+          low_open: bool = False, high_open: bool = False, sequence_only: bool = False,
+          odometry_only: bool = False) -> Any:
     """A declared parameter: its default, a one-line help and its valid range (bounds inclusive
     unless ``*_open``; for tuples the range holds for every element); ``sequence_only`` for one
-    that a run against a map does not read (given there, it is refused rather than ignored)."""
+    that a run against a map does not read, ``odometry_only`` for one that a run without the
+    query's odometry does not read (given there, either is refused rather than ignored)."""
     return field(default=default, metadata={"help": help, "low": low, "high": high, "low_open": low_open,
-                                            "high_open": high_open, "sequence_only": sequence_only})
+                                            "high_open": high_open, "sequence_only": sequence_only,
+                                            "odometry_only": odometry_only})
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,7 @@ class Declared:
     low_open: bool = False
     high_open: bool = False
     sequence_only: bool = False  # read in sequence mode only: refused with a map
+    odometry_only: bool = False  # read with the query's odometry only: refused without it
 
     @property
     def range_text(self) -> str:
@@ -102,7 +106,8 @@ def declared(cls: type[Parameters]) -> list[Declared]:
         out.append(Declared(name=f.name, kind=kind, default=None if f.default is MISSING else f.default,
                             help=meta.get("help", ""), optional=optional, choices=choices, length=length,
                             low=meta.get("low"), high=meta.get("high"), low_open=meta.get("low_open", False),
-                            high_open=meta.get("high_open", False), sequence_only=meta.get("sequence_only", False)))
+                            high_open=meta.get("high_open", False), sequence_only=meta.get("sequence_only", False),
+                            odometry_only=meta.get("odometry_only", False)))
     return out
 
 

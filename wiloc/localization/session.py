@@ -177,7 +177,8 @@ class RunSession:
         traversal given the map's odometry CSV and not the query's would not use it: refused, not
         ignored (a Localizer is given the query's odometry frame by frame)."""
         try:
-            self.method.check_inputs(sequence=self.sequence, training=training, odometry=odometry or self._query_bag,
+            given_odometry = odometry or self._query_bag if self.query_path is not None else None  # else frame by frame
+            self.method.check_inputs(sequence=self.sequence, training=training, odometry=given_odometry,
                                      map_odometry=map_odometry or self._map_bag, given=given)
         except WilocError as exc:
             from_bag = {"odometry": self._query_bag, "map_odometry": self._map_bag}  # never besides a CSV

@@ -126,15 +126,20 @@ class Method(ABC):
                    if v != self.Params.create().as_dict().get(k)}
         return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in changed.items())})"
 
-    def check_inputs(self, *, sequence: bool, training: bool, odometry: bool = False,
+    def check_inputs(self, *, sequence: bool, training: bool, odometry: bool | None = False,
                      map_odometry: bool = False, given: Collection[str] = ()) -> None:
         """Refuse a run without what the method needs (``needs``), or with inputs it does not take
         (a query's odometry without the map's, which it is measured against; of the parameters
-        ``given``, one that only sequence mode reads, against a map)."""
-        unread = [d.name for d in declared(self.Params) if d.sequence_only and d.name in given and not sequence]
-        if unread:
-            raise ParameterError(unread[0], f"applies to sequence mode (no map) only: method '{self.name}' does not "
-                                            "read it against a map")
+        ``given``, one that only sequence mode reads, against a map, and one that only the query's
+        odometry is read with, without it). ``odometry`` None: it comes frame by frame, if at all
+        (a Localizer's)."""
+        for d in declared(self.Params):
+            if d.name in given and d.sequence_only and not sequence:
+                raise ParameterError(d.name, f"applies to sequence mode (no map) only: method '{self.name}' does "
+                                             "not read it against a map")
+            if d.name in given and d.odometry_only and odometry is False:
+                raise ParameterError(d.name, f"applies to a run with the query's odometry only: method "
+                                             f"'{self.name}' does not read it without")
         if "map" in self.needs and sequence:
             raise UsageError(None, f"method '{self.name}' needs a map (a reference trajectory)",
                              parameter="reference")

@@ -82,7 +82,7 @@ class CatGraphParams(Parameters):
     odometry_scale: float = param(0.05, "With odometry: spread (sd of its log) of each particle's factor between "
                                         "the query's odometry and the map's, kept for its life, so that a scale "
                                         "the two disagree by is learned by selection (0: the odometry as given).",
-                                  low=0.0)
+                                  low=0.0, odometry_only=True)
 
     def check(self) -> None:
         low, high = self.speed_range
