@@ -22,6 +22,7 @@ from wiloc.cache.store import Cache
 from wiloc.description.cluster import connect, disconnect
 from wiloc.description.differences import ComputedDifferences
 from wiloc.description.distances import DifferencesTo
+from wiloc.errors import WilocError
 
 TRAVERSALS = ("day_right", "day_left", "night_right")
 VOLATILE = {"created", "updated"}  # times of writing: the only attributes allowed to differ
@@ -242,6 +243,28 @@ def test_batches_that_never_run_end_in_one_error() -> None:
     line = batches_in_a_process(NEVER_RUN)
     assert line.endswith(": the Dask cluster failed during the run (a batch made no progress in 1 s, 2 times); the "
                          "frames described so far are kept in the cache; run again to resume"), line
+
+
+def _pretend_opencv(version: str | None) -> None:
+    """On a worker: report OpenCV as ``version`` (None: as it is)."""
+    from wiloc.descriptors import base
+
+    saved = vars(base).setdefault("_real_library_version", base.library_version)
+    base.library_version = saved if version is None else (lambda name: version)
+
+
+def test_a_worker_with_another_opencv_is_refused_and_nothing_is_cached(scheduler: str, demo_route,
+                                                                        tmp_path: Path) -> None:
+    """The cache keys rows by the caller's OpenCV: a worker computing with another one would store
+    its rows as the caller's, so it refuses, in one error naming it and both versions."""
+    client = connect(scheduler).client
+    client.run(_pretend_opencv, "0.0.1")
+    try:
+        with pytest.raises(WilocError, match=r"computes with opencv 0\.0\.1 where this process has opencv \d"):
+            api.describe([demo_route.reference], "sad", cache=Cache(tmp_path / "cache"), scheduler=scheduler)
+    finally:
+        client.run(_pretend_opencv, None)
+    assert not list((tmp_path / "cache").rglob("*.h5"))
 
 
 @pytest.mark.realdata

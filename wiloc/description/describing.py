@@ -211,7 +211,8 @@ def _on_cluster(cluster: Cluster, spec: DescriptorSpec,
     """Each run's tasks settled on the Dask cluster, one run after the other, tagged by run."""
     for tag, run in enumerate(runs):
         if run.tasks:
-            for record, fresh in cluster.in_batches(partial(describe_quietly, spec), run.tasks):
+            work = partial(describe_quietly, spec, spec.cache_params["libraries"])
+            for record, fresh in cluster.in_batches(work, run.tasks):
                 yield tag, record, fresh
 
 

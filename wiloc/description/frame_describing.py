@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 import os
 import queue
+import socket
 import statistics
 import threading
 import time
@@ -26,6 +27,7 @@ from wiloc.bow.features import extract_features
 from wiloc.cache.entries import FrameRecord
 from wiloc.cache.features import FeatureStore
 from wiloc.description.workers import UnknownToWorkers, WorkerError, borrowed_pool, can_fork, kept_pool
+from wiloc.descriptors.base import library_versions
 from wiloc.descriptors.registry import DescriptorSpec
 from wiloc.errors import FrameError, ParameterError, WilocError
 from wiloc.quiet import decoders_quiet, quiet_always
@@ -209,10 +211,19 @@ def _worth_workers(jobs: int, timed: list[float], left: int) -> bool:
     return statistics.median(timed[1:]) * left > start.seconds  # not np.median: its first call costs 6 ms
 
 
-def describe_quietly(spec: DescriptorSpec, tasks: Sequence[Task]) -> list[tuple[FrameRecord, bool]]:
+def describe_quietly(spec: DescriptorSpec, libraries: dict[str, str],
+                     tasks: Sequence[Task]) -> list[tuple[FrameRecord, bool]]:
     """Each task's (record, computed), OpenCV's own warnings off meanwhile (a Dask worker's batch,
     from the pixels: the cache, local features too, stays the caller's; a colour descriptor's as
-    one batch on the worker's cores)."""
+    one batch on the worker's cores). A worker whose libraries are not the caller's
+    (``libraries``, what the caller's cache keys the rows by) refuses: its rows would be stored
+    as the caller's."""
+    own = library_versions(libraries)
+    if own != libraries:
+        theirs = ", ".join(f"{name} {version}" for name, version in own.items())
+        ours = ", ".join(f"{name} {version}" for name, version in libraries.items())
+        raise WilocError(f"Dask worker on {socket.gethostname()}", f"computes with {theirs} where this process has "
+                                                                  f"{ours}; install the same on every worker")
     with opencv_quiet():
         if spec.colour:
             return _describe_colour(spec, tasks, check_jobs(None))
