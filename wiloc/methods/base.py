@@ -146,8 +146,8 @@ class Method(ABC):
         if ("training" in self.needs) != training:
             problem = "needs a labelled training pair" if not training else "takes no training pair"
             raise UsageError(None, f"method '{self.name}' {problem}", parameter="training")
-        for given, parameter in ((odometry, "odometry"), (map_odometry, "map_odometry")):
-            if given and "odometry" not in self.needs:
+        for taken, parameter in ((odometry, "odometry"), (map_odometry, "map_odometry")):
+            if taken and "odometry" not in self.needs:
                 raise UsageError(None, f"method '{self.name}' takes no odometry", parameter=parameter)
         if odometry and not map_odometry and not sequence:  # refused before describing, not at the first frame
             raise UsageError(None, "the query's odometry needs the map's too, in the same units",
