@@ -18,6 +18,14 @@ T = TypeVar("T", bound=type)
 _SHORT = 60
 
 
+def number_label(value: float) -> str:
+    """The shortest text of ``value`` that reads back as it: ``%g`` where that is exact (0.9, 1),
+    else Python's repr (0.9999999, which ``%g`` shows as 1): two numbers never share a label, as
+    a confidence cut names its table row and its CSV and JSON keys."""
+    text = f"{value:g}"
+    return text if float(text) == value else repr(float(value))
+
+
 def brief(value: Any) -> str:
     """A few characters saying what ``value`` is."""
     if isinstance(value, np.generic):  # a numpy scalar: its value (its shape, (), says nothing)

@@ -51,7 +51,9 @@ def parse_cuts(text: str) -> list[float]:
         cuts = []
     if not cuts or not all(0.0 <= cut <= 1.0 for cut in cuts):
         fail(f"--cuts: '{text}': give confidences in [0, 1], comma-separated, such as {CUTS_TEXT}", EXIT_USAGE)
-    return sorted(set(cuts))
+    from wiloc.evaluation.comparison import check_cuts  # pandas: loaded by the work, not by --help
+
+    return check_cuts(cuts)
 
 
 def scored_frames(evaluations: list[api.Evaluation]) -> list[str]:

@@ -29,6 +29,7 @@ from wiloc.candidates import RANKED
 from wiloc.cli.core import err, out
 from wiloc.evaluation.reliability import NEW_PLACE_KEYS
 from wiloc.labels import threshold_text
+from wiloc.reprs import number_label
 from wiloc.text_tables import Digits
 from wiloc.wrapping import Words
 
@@ -232,8 +233,9 @@ def table(title: str, rows: list[dict[str, Any]], columns: Sequence[str] | None 
 def at_cut(row: dict[str, Any], cut: float, prefix: str = "") -> Words:
     """Precision, recall and accepted frames at one confidence cut of a table row (its keys after
     ``prefix``), one a line, each line whole."""
-    return Words(f"P {cell(row[f'{prefix}precision@{cut:g}'])}\nR {cell(row[f'{prefix}recall@{cut:g}'])}\n"
-                 f"n {cell(row[f'{prefix}accepted@{cut:g}'], 0)}", whole_lines=True)
+    at = number_label(cut)
+    return Words(f"P {cell(row[f'{prefix}precision@{at}'])}\nR {cell(row[f'{prefix}recall@{at}'])}\n"
+                 f"n {cell(row[f'{prefix}accepted@{at}'], 0)}", whole_lines=True)
 
 
 def new_place_view(rows: list[dict[str, Any]], cuts: Sequence[float], ground_truth: str,
@@ -243,7 +245,7 @@ def new_place_view(rows: list[dict[str, Any]], cuts: Sequence[float], ground_tru
     given = [row for row in rows if _says_new_place(row)]
     if not given:
         return None
-    cut_columns = {f"cut {cut:g}": cut for cut in cuts}
+    cut_columns = {f"cut {number_label(cut)}": cut for cut in cuts}
     shown = [{**{h: row[h] for h in heads}, **{k: row[k] for k in NEW_PLACE_COLUMNS},
               **{name: at_cut(row, cut, NEW_PLACE_KEYS) for name, cut in cut_columns.items()}} for row in given]
     return table(f"P(new place) (ground truth: {ground_truth})", shown, [*heads, *NEW_PLACE_COLUMNS, *cut_columns],
@@ -276,7 +278,7 @@ def metrics_views(rows: list[dict[str, Any]], cuts: Sequence[float], ground_trut
                                              *keys[keys.index("recall_at_1") + 1:]])
     if words_fit(down):
         return [fit(down)]
-    cut_columns = {f"cut {cut:g}": cut for cut in cuts}
+    cut_columns = {f"cut {number_label(cut)}": cut for cut in cuts}
     calibration = [{"run": row["run"], **{k: row[k] for k in CALIBRATION_COLUMNS},
                     **{name: at_cut(row, cut) for name, cut in cut_columns.items()}} for row in rows]
     views = [table(title, rows, ["run", *RUN_COLUMNS], RUN_COLUMNS,
@@ -306,12 +308,12 @@ def _metrics_down(rows: list[dict[str, Any]], cuts: Sequence[float], title: str,
                      *[threshold_text(row.get(key)) if key == "max_f1_threshold" else cell(row.get(key))
                        for row in rows])
     for cut in cuts:
-        view.add_row(f"cut {cut:g}", *[at_cut(row, cut) for row in rows])
+        view.add_row(f"cut {number_label(cut)}", *[at_cut(row, cut) for row in rows])
     if new_place:
         for key, label in NEW_PLACE_LABELS.items():
             view.add_row(Words(label, whole_lines=True), *[cell(row.get(key)) for row in rows])
         for cut in cuts:
-            view.add_row(Words(f"P(new place) >= {cut:g}", whole_lines=True),
+            view.add_row(Words(f"P(new place) >= {number_label(cut)}", whole_lines=True),
                          *[at_cut(row, cut, NEW_PLACE_KEYS) if _says_new_place(row) else "-" for row in rows])
     return view
 
@@ -331,7 +333,7 @@ def cut_views(comparison: api.Comparison, cuts: Sequence[float]) -> list[Table]:
         for column in CALIBRATION_COLUMNS.values():
             view.add_column(column, justify="right")
         for cut in cuts:
-            view.add_column(f"cut\n{cut:g}")
+            view.add_column(f"cut\n{number_label(cut)}")
         for row in group.to_dict(orient="records"):
             view.add_row(name(row["method"]), *[cell(row[key]) for key in CALIBRATION_COLUMNS],
                          *[at_cut(row, cut) for cut in cuts])
@@ -421,7 +423,7 @@ def table2_view(comparison: api.Comparison) -> Table:
     for (method, target), group in t2.groupby(["method", "precision"], sort=False):
         cells = {row.traversal: f"{row.recall:.1%}{' *' if row.worst else ''}" for row in group.itertuples()}
         threshold = group["threshold"].iloc[0]
-        view.add_row(name(method), f"{target:g}%", threshold_text(float(threshold)),
+        view.add_row(name(method), f"{number_label(target)}%", threshold_text(float(threshold)),
                      *[cells.get(t, "") for t in traversals])
     return fit(view)
 
@@ -451,6 +453,6 @@ def comparison_records(comparison: api.Comparison) -> list[tuple[str, list[dict[
             *([(f"{NEW_PLACE_CAPTION}; {comparison.ground_truth}", given,
                 ["traversal", "method", *new_place], new_place)] if given else []),
             (f"Table II: one global threshold per method (worst traversal marked); {comparison.ground_truth}",
-             [{**row, "precision": f"{row['precision']:g}%", "threshold": Digits(threshold_text(row["threshold"]))}
+             [{**row, "precision": f"{number_label(row['precision'])}%", "threshold": Digits(threshold_text(row["threshold"]))}
               for row in comparison.table2.to_dict(orient="records")],
              ["method", "precision", "threshold", "traversal", "recall", "worst"], {})]

@@ -204,8 +204,8 @@ def _listed(values: Iterable[Any], parameter: str, wanted: str) -> list[Any]:
 
 
 def check_precisions(precisions: Iterable[float]) -> list[float]:
-    """Table II's target precisions, percentages in (0, 100], at least one, as a list (any iterable
-    read once): a ParameterError names the first that is not."""
+    """Table II's target precisions, percentages in (0, 100], at least one, each once in the order
+    given, as a list (any iterable read once): a ParameterError names the first that is not."""
     precisions = _listed(precisions, "precisions", "percentages such as 100,99")
     if not precisions:
         raise ParameterError("precisions", "no target precision; give percentages such as 100,99")
@@ -213,18 +213,18 @@ def check_precisions(precisions: Iterable[float]) -> list[float]:
     if bad:
         shown = f"{bad[0]:g}" if isinstance(bad[0], Real) else repr(bad[0])
         raise ParameterError("precisions", f"{shown} is not a percentage in (0, 100]")
-    return precisions
+    return list(dict.fromkeys(float(p) for p in precisions))
 
 
 def check_cuts(cuts: Iterable[float]) -> list[float]:
-    """The fixed confidence cuts, numbers in [0, 1] as ``--cuts`` takes them, as a list (any
-    iterable read once): a ParameterError names the first that is not, where the calibration's
-    ValueError said it with a traceback."""
+    """The fixed confidence cuts, numbers in [0, 1] as ``--cuts`` takes them, each once and in
+    increasing order, as a list (any iterable read once; -0 is 0): a ParameterError names the first
+    that is not, where the calibration's ValueError said it with a traceback."""
     cuts = _listed(cuts, "cuts", "confidences in [0, 1]")
     bad = [c for c in cuts if isinstance(c, bool) or not isinstance(c, Real) or not 0.0 <= c <= 1.0]
     if bad:
         raise ParameterError("cuts", f"confidences in [0, 1], got {bad[0]!r}")
-    return cuts
+    return sorted({float(c) + 0.0 for c in cuts})
 
 
 def check_recall_at(recall_at: Iterable[int]) -> list[int]:

@@ -111,7 +111,8 @@ def recall_at_precision(curve: PRCurve, precision: float) -> tuple[float, float]
 
 
 def average_precision(curve: PRCurve) -> float:
-    """Area under the PR curve, step-wise as scikit-learn's average_precision_score.
+    """Area under the PR curve, step-wise with scikit-learn's average_precision_score formula (the
+    recall over every frame with a true match, not only the decided ones).
 
     AP = sum_n (R_n - R_{n-1}) P_n over the operating points, R_0 = 0; no interpolation, so it
     does not reward a precision reached only at a lower threshold.

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from wiloc.evaluation.metrics import _counts_at, _decided
-from wiloc.reprs import short_repr
+from wiloc.reprs import number_label, short_repr
 
 N_BINS = 10
 """Equal-width confidence bins: [0, 0.1), [0.1, 0.2), ..., [0.9, 1.0]."""
@@ -159,8 +159,8 @@ class Calibration:
                                        "mean_confidence": self.mean_confidence,
                                        "share_correct": self.share_correct}
         for cut, precision, recall, accepted in self._cut_rows():
-            row.update({f"precision@{cut:g}": precision, f"recall@{cut:g}": recall,
-                        f"accepted@{cut:g}": accepted})
+            at = number_label(cut)
+            row.update({f"precision@{at}": precision, f"recall@{at}": recall, f"accepted@{at}": accepted})
         return {prefix + key: value for key, value in row.items()}
 
     def as_dict(self) -> dict[str, Any]:

@@ -86,7 +86,7 @@ class Results:
     @property
     def ranking(self) -> np.ndarray | None:
         """Each frame's best candidates as reference positions, best first, padded with -1
-        (frames x K); None for a run without the column (catgraph, files of older versions)."""
+        (frames x K); None for a run without the column (seqslam, files of older versions)."""
         if RANKING not in self.frames.columns:
             return None
         return parse_ranking(self.frames[RANKING].tolist())
