@@ -46,7 +46,7 @@ def build_loop(root: Path, name: str, out: Path) -> Path:
     first, again, _ = LOOPS[name]
     folder = out / "loops" / name
     folder.mkdir(parents=True, exist_ok=True)
-    sources = [sorted((root / walk).glob("*.jpg")) for walk in (first, again)]
+    sources = [api.frames(root / walk) for walk in (first, again)]
     if any(len(images) != ROUTE for images in sources):
         raise WilocError(root, f"expected {ROUTE} images in each of {first} and {again}")
     lines = ["name,x,y"]

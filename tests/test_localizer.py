@@ -7,6 +7,7 @@ import pickle
 import re
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -14,10 +15,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from helpers import places, write_traversal
+
 import wiloc
 from wiloc import api, demo
 from wiloc.cache.store import Cache
-from wiloc.errors import FrameError, ParameterError, UsageError, WilocError
+from wiloc.errors import CacheBusyError, FrameError, ParameterError, UsageError, WilocError
 from wiloc.localization.localizer import Localizer
 from wiloc.methods.registry import METHODS
 
@@ -102,6 +105,7 @@ def test_streaming_equals_batch_in_sequence_mode(method: str, tmp_path: Path) ->
 
 _CONTINUE = """
 import json, sys
+from collections.abc import Callable
 from pathlib import Path
 from wiloc.localization.localizer import Localizer
 loc = Localizer.load(sys.argv[1])
@@ -228,6 +232,63 @@ def test_a_changed_map_is_refused_on_load(demo_route: demo.DemoRoute, tmp_path: 
     (tmp_path / "junk.npz").write_bytes(b"not a state")
     with pytest.raises(WilocError, match="not a saved localizer state"):
         Localizer.load(tmp_path / "junk.npz")
+
+
+def _rewritten(path: Path, change: Callable[[dict[str, np.ndarray]], None]) -> None:
+    """The saved state at ``path`` with its members changed by ``change``, written back as an .npz."""
+    with np.load(path) as data:
+        members = {key: data[key] for key in data.files}
+    change(members)
+    np.savez(path, **members)
+
+
+@pytest.mark.parametrize("edit", ["particles", "meta", "digest gone"])
+def test_a_state_changed_after_saving_is_refused_on_load(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                         cache_dir: Path, edit: str) -> None:
+    """A state edited by hand (a particle array cut short, a parameter changed) or damaged is
+    refused as one error naming the file, not continued into numpy's errors at the next frame."""
+    loc = Localizer(demo_route.reference, method="catgraph")
+    loc.observe(min(demo_route.queries[0].iterdir()))
+    loc.save(tmp_path / "s.npz")
+
+    def change(members: dict[str, np.ndarray]) -> None:
+        if edit == "particles":
+            members["method_state.pos"] = members["method_state.pos"][:10]
+        elif edit == "meta":
+            members["meta"] = np.array(str(members["meta"]).replace('"particles": 2000', '"particles": 20'))
+        else:
+            del members["meta_digest"]
+
+    _rewritten(tmp_path / "s.npz", change)
+    with pytest.raises(WilocError, match="the state was changed after it was saved") as err:
+        Localizer.load(tmp_path / "s.npz")
+    assert err.value.where == str(tmp_path / "s.npz")
+
+
+def test_saving_never_replaces_a_file_of_another_kind(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                      cache_dir: Path) -> None:
+    """A state or results saved over a frame, or a table of one's own, is refused and the file
+    kept; results are not written while a followed run holds their file, nor to a folder's name."""
+    from wiloc.evaluation.results_lock import results_lock
+
+    loc = Localizer(demo_route.reference, method="threshold")
+    frame = min(demo_route.queries[0].iterdir())
+    loc.observe(frame)
+    victim = tmp_path / "frame.png"
+    victim.write_bytes(frame.read_bytes())
+    with pytest.raises(WilocError, match="no saved localizer state, and saving would replace it"):
+        loc.save(victim)
+    with pytest.raises(WilocError, match="no wiloc results file"):
+        loc.results().save(victim)
+    assert victim.read_bytes() == frame.read_bytes()
+    loc.save(tmp_path / "s.npz")
+    loc.save(tmp_path / "s.npz")  # its own state is replaced
+    with results_lock(tmp_path / "run.csv"), pytest.raises(CacheBusyError, match="in use by another wiloc run"):
+        loc.results().save(tmp_path / "run.csv")
+    assert not (tmp_path / "run.csv").exists()
+    with pytest.raises(ParameterError, match="names a folder"):
+        loc.results().save(f"{tmp_path}/runs/")
+    assert loc.results().save(tmp_path / "run.csv").read_text().startswith("# wiloc-results")
 
 
 @pytest.mark.parametrize("as_paths", [False, True])
@@ -379,12 +440,14 @@ def test_a_map_that_is_no_traversal_names_the_map_parameter(demo_route: demo.Dem
 def test_observe_takes_a_new_text_name_for_each_frame(demo_route: demo.DemoRoute, tmp_path: Path,
                                                        cache_dir: Path) -> None:
     """Names are written into results, which hold one row per name (a file naming a frame twice
-    is refused when read): a name given that is not text, empty, or an earlier frame's is refused
+    is refused when read): a name given that is not text, empty, not UTF-8 (os.fsdecode's name of
+    a file whose name holds other bytes) or an earlier frame's is refused
     before anything is decided, after a load too; a file observed again under its own name (a
     camera writing latest.jpg each time) gets the frame's index after its stem."""
     loc = Localizer(demo_route.reference, method="threshold")
     path = min(demo_route.queries[0].iterdir())
-    for name, problem in ([5, "name must be text (str), got int 5"], ["", "name is empty"]):
+    for name, problem in ([5, "name must be text (str), got int 5"], ["", "name is empty"],
+                          ["bad\udcff", "name 'bad\\xff' is not valid UTF-8 (results files hold names as UTF-8 text)"]):
         with pytest.raises(WilocError) as err:
             loc.observe(path, name=name)
         assert str(err.value) == f"observe: {problem}"
@@ -789,3 +852,20 @@ def test_a_localizer_over_an_imported_map_from_the_cache_compares_its_rows(tmp_p
     loc = Localizer(report.entry, descriptor="external", metric="l1", method="threshold")
     assert loc.observe(rows[7]).match == 7
     assert loc.results().header.descriptor_params == {"metric": "l1", "length": 16, "dtype": "float32"}
+
+
+def test_a_folder_streamed_in_api_frames_order_decides_as_the_batch_run(tmp_path: Path, cache_dir: Path) -> None:
+    """``api.frames`` lists a folder as a batch run reads it (img2 before img10, which ``sorted``
+    puts after img10), so a localizer given its frames one by one makes the batch run's decisions."""
+    scenes = places(12, seed=3)
+    ref = write_traversal(tmp_path / "ref", scenes, 1.0, seed=1)
+    query = write_traversal(tmp_path / "query", scenes, 0.8, seed=2)
+    (query / ".hidden.png").write_bytes(b"")
+    (query / "notes.txt").write_text("not a frame")
+    listed = api.frames(query)
+    assert [p.name for p in listed] == [f"img{i}" + ".png" for i in range(12)]
+    assert [p.name for p in sorted(query.glob("img*.png"))] != [p.name for p in listed]
+    batch = api.localize(query, reference=ref, method="threshold", out=tmp_path / "batch.csv").results
+    loc = Localizer(ref, method="threshold")
+    streamed = [loc.observe(path).match_name for path in listed]
+    assert list(batch.frames["frame"]) == [p.name for p in listed] and list(batch.frames["match"]) == streamed

@@ -27,16 +27,16 @@ from wiloc.evaluation.results import Results
 from wiloc.evaluation.truth_source import TruthSource
 from wiloc.localization.batch import LocalizeRun, localize
 from wiloc.localization.follow_run import FollowRun, follow_folder
-from wiloc.localization.inputs import import_descriptors, shared_workers, vocabulary, vocabulary_file
+from wiloc.localization.inputs import frames, import_descriptors, shared_workers, vocabulary, vocabulary_file
 from wiloc.localization.run_files import read_run, results_file, results_name, run_list
 from wiloc.localization.training import Training
 from wiloc.sources.video import Sampling
 
 __all__ = ["TABLE1_KEYS", "Comparison", "Evaluation", "FollowRun", "LocalizeRun", "Sampling", "Training",
-           "TruthSource", "compare", "describe", "evaluate", "follow_folder", "import_descriptors", "localize",
-           "method_labels", "new_place_series", "pr_series", "reliability_series", "results_name", "run_names",
-           "run_subject", "shared_workers", "threshold_marks", "threshold_series", "traversal_labels", "vocabulary",
-           "vocabulary_file"]
+           "TruthSource", "compare", "describe", "evaluate", "follow_folder", "frames", "import_descriptors",
+           "localize", "method_labels", "new_place_series", "pr_series", "reliability_series", "results_name",
+           "run_names", "run_subject", "shared_workers", "threshold_marks", "threshold_series", "traversal_labels",
+           "vocabulary", "vocabulary_file"]
 
 
 # ----------------------------------------------------------------------------------------- describe

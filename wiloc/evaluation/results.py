@@ -25,8 +25,9 @@ import pandas as pd
 
 from wiloc.atomic import cut_to_whole_lines, write_error, written_whole
 from wiloc.decisions import Decision, Decisions
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.evaluation.results_header import ResultsHeader, header_line, parse_header, read_header
+from wiloc.evaluation.results_lock import results_lock
 from wiloc.model import HistogramModel
 from wiloc.reprs import short_repr
 
@@ -77,10 +78,13 @@ class Results:
         return self.frames[NEW_PLACE].to_numpy(dtype=np.float64)
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write these results as a results file (:func:`write_results`, atomically): the file
-        ``wiloc evaluate``, ``wiloc compare`` and :func:`read_results` read."""
+        """Write these results as a results file (:func:`write_results`, atomically), never over a
+        file that is none (a frame, a table of one's own) nor while a run (``--follow``) holds it."""
+        if os.fspath(path).endswith(("/", os.sep)):
+            raise ParameterError("path", f"{os.fspath(path)!r} names a folder: give the results file's name")
         path = Path(path)
-        write_results(path, self)
+        with results_lock(path):
+            write_results(path, self)
         return path
 
     @property

@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING, Any
 from wiloc.cache.store import Cache
 from wiloc.description.traversals import Progress, stage
 from wiloc.evaluation.results import Results, make_results, write_results
-from wiloc.localization.run_files import results_lock, run_header
+from wiloc.evaluation.results_lock import results_lock
+from wiloc.localization.run_files import run_header
 from wiloc.localization.session import RunSession, check_traversal
 from wiloc.localization.training import Training
 from wiloc.sources.video import Sampling

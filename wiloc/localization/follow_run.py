@@ -16,7 +16,8 @@ from wiloc.evaluation.results import RANKING, ResultsStream
 from wiloc.evaluation.results_header import ResultsHeader, read_header
 from wiloc.localization.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localization.localizer import Localizer
-from wiloc.localization.run_files import lock_results, results_name, unlock_results
+from wiloc.evaluation.results_lock import lock_results, unlock_results
+from wiloc.localization.run_files import results_name
 from wiloc.localization.training import Training
 
 

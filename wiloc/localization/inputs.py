@@ -1,6 +1,6 @@
-"""A run's inputs prepared before describing: external descriptors imported, visual
-vocabularies built or found, and worker processes shared by several describes (``wiloc.api``
-offers these as its own functions)."""
+"""A run's inputs prepared before describing: a folder's frames in the order runs read them,
+external descriptors imported, visual vocabularies built or found, and worker processes shared by
+several describes (``wiloc.api`` offers these as its own functions)."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -18,6 +18,14 @@ from wiloc.description.workers import keeping_pools
 from wiloc.descriptors.external import recorded_metric
 from wiloc.errors import ParameterError, WilocError
 from wiloc.given import check_file_path
+from wiloc.sources.frames import list_traversal
+
+
+def frames(folder: str | Path) -> list[Path]:
+    """The image files of a traversal folder in the order a batch run decides them: natural order
+    (``img2`` before ``img10``, where ``sorted`` puts ``img10`` first), hidden and non-image files
+    left out. What a ``Localizer`` is given frame by frame to decide as ``localize`` does."""
+    return list(list_traversal(Path(folder)).frames)
 
 
 def shared_workers() -> AbstractContextManager[None]:

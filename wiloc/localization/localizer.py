@@ -12,6 +12,7 @@ with identical decisions, and keep the decisions made before.
 from __future__ import annotations
 
 import copy
+import hashlib
 import json
 import os
 import zipfile
@@ -28,7 +29,7 @@ from wiloc.atomic import written_whole
 from wiloc.cache.store import Cache, Entry
 from wiloc.decisions import Decision
 from wiloc.description.traversals import Describer, checked_rows, is_matrix_file
-from wiloc.errors import FrameError, ParameterError, WilocError, load_problem
+from wiloc.errors import FrameError, ParameterError, WilocError, load_problem, shown_name
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.localization.frame_arrays import colour_image, frame_array, gray_image
@@ -38,10 +39,13 @@ from wiloc.sources.frames import read_colour, read_gray, unusable_reason
 from wiloc.sources.video import Sampling
 
 STATE_FORMAT = "wiloc-localizer-state"
-#: 6: the decisions made are kept (``results``); 5: catgraph reads each node against its chance
+#: 8: a digest of the contents, checked on loading; 7: catgraph's unexplained stretch keeps the track's
+#: pace; 6: the decisions made are kept (``results``); 5: catgraph reads each node against its chance
 #: resemblance; 4: sequence mode runs the catgraph filter; 3: catgraph knows a repeated image; 2: it
 #: ranks FAB-MAP evidence
-STATE_VERSION = 7
+STATE_VERSION = 8
+#: The saved state's member holding the digest of the others (:func:`_digest`).
+DIGEST = "meta_digest"
 
 #: Sequence mode: the made-up frames a copy of the method steps, at most, to build its compiled
 #: kernels (:meth:`Localizer._compile`), and how many it steps after its first whole decision.
@@ -68,7 +72,7 @@ class Localizer:
     and pickling keep them.
 
         loc = Localizer(map="day_right/", descriptor="sad", method="catgraph", seed=0)
-        for path in sorted(Path("day_left").glob("*.jpg")):
+        for path in api.frames("day_left"):   # (from wiloc import api) in the order a batch run reads them
             decision = loc.observe(path)
         loc.results(query="day_left/").save("day_left-sad-catgraph.csv")   # wiloc evaluate reads it
     """
@@ -239,6 +243,9 @@ class Localizer:
             raise WilocError("observe", f"name must be text (str), got {type(name).__name__} {name!r}")
         if not name:
             raise WilocError("observe", "name is empty")
+        if shown_name(name) != name:  # as a batch run refuses such a file
+            raise WilocError("observe", f"name '{shown_name(name)}' is not valid UTF-8 (results files hold names "
+                                        "as UTF-8 text)")
         if name in self._named:
             raise WilocError("observe", f"name '{name}' is an earlier frame's (frame {self.names.index(name)}); "
                                         "each frame needs a name of its own (name=...)")
@@ -289,10 +296,13 @@ class Localizer:
         Missing folders of ``path`` are created, as every file the library writes does; a write
         that fails (a full disk) is a WilocError naming the file."""
         path = Path(path)
+        if _other_file(path):
+            raise WilocError(path, "the file there is no saved localizer state, and saving would replace it; give "
+                                   "another name, or remove it first")
         arrays: dict[str, NDArray] = {}
-        meta = _split(self.state(), "", arrays)
+        meta = json.dumps(_split(self.state(), "", arrays))
         with written_whole(path, "the localizer state", binary=True) as out:
-            np.savez(out, meta=np.array(json.dumps(meta)), **arrays)
+            np.savez(out, meta=np.array(meta), **{DIGEST: np.array(_digest(meta, arrays))}, **arrays)
         return path
 
     @classmethod
@@ -312,14 +322,19 @@ class Localizer:
             raise WilocError(path, "not a saved localizer state (not an .npz file)")
         try:
             with np.load(path, allow_pickle=False) as data:
-                meta = _join(json.loads(str(data["meta"])), {key: data[key] for key in data.files if key != "meta"})
+                text, digest = str(data["meta"]), str(data[DIGEST]) if DIGEST in data.files else None
+                arrays = {key: data[key] for key in data.files if key not in ("meta", DIGEST)}
+                meta = json.loads(text)
         except OSError as exc:  # unreadable (no permission)
             raise WilocError(path, f"cannot read file ({exc.strerror or exc})") from None
         except (ValueError, KeyError, EOFError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
             raise WilocError(path, f"not a saved localizer state ({load_problem(exc)})") from None
-        if meta.get("format") != STATE_FORMAT or meta.get("version") != STATE_VERSION:
+        if not isinstance(meta, dict) or meta.get("format") != STATE_FORMAT or meta.get("version") != STATE_VERSION:
             raise WilocError(path, "not a saved localizer state of this wiloc version")
-        return cls._continued(meta, path, cache, jobs, map)
+        if digest != _digest(text, arrays):
+            raise WilocError(path, "the state was changed after it was saved (its contents do not match their "
+                                   "digest): it cannot be continued")
+        return cls._continued(_join(meta, arrays), path, cache, jobs, map)
 
     def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
         """Pickled (and copied) as :meth:`save` writes it, the map held in memory and the cache
@@ -389,6 +404,32 @@ def _map(map: object) -> str | os.PathLike | Entry | None:
 
 
 ARRAY = "__array__"  # marks, in a saved state's JSON, a value stored as an array of the .npz
+
+
+def _digest(meta: str, arrays: Mapping[str, NDArray]) -> str:
+    """SHA-256 of a saved state's JSON and arrays (each with its name, dtype and shape): a state
+    edited or damaged after :meth:`Localizer.save` is refused by :meth:`Localizer.load` rather than
+    continued into errors, or into decisions no localizer made."""
+    h = hashlib.sha256(meta.encode())
+    for key in sorted(arrays):
+        value = np.ascontiguousarray(arrays[key])
+        h.update(json.dumps([key, value.dtype.str, value.shape]).encode())
+        h.update(value.tobytes())
+    return h.hexdigest()
+
+
+def _other_file(path: Path) -> bool:
+    """Whether ``path`` holds a file (not empty) that is no saved state, which saving would
+    replace: a frame, a table of one's own."""
+    try:
+        if not path.is_file() or path.stat().st_size == 0:
+            return False
+        if not zipfile.is_zipfile(path):
+            return True
+        with zipfile.ZipFile(path) as archive:
+            return "meta.npy" not in archive.namelist()
+    except (OSError, zipfile.BadZipFile):  # unreadable: the writing says what is wrong
+        return False
 
 
 def _split(value: Any, key: str, arrays: dict[str, NDArray]) -> Any:
