@@ -216,6 +216,12 @@ def test_bad_setup_names_the_parameter(demo_route: demo.DemoRoute, cache_dir: Pa
     assert err.value.parameter == "map_odometry"
     with pytest.raises(ParameterError, match="normaliser"):
         Localizer(None, descriptor="gist", method="threshold")
+    with pytest.raises(ParameterError, match="applies to a run with the query's odometry only") as err:
+        Localizer(demo_route.reference, method="catgraph", odometry_scale=0.1)  # no map odometry: none is read
+    assert err.value.parameter == "odometry_scale"
+    for map_odometry in (demo_route.positions / "reference.csv", None):  # odometry may come with each frame
+        Localizer(demo_route.reference if map_odometry else None, method="catgraph", map_odometry=map_odometry,
+                  odometry_scale=0.1)
 
 
 def test_a_changed_map_is_refused_on_load(demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:

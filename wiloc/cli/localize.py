@@ -107,7 +107,8 @@ def localize(
     if follow:
         refused = [flag for flag, value in (("--odometry", odometry), ("--odometry-topic", odometry_topic),
                                             ("--topic", topic), ("--names", names), ("--map-names", map_names),
-                                            ("--metric", metric), ("--model-plot", model_plot)) if value is not None]
+                                            ("--metric", metric), ("--model-plot", model_plot),
+                                            ("--map-odometry", map_odometry)) if value is not None]
         refused += ["video sampling"] * (sampling != api.Sampling())
         if len(queries) != 1 or refused:
             fail(f"--follow: takes one query folder{' and not ' + ', '.join(refused) if refused else ''}", EXIT_USAGE)
@@ -115,7 +116,7 @@ def localize(
             queries[0], reference=reference, descriptor=descriptor,
             descriptor_params=descriptor_params_given(descriptor, descriptor_options, vocabulary, cache, model, preprocess),
             method=method, method_params=params,
-            exclude_recent=recent, training=training, map_odometry=map_odometry,
+            exclude_recent=recent, training=training,
             out=out_path / api.results_name(queries[0], method, descriptor) if out_folder else out_path,
             cache=Cache(cache), jobs=jobs, idle=idle), as_json)
         return

@@ -14,11 +14,12 @@ from wiloc.description.traversals import descriptor_spec
 from wiloc.errors import FrameError, WilocError, parameter_values
 from wiloc.evaluation.results import RANKING, ResultsStream
 from wiloc.evaluation.results_header import ResultsHeader, read_header
+from wiloc.evaluation.results_lock import lock_results, unlock_results
 from wiloc.localization.follow import FolderWatch, Skipped, follow, followed_folder
 from wiloc.localization.localizer import Localizer
-from wiloc.evaluation.results_lock import lock_results, unlock_results
 from wiloc.localization.run_files import results_name
 from wiloc.localization.training import Training
+from wiloc.methods.registry import make_method
 
 
 @dataclass
@@ -71,7 +72,7 @@ class FollowRun:
 def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str = "sad",
                   descriptor_params: Mapping[str, Any] | None = None, method: str = "online",
                   method_params: Mapping[str, Any] | None = None, exclude_recent: int | None = None,
-                  training: Training | None = None, map_odometry: Path | None = None, out: Path | None = None,
+                  training: Training | None = None, out: Path | None = None,
                   cache: Cache | None = None, jobs: int | None = None, idle: float | None = None,
                   poll: float = 0.1) -> FollowRun:
     """Follow a folder that is still being filled: each frame decided as it arrives, its row
@@ -89,8 +90,8 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
     try:
         return _opened(query, path, lock, reference=reference, descriptor=descriptor,
                        descriptor_params=descriptor_params, method=method, method_params=method_params,
-                       exclude_recent=exclude_recent, training=training, map_odometry=map_odometry, cache=cache,
-                       jobs=jobs, idle=idle, poll=poll)
+                       exclude_recent=exclude_recent, training=training, cache=cache, jobs=jobs, idle=idle,
+                       poll=poll)
     except BaseException:
         unlock_results(path, lock)
         raise
@@ -98,12 +99,15 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
 
 def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descriptor: str,
             descriptor_params: Mapping[str, Any] | None, method: str, method_params: Mapping[str, Any] | None,
-            exclude_recent: int | None, training: Training | None, map_odometry: Path | None, cache: Cache | None,
+            exclude_recent: int | None, training: Training | None, cache: Cache | None,
             jobs: int | None, idle: float | None, poll: float) -> FollowRun:
-    """:func:`follow_folder` once the results file ``path`` is locked (``lock``)."""
+    """:func:`follow_folder` once the results file ``path`` is locked (``lock``). A followed
+    folder gives no odometry: a parameter read with it alone is refused, not ignored."""
+    params = parameter_values(method_params, "method_params")
+    make_method(method, params).check_inputs(sequence=reference is None, training=training is not None,
+                                             given=tuple(params))  # before the map is described
     localizer = Localizer(reference, descriptor=descriptor, descriptor_params=descriptor_params, method=method,
-                          exclude_recent=exclude_recent, training=training, map_odometry=map_odometry,
-                          cache=cache, jobs=jobs, **parameter_values(method_params, "method_params"))
+                          exclude_recent=exclude_recent, training=training, cache=cache, jobs=jobs, **params)
     ranked = (RANKING,) if localizer.method.ranks else ()
     stream = ResultsStream(path, _as_written(path, localizer.header(query), localizer.describer.descriptor),
                            (*localizer.method.columns, *ranked), resume=True, learned=localizer.method.facts().keys())

@@ -177,7 +177,10 @@ class RunSession:
         traversal given the map's odometry CSV and not the query's would not use it: refused, not
         ignored (a Localizer is given the query's odometry frame by frame)."""
         try:
-            given_odometry = odometry or self._query_bag if self.query_path is not None else None  # else frame by frame
+            if self.query_path is not None:
+                given_odometry: bool | None = odometry or self._query_bag
+            else:  # a Localizer's comes frame by frame, against a map only with the map's
+                given_odometry = None if self.sequence or map_odometry or self._map_bag else False
             self.method.check_inputs(sequence=self.sequence, training=training, odometry=given_odometry,
                                      map_odometry=map_odometry or self._map_bag, given=given)
         except WilocError as exc:
