@@ -161,6 +161,11 @@ def test_numpy_and_list_values_are_stored_as_plain_python(name: str) -> None:
     assert json.loads(json.dumps(as_numpy.as_dict())) == plain.as_dict()
     tuples = {d.name: list(d.default) for d in declared(cls.Params) if d.kind == "floats" and d.default}
     assert cls.Params(**tuples) == plain
+    whole = {d.name: int(d.default) for d in declared(cls.Params)  # 1 for 1.0, as a config file writes it
+             if d.kind == "float" and isinstance(d.default, float) and d.default.is_integer()}
+    whole |= {d.name: [int(v) if float(v).is_integer() else v for v in d.default]
+              for d in declared(cls.Params) if d.kind == "floats" and d.default}
+    assert json.dumps(cls.Params(**whole).as_dict()) == json.dumps(plain.as_dict())  # the header's text
 
 
 @pytest.mark.usefixtures("with_ratio")

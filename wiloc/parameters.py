@@ -159,14 +159,16 @@ def _problem(value: Any, d: Declared) -> str | None:
     return None
 
 
-def _plain(value: Any) -> Any:
-    """A valid value as plain Python: numpy scalars as the numbers they hold, a sequence of
-    numbers (a list, a 1-D array) as a tuple of them."""
-    if isinstance(value, np.generic):
-        return value.item()
+def _plain(value: Any, kind: str) -> Any:
+    """A valid value as plain Python of its declared ``kind``: numpy scalars as the numbers they
+    hold, a whole number given for a float as that float (``1`` as ``1.0``: a run's header says
+    the same whether the value came from Python or the command line), a sequence of numbers (a
+    list, a 1-D array) as a tuple of them."""
     if isinstance(value, (list, tuple, np.ndarray)):
-        return tuple(_plain(v) for v in value)
-    return value
+        return tuple(_plain(v, "float") for v in value)
+    if isinstance(value, np.generic):
+        value = value.item()
+    return float(value) if kind == "float" and isinstance(value, int) and not isinstance(value, bool) else value
 
 
 @dataclass(frozen=True)
@@ -180,7 +182,7 @@ class Parameters:
             problem = _problem(getattr(self, d.name), d)
             if problem is not None:
                 raise ParameterError(d.name, problem)
-            object.__setattr__(self, d.name, _plain(getattr(self, d.name)))  # frozen: set once, here
+            object.__setattr__(self, d.name, _plain(getattr(self, d.name), d.kind))  # frozen: set once, here
         self.check()
 
     def check(self) -> None:
