@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from wiloc import api, demo
 from wiloc.errors import WilocError
 from wiloc.localization.odometry import read_odometry, steps
 
@@ -138,3 +139,30 @@ def test_gps_positions_give_metres_along_the_earth(tmp_path: Path) -> None:
                                    rtol=1e-9)
     with pytest.raises(WilocError, match=r"lat must lie in \[-90, 90\]"):
         read_odometry(_write(tmp_path, "name,lat,lon\na,95,0\nb,96,0\n"))
+
+
+@pytest.mark.parametrize(("values", "doubted"), [(np.arange(30.0), True),  # distances from the start
+                                                  (1.0 + 0.1 * np.sin(np.arange(30.0)), False),  # steps
+                                                  (np.linspace(0.5, 3.0, 30), False),  # steps, speeding up
+                                                  (np.arange(10.0), False)])  # too few rows to tell
+def test_distances_that_only_grow_tenfold_are_doubted_as_from_the_start(tmp_path: Path, values: np.ndarray,
+                                                                        doubted: bool) -> None:
+    """A name,distance file of distances from the start would be summed again into a route that
+    grows quadratically: said in one line naming the file, not refused (a vehicle may speed up)."""
+    path = _write(tmp_path, "name,distance\n" + "".join(f"f{i},{v}\n" for i, v in enumerate(values)))
+    doubt = read_odometry(path).doubt()
+    assert (doubt is not None) == doubted
+    if doubted:
+        assert doubt.startswith(f"odometry {path}: its distances only grow (0 to 29)")
+    positions = _write(tmp_path, "name,x,y\n" + "".join(f"f{i},{v},0\n" for i, v in enumerate(values)))
+    assert read_odometry(positions).doubt() is None
+
+
+def test_a_run_with_distances_from_the_start_warns_of_them(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                          cache_dir: Path) -> None:
+    query = demo_route.queries[0]
+    names = [p.name for p in api.frames(query)]
+    cumulative = _write(tmp_path, "".join(f"{name},{i}\n" for i, name in enumerate(names)))
+    run = api.localize(query, reference=demo_route.reference, method="catgraph", odometry=cumulative,
+                       map_odometry=demo_route.positions / "reference.csv", out=tmp_path / "run.csv")
+    assert [w for w in run.warnings if w.startswith(f"odometry {cumulative}")] != []

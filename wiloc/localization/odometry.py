@@ -67,6 +67,20 @@ class Odometry:
             cumulative = self._finite(np.cumsum(travelled), self.names)[rows]
             return cumulative - cumulative[0]
 
+    def doubt(self) -> str | None:
+        """A line when the distances read as the distance from the start rather than from the
+        previous frame (every one at least the one before, the last ten times or more the one a
+        tenth of the way in: a vehicle that sped up tenfold and never slowed), which the file's
+        reading would sum again; None otherwise, and for positions."""
+        d = self.values[:, 0]
+        if self.values.shape[1] != 1 or d.size < 20 or np.any(np.diff(d) < 0):
+            return None
+        if not d[-1] >= 10 * d[(d.size - 1) // 10] > 0:
+            return None
+        return (f"odometry {self.path}: its distances only grow ({d[0]:g} to {d[-1]:g}), as distances from the "
+                "start do; a name,distance file holds the distance since the previous frame: give those, or "
+                "positions (name,x,y)")
+
     def _finite(self, arclength: NDArray[np.float64], names: Sequence[str]) -> NDArray[np.float64]:
         """``arclength`` (at ``names``) when every value is finite, else a WilocError naming the
         first frame whose distance from the start no float holds (each value in the file finite,

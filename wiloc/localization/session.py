@@ -30,7 +30,7 @@ from wiloc.description.distances import DifferencesTo, consecutive, pairwise
 from wiloc.description.traversals import (Describer, Progress, descriptor_spec, descriptors_digest, entry_params,
                                          is_matrix_file, open_cluster, stage)
 from wiloc.errors import ParameterError, UsageError, WilocError, parameter_values
-from wiloc.localization.odometry import bag_odometry, steps, traversal_arclength
+from wiloc.localization.odometry import bag_odometry, read_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
 from wiloc.methods.base import MapContext, Method, TrainingRows
 from wiloc.methods.registry import learning_from_the_map, make_method
@@ -351,14 +351,17 @@ class RunSession:
         return self.map.data if self.map is not None else self._seen
 
     def doubts(self) -> list[str]:
-        """What makes every result of this run doubtful, one line each: its descriptor's (bow: a
-        sparse vocabulary), then its query's (a batch run's) and its map's descriptors' (bow:
-        images that give too few words), each naming its folder. None for a run on imported
-        descriptors (a query or map that is a descriptor matrix file): the descriptor did not make them."""
+        """What makes every result of this run doubtful, one line each: its odometry CSVs' (distances
+        that read as from the start), its descriptor's (bow: a sparse vocabulary), then its query's
+        (a batch run's) and its map's descriptors' (bow: images that give too few words), each
+        naming its folder; no descriptor's for a run on imported descriptors (a query or map that
+        is a descriptor matrix file): the descriptor did not make them."""
+        odometry = [doubt for csv in (self.odometry, self.map_odometry) if csv is not None
+                    and (doubt := read_odometry(csv).doubt()) is not None]
         if any(path is not None and is_matrix_file(path) for path in (self.query_path, self.map_path)):
-            return []
+            return odometry
         kind, params = self.describer.spec.kind, self.describer.spec.params
-        return kind.doubts(params) + [
+        return odometry + kind.doubts(params) + [
             f"{role} {entry.folder}: {line}" for role, entry in (("query", self.query), ("map", self.map))
             if entry is not None for line in kind.traversal_doubts(entry.data, params)] + shape_doubts(self.query, self.map)
 
