@@ -7,6 +7,7 @@ import h5py
 import numpy as np
 import pytest
 
+from wiloc import demo
 from wiloc.descriptors.external import read_external
 from wiloc.errors import WilocError
 
@@ -329,3 +330,22 @@ def test_bad_input_raises_wiloc_error_naming_the_file(tmp_path: Path, make, matc
     with pytest.raises(WilocError, match=match) as err:
         read_external(path, names_path, metric)
     assert err.value.where in (str(path), str(names_path))
+
+
+def test_a_metric_for_image_folders_is_refused_not_recorded(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                            cache_dir: Path) -> None:
+    """The library refuses a metric where no traversal is a descriptor matrix file, as the command
+    line does: images are compared by their descriptor's difference, and a localizer had recorded
+    the metric in its state while comparing by l1."""
+    from wiloc import api
+    from wiloc.errors import ParameterError
+    from wiloc.localization.localizer import Localizer
+
+    for run in (lambda: Localizer(demo_route.reference, metric="cosine"),
+                lambda: api.localize(demo_route.queries[0], reference=demo_route.reference, metric="cosine")):
+        with pytest.raises(ParameterError, match=r"applies to descriptor matrix files \(.npy, .npz, .csv, .h5\) only") as err:
+            run()
+        assert err.value.parameter == "metric"
+    matrix = tmp_path / "map.npy"
+    np.save(matrix, np.random.default_rng(0).random((5, 8), dtype=np.float32))
+    assert Localizer(matrix, method="threshold", metric="cosine").metric == "cosine"

@@ -3,7 +3,7 @@ through the cache, a user's descriptor matrix file imported into it, or descript
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -105,6 +105,15 @@ MATRIX_SUFFIXES = frozenset({".npy", ".npz", ".csv", ".h5", ".hdf5"})
 def is_matrix_file(source: Path) -> bool:
     """Whether a traversal is a user's descriptor matrix file (not a folder, video or ROS bag)."""
     return Path(source).is_file() and not is_video(Path(source)) and not is_bag(Path(source))
+
+
+def check_metric(sources: Sequence[Path], metric: str | None) -> None:
+    """ParameterError naming ``metric`` when it is given and none of ``sources`` is a descriptor
+    matrix file: images are compared by their descriptor's own difference, so it would be recorded
+    and not used."""
+    if metric is not None and sources and not any(is_matrix_file(Path(s)) for s in sources):
+        raise ParameterError("metric", f"applies to descriptor matrix files (.npy, .npz, .csv, .h5) only; "
+                                       f"{sources[0]} is none, its frames compared by the descriptor's difference")
 
 
 def descriptor_label(descriptor: str, metric: str | None, sources: Iterable[Path] = ()) -> str:
