@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -181,6 +182,19 @@ def test_vocabulary_round_trips_through_the_cache(tmp_path: Path, cache_dir: Pat
     assert build_vocabulary([copy], cache, SMALL).vocabulary.key != vocabulary.key
     other = VocabularyParams(words=8, max_features=60, max_side=320, iterations=10)
     assert build_vocabulary([folder], cache, other).vocabulary.key != vocabulary.key
+
+
+def test_a_vocabulary_key_as_bows_file_tells_how_to_find_its_file(tmp_path: Path, cache_dir: Path) -> None:
+    """From Python, bow's ``file`` is the vocabulary's file: its key (what ``--vocabulary`` takes
+    too) is refused naming ``file`` and the call that gives the key's file, which works."""
+    from wiloc import api
+    from wiloc.descriptors.registry import get_descriptor
+
+    key = build_vocabulary([_folder(tmp_path / "train", range(6))], Cache(cache_dir), SMALL).vocabulary.key
+    with pytest.raises(ParameterError, match=re.escape(f"wiloc.api.vocabulary_file({key!r})")) as err:
+        get_descriptor("bow", file=key)
+    assert err.value.parameter == "file"
+    assert get_descriptor("bow", file=api.vocabulary_file(key, Cache(cache_dir))).params["vocabulary"] == key
 
 
 def test_orb_vocabulary_and_unreadable_frames(tmp_path: Path, cache_dir: Path) -> None:

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.descriptors.base import Descriptor, DescriptorSpec, check_names
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.parameters import Parameters, declared, param
 
 if TYPE_CHECKING:
@@ -72,8 +72,12 @@ class Bow(Descriptor):
 
         check_names(cls.name, given, [d.name for d in declared(cls.Params)])
         if not isinstance(given.get("file"), (str, Path)):
-            raise ValueError(f"bow needs file=<vocabulary .h5 file>; got {given.get('file')!r}")
+            raise ValueError(f"bow needs file=<vocabulary .h5 file> (of a key in the cache: "
+                             f"wiloc.api.vocabulary_file(KEY)); got {given.get('file')!r}")
         file = Path(given["file"]).expanduser().resolve()
+        if not file.exists() and str(given["file"]).isalnum():  # a vocabulary's key, as --vocabulary takes
+            raise ParameterError("file", f"{given['file']!r} is no vocabulary file; the file of a vocabulary key in "
+                                         f"the cache is wiloc.api.vocabulary_file({str(given['file'])!r})")
         key, vocabulary, n_words = read_vocabulary_header(file)
         if given.get("vocabulary") not in (None, key):
             raise ValueError(f"bow vocabulary {given['vocabulary']!r} does not match {file} (key {key})")
