@@ -18,9 +18,8 @@ run goes on. At the end:
 What a frame is (``--frames``): ``read`` (the default) hands ``observe`` the 8-bit gray array
 ``Localizer.read`` decodes, OpenCV's reduced-size JPEG decode that the descriptor cache and so the
 batch run make: an image array, as a driver gives one, and the same pixels, so the live run must
-equal the batch run exactly (with ``sad`` and ``brisk-gist``, whose differences are integer sums;
-``gist``'s float differences are summed in another order frame by frame than in blocks, and their
-last digits differ). ``path`` hands it the file's path (the same decode, inside
+equal the batch run exactly (``sad`` and ``brisk-gist``'s differences are integer sums, ``gist``'s
+summed in float64 and rounded once: the same frame by frame as in blocks). ``path`` hands it the file's path (the same decode, inside
 ``observe``). ``bgr`` hands it ``cv2.imread``'s full-size BGR array, as a camera driver (or
 ``cv_bridge``'s ``bgr8``) delivers frames: ``observe`` converts it to gray and describes it, which
 gives other descriptors than the files' reduced decode (docs/guide.md, "Which array"), so its
@@ -209,16 +208,12 @@ def reruns(live: Results, reference: Path, query: Path, paths: Sequence[Path], s
     batch = api.localize(query, reference=reference, descriptor=setup["descriptor"], method=setup["method"],
                          method_params=params)
     batched = agreement(live.frames, batch.results.frames, f"a batch wiloc.api.localize of {query.name}")
-    # Integer descriptors (sad, brisk-gist) give exact differences, summed alike frame by frame and
-    # in blocks; gist's float32 products are summed in another order (docs/guide.md).
-    exact = uninterrupted.describer.entry(reference).data.dtype == np.uint8 and frames != "bgr"
+    # Every descriptor's differences are the same frame by frame as in the batch run's blocks
+    # (docs/guide.md); full-size BGR arrays are described otherwise than the files.
+    exact = frames != "bgr"
     if not exact:
-        say("(not checked: " + ("full-size BGR arrays give other descriptors than the files' reduced gray decode "
-                                "the batch run describes" if frames == "bgr" else
-                                f"{setup['descriptor']}'s float differences are summed in another order frame by "
-                                "frame than in the batch run's blocks: their last digits differ, and can move a "
-                                "confidence or a match")
-            + "; docs/guide.md, Frame by frame)")
+        say("(not checked: full-size BGR arrays give other descriptors than the files' reduced gray decode the "
+            "batch run describes; docs/guide.md, Frame by frame)")
     return resumed, batch, batched, exact
 
 

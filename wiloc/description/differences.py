@@ -8,8 +8,9 @@ differences to itself is small and is cached: each map frame's smallest differen
 +-R (``online``) and the largest difference (``threshold`` without a natural maximum), in
 ``<cache root>/differences/<map key>-self-r<R>.h5``: dataset ``minima`` (float64, one per map
 frame, inf where a frame has no difference outside +-R), attributes ``largest``, ``ref_digest``,
-``metric``, ``scale``, ``exclude_recent``, ``ref_folder`` and ``wiloc_version``. A summary is
-reused only while the map's entry digest, metric, scale and R match and its checksum
+``metric``, ``scale``, ``exclude_recent``, ``differences_version``, ``ref_folder`` and ``wiloc_version``.
+A summary is reused only while the map's entry digest, metric, scale, R and the difference
+functions' version (``distances.DIFFERENCES_VERSION``) match and its checksum
 (HDF5's Fletcher-32 filter) holds; otherwise it is recomputed under the cache lock for its name
 and written through an atomic rename.
 """
@@ -25,7 +26,7 @@ from numpy.typing import NDArray
 
 from wiloc.ahead import computed_ahead
 from wiloc.cache.store import Cache, Entry
-from wiloc.description.distances import DifferencesTo, band_extremes
+from wiloc.description.distances import DIFFERENCES_VERSION, DifferencesTo, band_extremes
 from wiloc.errors import WilocError
 from wiloc.recycled import RecycledArrays
 from wiloc.rows import MapSummary, RowBlocks
@@ -141,7 +142,8 @@ def differences(query: Entry, ref: Entry, runner: BlockRunner | None = None) -> 
 
 
 def _summary_attrs(ref: Entry, exclude_recent: int) -> dict[str, object]:
-    return {"ref_digest": ref.digest, "metric": ref.metric, "scale": ref.scale, "exclude_recent": exclude_recent}
+    return {"ref_digest": ref.digest, "metric": ref.metric, "scale": ref.scale, "exclude_recent": exclude_recent,
+            "differences_version": DIFFERENCES_VERSION}
 
 
 def _read_summary(path: Path, ref: Entry, exclude_recent: int) -> MapSummary | None:

@@ -42,6 +42,10 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when numba first sta
 CHUNK_BYTES = 64  # rows are zero-padded to a multiple of this for the SIMD kernel
 TILE = 4  # query rows x reference rows accumulated together per chunk
 PANEL_ROWS = 64  # query rows per parallel work item (about 74 KB of sad rows: stays in L2)
+#: The version of what the difference functions compute, which cached results of them record (a
+#: map's summary, ``differences.map_summary``): 2, float metrics summed in float64 (:func:`_product`).
+DIFFERENCES_VERSION = 2
+PRODUCT_ROWS = 256  # query rows per float64 matrix product (:func:`_product`): 256 x N x 8 bytes of scratch
 
 _I8 = ir.IntType(8)
 _I64 = ir.IntType(64)
@@ -263,7 +267,7 @@ class _Reference:
     """The reference side prepared once for every query block: kernel-ready rows and extras."""
 
     metric: str
-    rows: np.ndarray  # sqeuclidean: [b - mean, 1, |b - mean|^2], so one matrix product gives d
+    rows: np.ndarray  # sqeuclidean: [b - mean, 1, |b - mean|^2] (float64), so one matrix product gives d
     mean: np.ndarray | None = None  # subtracted from both sides (sqeuclidean)
 
 
@@ -291,22 +295,47 @@ def _kernel_rows(x: np.ndarray, metric: str, dtype: np.dtype) -> np.ndarray:
 def _prepare_reference(b: np.ndarray, metric: str, dtype: np.dtype) -> _Reference:
     if metric in ("l1", "hamming"):
         return _Reference(metric, _kernel_rows(b, metric, dtype))
-    rows = np.asarray(b, dtype=np.float32)
+    rows = np.asarray(np.asarray(b, dtype=np.float32), dtype=np.float64)  # float32 values, summed in float64
     if metric == "cosine":
         return _Reference(metric, _unit_rows(rows))
     # Centring both sides on the reference mean leaves the differences unchanged and shrinks the
     # norms, hence the cancellation in |a|^2 + |b|^2 - 2ab (GIST values are all positive).
-    mean = rows.mean(axis=0, dtype=np.float64).astype(np.float32) if len(rows) else np.zeros(rows.shape[1], np.float32)
+    mean = rows.mean(axis=0) if len(rows) else np.zeros(rows.shape[1])
     centred = rows - mean
     norms = np.einsum("ij,ij->i", centred, centred)[:, None]
     return _Reference(metric, np.hstack([centred, np.ones_like(norms), norms]), mean=mean)
 
 
 def _unit_rows(x: np.ndarray) -> np.ndarray:
-    """Rows scaled to unit length; all-zero rows stay zero (difference 1 to everything)."""
-    norms = np.sqrt(np.einsum("ij,ij->i", x, x, dtype=np.float64))
+    """Rows (float64) scaled to unit length; all-zero rows stay zero (difference 1 to everything)."""
+    norms = np.sqrt(np.einsum("ij,ij->i", x, x))
     safe = np.where(norms > 0, norms, 1.0)
-    return np.ascontiguousarray(x / safe[:, None], dtype=np.float32)
+    return np.ascontiguousarray(x / safe[:, None])
+
+
+def _product(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray) -> None:
+    """out = scale * the metric's difference from ``a . ref.rows^T``, summed in float64 and rounded
+    once to float32. BLAS sums in an order that depends on how many rows it is given at once and
+    on the CPU; in float32 that order shows in the last digits, so a frame's row computed alone (a
+    Localizer, frame by frame) differed from the same row in a batch's block, and a particle filter
+    took the two apart (catgraph with gist on Nordland: 27 of 200 matches). In float64 the order's
+    effect lies far below float32's rounding (0 of 715,200 values differed, rows alone against
+    blocks of 200)."""
+    scratch = np.empty((min(PRODUCT_ROWS, len(a)), ref.rows.shape[0]))
+    for start in range(0, len(a), PRODUCT_ROWS):
+        part = scratch[:min(PRODUCT_ROWS, len(a) - start)]
+        if len(part) == 1:  # a frame's row (a Localizer's): the matrix-vector product, reading each row once
+            np.dot(ref.rows, a[start], out=part[0])
+        else:
+            np.matmul(a[start:start + len(part)], ref.rows.T, out=part)
+        if ref.metric == "cosine":
+            np.subtract(1.0, part, out=part)
+            np.clip(part, 0.0, 2.0, out=part)
+        else:
+            np.maximum(part, 0.0, out=part)
+        if scale != 1.0:
+            part *= scale
+        out[start:start + len(part)] = part
 
 
 def _fill(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray) -> None:
@@ -319,19 +348,15 @@ def _fill(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray) -> None
         else:
             _simd_pairwise(rows, ref.rows, out, float(scale))
         return
+    rows = np.asarray(np.asarray(a, dtype=np.float32), dtype=np.float64)
     if ref.metric == "cosine":
-        np.matmul(_unit_rows(np.asarray(a, dtype=np.float32)), ref.rows.T, out=out)
-        np.subtract(1.0, out, out=out)
-        np.clip(out, 0.0, 2.0, out=out)
+        _product(_unit_rows(rows), ref, scale, out)
     else:
         # [-2a, |a|^2, 1] . [b, 1, |b|^2] = |a|^2 + |b|^2 - 2ab in one BLAS call: no extra passes
         # over the output block (16 % faster at N = 20,000, docs/kernels.md).
-        centred = np.asarray(a, dtype=np.float32) - ref.mean
+        centred = rows - ref.mean
         norms = np.einsum("ij,ij->i", centred, centred)[:, None]
-        np.matmul(np.hstack([-2.0 * centred, norms, np.ones_like(norms)]), ref.rows.T, out=out)
-        np.maximum(out, 0.0, out=out)
-    if scale != 1.0:
-        out *= np.float32(scale)
+        _product(np.hstack([-2.0 * centred, norms, np.ones_like(norms)]), ref, scale, out)
 
 
 class DifferencesTo:
