@@ -19,14 +19,15 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from wiloc import api
 from wiloc.atomic import write_error
 from wiloc.cache.store import Cache
 from wiloc.cli.core import error, out as console  # wiloc's: a path holding ':name:' is printed as typed
 from wiloc.cli.views import progress_bar, table1_view, table2_view
-from wiloc.errors import EXIT_INTERRUPTED, WilocError, interrupted
+from wiloc.descriptors.registry import DESCRIPTOR_NAMES, descriptor_class
+from wiloc.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError, interrupted
 from wiloc.figures import plots, run_figures
 
 REPO = Path(__file__).resolve().parents[1]
@@ -52,9 +53,24 @@ def default_data_root() -> Path:
     return Path(os.environ.get("WILOC_DATA") or REPO.parent / "shared" / "data")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse ending on a usage problem as the wiloc command does: one line naming the option as
+    typed and exit code 2, not argparse's usage lines."""
+
+    def error(self, message: str) -> NoReturn:
+        unknown = message.removeprefix("unrecognized arguments: ")
+        if unknown != message:
+            first = unknown.split()[0]
+            surplus = "no such option" if first.startswith("-") else "an argument too many"
+            message = f"{first}: {surplus} of {self.prog} (see --help)"
+        error(message.removeprefix("argument "))
+        sys.exit(EXIT_USAGE)
+
+
 def parse_args(name: str, description: str, descriptors: bool) -> argparse.Namespace:
-    """The examples' common options: the data folder, the output folder and (maybe) descriptors."""
-    parser = argparse.ArgumentParser(description=description)
+    """The examples' common options: the data folder, the output folder and (maybe) descriptors,
+    each descriptor checked before any work (a UsageError naming --descriptors)."""
+    parser = _Parser(description=description)
     parser.add_argument("data", nargs="?", type=Path, default=default_data_root(),
                         help="folder holding the datasets (default: $WILOC_DATA or ../shared/data)")
     parser.add_argument("--out", type=Path, default=Path("wiloc-examples") / name,
@@ -64,7 +80,26 @@ def parse_args(name: str, description: str, descriptors: bool) -> argparse.Names
     if descriptors:
         parser.add_argument("--descriptors", default="sad",
                             help="comma-separated: sad, gist, brisk-gist (default: %(default)s)")
-    return parser.parse_args()
+    args = parser.parse_args()
+    if descriptors:
+        check_descriptors(args.descriptors)
+    return args
+
+
+def check_descriptors(text: str) -> None:
+    """--descriptors as typed: at least one name, each a descriptor that needs no file (the
+    examples give none); a UsageError naming --descriptors otherwise, before anything is made."""
+    names = [d.strip() for d in text.split(",") if d.strip()]
+    if not names:
+        raise UsageError("--descriptors", f"no descriptor in {text!r}; give names such as sad,gist")
+    for descriptor in names:
+        try:
+            needs = descriptor_class(descriptor).depends
+        except ValueError as exc:
+            raise UsageError("--descriptors", str(exc)) from None
+        if needs:
+            raise UsageError("--descriptors", f"'{descriptor}' depends on {needs}, which the examples do not take; "
+                                              f"give {', '.join(DESCRIPTOR_NAMES)} or a plugin's")
 
 
 def aligned(tolerance: int) -> api.TruthSource:

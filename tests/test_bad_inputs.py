@@ -147,6 +147,8 @@ UNUSED = {
     "names without import": (["describe", "{ref}", "--names", "n.txt"], "--names: applies to --import only"),
     "names for a folder": (["localize", "{query}", "--map", "{ref}", "--names", "n.txt"], "--names: applies to a descriptor matrix file"),
     "sampling with import": (["describe", "--import", "{ref}/x.npy", "--every", "2"], "--every: applies to video files and ROS bags only"),
+    "descriptor with import": (["describe", "--import", "{ref}/x.npy", "--descriptor", "gist"],
+                               "--descriptor: applies to image folders, video files and ROS bags only"),
     "sampling with a folder": (["describe", "{ref}", "--every", "2"], "--every: applies to video files and ROS bags only"),
     "cut of a folder": (["describe", "{ref}", "--stop", "5"], "error: --stop: applies to video files and ROS bags only"),
     "map odometry in sequence mode": (["localize", "{query}", "--method", "catgraph", "--map-odometry", "{tmp}/o.csv"],

@@ -252,6 +252,22 @@ def test_evaluate_and_compare_say_how_well_p_new_place_is_calibrated(tmp_path: P
     assert "P(new place) (ground truth" in text and text.index("P(new place)") < text.index("Table II")
 
 
+@pytest.mark.parametrize("command", ["evaluate", "compare"])
+def test_metrics_csv_writes_counts_as_integers_empty_where_a_run_has_none(tmp_path: Path, command: str) -> None:
+    """A run with P(new place) beside one without: new_place_accepted@c was written 1.0 (its
+    column made float by the other run's missing value) where accepted@c was 1."""
+    with_column = _gardens(tmp_path, "catgraph", [0.0] * 5 + [0.3] * 4 + [math.nan, 0.8])
+    without = _gardens(tmp_path, "online")
+    result = runner.invoke(app, [command, str(with_column), str(without), "--csv", str(tmp_path / "m.csv")])
+    assert result.exit_code == 0, result.output
+    header, *rows = [line.split(",") for line in (tmp_path / "m.csv").read_text(encoding="utf-8").splitlines()]
+    cells = [dict(zip(header, row, strict=True)) for row in rows]
+    by_method = {row["method"]: row for row in cells}
+    assert [by_method[m]["new_place_accepted@0.5"] for m in ("catgraph", "online")] == ["1", ""]
+    assert [by_method[m]["accepted@0.5"] for m in ("catgraph", "online")] == ["10", "10"]
+    assert by_method["online"]["frames"] == "11"
+
+
 def test_same_traversal_name_from_two_datasets_gets_distinct_labels(tmp_path: Path) -> None:
     paths = [_gardens(tmp_path), _nordland(tmp_path, dataset="nordland"),
              _nordland(tmp_path, dataset="other")]

@@ -110,6 +110,27 @@ def test_a_one_table_example_ends_on_ctrl_c_with_one_line(tmp_path: Path, monkey
     assert ended.value.code == 130 and capsys.readouterr().err == "error: interrupted\n"
 
 
+@pytest.mark.parametrize(("options", "said"), [
+    (["--descriptors", "foo"], "error: --descriptors: unknown descriptor 'foo'; choose one of "),
+    (["--descriptors", " , "], "error: --descriptors: no descriptor in ' , '; give names such as sad,gist"),
+    (["--descriptors", "sad,bow"], "error: --descriptors: 'bow' depends on its vocabulary, which the examples "),
+    (["--methods", "online"], "error: --methods: no such option of gardens_point.py (see --help)"),
+    (["--out"], "error: --out: expected one argument")])
+def test_a_bad_example_option_is_one_line_naming_it_before_anything_is_made(tmp_path: Path, options: list[str],
+                                                                             said: str) -> None:
+    """--descriptors foo made the output folder and its results/, then named the library's
+    parameter ('descriptor: unknown descriptor'); argparse's problems were its usage lines."""
+    for folder in ("day_right", "day_left", "night_right"):
+        (tmp_path / "data" / "gardens-point-walking" / folder).mkdir(parents=True)
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, str(REPO / "examples" / "gardens_point.py"), str(tmp_path / "data"),
+                           *(["--out", str(out)] if options != ["--out"] else []), *options],
+                          capture_output=True, text=True, env={**os.environ, "WILOC_CACHE": str(tmp_path / "cache")},
+                          check=False)
+    assert proc.returncode == 2 and proc.stderr.startswith(said), proc.stderr
+    assert len(proc.stderr.splitlines()) == 1 and not out.exists()
+
+
 @pytest.fixture(scope="module")
 def runs(data_root: Path, tmp_path_factory: pytest.TempPathFactory,
          real_data_cache: Path) -> dict[str, tuple[dict, str]]:

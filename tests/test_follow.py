@@ -226,6 +226,30 @@ def test_an_undecodable_frame_is_retried_then_left_out(demo_route: demo.DemoRout
     assert now[0] >= SETTLE_SECONDS
 
 
+def test_a_skipped_frame_completed_later_is_a_note_not_a_decided_file_written_again(
+        demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
+    """A JPEG cut short is skipped after SETTLE_SECONDS; its writer finishing it later was warned
+    of as 'written again after it was decided', though it never was."""
+    from wiloc.localization.follow import COMPLETED
+
+    good = sorted(demo_route.queries[0].iterdir())[:2]
+    cut = tmp_path / "g6.jpg"
+    cut.write_bytes(good[1].read_bytes()[:500])
+    now = [0.0]
+
+    def sleep(seconds: float) -> None:
+        now[0] += seconds
+        if SETTLE_SECONDS + 1.0 <= now[0] < SETTLE_SECONDS + 1.0 + seconds:  # skipped by now: the writer finishes
+            cut.write_bytes(good[1].read_bytes())
+            os.utime(cut, ns=(int(now[0] * 1e9), int(now[0] * 1e9)))
+
+    events = list(follow(Localizer(demo_route.reference, method="threshold"), FolderWatch(tmp_path), idle=3.0,
+                         poll=0.5, clock=lambda: now[0], sleep=sleep))
+    assert [(e.path, e.kind) for e in events] == [(cut, "skipped"), (cut, "note")]
+    assert "truncated" in events[0].reason and events[1].reason == COMPLETED
+    assert str(events[1]).startswith(f"{cut}: completed after it was skipped")
+
+
 @pytest.mark.parametrize("name", ["frame001.jpg", "frame001.png"])
 def test_a_frame_whose_writer_pauses_halfway_is_waited_for(demo_route: demo.DemoRoute, name: str, tmp_path: Path,
                                                            cache_dir: Path) -> None:

@@ -105,8 +105,8 @@ def test_one_label_names_imported_descriptors(tmp_path: Path) -> None:
 
 
 def test_jobs_with_matrix_files_alone_is_refused_as_describing_nothing(tmp_path: Path, cache_dir: Path) -> None:
-    """Matrix files are not described: --jobs would change nothing, so it is refused as every option
-    the inputs do not use is."""
+    """Matrix files are not described: --jobs and --descriptor would change nothing, so they are
+    refused as every option the inputs do not use is."""
     ref, query = _descriptors()
     np.save(tmp_path / "ref.npy", ref)
     np.save(tmp_path / "query.npy", query)
@@ -114,6 +114,8 @@ def test_jobs_with_matrix_files_alone_is_refused_as_describing_nothing(tmp_path:
                 "--method", "threshold", "--out", str(tmp_path / "run.csv")]
     ends_in_one_error(runner.invoke(app, [*matrices, "--jobs", "2"]), 2,
                       "error: --jobs: applies to image folders, video files and ROS bags to describe")
+    ends_in_one_error(runner.invoke(app, [*matrices, "--descriptor", "gist"]), 2,
+                      "error: --descriptor: applies to image folders, video files and ROS bags only")
     assert not (tmp_path / "run.csv").exists()
     assert runner.invoke(app, matrices).exit_code == 0
 

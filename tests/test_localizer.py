@@ -469,6 +469,41 @@ def test_observe_takes_a_new_text_name_for_each_frame(demo_route: demo.DemoRoute
     assert loc.observe(path).frame == f"{path.stem}-000003{path.suffix}"
 
 
+def test_several_descriptor_rows_at_once_are_told_as_rows_not_a_narrow_image(demo_route: demo.DemoRoute,
+                                                                              tmp_path: Path, cache_dir: Path) -> None:
+    """observe(np.stack([row, row])) said 'image of 1152 x 2 pixels: one side is over 256 times the
+    other'; against a descriptor matrix file, that the map takes no images."""
+    loc = Localizer(demo_route.reference, method="threshold")
+    row = loc.describe(min(demo_route.queries[0].iterdir()))
+    rows = np.random.default_rng(0).random((30, 16)).astype(np.float32)
+    np.save(tmp_path / "map.npy", rows)
+    imported = Localizer(tmp_path / "map.npy", metric="l1", method="threshold")
+    for localizer, given, length in ((loc, np.stack([row, row]), 1152), (imported, rows[:3], 16)):
+        with pytest.raises(WilocError) as err:
+            localizer.observe(given)
+        k = len(given)
+        assert str(err.value) == (f"observe: an array of {k} x {length} looks like {k} descriptor rows; observe "
+                                  f"takes one frame at a time: a row of {length} values (or 1 x {length})")
+        assert localizer.observe(given[:1]).frame == "000000"
+    assert loc.observe(np.zeros((30, 1152), np.uint8)).frame == "000001"  # an image 1152 pixels wide, as before
+
+
+def test_a_default_name_an_earlier_frame_was_given_gets_a_free_one(demo_route: demo.DemoRoute,
+                                                                     cache_dir: Path) -> None:
+    """An array frame's index, 000001, given earlier as a name: the frame was refused, where a file
+    observed again gets a free name (latest-000012.jpg); that one taken too, a count follows."""
+    loc = Localizer(demo_route.reference, method="threshold")
+    path = min(demo_route.queries[0].iterdir())
+    row = np.zeros(1152, np.uint8)
+    loc.observe(row, name="000001")
+    assert loc.observe(row).frame == "000001-2"
+    loc.observe(path)
+    loc.observe(row, name=f"{path.stem}-000004{path.suffix}")
+    assert loc.observe(path).frame == f"{path.stem}-000004-2{path.suffix}"
+    assert loc.names == ["000001", "000001-2", path.name, f"{path.stem}-000004{path.suffix}",
+                         f"{path.stem}-000004-2{path.suffix}"]
+
+
 @pytest.mark.parametrize("bad, problem", [(float("nan"), "finite and >= 0"), (-1.0, "finite and >= 0"),
                                           ("1.0", "a number, got str"), (True, "a number, got bool")])
 def test_a_refused_odometry_leaves_the_run_as_it_was(demo_route: demo.DemoRoute, cache_dir: Path, bad: object,

@@ -383,13 +383,19 @@ def test_bad_preprocessing_values(one_frame: Path, tmp_path: Path) -> None:
     assert code == 2 and "metadata wiloc.std must be 3 positive numbers" in line
     code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model),
                          "--preprocess", "std=1", "--preprocess", "colour=hsv"])
-    assert code == 2 and "onnx colour must be one of rgb, bgr; got 'hsv'" in line
+    assert code == 2 and line == "error: --preprocess: onnx colour must be one of rgb, bgr; got 'hsv'"
     code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model),
                          "--preprocess", "gamma=2"])
     assert code == 2 and line.startswith("error: --preprocess: 'gamma=2': give KEY=VALUE")
     code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model),
                          "--preprocess", "std=1", "--preprocess", "input_size=64x64"])
-    assert code == 2 and "does not fit the model's fixed input of 32x32" in line
+    assert code == 2 and line.startswith("error: --preprocess: ")
+    assert "does not fit the model's fixed input of 32x32" in line
+    conv_model(tmp_path / "good.onnx")
+    for bad in ("std=0", "input_size=abc", "colour=xyz"):
+        code, line = _error(["localize", str(one_frame), "--descriptor", "onnx", "--model",
+                             str(tmp_path / "good.onnx"), "--preprocess", bad])
+        assert code == 2 and line.startswith(f"error: --preprocess: onnx {bad.partition('=')[0]} must be"), line
 
 
 def test_onnxruntime_missing(one_frame: Path, tmp_path: Path) -> None:

@@ -128,7 +128,7 @@ def test_a_report_over_an_existing_file_says_so_and_bad_names_are_refused(runs: 
     assert said["command"] == "report" and page["file"] == str(out) and page["size"] == out.stat().st_size
     assert page["images"] == 85
     assert any("replaced the existing file" in line for line in said["warnings"])
-    for bad, exit_code, says in ((tmp_path / "report.txt", 2, "end the name in .html"),
+    for bad, exit_code, says in ((tmp_path / "report.txt", 2, "end the name in .html or .htm"),
                                  (tmp_path / "missing" / "report.html", 2, "does not exist")):
         result = runner.invoke(app, ["report", *map(str, runs), "-o", str(bad)])
         assert result.exit_code == exit_code and says in result.stderr and "Traceback" not in result.output
@@ -155,6 +155,7 @@ def test_a_run_whose_images_are_gone_still_gets_its_page(runs: list[Path], tmp_p
     shutil.rmtree(tmp_path / "route" / "query")
     page = _report(runs[:1], tmp_path / "report.html").read_text(encoding="utf-8")
     assert "no images in the frame browser" in page and "no difference matrix" in page
+    assert f"{tmp_path / 'route' / 'query'} does not exist" in page  # not "is not an image folder"
     assert _data(page)["images"] == [] and len(_data(page)["runs"][0]["frames"]) == 45
 
 

@@ -270,6 +270,25 @@ def test_positives_of_equal_counts_saved_as_one_integer_array_are_read(tmp_path:
                    ref_names=["x", "y", "z"])
 
 
+@pytest.mark.parametrize(("saved", "hint"), [
+    ("mask.npy", "; it has 2 columns but the map has 3 frames (a column each)"),
+    ("mask.csv", "; it has 2 columns but the map has 3 frames (a column each)"),
+    ("indices.csv", "; rows of reference indices are the positives form (positives:FILE)")])
+def test_a_matrix_of_the_wrong_width_is_called_indices_only_when_it_holds_some(saved: str, hint: str,
+                                                                               tmp_path: Path) -> None:
+    """A 0/1 mask one map frame short got the positives form's hint, as an integer array did: the
+    hint follows the values (whole numbers, some above 1), whatever the dtype (a .csv is floats)."""
+    values = np.array([[0, 2], [1, 2], [2, 0]]) if saved.startswith("indices") else np.array([[0, 1], [1, 0], [1, 1]])
+    path = tmp_path / saved
+    if saved.endswith(".npy"):
+        np.save(path, values)
+    else:
+        np.savetxt(path, values, delimiter=",", fmt="%d")
+    with pytest.raises(WilocError) as raised:
+        load_truth("matrix", path, query_names=["a", "b", "c"], ref_names=["x", "y", "z"])
+    assert raised.value.problem == f"matrix is 3 x 2, expected 3 x 3 (query x reference frames){hint}"
+
+
 def test_a_name_without_utm_fields_is_one_line(own_vpr_route: dict) -> None:
     ref = own_vpr_route["root"] / "database"
     first = ref / own_vpr_route["ref"]["name"][3]

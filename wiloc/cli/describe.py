@@ -9,9 +9,9 @@ from typing import Any, Optional
 import typer
 
 from wiloc.cli.core import Notes, error, fail, handles_errors, out, refuse_besides, refuse_unused
-from wiloc.cli.options import (SAMPLING, STREAMS, CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption,
-                               ModelOption, PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
-                               VocabularyOption, descriptor_params_given, metric_name, output_file,
+from wiloc.cli.options import (DESCRIBED, SAMPLING, STREAMS, CacheOption, DescriptorOption, EveryOption, FpsOption,
+                               JobsOption, ModelOption, PreprocessOption, SchedulerOption, StartOption, StopOption,
+                               TopicOption, VocabularyOption, descriptor_params_given, metric_name, output_file,
                                sampling_given)
 from wiloc.cli.params import descriptor_uses, with_descriptor_options
 from wiloc.cli.views import print_command_json, progress_bar, table
@@ -72,7 +72,7 @@ def describe(
         return
     if list_cache:
         refuse_besides("list_cache", ("cache", "as_json"))
-    refuse_unused({"descriptor": (not importing, "image folders and video files"),
+    refuse_unused({"descriptor": (not importing, DESCRIBED),
                    **descriptor_uses(descriptor, described=not importing),
                    "metric": (importing, "--import"), "names": (importing, "--import"),
                    "import_out": (importing, "--import"), "prefix": (import_out is not None, "--import with --out"),

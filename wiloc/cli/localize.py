@@ -10,8 +10,8 @@ import typer
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.cli.core import Notes, fail, handles_errors, refuse_unused
 from wiloc.cli.localize_views import show_followed, show_runs
-from wiloc.cli.options import (CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption, ModelOption,
-                               PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
+from wiloc.cli.options import (DESCRIBED, CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption,
+                               ModelOption, PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
                                VocabularyOption, descriptor_params_given, metric_name, names_folder,
                                plot_file, results_out, sampling_given)
 from wiloc.cli.params import descriptor_uses, given, method_params, with_descriptor_options, with_method_options
@@ -77,11 +77,11 @@ def localize(
     method_class(method)
     params = method_params(method, method_options or {})
     matrices = [is_matrix_file(Path(p)) for p in (*queries, reference, train_query, train_map) if p is not None]
-    refuse_unused({"descriptor": (not all(matrices), "image folders and video files"),
+    refuse_unused({"descriptor": (not all(matrices), DESCRIBED),
                    **descriptor_uses(descriptor, described=not all(matrices)),
                    "metric": (any(matrices), "descriptor matrix files (.npy, .npz, .csv, .h5)"),
                    "jobs": (not all(matrices) or scheduler == "local",
-                            "image folders, video files and ROS bags to describe, and a local Dask cluster (--scheduler local)"),
+                            f"{DESCRIBED} to describe, and a local Dask cluster (--scheduler local)"),
                    "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
                    "map_names": (reference is not None and is_matrix_file(reference),
                                  "a descriptor matrix file as --map"),

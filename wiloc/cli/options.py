@@ -175,8 +175,33 @@ def descriptor_params_given(descriptor: str, options: dict[str, Any] | None, voc
     if descriptor in descriptor_takers("model"):
         if model is None:
             fail(f"--model: --descriptor {descriptor} needs one (an .onnx model file)", EXIT_USAGE)
-        params.update({"model": str(model), **_preprocess_options(preprocess or [])})
+        preprocess_given = _preprocess_options(preprocess or [])
+        _check_preprocess(model, preprocess_given)
+        params.update({"model": str(model), **preprocess_given})
     return params
+
+
+def _check_preprocess(model: Path, given: dict[str, str]) -> None:
+    """--preprocess values checked against the model before any work, so that one that cannot work
+    is a usage error naming --preprocess (the library names its parameter, the descriptor). A model
+    that fails without them (its own metadata, less what they replace) is left to the library's
+    error."""
+    from dataclasses import replace
+
+    from wiloc.descriptors.learned import open_network, preprocessing
+
+    if not given:
+        return
+    network = open_network(model)
+    rest = replace(network, metadata={k: v for k, v in network.metadata.items() if k not in given})
+    try:  # a given input_size is what a model of any input size needs: stand in for it
+        preprocessing(rest, {"input_size": list(network.input_size or (1, 1))} if "input_size" in given else {})
+    except ValueError:
+        return
+    try:
+        preprocessing(network, given)
+    except ValueError as exc:
+        raise UsageError("--preprocess", str(exc)) from None
 
 
 def _preprocess_options(items: list[str]) -> dict[str, str]:
@@ -211,6 +236,8 @@ TrainingJobsOption = Annotated[Optional[int], typer.Option(
     "--jobs", "-j", show_default="all cores",
     help="Worker processes that extract the training images' local features.")]
 STREAMS = "video files and ROS bags"
+#: What wiloc describes (a descriptor applies to), besides descriptor matrices imported.
+DESCRIBED = f"image folders, {STREAMS}"
 EveryOption = Annotated[int, typer.Option(help="Videos, bags: every K-th frame of the cut.", rich_help_panel=STREAMS)]
 FpsOption = Annotated[Optional[float], typer.Option(
     show_default="every frame, as --every", rich_help_panel=STREAMS,

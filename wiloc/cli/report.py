@@ -14,10 +14,10 @@ from wiloc.cli.views import print_command_json, progress_bar
 
 
 def _html_file(value: Path) -> Path:
-    """The report's file: its folder must exist, nothing but a file be there, its name end in .html."""
+    """The report's file: its folder must exist, nothing but a file be there, its name end in .html or .htm."""
     one_file(value)
     if value.suffix.lower() not in (".html", ".htm"):
-        raise typer.BadParameter(f"'{value}': the report is an HTML page; end the name in .html")
+        raise typer.BadParameter(f"'{value}': the report is an HTML page; end the name in .html or .htm")
     return value
 
 

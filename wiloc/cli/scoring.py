@@ -115,7 +115,12 @@ def write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list[
     import pandas as pd
 
     curves_path = curves_file(path)
-    metrics = pd.DataFrame([{**row, "results": str(e.path)} for row, e in zip(rows, evaluations, strict=True)])
+    records = [{**row, "results": str(e.path)} for row, e in zip(rows, evaluations, strict=True)]
+    metrics = pd.DataFrame(records)
+    for column in metrics.columns:  # a count missing from a run (no new_place column) made its column float
+        present = [r[column] for r in records if r.get(column) is not None]
+        if present and all(_is_count(value) for value in present):
+            metrics[column] = metrics[column].astype("Int64")  # written as 5, empty where missing
     curves = pd.concat([pd.DataFrame({"results": str(e.path), "threshold": e.curve.thresholds,
                                       "precision": e.curve.precision, "recall": e.curve.recall})
                         for e in evaluations])
@@ -123,3 +128,10 @@ def write_metrics_csv(path: Path, rows: list[dict[str, Any]], evaluations: list[
         with written_whole(replacing(notes, target), "the metrics file") as file:
             frame.to_csv(file, index=False)
     return [path, curves_path]
+
+
+def _is_count(value: Any) -> bool:
+    """Whether a metrics value is a whole count (an int, numpy's too; not a bool)."""
+    import numpy as np
+
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))

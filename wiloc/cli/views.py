@@ -441,11 +441,12 @@ def comparison_records(comparison: api.Comparison) -> list[tuple[str, list[dict[
                for key, head in (("precision", "P"), ("recall", "R"), ("accepted", "n"))}
     calibration = {"ece": "ECE", "brier": "Brier", "mean_confidence": "mean conf.", "share_correct": "share correct",
                    **at_cuts}
-    cuts = comparison.cut_table.to_dict(orient="records")
     new_place = {NEW_PLACE_KEYS + key: head for key, head in
                  {**calibration, "mean_confidence": "mean P(new place)", "share_correct": "share new"}.items()}
-    given = [{**row, **{key: int(row[key]) for key in new_place if key.startswith(NEW_PLACE_KEYS + "accepted@")}}
-             for row in cuts if _says_new_place(row)]  # counts, not floats beside the runs without the column
+    counts = [key for key in new_place if key.startswith(NEW_PLACE_KEYS + "accepted@")]
+    cuts = [{**row, **{key: int(row[key]) if _says_new_place(row) else None for key in counts}}  # counts, not
+            for row in comparison.cut_table.to_dict(orient="records")]  # floats beside runs without the column
+    given = [row for row in cuts if _says_new_place(row)]
     return [(f"Table I: recall at 100 / 99 / 90 % precision, AUC and Recall@N; {comparison.ground_truth}",
              table1, ["traversal", "method", *heads], heads),
             (f"Calibration and fixed confidence cuts ({CUT_CAPTION}); {comparison.ground_truth}", cuts,

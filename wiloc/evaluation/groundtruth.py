@@ -455,11 +455,8 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
         raise WilocError(path, f"matrix holds {data.dtype} values; give numbers (1 = same place, 0 = not) or booleans")
     expected = (len(query_names), len(ref_names))
     if data.ndim != 2 or data.shape != expected:
-        turned = (": it is reference x query frames (as VPR_Tutorial's GThard); save its transpose, M.T"
-                  if data.shape == expected[::-1] else "; rows of reference indices are the positives form (positives:"
-                  "FILE)" if data.dtype.kind in "iu" and data.ndim == 2 and data.shape[0] == expected[0] else "")
         raise TruthMismatch(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "
-                               f"{expected[0]} x {expected[1]} (query x reference frames){turned}")
+                               f"{expected[0]} x {expected[1]} (query x reference frames){_shape_hint(data, expected)}")
     matrix = sparse.csr_array(data)
     values = matrix.data.astype(np.float64, copy=False)
     if not np.isfinite(values).all():
@@ -470,6 +467,20 @@ def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str
         raise WilocError(path, f"matrix holds {values[k]:g} at row {row + 1}, column {matrix.indices[k] + 1}: "
                                "ground truth is a same-place mask of 0 and 1, not differences or distances")
     return Truth(matrix, list(query_names), list(ref_names), [])
+
+
+def _shape_hint(data: NDArray | sparse.sparray, expected: tuple[int, int]) -> str:
+    """What a matrix of the wrong shape may be: reference x query frames; with a row per query
+    frame, rows of reference indices (whole numbers, some above 1: the positives form) or a mask
+    whose columns are not the map's frames."""
+    if data.shape == expected[::-1]:
+        return ": it is reference x query frames (as VPR_Tutorial's GThard); save its transpose, M.T"
+    if data.ndim != 2 or data.shape[0] != expected[0]:
+        return ""
+    values = data.data if sparse.issparse(data) else data
+    if np.isfinite(values).all() and (values == np.floor(values)).all() and (values > 1).any():
+        return "; rows of reference indices are the positives form (positives:FILE)"
+    return f"; it has {data.shape[1]} columns but the map has {expected[1]} frames (a column each)"
 
 
 def restrict_sequence(truth: Truth, exclude_recent: int) -> Truth:

@@ -163,8 +163,9 @@ def _browser_run(name: str, e: Evaluation, images: Thumbnails, notes: list[str],
     query = reference = Path()
     try:
         query, reference, _ = run_traversals(e)
-        if not (query.is_dir() and reference.is_dir()):
-            raise WilocError(e.path, f"{query if not query.is_dir() else reference} is not an image folder")
+        for folder in (query, reference):
+            if not folder.is_dir():
+                raise WilocError(e.path, f"{folder} {'is not an image folder' if folder.exists() else 'does not exist'}")
         checked_entries(e, cache)
         notes.extend(unchecked_folders(e))
         shown = True

@@ -45,12 +45,18 @@ LISTING_SECONDS = 5.0
 REWRITTEN = ("written again after it was decided; --follow decides each file name once (write each frame "
              "under a new name, or use the Python API's Localizer.observe)")
 
+#: Why a file skipped (a JPEG cut short, say) and then written again (its writer finished it late)
+#: is not decided now: each file name is handed out once; a resumed run hands it out again.
+COMPLETED = ("completed after it was skipped; not decided now (--follow takes each file name once): a run "
+             "resuming this one (the same command again) tries it again")
+
 
 @dataclass(frozen=True)
 class Skipped:
     """A frame left out: its file and why; ``kind`` is ``warning`` for a file already decided
     that was written again (:data:`REWRITTEN`), said once, and for the first frame of a shape
-    other than the map's (``Localizer.frame_doubts``: decided, then said)."""
+    other than the map's (``Localizer.frame_doubts``: decided, then said); ``note`` for a file
+    skipped, then written again (:data:`COMPLETED`)."""
 
     path: Path
     reason: str
@@ -272,17 +278,21 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
     :data:`SETTLE_SECONDS` from its first failure (the run does not end meanwhile, nor for
     ``idle`` seconds after), then left out; one that cannot be a frame at all
     (:func:`~wiloc.sources.frames.unusable_reason`) is left out at once. A file still changing when the run ends on ``idle`` (one that failed to
-    decode too, then kept changing) is left out with a line, so that every file is named."""
+    decode too, then kept changing) is left out with a line, so that every file is named. A file
+    left out and then written again gets a note (:data:`COMPLETED`), not decided now."""
     last = clock()
     failing: dict[str, float] = {}  # name -> when it first failed to decode once stable
+    left_out: set[str] = set()  # names skipped: one written again was never decided
     while True:
         arrived, retried = watch.poll(), False
         for path in watch.rewritten:
-            yield Skipped(path, REWRITTEN, kind="warning")
+            yield Skipped(path, COMPLETED, kind="note") if path.name in left_out else \
+                Skipped(path, REWRITTEN, kind="warning")
         watch.rewritten.clear()
         for path in arrived:
             if (reason := unusable_reason(path)) is not None:
                 last = clock()
+                left_out.add(path.name)
                 yield Skipped(path, reason)
                 continue
             said = len(localizer.frame_doubts)
@@ -299,6 +309,7 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
                     continue
                 del failing[path.name]
                 last = clock()
+                left_out.add(path.name)
                 yield Skipped(path, exc.problem)
                 continue
             failing.pop(path.name, None)

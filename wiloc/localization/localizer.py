@@ -18,6 +18,7 @@ import os
 import zipfile
 from collections.abc import Mapping
 from dataclasses import asdict, replace
+from itertools import chain, count
 from pathlib import Path
 from typing import Any
 
@@ -172,17 +173,27 @@ class Localizer:
     def describe(self, frame: NDArray | str | bytes | os.PathLike) -> NDArray:
         """The descriptor of an image file (any path, bytes too), a decoded image
         (``frame_arrays.gray_image``) or a descriptor given as it is (:meth:`_descriptor`): a row, or a
-        1 x D array of the map's length D."""
+        1 x D array of the map's length D. A k x D array that is no image this map takes is told as
+        k descriptor rows, where the image's checks said it was too narrow (2 x D)."""
         if (path := _file(frame)) is not None:
             frame = self.read(path)
         array = frame_array(frame)
-        if array.ndim == 2 and array.shape == (1, self._session.candidates_data.shape[1]):
+        length = self._session.candidates_data.shape[1]
+        if array.ndim == 2 and array.shape == (1, length):
             array = array[0]  # one descriptor as a batch of one (a network's output, rows[k:k + 1])
         if array.ndim == 1:
             return self._descriptor(array)
-        if self._spec is None:
-            raise WilocError("observe", "a map of imported descriptors takes descriptors, not images")
-        image = colour_image(array) if self._spec.colour else gray_image(array)
+        rows = path is None and array.ndim == 2 and array.shape[1] == length  # k descriptors, maybe
+        try:
+            if self._spec is None:
+                raise WilocError("observe", "a map of imported descriptors takes descriptors, not images")
+            image = colour_image(array) if self._spec.colour else gray_image(array)
+        except WilocError:
+            if not rows:
+                raise
+            raise WilocError("observe", f"an array of {array.shape[0]} x {length} looks like {array.shape[0]} "
+                                        f"descriptor rows; observe takes one frame at a time: a row of {length} "
+                                        f"values (or 1 x {length})") from None
         self._check_shape(image, decoded=path is not None)
         return self._spec.compute(image)
 
@@ -230,22 +241,23 @@ class Localizer:
     def _new_name(self, frame: object, name: object) -> str:
         """The next frame's name, checked before anything is decided: text, not empty, and no
         earlier frame's, since results hold one row per name (a file naming a frame twice is
-        refused when read). Without a ``name``, a file's name, or the frame's index; a file whose
-        name an earlier frame has (a camera that writes latest.jpg again and again) gets the index
-        after its stem (``latest-000012.jpg``)."""
-        if name is None:
+        refused when read). Without a ``name``, a file's name, or the frame's index; one an earlier
+        frame has (a camera that writes latest.jpg again and again, an index given as a name) gets
+        a free name: a file's the index after its stem (``latest-000012.jpg``), then a count after
+        that (``latest-000012-2.jpg``), an index's the count (``000012-2``)."""
+        if name is None:  # a file's own name that is not UTF-8 is refused with the file, as a frame
             k = len(self.names)
             path = _file(frame)
-            name = f"{k:06d}" if path is None else path.name
-            if path is not None and name in self._named:
-                name = f"{path.stem}-{k:06d}{path.suffix}"
+            first = [f"{k:06d}"] if path is None else [path.name, f"{path.stem}-{k:06d}{path.suffix}"]
+            stem, suffix = os.path.splitext(first[-1])
+            name = next(n for n in chain(first, (f"{stem}-{j}{suffix}" for j in count(2))) if n not in self._named)
+        elif isinstance(name, str) and shown_name(name) != name:  # as a batch run refuses such a file
+            raise WilocError("observe", f"name '{shown_name(name)}' is not valid UTF-8 (results files hold names "
+                                        "as UTF-8 text)")
         if not isinstance(name, str):
             raise WilocError("observe", f"name must be text (str), got {type(name).__name__} {name!r}")
         if not name:
             raise WilocError("observe", "name is empty")
-        if shown_name(name) != name:  # as a batch run refuses such a file
-            raise WilocError("observe", f"name '{shown_name(name)}' is not valid UTF-8 (results files hold names "
-                                        "as UTF-8 text)")
         if name in self._named:
             raise WilocError("observe", f"name '{name}' is an earlier frame's (frame {self.names.index(name)}); "
                                         "each frame needs a name of its own (name=...)")
