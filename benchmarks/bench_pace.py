@@ -74,6 +74,12 @@ methods run without.
 Seed 0 is one draw of a random filter: ``--seeds`` runs each method that takes a seed once per
 seed, writes every run to ``--json`` (its seed in ``params``) and prints per traversal the means
 over the seeds, with R@1's lowest and highest in brackets (``over_seeds(rows)`` makes those rows).
+
+Last, a table of the counts the pace's acceptance reads, per method (``acceptance(rows)``): the
+variants whose R@1 keeps 0.9 of the same pace's (0.95 on day_left's queries), the runs of ECE at
+most 0.05, those whose precision among frames at confidence 0.9 or more is at least 0.9 (or that
+accept none), the mean R@1, beside seqslam the runs where R@1 is above seqslam's, and the variants
+that fall short of their ratio.
 """
 from __future__ import annotations
 
@@ -109,6 +115,9 @@ from bench_common import (ODOMETRY_SEED, add_odometry, default_data_root, fmt, n
 
 TOLERANCE = 2  # map nodes either side of the true node that count as the same place
 CUT = 0.9  # the confidence above which precision is reported
+#: The pace's acceptance bar (:func:`acceptance`): a variant's R@1 at least this share of the same
+#: pace's (day_left's queries: the second), ECE at most, precision among frames at CUT at least.
+RATIO, RATIO_DAY_LEFT, ECE_BAR, PRECISION_BAR = 0.9, 0.95, 0.05, 0.9
 
 #: name -> (dataset folder, map folder, query folder, descriptor)
 TRAVERSALS: dict[str, tuple[str, str, str, str]] = {
@@ -388,6 +397,47 @@ def seed_list(text: str) -> list[int]:
     return seeds
 
 
+def acceptance(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Per method, over its runs (one per traversal and variant, or their means over seeds): the
+    variants whose R@1 keeps RATIO of the same pace's (RATIO_DAY_LEFT for day_left's queries) of
+    those with a same-pace run, the runs of ECE at most ECE_BAR, those whose precision among frames
+    at confidence CUT or more is at least PRECISION_BAR (or that accept none), the mean R@1, and
+    beside seqslam the runs where R@1 is above seqslam's: the counts the pace's acceptance reads."""
+    same = {(r["method"], r["traversal"]): r["r1"] for r in rows if r["variant"] == "same"}
+    seqslam = {(r["traversal"], r["variant"]): r["r1"] for r in rows if r["method"] == "seqslam"}
+    summary = []
+    for method in dict.fromkeys(r["method"] for r in rows):
+        runs = [r for r in rows if r["method"] == method]
+        paced = [r for r in runs if r["variant"] in VARIANTS[1:] and (method, r["traversal"]) in same]
+        held = [r for r in paced if r["r1"] >= (RATIO_DAY_LEFT if r["traversal"].startswith("day_left/") else RATIO)
+                * same[(method, r["traversal"])] - 1e-12]
+        precise = [r for r in runs if r[f"accepted@{CUT:g}"] == 0 or (r[f"precision@{CUT:g}"] or 0.0) >= PRECISION_BAR]
+        versus = [r for r in runs if (r["traversal"], r["variant"]) in seqslam] if method != "seqslam" else []
+        summary.append({"method": method, "runs": len(runs), "ratio_held": len(held), "ratio_runs": len(paced),
+                        "ece_held": sum(r["ece"] <= ECE_BAR for r in runs), "precision_held": len(precise),
+                        "mean_r1": float(np.mean([r["r1"] for r in runs])),
+                        "above_seqslam": sum(r["r1"] > seqslam[(r["traversal"], r["variant"])] for r in versus),
+                        "versus_seqslam": len(versus),
+                        "ratio_failed": [f"{r['traversal']} {r['variant']} {r['r1']:.3f}" for r in paced if r not in held]})
+    return summary
+
+
+def render_acceptance(summary: list[dict[str, Any]]) -> Table:
+    """:func:`acceptance` as a table: a row per method, and the variants that fall short of their ratio."""
+    table = Table(title=f"acceptance: R@1 >= {RATIO:g} x the same pace's ({RATIO_DAY_LEFT:g} on day_left), "
+                        f"ECE <= {ECE_BAR:g}, precision >= {PRECISION_BAR:g} at confidence >= {CUT:g}",
+                  title_justify="left")
+    for column in ("method", "ratio held", f"ECE <= {ECE_BAR:g}", f"P@{CUT:g} >= {PRECISION_BAR:g}", "mean R@1",
+                   "above seqslam", "short of the ratio"):
+        table.add_column(column, justify="left" if column in ("method", "short of the ratio") else "right")
+    for s in summary:
+        table.add_row(s["method"], f"{s['ratio_held']} / {s['ratio_runs']}", f"{s['ece_held']} / {s['runs']}",
+                      f"{s['precision_held']} / {s['runs']}", fmt(s["mean_r1"], 4),
+                      f"{s['above_seqslam']} / {s['versus_seqslam']}" if s["versus_seqslam"] else "-",
+                      "; ".join(s["ratio_failed"]) or "-")
+    return table
+
+
 # ------------------------------------------------------------------------------------------ command
 
 
@@ -517,6 +567,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     given = sorted({r["method"] for r in rows if r["odometry"] is not None})
     odometry = (f"odometry to {', '.join(given)} (noise sd {args.odometry:g} a step, seed {ODOMETRY_SEED}; "
                 f"{args.odometry_factor:g} times the map's)" if given else "no odometry")
+    if rows:
+        console.print(render_acceptance(acceptance(over_seeds(rows) if len(seeds) > 1 else rows)))
     console.print(f"{len(rows)} runs in {time.perf_counter() - started:.0f} s; {said}, {odometry}"
                   + (f"; parameters {changed}" if changed else "; default parameters"))
     write_json(args.json, rows, console)

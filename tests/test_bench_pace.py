@@ -260,3 +260,25 @@ def test_odometry_goes_to_the_methods_that_take_it(bench) -> None:
     assert bench.decide(trav, variant, "catgraph", odometry=0.0).params["odometry"] is True
     assert bench.decide(trav, variant, "catgraph").params["odometry"] is False
     assert bench.run_variant(trav, variant, "threshold", odometry=0.0)["odometry"] is None
+
+
+def test_the_acceptance_counts_the_ratios_bars_and_rows_above_seqslam(bench) -> None:
+    def run(method: str, traversal: str, variant: str, r1: float, ece: float = 0.01, precision: float | None = 1.0,
+            accepted: int = 5) -> dict:
+        return {"method": method, "traversal": traversal, "variant": variant, "r1": r1, "ece": ece,
+                "precision@0.9": precision, "accepted@0.9": accepted}
+
+    rows = [run("catgraph", "day_left/sad", "same", 1.0), run("catgraph", "day_left/sad", "pace-2", 0.94),
+            run("catgraph", "night_right/sad", "same", 0.8, ece=0.2), run("catgraph", "night_right/sad", "pace-2", 0.72),
+            run("catgraph", "night_right/sad", "jump", 0.71, precision=0.5),
+            run("catgraph", "night_right/sad", "drift", 0.1, precision=None, accepted=0),
+            run("seqslam", "day_left/sad", "same", 0.5), run("seqslam", "night_right/sad", "drift", 0.2)]
+    catgraph, seqslam = bench.acceptance(rows)
+    # day_left needs 0.95 of its same pace (0.94 falls short); night_right 0.9 (0.72 holds, 0.71 not)
+    assert (catgraph["ratio_held"], catgraph["ratio_runs"]) == (1, 4)
+    assert catgraph["ratio_failed"] == ["day_left/sad pace-2 0.940", "night_right/sad jump 0.710",
+                                        "night_right/sad drift 0.100"]
+    assert (catgraph["ece_held"], catgraph["precision_held"], catgraph["runs"]) == (5, 5, 6)
+    assert (catgraph["above_seqslam"], catgraph["versus_seqslam"]) == (1, 2)
+    assert catgraph["mean_r1"] == pytest.approx((1.0 + 0.94 + 0.8 + 0.72 + 0.71 + 0.1) / 6)
+    assert seqslam["versus_seqslam"] == 0 and seqslam["ratio_runs"] == 0  # its drift has no same-pace run
