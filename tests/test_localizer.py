@@ -895,6 +895,22 @@ def test_a_localizer_over_an_imported_map_from_the_cache_compares_its_rows(tmp_p
     assert loc.results().header.descriptor_params == {"metric": "l1", "length": 16, "dtype": "float32"}
 
 
+def test_a_map_of_imported_rows_in_memory_refuses_an_image_in_one_line() -> None:
+    """Rows held in memory as ``external`` descriptors are compared, never computed: an image given
+    to such a map ended in a TypeError traceback where a map file of them is refused in one line."""
+    from wiloc.description.traversals import entry_from_array
+    from wiloc.descriptors.registry import get_descriptor
+
+    rows = np.random.default_rng(0).random((20, 16)).astype(np.float32)
+    entry = entry_from_array(rows, [f"f{i}" for i in range(20)],
+                             get_descriptor("external", metric="l1", length=16, dtype="float32"))
+    loc = Localizer(entry, method="threshold")
+    assert loc.observe(rows[3]).match == 3
+    with pytest.raises(WilocError, match="a map of imported descriptors takes descriptors, not images"):
+        loc.observe(np.zeros((40, 60), np.uint8))
+    assert loc.frames == 1
+
+
 def test_a_folder_streamed_in_api_frames_order_decides_as_the_batch_run(tmp_path: Path, cache_dir: Path) -> None:
     """``api.frames`` lists a folder as a batch run reads it (img2 before img10, which ``sorted``
     puts after img10), so a localizer given its frames one by one makes the batch run's decisions."""

@@ -142,6 +142,8 @@ class Descriptor:
     #: The libraries (names in LIBRARIES) its rows depend on beyond wiloc's code, whose versions its
     #: entries' key holds: OpenCV decodes and resizes every image described.
     libraries: ClassVar[tuple[str, ...]] = ("opencv",)
+    #: Its rows are imported, never computed from an image (``external``): a map of them takes rows.
+    imported: ClassVar[bool] = False
 
     @classmethod
     def options(cls) -> list[Declared]:

@@ -34,6 +34,7 @@ class External(Descriptor):
     name = "external"
     depends = "the imported matrix"
     libraries = ()  # read from the user's file, computed by no library of this environment
+    imported = True
 
     @classmethod
     def make(cls, given: Mapping[str, Any]) -> DescriptorSpec:

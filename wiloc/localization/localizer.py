@@ -129,8 +129,9 @@ class Localizer:
         self._log = DecisionLog(self.method.columns, self.method.ranks)  # their decisions
         self.frame_doubts: list[str] = []  # one line per shape of the images described that is not the map's
         self._shapes: set[tuple[int, int]] = set()  # the (width, height) of the images described
-        path = session.map_path
-        self._spec = None if path is not None and is_matrix_file(path) else session.describer.spec
+        path, spec = session.map_path, session.describer.spec
+        imported = path is not None and is_matrix_file(path) or spec.kind.imported  # a file's, or rows in memory
+        self._spec = None if imported else spec
 
     @property
     def doubts(self) -> list[str]:
