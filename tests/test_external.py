@@ -349,3 +349,26 @@ def test_a_metric_for_image_folders_is_refused_not_recorded(demo_route: demo.Dem
     matrix = tmp_path / "map.npy"
     np.save(matrix, np.random.default_rng(0).random((5, 8), dtype=np.float32))
     assert Localizer(matrix, method="threshold", metric="cosine").metric == "cosine"
+
+
+def test_a_descriptor_for_matrix_files_is_refused_not_recorded(tmp_path: Path, cache_dir: Path) -> None:
+    """The library refuses a descriptor (or its parameters) where every traversal is a descriptor
+    matrix file, as the command line does: the rows are compared as imported, and a localizer had
+    shown descriptor='gist' while its results said external:l1."""
+    from wiloc import api
+    from wiloc.errors import ParameterError
+    from wiloc.localization.localizer import Localizer
+
+    rng = np.random.default_rng(0)
+    rows = rng.random((30, 16)).astype(np.float32)
+    np.save(tmp_path / "map.npy", rows)
+    np.save(tmp_path / "query.npy", rows + rng.normal(0, 0.01, rows.shape).astype(np.float32))
+    for run, parameter in ((lambda: api.localize(tmp_path / "query.npy", reference=tmp_path / "map.npy", metric="l1",
+                                                 method="threshold", descriptor="gist"), "descriptor"),
+                           (lambda: Localizer(tmp_path / "map.npy", metric="l1", method="threshold",
+                                              descriptor_params={"patch": 4}), "descriptor_params")):
+        with pytest.raises(ParameterError, match="is a descriptor matrix file, compared by its metric") as err:
+            run()
+        assert err.value.parameter == parameter
+    run = api.localize(tmp_path / "query.npy", reference=tmp_path / "map.npy", metric="l1", method="threshold")
+    assert run.results.header.descriptor == "external:l1"

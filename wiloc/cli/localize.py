@@ -141,7 +141,8 @@ def localize(
     with progress_bar(not as_json) as progress:
         for query, target in zip(queries, targets):
             known = len(store.repairs)
-            runs.append(api.localize(query, reference=reference, descriptor=descriptor, sampling=sampling,
+            runs.append(api.localize(query, reference=reference, descriptor=descriptor if given("descriptor") else None,
+                                     sampling=sampling,
                                      descriptor_params=descriptor_params_given(descriptor, descriptor_options, vocabulary,
                                                                               cache, model, preprocess),
                                      metric=metric, method=method, method_params=params,

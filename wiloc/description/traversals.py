@@ -107,6 +107,18 @@ def is_matrix_file(source: Path) -> bool:
     return Path(source).is_file() and not is_video(Path(source)) and not is_bag(Path(source))
 
 
+def check_descriptor(sources: Sequence[Path], descriptor: str | None, params: Mapping[str, Any] | None) -> None:
+    """ParameterError naming ``descriptor`` (or ``descriptor_params``) when it is given and every
+    one of ``sources`` is a descriptor matrix file: their rows are compared as imported, so it would
+    be recorded and not used."""
+    if not sources or not all(is_matrix_file(Path(s)) for s in sources):
+        return
+    for name, value in (("descriptor", descriptor not in (None, EXTERNAL)), ("descriptor_params", bool(params))):
+        if value:
+            raise ParameterError(name, f"applies to image folders, video files and ROS bags; {sources[0]} is a "
+                                       "descriptor matrix file, compared by its metric")
+
+
 def check_metric(sources: Sequence[Path], metric: str | None) -> None:
     """ParameterError naming ``metric`` when it is given and none of ``sources`` is a descriptor
     matrix file: images are compared by their descriptor's own difference, so it would be recorded

@@ -46,7 +46,7 @@ class LocalizeRun:
                 f"decided={int(self.decisions.decided.sum())}{written})")
 
 
-def localize(query: Path, *, reference: Path | None = None, descriptor: str = "sad",
+def localize(query: Path, *, reference: Path | None = None, descriptor: str | None = None,
              descriptor_params: Mapping[str, Any] | None = None, metric: str | None = None,
              method: str = "online", method_params: Mapping[str, Any] | None = None,
              exclude_recent: int | None = None, training: Training | None = None,
@@ -59,7 +59,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str = "s
     """Localize every frame of ``query`` (against ``reference``, or within itself) and write results.
 
     ``query`` and ``reference`` are image folders, or descriptor matrix files (with ``metric`` and,
-    for .npy, optional ``*_names_file``). ``method`` names a registered method
+    for .npy, optional ``*_names_file``; a ``descriptor``, None meaning ``sad``, only for the others). ``method`` names a registered method
     (``wiloc.methods.registry``) and ``method_params`` its parameters; the method is stepped over
     the query's difference rows, read from the cache block by block. ``odometry`` and
     ``map_odometry`` are odometry CSVs (for methods that take them); ``training`` is the labelled

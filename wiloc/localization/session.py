@@ -27,8 +27,8 @@ from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_
 from wiloc.description.describing import check_sampling, check_topic, is_stream
 from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive, pairwise
-from wiloc.description.traversals import (Describer, Progress, check_metric, descriptor_spec, descriptors_digest,
-                                         entry_params, is_matrix_file, open_cluster, stage)
+from wiloc.description.traversals import (Describer, Progress, check_descriptor, check_metric, descriptor_spec,
+                                         descriptors_digest, entry_params, is_matrix_file, open_cluster, stage)
 from wiloc.errors import ParameterError, UsageError, WilocError, parameter_values
 from wiloc.localization.odometry import bag_odometry, read_odometry, steps, traversal_arclength
 from wiloc.localization.training import Training, training_rows
@@ -119,6 +119,8 @@ class RunSession:
         sources = [Path(source) for source in (query, map) if source is not None and not isinstance(source, Entry)]
         check_sampling(sources, sampling)
         check_metric(sources if not isinstance(map, Entry) else [], metric)
+        if not restoring:  # a saved state records the describer's descriptor, even over matrix files
+            check_descriptor(sources, descriptor, descriptor_params)
         pair = (training.query, training.reference) if isinstance(training, Training) else ()
         check_topic([Path(s) for s in (query, map, *pair) if s is not None and not isinstance(s, Entry)], topic)
         descriptor, descriptor_params = _map_descriptor(map, descriptor, descriptor_params)
