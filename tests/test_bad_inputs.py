@@ -264,7 +264,6 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
         "map of one frame": (["localize", str(ref), "--map", str(tmp / "single")], "it needs at least 2"),
         "odometry": (["localize", str(ref), "--map", str(ref), "--method", "catgraph", "--odometry", str(tmp / "odo.csv"),
                       "--map-odometry", str(tmp / "odo.csv")], "no odometry for 29 frame(s)"),
-        "no model to draw": (["compare", str(results), "--model-plot", str(tmp / "fig1.png")], "none of the results is an online"),
         "an image as map": (["localize", str(ref), "--map", str(ref / "img0.png")],
                             f"{ref / 'img0.png'}: an image file is not a traversal: give a folder of images, a video"),
         "object array": (["describe", "--import", str(tmp / "objects.npy")],
@@ -277,7 +276,7 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
 CASES = ("missing folder", "a text file", "no images", "only broken links", "only bad images", "h5 names not utf-8", "nan descriptors",
          "missing matrix", "unknown matrix format", "not a video", "missing results", "foreign csv", "text confidence",
          "text ground truth", "ground truth shape", "pairs columns", "positions file", "map of one frame", "odometry",
-         "no model to draw", "an image as map", "object array", "object array ground truth")
+         "an image as map", "object array", "object array ground truth")
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -1341,7 +1340,7 @@ def test_a_refused_figure_leaves_no_other_output_behind(route: tuple[Path, Path]
     ends_in_one_error(runner.invoke(app, ["evaluate", str(results), str(moved), *outputs,
                                           "--pairs-plot", str(tmp_path / "p.png")]), 1, "no longer gives the descriptors")
     ends_in_one_error(runner.invoke(app, ["compare", str(results), "--threshold-plot", str(tmp_path / "t.png"),
-                                          "--model-plot", str(tmp_path / "model.png")]), 1, "none of the results")
+                                          "--model-plot", str(tmp_path / "model.png")]), 2, "none of the results")
     assert sorted(p.name for p in tmp_path.glob("*.png")) == [] and not (tmp_path / "m.csv").exists()
 
 
@@ -2085,8 +2084,8 @@ def test_a_model_plot_of_an_online_run_without_its_model_line_is_one_line(online
     edited = tmp_path / "no-model.csv"
     edited.write_text("".join(line for line in online_results.read_text().splitlines(keepends=True)
                               if not line.startswith("# model:")))
-    ends_in_one_error(runner.invoke(app, ["compare", str(edited), "--model-plot", str(tmp_path / "fig1.png")]), 1,
-                      "fig1.png: none of the results is an online or trained run with a model")
+    ends_in_one_error(runner.invoke(app, ["compare", str(edited), "--model-plot", str(tmp_path / "fig1.png")]), 2,
+                      "--model-plot: applies to online and trained runs with a model; none of the results is one")
     assert not (tmp_path / "fig1.png").exists()
 
 

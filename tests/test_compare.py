@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -97,3 +98,18 @@ def test_compare_warns_of_rows_out_of_their_runs_order_naming_the_file(tmp_path:
     assert result.exit_code == 0, result.output
     (line,) = [line for line in result.stderr.splitlines() if "rows are out of their run's order" in line]
     assert line.startswith(f"warning {shuffled}: 12 of 12 rows are out of their run's order"), line
+
+
+def test_table2_marks_no_worst_traversal_where_no_threshold_reaches_the_precision(tmp_path: Path) -> None:
+    """Where no global threshold reaches a target precision (a run's most confident match is
+    wrong, so 100 % is out of reach), every traversal's recall is 0 and none is the worst."""
+    def most_confident_wrong(rows: list[str]) -> list[str]:  # frame 2's match is wrong: make it the surest
+        cells = rows[2].split(",")
+        return [*rows[:2], ",".join([*cells[:3], "0.99", *cells[4:]]), *rows[3:]]
+
+    runs = [_edited(_write_run(tmp_path / f"{walk}.csv", replace(MAP_RUN, query=f"/data/{walk}")),
+                    most_confident_wrong, f"{walk}-top-wrong.csv") for walk in ("walk", "other")]
+    comparison = api.compare(runs, api.TruthSource(kind="aligned", tolerance=0), precisions=[100.0, 50.0])
+    unmet = comparison.table2[comparison.table2["precision"] == 100.0]
+    assert len(unmet) == 2 and unmet["threshold"].isna().all() and not unmet["worst"].any()
+    assert comparison.table2[comparison.table2["precision"] == 50.0]["worst"].sum() == 1

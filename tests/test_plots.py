@@ -303,3 +303,17 @@ def test_a_legend_of_many_runs_fits_the_figure_and_leaves_the_axes_their_room(ru
         legend, axes = fig.legends[0].get_window_extent(), fig.axes[0].get_window_extent()
         assert fig.bbox.x0 <= legend.x0 and legend.x1 <= fig.bbox.x1 and fig.bbox.y0 <= legend.y0
         assert legend.y1 < axes.y0 and axes.height / fig.dpi > 2.5
+
+
+def test_figure_5_names_table_2_thresholds_with_the_tables_digits(run: tuple[np.ndarray, np.ndarray]) -> None:
+    """The legend printed 0.989 for a threshold the tables print as 0.98928 (two thresholds
+    0.9897 and 0.9903 would both have read 0.990): it writes each as the tables do."""
+    from wiloc.labels import threshold_text
+
+    confidence, correct = run
+    grid = np.linspace(0, 1, 11)
+    fig = threshold_figure({"catgraph night_right": (grid, precision_at_thresholds(confidence, correct, grid))},
+                           marks={"catgraph": [(99.0, 0.98928)]})
+    texts = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert f"catgraph: Table II threshold {threshold_text(0.98928)} (99 % precision)" in texts
+    assert threshold_text(0.98928) != "0.989"

@@ -2,6 +2,7 @@
 (Debian's chromium; those tests are skipped when it is not installed)."""
 from __future__ import annotations
 
+import html
 import json
 import re
 import shutil
@@ -156,7 +157,13 @@ def test_a_run_whose_images_are_gone_still_gets_its_page(runs: list[Path], tmp_p
     page = _report(runs[:1], tmp_path / "report.html").read_text(encoding="utf-8")
     assert "no images in the frame browser" in page and "no difference matrix" in page
     assert f"{tmp_path / 'route' / 'query'} does not exist" in page  # not "is not an image folder"
+    assert f"no difference matrix, {tmp_path / 'route' / 'query'}: " in page  # which folder it missed
     assert _data(page)["images"] == [] and len(_data(page)["runs"][0]["frames"]) == 45
+    # the browser filters the confidences the results file holds, not rounded ones
+    from wiloc.evaluation.results import read_results
+    written = read_results(runs[0]).frames["confidence"].to_numpy(float)
+    shown = np.array([np.nan if c is None else c for c in _data(page)["runs"][0]["confidence"]])
+    assert np.array_equal(shown, written, equal_nan=True) and np.any(np.round(written, 4) != written)
 
 
 def _live_run(tmp_path: Path, observed: int, recorded: bool) -> tuple[Path, Path]:
@@ -291,3 +298,15 @@ def test_gardens_point_report_is_small_and_loads(data_root: Path, tmp_path: Path
     assert 200 < len(_data(text)["images"]) <= 400  # every query image, and the map images shown
     assert_loads_without_errors(page)
     assert_screenshot_not_blank(page, tmp_path / "shot.png")
+
+
+def test_the_page_carries_the_ground_truths_doubts(runs: list[Path], tmp_path: Path) -> None:
+    """A page is sent on its own: a ground truth under which no frame has a true match (every
+    recall 0) is said on the page, not on the terminal alone."""
+    np.save(tmp_path / "none.npy", np.zeros((45, 40), dtype=np.uint8))
+    out = tmp_path / "report.html"
+    result = runner.invoke(app, ["report", str(runs[0]), "--gt", f"matrix:{tmp_path / 'none.npy'}", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    page = out.read_text(encoding="utf-8")
+    assert f"{html.escape(str(runs[0]))}: no frame has a true match under this ground truth" in page
+    assert result.stderr.count("no frame has a true match") == 1  # said once on the terminal too

@@ -138,6 +138,8 @@ def test_compare_writes_csv_markdown_and_latex(runs: tuple[Path, list[str]]) -> 
     assert "| traversal | method | R@100%P | R@99%P | R@90%P | AUC | R@1 | R@20 |" in markdown
     latex = _invoke(["compare", *everything, "--latex", "--no-global-threshold"], NARROW)
     assert latex.count(r"\begin{tabular}") == 3 and r"day\_left & catgraph/sad &" in latex
+    # >= and +- typeset as symbols, never as characters the default font encoding prints otherwise
+    assert r"confidence $\geq$ cut" in latex and ">" not in latex.replace(r"\textgreater{}", "")
     both = runner.invoke(app, ["compare", *everything, "--markdown", "--latex"])
     assert both.exit_code == 2 and "--latex: give one of" in both.output
 

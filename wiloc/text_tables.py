@@ -5,6 +5,7 @@ gives), a missing one is ``-``."""
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 from typing import Any
 
@@ -37,11 +38,16 @@ def markdown(rows: Sequence[dict[str, Any]], columns: Sequence[str], labels: dic
 
 
 _LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
-                  "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
+                  "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
+                  # typeset as symbols: in LaTeX's default font encoding (OT1, IEEEtran's) > prints as
+                  # an inverted question mark and | as a dash
+                  ">=": r"$\geq$", "<=": r"$\leq$", "+-": r"$\pm$", ">": r"\textgreater{}",
+                  "<": r"\textless{}", "|": r"\textbar{}"}
+_LATEX_TOKEN = re.compile("|".join(re.escape(token) for token in sorted(_LATEX_SPECIAL, key=len, reverse=True)))
 
 
 def _latex_text(text: str) -> str:
-    return "".join(_LATEX_SPECIAL.get(char, char) for char in text)
+    return _LATEX_TOKEN.sub(lambda found: _LATEX_SPECIAL[found.group()], text)
 
 
 def latex(rows: Sequence[dict[str, Any]], columns: Sequence[str], labels: dict[str, str], caption: str) -> str:

@@ -15,7 +15,7 @@ from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, FramesOpti
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
 from wiloc.cli.views import (compared_runs, comparison_records, cut_views, new_place_view, print_command_json,
                              table1_view, table2_view)
-from wiloc.errors import EXIT_BAD_INPUT, EXIT_USAGE
+from wiloc.errors import EXIT_USAGE
 
 if TYPE_CHECKING:
     from wiloc import api
@@ -114,7 +114,8 @@ def _compare_plots(comparison: api.Comparison, source: api.TruthSource, threshol
                       if e.method in ("online", "trained") and e.results.model is not None),
                      key=lambda e: e.method != "online")
     if model_plot is not None and not learned:  # refused before any figure is written
-        fail(f"{model_plot}: none of the results is an online or trained run with a model", EXIT_BAD_INPUT)
+        fail("--model-plot: applies to online and trained runs with a model; none of the results is one",
+             EXIT_USAGE)
     written = []
     if threshold_plot is not None:
         written.append(plots.plot_threshold(api.threshold_series(comparison), replacing(notes, threshold_plot),

@@ -81,11 +81,8 @@ def warn_about_truth(evaluations: list[api.Evaluation]) -> Notes:
     """Name-matching warnings, and runs whose ground truth leaves nothing to recall."""
     notes = Notes()
     for e in evaluations:
-        for warning in e.truth.warnings:
-            notes.add("warning", f"{e.path}: {warning}")
-        if not e.truth.has_match().any():
-            notes.add("warning", f"{e.path}: no frame has a true match under this ground truth, so every "
-                                 "recall is 0, at a cut undefined (check --gt, --tolerance, --radius)")
+        for doubt in e.truth_doubts:
+            notes.add("warning", f"{e.path}: {doubt}")
     return notes
 
 

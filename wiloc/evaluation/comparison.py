@@ -54,6 +54,14 @@ class Evaluation:
     run_frames: int | None = None
 
     @property
+    def truth_doubts(self) -> list[str]:
+        """What makes its scores doubtful, one line each: its ground truth's name-matching
+        warnings, and a ground truth that gives no frame a true match (every recall 0)."""
+        return [*self.truth.warnings] + ([] if self.truth.has_match().any() else [
+            "no frame has a true match under this ground truth, so every recall is 0, at a cut undefined "
+            "(check --gt, --tolerance, --radius)"])
+
+    @property
     def name(self) -> str:
         """The results file's name, or for a run in memory its query traversal and method
         (``day_left-online``; ``unnamed-online`` for a streaming run whose query was not given)."""
@@ -311,7 +319,7 @@ def comparison(evaluations: Sequence[Evaluation], truth: TruthSource, *,
             inputs = [(e.confidence, e.correct, e.summary.with_true_match) for _, e in group]
             for target in precisions:
                 threshold, recalls = global_threshold(inputs, float(target) / 100.0)
-                worst = int(np.argmin(recalls)) if len(recalls) else -1
+                worst = int(np.argmin(recalls)) if len(recalls) and np.isfinite(threshold) else -1  # none: no worst
                 for i, ((traversal, _), recall) in enumerate(zip(group, recalls)):
                     rows2.append({"method": method, "precision": float(target), "threshold": threshold,
                                   "traversal": traversal, "recall": recall, "worst": i == worst})

@@ -34,6 +34,7 @@ from wiloc.errors import WilocError
 from wiloc.evaluation.comparison import RunName
 from wiloc.evaluation.metrics import PRCurve
 from wiloc.evaluation.reliability import ReliabilityBins, wilson_interval
+from wiloc.labels import threshold_text
 from wiloc.model import HistogramModel
 
 if TYPE_CHECKING:
@@ -247,7 +248,7 @@ def threshold_figure(series: Mapping[str, tuple[np.ndarray, np.ndarray]],
                 by_threshold.setdefault(threshold, []).append(target)
         for threshold, targets in by_threshold.items():
             ax.axvline(threshold, color=colour, linestyle=":", linewidth=1.2,
-                       label=f"{method}: Table II threshold {threshold:.3f} "
+                       label=f"{method}: Table II threshold {threshold_text(threshold)} "
                              f"({', '.join(f'{t:g} %' for t in targets)} precision)")
     ax.set(xlim=(0, 1), xlabel="normalised threshold", ylabel="precision")
     _title(fig, title)

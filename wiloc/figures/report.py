@@ -59,8 +59,9 @@ TABLE2_COLUMNS = {"method": "method", "precision": "target precision %", "thresh
 
 @dataclass
 class Report:
-    """A report written: its file, size in bytes, the thumbnails' width and what the page notes
-    (image folders missing, a matrix that could not be drawn)."""
+    """A report written: its file, size in bytes, the thumbnails' width and what building it
+    found to note (image folders missing, a matrix that could not be drawn); the page notes these
+    and each run's ground-truth doubts (``Evaluation.truth_doubts``) too."""
 
     path: Path
     size: int
@@ -87,7 +88,8 @@ def write_report(comparison: Comparison, path: Path, *, cache: Cache, title: str
         if sum(map(len, data)) <= THUMB_BUDGET:
             break
     figures = _figures(comparison, names, cache, notes, stage(progress, "figures"))
-    page = _page(comparison, title, figures, runs, data, notes, scope)
+    doubts = [f"{e.path or e.name}: {doubt}" for e in comparison.evaluations for doubt in e.truth_doubts]
+    page = _page(comparison, title, figures, runs, data, doubts + notes, scope)  # a page is read on its own
     with written_whole(Path(path), "the report") as file:
         file.write(page)
     return Report(path=Path(path), size=len(page.encode("utf-8")), thumb_width=width, images=len(images.paths),
@@ -189,8 +191,10 @@ def _browser_run(name: str, e: Evaluation, images: Thumbnails, notes: list[str],
 
 
 def _numbers(values: Any) -> list[float | None]:
-    """Floats for JSON, rounded to 4 places; NaN as null."""
-    return [round(v, 4) if math.isfinite(v) else None for v in np.asarray(values, dtype=np.float64).tolist()]
+    """Floats for JSON to the 9 significant digits a results file keeps, so that the browser's
+    confidence filter counts the frames the cut tables count (rounded to 4 places, 0.989995526 was
+    0.99 there); NaN as null."""
+    return [float(f"{v:.9g}") if math.isfinite(v) else None for v in np.asarray(values, dtype=np.float64).tolist()]
 
 
 # ------------------------------------------------------------------------------------------ figures
@@ -237,7 +241,8 @@ def _figures(comparison: Comparison, names: Sequence[str], cache: Cache, notes: 
             title = f"{name}: differences, decided matches and ground truth"
             figures.matrices.append(_figure_uri(plots.matrix_figure(picture, title=title), "jpeg"))
         except WilocError as exc:
-            notes.append(f"{name}: no difference matrix, {exc.problem}")
+            said = exc.problem if exc.where in (None, str(e.path)) else str(exc)  # the folder it missed named
+            notes.append(f"{name}: no difference matrix, {said}")
             figures.matrices.append("")
     if progress:
         progress(len(evaluations), len(evaluations))
