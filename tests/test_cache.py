@@ -234,6 +234,34 @@ def test_list_entries_shows_an_unreadable_entry(tmp_path: Path, content: str) ->
     assert "\n" not in info.problem
 
 
+def test_list_entries_shows_an_entry_whose_journal_cannot_be_read(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """A folder where an entry's journal belongs (or one without permission) ended the whole
+    listing in its OSError: the entry is listed as unreadable, naming the journal, and the others too."""
+    cache = Cache(tmp_path / "c")
+    good = StoredEntry(_header(), {"a.png": _record("a.png", 1.0)})
+    cache.write_entry(good, complete=True)
+    other = StoredEntry(_header("/d"), {"a.png": _record("a.png", 1.0)})
+    cache.write_entry(other, complete=True)
+    cache.journal_path(other.header.key).mkdir()
+    infos = {info.key: info for info in cache.list_entries()}
+    assert infos[good.header.key].complete and infos[good.header.key].problem == ""
+    info = infos[other.header.key]
+    assert info.descriptor == "unreadable" and not info.complete
+    assert info.problem == f"{cache.journal_path(other.header.key)}: a folder where a cache file belongs; remove it"
+    cache.journal_path(other.header.key).rmdir()
+    cache.open_journal(other.header).close()
+    journal = cache.journal_path(other.header.key)
+
+    def refused(path: Path) -> object:  # as for a user without permission (tests run as root)
+        raise PermissionError(13, "Permission denied", str(path))
+
+    from wiloc.cache import store
+    monkeypatch.setattr(store, "scan_journal", refused)
+    info = {i.key: i for i in cache.list_entries()}[other.header.key]
+    assert info.descriptor == "unreadable" and info.problem == f"{journal}: unreadable (Permission denied)"
+
+
 def test_timestamps_round_trip_through_journal_and_file(tmp_path: Path) -> None:
     from dataclasses import replace
 

@@ -69,6 +69,66 @@ def test_an_unreadable_or_unchecked_entry_file_is_described_anew(tmp_path: Path)
     assert "unreadable cache entry" in cache.repairs[0]
 
 
+@pytest.mark.parametrize(("dataset", "kept"), [("descriptors", 3), ("frames/width", 4), ("failed/reason", 1)])
+def test_an_entry_whose_datasets_disagree_in_length_is_described_anew(tmp_path: Path, dataset: str,
+                                                                       kept: int) -> None:
+    """Datasets of one frame each cut to other lengths (a repair tool's or a hand's damage) read
+    other frames' values or ran past the end, an IndexError traceback on every run: now an
+    unreadable entry, said and described again."""
+    folder = tmp_path / "route"
+    write_images(folder, 5)
+    (folder / "broken.png").write_bytes(b"not an image")  # a failed frame: the failed group has a row
+    first = describe_folder(folder, FakeSpec(), Cache(tmp_path / "c"), jobs=1)
+    entry_file = Cache(tmp_path / "c").entry_path(first.entry.key)
+    with h5py.File(entry_file, "r+") as f:
+        values = f[dataset][()]
+        del f[dataset]
+        f[dataset] = values[:kept] if kept < len(values) else np.concatenate([values, values[:1]])
+    cache = Cache(tmp_path / "c")
+    again = describe_folder(folder, FakeSpec(), cache, jobs=1)
+    assert again.computed == 5 and again.entry.digest == first.entry.digest
+    assert cache.repairs and "unreadable cache entry" in cache.repairs[0] and f"{dataset} holds" in cache.repairs[0]
+
+
+def test_a_cache_folder_that_cannot_be_written_is_one_error_naming_it(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """Entries are locked while read: in a cache folder the user may not write (shared read-only)
+    the lock was an OSError naming a .lock file; now one line names the cache folder and why."""
+    import errno
+
+    from wiloc.cache import store
+    from wiloc.errors import WilocError
+
+    def refused(path: Path, *args: object) -> int:
+        raise PermissionError(errno.EACCES, "Permission denied", str(path))
+
+    monkeypatch.setattr(store, "lock_file", refused)
+    cache = Cache(tmp_path / "c")
+    with pytest.raises(WilocError, match=r"cannot lock descriptors/x\.h5 \(Permission denied\): the cache folder "
+                                         r"must be writable") as err:
+        with cache.lock("descriptors/x.h5"):
+            pass
+    assert err.value.where == str(tmp_path / "c")
+
+
+@pytest.mark.parametrize("which", ["entry", "journal"])
+def test_a_folder_in_place_of_a_cache_file_is_refused_before_describing(tmp_path: Path, which: str) -> None:
+    """An entry file replaced by a folder had every frame described, then the writing failed (and
+    so on every run): it is named before any frame is described."""
+    from wiloc.errors import WilocError
+
+    folder = tmp_path / "route"
+    write_images(folder, 5)
+    key = describe_folder(folder, FakeSpec(), Cache(tmp_path / "c"), jobs=1).entry.key
+    cache = Cache(tmp_path / "c")
+    path = cache.entry_path(key) if which == "entry" else cache.journal_path(key)
+    path.unlink(missing_ok=True)
+    path.mkdir()
+    with pytest.raises(WilocError, match="a folder where a cache file belongs; remove it") as err:
+        describe_folder(folder, FakeSpec(), cache, jobs=1)
+    assert err.value.where == str(path)
+
+
 def test_a_damaged_map_summary_is_computed_anew(tmp_path: Path) -> None:
     write_images(tmp_path / "r", 20, seed=2)
     cache = Cache(tmp_path / "c")

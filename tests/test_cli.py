@@ -463,6 +463,8 @@ def test_a_cache_option_naming_a_file_is_a_usage_error(command: list[str], tmp_p
         assert result.exit_code == 2, result.output
         assert result.stderr.startswith(f"error: --cache: {tmp_path / 'file'} is a file, not a cache folder")
         assert not list((tmp_path / "FOLDER").iterdir())
+    result = runner.invoke(app, args, env={"WILOC_CACHE": str(tmp_path / "file")})  # no --cache typed
+    assert result.exit_code == 2 and result.stderr.startswith(f"error: WILOC_CACHE: {tmp_path / 'file'} is a file")
 
 
 def test_every_comparison_figure_names_its_data_and_ground_truth(route: tuple[Path, Path], tmp_path: Path,

@@ -30,6 +30,21 @@ def test_numba_caches_under_wiloc_s_cache_folder_unless_told_otherwise(tmp_path:
     assert _numba_cache(WILOC_CACHE=str(tmp_path), NUMBA_CACHE_DIR=str(tmp_path / "mine")) == str(tmp_path / "mine")
 
 
+def test_a_cache_folder_that_cannot_be_written_sends_the_kernels_to_the_temporary_folder(tmp_path: Path) -> None:
+    """numba refuses to define a cached kernel it cannot store, or stores it beside the package's
+    source, where nothing of wiloc's may go: a cache folder that cannot be made or written (shared
+    read-only; here under a file) sends the kernels to the user's folder in the temporary folder."""
+    import getpass
+    import tempfile
+
+    (tmp_path / "file").write_text("not a folder")
+    blocked = str(tmp_path / "file" / "cache")
+    assert _numba_cache(WILOC_CACHE=blocked) == str(Path(tempfile.gettempdir()) / f"wiloc-numba-{getpass.getuser()}")
+    assert _numba_cache(WILOC_CACHE=blocked, WILOC_SIMD="sse2").endswith(f"wiloc-numba-sse2-{getpass.getuser()}")
+    assert _numba_cache(WILOC_CACHE=str(tmp_path / "new" / "deep")) == str(tmp_path / "new" / "deep" / "numba")
+    assert not (tmp_path / "new").exists()  # nothing made to find out
+
+
 def test_wiloc_simd_narrows_the_path_but_never_widens_it() -> None:
     widest = next(name for name, feature in SIMD_PATHS.items() if not feature or feature in _cpu_features())
     order = list(SIMD_PATHS)

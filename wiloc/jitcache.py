@@ -16,7 +16,9 @@ makes wiloc's kernels use (wiloc.description.distances.simd_path): kernels compi
 """
 from __future__ import annotations
 
+import getpass
 import os
+import tempfile
 from pathlib import Path
 
 import platformdirs
@@ -37,7 +39,22 @@ def cache_root() -> Path:
 
 def place_numba_cache() -> Path:
     """Point numba's cache at ``<cache root>/numba`` (``numba-<$WILOC_SIMD>`` when that is set)
-    unless ``NUMBA_CACHE_DIR`` is set; return the folder."""
+    unless ``NUMBA_CACHE_DIR`` is set; return the folder. Where that folder cannot be written (a
+    cache folder shared read-only), the kernels go to ``wiloc-numba-<user>`` (the same suffix) in
+    the temporary folder: numba refuses to define a cached kernel it could not store, so every
+    command ended in its traceback there."""
     forced = os.environ.get(SIMD_VARIABLE, "")
-    folder = cache_root() / (f"numba-{forced}" if forced else "numba")
+    name = f"numba-{forced}" if forced else "numba"
+    folder = cache_root() / name
+    if NUMBA_CACHE_VARIABLE not in os.environ and not _writable(folder):
+        folder = Path(tempfile.gettempdir()) / f"wiloc-{name}-{getpass.getuser()}"
     return Path(os.environ.setdefault(NUMBA_CACHE_VARIABLE, str(folder)))
+
+
+def _writable(folder: Path) -> bool:
+    """Whether ``folder`` can be written, or made where its nearest existing parent can be: checked
+    without creating anything (a cache folder is made on first use)."""
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    return existing.is_dir() and os.access(existing, os.W_OK | os.X_OK)

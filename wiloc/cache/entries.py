@@ -12,7 +12,7 @@ import json
 import math
 import zlib
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence, Sized
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from json.encoder import encode_basestring_ascii
@@ -252,6 +252,16 @@ def header_from_attrs(attrs: h5py.AttributeManager) -> EntryHeader:
     )
 
 
+def _same_lengths(group: str, names: list[str], **columns: Sized) -> None:
+    """A ValueError (an unreadable entry, described again) naming the first of a group's per-frame
+    datasets that does not hold one value per frame name: a file damaged that way read other
+    frames' values, or ran past the end."""
+    for column, values in columns.items():
+        if len(values) != len(names):
+            where = "descriptors" if column == "descriptors" else f"{group}/{column}"
+            raise ValueError(f"{where} holds {len(values)} values for {len(names)} frames")
+
+
 def read_h5(path: Path) -> StoredEntry | None:
     """The entry file's contents, frames failing their checksum left out; None for a file of
     another format version (written without checksums)."""
@@ -270,17 +280,21 @@ def read_h5(path: Path) -> StoredEntry | None:
             names = [n.decode(errors="replace") for n in g["name"][()]]
             digests = [d.decode(errors="replace") for d in g["digest"][()]]
             sizes, mtimes = g["size"][()].tolist(), g["mtime_ns"][()].tolist()  # Python ints, in one go
+            crcs = g["crc32"][()]
             if group == "frames":
                 widths, heights = g["width"][()].tolist(), g["height"][()].tolist()
                 stamps = [None if math.isnan(stamp) else stamp for stamp in g["timestamp_ms"][()].tolist()]
+                _same_lengths(group, names, digest=digests, size=sizes, mtime_ns=mtimes, crc32=crcs, width=widths,
+                              height=heights, timestamp_ms=stamps, descriptors=rows)
                 records = [FrameRecord(name, sizes[i], mtimes[i], digests[i], rows[i], "", widths[i], heights[i],
                                        stamps[i])
                            for i, name in enumerate(names)]
             else:
                 reasons = [r.decode(errors="replace") for r in g["reason"][()]]
+                _same_lengths(group, names, digest=digests, size=sizes, mtime_ns=mtimes, crc32=crcs, reason=reasons)
                 records = [FrameRecord(name, sizes[i], mtimes[i], digests[i], None, reasons[i])
                            for i, name in enumerate(names)]
-            for record, crc in zip(records, g["crc32"][()]):
+            for record, crc in zip(records, crcs):
                 if checksum(record, dtype) == crc:
                     stored.records[record.name] = record
                 else:

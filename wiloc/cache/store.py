@@ -248,7 +248,13 @@ class Cache:
             return
         self._make_folder(path.parent)
         deadline = time.monotonic() + (self.lock_timeout if timeout is None else timeout)
-        fd = lock_file(path, deadline, lambda pid: CacheBusyError(target, f"in use by another wiloc process (pid {pid})"))
+        try:
+            fd = lock_file(path, deadline, lambda pid: CacheBusyError(target, f"in use by another wiloc process (pid {pid})"))
+        except OSError as exc:
+            if exc.errno not in (errno.EACCES, errno.EPERM, errno.EROFS):
+                raise
+            raise WilocError(self.root, f"cannot lock {name} ({exc.strerror}): the cache folder must be writable, "
+                                        "entries are locked while read; give one that is") from None
         held[path] = [fd, 1]
         try:
             yield
@@ -332,6 +338,9 @@ class Cache:
         incomplete); a file that cannot be read, or was written without checksums, counts as
         absent. Either is noted in ``repairs``: the next describe run fills the entry again."""
         path = self.entry_path(key)
+        for own in (path, self.journal_path(key)):  # never written over, after a whole run described in vain
+            if own.is_dir():
+                raise WilocError(own, "a folder where a cache file belongs; remove it")
         stored = None
         if path.exists():
             try:
@@ -399,6 +408,8 @@ class Cache:
                 filled = self._entry_info(info, with_journal=self.journal_path(key) in stats)
             except WilocError as exc:
                 filled = replace(info, problem=str(exc))
+            except OSError as exc:  # its journal unreadable (a folder in its place, no permission)
+                filled = replace(info, problem=f"{exc.filename or self.journal_path(key)}: unreadable ({exc.strerror})")
             if filled is not None:
                 infos.append(filled)
         return infos

@@ -142,8 +142,8 @@ def usage_problem(exc: problems.UsageError) -> str:
     if isinstance(exc, problems.MissingParameter) and exc.param is not None:
         usage = ctx.get_usage().removeprefix("Usage: ") if ctx is not None else command
         return f"{_name(exc.param)}: missing (usage: {usage})"
-    if isinstance(exc, problems.BadParameter) and exc.param is not None:
-        return f"{_name(exc.param)}: {_lower(exc.message)}{_given(exc)}"
+    if isinstance(exc, problems.BadParameter) and exc.param is not None:  # a hint: the variable it came from
+        return f"{exc.param_hint or _name(exc.param)}: {_lower(exc.message)}{_given(exc)}"
     if isinstance(exc, problems.NoSuchOption):
         close = sorted(exc.possibilities or [])
         hint = f"did you mean {' or '.join(close)}?" if close else f"{command} --help lists them"

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
+from typer._click.core import ParameterSource
 
 from wiloc.atomic import NOT_A_FILE, name_problem, output_problem
 from wiloc.cli.core import EMPTY_PATH, Notes, fail, note
@@ -70,16 +71,19 @@ def _trailing_separator(value: str) -> bool:
     return value.endswith(("/", os.sep))
 
 
-def cache_folder(value: Path | None) -> Path | None:
-    """A ``--cache`` option (or ``WILOC_CACHE``), checked as the options are read: no file may be
-    where the folder, or a folder it would be made in, is. A folder that does not exist is made
-    when something is described into it."""
+def cache_folder(ctx: typer.Context, value: Path | None) -> Path | None:
+    """A ``--cache`` option (or ``WILOC_CACHE``, named as such when the folder came from it),
+    checked as the options are read: no file may be where the folder, or a folder it would be made
+    in, is. A folder that does not exist is made when something is described into it."""
     if value is None:
         return None
     existing = next((path for path in (value, *value.absolute().parents) if path.exists()), None)
     if existing is not None and not existing.is_dir():
-        raise typer.BadParameter(f"{existing} is a file, not a cache folder"
-                                 + (f" (the cache would be made in it: {value})" if existing != value else ""))
+        problem = (f"{existing} is a file, not a cache folder"
+                   + (f" (the cache would be made in it: {value})" if existing != value else ""))
+        if ctx.get_parameter_source("cache") == ParameterSource.ENVIRONMENT:
+            raise typer.BadParameter(problem, param_hint="WILOC_CACHE")
+        raise typer.BadParameter(problem)
     return value
 
 
