@@ -113,7 +113,8 @@ def check_descriptor(sources: Sequence[Path], descriptor: str | None, params: Ma
     be recorded and not used."""
     if not sources or not all(is_matrix_file(Path(s)) for s in sources):
         return
-    for name, value in (("descriptor", descriptor not in (None, EXTERNAL)), ("descriptor_params", bool(params))):
+    for name, value in (("descriptor", descriptor not in (None, EXTERNAL)),
+                        ("descriptor_params", bool(params) and descriptor != EXTERNAL)):  # external's: its storage
         if value:
             raise ParameterError(name, f"applies to image folders, video files and ROS bags; {sources[0]} is a "
                                        "descriptor matrix file, compared by its metric")
