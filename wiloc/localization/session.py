@@ -118,7 +118,7 @@ class RunSession:
                                tuple(method_params or {}))
         sources = [Path(source) for source in (query, map) if source is not None and not isinstance(source, Entry)]
         check_sampling(sources, sampling)
-        check_metric(sources if not isinstance(map, Entry) else [], metric)
+        check_metric(sources, metric)  # a map held in memory is no source: no metric to check against it
         if not restoring:  # a saved state records the describer's descriptor, even over matrix files
             check_descriptor(sources, descriptor, descriptor_params)
         pair = (training.query, training.reference) if isinstance(training, Training) else ()
