@@ -671,13 +671,15 @@ BAD_NAME = os.fsdecode(b"Image\xff\xfe050.png")  # not UTF-8: held by Python as 
 
 
 def _unusable_frames(folder: Path) -> list[str]:
-    """A name that is not UTF-8, a FIFO and a dangling symbolic link, each named as an image;
-    the lines that say they were left out."""
+    """A name that is not UTF-8, a FIFO, a dangling symbolic link and one that loops (to itself),
+    each named as an image; the lines that say they were left out."""
     (folder / BAD_NAME).write_bytes((folder / "img0.png").read_bytes())
     os.mkfifo(folder / "Image051.png")
     (folder / "Image052.png").symlink_to(folder / "nowhere.png")
+    (folder / "Image053.png").symlink_to("Image053.png")
     return [f"skipped {folder / 'Image051.png'}: not a regular file",
             f"skipped {folder / 'Image052.png'}: broken symbolic link",
+            f"skipped {folder / 'Image053.png'}: broken symbolic link",
             f"skipped {folder}/Image\\xff\\xfe050.png: file name is not valid UTF-8; rename the file to use it"]
 
 
@@ -697,15 +699,16 @@ def _cut_short_frames(folder: Path) -> list[str]:
 @pytest.mark.parametrize("unusable", [_unusable_frames, _cut_short_frames], ids=["not frames", "cut short"])
 def test_frames_that_cannot_be_read_are_left_out_with_a_line(route: tuple[Path, Path], tmp_path: Path,
                                                               unusable: Callable[[Path], list[str]]) -> None:
-    """Names that cannot be frames (not UTF-8, a FIFO, a dangling link) and images cut short: each
+    """Names that cannot be frames (not UTF-8, a FIFO, a dangling link, a link that loops) and images cut short: each
     left out with one line, at describe (and under --json) and at localize; the rest decided."""
     ref, query = route
     map_lines = unusable(ref)
+    files = len(os.listdir(ref))  # every one named as an image
     result = runner.invoke(app, ["describe", str(ref), "--json"])
     assert result.exit_code == 0, result.output
     report = json.loads(result.stdout)
     [row] = report["results"]
-    assert (row["frames"], row["failed"], row["shape"][0]) == (33, len(map_lines), 33 - len(map_lines))
+    assert (row["frames"], row["failed"], row["shape"][0]) == (files, len(map_lines), files - len(map_lines))
     assert result.stderr.strip().splitlines() == map_lines
     assert len(report["warnings"]) == len(map_lines) and all(w.startswith("skipped: ") for w in report["warnings"])
     query_lines = unusable(query)
@@ -714,17 +717,18 @@ def test_frames_that_cannot_be_read_are_left_out_with_a_line(route: tuple[Path, 
     assert result.exit_code == 0, result.output
     assert sorted(line for line in result.stderr.splitlines() if line.startswith("skipped ")) == sorted(map_lines + query_lines)
     _, *rows = [line for line in out.read_text().splitlines() if not line.startswith("#")]  # the column names, the rows
-    assert len(rows) == 33 - len(query_lines)
+    assert len(rows) == len(os.listdir(query)) - len(query_lines)
     assert runner.invoke(app, ["evaluate", str(out)]).exit_code == 0  # the results file reads back
 
 
-def test_follow_leaves_out_an_empty_file_and_a_fifo_with_a_line(route: tuple[Path, Path], tmp_path: Path) -> None:
+def test_follow_leaves_out_an_empty_file_a_fifo_and_a_looping_link_with_a_line(route: tuple[Path, Path], tmp_path: Path) -> None:
     ref, query = route
     live = tmp_path / "live"
     live.mkdir()
     (live / "img0.png").write_bytes((query / "img0.png").read_bytes())
     (live / "Image091.jpg").write_bytes(b"")
     os.mkfifo(live / "Image092.png")
+    (live / "Image093.png").symlink_to("Image093.png")  # a link that loops
     (live / BAD_NAME).write_bytes((query / "img1.png").read_bytes())
     out = tmp_path / "follow.csv"
     result = runner.invoke(app, ["localize", str(live), "--map", str(ref), "--method", "threshold", "--follow",
@@ -732,6 +736,7 @@ def test_follow_leaves_out_an_empty_file_and_a_fifo_with_a_line(route: tuple[Pat
     assert result.exit_code == 0, result.output
     assert sorted(result.stderr.strip().splitlines()) == [
         f"skipped {live / 'Image091.jpg'}: empty file (0 bytes)", f"skipped {live / 'Image092.png'}: not a regular file",
+        f"skipped {live / 'Image093.png'}: broken symbolic link",
         f"skipped {live}/Image\\xff\\xfe050.png: file name is not valid UTF-8; rename the file to use it"]
     assert runner.invoke(app, ["evaluate", str(out)]).exit_code == 0
 

@@ -145,8 +145,8 @@ class FolderWatch:
                 try:
                     if entry.is_dir():
                         continue
-                except OSError:
-                    continue
+                except OSError:  # a link that loops: handed out, and left out with its reason
+                    pass
                 names.append(name)
         decimals = self._known(names)
         return sorted(names, key=lambda name: natural_key(name, decimals))

@@ -12,7 +12,7 @@ import math
 import os
 import re
 import struct
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -158,11 +158,20 @@ def unusable_reason(item: os.DirEntry[str] | Path) -> str | None:
     a regular file (a FIFO would block the reader)."""
     if shown_name(item.name) != item.name:
         return "file name is not valid UTF-8; rename the file to use it"
-    if item.is_file():
+    if _is(item.is_file):
         return None
     if item.is_symlink() and not os.path.exists(item):
         return "broken symbolic link"
     return "not a regular file"
+
+
+def _is(test: Callable[[], bool]) -> bool:
+    """A directory entry's type test, False where following its link fails (a link that loops:
+    a path's test says False there, a ``DirEntry``'s raises)."""
+    try:
+        return test()
+    except OSError:
+        return False
 
 
 def not_a_traversal(path: Path, takes: str) -> str:
@@ -194,11 +203,11 @@ def list_traversal(folder: Path) -> Traversal:
     unusable: list[tuple[str, str]] = []
     with os.scandir(folder) as entries:  # the entries know their type: no stat per file
         for item in entries:
-            suffix = os.path.splitext(item.name)[1].lower()
-            if item.is_dir() and not item.name.startswith("."):
+            suffix, is_dir = os.path.splitext(item.name)[1].lower(), _is(item.is_dir)
+            if is_dir and not item.name.startswith("."):
                 subfolders.append(shown_name(item.name))
             if (item.name.startswith(".") or (suffix not in IMAGE_SUFFIXES and suffix not in OTHER_IMAGE_SUFFIXES)
-                    or item.is_dir()):
+                    or is_dir):
                 ignored.append(shown_name(item.name))
             elif suffix in OTHER_IMAGE_SUFFIXES:
                 unusable.append((shown_name(item.name), f"an image format that is no frame here (frames are "
