@@ -183,6 +183,7 @@ def test_positions_partial_names_are_warned_with_counts(tmp_path: Path) -> None:
     ({"name": ["a", "b"], "x": [0.0, np.nan], "y": [0.0, 1.0]}, "missing or non-numeric"),
     ({"name": ["a", "a"], "x": [0.0, 1.0], "y": [0.0, 1.0]}, "duplicate"),
     ({"name": ["x1", "x2"], "x": [0.0, 1.0], "y": [0.0, 1.0]}, "no name matches"),
+    ({"name": ["a", "b"], "x": [0.0, 1e300], "y": [0.0, 1.0]}, "a coordinate of 1e[+]300 metres is too far out"),
 ])
 def test_positions_bad_input_names_the_file(tmp_path: Path, rows: dict, problem: str) -> None:
     csv = write_csv(tmp_path / "bad.csv", rows)

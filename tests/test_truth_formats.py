@@ -300,6 +300,18 @@ def test_a_name_without_utm_fields_is_one_line(own_vpr_route: dict) -> None:
                       f"{ref.resolve() / 'img3.jpg'}: not a name of the form @UTM_east@UTM_north@")
 
 
+def test_a_name_too_far_out_is_one_line(own_vpr_route: dict) -> None:
+    """An @UTM name whose easting overflows a squared distance: one line naming it, not scipy's traceback."""
+    ref = own_vpr_route["root"] / "database"
+    far = ref / "@1e200@4000000@33@T@.jpg"
+    (ref / own_vpr_route["ref"]["name"][3]).rename(far)
+    run = own_vpr_route["root"] / "far.csv"
+    assert runner.invoke(app, ["localize", str(own_vpr_route["root"] / "queries"), "--map", str(ref), "--method",
+                               "threshold", "--out", str(run), "--jobs", "1"]).exit_code == 0
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(run), "--gt", "utm-names"]), 1,
+                      f"{far.resolve()}: a coordinate of 1e+200 metres is too far out to measure distances")
+
+
 def test_names_of_two_utm_zones_are_one_line(own_vpr_route: dict) -> None:
     ref = own_vpr_route["root"] / "database"
     name = own_vpr_route["ref"]["name"][5]

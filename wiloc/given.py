@@ -46,6 +46,14 @@ def check_lat_lon(latlon: NDArray[np.float64], where: Path | str) -> None:
         raise WilocError(where, "lat must lie in [-90, 90] and lon in [-360, 360] degrees")
 
 
+def check_metres(xy: NDArray[np.float64], where: Path | str, farthest: float = 1e150) -> None:
+    """A WilocError naming ``where`` if a coordinate in metres lies beyond ``farthest``: squared
+    distances between such points overflow."""
+    if xy.size and (largest := float(np.abs(xy).max())) > farthest:
+        raise WilocError(where, f"a coordinate of {largest:g} metres is too far out to measure distances "
+                                f"(keep coordinates within {farthest:g})")
+
+
 def check_frame_names(names: Sequence[object], where: Path | str) -> None:
     """A WilocError naming ``where`` unless every name is non-empty text and no two rows share
     one (a match to either row would name the same frame); rows count from 1."""

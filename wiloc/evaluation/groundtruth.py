@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from wiloc.errors import ParameterError, WilocError, load_problem
 from wiloc.evaluation.truth_warnings import QueryFramesWarning, query_frames_without, unmatched
-from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, check_lat_lon, why_unmatched
+from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, check_lat_lon, check_metres, why_unmatched
 from wiloc.reprs import short_repr
 
 KINDS = ("aligned", "positions", "pairs", "matrix", "vprbench", "positives", "utm-names", "exif")
@@ -277,8 +277,7 @@ def _read_positions(path: Path) -> Positions:
                                f"found {', '.join(frame.columns)}")
     _no_duplicates(path, frame, ["name"])
     coords = _numeric(path, frame, columns)
-    if geographic:
-        check_lat_lon(coords, path)
+    check_lat_lon(coords, path) if geographic else check_metres(coords, path)
     return Positions(path, name_index(frame["name"]), coords, geographic)
 
 

@@ -16,6 +16,7 @@ from wiloc.errors import WilocError
 from wiloc.evaluation.groundtruth import (Positions, Truth, TruthMismatch, check_file, name_index, truth_from_pairs,
                                           truth_within)
 from wiloc.evaluation.truth_warnings import query_frames_without
+from wiloc.given import check_metres
 from wiloc.object_arrays import npy_header, read_npy
 
 DEFAULT_RADIUS_M = 25.0
@@ -171,6 +172,7 @@ def utm_positions(folder: Path, names: Sequence[str]) -> tuple[Positions, dict[s
         if not usable:
             raise WilocError(Path(folder) / name, "not a name of the form @UTM_east@UTM_north@...@.jpg "
                                                   "(the datasets of VPR-methods-evaluation), so it gives no position")
+        check_metres(coords[i], Path(folder) / name)
         if len(fields) > 3 and fields[3]:
             zones.setdefault(fields[3], Path(folder) / name)
     return Positions(f"{folder} (@UTM names)", name_index(names), coords, geographic=False), zones
