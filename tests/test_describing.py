@@ -435,3 +435,23 @@ def test_query_and_map_frames_of_another_shape_are_warned_of(tmp_path: Path, cac
     other_shape = api.localize(tmp_path / "square", reference=tmp_path / "map", method="threshold", cache=cache)
     [line] = other_shape.warnings
     assert f"{(tmp_path / 'square').resolve()}: frames of 80 x 60 pixels against the map's 96 x 54" in line
+
+
+def test_a_jpeg_turned_upright_by_its_exif_orientation_has_the_shape_it_is_shown_in(tmp_path: Path,
+                                                                                  cache_dir: Path) -> None:
+    """A phone's portrait JPEG is stored landscape with an EXIF orientation that the decoder
+    applies: its frame size is the upright one, so a landscape map warns of another shape."""
+    from PIL import Image
+
+    from wiloc import api
+
+    write_images(tmp_path / "map", 6, seed=1, size=(96, 54))
+    (tmp_path / "portrait").mkdir()
+    for png in sorted((tmp_path / "map").iterdir()):
+        image = Image.open(png)
+        exif = image.getexif()
+        exif[0x0112] = 6  # rotate 90 degrees clockwise to show
+        image.convert("L").save(tmp_path / "portrait" / f"{png.stem}.jpg", exif=exif.tobytes())
+    run = api.localize(tmp_path / "portrait", reference=tmp_path / "map", method="threshold", cache=Cache(cache_dir))
+    [line] = run.warnings
+    assert f"{(tmp_path / 'portrait').resolve()}: frames of 54 x 96 pixels against the map's 96 x 54" in line

@@ -374,8 +374,13 @@ def _compute_colour(spec: DescriptorSpec, tasks: Sequence[tuple[int, Task]],
 
 
 def _full_size(path: Path, gray: np.ndarray) -> tuple[int, int]:
-    """(width, height) of the image file: a JPEG's header size (its decode may be reduced),
-    else the decoded size."""
+    """(width, height) of the image as shown: a JPEG's header size (its decode may be reduced),
+    its sides swapped where the decode turned it upright (an EXIF orientation), else the
+    decoded size."""
     head = np.fromfile(path, np.uint8, count=65536)
     is_jpeg = head.size >= 2 and head[0] == 0xFF and head[1] == 0xD8
-    return (jpeg_size(head) if is_jpeg else None) or (gray.shape[1], gray.shape[0])
+    height, width = gray.shape[:2]
+    full = jpeg_size(head) if is_jpeg else None
+    if full is None:
+        return width, height
+    return full if (full[0] > full[1]) == (width > height) or full[0] == full[1] else (full[1], full[0])
