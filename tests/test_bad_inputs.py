@@ -741,6 +741,21 @@ def test_follow_leaves_out_an_empty_file_a_fifo_and_a_looping_link_with_a_line(r
     assert runner.invoke(app, ["evaluate", str(out)]).exit_code == 0
 
 
+def test_follow_of_a_folder_of_sub_folders_says_they_are_not_searched(route: tuple[Path, Path], tmp_path: Path) -> None:
+    """A camera's parent folder given to --follow by mistake: a note names its sub-folders, as a
+    batch run's error does, where it followed in vain without a line."""
+    ref, query = route
+    parent = tmp_path / "cameras"
+    for camera in ("cam1", "cam0"):
+        (parent / camera).mkdir(parents=True)
+        (parent / camera / "img0.png").write_bytes((query / "img0.png").read_bytes())
+    result = runner.invoke(app, ["localize", str(parent), "--map", str(ref), "--method", "threshold", "--follow",
+                                 "--idle", "0.2", "--out", str(tmp_path / "follow.csv")])
+    assert result.exit_code == 0, result.output
+    assert result.stderr.strip().splitlines() == [
+        f"note {parent}: no image files yet; sub-folders are not searched: give the one holding the images (cam0, cam1)"]
+
+
 # ------------------------------------------------------------------ the Python API: wiloc errors
 
 FLAG = re.compile(r"(?<![\w-])--[a-z]")

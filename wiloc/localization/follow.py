@@ -20,7 +20,7 @@ from wiloc.decisions import Decision
 from wiloc.errors import FrameError, WilocError
 from wiloc.localization.localizer import Localizer
 from wiloc.sources.frames import (FORMAT_HEAD_BYTES, IMAGE_SUFFIXES, decimal_form, end_checked, natural_key,
-                                  shown_name, unusable_reason)
+                                  shown_name, subfolders_hint, type_test, unusable_reason)
 
 #: Seconds a stable (unchanging) file may stay undecodable before it is left out as bad: a writer
 #: that is slow to finish a file gets this long.
@@ -142,14 +142,22 @@ class FolderWatch:
                     continue
                 if name.startswith(".") or os.path.splitext(name)[1].lower() not in IMAGE_SUFFIXES:
                     continue
-                try:
-                    if entry.is_dir():
-                        continue
-                except OSError:  # a link that loops: handed out, and left out with its reason
-                    pass
-                names.append(name)
+                if not type_test(entry.is_dir):  # a link that loops: handed out, and left out with its reason
+                    names.append(name)
         decimals = self._known(names)
         return sorted(names, key=lambda name: natural_key(name, decimals))
+
+    def subfolders(self) -> str | None:
+        """What to say when nothing was handed out and the folder holds sub-folders but no image
+        file (a camera's parent folder given by mistake, which would be followed in vain), or None."""
+        if self._decided or self._pending:
+            return None
+        with os.scandir(self.folder) as entries:
+            inside = [(entry.name, type_test(entry.is_dir)) for entry in entries if not entry.name.startswith(".")]
+        if any(os.path.splitext(name)[1].lower() in IMAGE_SUFFIXES for name, _ in inside):
+            return None
+        folders = [shown_name(name) for name, is_dir in inside if is_dir]
+        return f"no image files yet; {subfolders_hint(folders)}" if folders else None
 
     def _known(self, names: Iterable[str]) -> bool:
         """Whether dotted numbers still read as decimals once ``names`` are seen, as a batch run of
@@ -283,8 +291,12 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
     last = clock()
     failing: dict[str, float] = {}  # name -> when it first failed to decode once stable
     left_out: set[str] = set()  # names skipped: one written again was never decided
+    first = True
     while True:
         arrived, retried = watch.poll(), False
+        if first and not arrived and (hint := watch.subfolders()) is not None:
+            yield Skipped(watch.folder, hint, kind="note")
+        first = False
         for path in watch.rewritten:
             yield Skipped(path, COMPLETED, kind="note") if path.name in left_out else \
                 Skipped(path, REWRITTEN, kind="warning")

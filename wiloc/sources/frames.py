@@ -158,16 +158,16 @@ def unusable_reason(item: os.DirEntry[str] | Path) -> str | None:
     a regular file (a FIFO would block the reader)."""
     if shown_name(item.name) != item.name:
         return "file name is not valid UTF-8; rename the file to use it"
-    if _is(item.is_file):
+    if type_test(item.is_file):
         return None
     if item.is_symlink() and not os.path.exists(item):
         return "broken symbolic link"
     return "not a regular file"
 
 
-def _is(test: Callable[[], bool]) -> bool:
-    """A directory entry's type test, False where following its link fails (a link that loops:
-    a path's test says False there, a ``DirEntry``'s raises)."""
+def type_test(test: Callable[[], bool]) -> bool:
+    """A directory entry's type test (``entry.is_dir``), False where following its link fails (a
+    link that loops: a path's test says False there, a ``DirEntry``'s raises)."""
     try:
         return test()
     except OSError:
@@ -203,7 +203,7 @@ def list_traversal(folder: Path) -> Traversal:
     unusable: list[tuple[str, str]] = []
     with os.scandir(folder) as entries:  # the entries know their type: no stat per file
         for item in entries:
-            suffix, is_dir = os.path.splitext(item.name)[1].lower(), _is(item.is_dir)
+            suffix, is_dir = os.path.splitext(item.name)[1].lower(), type_test(item.is_dir)
             if is_dir and not item.name.startswith("."):
                 subfolders.append(shown_name(item.name))
             if (item.name.startswith(".") or (suffix not in IMAGE_SUFFIXES and suffix not in OTHER_IMAGE_SUFFIXES)
@@ -221,13 +221,18 @@ def list_traversal(folder: Path) -> Traversal:
         raise WilocError(folder, f"no usable image files ({name}: {reason}"
                                  f"{f'; {len(unusable) - 1} more' if len(unusable) > 1 else ''})")
     if not frames:
-        shown = ", ".join(natural_sorted(subfolders)[:5]) + (", ..." if len(subfolders) > 5 else "")
         raise WilocError(folder, f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))})"
-                                 + (f"; sub-folders are not searched: give the one holding the images ({shown})"
-                                    if subfolders else ""))
+                                 + (f"; {subfolders_hint(subfolders)}" if subfolders else ""))
     return Traversal(folder=folder, frame_names=tuple(natural_sorted(frames)),
                      ignored=tuple(folder / name for name in natural_sorted(ignored)),
                      unusable=tuple(sorted(unusable, key=lambda u: natural_key(u[0]))))
+
+
+def subfolders_hint(subfolders: Iterable[str]) -> str:
+    """What to say of a folder without images that holds ``subfolders`` (a camera's parent)."""
+    names = natural_sorted(subfolders)
+    shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+    return f"sub-folders are not searched: give the one holding the images ({shown})"
 
 
 @dataclass(frozen=True)
