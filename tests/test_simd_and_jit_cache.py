@@ -60,3 +60,27 @@ def test_an_unknown_instruction_set_is_one_line_naming_the_variable(value: str, 
     assert got.returncode != 0
     assert got.stderr.strip() == f"error: WILOC_SIMD: unknown instruction set {value!r}; expected one of " \
                                  f"{', '.join(SIMD_PATHS)}"
+
+
+def test_every_instruction_set_gives_the_same_differences_to_the_last_bit(tmp_path: Path) -> None:
+    """SPEC section 11: the float32 ``l1`` kernel's sums do not depend on the vector width (each of
+    16 lanes sums the same values on every path), nor do the integer kernels'; a block, single
+    rows and a route's steps, with rows that are not a whole number of chunks."""
+    code = ("import hashlib, numpy as np\n"
+            "from wiloc.description.distances import DifferencesTo, consecutive\n"
+            "rng = np.random.default_rng(0)\n"
+            "parts = []\n"
+            "rows = {'float32': lambda shape: rng.standard_normal(shape).astype(np.float32),\n"
+            "        'uint8': lambda shape: rng.integers(0, 256, shape, dtype=np.uint8)}\n"
+            "for dtype, metric in (('float32', 'l1'), ('uint8', 'l1'), ('uint8', 'hamming')):\n"
+            "    for d in (7, 514):\n"
+            "        a, b = rows[dtype]((23, d)), rows[dtype]((37, d))\n"
+            "        to_b = DifferencesTo(b, metric, 0.5)\n"
+            "        parts += [to_b(a), to_b(a[3:4]), consecutive(a, metric, 0.5)]\n"
+            "print(hashlib.sha256(b''.join(np.ascontiguousarray(p).tobytes() for p in parts)).hexdigest())\n")
+    digests = {}
+    for path in SIMD_PATHS:
+        got = _python(code, WILOC_SIMD=path, WILOC_CACHE=str(tmp_path))
+        assert got.returncode == 0, got.stderr[-1000:]
+        digests[path] = got.stdout.strip()
+    assert len(set(digests.values())) == 1, digests

@@ -9,7 +9,8 @@ operation is chosen when numba compiles for the CPU at hand (see docs/kernels.md
   AVX2, SSE2), or portable max - min arithmetic on other CPUs;
 * ``hamming``: popcount of the XOR of uint64 words (``llvm.ctpop``, which becomes ``vpopcntq``
   where the CPU has it and a shuffle-table popcount elsewhere);
-* ``l1`` on float32: |a - b| summed in float32 vector lanes.
+* ``l1`` on float32: |a - b| summed in 16 float32 lanes (on every CPU, so that the sums are the
+  same everywhere), then the lanes added in order.
 
 ``sqeuclidean`` and ``cosine`` use a BLAS matrix product.
 
@@ -43,8 +44,9 @@ CHUNK_BYTES = 64  # rows are zero-padded to a multiple of this for the SIMD kern
 TILE = 4  # query rows x reference rows accumulated together per chunk
 PANEL_ROWS = 64  # query rows per parallel work item (about 74 KB of sad rows: stays in L2)
 #: The version of what the difference functions compute, which cached results of them record (a
-#: map's summary, ``differences.map_summary``): 2, float metrics summed in float64 (:func:`_product`).
-DIFFERENCES_VERSION = 2
+#: map's summary, ``differences.map_summary``): 2, float metrics summed in float64 (:func:`_product`);
+#: 3, float32 ``l1`` summed in 16 lanes on every CPU (a narrower CPU's summaries were its own).
+DIFFERENCES_VERSION = 3
 PRODUCT_ROWS = 256  # query rows per float64 matrix product (:func:`_product`): 256 x N x 8 bytes of scratch
 
 _I8 = ir.IntType(8)
@@ -115,8 +117,11 @@ def _chunk_op(builder: ir.IRBuilder, dtype: types.Type, path: str) -> tuple[ir.V
         load = ir.VectorType(_I64, width // 8)
         ctpop = _declare(builder, f"llvm.ctpop.v{width // 8}i64", load, load)
         return load, load, lambda b, x, y: b.call(ctpop, [b.xor(x, y)])
-    load = ir.VectorType(_F32, width // 4)
-    fabs = _declare(builder, f"llvm.fabs.v{width // 4}f32", load, load)
+    # float32: one chunk's 16 lanes whatever the vector width, so that each lane sums the same
+    # values in the same order and the ordered reduction (_reduce) adds the lanes alike on every
+    # CPU: a narrower width's own lanes would sum in another order (SPEC section 11)
+    load = ir.VectorType(_F32, CHUNK_BYTES // 4)
+    fabs = _declare(builder, f"llvm.fabs.v{load.count}f32", load, load)
     return load, load, lambda b, x, y: b.call(fabs, [b.fsub(x, y)])
 
 
