@@ -277,6 +277,8 @@ def test_output_shape_model_and_params() -> None:
     assert dec.params["particles"] == 300 and dec.params["method"] == "catgraph"
     assert 0.02 <= dec.params["learned_a"] < 1.0 and 0 < dec.params["departure_share"] <= 1
     assert calls[-1] == (truth.size, truth.size) and len(calls) == truth.size
+    learned = (dec.params["learned_a"], dec.params["departure_share"])  # the table's 9 digits, not a CPU's last bits
+    assert [float(f"{value:.9g}") for value in learned] == list(learned)
 
 
 @pytest.mark.parametrize("kwargs, where", [

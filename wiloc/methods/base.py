@@ -267,8 +267,11 @@ class Method(ABC):
         return {}
 
     def header(self) -> dict[str, Any]:
-        """The results header's ``params``: the method, its declared parameters and its facts."""
-        return {"method": self.name, **self.params.as_dict(), **self.facts()}
+        """The results header's ``params``: the method, its declared parameters and its facts, a
+        float fact with the results table's 9 significant digits (a learned value's last bits
+        follow numpy's logarithm, whose vector loops differ between CPUs: SPEC section 11)."""
+        facts = {key: float(f"{value:.9g}") if isinstance(value, float) else value for key, value in self.facts().items()}
+        return {"method": self.name, **self.params.as_dict(), **facts}
 
     def state(self) -> dict[str, Any]:
         """Everything :meth:`restore` needs to continue with identical decisions: numpy arrays and
