@@ -104,6 +104,7 @@ def test_journal_survives_a_torn_record_and_folds_into_the_entry(tmp_path: Path)
     stored = cache.read_stored(header.key)
     assert stored is not None and stored.journaled and not stored.complete
     assert sorted(stored.records) == ["f0.png", "f1.png", "f2.png"]
+    assert cache.repairs == []  # a record cut short by a kill is expected, not damage
     [info] = cache.list_entries()
     assert (info.frames, info.complete, info.key) == (3, False, header.key)
 
@@ -260,6 +261,25 @@ def test_list_entries_shows_an_entry_whose_journal_cannot_be_read(tmp_path: Path
     monkeypatch.setattr(store, "scan_journal", refused)
     info = {i.key: i for i in cache.list_entries()}[other.header.key]
     assert info.descriptor == "unreadable" and info.problem == f"{journal}: unreadable (Permission denied)"
+
+
+def test_a_journal_damaged_in_its_middle_is_noted_and_its_later_frames_described_again(tmp_path: Path) -> None:
+    """Bytes overwritten inside the journal (not a record cut short at its end): the records
+    before the damage are used, the rest left to be described again, with a line that says so."""
+    cache = Cache(tmp_path / "c")
+    header = _header()
+    journal = cache.open_journal(header)
+    for i in range(5):
+        journal.append(_record(f"f{i}.png", i))
+    journal.close()
+    path = cache.journal_path(header.key)
+    blob = bytearray(path.read_bytes())
+    blob[len(blob) * 3 // 5] ^= 0xFF  # inside the fourth record or so
+    path.write_bytes(bytes(blob))
+    stored = cache.read_stored(header.key)
+    assert stored is not None and not stored.complete and 0 < len(stored.records) < 5
+    assert cache.repairs == [f"{path}: a record after the first {len(stored.records)} frame(s) failed its checksum "
+                             "(the file is damaged); the frames after them described again"]
 
 
 def test_timestamps_round_trip_through_journal_and_file(tmp_path: Path) -> None:

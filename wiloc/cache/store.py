@@ -137,6 +137,19 @@ def scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], int
     return header, records, offset
 
 
+def _damaged_after(path: Path, valid: int) -> bool:
+    """Whether the journal holds a whole record after its ``valid`` bytes that failed its check:
+    damage, where a run killed while writing leaves a record cut short (ignored, as expected)."""
+    with suppress(OSError), path.open("rb") as handle:
+        size = os.fstat(handle.fileno()).st_size
+        handle.seek(valid)
+        head = handle.read(_RECORD.size)
+        if len(head) == _RECORD.size:
+            magic, length, _ = _RECORD.unpack(head)
+            return magic != _MAGIC or valid + _RECORD.size + length <= size
+    return False
+
+
 def _open_no_follow(path: Path, flags: int, mode: int = 0o666) -> int:
     """A descriptor on ``path`` opened without following a symbolic link: a link found there
     (wiloc never makes one) is removed, not written through, and a regular file made instead."""
@@ -353,9 +366,12 @@ class Cache:
                 elif stored.dropped:
                     self.repairs.append(f"{path}: {stored.dropped} frame(s) failed their checksum (the file is "
                                         "damaged); described again")
-        header, records, _ = scan_journal(self.journal_path(key))
+        header, records, valid = scan_journal(self.journal_path(key))
         if header is None:
             return stored
+        if _damaged_after(self.journal_path(key), valid):
+            self.repairs.append(f"{self.journal_path(key)}: a record after the first {len(records)} frame(s) failed "
+                                "its checksum (the file is damaged); the frames after them described again")
         if stored is None or stored.header != header:
             stored = StoredEntry(header, created=now())
         stored.records.update((r.name, r) for r in records)
