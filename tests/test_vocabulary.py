@@ -195,6 +195,8 @@ def test_a_vocabulary_key_as_bows_file_tells_how_to_find_its_file(tmp_path: Path
         get_descriptor("bow", file=key)
     assert err.value.parameter == "file"
     assert get_descriptor("bow", file=api.vocabulary_file(key, Cache(cache_dir))).params["vocabulary"] == key
+    with pytest.raises(ValueError, match=re.escape("got None; vocabulary= is the key read from that file, got '/v.h5'")):
+        get_descriptor("bow", vocabulary="/v.h5")  # the file given where its key goes
 
 
 def test_orb_vocabulary_and_unreadable_frames(tmp_path: Path, cache_dir: Path) -> None:

@@ -72,8 +72,10 @@ class Bow(Descriptor):
 
         check_names(cls.name, given, [d.name for d in declared(cls.Params)])
         if not isinstance(given.get("file"), (str, Path)):
+            named = given.get("vocabulary")  # the key, read from the file: a file given there is misplaced
+            hint = f"; vocabulary= is the key read from that file, got {named!r}" if named is not None else ""
             raise ValueError(f"bow needs file=<vocabulary .h5 file> (of a key in the cache: "
-                             f"wiloc.api.vocabulary_file(KEY)); got {given.get('file')!r}")
+                             f"wiloc.api.vocabulary_file(KEY)); got {given.get('file')!r}{hint}")
         file = Path(given["file"]).expanduser().resolve()
         if not file.exists() and str(given["file"]).isalnum():  # a vocabulary's key, as --vocabulary takes
             raise ParameterError("file", f"{given['file']!r} is no vocabulary file; the file of a vocabulary key in "
