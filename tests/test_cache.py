@@ -90,14 +90,19 @@ def test_lock_rejects_names_outside_the_cache(tmp_path: Path) -> None:
             pass
 
 
+def _journal(cache: Cache, header: EntryHeader, frames: int) -> Path:
+    """A journal of ``frames`` records (f0.png, f1.png, ...), as a run killed after them leaves it."""
+    journal = cache.open_journal(header)
+    for i in range(frames):
+        journal.append(_record(f"f{i}.png", i))
+    journal.close()
+    return cache.journal_path(header.key)
+
+
 def test_journal_survives_a_torn_record_and_folds_into_the_entry(tmp_path: Path) -> None:
     cache = Cache(tmp_path / "c")
     header = _header()
-    journal = cache.open_journal(header)
-    for i in range(3):
-        journal.append(_record(f"f{i}.png", i))
-    journal.close()
-    path = cache.journal_path(header.key)
+    path = _journal(cache, header, 3)
     whole = path.stat().st_size
     with open(path, "ab") as f:  # a kill in the middle of the fourth record
         f.write(b"WJR1\x40\x00\x00\x00garbage")
@@ -268,11 +273,7 @@ def test_a_journal_damaged_in_its_middle_is_noted_and_its_later_frames_described
     before the damage are used, the rest left to be described again, with a line that says so."""
     cache = Cache(tmp_path / "c")
     header = _header()
-    journal = cache.open_journal(header)
-    for i in range(5):
-        journal.append(_record(f"f{i}.png", i))
-    journal.close()
-    path = cache.journal_path(header.key)
+    path = _journal(cache, header, 5)
     blob = bytearray(path.read_bytes())
     blob[len(blob) * 3 // 5] ^= 0xFF  # inside the fourth record or so
     path.write_bytes(bytes(blob))
