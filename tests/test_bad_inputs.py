@@ -240,6 +240,7 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
     (tmp / "links" / "a.png").symlink_to(tmp / "gone.png")
     (tmp / "odo.csv").write_text("name,distance\nimg0.png,0\n")
     np.save(tmp / "objects.npy", np.array([{"a": 1}], dtype=object))
+    (tmp / "v99.csv").write_text(results.read_text().replace("# wiloc-results: 1\n", "# wiloc-results: 99\n", 1))
     return {
         "missing folder": (["describe", str(tmp / "nope")], "folder does not exist"),
         "a text file": (["describe", str(tmp / "notes.txt")], "a .txt file is not a traversal: describe takes folders"),
@@ -264,6 +265,13 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
         "map of one frame": (["localize", str(ref), "--map", str(tmp / "single")], "it needs at least 2"),
         "odometry": (["localize", str(ref), "--map", str(ref), "--method", "catgraph", "--odometry", str(tmp / "odo.csv"),
                       "--map-odometry", str(tmp / "odo.csv")], "no odometry for 29 frame(s)"),
+        "odometry folder": (["localize", str(ref), "--map", str(ref), "--method", "catgraph", "--odometry", str(tmp),
+                             "--map-odometry", str(tmp)], f"error: {tmp}: a folder, not an odometry CSV file"),
+        "missing odometry": (["localize", str(ref), "--map", str(ref), "--method", "catgraph", "--odometry",
+                              str(tmp / "none.csv"), "--map-odometry", str(tmp / "none.csv")],
+                             f"error: {tmp / 'none.csv'}: file does not exist"),
+        "results format version": (["evaluate", str(tmp / "v99.csv")], "line 1: results format version '99' is not "
+                                   "one this wiloc reads (it reads 1)"),
         "an image as map": (["localize", str(ref), "--map", str(ref / "img0.png")],
                             f"{ref / 'img0.png'}: an image file is not a traversal: give a folder of images, a video"),
         "object array": (["describe", "--import", str(tmp / "objects.npy")],
@@ -276,7 +284,8 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
 CASES = ("missing folder", "a text file", "no images", "only broken links", "only bad images", "h5 names not utf-8", "nan descriptors",
          "missing matrix", "unknown matrix format", "not a video", "missing results", "foreign csv", "text confidence",
          "text ground truth", "ground truth shape", "pairs columns", "positions file", "map of one frame", "odometry",
-         "an image as map", "object array", "object array ground truth")
+         "odometry folder", "missing odometry", "results format version", "an image as map", "object array",
+         "object array ground truth")
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -1167,6 +1176,8 @@ def _bad_truth_files(folder: Path) -> None:
         (folder / name).write_bytes(b"")
     (folder / "text.npy").write_text("img0.png,img0.png\n")
     (folder / "garbage.mat").write_bytes(b"MATLAB 5.0 MAT-file, cut short")
+    (folder / "ragged.csv").write_text("1,0,0\n0,1,0\n\n0,1\n")
+    (folder / "header.csv").write_text("query,reference\n")
 
 
 @pytest.mark.parametrize("gt, message", [
@@ -1177,13 +1188,15 @@ def _bad_truth_files(folder: Path) -> None:
     ("vprbench:{tmp}/empty.npy", "{tmp}/empty.npy: the file is empty (0 bytes)"),
     ("matrix:{tmp}/text.npy", "{tmp}/text.npy: cannot read matrix (no NumPy array header: not an .npy array"),
     ("matrix:{tmp}/garbage.mat", "{tmp}/garbage.mat: cannot read matrix"),
+    ("matrix:{tmp}/ragged.csv", "{tmp}/ragged.csv: cannot read matrix (line 4 has 2 values where line 1 has 3)"),
+    ("pairs:{tmp}/header.csv", "{tmp}/header.csv: holds no pairs, only its header line: list each true match"),
 ])
 def test_empty_and_unreadable_ground_truth_files_are_one_line(gt: str, message: str, results: Path,
                                                               tmp_path: Path) -> None:
     _bad_truth_files(tmp_path)
     result = runner.invoke(app, ["evaluate", str(results), "--gt", gt.format(tmp=tmp_path)])
     ends_in_one_error(result, 1, message.format(tmp=tmp_path))
-    assert "allow_pickle" not in result.stderr and "unsafely" not in result.stderr
+    assert "allow_pickle" not in result.stderr and "unsafely" not in result.stderr and "usecols" not in result.stderr
 
 
 def test_a_matrix_csv_with_a_byte_order_mark_is_read(results: Path, tmp_path: Path) -> None:
@@ -1518,6 +1531,26 @@ def test_observe_takes_a_path_given_as_bytes(localizers: dict[str, Localizer], r
     with pytest.raises(FrameError, match=re.escape(f"{tmp_path}/Image\\xff.png: file name is not valid UTF-8")):
         loc.observe(bad)
     assert loc.frames == 1
+
+
+@pytest.mark.parametrize(("args", "missing", "kind"), [
+    (["localize", "{tmp}/queries.h5", "--map", "{ref}"], "queries.h5", "file"),
+    (["localize", "{ref}", "--map", "{tmp}/database.npz"], "database.npz", "file"),
+    (["localize", "{tmp}/q.npy", "--map", "{tmp}/m.npy"], "q.npy", "file"),
+    (["describe", "{tmp}/descriptors.H5"], "descriptors.H5", "file"),
+    (["describe", "{tmp}/frame.jpg"], "frame.jpg", "file"),
+    (["vocabulary", "{tmp}/route.mp4"], "route.mp4", "file"),
+    (["vocabulary", "{tmp}/run.bag"], "run.bag", "file"),
+    (["describe", "{tmp}/day_left.v2"], "day_left.v2", "folder"),  # a dot in a folder's name: a folder still
+    (["localize", "{tmp}/day_left", "--map", "{ref}"], "day_left", "folder"),
+])
+def test_a_missing_file_given_as_a_traversal_is_said_to_be_a_file(args: list[str], missing: str, kind: str,
+                                                                  route: tuple[Path, Path], tmp_path: Path) -> None:
+    """A traversal path that does not exist is a missing file when its suffix names a file wiloc reads
+    (a descriptor matrix, an image, a video, a ROS bag), else a missing folder."""
+    ref, _ = route
+    given = [arg.format(tmp=tmp_path, ref=ref) for arg in args]
+    ends_in_one_error(runner.invoke(app, given), 1, f"error: {tmp_path / missing}: {kind} does not exist")
 
 
 @pytest.mark.parametrize("query", ["missing", "img0.png"])

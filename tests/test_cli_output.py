@@ -338,6 +338,39 @@ def test_every_json_output_carries_the_lines_printed_on_stderr(tmp_path: Path, c
     assert f"note: replaced the existing file {csv}" in said["evaluate"]
 
 
+def test_json_names_frames_left_out_by_their_absolute_paths(tmp_path: Path, cache_dir: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """Folders given relative to the working folder: --json's frame paths (localize's ``skipped``,
+    vocabulary's ``failed``, the skipped lines in ``warnings`` and on stderr, a followed run's
+    stream) are absolute, as docs/formats.md says; describe names the frame in its ``folder``; the
+    line without --json names the frame as the folder was given."""
+    _route(tmp_path)
+    (tmp_path / "query" / "img3.png").write_text("not an image")
+    bad = str((tmp_path / "query" / "img3.png").resolve())
+    monkeypatch.chdir(tmp_path)
+
+    def shown(*args: str) -> tuple[dict[str, Any], list[str]]:
+        result = runner.invoke(app, [*args, "--json"])
+        assert result.exit_code == 0, result.output
+        if "--follow" in args:  # one object per line: the first holding warnings is the frame left out
+            return next(d for d in map(json.loads, result.stdout.splitlines()) if "warnings" in d), []
+        return json.loads(result.stdout), result.stderr.splitlines()
+
+    run, stderr = shown("localize", "query", "--map", "ref", "--out", "run.csv", "--jobs", "1")
+    assert [item[0] for item in run["runs"][0]["skipped"]] == [bad]
+    assert run["warnings"] == [f"skipped: {bad}: {run['runs'][0]['skipped'][0][1]}"]
+    assert stderr == [line.replace(": ", " ", 1) for line in run["warnings"]]
+    made, _ = shown("vocabulary", "query", "--words", "4", "--max-side", "96")
+    assert [item[0] for item in made["results"][0]["failed"]] == [bad] and made["warnings"][0].startswith(f"skipped: {bad}: ")
+    described, _ = shown("describe", "query", "--jobs", "1")
+    (row,) = described["results"]
+    assert (row["folder"], [name for name, _ in row["failed_frames"]]) == (str(Path("query").resolve()), ["img3.png"])
+    followed, _ = shown("localize", "query", "--map", "ref", "--out", "live.csv", "--follow", "--idle", "1")
+    assert followed["warnings"][0].startswith(f"skipped: {bad}: ")
+    table = runner.invoke(app, ["localize", "query", "--map", "ref", "--out", "run.csv", "--jobs", "1"])
+    assert table.exit_code == 0 and table.stderr.startswith(f"skipped {Path('query', 'img3.png')}: "), table.output
+
+
 def _recalls_at_cuts(text: str) -> list[str]:
     """The recall lines of a table's cut cells (``R 0.250``, ``R -``), in order."""
     return re.findall(r"(?<![\w@])R (-|\d\.\d{3})", text)

@@ -141,6 +141,9 @@ def test_the_table_and_compare_say_which_frames_were_scored(tmp_path: Path) -> N
     assert compared.exit_code == 0, compared.output
     shown = json.loads(compared.stdout)
     assert shown["frame_slice"] == ":4" and [run["frames"] for run in shown["runs"]] == [4, 4]
+    # each run says its slice and its frames, as evaluate's runs do (the schema's evaluated_run)
+    assert [(run["frame_slice"], run["run_frames"]) for run in shown["runs"]] == [(":4", len(NAMES))] * 2
+    OUTPUT_SCHEMA.validate(shown)
     assert "frame_slice" not in json.loads(runner.invoke(app, ["evaluate", str(written), "--json"]).stdout)
 
 
@@ -155,7 +158,8 @@ def test_the_output_schema_declares_the_slice_and_the_runs_frames(tmp_path: Path
 
 
 @pytest.mark.parametrize(("frames", "problem"), [
-    ("a:b", "'a:b': give START:STOP"), ("1:2:3", "'1:2:3' (a step is not taken)"), ("20", "'20': give START:STOP"),
+    ("a:b", "'a:b': give START:STOP"), ("1:2:3", "'1:2:3' (a step is not taken)"),
+    ("1:3,5:7", "'1:3,5:7' (one slice is taken, not a list of them)"), ("20", "'20': give START:STOP"),
     ("1.5:", "'1.5:': give START:STOP"), ("300:", f"'300:' selects none of the {len(NAMES)} frames of the run "),
     ("8:4", f"'8:4' selects none of the {len(NAMES)} frames"),
 ])

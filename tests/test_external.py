@@ -372,3 +372,19 @@ def test_a_descriptor_for_matrix_files_is_refused_not_recorded(tmp_path: Path, c
         assert err.value.parameter == parameter
     run = api.localize(tmp_path / "query.npy", reference=tmp_path / "map.npy", metric="l1", method="threshold")
     assert run.results.header.descriptor == "external:l1"
+
+
+def test_a_csv_whose_header_holds_fewer_columns_says_which_line_has_how_many(tmp_path: Path) -> None:
+    """Numbers and names of the file's own lines, not pandas' tokenizer's words."""
+    path = _csv(tmp_path / "m.csv", [["name", "descriptor"], ["a.png", 1, 2, 3], ["b.png", 4, 5, 6]])
+    with pytest.raises(WilocError, match=r"m\.csv: line 2 has 4 values where line 1 has 2: a header line\? a \.csv "
+                                         r"matrix holds a frame's name and its values on each line \(name,d0,d1,\.\.\.\)"):
+        read_external(path, None, "l1")
+
+
+def test_a_blank_line_among_the_names_is_pointed_at(tmp_path: Path) -> None:
+    np.save(tmp_path / "m.npy", _matrix())
+    (tmp_path / "names.txt").write_text("a.png\n\nc.png\n\n")
+    with pytest.raises(WilocError, match=r"names\.txt: 2 frame names for 3 descriptor rows \(line 2 is empty: each "
+                                         r"descriptor row's name goes on a line of its own\)$"):
+        read_external(tmp_path / "m.npy", tmp_path / "names.txt", "l1")

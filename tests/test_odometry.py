@@ -89,8 +89,12 @@ def test_missing_frame_raises(tmp_path: Path) -> None:
 
 
 def test_unreadable_file_raises(tmp_path: Path) -> None:
-    with pytest.raises(WilocError, match="cannot read"):
+    """A missing file or a folder is said so once, in a line naming its path once."""
+    with pytest.raises(WilocError, match=r"absent\.csv: file does not exist$") as err:
         read_odometry(tmp_path / "absent.csv")
+    assert str(err.value).count("absent.csv") == 1
+    with pytest.raises(WilocError, match=r": a folder, not an odometry CSV file$"):
+        read_odometry(tmp_path)
     binary = tmp_path / "bin.csv"
     binary.write_bytes(b"\xff\xfe\x00\x81")
     with pytest.raises(WilocError, match="cannot read"):

@@ -1,5 +1,6 @@
-"""Checks on text that users give by hand: whether a CSV cell is a number (a header line or a
-line of data?), whether frame names are usable (text, non-empty, each once), why the names a
+"""Checks on text that users give by hand: whether a file given is a file that holds something,
+which line of a CSV of numbers holds another count of them, whether a CSV cell is a number (a
+header line or a line of data?), whether frame names are usable (text, non-empty, each once), why the names a
 file gives match no frame, whether GPS degrees are in range, and the conventions their CSVs
 share (other names of columns, the Earth radius for GPS degrees). The ground-truth readers, odometry, imported descriptor matrices
 and maps held in memory share them, so that each problem reads the same wherever it is found."""
@@ -28,6 +29,32 @@ def check_file_path(value: object, parameter: str) -> None:
     object), before pathlib's TypeError says so of a number, a list or None."""
     if not isinstance(value, (str, os.PathLike)):
         raise ParameterError(parameter, f"a file's path (text or a path object), got {type(value).__name__}")
+
+
+def check_file(path: Path) -> None:
+    """A WilocError naming ``path`` unless it is a regular file that holds something: no such
+    file, not one (a folder, a device such as /dev/null), or an empty one."""
+    if not path.is_file():
+        raise WilocError(path, "not a regular file" if path.exists() else "no such file")
+    if path.stat().st_size == 0:
+        raise WilocError(path, "the file is empty (0 bytes)")
+
+
+def uneven_line(path: Path) -> str | None:
+    """The first non-blank line of a CSV of numbers holding another count of values than its
+    first line, in words (``line 7 has 5 values where line 1 has 20``), or None: a table of
+    numbers needs as many on every line, and numpy's own words for it name its parameters."""
+    first: tuple[int, int] | None = None
+    with path.open(encoding="utf-8-sig", errors="replace") as handle:
+        for n, line in enumerate(handle, 1):
+            if not line.strip():
+                continue
+            count = line.count(",") + 1
+            if first is None:
+                first = (n, count)
+            elif count != first[1]:
+                return f"line {n} has {count} values where line {first[0]} has {first[1]}"
+    return None
 
 
 def is_number(text: str) -> bool:

@@ -56,6 +56,13 @@ def print_line(text: str) -> None:
     out.print(escape(text), highlight=False)
 
 
+def absolute_frame(path: str | Path) -> str:
+    """A frame's path as --json gives it (docs/formats.md: paths are absolute): its folder (or
+    video, or bag) resolved, its own name kept (a link to an image is named as the folder lists it)."""
+    path = Path(path)
+    return str(path.parent.resolve() / path.name)
+
+
 def note(kind: str, message: str) -> None:
     """One unwrapped line on stderr about something left out or worth knowing."""
     err.print(f"[yellow]{kind}[/yellow] {escape(message)}", highlight=False, soft_wrap=True)

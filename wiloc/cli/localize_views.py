@@ -8,12 +8,13 @@ import json
 import statistics
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.table import Table
 
-from wiloc.cli.core import Notes, out, print_line
+from wiloc.cli.core import Notes, absolute_frame, out, print_line
 from wiloc.cli.options import replacing
 from wiloc.cli.views import cell, fit, json_ready, print_command_json, table
 from wiloc.labels import short_names
@@ -27,7 +28,8 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
     """The runs of one `localize` as a table (or JSON), each with its cache repairs (``repairs``)
     and its notes, skipped frames and warnings, each said once; with ``model_plot``, the run's
     learned histograms drawn there (the command line gives it one run then); ``cautions``, the
-    warnings said before the runs, lead the --json warnings."""
+    warnings said before the runs, lead the --json warnings. With --json, skipped frames are
+    named by their absolute paths (:func:`absolute_frame`), on stderr too."""
     shown = set()
     rows, notes = [], []
     for label, run, repaired in zip(short_names([r.query for r in runs]), runs, repairs):
@@ -37,7 +39,7 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
             shown.add(("note", line))
         for path, reason in run.skipped:
             if (path, reason) not in shown:
-                said.add("skipped", f"{path}: {reason}")
+                said.add("skipped", f"{absolute_frame(path) if as_json else path}: {reason}")
             shown.add((path, reason))
         if run.replaced:
             said.add("note", f"replaced the existing results file {run.path}")
@@ -58,7 +60,8 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
         print_command_json("localize", "runs", [
             {**row, "descriptor": run.results.header.descriptor, "traversal": row["query"],
              "query": str(run.query.resolve()), "results": str(run.path.resolve()),
-             "skipped": [list(item) for item in run.skipped]} for row, run in zip(rows, runs)],
+             "skipped": [[absolute_frame(path), reason] for path, reason in run.skipped]}
+            for row, run in zip(rows, runs)],
             [*cautions, *(line for said in notes for line in said)])
         return
     for row in rows:
@@ -121,8 +124,8 @@ def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
                 else:
                     print(f"{_field(event.frame)}\t{_field(event.match_name or '-')}\t{cell(event.confidence)}\t"
                           f"{cell(event.new_place)}\t{event.stage}", flush=True)
-            else:
-                notes.add(event.kind, str(event))
+            else:  # --json names the file by its absolute path, as every --json does
+                notes.add(event.kind, str(replace(event, path=Path(absolute_frame(event.path))) if as_json else event))
                 if as_json:  # the line on stderr, as every --json carries it
                     print(json.dumps({"warnings": notes[-1:]}), flush=True)
     if live is None and not as_json and run.idle is not None:

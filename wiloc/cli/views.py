@@ -27,6 +27,7 @@ from rich.table import Table
 
 from wiloc.candidates import RANKED
 from wiloc.cli.core import err, out
+from wiloc.cli.scoring import slice_columns
 from wiloc.evaluation.reliability import NEW_PLACE_KEYS
 from wiloc.labels import threshold_text
 from wiloc.reprs import number_label
@@ -402,8 +403,9 @@ def run_records(comparison: api.Comparison) -> list[dict[str, Any]]:
 
 def compared_runs(comparison: api.Comparison) -> list[dict[str, Any]]:
     """A comparison's runs as compare's and demo's --json give them: :func:`run_records`, each
-    with the warnings its ground truth gave (``truth_warnings``, as evaluate's --json)."""
-    return [{**record, "truth_warnings": e.truth.warnings}
+    with the warnings its ground truth gave (``truth_warnings``) and, scored on a slice of its
+    frames, ``frame_slice`` and ``run_frames`` (:func:`slice_columns`), as evaluate's --json."""
+    return [{**record, **slice_columns(e), "truth_warnings": e.truth.warnings}
             for record, e in zip(run_records(comparison), comparison.evaluations)]
 
 

@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from wiloc.atomic import written_whole
 from wiloc.descriptors.base import METRICS
 from wiloc.errors import WilocError, load_problem
-from wiloc.given import check_frame_names  # also the check of a map's names held in memory
+from wiloc.given import check_frame_names, uneven_line  # check_frame_names: also of a map's names held in memory
 from wiloc.object_arrays import read_npy, read_npz
 from wiloc.sources.frames import natural_sorted
 
@@ -97,6 +97,16 @@ def read_names(path: Path) -> list[str]:
     if not names:
         raise WilocError(path, "no frame names")
     return names
+
+
+def _blank_line(path: Path) -> int | None:
+    """The first empty line of a text file of names that stands among names (not after the
+    last), which :func:`read_names` skips: a name left out that leaves a row unnamed."""
+    if path.suffix.lower() == ".npy":
+        return None
+    lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
+    filled = [n for n, line in enumerate(lines, 1) if line.strip()]
+    return next((n for n, line in enumerate(lines, 1) if not line.strip() and filled and n < filled[-1]), None)
 
 
 def _npy_names(path: Path) -> list[str]:
@@ -288,6 +298,10 @@ def _read_csv(path: Path) -> tuple[NDArray, list[str]]:
     try:
         table = pd.read_csv(path, header=None, dtype=str, keep_default_na=False, encoding="utf-8-sig")
     except (OSError, ValueError, pd.errors.ParserError) as exc:
+        uneven = isinstance(exc, pd.errors.ParserError) and uneven_line(path)
+        if uneven:
+            raise WilocError(path, f"{uneven}: a header line? a .csv matrix holds a frame's name and its values on "
+                                   "each line (name,d0,d1,...), a header, if any, naming as many columns") from None
         raise WilocError(path, f"not a readable CSV table ({exc})") from exc
     if table.shape[1] < 2:
         first = str(table.iloc[0, 0]) if table.size else ""
@@ -435,6 +449,8 @@ def read_external(
                   "transpose, one row per frame)" if len(names) == matrix.shape[1] else
                   f" (is the first, {names[0]!r}, a header? only {', '.join(sorted(_NAME_HEADERS))} are known as one)"
                   if len(names) == matrix.shape[0] + 1 and names_path is not None else "")
+        blank = names_path is not None and len(names) < matrix.shape[0] and _blank_line(Path(names_path))
+        turned = f" (line {blank} is empty: each descriptor row's name goes on a line of its own)" if blank else turned
         raise WilocError(where, f"{len(names)} frame names for {matrix.shape[0]} descriptor rows{turned}")
     if prefix:
         keep = [i for i, name in enumerate(names) if name.startswith(prefix)]

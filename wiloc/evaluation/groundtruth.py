@@ -26,7 +26,8 @@ from scipy.spatial import cKDTree
 
 from wiloc.errors import ParameterError, WilocError, load_problem
 from wiloc.evaluation.truth_warnings import QueryFramesWarning, query_frames_without, unmatched
-from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, check_lat_lon, check_metres, why_unmatched
+from wiloc.given import (COLUMN_NAMES, EARTH_RADIUS_M, check_file, check_lat_lon, check_metres, uneven_line,
+                         why_unmatched)
 from wiloc.reprs import short_repr
 
 KINDS = ("aligned", "positions", "pairs", "matrix", "vprbench", "positives", "utm-names", "exif")
@@ -187,15 +188,6 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
     warnings = query_frames_without(where, ~found, "query frames have no reference frame to align with")
     rows, cols = _band(np.flatnonzero(found).astype(np.int64), centres[found], tol, len(ref_names))
     return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
-
-
-def check_file(path: Path) -> None:
-    """A WilocError naming ``path`` unless it is a regular file that holds something: no such
-    file, not one (a folder, a device such as /dev/null), or an empty one."""
-    if not path.is_file():
-        raise WilocError(path, "not a regular file" if path.exists() else "no such file")
-    if path.stat().st_size == 0:
-        raise WilocError(path, "the file is empty (0 bytes)")
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
@@ -370,6 +362,9 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     path = Path(csv)
     frame = _read_csv(path)
     _require_columns(path, frame, ["query", "reference"], "query,reference")
+    if frame.empty:
+        raise WilocError(path, "holds no pairs, only its header line: list each true match below it as a line "
+                               "query,reference")
     _no_duplicates(path, frame, ["query", "reference"])
     if "tolerance" in frame.columns:
         tol = _numeric(path, frame, ["tolerance"])[:, 0]
@@ -434,7 +429,8 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
     except (ValueError, OSError, NotImplementedError, EOFError, IndexError, scipy.io.matlab.MatReadError) as exc:
         hint = ("; an array of reference indices per query is the positives form, VPR-Bench's "
                 "ground_truth_new.npy the vprbench form" if str(exc).startswith("Object arrays") else "")
-        raise WilocError(path, f"cannot read matrix ({load_problem(exc)}){hint}") from exc
+        problem = suffix == ".csv" and isinstance(exc, ValueError) and uneven_line(path) or load_problem(exc)
+        raise WilocError(path, f"cannot read matrix ({problem}){hint}") from exc
     raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv, .npz or .mat")
 
 

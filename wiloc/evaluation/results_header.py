@@ -177,8 +177,12 @@ def parse_header(lines: Iterable[str], path: Path | None) -> ResultsHeader:
         except json.JSONDecodeError as exc:
             raise WilocError(path, f"line {n}: header '{key}' is not valid JSON ({exc.msg})") from None
         where[key] = n
-    if values.pop(VERSION_KEY, None) != FORMAT_VERSION:
-        raise WilocError(path, "not a wiloc results file (no '# wiloc-results: 1' header)")
+    version = values.pop(VERSION_KEY, None)
+    if version is None:
+        raise WilocError(path, f"not a wiloc results file (no '# {VERSION_KEY}: {FORMAT_VERSION}' header)")
+    if version != FORMAT_VERSION:
+        raise WilocError(path, f"line {where[VERSION_KEY]}: results format version {version!r} is not one this wiloc "
+                               f"reads (it reads {FORMAT_VERSION})")
     known = {f.name for f in fields(ResultsHeader)} - {"extra"}
     typed = {}
     for key, value in values.items():

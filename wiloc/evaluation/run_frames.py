@@ -31,15 +31,17 @@ _EXAMPLES = "give START:STOP as in Python, e.g. 20: (from the 21st frame on), :2
 def check_frames(frames: slice | str | None) -> slice | None:
     """The frames of each run to score, as a slice of its frames in the run's order (None: every
     frame), given as a slice or as its text (``20:``, ``:20``, ``100:300``; a negative number
-    counts from the end, as in Python). Anything else (a step, a bound that is no whole number,
-    a number alone, which could mean a frame or a count) is a ParameterError naming ``frames``."""
+    counts from the end, as in Python). Anything else (a step, a list of slices, a bound that is no
+    whole number, a number alone, which could mean a frame or a count) is a ParameterError naming
+    ``frames``."""
     if frames is None:
         return None
     if isinstance(frames, str):
         found = _SLICE.fullmatch(frames)
         if found is None:
-            step = frames.count(":") > 1 and " (a step is not taken)"
-            raise ParameterError("frames", f"'{frames}'{step or ''}: {_EXAMPLES}")
+            why = (" (one slice is taken, not a list of them)" if "," in frames else
+                   " (a step is not taken)" if frames.count(":") > 1 else "")
+            raise ParameterError("frames", f"'{frames}'{why}: {_EXAMPLES}")
         frames = slice(*(None if bound is None else int(bound) for bound in found.groups()))
     if not isinstance(frames, slice) or frames.step is not None or \
             any(b is not None and (isinstance(b, (bool, np.bool_)) or not isinstance(b, (int, np.integer)))

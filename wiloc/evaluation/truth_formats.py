@@ -13,10 +13,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.errors import WilocError
-from wiloc.evaluation.groundtruth import (Positions, Truth, TruthMismatch, check_file, name_index, truth_from_pairs,
-                                          truth_within)
+from wiloc.evaluation.groundtruth import Positions, Truth, TruthMismatch, name_index, truth_from_pairs, truth_within
 from wiloc.evaluation.truth_warnings import query_frames_without
-from wiloc.given import check_metres
+from wiloc.given import check_file, check_metres
 from wiloc.object_arrays import npy_header, read_npy
 
 DEFAULT_RADIUS_M = 25.0

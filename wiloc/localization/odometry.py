@@ -113,7 +113,13 @@ def read_odometry(path: str | Path) -> Odometry:
         with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = [(n, row) for n, row in enumerate(csv.reader(fh), start=1)
                     if row and any(cell.strip() for cell in row)]
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+    except IsADirectoryError:
+        raise WilocError(where, "a folder, not an odometry CSV file") from None
+    except FileNotFoundError:
+        raise WilocError(where, "file does not exist") from None
+    except OSError as exc:  # the path, which the message names first, not again in the OS's words
+        raise WilocError(where, f"cannot read odometry: {exc.strerror or exc}") from exc
+    except (UnicodeDecodeError, csv.Error) as exc:
         raise WilocError(where, f"cannot read odometry: {exc}") from exc
     columns, geographic = None, False
     if rows and not all(is_number(cell) for cell in rows[0][1][1:]):

@@ -190,9 +190,10 @@ def list_traversal(folder: Path) -> Traversal:
     """List a traversal folder: image files in natural order; hidden and non-image files and
     subfolders (not searched) ignored, image names that cannot be frames (:func:`unusable_reason`,
     :data:`OTHER_IMAGE_SUFFIXES`) listed with the reason."""
-    folder = Path(folder)
-    if not folder.exists():
-        raise WilocError(folder, "folder does not exist")
+    if not (folder := Path(folder)).exists():  # a missing x.h5, x.npy, x.mp4, x.jpg: a file given, said so
+        from wiloc.description.traversals import MATRIX_SUFFIXES, is_bag, is_video  # later modules: read only here
+        named = is_video(folder) or is_bag(folder) or folder.suffix.lower() in MATRIX_SUFFIXES | IMAGE_SUFFIXES
+        raise WilocError(folder, f"{'file' if named else 'folder'} does not exist")
     if folder.is_file():
         raise WilocError(folder, not_a_traversal(folder, "give a folder of images"))
     if not folder.is_dir():
