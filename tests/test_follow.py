@@ -19,7 +19,7 @@ from wiloc.errors import WilocError
 from wiloc.evaluation.results import read_results
 from wiloc.localization.follow import SETTLE_SECONDS, FolderWatch, Skipped, follow
 from wiloc.localization.localizer import Localizer
-from wiloc.sources.frames import natural_sorted
+from wiloc.sources.natural_order import natural_sorted
 
 CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
 

@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from wiloc.errors import FrameError, WilocError
-from wiloc.sources.frames import (Fingerprint, fingerprint, jpeg_size, list_traversal, natural_key, natural_sorted,
-                                  read_gray)
+from wiloc.sources.frames import Fingerprint, fingerprint, jpeg_size, list_traversal, read_gray
+from wiloc.sources.natural_order import natural_key, natural_sorted
 
 
 def _write(path: Path, image: np.ndarray, ext: str | None = None) -> Path:

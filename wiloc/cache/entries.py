@@ -23,7 +23,7 @@ import h5py
 import numpy as np
 
 from wiloc.reprs import short_repr
-from wiloc.sources.frames import natural_sorted
+from wiloc.sources.natural_order import natural_sorted
 from wiloc.version import __version__
 
 FORMAT = "wiloc-descriptors"

@@ -25,7 +25,8 @@ from wiloc.descriptors.registry import DescriptorSpec
 from wiloc.errors import ParameterError, WilocError
 from wiloc.reprs import short_repr
 from wiloc.sources.bags import Bag, bag_fingerprint, is_bag
-from wiloc.sources.frames import Traversal, list_traversal, natural_key, text_path
+from wiloc.sources.frames import Traversal, list_traversal, text_path
+from wiloc.sources.natural_order import natural_key
 from wiloc.sources.video import Sampling, Video, is_video, video_fingerprint
 
 if TYPE_CHECKING:

@@ -42,7 +42,7 @@ from wiloc.descriptors.base import METRICS
 from wiloc.errors import WilocError, load_problem
 from wiloc.given import check_frame_names, uneven_line  # check_frame_names: also of a map's names held in memory
 from wiloc.object_arrays import read_npy, read_npz
-from wiloc.sources.frames import natural_sorted
+from wiloc.sources.natural_order import natural_sorted
 
 METRIC_ATTRIBUTE = "metric"
 """The attribute of a wiloc descriptor file that records its metric."""

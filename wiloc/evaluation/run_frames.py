@@ -18,7 +18,7 @@ from wiloc.errors import ParameterError, WilocError
 from wiloc.evaluation.groundtruth import Truth
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.results_header import ResultsHeader, header_line, read_header
-from wiloc.sources.frames import natural_sorted
+from wiloc.sources.natural_order import natural_sorted
 
 #: The query traversal of a run in memory that records none (``Localizer.results()`` without ``query``).
 UNNAMED_QUERY = "unnamed"

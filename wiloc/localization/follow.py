@@ -19,8 +19,9 @@ from pathlib import Path
 from wiloc.decisions import Decision
 from wiloc.errors import FrameError, WilocError
 from wiloc.localization.localizer import Localizer
-from wiloc.sources.frames import (FORMAT_HEAD_BYTES, IMAGE_SUFFIXES, decimal_form, end_checked, natural_key,
-                                  shown_name, subfolders_hint, type_test, unusable_reason)
+from wiloc.sources.frames import (FORMAT_HEAD_BYTES, IMAGE_SUFFIXES, end_checked, shown_name, subfolders_hint,
+                                  type_test, unusable_reason)
+from wiloc.sources.natural_order import decimal_form, natural_key
 
 #: Seconds a stable (unchanging) file may stay undecodable before it is left out as bad: a writer
 #: that is slow to finish a file gets this long.
@@ -161,7 +162,7 @@ class FolderWatch:
 
     def _known(self, names: Iterable[str]) -> bool:
         """Whether dotted numbers still read as decimals once ``names`` are seen, as a batch run of
-        the folder decides it over every name (:func:`~wiloc.sources.frames.natural_sorted`):
+        the folder decides it over every name (:func:`~wiloc.sources.natural_order.natural_sorted`):
         not once two names seen so far differ only by a fraction's trailing zeros (numbering)."""
         if self._forms is not None:
             for name in names:

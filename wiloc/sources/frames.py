@@ -1,4 +1,4 @@
-"""Traversal folders: listing frames in natural order, fingerprints, and reading grayscale images.
+"""Traversal folders: listing frames in natural order (``natural_order``), fingerprints, and reading grayscale images.
 
 A frame is identified by its file name. ``read_gray`` decodes with OpenCV from bytes read by
 numpy (so non-ASCII names work) and, for JPEGs, uses libjpeg's reduced (DCT-scaled) decode when
@@ -16,14 +16,13 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
-from natsort import natsort_keygen, ns
 from numpy.typing import NDArray
 
 from wiloc.errors import FrameError, WilocError, shown_name
+from wiloc.sources.natural_order import natural_key, natural_sorted
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset(
     {".jpg", ".jpeg", ".jpe", ".jfif", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pbm", ".pnm", ".webp"}
@@ -62,64 +61,6 @@ _SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 #: crop it (gist, an onnx network's ``crop``) scale the long side by as much: a 1 x 100000 strip
 #: would take 26 GB; at this ratio gist's intermediate image is 64 MB.
 MAX_ASPECT = 256
-_NATURAL = natsort_keygen(alg=ns.IGNORECASE)
-_DIGITS_AS_ZERO = str.maketrans("123456789", "000000000")
-# A decimal number, ``1614000000.15``: digits, a point, digits, in no longer dotted run (``2021.3.15``).
-_DECIMAL = re.compile(r"(?<![\d.])(\d+\.)(\d+)(?!\d|\.\d)")
-_FRACTION_WIDTH = 32
-# A whole number in no dotted run: ``1614000000`` of ``1614000000.jpg``, a timestamp whose fraction
-# was all trailing zeros, is ``1614000000.0`` among decimals.
-_WHOLE = re.compile(r"(?<![\d.])(\d+)(?!\d|\.\d)")
-_ZERO_FRACTION = "." + "0" * _FRACTION_WIDTH
-
-
-def _fraction_padded(match: re.Match[str]) -> str:
-    return match[1] + match[2].ljust(_FRACTION_WIDTH, "0")
-
-
-def natural_key(name: str, decimals: bool = True) -> tuple[Any, str]:
-    """Sort key that orders digit runs by value, so ``img2`` comes before ``img10`` (natsort's,
-    ignoring case), and with ``decimals`` a decimal number's fraction as a fraction, so
-    ``1614000000.15`` (a timestamp written as a float) comes before ``1614000000.2``, and a whole
-    number as one of fraction 0, so ``1614000000`` (its zeros dropped with its point) comes before
-    both; names equal but for case or leading zeros keep one order by the name itself."""
-    if decimals:
-        name_key = _WHOLE.sub(lambda match: match[1] + _ZERO_FRACTION, _DECIMAL.sub(_fraction_padded, name))
-        return _NATURAL(name_key), name
-    return _NATURAL(name), name
-
-
-def reads_decimals(names: Iterable[str]) -> bool:
-    """Whether the dotted numbers in ``names`` can be decimal fractions: not when two names
-    differ only by a fraction's trailing zeros (``scene1.1``, ``scene1.10``), which numbering
-    (scene 1, frame 10) writes and a number written as a decimal never does."""
-    given = set(names)
-    return len({decimal_form(name) for name in given}) == len(given)
-
-
-def decimal_form(name: str) -> str:
-    """``name`` with its decimal fractions' trailing zeros dropped: two names of one form show
-    numbering (:func:`reads_decimals`)."""
-    return _DECIMAL.sub(_trailing_zeros_dropped, name)
-
-
-def _trailing_zeros_dropped(match: re.Match[str]) -> str:
-    return match[1] + match[2].rstrip("0")
-
-
-def natural_sorted(names: Iterable[str]) -> list[str]:
-    """``names`` in natural order (:func:`natural_key`), a dotted number read as a decimal unless
-    the names show it is numbering (:func:`reads_decimals`). Numbered frames, names alike but for
-    digit runs of one length as cameras and datasets write them, are in natural order once
-    sorted as text: they skip natsort's keys (0.1 s per 35,000 names)."""
-    ordered = sorted(names)
-    pattern = ordered[0].translate(_DIGITS_AS_ZERO) if ordered else ""
-    if not all(name.translate(_DIGITS_AS_ZERO) == pattern for name in ordered):
-        decimals = reads_decimals(ordered)
-        ordered.sort(key=lambda name: natural_key(name, decimals))
-    return ordered
-
-
 @dataclass(frozen=True)
 class Traversal:
     """One traversal folder: its image files in natural order, and the files that were skipped.
