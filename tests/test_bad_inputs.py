@@ -1537,6 +1537,7 @@ def test_observe_takes_a_path_given_as_bytes(localizers: dict[str, Localizer], r
     (["localize", "{tmp}/queries.h5", "--map", "{ref}"], "queries.h5", "file"),
     (["localize", "{ref}", "--map", "{tmp}/database.npz"], "database.npz", "file"),
     (["localize", "{tmp}/q.npy", "--map", "{tmp}/m.npy"], "q.npy", "file"),
+    (["localize", "{tmp}/q.npy", "--map", "{tmp}/m.npy", "--metric", "l1", "--names", "{tmp}/q.txt"], "q.npy", "file"),
     (["describe", "{tmp}/descriptors.H5"], "descriptors.H5", "file"),
     (["describe", "{tmp}/frame.jpg"], "frame.jpg", "file"),
     (["vocabulary", "{tmp}/route.mp4"], "route.mp4", "file"),

@@ -72,18 +72,18 @@ def localize(
     """
     from wiloc import api
     from wiloc.cache.store import Cache
-    from wiloc.description.traversals import is_matrix_file
+    from wiloc.description.traversals import names_matrix_file
 
     method_class(method)
     params = method_params(method, method_options or {})
-    matrices = [is_matrix_file(Path(p)) for p in (*queries, reference, train_query, train_map) if p is not None]
+    matrices = [names_matrix_file(Path(p)) for p in (*queries, reference, train_query, train_map) if p is not None]
     refuse_unused({"descriptor": (not all(matrices), DESCRIBED),
                    **descriptor_uses(descriptor, described=not all(matrices)),
                    "metric": (any(matrices), "descriptor matrix files (.npy, .npz, .csv, .h5)"),
                    "jobs": (not all(matrices) or scheduler == "local",
                             f"{DESCRIBED} to describe, and a local Dask cluster (--scheduler local)"),
-                   "names": (any(is_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
-                   "map_names": (reference is not None and is_matrix_file(reference),
+                   "names": (any(names_matrix_file(q) for q in queries), "a descriptor matrix file as QUERY"),
+                   "map_names": (reference is not None and names_matrix_file(reference),
                                  "a descriptor matrix file as --map"),
                    "map_odometry": (reference is not None, "map mode (--map)"),
                    "exclude_recent": (reference is None or "map_self" in method_class(method).needs,

@@ -107,11 +107,17 @@ def is_matrix_file(source: Path) -> bool:
     return Path(source).is_file() and not is_video(Path(source)) and not is_bag(Path(source))
 
 
+def names_matrix_file(source: Path) -> bool:
+    """Whether a traversal is a descriptor matrix file, or a missing one named as such (``q.npy``):
+    options are checked against the traversal meant, and reading it then says it does not exist."""
+    return is_matrix_file(source) or (not Path(source).exists() and Path(source).suffix.lower() in MATRIX_SUFFIXES)
+
+
 def check_descriptor(sources: Sequence[Path], descriptor: str | None, params: Mapping[str, Any] | None) -> None:
     """ParameterError naming ``descriptor`` (or ``descriptor_params``) when it is given and every
     one of ``sources`` is a descriptor matrix file: their rows are compared as imported, so it would
     be recorded and not used."""
-    if not sources or not all(is_matrix_file(Path(s)) for s in sources):
+    if not sources or not all(names_matrix_file(Path(s)) for s in sources):
         return
     for name, value in (("descriptor", descriptor not in (None, EXTERNAL)),
                         ("descriptor_params", bool(params) and descriptor != EXTERNAL)):  # external's: its storage
@@ -124,7 +130,7 @@ def check_metric(sources: Sequence[Path], metric: str | None) -> None:
     """ParameterError naming ``metric`` when it is given and none of ``sources`` is a descriptor
     matrix file: images are compared by their descriptor's own difference, so it would be recorded
     and not used."""
-    if metric is not None and sources and not any(is_matrix_file(Path(s)) for s in sources):
+    if metric is not None and sources and not any(names_matrix_file(Path(s)) for s in sources):
         raise ParameterError("metric", f"applies to descriptor matrix files (.npy, .npz, .csv, .h5) only; "
                                        f"{sources[0]} is none, its frames compared by the descriptor's difference")
 
