@@ -261,7 +261,7 @@ def _case_files(tmp: Path, ref: Path, results: Path) -> dict[str, tuple[list[str
         "ground truth shape": (["evaluate", str(results), "--gt", f"matrix:{tmp / 'shape-gt.npy'}"], "matrix is 3 x 3"),
         "pairs columns": (["evaluate", str(results), "--gt", f"pairs:{tmp / 'pairs.csv'}"], "missing column(s) query, reference"),
         "positions file": (["evaluate", str(results), "--gt", f"positions:{tmp / 'none.csv'}", "--gt-map", str(tmp / "none.csv"),
-                            "--radius", "2"], "no such file"),
+                            "--radius", "2"], "file does not exist"),
         "map of one frame": (["localize", str(ref), "--map", str(tmp / "single")], "it needs at least 2"),
         "odometry": (["localize", str(ref), "--map", str(ref), "--method", "catgraph", "--odometry", str(tmp / "odo.csv"),
                       "--map-odometry", str(tmp / "odo.csv")], "no odometry for 29 frame(s)"),
@@ -1413,11 +1413,11 @@ def test_a_ground_truth_path_is_read_as_given_but_for_query(route: tuple[Path, P
     template = str(tmp_path / "{query}-positions.csv")
     missing = str(tmp_path / f"{query.name}-positions.csv")
     ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--gt", f"pairs:{template}"]), 1,
-                      f"--gt: {missing} ({template} for query {query.name}): no such file")
+                      f"--gt: {missing} ({template} for query {query.name}): file does not exist")
     ends_in_one_error(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "trained",
                                           "--train-query", str(query), "--train-map", str(ref),
                                           "--train-gt", f"pairs:{template}", "--out", str(tmp_path / "o.csv")]), 1,
-                      f"--train-gt: {missing} ({template} for query {query.name}): no such file")
+                      f"--train-gt: {missing} ({template} for query {query.name}): file does not exist")
 
 
 # Frames, folders and the Python API
@@ -1687,7 +1687,7 @@ def test_ground_truth_files_may_be_given_as_paths(tmp_path: Path) -> None:
     expected = as_text.load(names, names, str(tmp_path / "q"), sequence=True, exclude_recent=2).matrix
     got = as_path.load(names, names, str(tmp_path / "q"), sequence=True, exclude_recent=2).matrix
     assert expected.nnz > 0 and (expected != got).nnz == 0
-    with pytest.raises(WilocError, match="no such file"):
+    with pytest.raises(WilocError, match="file does not exist"):
         TruthSource(kind="pairs", path=tmp_path / "gone.csv").load(names, names, str(tmp_path), False, 10)
 
 

@@ -331,7 +331,7 @@ def test_matrix_shape_and_mat_choice_errors(tmp_path: Path, mask: np.ndarray) ->
         matrix_truth(tmp_path / "two.mat", names, REFS)
     picked = matrix_truth(tmp_path / "two.mat", names, REFS, variable="gt")
     np.testing.assert_array_equal(dense(picked), mask != 0)
-    with pytest.raises(WilocError, match="no such file"):
+    with pytest.raises(WilocError, match="file does not exist"):
         matrix_truth(tmp_path / "absent.npy", names, REFS)
 
 

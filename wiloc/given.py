@@ -35,7 +35,7 @@ def check_file(path: Path) -> None:
     """A WilocError naming ``path`` unless it is a regular file that holds something: no such
     file, not one (a folder, a device such as /dev/null), or an empty one."""
     if not path.is_file():
-        raise WilocError(path, "not a regular file" if path.exists() else "no such file")
+        raise WilocError(path, "not a regular file" if path.exists() else "file does not exist")
     if path.stat().st_size == 0:
         raise WilocError(path, "the file is empty (0 bytes)")
 

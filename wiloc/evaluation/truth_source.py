@@ -144,6 +144,6 @@ def _for_query(template: str | os.PathLike[str] | None, name: str, parameter: st
     template = os.fspath(template)
     path = Path(template.replace("{query}", name))
     if "{query}" in template and not path.exists():
-        raise WilocError(None, f"{path} ({template} for query {name}): no such file", parameter=parameter)
+        raise WilocError(None, f"{path} ({template} for query {name}): file does not exist", parameter=parameter)
     return path
 
