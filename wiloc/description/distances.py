@@ -45,7 +45,8 @@ TILE = 4  # query rows x reference rows accumulated together per chunk
 PANEL_ROWS = 64  # query rows per parallel work item (about 74 KB of sad rows: stays in L2)
 #: The version of what the difference functions compute, which cached results of them record (a
 #: map's summary, ``differences.map_summary``): 2, float metrics summed in float64 (:func:`_product`);
-#: 3, float32 ``l1`` summed in 16 lanes on every CPU (a narrower CPU's summaries were its own).
+#: 3, float32 ``l1`` summed in 16 lanes on every CPU (a narrower CPU's summaries were its own), and a
+#: product's difference below its rounding's bound 0 (:func:`_noise_floor`).
 DIFFERENCES_VERSION = 3
 PRODUCT_ROWS = 256  # query rows per float64 matrix product (:func:`_product`): 256 x N x 8 bytes of scratch
 
@@ -274,6 +275,7 @@ class _Reference:
     metric: str
     rows: np.ndarray  # sqeuclidean: [b - mean, 1, |b - mean|^2] (float64), so one matrix product gives d
     mean: np.ndarray | None = None  # subtracted from both sides (sqeuclidean)
+    largest: float = 0.0  # the largest |b - mean|^2 (sqeuclidean): what bounds a product's rounding
 
 
 def _check_pair(a: np.ndarray, b: np.ndarray, metric: str) -> tuple[np.ndarray, np.ndarray, np.dtype]:
@@ -308,7 +310,8 @@ def _prepare_reference(b: np.ndarray, metric: str, dtype: np.dtype) -> _Referenc
     mean = rows.mean(axis=0) if len(rows) else np.zeros(rows.shape[1])
     centred = rows - mean
     norms = np.einsum("ij,ij->i", centred, centred)[:, None]
-    return _Reference(metric, np.hstack([centred, np.ones_like(norms), norms]), mean=mean)
+    return _Reference(metric, np.hstack([centred, np.ones_like(norms), norms]), mean=mean,
+                      largest=float(norms.max()) if len(norms) else 0.0)
 
 
 def _unit_rows(x: np.ndarray) -> np.ndarray:
@@ -318,14 +321,16 @@ def _unit_rows(x: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(x / safe[:, None])
 
 
-def _product(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray) -> None:
+def _product(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray, floor: np.ndarray) -> None:
     """out = scale * the metric's difference from ``a . ref.rows^T``, summed in float64 and rounded
     once to float32. BLAS sums in an order that depends on how many rows it is given at once and
     on the CPU; in float32 that order shows in the last digits, so a frame's row computed alone (a
     Localizer, frame by frame) differed from the same row in a batch's block, and a particle filter
     took the two apart (catgraph with gist on Nordland: 27 of 200 matches). In float64 the order's
     effect lies far below float32's rounding (0 of 715,200 values differed, rows alone against
-    blocks of 200)."""
+    blocks of 200), except near 0, where float32 keeps every digit: a difference below ``floor``
+    (each row of ``a``'s bound on the sum's rounding, :func:`_noise_floor`) is 0, as the same two
+    rows' is exactly."""
     scratch = np.empty((min(PRODUCT_ROWS, len(a)), ref.rows.shape[0]))
     for start in range(0, len(a), PRODUCT_ROWS):
         part = scratch[:min(PRODUCT_ROWS, len(a) - start)]
@@ -335,9 +340,8 @@ def _product(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray) -> N
             np.matmul(a[start:start + len(part)], ref.rows.T, out=part)
         if ref.metric == "cosine":
             np.subtract(1.0, part, out=part)
-            np.clip(part, 0.0, 2.0, out=part)
-        else:
-            np.maximum(part, 0.0, out=part)
+            np.minimum(part, 2.0, out=part)
+        np.copyto(part, 0.0, where=part < floor[start:start + len(part)])
         if scale != 1.0:
             part *= scale
         out[start:start + len(part)] = part
@@ -355,13 +359,21 @@ def _fill(a: np.ndarray, ref: _Reference, scale: float, out: np.ndarray) -> None
         return
     rows = np.asarray(np.asarray(a, dtype=np.float32), dtype=np.float64)
     if ref.metric == "cosine":
-        _product(_unit_rows(rows), ref, scale, out)
+        _product(_unit_rows(rows), ref, scale, out, _noise_floor(rows.shape[1], np.full((len(rows), 1), 2.0)))
     else:
         # [-2a, |a|^2, 1] . [b, 1, |b|^2] = |a|^2 + |b|^2 - 2ab in one BLAS call: no extra passes
         # over the output block (16 % faster at N = 20,000, docs/kernels.md).
         centred = rows - ref.mean
         norms = np.einsum("ij,ij->i", centred, centred)[:, None]
-        _product(np.hstack([-2.0 * centred, norms, np.ones_like(norms)]), ref, scale, out)
+        _product(np.hstack([-2.0 * centred, norms, np.ones_like(norms)]), ref, scale, out,
+                 _noise_floor(rows.shape[1], norms + ref.largest))
+
+
+def _noise_floor(length: int, magnitude: np.ndarray) -> np.ndarray:
+    """Per row, a bound on the rounding of a float64 product of ``length`` terms whose sums reach
+    ``magnitude`` (|a|^2 + the largest |b|^2; 2 for unit rows): a difference below it is the order
+    of the sums, not the rows (two equal rows gave 4e-13 or 0 by their block and BLAS's threads)."""
+    return length * np.finfo(np.float64).eps * magnitude
 
 
 class DifferencesTo:
