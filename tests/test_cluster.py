@@ -103,6 +103,29 @@ def test_an_unreachable_scheduler_is_one_error_line(tmp_path: Path) -> None:
     assert run.stderr.count("error:") == 1 and "tcp://127.0.0.1:9: cannot reach the Dask scheduler" in run.stderr
 
 
+@pytest.mark.parametrize("answer", ["nothing", "a banner"])
+def test_another_service_at_the_scheduler_address_is_one_error_line(answer: str, tmp_path: Path) -> None:
+    """A service that accepts the connection and never answers (a web server waits for a request)
+    kept Dask's handshake waiting for ever; one that writes first (an SSH server's banner) ended
+    in a MemoryError traceback, its bytes read as a message's length. In a process of its own, as
+    a failed client leaves Dask's event loop unusable to others."""
+    code = "\n".join([
+        "import socket, sys, threading", "from wiloc.cli import app", "from wiloc.description import cluster",
+        "cluster.CONNECT_WAIT = 3", "server = socket.create_server(('127.0.0.1', 0))", "held = []",
+        "def serve():", "    while True:", "        peer = server.accept()[0]", "        held.append(peer)",
+        f"        {'peer.sendall(bytes(range(256)) * 4)' if answer == 'a banner' else 'pass'}",
+        "threading.Thread(target=serve, daemon=True).start()",
+        "sys.argv = ['wiloc', 'describe', sys.argv[1], '--scheduler', f'tcp://127.0.0.1:{server.getsockname()[1]}']",
+        "app()"])
+    run = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "WILOC_CACHE": str(tmp_path / "cache")}, check=False)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 1 and len(lines) == 1, run.stderr[-2000:]
+    assert lines[0].endswith("no answer as a Dask scheduler in 3 s: is another service listening there?"
+                             if answer == "nothing" else "answered, but not as a Dask scheduler: another service "
+                                                         "listens there"), lines
+
+
 @pytest.mark.parametrize("address", ["http://127.0.0.1:8787", "127.0.0.1"])
 def test_a_malformed_scheduler_address_is_a_usage_error(address: str, tmp_path: Path) -> None:
     """In a process of its own: a client that failed to start leaves Dask's shared event loop

@@ -14,6 +14,7 @@ import atexit
 import concurrent.futures
 import logging
 import os
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -36,6 +37,9 @@ BATCH = 16
 #: Seconds a scheduler may be without a worker, before a run and during one: without one, tasks
 #: would wait for ever.
 WORKER_WAIT = 30
+#: Seconds an address may take to answer as a Dask scheduler: Dask's own connect timeout (30 s)
+#: covers reaching it, not its answer, for which it waited for ever where another service listened.
+CONNECT_WAIT = 45
 #: Seconds between looks at the scheduler's workers while waiting for a task.
 POLL = 2
 #: Seconds the oldest difference block, or describe's batches, may make no progress before the
@@ -66,6 +70,29 @@ def _block(to: DifferencesTo, rows: NDArray) -> NDArray[np.float32]:
     return to(rows)
 
 
+def _connect(scheduler: str) -> Client:
+    """A client of the scheduler at ``scheduler``, connected in a thread that is given up after
+    :data:`CONNECT_WAIT` seconds: a service that accepts and never answers as Dask does (a web
+    server) kept Dask's handshake waiting for ever. Dask's own errors are raised as they came."""
+    got: dict[str, Any] = {}
+
+    def attempt() -> None:
+        try:
+            got["client"] = Client(scheduler)
+        except BaseException as exc:  # handed to the caller's thread
+            got["error"] = exc
+
+    thread = threading.Thread(target=attempt, name="wiloc-dask-connect", daemon=True)
+    thread.start()
+    thread.join(CONNECT_WAIT)
+    if thread.is_alive():
+        raise WilocError(scheduler, f"no answer as a Dask scheduler in {CONNECT_WAIT} s: is another service "
+                                    "listening there?")
+    if "error" in got:
+        raise got["error"]
+    return got["client"]
+
+
 class Cluster:
     """A connection to a Dask scheduler (or a local cluster of worker processes it started)."""
 
@@ -81,12 +108,15 @@ class Cluster:
                 _restore(environ)
                 self.client = Client(self._local)
             else:
-                self.client = Client(scheduler)
+                self.client = _connect(scheduler)
         except ValueError as exc:  # no scheme Dask knows (http://, the dashboard's), no port
             raise ParameterError("scheduler", f"{scheduler!r} is no Dask scheduler address ({exc}); give "
                                               "tcp://HOST:8786, or local") from None
         except (OSError, *TIMEOUTS) as exc:
             raise WilocError(scheduler, f"cannot reach the Dask scheduler ({exc})") from None
+        except MemoryError:  # another protocol's first bytes read as the length of a Dask message
+            raise WilocError(scheduler, "answered, but not as a Dask scheduler: another service listens "
+                                        "there") from None
         try:
             self.client.wait_for_workers(1, timeout=WORKER_WAIT)
         except TIMEOUTS:
