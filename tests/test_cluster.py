@@ -290,6 +290,17 @@ def test_a_worker_with_another_opencv_is_refused_and_nothing_is_cached(scheduler
     assert not list((tmp_path / "cache").rglob("*.h5"))
 
 
+def test_a_folder_given_by_a_relative_path_is_described_by_workers_started_elsewhere(
+        scheduler: str, demo_route, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The workers started in another folder than the caller's: a relative path sent as given
+    was read from theirs, and every frame was skipped as unreadable."""
+    monkeypatch.chdir(demo_route.reference.parent)
+    [report] = api.describe([Path(demo_route.reference.name)], "sad", cache=Cache(tmp_path / "cache"),
+                            scheduler=scheduler)
+    [local] = api.describe([demo_route.reference], "sad", cache=Cache(tmp_path / "local"))
+    assert report.failed == [] and np.array_equal(report.entry.data, local.entry.data)
+
+
 @pytest.mark.realdata
 @pytest.mark.slow
 def test_describe_and_localize_on_a_cluster_match_the_local_run(scheduler: str, data_root: Path,

@@ -209,11 +209,12 @@ def _feature_store(spec: DescriptorSpec, cache: Cache) -> FeatureStore | None:
 
 def _on_cluster(cluster: Cluster, spec: DescriptorSpec,
                 runs: Sequence[_Settling]) -> Iterator[tuple[int, FrameRecord, bool]]:
-    """Each run's tasks settled on the Dask cluster, one run after the other, tagged by run."""
+    """Each run's tasks settled on the Dask cluster, one run after the other, tagged by run; their
+    paths made absolute, as a worker started elsewhere reads a relative one from its own folder."""
     for tag, run in enumerate(runs):
         if run.tasks:
             work = partial(describe_quietly, spec, spec.cache_params["libraries"])
-            for record, fresh in cluster.in_batches(work, run.tasks):
+            for record, fresh in cluster.in_batches(work, [(path.absolute(), stored) for path, stored in run.tasks]):
                 yield tag, record, fresh
 
 
