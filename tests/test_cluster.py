@@ -22,7 +22,7 @@ from wiloc.cache.store import Cache
 from wiloc.description.cluster import connect, disconnect
 from wiloc.description.differences import ComputedDifferences
 from wiloc.description.distances import DifferencesTo
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 
 TRAVERSALS = ("day_right", "day_left", "night_right")
 VOLATILE = {"created", "updated"}  # times of writing: the only attributes allowed to differ
@@ -288,6 +288,12 @@ def test_a_worker_with_another_opencv_is_refused_and_nothing_is_cached(scheduler
     finally:
         client.run(_pretend_opencv, None)
     assert not list((tmp_path / "cache").rglob("*.h5"))
+
+
+def test_a_local_cluster_of_no_workers_is_refused_at_once(demo_route, tmp_path: Path) -> None:
+    """--jobs -1 with --scheduler local started a cluster of none and waited 30 s for a worker."""
+    with pytest.raises(ParameterError, match="jobs: must be at least 1, got -1"):
+        api.describe([demo_route.reference], "sad", cache=Cache(tmp_path / "cache"), scheduler="local", jobs=-1)
 
 
 def test_a_folder_given_by_a_relative_path_is_described_by_workers_started_elsewhere(

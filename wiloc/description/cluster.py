@@ -28,6 +28,7 @@ from distributed.comm.core import CommClosedError
 from numpy.typing import NDArray
 
 from wiloc.description.distances import DifferencesTo
+from wiloc.description.frame_describing import check_jobs
 from wiloc.errors import ParameterError, WilocError
 
 LOCAL = "local"
@@ -101,7 +102,7 @@ class Cluster:
         self._local: LocalCluster | None = None
         try:
             if scheduler == LOCAL:
-                count = workers or len(os.sched_getaffinity(0))
+                count = check_jobs(workers)  # --jobs -1 waited for workers that never came
                 environ = dict(os.environ)
                 self._local = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
                                            dashboard_address=":0")
