@@ -376,6 +376,28 @@ def test_output_not_a_vector(one_frame: Path, tmp_path: Path) -> None:
     assert line == f"error: {model}: output 'vector' has shape N x 8 x 1 x 1; need one vector per image (N x D)"
 
 
+@pytest.mark.parametrize("output", ["no values", "nan"])
+def test_a_model_giving_no_values_or_nan_is_one_line_naming_it(output: str, one_frame: Path, tmp_path: Path) -> None:
+    """A vector of 0 values ended in a ZeroDivisionError traceback (its scale is 1 / D); NaN rows
+    in a line naming the descriptor, not the model, after numpy's warning of the division."""
+    model = tmp_path / "m.onnx"
+    nodes = [helper.make_node("GlobalAveragePool", ["image"], ["pooled"]), helper.make_node("Flatten", ["pooled"], ["flat"])]
+    if output == "no values":
+        nodes.append(helper.make_node("Slice", ["flat", "zero", "zero", "one"], ["vector"]))
+        constants = [numpy_helper.from_array(np.array([0], np.int64), "zero"),
+                     numpy_helper.from_array(np.array([1], np.int64), "one")]
+    else:  # the logarithm of a negative number
+        nodes += [helper.make_node("Abs", ["flat"], ["size"]), helper.make_node("Add", ["size", "one"], ["above"]),
+                  helper.make_node("Neg", ["above"], ["below"]), helper.make_node("Log", ["below"], ["vector"])]
+        constants = [numpy_helper.from_array(np.array(1.0, np.float32), "one")]
+    _save(model, nodes, constants, ["N", 3, SIDE, SIDE], ["N", None], {})
+    result = runner.invoke(app, ["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model)])
+    assert result.exit_code == 1 and result.stderr.strip().splitlines() == [
+        f"error: {model}: " + ("the model gave an output of shape (1, 0) for 1 images; need one vector per image "
+                               "(N x D, D at least 1)" if output == "no values" else
+                               "the model gave NaN or infinite values for 1 of 1 images")], result.output
+
+
 def test_bad_preprocessing_values(one_frame: Path, tmp_path: Path) -> None:
     model = tmp_path / "m.onnx"
     conv_model(model, metadata={"wiloc.std": "0,1,1"})

@@ -292,9 +292,12 @@ def _run(path: str, digest: str, batch: NDArray[np.float32], threads: int) -> ND
     except Exception as exc:  # onnxruntime's own error classes
         raise WilocError(path, f"the model failed on a batch of {batch.shape[0]} ({_said(exc, path)})") from None
     out = np.asarray(out)
-    if out.ndim != 2 or out.shape[0] != batch.shape[0]:
+    if out.ndim != 2 or out.shape[0] != batch.shape[0] or out.shape[1] == 0:
         raise WilocError(path, f"the model gave an output of shape {out.shape} for {batch.shape[0]} images; "
-                               "need one vector per image (N x D)")
+                               "need one vector per image (N x D, D at least 1)")
+    bad = int((~np.isfinite(out).all(axis=1)).sum()) if out.dtype.kind == "f" else 0
+    if bad:  # named here, the model's: as the rows of a descriptor they would name no file
+        raise WilocError(path, f"the model gave NaN or infinite values for {bad} of {batch.shape[0]} images")
     return out.astype(np.float32, copy=False)
 
 
