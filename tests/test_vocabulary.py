@@ -319,10 +319,16 @@ def test_a_build_refused_after_extracting_leaves_no_journal(unreadable: bool, tm
 
 
 @pytest.mark.parametrize("damage", ["nan centre", "fewer centres"])
-def test_a_vocabulary_file_of_damaged_centres_is_refused(damage: str, tmp_path: Path, cache_dir: Path) -> None:
+@pytest.mark.parametrize("digest", ["as written", "of the damage"])
+def test_a_vocabulary_file_of_damaged_centres_is_refused(damage: str, digest: str, tmp_path: Path,
+                                                         cache_dir: Path) -> None:
     """A NaN centre is every feature's nearest word (argmin takes NaN first), so that every image
     held that one word alone and FAB-MAP ran on it, exit code 0; centres fewer than its words
-    were read as they were."""
+    were read as they were. Changed on disk, they fail the file's checksum (a byte flipped in the
+    centres gave other words and other results before); written so, with a digest of theirs, the
+    check of the centres themselves refuses them."""
+    from wiloc.bow.vocabulary import _digest
+
     path = build_vocabulary([_folder(tmp_path / "train", range(6))], Cache(cache_dir), SMALL).path
     with h5py.File(path, "a") as f:
         centres = f["centres"][()]
@@ -330,8 +336,18 @@ def test_a_vocabulary_file_of_damaged_centres_is_refused(damage: str, tmp_path: 
         if damage == "nan centre":
             centres[3, 5] = np.nan
         f["centres"] = centres if damage == "nan centre" else centres[:-1]
-    with pytest.raises(WilocError, match=r"damaged vocabulary file: its centres are not 16 rows of 128 finite values"):
+        if digest == "of the damage":
+            f.attrs["digest"] = _digest(f["centres"][()], [s.decode() for s in f["training/frames"][()]],
+                                        f["training/words"][()])
+    problem = ("its centres are not 16 rows of 128 finite values" if digest == "of the damage" else
+               "its arrays fail their checksum")
+    with pytest.raises(WilocError, match=rf"damaged vocabulary file: {problem}"):
         read_vocabulary(path)
+    rebuilt = build_vocabulary([tmp_path / "train"], Cache(cache_dir), SMALL)
+    assert rebuilt.built and rebuilt.repairs == [f"{path}: damaged vocabulary file: {problem}"
+                                                 + (" (or an older wiloc wrote it without one)" if digest == "as written"
+                                                    else "") + "; built again"]
+    assert read_vocabulary(path).centres.shape == (16, 128)
 
 
 def test_an_incomplete_file_is_not_a_vocabulary(tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ holds only what a worker process computing bags of words needs. docs/fabmap.md d
 """
 from __future__ import annotations
 
+import hashlib
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -28,6 +29,8 @@ from wiloc.version import __version__
 
 FORMAT = "wiloc-vocabulary"
 FORMAT_VERSION = 1
+#: What to do with a vocabulary file that cannot be used (in the cache: the same command builds it anew).
+REBUILD = "build it again (wiloc vocabulary with its training folders and options)"
 #: Images that give a median under FEW_WORDS distinct words per image, or more than a share
 #: NO_WORDS of them without any, are too sparse for FAB-MAP (a vocabulary's training images, or a
 #: query's or map's): Gardens Point at 640 px gives 340 (none empty), Nordland's 64 x 32
@@ -127,16 +130,27 @@ def train_vocabulary(key: str, params: VocabularyParams, frames: Sequence[str],
     return Vocabulary(key, params, centres, tuple(frames), occurrences)
 
 
+def _digest(centres: NDArray, frames: Sequence[str], words: NDArray[np.uint8]) -> str:
+    """SHA-256 of a vocabulary's arrays as stored: a file damaged since it was written is told."""
+    digest = hashlib.sha256(np.ascontiguousarray(centres).tobytes())
+    digest.update("\0".join(frames).encode())
+    digest.update(np.ascontiguousarray(words).tobytes())
+    return digest.hexdigest()
+
+
 def write_vocabulary(f: h5py.File, vocabulary: Vocabulary, attrs: dict[str, object]) -> None:
-    """Write `vocabulary` into an open HDF5 file, with extra attributes (provenance)."""
+    """Write `vocabulary` into an open HDF5 file, with extra attributes (provenance) and the
+    digest of its arrays."""
+    words = pack_words(vocabulary.training_occurrences)
     f.attrs.update({
         "format": FORMAT, "format_version": FORMAT_VERSION, "wiloc_version": __version__,
         "key": vocabulary.key, "params": vocabulary.params.to_json(),
         "n_words": vocabulary.n_words, **attrs,
+        "digest": _digest(vocabulary.centres, vocabulary.training_frames, words),
     })
     f.create_dataset("centres", data=vocabulary.centres)
     f.create_dataset("training/frames", data=list(vocabulary.training_frames), dtype=h5py.string_dtype())
-    f.create_dataset("training/words", data=pack_words(vocabulary.training_occurrences))
+    f.create_dataset("training/words", data=words)
     # Written last: a file without it is not a finished vocabulary.
     f.attrs["complete"] = True
 
@@ -147,7 +161,7 @@ def _open(path: Path) -> h5py.File:
     except FileNotFoundError:
         raise WilocError(path, "no such vocabulary file") from None
     except OSError as exc:
-        raise WilocError(path, f"unreadable vocabulary file ({exc})") from exc
+        raise WilocError(path, f"unreadable vocabulary file ({exc}); {REBUILD}") from exc
     if f.attrs.get("format") != FORMAT or not f.attrs.get("complete", False):
         f.close()
         raise WilocError(path, "not a complete wiloc vocabulary file")
@@ -167,14 +181,16 @@ def read_vocabulary(path: Path) -> Vocabulary:
         try:
             params = VocabularyParams(**json.loads(f.attrs["params"]))
             n_words = int(f.attrs["n_words"])
+            centres, words = f["centres"][()], f["training/words"][()]
+            frames = tuple(s.decode() for s in f["training/frames"][()])
+            if f.attrs.get("digest") != _digest(centres, frames, words):
+                raise WilocError(path, "damaged vocabulary file: its arrays fail their checksum (or an older "
+                                       f"wiloc wrote it without one); {REBUILD}")
             vocabulary = Vocabulary(
-                key=str(f.attrs["key"]), params=params,
-                centres=np.asarray(f["centres"][()], dtype=DTYPES[params.feature]),
-                training_frames=tuple(s.decode() for s in f["training/frames"][()]),
-                training_occurrences=unpack_words(f["training/words"][()], n_words),
-            )
-        except (KeyError, ValueError, TypeError) as exc:
-            raise WilocError(path, f"unreadable vocabulary file ({exc})") from exc
+                key=str(f.attrs["key"]), params=params, centres=np.asarray(centres, dtype=DTYPES[params.feature]),
+                training_frames=frames, training_occurrences=unpack_words(words, n_words))
+        except (KeyError, ValueError, TypeError, OSError) as exc:
+            raise WilocError(path, f"unreadable vocabulary file ({exc}); {REBUILD}") from exc
     # a NaN centre is every feature's nearest word (argmin takes NaN first): every image would
     # hold that one word alone
     centres, width = vocabulary.centres, WIDTHS[params.feature]

@@ -29,7 +29,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.bow.features import decode_size, extract_features
-from wiloc.bow.vocabulary import FORMAT_VERSION, Vocabulary, read_vocabulary, train_vocabulary, write_vocabulary
+from wiloc.bow.vocabulary import (FORMAT_VERSION, REBUILD, Vocabulary, read_vocabulary, train_vocabulary,
+                                  write_vocabulary)
 from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.cache.features import FeatureStore, damaged_note
 from wiloc.cache.store import Cache
@@ -140,18 +141,19 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
     key = vocabulary_key([prints[path].digest for path in frames], params)
     path = vocabulary_path(cache, key)
     total = len(frames) + params.iterations
+    repairs: list[str] = []
     with cache.lock(vocabulary_name(key)):
         if path.exists():
             try:
                 vocabulary = read_vocabulary(path)
-            except WilocError:
-                pass  # an unreadable file is rebuilt (and replaced atomically) below
+            except WilocError as exc:  # an unreadable file is rebuilt (and replaced atomically) below
+                repairs.append(f"{path}: {exc.problem.removesuffix(f'; {REBUILD}')}; built again")
             else:
                 if progress is not None:
                     progress(total, total)
                 return VocabularyReport(vocabulary, path, False, 0, [],
                                         time.perf_counter() - start)
-        names, features, failed, repairs = [], [], [], []
+        names, features, failed = [], [], []
         store = FeatureStore(cache, params.feature_setting())
         _extract_missing(frames, [prints[frame].digest for frame in frames], store, jobs, progress, total)
         for frame in frames:  # from the cache now; a frame that cannot be read is tried once more
