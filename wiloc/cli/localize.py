@@ -91,6 +91,9 @@ def localize(
                                       f"differences to itself ({', '.join(learning_from_the_map())})"),
                    "idle": (follow, "--follow")})
     train_inputs = (train_query, train_map, train_gt)
+    trained = [name for name, kind in METHODS.items() if "training" in kind.needs]  # before "go together"
+    refuse_unused({name: (method in trained, f"the methods trained on a labelled pair ({', '.join(trained)})")
+                   for name in ("train_query", "train_map", "train_gt")})
     refuse_unused({name: (any(train_inputs), "a training pair (--train-query, --train-map, --train-gt)")
                    for name in ("train_gt_map", "train_tolerance", "train_radius")})
     training = None
