@@ -104,8 +104,10 @@ class Cluster:
             if scheduler == LOCAL:
                 count = check_jobs(workers)  # --jobs -1 waited for workers that never came
                 environ = dict(os.environ)
+                # its workers' and nannies' log lines (a heartbeat missed on a busy machine, a task
+                # cancelled by Ctrl-C) are not the user's: what fails the run is said in one line
                 self._local = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
-                                           dashboard_address=":0")
+                                           dashboard_address=":0", silence_logs=logging.CRITICAL)
                 _restore(environ)
                 self.client = Client(self._local)
             else:
