@@ -101,6 +101,12 @@ USAGE = {
     "model plot suffix": (["localize", "Q", "--model-plot", "m.xyz"], "--model-plot: '.xyz'"),
     "matrix plot suffix": (["evaluate", "R", "--matrix-plot", "m.jpgg"], "--matrix-plot: '.jpgg'"),
     "idle without follow": (["localize", "Q", "--idle", "3"], "--idle: applies to --follow only"),
+    "jobs on a remote cluster": (["describe", "Q", "--scheduler", "tcp://127.0.0.1:1", "--jobs", "2"],
+                                 "--jobs: applies to image folders described on this machine or a local Dask cluster "
+                                 "(--scheduler local) only"),
+    "localize jobs on a remote cluster": (["localize", "Q", "--scheduler", "tcp://127.0.0.1:1", "--jobs", "2"],
+                                          "--jobs: applies to image folders, video files and ROS bags described on "
+                                          "this machine, and a local Dask cluster (--scheduler local) only"),
     "partial training": (["localize", "Q", "--method", "trained", "--train-query", "T"],
                          "--train-map: missing; --train-query, --train-map and --train-gt go together"),
     "training for online": (["localize", "Q", "--train-query", "T"],

@@ -76,7 +76,8 @@ def describe(
                    **descriptor_uses(descriptor, described=not importing),
                    "metric": (importing, "--import"), "names": (importing, "--import"),
                    "import_out": (importing, "--import"), "prefix": (import_out is not None, "--import with --out"),
-                   "jobs": (not importing, "image folders"),
+                   "jobs": (not importing and scheduler in (None, "local"),
+                            "image folders described on this machine or a local Dask cluster (--scheduler local)"),
                    **{name: (not importing, STREAMS) for name in (*SAMPLING, "topic")}})
     store = Cache(cache)
     if list_cache:
