@@ -269,7 +269,10 @@ def _read_positions(path: Path) -> Positions:
                                f"found {', '.join(frame.columns)}")
     _no_duplicates(path, frame, ["name"])
     coords = _numeric(path, frame, columns)
-    check_lat_lon(coords, path) if geographic else check_metres(coords, path)
+    if geographic:
+        check_lat_lon(coords, path)
+    else:
+        check_metres(coords, path)
     return Positions(path, name_index(frame["name"]), coords, geographic)
 
 
@@ -429,7 +432,8 @@ def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | spar
     except (ValueError, OSError, NotImplementedError, EOFError, IndexError, scipy.io.matlab.MatReadError) as exc:
         hint = ("; an array of reference indices per query is the positives form, VPR-Bench's "
                 "ground_truth_new.npy the vprbench form" if str(exc).startswith("Object arrays") else "")
-        problem = suffix == ".csv" and isinstance(exc, ValueError) and uneven_line(path) or load_problem(exc)
+        uneven = uneven_line(path) if suffix == ".csv" and isinstance(exc, ValueError) else None
+        problem = uneven or load_problem(exc)
         raise WilocError(path, f"cannot read matrix ({problem}){hint}") from exc
     raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv, .npz or .mat")
 
