@@ -113,7 +113,7 @@ def test_jobs_with_matrix_files_alone_is_refused_as_describing_nothing(tmp_path:
     matrices = ["localize", str(tmp_path / "query.npy"), "--map", str(tmp_path / "ref.npy"), "--metric", "l1",
                 "--method", "threshold", "--out", str(tmp_path / "run.csv")]
     ends_in_one_error(runner.invoke(app, [*matrices, "--jobs", "2"]), 2,
-                      "error: --jobs: applies to image folders, video files and ROS bags to describe")
+                      "error: --jobs: applies to image folders, video files and ROS bags described on this machine")
     ends_in_one_error(runner.invoke(app, [*matrices, "--descriptor", "gist"]), 2,
                       "error: --descriptor: applies to image folders, video files and ROS bags only")
     assert not (tmp_path / "run.csv").exists()
