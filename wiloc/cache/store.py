@@ -77,7 +77,7 @@ class Journal:
     def __init__(self, path: Path, header: EntryHeader) -> None:
         self.path = path
         self._dtype = np.dtype(header.dtype)
-        found, _, valid = scan_journal(path)
+        found, _, valid, _ = scan_journal(path)
         if found != header:
             valid = 0
         fd = _open_no_follow(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
@@ -108,20 +108,22 @@ class Journal:
         self._file.close()
 
 
-def scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], int]:
-    """A journal's header, its valid frame records and the byte length they span; reading stops
-    at the first torn or corrupt record (a kill mid-write), which the next writer truncates."""
+def scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], int, bool]:
+    """A journal's header, its valid frame records, the byte length they span, and whether the
+    reading stopped at damage: a whole record that fails its check. A record cut short (a kill
+    mid-write) is expected and ends the reading too; the next writer truncates either."""
     if path.is_symlink():  # not written by wiloc: never read through it (and replaced on writing)
-        return None, [], 0
+        return None, [], 0, False
     try:
         blob = path.read_bytes()
     except FileNotFoundError:
-        return None, [], 0
-    header, records, offset = None, [], 0
+        return None, [], 0, False
+    header, records, offset, damaged = None, [], 0, False
     while offset + _RECORD.size <= len(blob):
         magic, length, crc = _RECORD.unpack_from(blob, offset)
         payload = blob[offset + _RECORD.size: offset + _RECORD.size + length]
         if magic != _MAGIC or len(payload) != length or zlib.crc32(payload) != crc:
+            damaged = magic != _MAGIC or len(payload) == length
             break
         (meta_len,) = _JSON_LENGTH.unpack_from(payload)
         meta = json.loads(payload[_JSON_LENGTH.size: _JSON_LENGTH.size + meta_len])
@@ -134,20 +136,7 @@ def scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], int
             values = np.frombuffer(row, header.dtype) if meta["reason"] == "" else None
             records.append(FrameRecord(row=values, **meta))
         offset += _RECORD.size + length
-    return header, records, offset
-
-
-def _damaged_after(path: Path, valid: int) -> bool:
-    """Whether the journal holds a whole record after its ``valid`` bytes that failed its check:
-    damage, where a run killed while writing leaves a record cut short (ignored, as expected)."""
-    with suppress(OSError), path.open("rb") as handle:
-        size = os.fstat(handle.fileno()).st_size
-        handle.seek(valid)
-        head = handle.read(_RECORD.size)
-        if len(head) == _RECORD.size:
-            magic, length, _ = _RECORD.unpack(head)
-            return magic != _MAGIC or valid + _RECORD.size + length <= size
-    return False
+    return header, records, offset, damaged
 
 
 def _open_no_follow(path: Path, flags: int, mode: int = 0o666) -> int:
@@ -366,10 +355,10 @@ class Cache:
                 elif stored.dropped:
                     self.repairs.append(f"{path}: {stored.dropped} frame(s) failed their checksum (the file is "
                                         "damaged); described again")
-        header, records, valid = scan_journal(self.journal_path(key))
+        header, records, _, damaged = scan_journal(self.journal_path(key))
         if header is None:
             return stored
-        if _damaged_after(self.journal_path(key), valid):
+        if damaged:
             self.repairs.append(f"{self.journal_path(key)}: a record after the first {len(records)} frame(s) failed "
                                 "its checksum (the file is damaged); the frames after them described again")
         if stored is None or stored.header != header:
