@@ -125,3 +125,11 @@ def test_error_types_are_imported_from_wiloc_errors() -> None:
                        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("wiloc")
                        and node.module != "wiloc.errors" for a in node.names if a.name in errors)
     assert elsewhere == []
+
+
+
+def test_the_package_is_typed() -> None:
+    """Users' type checkers read wiloc's annotations only with the PEP 561 marker, which a wheel
+    holds only when it is declared package data."""
+    assert (REPO / "wiloc" / "py.typed").is_file()
+    assert re.search(r'^wiloc = \[.*"py\.typed".*\]$', (REPO / "pyproject.toml").read_text(), re.MULTILINE)
