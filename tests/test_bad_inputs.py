@@ -23,6 +23,7 @@ import time
 import warnings
 import zlib
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -950,13 +951,24 @@ def test_ground_truth_problems_name_the_option_or_file(args: list[str], code: in
     ends_in_one_error(runner.invoke(app, ["evaluate", str(results), *args]), code, message)
 
 
+@pytest.mark.parametrize("command", ["compare", "evaluate"])
 @pytest.mark.parametrize("twice", ["same", "relative"])
-def test_compare_refuses_a_results_file_given_twice(twice: str, results: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_compare_refuses_a_results_file_given_twice(twice: str, command: str, results: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """evaluate printed such a run twice under one label, where compare and report refused it."""
     monkeypatch.chdir(results.parent)
     again = str(results) if twice == "same" else results.name
     spelling = "" if twice == "same" else f" (as {results})"
-    ends_in_one_error(runner.invoke(app, ["compare", str(results), again]), 2,
+    ends_in_one_error(runner.invoke(app, [command, str(results), again]), 2,
                       f"RESULTS...: {again} is given twice{spelling}; each run counts once")
+
+
+def test_a_device_or_a_pipe_given_as_results_is_not_called_missing(tmp_path: Path) -> None:
+    """/dev/null and a FIFO were "results file does not exist", as --gt's same path is not."""
+    fifo = tmp_path / "p.csv"
+    os.mkfifo(fifo)
+    for path in ("/dev/null", str(fifo)):
+        ends_in_one_error(runner.invoke(app, ["evaluate", path]), 1, f"{path}: not a regular file")
 
 
 @pytest.mark.parametrize("target", ["150", "0", "-5", "nan"])
@@ -2270,3 +2282,53 @@ def test_a_bad_frames_slice_is_refused_before_any_results_file_is_read(tmp_path:
     with pytest.raises(ParameterError, match="a slice of whole numbers without a step") as refused:
         api.compare([missing], api.TruthSource(kind="aligned"), frames=20)
     assert refused.value.parameter == "frames"
+
+
+def test_a_map_in_memory_is_a_copy_of_the_callers_rows() -> None:
+    """entry_from_array kept the caller's array: a buffer reused after the map was made changed the
+    running Localizer's matches while the map's digest still named the old values."""
+    from wiloc.description.traversals import entry_from_array
+    from wiloc.descriptors.registry import get_descriptor
+
+    spec = get_descriptor("sad")
+    rows = np.random.default_rng(0).integers(0, 256, (60, spec.length)).astype(np.uint8)
+    entry = entry_from_array(rows, [f"m{i:03d}" for i in range(60)], spec)
+    loc, query, digest = Localizer(entry, method="threshold"), rows[10].copy(), entry.digest
+    assert loc.observe(query).match_name == "m010"
+    rows[:] = rows[::-1].copy()
+    assert loc.observe(query, name="again").match_name == "m010" and entry.digest == digest
+    assert not entry.data.flags.writeable
+
+
+@pytest.mark.parametrize("dtype", ["bool", "complex64", "int32", "U3"])
+def test_an_external_descriptor_of_values_that_are_not_floats_is_refused(dtype: str) -> None:
+    """external's dtype was checked only to be uint8 for hamming: bool made every row True (each
+    query matched the map's first frame at confidence 1), text failed inside numpy."""
+    from wiloc.descriptors.registry import get_descriptor
+
+    with pytest.raises(ValueError, match=f"external dtype {np.dtype(dtype).name}: .*other metrics need floats"):
+        get_descriptor("external", metric="l1", length=16, dtype=dtype)
+    assert get_descriptor("external", metric="l1", length=16, dtype="float64").dtype == np.float64
+
+
+def test_evaluations_compare_equal_and_recall_at_from_numpy_gives_plain_keys(results: Path) -> None:
+    """Two equal summaries raised numpy's ambiguous truth value (their PR curves' arrays), and
+    recall_at as a numpy array gave np.int64 keys that json.dumps refused."""
+    from wiloc import api
+
+    first = api.evaluate(results, api.TruthSource(), recall_at=np.array([5, 1, 5])).summary
+    again = api.evaluate(results, api.TruthSource(), recall_at=[1, 5]).summary
+    assert first == again and first.curve == again.curve
+    assert [type(n) for n in first.recall_at_n] == [int]
+    json.dumps(first.recall_at_n)
+    assert first.curve != replace(first.curve, tp=first.curve.tp + 1)
+
+
+def test_method_parameters_that_are_no_mapping_are_named() -> None:
+    """Online("bins") was dict()'s ValueError about update sequences."""
+    from wiloc.methods.online import Online
+
+    for given in ("bins", 5):
+        with pytest.raises(ParameterError) as err:
+            Online(given)  # type: ignore[arg-type]
+        assert err.value.parameter == "params"

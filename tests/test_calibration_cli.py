@@ -365,3 +365,25 @@ def test_an_output_naming_a_results_file_read_is_refused_and_the_run_kept(tmp_pa
         result = runner.invoke(app, [command, str(path), "--csv", str(path)])
         assert result.exit_code == 2 and result.stderr.startswith(f"error: --csv: {path} is one of the results files read")
         assert path.read_bytes() == run and not (tmp_path / "day_left-online-curves.csv").exists()
+
+
+@pytest.mark.parametrize("command", ["evaluate", "compare"])
+def test_metrics_csv_has_no_new_place_columns_when_no_run_says_it(tmp_path: Path, command: str) -> None:
+    """compare wrote three empty new_place_accepted@c columns for runs of which none has P(new
+    place); docs/formats.md: no columns when none does (evaluate wrote none)."""
+    runs = [str(_gardens(tmp_path, method)) for method in ("online", "threshold")]
+    result = runner.invoke(app, [command, *runs, "--csv", str(tmp_path / "m.csv")])
+    assert result.exit_code == 0, result.output
+    header = (tmp_path / "m.csv").read_text(encoding="utf-8").splitlines()[0].split(",")
+    assert "accepted@0.5" in header and not [key for key in header if key.startswith("new_place")]
+
+
+def test_evaluate_names_traversals_of_one_name_as_compare_does(tmp_path: Path) -> None:
+    """Two datasets' winter: evaluate headed both columns "online / winter" and gave traversal
+    "winter" in --json, where compare (and evaluate's own run label) said a/winter and b/winter."""
+    runs = [str(_nordland(tmp_path, "online", dataset)) for dataset in ("a", "b")]
+    evaluated = _json(runner.invoke(app, ["evaluate", *runs, "--json"]))["runs"]
+    compared = _json(runner.invoke(app, ["compare", *runs, "--json"]))["runs"]
+    assert [run["traversal"] for run in evaluated] == [run["traversal"] for run in compared] == ["a/winter", "b/winter"]
+    text = runner.invoke(app, ["evaluate", *runs], terminal_width=200).stdout
+    assert "a/winter" in text and "b/winter" in text

@@ -23,6 +23,7 @@ from wiloc.cli import app
 from wiloc.cli.params import OWN_FORMS, descriptor_options, flag
 from wiloc.descriptors import registry
 from wiloc.descriptors.base import METRICS, Descriptor, DescriptorSpec
+from wiloc.errors import WilocError
 from wiloc.evaluation.results import read_results
 from wiloc.localization.localizer import Localizer
 from wiloc.parameters import Parameters, declared, param
@@ -133,6 +134,21 @@ def test_shape_dtype_and_determinism(made: tuple[type[Descriptor], dict]) -> Non
     assert not np.array_equal(rows[0], rows[1])  # different images, different descriptors
     if rows.dtype.kind == "f":
         assert np.all(np.isfinite(rows))
+
+
+def test_an_image_that_is_not_what_the_descriptor_takes_is_named(made: tuple[type[Descriptor], dict]) -> None:
+    """``compute`` ran on whatever it was given: a colour image was Python's unpacking error, an
+    empty one a ZeroDivisionError or an OpenCV assertion, a float image in [0, 1] other values."""
+    cls, given = made
+    spec = registry.get_descriptor(cls.name, **given)
+    image = cv2.merge([_scene(0)] * 3) if spec.colour else _scene(0)
+    other = image[:, :, 0] if spec.colour else cv2.merge([image] * 3)
+    for wrong in (image / 255.0, other, image[:0]):
+        with pytest.raises(WilocError) as err:
+            spec.compute(wrong)
+        assert err.value.where == f"descriptor '{spec.name}'" and f"got {wrong.dtype} values of shape" in err.value.problem
+        with pytest.raises(WilocError):
+            spec.compute_batch([image, wrong])
 
 
 def test_the_cache_key_holds_every_parameter_and_is_stable(made: tuple[type[Descriptor], dict]) -> None:

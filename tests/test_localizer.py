@@ -204,7 +204,7 @@ def test_observe_takes_images_files_and_descriptors(demo_route: demo.DemoRoute, 
 def test_bad_setup_names_the_parameter(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
     with pytest.raises(UsageError) as err:
         Localizer(None, method="seqslam")
-    assert err.value.parameter == "reference"
+    assert err.value.parameter == "map"  # the Localizer's name of it (the library's run functions: reference)
     with pytest.raises(ParameterError) as err:
         Localizer(demo_route.reference, method="online", bin=50)
     assert err.value.parameter == "bin" and "not a parameter of method 'online'" in err.value.problem

@@ -256,3 +256,31 @@ def test_a_map_self_matrix_that_is_not_square_is_named(name: str) -> None:
         with pytest.raises(ParameterError) as err:
             run_on_rows(method, _query_for(method, rng), 40, map_self=wrong, exclude_recent=5, natural_max=2.0)
         assert err.value.parameter == "map_self" and f"got shape {wrong.shape}" in err.value.problem
+
+
+@pytest.mark.usefixtures("with_ratio")
+@pytest.mark.parametrize("name", ALL)
+def test_rows_of_other_dtypes_decide_as_float64_and_a_nan_or_a_flat_row_is_named(name: str) -> None:
+    """A batch of float16 rows was a numba NotImplementedError (step converted them, run did not);
+    a NaN made online and threshold leave the frame undecided (argmin took it for the best) where
+    catgraph refused it; one 1-D row given as ``rows`` was an IndexError on a 0-d item."""
+    from wiloc.errors import WilocError
+
+    rng = np.random.default_rng(1)
+    context, query = _context(_method(name), rng), _query_for(_method(name), rng).astype(np.float16)
+    runs = []
+    for rows in (query, query.astype(np.float64)):
+        method = _method(name)
+        method.start(context)
+        runs.append(method.run(iter(rows), len(rows)))
+    _equal(*runs)
+    method = _method(name)
+    method.start(context)
+    holed = query[0].astype(np.float64)
+    holed[3] = np.nan
+    with pytest.raises(WilocError) as err:
+        method.step(holed)
+    assert err.value.parameter == "row" and "NaN" in err.value.problem and method.frames == 0
+    with pytest.raises(ParameterError) as flat:
+        method.run(query[0], 1)
+    assert flat.value.parameter == "rows"

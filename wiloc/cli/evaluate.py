@@ -55,6 +55,7 @@ def evaluate(
 
     refuse_unused({"pairs": (pairs_plot is not None, "--pairs-plot"), "wrong_only": (pairs_plot is not None, "--pairs-plot"),
                    "matrix_plot": (frames is None, "a whole run (without --frames)")})
+    api.check_once(results)  # each run counts once, as in compare and report
     names = short_names(results)
     matrix_files, pairs_files = _per_run(matrix_plot, names), _per_run(pairs_plot, names)
     separate_outputs(results, {"--pr-plot": pr_plot, "--calibration-plot": calibration_plot, "--matrix-plot": matrix_files,
@@ -65,7 +66,7 @@ def evaluate(
     evaluations = [api.evaluate(path, source, at, ranks, frames=frames) for path in results]
     notes = warn_about_truth(evaluations)
     heads = [{"run": run, "results": name, "method": e.method, "descriptor": e.results.header.descriptor,
-              "traversal": e.traversal, **e.summary.as_dict(), **slice_columns(e)}
+              "traversal": run.traversal, **e.summary.as_dict(), **slice_columns(e)}  # as compare labels it
              for run, name, e in zip(api.run_names(evaluations), names, evaluations)]
     rows = [{**head, **e.calibration_row()} for head, e in zip(heads, evaluations)]
     drawings = _run_plots(evaluations, matrix_files, pairs_files, cache, notes, pairs, wrong_only,

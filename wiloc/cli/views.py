@@ -446,8 +446,9 @@ def comparison_records(comparison: api.Comparison) -> list[tuple[str, list[dict[
     new_place = {NEW_PLACE_KEYS + key: head for key, head in
                  {**calibration, "mean_confidence": "mean P(new place)", "share_correct": "share new"}.items()}
     counts = [key for key in new_place if key.startswith(NEW_PLACE_KEYS + "accepted@")]
-    cuts = [{**row, **{key: int(row[key]) if _says_new_place(row) else None for key in counts}}  # counts, not
-            for row in comparison.cut_table.to_dict(orient="records")]  # floats beside runs without the column
+    records = comparison.cut_table.to_dict(orient="records")
+    cuts = [{**row, **{key: int(row[key]) if _says_new_place(row) else None for key in counts}}  # counts, not floats
+            for row in records] if any(map(_says_new_place, records)) else records  # beside runs without; none: none
     given = [row for row in cuts if _says_new_place(row)]
     return [(f"Table I: recall at 100 / 99 / 90 % precision, AUC and Recall@N; {comparison.ground_truth}",
              table1, ["traversal", "method", *heads], heads),

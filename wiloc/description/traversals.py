@@ -47,7 +47,8 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
     if data.ndim != 2 or data.shape[1] != spec.length or data.shape[0] != len(names):
         raise WilocError(source, f"descriptors of shape {data.shape} for {len(names)} names; "
                                  f"'{spec.name}' rows have {spec.length} values")
-    data = np.ascontiguousarray(checked_rows(data, spec.dtype, spec.metric, source))
+    data = np.array(checked_rows(data, spec.dtype, spec.metric, source), order="C")  # a copy: the caller's
+    data.flags.writeable = False  # array may be reused, and the digest must stay the values'
     header = EntryHeader.create(source, spec.name, dict(spec.params), spec.metric, spec.scale, spec.natural_max,
                                 spec.dtype, spec.length)
     return Entry(**asdict(header), names=list(names), data=data, digest=descriptors_digest(names, data))

@@ -77,7 +77,7 @@ class DescriptorSpec:
         BGR (H x W x 3) for a ``colour`` descriptor."""
         if self.colour:
             return self.compute_batch([image])[0]
-        return self._checked(self.kind.compute(image, self.params), (self.length,))
+        return self._checked(self.kind.compute(self._image(image), self.params), (self.length,))
 
     @property
     def feature_setting(self) -> dict[str, Any] | None:
@@ -95,8 +95,23 @@ class DescriptorSpec:
         them in batches on ``threads`` threads (0: its runtime's default); the others are
         computed one by one."""
         if self.colour:
-            return self._checked(self.kind.compute_batch(images, self.params, threads), (len(images), self.length))
+            return self._checked(self.kind.compute_batch([self._image(image) for image in images], self.params,
+                                                         threads), (len(images), self.length))
         return np.stack([self.compute(image) for image in images])
+
+    def _image(self, image: Any) -> NDArray[np.uint8]:
+        """``image`` checked to be what the descriptor is computed from, else a WilocError naming
+        the descriptor: an 8-bit gray image (a ``colour`` descriptor's: BGR), not empty; a float
+        image in [0, 1] gave other values, a colour one a Python or OpenCV error
+        (``Localizer.describe`` converts such arrays)."""
+        image = np.asarray(image)
+        wanted, shape_ok = ("BGR (H x W x 3)", image.ndim == 3 and image.shape[2] == 3) if self.colour else \
+            ("gray (H x W)", image.ndim == 2)
+        if image.dtype != np.uint8 or not shape_ok or image.size == 0:
+            raise WilocError(f"descriptor '{self.name}'", f"computed from an 8-bit {wanted} image, not empty; got "
+                                                          f"{image.dtype} values of shape {image.shape} (Localizer."
+                                                          f"describe converts other images)")
+        return image
 
     def _checked(self, computed: Any, shape: tuple[int, ...]) -> NDArray:
         """What the descriptor's class computed, as ``dtype``: of the ``shape`` it declares and
@@ -236,6 +251,7 @@ def checked_storage(what: str, metric: Any, length: Any, dtype: Any) -> tuple[st
     if isinstance(length, bool) or not isinstance(length, int) or length < 1:
         raise ValueError(f"{what} length must be a positive integer; got {length!r}")
     dtype = np.dtype(dtype)
-    if (metric == "hamming") != (dtype == np.uint8):
-        raise ValueError("hamming descriptors are packed bits (uint8); other metrics need floats")
+    if dtype != np.uint8 if metric == "hamming" else dtype.kind != "f":
+        raise ValueError(f"{what} dtype {dtype.name}: hamming descriptors are packed bits (uint8); other metrics "
+                         "need floats")
     return metric, length, dtype

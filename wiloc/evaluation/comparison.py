@@ -246,7 +246,7 @@ def check_recall_at(recall_at: Iterable[int]) -> list[int]:
     if bad:
         raise ParameterError("recall_at", f"whole numbers from 1 to {RANKED} (results keep the {RANKED} best "
                                           f"candidates), got {bad[0]!r}")
-    return recall_at
+    return sorted({int(n) for n in recall_at})
 
 
 def check_once(paths: Sequence[Path | None]) -> None:

@@ -51,6 +51,13 @@ class PRCurve:
     def __len__(self) -> int:
         return int(self.thresholds.size)
 
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, PRCurve):
+            return NotImplemented
+        return all(np.array_equal(getattr(self, name), getattr(other, name)) for name in self.__dataclass_fields__)
+
+    __hash__ = None  # type: ignore[assignment]  # arrays: equal curves need not hash alike
+
 
 def _decided(confidence: ArrayLike, correct: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Confidences and correctness of the decided (non-NaN confidence) frames, checked to match."""

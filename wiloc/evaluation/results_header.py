@@ -140,8 +140,8 @@ def _header_lines(path: Path) -> list[str]:
     if path.is_dir():
         raise WilocError(path, "a folder, not a results file (evaluate and compare read the results "
                                "files localize writes, such as runs/day_left-sad-online.csv)")
-    if not path.is_file():
-        raise WilocError(path, "results file does not exist")
+    if not path.is_file():  # a device or a pipe exists, yet is no file to read a run from
+        raise WilocError(path, "not a regular file" if path.exists() else "results file does not exist")
     lines = []
     try:
         with path.open(encoding="utf-8-sig") as handle:  # a byte-order mark (an editor's) is skipped

@@ -188,6 +188,8 @@ class RunSession:
                                      map_odometry=map_odometry or self._map_bag, given=given)
         except WilocError as exc:
             from_bag = {"odometry": self._query_bag, "map_odometry": self._map_bag}  # never besides a CSV
+            if exc.parameter == "reference" and self.query_path is None:  # a Localizer's is its map
+                raise UsageError(None, exc.problem, parameter="map") from None
             if not from_bag.get(exc.parameter or ""):
                 raise
             raise UsageError(None, exc.problem, parameter="odometry_topic") from None

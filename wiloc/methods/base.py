@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from wiloc.ahead import computed_ahead
 from wiloc.candidates import best_candidates
 from wiloc.decisions import Decision, Decisions
-from wiloc.errors import ParameterError, UsageError, WilocError
+from wiloc.errors import ParameterError, UsageError, WilocError, parameter_values
 from wiloc.model import HistogramModel
 from wiloc.parameters import Parameters, declared
 
@@ -117,7 +117,7 @@ class Method(ABC):
                 raise TypeError(f"{self.name} takes {self.Params.__name__}, got {type(params).__name__}")
             self.params = params
         else:
-            self.params = self.Params.create({**dict(params or {}), **values})
+            self.params = self.Params.create({**parameter_values(params, "params"), **values})
         self.context: MapContext | None = None
         self.frames = 0  # query frames stepped since start
 
@@ -201,8 +201,9 @@ class Method(ABC):
         elif not self.context.sequence and self.odometry_next():  # sequence mode: the method says how
             raise WilocError(self.name, f"query frame {self.frames}: with the map's odometry, odometry comes with "
                                         "every frame after the first", parameter="odometry")
-        row = np.asarray(row)
-        row = row if row.dtype == np.float32 else row.astype(np.float64, copy=False)
+        row = as_row_dtype(np.asarray(row))
+        if np.isnan(row).any():  # else argmin took the NaN for the best match, and catgraph refused it
+            raise WilocError(self.name, f"query frame {self.frames}: the difference row holds NaN", parameter="row")
         self._ahead = ahead
         try:
             decision = self.decide(row, odometry)
@@ -242,7 +243,10 @@ class Method(ABC):
                       ) -> Iterator[tuple[NDArray[np.floating], Sequence[Any] | None]]:
         """Up to ``AHEAD_ROWS`` consecutive rows at a time, with their :meth:`ahead`."""
         for item in rows:
-            block = np.asarray(item)
+            block = as_row_dtype(np.asarray(item))
+            if block.ndim not in (1, 2):
+                raise ParameterError("rows", f"rows (1-D) or blocks of rows (2-D), got an item of shape {block.shape}: "
+                                             "give one row as a list of it, or as a 1 x N array")
             block = block if block.ndim == 2 else block[None, :]
             for first in range(0, block.shape[0], AHEAD_ROWS):
                 chunk = block[first:first + AHEAD_ROWS]
@@ -315,6 +319,12 @@ class Method(ABC):
         if len(steps) != n_frames:
             raise WilocError(self.name, f"got {len(steps)} difference rows, expected n_frames={n_frames}")
         return Decisions.collect(steps, self.columns, ranked=self.ranks, model=self.model, params=self.header())
+
+
+def as_row_dtype(rows: NDArray[Any]) -> NDArray[np.floating]:
+    """Difference rows as methods read them: float32 (as the kernels give them) kept, every other
+    dtype (float16, integers) as float64."""
+    return rows if rows.dtype == np.float32 else rows.astype(np.float64, copy=False)
 
 
 def checked_step(odometry: object, frame: int) -> float:
