@@ -16,6 +16,7 @@ import pytest
 from wiloc.cache.entries import EntryHeader, FrameRecord, StoredEntry, checksum
 from wiloc.cache.features import FeatureStore
 from wiloc.cache.store import TEMP_SUFFIX, Cache
+from wiloc.errors import WilocError
 
 
 def _header(folder: str = "/data/route", length: int = 4) -> EntryHeader:
@@ -280,7 +281,36 @@ def test_a_journal_damaged_in_its_middle_is_noted_and_its_later_frames_described
     stored = cache.read_stored(header.key)
     assert stored is not None and not stored.complete and 0 < len(stored.records) < 5
     assert cache.repairs == [f"{path}: a record after the first {len(stored.records)} frame(s) failed its checksum "
-                             "(the file is damaged); the frames after them described again"]
+                             "(the file is damaged); the frames after it described again"]
+
+
+def test_a_journal_whose_header_record_is_damaged_is_noted(tmp_path: Path) -> None:
+    """A byte flipped in the journal's first record (the entry's header) dropped every frame it
+    held without a line, where damage in a later record was noted."""
+    cache = Cache(tmp_path / "c")
+    header = _header()
+    path = _journal(cache, header, 5)
+    blob = bytearray(path.read_bytes())
+    blob[40] ^= 4
+    path.write_bytes(bytes(blob))
+    assert cache.read_stored(header.key) is None
+    assert cache.repairs == [f"{path}: its first record (the header) failed its checksum (the file is damaged); "
+                             "the frames after it described again"]
+
+
+def test_an_entry_whose_digest_attribute_is_damaged_is_described_again(tmp_path: Path) -> None:
+    """The digest an entry file records was never read back: damaged, it stayed in the file for
+    good (and a reader of the file, as docs/formats.md shows, read it) while the entry was reused."""
+    cache = Cache(tmp_path / "c")
+    written = cache.write_entry(StoredEntry(_header(), {f"f{i}.png": _record(f"f{i}.png", i) for i in range(3)}),
+                                complete=True)
+    path = cache.entry_path(_header().key)
+    assert cache.read_stored(_header().key) is not None and cache.repairs == []
+    with h5py.File(path, "r+") as f:
+        f.attrs["digest"] = written.digest[:-1] + ("0" if written.digest[-1] != "0" else "1")
+    assert cache.read_stored(_header().key) is None
+    assert cache.repairs == [f"{path}: unreadable cache entry (its digest attribute does not match its frames); "
+                             "described again"]
 
 
 def test_timestamps_round_trip_through_journal_and_file(tmp_path: Path) -> None:
@@ -387,3 +417,14 @@ def test_local_features_are_stored_as_bytes_only_when_they_read_back_bit_for_bit
         assert f["features"].dtype == np.dtype(stored)
     back = store.read("d1")
     assert back is not None and back.dtype == features.dtype and back.tobytes() == features.tobytes()
+
+
+def test_a_file_where_the_cache_keeps_a_folder_is_named(tmp_path: Path) -> None:
+    """A regular file named ``descriptors`` in the cache was "<cache>: cannot create the cache
+    folder (File exists)", naming the folder that was fine."""
+    cache = Cache(tmp_path / "c")
+    (tmp_path / "c").mkdir()
+    (tmp_path / "c" / "descriptors").write_text("x")
+    with pytest.raises(WilocError) as err:
+        cache.open_journal(_header())
+    assert str(err.value) == f"{tmp_path / 'c' / 'descriptors'}: a file where a cache folder belongs; remove it"

@@ -138,7 +138,9 @@ def test_a_damaged_map_summary_is_computed_anew(tmp_path: Path) -> None:
     _overwrite(path, _data_offset(path, "minima"))
     calls = []
     again = map_summary(r, cache, 2, progress=lambda done, total: calls.append(done))
-    assert calls  # the damaged file was not used
+    assert calls  # the damaged file was not used, and that is said once (it was said nowhere)
+    assert [line.split(" (")[0] for line in cache.repairs] == [f"{path}: unreadable map summary"]
+    assert cache.repairs[0].endswith("; computed again")
     np.testing.assert_array_equal(again.minima, clean.minima)
     assert again.largest == clean.largest
 

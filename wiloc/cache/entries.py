@@ -299,4 +299,6 @@ def read_h5(path: Path) -> StoredEntry | None:
                     stored.records[record.name] = record
                 else:
                     stored.dropped += 1
+            if group == "frames" and not stored.dropped and str(f.attrs["digest"]) != entry_digest(header, records):
+                raise ValueError("its digest attribute does not match its frames")  # the attribute damaged
     return stored

@@ -227,6 +227,8 @@ class Cache:
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
+            if exc.errno == errno.EEXIST and folder != self.root:  # a file where the cache keeps its folder
+                raise WilocError(folder, "a file where a cache folder belongs; remove it") from None
             raise WilocError(self.root, f"cannot create the cache folder ({exc.strerror})") from exc
 
     # -- primitives shared with other modules -------------------------------------------------
@@ -356,11 +358,12 @@ class Cache:
                     self.repairs.append(f"{path}: {stored.dropped} frame(s) failed their checksum (the file is "
                                         "damaged); described again")
         header, records, _, damaged = scan_journal(self.journal_path(key))
+        if damaged:
+            where = f"a record after the first {len(records)} frame(s)" if header else "its first record (the header)"
+            self.repairs.append(f"{self.journal_path(key)}: {where} failed its checksum (the file is damaged); the "
+                                "frames after it described again")
         if header is None:
             return stored
-        if damaged:
-            self.repairs.append(f"{self.journal_path(key)}: a record after the first {len(records)} frame(s) failed "
-                                "its checksum (the file is damaged); the frames after them described again")
         if stored is None or stored.header != header:
             stored = StoredEntry(header, created=now())
         stored.records.update((r.name, r) for r in records)
@@ -428,6 +431,7 @@ class Cache:
             try:
                 with h5py.File(path, "r") as f:
                     header, complete = header_from_attrs(f.attrs), bool(f.attrs["complete"])
+                    str(f.attrs["digest"])  # read as describe reads it: an attribute damaged past reading is told
                     frames = len(f["frames/name"])
             except (OSError, KeyError, ValueError, TypeError) as exc:
                 raise WilocError(path, f"unreadable cache entry ({exc}); describing its folder again "

@@ -146,15 +146,18 @@ def _summary_attrs(ref: Entry, exclude_recent: int) -> dict[str, object]:
             "differences_version": DIFFERENCES_VERSION}
 
 
-def _read_summary(path: Path, ref: Entry, exclude_recent: int) -> MapSummary | None:
-    """The summary stored at ``path`` if it is the one of exactly this map and R, else None."""
+def _read_summary(path: Path, ref: Entry, exclude_recent: int, repairs: list[str] | None = None) -> MapSummary | None:
+    """The summary stored at ``path`` if it is the one of exactly this map and R, else None; a
+    file there that cannot be read (damaged: its checksum failed) is noted in ``repairs``."""
     try:
         with h5py.File(path, "r") as f:
             current = all(f.attrs.get(k) == v for k, v in _summary_attrs(ref, exclude_recent).items())
             if not current or f["minima"].shape != (len(ref.names),):
                 return None
             return MapSummary(minima=f["minima"][()], largest=float(f.attrs["largest"]))
-    except (OSError, KeyError):
+    except (OSError, KeyError) as exc:
+        if repairs is not None and path.exists():
+            repairs.append(f"{path}: unreadable map summary ({exc}); computed again")
         return None
 
 
@@ -168,7 +171,7 @@ def map_summary(ref: Entry, cache: Cache, exclude_recent: int, runner: BlockRunn
     if summary is not None:
         return summary
     with cache.lock(name):
-        summary = _read_summary(path, ref, exclude_recent)  # another process may have written it meanwhile
+        summary = _read_summary(path, ref, exclude_recent, cache.repairs)  # another process may have written it
         if summary is None:
             summary = summarize(differences(ref, ref, runner), exclude_recent, progress)
             with cache.atomic_h5(path) as f:
