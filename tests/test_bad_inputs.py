@@ -162,6 +162,9 @@ UNUSED = {
     "cut of a folder": (["describe", "{ref}", "--stop", "5"], "error: --stop: applies to video files and ROS bags only"),
     "map odometry in sequence mode": (["localize", "{query}", "--method", "catgraph", "--map-odometry", "{tmp}/o.csv"],
                                       "--map-odometry: applies to map mode (--map) only"),
+    "one odometry log for two queries": (["localize", "{query}", "{ref}", "--map", "{ref}", "--method", "catgraph",
+                                          "--odometry", "{tmp}/o.csv", "--map-odometry", "{tmp}/o.csv"],
+                                         "--odometry: the log of one query; give one QUERY with it"),
     "odometry of a method without it": (["localize", "{query}", "--method", "online", "--odometry", "{tmp}/o.csv"],
                                         "--odometry: method 'online' takes no odometry"),
     "query odometry without the map's": (["localize", "{query}", "--map", "{ref}", "--method", "catgraph",
@@ -1407,6 +1410,15 @@ def test_a_followed_results_file_cut_short_in_its_last_row_is_refused(results: P
     torn.write_bytes(followed.read_bytes()[:-4])
     ends_in_one_error(runner.invoke(app, ["evaluate", str(torn)]), 1,
                       f"{torn}: its last row is cut short (no line end)")
+
+
+def test_a_batch_results_file_cut_within_its_last_value_is_refused(results: Path, tmp_path: Path) -> None:
+    """Only a followed file's torn last row was refused: a batch file cut 4 bytes short (a copy that
+    stopped) was read with its last ranking or score cut, a node 101 read as 10."""
+    torn = tmp_path / "torn.csv"
+    torn.write_bytes(results.read_bytes()[:-4])
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(torn)]), 1,
+                      f"{torn}: its last row is cut short (no line end): the file was cut")
 
 
 def test_a_map_frame_named_twice_in_the_header_is_refused(results: Path, tmp_path: Path) -> None:

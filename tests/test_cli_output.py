@@ -111,8 +111,9 @@ def test_evaluate_with_seven_runs_stays_readable_at_80_columns(tmp_path: Path, c
             paths.append(tmp_path / f"{q.name}-{method}.csv")
             assert runner.invoke(app, ["localize", str(q), "--map", str(ref), "--method", method, "--out",
                                        str(paths[-1]), "--jobs", "1"]).exit_code == 0
-    paths.append(tmp_path / "again.csv")
-    paths[-1].write_bytes(paths[0].read_bytes())
+    paths.append(tmp_path / "again.csv")  # the first run's method and traversal again, told apart by its file
+    assert runner.invoke(app, ["localize", str(query), "--map", str(ref), "--bins", "50", "--out", str(paths[-1]),
+                               "--jobs", "1"]).exit_code == 0
     result = runner.invoke(app, ["evaluate", *map(str, paths)], env=NARROW)
     assert result.exit_code == 0, result.output
     assert "…" not in result.stdout and max(map(len, result.stdout.splitlines())) <= 80
@@ -369,6 +370,9 @@ def test_json_names_frames_left_out_by_their_absolute_paths(tmp_path: Path, cach
     assert followed["warnings"][0].startswith(f"skipped: {bad}: ")
     table = runner.invoke(app, ["localize", "query", "--map", "ref", "--out", "run.csv", "--jobs", "1"])
     assert table.exit_code == 0 and table.stderr.startswith(f"skipped {Path('query', 'img3.png')}: "), table.output
+    table = runner.invoke(app, ["describe", "query", "--jobs", "1"])  # was the absolute path
+    assert table.exit_code == 0 and table.stderr.startswith(f"skipped {Path('query', 'img3.png')}: "), table.output
+    assert f"skipped: {bad}: " in described["warnings"][0]
 
 
 def _recalls_at_cuts(text: str) -> list[str]:

@@ -355,6 +355,12 @@ def test_follow_refuses_what_it_cannot_follow(demo_route: demo.DemoRoute, tmp_pa
     other = runner.invoke(app, ["localize", str(demo_route.queries[0]), "--map", str(demo_route.reference), "--follow",
                                 "--idle", "0.5", "--out", str(out), "--method", "threshold"])
     assert other.exit_code == 1 and "holds a run with other settings" in other.stderr
+    batch = tmp_path / "batch.csv"  # a batch run's file, same settings: it was "other settings" too
+    assert runner.invoke(app, ["localize", str(demo_route.queries[0]), "--map", str(demo_route.reference), "--out",
+                               str(batch)]).exit_code == 0
+    again = runner.invoke(app, ["localize", str(demo_route.queries[0]), "--map", str(demo_route.reference), "--follow",
+                                "--idle", "0.5", "--out", str(batch)])
+    assert again.exit_code == 1 and "holds a batch run's rows, which a followed run cannot resume" in again.stderr
     with pytest.raises(WilocError) as err:  # the API given a folder as out: as a batch run, before any work
         api.follow_folder(demo_route.queries[0], reference=demo_route.reference, out=tmp_path)
     assert str(err.value) == (f"{tmp_path}: cannot write the results file: it is not a regular file (a device, a "

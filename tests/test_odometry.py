@@ -170,3 +170,64 @@ def test_a_run_with_distances_from_the_start_warns_of_them(demo_route: demo.Demo
     run = api.localize(query, reference=demo_route.reference, method="catgraph", odometry=cumulative,
                        map_odometry=demo_route.positions / "reference.csv", out=tmp_path / "run.csv")
     assert [w for w in run.warnings if w.startswith(f"odometry {cumulative}")] != []
+
+
+def test_steps_are_the_files_own_distances_summed_over_rows_left_out(tmp_path: Path) -> None:
+    """A batch run differenced the cumulative sum again: its steps differed from the file's
+    distances in the last bits (589 of 599 on a random log), and catgraph's draws with them."""
+    values = np.random.default_rng(1).uniform(0.3, 2.7, 300).round(7)
+    odo = read_odometry(_write(tmp_path, "".join(f"f{i},{float(v)!r}\n" for i, v in enumerate(values))))
+    names = [f"f{i}" for i in range(300)]
+    np.testing.assert_array_equal(odo.steps(names), np.r_[0.0, values[1:]])
+    assert not np.array_equal(steps(odo.arclength(names)), np.r_[0.0, values[1:]])  # what a run gave before
+    np.testing.assert_array_equal(odo.steps(["f0", "f2", "f3"]), [0.0, values[1] + values[2], values[3]])
+    xy = read_odometry(_write(tmp_path, "name,x,y\nc,3,10\na,0,0\nb,3,4\n"))
+    np.testing.assert_array_equal(xy.steps(["a", "b", "c"]), [0.0, 5.0, 6.0])
+
+
+def test_distance_rows_out_of_the_frames_order_are_named(tmp_path: Path) -> None:
+    """A log sorted as text (img10 before img2) was read as negative steps: "query frame 10: the
+    step must be finite and >= 0, got -187.0", naming neither the file nor the cause."""
+    path = _write(tmp_path, "".join(f"img{i},1\n" for i in sorted(range(12), key=str)))
+    names = [f"img{i}" for i in range(12)]
+    for read in (read_odometry(path).steps, read_odometry(path).arclength):
+        with pytest.raises(WilocError, match=r"its rows are not in the frames' order: 'img10' comes before 'img9'") as err:
+            read(names)
+        assert err.value.where == str(path)
+
+
+def test_a_batch_run_with_odometry_decides_as_the_localizer_given_the_files_distances(
+        demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """catgraph in sequence mode with a name,distance log of fractional distances: the batch run
+    gave the filter the arc length differenced again, where Localizer.observe(odometry=d) gives the
+    file's d, so the two decided other matches (88 of 600 on Nordland). Both now step the filter
+    with the file's own numbers and write the same rows."""
+    import csv
+
+    from wiloc.localization.localizer import Localizer
+    from wiloc.methods.catgraph.filter import CatGraph
+
+    query = demo_route.queries[0]
+    frames = list(api.frames(query))
+    distances = np.random.default_rng(2).uniform(0.3, 2.7, len(frames)).round(7)
+    log = _write(tmp_path, "".join(f"{p.name},{float(d)!r}\n" for p, d in zip(frames, distances)))
+    given: list[float | None] = []
+    step = CatGraph.step
+
+    def recorded(self: CatGraph, row: np.ndarray, odometry: float | None = None, ahead: object = None) -> object:
+        given.append(odometry)
+        return step(self, row, odometry, ahead)
+
+    monkeypatch.setattr(CatGraph, "step", recorded)
+    batch = api.localize(query, method="catgraph", odometry=log, out=tmp_path / "batch.csv")
+    stepped, given[:] = given[-len(frames):], []
+    assert stepped == [0.0, *distances[1:].tolist()]
+    loc = Localizer(None, descriptor="sad", method="catgraph")
+    for i, (path, distance) in enumerate(zip(frames, distances)):
+        loc.observe(path, odometry=None if i == 0 else float(distance))
+    loc.results(query=query).save(tmp_path / "live.csv")
+
+    def rows(path: Path) -> list[dict[str, str]]:
+        return list(csv.DictReader(line for line in path.read_text().splitlines() if not line.startswith("#")))
+
+    assert batch.path is not None and rows(batch.path) == rows(tmp_path / "live.csv")

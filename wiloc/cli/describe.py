@@ -100,12 +100,13 @@ def describe(
                                    cache=store, jobs=jobs, progress=progress, sampling=sampling, scheduler=scheduler,
                                    topic=topic)
     rows, notes = [], []
-    for label, r in zip(short_names([r.folder for r in reports]), reports):
+    given = folders if not importing and len(folders) == len(reports) else [Path(r.folder) for r in reports]
+    for label, r, folder in zip(short_names([r.folder for r in reports]), reports, given):
         said = Notes()
         for line in (*r.repairs, *r.notes):
             said.add("note", line)
-        for name, reason in r.failed if not r.video else ():
-            said.add("skipped", f"{Path(r.folder) / name}: {reason}")
+        for name, reason in r.failed if not r.video else ():  # named as localize names them: absolute in --json
+            said.add("skipped", f"{Path(r.folder if as_json else folder) / name}: {reason}")
         if len(r.sizes) > 1:
             said.add("note", f"{r.folder}: images of {len(r.sizes)} different sizes")
         notes.append(said)

@@ -44,7 +44,7 @@ def localize(
     train_radius: Optional[float] = typer.Option(None, help="trained: metres, for positions ground truth.", rich_help_panel="trained inputs"),
     names: Optional[Path] = typer.Option(None, help="A .npy QUERY matrix: its frame names, one per line."),
     map_names: Optional[Path] = typer.Option(None, help="A .npy --map matrix: its frame names, one per line."),
-    odometry: Optional[Path] = typer.Option(None, help="catgraph: query odometry CSV (name,distance or name,x,y), with the map's (--map-odometry); without --map, the traversal's own.", rich_help_panel="catgraph inputs"),
+    odometry: Optional[Path] = typer.Option(None, help="catgraph: the odometry CSV of one QUERY (name,distance or name,x,y), with the map's (--map-odometry); without --map, the traversal's own.", rich_help_panel="catgraph inputs"),
     odometry_topic: Optional[str] = typer.Option(None, help="catgraph: the nav_msgs Odometry topic of the ROS bags (the query's and the --map bag's; without --map, the traversal's own).", rich_help_panel="catgraph inputs"),
     map_odometry: Optional[Path] = typer.Option(None, help="catgraph: reference odometry CSV.", rich_help_panel="catgraph inputs"),
     out_text: Optional[str] = typer.Option(None, "--out", "-o", callback=results_out, show_default="QUERY-DESCRIPTOR-METHOD.csv here",
@@ -123,6 +123,8 @@ def localize(
             out=out_path / api.results_name(queries[0], method, descriptor) if out_folder else out_path,
             cache=Cache(cache), jobs=jobs, idle=idle), as_json)
         return
+    if len(queries) > 1 and odometry is not None:  # one log is one traversal's: never another query's
+        fail("--odometry: the log of one query; give one QUERY with it", EXIT_USAGE)
     if len(queries) > 1 and out_path is not None and not out_folder:
         fail(f"{out_path}: with several queries --out names a folder", EXIT_USAGE)
     if model_plot is not None and method not in ("online", "trained"):

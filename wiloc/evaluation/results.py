@@ -209,8 +209,8 @@ class ResultsStream:
             found, self.rows, _ = _read_table(self.path)
             expected = parse_header(self.header.text().splitlines(), self.path)  # as a file gives it back
             if _settings(found, expected, learned) != _settings(expected, expected, learned):
-                raise WilocError(None, f"{self.path} holds a run with other settings; give another file to start anew",
-                                 parameter="out")
+                held = "a run with other settings" if found.follow else "a batch run's rows, which a followed run cannot resume"
+                raise WilocError(None, f"{self.path} holds {held}; give another file to start anew", parameter="out")
         else:
             _write_atomically(self.path, self.header, lambda out: out.write(",".join(self.columns) + "\n"))
         self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
@@ -427,10 +427,10 @@ def _reference_frames(path: Path, header: ResultsHeader, frames: pd.DataFrame) -
 
 
 def _torn(path: Path) -> bool:
-    """Whether the file's last line has no line end (a row cut short while it was written)."""
+    """Whether the last row has no line end (cut short as it was written); spaces after it are none."""
     with path.open("rb") as handle:
-        handle.seek(-1, os.SEEK_END)
-        return handle.read(1) != b"\n"
+        handle.seek(max(0, handle.seek(0, os.SEEK_END) - 4096))
+        return not handle.read().rstrip(b" \t").endswith((b"\n", b"\r"))
 
 
 def _without_blank_lines(path: Path, frames: pd.DataFrame, first_line: int) -> pd.DataFrame:
@@ -478,9 +478,10 @@ def _read_table(path: Path) -> tuple[ResultsHeader, pd.DataFrame, int]:
     """A results file's header, its table (every cell as text) and the line number of the
     table's first row."""
     header, n_header = read_header(path)
-    if header.follow and _torn(path):
-        raise WilocError(path, "its last row is cut short (no line end): the followed run stopped while writing "
-                               "it, or is writing it now; read the file again, or resume the run, which cuts it off")
+    if _torn(path):  # a run ends each row: without its end, a row may be cut within its last value
+        raise WilocError(path, "its last row is cut short (no line end): " + (
+            "the followed run stopped while writing it, or is writing it now; read the file again, or resume the "
+            "run, which cuts it off" if header.follow else "the file was cut (a copy that stopped?); localize writes it whole"))
     frames = _table(path, n_header)
     missing = [c for c in BASE_COLUMNS if c not in frames.columns]
     if missing:

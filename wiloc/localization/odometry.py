@@ -41,31 +41,64 @@ class Odometry:
 
         Every name must appear in the file; names in the file but not asked for are ignored
         (their distances still count: a frame left out of the traversal was still driven past).
-        Distances travelled must not be negative.
+        Distances travelled must not be negative, and their rows come in the frames' order.
         """
+        order, rows = self._rows(names)
+        if not len(rows):
+            return np.zeros(0)
+        if self.values.shape[1] == 2:
+            return self._finite(np.r_[0.0, np.cumsum(self._position_steps(rows))], order)
+        with np.errstate(over="ignore", invalid="ignore"):  # checked below
+            cumulative = self._finite(np.cumsum(self._travelled()), self.names)[rows]
+            return cumulative - cumulative[0]
+
+    def steps(self, names: Sequence[str]) -> NDArray[np.float64]:
+        """The distance travelled since the previous of ``names`` (0 for the first): a distance
+        file's own values where the frames are consecutive rows (summed over rows left out), so
+        that a batch run gives the filter the numbers a Localizer is given frame by frame; the
+        arc length differenced again differed in the last bits, and catgraph's draws with them."""
+        order, rows = self._rows(names)
+        if len(rows) < 2:
+            return np.zeros(len(rows))
+        if self.values.shape[1] == 2:
+            return np.r_[0.0, self._finite(self._position_steps(rows), order[1:])]
+        with np.errstate(over="ignore", invalid="ignore"):  # checked below
+            self._finite(np.cumsum(self._travelled()), self.names)
+            return np.r_[0.0, self._finite(np.add.reduceat(self._travelled()[:rows[-1] + 1], rows[:-1] + 1), order[1:])]
+
+    def _rows(self, names: Sequence[str] | None) -> tuple[tuple[str, ...], NDArray[np.intp]]:
+        """``names`` (default: the file's) and their rows in the file; a WilocError for a name the
+        file lacks, or for distances whose rows are out of the frames' order (summed in the
+        file's order, they gave negative steps: a log sorted as text, img10 before img2)."""
         order = self.names if names is None else tuple(names)
         index = {name: i for i, name in enumerate(self.names)}
         missing = [name for name in order if name not in index]
         if missing:
             why = why_unmatched(list(self.names), missing) if len(missing) == len(order) else ""  # no name matches
             raise WilocError(self.path, f"no odometry for {len(missing)} frame(s), first {missing[0]!r}{why}")
-        rows = [index[name] for name in order]
-        if not len(rows):
-            return np.zeros(0)
-        if self.values.shape[1] == 2:
+        rows = np.array([index[name] for name in order], dtype=np.intp)
+        back = np.flatnonzero(np.diff(rows) < 0)
+        if self.values.shape[1] == 1 and back.size:
+            raise WilocError(self.path, f"its rows are not in the frames' order: {order[back[0] + 1]!r} comes before "
+                                        f"{order[back[0]]!r}; a name,distance row holds the distance since the row "
+                                        "before it, so the rows follow the frames")
+        return order, rows
+
+    def _position_steps(self, rows: NDArray[np.intp]) -> NDArray[np.float64]:
+        """Metres between the positions of consecutive ``rows`` (not checked finite)."""
+        with np.errstate(over="ignore", invalid="ignore"):
             vals = self.values[rows]
-            with np.errstate(over="ignore", invalid="ignore"):  # checked below
-                step = _great_circle_steps(vals) if self.geographic else np.hypot(*np.diff(vals, axis=0).T)
-                return self._finite(np.r_[0.0, np.cumsum(step)], order)
+            return _great_circle_steps(vals) if self.geographic else np.hypot(*np.diff(vals, axis=0).T)
+
+    def _travelled(self) -> NDArray[np.float64]:
+        """A distance file's values, the first row's 0 (travelled before the route), checked >= 0."""
         travelled = self.values[:, 0].copy()
         negative = np.flatnonzero(travelled < 0)
         if negative.size:
             raise WilocError(self.path, f"negative distance at frame {self.names[negative[0]]!r}: "
                                         "expected the distance travelled since the previous frame")
         travelled[0] = 0.0
-        with np.errstate(over="ignore", invalid="ignore"):  # checked below
-            cumulative = self._finite(np.cumsum(travelled), self.names)[rows]
-            return cumulative - cumulative[0]
+        return travelled
 
     def doubt(self) -> str | None:
         """A line when the distances read as the distance from the start rather than from the
@@ -199,3 +232,13 @@ def traversal_arclength(names: list[str], csv_path: Path | None = None, bag: Pat
         with Bag(Path(bag)) as opened:
             return opened.arclength(topic, names)
     return read_odometry(csv_path).arclength(names) if csv_path is not None else None
+
+
+def traversal_steps(names: list[str], csv_path: Path | None = None, bag: Path | None = None,
+                    topic: str | None = None) -> NDArray[np.float64] | None:
+    """A traversal's distance travelled since the previous frame, at each frame of ``names``: its
+    CSV's own distances (:meth:`Odometry.steps`), else its bag's arc length differenced."""
+    if csv_path is not None and (bag is None or topic is None):
+        return read_odometry(csv_path).steps(names)
+    arclength = traversal_arclength(names, csv_path, bag, topic)
+    return None if arclength is None else steps(arclength)

@@ -30,7 +30,7 @@ from wiloc.description.distances import DifferencesTo, consecutive, pairwise
 from wiloc.description.traversals import (Describer, Progress, check_descriptor, check_metric, descriptor_spec,
                                          descriptors_digest, entry_params, is_matrix_file, open_cluster, stage)
 from wiloc.errors import ParameterError, UsageError, WilocError, parameter_values
-from wiloc.localization.odometry import bag_odometry, read_odometry, steps, traversal_arclength
+from wiloc.localization.odometry import bag_odometry, read_odometry, traversal_arclength, traversal_steps
 from wiloc.localization.training import Training, training_rows
 from wiloc.methods.base import MapContext, Method, TrainingRows
 from wiloc.methods.registry import learning_from_the_map, make_method
@@ -252,8 +252,7 @@ class RunSession:
     def query_steps(self) -> NDArray[np.float64] | None:
         """A batch query's travelled distance per frame, from its odometry CSV or its bag's topic."""
         query_bag = self.query_path if self._query_bag else None
-        arclength = traversal_arclength(self.query.names, self.odometry, query_bag, self.odometry_topic)
-        return None if arclength is None else steps(arclength)
+        return traversal_steps(self.query.names, self.odometry, query_bag, self.odometry_topic)
 
     def _training_rows(self) -> TrainingRows:
         """The labelled pair of ``trained``: given as rows, or computed from its traversals."""
