@@ -294,8 +294,8 @@ def test_a_journal_whose_header_record_is_damaged_is_noted(tmp_path: Path) -> No
     blob[40] ^= 4
     path.write_bytes(bytes(blob))
     assert cache.read_stored(header.key) is None
-    assert cache.repairs == [f"{path}: its first record (the header) failed its checksum (the file is damaged); "
-                             "the frames after it described again"]
+    assert cache.repairs == [(f"{path}: its first record (the header) failed its checksum (the file is damaged); "
+                              "the frames after it described again")]
 
 
 def test_an_entry_whose_digest_attribute_is_damaged_is_described_again(tmp_path: Path) -> None:
@@ -309,8 +309,8 @@ def test_an_entry_whose_digest_attribute_is_damaged_is_described_again(tmp_path:
     with h5py.File(path, "r+") as f:
         f.attrs["digest"] = written.digest[:-1] + ("0" if written.digest[-1] != "0" else "1")
     assert cache.read_stored(_header().key) is None
-    assert cache.repairs == [f"{path}: unreadable cache entry (its digest attribute does not match its frames); "
-                             "described again"]
+    assert cache.repairs == [(f"{path}: unreadable cache entry (its digest attribute does not match its frames); "
+                              "described again")]
 
 
 def test_timestamps_round_trip_through_journal_and_file(tmp_path: Path) -> None:
