@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from protocol import _finite, aligned, default_data_root, one_line_errors, output_folder, require
+from protocol import _finite, aligned, common_parser, localize, one_line_errors, output_folder, require, say_written
 
 import wiloc
 from wiloc import api
@@ -76,11 +76,7 @@ def say(text: str) -> None:
 def parse_args() -> argparse.Namespace:
     """The command line: the data folder and output folder as the other examples take them, and
     what to play."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("data", nargs="?", type=Path, default=default_data_root(),
-                        help="folder holding the datasets (default: $WILOC_DATA or ../shared/data)")
-    parser.add_argument("--out", type=Path, default=Path("wiloc-examples") / "live",
-                        help="output folder (default: %(default)s)")
+    parser = common_parser("live", __doc__.splitlines()[0])
     parser.add_argument("--query", default="day_left", choices=("day_left", "night_right"),
                         help="the Gardens Point walk played live against day_right (default: %(default)s)")
     parser.add_argument("--method", default="catgraph", choices=METHODS, help="(default: %(default)s)")
@@ -205,8 +201,8 @@ def reruns(live: Results, reference: Path, query: Path, paths: Sequence[Path], s
     uninterrupted = wiloc.Localizer(reference, **setup)
     play(uninterrupted, paths, frame_source(uninterrupted, frames), None, False)
     resumed = agreement(live.frames, uninterrupted.results(query=query).frames, "an uninterrupted one")
-    batch = api.localize(query, reference=reference, descriptor=setup["descriptor"], method=setup["method"],
-                         method_params=params)
+    batch = localize(query, reference=reference, descriptor=setup["descriptor"], method=setup["method"],
+                     method_params=params)
     batched = agreement(live.frames, batch.results.frames, f"a batch wiloc.api.localize of {query.name}")
     # Every descriptor's differences are the same frame by frame as in the batch run's blocks
     # (docs/guide.md); full-size BGR arrays are described otherwise than the files.
@@ -251,7 +247,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     say(cpu_line(summary["cpu_ms"], args.frames, len(loc.map_names)))
     with written_whole(args.out / "summary.json", "the summary") as out:
         out.write(json.dumps(summary, indent=2) + "\n")
-    say(f"wrote {live_file}, {args.out / 'state.npz'}, {args.out / 'summary.json'}")
+    say_written([live_file, args.out / "state.npz", args.out / "summary.json"])
     return summary
 
 

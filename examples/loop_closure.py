@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from protocol import _finite, _fraction, _percent, console, require, run_table_script
+from protocol import _finite, _fraction, _percent, localize, require, run_table_script, vocabulary
 
 from wiloc import api
 from wiloc.errors import WilocError
@@ -69,11 +69,11 @@ def run(data: Path, out: Path) -> dict[str, Any]:
     paths, rows = [], []
     for name, (_, _, trained_on) in LOOPS.items():
         folder = build_loop(root, name, out)
-        vocabulary = api.vocabulary([root / trained_on])
+        report = vocabulary([root / trained_on])
         for label, descriptor, method in RUNS:
-            params = {"file": str(vocabulary.path)} if descriptor == "bow" else {}
-            result = api.localize(folder, descriptor=descriptor, descriptor_params=params, method=method,
-                                  out=out / "results" / f"{name}-{descriptor}-{method}.csv")
+            params = {"file": str(report.path)} if descriptor == "bow" else {}
+            result = localize(folder, descriptor=descriptor, descriptor_params=params, method=method,
+                              out=out / "results" / f"{name}-{descriptor}-{method}.csv")
             paths.append(result.path)
             rows.append({"label": label, "loop": name, "vocabulary": trained_on if descriptor == "bow" else None})
     truth = api.TruthSource(kind="positions", path=str(out / "positions" / "{query}.csv"), radius=RADIUS)
@@ -95,7 +95,6 @@ def run(data: Path, out: Path) -> dict[str, Any]:
                        "table": table})
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     print(render(summary))
-    console.print(f"wrote {out / 'summary.json'}, {out / 'pr.png'}, {out / 'results'}")
     return summary
 
 

@@ -15,24 +15,29 @@ import math
 import os
 import shutil
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from wiloc import api
 from wiloc.atomic import write_error
 from wiloc.cache.store import Cache
-from wiloc.cli.core import error, out as console  # wiloc's: a path holding ':name:' is printed as typed
+from wiloc.cli.core import error, note, out as console  # wiloc's: a path holding ':name:' is printed as typed
 from wiloc.cli.views import progress_bar, table1_view, table2_view
 from wiloc.descriptors.registry import DESCRIPTOR_NAMES, descriptor_class
 from wiloc.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError, interrupted
 from wiloc.figures import plots, run_figures
 
+if TYPE_CHECKING:
+    from wiloc.description.vocabulary_build import VocabularyReport
+
 REPO = Path(__file__).resolve().parents[1]
 METHODS = ("online", "threshold", "trained", "catgraph")
 RECALL_AT = (1, 5, 10, 20)  # Recall@N as place recognition papers report it
+TABLE_OUTPUTS = ("summary.json", "pr.png", "results")  # what a one-table example writes into --out
+_said_skipped: set[tuple[str, str]] = set()  # the frames left out that were said (:func:`say_skipped`)
 
 
 @dataclass(frozen=True)
@@ -67,14 +72,21 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(EXIT_USAGE)
 
 
-def parse_args(name: str, description: str, descriptors: bool) -> argparse.Namespace:
-    """The examples' common options: the data folder, the output folder and (maybe) descriptors,
-    each descriptor checked before any work (a UsageError naming --descriptors)."""
+def common_parser(name: str, description: str) -> argparse.ArgumentParser:
+    """A parser of the options every example takes, the data folder and the output folder, that
+    ends on a usage problem in one line (exit code 2) as the wiloc command does."""
     parser = _Parser(description=description)
     parser.add_argument("data", nargs="?", type=Path, default=default_data_root(),
                         help="folder holding the datasets (default: $WILOC_DATA or ../shared/data)")
     parser.add_argument("--out", type=Path, default=Path("wiloc-examples") / name,
                         help="output folder (default: %(default)s)")
+    return parser
+
+
+def parse_args(name: str, description: str, descriptors: bool) -> argparse.Namespace:
+    """The examples' common options (:func:`common_parser`), --update-docs and (maybe)
+    descriptors, each descriptor checked before any work (a UsageError naming --descriptors)."""
+    parser = common_parser(name, description)
     parser.add_argument("--update-docs", action="store_true",
                         help="rewrite this example's tables in docs/results.md and its plots in docs/img/")
     if descriptors:
@@ -107,6 +119,35 @@ def aligned(tolerance: int) -> api.TruthSource:
     return api.TruthSource(kind="aligned", tolerance=tolerance)
 
 
+def say_skipped(frames: Iterable[tuple[str, str]]) -> None:
+    """``skipped PATH: why`` on stderr for each frame the library left out, as `wiloc localize`
+    says it: once a frame, however many runs leave it out."""
+    for path, reason in frames:
+        if (path, reason) not in _said_skipped:
+            note("skipped", f"{path}: {reason}")
+            _said_skipped.add((path, reason))
+
+
+def localize(query: Path, **options: Any) -> api.LocalizeRun:
+    """``wiloc.api.localize``, saying the frames it left out (:func:`say_skipped`)."""
+    run = api.localize(query, **options)
+    say_skipped(run.skipped)
+    return run
+
+
+def vocabulary(folders: Sequence[Path]) -> VocabularyReport:
+    """``wiloc.api.vocabulary``, saying the training frames it left out (:func:`say_skipped`)."""
+    report = api.vocabulary(folders)
+    say_skipped(report.failed)
+    return report
+
+
+def say_written(paths: Iterable[Path]) -> None:
+    """``wrote PATH`` for each output, never folded: where an example's outputs went."""
+    for path in paths:
+        print(f"wrote {path}", flush=True)
+
+
 def run_experiment(experiment: Experiment, out: Path) -> dict[str, Any]:
     """Localize every query with every method and descriptor, compare, plot, write summary.json."""
     output_folder(out)
@@ -115,7 +156,7 @@ def run_experiment(experiment: Experiment, out: Path) -> dict[str, Any]:
         for descriptor in experiment.descriptors:
             for method in METHODS:
                 for query in experiment.queries:
-                    run = api.localize(
+                    run = localize(
                         query, reference=experiment.reference, descriptor=descriptor, method=method,
                         training=experiment.training(query) if method == "trained" else None,
                         out=out / "results" / f"{query.name}-{descriptor}-{method}.csv", progress=progress)
@@ -144,8 +185,7 @@ def run_experiment(experiment: Experiment, out: Path) -> dict[str, Any]:
     console.print(table2_view(comparison))
     console.print(f"trained: {experiment.training_note}")
     print(render_markdown(summary))
-    for path in [out / "summary.json", *files, out / "results"]:
-        console.print(f"wrote {path}")
+    say_written([out / "summary.json", *files, out / "results"])
     return summary
 
 
@@ -266,11 +306,13 @@ def main(build: Callable[[], tuple[Experiment, Path, bool]]) -> None:
 def run_table_script(name: str, description: str, run: Callable[[Path, Path], dict[str, Any]],
                      render: Callable[[dict[str, Any]], str]) -> None:
     """Run an example that prints one table and draws PR curves (``run(data, out)`` gives its
-    summary, ``render`` the table docs/results.md quotes; :func:`one_line_errors`)."""
+    summary and writes :data:`TABLE_OUTPUTS`, ``render`` the table docs/results.md quotes;
+    :func:`one_line_errors`)."""
     args = parse_args(name, description, descriptors=False)
     with one_line_errors():
         check_output_folder(args.out)
         summary = run(args.data, args.out)
+        say_written(args.out / output for output in TABLE_OUTPUTS)
         if args.update_docs:
             update_docs(summary, args.out, markdown=render(summary), plots=("pr",))
 

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from protocol import _finite, _percent, aligned, console, require, run_table_script
+from protocol import _finite, _percent, aligned, console, localize, require, run_table_script, vocabulary
 
 from rich.table import Table
 
@@ -42,16 +42,16 @@ def run(data: Path, out: Path) -> dict[str, Any]:
     rows, paths, vocabularies = [], [], {}
     for query in queries:
         other = next(q for q in queries if q != query)
-        vocabulary = api.vocabulary([other])
-        vocabularies[query.name] = {"trained_on": other.name, "key": vocabulary.vocabulary.key,
-                                    "words": vocabulary.vocabulary.n_words}
+        report = vocabulary([other])
+        vocabularies[query.name] = {"trained_on": other.name, "key": report.vocabulary.key,
+                                    "words": report.vocabulary.n_words}
         for label, descriptor, method in RUNS:
-            params = {"file": str(vocabulary.path)} if descriptor == "bow" else {}
+            params = {"file": str(report.path)} if descriptor == "bow" else {}
             target = out / "results" / f"{query.name}-{descriptor}-{method}.csv"
             for _ in range(2):  # the second run is timed: the descriptors are in the cache
                 started = time.perf_counter()
-                result = api.localize(query, reference=reference, descriptor=descriptor, descriptor_params=params,
-                                      method=method, out=target)
+                result = localize(query, reference=reference, descriptor=descriptor, descriptor_params=params,
+                                  method=method, out=target)
                 seconds = time.perf_counter() - started
             rows.append({"label": label, "traversal": query.name,
                          "ms_per_frame": 1000 * seconds / len(result.decisions)})

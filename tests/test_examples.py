@@ -20,6 +20,7 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
+from helpers import write_images
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = ("gardens_point", "nordland")
@@ -129,6 +130,35 @@ def test_a_bad_example_option_is_one_line_naming_it_before_anything_is_made(tmp_
                           check=False)
     assert proc.returncode == 2 and proc.stderr.startswith(said), proc.stderr
     assert len(proc.stderr.splitlines()) == 1 and not out.exists()
+
+
+def test_an_example_says_each_frame_it_left_out_once(tmp_path: Path) -> None:
+    """A frame wiloc cannot decode is left out of every run and said once on stderr, as `wiloc
+    localize` says it ('skipped PATH: why'); the examples left it out without a word."""
+    root = tmp_path / "data" / "gardens-point-walking"
+    for seed, folder in enumerate(("day_right", "day_left", "night_right")):
+        write_images(root / folder, 12, seed=seed)
+    bad = root / "day_left" / "img4.png"
+    bad.write_text("garbage\n", encoding="utf-8")
+    proc = subprocess.run([sys.executable, str(REPO / "examples" / "gardens_point.py"), str(tmp_path / "data"),
+                           "--out", str(tmp_path / "out")], capture_output=True, text=True,
+                          env={**os.environ, "WILOC_CACHE": str(tmp_path / "cache")}, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    said = [line for line in proc.stderr.splitlines() if line.startswith("skipped ")]
+    assert said == [f"skipped {bad}: cannot decode image data"], proc.stderr
+
+
+def test_table1_says_where_its_outputs_went(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """table1.py printed its tables but not where summary.json, pr.png and results/ went, as the
+    other examples do."""
+    table1 = _example("table1")
+    out = tmp_path / "out"
+    monkeypatch.setattr(table1, "run", lambda data, out: {"table": []})  # the lines name what the real run writes
+    monkeypatch.setattr(sys, "argv", ["table1.py", str(tmp_path), "--out", str(out)])
+    table1.main()
+    wrote = [line for line in capsys.readouterr().out.splitlines() if line.startswith("wrote ")]
+    assert wrote == [f"wrote {out / name}" for name in ("summary.json", "pr.png", "results")]
 
 
 @pytest.fixture(scope="module")

@@ -119,6 +119,18 @@ def test_missing_data_is_one_error_line(tmp_path: Path) -> None:
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize(("options", "said"), [
+    (["--bogus"], "error: --bogus: no such option of live.py (see --help)"),
+    (["--seed", "x"], "error: --seed: invalid int value: 'x'")])
+def test_a_bad_option_is_one_line_naming_it(tmp_path: Path, options: list[str], said: str) -> None:
+    """As the other examples (examples/protocol.py): one line and exit code 2, not argparse's usage lines."""
+    proc = subprocess.run([sys.executable, str(EXAMPLE), str(tmp_path), "--out", str(tmp_path / "out"), *options],
+                          capture_output=True, text=True, check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.splitlines() == [said]
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.realdata
 def test_out_that_is_a_file_is_one_error_line_before_any_work(data_root: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
