@@ -1,20 +1,25 @@
 """What the benchmarks that run methods on re-sampled real traversals share (``bench_pace``,
 ``bench_loops``): where the data is, ``--param method.key=value`` options, the ``--odometry``
 noise, and printing; and the
-console every benchmark prints with, and the line a failed child process is reported by."""
+console every benchmark prints with, the line a failed child process is reported by, and the checks
+that end a benchmark given a bad option or missing data with one error line before any work."""
 from __future__ import annotations
 
 import argparse
 import json
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Collection, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from rich.console import Console
+
+from wiloc.atomic import written_whole
+from wiloc.errors import WilocError
 
 REPO = Path(__file__).resolve().parents[1]
 ODOMETRY_SEED = 0  # the draw of --odometry's noise: every method and run gets the same steps
@@ -113,10 +118,76 @@ def last_error_line(stderr: str, code: int) -> str:
     return said[-1] if said else f"exit status {code}"
 
 
+def at_least(parser: argparse.ArgumentParser, option: str, value: int, least: int = 1) -> int:
+    """``value`` of ``option``, or the usage error (exit 2) saying it must be at least ``least``."""
+    if value < least:
+        parser.error(f"{option} must be at least {least}, got {value}")
+    return value
+
+
+def whole_numbers(parser: argparse.ArgumentParser, option: str, text: str, least: int = 1) -> list[int]:
+    """``option``'s comma-separated whole numbers, each at least ``least``, or the usage error (exit 2)."""
+    try:
+        numbers = [int(part) for part in text.split(",")]
+    except ValueError:
+        parser.error(f"{option} must be whole numbers, comma-separated, got {text!r}")
+    for number in numbers:
+        at_least(parser, option, number, least)
+    return numbers
+
+
+def known_methods(parser: argparse.ArgumentParser, option: str, text: str, known: Collection[str]) -> list[str]:
+    """``option``'s comma-separated method names, each one of ``known``, or the usage error (exit 2)
+    naming the first that is not: a typo runs nothing rather than being skipped."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    for name in names:
+        if name not in known:
+            parser.error(f"{option}: unknown method {name!r} (choose from {', '.join(known)})")
+    return names
+
+
+def folder_problem(folder: Path) -> str | None:
+    """Why ``folder`` cannot be written into ("folder does not exist", "not a folder"), or None."""
+    if folder.is_dir():
+        return None
+    return "not a folder" if folder.exists() else "folder does not exist"
+
+
+def check_json_target(parser: argparse.ArgumentParser, path: Path | None) -> None:
+    """``--json PATH``: the usage error (exit 2) before any work when the file cannot be written
+    there (its folder missing or a file, or PATH a folder), rather than a traceback after the run."""
+    if path is None:
+        return
+    folder = path.parent
+    if path.is_dir():
+        parser.error(f"--json {path}: is a folder")
+    if not folder.exists():
+        parser.error(f"--json {path}: folder {folder} does not exist")
+    if not folder.is_dir():
+        parser.error(f"--json {path}: {folder} is not a folder")
+
+
+@contextmanager
+def data_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
+    """A ``WilocError`` raised inside (the data: a folder missing or unreadable) as one line
+    ``error: ...`` and its exit code, as wiloc's own commands end, never a traceback."""
+    try:
+        yield
+    except WilocError as exc:
+        parser.exit(exc.exit_code, f"error: {exc}\n")
+
+
 def plain_console(**options: Any) -> Console:
     """A rich console (``options`` as ``Console`` takes them) that prints text as given, as wiloc's
     own do: emoji codes off, so that a path holding ':name:' (a:smile:b) is not shown as an emoji."""
     return Console(emoji=False, **options)
+
+
+def wide_console(width: int = 220) -> Console:
+    """The console a table is printed with: the terminal's width, or ``width`` for a file or a
+    pipe (where rich would cut every table to 80 columns, its labels mid-word)."""
+    console = plain_console()
+    return console if console.is_terminal else plain_console(width=width)
 
 
 def fmt(value: float | None, digits: int = 3) -> str:
@@ -136,7 +207,11 @@ def json_ready(value: Any) -> Any:
 
 
 def write_json(path: Path | None, rows: list[dict[str, Any]], console: Any) -> None:
-    """``--json``: every row to ``path`` (when given), and a line saying so."""
-    if path is not None:
-        path.write_text(json.dumps(json_ready(rows), indent=2) + "\n", encoding="utf-8")
-        console.print(f"wrote {path}")
+    """``--json``: every row to ``path`` (when given), and a line saying so; written whole or not
+    at all (wiloc's ``written_whole``), so that a run killed meanwhile never leaves a truncated
+    file that looks complete."""
+    if path is None:
+        return
+    with written_whole(path, "the --json file") as out:
+        out.write(json.dumps(json_ready(rows), indent=2) + "\n")
+    console.print(f"wrote {path}")

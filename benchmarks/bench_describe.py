@@ -30,8 +30,9 @@ import cv2
 from wiloc.cache.store import Cache
 from wiloc.description.describing import describe_folders
 from wiloc.descriptors.registry import get_descriptor
-from wiloc.errors import WilocError
 from wiloc.sources.frames import list_traversal
+
+from bench_common import at_least, data_errors
 
 TRAVERSALS = ("day_left", "day_right", "night_right")
 DESCRIPTORS = ("sad", "gist", "brisk-gist")
@@ -93,17 +94,14 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="runs per figure; medians are reported")
     parser.add_argument("--child", nargs=2, metavar=("DESCRIPTOR", "JOBS"), help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.repeat < 1:
-        parser.error(f"--repeat must be at least 1, got {args.repeat}")
+    at_least(parser, "--repeat", args.repeat)
     data = data_root(args.data_root)
     folders = gardens_point_folders(data)
     if args.child:
         print(json.dumps(describe_run(args.child[0], folders, int(args.child[1]))))
         return
-    try:  # the data: a folder missing or holding no frames stops here, before any run
+    with data_errors(parser):  # the data: a folder missing or holding no frames stops here, before any run
         paths = gardens_point_frames(data)
-    except WilocError as exc:
-        parser.exit(exc.exit_code, f"error: {exc}\n")
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, medians of {args.repeat}")
     decode = statistics.median(plain_decode_rate(paths) for _ in range(args.repeat))
     print(f"{'what':<22}{'jobs':>5}{'images/s':>10}{'/decode':>8}{'vs 1':>7}"

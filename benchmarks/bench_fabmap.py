@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -26,17 +27,23 @@ from wiloc.cache.store import Cache
 from wiloc.description.describing import describe_folder
 from wiloc.description.vocabulary_build import build_vocabulary
 from wiloc.descriptors import get_descriptor
+from wiloc.sources.frames import list_traversal
+
+from bench_common import data_errors
 
 RUNS = (("night_right", "day_right", "day_left"), ("day_left", "day_right", "night_right"))
 TOLERANCE = 2
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", type=Path, help="folder holding gardens-point-walking/")
     parser.add_argument("--feature", default="sift", choices=("sift", "orb"))
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     walks = args.data / "gardens-point-walking"
+    with data_errors(parser):  # a walk missing or holding no frames stops here, before any run
+        for walk in sorted({walk for run in RUNS for walk in run}):
+            list_traversal(walks / walk)
     cache = Cache()
     print(f"{'training':12} {'map':10} {'query':12} {'K':>5} {'vocab s':>8} {'words/img':>9} "
           f"{'bow ms':>6} {'R@1':>6} {'mean conf':>9} {'p(new)':>7} {'tree s':>6} {'ms/frame':>8}")

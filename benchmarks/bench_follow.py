@@ -39,7 +39,7 @@ from wiloc.evaluation.results import read_results
 from wiloc.methods.registry import method_class
 from wiloc.sources.frames import list_traversal
 
-from bench_common import last_error_line, plain_console
+from bench_common import at_least, data_errors, last_error_line, plain_console
 
 CLI = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
 #: The latency run's --idle (seconds): the frames must come faster, or it stops between two of them.
@@ -204,8 +204,7 @@ def main() -> None:
                         help=f"frames per second fed for the latency (more than one per {LATENCY_IDLE:g} s)")
     parser.add_argument("--frames", type=int, default=300, help="frames fed for the latency")
     args = parser.parse_args()
-    if args.frames < 1:
-        parser.error(f"--frames must be at least 1, got {args.frames}")
+    at_least(parser, "--frames", args.frames)
     if not args.rate * LATENCY_IDLE > 1:  # nan too; slower, the run stops after the first frame and the feed goes on alone
         parser.error(f"--rate must exceed one frame per {LATENCY_IDLE:g} s (the followed run stops after "
                      f"{LATENCY_IDLE:g} s without a new frame), got {args.rate:g}")
@@ -215,11 +214,9 @@ def main() -> None:
     except WilocError as exc:
         parser.error(f"--methods: {exc.problem}")
     root = args.data / "nordland-summer-winter-64x32"
-    try:  # the data: a folder missing stops here, before any run
+    with data_errors(parser):  # the data: a folder missing stops here, before any run
         for folder in (root / "winter", root / "summer"):
             list_traversal(folder)
-    except WilocError as exc:
-        parser.exit(exc.exit_code, f"error: {exc}\n")
     table = Table(title=f"--follow on Nordland (map summer, query winter), latency at {args.rate:g} frames/s")
     for column in ("method", "frames/s (folder full)", "latency median ms", "latency 90 % ms"):
         table.add_column(column, justify="right")

@@ -14,12 +14,14 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numba
 import numpy as np
 
 from wiloc.description.distances import pairwise, pairwise_blocks, simd_path
+
+from bench_common import at_least
 
 
 def make_frames(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -55,7 +57,7 @@ def timed(run: Callable[[], None]) -> tuple[float, float]:
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--n", type=int, default=20_000, help="frames (the matrix is N x N)")
     parser.add_argument("--block-rows", type=int, default=1024, help="query rows per block of our kernel")
@@ -64,7 +66,9 @@ def main() -> None:
     )
     kinds = ["sad", "hamming", "sqeuclidean"]
     parser.add_argument("--kinds", nargs="+", default=kinds, choices=kinds)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    for option, value in (("--n", args.n), ("--block-rows", args.block_rows), ("--baseline-rows", args.baseline_rows)):
+        at_least(parser, option, value)
 
     rng = np.random.default_rng(0)
     metric_of = {"sad": "l1", "hamming": "hamming", "sqeuclidean": "sqeuclidean"}

@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import cv2
@@ -39,7 +39,7 @@ from wiloc.localization.localizer import Localizer
 from wiloc.methods.base import MapContext, TrainingRows
 from wiloc.methods.registry import METHODS, make_method
 
-from bench_common import plain_console
+from bench_common import at_least, known_methods, wide_console, whole_numbers
 
 SPEC = get_descriptor("sad")
 
@@ -121,7 +121,7 @@ def sequence_grown(method: str, params: dict[str, Any], first_pass: np.ndarray) 
     return loc
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", default="1000,10000,35000", help="map sizes, comma-separated")
     parser.add_argument("--frames", type=int, default=200, help="query frames timed per method and size")
@@ -129,15 +129,18 @@ def main() -> None:
                         help="methods, comma-separated (those reading difference rows)")
     parser.add_argument("--sequence", action="store_true",
                         help="also time observe in sequence mode, after a first pass as long as the map (slow)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    sizes = whole_numbers(parser, "--sizes", args.sizes)
+    at_least(parser, "--frames", args.frames)
+    methods = known_methods(parser, "--methods", args.methods, METHODS)
     rng = np.random.default_rng(0)
     table = Table(title="Localizer.observe: median ms per frame (wall / CPU); batch: ms per frame of one run")
     columns = ["map frames", "method", "startup s", "descriptor excluded", "descriptor included", "batch",
                "observe / batch"] + (["sequence mode", "sequence / map"] if args.sequence else [])
     for column in columns:
         table.add_column(column, justify="right")
-    for n_map in (int(s) for s in args.sizes.split(",")):
-        for method in args.methods.split(","):
+    for n_map in sizes:
+        for method in methods:
             sequence = args.sequence and not {"map", "training"} & METHODS[method].needs
             r = measure(method, n_map, args.frames, rng, sequence)
             cells = [f"{n_map:,}", method, f"{r['startup_s']:.1f}",
@@ -149,7 +152,7 @@ def main() -> None:
                 cells += [f"{r['sequence_wall']:.2f} / {r['sequence_cpu']:.2f}",
                           f"{r['sequence_cpu'] / r['excluded_cpu']:.2f}x"] if sequence else ["-", "-"]
             table.add_row(*cells)
-    plain_console().print(table)
+    wide_console().print(table)
 
 
 if __name__ == "__main__":

@@ -74,8 +74,9 @@ from wiloc.evaluation.reliability import summarize_calibration
 from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
 
-from bench_common import (add_odometry, default_data_root, fmt, noisy_steps, odometry_for, odometry_problem,
-                          parse_params, parser as benchmark_parser, plain_console, write_json)
+from bench_common import (add_odometry, check_json_target, data_errors, default_data_root, fmt, known_methods,
+                          noisy_steps, odometry_for, odometry_problem, parse_params, parser as benchmark_parser,
+                          wide_console, write_json)
 
 TOLERANCE = 2  # places either side that count as the same place
 CUTS = (0.9, 0.99)
@@ -239,16 +240,14 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     args = parser.parse_args(argv)
     if odometry_problem(args.odometry):
         parser.error(odometry_problem(args.odometry))
-    console = plain_console() if plain_console().is_terminal else plain_console(width=200)
+    check_json_target(parser, args.json)
+    console = wide_console(200)
     loops = [loop for name in args.loops.split(",") if name.strip()
              for loop in GROUPS.get(name.strip(), [name.strip()])]
-    methods = [name.strip() for name in args.methods.split(",") if name.strip()]
+    methods = known_methods(parser, "--methods", args.methods, METHODS)
     for name in loops:
         if name not in LOOPS:
             parser.error(f"unknown loop {name!r} (choose from {', '.join(LOOPS)})")
-    for name in methods:
-        if name not in METHODS:
-            parser.error(f"unknown method {name!r}")
     params = parse_params(args.param, methods)
     descriptors = [d.strip() for d in args.descriptors.split(",") if d.strip()]
     try:  # a bad name or value stops here, before any loop is described
@@ -262,13 +261,11 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     except WilocError as exc:
         parser.error(f"--descriptors: {exc.problem}")
     rows = []
-    try:
+    with data_errors(parser):  # the data: a folder missing or unreadable
         for descriptor in descriptors:
             for name in loops:
                 loop = load_loop(name, descriptor, args.data)
                 rows += [run_loop(loop, method, params[method], args.odometry) for method in methods]
-    except WilocError as exc:  # the data: a folder missing or unreadable
-        parser.exit(exc.exit_code, f"error: {exc}\n")
     console.print(render(rows, args.odometry))
     write_json(args.json, rows, console)
     return rows

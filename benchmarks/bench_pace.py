@@ -110,8 +110,9 @@ from wiloc.evaluation.reliability import summarize_calibration, summarize_new_pl
 from wiloc.methods.base import MapContext
 from wiloc.methods.registry import METHODS, make_method
 
-from bench_common import (ODOMETRY_SEED, add_odometry, default_data_root, fmt, noisy_steps, odometry_for,
-                          odometry_problem, parse_params, parser as benchmark_parser, plain_console, write_json)
+from bench_common import (ODOMETRY_SEED, add_odometry, at_least, check_json_target, data_errors, default_data_root,
+                          fmt, known_methods, noisy_steps, odometry_for, odometry_problem, parse_params,
+                          parser as benchmark_parser, plain_console, wide_console, write_json)
 
 TOLERANCE = 2  # map nodes either side of the true node that count as the same place
 CUT = 0.9  # the confidence above which precision is reported
@@ -138,6 +139,7 @@ KNOWN = {**TRAVERSALS, **HELD_OUT}
 VARIANTS = ("same", "pace-1/3", "pace-1/2", "pace-2", "pace-3", "reversed", "stop", "u-turn", "jump", "drift")
 OFF_MAP_VARIANTS = ("start-off", "leave")  # run when named: part of the query has no place on the map
 NO_NODE = -1  # the true node of a query frame whose place is not on the map
+SHORTEST = 10  # route frames the variants need at least
 
 
 # ------------------------------------------------------------------------------------------ variants
@@ -198,7 +200,7 @@ def _drift(n: int, period: float = 200.0) -> NDArray[np.int64]:
 
 def variants(n: int, names: Sequence[str] | None = None) -> list[Variant]:
     """The variants of a route of ``n`` frames (all of :data:`VARIANTS`, or those ``names``), in order."""
-    if n < 10:
+    if n < SHORTEST:
         raise ValueError(f"a route of {n} frames is too short for the variants")
     everything = np.arange(n)
     turn, back_to = round(0.6 * n) - 1, round(0.2 * n)  # 119 and 40 of 200
@@ -477,7 +479,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     parser.add_argument("--seed", type=int, default=None, help="seed of methods that take one (default: 0)")
     parser.add_argument("--seeds", default=None, help="run methods that take a seed once per seed and print "
                         "the means, e.g. 0-4 or 0,3,7-9 (instead of --seed)")
-    parser.add_argument("--frames", type=int, default=None, help="keep only the first N route frames")
+    parser.add_argument("--frames", type=int, default=None,
+                        help=f"keep only the first N route frames (at least {SHORTEST})")
     add_odometry(parser, "the query's steps and the map's positions")
     parser.add_argument("--odometry-factor", type=float, default=1.0, metavar="F",
                         help="with --odometry: the query's odometry F times the map's (a scale the two disagree "
@@ -489,16 +492,12 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         parser.error(f"--odometry-factor {args.odometry_factor:g}: give a factor above 0")
     if args.odometry is None and args.odometry_factor != 1.0:
         parser.error("--odometry-factor applies to runs with --odometry only")
-    console, err = plain_console(), plain_console(stderr=True)
-    if not console.is_terminal:  # a file or a pipe: wide enough for every method's columns
-        console = plain_console(width=220)
+    if args.frames is not None:
+        at_least(parser, "--frames", args.frames, SHORTEST)
+    check_json_target(parser, args.json)
+    console, err = wide_console(), plain_console(stderr=True)  # wide enough for every method's columns
 
-    methods = []
-    for method in (m.strip() for m in args.methods.split(",") if m.strip()):
-        if method in METHODS:
-            methods.append(method)
-        else:
-            err.print(f"note: method '{method}' is not registered in wiloc.methods.registry: skipped")
+    methods = known_methods(parser, "--methods", args.methods, METHODS)
     traversal_names = [name for t in args.traversals.split(",") if t.strip()
                        for name in (HELD_OUT if t.strip() == "held-out" else [t.strip()])]
     variant_names = [v.strip() for v in args.variants.split(",") if v.strip()]
@@ -515,9 +514,6 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     except ValueError as exc:
         parser.error(str(exc))
     params = parse_params(args.param, methods)
-    for method in [m for m in params if m not in methods]:
-        err.print(f"note: --param for method '{method}', which is not run: ignored")
-        del params[method]
     runs_of: dict[str, list[dict[str, Any]]] = {}  # each method's runs: one per seed, or one without a seed
     for method in methods:
         fields = METHODS[method].Params.__dataclass_fields__
@@ -535,7 +531,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     started = time.perf_counter()
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=err, transient=True) as bar:
+    with data_errors(parser), Progress(*columns, console=err, transient=True) as bar:
         runs = bar.add_task("runs", total=len(traversal_names) * len(variant_names) * sum(map(len, runs_of.values())))
         for name in traversal_names:
             describing: dict[str, Any] = {}

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from bench_common import last_error_line
+from bench_common import at_least, data_errors, folder_problem, known_methods, last_error_line, whole_numbers
 from bench_describe import data_root, gardens_point_folders, gardens_point_frames, plain_decode_rate
 from bench_localizer import SPEC, route
 from wiloc.cache.entries import FrameRecord, StoredEntry
@@ -240,31 +240,21 @@ def main(argv: Sequence[str] | None = None) -> None:
             "localize": child_localize, "kernel": child_kernel, "describe": child_describe}
         print(json.dumps(children[args.child](args)))
         return
-    if args.repeat < 1:
-        parser.error(f"--repeat must be at least 1, got {args.repeat}")
-    try:
-        sizes = [n for n in (int(s) for s in args.sizes.split(",")) if n > 0]
-    except ValueError:
-        parser.error(f"--sizes must be whole numbers, comma-separated, got {args.sizes!r}")
-    methods = args.methods.split(",")
-    for name in methods:
-        if name not in METHODS:
-            parser.error(f"--methods: unknown method {name!r} (choose from {', '.join(METHODS)})")
+    at_least(parser, "--repeat", args.repeat)
+    sizes = [n for n in whole_numbers(parser, "--sizes", args.sizes, 0) if n > 0]
+    methods = known_methods(parser, "--methods", args.methods, METHODS)
     descriptors = args.descriptors.split(",")
     try:
         for name in descriptors:
             descriptor_spec(name)
     except WilocError as exc:
         parser.error(f"--descriptors: {exc.problem}")
-    if args.work and not Path(args.work).is_dir():
-        problem = "not a folder" if Path(args.work).exists() else "folder does not exist"
-        parser.error(f"--work {args.work}: {problem}")
+    if args.work and folder_problem(Path(args.work)):
+        parser.error(f"--work {args.work}: {folder_problem(Path(args.work))}")
     frames: list[Path] = []
     if args.describe:
-        try:  # the data: a folder missing or holding no frames stops here, before any run
+        with data_errors(parser):  # the data: a folder missing or holding no frames stops here, before any run
             frames = gardens_point_frames(data_root(args.data))
-        except WilocError as exc:
-            parser.exit(exc.exit_code, f"error: {exc}\n")
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, medians of {args.repeat}")
     if sizes:
         header = (f"{'N':>7} {'method':<10} {'kernel s':>8} {'kern cpu':>8} {'cold s':>8} {'cold cpu':>8} "

@@ -22,11 +22,12 @@ import time
 
 import numpy as np
 
+from bench_common import at_least, known_methods, whole_numbers
 from bench_localizer import SPEC, route
 from wiloc.description.differences import ComputedDifferences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive
 from wiloc.methods.base import AHEAD_ROWS, MapContext
-from wiloc.methods.registry import make_method
+from wiloc.methods.registry import METHODS, make_method
 
 
 def rows_and_context(n_map: int, frames: int, rng: np.random.Generator) -> tuple[np.ndarray, MapContext]:
@@ -74,17 +75,15 @@ def main() -> None:
     parser.add_argument("--methods", default="catgraph,online")
     parser.add_argument("--frames", type=int, default=300, help="query frames per size")
     parser.add_argument("--warmup", type=int, default=20, help="frames not timed")
-    parser.add_argument("--profile", default="", help="methods to profile (cProfile, comma-separated)")
+    parser.add_argument("--profile", default="", help="methods to profile (cProfile, comma-separated, of --methods)")
     args = parser.parse_args()
-    if args.warmup < 0:
-        parser.error(f"--warmup must be at least 0, got {args.warmup}")
+    at_least(parser, "--warmup", args.warmup, 0)
     if args.frames < args.warmup + 2:  # the 10 % and 90 % marks take two timed frames
         parser.error(f"--frames must be at least --warmup + 2 = {args.warmup + 2} "
                      f"(the first {args.warmup} are not timed), got {args.frames}")
-    try:
-        sizes = [int(s) for s in args.sizes.split(",")]
-    except ValueError:
-        parser.error(f"--sizes must be whole numbers, comma-separated, got {args.sizes!r}")
+    sizes = whole_numbers(parser, "--sizes", args.sizes)
+    methods = known_methods(parser, "--methods", args.methods, METHODS)
+    profiled = known_methods(parser, "--profile", args.profile, methods)
     most = min(sizes) - min(sizes) // 10  # the query follows the map from its 10 % mark to its end
     if args.frames > most:
         parser.error(f"--frames must be at most {most} for a map of {min(sizes)} frames (the query starts "
@@ -92,8 +91,8 @@ def main() -> None:
     print(f"{'N':>7} {'method':<10} {'ahead ms':>9} {'step ms':>9} {'p10 ms':>7} {'p90 ms':>7}")
     for n_map in sizes:
         rows, context = rows_and_context(n_map, args.frames, np.random.default_rng(n_map))
-        for method in args.methods.split(","):
-            ahead, t = step_ms(method, rows, context, args.warmup, method in args.profile.split(","))
+        for method in methods:
+            ahead, t = step_ms(method, rows, context, args.warmup, method in profiled)
             q = statistics.quantiles(t, n=10)
             print(f"{n_map:>7,} {method:<10} {statistics.median(ahead):>9.3f} {statistics.median(t):>9.3f} "
                   f"{q[0]:>7.3f} {q[-1]:>7.3f}", flush=True)

@@ -23,7 +23,10 @@ cache's files by name, and each HDF5 file's datasets (bytes, dtype, shape) and a
 out, because they differ between any two runs of one commit: the clock (``seconds`` values of
 --json, the cache's ``created``/``updated`` and a vocabulary's ``created``/``build_seconds``)
 and the compiled kernels (``numba*`` folders). Prints a table of what was compared and what
-differs; exits 1 on any difference, 0 when every output is identical.
+differs, and each command that failed (exit code not 0, on either commit) with its last error
+line; exits 1 on any difference or failed command (a check of commands that all failed alike
+proves nothing), 0 when every command ran and every output is identical. A bad option or a
+dataset folder missing ends it with one error line before any commit is run.
 
     .venv/bin/python benchmarks/check_identical.py                        # main vs working tree, all
     .venv/bin/python benchmarks/check_identical.py --methods fabmap --datasets gp
@@ -52,7 +55,7 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-from bench_common import plain_console
+from bench_common import at_least, default_data_root, folder_problem, last_error_line, plain_console
 
 REPO = Path(__file__).resolve().parents[1]
 DESCRIPTORS = ("sad", "gist", "brisk-gist", "bow")
@@ -81,9 +84,34 @@ class Dataset:
     train_reference: Path
 
 
-def data_root() -> Path:
-    env = os.environ.get("WILOC_DATA")
-    return Path(env) if env else REPO.parent / "shared" / "data"
+def source_folders(name: str, root: Path) -> list[Path]:
+    """The folders under the data folder ``root`` that dataset ``name`` reads."""
+    if name == "gp":
+        return [root / "gardens-point-walking" / walk for walk in ("day_left", "day_right", "night_right")]
+    return [root / "nordland-summer-winter-64x32" / season for season in ("summer", "winter")]
+
+
+def check_options(parser: argparse.ArgumentParser, args: argparse.Namespace, root: Path) -> None:
+    """The usage error (exit 2) for a bad option, or an error line (exit 1) for a dataset folder
+    missing under ``root``: before any worktree is made or command run."""
+    for option, rev in (("--base", args.base), ("--head", args.head)):
+        if rev is not None and not is_commit(rev):
+            parser.error(f"{option} {rev}: not a commit")
+    at_least(parser, "--frames", args.frames)
+    for option, noun, names, known in (("--descriptors", "descriptor", args.descriptors, DESCRIPTORS),
+                                       ("--datasets", "dataset", args.datasets, DATASETS)):
+        for name in names.split(","):
+            if name not in known:
+                parser.error(f"{option}: unknown {noun} {name!r} (choose from {', '.join(known)})")
+    for folder in (folder for name in args.datasets.split(",") for folder in source_folders(name, root)):
+        if folder_problem(folder):
+            sys.exit(f"error: {folder}: {folder_problem(folder)}")
+
+
+def is_commit(rev: str) -> bool:
+    """Whether ``rev`` names a commit of the repository."""
+    return subprocess.run(["git", "-C", str(REPO), "rev-parse", "--verify", "--quiet", f"{rev}^{{commit}}"],
+                          capture_output=True, check=False).returncode == 0
 
 
 def datasets(names: list[str], root: Path, scratch: Path, frames: int) -> list[Dataset]:
@@ -106,8 +134,6 @@ def datasets(names: list[str], root: Path, scratch: Path, frames: int) -> list[D
                         (folder / image.name).symlink_to(image)
                     cut[f"{season}{part}"] = folder
             chosen.append(Dataset("nordland", cut["winter"], cut["summer"], cut["winter_train"], cut["summer_train"]))
-        else:
-            sys.exit(f"error: --datasets: unknown dataset '{name}' (choose from {', '.join(DATASETS)})")
     return chosen
 
 
@@ -188,6 +214,17 @@ def run_commit(code: Path, work: Path, sets: list[Dataset], methods: list[str], 
             for command in ("evaluate", "compare"):
                 run(f"{data.name}-{command}", command, *written, "--gt", "aligned")
                 run(f"{data.name}-{command}-json", command, *written, "--gt", "aligned", "--json")
+
+
+def failed_commands(run: Path) -> list[str]:
+    """Each command of a commit's run (its outputs in ``run``) that exited non-zero, with its exit
+    code and the last line of its stderr (why it failed)."""
+    failed = []
+    for rc in sorted((run / "logs").glob("*.rc")):
+        code = int(rc.read_text())
+        if code:
+            failed.append(f"{rc.stem} (exit {code}): {last_error_line(rc.with_suffix('.err').read_text(), code)}")
+    return failed
 
 
 def without_clock(value: Any) -> Any:
@@ -288,22 +325,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=300, help="Nordland frames per traversal (default: %(default)s)")
     parser.add_argument("--keep", action="store_true", help="keep the temporary folder and say where it is")
     args = parser.parse_args(argv)
+    check_options(parser, args, default_data_root())
     scratch = Path(tempfile.mkdtemp(prefix="wiloc-identical-"))
     trees = []
     try:
+        sets = datasets(args.datasets.split(","), default_data_root(), scratch / "data", args.frames)
         trees.append(worktree(args.base, scratch / "base-code"))
         if args.head is not None:
             trees.append(worktree(args.head, scratch / "head-code"))
         base_code, head_code = trees[0], trees[1] if args.head is not None else REPO
         methods = args.methods.split(",") if args.methods else methods_of(base_code)
         descriptors = args.descriptors.split(",")
-        sets = datasets(args.datasets.split(","), data_root(), scratch / "data", args.frames)
         for label, code in (("base", base_code), ("head", head_code)):
             console.print(f"[bold]{label}[/bold]: {args.base if label == 'base' else args.head or 'working tree'}"
                           f" ({code})", highlight=False)
             run_commit(code, scratch / "run", sets, methods, descriptors)
             (scratch / "run").rename(scratch / label)
         rows = compare(scratch / "base", scratch / "head")
+        failed = {label: failed_commands(scratch / label) for label in ("base", "head")}
     finally:
         for tree in trees:
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(tree)], check=False)
@@ -315,9 +354,14 @@ def main(argv: list[str] | None = None) -> int:
     for kind, name, difference in rows:
         view.add_row(kind, name, "[green]identical[/green]" if not difference else f"[red]{escape(difference)}[/red]")
     console.print(view)
+    for label, lines in failed.items():
+        for line in lines:
+            console.print(f"failed on {label}: {escape(line)}", highlight=False, soft_wrap=True)
     differ = sum(1 for row in rows if row[2])
-    console.print(f"{len(rows)} outputs compared, {differ} differ" + (f"; kept in {scratch}" if args.keep else ""))
-    return 1 if differ else 0
+    failures = sum(map(len, failed.values()))
+    console.print(f"{len(rows)} outputs compared, {differ} differ, {failures} commands failed"
+                  + (f"; kept in {scratch}" if args.keep else ""), highlight=False)
+    return 1 if differ or failures else 0
 
 
 if __name__ == "__main__":

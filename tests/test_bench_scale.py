@@ -38,6 +38,7 @@ def test_a_small_size_runs_end_to_end(bench, tmp_path: Path, capsys: pytest.Capt
     (["--work", "{tmp}/missing"], "error: --work {tmp}/missing: folder does not exist"),
     (["--work", "{tmp}/file"], "error: --work {tmp}/file: not a folder"),
     (["--repeat", "0"], "error: --repeat must be at least 1, got 0"),
+    (["--sizes", "50,-5"], "error: --sizes must be at least 0, got -5"),
     (["--sizes", "50,many"], "error: --sizes must be whole numbers, comma-separated, got '50,many'"),
     (["--methods", "online,nosuch"], "error: --methods: unknown method 'nosuch' (choose from online, threshold, "
                                      "trained, catgraph)"),
