@@ -534,11 +534,11 @@ def test_with_the_maps_odometry_the_first_frames_is_not_read_and_later_ones_are_
     whether its first frame comes with an odometry (unread: a distance from no frame) or with
     none; a later frame without odometry is refused, naming it, and the run goes on as if that
     call had not been made."""
-    from wiloc.localization.odometry import read_odometry, steps
+    from wiloc.localization.odometry import read_odometry
 
     query, positions = demo_route.queries[0], demo_route.positions
     frames = sorted(query.iterdir())[:60]
-    travelled = steps(read_odometry(positions / f"{query.name}.csv").arclength([f.name for f in frames]))
+    travelled = read_odometry(positions / f"{query.name}.csv").steps([f.name for f in frames])  # metres between
     batch = api.localize(query, reference=demo_route.reference, method="catgraph", method_params={"seed": 0},
                          odometry=positions / f"{query.name}.csv", map_odometry=positions / "reference.csv")
     for first in (None, 0.0, 5.0):
