@@ -28,6 +28,10 @@ def test_numba_caches_under_wiloc_s_cache_folder_unless_told_otherwise(tmp_path:
     assert _numba_cache(WILOC_CACHE=str(tmp_path)) == str(tmp_path / "numba")
     assert _numba_cache(WILOC_CACHE=str(tmp_path), WILOC_SIMD="sse2") == str(tmp_path / "numba-sse2")
     assert _numba_cache(WILOC_CACHE=str(tmp_path), NUMBA_CACHE_DIR=str(tmp_path / "mine")) == str(tmp_path / "mine")
+    # a folder of the user's held every path's kernels alike: a narrower path loaded the widest's
+    assert _numba_cache(NUMBA_CACHE_DIR=str(tmp_path / "mine"), WILOC_SIMD="sse2") == str(tmp_path / "mine" / "numba-sse2")
+    inherited = str(tmp_path / "mine" / "numba-sse2")  # as a worker process started by such a run sees it
+    assert _numba_cache(NUMBA_CACHE_DIR=inherited, WILOC_SIMD="sse2") == inherited
 
 
 def test_a_cache_folder_that_cannot_be_written_sends_the_kernels_to_the_temporary_folder(tmp_path: Path) -> None:

@@ -4,8 +4,9 @@ numba's parallel kernels, OpenCV and the describe workers split their work by th
 numpy picks its loops by the CPU's instruction sets; every value must still come out the same, so
 that a machine with more cores or other instruction sets decides exactly as this one. Each test
 describes and localizes the demo route (``sad``) twice in subprocesses, each on its own cache, and
-compares the results rows. (Not yet so for float products: ``sqeuclidean`` and ``cosine``
-differences, ``gist``'s, come from OpenBLAS, whose float sums change with its thread count.)
+compares the results rows. (``sqeuclidean`` and ``cosine`` differences, ``gist``'s, are summed in
+float64 and rounded below a float64 bound, so OpenBLAS's thread count leaves them alike too:
+docs/kernels.md.)
 """
 from __future__ import annotations
 

@@ -42,13 +42,21 @@ def place_numba_cache() -> Path:
     unless ``NUMBA_CACHE_DIR`` is set; return the folder. Where that folder cannot be written (a
     cache folder shared read-only), the kernels go to ``wiloc-numba-<user>`` (the same suffix) in
     the temporary folder: numba refuses to define a cached kernel it could not store, so every
-    command ended in its traceback there."""
+    command ended in its traceback there. A ``NUMBA_CACHE_DIR`` of the user's gets the
+    ``numba-<$WILOC_SIMD>`` subfolder (once: a subprocess inherits the folder made so): one
+    folder for every path loaded one path's kernels into another."""
     forced = os.environ.get(SIMD_VARIABLE, "")
     name = f"numba-{forced}" if forced else "numba"
+    given = os.environ.get(NUMBA_CACHE_VARIABLE)
+    if given is not None:
+        if forced and Path(given).name != name:
+            os.environ[NUMBA_CACHE_VARIABLE] = str(Path(given) / name)
+        return Path(os.environ[NUMBA_CACHE_VARIABLE])
     folder = cache_root() / name
-    if NUMBA_CACHE_VARIABLE not in os.environ and not _writable(folder):
+    if not _writable(folder):
         folder = Path(tempfile.gettempdir()) / f"wiloc-{name}-{getpass.getuser()}"
-    return Path(os.environ.setdefault(NUMBA_CACHE_VARIABLE, str(folder)))
+    os.environ[NUMBA_CACHE_VARIABLE] = str(folder)
+    return folder
 
 
 def _writable(folder: Path) -> bool:
