@@ -62,9 +62,10 @@ class Odometry:
             return np.zeros(len(rows))
         if self.values.shape[1] == 2:
             return np.r_[0.0, self._finite(self._position_steps(rows), order[1:])]
-        with np.errstate(over="ignore", invalid="ignore"):  # checked below
-            self._finite(np.cumsum(self._travelled()), self.names)
-            return np.r_[0.0, self._finite(np.add.reduceat(self._travelled()[:rows[-1] + 1], rows[:-1] + 1), order[1:])]
+        travelled = self._travelled()
+        with np.errstate(over="ignore", invalid="ignore"):  # checked: every sum of the steps is at most this
+            self._finite(np.cumsum(travelled), self.names)
+        return np.r_[0.0, np.add.reduceat(travelled[:rows[-1] + 1], rows[:-1] + 1)]
 
     def _rows(self, names: Sequence[str] | None) -> tuple[tuple[str, ...], NDArray[np.intp]]:
         """``names`` (default: the file's) and their rows in the file; a WilocError for a name the
