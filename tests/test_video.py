@@ -217,6 +217,25 @@ def test_cut_video_keeps_its_good_frames(tmp_path: Path) -> None:
     assert stopped.failed == [] and stopped.entry.names == names(range(good))
 
 
+def test_a_damaged_stored_frame_of_a_video_is_described_again(tmp_path: Path) -> None:
+    """A video's entry with a frame failing its checksum said "described again" and was reused
+    without the frame on every run: the frame was missing from every later localize."""
+    video = write_video(tmp_path / "v.avi", 12)
+    cache = Cache(tmp_path / "cache")
+    first = describe_video(video, FakeSpec(), cache)
+    entry_file = cache.entry_path(first.entry.key)
+    with h5py.File(entry_file, "r+") as f:
+        row = f["descriptors"][5]
+        row[0] += 1.0
+        f["descriptors"][5] = row
+    damaged = Cache(tmp_path / "cache")
+    again = describe_video(video, FakeSpec(), damaged)
+    assert "1 frame(s) failed their checksum" in damaged.repairs[0]
+    assert (again.computed, again.reused) == (1, 11)
+    assert again.entry.names == first.entry.names and again.entry.digest == first.entry.digest
+    assert describe_video(video, FakeSpec(), Cache(tmp_path / "cache")).computed == 0  # repaired on disk
+
+
 def longer_duration(path: Path, duration_ms: float) -> Path:
     """A Matroska file's header duration set to `duration_ms`, its frames untouched: what a video
     of variable frame rate looks like to OpenCV, whose frame count is the duration times the
@@ -238,6 +257,37 @@ def test_a_frame_count_beyond_the_frames_at_the_end_of_the_duration_is_no_cut(tm
     cut = longer_duration(write_video(tmp_path / "cut.mkv", 20, fourcc="FFV1"), 5000.0)  # 3 s of frames missing
     [(name, reason)] = describe_video(cut, FakeSpec(), Cache(tmp_path / "cache")).failed
     assert name == frame_name(20) and "cannot decode frame 000020 of 50 (the file is cut or damaged there)" in reason
+
+
+def later_start(path: Path, offset_ms: int) -> Path:
+    """A Matroska file's frames moved `offset_ms` later in the container's time (each cluster's
+    timecode, widened in place over its CRC-32 element): a recording cut out of a longer one,
+    whose first frame is not at 0."""
+    data = bytearray(path.read_bytes())
+    at = 0
+    while (at := data.find(b"\x1f\x43\xb6\x75", at + 1)) > 0:  # a cluster: CRC-32, then its timecode
+        crc = data.index(b"\xbf\x84", at)
+        assert crc < at + 12 and data[crc + 6] == 0xE7
+        size = data[crc + 7] & 0x7F
+        value = int.from_bytes(data[crc + 8:crc + 8 + size], "big") + offset_ms
+        pad = size - 1  # a Void element where the CRC-32 was, the timecode in 4 bytes
+        data[crc:crc + 8 + size] = b"\xec" + bytes([0x80 | pad]) + bytes(pad) + b"\xe7\x84" + value.to_bytes(4, "big")
+    path.write_bytes(bytes(data))
+    return path
+
+
+def test_a_video_starting_after_0_is_no_cut(tmp_path: Path) -> None:
+    """Its container's duration counts from 0: frames at 5-6.9 s of a 7 s video were taken for a
+    cut at frame 20 of 70, an error naming a frame that does not exist."""
+    video = longer_duration(later_start(write_video(tmp_path / "late.mkv", 20, fourcc="FFV1"), 5000), 7000.0)
+    capture = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG)
+    assert capture.get(cv2.CAP_PROP_FRAME_COUNT) == 70 and len(decoded_gray(video)) == 20
+    report = describe_video(video, FakeSpec(), Cache(tmp_path / "cache"))
+    assert report.failed == [] and report.entry.names == names(range(20))
+    assert report.entry.timestamps_ms[0] == 0.0
+    cut = longer_duration(later_start(write_video(tmp_path / "cut.mkv", 20, fourcc="FFV1"), 5000), 10000.0)
+    [(name, reason)] = describe_video(cut, FakeSpec(), Cache(tmp_path / "cache")).failed
+    assert name == frame_name(20) and "cannot decode frame 000020 of 100 (the file is cut or damaged there)" in reason
 
 
 def _cli(*args: str, cache: Path) -> subprocess.CompletedProcess:

@@ -301,4 +301,5 @@ def read_h5(path: Path) -> StoredEntry | None:
                     stored.dropped += 1
             if group == "frames" and not stored.dropped and str(f.attrs["digest"]) != entry_digest(header, records):
                 raise ValueError("its digest attribute does not match its frames")  # the attribute damaged
+    stored.complete = stored.complete and not stored.dropped  # a video's or bag's missing frames described again
     return stored

@@ -231,6 +231,7 @@ class Video:
         self.frame_count: int | None = count if count > 0 else None
         self.rate: float = max(0.0, float(self._capture.get(cv2.CAP_PROP_FPS)))
         self._ended: tuple[int, float] | None = None
+        self._start_ms = 0.0  # where the stream starts in the container's time (timestamps count from it)
 
     def __enter__(self) -> Video:
         return self
@@ -267,14 +268,27 @@ class Video:
         Grabbing that fails before the container's frame count leaves the index and expected
         timestamp of the frame that failed in `_ended`."""
         index = 0
+        first: tuple[float, float] | None = None  # the first frame's timestamp and presentation stamp
         while True:
             timestamp = float(self._capture.get(cv2.CAP_PROP_POS_MSEC))
+            if index < 2:
+                first = self._start(first, timestamp)
             yield index, timestamp
             index += 1
             if not self._capture.grab():
                 if self.frame_count is not None and index < self.frame_count and not self._near_end(timestamp):
                     self._ended = (index, timestamp + (1000.0 / self.rate if self.rate else 0.0))
                 return
+
+    def _start(self, first: tuple[float, float] | None, timestamp: float) -> tuple[float, float]:
+        """Given the first frame's (timestamp, stamp) once the second frame is grabbed, set where
+        the stream starts in the container's time: the first frame's presentation stamp in ms,
+        its units read off the two frames. A recording cut from a longer one (or a camera's)
+        starts after 0, and the container's duration counts from 0, not from its first frame."""
+        stamp = float(self._capture.get(cv2.CAP_PROP_PTS))
+        if first is not None and math.isfinite(stamp) and stamp > first[1] > 0 and timestamp > first[0]:
+            self._start_ms = first[1] * (timestamp - first[0]) / (stamp - first[1]) - first[0]
+        return timestamp, stamp
 
     def _near_end(self, timestamp: float) -> bool:
         """Whether a last frame at `timestamp` (ms) lies at the end of the container's duration,
@@ -284,7 +298,7 @@ class Video:
         if not self.rate or self.frame_count is None:
             return False
         interval = 1000.0 / self.rate
-        return timestamp + max(END_MS, 2 * interval) >= self.frame_count * interval
+        return self._start_ms + timestamp + max(END_MS, 2 * interval) >= self.frame_count * interval
 
     def _stopped(self, index: int, picked: bool) -> VideoFrame:
         """The item for the frame where decoding stopped early, ``picked`` whether the cut had
