@@ -23,7 +23,7 @@ from wiloc.description.describing import describe_folder, describe_video
 from wiloc.description.traversals import Describer, descriptor_label
 from wiloc.errors import ParameterError, WilocError
 from wiloc.sources.frames import list_traversal, read_gray
-from wiloc.sources.video import Sampling, frame_name, is_video, video_fingerprint
+from wiloc.sources.video import Sampling, frame_name, is_video, lost_frames, video_fingerprint
 
 
 def write_video(path: Path, count: int, *, fps: float = 10.0, size: tuple[int, int] = (64, 48),
@@ -236,6 +236,21 @@ def test_a_damaged_stored_frame_of_a_video_is_described_again(tmp_path: Path) ->
     assert describe_video(video, FakeSpec(), Cache(tmp_path / "cache")).computed == 0  # repaired on disk
 
 
+def test_a_video_whose_first_frame_is_damaged_says_so(tmp_path: Path) -> None:
+    """It said "no frame of this video can be decoded" where every frame but the first decodes."""
+    video = write_video(tmp_path / "v.avi", 20)
+    data = bytearray(video.read_bytes())
+    first = data.index(b"\xff\xd8\xff")  # the first frame's JPEG, half of it zeroed
+    size = data.index(b"\xff\xd8\xff", first + 3) - first
+    data[first:first + size // 2] = bytes(size // 2)
+    damaged = tmp_path / "first.avi"
+    damaged.write_bytes(bytes(data))
+    capture = cv2.VideoCapture(str(damaged), cv2.CAP_FFMPEG)
+    assert [capture.read()[0] for _ in range(20)] == [False] + [True] * 19
+    with pytest.raises(WilocError, match="cannot decode frame 000000 \\(the file is damaged there\\)"):
+        describe_video(damaged, FakeSpec(), Cache(tmp_path / "cache"))
+
+
 def longer_duration(path: Path, duration_ms: float) -> Path:
     """A Matroska file's header duration set to `duration_ms`, its frames untouched: what a video
     of variable frame rate looks like to OpenCV, whose frame count is the duration times the
@@ -288,6 +303,37 @@ def test_a_video_starting_after_0_is_no_cut(tmp_path: Path) -> None:
     cut = longer_duration(later_start(write_video(tmp_path / "cut.mkv", 20, fourcc="FFV1"), 5000), 10000.0)
     [(name, reason)] = describe_video(cut, FakeSpec(), Cache(tmp_path / "cache")).failed
     assert name == frame_name(20) and "cannot decode frame 000020 of 100 (the file is cut or damaged there)" in reason
+
+
+def test_frames_a_damaged_file_loses_without_an_error_are_noted(tmp_path: Path) -> None:
+    """FFmpeg passes over the frames of a damaged stretch of some files without an error: the
+    frames after it were named as if none were missing, silently pairing the wrong frames."""
+    video = write_video(tmp_path / "whole.mkv", 60, fourcc="FFV1")
+    data = bytearray(video.read_bytes())
+    data[len(data) // 2:len(data) // 2 + 6000] = bytes(6000)
+    damaged = tmp_path / "damaged.mkv"
+    damaged.write_bytes(bytes(data))
+    report = describe_video(damaged, FakeSpec(), Cache(tmp_path / "cache"))
+    assert 30 < len(report.entry.names) < 60 and report.failed == []
+    [note] = report.notes
+    lost = 60 - len(report.entry.names)
+    assert f"{damaged}: its timestamps say {lost} frame(s) are missing, the first after frame" in note
+    assert describe_video(damaged, FakeSpec(), Cache(tmp_path / "cache")).notes == [note]  # said again when reused
+    assert describe_video(video, FakeSpec(), Cache(tmp_path / "cache")).notes == []
+    sampled = describe_video(damaged, FakeSpec(), Cache(tmp_path / "cache"), Sampling(every=3))
+    assert "frame(s) are missing" in sampled.notes[0]
+
+
+def test_lost_frames_judges_videos_of_constant_rate_only() -> None:
+    names = [frame_name(i) for i in range(20)]
+    steady = np.arange(20) * 100.0
+    assert lost_frames(names, steady, 10.0) == ""
+    gap = np.r_[steady[:10], steady[10:] + 300.0]
+    assert "3 frame(s) are missing, the first after frame 000009 (400 ms to the next at 10 frames/s)" in \
+        lost_frames(names, gap, 10.0)
+    varying = np.cumsum(np.random.default_rng(0).uniform(50.0, 600.0, 20))  # a phone's variable rate
+    assert lost_frames(names, varying, 10.0) == ""
+    assert lost_frames(names, gap, 0.0) == ""  # no rate: nothing to judge by
 
 
 def _cli(*args: str, cache: Path) -> subprocess.CompletedProcess:

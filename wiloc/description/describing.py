@@ -27,7 +27,7 @@ from wiloc.reprs import short_repr
 from wiloc.sources.bags import Bag, bag_fingerprint, is_bag
 from wiloc.sources.frames import Traversal, list_traversal, text_path
 from wiloc.sources.natural_order import natural_key
-from wiloc.sources.video import Sampling, Video, is_video, video_fingerprint
+from wiloc.sources.video import Sampling, Video, is_video, lost_frames, video_fingerprint
 
 if TYPE_CHECKING:
     from wiloc.description.cluster import Cluster
@@ -313,7 +313,9 @@ def describe_video(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sam
             cache, _header(path, spec, params), sampling.estimate(video.frame_count, video.rate),
             lambda skip: describe_frames(spec, video_print, video.frames(sampling, skip=skip, colour=spec.colour)),
             WilocError(path, f"the cut ({sampling.cut}) holds no frame of this video{length}"), progress)
-    return _report(stored, entry, computed, start, repairs=repairs, video=True)
+    lost = lost_frames(entry.names, entry.timestamps_ms, video.rate)
+    report = _report(stored, entry, computed, start, repairs=repairs, video=True)
+    return replace(report, notes=[f"{path}: {lost}"] if lost else [])
 
 
 def describe_bag(path: Path, spec: DescriptorSpec, cache: Cache, sampling: Sampling | None = None,

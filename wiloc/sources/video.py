@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Container, Iterable, Iterator
+from collections.abc import Container, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from numbers import Integral, Real
 from pathlib import Path
@@ -190,6 +190,29 @@ class Sampling:
         return math.ceil(span / self.every if self.fps is None else span * min(1.0, self.fps / rate))
 
 
+def lost_frames(names: Sequence[str], timestamps_ms: NDArray[np.float64], rate: float) -> str:
+    """A note when the timestamps of a video of constant frame rate skip frames between two
+    decoded ones (FFmpeg passes over frames it cannot decode in some damaged files, without an
+    error), else "". Frames are named in decode order, so from such a gap on a frame's name is
+    not its place in time. A video of variable rate (most steps off its nominal interval by
+    more than a tenth) is not judged: its steps vary anyway."""
+    if rate <= 0 or len(names) < 3:
+        return ""
+    interval = 1000.0 / rate
+    indices = np.array([int(name) for name in names], np.float64)
+    expected = np.diff(indices) * interval
+    steps = np.diff(np.asarray(timestamps_ms, np.float64))
+    if np.mean(np.abs(steps - expected) <= 0.1 * expected) < 0.9:
+        return ""
+    missing = np.rint((steps - expected) / interval).clip(0)
+    if not missing.any():
+        return ""
+    first = int(np.flatnonzero(missing)[0])
+    return (f"its timestamps say {int(missing.sum())} frame(s) are missing, the first after frame {names[first]} "
+            f"({steps[first]:.0f} ms to the next at {rate:g} frames/s): frames lost in a damaged file, which the "
+            "decoder passed over; from there on a frame's name (its place in decode order) is not its place in time")
+
+
 @dataclass(frozen=True)
 class VideoFrame:
     """One picked frame: its index, decoder timestamp (ms) and grayscale pixels (BGR ones when
@@ -223,8 +246,11 @@ class Video:
             raise WilocError(self.path, "not a video wiloc can read (no video stream found; an MP4 or "
                                         "MOV cut before its index cannot be opened either)")
         if not self._capture.grab():
+            later = self._capture.grab()  # the first frame damaged, or none decodes
             self._capture.release()
-            raise WilocError(self.path, "no frame of this video can be decoded")
+            raise WilocError(self.path, f"cannot decode frame {frame_name(0)} (the file is damaged there), and "
+                                        "reading stops at a frame that cannot be decoded: no frame can be read"
+                             if later else "no frame of this video can be decoded")
         count = int(self._capture.get(cv2.CAP_PROP_FRAME_COUNT))
         #: Frames the container announces (None when it does not say), frames per second (0 when
         #: unknown).
