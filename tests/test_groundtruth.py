@@ -10,8 +10,9 @@ import scipy.io
 from scipy.spatial.distance import cdist
 
 from wiloc.errors import WilocError
-from wiloc.evaluation.groundtruth import (EARTH_RADIUS_M, Truth, aligned_truth, matrix_truth, pairs_truth, positions_truth,
+from wiloc.evaluation.groundtruth import (EARTH_RADIUS_M, Truth, aligned_truth, pairs_truth, positions_truth,
                                           restrict_sequence)
+from wiloc.evaluation.truth_formats import matrix_truth
 from wiloc.evaluation.truth_source import load_truth
 
 REFS = [f"img{i}.jpg" for i in range(8)]

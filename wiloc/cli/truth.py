@@ -21,15 +21,16 @@ FORMS = "aligned, aligned:index, positions:Q.csv, pairs:P.csv, matrix:M.npy, vpr
 def truth_source(gt: str, gt_ref: str | None, tolerance: int, radius: float | None,
                  prefix: str = "") -> api.TruthSource:
     """`--gt` is a form name without a file (aligned, utm-names, exif) or KIND:PATH (positions:q.csv,
-    pairs:p.csv, matrix:m.npy, vprbench:g.npy, positives:p.npy), or a path whose suffix tells the form. Options of another form are refused (``prefix``:
-    the options' name prefix, ``train_`` for the trained method's)."""
+    pairs:p.csv, matrix:m.npy, vprbench:g.npy, positives:p.npy), or a path whose suffix tells the form; a
+    path that exists or names a folder is one whole, colons and all (``10:00/gt.csv``). Options of another
+    form are refused (``prefix``: the options' name prefix, ``train_`` for the trained method's)."""
     from wiloc import api
     from wiloc.evaluation.groundtruth import KINDS
     from wiloc.evaluation.truth_source import file_form
 
     flag = f"--{prefix.replace('_', '-')}gt"
     kind, sep, path = gt.partition(":")
-    if not sep:
+    if not sep or (kind not in KINDS and (Path(gt).exists() or any(c in kind for c in "/\\"))):  # a path: 10:00/gt.csv
         if gt not in NAMED_FORMS and not Path(gt).is_file() and "{query}" not in gt:
             fail(f"{flag}: '{gt}' is neither a ground-truth form nor a file (forms: {FORMS})", EXIT_USAGE)
         kind, path = (gt, "") if gt in NAMED_FORMS else (file_form(gt), gt)

@@ -10,7 +10,9 @@ See docs/evaluation.md for the formats and examples.
 """
 from __future__ import annotations
 
+import csv
 import re
+import unicodedata
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from numbers import Real
@@ -19,15 +21,13 @@ from typing import Literal
 
 import numpy as np
 import pandas as pd
-import scipy.io
 from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from wiloc.errors import ParameterError, WilocError, load_problem
+from wiloc.errors import ParameterError, WilocError
 from wiloc.evaluation.truth_warnings import QueryFramesWarning, query_frames_without, unmatched
-from wiloc.given import (COLUMN_NAMES, EARTH_RADIUS_M, check_file, check_lat_lon, check_metres, uneven_line,
-                         why_unmatched)
+from wiloc.given import COLUMN_NAMES, EARTH_RADIUS_M, check_file, check_lat_lon, check_metres, why_unmatched
 from wiloc.reprs import short_repr
 
 KINDS = ("aligned", "positions", "pairs", "matrix", "vprbench", "positives", "utm-names", "exif")
@@ -126,12 +126,16 @@ MAX_TRUE_PAIRS = 50_000_000
 
 
 def name_index(names: Sequence[str]) -> pd.Index:
-    return pd.Index(list(names), dtype=object)
+    """Frame names to look up, each in Unicode's composed form (NFC), so that a name typed on Linux
+    matches the same name copied from macOS (decomposed, NFD); kept as given where two names
+    differ in that alone."""
+    composed = [unicodedata.normalize("NFC", name) for name in names]
+    return pd.Index(composed if len(set(composed)) == len(set(names)) else list(names), dtype=object)
 
 
-def _lookup(wanted: ArrayLike, names: Sequence[str]) -> NDArray[np.int64]:
+def _lookup(wanted: Sequence[str], names: Sequence[str]) -> NDArray[np.int64]:
     """Position of each wanted name among ``names``, -1 where it is not a frame."""
-    return name_index(names).get_indexer(np.asarray(wanted, dtype=object)).astype(np.int64)
+    return name_index(names).get_indexer(name_index(wanted)).astype(np.int64)
 
 
 def _check_tolerance(tolerance: int) -> int:
@@ -140,11 +144,16 @@ def _check_tolerance(tolerance: int) -> int:
     return int(tolerance)
 
 
+def holds_indices(names: Sequence[str]) -> bool:
+    """Whether frame names are their indices in the traversal, as a video's are (``000005``)."""
+    return bool(names) and all(name.isascii() and name.isdigit() for name in names)
+
+
 def frame_indices(names: Sequence[str]) -> NDArray[np.int64]:
     """Each frame's index in its traversal, as aligned ground truth by index reads it: the number
     a video's frame names hold (``000005``: its index in the video, which sampling every n-th
     frame or at a frame rate keeps), else the frame's position."""
-    if names and all(name.isascii() and name.isdigit() for name in names):
+    if holds_indices(names):
         return np.array([int(name) for name in names], dtype=np.int64)
     return np.arange(len(names), dtype=np.int64)
 
@@ -191,15 +200,30 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
-    """A CSV as strings with stripped, lower-case column names; missing file -> WilocError."""
+    """A CSV's rows as text under its header's column names (stripped, lower case), indexed by
+    line number. Cells are kept as written (a quoted name keeps its spaces), but for spaces after
+    a comma and empty cells past the header's columns (a comma at each line's end, as spreadsheets
+    export); blank lines are read past. A row of other cells than the header names is a
+    WilocError naming its line, so that no cell is read under another column."""
     path = Path(path)
     check_file(path)
+    rows, lines = [], []
     try:
-        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        with path.open(encoding="utf-8-sig", newline="") as handle:  # newline="": quoted line breaks
+            reader = csv.reader(handle, skipinitialspace=True)
+            columns = [cell.strip().lower() for cell in next((row for row in reader if any(row)), [])]
+            header = reader.line_num
+            for row in reader:
+                cells = row[:len(columns)] if not any(row[len(columns):]) else row
+                if any(cells) and len(cells) != len(columns):
+                    raise WilocError(path, f"line {reader.line_num}: {len(row)} cell(s), where the header "
+                                           f"(line {header}) names {len(columns)} columns")
+                if any(cells):
+                    rows.append(cells)
+                    lines.append(reader.line_num)
+    except (csv.Error, UnicodeDecodeError) as exc:
         raise WilocError(path, f"not a readable CSV ({exc})") from exc
-    frame.columns = [str(c).strip().lower() for c in frame.columns]
-    return frame.apply(lambda col: col.str.strip())
+    return pd.DataFrame(rows, columns=columns, index=lines, dtype=str)
 
 
 def _require_columns(path: Path, frame: pd.DataFrame, columns: Sequence[str], header: str) -> None:
@@ -223,14 +247,27 @@ def _require_columns(path: Path, frame: pd.DataFrame, columns: Sequence[str], he
     raise WilocError(path, f"missing column(s) {', '.join(missing)}: its first line is '{shown}'{hint}")
 
 
+def _require_rows(path: Path, frame: pd.DataFrame, columns: Sequence[str], header: str, rows: tuple[str, str]) -> None:
+    """A WilocError naming ``path`` for a column named twice, no row below the header (``rows``:
+    what the lines list and each line, ``("pairs", "each true match")``) or a row with an empty
+    cell in ``columns``, naming its line: nothing is read under another column, nor skipped."""
+    if (twice := frame.columns[frame.columns.duplicated() & (frame.columns != "")]).size:
+        raise WilocError(path, f"its header line names column '{twice[0]}' twice")
+    if frame.empty:
+        raise WilocError(path, f"holds no {rows[0]}, only its header line: list {rows[1]} below it as a line {header}")
+    empty = frame[list(columns)] == ""
+    if empty.to_numpy().any():
+        line, cells = next((line, cells) for line, cells in empty.iterrows() if cells.any())
+        raise WilocError(path, f"line {line}: its {cells.idxmax()} cell is empty; each line is {header}")
+
+
 def _numeric(path: Path, frame: pd.DataFrame, columns: Sequence[str]) -> NDArray[np.float64]:
     """The named columns as float64; any empty, non-numeric or NaN cell -> WilocError."""
     values = frame[list(columns)].apply(pd.to_numeric, errors="coerce").to_numpy(np.float64)
     bad = ~np.isfinite(values).all(axis=1)
     if bad.any():
-        first = int(np.flatnonzero(bad)[0])
         raise WilocError(path, f"{int(bad.sum())} row(s) have a missing or non-numeric "
-                               f"{'/'.join(columns)} value (first: line {first + 2})")
+                               f"{'/'.join(columns)} value (first: line {frame.index[bad.argmax()]})")
     return values
 
 
@@ -260,6 +297,7 @@ def _read_positions(path: Path) -> Positions:
         if other in frame.columns and column not in frame.columns:
             frame = frame.rename(columns={other: column})
     _require_columns(path, frame, ["name"], "name,x,y")
+    _require_rows(path, frame, ["name"], "name,x,y", ("positions", "each frame's position"))
     if {"lat", "lon"} <= set(frame.columns):
         geographic, columns = True, ["lat", "lon"]
     elif {"x", "y"} <= set(frame.columns):
@@ -365,14 +403,13 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     path = Path(csv)
     frame = _read_csv(path)
     _require_columns(path, frame, ["query", "reference"], "query,reference")
-    if frame.empty:
-        raise WilocError(path, "holds no pairs, only its header line: list each true match below it as a line "
-                               "query,reference")
+    _require_rows(path, frame, ["query", "reference"], "query,reference", ("pairs", "each true match"))
     _no_duplicates(path, frame, ["query", "reference"])
     if "tolerance" in frame.columns:
         tol = _numeric(path, frame, ["tolerance"])[:, 0]
-        if np.any(tol < 0) or np.any(tol != np.round(tol)):
-            raise WilocError(path, "tolerance must be a whole number of frames >= 0")
+        if (bad := (tol < 0) | (tol != np.round(tol))).any():
+            raise WilocError(path, "tolerance must be a whole number of frames >= 0 "
+                                   f"(first: line {frame.index[bad.argmax()]})")
         tolerance = np.minimum(tol, len(ref_names)).astype(np.int64)  # 1e30 would wrap to a negative band
     else:
         tolerance = np.zeros(len(frame), dtype=np.int64)
@@ -388,98 +425,6 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
                            "rows name no reference frame (skipped)")
     rows, cols = _band(q[usable], r[usable], tolerance[usable], len(ref_names))
     return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
-
-
-def _named_array(path: Path, arrays: dict[str, NDArray], variable: str | None) -> NDArray:
-    """The 2-D numeric array named ``variable`` among a .mat's or .npz's ``arrays``, or the only
-    one when ``variable`` is None."""
-    arrays = {k: v for k, v in arrays.items() if not k.startswith("__") and getattr(v, "ndim", 0) == 2
-              and (np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_)}
-    if variable is not None:
-        if variable not in arrays:
-            raise WilocError(path, f"no 2-D variable {variable!r}; choose one of {', '.join(sorted(arrays)) or 'none'}")
-        return arrays[variable]
-    if len(arrays) != 1:
-        raise WilocError(path, f"holds {len(arrays)} 2-D arrays, name one of: {', '.join(sorted(arrays)) or 'none'}")
-    return next(iter(arrays.values()))
-
-
-def _mat_arrays(path: Path) -> dict[str, NDArray]:
-    """A .mat file's variables: scipy reads MATLAB up to v7; a v7.3 file is HDF5, read with h5py,
-    its arrays (stored in MATLAB's column order) transposed back to MATLAB's shape."""
-    try:
-        return scipy.io.loadmat(path)
-    except NotImplementedError:  # v7.3
-        import h5py
-
-        with h5py.File(path, "r") as handle:
-            return {name: item[()].T for name, item in handle.items() if isinstance(item, h5py.Dataset)}
-
-
-def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | sparse.sparray:
-    """The 2-D array stored in a .npy, .csv, .npz or .mat file."""
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".npy":
-            return np.load(path, allow_pickle=False)
-        if suffix == ".csv":
-            return np.loadtxt(path, delimiter=",", dtype=np.float64, ndmin=2, encoding="utf-8-sig")
-        if suffix == ".npz":
-            with np.load(path, allow_pickle=False) as archive:
-                return _named_array(path, {name: archive[name] for name in archive.files}, variable)
-        if suffix == ".mat":
-            return _named_array(path, _mat_arrays(path), variable)
-    except (ValueError, OSError, NotImplementedError, EOFError, IndexError, scipy.io.matlab.MatReadError) as exc:
-        hint = ("; an array of reference indices per query is the positives form, VPR-Bench's "
-                "ground_truth_new.npy the vprbench form" if str(exc).startswith("Object arrays") else "")
-        uneven = uneven_line(path) if suffix == ".csv" and isinstance(exc, ValueError) else None
-        problem = uneven or load_problem(exc)
-        raise WilocError(path, f"cannot read matrix ({problem}){hint}") from exc
-    raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv, .npz or .mat")
-
-
-def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str],
-                 variable: str | None = None) -> Truth:
-    """Matrix form: queries x references, 1 = same place, 0 = not (e.g. the FAB-MAP masks); any
-    other value is refused (a matrix of differences would make nearly every pair the same place).
-
-    The matrix carries no names: row i is the i-th query frame and column j the j-th reference
-    frame in the traversals' natural order, so its shape must match both exactly.
-    ``variable`` picks one array in a .mat or .npz file holding several.
-    """
-    path = Path(path)
-    check_file(path)
-    data = _read_matrix(path, variable)
-    if data.dtype.kind not in "biuf":
-        raise WilocError(path, f"matrix holds {data.dtype} values; give numbers (1 = same place, 0 = not) or booleans")
-    expected = (len(query_names), len(ref_names))
-    if data.ndim != 2 or data.shape != expected:
-        raise TruthMismatch(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "
-                               f"{expected[0]} x {expected[1]} (query x reference frames){_shape_hint(data, expected)}")
-    matrix = sparse.csr_array(data)
-    values = matrix.data.astype(np.float64, copy=False)
-    if not np.isfinite(values).all():
-        raise WilocError(path, "matrix holds NaN or infinite values")
-    if not np.isin(values, (0.0, 1.0)).all():  # a matrix of distances would make nearly every pair true
-        k = int(np.flatnonzero(~np.isin(values, (0.0, 1.0)))[0])
-        row = int(np.searchsorted(matrix.indptr, k, side="right") - 1)
-        raise WilocError(path, f"matrix holds {values[k]:g} at row {row + 1}, column {matrix.indices[k] + 1}: "
-                               "ground truth is a same-place mask of 0 and 1, not differences or distances")
-    return Truth(matrix, list(query_names), list(ref_names), [])
-
-
-def _shape_hint(data: NDArray | sparse.sparray, expected: tuple[int, int]) -> str:
-    """What a matrix of the wrong shape may be: reference x query frames; with a row per query
-    frame, rows of reference indices (whole numbers, some above 1: the positives form) or a mask
-    whose columns are not the map's frames."""
-    if data.shape == expected[::-1]:
-        return ": it is reference x query frames (as VPR_Tutorial's GThard); save its transpose, M.T"
-    if data.ndim != 2 or data.shape[0] != expected[0]:
-        return ""
-    values = data.data if sparse.issparse(data) else data
-    if np.isfinite(values).all() and (values == np.floor(values)).all() and (values > 1).any():
-        return "; rows of reference indices are the positives form (positives:FILE)"
-    return f"; it has {data.shape[1]} columns but the map has {expected[1]} frames (a column each)"
 
 
 def restrict_sequence(truth: Truth, exclude_recent: int) -> Truth:

@@ -1,5 +1,6 @@
 """Ground truth as VPR datasets ship it, read into the same :class:`~wiloc.evaluation.groundtruth.Truth` as
-the pairs and positions forms: VPR-Bench's ``ground_truth_new.npy``, the ``@UTM_east@UTM_north@``
+the pairs and positions forms: a queries x references mask (the matrix form: FAB-MAP's masks,
+VPR_Tutorial's ``GT.npz``), VPR-Bench's ``ground_truth_new.npy``, the ``@UTM_east@UTM_north@``
 file names of the datasets that VPR-methods-evaluation and VPR-datasets-downloader produce, and
 the GPS position in each photo's EXIF. See docs/evaluation.md."""
 from __future__ import annotations
@@ -10,17 +11,113 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 import numpy as np
+import scipy.io
 from numpy.typing import NDArray
+from scipy import sparse
 
-from wiloc.errors import WilocError
+from wiloc.errors import WilocError, load_problem
 from wiloc.evaluation.groundtruth import Positions, Truth, TruthMismatch, name_index, truth_from_pairs, truth_within
 from wiloc.evaluation.truth_warnings import query_frames_without
-from wiloc.given import check_file, check_metres
+from wiloc.given import check_file, check_metres, uneven_line
 from wiloc.object_arrays import npy_header, read_npy
 
 DEFAULT_RADIUS_M = 25.0
 """Same place within 25 m: the threshold of VPR-methods-evaluation and of the benchmarks it follows
 (Pitts30k, Tokyo 24/7, MSLS, SF-XL), used by ``utm-names`` and ``exif`` unless a radius is given."""
+
+# ---------------------------------------------------------------------------------------- matrix
+
+def _named_array(path: Path, arrays: dict[str, NDArray], variable: str | None) -> NDArray:
+    """The 2-D numeric array named ``variable`` among a .mat's or .npz's ``arrays``, or the only
+    one when ``variable`` is None."""
+    arrays = {k: v for k, v in arrays.items() if not k.startswith("__") and getattr(v, "ndim", 0) == 2
+              and (np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_)}
+    if variable is not None:
+        if variable not in arrays:
+            raise WilocError(path, f"no 2-D variable {variable!r}; choose one of {', '.join(sorted(arrays)) or 'none'}")
+        return arrays[variable]
+    if len(arrays) != 1:
+        raise WilocError(path, f"holds {len(arrays)} 2-D arrays, name one of: {', '.join(sorted(arrays)) or 'none'}")
+    return next(iter(arrays.values()))
+
+
+def _mat_arrays(path: Path) -> dict[str, NDArray]:
+    """A .mat file's variables: scipy reads MATLAB up to v7; a v7.3 file is HDF5, read with h5py,
+    its arrays (stored in MATLAB's column order) transposed back to MATLAB's shape."""
+    try:
+        return scipy.io.loadmat(path)
+    except NotImplementedError:  # v7.3
+        import h5py
+
+        with h5py.File(path, "r") as handle:
+            return {name: item[()].T for name, item in handle.items() if isinstance(item, h5py.Dataset)}
+
+
+def _read_matrix(path: Path, variable: str | None) -> NDArray[np.float64] | sparse.sparray:
+    """The 2-D array stored in a .npy, .csv, .npz or .mat file."""
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            return np.load(path, allow_pickle=False)
+        if suffix == ".csv":
+            return np.loadtxt(path, delimiter=",", dtype=np.float64, ndmin=2, encoding="utf-8-sig")
+        if suffix == ".npz":
+            with np.load(path, allow_pickle=False) as archive:
+                return _named_array(path, {name: archive[name] for name in archive.files}, variable)
+        if suffix == ".mat":
+            return _named_array(path, _mat_arrays(path), variable)
+    except (ValueError, OSError, NotImplementedError, EOFError, IndexError, scipy.io.matlab.MatReadError) as exc:
+        hint = ("; an array of reference indices per query is the positives form, VPR-Bench's "
+                "ground_truth_new.npy the vprbench form" if str(exc).startswith("Object arrays") else "")
+        uneven = uneven_line(path) if suffix == ".csv" and isinstance(exc, ValueError) else None
+        problem = uneven or load_problem(exc)
+        raise WilocError(path, f"cannot read matrix ({problem}){hint}") from exc
+    raise WilocError(path, f"unsupported matrix file type {suffix or '(none)'}; use .npy, .csv, .npz or .mat")
+
+
+def matrix_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str],
+                 variable: str | None = None) -> Truth:
+    """Matrix form: queries x references, 1 = same place, 0 = not (e.g. the FAB-MAP masks); any
+    other value is refused (a matrix of differences would make nearly every pair the same place).
+
+    The matrix carries no names: row i is the i-th query frame and column j the j-th reference
+    frame in the traversals' natural order, so its shape must match both exactly.
+    ``variable`` picks one array in a .mat or .npz file holding several.
+    """
+    path = Path(path)
+    check_file(path)
+    data = _read_matrix(path, variable)
+    if data.dtype.kind not in "biuf":
+        raise WilocError(path, f"matrix holds {data.dtype} values; give numbers (1 = same place, 0 = not) or booleans")
+    expected = (len(query_names), len(ref_names))
+    if data.ndim != 2 or data.shape != expected:
+        raise TruthMismatch(path, f"matrix is {' x '.join(map(str, data.shape))}, expected "
+                               f"{expected[0]} x {expected[1]} (query x reference frames){_shape_hint(data, expected)}")
+    matrix = sparse.csr_array(data)
+    values = matrix.data.astype(np.float64, copy=False)
+    if not np.isfinite(values).all():
+        raise WilocError(path, "matrix holds NaN or infinite values")
+    if not np.isin(values, (0.0, 1.0)).all():  # a matrix of distances would make nearly every pair true
+        k = int(np.flatnonzero(~np.isin(values, (0.0, 1.0)))[0])
+        row = int(np.searchsorted(matrix.indptr, k, side="right") - 1)
+        raise WilocError(path, f"matrix holds {values[k]:g} at row {row + 1}, column {matrix.indices[k] + 1}: "
+                               "ground truth is a same-place mask of 0 and 1, not differences or distances")
+    return Truth(matrix, list(query_names), list(ref_names), [])
+
+
+def _shape_hint(data: NDArray | sparse.sparray, expected: tuple[int, int]) -> str:
+    """What a matrix of the wrong shape may be: reference x query frames; with a row per query
+    frame, rows of reference indices (whole numbers, some above 1: the positives form) or a mask
+    whose columns are not the map's frames."""
+    if data.shape == expected[::-1]:
+        return ": it is reference x query frames (as VPR_Tutorial's GThard); save its transpose, M.T"
+    if data.ndim != 2 or data.shape[0] != expected[0]:
+        return ""
+    values = data.data if sparse.issparse(data) else data
+    if np.isfinite(values).all() and (values == np.floor(values)).all() and (values > 1).any():
+        return "; rows of reference indices are the positives form (positives:FILE)"
+    return f"; it has {data.shape[1]} columns but the map has {expected[1]} frames (a column each)"
+
 
 # ------------------------------------------------------------------------------------- VPR-Bench
 
@@ -228,7 +325,8 @@ def exif_positions(folder: Path, names: Sequence[str]) -> Positions:
     the first, with the count."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise WilocError(folder, "exif ground truth reads the images of an image folder, and this is not one")
+        raise WilocError(folder, "exif ground truth reads the images of an image folder, and this is not one"
+                                 if folder.exists() else "folder does not exist")
     found = [gps_position(folder / name) for name in names]
     missing = [name for name, at in zip(names, found) if at is None]
     if missing:

@@ -10,10 +10,10 @@ from pathlib import Path
 from typing import Literal
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, Truth, aligned_truth, check_radius,
-                                          matrix_truth, pairs_truth, positions_truth, restrict_sequence)
-from wiloc.evaluation.truth_formats import (DEFAULT_RADIUS_M, exif_truth, npy_form, positives_truth, utm_names_truth,
-                                            vprbench_truth)
+from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, Truth, aligned_truth, check_radius, holds_indices,
+                                          pairs_truth, positions_truth, restrict_sequence)
+from wiloc.evaluation.truth_formats import (DEFAULT_RADIUS_M, exif_truth, matrix_truth, npy_form, positives_truth,
+                                            utm_names_truth, vprbench_truth)
 from wiloc.given import COLUMN_NAMES, check_file_path, is_number
 
 
@@ -30,7 +30,11 @@ def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
     sequence mode), within ``radius`` metres (default 25).
     """
     if kind == "aligned":
-        return aligned_truth(query_names, ref_names, tolerance, by=by)
+        truth = aligned_truth(query_names, ref_names, tolerance, by=by)
+        if by == "index" and list(query_names) != list(ref_names):  # a traversal against itself is not shifted
+            truth.warnings += (_shifted_positions(query_names, query_folder, "query")
+                               + _shifted_positions(ref_names, ref_folder, "reference"))
+        return truth
     if kind not in KINDS:
         raise WilocError(None, f"unknown ground-truth kind {kind!r}; choose one of {', '.join(KINDS)}")
     if kind in FOLDER_KINDS:
@@ -52,6 +56,33 @@ def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
     if kind == "positives":
         return positives_truth(Path(path), query_names, ref_names)
     return matrix_truth(Path(path), query_names, ref_names, variable=variable)
+
+
+def _shifted_positions(names: Sequence[str], source: Path | None, role: str) -> list[str]:
+    """A warning when aligned ground truth by index counts the frames of ``source`` (a traversal
+    of the run) by their position in the run, as it does when their names hold no index, and
+    those positions are not the frames' own: a bag's frames are named by their stamps, and a
+    sampled run (--every, --fps, --start) counts from its first kept frame; a folder's image that
+    the run left out (unreadable) shifts every later frame. None when neither is seen."""
+    from wiloc.sources.bags import is_bag  # a later module, read only here
+    from wiloc.sources.frames import list_traversal
+
+    if source is None or holds_indices(names):
+        return []
+    if is_bag(source):
+        return [(f"{source}: aligned:index counts its frames by their position in the run, as their names (stamps) "
+                 "hold no index: a run that sampled it (--every, --fps, --start) is aligned with other frames "
+                 "than their own; score it with a pairs or positions file instead")]
+    try:
+        listed = list_traversal(source).names if source.is_dir() else []
+    except WilocError:  # no longer a folder of images: nothing to tell
+        return []
+    kept = set(names)
+    last = max((i for i, name in enumerate(listed) if name in kept), default=0)
+    left = [name for name in listed[:last] if name not in kept]
+    more = f" (and {len(left) - 1} more frames of {source})" if len(left) > 1 else ""
+    return [(f"{source / left[0]}: left out of the run{more} (unreadable?), so the position of every later {role} "
+             "frame, which aligned:index aligns by, is shifted: align by name or give a pairs file")] if left else []
 
 
 def file_form(path: str | Path) -> str:
