@@ -101,3 +101,20 @@ def test_p_new_place_is_one_minus_the_confidence_and_the_docs_say_so() -> None:
         text = " ".join(docs.joinpath(name).read_text().split())
         assert re.search(r"`trained`('s)?[^.]*?(P\(new place\)|new_place)?[^.]*? 1 - (its |`)?confidence"
                          r"|`new_place` is 1 - P\(L \| m\)", text), name
+
+
+@pytest.mark.parametrize(("label", "wider"), [(True, "smaller"), (False, "larger")])
+def test_one_sided_training_truth_names_the_training_options(label: bool, wider: str) -> None:
+    """Labels all true (--train-tolerance 200 on 200 frames) were refused as "train: ...", neither
+    an option nor a file: the problem is the training truth, --train-gt and its tolerance or radius."""
+    from wiloc.cli.params import flag
+
+    rows = np.random.default_rng(3).random((6, 4))
+    with pytest.raises(WilocError) as err:
+        train_model(list(rows), np.full((6, 4), label))
+    assert flag(err.value.parameter) == "--train-gt"
+    assert err.value.problem.startswith("training needs both true and false matches")
+    assert f"with a {wider} tolerance or radius" in err.value.problem
+    with pytest.raises(WilocError) as err:
+        train_model(list(rows), np.eye(6, 5, dtype=bool))
+    assert err.value.parameter == "training" and err.value.where == "training"

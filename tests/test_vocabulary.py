@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from wiloc.bow.clustering import assign, kmajority, kmeans
 from wiloc.bow.features import extract_features, to_scale
-from wiloc.bow.vocabulary import pack_words, read_vocabulary, train_vocabulary, unpack_words
+from wiloc.bow.vocabulary import Vocabulary, pack_words, read_vocabulary, train_vocabulary, unpack_words
 from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.cache.entries import Entry
 from wiloc.cache.features import FeatureStore
@@ -542,3 +542,100 @@ def test_damaged_local_features_a_worker_met_are_reported_too(tmp_path: Path, ca
     report = describe_folder(tmp_path / "copy", spec, cache, jobs=2)
     assert len(here) < len(files)  # the worker extracted the others
     _check_repaired(report, first, files, cache)
+
+
+# ----------------------------------------------------------------------------- QA: reuse, causes, inputs
+
+def test_a_vocabulary_file_under_another_keys_name_is_damaged_and_built_again(tmp_path: Path,
+                                                                               cache_dir: Path) -> None:
+    """A cache file named for one key that holds another vocabulary (copied over it) was reused as
+    the one asked for: its key attribute is checked against its name, as a damaged file's arrays are."""
+    from wiloc.bow.vocabulary import read_vocabulary_header
+
+    folder, cache = _folder(tmp_path / "train", range(6)), Cache(cache_dir)
+    fewer = VocabularyParams(words=8, max_features=60, max_side=320, iterations=10)
+    first, second = build_vocabulary([folder], cache, SMALL), build_vocabulary([folder], cache, fewer)
+    shutil.copyfile(first.path, second.path)
+    problem = f"damaged vocabulary file: it holds vocabulary {first.vocabulary.key}, not {second.vocabulary.key}"
+    with pytest.raises(WilocError, match=problem):
+        read_vocabulary_header(second.path)  # what --vocabulary KEY reads
+    again = build_vocabulary([folder], cache, fewer)
+    assert again.built and again.vocabulary.key == second.vocabulary.key and again.vocabulary.n_words == 8
+    assert again.repairs == [f"{second.path}: {problem} as its name says; built again"]
+    assert read_vocabulary_header(second.path)[0] == second.vocabulary.key
+
+
+def test_a_reused_vocabulary_reports_the_frames_its_build_left_out(tmp_path: Path, cache_dir: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """Reused from the cache, a vocabulary said no frame was left out; and from a relative folder
+    the file kept relative paths of the frames left out, absolute ones of the frames used."""
+    folder = _folder(tmp_path / "train", range(5))
+    (folder / "img9.png").write_bytes(b"not an image")
+    monkeypatch.chdir(tmp_path)
+    built = build_vocabulary([Path("train")], Cache(cache_dir), SMALL)
+    skipped = str((folder / "img9.png").resolve())
+    assert built.built and [name for name, _ in built.failed] == [skipped]
+    with h5py.File(built.path, "r") as f:
+        assert json.loads(f.attrs["failed"]) == [list(item) for item in built.failed]
+    reused = build_vocabulary([Path("train")], Cache(cache_dir), SMALL)
+    assert not reused.built and reused.failed == built.failed
+
+
+def test_an_undecodable_training_image_leaves_no_opencv_lines_on_stderr(tmp_path: Path, cache_dir: Path,
+                                                                       capfd: pytest.CaptureFixture[str]) -> None:
+    """A float TIFF, which OpenCV cannot decode to 8 bits, is left out and reported; OpenCV's own
+    "[ERROR:0@...] imdecode_" line reached stderr before the vocabulary's own skipped line."""
+    folder = _folder(tmp_path / "train", range(3))
+    cv2.imwrite(str(folder / "float.tif"), np.dstack([_scene(7)] * 3).astype(np.float32) / 255)
+    capfd.readouterr()
+    report = build_vocabulary([folder], Cache(cache_dir), SMALL, jobs=1)
+    assert [Path(name).name for name, _ in report.failed] == ["float.tif"]
+    assert capfd.readouterr().err == ""
+
+
+@pytest.mark.parametrize(("words", "max_features", "cause"), [
+    (40, 500, "--words 40 caps"), (1000, 30, "--max-features 30 caps"),
+    (30, 20, "--words 30 and --max-features 20 cap"), (1000, 500, "images too small for local features")])
+def test_a_sparse_vocabulary_names_its_cause(words: int, max_features: int, cause: str) -> None:
+    """Fewer than 50 words, or a cap of fewer than 50 features per image, cannot give 50 words
+    an image: the warning blamed the images for what the option does."""
+    params = VocabularyParams(words=words, max_features=max_features)
+    occurrences = np.zeros((10, words), dtype=bool)
+    occurrences[:, :min(words, max_features, 40) // 2] = True
+    vocabulary = Vocabulary("k", params, np.zeros((words, 128), np.float32), tuple(f"{i}.png" for i in range(10)),
+                            occurrences)
+    warning = vocabulary.too_few_words()
+    assert warning is not None and cause in warning
+    assert ("images too small" in warning) == (cause == "images too small for local features")
+
+
+def test_training_images_without_features_name_the_folders(tmp_path: Path, cache_dir: Path) -> None:
+    """Black images give no local feature: that is no --words value's fault (exit 2 said so); it
+    is an error of the training folders, exit 1."""
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+
+    black = [tmp_path / "black", tmp_path / "dark"]
+    for folder in black:
+        folder.mkdir()
+        for i in range(3):
+            cv2.imwrite(str(folder / f"b{i}.png"), np.zeros((100, 100), np.uint8))
+    with pytest.raises(WilocError) as info:
+        build_vocabulary(black, Cache(cache_dir), VocabularyParams(words=2))
+    assert not isinstance(info.value, ParameterError)
+    assert info.value.where == f"{black[0]}, {black[1]}"
+    assert info.value.problem.startswith("no local features in any training image")
+    result = CliRunner().invoke(app, ["vocabulary", str(black[0]), "--words", "2", "--cache", str(cache_dir)])
+    assert result.exit_code == 1 and result.stderr.startswith(f"error: {black[0]}: no local features"), result.output
+
+
+@pytest.mark.parametrize("name", ["route.avi", "run.bag"])
+def test_a_video_or_bag_is_no_training_folder(name: str, tmp_path: Path, cache_dir: Path) -> None:
+    """A video is a traversal (guide.md): "a .avi file is not a traversal" was wrong; vocabulary
+    takes image folders only."""
+    stream = tmp_path / name
+    stream.write_bytes(b"\0" * 64)
+    with pytest.raises(WilocError, match=re.escape(f"{stream}: vocabulary trains from image folders only "
+                                                   "(videos and ROS bags are not taken for training)")):
+        build_vocabulary([stream], Cache(cache_dir), SMALL)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +30,8 @@ from wiloc.version import __version__
 
 FORMAT = "wiloc-vocabulary"
 FORMAT_VERSION = 1
+#: Hexadecimal digits of a vocabulary's key, the name of its file in the cache (``<key>.h5``).
+KEY_DIGITS = 24
 #: What to do with a vocabulary file that cannot be used (in the cache: the same command builds it anew).
 REBUILD = "build it again (wiloc vocabulary with its training folders and options)"
 #: Images that give a median under FEW_WORDS distinct words per image, or more than a share
@@ -84,8 +87,17 @@ class Vocabulary:
         shortage = word_shortage(self.training_occurrences.sum(axis=1))
         if shortage is None:
             return None
-        return (f"vocabulary {self.key}: its {len(self.training_frames)} training images {shortage}: images too "
-                "small for local features, so FAB-MAP's evidence and bag-of-words matching degenerate")
+        return (f"vocabulary {self.key}: its {len(self.training_frames)} training images {shortage}: "
+                f"{self._sparse_cause()}, so FAB-MAP's evidence and bag-of-words matching degenerate")
+
+    def _sparse_cause(self) -> str:
+        """What keeps the training images' words few: options under ``FEW_WORDS`` (fewer words,
+        or fewer features an image, than a usable image gives words), else the images themselves."""
+        capped = [f"--{name.replace('_', '-')} {value}" for name, value in
+                  (("words", self.params.words), ("max_features", self.params.max_features)) if value < FEW_WORDS]
+        if not capped:
+            return "images too small for local features"
+        return f"{' and '.join(capped)} cap{'s' if len(capped) == 1 else ''} an image's words under {FEW_WORDS}"
 
 
 def word_shortage(words: NDArray[np.integer]) -> str | None:
@@ -156,6 +168,8 @@ def write_vocabulary(f: h5py.File, vocabulary: Vocabulary, attrs: dict[str, obje
 
 
 def _open(path: Path) -> h5py.File:
+    """The vocabulary file at ``path``, open; one named as a key (the cache's ``<key>.h5``) must
+    hold that key."""
     try:
         f = h5py.File(path, "r")
     except FileNotFoundError:
@@ -165,6 +179,11 @@ def _open(path: Path) -> h5py.File:
     if f.attrs.get("format") != FORMAT or not f.attrs.get("complete", False):
         f.close()
         raise WilocError(path, "not a complete wiloc vocabulary file")
+    key = f.attrs.get("key")
+    if re.fullmatch(f"[0-9a-f]{{{KEY_DIGITS}}}", path.stem) and key != path.stem:  # a cache file copied over another
+        f.close()
+        raise WilocError(path, f"damaged vocabulary file: it holds vocabulary {key}, not {path.stem} as its name says; "
+                               f"{REBUILD}")
     return f
 
 

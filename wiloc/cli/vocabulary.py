@@ -7,7 +7,7 @@ from typing import Any
 
 import typer
 
-from wiloc.cli.core import Notes, absolute_frame, fail, handles_errors, out, print_line
+from wiloc.cli.core import Notes, fail, handles_errors, out, print_line
 from wiloc.cli.options import CacheOption, TrainingJobsOption
 from wiloc.cli.params import with_vocabulary_options
 from wiloc.cli.views import print_command_json, progress_bar, table
@@ -43,8 +43,7 @@ def vocabulary(
     notes = Notes()
     for line in report.repairs:
         notes.add("note", line)
-    failed = [(absolute_frame(path) if as_json else path, reason) for path, reason in report.failed]
-    for path, reason in failed:  # --json names frames by their absolute paths, on stderr too
+    for path, reason in report.failed:  # resolved paths, as --json names frames
         notes.add("skipped", f"{path}: {reason}")
     sparse = report.vocabulary.too_few_words()
     if sparse is not None:
@@ -53,7 +52,7 @@ def vocabulary(
            "training_frames": len(report.vocabulary.training_frames), "built": report.built,
            "seconds": report.seconds, "file": str(report.path)}
     if as_json:
-        print_command_json("vocabulary", "results", [{**row, "failed": [list(item) for item in failed]}], notes)
+        print_command_json("vocabulary", "results", [{**row, "failed": [list(item) for item in report.failed]}], notes)
         return
     out.print(table("vocabulary", [{**row, "file": report.path.name}], labels={"training_frames": "training\nframes"},
                     digits={"seconds": 1}))

@@ -25,18 +25,21 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+import h5py
 import numpy as np
 from numpy.typing import NDArray
 
 from wiloc.bow.features import decode_size, extract_features
-from wiloc.bow.vocabulary import (FORMAT_VERSION, REBUILD, Vocabulary, read_vocabulary, train_vocabulary,
-                                  write_vocabulary)
+from wiloc.bow.vocabulary import (FORMAT_VERSION, KEY_DIGITS, REBUILD, Vocabulary, read_vocabulary,
+                                  train_vocabulary, write_vocabulary)
 from wiloc.bow.vocabulary_params import VocabularyParams
 from wiloc.cache.features import FeatureStore, damaged_note
 from wiloc.cache.store import Cache
+from wiloc.description.describing import is_stream
 from wiloc.description.frame_describing import check_jobs, compute
 from wiloc.descriptors.base import Descriptor, DescriptorSpec
 from wiloc.errors import FrameError, WilocError
+from wiloc.quiet import decoders_quiet
 from wiloc.reprs import short_repr
 from wiloc.sources.frames import fingerprint, list_traversal, read_gray
 
@@ -63,7 +66,7 @@ class VocabularyReport:
 def vocabulary_key(digests: Sequence[str], params: VocabularyParams) -> str:
     """The key of the vocabulary trained with `params` on frames of these content digests."""
     text = json.dumps([FORMAT_VERSION, json.loads(params.to_json()), list(digests)], sort_keys=True)
-    return hashlib.sha256(text.encode()).hexdigest()[:24]
+    return hashlib.sha256(text.encode()).hexdigest()[:KEY_DIGITS]
 
 
 def vocabulary_name(key: str) -> str:
@@ -116,9 +119,22 @@ def _features(frame: Path, digest: str, store: FeatureStore, repairs: list[str])
     not decoded); FrameError when it cannot be read. A damaged features file is noted in
     ``repairs`` and replaced."""
     setting = store.setting
-    return store.features(digest, lambda: extract_features(read_gray(frame, decode_size(setting["max_side"])),
-                                                           **setting),
-                          lambda file: repairs.append(damaged_note(file)))
+
+    def extract() -> NDArray:
+        with decoders_quiet():  # their own lines (OpenCV's "imdecode_"): the frame is reported as left out
+            gray = read_gray(frame, decode_size(setting["max_side"]))
+        return extract_features(gray, **setting)
+
+    return store.features(digest, extract, lambda file: repairs.append(damaged_note(file)))
+
+
+def _stored_failed(path: Path) -> list[tuple[str, str]]:
+    """The training frames the build of the vocabulary file at ``path`` left out, and why."""
+    try:
+        with h5py.File(path, "r") as f:
+            return [(str(frame), str(problem)) for frame, problem in json.loads(f.attrs["failed"])]
+    except (KeyError, ValueError, TypeError, OSError) as exc:
+        raise WilocError(path, f"unreadable vocabulary file ({exc}); {REBUILD}") from exc
 
 
 def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyParams | None = None,
@@ -129,13 +145,18 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
 
     `progress(done, total)` counts training frames, then clustering rounds (total = frames +
     ``params.iterations``; clustering may finish early). Unreadable frames are left out and
-    reported. Raises CacheBusyError if another process builds the same vocabulary too long.
+    reported by their resolved paths (reused from the cache: those its file records). Raises
+    CacheBusyError if another process builds the same vocabulary too long.
     """
     start = time.perf_counter()
     params = VocabularyParams() if params is None else params
     jobs = check_jobs(jobs)  # refused before any work, even when every feature is in the cache
     if not folders:
         raise WilocError(None, "a vocabulary needs at least one training folder")
+    stream = next((Path(folder) for folder in folders if is_stream(Path(folder)) and Path(folder).exists()), None)
+    if stream is not None:
+        raise WilocError(stream, "vocabulary trains from image folders only (videos and ROS bags are not taken "
+                                 "for training)")
     frames = [path for folder in folders for path in list_traversal(Path(folder)).frames]
     prints = {path: fingerprint(path) for path in frames}
     key = vocabulary_key([prints[path].digest for path in frames], params)
@@ -145,27 +166,30 @@ def build_vocabulary(folders: Sequence[Path], cache: Cache, params: VocabularyPa
     with cache.lock(vocabulary_name(key)):
         if path.exists():
             try:
-                vocabulary = read_vocabulary(path)
+                vocabulary, failed = read_vocabulary(path), _stored_failed(path)
             except WilocError as exc:  # an unreadable file is rebuilt (and replaced atomically) below
                 repairs.append(f"{path}: {exc.problem.removesuffix(f'; {REBUILD}')}; built again")
             else:
                 if progress is not None:
                     progress(total, total)
-                return VocabularyReport(vocabulary, path, False, 0, [],
-                                        time.perf_counter() - start)
+                return VocabularyReport(vocabulary, path, False, 0, failed, time.perf_counter() - start)
         names, features, failed = [], [], []
         store = FeatureStore(cache, params.feature_setting())
         _extract_missing(frames, [prints[frame].digest for frame in frames], store, jobs, progress, total)
         for frame in frames:  # from the cache now; a frame that cannot be read is tried once more
+            resolved = str(frame.resolve())  # as the file and --json name frames, used or not
             try:
                 features.append(_features(frame, prints[frame].digest, store, repairs))
             except FrameError as exc:
-                failed.append((str(frame), exc.problem))
+                failed.append((resolved, exc.problem))
             else:
-                names.append(str(frame.resolve()))
+                names.append(resolved)
         step = None if progress is None else (lambda i: progress(len(frames) + i, total))
+        where = ", ".join(str(folder) for folder in folders)
         if not names:
-            raise WilocError(folders[0], "no readable training image")
+            raise WilocError(where, "no readable training image")
+        if not any(len(f) for f in features):  # no --words could help
+            raise WilocError(where, "no local features in any training image (blank, flat or too small images)")
         vocabulary = train_vocabulary(key, params, names, features, step)
         count = int(sum(len(f) for f in features))
         seconds = time.perf_counter() - start

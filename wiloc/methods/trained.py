@@ -56,7 +56,9 @@ def train_model(rows: Iterable[NDArray[np.float64]],
     """Fill ``b`` with true-match and ``c`` with false-match differences of a training run.
 
     ``labels`` (n_train_query x n_candidates, dense bool or scipy.sparse) marks true matches.
-    The bin range spans [min(0, lowest), highest] of the training values used.
+    The bin range spans [min(0, lowest), highest] of the training values used. Errors name the
+    training pair: ``training`` (rows and labels that do not fit), ``train_path`` (its truth,
+    when it labels the samples all true or all false).
     """
     import scipy.sparse
 
@@ -69,8 +71,8 @@ def train_model(rows: Iterable[NDArray[np.float64]],
     for k, row in enumerate(rows):
         row = np.asarray(row, dtype=np.float64)
         if k >= shape[0] or row.shape != (shape[1],):
-            raise WilocError("train", f"labels are {shape[0]} x {shape[1]}, difference row {k} "
-                                      f"has {row.size} values")
+            raise WilocError(None, f"labels are {shape[0]} x {shape[1]}, difference row {k} has {row.size} values",
+                             parameter="training")
         truth = _label_row(labels, k)
         if params.pairs == "minima":
             z, m = finite_minimum(row)
@@ -81,12 +83,13 @@ def train_model(rows: Iterable[NDArray[np.float64]],
             same.append(row[finite & truth])
             different.append(row[finite & ~truth])
     if k + 1 != shape[0]:
-        raise WilocError("train", f"got {k + 1} difference rows for {shape[0]} label rows")
+        raise WilocError(None, f"got {k + 1} difference rows for {shape[0]} label rows", parameter="training")
     b = np.concatenate(same) if same else np.empty(0)
     c = np.concatenate(different) if different else np.empty(0)
-    if b.size == 0 or c.size == 0:
-        raise WilocError("train", "training needs both true and false matches "
-                                  f"(got {b.size} true, {c.size} false)")
+    if b.size == 0 or c.size == 0:  # the training pair's truth marks too many or too few matches true
+        raise WilocError(None, f"training needs both true and false matches (got {b.size} true, {c.size} false): "
+                               f"the training truth with a {'larger' if b.size == 0 else 'smaller'} tolerance or "
+                               "radius, or another one", parameter="train_path")
     model = HistogramModel.from_values(np.concatenate([b, c]), params.bins, smoothing=params.smoothing,
                                        prior=params.prior)
     model.add_same(b)
