@@ -431,3 +431,32 @@ def test_onnxruntime_missing(one_frame: Path, tmp_path: Path) -> None:
                              "--model", str(model)], capture_output=True, text=True, check=False)
     assert result.returncode == 1
     assert result.stderr.strip() == 'error: onnx: needs onnxruntime, an optional dependency: pip install "wiloc[onnx]"'
+
+
+@pytest.mark.parametrize("size", ["100000x100000", "4097x32", "32x4097", "5000"])
+def test_an_input_size_beyond_any_network_s_is_refused_at_once(size: str, one_frame: Path, tmp_path: Path) -> None:
+    """A network of dynamic H and W is run once on a blank image of input_size to learn its D: a
+    huge one was numpy's _ArrayMemoryError traceback (100000x100000), or the process killed for
+    its memory (20000x20000). Sides above 4096 are refused before any is allocated."""
+    model = tmp_path / "m.onnx"
+    conv_model(model, input_shape=["N", 3, "H", "W"])
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model),
+                         "--preprocess", f"input_size={size}"])
+    assert code == 2 and line.startswith("error: --preprocess: onnx input_size ") and "4096" in line, line
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # numpy's overflow warnings fail it
+@pytest.mark.parametrize("bad, key", [("std=1e-40", "std"), ("std=1e39", "std"), ("std=1e-46", "std"),
+                                      ("mean=1e39", "mean"), ("mean=-1e39", "mean"), ("mean=1e38", "mean and std")])
+def test_preprocessing_beyond_float32_is_refused_without_numpy_warnings(bad: str, key: str, one_frame: Path,
+                                                                        tmp_path: Path) -> None:
+    """The samples are float32: a mean or std beyond its range, or a std so small that (x - mean) /
+    std overflows, printed numpy's overflow warnings and then blamed the model for NaN values (a std
+    of 1e39 turned every input into 0, silently). Each is refused up front, naming the key."""
+    model = tmp_path / "m.onnx"
+    conv_model(model)
+    result = runner.invoke(app, ["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model),
+                                 "--preprocess", bad])
+    lines = result.stderr.strip().splitlines()
+    assert result.exit_code == 2 and len(lines) == 1, result.stderr
+    assert lines[0].startswith(f"error: --preprocess: onnx {key} "), lines[0]

@@ -368,3 +368,127 @@ def test_a_descriptor_registered_by_the_script_run_is_refused_by_fresh_workers_i
     assert run.stdout.startswith("descriptor 'mean' cannot be described in worker processes, which do not find its "
                                  "class by name (Can't get attribute 'Mean' on <module '__main__'"), run.stdout
     assert "describe with jobs 1, or register it in a module the workers can import" in run.stdout
+
+
+def _raiser(gray: np.ndarray, side: int = 2) -> np.ndarray:
+    raise ValueError("cannot describe this image\n(a second line of its own)")
+
+
+def test_a_plugin_whose_compute_raises_is_one_error_naming_it_and_the_frame(tmp_path: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """A plugin's own exception ended describe in its traceback, and came out of the localizer as
+    it was: it is one error naming the descriptor, its package and the frame, and no entry is cached."""
+    from wiloc import api
+    from wiloc.descriptors import registry
+    from wiloc.errors import WilocError
+    from wiloc.localization.localizer import Localizer
+
+    Point = _installed(monkeypatch, "raiser", "raiser_module:RAISER", _raiser)
+    route = tmp_path / "route"
+    route.mkdir()
+    cv2.imwrite(str(route / "f0.png"), np.zeros((24, 32), np.uint8))
+    try:
+        cache = Cache(tmp_path / "cache")
+        with pytest.raises(WilocError) as err:
+            api.describe(route, "raiser", cache=cache, jobs=1)
+        assert str(err.value) == f"descriptor 'raiser' ({Point.value}): failed on f0.png: ValueError: cannot describe " \
+                                 "this image"
+        assert err.value.__cause__ is None and cache.list_entries() == []
+        loc = Localizer(None, descriptor="raiser", method="online", cache=cache)
+        with pytest.raises(WilocError) as err:
+            loc.observe(np.zeros((24, 32), np.uint8))
+        assert str(err.value) == f"descriptor 'raiser' ({Point.value}): failed: ValueError: cannot describe this image"
+    finally:
+        registry._plugins.cache_clear()
+
+
+RAISE_DIST, RAISE_MODULE = "wiloc-test-raise-plugin", "wiloc_test_raise_plugin"
+
+#: A plugin taking 20 ms a frame (workers start meanwhile) that fails on the frame of value 39.
+RAISE_SOURCE = '''
+import time
+
+import numpy as np
+
+from wiloc.descriptors import DescriptorPlugin
+
+
+def raiser(gray):
+    time.sleep(0.02)
+    if gray[0, 0] == 39:
+        raise ValueError("cannot describe this image")
+    return np.zeros(4, np.float32)
+
+
+RAISER = DescriptorPlugin(compute=raiser, metric="l1", length=4)
+'''
+
+
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_describe_with_a_plugin_that_raises_ends_in_one_line(jobs: str, tmp_path: Path) -> None:
+    """From the command line, in this process or a worker's: one line naming the frame, exit 1."""
+    site = tmp_path / "site"
+    meta = site / f"{RAISE_MODULE}-0.1.0.dist-info"
+    meta.mkdir(parents=True)
+    (meta / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {RAISE_DIST}\nVersion: 0.1.0\n")
+    (meta / "entry_points.txt").write_text(f"[wiloc.descriptors]\nraiser2 = {RAISE_MODULE}:RAISER\n")
+    (site / f"{RAISE_MODULE}.py").write_text(RAISE_SOURCE)
+    route = tmp_path / "route"
+    route.mkdir()
+    for i in range(40):
+        cv2.imwrite(str(route / f"f{i:02d}.png"), np.full((24, 32), i, np.uint8))
+    env = {**os.environ, "WILOC_CACHE": str(tmp_path / "cache"),
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")]))}
+    run = _wiloc("describe", str(route), "--descriptor", "raiser2", "-j", jobs, env=env)
+    assert run.returncode == 1 and run.stderr.strip().splitlines() == [
+        (f"error: descriptor 'raiser2' ({RAISE_DIST} 0.1.0): failed on f39.png: ValueError: cannot describe this "
+         "image")], run.stderr
+
+
+#: A local Dask cluster of one worker process, started while the plugin is on neither's module
+#: search path; with argv 1 "workers", the scheduler (this process) finds it afterwards. It prints
+#: the scheduler's address and runs until its stdin closes.
+CLUSTER_WITHOUT_PLUGIN = """
+import sys
+from distributed import LocalCluster
+with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+    if sys.argv[1] == "workers":
+        sys.path.insert(0, sys.argv[2])
+    print(cluster.scheduler_address, flush=True)
+    sys.stdin.read()
+"""
+
+
+@pytest.mark.parametrize("lacking", ["scheduler", "workers"])
+def test_a_cluster_without_the_plugin_is_one_error_naming_it(lacking: str, thumb_plugin: Path,
+                                                             tmp_path: Path) -> None:
+    """A scheduler without the plugin failed the run in two chained tracebacks (Dask's "Error
+    during deserialization of the task graph"); a worker without it left the cluster, and the run
+    ended 30 s later in 'no worker'. Both are one error naming the plugin, before any task is sent."""
+    pytest.importorskip("distributed")
+    from wiloc import api
+    from wiloc.description.cluster import disconnect
+    from wiloc.errors import WilocError
+
+    route = tmp_path / "route"
+    route.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(route / f"f{i}.png"), np.full((24, 32), i, np.uint8))
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
+    cluster = subprocess.Popen([sys.executable, "-c", CLUSTER_WITHOUT_PLUGIN, lacking, str(tmp_path / "site")],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        address = cluster.stdout.readline().strip()
+        with pytest.raises(WilocError) as err:
+            api.describe(route, "thumb", cache=Cache(tmp_path / "cache"), scheduler=address)
+        assert str(err.value) == (f"{address}: descriptor plugin 'thumb' is not installed on the Dask scheduler or "
+                                  "its workers; install it there and restart them")
+        disconnect(address)
+    finally:
+        cluster.stdin.close()
+        try:
+            cluster.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            cluster.kill()
+            cluster.wait()
+    assert not list((tmp_path / "cache").rglob("*.h5"))

@@ -14,6 +14,7 @@ import atexit
 import concurrent.futures
 import logging
 import os
+import pickle
 import threading
 import time
 from collections import deque
@@ -25,10 +26,12 @@ from typing import Any, TypeVar
 import numpy as np
 from distributed import Client, Future, KilledWorker, LocalCluster, wait
 from distributed.comm.core import CommClosedError
+from distributed.protocol import pickle as dask_pickle
 from numpy.typing import NDArray
 
 from wiloc.description.distances import DifferencesTo
 from wiloc.description.frame_describing import check_jobs
+from wiloc.descriptors.registry import plugin_named
 from wiloc.errors import ParameterError, WilocError
 
 LOCAL = "local"
@@ -106,9 +109,16 @@ class Cluster:
                 environ = dict(os.environ)
                 # its workers' and nannies' log lines (a heartbeat missed on a busy machine, a task
                 # cancelled by Ctrl-C) are not the user's: what fails the run is said in one line
-                self._local = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
-                                           dashboard_address=":0", silence_logs=logging.CRITICAL)
-                _restore(environ)
+                try:
+                    self._local = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
+                                               dashboard_address=":0", silence_logs=logging.CRITICAL)
+                except RuntimeError as exc:  # "Nanny failed to start.": the workers' own tracebacks say why
+                    raise WilocError(LOCAL, f"the local Dask cluster's workers failed to start ("
+                                            f"{str(exc).rstrip('.')}); a script that starts one must do so under "
+                                            "if __name__ == '__main__': (its workers, started by multiprocessing's "
+                                            "spawn, run the script again)") from None
+                finally:
+                    _restore(environ)
                 self.client = Client(self._local)
             else:
                 self.client = _connect(scheduler)
@@ -142,6 +152,8 @@ class Cluster:
         def send(batches: Iterable[list[T]]) -> dict[Future, list[T]]:
             return {self.client.submit(work, batch, pure=False): batch for batch in batches}
 
+        with self._failures(RESUME):
+            self._check_loadable(work)
         sent = send(list(items[i:i + BATCH]) for i in range(0, len(items), BATCH))
         stalls = 0
         try:
@@ -158,6 +170,22 @@ class Cluster:
                         sent = send(sent.values())
         finally:
             self._cancel(list(sent))
+
+    def _check_loadable(self, work: Callable[..., Any]) -> None:
+        """A WilocError naming the descriptor plugin (else pickle's words) when the scheduler or a
+        worker cannot unpickle ``work``, before any task is sent: a scheduler without the plugin
+        failed the run in Dask's chained tracebacks, and a worker without it left the cluster."""
+        payload = dask_pickle.dumps(work)  # as Dask pickles a task: by value where it must (__main__)
+        try:
+            self.client.run_on_scheduler(dask_pickle.loads, payload)
+            self.client.run(dask_pickle.loads, payload)
+        except (AttributeError, ImportError, pickle.UnpicklingError) as exc:
+            plugin = plugin_named(str(exc))
+            raise WilocError(self.scheduler, f"descriptor plugin '{plugin}' is not installed on the Dask scheduler "
+                                             "or its workers; install it there and restart them" if plugin else
+                                             f"the Dask scheduler or its workers cannot load this run's tasks "
+                                             f"({type(exc).__name__}: {exc}); install the same packages there "
+                                             "as here") from None
 
     def blocks(self, data: NDArray, to: DifferencesTo, ranges: list[tuple[int, int]]) -> Iterator[NDArray[np.float32]]:
         """A ``wiloc.description.differences.BlockRunner``: the blocks in order, a few per worker in flight;

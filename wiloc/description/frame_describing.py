@@ -27,7 +27,7 @@ from wiloc.bow.features import extract_features
 from wiloc.cache.entries import FrameRecord
 from wiloc.cache.features import FeatureStore
 from wiloc.description.workers import UnknownToWorkers, WorkerError, borrowed_pool, can_fork, kept_pool
-from wiloc.descriptors.base import library_versions
+from wiloc.descriptors.base import ComputeError, library_versions
 from wiloc.descriptors.registry import DescriptorSpec
 from wiloc.errors import FrameError, ParameterError, WilocError
 from wiloc.quiet import decoders_quiet, quiet_always
@@ -309,7 +309,8 @@ def _describe_one(spec: DescriptorSpec, task: Task, features: FeatureStore | Non
         return settled  # type: ignore[return-value]
     (path, _), (fp, gray) = task, settled
     if features is None:
-        row = np.asarray(spec.compute(gray), dtype=spec.dtype)
+        with _failing_on(path.name):
+            row = np.asarray(spec.compute(gray), dtype=spec.dtype)
     else:
         found = features.features(fp.digest, lambda: extract_features(gray, **features.setting), damaged)
         row = np.asarray(spec.compute_from_features(found), dtype=spec.dtype)
@@ -339,10 +340,20 @@ def _describe_frame(spec: DescriptorSpec, video: Fingerprint, frame: VideoFrame 
     descriptor when already computed (in a batch)."""
     if frame.gray is None:
         return FrameRecord(frame.name, video.size, video.mtime_ns, video.digest, None, frame.problem), False
-    row = np.asarray(spec.compute(frame.gray) if row is None else row, dtype=spec.dtype)
+    with _failing_on(frame.name):
+        row = np.asarray(spec.compute(frame.gray) if row is None else row, dtype=spec.dtype)
     height, width = frame.gray.shape[:2]
     return FrameRecord(frame.name, video.size, video.mtime_ns, video.digest, row, "", width, height,
                        frame.timestamp_ms), True
+
+
+@contextmanager
+def _failing_on(frame: str) -> Iterator[None]:
+    """A descriptor's code failing (a plugin's: ComputeError) said of the ``frame`` it failed on."""
+    try:
+        yield
+    except ComputeError as exc:
+        raise exc.on(frame) from None
 
 
 def _describe_colour(spec: DescriptorSpec, tasks: Sequence[Task], threads: int) -> list[tuple[FrameRecord, bool]]:

@@ -117,7 +117,7 @@ class DescriptorSpec:
         """What the descriptor's class computed, as ``dtype``: of the ``shape`` it declares and
         finite, else a WilocError naming the descriptor (a plugin's row of another length was a
         numpy broadcasting error, its NaN rows were cached and compared as they were)."""
-        where = f"descriptor '{self.name}'" + ("" if self.kind.source == BUILT_IN else f" ({self.kind.source})")
+        where = self.kind.shown()
         with np.errstate(over="ignore"):  # beyond float32's range: refused below
             rows = np.asarray(computed, dtype=self.dtype)
         if rows.shape != shape:
@@ -126,6 +126,19 @@ class DescriptorSpec:
         if rows.dtype.kind == "f" and not np.isfinite(rows).all():
             raise WilocError(where, "computed NaN or infinite values")
         return rows
+
+
+class ComputeError(WilocError):
+    """A descriptor's own code (a plugin's) raised ``error`` (its class and first line) computing
+    an image: one line naming the descriptor, and the frame once it is known (:meth:`on`)."""
+
+    def __init__(self, where: str, error: str, frame: str | None = None) -> None:
+        super().__init__(where, f"failed{f' on {frame}' if frame else ''}: {error}")
+        self.error = error
+
+    def on(self, frame: str) -> ComputeError:
+        """This failure said of the frame ``frame`` (its file's name) it happened on."""
+        return ComputeError(self.where, self.error, frame)
 
 
 @dataclass(frozen=True)
@@ -159,6 +172,12 @@ class Descriptor:
     libraries: ClassVar[tuple[str, ...]] = ("opencv",)
     #: Its rows are imported, never computed from an image (``external``): a map of them takes rows.
     imported: ClassVar[bool] = False
+
+    @classmethod
+    def shown(cls) -> str:
+        """How errors name it: ``descriptor 'NAME'``, a plugin's followed by its package's
+        ``(distribution version)``."""
+        return f"descriptor '{cls.name}'" + ("" if cls.source == BUILT_IN else f" ({cls.source})")
 
     @classmethod
     def options(cls) -> list[Declared]:

@@ -18,7 +18,6 @@ declarations). docs/descriptors.md, "Learned descriptors (ONNX)".
 from __future__ import annotations
 
 import hashlib
-import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -44,6 +43,14 @@ INSTALL = 'needs onnxruntime, an optional dependency: pip install "wiloc[onnx]"'
 #: Images per inference run when the model's batch axis is dynamic: large enough that the
 #: runtime's threads share out each run, small enough that a batch's inputs stay a few MB.
 BATCH = 16
+#: The largest input side taken (``input_size``): far above any place-recognition network's input
+#: (224 to about 1024 a side), while a blank 4096 x 4096 image, which a network of dynamic H and W is
+#: run on to learn its vector length, is 192 MiB of float32 before the network's own activations.
+MAX_SIDE = 4096
+#: The float32 range the preprocessing values and the inputs they give must stay within (its largest
+#: value, its smallest normal one), as Python floats: a mean or std beyond it, or a std so small that
+#: (x - mean) / std overflows, gave infinite inputs (a std of 1e39 silently zero ones).
+FLOAT32_MAX, FLOAT32_TINY = float(np.finfo(np.float32).max), float(np.finfo(np.float32).tiny)
 #: Input sample types taken, and the array type each is given as: a half-precision export
 #: (``model.half()``) takes its batch as float16.
 INPUT_TYPES = {"tensor(float)": np.float32, "tensor(float16)": np.float16}
@@ -195,6 +202,10 @@ def preprocessing(network: Network, given: Mapping[str, Any]) -> dict[str, Any]:
         else:
             value, source = DEFAULTS[key], key
         params[key] = _parse(key, value, source)
+    extreme = max(max(abs(mean), abs(1 - mean)) / std for mean, std in zip(params["mean"], params["std"]))
+    if extreme > FLOAT32_MAX:
+        raise ValueError(f"onnx mean and std give inputs beyond float32's range ((samples / 255 - mean) / std up to "
+                         f"{extreme:.2g}); got mean {params['mean']}, std {params['std']}")
     if network.input_size is not None and tuple(params["input_size"]) != network.input_size:
         w, h = network.input_size
         raise ValueError(f"{network.path}: input_size {_size_text(params['input_size'])} does not fit the "
@@ -218,6 +229,9 @@ def _parse(key: str, value: Any, source: str) -> Any:
         size = size * 2 if len(size) == 1 else size
         if len(size) != 2 or min(size) < 1 or any(isinstance(p, float) and not float(p).is_integer() for p in parts):
             raise ValueError(f"{source} must be a size WxH (224x224) or one side (224); got {value!r}")
+        if max(size) > MAX_SIDE:
+            raise ValueError(f"{source} must be at most {MAX_SIDE} pixels a side, far above any network's input; "
+                             f"got {_size_text(size)}")
         return size
     if key in ("mean", "std"):
         parts = value.split(",") if isinstance(value, str) else value
@@ -226,10 +240,11 @@ def _parse(key: str, value: Any, source: str) -> Any:
         except (TypeError, ValueError):
             numbers = []
         numbers = numbers * 3 if len(numbers) == 1 else numbers
-        if len(numbers) != 3 or not all(math.isfinite(n) for n in numbers) or \
-                (key == "std" and min(numbers) <= 0):
+        low = FLOAT32_TINY if key == "std" else -FLOAT32_MAX  # a std below float32's normal ones overflows
+        if len(numbers) != 3 or not all(low <= n <= FLOAT32_MAX for n in numbers):  # NaN too
             what = "positive numbers" if key == "std" else "numbers"
-            raise ValueError(f"{source} must be 3 {what} (one per channel) or one for all; got {value!r}")
+            raise ValueError(f"{source} must be 3 {what} (one per channel) or one for all, each from {low:.2g} to "
+                             f"{FLOAT32_MAX:.2g} (float32's range); got {value!r}")
         return numbers
     if key == "normalise":
         text = str(value).strip().lower()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import json
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -16,8 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.descriptors.base import (BUILT_IN, METRICS, Descriptor, DescriptorSpec, check_names, checked_storage,
-                                    scale_and_max)
+from wiloc.descriptors.base import (BUILT_IN, METRICS, ComputeError, Descriptor, DescriptorSpec, check_names,
+                                    checked_storage, scale_and_max)
 from wiloc.descriptors.bow import Bow
 from wiloc.descriptors.brisk_gist import BriskGist
 from wiloc.descriptors.gist import Gist
@@ -130,7 +131,12 @@ class PluginDescriptor(Descriptor):
 
     @classmethod
     def compute(cls, image: NDArray[np.uint8], params: Mapping[str, Any]) -> NDArray:
-        return cls.plugin.compute(image, **{k: params[k] for k in cls.plugin.params})
+        """The plugin's descriptor of ``image``; whatever its code raises is a ComputeError naming
+        it (and its package), not the plugin's traceback."""
+        try:
+            return cls.plugin.compute(image, **{k: params[k] for k in cls.plugin.params})
+        except Exception as exc:  # noqa: BLE001 - anything third-party code may raise
+            raise ComputeError(cls.shown(), _said(exc)) from None
 
 
 @dataclass(frozen=True)
@@ -164,14 +170,19 @@ def _plugins() -> _Plugins:
             if "plugin" in plugin.params:
                 raise ValueError("'plugin' is wiloc's parameter (the package's version); name yours otherwise")
         except Exception as exc:  # anything a third-party import or declaration may raise
-            said = str(exc).strip().splitlines()
-            problems.append(f"{where} failed to load: {type(exc).__name__}{': ' + said[0] if said else ''}")
+            problems.append(f"{where} failed to load: {_said(exc)}")
             continue
         DESCRIPTORS[point.name] = type(_plugin_class_name(point.name), (PluginDescriptor,), {
             "__module__": __name__, "name": point.name, "metric": plugin.metric, "source": origin,
             "plugin": plugin})
         found[point.name] = origin
     return _Plugins(found, tuple(problems))
+
+
+def _said(exc: Exception) -> str:
+    """A plugin's exception in one line: its class and its message's first line."""
+    lines = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}{': ' + lines[0] if lines else ''}"
 
 
 def _plugin_class_name(name: str) -> str:
@@ -192,6 +203,13 @@ def __getattr__(attribute: str) -> type[Descriptor]:
     if found is None or found.__qualname__ != attribute:
         raise AttributeError(f"module {__name__!r} has no attribute {attribute!r}")
     return found
+
+
+def plugin_named(problem: str) -> str | None:
+    """The name of the descriptor plugin whose class ``problem`` names, as pickle's words do where
+    the plugin is not installed ("Can't get attribute 'Plugin[NAME]' on ..."); else None."""
+    found = re.search(r"'Plugin\[(.+?)\]'", problem)
+    return found[1] if found else None
 
 
 def plugin_problems() -> tuple[str, ...]:
