@@ -338,10 +338,11 @@ def test_an_image_over_the_pixel_limit_is_skipped_like_any_bad_frame(route: tupl
 def test_a_run_whose_folders_changed_cannot_be_drawn(route: tuple[Path, Path], results: Path, tmp_path: Path) -> None:
     _, query = route
     (query / "img3.png").unlink()
+    (query / "img5.png").write_bytes(b"")  # there, but no longer an image: not "gone"
     cv2.imwrite(str(query / "img30.png"), cv2.imread(str(query / "img0.png")))
     ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--matrix-plot", str(tmp_path / "m.png")]), 1,
-                      f"{results}: its query {query} no longer gives the frames it lists (img3.png gone; img30.png "
-                      "new); cannot draw it")
+                      f"{results}: its query {query} no longer gives the frames it lists (img3.png gone; img5.png "
+                      "unreadable now; img30.png new); cannot draw it")
     assert not (tmp_path / "m.png").exists()
 
 

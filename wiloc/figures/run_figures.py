@@ -152,7 +152,7 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
                                        ("map", r, r.names, results.reference_frames)):
         if listed and names != listed:
             raise WilocError(evaluation.path, f"its {role} {entry.folder} no longer gives the frames it lists "
-                                              f"({_changes(listed, names)}); cannot draw it")
+                                              f"({_changes(listed, names, Path(entry.folder))}); cannot draw it")
     for role, entry in (("query", q), ("map", r)):
         recorded = header.query_digest if role == "query" else header.map_digest  # batch runs record them
         if recorded and recorded != descriptors_digest(entry.names, entry.data):
@@ -173,19 +173,23 @@ def _first_frames(entry: Entry, listed: list[str]) -> Entry:
                    timestamps_ms=None if entry.timestamps_ms is None else entry.timestamps_ms[:n])
 
 
-def _changes(listed: list[str], names: list[str]) -> str:
+def _changes(listed: list[str], names: list[str], folder: Path) -> str:
     """How a traversal's frames differ from those a results file lists, in a few words: the
-    frames gone and the new ones (the first three of each), or their order."""
+    frames gone, those whose file in ``folder`` is still there but no longer reads, and the new
+    ones (the first three of each), or their order."""
     have, had = set(names), set(listed)
-    gone, new = [n for n in listed if n not in have], [n for n in names if n not in had]
-    if not gone and not new:
+    lost, new = [n for n in listed if n not in have], [n for n in names if n not in had]
+    if not lost and not new:
         return "the same frames in another order"
-    if len(gone) == len(listed):
+    if len(lost) == len(listed):
         return "none of its frames is there: another folder, or the run took its frame names from a file"
+    unreadable = [n for n in lost if (folder / n).is_file()]
+    gone = [n for n in lost if n not in unreadable]
 
     def some(items: list[str]) -> str:
         return ", ".join(items[:3]) + (f" and {len(items) - 3} more" if len(items) > 3 else "")
-    return "; ".join(part for part in (gone and f"{some(gone)} gone", new and f"{some(new)} new") if part)
+    return "; ".join(f"{some(items)} {what}" for items, what in ((gone, "gone"), (unreadable, "unreadable now"),
+                                                                  (new, "new")) if items)
 
 
 def _pooled(rows: NDArray[np.float64], factor: int) -> NDArray[np.float64]:
