@@ -98,7 +98,7 @@ USAGE = {
     "misspelt form": (["evaluate", "R", "--gt", "alined"], "--gt: 'alined' is neither a ground-truth form"),
     "unknown form": (["evaluate", "R", "--gt", "foo:bar.csv"], "--gt: unknown ground-truth form 'foo'"),
     "plot suffix": (["evaluate", "R", "--pr-plot", "pr.pgn"], "--pr-plot: '.pgn' is not a figure format"),
-    "plot without suffix": (["compare", "R", "--threshold-plot", "fig5"], "--threshold-plot: no suffix"),
+    "plot without suffix": (["compare", "R", "--threshold-plot", "fig5"], "--threshold-plot: the name has no suffix"),
     "model plot suffix": (["localize", "Q", "--model-plot", "m.xyz"], "--model-plot: '.xyz'"),
     "matrix plot suffix": (["evaluate", "R", "--matrix-plot", "m.jpgg"], "--matrix-plot: '.jpgg'"),
     "idle without follow": (["localize", "Q", "--idle", "3"], "--idle: applies to --follow only"),
@@ -344,6 +344,15 @@ def test_a_run_whose_folders_changed_cannot_be_drawn(route: tuple[Path, Path], r
                       f"{results}: its query {query} no longer gives the frames it lists (img3.png gone; img5.png "
                       "unreadable now; img30.png new); cannot draw it")
     assert not (tmp_path / "m.png").exists()
+
+
+def test_a_matrix_plot_of_a_run_whose_map_is_gone_names_the_run(route: tuple[Path, Path], results: Path,
+                                                                  tmp_path: Path) -> None:
+    """It said only "MAP: folder does not exist": with several results files, not which run."""
+    reference, _ = route
+    reference.rename(tmp_path / "moved")
+    ends_in_one_error(runner.invoke(app, ["evaluate", str(results), "--matrix-plot", str(tmp_path / "m.png")]), 1,
+                      f"{results}: its traversal {reference} does not exist (moved or deleted); cannot draw it")
 
 
 def test_example_pairs_need_image_folders(tmp_path: Path, cache_dir: Path) -> None:

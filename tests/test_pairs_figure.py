@@ -8,6 +8,7 @@ from typer.testing import CliRunner
 
 from helpers import places, write_traversal
 from wiloc import api
+from wiloc.errors import ParameterError
 from wiloc.figures.run_figures import ImagePair, example_pairs
 
 runner = CliRunner()
@@ -44,8 +45,11 @@ def test_pairs_options_on_the_command_line(run: Path, tmp_path: Path) -> None:
     for option in (["--pairs", "2"], ["--wrong-only"]):
         result = runner.invoke(app, ["evaluate", str(run), *option])
         assert result.exit_code == 2 and "applies to --pairs-plot only" in result.stderr
-    result = runner.invoke(app, ["evaluate", str(run), "--pairs-plot", str(figure), "--pairs", "0"])
-    assert result.exit_code == 2 and "--pairs" in result.stderr
+    for count in ("0", "21"):  # beyond 20 of each, a figure took minutes and gigabytes
+        result = runner.invoke(app, ["evaluate", str(run), "--pairs-plot", str(figure), "--pairs", count])
+        assert result.exit_code == 2 and "--pairs" in result.stderr
+    with pytest.raises(ParameterError, match="count: must be from 1 to 20 pairs of each kind, got 21"):
+        example_pairs(api.evaluate(run, api.TruthSource(kind="aligned")), 21)
 
 
 def test_the_pairs_of_a_slice_are_of_its_frames_numbered_as_in_the_run(run: Path, tmp_path: Path,
@@ -63,7 +67,7 @@ def test_the_pairs_of_a_slice_are_of_its_frames_numbered_as_in_the_run(run: Path
         (list(pairs), pairs_figure(pairs, title))) or drawn[-1][1])
     figure = tmp_path / "pairs.png"
     result = runner.invoke(app, ["evaluate", str(run), "--frames", "10:20", "--pairs-plot", str(figure),
-                                 "--pairs", "45"])
+                                 "--pairs", "20"])
     assert result.exit_code == 0, result.output
     assert figure.read_bytes()[:4] == b"\x89PNG"
     (pairs, fig), = drawn

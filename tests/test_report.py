@@ -157,7 +157,7 @@ def test_a_run_whose_images_are_gone_still_gets_its_page(runs: list[Path], tmp_p
     page = _report(runs[:1], tmp_path / "report.html").read_text(encoding="utf-8")
     assert "no images in the frame browser" in page and "no difference matrix" in page
     assert f"{tmp_path / 'route' / 'query'} does not exist" in page  # not "is not an image folder"
-    assert f"no difference matrix, {tmp_path / 'route' / 'query'}: " in page  # which folder it missed
+    assert f"no difference matrix, its traversal {tmp_path / 'route' / 'query'} does not exist" in page  # which one
     assert _data(page)["images"] == [] and len(_data(page)["runs"][0]["frames"]) == 45
     # the browser filters the confidences the results file holds, not rounded ones
     from wiloc.evaluation.results import read_results

@@ -15,6 +15,7 @@ from wiloc.cli.scoring import (CUTS_TEXT, RECALL_AT_TEXT, CutsOption, FramesOpti
                                slice_key, warn_about_truth, write_metrics_csv)
 from wiloc.cli.truth import GtMapOption, GtOption, RadiusOption, ToleranceOption, truth_source
 from wiloc.cli.views import metrics_views, print_command_json
+from wiloc.figures.run_figures import MAX_PAIRS
 from wiloc.labels import short_names
 
 if TYPE_CHECKING:
@@ -41,7 +42,7 @@ def evaluate(
         None, callback=plot_file, show_default="none: not drawn", help="Show the most confident right and wrong matches as image pairs (image "
                                         "folders; with several results files: one FILE-RESULTS figure each; with "
                                         "--frames, of those frames)."),
-    pairs: int = typer.Option(3, "--pairs", min=1, help="With --pairs-plot: show N right and N wrong matches."),
+    pairs: int = typer.Option(3, "--pairs", min=1, max=MAX_PAIRS, help="With --pairs-plot: show N right and N wrong matches."),
     wrong_only: bool = typer.Option(False, "--wrong-only", help="With --pairs-plot: show the wrong matches only."),
     csv_out: Optional[Path] = typer.Option(None, "--csv", callback=metrics_file, show_default="none: not written", help="Write metrics as CSV, and the curves to FILE-curves.csv beside it."),
     cache: CacheOption = None,

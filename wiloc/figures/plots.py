@@ -58,9 +58,9 @@ def check_plot_path(path: str | Path) -> None:
     tool is missing (``.pgf`` without TeX), so that the option is refused before the work."""
     suffix = Path(path).suffix.lower().lstrip(".")
     if suffix not in FORMATS:
-        shown = f"'.{suffix}'" if suffix else "no suffix"
-        raise WilocError(path, f"{shown} is not a figure format; end the name in one of "
-                               f"{', '.join('.' + f for f in FORMATS)}")
+        shown = f"'.{suffix}' is not a figure format" if suffix else "the name has no suffix (a name such as " \
+            "'.png' is all name, a hidden file's)"
+        raise WilocError(path, f"{shown}; end the name in one of {', '.join('.' + f for f in FORMATS)}")
     tex = matplotlib.rcParams["pgf.texsystem"]
     if suffix == "pgf" and shutil.which(tex) is None:
         raise WilocError(path, f"'.pgf' figures need {tex} (matplotlib measures their text with TeX), which is "

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.reprs import short_repr
 
 if TYPE_CHECKING:
@@ -27,6 +27,10 @@ if TYPE_CHECKING:
 
 #: The most pixels a side of the matrix picture gets; larger matrices are min-pooled to it.
 MAX_SIDE = 800
+#: The most example pairs of each kind (right, wrong) drawn, a row of images each: a figure's
+#: cost grows faster than its rows (50 of each on Gardens Point: 26,000 pixels tall, 18 s and
+#: 1 GB; a few hundred took minutes), and 20 of each is already more than a page shows.
+MAX_PAIRS = 20
 
 
 @short_repr
@@ -144,6 +148,10 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
     query, reference, sequence = run_traversals(evaluation)
     results = evaluation.results
     scored = results.frames["frame"].tolist()
+    for folder in dict.fromkeys((query, reference)):  # named with the run it is missing from
+        if not folder.exists():
+            raise WilocError(evaluation.path, f"its traversal {folder} does not exist (moved or deleted); cannot "
+                                              "draw it")
     q = describer.entry(query)
     frames = check_frames(evaluation.frame_slice)  # a run scored on a slice lists those of its frames
     q = _first_frames(q, scored if frames is None else q.names[:evaluation.run_frames])
@@ -261,9 +269,12 @@ def example_pairs(evaluation: Evaluation, count: int = 3, wrong_only: bool = Fal
     """Up to ``count`` most confident right matches (none with ``wrong_only``), then up to
     ``count`` most confident wrong ones, of the frames scored (a slice's, ``--frames``, numbered as
     the run numbers them), with their images read from the folders the results header names, once
-    :func:`checked_entries` (through ``cache``, default the user's) finds them the run's."""
+    :func:`checked_entries` (through ``cache``, default the user's) finds them the run's. At most
+    MAX_PAIRS of each: a row of images each, the figure's cost grows faster than its rows."""
     from wiloc.cache.store import Cache
 
+    if not 1 <= count <= MAX_PAIRS:
+        raise ParameterError("count", f"must be from 1 to {MAX_PAIRS} pairs of each kind, got {count}")
     query, reference, _ = run_traversals(evaluation)
     for folder in dict.fromkeys((query, reference)):
         if not folder.is_dir():
