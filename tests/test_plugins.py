@@ -226,6 +226,17 @@ THUMB = DescriptorPlugin(compute=thumb, metric="l1", length=16, params={"side": 
 '''
 
 
+def _plugin_site(site: Path, module: str, dist: str, version: str, entry: str, source: str) -> Path:
+    """A plugin's module and its distribution's metadata (its entry point ``entry``) in the folder
+    ``site``, as pip leaves them; returned for the module search path."""
+    meta = site / f"{module}-{version}.dist-info"
+    meta.mkdir(parents=True)
+    (meta / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: {version}\n")
+    (meta / "entry_points.txt").write_text(f"[wiloc.descriptors]\n{entry}\n")
+    (site / f"{module}.py").write_text(source)
+    return site
+
+
 @pytest.fixture
 def thumb_plugin(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
     """The plugin ``thumb`` installed on the module search path (a distribution's metadata beside
@@ -233,12 +244,8 @@ def thumb_plugin(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Pa
     processes' pids collected in the folder returned."""
     from wiloc.descriptors import registry
 
-    site = tmp_path / "site"
-    meta = site / f"{THUMB_MODULE}-1.0.dist-info"
-    meta.mkdir(parents=True)
-    (meta / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {THUMB_DIST}\nVersion: 1.0\n")
-    (meta / "entry_points.txt").write_text(f"[wiloc.descriptors]\nthumb = {THUMB_MODULE}:THUMB\n")
-    (site / f"{THUMB_MODULE}.py").write_text(THUMB_SOURCE)
+    site = _plugin_site(tmp_path / "site", THUMB_MODULE, THUMB_DIST, "1.0", f"thumb = {THUMB_MODULE}:THUMB",
+                        THUMB_SOURCE)
     pids = tmp_path / "pids"
     pids.mkdir()
     monkeypatch.setenv("WILOC_TEST_PIDS", str(pids))
@@ -427,12 +434,8 @@ RAISER = DescriptorPlugin(compute=raiser, metric="l1", length=4)
 @pytest.mark.parametrize("jobs", ["1", "2"])
 def test_describe_with_a_plugin_that_raises_ends_in_one_line(jobs: str, tmp_path: Path) -> None:
     """From the command line, in this process or a worker's: one line naming the frame, exit 1."""
-    site = tmp_path / "site"
-    meta = site / f"{RAISE_MODULE}-0.1.0.dist-info"
-    meta.mkdir(parents=True)
-    (meta / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {RAISE_DIST}\nVersion: 0.1.0\n")
-    (meta / "entry_points.txt").write_text(f"[wiloc.descriptors]\nraiser2 = {RAISE_MODULE}:RAISER\n")
-    (site / f"{RAISE_MODULE}.py").write_text(RAISE_SOURCE)
+    site = _plugin_site(tmp_path / "site", RAISE_MODULE, RAISE_DIST, "0.1.0", f"raiser2 = {RAISE_MODULE}:RAISER",
+                        RAISE_SOURCE)
     route = tmp_path / "route"
     route.mkdir()
     for i in range(40):
