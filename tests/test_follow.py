@@ -783,3 +783,20 @@ def test_a_followed_file_with_other_columns_is_refused_for_them_not_the_settings
     assert result.stderr.splitlines() == [f"error: --out: {out}: cannot resume: {problem}; give another file to "
                                           "start anew"]
     assert out.read_bytes() == edited and not (tmp_path / ".r.csv.lock").exists()
+
+
+@pytest.mark.parametrize(("given", "parameter"), [({"idle": float("nan")}, "idle"), ({"idle": -5.0}, "idle"),
+                                                  ({"idle": "5"}, "idle"), ({"poll": -0.5}, "poll"),
+                                                  ({"poll": float("nan")}, "poll"), ({"poll": 0.0}, "poll"),
+                                                  ({"poll": float("inf")}, "poll")])
+def test_idle_and_poll_are_checked_before_the_results_file_is_locked(given: dict, parameter: str,
+                                                                      demo_route: demo.DemoRoute, tmp_path: Path) -> None:
+    """idle=nan never ended (its lock file left behind), idle=-5 was taken, and a negative or NaN
+    poll ended in time.sleep's ValueError: each a ParameterError naming it, before any work."""
+    from wiloc.errors import ParameterError
+
+    out = tmp_path / "r.csv"
+    with pytest.raises(ParameterError) as err:
+        api.follow_folder(demo_route.queries[0], reference=demo_route.reference, out=out, **given)
+    assert err.value.parameter == parameter and "seconds" in err.value.problem
+    assert list(tmp_path.iterdir()) == []

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from numbers import Real
 from pathlib import Path
 from typing import Any
 
 from wiloc.cache.store import Cache
 from wiloc.decisions import Decision
 from wiloc.description.traversals import descriptor_spec
-from wiloc.errors import FrameError, WilocError, parameter_values
+from wiloc.errors import FrameError, ParameterError, WilocError, parameter_values
 from wiloc.evaluation.results import RANKING, ResultsStream
 from wiloc.evaluation.results_header import ResultsHeader, read_header
 from wiloc.evaluation.results_lock import lock_results, unlock_results
@@ -83,7 +84,11 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
     (CacheBusyError): the run holds it until iterated to its end (or :meth:`FollowRun.release`).
     ``poll`` is the seconds between looks at the folder: a whole JPEG or PNG is decided about half
     of it after it arrives (see :class:`~wiloc.localization.follow.FolderWatch`); a shorter one
-    costs more CPU while frames arrive, each look then listing the folder (30 ms for 35,000 files)."""
+    costs more CPU while frames arrive, each look then listing the folder (30 ms for 35,000 files).
+    An ``idle`` or ``poll`` that is no finite number of seconds (``poll`` above 0) is a ParameterError."""
+    if idle is not None:
+        _check_seconds(idle, "idle", "a finite number of seconds >= 0, or None to follow until interrupted")
+    _check_seconds(poll, "poll", "a finite number of seconds > 0", above_zero=True)
     query = followed_folder(query)
     path = Path(out) if out else Path.cwd() / results_name(query, method, descriptor)
     lock = lock_results(path)  # a path that can take no file refused, as a batch run's
@@ -95,6 +100,15 @@ def follow_folder(query: Path, *, reference: Path | None = None, descriptor: str
     except BaseException:
         unlock_results(path, lock)
         raise
+
+
+def _check_seconds(value: object, parameter: str, takes: str, above_zero: bool = False) -> None:
+    """A ParameterError naming ``parameter`` when ``value`` is no finite number of seconds (>= 0,
+    or > 0 when ``above_zero``): a NaN ``idle`` never ended the run, a negative ``poll`` was
+    ``time.sleep``'s traceback."""
+    if isinstance(value, bool) or not isinstance(value, Real) or not 0 <= value < float("inf") \
+            or (above_zero and value == 0):
+        raise ParameterError(parameter, f"must be {takes}, got {value!r}")
 
 
 def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descriptor: str,

@@ -1,14 +1,22 @@
 """A frame given to ``Localizer.observe`` as an array (a camera's image, a nested list as JSON
 gives, a descriptor row): checked, with what was given said when it is no frame, and an image
-made the 8-bit gray or BGR image that descriptors are computed from."""
+made the 8-bit gray or BGR image that descriptors are computed from; an image file read into one."""
 from __future__ import annotations
+
+from pathlib import Path
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from wiloc.errors import WilocError
-from wiloc.sources.frames import check_aspect, to_uint8
+from wiloc.errors import FrameError, WilocError
+from wiloc.sources.frames import (
+    check_aspect,
+    read_colour,
+    read_gray,
+    to_uint8,
+    unusable_reason,
+)
 
 
 def frame_array(frame: object) -> NDArray:
@@ -25,6 +33,19 @@ def frame_array(frame: object) -> NDArray:
     if array is None or array.ndim == 0 or array.dtype == object:
         raise WilocError("observe", f"frame is of type {type(frame).__name__}, not an array of numbers; {takes}")
     return array
+
+
+def file_image(path: Path, colour: bool, min_size: tuple[int, int] | None) -> NDArray[np.uint8]:
+    """The 8-bit image of an image file, BGR for a ``colour`` descriptor, else gray (a JPEG
+    decoded at the reduced size ``min_size`` allows); a file that cannot be a frame
+    (``unusable_reason``: a name that is not UTF-8, a FIFO) is a FrameError saying why."""
+    try:
+        reason = unusable_reason(path)
+    except OSError as exc:  # a name too long for the file system
+        raise FrameError(path, f"cannot read file ({exc.strerror or exc})") from None
+    if reason is not None and path.exists():
+        raise FrameError(path, reason)
+    return read_colour(path) if colour else read_gray(path, min_size)
 
 
 def gray_image(array: NDArray) -> NDArray[np.uint8]:
@@ -80,9 +101,17 @@ def _image_samples(array: NDArray) -> NDArray:
 
 def _float_range(array: NDArray[np.floating]) -> str:
     """What a float image outside [0, 1] holds: NaN, or its range, with what to do when that is
-    an 8-bit image's (a ``cv2.imread(...).astype(np.float32)``, a network's input before scaling)."""
+    an 8-bit image's (a ``cv2.imread(...).astype(np.float32)``, a network's input before scaling:
+    values up to 255, beyond 1.5; not a scaled image's rounding, 1.0000001)."""
     if np.isnan(array).any():
         return "NaN found"
-    low, high = float(array.min()), float(array.max())
-    hint = ": an 8-bit image's values, give it as uint8 or divided by 255" if low >= 0 and high <= 255 else ""
-    return f"values in [{low:g}, {high:g}] found{hint}"
+    low, high = array.min(), array.max()
+    hint = ": an 8-bit image's values, give it as uint8 or divided by 255" if low >= 0 and 1.5 < high <= 255 else ""
+    return f"values in [{_bound(low)}, {_bound(high)}] found{hint}"
+
+
+def _bound(value: np.floating) -> str:
+    """``value`` in 6 significant digits, or in as many as show it outside [0, 1] when those
+    round it into [0, 1] (1.0000001, not 1)."""
+    short = f"{value:g}"
+    return short if (0 <= float(short) <= 1) == (0 <= value <= 1) else str(value)

@@ -29,14 +29,14 @@ from wiloc import __version__
 from wiloc.atomic import written_whole
 from wiloc.cache.store import Cache, Entry
 from wiloc.decisions import Decision
-from wiloc.description.traversals import Describer, checked_rows, is_matrix_file
+from wiloc.description.traversals import Describer, checked_rows, descriptor_label, is_matrix_file, names_matrix_file
 from wiloc.errors import FrameError, ParameterError, WilocError, load_problem, shown_name
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.results_header import ResultsHeader
-from wiloc.localization.frame_arrays import colour_image, frame_array, gray_image
+from wiloc.interrupts import interrupts_deferred
+from wiloc.localization.frame_arrays import colour_image, file_image, frame_array, gray_image
 from wiloc.localization.session import RunSession, TrainingPair, check_traversal, shape_doubt
 from wiloc.localization.streamed import DecisionLog, streamed_header, streamed_results
-from wiloc.sources.frames import read_colour, read_gray, unusable_reason
 from wiloc.sources.video import Sampling
 
 STATE_FORMAT = "wiloc-localizer-state"
@@ -84,7 +84,8 @@ class Localizer:
                  training: TrainingPair | None = None, map_odometry: str | Path | None = None,
                  map_names: str | Path | None = None, sampling: Sampling | None = None, topic: str | None = None,
                  cache: Cache | str | os.PathLike | None = None, jobs: int | None = None, **params: Any) -> None:
-        self._setup(RunSession(_map(map), method=method, method_params=params, descriptor=descriptor,
+        _check_unused(_map(map), metric, map_odometry, map_names)
+        self._setup(RunSession(map, method=method, method_params=params, descriptor=descriptor,
                                descriptor_params=descriptor_params, metric=metric, exclude_recent=exclude_recent,
                                training=training, map_odometry=None if map_odometry is None else Path(map_odometry),
                                map_names=None if map_names is None else Path(map_names), sampling=sampling,
@@ -163,13 +164,7 @@ class Localizer:
         if self._spec is None:
             raise WilocError(path, "a map of imported descriptors takes descriptors, not images")
         path = _file(path) or Path(path)  # an empty path, or one holding NUL, refused as observe refuses it
-        try:
-            reason = unusable_reason(path)
-        except OSError as exc:  # a name too long for the file system
-            raise FrameError(path, f"cannot read file ({exc.strerror or exc})") from None
-        if reason is not None and path.exists():
-            raise FrameError(path, reason)
-        return read_colour(path) if self._spec.colour else read_gray(path, self._spec.min_size)
+        return file_image(path, self._spec.colour, self._spec.min_size)
 
     def describe(self, frame: NDArray | str | bytes | os.PathLike) -> NDArray:
         """The descriptor of an image file (any path, bytes too), a decoded image
@@ -227,14 +222,17 @@ class Localizer:
         """Decide one frame: describe it, compare it, step the method. ``frame`` is an image file's
         path, an image array or a descriptor row (:meth:`describe`). ``name`` defaults to the file's
         name, else the frame's index (zero-padded); ``odometry`` is the distance travelled since the
-        previous frame, for methods that take it."""
+        previous frame, for methods that take it. Ctrl-C during the step is held until the frame
+        is recorded: the frame is decided whole or not at all."""
         name = self._new_name(frame, name)
         descriptor = self.describe(frame)
-        decision = self.method.step(self.row(descriptor), odometry)
-        self._session.add(descriptor)
-        self._log.append(decision)
-        self.names.append(name)
-        self._named.add(name)
+        row = self.row(descriptor)
+        with interrupts_deferred():  # a Ctrl-C (the guide's camera loop) leaves the frame whole, or not begun
+            decision = self.method.step(row, odometry)
+            self._session.add(descriptor)
+            self._log.append(decision)
+            self.names.append(name)
+            self._named.add(name)
         candidates = self.map_names
         match_name = candidates[decision.match] if decision.match >= 0 else ""
         return replace(decision, frame=name, match_name=match_name)
@@ -289,7 +287,7 @@ class Localizer:
     # -------------------------------------------------------------------------------- save / load
 
     def state(self) -> dict[str, Any]:
-        """Everything needed to continue: the setup, the frames observed and the method's state."""
+        """Everything needed to continue: the setup, the frames observed (and doubts) and the method's state."""
         session, describer = self._session, self._session.describer
         return {"format": STATE_FORMAT, "version": STATE_VERSION, "wiloc": __version__,
                 "map": None if session.map_path is None else str(session.map_path.resolve()),
@@ -302,6 +300,7 @@ class Localizer:
                 "topic": describer.topic, "params": self.method.params.as_dict(), "exclude_recent": self.exclude_recent,
                 "training": session.training_state(),
                 "names": list(self.names), "seen": session.seen, "decisions": self._log.state(),
+                "frame_doubts": list(self.frame_doubts), "shapes": sorted(self._shapes),
                 "method_state": self.method.state()}
 
     def save(self, path: str | Path) -> Path:
@@ -371,6 +370,8 @@ class Localizer:
         loc.names = list(meta["names"])
         loc._named = set(loc.names)
         loc._log = DecisionLog.restored(loc.method.columns, loc.method.ranks, meta["decisions"])
+        loc.frame_doubts = list(meta.get("frame_doubts", []))  # states saved before they were kept: none
+        loc._shapes = {(width, height) for width, height in meta.get("shapes", [])}
         if session.map is None:
             session.resume(meta["seen"])
         loc.method.restore(session.context(), meta["method_state"])
@@ -382,9 +383,10 @@ class Localizer:
         """Frames observed so far."""
         return len(self.names)
 
-    def __repr__(self) -> str:
+    def __repr__(self) -> str:  # the descriptor as results name it: external:l1 for a map of imported descriptors
         where = "sequence mode" if self._session.map is None else f"map={self._session.map.folder!r}"
-        return f"Localizer({where}, descriptor={self.describer.descriptor!r}, method={self.method!r}, frames={self.frames})"
+        label = descriptor_label(self.describer.descriptor, self.metric, [p for p in [self._session.map_path] if p])
+        return f"Localizer({where}, descriptor={label!r}, method={self.method!r}, frames={self.frames})"
 
 
 def _unpickled(meta: str, arrays: dict[str, NDArray], cache: Cache, jobs: int | None, map: Entry | None) -> Localizer:
@@ -394,7 +396,7 @@ def _unpickled(meta: str, arrays: dict[str, NDArray], cache: Cache, jobs: int | 
 
 def _file(frame: object) -> Path | None:
     """``frame`` as a file's path when it is one (text, bytes as ``os.fsencode`` gives for a
-    name that is not UTF-8, or a path object), else None."""
+    path that is not UTF-8, or a path object), else None."""
     if not isinstance(frame, (str, bytes, os.PathLike)):
         return None
     if not os.fsdecode(frame):  # Path("") is the current folder: say what was given instead
@@ -414,6 +416,26 @@ def _map(map: object) -> str | os.PathLike | Entry | None:
         check_traversal(map, "map", ", descriptors in memory as an Entry (wiloc.description.traversals."
                                     "entry_from_array(rows, names, spec)) or None for sequence mode")
     return map
+
+
+def _check_unused(map: object, metric: object, map_odometry: object, map_names: object) -> None:
+    """Refuse, as a ParameterError naming it, an option the map would not use, as the command line
+    refuses its flag (``check_metric`` refuses a metric for a map of images, reading a matrix file
+    an unknown one): a ``metric`` in sequence mode or other than a map held in memory's own;
+    ``map_names`` but for a descriptor matrix file; ``map_odometry`` in sequence mode (each frame
+    brings its own)."""
+    if isinstance(map, Entry) and metric not in (None, map.metric):
+        raise ParameterError("metric", f"the map held in memory is compared by '{map.metric}', not '{metric}'")
+    if map is None and map_odometry is not None:
+        raise ParameterError("map_odometry", "applies against a map only; in sequence mode each frame's odometry "
+                                             "is given to observe (odometry=...)")
+    matrix = isinstance(map, (str, os.PathLike)) and names_matrix_file(Path(map))
+    for name, value in (("metric", metric if map is None else None), ("map_names", None if matrix else map_names)):
+        if value is not None:
+            none = "sequence mode has no map" if map is None else f"{map} is none" if not isinstance(map, Entry) \
+                else "the map held in memory has its names"
+            raise ParameterError(name, "applies to a map that is a descriptor matrix file (.npy, .npz, .csv, .h5) "
+                                       f"only; {none}")
 
 
 ARRAY = "__array__"  # marks, in a saved state's JSON, a value stored as an array of the .npz
