@@ -38,6 +38,9 @@ TOLERANCE_MS = 0.5
 MAX_FPS = 1e6
 #: A video whose decoding stops within this many ms of its container's duration ended whole.
 END_MS = 1000.0
+#: OpenCV's property of a frame's presentation stamp, which places a stream that starts after 0;
+#: None in OpenCV 4.8, which does not give it (such a stream then reads as starting at 0).
+_PTS: int | None = getattr(cv2, "CAP_PROP_PTS", None)
 #: The fingerprint reads the head and the tail (containers keep their index at either end) and
 #: a block at each ninth of the file: 2.5 MiB whatever the file's size.
 _END_BYTES = 1 << 20
@@ -311,7 +314,7 @@ class Video:
         the stream starts in the container's time: the first frame's presentation stamp in ms,
         its units read off the two frames. A recording cut from a longer one (or a camera's)
         starts after 0, and the container's duration counts from 0, not from its first frame."""
-        stamp = float(self._capture.get(cv2.CAP_PROP_PTS))
+        stamp = float(self._capture.get(_PTS)) if _PTS is not None else math.nan
         if first is not None and math.isfinite(stamp) and stamp > first[1] > 0 and timestamp > first[0]:
             self._start_ms = first[1] * (timestamp - first[0]) / (stamp - first[1]) - first[0]
         return timestamp, stamp
