@@ -189,12 +189,14 @@ def _bin_posterior(edges: np.ndarray, same: stats.rv_continuous, diff: stats.rv_
     return prior * fb / (prior * fb + (1 - prior) * fc)
 
 
-def test_online_posterior_converges_to_truth_without_labels() -> None:
+@pytest.mark.parametrize("window", [0, 2])
+def test_online_posterior_converges_to_truth_without_labels(window: int) -> None:
     """A route of P places driven L times; row k compares frame k with frames before k - R.
 
     Each earlier visit of the place is a little further from frame k the older it is (the latest
     visit looks most alike), so the runs' own match links form the chain the recursive test
-    follows; no labels reach the model.
+    follows; no labels reach the model. With a same-place window (the default's 2) the chain
+    must still start at z's own link.
     """
     rng = np.random.default_rng(7)
     places, laps, recent = 80, 12, 5
@@ -217,7 +219,7 @@ def test_online_posterior_converges_to_truth_without_labels() -> None:
                 row[visits] = same.rvs(random_state=rng) + 0.04 * age + rng.uniform(0, 0.02) * (age > 0)
         rows.append(row)
     out = localize_online(rows, n, sequence=True, init=places - recent - 1, bins=20,
-                          same_place_window=0)
+                          same_place_window=window)
     model = out.model
     truth = _bin_posterior(model.edges, same, near, model.prior_same())
     centres = 0.5 * (model.edges[1:] + model.edges[:-1])

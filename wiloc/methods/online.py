@@ -63,10 +63,11 @@ def near_miss(row: NDArray[np.floating], z: int, match: NDArray[np.int64] | None
 
     The Appendix's recursive test (``recursiveUpdate``), repaired and iterative. The same-place
     set M starts as z and the frames within +-``window`` of z (all skipped). Candidates are visited
-    once in increasing difference; a candidate z_r joins M when ``match[z_r]`` is in M or
-    ``match[min(M)] == z_r`` (``match`` holds -1 for frames never decided, which never passes the
-    test; ``None`` in map mode, where candidates are reference frames that are never decided). NaN
-    when no candidate is left.
+    once in increasing difference; a candidate z_r joins M when ``match[z_r]`` is in M or a member
+    of M was matched to z_r (the Appendix tests min(M) alone; with the window min(M) is z - W, and
+    z's own link to its earlier visit was lost). ``match`` holds -1 for frames never
+    decided, which never passes the test; ``None`` in map mode, where candidates are reference
+    frames that are never decided. NaN when no candidate is left.
     """
     low, high = max(0, z - window), min(row.size, z + window + 1)
     if match is None:  # map mode: M never grows, so m_r is the smallest finite difference outside z's window
@@ -78,16 +79,15 @@ def near_miss(row: NDArray[np.floating], z: int, match: NDArray[np.int64] | None
         finite = finite[np.isfinite(finite)]
         return float(finite.min()) if finite.size else float("nan")
     same = set(range(low, high))
-    first = min(same)
+    targets = {int(match[i]) for i in same}  # what the members of M were matched to
     for cand in _increasing(row):
         if cand in same:
             continue
-        if match is not None:
-            linked = match[cand]
-            if (linked >= 0 and linked in same) or match[first] == cand:
-                same.add(cand)
-                first = min(first, cand)
-                continue
+        linked = int(match[cand])
+        if (linked >= 0 and linked in same) or cand in targets:
+            same.add(cand)
+            targets.add(linked)
+            continue
         return float(row[cand])
     return float("nan")
 
