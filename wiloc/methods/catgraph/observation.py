@@ -5,7 +5,8 @@ the derivation and the measurements behind every default.
 
 - ``RankLikelihood``: the observation model (in place of the paper's eq. 8 ratio P(d | x) / P(d)
   of histograms). A difference d in query frame k's row is scored by its mid-rank p-value
-  within that row, u = (#{j: d_kj < d} + 1/2) / N, t = -ln u. At the same
+  within that row, u = (#{j: d_kj < d} + 1/2) / N, t = -ln u (tied values take their group's
+  lowest rank; docs/catgraph-research.md, "Tied differences"). At the same
   place u follows Beta(a, 1), elsewhere Uniform(0, 1), so the likelihood ratio is
   lambda = a u^(a - 1): proper (its mean over a uniform u is 1; over a row's N ranks (r + 1/2) / N
   a little less: 0.91 at a = 0.32 and N = 200, 0.98 at N = 35,000), monotone in d, with
@@ -148,7 +149,7 @@ class RankLikelihood:
         return float(np.log(ratio_sum(self._nodes_t, self._scale, omega, self.a))) - np.log(self._row.size)
 
     def t(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
-        """-ln u of each difference: its mid-rank p-value in the row."""
+        """-ln u of each difference: its rank p-value in the row (ties at their lowest rank)."""
         from wiloc.methods.catgraph.rank_kernels import table_at_ranks  # numba loads with the first frame
 
         t = np.empty(d.size)
