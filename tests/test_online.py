@@ -127,6 +127,30 @@ def test_confidence_is_causal_and_the_frame_updates_the_histograms_after() -> No
         assert after.model.b.sum() == frozen.b.sum() + 1
 
 
+def test_appendix_confidence_is_p_l_given_m_from_the_histograms_before_the_frame() -> None:
+    """``confidence="appendix"``: the paper's P(L | m) (SPEC.md section 4), computed before the
+    frame's m and m_r join the histograms, and P(new place) 1 - P(L | m); the decisions and the
+    histograms are those of the default run."""
+    from wiloc.model import HistogramModel
+
+    rows, _ = loop_rows(np.random.default_rng(2), places=40, recent=5)
+    n = len(rows)
+    filtered = localize_online(rows, n, sequence=True, init=20, bins=12)
+    out = localize_online(rows, n, sequence=True, init=20, bins=12, confidence="appendix")
+    np.testing.assert_array_equal(out.match, filtered.match)
+    np.testing.assert_array_equal(out.model.b, filtered.model.b)
+    assert not np.allclose(out.confidence[out.decided], filtered.confidence[out.decided])
+    init = [float(np.min(rows[k])) for k in range(n) if out.stage[k] == "init"]
+    model = HistogramModel.from_values(np.array(init), 12, smoothing=0.1)
+    model.add_different(np.array(init))
+    for k in np.flatnonzero(out.decided):
+        assert out.confidence[k] == pytest.approx(float(model.posterior(out.difference[k])), abs=1e-12)
+        model.add_same(np.array([out.difference[k]]))
+        if np.isfinite(out.columns["m_r"][k]):
+            model.add_different(np.array([out.columns["m_r"][k]]))
+    np.testing.assert_allclose(out.columns["new_place"][out.decided], 1.0 - out.confidence[out.decided])
+
+
 def test_map_mode_initialises_from_reference_rows() -> None:
     ref = [np.array([INF, 0.6, 0.8]), np.array([0.6, INF, 0.7]), np.array([0.8, 0.7, INF])]
     queries = [np.array([0.1, 0.5, 0.9]), np.array([0.4, 0.2, 0.3])]

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,18 +43,23 @@ class OnlineParams(Parameters):
     owner = "online"
     init: int = param(100, "Sequence mode: initialisation frames, whose minima fill c (map mode "
                            "initialises from every map frame).", low=1, sequence_only=True)
-    bins: int = param(100, "Bins of the learned histograms b and c (Figure 1; the decisions and the "
-                                "confidence, the filter's posterior, do not use them).", low=1, high=100_000)
+    bins: int = param(100, "Bins of the learned histograms b and c (Figure 1, and the confidence appendix's "
+                                "P(L | m); the decisions and the filter's confidence do not use them).", low=1,
+                      high=100_000)
     same_place_window: int = param(2, "Frames within +-W of the best match are the same place when m_r "
                                             "is sought (the m_r column and c; not the decisions).", low=0)
-    prior: float | None = param(None, "P(L) of the learned model's P(L | d) (Figure 1; not used by the "
-                                      "decisions), the prior that a frame revisits a place; default: the "
-                                      "share of same-place samples.", low=0.0, high=1.0, low_open=True,
-                                high_open=True)
-    smoothing: float = param(0.1, "Pseudo-count added to every bin of the learned histograms (Figure 1; "
-                                   "not used by the decisions).", low=0.0, low_open=True)
+    prior: float | None = param(None, "P(L) of the learned model's P(L | d) (Figure 1 and the confidence "
+                                      "appendix; not used by the decisions), the prior that a frame revisits a "
+                                      "place; default: the share of same-place samples.", low=0.0, high=1.0,
+                                low_open=True, high_open=True)
+    smoothing: float = param(0.1, "Pseudo-count added to every bin of the learned histograms (Figure 1 and "
+                                   "the confidence appendix; not used by the decisions).", low=0.0, low_open=True)
     seed: int | None = param(0, "Random seed of the CAT-Graph filter whose posterior calibrates the "
                                 "confidence: the same seed gives identical results.", low=0)
+    confidence: Literal["filter", "appendix"] = param(
+        "filter", "What the confidence is: filter, the CAT-Graph filter's probability that the best match is "
+                  "the place (calibrated); appendix, the paper's P(L | m) from the learned histograms, with "
+                  "P(new place) 1 - P(L | m) (to reproduce the paper; not calibrated: docs/calibration.md).")
 
 
 def near_miss(row: NDArray[np.floating], z: int, match: NDArray[np.int64] | None,
@@ -134,7 +139,8 @@ class Online(Method):
     far: the posterior of a CAT-Graph filter run alongside on the same rows, along the map or in
     sequence mode along the traversal itself (``wiloc.methods.catgraph``); P(new place) is the
     filter's. The decision stays the single-frame best match, and the histograms are learned in
-    both modes (the paper's Figure 1).
+    both modes (the paper's Figure 1). ``confidence="appendix"`` reports the paper's own P(L | m)
+    from those histograms instead (SPEC.md section 4), uncalibrated, to reproduce the paper.
     """
 
     name = "online"
@@ -206,7 +212,11 @@ class Online(Method):
                 new_place = self._filter.step(row, ahead=None if pre is None else pre.filter).new_place
             else:  # before the traversal's map has 2 frames nothing is a revisit
                 new_place = tracked.new_place if tracked.decided else 1.0
-            p = self._filter.probability_near(z)
+            if self.params.confidence == "appendix":  # the histograms as they are: the frame is not yet in them
+                p = float(self._model.posterior(m))
+                new_place = 1.0 - p
+            else:
+                p = self._filter.probability_near(z)
             if pre is None:
                 m_r = near_miss(row, z, self._match[:self.frames], self.params.same_place_window)
                 self._model.add_same(m)
