@@ -10,8 +10,8 @@ import scipy.io
 from scipy.spatial.distance import cdist
 
 from wiloc.errors import WilocError
-from wiloc.evaluation.groundtruth import (EARTH_RADIUS_M, Truth, aligned_truth, pairs_truth, positions_truth,
-                                          restrict_sequence)
+from wiloc.evaluation.groundtruth import (EARTH_RADIUS_M, Truth, _nearest_index, aligned_truth, frame_indices,
+                                          pairs_truth, positions_truth, restrict_sequence)
 from wiloc.evaluation.truth_formats import matrix_truth
 from wiloc.evaluation.truth_source import load_truth
 
@@ -84,6 +84,67 @@ def test_aligned_without_any_common_name_is_fatal() -> None:
 def test_aligned_rejects_negative_tolerance() -> None:
     with pytest.raises(WilocError, match="tolerance"):
         aligned_truth(REFS, REFS, tolerance=-1)
+
+
+GAP_MAP = [f"Image{i:03d}.jpg" for i in [*range(60), *range(100, 200)]]  # day_right without frames 60-99
+
+
+def _true_refs(truth: Truth, query: str) -> list[str]:
+    return [truth.ref_names[c] for c in np.flatnonzero(dense(truth)[truth.query_names.index(query)])]
+
+
+def test_aligned_counts_its_tolerance_in_route_frames_across_a_map_that_leaves_frames_out() -> None:
+    """A map without frames 60-99: +-2 counted in the map's list reached across the gap (query
+    Image058 true against map Image100, 42 frames on) and Image060 had no true match, though map
+    Image058 and Image059 lie within 2 frames of it. The frames' numbers count the route."""
+    queries = [f"Image{i:03d}.jpg" for i in range(200)]
+    truth = aligned_truth(queries, GAP_MAP, tolerance=2)
+    assert _true_refs(truth, "Image058.jpg") == ["Image056.jpg", "Image057.jpg", "Image058.jpg", "Image059.jpg"]
+    assert _true_refs(truth, "Image060.jpg") == ["Image058.jpg", "Image059.jpg"]
+    assert _true_refs(truth, "Image061.jpg") == ["Image059.jpg"]
+    assert _true_refs(truth, "Image080.jpg") == []
+    assert _true_refs(truth, "Image099.jpg") == ["Image100.jpg", "Image101.jpg"]
+    assert _true_refs(truth, "Image101.jpg") == ["Image100.jpg", "Image101.jpg", "Image102.jpg", "Image103.jpg"]
+    assert int(truth.has_match().sum()) == 200 - 36
+    assert truth.warnings == [("aligned ground truth (by name): 36 of 200 query frames have no "
+                               "reference frame to align with")]
+
+
+def test_aligned_by_index_counts_a_sampled_videos_gap_by_its_frame_indices() -> None:
+    """aligned:index the same: a video sampled every 5th frame without frames 300-495, against the
+    video's every frame; a query frame in the gap goes to no map frame more than T kept frames off."""
+    video = [f"{i:06d}" for i in [*range(0, 300, 5), *range(500, 1000, 5)]]
+    queries = [f"{i:06d}" for i in range(1000)]
+    truth = aligned_truth(queries, video, tolerance=2, by="index")
+    assert _true_refs(truth, "000297") == ["000285", "000290", "000295"]  # nearest 295, +-2 kept frames
+    assert _true_refs(truth, "000304") == ["000295"]  # in the gap: within 10 frames of its own index
+    assert _true_refs(truth, "000400") == []
+    assert _true_refs(truth, "000502") == ["000500", "000505", "000510"]
+
+
+@pytest.mark.parametrize("tolerance", [0, 1, 2, 3])
+@pytest.mark.parametrize(("queries", "refs", "by"), [
+    ([f"Image{i:03d}.jpg" for i in range(-2, 25)], [f"Image{i:03d}.jpg" for i in range(20)], "name"),
+    ([f"images-{i:05d}.png" for i in range(0, 300, 5)], [f"images-{i:05d}.png" for i in range(10, 210, 10)], "name"),
+    ([f"{i:06d}" for i in range(130)], [f"{i:06d}" for i in range(0, 100, 5)], "name"),
+    ([f"{i:06d}" for i in range(130)], [f"{i:06d}" for i in range(0, 100, 5)], "index"),
+    ([f"{i:06d}" for i in range(3, 40)], [f"Image{i:03d}.jpg" for i in range(30)], "index"),
+    ([f"{i:06d}" for i in range(70)], [f"{k * 3 // 2:06d}" for k in range(40)], "index"),  # 30 fps kept at 20
+    ([f"{i:06d}" for i in range(70)], [f"{k * 3 // 2:06d}" for k in range(40)], "name"),
+    ([f"q{i}.jpg" for i in range(12)], REFS, "index"),
+    (["img5.jpg", "img0.jpg", "img9.jpg", "other.jpg", "img7.jpg"], REFS, "name"),
+])
+def test_aligned_on_a_map_that_leaves_no_frame_out_bands_by_position(queries: list[str], refs: list[str],
+                                                                     by: str, tolerance: int) -> None:
+    """On a contiguous map (every frame, or every n-th: Gardens Point, Nordland's every 10th, a
+    sampled video, also one kept at 20 of its 30 frames a second: steps of 1 and 2) the truth is
+    the band by position, as before."""
+    if by == "name":
+        centres = np.array([refs.index(q) if q in refs else -1 for q in queries])
+    else:
+        centres = _nearest_index(frame_indices(queries), frame_indices(refs))
+    expected = np.array([[c >= 0 and abs(col - c) <= tolerance for col in range(len(refs))] for c in centres])
+    np.testing.assert_array_equal(dense(aligned_truth(queries, refs, tolerance, by=by)), expected)
 
 
 # --- positions -------------------------------------------------------------------------------

@@ -146,11 +146,22 @@ def test_compare_writes_csv_markdown_and_latex(runs: tuple[Path, list[str]]) -> 
 
 def _names_to_four_digits(text: str, value: float | None) -> bool:
     """Whether a printed threshold names ``value`` to four significant digits of its distance to 0
-    or 1, whichever is nearer (where confidences crowd)."""
+    or 1, whichever is nearer (where confidences crowd), rounded down (a cut there accepts it)."""
     if value is None:
         return text == "-"
     gap = min(abs(value), abs(1.0 - value))
-    return abs(float(text) - value) <= (0.5 * 10.0 ** (math.floor(math.log10(gap)) - 3) if gap else 0.0) * (1 + 1e-9)
+    return 0.0 <= value - float(text) < (10.0 ** (math.floor(math.log10(gap)) - 3) if gap else 1e-300)
+
+
+@pytest.mark.parametrize("value", [0.130062217, 0.98928, 0.9995169, 0.29, 0.0013337, 0.56789, -0.0456789, 0.5])
+def test_a_threshold_taken_as_printed_as_a_cut_keeps_the_frame_that_set_it(value: float) -> None:
+    """Table II's 0.130062217 was printed 0.1301, rounded to nearest: a cut there (confidence >=
+    cut is accepted) loses the frame whose confidence set the threshold, and recall falls below the
+    table's. Rounded down, the printed cut accepts it, and still names the value to its digits."""
+    text = threshold_text(value)
+    assert float(text) <= value and _names_to_four_digits(text, value), text
+    if value == 0.130062217:
+        assert text == "0.130"  # 0.1300: no trailing zero beyond 3 decimals
 
 
 def test_thresholds_are_printed_with_the_digits_that_say_what_was_chosen(runs: tuple[Path, list[str]]) -> None:

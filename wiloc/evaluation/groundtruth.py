@@ -103,15 +103,21 @@ def truth_from_pairs(rows: NDArray[np.int64], cols: NDArray[np.int64], query_nam
     return Truth(matrix.tocsr(), list(query_names), list(ref_names), warnings)
 
 
-def _band(rows: NDArray[np.int64], centres: NDArray[np.int64], tolerance: ArrayLike,
-          n_ref: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Expand each (row, centre) into (row, centre - T .. centre + T) within the n_ref reference
-    frames; T may differ per row, and callers clip it to n_ref (a band that wide covers the whole
-    map) so that it fits int64. A band marking more than MAX_TRUE_PAIRS pairs is refused
-    before anything is allocated."""
-    tol = np.broadcast_to(np.asarray(tolerance, dtype=np.int64), rows.shape)
+def _position_spans(centres: NDArray[np.int64], tolerance: ArrayLike,
+                    n_ref: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The reference frames centre - T .. centre + T in the reference's order, as (first, stop)
+    within the n_ref frames; none (stop == first) where the centre is -1. T may differ per centre,
+    and callers clip it to n_ref (a band that wide covers the whole map) so that it fits int64."""
+    tol = np.broadcast_to(np.asarray(tolerance, dtype=np.int64), centres.shape)
     first = np.clip(centres - tol, 0, n_ref)
-    width = np.clip(centres + tol + 1, 0, n_ref) - first
+    return first, np.where(centres >= 0, np.clip(centres + tol + 1, 0, n_ref), first)
+
+
+def _band(rows: NDArray[np.int64], first: NDArray[np.int64],
+          stop: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Expand each row into (row, first .. stop - 1). A band marking more than MAX_TRUE_PAIRS
+    pairs is refused before anything is allocated."""
+    width = stop - first
     total = int(width.sum())
     if total > MAX_TRUE_PAIRS:
         raise WilocError(None, f"this tolerance makes {total:,} true pairs (at most {MAX_TRUE_PAIRS:,}): "
@@ -171,13 +177,59 @@ def _nearest_index(query: NDArray[np.int64], ref: NDArray[np.int64]) -> NDArray[
     return np.where((query >= ordered[0] - reach) & (query <= ordered[-1] + reach), order[pick], -1)
 
 
+_NUMBERED = re.compile(r"(.*?)([0-9]+)([^0-9]*)", re.DOTALL)
+"""A name as the text before its last number, that number and the text after it."""
+
+
+def _name_numbers(names: Sequence[str], like: str) -> NDArray[np.int64]:
+    """The number in each name written as ``like`` is (the same text around its last number:
+    ``Image058.jpg`` as ``Image100.jpg``), -1 in other names and numbers too long for int64."""
+    form = _NUMBERED.fullmatch(like)
+    parts = [_NUMBERED.fullmatch(name) for name in names]
+    return np.array([int(m[2]) if form and m and len(m[2]) <= 18 and (m[1], m[3]) == (form[1], form[3]) else -1
+                     for m in parts], dtype=np.int64)
+
+
+def _route(ref_names: Sequence[str], by: Literal["name", "index"]) -> tuple[NDArray[np.int64], int] | None:
+    """The numbers that count the reference's frames along the route, and one frame's step, where
+    they rise at a regular step that leaves frames out (every step a multiple of the smallest,
+    one more than twice it): by index the frames' indices (:func:`frame_indices`), by name the
+    number every name holds around the same text. None otherwise, where frames are counted in
+    the reference's order: stamps, names without a number, a map that leaves nothing out (the
+    same count) and a video sampled at a rate that is no whole part of its own (steps of 1 and 2)."""
+    numbers = frame_indices(ref_names) if by == "index" else _name_numbers(ref_names, ref_names[0])
+    steps = np.diff(numbers)
+    if numbers.size < 2 or (numbers < 0).any() or (steps <= 0).any():
+        return None
+    step = int(steps.min())
+    return (numbers, step) if not (steps % step).any() and (steps > 2 * step).any() else None
+
+
+def _route_spans(centres: NDArray[np.int64], own: NDArray[np.int64], route: NDArray[np.int64], step: int,
+                 tolerance: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The reference frames (first, stop) whose numbers lie within +-T steps of each query frame's
+    place on the route: its centre's number, where the centre lies within half a step of the
+    query frame's ``own`` number, else, for a query frame in a gap the reference leaves (within
+    its ends, no frame within half a step), its own number; none otherwise."""
+    nearest = _nearest_index(own, route)
+    in_gap = (own >= route[0]) & (own <= route[-1]) & (2 * np.abs(route[nearest] - own) > step)
+    centred = (centres >= 0) & (2 * np.abs(route[centres] - own) <= step)
+    place = np.where(centred, route[centres], own)
+    reach = min(tolerance * step, int(route[-1] - route[0]) + 1)  # wider than the route is all of it, and fits int64
+    first = np.searchsorted(route, place - reach, side="left").astype(np.int64)
+    return first, np.where(centred | in_gap, np.searchsorted(route, place + reach, side="right"), first)
+
+
 def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], tolerance: int,
                   by: Literal["name", "index"] = "name") -> Truth:
     """Aligned traversals: the same file name (or index, :func:`frame_indices`) is the same
-    place, +-T reference frames.
+    place, +-T reference frames along the route.
 
     Used when traversals were recorded frame by frame along the same route (Gardens Point,
-    Nordland). ``tolerance`` counts frames in the reference's order.
+    Nordland). ``tolerance`` counts frames by the numbers the reference's frames carry where
+    they are numbered at a regular step (:func:`_route`), so that the band does not reach across
+    frames the reference leaves out, and a query frame among those is true against the frames
+    within +-T of its own number; else frames in the reference's order.
     """
     tol = min(_check_tolerance(tolerance), len(ref_names))  # wider than the map is the whole map, and fits int64
     where = f"aligned ground truth (by {by})"
@@ -189,13 +241,18 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
                    else np.full(n_query, -1, dtype=np.int64))
     else:
         raise WilocError(None, f"aligned ground truth: by must be 'name' or 'index', got {by!r}")
-    found = centres >= 0
+    if (route := _route(ref_names, by) if len(ref_names) else None) is None:
+        first, stop = _position_spans(centres, tol, len(ref_names))
+    else:
+        own = frame_indices(query_names) if by == "index" else _name_numbers(query_names, ref_names[0])
+        first, stop = _route_spans(centres, own, *route, tol)
+    found = stop > first
     if not found.any():
         raise TruthMismatch(where, f"none of the {n_query} query frames has a reference frame "
                                 + ("of the same name (to align by position, as a video's frames with a folder's: "
                                    "aligned:index)" if by == "name" else "at its position"))
     warnings = query_frames_without(where, ~found, "query frames have no reference frame to align with")
-    rows, cols = _band(np.flatnonzero(found).astype(np.int64), centres[found], tol, len(ref_names))
+    rows, cols = _band(np.flatnonzero(found).astype(np.int64), first[found], stop[found])
     return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 
@@ -423,7 +480,7 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     warnings = unmatched(path, int((q < 0).sum()), len(frame), "rows name no query frame (skipped)")
     warnings += unmatched(path, int((r < 0).sum()), len(frame),
                            "rows name no reference frame (skipped)")
-    rows, cols = _band(q[usable], r[usable], tolerance[usable], len(ref_names))
+    rows, cols = _band(q[usable], *_position_spans(r[usable], tolerance[usable], len(ref_names)))
     return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 
