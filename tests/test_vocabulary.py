@@ -565,6 +565,29 @@ def test_a_vocabulary_file_under_another_keys_name_is_damaged_and_built_again(tm
     assert read_vocabulary_header(second.path)[0] == second.vocabulary.key
 
 
+@pytest.mark.parametrize("attribute", ["params", "n_words"])
+def test_a_vocabulary_file_of_a_damaged_header_is_damaged_and_built_again(attribute: str, tmp_path: Path,
+                                                                          cache_dir: Path) -> None:
+    """Its parameters describe every frame's local features (max_side, max_features, ...) and its
+    number of words unpacks every bag of words; no checksum covered them, so a flipped byte there
+    (max_side 320 read as 328) changed every frame described with it, silently."""
+    from wiloc.bow.vocabulary import read_vocabulary_header
+
+    folder, cache = _folder(tmp_path / "train", range(6)), Cache(cache_dir)
+    built = build_vocabulary([folder], cache, SMALL)
+    with h5py.File(built.path, "a") as f:
+        if attribute == "params":
+            f.attrs["params"] = str(f.attrs["params"]).replace('"max_side": 320', '"max_side": 328')
+        else:
+            f.attrs["n_words"] = int(f.attrs["n_words"]) + 1
+    problem = "damaged vocabulary file: its header fails its checksum"
+    with pytest.raises(WilocError, match=problem):
+        read_vocabulary_header(built.path)
+    again = build_vocabulary([folder], cache, SMALL)
+    assert again.built and again.repairs == [f"{built.path}: {problem}; built again"]
+    assert read_vocabulary_header(built.path)[1] == SMALL
+
+
 def test_a_reused_vocabulary_reports_the_frames_its_build_left_out(tmp_path: Path, cache_dir: Path,
                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     """Reused from the cache, a vocabulary said no frame was left out; and from a relative folder

@@ -150,15 +150,23 @@ def _digest(centres: NDArray, frames: Sequence[str], words: NDArray[np.uint8]) -
     return digest.hexdigest()
 
 
+def _header_digest(key: str, params: str, n_words: int) -> str:
+    """SHA-256 of what a vocabulary file's header says and its arrays' digest does not cover: its
+    key, its parameters (which describe every frame's local features) and its number of words."""
+    return hashlib.sha256(f"{key}\0{params}\0{n_words}".encode()).hexdigest()
+
+
 def write_vocabulary(f: h5py.File, vocabulary: Vocabulary, attrs: dict[str, object]) -> None:
-    """Write `vocabulary` into an open HDF5 file, with extra attributes (provenance) and the
-    digest of its arrays."""
+    """Write `vocabulary` into an open HDF5 file, with extra attributes (provenance), the digest of
+    its arrays and that of its header."""
     words = pack_words(vocabulary.training_occurrences)
+    params = vocabulary.params.to_json()
     f.attrs.update({
         "format": FORMAT, "format_version": FORMAT_VERSION, "wiloc_version": __version__,
-        "key": vocabulary.key, "params": vocabulary.params.to_json(),
+        "key": vocabulary.key, "params": params,
         "n_words": vocabulary.n_words, **attrs,
         "digest": _digest(vocabulary.centres, vocabulary.training_frames, words),
+        "header_digest": _header_digest(vocabulary.key, params, vocabulary.n_words),
     })
     f.create_dataset("centres", data=vocabulary.centres)
     f.create_dataset("training/frames", data=list(vocabulary.training_frames), dtype=h5py.string_dtype())
@@ -184,6 +192,10 @@ def _open(path: Path) -> h5py.File:
         f.close()
         raise WilocError(path, f"damaged vocabulary file: it holds vocabulary {key}, not {path.stem} as its name says; "
                                f"{REBUILD}")
+    written = f.attrs.get("header_digest")  # none in a file of an older wiloc
+    if written is not None and written != _header_digest(str(key), str(f.attrs.get("params")), int(f.attrs.get("n_words", -1))):
+        f.close()  # a flipped byte in its parameters described every frame's features otherwise, silently
+        raise WilocError(path, f"damaged vocabulary file: its header fails its checksum; {REBUILD}")
     return f
 
 
