@@ -3,6 +3,7 @@ errors, crash safety."""
 from __future__ import annotations
 
 import dataclasses
+import struct
 import threading
 import subprocess
 import sys
@@ -235,3 +236,36 @@ def test_recycled_blocks_give_the_same_rows_as_fresh_ones() -> None:
     rows = list(computed.iter_rows(block_rows=8))
     np.testing.assert_array_equal(np.vstack(kept), computed.rows(0, 50))
     np.testing.assert_array_equal(np.vstack(rows), computed.rows(0, 50))
+
+
+def test_a_damaged_largest_difference_is_noticed_and_computed_again(cache: Cache) -> None:
+    """``largest`` is threshold's d_max without a natural maximum: a flipped bit in it changed every
+    confidence silently; it is kept under a checksum, so the damage is noted and recomputed."""
+    ref = make_entry("r", 12, 2)
+    clean = map_summary(ref, cache, 2)
+    path = cache.root / "differences" / "r-self-r2.h5"
+    data = bytearray(path.read_bytes())
+    stored = struct.pack("<d", clean.largest)
+    offset = data.find(stored)
+    assert offset >= 0 and data.find(stored, offset + 1) < 0  # the value is stored once, as is
+    data[offset + 6] ^= 0x01  # one bit of the mantissa, as a bad disk would flip it
+    path.write_bytes(bytes(data))
+    counter = Counter()
+    got = map_summary(ref, cache, 2, progress=counter)
+    assert counter.calls and got.largest == clean.largest
+    assert [line.split(" (")[0] for line in cache.repairs] == [f"{path}: unreadable map summary"]
+
+
+def test_a_summary_of_the_old_layout_is_computed_again_without_a_note(cache: Cache) -> None:
+    """Summaries written before ``largest`` had its checksum are not current: recomputed, not damaged."""
+    ref = make_entry("r", 12, 2)
+    clean = map_summary(ref, cache, 2)
+    path = cache.root / "differences" / "r-self-r2.h5"
+    with h5py.File(path, "r+") as f:  # the old layout: the value as an unchecked attribute only
+        del f["largest"]
+        f.attrs["largest"] = clean.largest
+    counter = Counter()
+    got = map_summary(ref, cache, 2, progress=counter)
+    assert counter.calls and got.largest == clean.largest and not cache.repairs
+    with h5py.File(path, "r") as f:
+        assert f["largest"].fletcher32 and "largest" not in f.attrs

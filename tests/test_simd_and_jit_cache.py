@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers import write_images
 
 from wiloc.description.distances import SIMD_PATHS, _cpu_features
 
@@ -88,3 +89,48 @@ def test_every_instruction_set_gives_the_same_differences_to_the_last_bit(tmp_pa
         assert got.returncode == 0, got.stderr[-1000:]
         digests[path] = got.stdout.strip()
     assert len(set(digests.values())) == 1, digests
+
+
+def _localize(root: Path, patch: str = "") -> subprocess.CompletedProcess[str]:
+    """``wiloc localize`` of a small query against a small map (it compiles or loads the difference
+    kernel) with ``root`` as the cache, after ``patch`` (Python run first)."""
+    for seed, name in enumerate(("map", "query")):
+        if not (root / name).exists():
+            write_images(root / name, 8, seed=seed)
+    args = ["localize", str(root / "query"), "--map", str(root / "map"), "--method", "threshold",
+            "--out", str(root / "run.csv")]
+    return _python(f"import sys\n{patch}\nfrom wiloc.cli import app\nsys.argv[1:] = {args!r}\n"
+                   "sys.exit(app(prog_name='wiloc'))", WILOC_CACHE=str(root))
+
+
+def _numba_cache_line(root: Path) -> str:
+    return f"error: {root / 'numba'}: cannot"
+
+
+def test_a_damaged_numba_cache_file_is_one_line_naming_the_folder(tmp_path: Path) -> None:
+    """numba (0.68) raises an unpickling error for a truncated kernel file or index, every run
+    until the folder is removed: one line naming the folder and that removing it is safe."""
+    assert _localize(tmp_path).returncode == 0
+    [kernel] = (tmp_path / "numba").rglob("*.nbc")
+    [index] = (tmp_path / "numba").rglob("*.nbi")
+    for damage in (lambda: os.truncate(kernel, kernel.stat().st_size // 2), lambda: os.truncate(index, 0)):
+        damage()
+        got = _localize(tmp_path)
+        assert got.returncode == 1, got.stderr[-2000:]
+        [line] = got.stderr.splitlines()
+        assert line.startswith(_numba_cache_line(tmp_path)) and "read numba's compiled kernels" in line, line
+        assert line.endswith("removing the folder is safe (the kernels compile again)"), line
+
+
+def test_a_full_disk_while_numba_saves_a_kernel_is_one_line_naming_the_folder(tmp_path: Path) -> None:
+    full_disk = ("import builtins, errno, numba.core.caching as caching\n"
+                 "def full(file, mode='r', *args, **kwargs):\n"
+                 "    if 'w' in mode:\n"
+                 "        raise OSError(errno.ENOSPC, 'No space left on device')\n"
+                 "    return builtins.open(file, mode, *args, **kwargs)\n"
+                 "caching.open = full")  # numba's own files only: the module's name for the builtin
+    got = _localize(tmp_path, full_disk)
+    assert got.returncode == 1, got.stderr[-2000:]
+    [line] = got.stderr.splitlines()
+    assert line.startswith(_numba_cache_line(tmp_path)) and "write numba's compiled kernels" in line, line
+    assert "No space left on device" in line, line

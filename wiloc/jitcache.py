@@ -13,6 +13,11 @@ workers, ``--jobs``) share the same compiled kernels.
 numba keys its cache by CPU name and features, but not by the instruction set ``$WILOC_SIMD``
 makes wiloc's kernels use (wiloc.description.distances.simd_path): kernels compiled under it go into
 ``<cache root>/numba-<value>`` instead, so that no run loads another path's code.
+
+numba (0.68) cannot recover from a damaged file of its cache (a truncated kernel or index: an
+unpickling error every run until the folder is removed; numba/numba#10434) nor go on when saving a
+kernel fails (a full disk), and offers no supported way to: :func:`numba_cache_failure` turns such
+an error into one line naming the folder, which is always safe to remove.
 """
 from __future__ import annotations
 
@@ -20,14 +25,19 @@ import getpass
 import os
 import tempfile
 from pathlib import Path
+from types import TracebackType
 
 import platformdirs
+
+from wiloc.errors import WilocError
 
 #: The environment variable numba reads for its cache folder.
 NUMBA_CACHE_VARIABLE = "NUMBA_CACHE_DIR"
 #: Environment variable naming a narrower instruction set for wiloc's kernels than the CPU's
 #: widest (wiloc.description.distances.simd_path, docs/kernels.md).
 SIMD_VARIABLE = "WILOC_SIMD"
+#: The module of numba that reads and writes its cache files.
+NUMBA_CACHING = "numba.core.caching"
 
 
 def cache_root() -> Path:
@@ -66,3 +76,31 @@ def _writable(folder: Path) -> bool:
     while not existing.exists() and existing != existing.parent:
         existing = existing.parent
     return existing.is_dir() and os.access(existing, os.W_OK | os.X_OK)
+
+
+def numba_cache_failure(exc: BaseException) -> WilocError | None:
+    """The one-line error for ``exc`` when numba's caching module raised it, or it was raised while
+    handling one such (a damaged cache file, a full disk); None otherwise. It names the folder
+    (``NUMBA_CACHE_DIR``), whether reading or writing failed and why."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        steps = _caching_steps(exc.__traceback__)
+        if steps:
+            problem = exc.strerror if isinstance(exc, OSError) and exc.strerror else f"{type(exc).__name__}: {exc}"
+            action = "write" if "save_overload" in steps else "read"
+            folder = os.environ.get(NUMBA_CACHE_VARIABLE, "numba's cache folder")
+            return WilocError(folder, f"cannot {action} numba's compiled kernels ({problem}); removing the folder "
+                                      "is safe (the kernels compile again)")
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _caching_steps(tb: TracebackType | None) -> set[str]:
+    """The names of the functions of numba's caching module a traceback passes through."""
+    steps = set()
+    while tb is not None:
+        if tb.tb_frame.f_globals.get("__name__") == NUMBA_CACHING:
+            steps.add(tb.tb_frame.f_code.co_name)
+        tb = tb.tb_next
+    return steps

@@ -29,6 +29,7 @@ from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from wiloc.cli.params import flag, given
 from wiloc.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError, interrupted
+from wiloc.jitcache import numba_cache_failure
 from wiloc.quiet import stderr_back
 
 # emoji off: a path or value holding ':name:' (x:thumbs_up:y, the slice 1:100:2) is printed as typed
@@ -101,7 +102,8 @@ def refuse_besides(option: str, takes: tuple[str, ...]) -> None:
 
 
 def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:
-    """One line and an exit code for input problems and Ctrl-C; never a traceback."""
+    """One line and an exit code for input problems, a failure of numba's kernel cache and Ctrl-C;
+    never a traceback."""
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
@@ -110,9 +112,12 @@ def handles_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             fail(f"{flag(exc.parameter)}: {exc.problem}" if exc.parameter else str(exc), exc.exit_code)
         except BrokenPipeError:
             raise  # the output's reader has gone (`| head`): the command ends quietly (wiloc.__main__)
-        except OSError as exc:
-            fail(f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc), EXIT_BAD_INPUT)
         except BaseException as exc:
+            numba_cache = None if interrupted(exc) else numba_cache_failure(exc)
+            if numba_cache is not None:  # a damaged file of numba's, or a full disk naming no file
+                fail(str(numba_cache), numba_cache.exit_code)
+            if isinstance(exc, OSError):
+                fail(f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc), EXIT_BAD_INPUT)
             if not interrupted(exc):
                 raise
             fail("interrupted; finished work is kept in the cache, rerun to resume", EXIT_INTERRUPTED)

@@ -6,13 +6,15 @@ time HDF5 reads them back from a cache, and in a fraction of the time it takes t
 (4.9 GB per matrix; docs/kernels.md gives the measurements). What methods learn from the map's
 differences to itself is small and is cached: each map frame's smallest difference outside its
 +-R (``online``) and the largest difference (``threshold`` without a natural maximum), in
-``<cache root>/differences/<map key>-self-r<R>.h5``: dataset ``minima`` (float64, one per map
-frame, inf where a frame has no difference outside +-R), attributes ``largest``, ``ref_digest``,
-``metric``, ``scale``, ``exclude_recent``, ``differences_version``, ``ref_folder`` and ``wiloc_version``.
-A summary is reused only while the map's entry digest, metric, scale, R and the difference
-functions' version (``distances.DIFFERENCES_VERSION``) match and its checksum
-(HDF5's Fletcher-32 filter) holds; otherwise it is recomputed under the cache lock for its name
-and written through an atomic rename.
+``<cache root>/differences/<map key>-self-r<R>.h5``: datasets ``minima`` (float64, one per map
+frame, inf where a frame has no difference outside +-R) and ``largest`` (float64, one element),
+attributes ``ref_digest``, ``metric``, ``scale``, ``exclude_recent``, ``differences_version``,
+``ref_folder`` and ``wiloc_version``. Both datasets carry HDF5's Fletcher-32 checksum: a value
+kept in an attribute has none, and a flipped bit in ``largest`` (threshold's d_max) changed every
+confidence silently. A summary is reused only while the map's entry digest, metric, scale, R and
+the difference functions' version (``distances.DIFFERENCES_VERSION``) match, it has both datasets
+(one written before ``largest`` had its checksum is not current) and their checksums hold;
+otherwise it is recomputed under the cache lock for its name and written through an atomic rename.
 """
 from __future__ import annotations
 
@@ -152,9 +154,10 @@ def _read_summary(path: Path, ref: Entry, exclude_recent: int, repairs: list[str
     try:
         with h5py.File(path, "r") as f:
             current = all(f.attrs.get(k) == v for k, v in _summary_attrs(ref, exclude_recent).items())
-            if not current or f["minima"].shape != (len(ref.names),):
+            largest = f.get("largest")  # None in a file of the old layout, where it was an attribute
+            if not current or largest is None or largest.shape != (1,) or f["minima"].shape != (len(ref.names),):
                 return None
-            return MapSummary(minima=f["minima"][()], largest=float(f.attrs["largest"]))
+            return MapSummary(minima=f["minima"][()], largest=float(largest[0]))
     except (OSError, KeyError) as exc:
         if repairs is not None and path.exists():
             repairs.append(f"{path}: unreadable map summary ({exc}); computed again")
@@ -176,8 +179,8 @@ def map_summary(ref: Entry, cache: Cache, exclude_recent: int, runner: BlockRunn
             summary = summarize(differences(ref, ref, runner), exclude_recent, progress)
             with cache.atomic_h5(path) as f:
                 f.create_dataset("minima", data=summary.minima, fletcher32=True)
-                f.attrs.update(largest=summary.largest, ref_folder=ref.folder, wiloc_version=__version__,
-                               **_summary_attrs(ref, exclude_recent))
+                f.create_dataset("largest", data=[summary.largest], dtype=np.float64, fletcher32=True)
+                f.attrs.update(ref_folder=ref.folder, wiloc_version=__version__, **_summary_attrs(ref, exclude_recent))
     return summary
 
 
