@@ -117,7 +117,7 @@ def test_every_header_field_survives_a_write_and_a_read(tmp_path: Path) -> None:
                            metric="cosine", mode="map", query="/q", map="/r", exclude_recent=7, wiloc="9.9",
                            train_query="/tq", train_map="/tr", query_digest="ab", map_digest="cd",
                            sampling={"every": 2, "fps": None, "start": "1.5s", "stop": None}, topic="/cam",
-                           odometry_topic="/odom", rows="fabmap", fabmap_training=("/t 1", "/t'2"),
+                           map_topic="/cam0", odometry_topic="/odom", rows="fabmap", fabmap_training=("/t 1", "/t'2"),
                            extra={"note": "kept as text"})
     path = tmp_path / "run.csv"
     written = _made(header)

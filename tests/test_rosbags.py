@@ -18,6 +18,7 @@ from wiloc.cli import app
 from wiloc.description.describing import describe_bag
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.errors import WilocError
+from wiloc.localization.run_files import read_run
 from wiloc.sources.bags import Bag, frame_name, is_bag, stamp_of
 from wiloc.sources.frames import read_gray
 
@@ -287,6 +288,51 @@ def test_a_bag_localizes_against_a_folder_from_the_command_line(tmp_path: Path, 
     assert result.exit_code == 0, result.output
     frames = [line.split(",")[0] for line in out.read_text().splitlines() if line.startswith("t17")]
     assert frames == [frame_name(s) for s in stamps(10)]
+
+
+def test_a_map_bag_of_another_image_topic_is_read_from_map_topic(tmp_path: Path, cache_dir: Path) -> None:
+    """A map recorded by another driver names its images otherwise: --map-topic reads the map
+    from its own topic (here besides another camera's, which --topic alone would not choose)."""
+    images = scenes(8)
+    bag = write_bag(tmp_path / "run", "ros1", images, topic="/camera/image_raw/compressed", compressed=".png")
+    writer = BagWriter(tmp_path / "map.bag", "ros1")
+    for stamp, same, other in zip(stamps(8), images, scenes(8, seed=5)):
+        writer.image("/cam0/image_raw", stamp, same)
+        writer.image("/cam1/image_raw", stamp, other)
+    writer.close()
+    ref, out = tmp_path / "map.bag", tmp_path / "run.csv"
+    args = ["localize", str(bag), "--map", str(ref), "--topic", "/camera/image_raw/compressed",
+            "--method", "threshold", "--out", str(out), "--json"]
+    ends_in_one_error(runner.invoke(app, args), 1, f"{ref}: no topic /camera/image_raw/compressed; its image "
+                                                   "topics: /cam0/image_raw, /cam1/image_raw")  # as before
+    result = runner.invoke(app, [*args, "--map-topic", "/cam0/image_raw"])
+    assert result.exit_code == 0, result.output
+    header = out.read_text()
+    assert "# topic: /camera/image_raw/compressed\n# map_topic: /cam0/image_raw\n" in header
+    drawn = runner.invoke(app, ["evaluate", str(out), "--matrix-plot", str(tmp_path / "matrix.png")])  # map: its topic
+    assert drawn.exit_code == 0 and (tmp_path / "matrix.png").is_file(), drawn.output
+    run = api.localize(bag, reference=ref, method="threshold", map_topic="/cam0/image_raw")  # the query's only topic
+    np.testing.assert_array_equal(run.decisions.match, np.arange(8))  # each frame found where it was
+    assert (run.results.header.topic, run.results.header.map_topic) == (None, "/cam0/image_raw")
+    assert read_run(out).header.map_topic == "/cam0/image_raw"
+
+
+def test_map_topic_needs_a_map_bag(tmp_path: Path, cache_dir: Path) -> None:
+    bag = write_bag(tmp_path / "run", "ros1", scenes(6))
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    for i, image in enumerate(scenes(6)):
+        cv2.imwrite(str(folder / f"img{i}.png"), image)
+    ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--map", str(folder), "--map-topic", "/cam0"]), 2,
+                      "--map-topic: applies to a ROS bag map only")
+    ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--map-topic", "/cam0"]), 2,
+                      "--map-topic: applies to map mode (--map) only")
+    ends_in_one_error(runner.invoke(app, ["localize", str(folder), "--map", str(bag), "--follow",
+                                          "--map-topic", "/camera/image_raw"]), 2, "--follow", "--map-topic")
+    assert not list(Path(cache_dir).rglob("*.h5"))
+    with pytest.raises(WilocError) as refused:
+        api.localize(bag, method="threshold", map_topic="/camera/image_raw")
+    assert refused.value.parameter == "map_topic"
 
 
 # ------------------------------------------------------------------------------------ bad bags

@@ -10,9 +10,9 @@ import typer
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT
 from wiloc.cli.core import Notes, fail, handles_errors, refuse_unused
 from wiloc.cli.localize_views import show_followed, show_runs
-from wiloc.cli.options import (DESCRIBED, CacheOption, DescriptorOption, EveryOption, FpsOption, JobsOption,
-                               ModelOption, PreprocessOption, SchedulerOption, StartOption, StopOption, TopicOption,
-                               VocabularyOption, descriptor_params_given, metric_name, names_folder,
+from wiloc.cli.options import (DESCRIBED, STREAMS, CacheOption, DescriptorOption, EveryOption, FpsOption,
+                               JobsOption, ModelOption, PreprocessOption, SchedulerOption, StartOption, StopOption,
+                               TopicOption, VocabularyOption, descriptor_params_given, metric_name, names_folder,
                                plot_file, results_out, sampling_given)
 from wiloc.cli.params import descriptor_uses, given, method_params, with_descriptor_options, with_method_options
 from wiloc.cli.truth import truth_source
@@ -59,6 +59,9 @@ def localize(
     start: StartOption = "0",
     stop: StopOption = None,
     topic: TopicOption = None,
+    map_topic: Optional[str] = typer.Option(None, show_default="--topic", rich_help_panel=STREAMS,
+                                            help="ROS bags: the --map bag's image topic, when it is not --topic's "
+                                                 "(a map recorded by another camera or driver)."),
     follow: bool = typer.Option(False, "--follow", help="Decide the frames already in the QUERY folder, then each new one as it arrives; rerun to resume.", rich_help_panel="live"),
     idle: Optional[float] = typer.Option(None, min=0.0, show_default="run until Ctrl-C", help="With --follow: stop after this many seconds without a new frame.", rich_help_panel="live"),
     method_options: Optional[dict[str, Any]] = None,
@@ -86,6 +89,7 @@ def localize(
                    "map_names": (reference is not None and names_matrix_file(reference),
                                  "a descriptor matrix file as --map"),
                    "map_odometry": (reference is not None, "map mode (--map)"),
+                   "map_topic": (reference is not None, "map mode (--map)"),
                    "exclude_recent": (reference is None or "map_self" in method_class(method).needs,
                                       "sequence mode, and in map mode to the methods that learn from the map's "
                                       f"differences to itself ({', '.join(learning_from_the_map())})"),
@@ -109,9 +113,10 @@ def localize(
     recent = exclude_recent if given("exclude_recent") else None  # the library refuses it where it does nothing
     if follow:
         refused = [flag for flag, value in (("--odometry", odometry), ("--odometry-topic", odometry_topic),
-                                            ("--topic", topic), ("--names", names), ("--map-names", map_names),
-                                            ("--metric", metric), ("--model-plot", model_plot),
-                                            ("--map-odometry", map_odometry)) if value is not None]
+                                            ("--topic", topic), ("--map-topic", map_topic), ("--names", names),
+                                            ("--map-names", map_names), ("--metric", metric),
+                                            ("--model-plot", model_plot), ("--map-odometry", map_odometry))
+                   if value is not None]
         refused += ["video sampling"] * (sampling != api.Sampling())
         if len(queries) != 1 or refused:
             fail(f"--follow: takes one query folder{' and not ' + ', '.join(refused) if refused else ''}", EXIT_USAGE)
@@ -155,7 +160,7 @@ def localize(
                                      odometry=odometry, map_odometry=map_odometry,
                                      query_names_file=names, ref_names_file=map_names, out=target,
                                      cache=store, jobs=jobs, progress=progress, scheduler=scheduler,
-                                     topic=topic, odometry_topic=odometry_topic))
+                                     topic=topic, map_topic=map_topic, odometry_topic=odometry_topic))
             repairs.append(store.repairs[known:])
     show_runs(runs, repairs, method, model_plot, as_json, cautions)
 

@@ -48,7 +48,8 @@ class ResultsHeader:
     query_digest: str | None = None  # batch runs only (run_figures checks the images against them)
     map_digest: str | None = None  # "" in sequence mode
     sampling: dict[str, Any] | None = None  # a video's or bag's sampling (wiloc.sources.video.Sampling's fields)
-    topic: str | None = None
+    topic: str | None = None  # the query's image topic (and the map's without map_topic)
+    map_topic: str | None = None  # a map bag's image topic of another name (--map-topic)
     odometry_topic: str | None = None
     rows: str | None = None  # "fabmap": the rows were FAB-MAP's evidence, not differences
     fabmap_training: tuple[str, ...] | None = None

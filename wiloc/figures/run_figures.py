@@ -155,7 +155,8 @@ def checked_entries(evaluation: Evaluation, cache: Cache) -> tuple[Entry, Entry]
     q = describer.entry(query)
     frames = check_frames(evaluation.frame_slice)  # a run scored on a slice lists those of its frames
     q = _first_frames(q, scored if frames is None else q.names[:evaluation.run_frames])
-    r = q if sequence else describer.entry(reference)
+    map_describer = describer if header.map_topic is None else replace(describer, topic=header.map_topic)
+    r = q if sequence else map_describer.entry(reference)
     for role, entry, names, listed in (("query", q, q.names if frames is None else q.names[frames], scored),
                                        ("map", r, r.names, results.reference_frames)):
         if listed and names != listed:

@@ -54,7 +54,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str | No
              query_names_file: Path | None = None, ref_names_file: Path | None = None,
              out: Path | None = None, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,
              sampling: Sampling | None = None, progress: Progress | None = None,
-             scheduler: str | None = None, topic: str | None = None,
+             scheduler: str | None = None, topic: str | None = None, map_topic: str | None = None,
              odometry_topic: str | None = None) -> LocalizeRun:
     """Localize every frame of ``query`` (against ``reference``, or within itself) and write results.
 
@@ -65,7 +65,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str | No
     ``map_odometry`` are odometry CSVs (for methods that take them); ``training`` is the labelled
     pair of the ``trained`` comparator. ``sampling`` picks the frames of video files (query, map
     and training traversals alike; default: every frame), and ``topic`` the image topic of ROS
-    bags (None: each one's only one); ``odometry_topic`` names their ``nav_msgs/msg/Odometry``
+    bags (None: each one's only one); ``map_topic`` that of a ``reference`` bag recorded with
+    another topic's name (None: ``topic``); ``odometry_topic`` names their ``nav_msgs/msg/Odometry``
     topic, read as the odometry of each bag (query or map). The results are written to ``out`` when
     given (else kept in memory only: ``wiloc.api.evaluate`` takes the run itself). ``scheduler``
     (a Dask scheduler's address, or ``local``) describes and computes the differences on its workers.
@@ -81,7 +82,7 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str | No
                              training=training, map_odometry=map_odometry, map_names=ref_names_file, query=query,
                              query_names=query_names_file, odometry=odometry, odometry_topic=odometry_topic,
                              sampling=sampling, cache=cache, jobs=jobs, progress=progress, scheduler=scheduler,
-                             topic=topic)
+                             topic=topic, map_topic=map_topic)
         describer, q, R = session.describer, session.query, session.exclude_recent
         r = q if session.map is None else session.map
         rows = session.batch_rows()

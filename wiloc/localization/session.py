@@ -14,7 +14,7 @@ import itertools
 import json
 import os
 from collections.abc import Iterator, Mapping
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from wiloc.cache.store import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
-from wiloc.description.describing import check_sampling, check_topic, is_stream
+from wiloc.description.describing import check_sampling, check_topic, is_bag, is_stream
 from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive, pairwise
 from wiloc.description.traversals import (Describer, Progress, check_descriptor, check_metric, descriptor_spec,
@@ -81,7 +81,9 @@ class RunSession:
     does not learn from the map's differences to itself, where it changes nothing, it is a
     ParameterError (as the CLI refuses ``--exclude-recent`` there). ``restoring``
     leaves the method's inputs unchecked: a saved state is continued, which was checked when it
-    was started. ``progress``, ``scheduler`` and ``topic`` are the batch run's describing.
+    was started. ``progress``, ``scheduler`` and ``topic`` are the batch run's describing;
+    ``map_topic`` (None: ``topic``) is the image topic of a map ROS bag recorded with another topic's
+    name than the query's, refused for any other map.
     """
 
     def __init__(self, map: str | os.PathLike | Entry | None, *, method: str,
@@ -93,7 +95,7 @@ class RunSession:
                  odometry: Path | None = None, odometry_topic: str | None = None,
                  sampling: Sampling | None = None, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,
                  progress: Progress | None = None, scheduler: str | None = None, topic: str | None = None,
-                 restoring: bool = False) -> None:
+                 map_topic: str | None = None, restoring: bool = False) -> None:
         if training is not None and not isinstance(training, (Training, TrainingRows)):
             raise ParameterError("training", "a labelled pair: Training(query, reference, truth) (wiloc.api.Training) "
                                              f"or TrainingRows(rows, labels), got {type(training).__name__}")
@@ -122,7 +124,12 @@ class RunSession:
         if not restoring:  # a saved state records the describer's descriptor, even over matrix files
             check_descriptor(sources, descriptor, descriptor_params)
         pair = (training.query, training.reference) if isinstance(training, Training) else ()
-        check_topic([Path(s) for s in (query, map, *pair) if s is not None and not isinstance(s, Entry)], topic)
+        if map_topic is not None and (self.map_path is None or not is_bag(self.map_path)):
+            raise ParameterError("map_topic", "applies to a ROS bag map only; "
+                                              f"{'sequence mode has no map' if map is None else f'{map} is not one'}")
+        self.map_topic = map_topic
+        topic_read = (query, *pair) if map_topic is not None else (query, map, *pair)  # the traversals --topic reads
+        check_topic([Path(s) for s in topic_read if s is not None and not isinstance(s, Entry)], topic)
         descriptor, descriptor_params = _map_descriptor(map, descriptor, descriptor_params)
         self.describer = Describer(descriptor, parameter_values(descriptor_params, "descriptor_params"),
                                    Cache.given(cache), metric=metric, jobs=jobs, progress=progress, sampling=sampling,
@@ -130,7 +137,9 @@ class RunSession:
         self.query: Entry | None = None if query is None else self.describer.entry(Path(query), query_names)
         self.map: Entry | None = None
         if map is not None:
-            self.map = map if isinstance(map, Entry) else self.describer.entry(Path(map), map_names)
+            # a copy reading the map's topic, which adds its skipped frames and notes to the same lists
+            map_describer = self.describer if map_topic is None else replace(self.describer, topic=map_topic)
+            self.map = map if isinstance(map, Entry) else map_describer.entry(Path(map), map_names)
             self._check_map(R)
         self.kind = self.method.row_kind(self.describer.descriptor)
         self.evidence = self.method.evidence(self.describer.spec) if self.kind == "log_ratio" else None
@@ -211,13 +220,14 @@ class RunSession:
         """What a results header records of this run's inputs besides its setup
         (``wiloc.localization.run_files.run_header``): the digests of the query's descriptors (a
         batch run's; a streaming run keeps none) and the map's ("" in sequence mode), a video's or
-        bag's sampling and topics, and FAB-MAP's evidence rows with the folders they were trained on."""
+        bag's sampling and topics (the map's apart when it has its own), and FAB-MAP's evidence rows
+        with the folders they were trained on."""
         streamed = any(path is not None and is_stream(path) for path in (self.query_path, self.map_path))
         q, evidence = self.query, self.evidence
         return {"query_digest": None if q is None else descriptors_digest(q.names, q.data),
                 "map_digest": "" if self.map is None else descriptors_digest(self.map.names, self.map.data),
                 "sampling": asdict(self.describer.sampling or Sampling()) if streamed else None,
-                "topic": self.describer.topic, "odometry_topic": self.odometry_topic,
+                "topic": self.describer.topic, "map_topic": self.map_topic, "odometry_topic": self.odometry_topic,
                 "rows": "fabmap" if evidence is not None else None,
                 "fabmap_training": tuple(evidence.training_folders) if evidence is not None else None}
 
