@@ -32,6 +32,9 @@ LENGTH = SCALES * ORIENTATIONS * GRID * GRID
 PREFILTER_FC = 4.0
 PREFILTER_PAD = 5
 BOUNDARY = 32
+#: Grey levels of contrast (after the resize, of 255) at or below which a frame is constant: the
+#: resize leaves a constant frame a few 1e-5 uneven, which stretched to 0..255 was noise.
+FLAT = 1e-3
 #: Gabor transfer values below this (of a peak of 1) are left out of the products: the
 #: descriptors move by less than 1e-6 relative.
 BAND_FLOOR = 1e-7
@@ -209,8 +212,10 @@ def compute_gist(gray: NDArray[np.uint8]) -> NDArray[np.float32]:
     image = resize_crop(gray)
     image = image - image.min()
     top = image.max()
-    if top > 0:
+    if top > FLAT:  # a constant frame stays 0: the resize's rounding is no contrast to stretch
         image = image * np.float32(255.0 / top)
+    else:
+        image[...] = 0.0
     return gist_of_prefiltered(prefilter(image))
 
 
@@ -219,6 +224,7 @@ class Gist(Descriptor):
 
     name = "gist"
     metric = "sqeuclidean"
+    version = 2  # 2: a constant frame's descriptor is 0 at any size (it was the resize's rounding, stretched)
 
     @classmethod
     def spec(cls, params: dict[str, Any]) -> DescriptorSpec:
