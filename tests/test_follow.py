@@ -745,6 +745,28 @@ def test_a_followed_file_recording_the_parameters_given_resumes(demo_route: demo
         api.follow_folder(live, reference=demo_route.reference, method="threshold", out=out, idle=0.3)
 
 
+def test_a_followed_file_of_a_version_without_a_later_method_parameter_resumes(
+        demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
+    """A method parameter added since (online's ``confidence``, whose default is what earlier
+    versions did) is missing from an older followed file's params: the file is the same run's and
+    resumes. Given otherwise than its default, the rows decided again differ, and the file is
+    refused for them."""
+    live = _live_folder(tmp_path, sorted(demo_route.queries[0].iterdir())[:4])
+    out = tmp_path / "r.csv"
+    list(api.follow_folder(live, reference=demo_route.reference, method="online", out=out, idle=0.3))
+    text = out.read_text()
+    assert text.count(', "confidence": "filter"') == 1
+    out.write_text(text.replace(', "confidence": "filter"', ""))
+    run = api.follow_folder(live, reference=demo_route.reference, method="online", out=out, idle=0.3)
+    assert run.resumed == 4
+    list(run)
+    out.write_text(text.replace(', "confidence": "filter"', ""))
+    with pytest.raises(WilocError, match="decided again differs from its row: the map, the frames or the settings "
+                                         "changed"):
+        list(api.follow_folder(live, reference=demo_route.reference, method="online", out=out, idle=0.3,
+                               method_params={"confidence": "appendix"}))
+
+
 WRITTEN = "frame, match, difference, confidence, stage, ranking"  # the columns a threshold run writes
 
 

@@ -10,8 +10,9 @@ import scipy.io
 from scipy.spatial.distance import cdist
 
 from wiloc.errors import WilocError
-from wiloc.evaluation.groundtruth import (EARTH_RADIUS_M, Truth, _nearest_index, aligned_truth, frame_indices,
-                                          pairs_truth, positions_truth, restrict_sequence)
+from wiloc.evaluation.aligned import _nearest_index, aligned_truth
+from wiloc.evaluation.groundtruth import (EARTH_RADIUS_M, Truth, frame_indices, pairs_truth, positions_truth,
+                                          restrict_sequence)
 from wiloc.evaluation.truth_formats import matrix_truth
 from wiloc.evaluation.truth_source import load_truth
 
@@ -120,6 +121,50 @@ def test_aligned_by_index_counts_a_sampled_videos_gap_by_its_frame_indices() -> 
     assert _true_refs(truth, "000304") == ["000295"]  # in the gap: within 10 frames of its own index
     assert _true_refs(truth, "000400") == []
     assert _true_refs(truth, "000502") == ["000500", "000505", "000510"]
+
+
+FULL_MAP = [f"Image{i:03d}.jpg" for i in range(60)]
+LEFT_OUT = ((20, "Image020.jpg"),)
+"""A map of frames Image000-059 whose Image020 was left out (unreadable): its place in the map's full order."""
+
+
+def _within(query: int, tolerance: int) -> list[str]:
+    """The map frames within +-``tolerance`` of frame ``query`` by their names, but the one left out."""
+    return [f"Image{j:03d}.jpg" for j in range(query - tolerance, query + tolerance + 1)
+            if 0 <= j < 60 and j != 20]
+
+
+@pytest.mark.parametrize("by", ["name", "index"])
+def test_aligned_counts_its_tolerance_in_the_maps_full_order_past_a_frame_left_out(by: str) -> None:
+    """A map frame left out (unreadable) shifted the band by +-T kept positions: query Image018
+    was true against Image021, 3 frames on, and Image020 had no true match. Counted in the map's
+    full order (the left-out frame dropped from the band), every frame's truth is its neighbours
+    within +-T by name, Image020's too; by index (names counted by position) the same."""
+    kept = [name for name in FULL_MAP if name != "Image020.jpg"]
+    truth = aligned_truth(FULL_MAP, kept, tolerance=2, by=by, left_out=LEFT_OUT)
+    assert _true_refs(truth, "Image018.jpg") == _within(18, 2) == [f"Image0{i}.jpg" for i in (16, 17, 18, 19)]
+    assert _true_refs(truth, "Image020.jpg") == [f"Image0{i}.jpg" for i in (18, 19, 21, 22)]
+    assert all(_true_refs(truth, f"Image{i:03d}.jpg") == _within(i, 2) for i in range(60))
+    assert truth.ref_names == kept and truth.warnings == []
+    assert aligned_truth(FULL_MAP, kept, tolerance=0, by=by, left_out=LEFT_OUT).has_match().sum() == 59
+
+
+def test_a_pairs_tolerance_counts_in_the_maps_full_order_past_a_frame_left_out(tmp_path: Path) -> None:
+    """A pairs file's tolerance column is counted in the map's full order alike."""
+    kept = [name for name in FULL_MAP if name != "Image020.jpg"]
+    csv = write_csv(tmp_path / "pairs.csv", {"query": ["q18", "q20"], "reference": ["Image018.jpg", "Image020.jpg"],
+                                             "tolerance": [2, 2]})
+    truth = pairs_truth(csv, ["q18", "q20"], kept, left_out=LEFT_OUT)
+    assert _true_refs(truth, "q18") == _within(18, 2) and _true_refs(truth, "q20") == _within(20, 2)
+    assert truth.warnings == []
+
+
+def test_a_left_out_frame_that_does_not_fit_the_map_is_refused() -> None:
+    """Left-out frames placed beyond the map's full order, or named as kept frames, are no map's."""
+    kept = [name for name in FULL_MAP if name != "Image020.jpg"]
+    for left_out in (((60, "Image020.jpg"),), ((20, "Image021.jpg"),)):
+        with pytest.raises(WilocError, match="reference_left_out"):
+            aligned_truth(FULL_MAP, kept, tolerance=2, left_out=left_out)
 
 
 @pytest.mark.parametrize("tolerance", [0, 1, 2, 3])

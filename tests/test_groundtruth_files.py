@@ -10,9 +10,11 @@ import pytest
 from helpers import ends_in_one_error, write_images
 from typer.testing import CliRunner
 
+from wiloc import api
 from wiloc.cli import app
 from wiloc.errors import WilocError
-from wiloc.evaluation.groundtruth import Truth, aligned_truth, pairs_truth, positions_truth
+from wiloc.evaluation.aligned import aligned_truth
+from wiloc.evaluation.groundtruth import Truth, pairs_truth, positions_truth
 from wiloc.evaluation.truth_formats import exif_truth
 from wiloc.evaluation.truth_source import load_truth
 
@@ -150,3 +152,29 @@ def test_aligned_by_index_warns_of_a_bag_whose_names_are_stamps(tmp_path: Path) 
     truth = load_truth("aligned", None, query_names=stamps, ref_names=REFS, by="index",
                        query_folder=bag, ref_folder=tmp_path / "map")
     assert any("left.bag" in w and "--every" in w for w in truth.warnings), truth.warnings
+
+
+# --- aligned: a map frame left out -----------------------------------------------------------
+
+def test_a_map_frame_left_out_shifts_no_aligned_band(tmp_path: Path) -> None:
+    """A run against a map with one image cut short (left out, as it should be): its results
+    header records where that frame was, and aligned +-2 counts the map's full order, so the
+    truth is every frame's neighbours within +-2 by name, the one left out dropped. Before, the
+    band counted the kept frames: query img3 was true against img6, and img4 had no true match."""
+    queries = write_images(tmp_path / "q", 10)
+    write_images(tmp_path / "map", 10, seed=1)
+    cut = tmp_path / "map" / "img4.jpg"
+    cut.write_bytes(cut.read_bytes()[:len(cut.read_bytes()) // 2])
+    out = tmp_path / "run.csv"
+    result = runner.invoke(app, ["localize", str(tmp_path / "q"), "--map", str(tmp_path / "map"), "--method",
+                                 "threshold", "--out", str(out), "--jobs", "1", "--cache", str(tmp_path / "cache")])
+    assert result.exit_code == 0, result.output
+    assert '# reference_left_out: [[4, "img4.jpg"]]\n' in out.read_text(encoding="utf-8")
+    truth = api.evaluate(out, api.TruthSource(kind="aligned", tolerance=2)).truth
+    kept = [name for name in queries if name != "img4.jpg"]
+    by_name = np.array([[abs(i - int(ref[3:-4])) <= 2 for ref in kept] for i in range(10)])
+    assert truth.ref_names == kept
+    np.testing.assert_array_equal(truth.matrix.toarray(), by_name)
+    result = runner.invoke(app, ["evaluate", str(out), "--gt", "aligned", "-T", "2", "--json"])
+    assert result.exit_code == 0, result.output
+    assert '"with_true_match": 10' in result.stdout

@@ -118,7 +118,7 @@ def test_every_header_field_survives_a_write_and_a_read(tmp_path: Path) -> None:
                            train_query="/tq", train_map="/tr", query_digest="ab", map_digest="cd",
                            sampling={"every": 2, "fps": None, "start": "1.5s", "stop": None}, topic="/cam",
                            map_topic="/cam0", odometry_topic="/odom", rows="fabmap", fabmap_training=("/t 1", "/t'2"),
-                           extra={"note": "kept as text"})
+                           reference_left_out=((1, "w"), (4, "v")), extra={"note": "kept as text"})
     path = tmp_path / "run.csv"
     written = _made(header)
     write_results(path, written)
@@ -127,6 +127,23 @@ def test_every_header_field_survives_a_write_and_a_read(tmp_path: Path) -> None:
     followed = replace(header, follow=True, params={"init": 1}, reference_frames=("x", "y"))  # no count, no model
     assert parse_header(followed.text().splitlines(), None) == followed
     assert "# follow: True" in followed.text() and "# model:" not in followed.text()
+
+
+def test_the_maps_frames_left_out_have_a_line_only_when_there_are_some(tmp_path: Path) -> None:
+    """``reference_left_out``: [position in the map's full order, name] pairs, read back as they
+    were written; a run that left out no map frame writes no such line (its file as before)."""
+    header = ResultsHeader(method="threshold", mode="map", reference_left_out=((1, "w"),))
+    assert '# reference_left_out: [[1, "w"]]\n' in header.text()
+    assert parse_header(header.text().splitlines(), None).reference_left_out == ((1, "w"),)
+    assert "reference_left_out" not in ResultsHeader(method="threshold", mode="map").text()
+
+
+@pytest.mark.parametrize("value", ['[["1", "w"]]', '[[1]]', '{"1": "w"}', '[[-1, "w"]]', '[[1, "w"], [1, "v"]]',
+                                   '[[2, "w"], [1, "v"]]', '[[true, "w"]]'])
+def test_a_left_out_list_no_run_writes_is_refused_naming_its_line(value: str) -> None:
+    lines = ["# wiloc-results: 1", "# mode: map", f"# reference_left_out: {value}"]
+    with pytest.raises(WilocError, match="line 3: header 'reference_left_out' must be"):
+        parse_header(lines, Path("run.csv"))
 
 
 def test_an_older_file_without_newer_keys_reads_with_their_defaults(tmp_path: Path) -> None:

@@ -26,7 +26,7 @@ from wiloc.errors import ParameterError, WilocError
 from wiloc.reprs import short_repr
 from wiloc.sources.bags import Bag, bag_fingerprint, is_bag
 from wiloc.sources.frames import Traversal, list_traversal, text_path
-from wiloc.sources.natural_order import natural_key
+from wiloc.sources.natural_order import natural_key, natural_sorted
 from wiloc.sources.video import Sampling, Video, is_video, lost_frames, video_fingerprint
 
 if TYPE_CHECKING:
@@ -461,3 +461,13 @@ def _unchanged(path: str, old: FrameRecord | None) -> bool:
         return False
     return stat.st_size == old.size and stat.st_mtime_ns == old.mtime_ns
 
+
+def left_out(kept: list[str], skipped: list[str]) -> tuple[tuple[int, str], ...] | None:
+    """Where the frames ``skipped`` (left out: unreadable) go among the ``kept`` frames of a
+    traversal: (position, name) in the full order of all of them, the natural order a folder
+    lists its frames in (a frame's position is then its own whether or not others were read);
+    None when none was left out, so that such a run's results header is as before."""
+    if not skipped:
+        return None
+    gone = set(skipped)
+    return tuple((position, name) for position, name in enumerate(natural_sorted([*kept, *skipped])) if name in gone)

@@ -126,7 +126,8 @@ def score(path: Path | None, results: Results, truth: TruthSource, cuts: Sequenc
         raise WilocError(path, "holds no rows: there is no frame to score") if path else \
             WilocError(None, f"the run {run_name(path, header)} holds no frames: there is no frame to score")
     try:
-        loaded = truth.load(query_names, ref_names, header.query, header.sequence, header.exclude_recent, header.map)
+        loaded = truth.load(query_names, ref_names, header.query, header.sequence, header.exclude_recent, header.map,
+                            left_out=header.reference_left_out or ())
     except TruthMismatch as exc:
         raise exc.of_run(run_name(path, header)) from None
     if moved:

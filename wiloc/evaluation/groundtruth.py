@@ -1,5 +1,6 @@
 """Ground truth: the four forms of SPEC.md section 7, read into one boolean truth matrix (the
-forms VPR datasets ship are in :mod:`wiloc.evaluation.truth_formats`, the choice among all of them in
+forms VPR datasets ship are in :mod:`wiloc.evaluation.truth_formats`, aligned traversals in
+:mod:`wiloc.evaluation.aligned`, the choice among all of them in
 :mod:`wiloc.evaluation.truth_source`).
 
 Every reader returns a :class:`Truth` over the frame names it is given (queries x references).
@@ -13,11 +14,10 @@ from __future__ import annotations
 import csv
 import re
 import unicodedata
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from numbers import Real
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import pandas as pd
@@ -103,7 +103,7 @@ def truth_from_pairs(rows: NDArray[np.int64], cols: NDArray[np.int64], query_nam
     return Truth(matrix.tocsr(), list(query_names), list(ref_names), warnings)
 
 
-def _position_spans(centres: NDArray[np.int64], tolerance: ArrayLike,
+def position_spans(centres: NDArray[np.int64], tolerance: ArrayLike,
                     n_ref: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The reference frames centre - T .. centre + T in the reference's order, as (first, stop)
     within the n_ref frames; none (stop == first) where the centre is -1. T may differ per centre,
@@ -113,7 +113,7 @@ def _position_spans(centres: NDArray[np.int64], tolerance: ArrayLike,
     return first, np.where(centres >= 0, np.clip(centres + tol + 1, 0, n_ref), first)
 
 
-def _band(rows: NDArray[np.int64], first: NDArray[np.int64],
+def band(rows: NDArray[np.int64], first: NDArray[np.int64],
           stop: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Expand each row into (row, first .. stop - 1). A band marking more than MAX_TRUE_PAIRS
     pairs is refused before anything is allocated."""
@@ -139,12 +139,12 @@ def name_index(names: Sequence[str]) -> pd.Index:
     return pd.Index(composed if len(set(composed)) == len(set(names)) else list(names), dtype=object)
 
 
-def _lookup(wanted: Sequence[str], names: Sequence[str]) -> NDArray[np.int64]:
+def lookup(wanted: Sequence[str], names: Sequence[str]) -> NDArray[np.int64]:
     """Position of each wanted name among ``names``, -1 where it is not a frame."""
     return name_index(names).get_indexer(name_index(wanted)).astype(np.int64)
 
 
-def _check_tolerance(tolerance: int) -> int:
+def check_tolerance(tolerance: int) -> int:
     if isinstance(tolerance, bool) or not isinstance(tolerance, (int, np.integer)) or tolerance < 0:
         raise WilocError(None, f"must be a whole number of frames >= 0, got {tolerance!r}", parameter="tolerance")
     return int(tolerance)
@@ -164,96 +164,37 @@ def frame_indices(names: Sequence[str]) -> NDArray[np.int64]:
     return np.arange(len(names), dtype=np.int64)
 
 
-def _nearest_index(query: NDArray[np.int64], ref: NDArray[np.int64]) -> NDArray[np.int64]:
-    """The reference frame whose index is nearest each query index (the lower one on a tie): the
-    same frame when the reference holds it, the nearest one kept when the reference was sampled;
-    -1 beyond half the reference's usual step past either end."""
-    order = np.argsort(ref, kind="stable")
-    ordered = ref[order]
-    after = np.clip(np.searchsorted(ordered, query), 0, ordered.size - 1)
-    before = np.clip(after - 1, 0, ordered.size - 1)
-    pick = np.where(np.abs(ordered[after] - query) < np.abs(query - ordered[before]), after, before)
-    reach = float(np.median(np.diff(ordered))) / 2 if ordered.size > 1 else 0.0
-    return np.where((query >= ordered[0] - reach) & (query <= ordered[-1] + reach), order[pick], -1)
+LeftOut = Sequence[tuple[int, str]]
+"""The reference's frames a run left out (unreadable): (position in its full order, name) pairs,
+as a results header's ``reference_left_out`` records them."""
 
 
-_NUMBERED = re.compile(r"(.*?)([0-9]+)([^0-9]*)", re.DOTALL)
-"""A name as the text before its last number, that number and the text after it."""
+def full_order(ref_names: Sequence[str], left_out: LeftOut) -> tuple[list[str], NDArray[np.int64]]:
+    """The reference's frames in its full order, those left out put back at their positions, and
+    each one's column among ``ref_names`` (-1: left out); a TruthMismatch when they do not fit."""
+    n = len(ref_names) + len(left_out)
+    positions = np.array([position for position, _ in left_out], dtype=np.int64)
+    names = [name for _, name in left_out]
+    if (((positions < 0) | (positions >= n)).any() or np.unique(positions).size < positions.size
+            or not set(names).isdisjoint(ref_names)):
+        raise TruthMismatch("reference_left_out", f"its frames left out ({', '.join(names)}) do not fit among the "
+                                                  f"map's {len(ref_names)} frames")
+    column = np.full(n, -1, dtype=np.int64)
+    column[np.setdiff1d(np.arange(n), positions)] = np.arange(len(ref_names))
+    full = np.empty(n, dtype=object)
+    full[column >= 0], full[positions] = list(ref_names), names
+    return full.tolist(), column
 
 
-def _name_numbers(names: Sequence[str], like: str) -> NDArray[np.int64]:
-    """The number in each name written as ``like`` is (the same text around its last number:
-    ``Image058.jpg`` as ``Image100.jpg``), -1 in other names and numbers too long for int64."""
-    form = _NUMBERED.fullmatch(like)
-    parts = [_NUMBERED.fullmatch(name) for name in names]
-    return np.array([int(m[2]) if form and m and len(m[2]) <= 18 and (m[1], m[3]) == (form[1], form[3]) else -1
-                     for m in parts], dtype=np.int64)
-
-
-def _route(ref_names: Sequence[str], by: Literal["name", "index"]) -> tuple[NDArray[np.int64], int] | None:
-    """The numbers that count the reference's frames along the route, and one frame's step, where
-    they rise at a regular step that leaves frames out (every step a multiple of the smallest,
-    one more than twice it): by index the frames' indices (:func:`frame_indices`), by name the
-    number every name holds around the same text. None otherwise, where frames are counted in
-    the reference's order: stamps, names without a number, a map that leaves nothing out (the
-    same count) and a video sampled at a rate that is no whole part of its own (steps of 1 and 2)."""
-    numbers = frame_indices(ref_names) if by == "index" else _name_numbers(ref_names, ref_names[0])
-    steps = np.diff(numbers)
-    if numbers.size < 2 or (numbers < 0).any() or (steps <= 0).any():
-        return None
-    step = int(steps.min())
-    return (numbers, step) if not (steps % step).any() and (steps > 2 * step).any() else None
-
-
-def _route_spans(centres: NDArray[np.int64], own: NDArray[np.int64], route: NDArray[np.int64], step: int,
-                 tolerance: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """The reference frames (first, stop) whose numbers lie within +-T steps of each query frame's
-    place on the route: its centre's number, where the centre lies within half a step of the
-    query frame's ``own`` number, else, for a query frame in a gap the reference leaves (within
-    its ends, no frame within half a step), its own number; none otherwise."""
-    nearest = _nearest_index(own, route)
-    in_gap = (own >= route[0]) & (own <= route[-1]) & (2 * np.abs(route[nearest] - own) > step)
-    centred = (centres >= 0) & (2 * np.abs(route[centres] - own) <= step)
-    place = np.where(centred, route[centres], own)
-    reach = min(tolerance * step, int(route[-1] - route[0]) + 1)  # wider than the route is all of it, and fits int64
-    first = np.searchsorted(route, place - reach, side="left").astype(np.int64)
-    return first, np.where(centred | in_gap, np.searchsorted(route, place + reach, side="right"), first)
-
-
-def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], tolerance: int,
-                  by: Literal["name", "index"] = "name") -> Truth:
-    """Aligned traversals: the same file name (or index, :func:`frame_indices`) is the same
-    place, +-T reference frames along the route.
-
-    Used when traversals were recorded frame by frame along the same route (Gardens Point,
-    Nordland). ``tolerance`` counts frames by the numbers the reference's frames carry where
-    they are numbered at a regular step (:func:`_route`), so that the band does not reach across
-    frames the reference leaves out, and a query frame among those is true against the frames
-    within +-T of its own number; else frames in the reference's order.
-    """
-    tol = min(_check_tolerance(tolerance), len(ref_names))  # wider than the map is the whole map, and fits int64
-    where = f"aligned ground truth (by {by})"
-    n_query = len(query_names)
-    if by == "name":
-        centres = _lookup(query_names, ref_names)
-    elif by == "index":
-        centres = (_nearest_index(frame_indices(query_names), frame_indices(ref_names)) if len(ref_names)
-                   else np.full(n_query, -1, dtype=np.int64))
-    else:
-        raise WilocError(None, f"aligned ground truth: by must be 'name' or 'index', got {by!r}")
-    if (route := _route(ref_names, by) if len(ref_names) else None) is None:
-        first, stop = _position_spans(centres, tol, len(ref_names))
-    else:
-        own = frame_indices(query_names) if by == "index" else _name_numbers(query_names, ref_names[0])
-        first, stop = _route_spans(centres, own, *route, tol)
-    found = stop > first
-    if not found.any():
-        raise TruthMismatch(where, f"none of the {n_query} query frames has a reference frame "
-                                + ("of the same name (to align by position, as a video's frames with a folder's: "
-                                   "aligned:index)" if by == "name" else "at its position"))
-    warnings = query_frames_without(where, ~found, "query frames have no reference frame to align with")
-    rows, cols = _band(np.flatnonzero(found).astype(np.int64), first[found], stop[found])
-    return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
+def past_left_out(ref_names: Sequence[str], left_out: LeftOut, truth_of: Callable[[list[str]], Truth]) -> Truth:
+    """The truth ``truth_of`` gives over the reference's full order (:func:`full_order`), over
+    its kept frames: a band counts the frames left out, yet they are no candidates (dropped)."""
+    full, column = full_order(ref_names, left_out)
+    truth = truth_of(full)
+    pairs = truth.matrix.tocoo()
+    kept = column[pairs.col] >= 0
+    return truth_from_pairs(pairs.row[kept].astype(np.int64), column[pairs.col[kept]], truth.query_names, ref_names,
+                            truth.warnings)
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
@@ -451,12 +392,15 @@ def positions_truth(query_csv: Path, ref_csv: Path, radius: float, query_names: 
     return truth_within(query, ref, radius, query_names, ref_names)
 
 
-def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str]) -> Truth:
+def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str], left_out: LeftOut = ()) -> Truth:
     """Pairs form: CSV rows ``query,reference`` list every true match (optional ``tolerance``).
 
     A ``tolerance`` column widens a row to +-T frames around the reference in the reference's
-    order. Query frames without a row have no true match.
+    order, its frames ``left_out`` counted too (as :func:`wiloc.evaluation.aligned.aligned_truth` counts them). Query frames without a
+    row have no true match.
     """
+    if left_out:
+        return past_left_out(ref_names, left_out, lambda full: pairs_truth(csv, query_names, full))
     path = Path(csv)
     frame = _read_csv(path)
     _require_columns(path, frame, ["query", "reference"], "query,reference")
@@ -470,8 +414,8 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
         tolerance = np.minimum(tol, len(ref_names)).astype(np.int64)  # 1e30 would wrap to a negative band
     else:
         tolerance = np.zeros(len(frame), dtype=np.int64)
-    q = _lookup(frame["query"], query_names)
-    r = _lookup(frame["reference"], ref_names)
+    q = lookup(frame["query"], query_names)
+    r = lookup(frame["reference"], ref_names)
     usable = (q >= 0) & (r >= 0)
     if not usable.any():
         column, names = ("query", query_names) if not (q >= 0).any() else ("reference", ref_names)
@@ -480,7 +424,7 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str])
     warnings = unmatched(path, int((q < 0).sum()), len(frame), "rows name no query frame (skipped)")
     warnings += unmatched(path, int((r < 0).sum()), len(frame),
                            "rows name no reference frame (skipped)")
-    rows, cols = _band(q[usable], *_position_spans(r[usable], tolerance[usable], len(ref_names)))
+    rows, cols = band(q[usable], *position_spans(r[usable], tolerance[usable], len(ref_names)))
     return truth_from_pairs(rows, cols, query_names, ref_names, warnings)
 
 

@@ -250,17 +250,17 @@ class ResultsStream:
 
 
 #: Header lines a followed file of an older wiloc lacks: a resumed file without them is the run's.
-FOLLOW_ADDED = ("map_digest", "sampling", "topic", "odometry_topic", "rows", "fabmap_training")
+FOLLOW_ADDED = ("map_digest", "sampling", "topic", "odometry_topic", "rows", "fabmap_training", "reference_left_out")
 
 
 def _settings(header: ResultsHeader, expected: ResultsHeader, learned: Collection[str]) -> ResultsHeader:
     """What of a followed file's ``header`` must equal the run's (``expected``) for the run to
     resume it: all but the version that wrote it, what the run learned (its model, the
     ``learned`` params, a sequence-mode query digest and reference frames, the frames seen: written
-    as it ends) and the lines (:data:`FOLLOW_ADDED`) that an older version's file lacks, where it
-    lacks them."""
+    as it ends) and the lines (:data:`FOLLOW_ADDED`) and method parameters (added since: their
+    default is what it did) that an older version's file lacks, where it lacks them."""
     older = {name: getattr(expected, name) for name in FOLLOW_ADDED if getattr(header, name) is None}
-    params = {key: value for key, value in header.params.items() if key not in learned}
+    params = {key: value for key, value in {**expected.params, **header.params}.items() if key not in learned}
     seen = {"reference_frames": ()} if header.sequence else {}
     return replace(header, **older, **seen, wiloc="", model=None, query_digest=None, params=params)
 

@@ -23,7 +23,7 @@ FORMAT_VERSION = "1"
 VERSION_KEY = "wiloc-results"
 _START = f"# {VERSION_KEY}:".encode()  # a results file's first bytes
 _BOM = b"\xef\xbb\xbf"  # a UTF-8 byte-order mark an editor may put before them
-JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "sampling")
+JSON_KEYS = ("params", "descriptor_params", "model", "reference_frames", "reference_left_out", "sampling")
 
 
 @short_repr
@@ -57,6 +57,8 @@ class ResultsHeader:
     params: dict[str, Any] = field(default_factory=dict)
     model: dict[str, Any] | None = None  # HistogramModel.to_dict()
     reference_frames: tuple[str, ...] = ()
+    # the map's frames the run left out (unreadable): (position in the map's full order, name); None: none
+    reference_left_out: tuple[tuple[int, str], ...] | None = None
     follow: bool = False
     extra: dict[str, str] = field(default_factory=dict)  # keys this version does not know, as read
 
@@ -216,6 +218,8 @@ def _typed(path: Path | None, key: str, value: Any) -> Any:
         return value == "True"
     if key == "reference_frames":
         return _frame_names(path, value)
+    if key == "reference_left_out":
+        return _left_out(path, value)
     if key == "fabmap_training":
         return _folders(path, value)
     if key == "model":
@@ -240,6 +244,19 @@ def _frame_names(path: Path | None, value: Any) -> tuple[str, ...]:
             raise WilocError(path, f"header 'reference_frames' names '{name}' twice")
         seen.add(name)
     return tuple(value)
+
+
+def _left_out(path: Path | None, value: Any) -> tuple[tuple[int, str], ...] | None:
+    """``reference_left_out``: [position, name] pairs in the map's full order, each position
+    after the one before (where the frames the run left out go among the map's); null: none."""
+    if value is None:
+        return None
+    pairs = value if isinstance(value, list) else [None]
+    if not all(isinstance(pair, list) and len(pair) == 2 and type(pair[0]) is int and isinstance(pair[1], str)
+               for pair in pairs) or any(b[0] <= a[0] for a, b in zip([[-1, ""], *pairs], pairs)):
+        raise WilocError(path, "header 'reference_left_out' must be a list of [position, name] pairs, positions "
+                               "rising from 0")
+    return tuple((position, name) for position, name in pairs)
 
 
 def _folders(path: Path | None, value: str) -> tuple[str, ...]:

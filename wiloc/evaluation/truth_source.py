@@ -10,7 +10,8 @@ from pathlib import Path
 from typing import Literal
 
 from wiloc.errors import ParameterError, WilocError
-from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, Truth, aligned_truth, check_radius, holds_indices,
+from wiloc.evaluation.aligned import aligned_truth
+from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, LeftOut, Truth, check_radius, full_order, holds_indices,
                                           pairs_truth, positions_truth, restrict_sequence)
 from wiloc.evaluation.truth_formats import (DEFAULT_RADIUS_M, exif_truth, matrix_truth, npy_form, positives_truth,
                                             utm_names_truth, vprbench_truth)
@@ -21,19 +22,22 @@ def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
                ref_names: Sequence[str], tolerance: int = 0, radius: float | None = None,
                ref_path: Path | None = None, by: Literal["name", "index"] = "name",
                variable: str | None = None, query_folder: Path | None = None,
-               ref_folder: Path | None = None) -> Truth:
+               ref_folder: Path | None = None, left_out: LeftOut = ()) -> Truth:
     """Read ground truth of the given kind (``KINDS``) for the CLI.
 
     ``path`` is unused for ``aligned``, ``utm-names`` and ``exif``; for ``positions`` it is the
     query CSV and ``ref_path`` the reference CSV (default: the same file, sequence mode).
     ``utm-names`` and ``exif`` read the traversals: ``query_folder`` and ``ref_folder`` (None:
-    sequence mode), within ``radius`` metres (default 25).
+    sequence mode), within ``radius`` metres (default 25). ``left_out``: the reference's frames
+    the run left out, which the forms counting frames in its order (aligned, a pairs file's
+    tolerance) count too (a results header's ``reference_left_out``).
     """
     if kind == "aligned":
-        truth = aligned_truth(query_names, ref_names, tolerance, by=by)
+        truth = aligned_truth(query_names, ref_names, tolerance, by=by, left_out=left_out)
         if by == "index" and list(query_names) != list(ref_names):  # a traversal against itself is not shifted
+            full = full_order(ref_names, left_out)[0] if left_out else ref_names  # those left out shift nothing
             truth.warnings += (_shifted_positions(query_names, query_folder, "query")
-                               + _shifted_positions(ref_names, ref_folder, "reference"))
+                               + _shifted_positions(full, ref_folder, "reference"))
         return truth
     if kind not in KINDS:
         raise WilocError(None, f"unknown ground-truth kind {kind!r}; choose one of {', '.join(KINDS)}")
@@ -50,7 +54,7 @@ def load_truth(kind: str, path: Path | None, *, query_names: Sequence[str],
             raise ParameterError("radius", "positions ground truth needs a radius in metres")
         return positions_truth(Path(path), Path(ref_path or path), radius, query_names, ref_names)
     if kind == "pairs":
-        return pairs_truth(Path(path), query_names, ref_names)
+        return pairs_truth(Path(path), query_names, ref_names, left_out)
     if kind == "vprbench":
         return vprbench_truth(Path(path), query_names, ref_names)
     if kind == "positives":
@@ -147,9 +151,10 @@ class TruthSource:
         return f"{self.kind} {self.path}"
 
     def load(self, query_names: list[str], ref_names: list[str], query_folder: str,
-             sequence: bool, exclude_recent: int, ref_folder: str = "") -> Truth:
+             sequence: bool, exclude_recent: int, ref_folder: str = "", left_out: LeftOut = ()) -> Truth:
         """The truth matrix over these frames (sequence mode: earlier frames outside +-R only);
-        ``ref_folder`` is the reference traversal, for the forms that read it."""
+        ``ref_folder`` is the reference traversal, for the forms that read it, ``left_out`` the
+        frames of it the run left out (:func:`load_truth`)."""
         name = Path(query_folder).name
         path = _for_query(self.path, name, "path")
         ref_path = _for_query(self.ref_path, name, "ref_path")
@@ -162,7 +167,7 @@ class TruthSource:
         truth = load_truth(self.kind, path, query_names=query_names, ref_names=ref_names,
                            tolerance=self.tolerance, radius=self.radius, ref_path=ref_path,
                            by=self.by, variable=self.variable, query_folder=Path(query_folder) if query_folder else None,
-                           ref_folder=None if sequence or not ref_folder else Path(ref_folder))
+                           ref_folder=None if sequence or not ref_folder else Path(ref_folder), left_out=left_out)
         return restrict_sequence(truth, exclude_recent) if sequence else truth
 
 

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from wiloc.cache.store import Cache, Entry
 from wiloc.candidates import DEFAULT_EXCLUDE_RECENT, check_exclude_recent, mask_recent
-from wiloc.description.describing import check_sampling, check_topic, is_bag, is_stream
+from wiloc.description.describing import check_sampling, check_topic, is_bag, is_stream, left_out
 from wiloc.description.differences import ComputedDifferences, RunDifferences, candidate_blocks, run_differences, summarize
 from wiloc.description.distances import DifferencesTo, consecutive, pairwise
 from wiloc.description.traversals import (Describer, Progress, check_descriptor, check_metric, descriptor_spec,
@@ -136,10 +136,14 @@ class RunSession:
                                    cluster=open_cluster(scheduler, jobs), topic=topic)
         self.query: Entry | None = None if query is None else self.describer.entry(Path(query), query_names)
         self.map: Entry | None = None
+        self.map_left_out: tuple[tuple[int, str], ...] | None = None  # the map's frames left out: (position, name)
         if map is not None:
             # a copy reading the map's topic, which adds its skipped frames and notes to the same lists
             map_describer = self.describer if map_topic is None else replace(self.describer, topic=map_topic)
+            before = len(self.describer.skipped)
             self.map = map if isinstance(map, Entry) else map_describer.entry(Path(map), map_names)
+            skipped = [Path(path).name for path, _ in self.describer.skipped[before:]]  # the map's own
+            self.map_left_out = left_out(self.map.names, skipped)
             self._check_map(R)
         self.kind = self.method.row_kind(self.describer.descriptor)
         self.evidence = self.method.evidence(self.describer.spec) if self.kind == "log_ratio" else None
@@ -220,8 +224,9 @@ class RunSession:
         """What a results header records of this run's inputs besides its setup
         (``wiloc.localization.run_files.run_header``): the digests of the query's descriptors (a
         batch run's; a streaming run keeps none) and the map's ("" in sequence mode), a video's or
-        bag's sampling and topics (the map's apart when it has its own), and FAB-MAP's evidence rows
-        with the folders they were trained on."""
+        bag's sampling and topics (the map's apart when it has its own), FAB-MAP's evidence rows
+        with the folders they were trained on, and the map's frames left out (unreadable), which
+        ground truth counting the map's frames in order counts too."""
         streamed = any(path is not None and is_stream(path) for path in (self.query_path, self.map_path))
         q, evidence = self.query, self.evidence
         return {"query_digest": None if q is None else descriptors_digest(q.names, q.data),
@@ -229,7 +234,8 @@ class RunSession:
                 "sampling": asdict(self.describer.sampling or Sampling()) if streamed else None,
                 "topic": self.describer.topic, "map_topic": self.map_topic, "odometry_topic": self.odometry_topic,
                 "rows": "fabmap" if evidence is not None else None,
-                "fabmap_training": tuple(evidence.training_folders) if evidence is not None else None}
+                "fabmap_training": tuple(evidence.training_folders) if evidence is not None else None,
+                "reference_left_out": self.map_left_out}
 
     # ------------------------------------------------------------------------------------ context
 
