@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import scipy.io
+from scipy import sparse
 from scipy.spatial.distance import cdist
 
 from wiloc.errors import WilocError
@@ -563,3 +564,36 @@ def test_the_command_line_picks_one_array_of_a_file_holding_several(tmp_path: Pa
         assert json.loads(result.stdout)["runs"][0]["share_correct"] == correct
     result = runner.invoke(app, ["evaluate", str(results), "--gt", f"matrix:{path}"])
     assert result.exit_code == 1 and "GThard" in result.output and "GTsoft" in result.output, result.output
+
+
+def test_is_true_is_the_matrix_s_entry_for_every_pair() -> None:
+    """is_true looks pairs up in the true pairs' sorted keys: the same answers as the dense
+    matrix, a reference of -1 or past the map False, on a truth with rows of no pair too."""
+    rng = np.random.default_rng(3)
+    for n_q, n_r, density in ((7, 11, 0.3), (40, 25, 0.05), (5, 5, 0.0), (1, 1, 1.0)):
+        dense = rng.random((n_q, n_r)) < density
+        truth = Truth(sparse.csr_array(dense), [f"q{i}" for i in range(n_q)], [f"r{i}" for i in range(n_r)])
+        q = rng.integers(0, n_q, 300)
+        r = rng.integers(-1, n_r + 2, 300)
+        inside = (r >= 0) & (r < n_r)
+        expected = np.zeros(300, dtype=bool)
+        expected[inside] = dense[q[inside], r[inside]]
+        np.testing.assert_array_equal(truth.is_true(q, r), expected)
+        np.testing.assert_array_equal(truth.is_true(np.arange(n_q)[:, None], np.arange(n_r)[None, :]), dense)
+
+
+def test_a_radius_that_makes_too_many_true_pairs_is_refused_before_they_are_made(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The positions forms had no bound on their true pairs: a radius covering a long route asked
+    for a pair per query and map frame. They are counted first and refused as a tolerance is."""
+    import wiloc.evaluation.groundtruth as groundtruth
+
+    names = [f"f{i}.png" for i in range(30)]
+    path = tmp_path / "pos.csv"
+    path.write_text("name,x,y\n" + "".join(f"{name},{i},0\n" for i, name in enumerate(names)))
+    monkeypatch.setattr(groundtruth, "MAX_TRUE_PAIRS", 100)
+    assert positions_truth(path, path, 1.0, names, names).matrix.nnz == 88  # 30 + 2 x 29
+    with pytest.raises(WilocError, match="this radius makes 900 true pairs") as info:
+        positions_truth(path, path, 100.0, names, names)
+    assert info.value.parameter == "radius"
+
