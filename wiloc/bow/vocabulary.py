@@ -193,7 +193,8 @@ def _open(path: Path) -> h5py.File:
         raise WilocError(path, f"damaged vocabulary file: it holds vocabulary {key}, not {path.stem} as its name says; "
                                f"{REBUILD}")
     written = f.attrs.get("header_digest")  # none in a file of an older wiloc
-    if written is not None and written != _header_digest(str(key), str(f.attrs.get("params")), int(f.attrs.get("n_words", -1))):
+    if written is not None and written != _header_digest(str(key), str(f.attrs.get("params")),
+                                                         int(f.attrs.get("n_words", -1))):
         f.close()  # a flipped byte in its parameters described every frame's features otherwise, silently
         raise WilocError(path, f"damaged vocabulary file: its header fails its checksum; {REBUILD}")
     return f

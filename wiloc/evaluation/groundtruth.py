@@ -114,7 +114,7 @@ def truth_from_pairs(rows: NDArray[np.int64], cols: NDArray[np.int64], query_nam
 
 
 def position_spans(centres: NDArray[np.int64], tolerance: ArrayLike,
-                    n_ref: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+                   n_ref: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The reference frames centre - T .. centre + T in the reference's order, as (first, stop)
     within the n_ref frames; none (stop == first) where the centre is -1. T may differ per centre,
     and callers clip it to n_ref (a band that wide covers the whole map) so that it fits int64."""
@@ -124,7 +124,7 @@ def position_spans(centres: NDArray[np.int64], tolerance: ArrayLike,
 
 
 def band(rows: NDArray[np.int64], first: NDArray[np.int64],
-          stop: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+         stop: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Expand each row into (row, first .. stop - 1). A band marking more than MAX_TRUE_PAIRS
     pairs is refused before anything is allocated."""
     width = stop - first
@@ -414,8 +414,8 @@ def pairs_truth(csv: Path, query_names: Sequence[str], ref_names: Sequence[str],
     """Pairs form: CSV rows ``query,reference`` list every true match (optional ``tolerance``).
 
     A ``tolerance`` column widens a row to +-T frames around the reference in the reference's
-    order, its frames ``left_out`` counted too (as :func:`wiloc.evaluation.aligned.aligned_truth` counts them). Query frames without a
-    row have no true match.
+    order, its frames ``left_out`` counted too (as :func:`wiloc.evaluation.aligned.aligned_truth`
+    counts them). Query frames without a row have no true match.
     """
     if left_out:
         return past_left_out(ref_names, left_out, lambda full: pairs_truth(csv, query_names, full))

@@ -70,9 +70,9 @@ def near_miss(row: NDArray[np.floating], z: int, match: NDArray[np.int64] | None
     set M starts as z and the frames within +-``window`` of z (all skipped). Candidates are visited
     once in increasing difference; a candidate z_r joins M when ``match[z_r]`` is in M or a member
     of M was matched to z_r (the Appendix tests min(M) alone; with the window min(M) is z - W, and
-    z's own link to its earlier visit was lost). ``match`` holds -1 for frames never
-    decided, which never passes the test; ``None`` in map mode, where candidates are reference
-    frames that are never decided. NaN when no candidate is left.
+    z's own link to its earlier visit was lost). ``match`` holds -1 for frames never decided, which
+    never passes the test; ``None`` in map mode, where candidates are reference frames that are
+    never decided. NaN when no candidate is left.
     """
     low, high = max(0, z - window), min(row.size, z + window + 1)
     if match is None:  # map mode: M never grows, so m_r is the smallest finite difference outside z's window
