@@ -124,6 +124,41 @@ def test_aligned_by_index_counts_a_sampled_videos_gap_by_its_frame_indices() -> 
     assert _true_refs(truth, "000502") == ["000500", "000505", "000510"]
 
 
+def test_aligned_counts_the_route_by_names_across_single_frames_the_map_leaves_out() -> None:
+    """A map without frame 15 (steps of 1 and 2) was counted in its own order, so query Image015
+    had no true match, though map Image013-Image017 lie within 2 frames of it (fewer missing
+    frames lost more truth than 3, which the names count). A few such frames that the query
+    holds are frames left out: the names count the route, every 20th frame missing too (of 200,
+    190 had a true match)."""
+    queries = [f"Image{i:03d}.jpg" for i in range(60)]
+    truth = aligned_truth(queries, [q for q in queries if q != "Image015.jpg"], tolerance=2)
+    assert _true_refs(truth, "Image015.jpg") == ["Image013.jpg", "Image014.jpg", "Image016.jpg", "Image017.jpg"]
+    assert _true_refs(truth, "Image014.jpg") == ["Image012.jpg", "Image013.jpg", "Image014.jpg", "Image016.jpg"]
+    assert truth.has_match().all() and truth.warnings == []
+    queries = [f"Image{i:03d}.jpg" for i in range(200)]
+    truth = aligned_truth(queries, [q for i, q in enumerate(queries) if i % 20 != 10], tolerance=2)
+    assert _true_refs(truth, "Image030.jpg") == ["Image028.jpg", "Image029.jpg", "Image031.jpg", "Image032.jpg"]
+    assert truth.has_match().all() and truth.warnings == []
+
+
+def test_aligned_on_a_video_kept_at_25_of_its_30_frames_counts_the_maps_frames() -> None:
+    """A map video sampled at 25 of 30 frames a second (one step in five is two frames) against
+    the full-rate query: sampled, not frames deleted; +-T counts the map's frames (the route
+    numbered by index gave query 000040 four map frames, not five)."""
+    kept = sorted({k * 30 // 25 for k in range(92)})
+    truth = aligned_truth([f"{i:06d}" for i in range(110)], [f"{i:06d}" for i in kept], tolerance=2, by="index")
+    assert _true_refs(truth, "000040") == ["000038", "000039", "000040", "000042", "000043"]
+
+
+def test_aligned_on_traversals_sampled_alike_counts_the_maps_frames() -> None:
+    """Both traversals without frame 15 (sampled alike): the query holds no frame the map lacks,
+    so +-T still counts map frames, as before (query Image014 true against Image017)."""
+    names = [f"Image{i:03d}.jpg" for i in range(60) if i != 15]
+    truth = aligned_truth(names, names, tolerance=2)
+    assert _true_refs(truth, "Image014.jpg") == [f"Image0{i}.jpg" for i in (12, 13, 14, 16, 17)]
+    assert truth.has_match().all() and truth.warnings == []
+
+
 FULL_MAP = [f"Image{i:03d}.jpg" for i in range(60)]
 LEFT_OUT = ((20, "Image020.jpg"),)
 """A map of frames Image000-059 whose Image020 was left out (unreadable): its place in the map's full order."""

@@ -215,7 +215,8 @@ def _bad_vprbench(tmp: Path, kind: str) -> Path:
     ("numeric", "holds a plain 3 x 3 array of float64, not VPR-Bench's rows"),
     ("dict", "row 2 is not [query index, [reference indices]]"),
     ("foreign object", "it names pathlib"),
-    ("out of range", "row 2: reference index 9999, but the reference traversal has 24 frames"),
+    ("out of range", ("row 2: reference index 9999 is no frame of the reference traversal, whose 24 frames are "
+                      "numbered 0 to 23")),
     ("flat", "row 1 is not [query index, [reference indices]]"),
     ("pickled dict", "holds a 0-d object array, not VPR-Bench's rows"),
 ])
@@ -247,15 +248,32 @@ def _bad_positives(tmp: Path, kind: str, n_query: int) -> Path:
 
 @pytest.mark.parametrize("kind, message", [
     ("one short", "lists positives of 23 query frames, but the query traversal has 24: entry i is the i-th query frame"),
-    ("out of range", "entry 5: reference index 9999, but the reference traversal has 24 frames"),
-    ("not indices", "entry 2 is not a list of reference indices"),
+    ("out of range", ("@.jpg): reference index 9999 is no frame of the reference traversal, whose 24 frames are "
+                      "numbered 0 to 23")),
+    ("not indices", "@.jpg) is not a list of reference indices"),
     ("mask", "holds a 24 x 24 array of float64, not one array of reference indices per query frame (a queries x "
              "references mask of 0 and 1 is the matrix form)"),
 ])
 def test_bad_positives_files_are_one_line(kind: str, message: str, vpr_route: dict, tmp_path: Path) -> None:
-    path = _bad_positives(tmp_path, kind, len(read_results(vpr_route["run"]).frames))
+    queries = read_results(vpr_route["run"]).frames["frame"]
+    path = _bad_positives(tmp_path, kind, len(queries))
+    entry = {"out of range": 4, "not indices": 1}.get(kind)
+    where = () if entry is None else (f": entry {entry + 1} of 24 (query frame {queries.iloc[entry]})",)
     ends_in_one_error(runner.invoke(app, ["evaluate", str(vpr_route["run"]), "--gt", f"positives:{path}"]), 1,
-                      str(path), message)
+                      str(path), *where, message)
+
+
+def test_an_out_of_range_positive_names_its_query_frame_and_how_indices_count(tmp_path: Path) -> None:
+    """Entry numbers count from 1 (as rows and lines do) and reference indices from 0 (as the file's
+    do): 'entry 6: reference index 99' mixed the two without saying so; the message says which
+    query frame the entry is and which indices the reference frames have."""
+    positives = np.empty(3, dtype=object)
+    positives[:] = [np.array([0]), np.array([1]), np.array([2, 3])]
+    np.save(tmp_path / "positives.npy", positives)
+    with pytest.raises(WilocError) as raised:
+        load_truth("positives", tmp_path / "positives.npy", query_names=["a", "b", "c"], ref_names=["x", "y", "z"])
+    assert raised.value.problem == ("entry 3 of 3 (query frame c): reference index 3 is no frame of the reference "
+                                    "traversal, whose 3 frames are numbered 0 to 2")
 
 
 def test_positives_of_equal_counts_saved_as_one_integer_array_are_read(tmp_path: Path) -> None:

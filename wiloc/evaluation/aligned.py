@@ -42,19 +42,40 @@ def _name_numbers(names: Sequence[str], like: str) -> NDArray[np.int64]:
                      for m in parts], dtype=np.int64)
 
 
-def _route(ref_names: Sequence[str], by: Literal["name", "index"]) -> tuple[NDArray[np.int64], int] | None:
-    """The numbers that count the reference's frames along the route, and one frame's step, where
-    they rise at a regular step that leaves frames out (every step a multiple of the smallest,
-    one more than twice it): by index the frames' indices (:func:`frame_indices`), by name the
-    number every name holds around the same text. None otherwise, where frames are counted in
-    the reference's order: stamps, names without a number, a map that leaves nothing out (the
-    same count) and a video sampled at a rate that is no whole part of its own (steps of 1 and 2)."""
-    numbers = frame_indices(ref_names) if by == "index" else _name_numbers(ref_names, ref_names[0])
+def _numbers(names: Sequence[str], by: Literal["name", "index"], like: str) -> NDArray[np.int64]:
+    """The numbers that place frames along the route: by index the frames' indices
+    (:func:`frame_indices`), by name the number each name holds written as ``like`` is."""
+    return frame_indices(names) if by == "index" else _name_numbers(names, like)
+
+
+def _route(numbers: NDArray[np.int64], query: NDArray[np.int64], by: str) -> tuple[NDArray[np.int64], int] | None:
+    """The reference's ``numbers``, which count its frames along the route, and one frame's step,
+    where they rise at a regular step that leaves frames out: every step a multiple of the
+    smallest, and one more than twice it (a gap), or, by name (files of a folder), a few twice it
+    (fewer than one step in ten: single files deleted) at which the ``query`` (its frames'
+    numbers) holds the frame the map lacks. None otherwise, where frames are counted in the
+    reference's order: stamps, names without a number, a map that leaves nothing out (the same
+    count), traversals sampled alike (the query lacks the same frames) and a video sampled at a
+    rate that is no whole part of its own (20 or 25 of 30 frames a second: one step in two or in
+    five twice the smallest, a map frame counting 1.5 or 1.2 of its numbers)."""
     steps = np.diff(numbers)
     if numbers.size < 2 or (numbers < 0).any() or (steps <= 0).any():
         return None
     step = int(steps.min())
-    return (numbers, step) if not (steps % step).any() and (steps > 2 * step).any() else None
+    if (steps % step).any():
+        return None
+    larger = steps > step
+    few = by == "name" and 10 * larger.sum() < steps.size and _falls_in(query, numbers, larger).any()
+    leaves_out = (steps > 2 * step).any() or few
+    return (numbers, step) if leaves_out else None
+
+
+def _falls_in(query: NDArray[np.int64], numbers: NDArray[np.int64], steps: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Whether each ``query`` number lies strictly inside one of the ascending ``numbers``' steps
+    marked in ``steps`` (one per consecutive pair)."""
+    after = np.searchsorted(numbers, query, side="left")
+    inside = (after > 0) & (after < numbers.size) & (numbers[np.minimum(after, numbers.size - 1)] != query)
+    return inside & steps[np.clip(after - 1, 0, steps.size - 1)]
 
 
 def _route_spans(centres: NDArray[np.int64], own: NDArray[np.int64], route: NDArray[np.int64], step: int,
@@ -96,10 +117,11 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
                    else np.full(n_query, -1, dtype=np.int64))
     else:
         raise WilocError(None, f"aligned ground truth: by must be 'name' or 'index', got {by!r}")
-    if (route := _route(ref_names, by) if len(ref_names) else None) is None:
+    like = ref_names[0] if len(ref_names) else ""
+    own = _numbers(query_names, by, like)
+    if (route := _route(_numbers(ref_names, by, like), own, by)) is None:
         first, stop = position_spans(centres, tol, len(ref_names))
     else:
-        own = frame_indices(query_names) if by == "index" else _name_numbers(query_names, ref_names[0])
         first, stop = _route_spans(centres, own, *route, tol)
     found = stop > first
     if not found.any():

@@ -174,10 +174,12 @@ def _references(value: Any) -> NDArray[np.int64] | None:
 
 def _check_references(path: Path, place: str, refs: NDArray[np.int64], n_ref: int) -> NDArray[np.int64]:
     """``refs``, the reference indices of one row or entry of ``path`` (``place``: ``row 3``), or a
-    WilocError naming the first that is no frame of the reference traversal's ``n_ref``."""
+    WilocError naming the first that is no frame of the reference traversal's ``n_ref``, and saying
+    that they count from 0 (where ``place`` counts from 1, as every row and line a message names)."""
     if refs.size and not (0 <= refs.min() and refs.max() < n_ref):
         bad = int(refs[(refs < 0) | (refs >= n_ref)][0])
-        raise TruthMismatch(path, f"{place}: reference index {bad}, but the reference traversal has {n_ref} frames")
+        raise TruthMismatch(path, f"{place}: reference index {bad} is no frame of the reference traversal, whose "
+                                  f"{n_ref} frames are numbered 0 to {n_ref - 1}")
     return refs
 
 
@@ -240,10 +242,10 @@ def positives_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[
                                "entry i is the i-th query frame in natural order")
     positives = []
     for i, entry in enumerate(array):
-        refs = _references(entry)
+        refs, place = _references(entry), f"entry {i + 1} of {n_query} (query frame {query_names[i]})"
         if refs is None:
-            raise WilocError(path, f"entry {i + 1} is not a list of reference indices ({_POSITIVES})")
-        positives.append(_check_references(path, f"entry {i + 1}", refs, n_ref))
+            raise WilocError(path, f"{place} is not a list of reference indices ({_POSITIVES})")
+        positives.append(_check_references(path, place, refs, n_ref))
     queries = np.repeat(np.arange(n_query, dtype=np.int64), [refs.size for refs in positives])
     refs = np.concatenate(positives) if positives else np.zeros(0, dtype=np.int64)
     return truth_from_pairs(queries, refs, query_names, ref_names, [])
