@@ -29,6 +29,7 @@ from wiloc.cli.views import progress_bar, table1_view, table2_view
 from wiloc.descriptors.registry import DESCRIPTOR_NAMES, descriptor_class
 from wiloc.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError, WilocError, interrupted
 from wiloc.figures import plots, run_figures
+from wiloc.labels import threshold_text
 
 if TYPE_CHECKING:
     from wiloc.description.vocabulary_build import VocabularyReport
@@ -216,7 +217,9 @@ def _percent(value: float | None) -> str:
 
 
 def render_markdown(summary: dict[str, Any]) -> str:
-    """Table I and Table II of a summary as the markdown pasted in docs/results.md."""
+    """Table I and Table II of a summary as the markdown pasted in docs/results.md; Table II's
+    thresholds as the CLI's tables print them (:func:`wiloc.labels.threshold_text`: rounded down,
+    so that one taken as a cut keeps the frame that set it)."""
     lines = ["| method | traversal | recall @100 % | @99 % | @90 % | AUC | R@1 | R@5 | R@10 | R@20 | frames |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for row in summary["table1"]:
@@ -228,9 +231,8 @@ def render_markdown(summary: dict[str, Any]) -> str:
     lines += ["", "| method | precision | global threshold | traversal | recall | worst |",
               "|---|---:|---:|---|---:|:---:|"]
     for row in summary["table2"]:
-        threshold = "-" if row["threshold"] is None else f"{row['threshold']:.4g}"
-        lines.append(f"| {row['method']} | {row['precision']:g} % | {threshold} | {row['traversal']} | "
-                     f"{_percent(row['recall'])} | {'*' if row['worst'] else ''} |")
+        lines.append(f"| {row['method']} | {row['precision']:g} % | {threshold_text(row['threshold'])} | "
+                     f"{row['traversal']} | {_percent(row['recall'])} | {'*' if row['worst'] else ''} |")
     lines += ["", "| method | traversal | ECE | Brier | mean confidence | share correct | "
                   "P / R at 0.5 | at 0.9 | at 0.99 |",
               "|---|---|---:|---:|---:|---:|---:|---:|---:|"]

@@ -93,6 +93,33 @@ def _protocol() -> ModuleType:
     return module
 
 
+@pytest.mark.parametrize("threshold", [0.695072115, 0.130062217, 0.98929, 0.99951, 0.5, None])
+def test_the_markdown_threshold_taken_as_a_cut_keeps_its_frame_as_the_cli_prints_it(threshold: float | None) -> None:
+    """Table II's threshold in docs/results.md was rounded to nearest (0.695072115 as 0.6951: a
+    cut there loses the frame that set it); it is written as the CLI's tables write it, rounded
+    down (docs/evaluation.md)."""
+    from wiloc.labels import threshold_text
+
+    summary = {"table1": [], "calibration": [], "table2": [
+        {"method": "threshold", "precision": 100, "threshold": threshold, "traversal": "day_left",
+         "recall": 0.01, "worst": False}]}
+    row = next(line for line in _protocol().render_markdown(summary).splitlines() if line.startswith("| threshold |"))
+    printed = row.strip("|").split("|")[2].strip()
+    assert printed == threshold_text(threshold), row
+    assert threshold is None or float(printed) <= threshold, row
+
+
+def test_the_guide_quotes_the_error_of_a_wrong_method_parameter_as_the_library_raises_it() -> None:
+    """docs/guide.md's example of a wrong ``method_params`` name listed online's parameters
+    without ``confidence``, which the library has since taken."""
+    from wiloc.errors import ParameterError
+    from wiloc.methods.registry import make_method
+
+    with pytest.raises(ParameterError) as raised:
+        make_method("online", {"bin": 50})
+    assert f"(`{raised.value}`)" in (REPO / "docs" / "guide.md").read_text(encoding="utf-8")
+
+
 def test_a_one_table_example_ends_on_ctrl_c_with_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                              capsys: pytest.CaptureFixture[str]) -> None:
     """table1.py and loop_closure.py (protocol.run_table_script) end on Ctrl-C with 'error:
