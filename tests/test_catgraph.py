@@ -12,6 +12,7 @@ from wiloc.errors import WilocError
 from wiloc.localization.array_run import run_on_rows
 from wiloc.methods import base
 from wiloc.methods.catgraph.filter import CatGraph
+from wiloc.methods.catgraph.paces import odometry_factors
 from wiloc.methods.catgraph.trajectory import (contrast_normalise, even_shifted_reads, posterior_ranking, read_runs,
                                                shifted_reads)
 
@@ -22,14 +23,15 @@ TOL = 2
 
 
 def _rows(truth: np.ndarray, n_ref: int, rng: np.random.Generator, noise: float = 0.08,
-          depth: float = 0.65) -> np.ndarray:
-    """Differences to every node: a dip of ``depth`` around the true position, ~1 elsewhere.
+          depth: float = 0.65, width: float = 1.5) -> np.ndarray:
+    """Differences to every node: a dip of ``depth`` (sd ``width`` nodes) around the true
+    position, ~1 elsewhere.
 
     ``truth`` holds the true (continuous) node position per frame, NaN for an unmapped place.
     """
     j = np.arange(n_ref, dtype=np.float64)
     offset = np.where(np.isnan(truth), np.inf, truth)[:, None] - j[None, :]
-    dip = depth * np.exp(-0.5 * (offset / 1.5) ** 2)
+    dip = depth * np.exp(-0.5 * (offset / width) ** 2)
     return 1.0 + noise * rng.standard_normal((truth.size, n_ref)) - dip
 
 
@@ -83,7 +85,7 @@ def test_with_odometry_a_pace_is_a_direction_and_the_odometry_says_how_far(speed
     truth = start + speed * np.arange(int(270 / abs(speed)))
     rows, ref, steps = _rows(truth, N_REF, rng), _ref_self(rng), np.r_[0.0, np.abs(np.diff(truth))]
     for scale in (0.0, 0.05):
-        method = CatGraph(odometry_scale=scale)
+        method = CatGraph(odometry_scale=scale, odometry_scale_wide=0.0)
         dec = run_on_rows(method, iter(rows), truth.size, map_self=ref, arclength=np.arange(float(N_REF)),
                           odometry=steps)
         assert _hits(dec.match[20:], truth[20:]).mean() >= 0.9 and dec.params["odometry"] is True
@@ -92,18 +94,31 @@ def test_with_odometry_a_pace_is_a_direction_and_the_odometry_says_how_far(speed
                                                           and np.any(factors != 1.0))
 
 
-@pytest.mark.parametrize("factor", [0.85, 1.2])
-def test_with_odometry_a_scale_the_query_and_the_map_disagree_by_is_learned(factor: float) -> None:
+@pytest.mark.parametrize("factor, wide", [(0.85, 0.0), (1.2, 0.0), (0.7, 0.3), (1.35, 0.3)])
+def test_with_odometry_a_scale_the_query_and_the_map_disagree_by_is_learned(factor: float, wide: float) -> None:
     # The query's odometry reads short or long against the map's, on weak evidence: with paces of
     # exactly +-1 the cloud runs ahead or falls behind; each particle's own factor
-    # (odometry_scale) lets the ones that fit take over.
+    # (odometry_scale) lets the ones that fit take over, and where the two disagree by a third,
+    # the tenth of the factors drawn wider (odometry_scale_wide) do.
     rng = np.random.default_rng(5)
     truth = 10.0 + np.arange(280.0)
     rows, ref, steps = _rows(truth, N_REF, rng, depth=0.15), _ref_self(rng), factor * np.r_[0.0, np.ones(279)]
-    hits = {scale: _hits(localize_catgraph(iter(rows), ref, truth.size, ref_arclength=np.arange(float(N_REF)),
-                                           query_steps=steps, odometry_scale=scale).match[40:], truth[40:]).mean()
-            for scale in (0.0, 0.05)}
-    assert hits[0.05] >= 0.9 and hits[0.05] > hits[0.0]
+    hits = {(scale, spread): _hits(localize_catgraph(iter(rows), ref, truth.size, ref_arclength=np.arange(float(N_REF)),
+                                                     query_steps=steps, odometry_scale=scale,
+                                                     odometry_scale_wide=spread).match[40:], truth[40:]).mean()
+            for scale, spread in ((0.0, 0.0), (0.05, 0.0), (0.05, wide))}
+    assert hits[0.05, wide] >= 0.9 and hits[0.05, wide] > hits[0.0, 0.0]
+    if wide:
+        assert hits[0.05, 0.0] < 0.5
+
+
+def test_odometry_factors_a_tenth_drawn_wider() -> None:
+    rng = np.random.default_rng(0)
+    assert np.all(odometry_factors(0.0, 0.0, rng, 100) == 1.0)
+    narrow = np.abs(np.log(odometry_factors(0.05, 0.0, rng, 10_000)))
+    assert narrow.max() < 0.3 and narrow.min() > 0
+    both = np.abs(np.log(odometry_factors(0.05, 0.3, rng, 10_000)))
+    assert 0.02 < (both > 0.3).mean() < 0.045  # a tenth from sd 0.3, of which a third lie beyond 0.3
 
 
 def test_with_odometry_a_restored_state_keeps_the_paces_as_directions() -> None:
@@ -182,6 +197,29 @@ def test_detour_raises_new_place_and_relocalizes() -> None:
     assert np.median(dec.confidence[detour]) < np.median(dec.confidence[30:80])
 
 
+def test_map_frames_left_out_keep_their_place_in_the_nodes_count() -> None:
+    # A map folder whose every 20th frame could not be read: the kept frames' rows, and their
+    # positions in the map's full order. Counted by the frames kept, the track runs one node
+    # ahead after each gap, while the query moves one frame of the full order a frame (a route
+    # whose neighbouring frames look alike over several nodes, as real ones do).
+    rng = np.random.default_rng(3)
+    kept = np.delete(np.arange(N_REF), np.arange(15, N_REF, 20))
+    truth = np.arange(N_REF, dtype=np.float64)  # the query retraces the full route, frame by frame
+    rows = _rows(truth, N_REF, rng, width=8.0)[:, kept]
+    ref = _rows(truth, N_REF, rng, width=8.0)[np.ix_(kept, kept)]
+    steps = ref[np.arange(kept.size - 1), np.arange(1, kept.size)]
+
+    def hits(positions: np.ndarray | None) -> float:
+        method = CatGraph()
+        method.start(base.MapContext(sequence=False, exclude_recent=10, n_map=kept.size, frame_positions=positions,
+                                     neighbours=lambda: steps))
+        match = method.run(iter(rows), truth.size).match
+        return float((np.abs(kept[match] - truth) <= TOL).mean())
+
+    assert hits(kept.astype(np.float64)) >= 0.95
+    assert hits(None) < 0.9
+
+
 def test_a_query_driving_on_past_the_end_of_the_map_is_off_it() -> None:
     # The map's last 100 places, then 30 frames on past its end (ground the map does not hold). A
     # particle carried past an end is re-seeded and its weight goes to the unexplained hypothesis:
@@ -234,6 +272,30 @@ def test_a_stop_on_one_repeated_image_is_followed_whichever_it_was() -> None:
         rows[61:80] = rows[60]
         after = slice(90, None)
         assert _hits(localize_catgraph(iter(rows), ref, truth.size).match[after], truth[after]).mean() >= 0.9
+
+
+def test_while_an_image_repeats_the_group_moving_on_is_unsure_of_its_pace_so_the_stop_is_decided() -> None:
+    # A stop on one repeated image: half of the particles stand, half move on. At one exact pace
+    # the two groups are equally narrow and the read-out takes either, by the draw; moving on at a
+    # pace known only roughly, the moving group spreads and the standing one holds the decision.
+    rng = np.random.default_rng(9)
+    ref = _ref_self(rng)
+    stop = np.r_[np.arange(20.0, 80.0), np.full(20, 80.0), np.arange(81.0, 201.0)]
+    rows = _rows(stop, N_REF, rng)
+    rows[61:80] = rows[60]
+
+    def worst(spread: float) -> float:
+        return min(float(_hits(localize_catgraph(iter(rows), ref, stop.size, repeat_pace_spread=spread,
+                                                 seed=seed).match[60:80], stop[60:80]).mean()) for seed in range(6))
+
+    assert worst(0.1) >= 0.75
+    assert worst(0.0) < 0.5
+    whole = localize_catgraph(iter(rows), ref, stop.size)  # restored mid-stop, it moves on as it would have
+    first = CatGraph()
+    run_on_rows(first, iter(rows[:70]), 70, map_self=ref)
+    resumed = CatGraph()
+    resumed.restore(first.context, copy.deepcopy(first.state()))
+    assert [resumed.step(row).match for row in rows[70:]] == whole.match[70:].tolist()
 
 
 def test_with_odometry_a_repeated_image_moves_as_the_odometry_says() -> None:

@@ -10,6 +10,7 @@ A new method input or row kind is added here once, for both.
 """
 from __future__ import annotations
 
+import hashlib
 import itertools
 import json
 import os
@@ -43,13 +44,14 @@ TrainingPair = Training | TrainingRows
 TRAVERSAL = "one traversal (a folder, video, ROS bag or descriptor matrix file)"
 
 
-def check_traversal(value: object, parameter: str, also: str = "", hint: str = "") -> None:
+def check_traversal(value: object, parameter: str, also: str = "", hint: str = "", what: str = TRAVERSAL) -> None:
     """Refuse, as a ParameterError naming ``parameter``, a ``value`` that is not one traversal's
     path (text or a path object): a list of several, an array of descriptors, None. ``also``
-    says what else the parameter takes, ``hint`` what to do with several."""
+    says what else the parameter takes, ``hint`` what to do with several; ``what`` is the path
+    taken when it is another file's (an odometry CSV)."""
     if not isinstance(value, (str, os.PathLike)):
         several = hint if isinstance(value, (list, tuple)) else ""
-        raise ParameterError(parameter, f"{TRAVERSAL}{also}, got {type(value).__name__}{several}")
+        raise ParameterError(parameter, f"{what}{also}, got {type(value).__name__}{several}")
 
 
 def _map_descriptor(map: str | os.PathLike | Entry | None, descriptor: str | None,
@@ -90,15 +92,19 @@ class RunSession:
                  method_params: Mapping[str, Any] | None = None,
                  descriptor: str | None = "sad", descriptor_params: Mapping[str, Any] | None = None,
                  metric: str | None = None, exclude_recent: int | None = None,
-                 training: TrainingPair | None = None, map_odometry: Path | None = None,
-                 map_names: Path | None = None, query: Path | None = None, query_names: Path | None = None,
-                 odometry: Path | None = None, odometry_topic: str | None = None,
+                 training: TrainingPair | None = None, map_odometry: str | os.PathLike | None = None,
+                 map_names: str | os.PathLike | None = None, query: Path | None = None,
+                 query_names: Path | None = None, odometry: str | os.PathLike | None = None,
+                 odometry_topic: str | None = None,
                  sampling: Sampling | None = None, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,
                  progress: Progress | None = None, scheduler: str | None = None, topic: str | None = None,
                  map_topic: str | None = None, restoring: bool = False) -> None:
         if training is not None and not isinstance(training, (Training, TrainingRows)):
             raise ParameterError("training", "a labelled pair: Training(query, reference, truth) (wiloc.api.Training) "
                                              f"or TrainingRows(rows, labels), got {type(training).__name__}")
+        for name, path in (("odometry", odometry), ("map_odometry", map_odometry), ("map_names", map_names)):
+            if path is not None:
+                check_traversal(path, name, " or None", what="a file's path (text or a path object)")
         self.method: Method = make_method(method, method_params)
         self.exclude_recent = R = DEFAULT_EXCLUDE_RECENT if exclude_recent is None else check_exclude_recent(exclude_recent)
         if exclude_recent is not None and map is not None and not restoring and "map_self" not in self.method.needs:
@@ -176,6 +182,35 @@ class RunSession:
                    topic=meta.get("topic"), cache=cache, jobs=jobs, restoring=True,
                    training=None if meta.get("training") is None else Training.restored(meta["training"]))
 
+    def map_odometry_digest(self) -> str | None:
+        """SHA-256 of the map's odometry CSV as it is now (None without one): a saved localizer's
+        state keeps it, so that a CSV rewritten since is refused on loading, as a changed map is."""
+        if self.map_odometry is None:
+            return None
+        read_odometry(self.map_odometry)  # a missing or malformed CSV refused as the run refuses it
+        return hashlib.sha256(self.map_odometry.read_bytes()).hexdigest()
+
+    def changed_settings(self) -> dict[str, Any]:
+        """The setup that differs from the defaults, as a ``Localizer`` shows it (two that decide
+        otherwise show otherwise; the method shows its parameters): the descriptor's parameters
+        other than its defaults (all given, for a descriptor without defaults: ``bow``'s file;
+        none for imported rows, which no descriptor computes), exclude_recent, and the map's
+        odometry and names files, sampling and topics."""
+        spec, describer = self.describer.spec, self.describer
+        try:
+            defaults = descriptor_spec(spec.name).params
+        except WilocError:  # a descriptor with a required parameter
+            defaults = {}
+        imported = spec.kind.imported or self.map_path is not None and is_matrix_file(self.map_path)
+        params = {} if imported else {k: v for k, v in spec.params.items() if k not in defaults or defaults[k] != v}
+        shown = {"descriptor_params": params or None,
+                 "exclude_recent": None if self.exclude_recent == DEFAULT_EXCLUDE_RECENT else self.exclude_recent,
+                 "map_odometry": None if self.map_odometry is None else str(self.map_odometry),
+                 "map_names": None if self.map_names is None else str(self.map_names),
+                 "sampling": None if describer.sampling == Sampling() else describer.sampling,
+                 "topic": describer.topic, "map_topic": self.map_topic}
+        return {name: value for name, value in shown.items() if value is not None}
+
     def training_state(self) -> dict[str, Any] | None:
         """The training pair as a saved localizer's state keeps it (``Training.state``), so that
         a loaded one's results header records it; None without one, or for rows given as arrays
@@ -251,10 +286,17 @@ class RunSession:
         data, metric, scale, R = self.map.data, self.metric, self.scale, self.exclude_recent
         return MapContext(
             sequence=False, exclude_recent=R, n_map=len(self.map.names), rows=self.kind,
-            natural_max=self.natural_max, arclength=self.map_arclength(),
+            natural_max=self.natural_max, arclength=self.map_arclength(), frame_positions=self._map_positions(),
             map_summary=differences.map_summary if differences is not None
             else lambda: summarize(ComputedDifferences(data, self._to_map), R),
             neighbours=lambda: consecutive(data, metric, scale), training=training)
+
+    def _map_positions(self) -> NDArray[np.float64] | None:
+        """Each map frame's position in the map's full order, when frames of it were left out."""
+        if self.map is None or self.map_left_out is None:
+            return None
+        gone = [position for position, _ in self.map_left_out]
+        return np.delete(np.arange(len(self.map.names) + len(gone), dtype=np.float64), gone)
 
     def map_arclength(self) -> NDArray[np.float64] | None:
         """The map's arc length per frame (in a batch run's sequence mode, the query's), from its

@@ -84,6 +84,9 @@ class MapContext:
     rows: str = "differences"  # what the rows hold: differences (low: alike) or log_ratio (high: alike)
     natural_max: float | None = None  # the descriptor's largest possible difference, if it has one
     arclength: NDArray[np.float64] | None = None  # map node positions along the route (odometry)
+    #: each map frame's position in the map's full order when frames of it were left out (unreadable),
+    #: so that a method placing nodes by frame number keeps the route's count across the gap
+    frame_positions: NDArray[np.float64] | None = None
     map_summary: Callable[[], MapSummary] | None = None
     neighbours: Callable[[], NDArray[np.float64]] | None = None  # map frame j's difference to frame j + 1
     training: Callable[[], TrainingRows] | None = None

@@ -37,7 +37,8 @@ from wiloc.decisions import Decision
 from wiloc.errors import WilocError
 from wiloc.methods.base import MapContext, Method
 from wiloc.methods.catgraph.observation import RankLikelihood, Unexplained, novelty_weights
-from wiloc.methods.catgraph.paces import odometry_factors, reseed_counts, sequence_paces
+from wiloc.methods.catgraph.paces import (TINY, log_normal, odometry_factors, reseed_counts, sequence_paces,
+                                          start_paces)
 from wiloc.methods.catgraph.params import CatGraphParams
 from wiloc.methods.catgraph.self_map import SelfMap
 from wiloc.methods.catgraph.trajectory import (even_shifted_reads, locate, lowest_nodes, node_positions,
@@ -45,9 +46,7 @@ from wiloc.methods.catgraph.trajectory import (even_shifted_reads, locate, lowes
                                                track_pace)
 from wiloc.recycled import RecycledArrays
 
-START_DEALT = 0.5  # share of particles that start at the paces other than the map's (_start_paces)
 MODE_TIE = 1e-12  # window masses (shares of a unit total) this close to the largest count as tied
-TINY = 1e-300  # the smallest prior mass a hypothesis keeps, so that its log is finite
 
 
 @dataclass(frozen=True)
@@ -118,16 +117,22 @@ class CatGraph(Method):
         n_nodes = neighbours.size + 1
         if n_nodes < 2:
             raise WilocError("catgraph", f"the map needs at least 2 frames, got {n_nodes}")
-        self._begin(node_positions(context.arclength, n_nodes), novelty_weights(neighbours, self.params.near_duplicate),
-                    self.params.unexplained0)
+        omega = novelty_weights(neighbours, self.params.near_duplicate)
+        if context.arclength is None and context.frame_positions is not None:  # frames left out: count them
+            self._begin(np.asarray(context.frame_positions, dtype=np.float64), omega, self.params.unexplained0, 1.0)
+            return
+        self._begin(node_positions(context.arclength, n_nodes), omega, self.params.unexplained0)
 
-    def _begin(self, nodes: NDArray[np.float64], omega: NDArray[np.float64], unexplained0: float) -> None:
+    def _begin(self, nodes: NDArray[np.float64], omega: NDArray[np.float64], unexplained0: float,
+               spacing: float | None = None) -> None:
         """The filter before its first frame, on a map of these node positions and near-duplicate
-        weights, with this prior probability that the map does not explain the first frame."""
+        weights, with this prior probability that the map does not explain the first frame. A
+        query frame's step without odometry is ``spacing``, by default the mean node spacing (a
+        map whose frames left out are counted in its positions: 1, one frame of its full order)."""
         p = self.params
         n_nodes = nodes.size
         self._nodes = nodes
-        self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1))
+        self._spacing = float((self._nodes[-1] - self._nodes[0]) / (n_nodes - 1)) if spacing is None else spacing
         self._omega = omega
         self._likelihood = self._observation_model()
         self._unexplained = Unexplained(unexplained0, p.leave, p.rejoin, p.jump, p.departure_prior,
@@ -137,7 +142,7 @@ class CatGraph(Method):
         # its share of particles, so look-alike places start with equal mass
         self._pos = self._nodes[0] + (np.arange(p.particles) + self._rng.uniform()) / p.particles * (
             self._nodes[-1] - self._nodes[0])
-        self._speed, self._log_w = self._start_paces()
+        self._speed, self._log_w = start_paces(p)
 
         self._set_paces()
         self._sequence = np.zeros((self._paces.size, n_nodes))
@@ -148,6 +153,7 @@ class CatGraph(Method):
         self._shifted: tuple[float, tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]] | None = None
         self._last: NDArray[np.floating] | None = None  # the last row, to know a repeated image
         self._standing: NDArray[np.bool_] | None = None  # during a repeat: the particles that stand still
+        self._repeat_pace = np.ones(0)  # ... and the factor of the pace of those that move on
         self._recycle()
 
     def _grow(self, n_nodes: int) -> None:
@@ -170,28 +176,6 @@ class CatGraph(Method):
         self._own = np.concatenate((self._own, np.zeros(n_nodes - old)))
         self._marks = np.concatenate((self._marks, np.zeros(n_nodes - old, dtype=np.int64)))
         self._shifted = None
-
-    def _start_paces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Each particle's pace and log weight before any frame. The query's pace is not known at
-        the start: half of the particles (``START_DEALT``) cycle through the paces of
-        ``sequence_speeds`` other than the map's, the rest move at the map's pace, and the weights
-        give the other paces together the prior probability ``start_paces``: a query at another
-        pace is followed from its start (re-seeded particles take tens of frames to outweigh a
-        cloud that lags), and weak evidence at the start does not hand the track to a lagging
-        pace. The paces are dealt in a fixed pattern along the evenly spaced particles: every
-        stretch of the map starts with the same mix, as it starts with the same mass."""
-        p = self.params
-        speed, log_w = np.ones(p.particles), np.full(p.particles, -np.log(p.particles))
-        others = np.asarray([v for v in p.sequence_speeds if v != 1.0], dtype=np.float64)
-        i = np.arange(p.particles)
-        dealt = np.floor((i + 1) * START_DEALT) > np.floor(i * START_DEALT)
-        n_dealt = int(dealt.sum())
-        if others.size == 0 or n_dealt in (0, p.particles):
-            return speed, log_w
-        speed[dealt] = others[np.arange(n_dealt) % others.size]
-        log_w[dealt] = np.log(max(p.start_paces / n_dealt, TINY))
-        log_w[~dealt] = np.log((1.0 - p.start_paces) / (p.particles - n_dealt))
-        return speed, log_w
 
     def _set_paces(self) -> None:
         """The sequence score's paces and their groups (:func:`~wiloc.methods.catgraph.paces.sequence_paces`)."""
@@ -362,14 +346,17 @@ class CatGraph(Method):
         evidence the last one did not. The query stood still there, or moved on while its camera
         repeated an image (a frozen video, frames duplicated to another rate): each particle, drawn
         once per repeat, stands still with probability ``repeat_standing`` or moves on at its pace
-        (with odometry, which says which, every particle moves by it); weights, the sequence score,
-        the rank model and the unexplained hypothesis stay as they were."""
+        times a factor drawn with it (log-normal, sd ``repeat_pace_spread``: while no image tells
+        the pace, it is known only roughly, so the group moving on spreads as the one standing does
+        not); with odometry, which says which, every particle moves by it. Weights, the sequence
+        score, the rank model and the unexplained hypothesis stay as they were."""
         p = self.params
         if odometry is None and self._standing is None:
             self._standing = self._rng.random(p.particles) < p.repeat_standing
+            self._repeat_pace = log_normal(p.repeat_pace_spread, self._rng, p.particles)
         u = self._travelled(odometry)
         self._odometer += u
-        moved = self._moved(self._pos, self._speed, u)
+        moved = self._moved(self._pos, self._speed if odometry is not None else self._speed * self._repeat_pace, u)
         self._pos = moved if odometry is not None else np.where(self._standing, self._pos, moved)
         return self._read_out(row, *locate(self._nodes, self._pos), np.exp(self._log_w))  # log_w is normalised
 
@@ -398,7 +385,7 @@ class CatGraph(Method):
             scores = self._sequence[:, best[alike]][way]  # the chosen nodes' columns only, not every node
             speed[chosen[alike]] = self._paces[way][np.argmin(scores, axis=0)]
         if self._odometry:  # a direction, times a factor of its own
-            speed[weakest] *= odometry_factors(p.odometry_scale, self._rng, weakest.size)
+            speed[weakest] *= odometry_factors(p.odometry_scale, p.odometry_scale_wide, self._rng, weakest.size)
 
     def probability_near(self, node: int) -> float:
         """After a step: the probability that the frame shows the place of ``node`` (within
@@ -445,7 +432,9 @@ class CatGraph(Method):
         kept = [np.flatnonzero(before == pace) for pace in self._paces]
         self._sequence = np.stack([self._sequence[at[0]] if at.size else np.zeros(self._nodes.size) for at in kept])
         self._spare, self._shifted = None, None
-        self._speed = np.sign(self._speed) * odometry_factors(self.params.odometry_scale, self._rng, self._speed.size)
+        p = self.params
+        self._speed = np.sign(self._speed) * odometry_factors(p.odometry_scale, p.odometry_scale_wide, self._rng,
+                                                              self._speed.size)
 
     def facts(self) -> dict[str, Any]:
         return {"odometry": getattr(self, "_odometry", False),
@@ -458,11 +447,12 @@ class CatGraph(Method):
             return {"nodes": self._nodes, "filtered": 0, **trail}
         return {**trail, "nodes": self._nodes, "filtered": self._filtered, "omega": self._omega, "pos": self._pos,
                 "speed": self._speed, "log_w": self._log_w, "sequence": self._sequence.copy(), "own": self._own.copy(),
-                "odometer": self._odometer,
+                "odometer": self._odometer, "spacing": self._spacing,
                 "odometry": self._odometry, "likelihood": self._likelihood.state(),
                 "unexplained": self._unexplained.state(), "rng": self._rng.bit_generator.state,
                 "last": np.empty(0) if self._last is None else self._last.copy(),
-                "standing": np.empty(0, dtype=bool) if self._standing is None else self._standing.copy()}
+                "standing": np.empty(0, dtype=bool) if self._standing is None else self._standing.copy(),
+                "repeat_pace": np.empty(0) if self._standing is None else self._repeat_pace.copy()}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
         p = self.params
@@ -474,7 +464,8 @@ class CatGraph(Method):
             self._self_map = SelfMap(state, self.frames)
         if self._nodes.size == 0:
             return
-        self._spacing = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
+        mean = float((self._nodes[-1] - self._nodes[0]) / (self._nodes.size - 1))
+        self._spacing = float(state.get("spacing", mean))  # a state saved before it was kept: the mean
         self._omega = np.asarray(state["omega"], dtype=np.float64)
         self._pos = np.asarray(state["pos"], dtype=np.float64).copy()
         self._speed = np.asarray(state["speed"], dtype=np.float64).copy()
@@ -497,4 +488,6 @@ class CatGraph(Method):
         last, standing = np.asarray(state["last"]), np.asarray(state["standing"], dtype=bool)
         self._last = last.copy() if last.size else None
         self._standing = standing.copy() if standing.size else None
+        pace = np.asarray(state.get("repeat_pace", np.empty(0)), dtype=np.float64)  # saved before it was kept: 1
+        self._repeat_pace = pace.copy() if pace.size else np.ones(standing.size)
         self._recycle()

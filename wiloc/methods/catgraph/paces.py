@@ -9,6 +9,10 @@ from numpy.typing import NDArray
 
 from wiloc.methods.catgraph.params import CatGraphParams
 
+START_DEALT = 0.5  # share of particles that start at the paces other than the map's (start_paces)
+TINY = 1e-300  # the smallest prior mass a hypothesis keeps, so that its log is finite
+WIDE_FACTORS = 0.1  # share of odometry factors drawn from the wide prior (odometry_factors)
+
 
 def sequence_paces(params: CatGraphParams, odometry: bool) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
     """The sequence score's paces and the group of each: 0 forward, 1 backward and 3 faster than
@@ -43,10 +47,45 @@ def reseed_counts(params: CatGraphParams, groups: NDArray[np.intp], n: int, firs
     return [(g, counts[g]) for g in present if counts.get(g, 0) > 0]
 
 
-def odometry_factors(sd: float, rng: np.random.Generator, n: int) -> NDArray[np.float64]:
-    """With odometry, n particles' factors between the query's odometry and the map's: log-normal
-    around 1 (sd ``sd`` of the log, ``odometry_scale``), drawn from ``rng``; ones when ``sd`` is 0.
+def odometry_factors(sd: float, wide: float, rng: np.random.Generator, n: int) -> NDArray[np.float64]:
+    """With odometry, n particles' factors between the query's odometry and the map's, drawn from
+    ``rng``: log-normal around 1 (sd ``sd`` of the log, ``odometry_scale``), and a share
+    ``WIDE_FACTORS`` of them with the wider sd ``wide`` (``odometry_scale_wide``: two odometries
+    of other kinds, wheels against a GPS map, may disagree by a third); ones when both are 0.
     Copies inherit their parent's, so the factor that keeps a track on its place survives
     (docs/catgraph.md, "With odometry": a query whose odometry is 10 % longer than the map's is
     followed with it, lost without)."""
+    narrow = log_normal(sd, rng, n)
+    if wide <= 0:
+        return narrow
+    wider = log_normal(wide, rng, n)
+    return np.where(rng.random(n) < WIDE_FACTORS, wider, narrow)
+
+
+def log_normal(sd: float, rng: np.random.Generator, n: int) -> NDArray[np.float64]:
+    """n factors around 1, log-normal with sd ``sd`` of the log, drawn from ``rng``; ones (no draw)
+    when ``sd`` is 0."""
     return np.exp(sd * rng.standard_normal(n)) if sd > 0 else np.ones(n)
+
+
+def start_paces(params: CatGraphParams) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Each particle's pace and log weight before any frame. The query's pace is not known at the
+    start: half of the particles (``START_DEALT``) cycle through the paces of ``sequence_speeds``
+    other than the map's, the rest move at the map's pace, and the weights give the other paces
+    together the prior probability ``start_paces``: a query at another pace is followed from its
+    start (re-seeded particles take tens of frames to outweigh a cloud that lags), and weak
+    evidence at the start does not hand the track to a lagging pace. The paces are dealt in a
+    fixed pattern along the evenly spaced particles: every stretch of the map starts with the same
+    mix, as it starts with the same mass."""
+    m = params.particles
+    speed, log_w = np.ones(m), np.full(m, -np.log(m))
+    others = np.asarray([v for v in params.sequence_speeds if v != 1.0], dtype=np.float64)
+    i = np.arange(m)
+    dealt = np.floor((i + 1) * START_DEALT) > np.floor(i * START_DEALT)
+    n_dealt = int(dealt.sum())
+    if others.size == 0 or n_dealt in (0, m):
+        return speed, log_w
+    speed[dealt] = others[np.arange(n_dealt) % others.size]
+    log_w[dealt] = np.log(max(params.start_paces / n_dealt, TINY))
+    log_w[~dealt] = np.log((1.0 - params.start_paces) / (m - n_dealt))
+    return speed, log_w
