@@ -133,6 +133,23 @@ def test_bad_frames_are_reported_and_left_out(tmp_path: Path) -> None:
     assert again.failed == report.failed and again.computed == 0
 
 
+def test_names_left_out_at_listing_are_not_counted_as_the_entry_s_failed_frames(tmp_path: Path) -> None:
+    """The report's failed frames are the entry's /failed (docs/formats.md: files read and refused,
+    with their size, time and digest); a dangling link, left out when the folder is listed, has
+    none of these and is reported apart (it was counted failed, where /failed did not hold it)."""
+    folder = tmp_path / "route"
+    names = write_images(folder, 3)
+    (folder / "img10.png").write_bytes(b"")
+    (folder / "img11.png").symlink_to("nowhere.png")
+    cache = Cache(tmp_path / "cache")
+    report = describe_folder(folder, FakeSpec(), cache, jobs=1)
+    with h5py.File(next((tmp_path / "cache").rglob(f"{report.entry.key}.h5")), "r") as f:
+        assert [name for name, _ in report.failed] == f["failed/name"].asstr()[()].tolist() == ["img10.png"]
+    assert report.unusable == [("img11.png", "broken symbolic link")]
+    assert report.entry.names == names
+    assert (report.frames, report.computed, report.reused) == (4, 3, 0)
+
+
 def test_mixed_sizes_are_reported(tmp_path: Path) -> None:
     folder = tmp_path / "route"
     write_images(folder, 2)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import hashlib
+import os
 from pathlib import Path
 
 import cv2
@@ -115,6 +116,19 @@ def test_list_traversal_natural_order_and_ignored(tmp_path: Path) -> None:
     assert trav.names == ["img1.png", "img2.png", "img10.png", "UPPER.JPG"]
     assert {p.name for p in trav.ignored} == {"notes.txt", ".hidden.png", "sub.png"}
 
+
+def test_a_symbolic_link_loop_is_called_one_not_a_broken_link(tmp_path: Path) -> None:
+    """A link to itself and a link to nowhere are both names no stat can follow; the skipped line
+    says which, since the fix differs (remove the loop; restore or remove the link's target)."""
+    (tmp_path / "img1.png").write_bytes(b"")
+    (tmp_path / "loop.jpg").symlink_to("loop.jpg")
+    (tmp_path / "gone.jpg").symlink_to("nowhere.jpg")
+    os.mkfifo(tmp_path / "pipe")
+    (tmp_path / "piped.png").symlink_to("pipe")
+    trav = list_traversal(tmp_path)
+    assert trav.names == ["img1.png"]
+    assert dict(trav.unusable) == {"loop.jpg": "symbolic link loop", "gone.jpg": "broken symbolic link",
+                                   "piped.png": "not a regular file"}
 
 def test_images_of_other_formats_are_named_as_left_out_and_jpeg_under_its_other_names_is_read(tmp_path: Path) -> None:
     """A JPEG named .jfif or .jpe is a frame; a JPEG 2000 or GIF file is no frame, and is listed

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import pickle
 import re
+import shutil
 import subprocess
 import sys
 from collections.abc import Callable
@@ -64,6 +65,25 @@ def test_streaming_equals_batch_in_map_mode(demo_route: demo.DemoRoute, method: 
     streamed = _stream(loc, sorted(query.iterdir()))
     _assert_same(_batch_rows(run.path), streamed)
     assert loc.frames == len(streamed)
+
+
+def test_a_map_frame_left_out_keeps_its_place_streamed_batch_and_restored(demo_route: demo.DemoRoute,
+                                                                          tmp_path: Path) -> None:
+    # catgraph places the map's nodes at their frames' positions in the folder's full order, the
+    # unreadable frame counted (counted by the frames kept, the track ran a node ahead after it)
+    cache, reference = Cache(tmp_path / "cache"), tmp_path / "reference"
+    shutil.copytree(demo_route.reference, reference)
+    n_map = len(list(reference.iterdir()))
+    sorted(reference.iterdir())[3].write_bytes(b"")  # the fourth frame cannot be read
+    query = demo_route.queries[0]
+    frames = sorted(query.iterdir())
+    run = api.localize(query, reference=reference, method="catgraph", out=tmp_path / "batch.csv", cache=cache)
+    first = Localizer(reference, method="catgraph", cache=cache)
+    assert first.method.save_state()["nodes"].tolist() == [p for p in range(n_map) if p != 3]
+    streamed = _stream(first, frames[:50])
+    first.save(tmp_path / "state.npz")
+    rest = _stream(Localizer.load(tmp_path / "state.npz", cache=cache), frames[50:])
+    _assert_same(_batch_rows(run.path), pd.concat([streamed, rest], ignore_index=True))
 
 
 def _looped_descriptors(seed: int = 3) -> tuple[np.ndarray, list[str]]:
@@ -196,9 +216,18 @@ def test_observe_takes_images_files_and_descriptors(demo_route: demo.DemoRoute, 
     assert by_file.frame == path.name and by_array.frame == "gray"
     assert by_file.match == by_descriptor.match and by_file.confidence == by_descriptor.confidence
     assert by_array.match == by_bgr.match and abs(by_array.match - by_file.match) <= 1
-    with pytest.raises(WilocError, match="descriptor of 5 values"):
+    with pytest.raises(WilocError, match="descriptor of 5 values; this map's have"):
         loc.observe(np.zeros(5, np.uint8))
     assert wiloc.Localizer is Localizer
+
+
+def test_a_descriptor_of_another_length_in_sequence_mode_names_the_runs_frames(tmp_path: Path) -> None:
+    rows, _ = _looped_descriptors()
+    loc = Localizer(None, descriptor="external", method="online", init=30, cache=Cache(tmp_path / "c"),
+                    descriptor_params={"metric": "l1", "length": 64})
+    loc.observe(rows[0])
+    with pytest.raises(WilocError, match="descriptor of 5 values; this run's earlier frames' have 64"):
+        loc.observe(np.zeros(5, np.float32))
 
 
 def test_bad_setup_names_the_parameter(demo_route: demo.DemoRoute, cache_dir: Path) -> None:
@@ -613,15 +642,22 @@ def test_observe_takes_one_descriptor_as_a_batch_of_one(demo_route: demo.DemoRou
     ("a\0b.jpg", "the frame's path holds a NUL character; no file is named so"),
     (b"\xff\xd8\xff\xe0\x00\x10JFIF\x00", "frame is the bytes of an encoded image, not a file's path: give its "
                                           "file, or the image decoded (cv2.imdecode)"),
-    ("x" * 300 + ".jpg", "cannot read file (File name too long)")])
+    ("x" * 300 + ".jpg", "cannot read file (File name too long)"),
+    (bytes([200]) * 300, "frame is 300 bytes that no file's path can be (no file can have this name (a part of 300 "
+                         "bytes; file systems take at most 255)): image data, such as a ROS Image's data? give the "
+                         "image as an array (numpy.frombuffer(data, numpy.uint8).reshape(height, width, channels))"),
+    (bytes([200, 0]) * 150, "frame is 300 bytes that no file's path can be (they hold a NUL byte): image data, such "
+                            "as a ROS Image's data? give the image as an array (numpy.frombuffer(data, "
+                            "numpy.uint8).reshape(height, width, channels))")])
 def test_observe_refuses_what_no_file_is_named_in_one_line(frame: object, problem: str, demo_route: demo.DemoRoute,
                                                            cache_dir: Path) -> None:
     """A path holding NUL, an encoded image's bytes (a ROS CompressedImage's data) and a name too
     long for the file system were a ValueError (embedded null byte) or an OSError."""
     loc = Localizer(demo_route.reference, method="threshold")
-    with pytest.raises(FrameError) as err:
-        loc.observe(frame)
-    assert err.value.problem == problem and loc.frames == 0
+    for call in (loc.observe, loc.read):  # raw pixel bytes ended in an OSError (File name too long)
+        with pytest.raises(FrameError) as err:
+            call(frame)
+        assert err.value.problem == problem and loc.frames == 0
 
 
 def test_errors_pickle_with_their_fields() -> None:
@@ -926,3 +962,94 @@ def test_a_folder_streamed_in_api_frames_order_decides_as_the_batch_run(tmp_path
     loc = Localizer(ref, method="threshold")
     streamed = [loc.observe(path).match_name for path in listed]
     assert list(batch.frames["frame"]) == [p.name for p in listed] and list(batch.frames["match"]) == streamed
+
+
+def _saved(demo_route: demo.DemoRoute, path: Path, **setup: object) -> Localizer:
+    """A localizer over the demo map that observed a query frame, saved to ``path``."""
+    loc = Localizer(setup.pop("map", demo_route.reference), **setup)
+    loc.observe(min(demo_route.queries[0].iterdir()), odometry=0.0 if "map_odometry" in setup else None)
+    loc.save(path)
+    return loc
+
+
+def test_load_takes_the_map_it_was_saved_with(demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
+    """load(map=5) ended in a TypeError; a copy of the saved map's folder elsewhere was said to be
+    a changed map, not naming the one the state was saved with. The saved map's own folder given
+    again continues, as it did."""
+    _saved(demo_route, tmp_path / "s.npz", method="threshold")
+    shutil.copytree(demo_route.reference, tmp_path / "copy")
+    for given, got in ((5, "got int"), ([1, 2], "got list")):
+        with pytest.raises(ParameterError) as err:
+            Localizer.load(tmp_path / "s.npz", map=given)
+        assert err.value.parameter == "map" and got in err.value.problem
+    saved_with = re.escape(str(demo_route.reference.resolve()))
+    with pytest.raises(WilocError, match=f"not the one it was saved with: {saved_with}"):
+        Localizer.load(tmp_path / "s.npz", map=tmp_path / "copy")
+    assert Localizer.load(tmp_path / "s.npz", map=demo_route.reference).frames > 0
+
+
+def test_a_rewritten_map_odometry_is_refused_on_load(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                     cache_dir: Path) -> None:
+    """The state keeps a digest of the map's odometry CSV: one rewritten since is refused as a
+    changed map is (the loaded run would decide from the old content and its results name the
+    new); the same content written again is no change, and a state saved before the digest was
+    kept is loaded as it was."""
+    from wiloc.localization.localizer import DIGEST, _digest
+
+    csv = tmp_path / "odometry.csv"
+    shutil.copy(demo_route.positions / "reference.csv", csv)
+    original = csv.read_bytes()
+    _saved(demo_route, tmp_path / "s.npz", method="catgraph", map_odometry=csv)
+    csv.write_text(csv.read_text().replace(",0.00\n", ",0.50\n"))  # the route bent sideways
+    with pytest.raises(WilocError, match="the map's odometry changed since .*s.npz was saved") as err:
+        Localizer.load(tmp_path / "s.npz")
+    assert err.value.where == str(csv.resolve())
+
+    def older(members: dict[str, np.ndarray]) -> None:
+        meta = json.loads(str(members["meta"]))
+        del meta["map_odometry_digest"]
+        members["meta"] = np.array(json.dumps(meta))
+        members[DIGEST] = np.array(_digest(str(members["meta"]), {k: v for k, v in members.items()
+                                                                   if k not in ("meta", DIGEST)}))
+
+    _rewritten(tmp_path / "s.npz", older)
+    assert Localizer.load(tmp_path / "s.npz").frames == 1
+    csv.write_bytes(original)
+    _saved(demo_route, tmp_path / "t.npz", method="catgraph", map_odometry=csv)
+    csv.write_bytes(original)
+    assert Localizer.load(tmp_path / "t.npz").frames == 1
+
+
+def test_a_localizer_shows_the_settings_that_differ_from_the_defaults(demo_route: demo.DemoRoute,
+                                                                      cache_dir: Path) -> None:
+    """Two localizers that decide otherwise printed the same: the descriptor's parameters,
+    exclude_recent and the map's odometry were left out."""
+    csv = demo_route.positions / "reference.csv"
+    plain = repr(Localizer(demo_route.reference, method="online"))
+    shown = repr(Localizer(demo_route.reference, method="online", descriptor_params={"crop": "top-half", "patch": 8},
+                           exclude_recent=3))
+    assert "descriptor_params" not in plain and "exclude_recent" not in plain
+    assert "descriptor_params={'crop': 'top-half'}, exclude_recent=3" in shown  # patch 8 is the default
+    assert f"map_odometry={str(csv)!r}" in repr(Localizer(demo_route.reference, method="catgraph", map_odometry=csv))
+
+
+@pytest.mark.parametrize("query, problem", [("missing", "folder does not exist"),
+                                            ("frame", "an image file is not a traversal")])
+def test_results_refuse_a_query_that_is_no_traversal(query: str, problem: str, demo_route: demo.DemoRoute,
+                                                     tmp_path: Path, cache_dir: Path) -> None:
+    """results(query=) wrote a missing folder, or an image file, into the header, which a batch
+    run refuses as its query."""
+    frame = min(demo_route.queries[0].iterdir())
+    given = tmp_path / "missing" if query == "missing" else frame
+    loc = Localizer(demo_route.reference, method="threshold")
+    loc.observe(frame)
+    with pytest.raises(WilocError, match=problem) as err:
+        loc.results(query=given)
+    assert err.value.where == str(given)
+    assert loc.results(query=demo_route.queries[0]).header.query == str(demo_route.queries[0])
+    bag, emptied = tmp_path / "ros2bag", tmp_path / "emptied"  # a ROS 2 bag's folder; one a live source emptied
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    emptied.mkdir()
+    for folder in (bag, emptied):
+        assert loc.results(query=folder).header.query == str(folder)

@@ -261,6 +261,12 @@ def test_a_results_file_no_run_writes_is_refused_naming_the_line(tmp_path: Path,
         read_results(path)
 
 
+def test_a_stage_of_a_method_registered_outside_the_package_is_read(tmp_path: Path) -> None:
+    path, text = _written(tmp_path)  # a registered method may say what it did in its own words
+    path.write_text(text.replace("b,z,0.25,0.9,update,", "b,z,0.25,0.9,warmup,"), encoding="utf-8")
+    assert "warmup" in read_results(path).frames["stage"].tolist()
+
+
 def test_a_replaced_file_keeps_its_mode_and_killed_writers_leave_nothing(tmp_path: Path) -> None:
     import os
     import subprocess

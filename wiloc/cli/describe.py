@@ -105,7 +105,7 @@ def describe(
         said = Notes()
         for line in (*r.repairs, *r.notes):
             said.add("note", line)
-        for name, reason in r.failed if not r.video else ():  # named as localize names them: absolute in --json
+        for name, reason in r.left_out if not r.video else ():  # named as localize names them: absolute in --json
             said.add("skipped", f"{Path(r.folder if as_json else folder) / name}: {reason}")
         if len(r.sizes) > 1:
             said.add("note", f"{r.folder}: images of {len(r.sizes)} different sizes")
@@ -115,6 +115,7 @@ def describe(
                      "failed": len(r.failed), "images_per_second": r.images_per_second if r.computed else None})
     if as_json:
         print_command_json("describe", "results", [{**row, "folder": r.folder, "failed_frames": [list(f) for f in r.failed],
+                                                    "unusable": [list(u) for u in r.unusable],
                                                     "ignored": list(r.ignored)} for row, r in zip(rows, reports)],
                            [line for said in notes for line in said])
     else:

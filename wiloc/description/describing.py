@@ -39,7 +39,11 @@ Progress = Callable[[int, int], None]
 @dataclass(frozen=True)
 class DescribeReport:
     """What a describe run did: counts, bad and ignored files, image sizes, speed, and the entry.
-    For a video (`video` true), `failed` holds at most the frame where decoding stopped early."""
+    `failed` holds the frames the entry's ``/failed`` records (read, and refused); `unusable` the
+    image names left out when the folder was listed (``Traversal.unusable``: a broken link, a
+    FIFO, a name that is not UTF-8), which the entry cannot record: there is no file to fingerprint,
+    or no UTF-8 name. For a video (`video` true), `failed` holds at most the frame where decoding
+    stopped early."""
 
     folder: str
     descriptor: str
@@ -56,6 +60,12 @@ class DescribeReport:
     repairs: list[str] = field(default_factory=list)  # damage found in the cache: entry, local features
     video: bool = False
     notes: list[str] = field(default_factory=list)  # worth saying: which topic of a bag was read
+    unusable: list[tuple[str, str]] = field(default_factory=list)  # left out at listing: (name, why)
+
+    @property
+    def left_out(self) -> list[tuple[str, str]]:
+        """Every frame left out, failed or unusable, in natural order: a `skipped` line each."""
+        return sorted([*self.failed, *self.unusable], key=lambda f: natural_key(f[0]))
 
 
 def describe_source(source: Path, spec: DescriptorSpec, cache: Cache, *, jobs: int | None = None,
@@ -426,16 +436,16 @@ def _journal(cache: Cache, runs: Sequence[_Settling], results: Iterator[tuple[in
 def _report(stored: StoredEntry, entry: Entry, computed: int, started: float, ignored: Sequence[str] = (),
             unusable: Sequence[tuple[str, str]] = (), repairs: Sequence[str] = (),
             video: bool = False) -> DescribeReport:
-    """The report of a run that settled every frame of `stored` and wrote (or reused) `entry`;
-    `unusable` image names that could not be frames (``Traversal.unusable``) count as failed."""
+    """The report of a run that settled every frame of `stored` and wrote (or reused) `entry`: its
+    counts those of the entry (frames = computed + reused + failed), the image names that could
+    not be frames (``Traversal.unusable``) apart, as ``unusable``."""
     records = stored.records.values()
-    bad = [(r.name, r.reason) for r in records if r.row is None]
-    failed = sorted([*bad, *unusable], key=lambda f: natural_key(f[0]))
+    failed = sorted(((r.name, r.reason) for r in records if r.row is None), key=lambda f: natural_key(f[0]))
     seconds = time.perf_counter() - started
     return DescribeReport(
         folder=stored.header.folder, descriptor=stored.header.descriptor, shape=entry.data.shape,
-        frames=len(records) + len(unusable), computed=computed, reused=len(records) - computed - len(bad),
-        failed=failed, ignored=list(ignored),
+        frames=len(records), computed=computed, reused=len(records) - computed - len(failed),
+        failed=failed, ignored=list(ignored), unusable=list(unusable),
         sizes=sorted({(r.width, r.height) for r in records if r.row is not None}),
         seconds=seconds, images_per_second=computed / seconds, entry=entry, repairs=list(repairs), video=video,
     )

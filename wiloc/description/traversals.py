@@ -227,7 +227,7 @@ class Describer:
             report = describe_source(source, self.spec, self.cache, jobs=self.jobs, sampling=self.sampling,
                                      progress=stage(self.progress, f"describe {source.name}"), cluster=self.cluster,
                                      topic=self.topic)
-        self.skipped.extend((str(source / name), reason) for name, reason in report.failed)
+        self.skipped.extend((str(source / name), reason) for name, reason in report.left_out)
         self.notes.extend(note for note in report.notes if note not in self.notes)
         entry = report.entry
         if len(entry.names) == 0:

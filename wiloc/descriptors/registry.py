@@ -24,6 +24,7 @@ from wiloc.descriptors.brisk_gist import BriskGist
 from wiloc.descriptors.gist import Gist
 from wiloc.descriptors.learned import Onnx
 from wiloc.descriptors.sad import Sad
+from wiloc.errors import ParameterError
 
 PLUGIN_GROUP = "wiloc.descriptors"
 
@@ -63,7 +64,11 @@ DESCRIPTOR_NAMES = tuple(name for name, cls in DESCRIPTORS.items() if not cls.de
 
 def descriptor_class(name: str) -> type[Descriptor]:
     """The class registered under ``name`` (installed plugins loaded first when it is not); a
-    ValueError naming the choices otherwise."""
+    ValueError naming the choices otherwise, a ParameterError naming ``descriptor`` and the type
+    given when it is no text (a list)."""
+    if not isinstance(name, str):
+        raise ParameterError("descriptor", f"a descriptor's name (text: {', '.join(DESCRIPTOR_NAMES)}, ...), "
+                                           f"got {type(name).__name__}")
     if name not in DESCRIPTORS:
         plugins = _plugins()
         if name not in DESCRIPTORS:

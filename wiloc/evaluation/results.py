@@ -1,11 +1,10 @@
 """Results files: one CSV per query traversal with a self-describing header.
 
-Layout (documented in docs/formats.md): header lines start with ``# `` and hold ``key: value``
-pairs, read and written by ``wiloc.evaluation.results_header``; the first is ``# wiloc-results: 1``. Then a
-plain CSV table, one row per query frame. Batch files are written to a temporary name and
-renamed, so a killed run never leaves a file that looks complete. A followed run's file
-(``follow: True`` in its header, no ``frames`` count) grows a row per frame as it is decided:
-each row is one write, and a torn last row is cut off when the run resumes.
+Layout (documented in docs/formats.md): header lines start with ``# `` and hold ``key: value`` pairs, read and
+written by ``wiloc.evaluation.results_header``; the first is ``# wiloc-results: 1``. Then a plain CSV table, one
+row per query frame. Batch files are written to a temporary name and renamed, so a killed run never leaves a
+file that looks complete. A followed run's file (``follow: True`` in its header, no ``frames`` count) grows a
+row per frame as it is decided: each row is one write, and a torn last row is cut off when the run resumes.
 """
 from __future__ import annotations
 
@@ -108,8 +107,7 @@ def _positions(text: str) -> list[int] | None:
 
 
 def parse_ranking(cells: list[str]) -> np.ndarray:
-    """The rankings of a results table's column (checked by :func:`read_results`): frames x the
-    longest, padded with -1."""
+    """A results column's rankings (checked by :func:`read_results`): frames x the longest, padded with -1."""
     rows = [_positions(text) or [] for text in cells]
     ranking = np.full((len(rows), max(map(len, rows), default=0)), -1, dtype=np.int64)
     for out, row in zip(ranking, rows):
@@ -123,8 +121,7 @@ def decisions_to_frame(decisions: Decisions, query_names: list[str], ref_names: 
     decided = decisions.match >= 0
     matched[decided] = np.asarray(ref_names, dtype=object)[decisions.match[decided]]
     table = {"frame": list(query_names), "match": matched, "difference": decisions.difference,
-             "confidence": decisions.confidence, "stage": decisions.stage}
-    table.update(decisions.columns)
+             "confidence": decisions.confidence, "stage": decisions.stage, **decisions.columns}
     if decisions.ranking is not None:
         table[RANKING] = [ranking_text(row) for row in decisions.ranking]
     return pd.DataFrame(table)

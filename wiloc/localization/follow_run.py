@@ -137,7 +137,8 @@ def _opened(query: Path, path: Path, lock: int, *, reference: Path | None, descr
                                  parameter="out") from None
             if stream.line(decision) != line:
                 raise WilocError(None, f"{path}: frame '{name}' decided again differs from its row: the map, the "
-                                       "frames or the settings changed; give another file to start anew",
+                                       "frames or the settings changed, or another version of wiloc wrote it; "
+                                       "give another file to start anew",
                                  parameter="out")
     except BaseException:  # the stream's descriptor is closed whatever ends the replay (Ctrl-C too)
         stream.close()

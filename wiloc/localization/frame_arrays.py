@@ -1,17 +1,25 @@
-"""A frame given to ``Localizer.observe`` as an array (a camera's image, a nested list as JSON
-gives, a descriptor row): checked, with what was given said when it is no frame, and an image
-made the 8-bit gray or BGR image that descriptors are computed from; an image file read into one."""
+"""What a ``Localizer`` is given: a frame as an array (a camera's image, a nested list as JSON
+gives, a descriptor row), checked, with what was given said when it is no frame, and an image
+made the 8-bit gray or BGR image that descriptors are computed from; a frame as an image file's
+path, read into one (bytes no path can be, a camera's raw pixels, said to be so); and the
+traversal the frames came from, which its results record."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from wiloc.atomic import name_problem
+from wiloc.description.describing import is_stream
+from wiloc.description.traversals import MATRIX_SUFFIXES
 from wiloc.errors import FrameError, WilocError
 from wiloc.sources.frames import (
     check_aspect,
+    list_traversal,
+    not_a_traversal,
     read_colour,
     read_gray,
     to_uint8,
@@ -35,17 +43,53 @@ def frame_array(frame: object) -> NDArray:
     return array
 
 
+def frame_path(frame: object) -> Path | None:
+    """``frame`` as a file's path when it is one (text, bytes as ``os.fsencode`` gives for a
+    path that is not UTF-8, or a path object), else None. A FrameError when no file can be named
+    so: an empty path (``Path("")`` would be the current folder), one holding NUL, and bytes that
+    no path can be (a NUL byte, a name too long): a frame's pixels (a ROS Image's ``data``) or an
+    encoded image's bytes (a ROS CompressedImage's), said to be so."""
+    if not isinstance(frame, (str, bytes, os.PathLike)):
+        return None
+    text = os.fsdecode(frame)
+    if not text:
+        raise FrameError("observe", "the frame's path is empty")
+    if isinstance(frame, bytes) and (problem := "they hold a NUL byte" if "\0" in text else name_problem(Path(text))):
+        if frame.startswith((b"\xff\xd8", b"\x89PNG")):
+            raise FrameError("observe", "frame is the bytes of an encoded image, not a file's path: give its file, "
+                                        "or the image decoded (cv2.imdecode)")
+        raise FrameError("observe", f"frame is {len(frame)} bytes that no file's path can be ({problem}): image "
+                                    "data, such as a ROS Image's data? give the image as an array "
+                                    "(numpy.frombuffer(data, numpy.uint8).reshape(height, width, channels))")
+    if "\0" in text:  # no file's name holds one; the system would refuse it as a ValueError
+        raise FrameError("observe", "the frame's path holds a NUL character; no file is named so")
+    return Path(text)
+
+
 def file_image(path: Path, colour: bool, min_size: tuple[int, int] | None) -> NDArray[np.uint8]:
     """The 8-bit image of an image file, BGR for a ``colour`` descriptor, else gray (a JPEG
     decoded at the reduced size ``min_size`` allows); a file that cannot be a frame
     (``unusable_reason``: a name that is not UTF-8, a FIFO) is a FrameError saying why."""
     try:
         reason = unusable_reason(path)
+        unusable = reason is not None and path.exists()
     except OSError as exc:  # a name too long for the file system
         raise FrameError(path, f"cannot read file ({exc.strerror or exc})") from None
-    if reason is not None and path.exists():
+    if unusable:
         raise FrameError(path, reason)
     return read_colour(path) if colour else read_gray(path, min_size)
+
+
+def check_query(query: Path) -> None:
+    """Refuse, as a batch run refuses its query, a traversal recorded as a streaming run's query
+    that is none: missing (``folder does not exist``, as listing says), or a file that is no
+    video, ROS bag or descriptor matrix (``an image file is not a traversal``). A folder is taken
+    as it is (a ROS 2 bag's, or one a live source empties as its frames are read)."""
+    if not query.exists():
+        list_traversal(query)  # says what is missing, as a batch run does
+    if query.is_file() and not (is_stream(query) or query.suffix.lower() in MATRIX_SUFFIXES):
+        raise WilocError(query, not_a_traversal(query, "give the folder of images, video, ROS bag or descriptor "
+                                                       "matrix file the frames came from"))
 
 
 def gray_image(array: NDArray) -> NDArray[np.uint8]:

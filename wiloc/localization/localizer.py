@@ -30,11 +30,11 @@ from wiloc.atomic import written_whole
 from wiloc.cache.store import Cache, Entry
 from wiloc.decisions import Decision
 from wiloc.description.traversals import Describer, checked_rows, descriptor_label, is_matrix_file, names_matrix_file
-from wiloc.errors import FrameError, ParameterError, WilocError, load_problem, shown_name
+from wiloc.errors import ParameterError, WilocError, load_problem, shown_name
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.interrupts import interrupts_deferred
-from wiloc.localization.frame_arrays import colour_image, file_image, frame_array, gray_image
+from wiloc.localization.frame_arrays import check_query, colour_image, file_image, frame_array, frame_path, gray_image
 from wiloc.localization.session import RunSession, TrainingPair, check_traversal, shape_doubt
 from wiloc.localization.streamed import DecisionLog, streamed_header, streamed_results
 from wiloc.sources.video import Sampling
@@ -87,8 +87,7 @@ class Localizer:
         _check_unused(_map(map), metric, map_odometry, map_names)
         self._setup(RunSession(map, method=method, method_params=params, descriptor=descriptor,
                                descriptor_params=descriptor_params, metric=metric, exclude_recent=exclude_recent,
-                               training=training, map_odometry=None if map_odometry is None else Path(map_odometry),
-                               map_names=None if map_names is None else Path(map_names), sampling=sampling,
+                               training=training, map_odometry=map_odometry, map_names=map_names, sampling=sampling,
                                topic=topic, cache=cache, jobs=jobs))
         self.method.start(self._session.context())
         self._compile()
@@ -133,6 +132,7 @@ class Localizer:
         path, spec = session.map_path, session.describer.spec
         imported = path is not None and is_matrix_file(path) or spec.kind.imported  # a file's, or rows in memory
         self._spec = None if imported else spec
+        self._odometry_digest = session.map_odometry_digest()  # the CSV the method reads as it starts
 
     @property
     def doubts(self) -> list[str]:
@@ -163,7 +163,7 @@ class Localizer:
         ``observe(loc.read(path))`` decides as ``observe(path)``."""
         if self._spec is None:
             raise WilocError(path, "a map of imported descriptors takes descriptors, not images")
-        path = _file(path) or Path(path)  # an empty path, or one holding NUL, refused as observe refuses it
+        path = frame_path(path) or Path(path)  # an empty path, bytes no path can be: refused as observe refuses them
         return file_image(path, self._spec.colour, self._spec.min_size)
 
     def describe(self, frame: NDArray | str | bytes | os.PathLike) -> NDArray:
@@ -171,7 +171,7 @@ class Localizer:
         (``frame_arrays.gray_image``) or a descriptor given as it is (:meth:`_descriptor`): a row, or a
         1 x D array of the map's length D. A k x D array that is no image this map takes is told as
         k descriptor rows, where the image's checks said it was too narrow (2 x D)."""
-        if (path := _file(frame)) is not None:
+        if (path := frame_path(frame)) is not None:
             frame = self.read(path)
         array = frame_array(frame)
         length = self._session.candidates_data.shape[1]
@@ -209,7 +209,8 @@ class Localizer:
         data = self._session.candidates_data
         length, dtype = data.shape[1], data.dtype
         if row.size != length:
-            raise WilocError("observe", f"a descriptor of {row.size} values; this map's have {length}")
+            held = "this map's" if self._session.map is not None else "this run's earlier frames'"  # sequence mode
+            raise WilocError("observe", f"a descriptor of {row.size} values; {held} have {length}")
         return checked_rows(row, dtype, self._session.metric, "observe")
 
     def row(self, descriptor: NDArray) -> NDArray[np.float64]:
@@ -246,7 +247,7 @@ class Localizer:
         that (``latest-000012-2.jpg``), an index's the count (``000012-2``)."""
         if name is None:  # a file's own name that is not UTF-8 is refused with the file, as a frame
             k = len(self.names)
-            path = _file(frame)
+            path = frame_path(frame)
             first = [f"{k:06d}"] if path is None else [path.name, f"{path.stem}-{k:06d}{path.suffix}"]
             stem, suffix = os.path.splitext(first[-1])
             name = next(n for n in chain(first, (f"{stem}-{j}{suffix}" for j in count(2))) if n not in self._named)
@@ -275,6 +276,7 @@ class Localizer:
         sequence mode they are the candidates, kept, and the digest is the batch run's)."""
         if query is not None:
             check_traversal(query, "query", " or None")
+            check_query(Path(query))
         return streamed_results(self._session, self._log, self.names, query)
 
     def header(self, query: str | os.PathLike | None = None) -> ResultsHeader:
@@ -293,6 +295,7 @@ class Localizer:
                 "map": None if session.map_path is None else str(session.map_path.resolve()),
                 "map_digest": None if session.map is None else session.map.digest,
                 "map_odometry": None if session.map_odometry is None else str(session.map_odometry.resolve()),
+                "map_odometry_digest": self._odometry_digest,
                 "map_names": None if session.map_names is None else str(session.map_names.resolve()),
                 "descriptor": describer.descriptor, "descriptor_params": dict(describer.params),
                 "metric": describer.metric, "method": self.method.name,
@@ -319,10 +322,11 @@ class Localizer:
 
     @classmethod
     def load(cls, path: str | Path, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,
-             map: Entry | None = None) -> Localizer:
+             map: Entry | str | os.PathLike | None = None) -> Localizer:
         """A localizer continuing from a state written by :meth:`save`: its next decisions are the
         ones the saved localizer would have made. The map must be unchanged; a map that was held
-        in memory is given again as ``map``."""
+        in memory is given again as ``map`` (a traversal's path given there is read instead of
+        the one the state names, and must be the same map)."""
         if not isinstance(path, (str, os.PathLike)):
             raise ParameterError("path", f"a saved state's file (text or a path object), got {type(path).__name__}")
         path = Path(path)
@@ -331,7 +335,8 @@ class Localizer:
         if path.is_dir():
             raise WilocError(path, "a folder, not a saved localizer state (an .npz file Localizer.save wrote)")
         if path.is_file() and not zipfile.is_zipfile(path):  # np.load would take it for .npy or pickle
-            raise WilocError(path, "not a saved localizer state (not an .npz file)")
+            raise WilocError(path, "damaged or truncated: it starts as an .npz file but cannot be read whole"
+                             if _starts_as_zip(path) else "not a saved localizer state (not an .npz file)")
         try:
             with np.load(path, allow_pickle=False) as data:
                 text, digest = str(data["meta"]), str(data[DIGEST]) if DIGEST in data.files else None
@@ -360,13 +365,19 @@ class Localizer:
     def _continued(cls, meta: dict[str, Any], source: str | Path, cache: Cache | str | os.PathLike | None,
                    jobs: int | None, map: Entry | None) -> Localizer:
         """A localizer continuing from a :meth:`state` read back (``source``: where from, for errors)."""
+        if map is not None and not isinstance(map, (Entry, str, os.PathLike)):
+            raise ParameterError("map", f"the map the state was saved with, held in memory (an Entry) or its "
+                                        f"traversal's path, or None, got {type(map).__name__}")
         if meta["map"] is None and meta["map_digest"] is not None and map is None:
             raise WilocError(source, "was saved with a map held in memory: give it again (map=...)")
         session = RunSession.restored(meta, map, cache, jobs)
         if session.map is not None and session.map.digest != meta["map_digest"]:
-            raise WilocError(session.map.folder, f"the map changed since {source} was saved")
+            given = "" if map is None else f" (or the map given is not the one it was saved with: {meta['map']})"
+            raise WilocError(session.map.folder, f"the map changed since {source} was saved{given}")
         loc = cls.__new__(cls)
         loc._setup(session)
+        if meta.get("map_odometry_digest") not in (None, loc._odometry_digest):  # states saved before it was kept: none
+            raise WilocError(session.map_odometry, f"the map's odometry changed since {source} was saved")
         loc.names = list(meta["names"])
         loc._named = set(loc.names)
         loc._log = DecisionLog.restored(loc.method.columns, loc.method.ranks, meta["decisions"])
@@ -386,27 +397,13 @@ class Localizer:
     def __repr__(self) -> str:  # the descriptor as results name it: external:l1 for a map of imported descriptors
         where = "sequence mode" if self._session.map is None else f"map={self._session.map.folder!r}"
         label = descriptor_label(self.describer.descriptor, self.metric, [p for p in [self._session.map_path] if p])
-        return f"Localizer({where}, descriptor={label!r}, method={self.method!r}, frames={self.frames})"
+        shown = "".join(f", {name}={value!r}" for name, value in self._session.changed_settings().items())
+        return f"Localizer({where}, descriptor={label!r}{shown}, method={self.method!r}, frames={self.frames})"
 
 
 def _unpickled(meta: str, arrays: dict[str, NDArray], cache: Cache, jobs: int | None, map: Entry | None) -> Localizer:
     """The localizer :meth:`Localizer.__reduce__` pickled."""
     return Localizer._continued(_join(json.loads(meta), arrays), "the pickled localizer", cache, jobs, map)
-
-
-def _file(frame: object) -> Path | None:
-    """``frame`` as a file's path when it is one (text, bytes as ``os.fsencode`` gives for a
-    path that is not UTF-8, or a path object), else None."""
-    if not isinstance(frame, (str, bytes, os.PathLike)):
-        return None
-    if not os.fsdecode(frame):  # Path("") is the current folder: say what was given instead
-        raise FrameError("observe", "the frame's path is empty")
-    if "\0" in os.fsdecode(frame):  # no file's name holds one; the system would refuse it as a ValueError
-        if isinstance(frame, bytes) and frame.startswith((b"\xff\xd8", b"\x89PNG")):
-            raise FrameError("observe", "frame is the bytes of an encoded image, not a file's path: give its file, "
-                                        "or the image decoded (cv2.imdecode)")
-        raise FrameError("observe", "the frame's path holds a NUL character; no file is named so")
-    return Path(os.fsdecode(frame))
 
 
 def _map(map: object) -> str | os.PathLike | Entry | None:
@@ -451,6 +448,16 @@ def _digest(meta: str, arrays: Mapping[str, NDArray]) -> str:
         h.update(json.dumps([key, value.dtype.str, value.shape]).encode())
         h.update(value.tobytes())
     return h.hexdigest()
+
+
+def _starts_as_zip(path: Path) -> bool:
+    """Whether ``path`` starts as a zip archive (an .npz file) does: a state cut short by a full
+    disk or a copy that stopped, whose end (the archive's directory) is gone."""
+    try:
+        with path.open("rb") as handle:
+            return handle.read(4) == b"PK\x03\x04"
+    except OSError:  # unreadable: reading it says why
+        return False
 
 
 def _other_file(path: Path) -> bool:

@@ -26,7 +26,10 @@ METHODS: dict[str, type[Method]] = {
 
 
 def method_class(name: str) -> type[Method]:
-    """The class registered under ``name``; a ParameterError naming the choices otherwise."""
+    """The class registered under ``name``; a ParameterError naming the choices otherwise, and the
+    type given when it is no text (a list, None)."""
+    if not isinstance(name, str):
+        raise ParameterError("method", f"a method's name (text: {', '.join(METHODS)}), got {type(name).__name__}")
     if name not in METHODS:
         raise ParameterError("method", f"unknown method '{name}' (choose from {', '.join(METHODS)})")
     return METHODS[name]

@@ -7,6 +7,7 @@ behind each descriptor's ``min_size``.
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import math
 import os
@@ -95,14 +96,17 @@ def text_path(path: Path) -> str:
 
 def unusable_reason(item: os.DirEntry[str] | Path) -> str | None:
     """Why a file named as an image cannot be a frame, or None when it can: a name that is not
-    UTF-8 (results files and the cache hold names as UTF-8 text), a broken symbolic link, or not
-    a regular file (a FIFO would block the reader)."""
+    UTF-8 (results files and the cache hold names as UTF-8 text), a broken symbolic link or one
+    that loops (each needs its own fix), or not a regular file (a FIFO would block the reader)."""
     if shown_name(item.name) != item.name:
         return "file name is not valid UTF-8; rename the file to use it"
     if type_test(item.is_file):
         return None
-    if item.is_symlink() and not os.path.exists(item):
-        return "broken symbolic link"
+    if item.is_symlink():
+        try:
+            os.stat(item)
+        except OSError as exc:
+            return "symbolic link loop" if exc.errno == errno.ELOOP else "broken symbolic link"
     return "not a regular file"
 
 
