@@ -8,7 +8,7 @@ import pytest
 
 from wiloc.cache.store import Cache
 from wiloc.decisions import Decisions
-from wiloc.errors import WilocError
+from wiloc.errors import ParameterError, WilocError
 from wiloc.localization.array_run import run_on_rows
 from wiloc.methods import base
 from wiloc.methods.catgraph.filter import CatGraph
@@ -623,3 +623,23 @@ def test_a_first_pass_through_look_alike_country_is_new_ground(data_root, real_d
         row, alike = bench.run_loop(loop, "catgraph"), bench.run_loop(loop, "catgraph", {"hub_weight": 0})
     assert row["new_first"] >= 0.75 and row["ece"] <= 0.1
     assert alike["new_first"] <= row["new_first"] - 0.2 and alike["ece"] >= row["ece"] + 0.08  # what it changes
+
+
+@pytest.mark.parametrize("name", ["repeat_pace_spread", "odometry_scale", "odometry_scale_wide"])
+def test_a_spread_of_a_pace_or_factor_is_at_most_one(name: str) -> None:
+    # A spread of 1000 was taken and the run ended in numpy's errors (exp overflowing to inf, the
+    # weights NaN; a factor of 0 a ZeroDivisionError): a spread of the log of 1 already draws factors
+    # from a third to three times within one sd. At 1 a run with a stop and odometry decides every frame.
+    with pytest.raises(ParameterError) as err:
+        CatGraph(**{name: 1.5})
+    assert err.value.parameter == name
+    rng = np.random.default_rng(3)
+    truth = np.r_[np.arange(20.0, 60.0), np.full(10, 60.0), np.arange(61.0, 120.0)]
+    rows, ref = _rows(truth, N_REF, rng), _ref_self(rng)
+    rows[41:50] = rows[40]
+    spread = {"repeat_pace_spread": 1.0, "odometry_scale": 1.0, "odometry_scale_wide": 1.0}
+    for steps in (None, np.r_[0.0, np.abs(np.diff(truth))]):
+        dec = localize_catgraph(iter(rows), ref, truth.size, ref_arclength=None if steps is None else
+                                np.arange(float(N_REF)), query_steps=steps,
+                                **{k: v for k, v in spread.items() if steps is not None or k == "repeat_pace_spread"})
+        assert (dec.match >= 0).all() and np.isfinite(dec.confidence).all()

@@ -81,16 +81,16 @@ class CatGraphParams(Parameters):
                                         "an image.", low=0.0, high=1.0)
     repeat_pace_spread: float = param(0.1, "Spread (sd of its log) of the pace of the particles that move on "
                                            "while an image repeats: no image tells the pace then, so it is known "
-                                           "only roughly (0: exactly the particle's pace).", low=0.0)
+                                           "only roughly (0: exactly the particle's pace).", low=0.0, high=1.0)
     odometry_scale: float = param(0.05, "With odometry: spread (sd of its log) of each particle's factor between "
                                         "the query's odometry and the map's, kept for its life, so that a scale "
                                         "the two disagree by is learned by selection (0, with odometry_scale_wide "
                                         "0: the odometry as given).",
-                                  low=0.0, odometry_only=True)
+                                  low=0.0, high=1.0, odometry_only=True)
     odometry_scale_wide: float = param(0.3, "With odometry: the wider spread a tenth of the particles' factors "
                                             "are drawn with, for odometries of other kinds that disagree by more "
                                             "(wheels against a GPS map; 0: no factor drawn wider).", low=0.0,
-                                       odometry_only=True)
+                                       high=1.0, odometry_only=True)
 
     def check(self) -> None:
         low, high = self.speed_range
