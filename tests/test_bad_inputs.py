@@ -2384,3 +2384,17 @@ def test_names_and_paths_of_another_type_are_a_parameter_error(name: str, given:
         with pytest.raises(ParameterError) as err:
             call()
         assert err.value.parameter == name and err.value.problem.endswith(f"got {type(given).__name__}")
+
+
+@pytest.mark.parametrize("where", ["query", "map"])
+def test_a_symbolic_link_loop_given_as_a_traversal_is_one_error(where: str, route: tuple[Path, Path],
+                                                                 tmp_path: Path) -> None:
+    """A query or map that is a symbolic link loop ended in a RuntimeError's traceback (resolving it
+    to see whether the query is the map)."""
+    ref, query = route
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    args = [str(tmp_path / "a"), "--map", str(ref)] if where == "query" else [str(query), "--map", str(tmp_path / "a")]
+    result = runner.invoke(app, ["localize", *args, "--method", "threshold", "--out", str(tmp_path / "o.csv")])
+    ends_in_one_error(result, 1, str(tmp_path / "a"))
+    assert not (tmp_path / "o.csv").exists()

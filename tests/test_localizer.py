@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import pickle
+import os
 import re
 import shutil
 import subprocess
@@ -973,10 +974,11 @@ def _saved(demo_route: demo.DemoRoute, path: Path, **setup: object) -> Localizer
 
 
 def test_load_takes_the_map_it_was_saved_with(demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
-    """load(map=5) ended in a TypeError; a copy of the saved map's folder elsewhere was said to be
-    a changed map, not naming the one the state was saved with. The saved map's own folder given
-    again continues, as it did."""
-    _saved(demo_route, tmp_path / "s.npz", method="threshold")
+    """load(map=5) ended in a TypeError; a copy of the saved map's folder elsewhere (a map moved to
+    the robot) was refused as a changed map: it is taken, as its frames and descriptors are the
+    same, and continues as the original would. Another map is refused, naming the saved one."""
+    first, second = sorted(demo_route.queries[0].iterdir())[:2]
+    _saved(demo_route, tmp_path / "s.npz", method="catgraph")
     shutil.copytree(demo_route.reference, tmp_path / "copy")
     for given, got in ((5, "got int"), ([1, 2], "got list")):
         with pytest.raises(ParameterError) as err:
@@ -984,8 +986,11 @@ def test_load_takes_the_map_it_was_saved_with(demo_route: demo.DemoRoute, tmp_pa
         assert err.value.parameter == "map" and got in err.value.problem
     saved_with = re.escape(str(demo_route.reference.resolve()))
     with pytest.raises(WilocError, match=f"not the one it was saved with: {saved_with}"):
-        Localizer.load(tmp_path / "s.npz", map=tmp_path / "copy")
-    assert Localizer.load(tmp_path / "s.npz", map=demo_route.reference).frames > 0
+        Localizer.load(tmp_path / "s.npz", map=demo_route.queries[0])
+    moved, original = (Localizer.load(tmp_path / "s.npz", map=m) for m in (tmp_path / "copy", demo_route.reference))
+    assert moved.frames == original.frames == 1
+    assert repr(moved.observe(second)) == repr(original.observe(second)) and first != second
+    assert moved.results().header.map == str((tmp_path / "copy").resolve())
 
 
 def test_a_rewritten_map_odometry_is_refused_on_load(demo_route: demo.DemoRoute, tmp_path: Path,
@@ -1053,3 +1058,73 @@ def test_results_refuse_a_query_that_is_no_traversal(query: str, problem: str, d
     emptied.mkdir()
     for folder in (bag, emptied):
         assert loc.results(query=folder).header.query == str(folder)
+
+
+def test_bytes_that_name_no_file_are_said_in_one_line(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                       cache_dir: Path) -> None:
+    """A raw frame's bytes without a NUL (a bright gray image) were taken as a file's path: the
+    error printed thousands of its bytes as text, control characters and all, over many lines."""
+    loc = Localizer(demo_route.reference, method="threshold")
+    frame = bytes(range(1, 256)) * 8  # 2040 bytes, a few '/' among them: no part of it too long for a name
+    with pytest.raises(FrameError) as err:
+        loc.observe(frame)
+    message = str(err.value)
+    assert "\n" not in message and "\r" not in message and len(message) < 400, message
+    assert "frame is 2040 bytes that name no file (b'\\x01\\x02" in message and "give the image as an array" in message
+    named = tmp_path / "frame.jpg"
+    shutil.copy(min(demo_route.queries[0].iterdir()), named)
+    loc.observe(os.fsencode(named))  # bytes naming a file are its path
+    assert loc.frames == 1
+
+
+def test_observe_says_what_a_path_that_is_no_frame_is(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                      cache_dir: Path) -> None:
+    """A broken link's read said "No such file or directory", a loop's "Too many levels of symbolic
+    links", where describing says what they are; "." and "/" said "name is empty"; a list of paths
+    was taken for a descriptor of 1 value."""
+    (tmp_path / "broken.jpg").symlink_to(tmp_path / "gone.jpg")
+    (tmp_path / "a.jpg").symlink_to(tmp_path / "b.jpg")
+    (tmp_path / "b.jpg").symlink_to(tmp_path / "a.jpg")
+    loc = Localizer(demo_route.reference, method="threshold")
+    for frame, problem in ((tmp_path / "broken.jpg", "broken symbolic link"), (tmp_path / "a.jpg", "symbolic link loop"),
+                           (".", "not a regular file"), ("/", "not a regular file")):
+        with pytest.raises(FrameError) as err:
+            loc.observe(frame)
+        assert err.value.problem == problem, frame
+    with pytest.raises(WilocError, match="frame is of type list, not an array of numbers"):
+        loc.observe([str(min(demo_route.queries[0].iterdir()))])
+    assert loc.frames == 0
+
+
+@pytest.mark.parametrize("parameter", ["map", "map_odometry", "map_names"])
+@pytest.mark.parametrize("path, problem", [("", "the path is empty"),
+                                           ("a\0b", "the path holds a NUL character; no file is named so")])
+def test_a_path_no_file_can_have_is_refused_naming_its_parameter(parameter: str, path: str, problem: str,
+                                                                 tmp_path: Path, demo_route: demo.DemoRoute,
+                                                                 cache_dir: Path) -> None:
+    """A NUL in map_odometry or map_names was a bare ValueError (embedded null byte), one in map
+    was shown as a space; an empty map was the current folder."""
+    np.save(tmp_path / "rows.npy", np.random.default_rng(0).random((20, 8)).astype(np.float32))
+    setup: dict[str, object] = {"map": demo_route.reference, "method": "catgraph", parameter: path}
+    if parameter == "map_names":  # a names file goes with a descriptor matrix file
+        setup.update(map=tmp_path / "rows.npy", metric="l1")
+    with pytest.raises(ParameterError) as err:
+        Localizer(**setup)
+    assert (err.value.parameter, err.value.problem) == (parameter, problem)
+
+
+def test_results_refuse_a_query_a_batch_run_refuses(demo_route: demo.DemoRoute, tmp_path: Path,
+                                                    cache_dir: Path) -> None:
+    """results(query=) recorded a FIFO, an empty path (the current folder) and a descriptor matrix
+    file for frames described from images, each of which a batch run refuses."""
+    loc = Localizer(demo_route.reference, method="threshold")
+    loc.observe(min(demo_route.queries[0].iterdir()))
+    os.mkfifo(tmp_path / "pipe")
+    np.save(tmp_path / "rows.npy", np.zeros((3, 4), dtype=np.float32))
+    for query, problem in ((tmp_path / "pipe", "not a folder, video, ROS bag or descriptor matrix file"),
+                           ("", "the path is empty"),
+                           (tmp_path / "rows.npy", "a descriptor matrix file, but the frames were described from "
+                                                   "images")):
+        with pytest.raises(WilocError) as err:
+            loc.results(query=query)
+        assert err.value.problem.startswith(problem), query

@@ -166,7 +166,16 @@ def localize(
 
 
 def _same(a: Path | None, b: Path | None) -> bool:
-    return a is not None and b is not None and a.resolve() == b.resolve()
+    """Whether ``a`` and ``b`` are one traversal; a path that cannot be resolved (a symbolic link
+    loop) is compared as written, and reading it says what is wrong."""
+    return a is not None and b is not None and _resolved(a) == _resolved(b)
+
+
+def _resolved(path: Path) -> Path:
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError):  # RuntimeError: a loop, before Python 3.13
+        return path.absolute()
 
 
 def _doubtful(queries: list[Path], reference: Path | None, training: Any) -> list[str]:

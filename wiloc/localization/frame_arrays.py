@@ -38,7 +38,7 @@ def frame_array(frame: object) -> NDArray:
         array = np.asarray(frame)
     except (TypeError, ValueError):  # rows of different lengths
         array = None
-    if array is None or array.ndim == 0 or array.dtype == object:
+    if array is None or array.ndim == 0 or array.dtype.kind in "OUS":  # objects, text
         raise WilocError("observe", f"frame is of type {type(frame).__name__}, not an array of numbers; {takes}")
     return array
 
@@ -54,16 +54,26 @@ def frame_path(frame: object) -> Path | None:
     text = os.fsdecode(frame)
     if not text:
         raise FrameError("observe", "the frame's path is empty")
-    if isinstance(frame, bytes) and (problem := "they hold a NUL byte" if "\0" in text else name_problem(Path(text))):
+    if isinstance(frame, bytes) and not os.path.lexists(frame):  # False for a NUL byte or a name too long
         if frame.startswith((b"\xff\xd8", b"\x89PNG")):
             raise FrameError("observe", "frame is the bytes of an encoded image, not a file's path: give its file, "
                                         "or the image decoded (cv2.imdecode)")
-        raise FrameError("observe", f"frame is {len(frame)} bytes that no file's path can be ({problem}): image "
-                                    "data, such as a ROS Image's data? give the image as an array "
+        problem = "they hold a NUL byte" if "\0" in text else name_problem(Path(text))
+        what = (f"no file's path can be ({problem}):" if problem
+                else f"name no file ({_shown(frame)}): a missing file, or")
+        raise FrameError("observe", f"frame is {len(frame)} bytes that {what} image data, such as a ROS Image's "
+                                    "data? give the image as an array "
                                     "(numpy.frombuffer(data, numpy.uint8).reshape(height, width, channels))")
     if "\0" in text:  # no file's name holds one; the system would refuse it as a ValueError
         raise FrameError("observe", "the frame's path holds a NUL character; no file is named so")
+    if not Path(text).name:  # ".", "/": a folder, which a name is not taken from
+        raise FrameError(text, "not a regular file")
     return Path(text)
+
+
+def _shown(data: bytes, most: int = 40) -> str:
+    """The first ``most`` of ``data`` as Python writes bytes (control characters escaped: one line)."""
+    return repr(data[:most]) + ("..." if len(data) > most else "")
 
 
 def file_image(path: Path, colour: bool, min_size: tuple[int, int] | None) -> NDArray[np.uint8]:
@@ -72,7 +82,7 @@ def file_image(path: Path, colour: bool, min_size: tuple[int, int] | None) -> ND
     (``unusable_reason``: a name that is not UTF-8, a FIFO) is a FrameError saying why."""
     try:
         reason = unusable_reason(path)
-        unusable = reason is not None and path.exists()
+        unusable = reason is not None and (path.exists() or path.is_symlink())  # a broken link or loop: said so
     except OSError as exc:  # a name too long for the file system
         raise FrameError(path, f"cannot read file ({exc.strerror or exc})") from None
     if unusable:
@@ -80,16 +90,23 @@ def file_image(path: Path, colour: bool, min_size: tuple[int, int] | None) -> ND
     return read_colour(path) if colour else read_gray(path, min_size)
 
 
-def check_query(query: Path) -> None:
+def check_query(query: Path, described: bool) -> None:
     """Refuse, as a batch run refuses its query, a traversal recorded as a streaming run's query
-    that is none: missing (``folder does not exist``, as listing says), or a file that is no
-    video, ROS bag or descriptor matrix (``an image file is not a traversal``). A folder is taken
-    as it is (a ROS 2 bag's, or one a live source empties as its frames are read)."""
+    that is none: missing (``folder does not exist``, as listing says), neither a folder nor a
+    regular file (a FIFO, a device), a file that is no video, ROS bag or descriptor matrix (``an
+    image file is not a traversal``), or a descriptor matrix file where the frames were
+    ``described`` from images. A folder is taken as it is (a ROS 2 bag's, or one a live source
+    empties as its frames are read)."""
     if not query.exists():
         list_traversal(query)  # says what is missing, as a batch run does
+    if not (query.is_dir() or query.is_file()):
+        raise WilocError(query, "not a folder, video, ROS bag or descriptor matrix file")
     if query.is_file() and not (is_stream(query) or query.suffix.lower() in MATRIX_SUFFIXES):
         raise WilocError(query, not_a_traversal(query, "give the folder of images, video, ROS bag or descriptor "
                                                        "matrix file the frames came from"))
+    if query.is_file() and not is_stream(query) and described:
+        raise WilocError(query, "a descriptor matrix file, but the frames were described from images: give the "
+                                "folder, video or ROS bag they came from")
 
 
 def gray_image(array: NDArray) -> NDArray[np.uint8]:

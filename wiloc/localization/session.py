@@ -46,12 +46,17 @@ TRAVERSAL = "one traversal (a folder, video, ROS bag or descriptor matrix file)"
 
 def check_traversal(value: object, parameter: str, also: str = "", hint: str = "", what: str = TRAVERSAL) -> None:
     """Refuse, as a ParameterError naming ``parameter``, a ``value`` that is not one traversal's
-    path (text or a path object): a list of several, an array of descriptors, None. ``also``
-    says what else the parameter takes, ``hint`` what to do with several; ``what`` is the path
-    taken when it is another file's (an odometry CSV)."""
+    path (text or a path object): a list of several, an array of descriptors, None, an empty path
+    or one holding NUL. ``also`` says what else the parameter takes, ``hint`` what to do with
+    several; ``what`` is the path taken when it is another file's (an odometry CSV)."""
     if not isinstance(value, (str, os.PathLike)):
         several = hint if isinstance(value, (list, tuple)) else ""
         raise ParameterError(parameter, f"{what}{also}, got {type(value).__name__}{several}")
+    text = os.fsdecode(value)
+    if not text:  # Path("") is the current folder: say what was given instead
+        raise ParameterError(parameter, "the path is empty")
+    if "\0" in text:  # no file's name holds one; the system would refuse it as a ValueError
+        raise ParameterError(parameter, "the path holds a NUL character; no file is named so")
 
 
 def _map_descriptor(map: str | os.PathLike | Entry | None, descriptor: str | None,
