@@ -29,8 +29,7 @@ from wiloc import __version__
 from wiloc.atomic import written_whole
 from wiloc.cache.store import Cache, Entry
 from wiloc.decisions import Decision
-from wiloc.description.traversals import (Describer, checked_rows, descriptor_label, descriptors_digest, is_matrix_file,
-                                         names_matrix_file)
+from wiloc.description.traversals import Describer, checked_rows, descriptor_label, is_matrix_file, names_matrix_file
 from wiloc.errors import ParameterError, WilocError, load_problem, shown_name
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.results_header import ResultsHeader
@@ -295,7 +294,7 @@ class Localizer:
         return {"format": STATE_FORMAT, "version": STATE_VERSION, "wiloc": __version__,
                 "map": None if session.map_path is None else str(session.map_path.resolve()),
                 "map_digest": None if session.map is None else session.map.digest,
-                "map_rows": None if session.map is None else descriptors_digest(session.map.names, session.map.data),
+                "map_rows": session.map_rows_digest,
                 "map_odometry": None if session.map_odometry is None else str(session.map_odometry.resolve()),
                 "map_odometry_digest": self._odometry_digest,
                 "map_names": None if session.map_names is None else str(session.map_names.resolve()),
@@ -373,8 +372,8 @@ class Localizer:
         if meta["map"] is None and meta["map_digest"] is not None and map is None:
             raise WilocError(source, "was saved with a map held in memory: give it again (map=...)")
         session = RunSession.restored(meta, map, cache, jobs)
-        if session.map is not None and session.map.digest != meta["map_digest"] and not (  # a copy's rows: the same
-                meta.get("map_rows") == descriptors_digest(session.map.names, session.map.data)):
+        if session.map is not None and session.map.digest != meta["map_digest"] and (
+                meta.get("map_rows") != session.map_rows_digest):  # a copy elsewhere has the same rows
             given = "" if map is None else f" (or the map given is not the one it was saved with: {meta['map']})"
             raise WilocError(session.map.folder, f"the map changed since {source} was saved{given}")
         loc = cls.__new__(cls)

@@ -187,6 +187,12 @@ class RunSession:
                    topic=meta.get("topic"), cache=cache, jobs=jobs, restoring=True,
                    training=None if meta.get("training") is None else Training.restored(meta["training"]))
 
+    @cached_property
+    def map_rows_digest(self) -> str | None:
+        """``descriptors_digest`` of the map's frames (None in sequence mode), computed once: what a
+        results header records of the map, and what a saved state knows a copy of it by."""
+        return None if self.map is None else descriptors_digest(self.map.names, self.map.data)
+
     def map_odometry_digest(self) -> str | None:
         """SHA-256 of the map's odometry CSV as it is now (None without one): a saved localizer's
         state keeps it, so that a CSV rewritten since is refused on loading, as a changed map is."""
@@ -270,7 +276,7 @@ class RunSession:
         streamed = any(path is not None and is_stream(path) for path in (self.query_path, self.map_path))
         q, evidence = self.query, self.evidence
         return {"query_digest": None if q is None else descriptors_digest(q.names, q.data),
-                "map_digest": "" if self.map is None else descriptors_digest(self.map.names, self.map.data),
+                "map_digest": self.map_rows_digest or "",
                 "sampling": asdict(self.describer.sampling or Sampling()) if streamed else None,
                 "topic": self.describer.topic, "map_topic": self.map_topic, "odometry_topic": self.odometry_topic,
                 "rows": "fabmap" if evidence is not None else None,
