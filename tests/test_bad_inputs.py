@@ -1965,6 +1965,20 @@ def test_loading_a_state_given_as_no_path_is_a_parameter_error(path: object) -> 
     assert refused.value.parameter == "path"
 
 
+@pytest.mark.parametrize("path, problem", [(5, "(text or a path object), got int"),
+                                           ("", "the path is empty"), ("a\0b.npz", "holds a NUL character")])
+def test_saving_a_state_to_no_path_is_a_parameter_error(path: object, problem: str, route: tuple[Path, Path],
+                                                        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Localizer.save(5) ended in pathlib's TypeError; save("") and load("") named the current folder."""
+    monkeypatch.chdir(tmp_path)
+    loc = Localizer(route[0], method="threshold")
+    for call in (lambda: loc.save(path), lambda: Localizer.load(path)):
+        with pytest.raises(ParameterError, match=re.escape(problem)) as refused:
+            call()
+        assert refused.value.parameter == "path"
+    assert not list(tmp_path.rglob("*.npz"))
+
+
 @pytest.mark.parametrize("follow", [False, True])
 def test_results_never_replace_a_file_that_is_no_results_file(follow: bool, route: tuple[Path, Path], results: Path,
                                                                tmp_path: Path) -> None:

@@ -999,7 +999,7 @@ def test_a_rewritten_map_odometry_is_refused_on_load(demo_route: demo.DemoRoute,
     changed map is (the loaded run would decide from the old content and its results name the
     new); the same content written again is no change, and a state saved before the digest was
     kept is loaded as it was."""
-    from wiloc.localization.localizer import DIGEST, _digest
+    from wiloc.localization.state_file import DIGEST, state_digest
 
     csv = tmp_path / "odometry.csv"
     shutil.copy(demo_route.positions / "reference.csv", csv)
@@ -1014,7 +1014,7 @@ def test_a_rewritten_map_odometry_is_refused_on_load(demo_route: demo.DemoRoute,
         meta = json.loads(str(members["meta"]))
         del meta["map_odometry_digest"]
         members["meta"] = np.array(json.dumps(meta))
-        members[DIGEST] = np.array(_digest(str(members["meta"]), {k: v for k, v in members.items()
+        members[DIGEST] = np.array(state_digest(str(members["meta"]), {k: v for k, v in members.items()
                                                                    if k not in ("meta", DIGEST)}))
 
     _rewritten(tmp_path / "s.npz", older)

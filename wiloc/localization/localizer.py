@@ -12,10 +12,7 @@ with identical decisions, and keep the decisions made before.
 from __future__ import annotations
 
 import copy
-import hashlib
-import json
 import os
-import zipfile
 from collections.abc import Mapping
 from dataclasses import asdict, replace
 from itertools import chain, count
@@ -26,16 +23,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wiloc import __version__
-from wiloc.atomic import written_whole
 from wiloc.cache.store import Cache, Entry
 from wiloc.decisions import Decision
 from wiloc.description.traversals import Describer, checked_rows, descriptor_label, is_matrix_file, names_matrix_file
-from wiloc.errors import ParameterError, WilocError, load_problem, shown_name
+from wiloc.errors import ParameterError, WilocError, shown_name
 from wiloc.evaluation.results import Results
 from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.interrupts import interrupts_deferred
 from wiloc.localization.frame_arrays import check_query, colour_image, file_image, frame_array, frame_path, gray_image
 from wiloc.localization.session import RunSession, TrainingPair, check_traversal, shape_doubt
+from wiloc.localization.state_file import read_state, state_parts, state_whole, write_state
 from wiloc.localization.streamed import DecisionLog, streamed_header, streamed_results
 from wiloc.sources.video import Sampling
 
@@ -45,8 +42,6 @@ STATE_FORMAT = "wiloc-localizer-state"
 #: resemblance; 4: sequence mode runs the catgraph filter; 3: catgraph knows a repeated image; 2: it
 #: ranks FAB-MAP evidence
 STATE_VERSION = 8
-#: The saved state's member holding the digest of the others (:func:`_digest`).
-DIGEST = "meta_digest"
 
 #: Sequence mode: the made-up frames a copy of the method steps, at most, to build its compiled
 #: kernels (:meth:`Localizer._compile`), and how many it steps after its first whole decision.
@@ -311,15 +306,9 @@ class Localizer:
         """Write :meth:`state` to ``path`` (an .npz file), atomically: a kill leaves the old file.
         Missing folders of ``path`` are created, as every file the library writes does; a write
         that fails (a full disk) is a WilocError naming the file."""
-        path = Path(path)
-        if _other_file(path):
-            raise WilocError(path, "the file there is no saved localizer state, and saving would replace it; give "
-                                   "another name, or remove it first")
-        arrays: dict[str, NDArray] = {}
-        meta = json.dumps(_split(self.state(), "", arrays))
-        with written_whole(path, "the localizer state", binary=True) as out:
-            np.savez(out, meta=np.array(meta), **{DIGEST: np.array(_digest(meta, arrays))}, **arrays)
-        return path
+        check_traversal(path, "path", what="a file's path for the state (text or a path object)")
+        write_state(Path(path), self.state())
+        return Path(path)
 
     @classmethod
     def load(cls, path: str | Path, cache: Cache | str | os.PathLike | None = None, jobs: int | None = None,
@@ -328,37 +317,14 @@ class Localizer:
         ones the saved localizer would have made. The map must be unchanged; a map that was held
         in memory is given again as ``map`` (a traversal's path given there is read instead of
         the one the state names, and must be the same map)."""
-        if not isinstance(path, (str, os.PathLike)):
-            raise ParameterError("path", f"a saved state's file (text or a path object), got {type(path).__name__}")
-        path = Path(path)
-        if not path.exists():
-            raise WilocError(path, "file does not exist")
-        if path.is_dir():
-            raise WilocError(path, "a folder, not a saved localizer state (an .npz file Localizer.save wrote)")
-        if path.is_file() and not zipfile.is_zipfile(path):  # np.load would take it for .npy or pickle
-            raise WilocError(path, "damaged or truncated: it starts as an .npz file but cannot be read whole"
-                             if _starts_as_zip(path) else "not a saved localizer state (not an .npz file)")
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                text, digest = str(data["meta"]), str(data[DIGEST]) if DIGEST in data.files else None
-                arrays = {key: data[key] for key in data.files if key not in ("meta", DIGEST)}
-                meta = json.loads(text)
-        except OSError as exc:  # unreadable (no permission)
-            raise WilocError(path, f"cannot read file ({exc.strerror or exc})") from None
-        except (ValueError, KeyError, EOFError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
-            raise WilocError(path, f"not a saved localizer state ({load_problem(exc)})") from None
-        if not isinstance(meta, dict) or meta.get("format") != STATE_FORMAT or meta.get("version") != STATE_VERSION:
-            raise WilocError(path, "not a saved localizer state of this wiloc version")
-        if digest != _digest(text, arrays):
-            raise WilocError(path, "the state was changed after it was saved (its contents do not match their "
-                                   "digest): it cannot be continued")
-        return cls._continued(_join(meta, arrays), path, cache, jobs, map)
+        check_traversal(path, "path", what="a saved state's file (text or a path object)")
+        meta = read_state(Path(path), STATE_FORMAT, STATE_VERSION)
+        return cls._continued(meta, Path(path), cache, jobs, map)
 
     def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
         """Pickled (and copied) as :meth:`save` writes it, the map held in memory and the cache
         with it: the copy continues with the decisions this localizer would make, on its own."""
-        arrays: dict[str, NDArray] = {}
-        meta = json.dumps(_split(self.state(), "", arrays))
+        meta, arrays = state_parts(self.state())
         in_memory = self._session.map if self._session.map_path is None else None
         return _unpickled, (meta, arrays, self.describer.cache, self.describer.jobs, in_memory)
 
@@ -405,7 +371,7 @@ class Localizer:
 
 def _unpickled(meta: str, arrays: dict[str, NDArray], cache: Cache, jobs: int | None, map: Entry | None) -> Localizer:
     """The localizer :meth:`Localizer.__reduce__` pickled."""
-    return Localizer._continued(_join(json.loads(meta), arrays), "the pickled localizer", cache, jobs, map)
+    return Localizer._continued(state_whole(meta, arrays), "the pickled localizer", cache, jobs, map)
 
 
 def _map(map: object) -> str | os.PathLike | Entry | None:
@@ -435,65 +401,3 @@ def _check_unused(map: object, metric: object, map_odometry: object, map_names: 
                 else "the map held in memory has its names"
             raise ParameterError(name, "applies to a map that is a descriptor matrix file (.npy, .npz, .csv, .h5) "
                                        f"only; {none}")
-
-
-ARRAY = "__array__"  # marks, in a saved state's JSON, a value stored as an array of the .npz
-
-
-def _digest(meta: str, arrays: Mapping[str, NDArray]) -> str:
-    """SHA-256 of a saved state's JSON and arrays (each with its name, dtype and shape): a state
-    edited or damaged after :meth:`Localizer.save` is refused by :meth:`Localizer.load` rather than
-    continued into errors, or into decisions no localizer made."""
-    h = hashlib.sha256(meta.encode())
-    for key in sorted(arrays):
-        value = np.ascontiguousarray(arrays[key])
-        h.update(json.dumps([key, value.dtype.str, value.shape]).encode())
-        h.update(value.tobytes())
-    return h.hexdigest()
-
-
-def _starts_as_zip(path: Path) -> bool:
-    """Whether ``path`` starts as a zip archive (an .npz file) does: a state cut short by a full
-    disk or a copy that stopped, whose end (the archive's directory) is gone."""
-    try:
-        with path.open("rb") as handle:
-            return handle.read(4) == b"PK\x03\x04"
-    except OSError:  # unreadable: reading it says why
-        return False
-
-
-def _other_file(path: Path) -> bool:
-    """Whether ``path`` holds a file (not empty) that is no saved state, which saving would
-    replace: a frame, a table of one's own."""
-    try:
-        if not path.is_file() or path.stat().st_size == 0:
-            return False
-        if not zipfile.is_zipfile(path):
-            return True
-        with zipfile.ZipFile(path) as archive:
-            return "meta.npy" not in archive.namelist()
-    except (OSError, zipfile.BadZipFile):  # unreadable: the writing says what is wrong
-        return False
-
-
-def _split(value: Any, key: str, arrays: dict[str, NDArray]) -> Any:
-    """``value`` as JSON, its numpy arrays moved into ``arrays`` under dotted keys."""
-    if isinstance(value, np.ndarray):
-        arrays[key] = value
-        return {ARRAY: key}
-    if isinstance(value, dict):
-        return {k: _split(v, f"{key}.{k}" if key else str(k), arrays) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_split(v, f"{key}.{i}", arrays) for i, v in enumerate(value)]
-    return value.item() if isinstance(value, np.generic) else value
-
-
-def _join(value: Any, arrays: dict[str, NDArray]) -> Any:
-    """The inverse of :func:`_split`."""
-    if isinstance(value, dict):
-        if set(value) == {ARRAY}:
-            return arrays[value[ARRAY]]
-        return {k: _join(v, arrays) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_join(v, arrays) for v in value]
-    return value
