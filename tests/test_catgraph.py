@@ -220,6 +220,44 @@ def test_map_frames_left_out_keep_their_place_in_the_nodes_count() -> None:
     assert hits(None) < 0.9
 
 
+def test_query_frames_left_out_are_stepped_across() -> None:
+    # A query folder whose every 10th frame could not be read: the kept frames' rows, and the
+    # frames passed before each. Stepped one frame a row, the track falls a node behind at each
+    # gap; stepped across the frames passed (Method.skip, run's passed), it keeps the place.
+    rng = np.random.default_rng(3)
+    truth = np.arange(N_REF, dtype=np.float64)
+    kept = np.delete(np.arange(N_REF), np.arange(5, N_REF, 10))
+    rows = _rows(truth, N_REF, rng, width=8.0)[kept]
+    ref = _ref_self(rng)
+    passed = np.diff(kept, prepend=-1) - 1
+
+    def hits(given: np.ndarray | None) -> float:
+        method = CatGraph()
+        method.start(base.MapContext(sequence=False, exclude_recent=10, n_map=N_REF,
+                                     neighbours=lambda: ref[np.arange(N_REF - 1), np.arange(1, N_REF)]))
+        match = method.run(iter(rows), kept.size, passed=given).match
+        assert method.passed == 0
+        return float((np.abs(match - truth[kept]) <= TOL).mean())
+
+    assert hits(passed) >= 0.95
+    assert hits(None) < 0.9
+
+
+def test_frames_passed_are_kept_in_a_state_and_checked() -> None:
+    method = CatGraph()
+    method.start(base.MapContext(sequence=False, exclude_recent=10, n_map=N_REF,
+                                 neighbours=lambda: np.ones(N_REF - 1)))
+    method.skip(2)
+    assert method.elapsed == 3
+    state = method.state()
+    restored = CatGraph()
+    restored.restore(method.context, state)
+    assert restored.passed == 2
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ParameterError, match="frames"):
+            method.skip(bad)
+
+
 def test_a_query_driving_on_past_the_end_of_the_map_is_off_it() -> None:
     # The map's last 100 places, then 30 frames on past its end (ground the map does not hold). A
     # particle carried past an end is re-seeded and its weight goes to the unexplained hypothesis:

@@ -87,6 +87,39 @@ def test_a_map_frame_left_out_keeps_its_place_streamed_batch_and_restored(demo_r
     _assert_same(_batch_rows(run.path), pd.concat([streamed, rest], ignore_index=True))
 
 
+@pytest.mark.parametrize("method", ["catgraph", "online"])
+def test_query_frames_left_out_are_stepped_across_streamed_batch_and_restored(demo_route: demo.DemoRoute,
+                                                                             method: str, tmp_path: Path) -> None:
+    # a batch run steps across the query's unreadable frames (their places counted); a Localizer
+    # told of them (skip) decides the same, a state saved between the skip and the next frame too
+    cache, query = Cache(tmp_path / "cache"), tmp_path / "query"
+    shutil.copytree(demo_route.queries[0], query)
+    frames = sorted(query.iterdir())
+    for k in (3, 20, 21):
+        frames[k].write_bytes(b"")
+    run = api.localize(query, reference=demo_route.reference, method=method, out=tmp_path / "batch.csv", cache=cache)
+    assert [Path(path).name for path, _ in run.skipped] == [frames[k].name for k in (3, 20, 21)]
+
+    def streamed(loc: Localizer, paths: list[Path], told: bool = True) -> pd.DataFrame:
+        rows = []
+        for path in paths:
+            try:
+                rows.append(_stream(loc, [path]))
+            except FrameError:
+                if told:
+                    loc.skip()
+        return pd.concat(rows, ignore_index=True)
+
+    first = Localizer(demo_route.reference, method=method, cache=cache)
+    head = streamed(first, frames[:21])  # ends on a skip: the state holds the frame passed
+    first.save(tmp_path / "state.npz")
+    rest = streamed(Localizer.load(tmp_path / "state.npz", cache=cache), frames[21:])
+    batch = _batch_rows(run.path)
+    _assert_same(batch, pd.concat([head, rest], ignore_index=True))
+    untold = streamed(Localizer(demo_route.reference, method=method, cache=cache), frames, told=False)
+    assert batch["confidence"].tolist() != untold["confidence"].tolist()
+
+
 def _looped_descriptors(seed: int = 3) -> tuple[np.ndarray, list[str]]:
     """A route of 60 places driven twice and half a third time, revisits alike: float32 rows of
     whole numbers (sums exact in any order, so batch blocks and single rows agree bit for bit)."""

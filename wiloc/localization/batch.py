@@ -87,7 +87,8 @@ def localize(query: Path, *, reference: Path | None = None, descriptor: str | No
         r = q if session.map is None else session.map
         rows = session.batch_rows()
         decisions = session.method.run(rows, len(q.names), odometry=session.query_steps(),
-                                       progress=stage(progress, f"{method} {query.name}"))
+                                       progress=stage(progress, f"{method} {query.name}"),
+                                       passed=session.query_passed())
         header = replace(run_header(method, describer, query, q.metric, reference, R, training), **session.recorded())
         results = make_results(decisions, query_names=q.names, ref_names=r.names, header=header)
         replaced = write_results(Path(out), results) if out is not None else False

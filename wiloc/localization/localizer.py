@@ -233,6 +233,11 @@ class Localizer:
         match_name = candidates[decision.match] if decision.match >= 0 else ""
         return replace(decision, frame=name, match_name=match_name)
 
+    def skip(self, frames: int = 1) -> None:
+        """The query passed ``frames`` frames (an image :meth:`observe` could not read): the next
+        step covers them, as a batch run's steps across the frames it leaves out (``Method.skip``)."""
+        self.method.skip(frames)
+
     def _new_name(self, frame: object, name: object) -> str:
         """The next frame's name, checked before anything is decided: text, not empty, and no
         earlier frame's, since results hold one row per name (a file naming a frame twice is

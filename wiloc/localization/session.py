@@ -145,7 +145,9 @@ class RunSession:
         self.describer = Describer(descriptor, parameter_values(descriptor_params, "descriptor_params"),
                                    Cache.given(cache), metric=metric, jobs=jobs, progress=progress, sampling=sampling,
                                    cluster=open_cluster(scheduler, jobs), topic=topic)
+        before = len(self.describer.skipped)
         self.query: Entry | None = None if query is None else self.describer.entry(Path(query), query_names)
+        self._query_skipped = [Path(path).name for path, _ in self.describer.skipped[before:]]  # the query's own
         self.map: Entry | None = None
         self.map_left_out: tuple[tuple[int, str], ...] | None = None  # the map's frames left out: (position, name)
         if map is not None:
@@ -317,6 +319,15 @@ class RunSession:
             return None
         return traversal_arclength(candidates.names, self.map_odometry, self.map_path if self._map_bag else None,
                                    self.odometry_topic)
+
+    def query_passed(self) -> NDArray[np.intp] | None:
+        """A batch query's frames left out (unreadable) just before each kept frame (``Method.run``'s
+        ``passed``), so that a step across them covers them; None when none was left out."""
+        gone = left_out(self.query.names, self._query_skipped)
+        if gone is None:
+            return None
+        positions = np.delete(np.arange(len(self.query.names) + len(gone)), [position for position, _ in gone])
+        return np.diff(positions, prepend=-1) - 1
 
     def query_steps(self) -> NDArray[np.float64] | None:
         """A batch query's travelled distance per frame, from its odometry CSV or its bag's topic."""

@@ -123,6 +123,7 @@ class Method(ABC):
             self.params = self.Params.create({**parameter_values(params, "params"), **values})
         self.context: MapContext | None = None
         self.frames = 0  # query frames stepped since start
+        self.passed = 0  # query frames passed since the last step without a row (left out: unreadable)
 
     def __repr__(self) -> str:
         changed = {k: v for k, v in self.params.as_dict().items()
@@ -186,7 +187,22 @@ class Method(ABC):
         """Reset to the state before the first query frame, learning what it needs from the map."""
         self.context = context
         self.frames = 0
+        self.passed = 0
         self.prepare(context)
+
+    def skip(self, frames: int = 1) -> None:
+        """The query passed ``frames`` frames that have no row (left out: an unreadable image):
+        the next step covers them too (:attr:`elapsed`), as a map's frames left out keep their
+        places (``MapContext.frame_positions``)."""
+        if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
+            raise ParameterError("frames", f"frames passed must be a whole number of at least 1, got {frames!r}")
+        self.passed += int(frames)
+
+    @property
+    def elapsed(self) -> int:
+        """Query frames from the previous step to the one being decided: 1, and more where frames
+        were passed (:meth:`skip`). A method that moves a frame's step along the map reads it."""
+        return 1 + self.passed
 
     def step(self, row: NDArray[np.floating], odometry: float | None = None, ahead: Any = None) -> Decision:
         """Decide one query frame from its difference row (and its travelled distance, for
@@ -213,6 +229,7 @@ class Method(ABC):
         finally:
             self._ahead = None
         self.frames += 1
+        self.passed = 0
         if self.ranks and decision.match >= 0 and not decision.ranking:
             best = best_candidates(row, descending=self.context.rows == "log_ratio")
             decision = replace(decision, ranking=tuple(best.tolist()))
@@ -283,12 +300,13 @@ class Method(ABC):
     def state(self) -> dict[str, Any]:
         """Everything :meth:`restore` needs to continue with identical decisions: numpy arrays and
         JSON-ready values."""
-        return {"frames": self.frames, **self.save_state()}
+        return {"frames": self.frames, "passed": self.passed, **self.save_state()}
 
     def restore(self, context: MapContext, state: Mapping[str, Any]) -> None:
         """Continue from a :meth:`state` taken in the same context."""
         self.context = context
         self.frames = int(state["frames"])
+        self.passed = int(state.get("passed", 0))  # a state saved before frames passed were counted: none
         self.load_state(state)
 
     @abstractmethod
@@ -300,8 +318,10 @@ class Method(ABC):
         """Set what :meth:`save_state` returned."""
 
     def run(self, rows: Iterable[NDArray[np.floating]], n_frames: int,
-            odometry: NDArray[np.float64] | None = None, progress: Progress | None = None) -> Decisions:
-        """Step every row (``n_frames`` of them) and collect the decisions (after :meth:`start`).
+            odometry: NDArray[np.float64] | None = None, progress: Progress | None = None,
+            passed: NDArray[np.intp] | None = None) -> Decisions:
+        """Step every row (``n_frames`` of them) and collect the decisions (after :meth:`start`);
+        ``passed[k]``, when given, the query frames left out just before row k (:meth:`skip`).
 
         ``rows`` yields rows, or 2-D blocks of consecutive rows (as the difference kernels give
         them). A helper thread reads them ``AHEAD_ROWS`` at a time, with what the method
@@ -315,6 +335,8 @@ class Method(ABC):
                     raise WilocError(self.name, f"more difference rows than n_frames={n_frames}")
                 for i, row in enumerate(chunk):
                     k = len(steps)
+                    if passed is not None and passed[k] > 0:
+                        self.skip(int(passed[k]))
                     steps.append(self.step(row, None if odometry is None else float(odometry[k]),
                                            None if computed is None else computed[i]))
                     if progress is not None:

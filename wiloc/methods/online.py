@@ -209,6 +209,8 @@ class Online(Method):
         elif z >= 0:
             assert self._model is not None
             if tracked is None:
+                if self.passed:  # query frames left out since the last step: the filter's step covers them
+                    self._filter.skip(self.passed)
                 new_place = self._filter.step(row, ahead=None if pre is None else pre.filter).new_place
             else:  # before the traversal's map has 2 frames nothing is a revisit
                 new_place = tracked.new_place if tracked.decided else 1.0

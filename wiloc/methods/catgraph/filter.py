@@ -417,11 +417,16 @@ class CatGraph(Method):
         return True if self.context.arclength is not None and self.frames > 0 else None
 
     def _travelled(self, odometry: float | None) -> float:
-        """u_k: the query's odometry step, else the mean node spacing; paces become directions then."""
+        """u_k: the query's odometry step (which covers the frames left out before it), else the
+        mean node spacing times the query frames since the last step (:attr:`elapsed`; in
+        sequence mode one, the traversal's nodes being its kept frames); paces become
+        directions with odometry."""
         if not self._odometry and (odometry is not None or self.context.arclength is not None):  # a map's: at once
             self._odometry = True
             self._paces_to_directions()
-        return self._spacing if odometry is None else odometry
+        if odometry is not None:
+            return odometry
+        return self._spacing if self._growing else self._spacing * self.elapsed
 
     def _paces_to_directions(self) -> None:
         """At the first frame with odometry: every particle's pace becomes its direction times its
