@@ -135,16 +135,18 @@ _SEQUENCE_PARAMS = {"online": {"init": 40}, "threshold": {"normaliser": 255.0},
                     "catgraph": {"frontier": 10, "seed": 2}}  # laps of 60 frames: a frontier of 10 lets them meet
 
 
-@pytest.mark.parametrize("method", ["online", "threshold", "catgraph"])
-def test_streaming_equals_batch_in_sequence_mode(method: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize("method, exclude_recent", [("online", None), ("threshold", None), ("catgraph", None),
+                                                     ("online", 1)])  # a recent window narrower than the same place's
+def test_streaming_equals_batch_in_sequence_mode(method: str, exclude_recent: int | None, tmp_path: Path) -> None:
     rows, names = _looped_descriptors()
     np.save(tmp_path / "route.npy", rows)
     (tmp_path / "names.txt").write_text("\n".join(names) + "\n")
     cache = Cache(tmp_path / "cache")
     params = _SEQUENCE_PARAMS[method]
     run = api.localize(tmp_path / "route.npy", metric="l1", query_names_file=tmp_path / "names.txt",
-                       method=method, method_params=params, out=tmp_path / "batch.csv", cache=cache)
-    loc = Localizer(None, descriptor="external", method=method, cache=cache,
+                       method=method, method_params=params, out=tmp_path / "batch.csv", cache=cache,
+                       exclude_recent=exclude_recent)
+    loc = Localizer(None, descriptor="external", method=method, cache=cache, exclude_recent=exclude_recent,
                     descriptor_params={"metric": "l1", "length": 64}, **params)
     decisions = [loc.observe(row, name=name) for row, name in zip(rows, names)]
     streamed = pd.DataFrame({"frame": [d.frame for d in decisions], "match": [d.match_name for d in decisions],

@@ -83,8 +83,10 @@ def near_miss(row: NDArray[np.floating], z: int, match: NDArray[np.int64] | None
         finite = np.concatenate(rest)  # none finite, or a -inf to skip
         finite = finite[np.isfinite(finite)]
         return float(finite.min()) if finite.size else float("nan")
+    # a batch run's row spans the whole traversal (inf past the candidates): frames within the
+    # window that are not decided yet (the recent window narrower than it) have no match
     same = set(range(low, high))
-    targets = {int(match[i]) for i in same}  # what the members of M were matched to
+    targets = {int(match[i]) if i < match.size else -1 for i in same}  # what the members of M were matched to
     for cand in _increasing(row):
         if cand in same:
             continue
