@@ -1203,6 +1203,29 @@ def test_compare_refuses_a_run_in_memory_given_twice(route: tuple[Path, Path]) -
     assert len(api.compare([run, other], truth).table1) == 2
 
 
+def test_compare_refuses_a_written_run_given_twice(route: tuple[Path, Path], tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A localize run written to a file (out=), given twice as the run, or as the run and its
+    file by any path, was counted twice in the tables: its two entries carried one Path object,
+    which the check for a file given twice took for one entry. Its results, given beside it, are
+    the same run too."""
+    from wiloc import api
+
+    ref, query = route
+    monkeypatch.chdir(tmp_path)
+    run = api.localize(query, reference=ref, method="threshold", out=tmp_path / "dup.csv", jobs=1)
+    truth = api.TruthSource(kind="aligned", tolerance=2)
+    for twice in ([run, run], [run, run.path], [run.path, run], [run, "dup.csv"], [run.path, run.path]):
+        with pytest.raises(ParameterError, match=r"^runs: .*dup\.csv is given twice( \(as .*dup\.csv\))?; "
+                                                 r"each run counts once$"):
+            api.compare(twice, truth)
+    with pytest.raises(ParameterError, match=r"^runs: the run of threshold on .*query in memory is given twice; "
+                                             r"each run counts once$"):
+        api.compare([run, run.results], truth)
+    other = api.localize(query, reference=ref, method="online", out=tmp_path / "other.csv", jobs=1)
+    assert len(api.compare([run, other], truth).table1) == 2
+
+
 @pytest.mark.parametrize("targets", ["", ",,"])
 def test_compare_refuses_no_target_precision(targets: str, results: Path) -> None:
     ends_in_one_error(runner.invoke(app, ["compare", str(results), "--precision", targets]), 2,
@@ -1937,6 +1960,55 @@ def test_a_ground_truth_of_wrong_types_is_refused_as_it_is_made(given: dict[str,
     with pytest.raises(ParameterError) as refused:
         TruthSource(**given)
     assert (refused.value.parameter, str(refused.value)) == (parameter, f"{parameter}: {message}")
+
+
+@pytest.mark.parametrize("given, parameter, message", [
+    ({"kind": "alignd"}, "kind", "unknown ground-truth kind 'alignd'; choose one of aligned, positions"),
+    ({"kind": None}, "kind", "unknown ground-truth kind None"),
+    ({"tolerance": -1}, "tolerance", "must be a whole number of frames >= 0, got -1"),
+    ({"tolerance": 2.5}, "tolerance", "must be a whole number of frames >= 0, got 2.5"),
+    ({"tolerance": True}, "tolerance", "must be a whole number of frames >= 0, got True"),
+    ({"by": "nme"}, "by", "'name' or 'index', got 'nme'")])
+def test_a_ground_truth_of_bad_values_is_refused_as_it_is_made(given: dict[str, object], parameter: str,
+                                                              message: str, results: Path) -> None:
+    """TruthSource(kind='alignd'), a negative tolerance or by='nme' were made, and refused only as a
+    run was scored, in a WilocError (not the ParameterError a negative radius is, as it is made)."""
+    from wiloc import api
+
+    with pytest.raises(ParameterError) as refused:
+        api.TruthSource(**given)
+    assert refused.value.parameter == parameter and str(refused.value).startswith(f"{parameter}: {message}")
+    assert api.evaluate(results, api.TruthSource(tolerance=0, by="index")).summary.frames > 0  # good values pass
+
+
+def test_ground_truth_values_the_cli_refuses_are_one_line_each(results: Path) -> None:
+    """The command line refuses the same mistakes itself, each in one line naming its option."""
+    for args, code, message in ((["--gt", "alignd"], 2, "--gt: 'alignd' is neither a ground-truth form nor a file"),
+                                (["--gt", "alignd:x.csv"], 2, "--gt: unknown ground-truth form 'alignd'"),
+                                (["--tolerance", "-1"], 2, "--tolerance: input should be greater"),
+                                (["--gt", "aligned:nme"], 2, "--gt: 'aligned' reads the traversals themselves")):
+        ends_in_one_error(runner.invoke(app, ["evaluate", str(results), *args]), code, message)
+
+
+@pytest.mark.parametrize("progress", [5, "bar"])
+def test_a_progress_that_is_no_function_is_a_parameter_error(progress: object, route: tuple[Path, Path],
+                                                             tmp_path: Path) -> None:
+    """progress=5 ended in "TypeError: 'int' object is not callable" from deep in describing, once
+    the first frames were described; it is refused before, as the other parameters are."""
+    from wiloc import api
+
+    ref, query = route
+    out = tmp_path / "run.csv"
+    expected = f"progress: a function progress(stage, done, total) or None, got {type(progress).__name__}"
+    for call in (lambda: api.describe(ref, progress=progress), lambda: api.describe([ref, query], progress=progress),
+                 lambda: api.localize(query, reference=ref, method="threshold", progress=progress, out=out)):
+        with pytest.raises(ParameterError, match=f"^{re.escape(expected)}$") as refused:
+            call()
+        assert refused.value.parameter == "progress"
+    assert not out.exists()
+    seen: list[str] = []
+    api.localize(query, reference=ref, method="threshold", progress=lambda stage, done, total: seen.append(stage))
+    assert seen  # a function is called
 
 
 def test_a_sampling_that_is_no_sampling_or_of_a_folder_map_is_a_parameter_error(route: tuple[Path, Path]) -> None:

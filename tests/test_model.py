@@ -65,3 +65,15 @@ def test_round_trip_through_dict() -> None:
 def test_bin_count_below_one_is_refused(bins: int) -> None:
     with pytest.raises(ValueError, match="bins must be >= 1"):
         HistogramModel.from_range(0.0, 1.0, bins=bins)
+
+
+def test_repr_is_one_short_line_of_bins_range_and_counts() -> None:
+    """A model (``decisions.model``) printed its edges and both count arrays whole, over 100 lines."""
+    model = HistogramModel.from_range(0.0, 2.5, bins=100, smoothing=0.5)
+    model.add_same([0.1, 0.2, 0.3])
+    model.add_different([1.5, 2.0])
+    shown = repr(model)
+    assert "\n" not in shown and len(shown) < 200, shown
+    assert shown.startswith("HistogramModel(") and "bins=100" in shown and "range=(0, 2.5)" in shown
+    assert "same=3" in shown and "different=2" in shown and "smoothing=0.5" in shown and "prior=None" in shown
+    assert str(model.b.tolist()) not in shown

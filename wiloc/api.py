@@ -17,7 +17,7 @@ from typing import Any
 from wiloc.cache.store import Cache
 from wiloc.description.describing import (DescribeReport, check_sampling, check_topic, describe_sources,
                                          traversal_paths)
-from wiloc.description.traversals import Progress, descriptor_spec, open_cluster, stage
+from wiloc.description.traversals import Progress, check_progress, descriptor_spec, open_cluster, stage
 from wiloc.evaluation.comparison import (DEFAULT_CUTS, RANKED_KS, TABLE1_KEYS, Comparison, Evaluation, check_cuts,
                                          check_frames, check_held_once, check_once, check_precisions, check_recall_at,
                                          comparison, method_labels, new_place_series, pr_series, reliability_series,
@@ -54,6 +54,7 @@ def describe(folders: Sequence[str | Path] | str | Path, descriptor: str = "sad"
     the workers (``wiloc.description.describing.describe_folders``). Reports come in the order of
     ``folders``; one folder given alone (not in a list) is described as ``[folder]``, never as
     the characters of its name."""
+    check_progress(progress)
     spec = descriptor_spec(descriptor, descriptor_params)
     cache = Cache.given(cache)
     paths = traversal_paths(folders, "folders")
@@ -104,7 +105,7 @@ def compare(runs: Iterable[Run] | Run, truth: TruthSource, *, precisions: Sequen
     runs = run_list(runs, (LocalizeRun, Results))
     check_once([run.path if isinstance(run, LocalizeRun) else None if isinstance(run, Results)
                 else results_file(run, "runs") for run in runs])
-    check_held_once([run.results if isinstance(run, LocalizeRun) else run for run in runs
-                     if isinstance(run, Results) or (isinstance(run, LocalizeRun) and run.path is None)])
+    check_held_once([run.results if isinstance(run, LocalizeRun) else run for run in runs  # a written run's too:
+                     if isinstance(run, (Results, LocalizeRun))])  # given beside its results, it is one run
     evaluations = [evaluate(run, truth, cuts, recall_at, frames=frames) for run in runs]
     return comparison(evaluations, truth, precisions=precisions, global_thresholds=global_thresholds)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from wiloc.reprs import brief
 
 
 @dataclass
@@ -42,6 +43,13 @@ class HistogramModel:
         for name, counts in (("b", self.b), ("c", self.c)):  # a results header edited by hand
             if counts.shape != (self.n_bins,) or not np.all(np.isfinite(counts) & (counts >= 0)):
                 raise ValueError(f"{name} must hold a count >= 0 for each of the {self.n_bins} bins")
+
+    def __repr__(self) -> str:
+        """One line, as the other objects wiloc returns print (``wiloc.reprs``): the bins, their
+        range and the samples counted so far, not the edges and counts whole (hundreds of values)."""
+        return (f"HistogramModel(bins={self.n_bins}, range=({brief(self.edges[0])}, {brief(self.edges[-1])}), "
+                f"same={brief(self.b.sum())}, different={brief(self.c.sum())}, smoothing={brief(self.smoothing)}, "
+                f"prior={brief(self.prior)})")
 
     @classmethod
     def from_range(cls, low: float, high: float, bins: int = 100, **kwargs: float | None) -> HistogramModel:

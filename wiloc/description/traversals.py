@@ -146,9 +146,20 @@ def descriptor_label(descriptor: str, metric: str | None, sources: Iterable[Path
     return f"{EXTERNAL}:{metric}" if (descriptor == EXTERNAL or matrices) and metric else descriptor
 
 
+def check_progress(progress: Progress | None) -> Progress | None:
+    """``progress`` as given: a function or None. Anything else (a number, text) is a
+    ParameterError naming ``progress`` before any work, not a TypeError once the first frames
+    are described."""
+    if progress is not None and not callable(progress):
+        raise ParameterError("progress", f"a function progress(stage, done, total) or None, "
+                                         f"got {type(progress).__name__}")
+    return progress
+
+
 def stage(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
-    """A per-step ``progress(done, total)`` callback that tags the step's label."""
-    if progress is None:
+    """A per-step ``progress(done, total)`` callback that tags the step's label (``progress`` is
+    checked: :func:`check_progress`)."""
+    if check_progress(progress) is None:
         return None
     return lambda done, total: progress(label, done, total)
 
@@ -185,6 +196,11 @@ class Describer:
     cluster: Cluster | None = None  # a Dask cluster that describes folders and computes differences
     topic: str | None = None
     notes: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        """``progress`` checked as it is given (a run's setup makes its describer before any frame
+        is described)."""
+        check_progress(self.progress)
 
     @property
     def runner(self) -> BlockRunner | None:

@@ -253,27 +253,28 @@ def check_recall_at(recall_at: Iterable[int]) -> list[int]:
 def check_once(paths: Sequence[Path | None]) -> None:
     """Each run counts once in the tables: a ParameterError names a results file given twice (by
     any path to it) or one identical to another (a copy: the same run). None stands for a run in
-    memory."""
+    memory. A path seen before is found by its key, never by identity: a localize run written
+    to a file, given twice, gives the same Path object twice."""
     seen: dict[Path, Path] = {}
     contents: dict[str, Path] = {}
     lines: dict[str, Path] = {}
     for path in paths:
         if path is None:
             continue
-        first = seen.setdefault(path.resolve(), path)
-        if first is not path:
+        if (first := seen.get(path.resolve())) is not None:
             spelling = "" if str(first) == str(path) else f" (as {first})"
             raise ParameterError("runs", f"{path} is given twice{spelling}; each run counts once")
+        seen[path.resolve()] = path
         if path.is_file():
             text = path.read_bytes().removeprefix(b"\xef\xbb\xbf")  # a byte-order mark is read past
-            first = contents.setdefault(hashlib.sha256(text).hexdigest(), path)
-            if first is not path:
+            if (first := contents.get(digest := hashlib.sha256(text).hexdigest())) is not None:
                 raise ParameterError("runs", f"{path} holds the same run as {first} (identical contents); "
                                              "each run counts once")
-            first = lines.setdefault(_lines_digest(text), path)
-            if first is not path:
+            contents[digest] = path
+            if (first := lines.get(digest := _lines_digest(text))) is not None:
                 raise ParameterError("runs", f"{path} holds the same run as {first} (the same lines, in another "
                                              "order or with other line endings); each run counts once")
+            lines[digest] = path
 
 
 def check_held_once(held: Sequence[Results]) -> None:

@@ -11,8 +11,8 @@ from typing import Literal
 
 from wiloc.errors import ParameterError, WilocError
 from wiloc.evaluation.aligned import aligned_truth
-from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, LeftOut, Truth, check_radius, full_order, holds_indices,
-                                          pairs_truth, positions_truth, restrict_sequence)
+from wiloc.evaluation.groundtruth import (FOLDER_KINDS, KINDS, LeftOut, Truth, check_radius, check_tolerance,
+                                          full_order, holds_indices, pairs_truth, positions_truth, restrict_sequence)
 from wiloc.evaluation.truth_formats import (DEFAULT_RADIUS_M, exif_truth, matrix_truth, npy_form, positives_truth,
                                             utm_names_truth, vprbench_truth)
 from wiloc.given import COLUMN_NAMES, check_file_path, is_number
@@ -130,12 +130,21 @@ class TruthSource:
 
     def __post_init__(self) -> None:
         """Path-like files kept as text, as a saved localizer's state writes them to JSON; files of
-        another type and a radius checked as they are given, before any file or folder is read."""
+        another type, the kind, tolerance, ``by`` and radius checked as they are given, before any
+        file or folder is read: a ParameterError naming the parameter, not a run's scoring failing later."""
+        if self.kind not in KINDS:
+            raise ParameterError("kind", f"unknown ground-truth kind {self.kind!r}; choose one of {', '.join(KINDS)}")
         for name in ("path", "ref_path"):
             if isinstance(value := getattr(self, name), os.PathLike):
                 object.__setattr__(self, name, os.fspath(value))
             elif value is not None:
                 check_file_path(value, name)
+        try:
+            check_tolerance(self.tolerance)
+        except WilocError as exc:  # the reader's error names the parameter; made, it is a ParameterError
+            raise ParameterError("tolerance", exc.problem) from None
+        if self.by not in ("name", "index"):
+            raise ParameterError("by", f"'name' or 'index', got {self.by!r}")
         if self.radius is not None:
             check_radius(self.radius)
 
