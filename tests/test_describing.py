@@ -454,6 +454,28 @@ def test_query_and_map_frames_of_another_shape_are_warned_of(tmp_path: Path, cac
     assert f"{(tmp_path / 'square').resolve()}: frames of 80 x 60 pixels against the map's 96 x 54" in line
 
 
+def test_query_frames_of_another_shape_among_others_are_warned_of_with_their_count(tmp_path: Path,
+                                                                                cache_dir: Path) -> None:
+    """A query whose frames are mostly of the map's shape, a few turned upright: the few are warned
+    of (the most common size alone was looked at, so a minority of another shape never was), and
+    describing names the sizes."""
+    from typer.testing import CliRunner
+
+    from wiloc import api
+    from wiloc.cli import app
+
+    write_images(tmp_path / "map", 6, seed=1, size=(96, 54))
+    write_images(tmp_path / "mixed", 6, seed=2, size=(96, 54))
+    write_images(tmp_path / "upright", 2, seed=3, size=(54, 96))
+    for k, image in enumerate(sorted((tmp_path / "upright").iterdir())):
+        image.replace(tmp_path / "mixed" / f"zz{k}{image.suffix}")
+    run = api.localize(tmp_path / "mixed", reference=tmp_path / "map", method="threshold", cache=Cache(cache_dir))
+    [line] = run.warnings
+    assert f"{(tmp_path / 'mixed').resolve()}: 2 of 8 frames of 54 x 96 pixels against the map's 96 x 54" in line
+    said = CliRunner().invoke(app, ["describe", str(tmp_path / "mixed")])
+    assert said.exit_code == 0 and "images of 2 different sizes (54 x 96, 96 x 54)" in said.stderr
+
+
 def test_a_jpeg_turned_upright_by_its_exif_orientation_has_the_shape_it_is_shown_in(tmp_path: Path,
                                                                                   cache_dir: Path) -> None:
     """A phone's portrait JPEG is stored landscape with an EXIF orientation that the decoder

@@ -84,15 +84,16 @@ class FrameRecord:
 class Entry(EntryHeader):
     """A cached descriptor matrix: the header's fields, rows in frame order named by file name
     (a video's frames by index), a digest of the content (names, fingerprints, params) that
-    derived files are keyed by, per row the decoder timestamp in ms (NaN for image files), and the
+    derived files are keyed by, per row the decoder timestamp in ms (NaN for image files), the
     frames' most common size in pixels, (width, height) (None where no size is recorded: rows
-    imported from a matrix)."""
+    imported from a matrix), and each size with its count of frames, the most common first."""
 
     names: list[str]
     data: np.ndarray
     digest: str
     timestamps_ms: np.ndarray | None = None
     frame_size: tuple[int, int] | None = None
+    frame_sizes: tuple[tuple[tuple[int, int], int], ...] = ()
 
 @dataclass
 class StoredEntry:
@@ -130,7 +131,7 @@ class StoredEntry:
             for i, record in enumerate(good):
                 data[i] = record.row
         return Entry(**asdict(h), names=[r.name for r in good], data=data, digest=entry_digest(h, good),
-                     timestamps_ms=_timestamps(good), frame_size=_frame_size(good))
+                     timestamps_ms=_timestamps(good), **_frame_sizes(good))
 
     def _read_in_order(self, good: list[FrameRecord]) -> bool:
         """Whether ``good`` are the rows of :attr:`read_matrix`, row after row: the matrix is then
@@ -148,10 +149,11 @@ def _timestamps(records: list[FrameRecord]) -> np.ndarray:
     return np.array([np.nan if r.timestamp_ms is None else r.timestamp_ms for r in records], np.float64)
 
 
-def _frame_size(records: list[FrameRecord]) -> tuple[int, int] | None:
-    """The most common (width, height) among ``records`` that record one."""
-    sizes = Counter((r.width, r.height) for r in records if r.width > 0 and r.height > 0)
-    return sizes.most_common(1)[0][0] if sizes else None
+def _frame_sizes(records: list[FrameRecord]) -> dict[str, Any]:
+    """``frame_size``, the most common (width, height) among ``records`` that record one, and
+    ``frame_sizes``, each with its count, the most common first."""
+    sizes = Counter((r.width, r.height) for r in records if r.width > 0 and r.height > 0).most_common()
+    return {"frame_size": sizes[0][0] if sizes else None, "frame_sizes": tuple(sizes)}
 
 
 def checksum(record: FrameRecord, dtype: np.dtype | str) -> int:

@@ -108,7 +108,8 @@ def describe(
         for name, reason in r.left_out if not r.video else ():  # named as localize names them: absolute in --json
             said.add("skipped", f"{Path(r.folder if as_json else folder) / name}: {reason}")
         if len(r.sizes) > 1:
-            said.add("note", f"{r.folder}: images of {len(r.sizes)} different sizes")
+            shown = ", ".join(f"{w} x {h}" for w, h in r.sizes[:4]) + (", ..." if len(r.sizes) > 4 else "")
+            said.add("note", f"{r.folder}: images of {len(r.sizes)} different sizes ({shown})")
         notes.append(said)
         rows.append({"folder": label, "descriptor": r.descriptor, "frames": r.frames,
                      "shape": list(r.shape), "computed": r.computed, "reused": r.reused,

@@ -455,11 +455,14 @@ ASPECT_TOLERANCE = 0.1
 
 
 def shape_doubts(query: Entry | None, reference: Entry | None) -> list[str]:
-    """A line when the query's frames and the map's are of other shapes (:func:`shape_doubt`)."""
+    """A line for each size of the query's frames whose shape is not the map's
+    (:func:`shape_doubt`), counting its frames when others are of other sizes."""
     if query is None or reference is None or query.frame_size is None:
         return []
-    line = shape_doubt(query.frame_size, reference.frame_size)
-    return [] if line is None else [f"query {query.folder}: {line}"]
+    total = sum(count for _, count in query.frame_sizes) or 1
+    lines = (shape_doubt(size, reference.frame_size, "frames" if count == total else f"{count} of {total} frames")
+             for size, count in query.frame_sizes or ((query.frame_size, total),))
+    return [f"query {query.folder}: {line}" for line in lines if line is not None]
 
 
 def shape_doubt(size: tuple[int, int], map_size: tuple[int, int] | None, frames: str = "frames") -> str | None:
