@@ -12,9 +12,11 @@ import pytest
 from helpers import ends_in_one_error, write_images
 from typer.testing import CliRunner
 
+from wiloc import api
 from wiloc.cli import app
 from wiloc.description.traversals import descriptor_label
 from wiloc.descriptors.external import read_external, recorded_metric
+from wiloc.errors import WilocError
 from wiloc.evaluation.results import read_results
 
 runner = CliRunner()
@@ -248,7 +250,8 @@ def test_a_metric_overriding_the_recorded_one_is_said_to(out: list[str], tmp_pat
     assert [line for line in json.loads(result.stdout)["warnings"] if said in line] != [], result.output
     assert said in result.stderr
     quiet = runner.invoke(app, ["describe", "--import", "x.h5", "--metric", "sqeuclidean", *out, "--json"])
-    assert quiet.exit_code == 0 and json.loads(quiet.stdout)["warnings"] == [], quiet.output
+    replaced = [f"note: replaced the existing descriptor file {name}" for name in out[1:]]  # again.h5, written above
+    assert quiet.exit_code == 0 and json.loads(quiet.stdout)["warnings"] == replaced, quiet.output
 
 
 def test_localize_with_a_metric_overriding_the_recorded_one_says_so(tmp_path: Path, cache_dir: Path,
@@ -274,3 +277,56 @@ def test_localize_with_a_metric_overriding_the_recorded_one_says_so(tmp_path: Pa
         quiet = runner.invoke(app, ["localize", *args, "--method", "threshold", "--out", f"again{i}.csv", "--json"])
         assert quiet.exit_code == 0 and not any("overrides" in line for line in json.loads(quiet.stdout)["warnings"]), \
             quiet.output
+
+
+def _other_outs(tmp: Path) -> dict[str, Path]:
+    """Files of someone else's at --out: none of them a descriptor file --out wrote."""
+    text = tmp / "victim.h5"
+    text.write_text("notes of one's own\n")
+    folder = tmp / "folder.h5"
+    folder.mkdir()
+    (folder / "kept.txt").write_text("kept\n")
+    return {"hloc file": _hloc_file(tmp / "other-hloc.h5", {"db/a.jpg": np.ones(4)}), "text file": text,
+            "folder": folder}
+
+
+def _files(tmp: Path) -> list[tuple[Path, bytes | None]]:
+    """What ``tmp`` holds besides the cache: each path and its bytes (None for a folder)."""
+    return sorted((p.relative_to(tmp), p.read_bytes() if p.is_file() else None)
+                  for p in tmp.rglob("*") if "cache" not in p.relative_to(tmp).parts)
+
+
+@pytest.mark.parametrize("case", ["hloc file", "text file", "folder"])
+def test_out_never_replaces_a_file_that_is_no_descriptor_file(case: str, tmp_path: Path, cache_dir: Path) -> None:
+    """--out over another tool's .h5 (or any file it did not write) replaced it silently, exit 0."""
+    feats = _hloc_file(tmp_path / "gf.h5", {f"db/img{i}.jpg": v for i, v in enumerate(_descriptors()[0])})
+    out = _other_outs(tmp_path)[case]
+    before = _files(tmp_path)
+    result = runner.invoke(app, ["describe", "--import", str(feats), "--prefix", "db/", "--metric", "cosine",
+                                 "--out", str(out)])
+    ends_in_one_error(result, 1, f"error: {out}: ", "no wiloc descriptor file", "give another name, or remove it first")
+    assert _files(tmp_path) == before  # nothing written, not even a temporary file
+    with pytest.raises(WilocError, match="give another name, or remove it first"):
+        api.import_descriptors(feats, metric="cosine", prefix="db/", out=out, cache=cache_dir)
+    assert _files(tmp_path) == before
+
+
+def test_out_replaces_a_descriptor_file_and_says_so(tmp_path: Path, cache_dir: Path) -> None:
+    """A descriptor file --out wrote (an import redone) is replaced, said on stderr and in --json."""
+    ref, query = _descriptors()
+    feats = _hloc_file(tmp_path / "gf.h5", {**{f"db/img{i}.jpg": v for i, v in enumerate(ref)},
+                                            **{f"query/img{i}.jpg": v for i, v in enumerate(query)}})
+    out = tmp_path / "map.h5"
+    first = runner.invoke(app, ["describe", "--import", str(feats), "--prefix", "db/", "--metric", "cosine",
+                                "--out", str(out), "--json"])
+    assert first.exit_code == 0 and json.loads(first.stdout)["warnings"] == [], first.output
+    again = runner.invoke(app, ["describe", "--import", str(feats), "--prefix", "query/", "--metric", "l1",
+                                "--out", str(out), "--json"])
+    assert again.exit_code == 0, again.output
+    assert json.loads(again.stdout)["warnings"] == [f"note: replaced the existing descriptor file {out}"]
+    assert again.stderr.strip().splitlines() == [f"note replaced the existing descriptor file {out}"]
+    names, matrix = read_external(out, None, "l1")
+    assert recorded_metric(out) == "l1" and names == [f"img{i}.jpg" for i in range(N)]
+    assert np.array_equal(matrix, query.astype(np.float16).astype(matrix.dtype))
+    report = api.import_descriptors(feats, metric="cosine", prefix="db/", out=out, cache=cache_dir)
+    assert report.notes == [f"replaced the existing descriptor file {out}"]

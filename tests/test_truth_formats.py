@@ -242,8 +242,15 @@ def _bad_positives(tmp: Path, kind: str, n_query: int) -> Path:
         positives[4] = np.array([2, 9999])
     elif kind == "not indices":
         positives[1] = np.array([0.5, 1.5])
-    np.save(path, np.eye(n_query) if kind == "mask" else positives)
+    masks = {"mask": np.eye(n_query), "mask of uint8": _near_mask(n_query).astype(np.uint8),
+             "mask of bool": _near_mask(n_query)}
+    np.save(path, masks[kind] if kind in masks else positives)
     return path
+
+
+def _near_mask(n: int) -> np.ndarray:
+    """An n x n same-place mask: each frame and its neighbours (the matrix form)."""
+    return np.abs(np.subtract.outer(np.arange(n), np.arange(n))) <= 1
 
 
 @pytest.mark.parametrize("kind, message", [
@@ -251,8 +258,10 @@ def _bad_positives(tmp: Path, kind: str, n_query: int) -> Path:
     ("out of range", ("@.jpg): reference index 9999 is no frame of the reference traversal, whose 24 frames are "
                       "numbered 0 to 23")),
     ("not indices", "@.jpg) is not a list of reference indices"),
-    ("mask", "holds a 24 x 24 array of float64, not one array of reference indices per query frame (a queries x "
-             "references mask of 0 and 1 is the matrix form)"),
+    ("mask", "holds a 24 x 24 array of float64, every value 0 or 1: it looks like a same-place mask (queries x "
+             "references), not one array of reference indices per query frame; give it as matrix:FILE"),
+    ("mask of uint8", "holds a 24 x 24 array of uint8, every value 0 or 1: it looks like a same-place mask"),
+    ("mask of bool", "holds a 24 x 24 array of bool, every value 0 or 1: it looks like a same-place mask"),
 ])
 def test_bad_positives_files_are_one_line(kind: str, message: str, vpr_route: dict, tmp_path: Path) -> None:
     queries = read_results(vpr_route["run"]).frames["frame"]
@@ -286,6 +295,32 @@ def test_positives_of_equal_counts_saved_as_one_integer_array_are_read(tmp_path:
                                          r"reference indices are the positives form \(positives:FILE\)"):
         load_truth(file_form(tmp_path / "top2.npy"), tmp_path / "top2.npy", query_names=["a", "b", "c"],
                    ref_names=["x", "y", "z"])
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.int64, np.bool_])
+def test_a_same_place_mask_given_as_positives_is_refused(dtype: type, tmp_path: Path) -> None:
+    """A 0/1 mask given as positives was read row by row as reference indices 0 and 1, and scored
+    silently wrong (R@1 near 0); it is refused, pointing to the matrix form, which reads it."""
+    names = [f"f{i}" for i in range(5)]
+    np.save(tmp_path / "mask.npy", _near_mask(5).astype(dtype))
+    with pytest.raises(WilocError) as raised:
+        load_truth("positives", tmp_path / "mask.npy", query_names=names, ref_names=names)
+    assert raised.value.where == str(tmp_path / "mask.npy")
+    assert "it looks like a same-place mask" in raised.value.problem
+    assert raised.value.problem.endswith("give it as matrix:FILE")
+    truth = load_truth("matrix", tmp_path / "mask.npy", query_names=names, ref_names=names)
+    assert np.array_equal(truth.matrix.toarray(), _near_mask(5))
+
+
+@pytest.mark.parametrize(("positives", "expected"), [
+    ([[0, 1], [1, 0], [0, 1]], [[1, 1], [1, 1], [1, 1]]),  # as wide as the map, each row distinct frames
+    ([[0], [1], [0]], [[1, 0], [0, 1], [1, 0]]),  # one positive each, of 0 and 1 only
+])
+def test_positives_of_only_0_and_1_that_are_no_mask_are_read(positives: list, expected: list, tmp_path: Path) -> None:
+    """Positives listing distinct frames 0 and 1 are positives, whatever they look like."""
+    np.save(tmp_path / "p.npy", np.array(positives, dtype=np.int64))
+    truth = load_truth("positives", tmp_path / "p.npy", query_names=["a", "b", "c"], ref_names=["x", "y"])
+    assert truth.matrix.toarray().astype(int).tolist() == expected
 
 
 @pytest.mark.parametrize(("saved", "hint"), [

@@ -9,7 +9,8 @@ from pathlib import Path
 from wiloc.cache.entries import EXTERNAL, EntryHeader, FrameRecord, StoredEntry, entry_key
 from wiloc.cache.store import Cache
 from wiloc.description.describing import DescribeReport, read_stored
-from wiloc.descriptors.external import READER_VERSION, check_names_file, read_external, recorded_metric, write_matrix
+from wiloc.descriptors.external import (METRIC_ATTRIBUTE, READER_VERSION, check_names_file, read_external,
+                                        recorded_metric, write_matrix)
 from wiloc.descriptors.registry import get_descriptor
 from wiloc.errors import ParameterError, WilocError
 from wiloc.sources.frames import fingerprint, text_path
@@ -74,14 +75,42 @@ def import_to_file(source: Path, out: Path, cache: Cache, names_path: Path | Non
     """Write external descriptors (any :func:`read_external` source: a matrix file, hloc's
     global-feats-*.h5, a folder of per-image .npy vectors; ``prefix`` keeps one part of it) to a
     wiloc descriptor file ``out`` that records names and metric, and import that into the cache:
-    later commands name ``out`` alone."""
+    later commands name ``out`` alone. A file at ``out`` is replaced (and said to be) only when it
+    is such a descriptor file; anything else there is a WilocError naming it, nothing written."""
     out = Path(out)
     if out.suffix.lower() not in (".h5", ".hdf5"):
         raise ParameterError("out", f"{out}: a descriptor file is HDF5; name it FILE.h5")
     if out.resolve() == Path(source).resolve():
         raise ParameterError("out", f"{out} is the file being imported; name another")
+    if (problem := _other_file(out)) is not None:
+        raise WilocError(out, problem)
+    replaced = [f"replaced the existing descriptor file {out}"] if out.exists() else []
     names, matrix = read_external(Path(source), names_path, metric, prefix)
     write_matrix(out, names, matrix, metric)
     report = import_matrix(out, cache, None, metric)
-    return replace(report, notes=[*_overridden_metric(Path(source), metric), *report.notes])
+    return replace(report, notes=[*_overridden_metric(Path(source), metric), *report.notes, *replaced])
+
+
+def _other_file(out: Path) -> str | None:
+    """Why ``out`` is not to be replaced by a descriptor file: something is there that no --out
+    wrote (another tool's .h5, a text file, a folder), which would be lost. None for no file, an
+    empty one or a descriptor file as :func:`write_matrix` writes it (an import redone)."""
+    if not out.exists() or (out.is_file() and (out.stat().st_size == 0 or _written_by_out(out))):
+        return None
+    return (f"the {'folder' if out.is_dir() else 'file'} there is no wiloc descriptor file (datasets "
+            f"'descriptors' and 'names', attribute '{METRIC_ATTRIBUTE}'), and writing would replace it; "
+            "give another name, or remove it first")
+
+
+def _written_by_out(path: Path) -> bool:
+    """Whether the regular file ``path`` holds :func:`write_matrix`'s layout: the datasets
+    ``descriptors`` and ``names`` alone, and the attribute ``metric``."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as handle:
+            return set(handle) == {"descriptors", "names"} and METRIC_ATTRIBUTE in handle.attrs and \
+                all(isinstance(handle[name], h5py.Dataset) for name in handle)
+    except OSError:  # no HDF5 file
+        return False
 

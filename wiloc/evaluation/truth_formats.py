@@ -225,18 +225,37 @@ def vprbench_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[s
     return truth_from_pairs(queries, refs, query_names, ref_names, warnings)
 
 
+def _looks_like_mask(array: NDArray, n_ref: int) -> bool:
+    """Whether a 2-D array given as positives is plainly a queries x references same-place mask
+    (the matrix form), whose rows would be read as reference indices 0 and 1: booleans, or only
+    0s and 1s in rows as wide as the reference traversal, some row repeating an index, which
+    positives (distinct frames) never do. A queries x k array of distinct indices is read."""
+    if array.ndim != 2 or array.dtype.kind not in "biuf":
+        return False
+    if array.dtype.kind == "b":
+        return True
+    if array.shape[1] != n_ref or not array.size or not ((array == 0) | (array == 1)).all():
+        return False
+    # a row of 0s and 1s more than two wide repeats one; up to two wide, [0, 1] does not
+    return n_ref > 2 or bool((np.diff(np.sort(array, axis=1), axis=1) == 0).any())
+
+
 def positives_truth(path: Path, query_names: Sequence[str], ref_names: Sequence[str]) -> Truth:
     """Positives form: the i-th entry lists the reference indices that are the same place as the
     i-th query frame (an object array of index arrays, as pytorch-NetVLAD's and
     VPR-methods-evaluation's ``positives_per_query`` are, or a queries x k integer array); the
     indices count frames in each traversal's natural order, so the file must have one entry per
-    query frame."""
+    query frame. A same-place mask (the matrix form) is refused, not read as indices 0 and 1."""
     path = Path(path)
     array = _read_npy(path)
+    n_query, n_ref = len(query_names), len(ref_names)
+    if _looks_like_mask(array, n_ref):
+        raise WilocError(path, f"holds a {' x '.join(map(str, array.shape))} array of {array.dtype}, every value 0 "
+                               "or 1: it looks like a same-place mask (queries x references), not "
+                               f"{_POSITIVES}; give it as matrix:FILE")
     if not ((array.dtype.hasobject and array.ndim == 1) or (array.dtype.kind in "iu" and array.ndim == 2)):
         raise WilocError(path, f"holds a {' x '.join(map(str, array.shape)) or '0-d'} array of {array.dtype}, not "
                                f"{_POSITIVES} (a queries x references mask of 0 and 1 is the matrix form)")
-    n_query, n_ref = len(query_names), len(ref_names)
     if len(array) != n_query:
         raise TruthMismatch(path, f"lists positives of {len(array)} query frames, but the query traversal has {n_query}: "
                                "entry i is the i-th query frame in natural order")
