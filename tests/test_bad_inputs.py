@@ -2484,3 +2484,20 @@ def test_a_symbolic_link_loop_given_as_a_traversal_is_one_error(where: str, rout
     result = runner.invoke(app, ["localize", *args, "--method", "threshold", "--out", str(tmp_path / "o.csv")])
     ends_in_one_error(result, 1, str(tmp_path / "a"))
     assert not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.parametrize("second, problem", [("missing", "folder does not exist"), ("empty", "no image files"),
+                                             ("query/img0.png", "an image file is not a traversal"),
+                                             ("run.csv", "a wiloc results file is not a traversal")])
+def test_a_bad_later_query_fails_before_the_first_is_localized(second: str, problem: str, route: tuple[Path, Path],
+                                                               results: Path, tmp_path: Path) -> None:
+    """`localize q nonexist --out multi/` localized q and wrote its results before failing on the
+    second query: each query is checked (it exists and is a folder of images, a video, a ROS bag
+    or a descriptor matrix file) before any is described, as the options are."""
+    ref, query = route
+    (tmp_path / "empty").mkdir()
+    out = tmp_path / "multi"
+    result = runner.invoke(app, ["localize", str(query), str(tmp_path / second), "--map", str(ref),
+                                 "--method", "catgraph", "--out", f"{out}/", "--json"])
+    ends_in_one_error(result, 1, f"error: {tmp_path / second}: {problem}")
+    assert result.stdout == "" and not (out.exists() and any(out.iterdir()))

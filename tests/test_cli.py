@@ -551,3 +551,21 @@ def test_a_followed_runs_lines_keep_one_field_per_column_whatever_the_names(rout
     assert len(lines) == len(names) and all(len(line.split("\t")) == 5 for line in lines)
     assert sorted(line.split("\t")[0] for line in lines) == sorted(["tab\\there.png", "line\\nbreak.png",
                                                                     "back\\\\slash.png"])
+
+
+@pytest.mark.parametrize("given", [".", "./", "..", "sub/.."])
+def test_a_query_given_as_dot_or_dot_dot_is_named_by_its_folder(given: str, route: tuple[Path, Path],
+                                                                 tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`localize .` wrote "-sad-threshold.csv" (a name read back as an option) and `x/..` one
+    named "..-sad-threshold.csv", with the table's and --json's query blank or "..": each is the
+    folder's own name, as `describe` and `evaluate` show it."""
+    ref, query = route
+    (query / "sub").mkdir()
+    monkeypatch.chdir(query / "sub" if given == ".." else query)
+    ran = runner.invoke(app, ["localize", given, "--map", str(ref), "--method", "threshold", "--out", "runs/", "--json"])
+    assert [run["traversal"] for run in _json(ran)["runs"]] == ["query"]
+    assert [p.name for p in Path("runs").iterdir()] == ["query-sad-threshold.csv"]
+    shown = runner.invoke(app, ["localize", given, "--map", str(ref), "--method", "threshold"], env={"COLUMNS": "200"})
+    assert shown.exit_code == 0, shown.output
+    assert Path("query-sad-threshold.csv").exists()  # here, as without a dot
+    assert "│ query │ threshold" in shown.stdout

@@ -632,3 +632,81 @@ def test_a_radius_that_makes_too_many_true_pairs_is_refused_before_they_are_made
         positions_truth(path, path, 100.0, names, names)
     assert info.value.parameter == "radius"
 
+
+
+# --- aligned by index: a map frame added since the run ---------------------------------------
+
+def test_aligned_by_index_tells_a_map_frame_added_since_the_run_from_one_left_out(tmp_path: Path) -> None:
+    """A readable map frame the run never listed was added since: positions are counted by the run's
+    own frames, so nothing is shifted and nothing is said (it was warned of as "left out of the run
+    (unreadable?)"). One the run left out, unreadable, still shifts every later frame: warned of."""
+    from helpers import write_images
+
+    names = write_images(tmp_path / "map", 6)
+    queries = [f"frame{i}.png" for i in range(6)]
+    added = tmp_path / "map" / "img2b.jpg"  # between img2 and img3 in the folder's order
+    added.write_bytes((tmp_path / "map" / "img2.jpg").read_bytes())
+    truth = load_truth("aligned", None, query_names=queries, ref_names=names, by="index",
+                       query_folder=tmp_path / "q", ref_folder=tmp_path / "map")
+    assert truth.warnings == []
+    gone = tmp_path / "map" / "img3.png"
+    gone.write_bytes(gone.read_bytes()[:40])  # cut short: unreadable, as when the run left it out
+    truth = load_truth("aligned", None, query_names=queries, ref_names=names[:3] + names[4:], by="index",
+                       query_folder=tmp_path / "q", ref_folder=tmp_path / "map")
+    shifted = [line for line in truth.warnings if "shifted" in line]
+    assert len(shifted) == 1 and shifted[0].startswith(f"{gone}: left out of the run (unreadable?)"), truth.warnings
+    assert "more frames" not in shifted[0]  # the frame added since is not counted among those left out
+
+
+def test_evaluate_and_report_say_nothing_of_a_map_frame_added_since_the_run(tmp_path: Path, cache_dir: Path) -> None:
+    """`evaluate --gt aligned:index` of a run whose map gained a frame since warned that the new
+    frame was left out of the run (unreadable?), shifting every later frame; the run's own list of
+    map frames is what is scored, so nothing is shifted. The report still says why it draws no
+    matrix (the map's frames are not the run's)."""
+    from helpers import write_images
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+
+    runner = CliRunner()
+    write_images(tmp_path / "q", 8)
+    mapped = tmp_path / "map"
+    mapped.mkdir()
+    for i, name in enumerate(write_images(tmp_path / "images", 8, seed=1)):
+        (tmp_path / "images" / name).rename(mapped / f"{1614000000 + i}.5{Path(name).suffix}")
+    out = tmp_path / "run.csv"
+    ran = runner.invoke(app, ["localize", str(tmp_path / "q"), "--map", str(mapped), "--method", "threshold",
+                              "--out", str(out)])
+    assert ran.exit_code == 0, ran.output
+    (mapped / "1614000000.7.jpg").write_bytes((mapped / "1614000000.5.jpg").read_bytes())
+    scored = runner.invoke(app, ["evaluate", str(out), "--gt", "aligned:index"])
+    assert scored.exit_code == 0, scored.output
+    assert "1614000000.7.jpg" not in scored.stderr and "shifted" not in scored.stderr, scored.stderr
+    page = tmp_path / "report.html"
+    reported = runner.invoke(app, ["report", str(out), "--gt", "aligned:index", "--out", str(page)])
+    assert reported.exit_code == 0, reported.output
+    assert "shifted" not in reported.stderr and reported.stderr.count("1614000000.7.jpg new") == 2, reported.stderr
+
+
+def test_a_query_frame_left_out_is_warned_of_once_by_evaluate_and_report(tmp_path: Path, cache_dir: Path) -> None:
+    """A query image the run left out (cut short) shifts every later query frame's position under
+    aligned:index: evaluate and report each say so, once."""
+    from helpers import write_images
+    from typer.testing import CliRunner
+
+    from wiloc.cli import app
+
+    runner = CliRunner()
+    write_images(tmp_path / "q", 8)
+    write_images(tmp_path / "map", 8, seed=1)
+    cut = tmp_path / "q" / "img3.png"
+    cut.write_bytes(cut.read_bytes()[:40])
+    out = tmp_path / "run.csv"
+    ran = runner.invoke(app, ["localize", str(tmp_path / "q"), "--map", str(tmp_path / "map"), "--method",
+                              "threshold", "--out", str(out)])
+    assert ran.exit_code == 0, ran.output
+    for command in (["evaluate"], ["report", "--out", str(tmp_path / "report.html")]):
+        said = runner.invoke(app, [*command, str(out), "--gt", "aligned:index"])
+        assert said.exit_code == 0, said.output
+        assert said.stderr.count(f"{cut}: left out of the run (unreadable?), so the position of every later query "
+                                 "frame") == 1, said.stderr

@@ -134,6 +134,7 @@ def test_aligned_by_index_warns_of_a_frame_left_out_of_the_map(tmp_path: Path) -
     names = write_images(tmp_path / "map", 6)
     queries = [f"frame{i}.png" for i in range(6)]
     kept = names[:2] + names[3:]
+    (tmp_path / "map" / names[2]).write_bytes(b"not an image")  # why the run left it out
     truth = load_truth("aligned", None, query_names=queries, ref_names=kept, by="index",
                        query_folder=tmp_path / "q", ref_folder=tmp_path / "map")
     line = next(w for w in truth.warnings if "img2.jpg" in w)

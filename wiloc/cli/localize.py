@@ -76,6 +76,7 @@ def localize(
     from wiloc import api
     from wiloc.cache.store import Cache
     from wiloc.description.traversals import names_matrix_file
+    from wiloc.localization.run_files import check_query_path
 
     method_class(method)
     params = method_params(method, method_options or {})
@@ -143,6 +144,9 @@ def localize(
     clash = next((t for t in targets if targets.count(t) > 1), None)
     if clash is not None:
         fail(f"{clash}: two queries would write the same results file; give each its own --out", EXIT_USAGE)
+    if len(queries) > 1:  # each before the first is localized (a bad second one failed after its results were
+        for query in queries:  # written); one alone is checked by its run, after the options the library checks
+            check_query_path(query)
     cautions = Notes()
     for line in _doubtful(queries, reference, training):
         cautions.add("warning", line)

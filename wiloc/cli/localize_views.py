@@ -30,9 +30,11 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
     learned histograms drawn there (the command line gives it one run then); ``cautions``, the
     warnings said before the runs, lead the --json warnings. With --json, skipped frames are
     named by their absolute paths (:func:`absolute_frame`), on stderr too."""
+    from wiloc.localization.run_files import named_path
+
     shown = set()
     rows, notes = [], []
-    for label, run, repaired in zip(short_names([r.query for r in runs]), runs, repairs):
+    for label, run, repaired in zip(short_names([named_path(r.query) for r in runs]), runs, repairs):
         said = Notes()
         for line in (*repaired, *(line for line in run.notes if ("note", line) not in shown)):
             said.add("note", line)
@@ -55,7 +57,8 @@ def show_runs(runs: list[api.LocalizeRun], repairs: list[list[str]], method: str
                      "seconds": run.seconds, "results": run.path.name})
     if model_plot is not None:
         from wiloc.figures.plots import plot_model
-        plot_model(runs[0].decisions.model, replacing(notes[0], model_plot), title=f"{runs[0].query.name} ({method})")
+        plot_model(runs[0].decisions.model, replacing(notes[0], model_plot),
+                   title=f"{named_path(runs[0].query).name} ({method})")
     if as_json:
         print_command_json("localize", "runs", [
             {**row, "descriptor": run.results.header.descriptor, "traversal": row["query"],

@@ -67,7 +67,10 @@ def _shifted_positions(names: Sequence[str], source: Path | None, role: str) -> 
     of the run) by their position in the run, as it does when their names hold no index, and
     those positions are not the frames' own: a bag's frames are named by their stamps, and a
     sampled run (--every, --fps, --start) counts from its first kept frame; a folder's image that
-    the run left out (unreadable) shifts every later frame. None when neither is seen."""
+    the run left out (unreadable, and not put back as ``reference_left_out``) shifts every later
+    frame. An image the run never listed that reads now was added since: positions are counted by
+    the run's own frames, which it is not among, so it shifts nothing and is not said. None when
+    nothing is shifted."""
     from wiloc.sources.bags import is_bag  # a later module, read only here
     from wiloc.sources.frames import list_traversal
 
@@ -83,10 +86,22 @@ def _shifted_positions(names: Sequence[str], source: Path | None, role: str) -> 
         return []
     kept = set(names)
     last = max((i for i, name in enumerate(listed) if name in kept), default=0)
-    left = [name for name in listed[:last] if name not in kept]
+    left = [name for name in listed[:last] if name not in kept and not _readable(source / name)]
     more = f" (and {len(left) - 1} more frames of {source})" if len(left) > 1 else ""
     return [(f"{source / left[0]}: left out of the run{more} (unreadable?), so the position of every later {role} "
              "frame, which aligned:index aligns by, is shifted: align by name or give a pairs file")] if left else []
+
+
+def _readable(path: Path) -> bool:
+    """Whether the image at ``path`` decodes now, as a run reads its frames: one a run did not
+    list that does was added since, not left out."""
+    from wiloc.sources.frames import read_gray  # a later module, read only here
+
+    try:
+        read_gray(path)
+    except (WilocError, OSError):  # FrameError is a WilocError
+        return False
+    return True
 
 
 def file_form(path: str | Path) -> str:

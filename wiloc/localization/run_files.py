@@ -1,6 +1,6 @@
 """A run's results file: its default name, what its header says about the run, reading one
 back with the bounds its method's confidences keep, and the runs the API's evaluate and compare
-are given, checked."""
+are given, checked; a query checked before its run describes anything."""
 from __future__ import annotations
 
 import os
@@ -9,13 +9,14 @@ from pathlib import Path
 
 from wiloc.cache.store import Entry
 from wiloc.description.describing import is_stream
-from wiloc.description.traversals import Describer, descriptor_label
-from wiloc.errors import ParameterError
+from wiloc.description.traversals import MATRIX_SUFFIXES, Describer, descriptor_label, is_matrix_file
+from wiloc.descriptors.external import refuse_results_file
+from wiloc.errors import ParameterError, WilocError
 from wiloc.evaluation.results import Results, read_results
 from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.localization.training import Training
 from wiloc.methods.registry import METHODS
-from wiloc.sources.frames import text_path
+from wiloc.sources.frames import list_traversal, not_a_traversal, text_path
 from wiloc.version import __version__
 
 
@@ -26,9 +27,38 @@ def results_name(query: Path, method: str, descriptor: str, metric: str | None =
     ``day_left-sad-online.csv``; a video's or bag file's suffix stays in its name
     (``day_left-mp4-sad-online.csv``), so that its run and a folder's of the same name never share a file."""
     label = descriptor_label(descriptor, metric, [query]).replace(":", "-")
-    name = query.name if not query.is_file() else \
+    name = named_path(query).name if not query.is_file() else \
         f"{query.stem}-{query.suffix.lstrip('.').lower()}" if is_stream(query) else query.stem
     return f"{name}-{label}-{method}.csv"
+
+
+def named_path(query: Path) -> Path:
+    """``query`` as its traversal is named: as given, or resolved when its last part names no folder
+    (``.``, ``./``, ``..``, ``x/..``), so that its results file and labels carry the folder's own
+    name, not "" (a file "-sad-online.csv", read back as an option) or "..". A path that cannot be
+    resolved (a symbolic link loop) stays as given; reading it says what is wrong."""
+    if query.name not in ("", ".."):
+        return query
+    try:
+        return query.resolve()
+    except (OSError, RuntimeError):  # RuntimeError: a loop, before Python 3.13
+        return query
+
+
+def check_query_path(query: Path) -> None:
+    """Refuse, as a WilocError naming it and as a run would, a query that is no traversal: missing,
+    a folder without usable image files, or a file that is no video, ROS bag or descriptor matrix
+    file (a results file, an image). Nothing is described (what only reading the frames finds is
+    the run's to say), so that `localize` checks every query before localizing the first."""
+    query = Path(query)
+    if is_matrix_file(query):
+        refuse_results_file(query, "is not a traversal: give a folder of images, a video or a descriptor matrix "
+                                   "file (.npy, .npz, .csv, .h5)")
+        if query.suffix.lower() not in MATRIX_SUFFIXES:
+            raise WilocError(query, not_a_traversal(query, "give a folder of images, a video or a descriptor "
+                                                           "matrix file (.npy, .npz, .csv, .h5)"))
+    elif not (is_stream(query) and query.exists()):  # a video or bag: opening it verifies
+        list_traversal(query)
 
 
 def run_header(method: str, describer: Describer, query: Path | None, metric: str, reference: Path | Entry | None,
