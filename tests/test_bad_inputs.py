@@ -2344,7 +2344,10 @@ def test_a_vocabulary_key_the_cache_does_not_hold_is_a_usage_error(tmp_path: Pat
     describe = ["describe", str(tmp_path / "train"), "--descriptor", "bow", "--vocabulary"]
     ends_in_one_error(runner.invoke(app, [*describe, "nosuchkey"]), 2,
                       "--vocabulary: 'nosuchkey' is neither a vocabulary file nor the key of one in the cache")
-    ends_in_one_error(runner.invoke(app, [*describe, str(tmp_path / "v.npz")]), 1, "--vocabulary: ", "v.npz")
+    ends_in_one_error(runner.invoke(app, [*describe, str(tmp_path / "v.npz")]), 1,
+                      f"--vocabulary: {tmp_path / 'v.npz'}: file does not exist")
+    ends_in_one_error(runner.invoke(app, [*describe, str(tmp_path / "train")]), 1,
+                      f"--vocabulary: {tmp_path / 'train'}: a folder, not a vocabulary file")
 
 
 def test_a_results_file_given_to_describe_is_said_to_be_one(results: Path, tmp_path: Path) -> None:

@@ -78,10 +78,12 @@ def vocabulary_file(vocabulary: str | Path, cache: Cache | None = None) -> Path:
     path = Path(vocabulary).expanduser()
     if path.is_file():
         return path
-    problem = f"{str(vocabulary)!r} is neither a vocabulary file nor the key of one in the cache"
-    if not str(vocabulary).isalnum():
-        raise WilocError(None, problem, parameter="vocabulary")
+    if not str(vocabulary).isalnum():  # a path (a key is hexadecimal): the file is missing
+        kind = "a folder, not a vocabulary file" if path.is_dir() else "file does not exist"
+        raise WilocError(None, f"{vocabulary}: {kind} (a vocabulary is its file, or its key in the cache)",
+                         parameter="vocabulary")
     in_cache = vocabulary_path(Cache.given(cache), str(vocabulary))
     if not in_cache.is_file():
-        raise ParameterError("vocabulary", problem)
+        raise ParameterError("vocabulary", f"{str(vocabulary)!r} is neither a vocabulary file nor the key of one in "
+                                           "the cache")
     return in_cache
