@@ -456,11 +456,83 @@ def test_an_odometry_topic_refused_is_named_as_given(tmp_path: Path, cache_dir: 
     cv2.imwrite(str(folder / "a.png"), scenes(1)[0])
     ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--map", str(folder), "--method", "catgraph",
                                           "--odometry-topic", "/odom"]),
-                      2, "error: --map-odometry: the query's odometry needs the map's too, in the same units")
+                      2, "error: --map-odometry: the map ", "is not a ROS bag: it has no odometry topic")
     assert not list(Path(cache_dir).rglob("*.h5"))
     with pytest.raises(WilocError) as refused:
         api.localize(bag, reference=ref, method="threshold", odometry_topic="/odom")
     assert refused.value.parameter == "odometry_topic"
+
+
+def test_a_map_folder_with_an_odometry_topic_is_told_to_give_a_csv(tmp_path: Path, cache_dir: Path) -> None:
+    """A query bag's topic against a map that is no bag: the refusal says the map has no topic,
+    so its odometry comes as a CSV, not only that the map's is needed."""
+    bag = write_bag(tmp_path / "run", "ros1", scenes(6), odometry="/odom")
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a.png"), scenes(1)[0])
+    ends_in_one_error(runner.invoke(app, ["localize", str(bag), "--map", str(folder), "--method", "catgraph",
+                                          "--odometry-topic", "/odom"]),
+                      2, f"error: --map-odometry: the map {folder} is not a ROS bag: it has no odometry topic; "
+                         "give its odometry as a CSV, in the units of the query's")
+    assert not list(Path(cache_dir).rglob("*.h5"))
+
+
+def test_a_bag_odometry_given_twice_names_the_topic_option(tmp_path: Path, cache_dir: Path) -> None:
+    """A bag's odometry by --odometry-topic and as a CSV too: the refusal names the options as the
+    command line spells them, not the Python API's odometry_topic."""
+    bag = write_bag(tmp_path / "run", "ros1", scenes(6), odometry="/odom")
+    ref = write_bag(tmp_path / "ref", "ros1", scenes(6), odometry="/odom")
+    csv = tmp_path / "odometry.csv"
+    csv.write_text("".join(f"{frame_name(s)},1\n" for s in stamps(6)))
+    for option, flag, whose in (("--odometry", "--odometry-topic", "query"), ("--map-odometry", "--odometry-topic", "map")):
+        result = runner.invoke(app, ["localize", str(bag), "--map", str(ref), "--method", "catgraph",
+                                     "--odometry-topic", "/odom", option, str(csv)])
+        ends_in_one_error(result, 2, f"error: {flag}: the {whose}'s bag gives its odometry on the topic; "
+                                     "give it once, by the topic or as a CSV")
+        assert "odometry_topic" not in result.stderr
+    with pytest.raises(WilocError) as refused:
+        api.localize(bag, reference=ref, method="catgraph", odometry_topic="/odom", odometry=csv)
+    assert refused.value.parameter == "odometry_topic"
+
+
+def odometry_bag(path: Path, images: list[np.ndarray], odometry: list[int]) -> Path:
+    """A ROS 1 bag of `images` on /cam at 10 Hz from T0, and /odom messages at the stamps
+    `odometry`, moving 1 m along x each."""
+    writer = BagWriter(path, "ros1")
+    for stamp, pixels in zip(stamps(len(images)), images):
+        writer.image("/cam", stamp, pixels)
+    for i, stamp in enumerate(odometry):
+        writer.odometry("/odom", stamp, float(i), 0.0)
+    writer.close()
+    return path
+
+
+def test_odometry_that_misses_frames_is_refused(tmp_path: Path, cache_dir: Path) -> None:
+    """Frames outside the odometry's time span had their position held at its end (a robot
+    standing still to the filter): refused as a CSV lacking them is, for the query's bag and the
+    map's; a topic starting a few ms after the camera's first frame is normal and read."""
+    images = scenes(10)  # frames T0 .. T0 + 0.9 s
+    full = odometry_bag(tmp_path / "full.bag", images, [T0 + 5 * 10**6 + i * 50_000_000 for i in range(18)])
+    with Bag(full) as opened:  # 5 ms late, ending 45 ms early: within the margin
+        assert len(opened.arclength("/odom", [frame_name(s) for s in stamps(10)])) == 10
+    half = odometry_bag(tmp_path / "half.bag", images, stamps(8, 50_000_000))  # to T0 + 0.35 s: frames 0-4
+    late = odometry_bag(tmp_path / "late.bag", images, [T0 + 2 * 10**9 + i * 50_000_000 for i in range(10)])
+    span = f"its messages span {frame_name(T0)} to {frame_name(T0 + 350_000_000)}"
+    with Bag(half) as opened, pytest.raises(WilocError, match="topic /odom: no odometry for 5 frame") as refused:
+        opened.arclength("/odom", [frame_name(s) for s in stamps(10)])  # frame 4, 50 ms after: within the margin
+    assert f"first '{frame_name(T0 + 500_000_000)}'" in refused.value.problem and span in refused.value.problem
+    for query, ref, bad, message in ((half, full, half, f"topic /odom: no odometry for 5 frame(s), first "
+                                                        f"'{frame_name(T0 + 500_000_000)}': {span}"),
+                                     (full, half, half, "topic /odom: no odometry for 5 frame(s)"),
+                                     (late, full, late, "topic /odom: no odometry for any of its 10 frame(s)")):
+        ends_in_one_error(runner.invoke(app, ["localize", str(query), "--map", str(ref), "--method", "catgraph",
+                                              "--odometry-topic", "/odom", "--out", str(tmp_path / "r.csv")]),
+                          1, f"error: {bad}: {message}")
+    ends_in_one_error(runner.invoke(app, ["localize", str(late), "--method", "catgraph", "--odometry-topic", "/odom",
+                                          "-R", "2", "--frontier", "1", "--out", str(tmp_path / "r.csv")]),
+                      1, f"error: {late}: topic /odom: no odometry for any")  # sequence mode: its own odometry
+    run = api.localize(full, reference=full, method="catgraph", odometry_topic="/odom")
+    assert len(run.decisions) == 10
 
 
 # ------------------------------------------------------------------------------- Gardens Point

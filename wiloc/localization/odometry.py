@@ -213,15 +213,17 @@ def bag_odometry(query: Path | None, reference: Path | None, topic: str | None, 
                  map_odometry: Path | None) -> tuple[bool, bool]:
     """Whether the query's and the map's odometry come from their ROS bags' ``topic``: for those
     that are bags, when it is given. A ParameterError when no traversal is a bag, or when a bag's
-    odometry is also given as a CSV."""
+    odometry is also given as a CSV: named ``odometry_topic`` (the option every such run was given,
+    spelt by the command line as its own), its problem naming the CSV in no one spelling."""
     if topic is None:
         return False, False
     from_bag = (query is not None and is_bag(Path(query)), reference is not None and is_bag(Path(reference)))
     if not any(from_bag):
         raise ParameterError("odometry_topic", "applies to ROS bags only; neither the query nor the map is one")
-    for used, given, parameter in zip(from_bag, (odometry, map_odometry), ("odometry", "map_odometry")):
+    for used, given, whose in zip(from_bag, (odometry, map_odometry), ("query", "map")):
         if used and given is not None:
-            raise ParameterError(parameter, "give the odometry of a ROS bag once: as its CSV or by odometry_topic")
+            raise ParameterError("odometry_topic", f"the {whose}'s bag gives its odometry on the topic; give it "
+                                                   f"once, by the topic or as a CSV, not both")
     return from_bag
 
 

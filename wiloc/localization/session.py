@@ -237,7 +237,8 @@ class RunSession:
 
     def _check_inputs(self, training: bool, odometry: bool, map_odometry: bool, given: tuple[str, ...]) -> None:
         """The method's refusal of an input it does not take, naming the input as given: an
-        odometry read from a ROS bag is ``odometry_topic``'s, not a CSV's. A run over a query
+        odometry read from a ROS bag is ``odometry_topic``'s, not a CSV's; a query bag's topic against
+        a map that is no bag is told the map's must come as a CSV. A run over a query
         traversal given the map's odometry CSV and not the query's would not use it: refused, not
         ignored (a Localizer is given the query's odometry frame by frame)."""
         try:
@@ -251,6 +252,11 @@ class RunSession:
             from_bag = {"odometry": self._query_bag, "map_odometry": self._map_bag}  # never besides a CSV
             if exc.parameter == "reference" and self.query_path is None:  # a Localizer's is its map
                 raise UsageError(None, exc.problem, parameter="map") from None
+            if exc.parameter == "map_odometry" and self._query_bag and not (map_odometry or self._map_bag):
+                named = "" if self.map_path is None else f" {self.map_path}"
+                raise UsageError(None, f"the map{named} is not a ROS bag: it has no odometry topic; give its "
+                                       "odometry as a CSV, in the units of the query's",
+                                 parameter="map_odometry") from None
             if not from_bag.get(exc.parameter or ""):
                 raise
             raise UsageError(None, exc.problem, parameter="odometry_topic") from None

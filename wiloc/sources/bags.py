@@ -255,8 +255,8 @@ class Bag:
     def arclength(self, topic: str, names: list[str]) -> NDArray[np.float64]:
         """The distance travelled along `topic`'s ``nav_msgs/msg/Odometry`` positions (x, y, z)
         up to each frame of `names` (by their stamps), from the first of them: the summed steps
-        between odometry messages, interpolated linearly at the frames' stamps (held at the ends
-        before the first or after the last message)."""
+        between odometry messages, interpolated linearly at the frames' stamps. A WilocError when
+        frames lie outside the messages' time span (:meth:`_covered`)."""
         self._checked(topic, (ODOMETRY,), "odometry")
         stamps, positions = [], []
         for stamp_ns, message in self._messages(topic):
@@ -269,8 +269,33 @@ class Bag:
         times = np.asarray(stamps, np.int64)[order]
         route = np.asarray(positions, np.float64)[order]
         travelled = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))]
-        at = np.interp(np.array([stamp_of(n) for n in names], np.int64) - times[0], times - times[0], travelled)
+        frames = np.array([stamp_of(n) for n in names], np.int64)
+        self._covered(topic, names, frames, times)
+        at = np.interp(frames - times[0], times - times[0], travelled)
         return at - at[0] if len(at) else at
+
+    def _covered(self, topic: str, names: list[str], frames: NDArray[np.int64], times: NDArray[np.int64]) -> None:
+        """A WilocError, worded as an odometry CSV lacking frames is, when frames' stamps (`frames`,
+        of `names`) lie outside the odometry messages' stamps (`times`, sorted) by more than a
+        margin: interpolation holds the position at the span's end there, a step of 0 each, and the
+        filter takes the robot for standing still."""
+        # The margin: one median interval between messages, and at least 0.1 s. A camera and an
+        # odometry topic seldom start and stop together (a few ms to one message apart); a frame
+        # that close to an end is held at most about one message's step short, an error of the size
+        # interpolating across a dropped message makes anyway, and at walking or driving speed
+        # within the filter's motion noise. Further out the frames stand still for as long as
+        # they lie outside.
+        margin = max(float(np.median(np.diff(times))), 1e8)  # at least 2 messages (checked above)
+        outside = (frames < times[0] - margin) | (frames > times[-1] + margin)
+        if not outside.any():
+            return
+        span = f"its messages span {frame_name(int(times[0]))} to {frame_name(int(times[-1]))}"
+        if outside.all():
+            raise WilocError(self.path, f"topic {topic}: no odometry for any of its {len(names)} frame(s) "
+                                        f"({names[0]} to {names[-1]}): {span}")
+        first = names[int(np.flatnonzero(outside)[0])]
+        raise WilocError(self.path, f"topic {topic}: no odometry for {int(outside.sum())} frame(s), first "
+                                    f"{first!r}: {span}")
 
 
 @contextmanager
