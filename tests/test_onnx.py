@@ -460,3 +460,80 @@ def test_preprocessing_beyond_float32_is_refused_without_numpy_warnings(bad: str
     lines = result.stderr.strip().splitlines()
     assert result.exit_code == 2 and len(lines) == 1, result.stderr
     assert lines[0].startswith(f"error: --preprocess: onnx {key} "), lines[0]
+
+
+@pytest.mark.parametrize("normalise", ["true", "false"])
+def test_a_model_giving_an_all_zero_vector_is_one_line_naming_it(normalise: str, one_frame: Path,
+                                                                 tmp_path: Path) -> None:
+    """Under cosine a zero vector's difference is undefined (it was 1 to every frame, each query
+    decided as the map's first frame); normalising leaves it zero. Refused as imported zero rows
+    are, not stored."""
+    model = tmp_path / "m.onnx"
+    nodes = [helper.make_node("GlobalAveragePool", ["image"], ["pooled"]),
+             helper.make_node("Flatten", ["pooled"], ["flat"]), helper.make_node("Sub", ["flat", "flat"], ["vector"])]
+    _save(model, nodes, [], ["N", 3, SIDE, SIDE], ["N", 3], {})
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model),
+                         "--preprocess", f"normalise={normalise}"])
+    assert code == 1
+    assert line == f"error: {model}: the model gave an all-zero vector for 1 of 1 images (cosine difference undefined)"
+
+
+def test_blank_padding_and_probe_images_may_give_zero_vectors(tmp_path: Path, cache_dir: Path) -> None:
+    """Only the frames' own vectors are checked: the blank images a fixed batch is padded with,
+    and the one a model of unknown vector length is first run on, may give zeros."""
+    model = tmp_path / "m.onnx"
+    nodes = [helper.make_node("GlobalAveragePool", ["image"], ["pooled"]),
+             helper.make_node("Flatten", ["pooled"], ["vector"])]
+    _save(model, nodes, [], [4, 3, SIDE, SIDE], [4, None], {})  # blank inputs (mean 0) pool to zeros
+    colour_images(tmp_path / "route", 3)
+    [report] = _ok(runner.invoke(app, ["describe", str(tmp_path / "route"), "--descriptor", "onnx",
+                                       "--model", str(model), "--json"]))["results"]
+    assert report["computed"] == 3 and report["shape"] == [3, 3]
+
+
+@pytest.mark.parametrize("probe", [False, True])
+def test_a_model_failing_while_running_is_wiloc_s_one_line_only(probe: bool, one_frame: Path, tmp_path: Path) -> None:
+    """onnxruntime logged its own escape-coded line on stderr (sequential_executor.cc ...
+    ExecuteKernel) before wiloc's error, for a batch's run and for the run that learns the vector
+    length (``probe``). Its log goes to the process's stderr, not Python's: a subprocess."""
+    model = tmp_path / "m.onnx"
+    nodes = [helper.make_node("GlobalAveragePool", ["image"], ["pooled"]),
+             helper.make_node("Reshape", ["pooled", "shape"], ["vector"])]  # fails unless N is 2
+    _save(model, nodes, [numpy_helper.from_array(np.array([2, 3], np.int64), "shape")], ["N", 3, SIDE, SIDE],
+          ["N", None if probe else 3], {})
+    result = subprocess.run([sys.executable, "-m", "wiloc", "describe", str(one_frame), "--descriptor", "onnx",
+                             "--model", str(model)], capture_output=True, text=True, check=False)
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 1 and len(lines) == 1, result.stderr
+    assert lines[0].startswith(f"error: {model}: the model failed on a batch of 1 ("), lines[0]
+
+
+def test_a_repeated_preprocess_key_is_a_usage_error(one_frame: Path, tmp_path: Path) -> None:
+    """The last of a key's values was kept without a word."""
+    model = tmp_path / "m.onnx"
+    conv_model(model)
+    code, line = _error(["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model),
+                         "--preprocess", "mean=0.1,0.1,0.1", "--preprocess", "std=1", "--preprocess", " mean=0.2"])
+    assert code == 2
+    assert line == "error: --preprocess: mean given twice ('mean=0.1,0.1,0.1', ' mean=0.2'); give each key once"
+
+
+def test_zero_vectors_cached_before_they_were_refused_are_described_afresh(one_frame: Path, tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """Rows cached by code version 1, which stored a model's zero vectors, were reused without
+    the check: the descriptor's version is raised so that they are computed again (and refused)."""
+    from wiloc.descriptors.learned import Onnx
+
+    model = tmp_path / "m.onnx"
+    nodes = [helper.make_node("GlobalAveragePool", ["image"], ["pooled"]),
+             helper.make_node("Flatten", ["pooled"], ["flat"]), helper.make_node("Sub", ["flat", "flat"], ["vector"])]
+    _save(model, nodes, [], ["N", 3, SIDE, SIDE], ["N", 3], {})
+    args = ["describe", str(one_frame), "--descriptor", "onnx", "--model", str(model)]
+    with monkeypatch.context() as before:  # version 1, which kept zero rows
+        before.setattr(Onnx, "version", 1)
+        before.setattr(Onnx, "compute_batch", classmethod(lambda cls, images, params, threads:
+                                                          np.zeros((len(images), 3), np.float32)))
+        assert runner.invoke(app, args).exit_code == 0
+    code, line = _error(args)
+    assert code == 1
+    assert line.endswith("the model gave an all-zero vector for 1 of 1 images (cosine difference undefined)")

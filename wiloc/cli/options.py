@@ -209,16 +209,19 @@ def _check_preprocess(model: Path, given: dict[str, str]) -> None:
 
 
 def _preprocess_options(items: list[str]) -> dict[str, str]:
-    """`--preprocess KEY=VALUE` options as {key: value text}, keys those of the model metadata."""
+    """`--preprocess KEY=VALUE` options as {key: value text}, keys those of the model metadata,
+    each given once (a repeated key kept its last value without a word)."""
     from wiloc.descriptors.learned import KEYS
 
-    options = {}
+    given: dict[str, str] = {}  # key: the option giving it
     for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or key.strip() not in KEYS:
+        key = item.partition("=")[0].strip()
+        if "=" not in item or key not in KEYS:
             fail(f"--preprocess: '{item}': give KEY=VALUE, KEY one of {', '.join(KEYS)}", EXIT_USAGE)
-        options[key.strip()] = value.strip()
-    return options
+        if key in given:
+            fail(f"--preprocess: {key} given twice ('{given[key]}', '{item}'); give each key once", EXIT_USAGE)
+        given[key] = item
+    return {key: item.partition("=")[2].strip() for key, item in given.items()}
 
 
 DescriptorOption = Annotated[str, typer.Option(

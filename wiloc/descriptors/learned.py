@@ -9,7 +9,8 @@ image, N x D. How an image becomes its input is read from the model's metadata
 2. resized to ``input_size`` (w, h): ``stretch`` to it, or ``crop``: scaled so it covers it,
    then its centre cut out (area interpolation shrinking, bilinear enlarging);
 3. samples / 255, minus ``mean``, divided by ``std`` (per channel, in the network's order);
-4. the network's output rows, L2-normalised when ``normalise`` (a zero row stays zero).
+4. the network's output rows, L2-normalised when ``normalise``; an all-zero row, whose cosine
+   difference is undefined, normalised or not, is refused.
 
 onnxruntime is an optional dependency (``pip install "wiloc[onnx]"``), imported only here, only
 when an ``onnx`` descriptor is made; OpenCV where it is used (the command line reads the
@@ -127,7 +128,9 @@ def _session(path: str, digest: str, threads: int) -> Any:
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
-    options.log_severity_level = 3  # errors only: wiloc reports problems itself
+    # fatal only: wiloc reports problems itself, as one line; at 3 (errors) a kernel failing while
+    # running also printed onnxruntime's own escape-coded log line on stderr before it
+    options.log_severity_level = 4
     try:
         # from the path, not the bytes: a large model's weights may be in files beside it
         return ort.InferenceSession(path, sess_options=options, providers=["CPUExecutionProvider"])
@@ -322,7 +325,7 @@ def compute_onnx(images: Sequence[NDArray[np.uint8]], *, model: str, model_diges
     """The descriptors of 8-bit BGR images, one row each: preprocessed, run in batches (of
     :data:`BATCH`, or of the model's fixed batch size, the last one padded with blank images)
     on ``threads`` intra-op threads (0: onnxruntime's default), then L2-normalised when
-    ``normalise``."""
+    ``normalise``; WilocError naming the model when it gives an image an all-zero vector."""
     fixed = _session(model, model_digest, threads).get_inputs()[0].shape[0]
     padded = isinstance(fixed, int) and fixed > 0
     size = fixed if padded else BATCH
@@ -333,6 +336,10 @@ def compute_onnx(images: Sequence[NDArray[np.uint8]], *, model: str, model_diges
         padding = [np.zeros_like(chunk[0])] * (size - len(chunk)) if padded else []
         rows.append(_run(model, model_digest, np.stack(chunk + padding), threads)[:len(chunk)])
     out = np.concatenate(rows) if rows else np.zeros((0, 0), np.float32)
+    zero = int((~np.any(out != 0, axis=1)).sum())
+    if zero:  # its cosine difference to anything is undefined (was 1): refused, as imported zero rows are
+        raise WilocError(model, f"the model gave an all-zero vector for {zero} of {len(out)} images "
+                                "(cosine difference undefined)")
     if normalise and out.size:
         norms = np.linalg.norm(out.astype(np.float64), axis=1, keepdims=True)
         out = (out / np.where(norms > 0, norms, 1.0)).astype(np.float32)
@@ -368,6 +375,7 @@ class Onnx(Descriptor):
     Params = OnnxParams
     metric = "cosine"
     depends = "its model"
+    version = 2  # 2: an all-zero row is refused (version 1 cached them, and reused they went unchecked)
     colour = True
     derived = ("model_digest",)
     libraries = ("opencv", "onnxruntime")  # OpenCV decodes and resizes, onnxruntime runs the network
