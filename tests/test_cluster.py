@@ -140,6 +140,76 @@ def test_a_malformed_scheduler_address_is_a_usage_error(address: str, tmp_path: 
         and "tcp://HOST:8786" in lines[0], lines
 
 
+@pytest.mark.parametrize(("address", "said"), [
+    ("tcp://127.0.0.1:99999", "port 99999 is outside 1-65535"),
+    ("tcp://127.0.0.1:0", "port 0 is outside 1-65535"),
+    ("local:3", "local takes no count: --jobs sets its workers (--scheduler local --jobs 3)"),
+    ("inproc://x", "inproc:// names a scheduler inside this same process, and this process runs none"),
+    ("tls://127.0.0.1:1", "tls:// needs Dask's TLS settings"),
+    ("wss://127.0.0.1:1", "wss:// needs Dask's TLS settings"),
+    ("ucx://127.0.0.1:8786", "this installation's Dask cannot connect by ucx://")])
+@pytest.mark.parametrize("command", ["describe", "localize"])
+def test_an_address_that_can_never_work_is_a_usage_error_at_once(address: str, said: str, command: str,
+                                                                 tmp_path: Path) -> None:
+    """A port out of range and ``local:3`` waited for Dask's 30 s connect timeout (``local:3`` as
+    the host ``local``); inproc:// said Python's unpacking error; tls:// without TLS settings and
+    ucx:// (a transport this Dask has not) ended in a traceback. Given by WILOC_SCHEDULER for
+    localize. In a process of its own, as test_a_malformed_scheduler_address_is_a_usage_error."""
+    code = "import sys; from wiloc.cli import app; sys.exit(app(prog_name='wiloc'))"
+    env = {**os.environ, "WILOC_CACHE": str(tmp_path / "cache"), "WILOC_SCHEDULER": address}
+    args = ["describe", str(tmp_path), "--scheduler", address] if command == "describe" else \
+        ["localize", str(tmp_path), "--method", "online"]
+    run = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=20, env=env,
+                         check=False, cwd=tmp_path)  # localize's results file (and its lock) would go there
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr[-2000:]
+    assert lines[0].startswith(f"error: --scheduler: '{address}'") and said in lines[0], lines
+    assert "local" in lines[0] and ("tcp://HOST:8786" in lines[0] or address.startswith("local")), lines
+
+
+def test_an_in_process_scheduler_is_an_address(monkeypatch: pytest.MonkeyPatch) -> None:
+    """inproc:// is refused only where this process runs no scheduler of that address."""
+    from distributed.comm.inproc import global_manager
+
+    from wiloc.description.cluster import Cluster, _check_address
+
+    listener = Cluster  # any object a weak reference can hold, as the listeners' registry does
+    monkeypatch.setitem(global_manager.listeners, "198.51.100.1/1/1", listener)
+    _check_address("inproc://198.51.100.1/1/1")
+    with pytest.raises(ParameterError, match="this process runs none"):
+        _check_address("inproc://198.51.100.1/1/2")
+
+
+def test_tls_settings_that_cannot_be_loaded_are_a_usage_error(tmp_path: Path) -> None:
+    """A CA file Dask's configuration names but that is not there ended in ``error: [Errno 2] No
+    such file or directory``, naming neither --scheduler nor the settings."""
+    import dask
+
+    from wiloc.description.cluster import _check_address
+
+    with dask.config.set({"distributed.comm.tls.ca-file": str(tmp_path / "none.pem"),
+                          "distributed.comm.tls.client.cert": str(tmp_path / "none.pem")}), \
+            pytest.raises(ParameterError, match=r"^scheduler: 'tls://127\.0\.0\.1:1': Dask's TLS settings "
+                                                r"\(distributed\.comm\.tls\.\* in its configuration\) cannot be "
+                                                r"loaded \(\[Errno 2\]"):
+        _check_address("tls://127.0.0.1:1")
+
+
+def test_any_failure_to_make_the_client_is_one_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Whatever Dask raises while making the client (seen: a transport's TypeError) is one error
+    saying it cannot reach the scheduler, not a traceback."""
+    from wiloc.description import cluster
+
+    def failing(address: str) -> None:
+        raise TypeError("no such connector")
+
+    monkeypatch.setattr(cluster, "Client", failing)
+    with pytest.raises(WilocError, match=r"^tcp://127\.0\.0\.1:9: cannot reach the Dask scheduler \(TypeError: no "
+                                         r"such connector\)$") as caught:
+        cluster.Cluster("tcp://127.0.0.1:9")
+    assert not isinstance(caught.value, ParameterError)
+
+
 def error_in_a_process(workers: int, work: str, then: str = "", wait: float = 1) -> str:
     """The WilocError line of a describe-like run of ``work`` over batches on a local cluster of
     ``workers`` workers (``local``), with ``then`` done once its first result is in and the run

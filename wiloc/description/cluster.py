@@ -15,6 +15,7 @@ import concurrent.futures
 import logging
 import os
 import pickle
+import re
 import threading
 import time
 from collections import deque
@@ -25,8 +26,12 @@ from typing import Any, TypeVar
 
 import numpy as np
 from distributed import Client, Future, KilledWorker, LocalCluster, wait
+from distributed.comm.addressing import parse_address
 from distributed.comm.core import CommClosedError
+from distributed.comm.inproc import global_manager
+from distributed.comm.registry import get_backend
 from distributed.protocol import pickle as dask_pickle
+from distributed.security import Security
 from numpy.typing import NDArray
 
 from wiloc.description.distances import DifferencesTo
@@ -74,6 +79,45 @@ def _block(to: DifferencesTo, rows: NDArray) -> NDArray[np.float32]:
     return to(rows)
 
 
+def _check_address(scheduler: str) -> None:
+    """A ParameterError, at once, for an address no client could ever connect to, where Dask waited
+    its 30 s connect timeout (a port out of range; ``local:3``, read as the host ``local``), said a
+    Python error (inproc://) or ended in a traceback (tls:// without TLS settings, ucx://). What
+    Dask cannot parse (no scheme it knows, no port) it refuses itself, as Cluster says."""
+    again = "give tcp://HOST:8786, or local"
+    if scheduler.lower().startswith(LOCAL + ":"):
+        count = scheduler[len(LOCAL) + 1:]
+        raise ParameterError("scheduler", f"{scheduler!r}: local takes no count: --jobs sets its workers"
+                                          + (f" (--scheduler local --jobs {count})" if count.isdigit() else ""))
+    try:
+        scheme, loc = parse_address(scheduler)
+        backend = get_backend(scheme)
+    except ValueError:
+        return  # Dask's own words, as Cluster says them
+    if (port := re.search(r":(-?\d+)$", loc)) and not 1 <= int(port[1]) <= 65535:
+        raise ParameterError("scheduler", f"{scheduler!r} is no Dask scheduler address (port {int(port[1])} is "
+                                          f"outside 1-65535); {again}")
+    if scheme == "inproc" and loc not in global_manager.listeners:
+        raise ParameterError("scheduler", f"{scheduler!r}: inproc:// names a scheduler inside this same process, "
+                                          f"and this process runs none (a command-line run never does); {again}")
+    if scheme in ("tls", "wss"):
+        try:
+            tls = Security().get_connection_args("client")["ssl_context"]
+        except (OSError, ValueError) as exc:  # a file they name missing, or no certificate
+            raise ParameterError("scheduler", f"{scheduler!r}: Dask's TLS settings (distributed.comm.tls.* in its "
+                                              f"configuration) cannot be loaded ({exc})") from None
+        if tls is None:
+            raise ParameterError("scheduler", f"{scheduler!r}: {scheme}:// needs Dask's TLS settings (distributed."
+                                              "comm.tls.ca-file and client.cert, with client.key, in its "
+                                              "configuration), and they are not set; wiloc takes none of its own: "
+                                              f"set them there, or {again}")
+    try:
+        backend.get_connector()
+    except Exception as exc:  # ucx://: Dask moved its transport to another package
+        raise ParameterError("scheduler", f"{scheduler!r}: this installation's Dask cannot connect by {scheme}:// "
+                                          f"({type(exc).__name__}: {exc}); {again}") from None
+
+
 def _connect(scheduler: str) -> Client:
     """A client of the scheduler at ``scheduler``, connected in a thread that is given up after
     :data:`CONNECT_WAIT` seconds: a service that accepts and never answers as Dask does (a web
@@ -103,6 +147,8 @@ class Cluster:
     def __init__(self, scheduler: str, workers: int | None = None) -> None:
         self.scheduler = scheduler
         self._local: LocalCluster | None = None
+        if scheduler != LOCAL:
+            _check_address(scheduler)
         try:
             if scheduler == LOCAL:
                 count = check_jobs(workers)  # --jobs -1 waited for workers that never came
@@ -130,6 +176,12 @@ class Cluster:
         except MemoryError:  # another protocol's first bytes read as the length of a Dask message
             raise WilocError(scheduler, "answered, but not as a Dask scheduler: another service listens "
                                         "there") from None
+        except WilocError:
+            raise
+        except Exception as exc:  # any other failure to make an address's client: one line, not a traceback
+            if scheduler == LOCAL:
+                raise
+            raise WilocError(scheduler, f"cannot reach the Dask scheduler ({type(exc).__name__}: {exc})") from None
         try:
             self.client.wait_for_workers(1, timeout=WORKER_WAIT)
         except TIMEOUTS:
