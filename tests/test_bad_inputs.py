@@ -2387,6 +2387,22 @@ def test_rows_in_memory_too_large_for_float32_differences_are_refused(metric: st
     assert loc.observe(rows[3]).match == 3
 
 
+def test_names_of_a_map_in_memory_are_plain_text_and_one_text_is_no_list_of_names() -> None:
+    """Names given as a numpy array stayed numpy's text in the map and in each decision; one text
+    given as the names was taken letter by letter, and refused as a matter of shape."""
+    from wiloc.description.traversals import entry_from_array
+    from wiloc.descriptors.registry import get_descriptor
+
+    spec, rows = get_descriptor("external", metric="l1", length=8), np.random.default_rng(0).random((3, 8))
+    entry = entry_from_array(rows, np.array(["a", "b", "c"]), spec)
+    assert [type(name) for name in entry.names] == [str] * 3
+    decision = Localizer(entry, descriptor="external", metric="l1", method="threshold").observe(rows[1],
+                                                                                             name=np.str_("q"))
+    assert type(decision.frame) is str and type(decision.match_name) is str
+    with pytest.raises(WilocError, match="names: one name per row .*got the text 'abc'"):
+        entry_from_array(rows, "abc", spec)
+
+
 @pytest.mark.parametrize("command", ["evaluate", "compare"])
 def test_a_bad_frames_slice_is_refused_before_any_results_file_is_read(tmp_path: Path, command: str) -> None:
     """A step, or text that is no slice, is one usage error naming --frames, though the results

@@ -42,7 +42,10 @@ def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, s
     a map held in memory. Its digest is a hash of names and values, so a change is seen. Values
     are checked as an observed row's are (``checked_rows``): never wrapped into the descriptor's
     dtype, NaN refused; names are unique non-empty text, as an imported matrix's are."""
-    data, names = np.asarray(data), list(names)
+    if isinstance(names, str):  # list() would make each of its characters a name
+        raise WilocError(source, f"names: one name per row (a list of text), got the text {names!r}")
+    # numpy's text (an array of names) as plain str: results and decisions name frames by it
+    data, names = np.asarray(data), [str(name) if isinstance(name, str) else name for name in names]
     check_frame_names(names, source)
     if data.ndim != 2 or data.shape[1] != spec.length or data.shape[0] != len(names):
         raise WilocError(source, f"descriptors of shape {data.shape} for {len(names)} names; "

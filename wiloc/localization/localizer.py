@@ -256,6 +256,7 @@ class Localizer:
                                         "as UTF-8 text)")
         if not isinstance(name, str):
             raise WilocError("observe", f"name must be text (str), got {type(name).__name__} {name!r}")
+        name = str(name)  # numpy's text (np.str_) as plain str, as results hold it
         if not name:
             raise WilocError("observe", "name is empty")
         if name in self._named:
