@@ -75,8 +75,7 @@ def localize(
     """
     from wiloc import api
     from wiloc.cache.store import Cache
-    from wiloc.description.traversals import names_matrix_file
-    from wiloc.localization.run_files import check_query_path
+    from wiloc.description.traversals import check_query_path, names_matrix_file
 
     method_class(method)
     params = method_params(method, method_options or {})

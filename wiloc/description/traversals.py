@@ -19,7 +19,7 @@ from wiloc.descriptors.external import check_frame_names, check_value_range, rec
 from wiloc.descriptors.registry import DescriptorSpec, get_descriptor
 from wiloc.errors import ParameterError, WilocError, parameter_values
 from wiloc.sources.bags import is_bag
-from wiloc.sources.frames import not_a_traversal
+from wiloc.sources.frames import list_traversal, not_a_traversal
 from wiloc.sources.video import Sampling, is_video
 
 if TYPE_CHECKING:
@@ -115,6 +115,22 @@ def names_matrix_file(source: Path) -> bool:
     """Whether a traversal is a descriptor matrix file, or a missing one named as such (``q.npy``):
     options are checked against the traversal meant, and reading it then says it does not exist."""
     return is_matrix_file(source) or (not Path(source).exists() and Path(source).suffix.lower() in MATRIX_SUFFIXES)
+
+
+def check_query_path(query: Path) -> None:
+    """Refuse, as a WilocError naming it and as a run would, a query that is no traversal: missing,
+    a folder without usable image files, or a file that is no video, ROS bag or descriptor matrix
+    file (a results file, an image). Nothing is described (what only reading the frames finds is
+    the run's to say), so that `localize` checks every query before localizing the first."""
+    query = Path(query)
+    if is_matrix_file(query):
+        refuse_results_file(query, "is not a traversal: give a folder of images, a video or a descriptor matrix "
+                                   "file (.npy, .npz, .csv, .h5)")
+        if query.suffix.lower() not in MATRIX_SUFFIXES:
+            raise WilocError(query, not_a_traversal(query, "give a folder of images, a video or a descriptor "
+                                                           "matrix file (.npy, .npz, .csv, .h5)"))
+    elif not ((is_video(query) or is_bag(query)) and query.exists()):  # a video or bag: opening it verifies
+        list_traversal(query)
 
 
 def check_descriptor(sources: Sequence[Path], descriptor: str | None, params: Mapping[str, Any] | None) -> None:

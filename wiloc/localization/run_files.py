@@ -1,6 +1,6 @@
 """A run's results file: its default name, what its header says about the run, reading one
 back with the bounds its method's confidences keep, and the runs the API's evaluate and compare
-are given, checked; a query checked before its run describes anything."""
+are given, checked."""
 from __future__ import annotations
 
 import os
@@ -9,14 +9,13 @@ from pathlib import Path
 
 from wiloc.cache.store import Entry
 from wiloc.description.describing import is_stream
-from wiloc.description.traversals import MATRIX_SUFFIXES, Describer, descriptor_label, is_matrix_file
-from wiloc.descriptors.external import refuse_results_file
-from wiloc.errors import ParameterError, WilocError
+from wiloc.description.traversals import Describer, descriptor_label
+from wiloc.errors import ParameterError
 from wiloc.evaluation.results import Results, read_results
 from wiloc.evaluation.results_header import ResultsHeader
 from wiloc.localization.training import Training
 from wiloc.methods.registry import METHODS
-from wiloc.sources.frames import list_traversal, not_a_traversal, text_path
+from wiloc.sources.frames import text_path
 from wiloc.version import __version__
 
 
@@ -43,22 +42,6 @@ def named_path(query: Path) -> Path:
         return query.resolve()
     except (OSError, RuntimeError):  # RuntimeError: a loop, before Python 3.13
         return query
-
-
-def check_query_path(query: Path) -> None:
-    """Refuse, as a WilocError naming it and as a run would, a query that is no traversal: missing,
-    a folder without usable image files, or a file that is no video, ROS bag or descriptor matrix
-    file (a results file, an image). Nothing is described (what only reading the frames finds is
-    the run's to say), so that `localize` checks every query before localizing the first."""
-    query = Path(query)
-    if is_matrix_file(query):
-        refuse_results_file(query, "is not a traversal: give a folder of images, a video or a descriptor matrix "
-                                   "file (.npy, .npz, .csv, .h5)")
-        if query.suffix.lower() not in MATRIX_SUFFIXES:
-            raise WilocError(query, not_a_traversal(query, "give a folder of images, a video or a descriptor "
-                                                           "matrix file (.npy, .npz, .csv, .h5)"))
-    elif not (is_stream(query) and query.exists()):  # a video or bag: opening it verifies
-        list_traversal(query)
 
 
 def run_header(method: str, describer: Describer, query: Path | None, metric: str, reference: Path | Entry | None,
