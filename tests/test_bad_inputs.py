@@ -2387,6 +2387,17 @@ def test_rows_in_memory_too_large_for_float32_differences_are_refused(metric: st
     assert loc.observe(rows[3]).match == 3
 
 
+def test_describing_images_with_the_external_descriptor_says_what_external_is(route: tuple[Path, Path]) -> None:
+    """api.describe(folder, 'external') said 'external metric must be one of ...; got None', a
+    parameter no one can give it there (the command line said what external is already)."""
+    from wiloc import api
+
+    with pytest.raises(ParameterError, match="'external' names descriptors computed elsewhere, which are not "
+                                             "described: import their matrix file") as refused:
+        api.describe(route[0], "external")
+    assert refused.value.parameter == "descriptor"
+
+
 def test_names_of_a_map_in_memory_are_plain_text_and_one_text_is_no_list_of_names() -> None:
     """Names given as a numpy array stayed numpy's text in the map and in each decision; one text
     given as the names was taken letter by letter, and refused as a matter of shape."""

@@ -55,7 +55,7 @@ def describe(folders: Sequence[str | Path] | str | Path, descriptor: str = "sad"
     ``folders``; one folder given alone (not in a list) is described as ``[folder]``, never as
     the characters of its name."""
     check_progress(progress)
-    spec = descriptor_spec(descriptor, descriptor_params)
+    spec = descriptor_spec(descriptor, descriptor_params, images=True)
     cache = Cache.given(cache)
     paths = traversal_paths(folders, "folders")
     check_sampling(paths, sampling)

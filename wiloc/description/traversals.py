@@ -29,8 +29,14 @@ if TYPE_CHECKING:
 Progress = Callable[[str, int, int], None]
 
 
-def descriptor_spec(descriptor: str, params: Mapping[str, Any] | None = None) -> DescriptorSpec:
-    """The descriptor's spec; an unknown name or parameter is an error naming ``descriptor``."""
+def descriptor_spec(descriptor: str, params: Mapping[str, Any] | None = None, *,
+                    images: bool = False) -> DescriptorSpec:
+    """The descriptor's spec; an unknown name or parameter is an error naming ``descriptor``, and
+    with ``images`` (to describe them) ``external``, whose rows come from a matrix file."""
+    if images and descriptor == EXTERNAL:
+        raise ParameterError("descriptor", f"'{EXTERNAL}' names descriptors computed elsewhere, which are not "
+                                           "described: import their matrix file (api.import_descriptors), or give "
+                                           "it to localize as it is")
     try:
         return get_descriptor(descriptor, **parameter_values(params, "descriptor_params"))
     except ValueError as exc:
