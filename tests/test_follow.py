@@ -226,31 +226,6 @@ def test_an_undecodable_frame_is_retried_then_left_out(demo_route: demo.DemoRout
     assert now[0] >= SETTLE_SECONDS
 
 
-def test_frames_after_an_undecodable_one_wait_for_it_and_the_run_steps_across_it_as_the_batch(
-        demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
-    """A folder holding a JPEG cut short for good and an empty file: the frames after each wait
-    while it is retried, so they are decided in the batch run's order, and catgraph's step
-    covers the frame left out, as the batch run's does."""
-    frames = sorted(demo_route.queries[0].iterdir())[:30]
-    live = tmp_path / "live"
-    live.mkdir()
-    for path in frames:
-        (live / path.name).write_bytes(path.read_bytes())
-    (live / frames[8].name).write_bytes(frames[8].read_bytes()[:500])
-    (live / frames[17].name).write_bytes(b"")
-    api.localize(live, reference=demo_route.reference, method="catgraph", out=tmp_path / "batch.csv")
-    batch = pd.read_csv(tmp_path / "batch.csv", comment="#", dtype=str, keep_default_na=False)
-    now = [0.0]
-    decided = []  # (frame, when)
-    for event in follow(Localizer(demo_route.reference, method="catgraph"), FolderWatch(live), idle=1.0, poll=0.5,
-                        clock=lambda: now[0], sleep=lambda s: now.__setitem__(0, now[0] + s)):
-        if isinstance(event, Decision):
-            decided.append((event.frame, event.match_name, f"{event.confidence:.9g}", now[0]))
-    assert [d[:3] for d in decided] == list(zip(batch["frame"], batch["match"], batch["confidence"]))
-    assert len(decided) == 28
-    assert dict((d[0], d[3]) for d in decided)[frames[9].name] >= SETTLE_SECONDS  # waited for frame 8
-
-
 def test_a_skipped_frame_completed_later_is_a_note_not_a_decided_file_written_again(
         demo_route: demo.DemoRoute, tmp_path: Path, cache_dir: Path) -> None:
     """A JPEG cut short is skipped after SETTLE_SECONDS; its writer finishing it later was warned

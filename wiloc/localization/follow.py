@@ -285,12 +285,10 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
     stable that cannot be decoded (a JPEG or PNG cut short: its writer may not be done) is
     retried at the next poll; a stable one (an empty one too) is retried for
     :data:`SETTLE_SECONDS` from its first failure (the run does not end meanwhile, nor for
-    ``idle`` seconds after), then left out; the files after a retried one wait with it, so that
-    frames are decided in the batch run's order; one that cannot be a frame at all
+    ``idle`` seconds after), then left out; one that cannot be a frame at all
     (:func:`~wiloc.sources.frames.unusable_reason`) is left out at once. A file still changing when the run ends on ``idle`` (one that failed to
     decode too, then kept changing) is left out with a line, so that every file is named. A file
-    left out and then written again gets a note (:data:`COMPLETED`), not decided now. A file left
-    out counts as a frame the query passed (:meth:`Localizer.skip`), as a batch run counts it."""
+    left out and then written again gets a note (:data:`COMPLETED`), not decided now."""
     last = clock()
     failing: dict[str, float] = {}  # name -> when it first failed to decode once stable
     left_out: set[str] = set()  # names skipped: one written again was never decided
@@ -304,31 +302,27 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
             yield Skipped(path, COMPLETED, kind="note") if path.name in left_out else \
                 Skipped(path, REWRITTEN, kind="warning")
         watch.rewritten.clear()
-        for index, path in enumerate(arrived):
+        for path in arrived:
             if (reason := unusable_reason(path)) is not None:
                 last = clock()
                 left_out.add(path.name)
-                localizer.skip()
                 yield Skipped(path, reason)
                 continue
             said = len(localizer.frame_doubts)
             try:
                 decision = localizer.observe(path)
             except FrameError as exc:
-                # retried, and the files after it held back with it: frames are decided in the
-                # batch run's order, and one left out is stepped across where it lies
-                if not watch.stable(path):  # its writer may not be done: the settling time not started
-                    _hold(watch, arrived[index:])
+                if not watch.stable(path):  # its writer may not be done: retried, the settling time not started
+                    watch.retry(path)
                     retried = True
-                    break
+                    continue
                 first = failing.setdefault(path.name, clock())
                 if clock() - first < SETTLE_SECONDS:
-                    _hold(watch, arrived[index:])
-                    break
+                    watch.retry(path)
+                    continue
                 del failing[path.name]
                 last = clock()
                 left_out.add(path.name)
-                localizer.skip()  # the next frame's step covers it
                 yield Skipped(path, exc.problem)
                 continue
             failing.pop(path.name, None)
@@ -345,9 +339,3 @@ def follow(localizer: Localizer, watch: FolderWatch, *, idle: float | None, poll
             return
         if not arrived or failing or retried:
             sleep(poll)
-
-
-def _hold(watch: FolderWatch, paths: list[Path]) -> None:
-    """Hand ``paths`` out again at a later poll: a file being retried and those after it."""
-    for path in paths:
-        watch.retry(path)
