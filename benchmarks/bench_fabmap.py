@@ -77,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         ms = 1000 * (time.perf_counter() - start) / len(query_names)
         print(f"{training:12} {reference:10} {query:12} {vocabulary.n_words:5d} "
               f"{report.seconds:8.1f} {vocabulary.training_occurrences.sum(1).mean():9.1f} "
-              f"{np.mean(bow_ms) if bow_ms else float('nan'):6.1f} {np.mean(hits):6.3f} "
+              f"{f'{np.mean(bow_ms):6.1f}' if bow_ms else '-':>6} {np.mean(hits):6.3f} "  # '-': cached, not timed
               f"{np.mean(confidence):9.3f} {np.mean(new):7.3f} "
               f"{tree_seconds:6.2f} {ms:8.2f}")
 

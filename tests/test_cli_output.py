@@ -455,3 +455,27 @@ def test_localize_reports_the_median_confidence_and_a_huge_one_stays_readable(tm
                                  "--normaliser", "1e-300", "--out", str(tmp_path / "huge.csv")], env=NARROW)
     assert result.exit_code == 0, result.output
     assert re.search(r"-\d\.\d{3}e\+\d{3}", result.stdout) and not re.search(r"\d{20}", result.stdout)
+
+
+def test_a_followed_run_on_a_terminal_says_why_it_ended_and_where_its_rows_are(monkeypatch: pytest.MonkeyPatch,
+                                                                              tmp_path: Path) -> None:
+    """Under the live table a terminal showed 'Ctrl-C stops' to the end: the line a run without a
+    terminal ends with (why it ended, the counts, the results file) was never said there."""
+    import io
+
+    from rich.console import Console
+
+    from wiloc.cli import localize_views
+    from wiloc.decisions import Decision
+
+    terminal = Console(file=io.StringIO(), force_terminal=True, width=120)
+    monkeypatch.setattr(localize_views, "out", terminal)
+    decisions = [Decision(match=k, difference=0.1, confidence=0.9, stage="track", frame=f"f{k}.jpg",
+                          match_name=f"m{k}.jpg") for k in range(3)]
+    run = type("Run", (), {"warnings": [], "path": tmp_path / "r.csv", "idle": 0.5, "resumed": 2,
+                           "__iter__": lambda self: iter(decisions)})()
+    localize_views.show_followed(tmp_path, run, as_json=False)
+    shown = terminal.file.getvalue()
+    assert "f2.jpg" in shown
+    assert f"ended: no new frame for 0.5 s; 3 frames decided (2 resumed before), 0 left out; results in " \
+           f"{(tmp_path / 'r.csv').absolute()}" in re.sub(r"\x1b\[[0-9;?]*[a-zA-Z]", "", shown)

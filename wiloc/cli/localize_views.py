@@ -131,9 +131,14 @@ def show_followed(query: Path, run: api.FollowRun, as_json: bool) -> None:
                 notes.add(event.kind, str(replace(event, path=Path(absolute_frame(event.path))) if as_json else event))
                 if as_json:  # the line on stderr, as every --json carries it
                     print(json.dumps({"warnings": notes[-1:]}), flush=True)
-    if live is None and not as_json and run.idle is not None:
-        print(f"# ended: no new frame for {run.idle:g} s; {decided} frames decided ({run.resumed} resumed before), "
-              f"{sum(n.startswith('skipped:') for n in notes)} left out; results in {run.path.absolute()}", flush=True)
+    ended = (f"no new frame for {run.idle:g} s; {decided} frames decided ({run.resumed} resumed before), "
+             f"{sum(n.startswith('skipped:') for n in notes)} left out; results in {run.path.absolute()}")
+    if run.idle is None or as_json:
+        return
+    if live is None:
+        print(f"# ended: {ended}", flush=True)
+    else:  # on a terminal, under the live table: why the run ended and where its rows are
+        out.print(f"ended: {ended}", highlight=False, markup=False, soft_wrap=True)
 
 
 def _field(name: str) -> str:
