@@ -235,7 +235,7 @@ class Localizer:
 
     def skip(self, frames: int = 1) -> None:
         """The query passed ``frames`` frames (an image :meth:`observe` could not read): the next
-        step covers them, as a batch run's steps across the frames it leaves out (``Method.skip``)."""
+        step covers them, as a batch run steps across the frames it leaves out (``Method.skip``)."""
         self.method.skip(frames)
 
     def _new_name(self, frame: object, name: object) -> str:
