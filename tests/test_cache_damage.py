@@ -3,6 +3,7 @@ described again, a damaged map summary is computed anew; cache files are never
 written through a symbolic link; lock files do not pile up and still exclude each other."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import time
@@ -127,6 +128,26 @@ def test_a_folder_in_place_of_a_cache_file_is_refused_before_describing(tmp_path
     with pytest.raises(WilocError, match="a folder where a cache file belongs; remove it") as err:
         describe_folder(folder, FakeSpec(), cache, jobs=1)
     assert err.value.where == str(path)
+
+
+@pytest.mark.parametrize("which", ["entry", "journal"])
+def test_a_fifo_in_place_of_a_cache_file_is_refused_not_waited_on(tmp_path: Path, which: str) -> None:
+    """An entry file (or journal) replaced by a FIFO blocked every command, --list too, in the
+    opening of it for ever: describing names it, and the list tells it as the entry's problem."""
+    from wiloc.errors import WilocError
+
+    folder = tmp_path / "route"
+    write_images(folder, 5)
+    key = describe_folder(folder, FakeSpec(), Cache(tmp_path / "c"), jobs=1).entry.key
+    cache = Cache(tmp_path / "c")
+    path = cache.entry_path(key) if which == "entry" else cache.journal_path(key)
+    path.unlink(missing_ok=True)
+    os.mkfifo(path)
+    with pytest.raises(WilocError, match="not a regular file .* where a cache file belongs; remove it") as err:
+        describe_folder(folder, FakeSpec(), cache, jobs=1)
+    assert err.value.where == str(path)
+    [info] = cache.list_entries()
+    assert info.problem.startswith(f"{path}: not a regular file")
 
 
 def test_a_damaged_map_summary_is_computed_anew(tmp_path: Path) -> None:

@@ -108,6 +108,16 @@ class Journal:
         self._file.close()
 
 
+def _check_own_file(path: Path) -> None:
+    """A WilocError naming ``path`` when something other than a regular file is where a cache file
+    belongs: a folder (never written over, after a whole run described in vain), or a FIFO or
+    device, whose opening would block for ever."""
+    if path.is_dir():
+        raise WilocError(path, "a folder where a cache file belongs; remove it")
+    if path.exists() and not path.is_file():
+        raise WilocError(path, "not a regular file (a FIFO or a device) where a cache file belongs; remove it")
+
+
 def scan_journal(path: Path) -> tuple[EntryHeader | None, list[FrameRecord], int, bool]:
     """A journal's header, its valid frame records, the byte length they span, and whether the
     reading stopped at damage: a whole record that fails its check. A record cut short (a kill
@@ -342,9 +352,8 @@ class Cache:
         incomplete); a file that cannot be read, or was written without checksums, counts as
         absent. Either is noted in ``repairs``: the next describe run fills the entry again."""
         path = self.entry_path(key)
-        for own in (path, self.journal_path(key)):  # never written over, after a whole run described in vain
-            if own.is_dir():
-                raise WilocError(own, "a folder where a cache file belongs; remove it")
+        for own in (path, self.journal_path(key)):
+            _check_own_file(own)
         stored = None
         if path.exists():
             try:
@@ -427,6 +436,7 @@ class Cache:
         (no header written yet: nothing to list); WilocError naming the file if unreadable."""
         path = self.entry_path(info.key)
         header = None
+        _check_own_file(path)
         if path.exists():
             try:
                 with h5py.File(path, "r") as f:
