@@ -150,6 +150,25 @@ def test_a_fifo_in_place_of_a_cache_file_is_refused_not_waited_on(tmp_path: Path
     assert info.problem.startswith(f"{path}: not a regular file")
 
 
+def test_an_entry_flagged_complete_by_damage_is_not_taken_for_whole(tmp_path: Path) -> None:
+    """The complete flag had no check: flipped on disk, a video's partial entry was taken for the
+    whole video (its other frames never described, no note). It is checked against its key and
+    frame counts, and such a file is described again, said so."""
+    folder = tmp_path / "route"
+    write_images(folder, 5)
+    key = describe_folder(folder, FakeSpec(), Cache(tmp_path / "c"), jobs=1).entry.key
+    cache = Cache(tmp_path / "c")
+    with cache.lock(cache.entry_name(key)):
+        cache.write_entry(cache.read_stored(key), complete=False)  # as a killed video's resumed run leaves it
+    assert cache.read_stored(key).complete is False
+    with h5py.File(cache.entry_path(key), "r+") as f:
+        f.attrs.modify("complete", True)
+    again = Cache(tmp_path / "c")
+    assert again.read_stored(key) is None
+    assert again.repairs == [f"{cache.entry_path(key)}: unreadable cache entry (its complete attribute does not "
+                             "match its check); described again"]
+
+
 def test_a_damaged_map_summary_is_computed_anew(tmp_path: Path) -> None:
     write_images(tmp_path / "r", 20, seed=2)
     cache = Cache(tmp_path / "c")

@@ -224,7 +224,7 @@ def write_h5(f: h5py.File, stored: StoredEntry, entry: Entry, complete: bool) ->
         format=FORMAT, format_version=FORMAT_VERSION, params=json.dumps(header.params, sort_keys=True),
         natural_max=np.nan if header.natural_max is None else header.natural_max,
         wiloc_version=__version__, created=stored.created or now(), updated=now(),
-        complete=complete, digest=entry.digest,
+        complete=complete, complete_crc=_complete_crc(header.key, complete, len(good), len(bad)), digest=entry.digest,
     )
     f.attrs.update(attrs)
     f.create_dataset("descriptors", data=entry.data)
@@ -241,6 +241,12 @@ def write_h5(f: h5py.File, stored: StoredEntry, entry: Entry, complete: bool) ->
             g.create_dataset("timestamp_ms", data=_timestamps(rows))
         else:
             g.create_dataset("reason", data=[r.reason for r in rows], dtype=text)
+
+
+def _complete_crc(key: str, complete: bool, frames: int, failed: int) -> int:
+    """CRC-32 of an entry's ``complete`` flag with its key and frame counts: a flag flipped on disk
+    would take a video's or bag's partial entry for whole, its other frames never described."""
+    return zlib.crc32(f"{key}\0{bool(complete)}\0{frames}\0{failed}".encode())
 
 
 def header_from_attrs(attrs: h5py.AttributeManager) -> EntryHeader:
@@ -303,5 +309,9 @@ def read_h5(path: Path) -> StoredEntry | None:
                     stored.dropped += 1
             if group == "frames" and not stored.dropped and str(f.attrs["digest"]) != entry_digest(header, records):
                 raise ValueError("its digest attribute does not match its frames")  # the attribute damaged
+        counts = len(f["frames/name"]), len(f["failed/name"])
+        if "complete_crc" in f.attrs and int(f.attrs["complete_crc"]) != _complete_crc(header.key, stored.complete,
+                                                                                        *counts):
+            raise ValueError("its complete attribute does not match its check")  # (a file written before has none)
     stored.complete = stored.complete and not stored.dropped  # a video's or bag's missing frames described again
     return stored
