@@ -169,6 +169,18 @@ def test_an_entry_flagged_complete_by_damage_is_not_taken_for_whole(tmp_path: Pa
                              "match its check); described again"]
 
 
+def test_a_file_in_place_of_the_descriptors_folder_is_said_by_the_list_too(tmp_path: Path) -> None:
+    """describe --list gave an empty list, as of an emptied cache, where describing said what is wrong."""
+    from wiloc.errors import WilocError
+
+    cache = Cache(tmp_path / "c")
+    (tmp_path / "c").mkdir()
+    (tmp_path / "c" / "descriptors").write_text("x")
+    with pytest.raises(WilocError, match="a file where a cache folder belongs; remove it") as err:
+        cache.list_entries()
+    assert err.value.where == str(tmp_path / "c" / "descriptors")
+
+
 def test_a_damaged_map_summary_is_computed_anew(tmp_path: Path) -> None:
     write_images(tmp_path / "r", 20, seed=2)
     cache = Cache(tmp_path / "c")

@@ -405,8 +405,10 @@ class Cache:
         """Every descriptor entry in the cache, including ones only a killed run's journal holds.
         An entry whose files cannot be read is listed as descriptor "unreadable", incomplete,
         with the reason in `problem`."""
-        keys = sorted({p.stem for p in (self.root / _DESCRIPTORS).glob("*.h5")}
-                      | {p.stem for p in (self.root / _DESCRIPTORS).glob("*.journal")})
+        folder = self.root / _DESCRIPTORS
+        if folder.exists() and not folder.is_dir():  # an empty list would read as an emptied cache
+            raise WilocError(folder, "a file where a cache folder belongs; remove it")
+        keys = sorted({p.stem for p in folder.glob("*.h5")} | {p.stem for p in folder.glob("*.journal")})
         infos = []
         for key in keys:
             stats = {}
