@@ -130,13 +130,18 @@ def check_query_path(query: Path) -> None:
     the run's to say), so that `localize` checks every query before localizing the first."""
     query = Path(query)
     if is_matrix_file(query):
-        refuse_results_file(query, "is not a traversal: give a folder of images, a video or a descriptor matrix "
-                                   "file (.npy, .npz, .csv, .h5)")
-        if query.suffix.lower() not in MATRIX_SUFFIXES:
-            raise WilocError(query, not_a_traversal(query, "give a folder of images, a video or a descriptor "
-                                                           "matrix file (.npy, .npz, .csv, .h5)"))
+        _check_matrix_file(query)
     elif not ((is_video(query) or is_bag(query)) and query.exists()):  # a video or bag: opening it verifies
         list_traversal(query)
+
+
+def _check_matrix_file(source: Path) -> None:
+    """A file given as a traversal that is no video or bag: a WilocError naming it unless it is a
+    descriptor matrix file (a results file, an image are said to be what they are)."""
+    takes = "give a folder of images, a video or a descriptor matrix file (.npy, .npz, .csv, .h5)"
+    refuse_results_file(source, f"is not a traversal: {takes}")
+    if source.suffix.lower() not in MATRIX_SUFFIXES:
+        raise WilocError(source, not_a_traversal(source, takes))
 
 
 def check_descriptor(sources: Sequence[Path], descriptor: str | None, params: Mapping[str, Any] | None) -> None:
@@ -253,11 +258,7 @@ class Describer:
         an imported matrix file (``names``: its frame names, one per line, for .npy matrices)."""
         source = Path(source)
         if is_matrix_file(source):
-            refuse_results_file(source, "is not a traversal: give a folder of images, a video or a descriptor matrix "
-                                        "file (.npy, .npz, .csv, .h5)")
-            if source.suffix.lower() not in MATRIX_SUFFIXES:
-                raise WilocError(source, not_a_traversal(source, "give a folder of images, a video or a descriptor "
-                                                                 "matrix file (.npy, .npz, .csv, .h5)"))
+            _check_matrix_file(source)
             metric = self.metric or recorded_metric(source)
             if metric is None:
                 raise ParameterError("metric", f"{source}: a descriptor matrix file needs a metric (l1, sqeuclidean, "
