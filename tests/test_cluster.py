@@ -143,7 +143,7 @@ def test_a_malformed_scheduler_address_is_a_usage_error(address: str, tmp_path: 
 @pytest.mark.parametrize(("address", "said"), [
     ("tcp://127.0.0.1:99999", "port 99999 is outside 1-65535"),
     ("tcp://127.0.0.1:0", "port 0 is outside 1-65535"),
-    ("local:3", "local takes no count: --jobs sets its workers (--scheduler local --jobs 3)"),
+    ("local:3", "local takes no count: jobs sets its workers (local, with jobs 3)"),
     ("inproc://x", "inproc:// names a scheduler inside this same process, and this process runs none"),
     ("tls://127.0.0.1:1", "tls:// needs Dask's TLS settings"),
     ("wss://127.0.0.1:1", "wss:// needs Dask's TLS settings"),

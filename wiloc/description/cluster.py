@@ -87,8 +87,8 @@ def _check_address(scheduler: str) -> None:
     again = "give tcp://HOST:8786, or local"
     if scheduler.lower().startswith(LOCAL + ":"):
         count = scheduler[len(LOCAL) + 1:]
-        raise ParameterError("scheduler", f"{scheduler!r}: local takes no count: --jobs sets its workers"
-                                          + (f" (--scheduler local --jobs {count})" if count.isdigit() else ""))
+        raise ParameterError("scheduler", f"{scheduler!r}: local takes no count: jobs sets its workers"
+                                          + (f" (local, with jobs {count})" if count.isdigit() else ""))
     try:
         scheme, loc = parse_address(scheduler)
         backend = get_backend(scheme)

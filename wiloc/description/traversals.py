@@ -29,18 +29,22 @@ if TYPE_CHECKING:
 Progress = Callable[[str, int, int], None]
 
 
+_EXTERNAL_IMAGES = (f"'{EXTERNAL}' names descriptors computed elsewhere, which are not described: import their "
+                    "matrix file (api.import_descriptors), or give it to localize as it is")
+
+
 def descriptor_spec(descriptor: str, params: Mapping[str, Any] | None = None, *,
                     images: bool = False) -> DescriptorSpec:
     """The descriptor's spec; an unknown name or parameter is an error naming ``descriptor``, and
     with ``images`` (to describe them) ``external``, whose rows come from a matrix file."""
-    if images and descriptor == EXTERNAL:
-        raise ParameterError("descriptor", f"'{EXTERNAL}' names descriptors computed elsewhere, which are not "
-                                           "described: import their matrix file (api.import_descriptors), or give "
-                                           "it to localize as it is")
+    external = images and descriptor == EXTERNAL  # said after an unknown parameter's name is
     try:
-        return get_descriptor(descriptor, **parameter_values(params, "descriptor_params"))
+        spec = get_descriptor(descriptor, **parameter_values(params, "descriptor_params"))
     except ValueError as exc:
-        raise ParameterError("descriptor", str(exc)) from None
+        raise ParameterError("descriptor", _EXTERNAL_IMAGES if external else str(exc)) from None
+    if external:
+        raise ParameterError("descriptor", _EXTERNAL_IMAGES)
+    return spec
 
 
 def entry_from_array(data: np.ndarray, names: list[str], spec: DescriptorSpec, source: str = "memory") -> Entry:

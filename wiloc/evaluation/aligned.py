@@ -127,7 +127,7 @@ def aligned_truth(query_names: Sequence[str], ref_names: Sequence[str], toleranc
     if not found.any():
         raise TruthMismatch(where, f"none of the {n_query} query frames has a reference frame "
                                 + ("of the same name (to align by position, as a video's frames with a folder's: "
-                                   "--gt aligned:index, TruthSource(kind='aligned', by='index'))" if by == "name"
+                                   "aligned:index, by='index')" if by == "name"
                                    else "at its position"))
     warnings = query_frames_without(where, ~found, "query frames have no reference frame to align with")
     rows, cols = band(np.flatnonzero(found).astype(np.int64), first[found], stop[found])
